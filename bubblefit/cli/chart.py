@@ -1,0 +1,71 @@
+"""``bubblefit chart [--thickness 0:3000:5] [--angle-deg 0] [--model airy] -o CHART.png [--csv OUT]``."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+
+
+def register(sub):
+    p = sub.add_parser("chart", help="interference colour against film thickness (PNG and CSV)",
+                       description="Chart of the film's interference colour against thickness, from a "
+                                   "converged spectral integration (linear sRGB, D65, flat = grey).")
+    p.add_argument("--thickness", default="0:3000:5", help="START:STOP:STEP in nm (default 0:3000:5)")
+    p.add_argument("--angle-deg", type=float, default=0.0, help="angle of incidence in degrees (default 0)")
+    p.add_argument("--model", default="airy", choices=["airy", "two_beam", "paper", "incoherent"])
+    p.add_argument("--n-film", type=float, default=1.4, help="film refractive index (default 1.4)")
+    p.add_argument("-o", "--output", required=True, help="chart image (PNG)")
+    p.add_argument("--csv", help="CSV with columns thickness_nm,r,g,b (linear sRGB reflectance)")
+    p.add_argument("--json", help="write a JSON summary")
+    p.set_defaults(func=run)
+
+
+def parse_range(text: str) -> np.ndarray:
+    try:
+        start, stop, step = (float(x) for x in text.split(":"))
+    except ValueError:
+        raise InputError(f"--thickness must be START:STOP:STEP in nm, got {text!r}") from None
+    if step <= 0 or stop < start or start < 0:
+        raise InputError(f"--thickness {text!r}: need 0 <= START <= STOP and STEP > 0")
+    n = int(np.floor((stop - start) / step + 1e-9)) + 1
+    if n > 200000:
+        raise InputError(f"--thickness {text!r} asks for {n} samples; at most 200000")
+    return start + step * np.arange(n)
+
+
+def run(args) -> int:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..chart import display_scale, interference_colours
+    from ..imageio import atomic_path, srgb_encode
+
+    if not 0 <= args.angle_deg <= 90:
+        raise InputError(f"--angle-deg must be within [0, 90], got {args.angle_deg}")
+    if not 1.0 <= args.n_film <= 3.0:
+        raise InputError(f"--n-film must be within [1, 3], got {args.n_film}")
+    d = parse_range(args.thickness)
+    rgb = interference_colours(d, angle_deg=args.angle_deg, model=args.model, n_film=args.n_film)
+    shown = srgb_encode(rgb * display_scale(args.model, angle_deg=args.angle_deg, n_film=args.n_film))
+    fig, ax = plt.subplots(figsize=(10, 1.8), dpi=120)
+    ax.imshow(shown[None, :, :], aspect="auto", extent=(d[0], d[-1], 0, 1), interpolation="nearest")
+    ax.set_yticks([])
+    ax.set_xlabel("film thickness (nm)")
+    ax.set_title(f"interference colour, {args.model}, n = {args.n_film}, {args.angle_deg:g} deg")
+    fig.tight_layout()
+    with atomic_path(args.output) as tmp:
+        fig.savefig(tmp, format=args.output.rsplit(".", 1)[-1] if "." in args.output else "png")
+    plt.close(fig)
+    if args.csv:
+        with atomic_path(args.csv) as tmp:
+            np.savetxt(tmp, np.column_stack([d, rgb]), delimiter=",", header="thickness_nm,r,g,b",
+                       comments="", fmt="%.10g")
+    print(f"wrote {args.output}" + (f" and {args.csv}" if args.csv else "") + f" ({len(d)} thicknesses)")
+    if args.json:
+        from .common import write_json
+
+        write_json(args.json, {"output": args.output, "csv": args.csv, "samples": len(d), "model": args.model})
+    return 0

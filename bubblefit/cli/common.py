@@ -1,0 +1,40 @@
+"""Helpers shared by the sub-commands."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+
+def _default(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if hasattr(o, "item"):
+        return o.item()
+    raise TypeError(f"cannot write {type(o).__name__} as JSON")
+
+
+def write_json(path, data: dict) -> None:
+    """Write ``data`` as indented JSON, atomically (temporary file, then rename)."""
+    from ..imageio import atomic_path
+
+    with atomic_path(path) as tmp:
+        with open(tmp, "w") as fh:
+            json.dump(data, fh, indent=2, default=_default, allow_nan=True)
+            fh.write("\n")
+
+
+def parse_floats(text: str, n: int, name: str) -> tuple[float, ...]:
+    """Parse ``"a,b,c"`` into ``n`` floats or raise a one-line error naming ``name``."""
+    from ..errors import InputError
+
+    try:
+        vals = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise InputError(f"{name} must be {n} comma-separated numbers, got {text!r}") from None
+    if len(vals) != n:
+        raise InputError(f"{name} must be {n} comma-separated numbers, got {text!r}")
+    return vals

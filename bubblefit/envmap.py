@@ -1,0 +1,283 @@
+"""Equirectangular environment maps: directions, texel solid angles, lookups, mip-maps.
+
+Convention (DESIGN.md, identical to Mitsuba 3's ``envmap`` emitter): for a unit direction
+(x, y, z) in the map's frame, ``u = atan2(x, -z) / (2 pi)`` wrapped to [0, 1) and
+``v = acos(y) / pi``; the bilinear lookup reads column ``u W - 1/2`` (wrapping) and row
+``v (H - 1)`` (clamped), so row 0 is the zenith and row H-1 the nadir. A scene may rotate
+the map about +y by ``rotation`` radians: a world direction ``w`` reads the map at
+``R_y(-rotation) w``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+__all__ = [
+    "EnvMap",
+    "direction_to_uv",
+    "uv_to_direction",
+    "rotate_y",
+    "lookup",
+    "texel_directions",
+    "texel_solid_angles",
+    "downsample",
+    "build_mipmap",
+    "irradiance_map",
+]
+
+
+def _safe_norm_xz(x, z):
+    """sqrt(x^2 + z^2) with a finite gradient at the poles."""
+    r2 = x * x + z * z
+    safe = jnp.where(r2 > 0, r2, 1.0)
+    return jnp.where(r2 > 0, jnp.sqrt(safe), 0.0)
+
+
+def direction_to_uv(d: Float[Array, "... 3"]) -> tuple[Array, Array]:
+    """Map unit directions to (u, v) in [0, 1) x [0, 1] (Mitsuba's equirectangular map).
+
+    ``v`` is computed as ``atan2(sqrt(x^2+z^2), y) / pi`` (equal to ``acos(y)/pi`` for unit
+    vectors) so that values and gradients stay finite at the poles.
+    """
+    x, y, z = d[..., 0], d[..., 1], d[..., 2]
+    # atan2(0, 0) has an undefined gradient: nudge the argument at the poles only.
+    pole = (x == 0) & (z == 0)
+    u = jnp.arctan2(jnp.where(pole, 0.0, x), jnp.where(pole, -1.0, -z)) / (2 * jnp.pi)
+    u = u - jnp.floor(u)
+    v = jnp.arctan2(_safe_norm_xz(x, z), y) / jnp.pi
+    return u, v
+
+
+def uv_to_direction(u: Array, v: Array) -> Float[Array, "... 3"]:
+    """Inverse of :func:`direction_to_uv`."""
+    phi = 2 * jnp.pi * u
+    theta = jnp.pi * v
+    s = jnp.sin(theta)
+    return jnp.stack([s * jnp.sin(phi), jnp.cos(theta), -s * jnp.cos(phi)], axis=-1)
+
+
+def rotate_y(d: Float[Array, "... 3"], angle) -> Float[Array, "... 3"]:
+    """Rotate directions about +y by ``angle`` radians (right-handed)."""
+    c, s = jnp.cos(angle), jnp.sin(angle)
+    x, y, z = d[..., 0], d[..., 1], d[..., 2]
+    return jnp.stack([c * x + s * z, y, -s * x + c * z], axis=-1)
+
+
+def lookup(pixels: Float[Array, "H W C"], d: Float[Array, "... 3"]) -> Float[Array, "... C"]:
+    """Bilinear lookup of an equirectangular map in directions ``d`` (Mitsuba texel positions)."""
+    h, w = pixels.shape[0], pixels.shape[1]
+    u, v = direction_to_uv(d)
+    return lookup_uv(pixels, u, v)
+
+
+def lookup_uv(pixels: Float[Array, "H W C"], u: Array, v: Array) -> Array:
+    """Bilinear lookup at continuous map coordinates (u, v); columns wrap, rows clamp."""
+    h, w = pixels.shape[0], pixels.shape[1]
+    x = u * w - 0.5
+    y = v * (h - 1)
+    x0 = jnp.floor(x)
+    y0 = jnp.clip(jnp.floor(y), 0, max(h - 2, 0))
+    fx = x - x0
+    fy = jnp.clip(y - y0, 0.0, 1.0)
+    x0i = x0.astype(jnp.int32) % w
+    x1i = (x0i + 1) % w
+    y0i = y0.astype(jnp.int32)
+    y1i = jnp.minimum(y0i + 1, h - 1)
+    fx = fx[..., None]
+    fy = fy[..., None]
+    top = pixels[y0i, x0i] * (1 - fx) + pixels[y0i, x1i] * fx
+    bot = pixels[y1i, x0i] * (1 - fx) + pixels[y1i, x1i] * fx
+    return top * (1 - fy) + bot * fy
+
+
+def texel_directions(h: int, w: int) -> np.ndarray:
+    """Direction of each texel centre, (H, W, 3) float64: column j at u = (j + 1/2)/W,
+    row i at v = i/(H - 1). Static geometry, computed in numpy."""
+    phi = 2 * np.pi * (np.arange(w) + 0.5) / w
+    theta = np.pi * np.arange(h) / (h - 1)
+    s = np.sin(theta)[:, None]
+    return np.stack(
+        np.broadcast_arrays(s * np.sin(phi), np.cos(theta)[:, None], -s * np.cos(phi)), axis=-1
+    )
+
+
+def texel_solid_angles(h: int, w: int) -> np.ndarray:
+    """Solid angle of a texel in each row, (H,) float64 (the bands partition the sphere:
+    ``W * sum = 4 pi``). Row i covers polar angles ``pi (i -/+ 1/2)/(H - 1)``, clipped to [0, pi]."""
+    i = np.arange(h)
+    th0 = np.clip((i - 0.5) / (h - 1), 0.0, 1.0) * np.pi
+    th1 = np.clip((i + 0.5) / (h - 1), 0.0, 1.0) * np.pi
+    return (np.cos(th0) - np.cos(th1)) * (2 * np.pi / w)
+
+
+def downsample(pixels: np.ndarray) -> np.ndarray:
+    """Halve an equirectangular map in both directions, weighting rows by solid angle.
+
+    Texel rows are grouped in pairs (the last row joins the previous pair when H is odd),
+    columns in pairs; each output texel is the solid-angle weighted mean of its group, so
+    the map's total power is preserved.
+    """
+    pixels = np.asarray(pixels, dtype=np.float64)
+    h, w, c = pixels.shape
+    sa = texel_solid_angles(h, w)
+    if w % 2:
+        pixels = np.concatenate([pixels, pixels[:, :1]], axis=1)
+        w += 1
+    cols = 0.5 * (pixels[:, 0::2] + pixels[:, 1::2])
+    h2 = max(h // 2, 2)
+    groups = np.array_split(np.arange(h), h2)
+    out = np.empty((h2, w // 2, c))
+    for k, g in enumerate(groups):
+        wts = sa[g] + 1e-30
+        out[k] = np.tensordot(wts / wts.sum(), cols[g], axes=(0, 0))
+    return out
+
+
+def build_mipmap(pixels: np.ndarray, min_height: int = 4) -> list[np.ndarray]:
+    """Mip pyramid of an equirectangular map: level 0 is the map, each next is halved."""
+    levels = [np.asarray(pixels, dtype=np.float64)]
+    while levels[-1].shape[0] // 2 >= min_height:
+        levels.append(downsample(levels[-1]))
+    return levels
+
+
+def irradiance_map(pixels: np.ndarray, out_height: int = 32, src_height: int = 64) -> np.ndarray:
+    """Irradiance ``E(n) = sum_i L_i max(0, n . w_i) dOmega_i`` on an equirectangular grid of normals.
+
+    The cosine-weighted integral is smooth in ``n``, so it is computed exactly on a
+    downsampled copy of the map (power-preserving :func:`downsample`) and tabulated at
+    ``out_height x 2 out_height`` normals, to be read back with :func:`lookup`.
+    The diffuse term of Ward's BRDF, ``r_d / pi * E(n)`` (eq. 1 with eq. 4), is read from
+    this table so that it is never lost outside a filtering window (sec. 3.2).
+    """
+    src = np.asarray(pixels, dtype=np.float64)
+    while src.shape[0] > src_height:
+        src = downsample(src)
+    hs, ws = src.shape[:2]
+    dirs = texel_directions(hs, ws).reshape(-1, 3)
+    sa = np.repeat(texel_solid_angles(hs, ws), ws)
+    rad = src.reshape(-1, src.shape[2]) * sa[:, None]
+    normals = texel_directions(out_height, 2 * out_height).reshape(-1, 3)
+    cos = np.maximum(normals @ dirs.T, 0.0)
+    return (cos @ rad).reshape(out_height, 2 * out_height, src.shape[2])
+
+
+def lookup_levels(atlas, shapes: tuple, d: Float[Array, "... 3"], level) -> Float[Array, "... C"]:
+    """Bilinear lookup in the mip level ``level`` (integer array broadcast against ``d``'s
+    leading axes) of a pyramid packed into one ``atlas`` of shape (sum of H_l W_l, C).
+
+    One gather serves every level, so a dynamic (even traced) level costs the same as a
+    fixed one.
+    """
+    hs = jnp.asarray([s[0] for s in shapes], dtype=jnp.int32)
+    ws = jnp.asarray([s[1] for s in shapes], dtype=jnp.int32)
+    offs = jnp.asarray(np.cumsum([0] + [s[0] * s[1] for s in shapes[:-1]]), dtype=jnp.int32)
+    level = jnp.broadcast_to(level, d.shape[:-1])
+    h, w, off = hs[level], ws[level], offs[level]
+    u, v = direction_to_uv(d)
+    x = u * w - 0.5
+    y = v * (h - 1)
+    x0 = jnp.floor(x)
+    y0 = jnp.clip(jnp.floor(y), 0, h - 2)
+    fx = (x - x0)[..., None]
+    fy = jnp.clip(y - y0, 0.0, 1.0)[..., None]
+    x0i = x0.astype(jnp.int32) % w
+    x1i = (x0i + 1) % w
+    y0i = y0.astype(jnp.int32)
+    y1i = jnp.minimum(y0i + 1, h - 1)
+    at = lambda yy, xx: atlas[off + yy * w + xx]
+    top = at(y0i, x0i) * (1 - fx) + at(y0i, x1i) * fx
+    bot = at(y1i, x0i) * (1 - fx) + at(y1i, x1i) * fx
+    return top * (1 - fy) + bot * fy
+
+
+class EnvMap(eqx.Module):
+    """An environment map with what filtering needs precomputed.
+
+    Attributes:
+        pixels: (H, W, 3) linear radiance.
+        atlas: the mip pyramid (level 0 = ``pixels``, each next halved) packed row-major
+            into one (sum H_l W_l, 3) array, read with :func:`lookup_levels`.
+        shapes: the (H_l, W_l) of each level (static).
+        irradiance: (h, 2h, 3) irradiance table for the diffuse term.
+    """
+
+    pixels: Array
+    atlas: Array
+    irradiance: Array
+    shapes: tuple = eqx.field(static=True)
+
+    @staticmethod
+    def from_array(pixels, *, dtype=jnp.float32, sanitize: bool = True) -> "EnvMap":
+        """Build from a linear (H, W, 3) array with W = 2H.
+
+        With ``sanitize`` (default), NaN/Inf/negative texels are replaced by 0 so that a
+        damaged map cannot poison every pixel through the filters.
+        """
+        px = np.asarray(pixels, dtype=np.float64)
+        if px.ndim != 3 or px.shape[2] != 3:
+            raise ValueError(f"environment map must be (H, W, 3), got {px.shape}")
+        if sanitize:
+            px = np.where(np.isfinite(px), np.maximum(px, 0.0), 0.0)
+        mips = build_mipmap(px)
+        irr = irradiance_map(px)
+        atlas = np.concatenate([m.reshape(-1, m.shape[2]) for m in mips])
+        return EnvMap(
+            pixels=jnp.asarray(px, dtype=dtype),
+            atlas=jnp.asarray(atlas, dtype=dtype),
+            irradiance=jnp.asarray(irr, dtype=dtype),
+            shapes=tuple((m.shape[0], m.shape[1]) for m in mips),
+        )
+
+    @staticmethod
+    def constant(value=1.0, height: int = 64, dtype=jnp.float32) -> "EnvMap":
+        """A uniform environment (the white furnace for value = 1)."""
+        val = np.broadcast_to(np.asarray(value, dtype=np.float64), (3,))
+        return EnvMap.from_array(np.broadcast_to(val, (height, 2 * height, 3)).copy(), dtype=dtype)
+
+    @property
+    def height(self) -> int:
+        return self.pixels.shape[0]
+
+    @property
+    def width(self) -> int:
+        return self.pixels.shape[1]
+
+    @property
+    def levels(self) -> int:
+        return len(self.shapes)
+
+    @property
+    def texel_angle(self) -> float:
+        """Angular size of one texel at the equator (radians)."""
+        return math.pi / (self.height - 1)
+
+    def level(self, i: int) -> Array:
+        """Mip level ``i`` as an (H_i, W_i, 3) array (a static slice of the atlas)."""
+        i = min(i, self.levels - 1)
+        off = sum(h * w for h, w in self.shapes[:i])
+        h, w = self.shapes[i]
+        return self.atlas[off: off + h * w].reshape(h, w, -1)
+
+    def lookup(self, d: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
+        return lookup(self.pixels, d)
+
+    def lookup_level(self, d: Float[Array, "... 3"], level) -> Float[Array, "... 3"]:
+        """Trilinear lookup at a continuous mip ``level`` (broadcast against ``d``)."""
+        level = jnp.clip(level, 0.0, self.levels - 1.0)
+        l0 = jnp.floor(level)
+        frac = (level - l0)[..., None] if jnp.ndim(level) else level - l0
+        l0 = l0.astype(jnp.int32)
+        l1 = jnp.minimum(l0 + 1, self.levels - 1)
+        a = lookup_levels(self.atlas, self.shapes, d, l0)
+        b = lookup_levels(self.atlas, self.shapes, d, l1)
+        return a * (1 - frac) + b * frac
+
+    def lookup_irradiance(self, n: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
+        return lookup(self.irradiance, n)

@@ -1,0 +1,149 @@
+"""Cameras and ray-sphere geometry of a bubble: front and rear films and internal bounces.
+
+A bubble is a sphere of centre ``c`` and radius ``R``. A camera ray ``o + s d`` that hits
+it enters at the front film ``p0`` and meets the rear film at ``p1``; by the symmetry of
+the chord, both hits (and every further internal bounce) see the film at the same
+incidence angle, ``cos th = sqrt(b^2 - |o - c|^2 + R^2) / R`` with ``b = (o - c) . d``.
+
+Cameras (DESIGN.md): ``orthographic`` looks along -z; the bubble's disc has centre
+``(cx, cy)`` and radius ``r`` in pixels. ``perspective`` has an origin, a target, an up
+vector and a horizontal field of view ``fov_deg`` (Mitsuba's default axis).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+__all__ = [
+    "OrthographicCamera",
+    "PerspectiveCamera",
+    "Hits",
+    "intersect_sphere",
+    "internal_bounce",
+]
+
+
+@dataclass(frozen=True)
+class OrthographicCamera:
+    """Orthographic camera looking along -z at a bubble seen as a disc ``(cx, cy, r)`` pixels.
+
+    Pixel ``(i, j)`` (row, column; centre at ``j + 1/2, i + 1/2``) shoots the ray with
+    origin ``c + R ((j + 1/2 - cx)/r, -(i + 1/2 - cy)/r, 4)`` and direction ``(0, 0, -1)``.
+    """
+
+    width: int = 256
+    height: int = 256
+    cx: float | None = None
+    cy: float | None = None
+    r: float | None = None
+
+    def disc(self) -> tuple[float, float, float]:
+        cx = self.width / 2 if self.cx is None else self.cx
+        cy = self.height / 2 if self.cy is None else self.cy
+        r = 0.4 * min(self.width, self.height) if self.r is None else self.r
+        return float(cx), float(cy), float(r)
+
+    def rays(self, rows: Array, cols: Array, center, radius):
+        cx, cy, r = self.disc()
+        x = (cols + 0.5 - cx) / r
+        y = -(rows + 0.5 - cy) / r
+        o = jnp.stack([x, y, jnp.full_like(x, 4.0)], axis=-1) * radius + jnp.asarray(center)
+        d = jnp.broadcast_to(jnp.asarray([0.0, 0.0, -1.0], dtype=o.dtype), o.shape)
+        return o, d
+
+
+@dataclass(frozen=True)
+class PerspectiveCamera:
+    """Pinhole camera with a horizontal field of view (Mitsuba's ``fov_axis = "x"``)."""
+
+    width: int = 256
+    height: int = 256
+    origin: tuple = (0.0, 0.0, 4.0)
+    target: tuple = (0.0, 0.0, 0.0)
+    up: tuple = (0.0, 1.0, 0.0)
+    fov_deg: float = 35.0
+
+    def basis(self):
+        o = np.asarray(self.origin, dtype=np.float64)
+        fwd = np.asarray(self.target, dtype=np.float64) - o
+        fwd /= np.linalg.norm(fwd)
+        right = np.cross(fwd, np.asarray(self.up, dtype=np.float64))
+        right /= np.linalg.norm(right)
+        up = np.cross(right, fwd)
+        return o, fwd, right, up
+
+    def rays(self, rows: Array, cols: Array, center=None, radius=None):
+        o, fwd, right, up = self.basis()
+        tan_half = math.tan(math.radians(self.fov_deg) / 2)
+        x = (2 * (cols + 0.5) / self.width - 1) * tan_half
+        y = (1 - 2 * (rows + 0.5) / self.height) * tan_half * self.height / self.width
+        d = x[..., None] * right + y[..., None] * up + fwd
+        d = d / jnp.linalg.norm(d, axis=-1, keepdims=True)
+        return jnp.broadcast_to(jnp.asarray(o, dtype=d.dtype), d.shape), d
+
+
+@dataclass
+class Hits:
+    """Ray-sphere hits for a batch of rays (all arrays have a leading axis N).
+
+    Attributes:
+        inside: (N,) True where the ray hits the bubble.
+        cos: (N,) cosine of the incidence angle on the films (the same at every hit).
+        p0, n0: front hit point and outward normal.
+        p1, n1: rear hit point and outward normal.
+        d: (N, 3) ray direction (the background direction).
+        local0, local1: front/rear hit points relative to the centre over the radius.
+    """
+
+    inside: Array
+    cos: Array
+    p0: Array
+    n0: Array
+    p1: Array
+    n1: Array
+    d: Array
+    local0: Array
+    local1: Array
+
+
+def intersect_sphere(o: Float[Array, "N 3"], d: Float[Array, "N 3"], center, radius) -> Hits:
+    """Both intersections of rays with the bubble's sphere, safe for rays that miss it.
+
+    Rays that miss (or graze) get ``inside = False``, ``cos = 0`` and the hit points of the
+    closest approach, so every output stays finite and differentiable.
+    """
+    c = jnp.asarray(center, dtype=o.dtype)
+    oc = o - c
+    b = jnp.sum(oc * d, axis=-1)
+    disc = b * b - (jnp.sum(oc * oc, axis=-1) - radius * radius)
+    inside = disc > 0
+    root = jnp.sqrt(jnp.where(inside, disc, 1.0))
+    root = jnp.where(inside, root, 0.0)
+    s0 = -b - root
+    s1 = -b + root
+    p0 = o + s0[:, None] * d
+    p1 = o + s1[:, None] * d
+    local0 = (p0 - c) / radius
+    local1 = (p1 - c) / radius
+    cos = jnp.clip(root / radius, 0.0, 1.0)
+    return Hits(inside=inside, cos=cos, p0=p0, n0=local0, p1=p1, n1=local1, d=d, local0=local0, local1=local1)
+
+
+def internal_bounce(p: Float[Array, "N 3"], e: Float[Array, "N 3"], center, radius):
+    """Follow a ray inside the sphere from ``p`` (on the sphere) along ``e`` to its next hit
+    ``q`` and reflect it there: returns ``(q, reflected direction, unit local position of q)``.
+
+    The chord length is ``-2 (p - c) . e``; the reflection about the inward normal keeps
+    the same incidence angle, the property the ``physical`` compositing relies on.
+    """
+    c = jnp.asarray(center, dtype=p.dtype)
+    pc = p - c
+    q = p + (-2.0 * jnp.sum(pc * e, axis=-1))[:, None] * e
+    nq = (q - c) / radius
+    e2 = e - 2.0 * jnp.sum(e * nq, axis=-1)[:, None] * nq
+    return q, e2, nq

@@ -1,0 +1,253 @@
+"""Image input and output through OpenImageIO, with sRGB transfer through colour-science.
+
+Conventions (DESIGN.md): images in memory are ``float`` arrays of shape (H, W, 3) holding
+linear radiance. 8- and 16-bit files (PNG, JPEG, TIFF) are sRGB-encoded unless told
+otherwise; EXR and HDR files, and float TIFFs, are linear. Writers are atomic: they write
+to a temporary file beside the target and rename it, so a failed run never leaves a
+half-written file nor destroys an existing one.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import colour
+import numpy as np
+import OpenImageIO as oiio
+
+from .errors import InputError
+
+__all__ = [
+    "Image",
+    "read_image",
+    "write_image",
+    "write_preview",
+    "srgb_decode",
+    "srgb_encode",
+    "atomic_path",
+]
+
+_LINEAR_EXTENSIONS = {".exr", ".hdr", ".pfm"}
+
+
+def srgb_decode(values: np.ndarray) -> np.ndarray:
+    """sRGB-encoded values in [0, 1] to linear (IEC 61966-2-1, via colour-science)."""
+    return np.asarray(colour.cctf_decoding(np.clip(values, 0.0, 1.0), function="sRGB"))
+
+
+def srgb_encode(values: np.ndarray) -> np.ndarray:
+    """Linear values to sRGB-encoded values in [0, 1] (IEC 61966-2-1, via colour-science)."""
+    return np.asarray(colour.cctf_encoding(np.clip(values, 0.0, 1.0), function="sRGB"))
+
+
+@dataclass
+class Image:
+    """A linear RGB image with what its file said about it.
+
+    Attributes:
+        pixels: (H, W, 3) float64 linear radiance.
+        path: where it was read from.
+        bit_depth: 8, 16 or 32 (float) as stored in the file.
+        linear_file: True when the file held linear values (EXR, HDR, float TIFF).
+        saturated: (H, W) bool, pixels where any channel reached the file's maximum
+            code value (meaningful for integer files only).
+        metadata: the file's attributes (EXIF and others) as a dict of strings/numbers.
+        alpha_dropped: True when an alpha channel was present and ignored.
+        was_gray: True when the file had one channel that was replicated to three.
+    """
+
+    pixels: np.ndarray
+    path: str = ""
+    bit_depth: int = 32
+    linear_file: bool = True
+    saturated: np.ndarray | None = None
+    metadata: dict = field(default_factory=dict)
+    alpha_dropped: bool = False
+    was_gray: bool = False
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.pixels.shape[0], self.pixels.shape[1]
+
+
+def read_image(path: str | os.PathLike, *, linear: bool | None = None) -> Image:
+    """Read an image file as linear RGB.
+
+    Args:
+        path: any format OpenImageIO reads (EXR, HDR, PNG, JPEG, TIFF, ...).
+        linear: force the interpretation of integer files (True: already linear,
+            False: sRGB). ``None`` decides from the file: integer data are sRGB unless
+            the file's colour space attribute says linear; float data are linear.
+
+    Raises:
+        InputError: the file is missing, unreadable, truncated, has no pixels, has an
+            unusable channel count, or holds NaN/Inf values.
+    """
+    path = str(path)
+    if not os.path.exists(path):
+        raise InputError(f"image not found: {path}")
+    if os.path.isdir(path):
+        raise InputError(f"expected an image file, got a folder: {path}")
+    inp = oiio.ImageInput.open(path)
+    if inp is None:
+        msg = oiio.geterror().strip().splitlines()
+        raise InputError(f"cannot read image {path}: {msg[0] if msg else 'unknown format'}")
+    try:
+        spec = inp.spec()
+        if spec.width <= 0 or spec.height <= 0:
+            raise InputError(f"image {path} has no pixels")
+        fmt = spec.format.basetype
+        if fmt in (oiio.UINT8, oiio.INT8):
+            bit_depth, native = 8, oiio.UINT8
+        elif fmt in (oiio.UINT16, oiio.INT16):
+            bit_depth, native = 16, oiio.UINT16
+        else:
+            bit_depth, native = 32, oiio.FLOAT
+        data = inp.read_image(0, 0, 0, spec.nchannels, native)
+        metadata = {}
+        for attrib in spec.extra_attribs:
+            try:
+                metadata[attrib.name] = attrib.value
+            except Exception:  # attributes of exotic types are not needed
+                pass
+        err = inp.geterror()
+    finally:
+        inp.close()
+    if data is None or (isinstance(data, np.ndarray) and data.size == 0):
+        raise InputError(f"cannot read pixels of {path}: {err.strip() or 'truncated or corrupt file'}")
+    if err and "corrupt" in err.lower():
+        raise InputError(f"cannot read pixels of {path}: {err.strip().splitlines()[0]}")
+    data = np.asarray(data)
+    if data.ndim == 2:
+        data = data[:, :, None]
+    nch = data.shape[2]
+    alpha_dropped = False
+    was_gray = False
+    if nch == 1 or nch == 2:
+        was_gray = True
+        alpha_dropped = nch == 2
+        data = np.repeat(data[:, :, :1], 3, axis=2)
+    elif nch >= 4:
+        alpha_dropped = True
+        data = data[:, :, :3]
+    elif nch != 3:
+        raise InputError(f"image {path} has {nch} channels; expected 1 (gray), 3 (RGB) or 4 (RGBA)")
+
+    if bit_depth in (8, 16):
+        maxcode = 255.0 if bit_depth == 8 else 65535.0
+        raw = data.astype(np.float64) / maxcode
+        saturated = np.any(data >= maxcode, axis=2)
+        colorspace = str(metadata.get("oiio:ColorSpace", "")).lower()
+        is_linear = linear if linear is not None else ("linear" in colorspace)
+        pixels = raw if is_linear else srgb_decode(raw)
+    else:
+        pixels = data.astype(np.float64)
+        saturated = np.zeros(pixels.shape[:2], dtype=bool)
+        is_linear = True if linear is None else linear
+        if not is_linear:
+            pixels = srgb_decode(pixels)
+    if not np.all(np.isfinite(pixels)):
+        bad = int(np.sum(~np.isfinite(pixels).all(axis=2)))
+        raise InputError(f"image {path} has {bad} pixel(s) with NaN or Inf values")
+    return Image(
+        pixels=pixels,
+        path=path,
+        bit_depth=bit_depth,
+        linear_file=bool(is_linear),
+        saturated=saturated,
+        metadata=metadata,
+        alpha_dropped=alpha_dropped,
+        was_gray=was_gray,
+    )
+
+
+class atomic_path:
+    """Context manager yielding a temporary path that replaces ``target`` on success.
+
+    The temporary file lives in the target's folder (so the rename is atomic) and keeps
+    the target's extension (so OpenImageIO picks the right format). On an exception the
+    temporary file is removed and the target is left as it was.
+    """
+
+    def __init__(self, target: str | os.PathLike):
+        self.target = Path(target)
+
+    def __enter__(self) -> str:
+        folder = self.target.parent if str(self.target.parent) else Path(".")
+        if not folder.exists():
+            raise InputError(f"cannot write {self.target}: folder {folder} does not exist")
+        if not os.access(folder, os.W_OK):
+            raise InputError(f"cannot write {self.target}: folder {folder} is not writable")
+        fd, tmp = tempfile.mkstemp(
+            prefix=f".{self.target.stem}.", suffix=self.target.suffix or ".tmp", dir=folder
+        )
+        os.close(fd)
+        self.tmp = tmp
+        return tmp
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        if exc_type is None:
+            os.replace(self.tmp, self.target)
+        else:
+            try:
+                os.remove(self.tmp)
+            except OSError:
+                pass
+        return False
+
+
+def write_image(path: str | os.PathLike, pixels: np.ndarray, *, bit_depth: int | None = None) -> None:
+    """Write a linear image atomically.
+
+    EXR/HDR files get linear float (half for EXR unless ``bit_depth=32``); PNG, JPEG and
+    TIFF files get sRGB-encoded 8-bit (or 16-bit with ``bit_depth=16``) values.
+    NaN pixels (e.g. outside the bubble in a thickness map) are kept in float files and
+    written as 0 in integer files.
+    """
+    path = Path(path)
+    pixels = np.asarray(pixels, dtype=np.float32)
+    if pixels.ndim == 2:
+        pixels = pixels[:, :, None]
+    h, w, c = pixels.shape
+    ext = path.suffix.lower()
+    if ext in _LINEAR_EXTENSIONS or (ext in (".tif", ".tiff") and bit_depth == 32):
+        fmt = oiio.HALF if (ext == ".exr" and bit_depth != 32) else oiio.FLOAT
+        if ext == ".hdr":
+            fmt = oiio.FLOAT
+        data = pixels
+    else:
+        depth = bit_depth or 8
+        if depth not in (8, 16):
+            raise InputError(f"cannot write {path}: {depth}-bit integer output is not supported")
+        maxcode = 255 if depth == 8 else 65535
+        enc = srgb_encode(np.nan_to_num(pixels, nan=0.0))
+        data = np.round(enc * maxcode).astype(np.uint8 if depth == 8 else np.uint16)
+        fmt = oiio.UINT8 if depth == 8 else oiio.UINT16
+    spec = oiio.ImageSpec(w, h, c, fmt)
+    if ext in (".jpg", ".jpeg"):
+        spec.attribute("Compression", "jpeg:95")
+    with atomic_path(path) as tmp:
+        out = oiio.ImageOutput.create(tmp)
+        if out is None:
+            raise InputError(f"cannot write {path}: {oiio.geterror().strip() or 'unsupported format'}")
+        ok = out.open(tmp, spec)
+        if not ok:
+            raise InputError(f"cannot write {path}: {out.geterror().strip()}")
+        ok = out.write_image(np.ascontiguousarray(data))
+        out.close()
+        if not ok:
+            raise InputError(f"cannot write {path}: {out.geterror().strip()}")
+
+
+def write_preview(path: str | os.PathLike, pixels: np.ndarray, *, exposure: float = 1.0) -> None:
+    """Write an 8-bit sRGB PNG preview of a linear image (values clipped to [0, 1])."""
+    write_image(path, np.asarray(pixels) * exposure)
+
+
+def preview_path(exr_path: str | os.PathLike) -> Path:
+    """The PNG preview that goes with an EXR output: same name, ``.png`` extension."""
+    p = Path(exr_path)
+    return p.with_suffix(".png") if p.suffix.lower() != ".png" else p.with_name(p.stem + "_preview.png")

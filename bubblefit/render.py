@@ -1,0 +1,332 @@
+"""Compositing the bubble: eqs. (2), (3), (10), (11) (``paper``) and the ``physical`` variant.
+
+``paper`` (eq. 11), per pixel whose ray hits the bubble:
+
+    ``I = F_0 L'_front + t^2 F_1 L'_rear + t^4 L_b``,
+
+with ``L'`` Ward-filtered radiance at the front film (normal ``n0``) and at the rear film
+(inward normal ``-n1``), ``F = 4 t^2 cos^2(delta/2)`` the interference factor of eq. (10)
+integrated over the spectrum (``F = 1`` without interference), and ``L_b`` the background
+straight through. Point lights add eq. (3)'s BRDF values to ``L'`` (eq. 2).
+
+``physical`` (DESIGN.md): per wavelength and polarisation, the film reflects ``R`` (Airy,
+two-beam, or incoherent) and transmits ``T = 1 - R``; the front reflection is ``R_0``,
+the background ``T_0 T_1``, and the k-th internal bounce adds ``T_0 R_1 ... R_k T_(k+1)``
+times the radiance filtered at the k-th bounce. Every bounce meets the film at the same
+angle. Polarisations are averaged after the products, then the spectrum is integrated.
+Ward's lobe is normalised here (shape only) and ``r_d / pi E(n)`` adds a diffuse term.
+
+A term whose effect is off is not traced at all: the Python ``if`` statements below run
+at trace time on the static :class:`~bubblefit.effects.Effects`, and each term function
+records that it was traced in :data:`TRACE_COUNTS` (tests use it to check that skipped
+effects are really skipped).
+"""
+
+from __future__ import annotations
+
+import collections
+import functools
+from dataclasses import dataclass, field
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from . import film, spectral
+from .brdf import ward_lobe
+from .effects import Effects
+from .envmap import EnvMap, rotate_y
+from .filtering import irradiance, reflect, specular
+from .geometry import OrthographicCamera, PerspectiveCamera, internal_bounce, intersect_sphere
+from .thickness import thickness_at
+
+__all__ = ["Params", "RenderConfig", "render", "render_terms", "TRACE_COUNTS", "PointLight"]
+
+#: How many times each term of the model has been traced (for tests of ``effects``).
+TRACE_COUNTS: collections.Counter = collections.Counter()
+
+
+class Params(eqx.Module):
+    """Differentiable parameters of the forward model (scalars unless said otherwise).
+
+    Attributes:
+        t: transmission fraction per interface (paper; 0..1).
+        r_d, r_s: Ward's diffuse and specular reflectance (eq. 1, eq. 14).
+        roughness: Ward's ``a``.
+        thickness: film thickness parameters in nm (see :mod:`bubblefit.thickness`).
+        n_film: refractive index of the film (``n_g``).
+        exposure: camera gain applied to the rendered radiance.
+        rotation: environment rotation about +y, radians.
+    """
+
+    t: Array
+    r_d: Array
+    r_s: Array
+    roughness: Array
+    thickness: Array
+    n_film: Array
+    exposure: Array
+    rotation: Array
+
+    @staticmethod
+    def make(t=0.972, r_d=None, r_s=None, f=0.3, roughness=0.01, thickness=500.0, n_film=1.4,
+             exposure=1.0, rotation=0.0, dtype=jnp.float32) -> "Params":
+        """Parameters with eq. (14): ``r_d + r_s = 1 - t`` and ``f = r_d / r_s`` unless both given."""
+        if r_d is None or r_s is None:
+            r_s = (1.0 - t) / (1.0 + f)
+            r_d = (1.0 - t) - r_s
+        cast = lambda v: jnp.asarray(v, dtype=dtype)
+        return Params(cast(t), cast(r_d), cast(r_s), cast(roughness), cast(thickness), cast(n_film),
+                      cast(exposure), cast(rotation))
+
+
+@dataclass(frozen=True)
+class PointLight:
+    """A distant light: unit ``direction`` towards the light, ``irradiance`` (RGB) it
+    delivers to a surface facing it."""
+
+    direction: tuple
+    irradiance: tuple
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """Everything static about a render (hashable: it is part of the compiled program)."""
+
+    effects: Effects
+    camera: OrthographicCamera | PerspectiveCamera = OrthographicCamera()
+    center: tuple = (0.0, 0.0, 0.0)
+    radius: float = 1.0
+    point_lights: tuple = ()
+    chunk: int = 4096
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.camera.height, self.camera.width
+
+
+def _count(name):
+    TRACE_COUNTS[name] += 1
+
+
+def _lights_radiance(lights, n, wo, p: Params, *, normalize: bool, diffuse: bool):
+    """Eq. (3): the BRDF of eq. (1) for each distant light, times its irradiance and cosine."""
+    _count("point_lights")
+    cos_r = jnp.sum(n * wo, axis=-1)
+    out = 0.0
+    for light in lights:
+        l = jnp.asarray(light.direction, dtype=n.dtype)
+        l = l / jnp.linalg.norm(l)
+        e = jnp.asarray(light.irradiance, dtype=n.dtype)
+        cos_i = n @ l
+        h = wo + l
+        h = h / jnp.linalg.norm(h, axis=-1, keepdims=True).clip(1e-12)
+        cos_h = jnp.sum(n * h, axis=-1)
+        lobe = ward_lobe(cos_i, cos_r, cos_h, p.roughness) * jnp.maximum(cos_i, 0.0)
+        spec = lobe if normalize else p.r_s * lobe
+        val = spec
+        if diffuse:
+            val = val + p.r_d / jnp.pi * jnp.maximum(cos_i, 0.0) * (cos_r > 0)
+        out = out + val[:, None] * e
+    return out
+
+
+class _Film:
+    """Per-hit film optics for one chunk: spectral (N, K, 2) or grey (N, 1, 2) arrays."""
+
+    def __init__(self, fx: Effects, p: Params, cos, lam):
+        self.fx, self.p, self.cos, self.lam = fx, p, cos, lam
+
+    def reflectance(self, d):
+        """Film reflectance R for thicknesses ``d`` (N,), shape (N, K, 2)."""
+        mode = self.fx.interference
+        cos = self.cos[:, None]
+        if mode == "airy":
+            _count("interference")
+            return film.airy_reflectance(d[:, None], self.lam, self.p.n_film, cos)
+        if mode == "two_beam":
+            _count("interference")
+            return film.two_beam_reflectance(d[:, None], self.lam, self.p.n_film, cos)
+        return film.incoherent_reflectance(cos, self.p.n_film)
+
+    def paper_factor(self, d):
+        """Eq. (10)'s factor ``4 t^2 cos^2(delta/2)``, shape (N, K)."""
+        _count("interference")
+        return film.paper_interference_factor(d[:, None], self.lam, self.p.n_film, self.cos[:, None], self.p.t)
+
+
+def _to_rgb(spec_nk, fx: Effects, dtype):
+    """Integrate (N, K) over the spectrum, or broadcast a grey (N, 1) factor to RGB."""
+    if spec_nk.shape[-1] == 1:
+        return jnp.broadcast_to(spec_nk, spec_nk.shape[:-1] + (3,))
+    _count("spectral")
+    return spectral.integrate(spec_nk, fx.spectral)
+
+
+def _reflected(env, fx: Effects, cfg: RenderConfig, p: Params, n, wo, *, normalize):
+    """Filtered specular radiance and diffuse radiance at a film (world-frame n, wo)."""
+    spec = 0.0
+    diff = 0.0
+    if fx.environment:
+        nm = rotate_y(n, -p.rotation)
+        wm = rotate_y(wo, -p.rotation)
+        _count(f"filter_{fx.filtering.method}")
+        spec = specular(env, nm, wm, p.roughness, fx.filtering, normalize=normalize)
+        if fx.diffuse:
+            _count("diffuse")
+            diff = p.r_d / jnp.pi * irradiance(env, nm)
+    if fx.point_lights and cfg.point_lights:
+        lights = _lights_radiance(cfg.point_lights, n, wo, p, normalize=normalize, diffuse=False)
+        spec = spec + lights
+        if fx.diffuse:
+            _count("diffuse")
+            cos_r = jnp.sum(n * wo, axis=-1)
+            for light in cfg.point_lights:
+                l = jnp.asarray(light.direction, dtype=n.dtype)
+                l = l / jnp.linalg.norm(l)
+                e = jnp.asarray(light.irradiance, dtype=n.dtype)
+                diff = diff + (p.r_d / jnp.pi * jnp.maximum(n @ l, 0.0) * (cos_r > 0))[:, None] * e
+    return spec, diff
+
+
+def _background(env, fx, p: Params, d, bg, idx):
+    if fx.background == "photo":
+        return bg.reshape(-1, 3)[idx]
+    if fx.background == "envmap" and fx.environment:
+        _count("background_lookup")
+        return env.lookup(rotate_y(d, -p.rotation))
+    return jnp.zeros(d.shape, dtype=d.dtype)
+
+
+def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx):
+    """Radiance (N, 3) of one chunk of pixels: a dict of the model's terms, and the total."""
+    fx = cfg.effects
+    dtype = p.t.dtype
+    rows = rows.astype(dtype)
+    cols = cols.astype(dtype)
+    o, d = cfg.camera.rays(rows, cols, cfg.center, cfg.radius)
+    hits = intersect_sphere(o, d, cfg.center, cfg.radius)
+    lam = jnp.asarray(fx.spectral.wavelengths, dtype=dtype) if fx.spectral is not None else None
+    opt = _Film(fx, p, hits.cos, lam)
+    wo = -d
+    bg_rad = _background(env, fx, p, d, bg, idx)
+    photo_bg = fx.background == "photo"
+    terms = {}
+    thick = lambda local: thickness_at(fx.thickness, p.thickness, local, idx)
+    d0 = thick(hits.local0)
+    d1 = thick(hits.local1)
+    zero = jnp.zeros(d.shape, dtype=dtype)
+
+    # Shading points of every film this scene needs, filtered in one batch.
+    films = []  # (name, normal, direction to the viewer)
+    if fx.front_reflection:
+        films.append(("front", hits.n0, wo))
+    bounce_pts = []  # physical: (thickness at the exit point) per internal bounce
+    if fx.rear_reflection:
+        if fx.model == "paper":
+            films.append(("rear", -hits.n1, wo))
+        else:
+            pos, e, n_in = hits.p1, d, -hits.n1
+            for k in range(1, fx.bounces + 1):
+                _count("bounce")
+                q, e_next, nq = internal_bounce(pos, e, cfg.center, cfg.radius)
+                films.append((f"bounce{k}", n_in, -e))
+                bounce_pts.append(nq)
+                pos, e, n_in = q, e_next, -nq
+    if films:
+        nn = len(films)
+        s_all, d_all = _reflected(env, fx, cfg, p, jnp.concatenate([f[1] for f in films]),
+                                  jnp.concatenate([f[2] for f in films]), normalize=fx.model == "physical")
+        split = lambda x: jnp.split(x, nn) if jnp.ndim(x) else [x] * nn
+        refl = dict(zip([f[0] for f in films], zip(split(s_all), split(d_all))))
+
+    if fx.model == "paper":
+        t2 = p.t * p.t
+        if fx.front_reflection:
+            _count("front_reflection")
+            s, dif = refl["front"]
+            lp = p.r_s * s + dif
+            if fx.interference != "off":
+                lp = _to_rgb(opt.paper_factor(d0), fx, dtype) * lp
+            terms["front"] = p.exposure * lp
+        if fx.rear_reflection:
+            _count("rear_reflection")
+            s, dif = refl["rear"]
+            lp = p.r_s * s + dif
+            if fx.interference != "off":
+                lp = _to_rgb(opt.paper_factor(d1), fx, dtype) * lp
+            terms["rear"] = p.exposure * t2 * lp
+        if fx.transmission:
+            _count("transmission")
+            gain = 1.0 if photo_bg else p.exposure
+            terms["background"] = gain * t2 * t2 * bg_rad
+    else:
+        r0 = opt.reflectance(d0)
+        t0 = 1.0 - r0
+        mean_pol = lambda x: jnp.mean(x, axis=-1)
+        if fx.front_reflection:
+            _count("front_reflection")
+            s, dif = refl["front"]
+            terms["front"] = p.exposure * (_to_rgb(mean_pol(r0), fx, dtype) * s + dif)
+        if fx.transmission or (fx.rear_reflection and fx.bounces > 0):
+            r1 = opt.reflectance(d1)
+        if fx.transmission:
+            _count("transmission")
+            gain = 1.0 if photo_bg else p.exposure
+            terms["background"] = gain * _to_rgb(mean_pol(t0 * (1.0 - r1)), fx, dtype) * bg_rad
+        if fx.rear_reflection and fx.bounces > 0:
+            _count("rear_reflection")
+            path = t0 * r1  # (N, K, 2): entered the front, reflected at the rear
+            rear = zero
+            for k, nq in enumerate(bounce_pts, start=1):
+                r_q = opt.reflectance(thick(nq))
+                s, dif = refl[f"bounce{k}"]
+                rear = rear + _to_rgb(mean_pol(path * (1.0 - r_q)), fx, dtype) * s
+                if k == 1 and fx.diffuse:
+                    rear = rear + _to_rgb(mean_pol(t0 * (1.0 - r_q)), fx, dtype) * dif
+                path = path * r_q
+            terms["rear"] = p.exposure * rear
+
+    total = zero
+    for v in terms.values():
+        total = total + v
+    inside = hits.inside[:, None]
+    outside = bg_rad if photo_bg else p.exposure * bg_rad
+    pixel = jnp.where(inside, total, outside)
+    return pixel, {k: jnp.where(inside, v, 0.0) for k, v in terms.items()}
+
+
+def _pixel_chunks(cfg: RenderConfig):
+    h, w = cfg.shape
+    npix = h * w
+    chunk = min(cfg.chunk, npix)
+    steps = -(-npix // chunk)
+    idx = np.arange(steps * chunk)
+    idx = np.minimum(idx, npix - 1)  # padding repeats the last pixel and is dropped
+    rows, cols = np.divmod(idx, w)
+    return rows.reshape(steps, chunk), cols.reshape(steps, chunk), idx.reshape(steps, chunk), npix
+
+
+def render_terms(p: Params, cfg: RenderConfig, env: EnvMap | None, background=None):
+    """Render and return ``(image, terms)``: the (H, W, 3) image and a dict of its terms
+    (``front``, ``rear``, ``background``), each (H, W, 3), for the effects that are on."""
+    h, w = cfg.shape
+    rows, cols, idx, npix = _pixel_chunks(cfg)
+    bg = None if background is None else jnp.asarray(background, dtype=p.t.dtype)
+
+    def body(xs):
+        r, c, i = xs
+        return _shade_chunk(p, cfg, env, bg, r, c, i)
+
+    img, terms = jax.lax.map(body, (jnp.asarray(rows), jnp.asarray(cols), jnp.asarray(idx)))
+    img = img.reshape(-1, 3)[:npix].reshape(h, w, 3)
+    terms = {k: v.reshape(-1, 3)[:npix].reshape(h, w, 3) for k, v in terms.items()}
+    return img, terms
+
+
+@functools.partial(jax.jit, static_argnames=("cfg",))
+def render(p: Params, cfg: RenderConfig, env: EnvMap | None, background=None) -> Float[Array, "H W 3"]:
+    """The (H, W, 3) linear image of the bubble, jit-compiled per static ``cfg``."""
+    return render_terms(p, cfg, env, background)[0]

@@ -1,0 +1,339 @@
+"""Scene files (TOML, DESIGN.md "Scene files"): parsing, validation, and rendering.
+
+A scene is data: :class:`Scene` holds the validated tables; :meth:`Scene.params` gives
+the differentiable :class:`~bubblefit.render.Params`, :meth:`Scene.config` resolves the
+effects (:mod:`bubblefit.effects`) into a static :class:`~bubblefit.render.RenderConfig`.
+Unknown keys, wrong types and out-of-range values raise :class:`InputError` with the
+key's name.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+
+__all__ = ["Scene", "load_scene", "render_scene", "DATA_DIR", "shipped_envmap"]
+
+DATA_DIR = Path(__file__).parent / "data"
+
+_SCHEMA = {
+    "camera": {"type": str, "width": int, "height": int, "origin": list, "target": list, "up": list,
+               "fov_deg": float, "disc": list},
+    "bubble": {"center": list, "radius": float, "n_film": float, "t": float, "roughness": float,
+               "f": float, "r_d": float, "r_s": float, "thickness_nm": float, "thickness": dict},
+    "lighting": {"envmap": str, "rotation_deg": float, "scale": float, "point_lights": list,
+                 "background": str},
+    "effects": {"model": str, "interference": str, "filtering": (str,), "spectral": (str, dict),
+                "front_reflection": (str, bool), "rear_reflection": (str, bool), "transmission": (str, bool),
+                "diffuse": (str, bool), "bounces": (str, int), "tolerance": float, "nodes": int,
+                "window": int, "level": int},
+}
+_THICKNESS_KEYS = {"profile": str, "top_nm": float, "bottom_nm": float, "exponent": float, "path": str,
+                   "value_nm": float}
+
+
+def shipped_envmap(name: str = "courtyard") -> Path:
+    """Path of an environment map shipped with the package (CC0, see data/LICENSE.md)."""
+    return DATA_DIR / f"{name}.exr"
+
+
+def _check_type(where: str, value, kind):
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    for k in kinds:
+        if k is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+        if k is int and isinstance(value, int) and not isinstance(value, bool):
+            return value
+        if k is not float and k is not int and isinstance(value, k):
+            return value
+    names = " or ".join(k.__name__ for k in kinds)
+    raise InputError(f"scene key {where} must be {names}, got {value!r}")
+
+
+def _validate(data: dict) -> dict:
+    out = {}
+    for table, value in data.items():
+        if table not in _SCHEMA:
+            raise InputError(f"unknown scene table [{table}] (known: {', '.join(_SCHEMA)})")
+        if not isinstance(value, dict):
+            raise InputError(f"scene entry {table} must be a table")
+        clean = {}
+        for key, v in value.items():
+            if key not in _SCHEMA[table]:
+                raise InputError(f"unknown scene key {table}.{key} (known: {', '.join(_SCHEMA[table])})")
+            clean[key] = _check_type(f"{table}.{key}", v, _SCHEMA[table][key])
+        out[table] = clean
+    th = out.get("bubble", {}).get("thickness")
+    if th is not None:
+        for key, v in th.items():
+            if key not in _THICKNESS_KEYS:
+                raise InputError(f"unknown scene key bubble.thickness.{key} (known: {', '.join(_THICKNESS_KEYS)})")
+            th[key] = _check_type(f"bubble.thickness.{key}", v, _THICKNESS_KEYS[key])
+    return out
+
+
+def _range(name, value, lo, hi, lo_open=False):
+    if not (lo < value if lo_open else lo <= value) or not value <= hi:
+        raise InputError(f"scene value {name} = {value} is out of range [{lo}, {hi}]")
+
+
+@dataclass
+class Scene:
+    """A validated scene (tables as dicts) and the folder relative paths are read from."""
+
+    data: dict = field(default_factory=dict)
+    base_dir: Path = Path(".")
+
+    @staticmethod
+    def from_dict(data: dict, base_dir: str | os.PathLike = ".") -> "Scene":
+        scene = Scene(_validate({k: dict(v) for k, v in data.items()}), Path(base_dir))
+        scene._check_values()
+        return scene
+
+    # -- tables -----------------------------------------------------------------------------
+    def table(self, name: str) -> dict:
+        return self.data.get(name, {})
+
+    def _check_values(self):
+        b = self.table("bubble")
+        _range("bubble.t", b.get("t", 0.972), 0.0, 1.0)
+        _range("bubble.roughness", b.get("roughness", 0.01), 0.0, 10.0, lo_open=True)
+        _range("bubble.n_film", b.get("n_film", 1.4), 1.0, 3.0)
+        _range("bubble.radius", b.get("radius", 1.0), 0.0, math.inf, lo_open=True)
+        _range("bubble.thickness_nm", b.get("thickness_nm", 500.0), 0.0, 1e6)
+        for k in ("r_d", "r_s", "f"):
+            if k in b:
+                _range(f"bubble.{k}", b[k], 0.0, math.inf)
+        if ("r_d" in b) != ("r_s" in b):
+            raise InputError("scene keys bubble.r_d and bubble.r_s must be given together (or give f)")
+        th = b.get("thickness")
+        if th is not None:
+            prof = th.get("profile", "constant")
+            if prof not in ("constant", "drainage", "map"):
+                raise InputError(f"bubble.thickness.profile must be constant, drainage or map, got {prof!r}")
+            for k in ("top_nm", "bottom_nm", "value_nm"):
+                if k in th:
+                    _range(f"bubble.thickness.{k}", th[k], 0.0, 1e6)
+            if prof == "map" and "path" not in th:
+                raise InputError("bubble.thickness.profile = \"map\" needs bubble.thickness.path")
+        c = self.table("camera")
+        ctype = c.get("type", "orthographic")
+        if ctype not in ("orthographic", "perspective"):
+            raise InputError(f"camera.type must be orthographic or perspective, got {ctype!r}")
+        for k in ("width", "height"):
+            if k in c and not 1 <= c[k] <= 16384:
+                raise InputError(f"scene value camera.{k} = {c[k]} is out of range [1, 16384]")
+        e = self.table("effects")
+        if e.get("model", "paper") not in ("paper", "physical"):
+            raise InputError(f"effects.model must be paper or physical, got {e.get('model')!r}")
+        lighting = self.table("lighting")
+        if "envmap" not in lighting and not lighting.get("point_lights") and lighting.get("background") in (None, "envmap"):
+            pass  # a dark room with nothing in it renders black; allowed, explained by --explain
+        for i, light in enumerate(lighting.get("point_lights", [])):
+            if not isinstance(light, dict) or set(light) - {"direction", "radiance"} or "direction" not in light:
+                raise InputError(f"lighting.point_lights[{i}] must be a table with direction and radiance")
+
+    # -- derived values -----------------------------------------------------------------------
+    def resolve_path(self, p: str) -> Path:
+        path = Path(p)
+        return path if path.is_absolute() else self.base_dir / path
+
+    def thickness_spec(self):
+        """(kind, values as numpy array) of the film thickness."""
+        b = self.table("bubble")
+        th = b.get("thickness")
+        if th is None or th.get("profile", "constant") == "constant":
+            value = (th or {}).get("value_nm", b.get("thickness_nm", 500.0))
+            return "constant", np.asarray(value, dtype=np.float64)
+        if th["profile"] == "drainage":
+            return "drainage", np.asarray([th.get("top_nm", 100.0), th.get("bottom_nm", 1000.0),
+                                           th.get("exponent", 1.0)], dtype=np.float64)
+        from .imageio import read_image
+
+        img = read_image(self.resolve_path(th["path"]), linear=True)
+        m = img.pixels[..., 0]
+        h, w = self.shape
+        if m.shape != (h, w):
+            raise InputError(f"thickness map {th['path']} is {m.shape[1]}x{m.shape[0]}, the camera is {w}x{h}")
+        return "map", np.nan_to_num(m, nan=0.0)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        c = self.table("camera")
+        return int(c.get("height", 256)), int(c.get("width", 256))
+
+    def camera(self):
+        from .geometry import OrthographicCamera, PerspectiveCamera
+
+        c = self.table("camera")
+        h, w = self.shape
+        if c.get("type", "orthographic") == "perspective":
+            return PerspectiveCamera(width=w, height=h, origin=tuple(c.get("origin", (0.0, 0.0, 4.0))),
+                                     target=tuple(c.get("target", (0.0, 0.0, 0.0))),
+                                     up=tuple(c.get("up", (0.0, 1.0, 0.0))), fov_deg=float(c.get("fov_deg", 35.0)))
+        disc = c.get("disc")
+        if disc is not None:
+            if len(disc) != 3:
+                raise InputError("camera.disc must be [cx, cy, r] in pixels")
+            return OrthographicCamera(w, h, float(disc[0]), float(disc[1]), float(disc[2]))
+        return OrthographicCamera(w, h)
+
+    def params(self, dtype=None):
+        """The scene's :class:`~bubblefit.render.Params` (thickness per its profile)."""
+        import jax.numpy as jnp
+
+        from .render import Params
+
+        b = self.table("bubble")
+        dtype = dtype or jnp.float32
+        _, values = self.thickness_spec()
+        return Params.make(
+            t=b.get("t", 0.972), r_d=b.get("r_d"), r_s=b.get("r_s"), f=b.get("f", 0.3),
+            roughness=b.get("roughness", 0.01), thickness=values, n_film=b.get("n_film", 1.4),
+            exposure=1.0, rotation=math.radians(self.table("lighting").get("rotation_deg", 0.0)), dtype=dtype,
+        )
+
+    def load_envmap(self):
+        """The scene's environment map as an :class:`~bubblefit.envmap.EnvMap` (or None)."""
+        from .envmap import EnvMap
+        from .imageio import read_image
+
+        lighting = self.table("lighting")
+        if "envmap" not in lighting:
+            return None
+        path = self.resolve_path(lighting["envmap"])
+        if not path.exists() and (DATA_DIR / lighting["envmap"]).exists():
+            path = DATA_DIR / lighting["envmap"]
+        try:
+            img = read_image(path)
+        except InputError as exc:
+            raise InputError(f"environment map: {exc}") from None
+        px = img.pixels * lighting.get("scale", 1.0)
+        h, w = px.shape[:2]
+        if w != 2 * h:
+            raise InputError(f"environment map {path} is {w}x{h}; an equirectangular map must be twice as wide as high")
+        return EnvMap.from_array(px)
+
+    def background_kind(self) -> tuple[str, Path | None]:
+        bg = self.table("lighting").get("background", "envmap")
+        if bg in ("envmap", "black"):
+            if bg == "envmap" and "envmap" not in self.table("lighting"):
+                return "black", None
+            return bg, None
+        return "photo", self.resolve_path(bg)
+
+    def point_lights(self):
+        from .render import PointLight
+
+        out = []
+        for light in self.table("lighting").get("point_lights", []):
+            d = np.asarray(light["direction"], dtype=np.float64)
+            if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) == 0:
+                raise InputError("lighting.point_lights direction must be three numbers, not all zero")
+            e = np.broadcast_to(np.asarray(light.get("radiance", [1.0, 1.0, 1.0]), dtype=np.float64), (3,))
+            out.append(PointLight(tuple(d / np.linalg.norm(d)), tuple(float(x) for x in e)))
+        return tuple(out)
+
+    def config(self, env=None, background=None, *, chunk: int = 4096):
+        """Resolve the effects and return ``(RenderConfig, decisions)``."""
+        from .effects import resolve
+        from .render import RenderConfig
+
+        b = self.table("bubble")
+        e = self.table("effects")
+        p = self.params()
+        kind, values = self.thickness_spec()
+        vals = np.atleast_1d(values)
+        if kind == "drainage":
+            trange = (float(min(vals[0], vals[1])), float(max(vals[0], vals[1])))
+        else:
+            trange = (float(vals.min()), float(vals.max()))
+        bg_kind, _ = self.background_kind()
+        lights = self.point_lights()
+        env_px = None if env is None else np.asarray(env.pixels)
+        camera = self.camera()
+        fx, decisions = resolve(
+            model=e.get("model", "paper"),
+            settings=e,
+            t=float(p.t), r_d=float(p.r_d), r_s=float(p.r_s), roughness=float(p.roughness),
+            thickness_range=trange, thickness_kind=kind, n_film=float(p.n_film),
+            env_texel_angle=None if env is None else env.texel_angle,
+            env_peak=0.0 if env_px is None else float(env_px.max()),
+            env_mean=0.0 if env_px is None else float(env_px.mean()),
+            background=bg_kind,
+            background_peak=(float(np.max(background)) if background is not None
+                             else (0.0 if env_px is None else float(env_px.max()))),
+            n_point_lights=len(lights),
+            light_peak=max([max(l.irradiance) for l in lights], default=0.0),
+            min_cos=_min_cos(camera),
+            tolerance=e.get("tolerance", 1e-3),
+        )
+        cfg = RenderConfig(effects=fx, camera=camera, center=tuple(float(x) for x in b.get("center", (0, 0, 0))),
+                           radius=float(b.get("radius", 1.0)), point_lights=lights, chunk=chunk)
+        return cfg, decisions
+
+
+def _min_cos(camera) -> float:
+    """Smallest film incidence cosine among pixel centres (orthographic: from the disc)."""
+    from .geometry import OrthographicCamera
+
+    if isinstance(camera, OrthographicCamera):
+        cx, cy, r = camera.disc()
+        jj, ii = np.meshgrid(np.arange(camera.width) + 0.5, np.arange(camera.height) + 0.5)
+        rho2 = ((jj - cx) ** 2 + (ii - cy) ** 2) / r**2
+        inside = rho2 < 1
+        if not inside.any():
+            return 1.0
+        return float(np.sqrt(1 - rho2[inside].max()))
+    return 0.0
+
+
+def load_scene(path: str | os.PathLike) -> Scene:
+    """Read and validate a TOML scene file."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"scene file not found: {path}")
+    try:
+        data = tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"scene file {path} is not valid TOML: {exc}") from None
+    return Scene.from_dict(data, base_dir=path.parent)
+
+
+def render_scene(scene: Scene, background: np.ndarray | None = None, *, env=None, explain: bool = False,
+                 dtype=None):
+    """Render a scene to a linear (H, W, 3) numpy image.
+
+    Args:
+        scene: a :class:`Scene`.
+        background: optional (H, W, 3) linear background photo (overrides lighting.background).
+        env: an already loaded :class:`EnvMap` (else the scene's is loaded).
+        explain: also return the list of effect decisions.
+    """
+    from .imageio import read_image
+    from .render import render
+
+    env = env if env is not None else scene.load_envmap()
+    bg_kind, bg_path = scene.background_kind()
+    if background is None and bg_kind == "photo":
+        background = read_image(bg_path).pixels
+    if background is not None:
+        background = np.asarray(background, dtype=np.float64)
+        if background.shape[:2] != scene.shape:
+            raise InputError(f"background photo is {background.shape[1]}x{background.shape[0]}, "
+                             f"the camera is {scene.shape[1]}x{scene.shape[0]}")
+        scene = Scene(dict(scene.data, lighting=dict(scene.table("lighting"), background="photo")), scene.base_dir)
+        if "background" not in scene.data["lighting"]:
+            scene.data["lighting"]["background"] = "photo"
+    cfg, decisions = scene.config(env, background)
+    if cfg.effects.background == "photo" and background is None:
+        raise InputError("lighting.background names a photo that could not be read")
+    img = np.asarray(render(scene.params(), cfg, env, background))
+    return (img, decisions) if explain else img

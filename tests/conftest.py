@@ -1,0 +1,50 @@
+"""Shared fixtures: shipped data, small environment maps, float64 on demand."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+os.environ.setdefault("JAX_PLATFORMS", "cpu")
+
+import jax
+import numpy as np
+import pytest
+
+# A persistent compilation cache keeps repeated test runs fast.
+_cache = Path(os.environ.get("BUBBLEFIT_TEST_CACHE", Path(__file__).resolve().parent.parent / ".jax_cache"))
+try:
+    _cache.mkdir(exist_ok=True)
+    jax.config.update("jax_compilation_cache_dir", str(_cache))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+except OSError:
+    pass
+
+DATA = Path(__file__).resolve().parent.parent / "bubblefit" / "data"
+SHARED_ENVMAPS = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "envmaps"
+
+
+@pytest.fixture(scope="session")
+def courtyard_pixels() -> np.ndarray:
+    """The shipped courtyard map (1024x512, linear, with a sun)."""
+    from bubblefit.imageio import read_image
+
+    return read_image(DATA / "courtyard.exr").pixels
+
+
+@pytest.fixture(scope="session")
+def small_courtyard(courtyard_pixels) -> np.ndarray:
+    """The courtyard map downsampled (power-preserving) to 64x128."""
+    from bubblefit.envmap import downsample
+
+    px = courtyard_pixels
+    while px.shape[0] > 64:
+        px = downsample(px)
+    return px
+
+
+@pytest.fixture
+def x64():
+    """Run a test in float64."""
+    with jax.enable_x64(True):
+        yield

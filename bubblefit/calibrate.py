@@ -361,7 +361,7 @@ def usable_mask(
     lit = before > dark_fraction * level if level > 0 else np.zeros(before.shape, bool)
     sm = ndi.gaussian_filter(before, 1.0)
     grad = np.hypot(ndi.sobel(sm, 0), ndi.sobel(sm, 1)) / 8.0
-    edge = grad > edge_threshold * np.maximum(sm, 1e-6)
+    edge = grad > edge_threshold * np.maximum(sm, 1e-6 * level)  # scale-free: any exposure
     edge &= sm > 0.5 * dark_fraction * level
     if edge_margin > 0:
         edge = ndi.binary_dilation(edge, iterations=edge_margin)
@@ -652,6 +652,12 @@ def fit_disc_profile(
     if ys.size > max_pixels:
         pick = np.random.default_rng(seed).choice(ys.size, max_pixels, replace=False)
         ys, xs = ys[pick], xs[pick]
+    if ys.size < 20:  # nothing to fit (e.g. a given circle over the black box)
+        names = ["cx", "cy", "r", "L_in", "L_out", "beta"]
+        out = dict(zip(names, [float(cx0), float(cy0), float(r0), float("nan"), float("nan"), 0.0]))
+        out.update({f"{k}_stderr": float("inf") for k in names})
+        out.update(n_pixels=int(ys.size), n_rim_pixels=0, noise=float("nan"), vif=1.0, success=False)
+        return out
     b = before[ys, xs]
     q = after[ys, xs] / b
     wgt = b / np.median(b)

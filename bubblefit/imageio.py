@@ -33,6 +33,12 @@ __all__ = [
 _LINEAR_EXTENSIONS = {".exr", ".hdr", ".pfm"}
 
 
+def _first_line(text: str) -> str:
+    """The first non-empty line of a (possibly multi-line) library message."""
+    lines = [ln.strip() for ln in (text or "").splitlines() if ln.strip()]
+    return lines[0] if lines else ""
+
+
 def srgb_decode(values: np.ndarray) -> np.ndarray:
     """sRGB-encoded values in [0, 1] to linear (IEC 61966-2-1, via colour-science)."""
     return np.asarray(colour.cctf_decoding(np.clip(values, 0.0, 1.0), function="sRGB"))
@@ -93,8 +99,7 @@ def read_image(path: str | os.PathLike, *, linear: bool | None = None) -> Image:
         raise InputError(f"expected an image file, got a folder: {path}")
     inp = oiio.ImageInput.open(path)
     if inp is None:
-        msg = oiio.geterror().strip().splitlines()
-        raise InputError(f"cannot read image {path}: {msg[0] if msg else 'unknown format'}")
+        raise InputError(f"cannot read image {path}: {_first_line(oiio.geterror()) or 'unknown format'}")
     try:
         spec = inp.spec()
         if spec.width <= 0 or spec.height <= 0:
@@ -117,9 +122,9 @@ def read_image(path: str | os.PathLike, *, linear: bool | None = None) -> Image:
     finally:
         inp.close()
     if data is None or (isinstance(data, np.ndarray) and data.size == 0):
-        raise InputError(f"cannot read pixels of {path}: {err.strip() or 'truncated or corrupt file'}")
+        raise InputError(f"cannot read pixels of {path}: {_first_line(err) or 'truncated or corrupt file'}")
     if err and "corrupt" in err.lower():
-        raise InputError(f"cannot read pixels of {path}: {err.strip().splitlines()[0]}")
+        raise InputError(f"cannot read pixels of {path}: {_first_line(err)}")
     data = np.asarray(data)
     if data.ndim == 2:
         data = data[:, :, None]
@@ -232,14 +237,14 @@ def write_image(path: str | os.PathLike, pixels: np.ndarray, *, bit_depth: int |
     with atomic_path(path) as tmp:
         out = oiio.ImageOutput.create(tmp)
         if out is None:
-            raise InputError(f"cannot write {path}: {oiio.geterror().strip() or 'unsupported format'}")
+            raise InputError(f"cannot write {path}: {_first_line(oiio.geterror()) or 'unsupported format'}")
         ok = out.open(tmp, spec)
         if not ok:
-            raise InputError(f"cannot write {path}: {out.geterror().strip()}")
+            raise InputError(f"cannot write {path}: {_first_line(out.geterror())}")
         ok = out.write_image(np.ascontiguousarray(data))
         out.close()
         if not ok:
-            raise InputError(f"cannot write {path}: {out.geterror().strip()}")
+            raise InputError(f"cannot write {path}: {_first_line(out.geterror())}")
 
 
 def write_preview(path: str | os.PathLike, pixels: np.ndarray, *, exposure: float = 1.0) -> None:

@@ -152,7 +152,10 @@ class _Film:
         return film.incoherent_reflectance(cos, self.p.n_film)
 
     def paper_factor(self, d):
-        """Eq. (10)'s factor ``4 t^2 cos^2(delta/2)``, shape (N, K)."""
+        """Eq. (10)'s factor ``4 t^2 cos^2(delta/2)``, shape (N, K); for ``incoherent``
+        its spectral mean ``2 t^2`` (a thick film), shape (N, 1), without a spectral loop."""
+        if self.fx.interference == "incoherent":
+            return jnp.broadcast_to(2.0 * self.p.t * self.p.t, d.shape)[:, None]
         _count("interference")
         return film.paper_interference_factor(d[:, None], self.lam, self.p.n_film, self.cos[:, None], self.p.t)
 
@@ -263,8 +266,9 @@ def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx)
             gain = 1.0 if photo_bg else p.exposure
             terms["background"] = gain * t2 * t2 * bg_rad
     else:
-        r0 = opt.reflectance(d0)
-        t0 = 1.0 - r0
+        if fx.front_reflection or fx.transmission or fx.rear_reflection:
+            r0 = opt.reflectance(d0)
+            t0 = 1.0 - r0
         mean_pol = lambda x: jnp.mean(x, axis=-1)
         if fx.front_reflection:
             _count("front_reflection")

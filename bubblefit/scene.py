@@ -274,6 +274,8 @@ class Scene:
             light_peak=max([max(l.irradiance) for l in lights], default=0.0),
             min_cos=_min_cos(camera),
             tolerance=e.get("tolerance", 1e-3),
+            env_pixels=env_px,
+            env_irradiance_peak=None if env is None else float(np.max(np.asarray(env.irradiance))),
         )
         cfg = RenderConfig(effects=fx, camera=camera, center=tuple(float(x) for x in b.get("center", (0, 0, 0))),
                            radius=float(b.get("radius", 1.0)), point_lights=lights, chunk=chunk)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 
-from ..errors import InputError
+from ..errors import BubblefitError, InputError
 
 NAME = "calibrate"
 
@@ -69,12 +69,19 @@ def run(args) -> int:
         raise InputError(f"--inner-fraction must be between 0.05 and 0.95, got {args.inner_fraction}")
     if args.bootstrap < 100:
         raise InputError(f"--bootstrap needs at least 100 resamples, got {args.bootstrap}")
-    result = calibrate(
-        args.before, args.after, circle,
-        inner_fraction=args.inner_fraction,
-        exposure_correction=not args.no_exposure_correction,
-        n_boot=args.bootstrap, seed=args.seed,
-    )
+    try:
+        result = calibrate(
+            args.before, args.after, circle,
+            inner_fraction=args.inner_fraction,
+            exposure_correction=not args.no_exposure_correction,
+            n_boot=args.bootstrap, seed=args.seed,
+        )
+    except BubblefitError as exc:
+        # one line on the terminal, even when a decoder's message spans several
+        lines = str(exc).strip().splitlines() or ["unknown error"]
+        if len(lines) > 1:
+            raise type(exc)(lines[0]) from None
+        raise
     if args.json:
         save_json(args.json, result)
     if args.debug_image:

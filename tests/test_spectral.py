@@ -1,0 +1,168 @@
+"""Spectral integration to linear sRGB and the soap-film colour chart.
+
+Checks: a spectrally flat reflectance maps to grey; the quadrature agrees with an
+independent integration by colour-science (CIE 1931 2-degree observer, D65, sRGB matrix);
+the chart reproduces the known sequence of soap-film colours in reflection (black,
+white/silver, first-order yellow, red, blue, then the second order green, yellow, red...),
+as in the Michel-Levy chart and Isenberg, *The Science of Soap Films and Soap Bubbles*
+(1992), ch. 3; and the ``bubblefit chart`` CLI writes the CSV columns of DESIGN.md.
+"""
+
+from __future__ import annotations
+
+import colorsys
+import csv
+
+import colour
+import numpy as np
+import pytest
+
+from bubblefit import spectral
+from bubblefit.chart import interference_colours
+
+
+@pytest.mark.parametrize("method,samples", [("uniform", 1), ("uniform", 10), ("uniform", 30), ("uniform", 100),
+                                            ("reference", 0)])
+@pytest.mark.parametrize("illuminant", ["D65", "A", "E"])
+def test_flat_reflectance_is_grey(method, samples, illuminant):
+    basis = spectral.spectral_basis(method, samples or 30, illuminant)
+    assert basis.weights.shape == (basis.samples, 3)
+    assert np.all((basis.wavelengths > 380) & (basis.wavelengths < 780))
+    for c in [0.0, 0.04, 0.5, 1.0]:
+        rgb = np.asarray(spectral.integrate(np.full((2, basis.samples), c), basis))
+        np.testing.assert_allclose(rgb, c, atol=1e-6)
+
+
+def _colour_science_rgb(values_fn):
+    """White-balanced linear sRGB of a reflectance spectrum, integrated by colour-science at 1 nm."""
+    lam = np.arange(380, 781, 1.0)
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(colour.SpectralShape(380, 780, 1))
+    ill = colour.SDS_ILLUMINANTS["D65"].copy().align(colour.SpectralShape(380, 780, 1))
+    m = np.asarray(colour.RGB_COLOURSPACES["sRGB"].matrix_XYZ_to_RGB)
+
+    def rgb(vals):
+        sd = colour.SpectralDistribution(dict(zip(lam, vals)))
+        xyz = colour.sd_to_XYZ(sd, cmfs, ill, method="Integration")
+        return m @ xyz
+
+    white = rgb(np.ones_like(lam))
+    return rgb(values_fn(lam)) / white
+
+
+@pytest.mark.parametrize("name,fn", [
+    ("ramp", lambda lam: (lam - 380) / 400),
+    ("bump", lambda lam: np.exp(-0.5 * ((lam - 520) / 30) ** 2)),
+    ("red edge", lambda lam: 1 / (1 + np.exp(-(lam - 600) / 10))),
+])
+def test_integration_agrees_with_colour_science(name, fn):
+    ref = _colour_science_rgb(fn)
+    for samples, tol in [(100, 0.01), (800, 2e-3)]:
+        basis = spectral.spectral_basis("uniform", samples)
+        got = np.asarray(spectral.integrate(fn(basis.wavelengths), basis))
+        np.testing.assert_allclose(got, ref, atol=tol, err_msg=f"{name}, {samples} samples")
+
+
+def _label(rgb, peak_lum):
+    """Name of a linear-sRGB colour: dark, white, or a hue name when saturated, else None."""
+    lum = float(rgb @ [0.2126, 0.7152, 0.0722])
+    if lum < 0.2 * peak_lum:
+        return "dark"
+    top = rgb.max()
+    sat = (top - rgb.min()) / top
+    if sat < 0.2 and lum > 0.6 * peak_lum:
+        return "white"
+    if sat < 0.6:
+        return None
+    hue = colorsys.rgb_to_hsv(*np.clip(rgb / top, 0, 1))[0] * 360
+    if hue >= 330 or hue < 25:
+        return "red"
+    if 35 <= hue < 75:
+        return "yellow"
+    if 90 <= hue < 165:
+        return "green"
+    if 200 <= hue < 290:
+        return "blue"
+    return None
+
+
+def _sequence(rgb):
+    peak = float(np.max(rgb @ [0.2126, 0.7152, 0.0722]))
+    seq = []
+    for c in rgb:
+        lab = _label(c, peak)
+        if lab == "dark":  # dark before any colour is the black film; later, a dim transition
+            lab = "black" if not seq or seq == ["black"] else None
+        if lab is not None and (not seq or seq[-1] != lab):
+            seq.append(lab)
+    return seq
+
+
+@pytest.mark.parametrize("n_film", [1.33, 1.4])
+def test_chart_reproduces_soap_film_colour_sequence(n_film):
+    d = np.arange(0.0, 700.0, 5.0)
+    rgb = interference_colours(d, n_film=n_film)
+    assert rgb.shape == (len(d), 3)
+    seq = _sequence(rgb)
+    expected = ["black", "white", "yellow", "red", "blue", "green", "yellow", "red", "blue", "green"]
+    assert seq[: len(expected)] == expected, seq
+    # The first-order white is where the film is brightest (a quarter-wave film at ~550 nm).
+    lum = rgb @ [0.2126, 0.7152, 0.0722]
+    d_bright = d[np.argmax(lum[d < 200])]
+    assert abs(d_bright - 550 / (4 * n_film)) < 20
+
+
+def test_chart_sequence_shifts_with_angle():
+    """Oblique incidence shortens the optical path (cos th_t): the sequence moves to thicker films."""
+    d = np.arange(0.0, 400.0, 2.0)
+    lum0 = interference_colours(d) @ [0.2126, 0.7152, 0.0722]
+    lum60 = interference_colours(d, angle_deg=60.0) @ [0.2126, 0.7152, 0.0722]
+    cos_t = np.sqrt(1 - (np.sin(np.radians(60.0)) / 1.4) ** 2)
+    d0 = d[np.argmax(lum0[d < 200])]
+    d60 = d[np.argmax(lum60[d < 300])]
+    assert d60 / d0 == pytest.approx(1 / cos_t, rel=0.05)
+
+
+def test_chart_models_agree_where_they_should():
+    d = np.arange(0.0, 2000.0, 25.0)
+    airy = interference_colours(d, model="airy")
+    two = interference_colours(d, model="two_beam")
+    inc = interference_colours(d, model="incoherent")
+    paper = interference_colours(d, model="paper", t=1.0)
+    assert np.abs(airy - two).max() < 4 * (0.04 / 1.04) ** 2 + 1e-6  # O(R1^2), R1 = ((n-1)/(n+1))^2
+    np.testing.assert_allclose(inc, np.broadcast_to(inc[:1], inc.shape), rtol=1e-5)  # no interference: one grey
+    # Eq. (10) at t = 1 is the two-beam fringe pattern (1 + cos) without the Fresnel scale.
+    r1 = (0.4 / 2.4) ** 2
+    corr = np.corrcoef(paper.ravel(), two.ravel())[0, 1]
+    assert corr > 0.99
+    np.testing.assert_allclose(paper.mean(0) * r1 / 2 * 2, two.mean(0), rtol=0.1)
+
+
+def test_chart_cli_writes_csv_columns(tmp_path):
+    from bubblefit.cli import main
+
+    out = tmp_path / "chart.png"
+    table = tmp_path / "chart.csv"
+    rc = main(["chart", "--thickness", "0:600:20", "-o", str(out), "--csv", str(table)])
+    assert rc == 0
+    assert out.stat().st_size > 1000
+    with open(table, newline="") as fh:
+        rows = list(csv.reader(fh))
+    assert rows[0][:4] == ["thickness_nm", "r", "g", "b"]
+    data = np.array(rows[1:], dtype=float)
+    np.testing.assert_allclose(data[:, 0], np.arange(0, 601, 20.0))
+    np.testing.assert_allclose(data[:, 1:4], interference_colours(data[:, 0]), atol=1e-8)
+
+
+@pytest.mark.parametrize("argv", [
+    ["--thickness", "0:oops:5"],
+    ["--thickness", "100:0:5"],
+    ["--angle-deg", "120"],
+])
+def test_chart_cli_bad_input(tmp_path, capsys, argv):
+    from bubblefit.cli import main
+
+    rc = main(["chart", *argv, "-o", str(tmp_path / "c.png")])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert err.startswith("bubblefit: error:") and err.count("\n") == 1
+    assert not (tmp_path / "c.png").exists()

@@ -29,8 +29,12 @@ _MIN_SQRT_COS = 1e-4
 
 
 def tan2_half_angle(cos_h: ArrayLike) -> Array:
-    """``tan^2(delta) = (1 - cos^2) / cos^2``, finite (and large) as ``cos_h -> 0``."""
-    c2 = jnp.maximum(jnp.asarray(cos_h) ** 2, _TINY)
+    """``tan^2(delta) = (1 - cos^2) / cos^2``, finite (and large) as ``cos_h -> 0``.
+
+    ``cos^2`` is clipped to [1e-12, 1]: a non-unit normal (e.g. of a ray that misses the
+    bubble, masked later) must not give ``tan^2 < 0`` and ``exp(+huge) = inf`` in the lobe,
+    whose gradient would turn the masked pixel into NaN."""
+    c2 = jnp.clip(jnp.asarray(cos_h) ** 2, _TINY, 1.0)
     return (1.0 - c2) / c2
 
 

@@ -139,65 +139,82 @@ def interference_contrast(opd_nm: float, illuminant: str = "D65") -> float:
     return float(np.interp(opd_nm, x, tail))
 
 
-def _grids(thickness_range, min_cos, n_film, max_points: int = 1200):
-    """Thickness (D,) and incidence-cosine (C,) grids covering the scene.
+def _grids(thickness_range, min_cos, n_film, max_points: int = 800):
+    """Thickness (D, C) and incidence-cosine (C,) grids covering the scene.
 
-    Thickness steps keep the optical path step below lambda_min / 24 (the two-beam
-    colour is then sampled at 24 points per shortest period), up to ``max_points``.
+    Interference depends on the optical path ``x = 2 n d cos t`` (eq. 8) and, weakly, on
+    the Fresnel factors of ``cos``. Every pixel's ``x`` lies in
+    ``[2 n d_min cos t_min, 2 n d_max]``; the grid pairs each of a few cosines with that
+    whole range of ``x`` (a superset of the image's pairs), in steps of lambda_min / 24 (the
+    two-beam colour is sampled 24 times per shortest period), at most ``max_points``.
     """
     dmin, dmax = thickness_range
-    step = LAMBDA_MIN / (24.0 * 2.0 * n_film)
-    npts = int(min(max_points, max(2, math.ceil((dmax - dmin) / step) + 1)))
-    d = np.linspace(dmin, dmax, npts) if dmax > dmin else np.array([dmin])
     c_lo = max(min(min_cos, 1.0), 1e-3)
     cos = np.unique(np.concatenate([np.linspace(c_lo, 1.0, 6), [1.0]]))
+    cos_t = np.sqrt(np.maximum(0.0, 1.0 - (1.0 - cos**2) / n_film**2))
+    x_lo, x_hi = 2 * n_film * dmin * float(cos_t.min()), 2 * n_film * dmax
+    step = LAMBDA_MIN / 24.0
+    npts = int(min(max_points, max(2, math.ceil((x_hi - x_lo) / step) + 1)))
+    x = np.linspace(x_lo, x_hi, npts) if x_hi > x_lo else np.array([x_lo])
+    d = x[:, None] / (2 * n_film * np.maximum(cos_t[None, :], 1e-6))
     return d, cos
 
 
-def _film_coefficients(model, mode, basis, d, cos, t, n_film, bounces):
+def _film_spectra(model, mode, lam, d, cos, t, n_film) -> np.ndarray:
+    """Per-wavelength film values on the grid: eq. (10)'s factor (D, C, K) for ``paper``,
+    the reflectance R (D, C, K, 2) of :func:`film.airy_reflectance` or
+    :func:`film.two_beam_reflectance` for ``physical``. One evaluation for all ``lam`` (K,)."""
+    import jax.numpy as jnp
+
+    from . import film
+
+    dd = jnp.asarray(d, dtype=jnp.float32)[..., None]
+    cc = jnp.asarray(cos, dtype=jnp.float32)[None, :, None]
+    ll = jnp.asarray(lam, dtype=jnp.float32)[None, None, :]
+    if model == "paper":
+        return np.asarray(film.paper_interference_factor(dd, ll, n_film, cc, t))
+    fn = film.two_beam_reflectance if mode == "two_beam" else film.airy_reflectance
+    return np.asarray(fn(dd, ll, n_film, cc))
+
+
+def _film_coefficients(model, mode, weights, spectra, cos, t, n_film, bounces):
     """RGB coefficients of the model's terms on a (thickness, cosine) grid.
 
     Args:
         model: ``paper`` | ``physical``; mode: ``off`` | ``incoherent`` | ``two_beam`` | ``airy``.
-        basis: the :class:`SpectralBasis` (ignored for the grey modes).
-        d: (D,) thicknesses in nm; cos: (C,) incidence cosines.
-        bounces: internal bounces to return (physical).
+        weights: (K, 3) spectral weights (:class:`SpectralBasis`), ignored for grey modes.
+        spectra: :func:`_film_spectra` at the basis's wavelengths (D, C, K[, 2]), or for the
+            grey modes any array whose first axis is D.
+        cos: (C,) incidence cosines; bounces: internal bounces to return (physical).
 
     Returns:
         dict with ``front`` (D, C, 3), ``background`` (D, C, 3) and ``rear`` a list of
         (D, C, 3), one per bounce (paper: one, eq. 11's ``t^2 F``).
     """
-    import jax.numpy as jnp
-
-    from . import film
-
     grey = mode in ("off", "incoherent")
-    dd = jnp.asarray(d)[:, None, None]
-    cc = jnp.asarray(cos)[None, :, None]
-    if not grey:
-        lam = jnp.asarray(basis.wavelengths)[None, None, :]
-        w = jnp.asarray(basis.weights)
-        rgb = lambda s: np.asarray(s @ w.astype(s.dtype))
+    shape = (np.shape(spectra)[0], len(cos), 1)
+    if grey:
+        rgb = lambda s: np.broadcast_to(s, s.shape[:-1] + (3,))
     else:
-        rgb = lambda s: np.asarray(jnp.broadcast_to(s, s.shape[:-1] + (1,)) * jnp.ones(3, s.dtype))
-    shape = (len(d), len(cos), 1)
+        rgb = lambda s: s @ np.asarray(weights, dtype=s.dtype)
     if model == "paper":
         if mode == "off":
-            f = jnp.ones(shape)
+            f = np.ones(shape)
         elif mode == "incoherent":
-            f = jnp.full(shape, 2.0 * t * t)
+            f = np.full(shape, 2.0 * t * t)
         else:
-            f = film.paper_interference_factor(dd, lam, n_film, cc, t)
+            f = spectra
         f = rgb(f)
         return {"front": f, "rear": [t * t * f], "background": np.full(f.shape, t**4)}
     if grey:
-        r = jnp.broadcast_to(film.incoherent_reflectance(cc, n_film), shape + (2,))
-    elif mode == "two_beam":
-        r = film.two_beam_reflectance(dd, lam, n_film, cc)
+        from .film import incoherent_reflectance
+
+        r1 = np.asarray(incoherent_reflectance(np.asarray(cos, dtype=np.float32), n_film), dtype=np.float64)
+        r = np.broadcast_to(r1[None, :, None, :], shape + (2,))
     else:
-        r = film.airy_reflectance(dd, lam, n_film, cc)
+        r = spectra
     tr = 1.0 - r
-    mean = lambda x: jnp.mean(x, axis=-1)
+    mean = lambda x: np.mean(x, axis=-1)
     out = {"front": rgb(mean(r)), "background": rgb(mean(tr * tr)), "rear": []}
     path = tr * r
     for _ in range(bounces):
@@ -223,13 +240,15 @@ def _coeff_diff(a, b, w_front, w_rear, w_bg, bounces=None):
 # Bound of the roughness filter (mirror lookup against the filtered lookup)
 # ----------------------------------------------------------------------------------------
 
-def _lookup_variation(pixels: np.ndarray, radius: float) -> float:
+def _lookup_variation(pixels: np.ndarray, radius: float, theta_range=(0.0, math.pi)) -> float:
     """Largest change of the bilinear lookup of an equirectangular map over ``radius`` rad.
 
-    Per texel row band the change is bounded by the largest neighbouring-texel difference
-    along the row times the number of columns ``radius`` spans there
-    (``radius / (sin(theta) 2 pi / W)``), capped by the band's full range (near the
-    poles), plus the largest difference between rows times ``radius / (pi / (H - 1))``.
+    Only directions whose polar angle lies in ``theta_range`` (widened by ``radius``)
+    count. Per band of texel rows the change is bounded by the largest neighbouring-texel
+    difference along the rows times the number of columns ``radius`` spans there
+    (``radius / (sin(theta) 2 pi / W)`` at the band's smallest ``sin(theta)``), capped by
+    the band's full range (at a pole, where the columns meet), plus the largest difference
+    between rows times ``radius / (pi / (H - 1))``.
     """
     px = np.asarray(pixels, dtype=np.float64)
     h, w = px.shape[:2]
@@ -237,36 +256,90 @@ def _lookup_variation(pixels: np.ndarray, radius: float) -> float:
     dph = 2 * math.pi / w
     gc = np.max(np.abs(np.roll(px, -1, axis=1) - px), axis=(1, 2))  # (H,)
     gr = np.max(np.abs(px[1:] - px[:-1]), axis=(1, 2))  # (H-1,)
-    theta = np.arange(h) * dth
+    lo, hi = max(theta_range[0] - radius, 0.0), min(theta_range[1] + radius, math.pi)
     best = 0.0
     for i in range(h - 1):
+        # Directions in the cell between rows i and i+1, moved by up to one more row.
+        c_lo, c_hi = max((i - 1) * dth, lo), min((i + 2) * dth, hi)
+        if c_lo > c_hi:
+            continue
         band = slice(max(i - 1, 0), min(i + 3, h))
-        s_min = max(0.0, min(math.sin(theta[max(i - 1, 0)]), math.sin(theta[min(i + 2, h - 1)]),
-                             math.sin(theta[i]), math.sin(theta[i + 1])))
+        s_min = min(math.sin(c_lo), math.sin(c_hi))
         rng = float(np.max(px[band]) - np.min(px[band]))
-        cols = radius / (s_min * dph) if s_min > 0 else math.inf
+        cols = radius / (s_min * dph) if s_min > 1e-12 else math.inf
         col_term = min(rng, float(np.max(gc[band])) * cols)
         row_term = float(np.max(gr[max(i - 1, 0): min(i + 2, h - 1)])) * radius / dth
         best = max(best, min(rng, col_term + row_term))
     return best
 
 
+def reflection_theta_range(camera, center, radius: float, bounces: int = MAX_AUTO_BOUNCES) -> tuple[float, float]:
+    """Range of polar angles (rad, from +y) of the mirror directions the image reads.
+
+    Mirror directions of the front film, the rear film (inward normal) and the internal
+    bounces (as :func:`bubblefit.geometry.intersect_sphere` and ``internal_bounce``, in
+    numpy float64) for every pixel centre whose ray hits the bubble. A rotation of the map
+    about +y leaves polar angles unchanged, so the range holds for any ``rotation``.
+    Returns ``(0, pi)`` when no pixel hits the bubble.
+    """
+    h, w = camera.height, camera.width
+    rows, cols = np.divmod(np.arange(h * w, dtype=np.float64), w)
+    o, d = (np.asarray(v, dtype=np.float64) for v in camera.rays(rows, cols, center, radius))
+    c = np.asarray(center, dtype=np.float64)
+    dot = lambda u, v: np.sum(u * v, axis=-1, keepdims=True)
+    unit = lambda v: v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-300)
+    d = unit(np.broadcast_to(d, o.shape))
+    oc = o - c
+    bq = dot(oc, d)
+    disc = bq * bq - (dot(oc, oc) - radius * radius)
+    inside = disc[:, 0] > 0
+    if not inside.any():
+        return 0.0, math.pi
+    o, d, bq, disc = o[inside], d[inside], bq[inside], disc[inside]
+    root = np.sqrt(disc)
+    p0 = o + (-bq - root) * d
+    p1 = o + (-bq + root) * d
+    n0, n1 = unit(p0 - c), unit(p1 - c)
+    reflect = lambda v, n: 2.0 * dot(v, n) * n - v
+    dirs = [reflect(-d, n0), reflect(-d, -n1)]
+    q, e = p1, unit(d - 2.0 * dot(d, n1) * n1)  # reflected inside at the rear film
+    for _ in range(bounces):
+        dirs.append(e)
+        q = q + (-2.0 * dot(q - c, e)) * e
+        nq = unit(q - c)
+        q = c + radius * nq
+        e = unit(e - 2.0 * dot(e, nq) * nq)
+    y = np.concatenate([unit(v)[:, 1] for v in dirs])
+    theta = np.arccos(np.clip(y, -1.0, 1.0))
+    return float(theta.min()), float(theta.max())
+
+
 def _mipmap_albedo(roughness: float, cos: np.ndarray, nodes: int) -> np.ndarray:
-    """The unnormalised mipmap lobe's albedo at incidence cosines (C,) (white map)."""
-    import jax.numpy as jnp
+    """Albedo (C,) of the unnormalised ``mipmap`` lobe (white map) at incidence cosines (C,).
 
-    from .envmap import EnvMap
-    from .filtering import specular_mipmap
+    The sum of :func:`bubblefit.filtering.specular_mipmap`'s node weights
+    ``W_j W_k g(s)`` (:func:`bubblefit.brdf.half_vector_weight`), in numpy, for the
+    normal +z (whose tangent frame is +x, +y).
+    """
+    from .filtering import _slope_nodes
 
-    white = EnvMap.constant(1.0, height=16)
+    x, wts, _ = _slope_nodes(nodes)
+    sx, sy = (v.ravel() for v in np.meshgrid(x, x))
+    ww = (wts[:, None] * wts[None, :]).ravel()
+    hv = np.stack([roughness * sx, roughness * sy, np.ones_like(sx)], axis=-1)
+    hv /= np.linalg.norm(hv, axis=-1, keepdims=True)  # (M, 3)
     s = np.sqrt(np.maximum(0.0, 1.0 - cos**2))
-    n = jnp.asarray(np.tile([[0.0, 0.0, 1.0]], (len(cos), 1)), dtype=jnp.float32)
-    wo = jnp.asarray(np.stack([s, np.zeros_like(s), cos], axis=-1), dtype=jnp.float32)
-    out = specular_mipmap(white, n, wo, jnp.float32(roughness), nodes=nodes, normalize=False)
-    return np.asarray(out)[:, 0]
+    wo = np.stack([s, np.zeros_like(s), cos], axis=-1)  # (C, 3)
+    o_h = wo @ hv.T  # (C, M)
+    wi = 2.0 * o_h[..., None] * hv[None] - wo[:, None, :]
+    cos_i, cos_h, cos_r = wi[..., 2], hv[None, :, 2], cos[:, None]
+    above = (cos_i > 0) & (cos_r > 0)
+    root = np.sqrt(np.maximum(np.where(above, cos_i * cos_r, 1.0), 1e-8))
+    g = np.where(above, cos_i * o_h * cos_h**3 / root, 0.0)
+    return g @ ww
 
 
-def _filter_bound(pixels, texel_angle, roughness, min_cos, nodes, normalize):
+def _filter_bound(pixels, texel_angle, roughness, min_cos, nodes, normalize, theta_range=(0.0, math.pi)):
     """Bound of |mirror lookup - mipmap lookup| for a white film (multiply by the specular weight).
 
     Returns ``(bound, detail)``; ``bound`` is ``inf`` when the lobe reads coarser mip levels.
@@ -279,7 +352,7 @@ def _filter_bound(pixels, texel_angle, roughness, min_cos, nodes, normalize):
     radius = 2.0 * roughness * math.sqrt(2.0) * float(np.max(np.abs(x)))
     if level > 0:
         return math.inf, f"lobe reads mip level {level:.2f} > 0"
-    var = _lookup_variation(pixels, radius)
+    var = _lookup_variation(pixels, radius, theta_range)
     peak = float(np.max(pixels))
     if normalize:
         alb_err, alb_max = 0.0, 1.0
@@ -322,6 +395,7 @@ def resolve(
     tolerance: float = DEFAULT_TOLERANCE,
     env_pixels: np.ndarray | None = None,
     env_irradiance_peak: float | None = None,
+    reflect_theta_range: tuple[float, float] = (0.0, math.pi),
 ) -> tuple[Effects, list[Decision]]:
     """Decide every effect of a scene.
 
@@ -341,6 +415,8 @@ def resolve(
             never chosen by ``auto``).
         env_irradiance_peak: largest value of the map's irradiance table (else ``4 pi``
             times ``env_mean``, a bound of any irradiance).
+        reflect_theta_range: polar angles of the mirror directions the image reads
+            (:func:`reflection_theta_range`); the filtering bound looks only there.
 
     Returns:
         The static :class:`Effects` and one :class:`Decision` per effect.
@@ -350,7 +426,7 @@ def resolve(
     out: list[Decision] = []
     tol = float(tolerance)
     has_env = env_texel_angle is not None
-    a = max(float(roughness), 1e-6)
+    a = max(float(roughness), 1e-12)
     peak_env = env_peak if has_env else 0.0
     irr_env = (env_irradiance_peak if env_irradiance_peak is not None else 4 * math.pi * env_mean) if has_env else 0.0
     # eq. (3): the lobe times cos th_i peaks at 1 / (4 pi a^2 sqrt(cos th_r)) for a light of irradiance 1.
@@ -383,12 +459,30 @@ def resolve(
     bset = settings.get("bounces", "auto") if model == "physical" else 1
     n_b = MAX_AUTO_BOUNCES if bset == "auto" else int(bset)
     ref_basis = spectral_basis("reference")
-    cache = {}
+    cache, spectra = {}, {}
+    spectral_setting = settings.get("spectral", "auto")
+    wanted = [ref_basis] + ([spectral_basis("uniform", k) for k in SPECTRAL_CANDIDATES]
+                            if spectral_setting == "auto" else [])
 
     def coeffs(mode, basis=None):
+        """Coefficients for ``mode`` with ``basis``; all wavelengths evaluated in one call."""
         key = (mode, None if basis is None else basis.samples)
-        if key not in cache:
-            cache[key] = _film_coefficients(model, mode, basis, d_grid, c_grid, t, n_film, n_b)
+        if key in cache:
+            return cache[key]
+        if mode in ("off", "incoherent"):
+            cache[key] = _film_coefficients(model, mode, None, d_grid, c_grid, t, n_film, n_b)
+            return cache[key]
+        if mode not in spectra:
+            lam_all = np.unique(np.concatenate([bb.wavelengths for bb in wanted + [basis]]))
+            spectra[mode] = (lam_all, _film_spectra(model, mode, lam_all, d_grid, c_grid, t, n_film))
+        lam_all, vals = spectra[mode]
+        idx = np.searchsorted(lam_all, basis.wavelengths)
+        if not np.allclose(lam_all[np.minimum(idx, len(lam_all) - 1)], basis.wavelengths):
+            lam_all = np.unique(np.concatenate([lam_all, basis.wavelengths]))
+            spectra[mode] = (lam_all, _film_spectra(model, mode, lam_all, d_grid, c_grid, t, n_film))
+            lam_all, vals = spectra[mode]
+            idx = np.searchsorted(lam_all, basis.wavelengths)
+        cache[key] = _film_coefficients(model, mode, basis.weights, vals[:, :, idx], c_grid, t, n_film, n_b)
         return cache[key]
 
     weights = (w_refl, w_refl, bg_peak)
@@ -411,7 +505,6 @@ def resolve(
     if model == "physical" and interference == "off":
         interference = "incoherent"  # a physical film always reflects; without colours it is grey
 
-    spectral_setting = settings.get("spectral", "auto")
     spectral_basis_ = None
     if interference in ("two_beam", "airy"):
         if spectral_setting == "auto":
@@ -462,7 +555,8 @@ def resolve(
     elif filt == "auto":
         spec_w = (max(r_s, 0.0) if model == "paper" else 1.0) * (f_front + f_rear)
         if env_pixels is not None:
-            fb, detail = _filter_bound(env_pixels, env_texel_angle, a, min_cos, nodes, model == "physical")
+            fb, detail = _filter_bound(env_pixels, env_texel_angle, a, min_cos, nodes, model == "physical",
+                                           reflect_theta_range)
         else:
             fb, detail = math.inf, "no map given to bound the mirror lookup"
         bound = spec_w * fb
@@ -532,8 +626,10 @@ def resolve(
                     for k in range(len(cur["rear"]) + 1)]
             bounces = next((b for b in range(1, MAX_AUTO_BOUNCES + 1) if tail[b] < tol), MAX_AUTO_BOUNCES)
             out.append(Decision("internal_bounces", rear and bounces > 1,
-                                f"{bounces} bounce(s): the bounces after them add <= {tail[bounces]:.2e} "
-                                f"(< {tol:g} or capped at {MAX_AUTO_BOUNCES})", str(bounces)))
+                                (f"{bounces} bounce(s): the all-on model's bounces {bounces + 1}-{MAX_AUTO_BOUNCES} add "
+                                 f"<= {tail[bounces]:.2e} < tolerance {tol:g}" if bounces < MAX_AUTO_BOUNCES else
+                                 f"{bounces} bounce(s), the cap: bounce {bounces} still adds up to "
+                                 f"{tail[bounces - 1]:.2e} >= tolerance {tol:g}"), str(bounces)))
         else:
             bounces = int(bset)
             out.append(Decision("internal_bounces", rear and bounces > 1, "set by the scene", str(bounces)))

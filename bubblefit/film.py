@@ -31,6 +31,11 @@ __all__ = [
     "airy_reflectance",
     "two_beam_reflectance",
     "incoherent_reflectance",
+    "optical_path",
+    "fringe_attenuation",
+    "filtered_airy_reflectance",
+    "filtered_two_beam_reflectance",
+    "filtered_paper_interference_factor",
 ]
 
 _TINY = 1e-12
@@ -146,3 +151,86 @@ def incoherent_reflectance(cos_i: ArrayLike, n: ArrayLike) -> Float[Array, "... 
     """
     r1 = fresnel_reflectance(cos_i, n)
     return 2.0 * r1 / (1.0 + r1)
+
+
+# --- Spectrally prefiltered film functions (the ``fourier`` spectral basis) ---------------
+#
+# Every film function above depends on the wavelength only through fringes
+# ``cos(2 pi m x / lambda)`` of the optical path ``x = 2 n d cos t``. A ``fourier`` sample
+# stands for the spectrum averaged under a Gaussian lobe in wavenumber ``nu = 1/lambda``
+# (mean ``1/lambda_k``, deviation ``sigma_k``); averaging a fringe under it multiplies it by
+# ``exp(-2 pi^2 sigma^2 m^2 x^2)`` (the Gaussian's characteristic function; Belcour &
+# Barla, ACM TOG 36(4), 2017, sec. 4). The functions below apply that factor to each
+# Fourier term of the film's reflectance in the phase of eq. (8).
+
+
+def optical_path(thickness: ArrayLike, n: ArrayLike, cos_i: ArrayLike) -> Array:
+    """Optical path difference ``x = 2 n d cos t`` (nm) of eq. (8): ``delta = 2 pi x / lambda + pi``."""
+    return 2.0 * thickness * n * cos_transmitted(cos_i, n)
+
+
+def fringe_attenuation(opd: ArrayLike, sigma: ArrayLike, m: ArrayLike = 1) -> Array:
+    """Mean of ``cos(2 pi m x nu)`` under a unit Gaussian in ``nu`` of deviation ``sigma`` (1/nm),
+    relative to its value at the mean: ``exp(-2 pi^2 sigma^2 m^2 x^2)``. Broadcasts."""
+    return jnp.exp(-2.0 * jnp.pi**2 * (sigma * m * opd) ** 2)
+
+
+def filtered_airy_reflectance(
+    thickness: ArrayLike, wavelength: ArrayLike, n: ArrayLike, cos_i: ArrayLike, sigma: ArrayLike,
+    terms: int = 8,
+) -> Float[Array, "... 2"]:
+    """:func:`airy_reflectance` averaged under a Gaussian lobe in wavenumber, per polarisation.
+
+    The Airy transmittance of a plate with face reflectance ``R1`` is
+    ``(1 - R1)^2 / (1 - 2 R1 cos(2 beta) + R1^2)`` (Born & Wolf 7.6(12)), whose Fourier series
+    in ``2 beta = 2 pi x / lambda`` is ``(1 - R1)/(1 + R1) (1 + 2 sum_m R1^m cos(2 m beta))``;
+    so ``R = 2 R1/(1 + R1) - 2 (1 - R1)/(1 + R1) sum_m R1^m cos(2 pi m x / lambda)``. The
+    first ``terms`` harmonics are attenuated by :func:`fringe_attenuation`; the tail
+    ``m > terms`` (in closed form, ``Re[z^(M+1) / (1 - z)]`` with ``z = R1 e^(i theta)``; it
+    matters only near grazing incidence, where ``R1 -> 1``) by the factor of harmonic
+    ``terms + 1``, an upper bound of the later ones. So ``sigma = 0`` gives
+    :func:`airy_reflectance` exactly and ``sigma x -> inf`` gives
+    :func:`incoherent_reflectance`. ``sigma`` broadcasts like ``wavelength``; the result
+    has the shape of ``airy_reflectance``.
+    """
+    r1 = fresnel_reflectance(cos_i, n)
+    exact = airy_reflectance(thickness, wavelength, n, cos_i)
+    x = optical_path(thickness, n, cos_i)
+    theta = (2.0 * jnp.pi * x / wavelength)[..., None]
+    amp = -2.0 * (1.0 - r1) / (1.0 + r1)
+    corr = 0.0
+    for m in range(1, terms + 1):
+        g = fringe_attenuation(x, sigma, m)[..., None]
+        corr = corr + amp * r1**m * jnp.cos(m * theta) * (g - 1.0)
+    # Tail: amp * sum_{m > M} R1^m cos(m theta) = amp R1^(M+1) (cos((M+1) theta) - R1 cos(M theta))
+    #       / (1 - 2 R1 cos theta + R1^2), finite since amp carries (1 - R1).
+    den = (1.0 - r1) ** 2 + 2.0 * r1 * (1.0 - jnp.cos(theta))
+    safe = den > _TINY
+    num = amp * r1 ** (terms + 1) * (jnp.cos((terms + 1) * theta) - r1 * jnp.cos(terms * theta))
+    tail = jnp.where(safe, num / jnp.where(safe, den, 1.0), 0.0)
+    g_tail = fringe_attenuation(x, sigma, terms + 1)[..., None]
+    return exact + corr + (g_tail - 1.0) * tail
+
+
+def filtered_two_beam_reflectance(
+    thickness: ArrayLike, wavelength: ArrayLike, n: ArrayLike, cos_i: ArrayLike, sigma: ArrayLike
+) -> Float[Array, "... 2"]:
+    """:func:`two_beam_reflectance` averaged under a Gaussian lobe in wavenumber: its single
+    fringe ``cos delta`` is attenuated by :func:`fringe_attenuation` (then clipped to [0, 1])."""
+    r1 = fresnel_reflectance(cos_i, n)
+    x = optical_path(thickness, n, cos_i)
+    delta = phase(thickness, wavelength, n, cos_i)
+    fringe = (jnp.cos(delta) * fringe_attenuation(x, sigma))[..., None]
+    r = r1 * (1.0 + (1.0 - r1) ** 2 + 2.0 * (1.0 - r1) * fringe)
+    return jnp.clip(r, 0.0, 1.0)
+
+
+def filtered_paper_interference_factor(
+    thickness: ArrayLike, wavelength: ArrayLike, n: ArrayLike, cos_i: ArrayLike, t: ArrayLike, sigma: ArrayLike
+) -> Array:
+    """Eq. (10)'s factor averaged under a Gaussian lobe in wavenumber:
+    ``4 t^2 cos^2(delta/2) = 2 t^2 (1 + cos delta)`` with ``cos delta`` attenuated by
+    :func:`fringe_attenuation`; it tends to the broadband mean ``2 t^2`` for thick films."""
+    x = optical_path(thickness, n, cos_i)
+    delta = phase(thickness, wavelength, n, cos_i)
+    return 2.0 * t * t * (1.0 + jnp.cos(delta) * fringe_attenuation(x, sigma))

@@ -17,10 +17,10 @@ Methods (the ``filtering`` knob of a scene):
     The sum of eq. (12) restricted to a window of ``(2k+1)^2`` texels of mip level ``level``
     around the reflected direction; the paper's method, exact for its texels as ``k`` grows.
 ``mipmap`` (hierarchical, after Kautz et al. 2000)
-    Gauss-Hermite quadrature of the lobe in slope space with ``nodes x nodes`` nodes; each
-    node reads the mip level whose texels match the area it stands for, so even one node
-    integrates the whole lobe without aliasing. Converges to the exact integral of the
-    bilinearly interpolated map as ``nodes`` grows.
+    Quadrature of the lobe in slope space with ``nodes x nodes`` nodes (Gauss-Hermite up
+    to 4 per axis, a uniform midpoint grid beyond); each node reads the mip level whose
+    texels match the cell it stands for, so even one node integrates the whole lobe
+    without aliasing. Converges to the exact integral as ``nodes`` grows.
 ``full`` (eq. 12)
     The exact sum over every texel of mip level ``level``: the reference.
 
@@ -159,10 +159,10 @@ def _slope_nodes(nodes: int):
 
 
 def specular_mipmap(env: EnvMap, n, wo, a, *, nodes: int, normalize: bool) -> Float[Array, "N 3"]:
-    """Gauss-Hermite quadrature of the slope-space Gaussian lobe (see :mod:`bubblefit.brdf`).
+    """Quadrature of the slope-space Gaussian lobe (see :mod:`bubblefit.brdf`).
 
-    Node ``(j, k)`` sits at slope ``a (x_j t1 + x_k t2)``, with ``x`` the Gauss-Hermite nodes
-    of the weight ``exp(-x^2)`` and weights ``W_j W_k`` (normalised to sum to 1). Its half
+    Node ``(j, k)`` sits at slope ``a (x_j t1 + x_k t2)``, with ``x`` and the weights of
+    :func:`_slope_nodes` for ``exp(-x^2)`` (weights ``W_j W_k``, summing to 1). Its half
     vector gives ``w_i = reflect(w_o, h)``, read at the mip level whose texels match the
     cell the node stands for (:func:`mip_footprint_level`), so that a bright sun is
     prefiltered rather than aliased between nodes.

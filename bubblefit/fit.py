@@ -87,13 +87,15 @@ class FitOptions:
         free_split: fit ``r_d`` and ``r_s`` freely instead of ``r_d + r_s = 1 - t`` (eq. 14).
         disc: ``(cx, cy, r)`` of the bubble in pixels, or None to detect it.
         t_init: starting ``t`` (e.g. from ``bubblefit calibrate``).
+        roughness_init: starting roughness (also decides whether filtering is simulated).
         thickness_range: (min, max) nm searched (and used to decide the effects).
         max_steps, rtol, atol: Levenberg-Marquardt limits and tolerances.
         downsample: factor of the image the local fit runs on (None: so that its larger
             side is at most ``fit_size``).
         fit_size, search_size: larger side of the fit and search images (pixels).
         search_step_nm: thickness grid step of the global search.
-        candidates: local minima of the search refined.
+        candidates: local minima of the search refined (each with at most ``search_steps``
+            LM steps on the search image).
         robust_scale: pseudo-Huber scale in noise sigmas.
         noise_read, noise_shot, bits: noise model (``bits`` None for float photos).
         saturation: photo values at or above this (in files with a maximum of 1) are clipped.
@@ -109,6 +111,7 @@ class FitOptions:
     free_split: bool = False
     disc: tuple | None = None
     t_init: float | None = None
+    roughness_init: float | None = None
     thickness_range: tuple = (50.0, 2000.0)
     max_steps: int = 80
     rtol: float = 1e-5
@@ -117,7 +120,8 @@ class FitOptions:
     fit_size: int = 128
     search_size: int = 48
     search_step_nm: float = 4.0
-    candidates: int = 3
+    candidates: int = 2
+    search_steps: int = 20
     robust_scale: float = 3.0
     noise_read: float = 2e-3
     noise_shot: float = 2e-4
@@ -540,13 +544,22 @@ def _defaults(scene, init, opts, t_from_calibration):
                 vals[keymap.get(k, k)] = float(v)
     if t_from_calibration is not None:
         vals["t"] = float(t_from_calibration)
+    if opts.roughness_init is not None and "roughness" not in held:
+        vals["roughness"] = float(opts.roughness_init)
     if not 0 < vals["t"] < 1:
         raise InputError(f"starting t must lie in (0, 1), got {vals['t']}")
     if vals["r_d"] is None or vals["r_s"] is None:
         vals["r_s"] = (1 - vals["t"]) / (1 + vals["f"])
         vals["r_d"] = (1 - vals["t"]) - vals["r_s"]
     vals["split"] = vals["r_s"] / max(vals["r_s"] + vals["r_d"], 1e-12)
+    aliases = {"thickness_nm": "thickness", "top_nm": "top", "bottom_nm": "bottom", "rotation_deg": "rotation",
+               "f": "split"}
+    known = ("t", "split", "r_d", "r_s", "roughness", "exposure", "rotation", "thickness", "top", "bottom", "exponent")
     for name in opts.hold:
+        name = aliases.get(name, name)
+        if name not in known:
+            raise InputError(f"cannot hold {name!r}: known parameters are t, f, r_d, r_s, roughness, thickness_nm, "
+                             "exposure, rotation_deg, top_nm, bottom_nm, exponent")
         held[name] = "held by request"
     return vals, held
 
@@ -605,8 +618,8 @@ def _layout(opts, fx, held: dict) -> tuple[tuple, dict]:
     return tuple(names), hold
 
 
-def _run_lm(lev: _Level, layout, kind, opts, vals, env, free_split):
-    solve, resid = _solver(lev.cfg, layout, kind, free_split, float(opts.robust_scale), int(opts.max_steps),
+def _run_lm(lev: _Level, layout, kind, opts, vals, env, free_split, max_steps=None):
+    solve, resid = _solver(lev.cfg, layout, kind, free_split, float(opts.robust_scale), int(max_steps or opts.max_steps),
                            float(opts.rtol), float(opts.atol))
     z0 = jnp.asarray([_inverse(n, vals[n]) for n in layout], jnp.float32)
     fixed = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k not in layout}
@@ -644,7 +657,7 @@ def _profile_from_pixels(height, d, w):
 
 
 def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOptions(), background=None,
-              init: dict | None = None, scene=None) -> FitResult:
+              init: dict | None = None, scene=None, saturated: np.ndarray | None = None) -> FitResult:
     """Fit the forward model to a photo.
 
     Args:
@@ -659,12 +672,15 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
         scene: optional :class:`~bubblefit.scene.Scene`: its camera (perspective or a
             disc), n_film, effects settings, and every value its ``[bubble]`` table (and
             ``lighting.rotation_deg``) sets explicitly, which is then held fixed.
+        saturated: optional (H, W) bool of clipped pixels (e.g. :attr:`Image.saturated`),
+            excluded in addition to values >= ``options.saturation``.
 
     Returns:
         A :class:`FitResult`.
     """
     t_start = time.perf_counter()
     opts = options
+    saturated_in = saturated
     photo = np.asarray(photo, dtype=np.float64)
     if photo.ndim != 3 or photo.shape[2] != 3:
         raise InputError(f"the photo must be an RGB image (H, W, 3), got shape {photo.shape}")
@@ -707,11 +723,17 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     base_cfg = RenderConfig(effects=fx, camera=camera, center=center, radius=radius, point_lights=tuple(lights))
     layout, held = _layout(opts, fx, held0)
     lm_kind = "constant" if opts.thickness == "constant" else "drainage"
+    map_cfg = base_cfg  # a map is fitted after a drainage profile: the local fits render the profile
+    base_cfg = replace(base_cfg, effects=replace(fx, thickness=lm_kind))
     fit_layout = layout
 
     # data at the fit and search resolutions
     sigma = noise_sigma(photo, opts.noise_read, opts.noise_shot, opts.bits)
     saturated = (np.max(photo, axis=-1) >= opts.saturation) if photo.max() <= 1.0 + 1e-6 else np.zeros((H, W), bool)
+    if saturated_in is not None:
+        if np.shape(saturated_in) != (H, W):
+            raise InputError(f"the saturation mask is {np.shape(saturated_in)}, the photo is {W}x{H}")
+        saturated = saturated | np.asarray(saturated_in, bool)
     if saturated.any():
         from scipy import ndimage as ndi
 
@@ -754,7 +776,7 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
         # refine each start on the search image, keep the best
         best_v, best_c = None, np.inf
         for s in starts:
-            out = _run_lm(lev_s, layout, lm_kind, opts, s, envj, opts.free_split)
+            out = _run_lm(lev_s, layout, lm_kind, opts, s, envj, opts.free_split, max_steps=opts.search_steps)
             c = _cost(out[5])
             if np.isfinite(c) and c < best_c:
                 best_v, best_c = out[0], c
@@ -792,7 +814,7 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
             g = np.asarray(g, np.float64).reshape(-1)
             var = g @ cov_z @ g
             stderr[key] = float(math.sqrt(var)) if np.isfinite(var) and var >= 0 else float("nan")
-        heldnames = {"thickness": "thickness_nm", "top": "top_nm", "bottom": "bottom_nm"}
+        heldnames = {"thickness": "thickness_nm", "top": "top_nm", "bottom": "bottom_nm", "rotation": "rotation_deg"}
         for n in held:
             key = heldnames.get(n, n)
             if key in stderr and n not in layout:
@@ -821,7 +843,7 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     if opts.thickness != "constant":
         prof = (new["top"], new["bottom"], new["exponent"])
     if opts.thickness == "map":
-        full = _make_level(1, base_cfg, photo, sigma, background, saturated, opts)
+        full = _make_level(1, map_cfg, photo, sigma, background, saturated, opts)
         dmap, emap, map_ok = _fit_map(full, new, prof, opts, envj)
         final_vals["map"] = dmap
         thickness_map = np.where(full.inside, dmap, np.nan)
@@ -834,7 +856,7 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
             notes.append("the per-pixel thickness refinement did not converge everywhere")
 
     # full-resolution render and residual
-    full_cfg = base_cfg
+    full_cfg = map_cfg if opts.thickness == "map" else base_cfg
     p_final = _params({k: jnp.asarray(v, jnp.float32) for k, v in final_vals.items()},
                       "map" if opts.thickness == "map" else lm_kind, opts.free_split)
     img = np.asarray(render(p_final, full_cfg, envj, None if background is None else jnp.asarray(background, jnp.float32)),

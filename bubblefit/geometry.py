@@ -144,6 +144,10 @@ def internal_bounce(p: Float[Array, "N 3"], e: Float[Array, "N 3"], center, radi
     c = jnp.asarray(center, dtype=p.dtype)
     pc = p - c
     q = p + (-2.0 * jnp.sum(pc * e, axis=-1))[:, None] * e
-    nq = (q - c) / radius
+    # Re-project onto the sphere: without it rounding errors grow geometrically over many
+    # bounces (a non-unit normal scales the reflected direction) and end in inf/NaN.
+    qc = q - c
+    nq = qc / jnp.sqrt(jnp.maximum(jnp.sum(qc * qc, axis=-1, keepdims=True), 1e-30))
+    q = c + radius * nq
     e2 = e - 2.0 * jnp.sum(e * nq, axis=-1)[:, None] * nq
     return q, e2, nq

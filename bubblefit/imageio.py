@@ -184,6 +184,8 @@ class atomic_path:
         folder = self.target.parent if str(self.target.parent) else Path(".")
         if not folder.exists():
             raise InputError(f"cannot write {self.target}: folder {folder} does not exist")
+        if self.target.is_dir():
+            raise InputError(f"cannot write {self.target}: it is a folder")
         if not os.access(folder, os.W_OK):
             raise InputError(f"cannot write {self.target}: folder {folder} is not writable")
         fd, tmp = tempfile.mkstemp(
@@ -195,7 +197,14 @@ class atomic_path:
 
     def __exit__(self, exc_type, exc, tb) -> bool:
         if exc_type is None:
-            os.replace(self.tmp, self.target)
+            try:
+                os.replace(self.tmp, self.target)
+            except OSError as err:
+                try:
+                    os.remove(self.tmp)
+                except OSError:
+                    pass
+                raise InputError(f"cannot write {self.target}: {err.strerror}") from None
         else:
             try:
                 os.remove(self.tmp)

@@ -125,8 +125,9 @@ def _lights_radiance(lights, n, wo, p: Params, *, normalize: bool, diffuse: bool
         h = h / jnp.linalg.norm(h, axis=-1, keepdims=True).clip(1e-12)
         cos_h = jnp.sum(n * h, axis=-1)
         lobe = ward_lobe(cos_i, cos_r, cos_h, p.roughness) * jnp.maximum(cos_i, 0.0)
-        spec = lobe if normalize else p.r_s * lobe
-        val = spec
+        # The caller scales the specular part (r_s in the paper model, R_film in the
+        # physical one), as it does for the filtered environment.
+        val = lobe
         if diffuse:
             val = val + p.r_d / jnp.pi * jnp.maximum(cos_i, 0.0) * (cos_r > 0)
         out = out + val[:, None] * e
@@ -138,6 +139,9 @@ class _Film:
 
     def __init__(self, fx: Effects, p: Params, cos, lam):
         self.fx, self.p, self.cos, self.lam = fx, p, cos, lam
+        # ``fourier`` basis: each sample is the spectrum filtered by a Gaussian lobe (K,).
+        basis = fx.spectral
+        self.sigma = None if basis is None or basis.sigma is None else jnp.asarray(basis.sigma, dtype=cos.dtype)
 
     def reflectance(self, d):
         """Film reflectance R for thicknesses ``d`` (N,), shape (N, K, 2)."""
@@ -145,9 +149,13 @@ class _Film:
         cos = self.cos[:, None]
         if mode == "airy":
             _count("interference")
+            if self.sigma is not None:
+                return film.filtered_airy_reflectance(d[:, None], self.lam, self.p.n_film, cos, self.sigma)
             return film.airy_reflectance(d[:, None], self.lam, self.p.n_film, cos)
         if mode == "two_beam":
             _count("interference")
+            if self.sigma is not None:
+                return film.filtered_two_beam_reflectance(d[:, None], self.lam, self.p.n_film, cos, self.sigma)
             return film.two_beam_reflectance(d[:, None], self.lam, self.p.n_film, cos)
         return film.incoherent_reflectance(cos, self.p.n_film)
 
@@ -157,6 +165,9 @@ class _Film:
         if self.fx.interference == "incoherent":
             return jnp.broadcast_to(2.0 * self.p.t * self.p.t, d.shape)[:, None]
         _count("interference")
+        if self.sigma is not None:
+            return film.filtered_paper_interference_factor(d[:, None], self.lam, self.p.n_film, self.cos[:, None],
+                                                           self.p.t, self.sigma)
         return film.paper_interference_factor(d[:, None], self.lam, self.p.n_film, self.cos[:, None], self.p.t)
 
 
@@ -231,13 +242,16 @@ def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx)
         if fx.model == "paper":
             films.append(("rear", -hits.n1, wo))
         else:
-            pos, e, n_in = hits.p1, d, -hits.n1
+            # Reflection k happens at q (q = p1 for k = 1) on a ray arriving along e; the
+            # reflected ray (e_next) leaves the bubble, or reflects again, at the next hit.
+            q, e_next, nq = internal_bounce(hits.p0, d, cfg.center, cfg.radius)
+            e = d
             for k in range(1, fx.bounces + 1):
                 _count("bounce")
-                q, e_next, nq = internal_bounce(pos, e, cfg.center, cfg.radius)
-                films.append((f"bounce{k}", n_in, -e))
-                bounce_pts.append(nq)
-                pos, e, n_in = q, e_next, -nq
+                films.append((f"bounce{k}", -nq, -e))
+                q2, e2, nq2 = internal_bounce(q, e_next, cfg.center, cfg.radius)
+                bounce_pts.append(nq2)
+                e, q, e_next, nq = e_next, q2, e2, nq2
     if films:
         nn = len(films)
         s_all, d_all = _reflected(env, fx, cfg, p, jnp.concatenate([f[1] for f in films]),

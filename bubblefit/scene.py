@@ -48,6 +48,8 @@ def _check_type(where: str, value, kind):
     kinds = kind if isinstance(kind, tuple) else (kind,)
     for k in kinds:
         if k is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+            if not math.isfinite(value):
+                raise InputError(f"scene key {where} must be a finite number, got {value!r}")
             return float(value)
         if k is int and isinstance(value, int) and not isinstance(value, bool):
             return value
@@ -93,7 +95,7 @@ class Scene:
 
     @staticmethod
     def from_dict(data: dict, base_dir: str | os.PathLike = ".") -> "Scene":
-        scene = Scene(_validate({k: dict(v) for k, v in data.items()}), Path(base_dir))
+        scene = Scene(_validate({k: dict(v) if isinstance(v, dict) else v for k, v in data.items()}), Path(base_dir))
         scene._check_values()
         return scene
 
@@ -130,15 +132,25 @@ class Scene:
         for k in ("width", "height"):
             if k in c and not 1 <= c[k] <= 16384:
                 raise InputError(f"scene value camera.{k} = {c[k]} is out of range [1, 16384]")
+        for k, n in (("origin", 3), ("target", 3), ("up", 3), ("disc", 3)):
+            if k in c:
+                _vector(f"camera.{k}", c[k], n)
+        if "center" in b:
+            _vector("bubble.center", b["center"], 3)
         e = self.table("effects")
         if e.get("model", "paper") not in ("paper", "physical"):
             raise InputError(f"effects.model must be paper or physical, got {e.get('model')!r}")
+        _check_effects(e)
         lighting = self.table("lighting")
         if "envmap" not in lighting and not lighting.get("point_lights") and lighting.get("background") in (None, "envmap"):
             pass  # a dark room with nothing in it renders black; allowed, explained by --explain
         for i, light in enumerate(lighting.get("point_lights", [])):
             if not isinstance(light, dict) or set(light) - {"direction", "radiance"} or "direction" not in light:
                 raise InputError(f"lighting.point_lights[{i}] must be a table with direction and radiance")
+            _vector(f"lighting.point_lights[{i}].direction", light["direction"], 3)
+            if "radiance" in light:
+                rad = light["radiance"]
+                _vector(f"lighting.point_lights[{i}].radiance", rad if isinstance(rad, list) else [rad] * 3, 3)
 
     # -- derived values -----------------------------------------------------------------------
     def resolve_path(self, p: str) -> Path:
@@ -219,6 +231,8 @@ class Scene:
         h, w = px.shape[:2]
         if w != 2 * h:
             raise InputError(f"environment map {path} is {w}x{h}; an equirectangular map must be twice as wide as high")
+        if h < 2:
+            raise InputError(f"environment map {path} is {w}x{h}; it needs at least 2 rows (4x2 texels)")
         return EnvMap.from_array(px)
 
     def background_kind(self) -> tuple[str, Path | None]:
@@ -243,7 +257,7 @@ class Scene:
 
     def config(self, env=None, background=None, *, chunk: int = 4096):
         """Resolve the effects and return ``(RenderConfig, decisions)``."""
-        from .effects import resolve
+        from .effects import reflection_theta_range, resolve
         from .render import RenderConfig
 
         b = self.table("bubble")
@@ -259,7 +273,8 @@ class Scene:
         lights = self.point_lights()
         env_px = None if env is None else np.asarray(env.pixels)
         camera = self.camera()
-        fx, decisions = resolve(
+        try:
+            fx, decisions = resolve(
             model=e.get("model", "paper"),
             settings=e,
             t=float(p.t), r_d=float(p.r_d), r_s=float(p.r_s), roughness=float(p.roughness),
@@ -276,10 +291,61 @@ class Scene:
             tolerance=e.get("tolerance", 1e-3),
             env_pixels=env_px,
             env_irradiance_peak=None if env is None else float(np.max(np.asarray(env.irradiance))),
-        )
+            reflect_theta_range=(reflection_theta_range(camera, tuple(float(x) for x in b.get("center", (0, 0, 0))),
+                                                        float(b.get("radius", 1.0)))
+                                 if env is not None else (0.0, math.pi)),
+            )
+        except ValueError as exc:  # a setting the checks above let through
+            raise InputError(f"scene [effects]: {exc}") from None
         cfg = RenderConfig(effects=fx, camera=camera, center=tuple(float(x) for x in b.get("center", (0, 0, 0))),
                            radius=float(b.get("radius", 1.0)), point_lights=lights, chunk=chunk)
         return cfg, decisions
+
+
+def _vector(name: str, value, n: int) -> list[float]:
+    """A list of ``n`` finite numbers, or an :class:`InputError` naming the key."""
+    ok = (isinstance(value, list) and len(value) == n
+          and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in value))
+    if not ok:
+        raise InputError(f"scene key {name} must be a list of {n} finite numbers, got {value!r}")
+    return [float(x) for x in value]
+
+
+_SPECTRAL_METHODS = ("uniform", "reference", "fourier")
+
+
+def _check_effects(e: dict) -> None:
+    """Values of the [effects] table (DESIGN.md), checked before anything is computed."""
+    from .filtering import METHODS
+
+    def one_of(key, allowed):
+        if key in e and e[key] not in allowed:
+            raise InputError(f"effects.{key} must be one of {', '.join(map(str, allowed))}, got {e[key]!r}")
+
+    one_of("interference", ("auto", "off", "two_beam", "airy", "incoherent"))
+    one_of("filtering", ("auto",) + tuple(METHODS))
+    for key in ("front_reflection", "rear_reflection", "transmission", "diffuse"):
+        if key in e and not isinstance(e[key], bool) and e[key] != "auto":
+            raise InputError(f"effects.{key} must be true, false or \"auto\", got {e[key]!r}")
+    if "bounces" in e and e["bounces"] != "auto" and not (isinstance(e["bounces"], int) and 0 <= e["bounces"] <= 64):
+        raise InputError(f"effects.bounces must be \"auto\" or an integer in [0, 64], got {e['bounces']!r}")
+    for key, lo, hi in (("nodes", 1, 32), ("window", 0, 4096), ("level", 0, 32)):
+        if key in e and not lo <= e[key] <= hi:
+            raise InputError(f"scene value effects.{key} = {e[key]} is out of range [{lo}, {hi}]")
+    if "tolerance" in e and not e["tolerance"] > 0:
+        raise InputError(f"scene value effects.tolerance = {e['tolerance']} must be positive")
+    spec = e.get("spectral", "auto")
+    if isinstance(spec, str):
+        if spec != "auto" and spec not in _SPECTRAL_METHODS:
+            raise InputError(f"effects.spectral must be \"auto\", one of {', '.join(_SPECTRAL_METHODS)} "
+                             f"or a table {{method, samples}}, got {spec!r}")
+    else:
+        unknown = set(spec) - {"method", "samples"}
+        method, samples = spec.get("method", "uniform"), spec.get("samples", 30)
+        if unknown or method not in _SPECTRAL_METHODS or isinstance(samples, bool) \
+                or not isinstance(samples, int) or not 1 <= samples <= 4000:
+            raise InputError("effects.spectral table must be {method = uniform|reference|fourier, "
+                             f"samples = 1..4000}}, got {spec!r}")
 
 
 def _min_cos(camera) -> float:
@@ -302,8 +368,12 @@ def load_scene(path: str | os.PathLike) -> Scene:
     path = Path(path)
     if not path.exists():
         raise InputError(f"scene file not found: {path}")
+    if path.is_dir():
+        raise InputError(f"expected a scene file (TOML), got a folder: {path}")
     try:
         data = tomllib.loads(path.read_text())
+    except OSError as exc:
+        raise InputError(f"cannot read scene file {path}: {exc.strerror}") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise InputError(f"scene file {path} is not valid TOML: {exc}") from None
     return Scene.from_dict(data, base_dir=path.parent)

@@ -362,7 +362,7 @@ def _one_line(exc: BaseException) -> str:
 
 
 def _fit_chunk(todo: list[tuple[FrameRef, dict | None]], env, options, background, scene, jax_setup: dict,
-               want_maps: bool, fit_function: str = "bubblefit.fit:fit_photo") -> list[dict]:
+               want_maps: bool, fit_function: str = "bubblefit.fit:fit_photo", warm_start: bool = True) -> list[dict]:
     """Fit the pending frames of one chunk, in order, each warm-started from the last success.
 
     Args:
@@ -374,6 +374,7 @@ def _fit_chunk(todo: list[tuple[FrameRef, dict | None]], env, options, backgroun
         jax_setup: the client's JAX settings (compilation cache, float64).
         want_maps: keep each frame's thickness map (else it is dropped here, in the worker).
         fit_function: ``"module:name"`` of the fit, called like :func:`bubblefit.fit.fit_photo`.
+        warm_start: False: every frame runs the global search (independent frames).
 
     Returns:
         One record (dict) per frame fitted, in order.
@@ -387,7 +388,7 @@ def _fit_chunk(todo: list[tuple[FrameRef, dict | None]], env, options, backgroun
         if done is not None:
             warm = _warm_init(done) or warm
             continue
-        rec = _fit_one(ref, env, options, warm, background, scene, fit_photo)
+        rec = _fit_one(ref, env, options, warm if warm_start else None, background, scene, fit_photo)
         if not want_maps:
             rec.pop("_thickness_map", None)
         out.append(rec)
@@ -716,6 +717,7 @@ def fit_sequence(
     progress: bool = True,
     on_record: Callable[[dict], None] | None = None,
     fit_function: str = "bubblefit.fit:fit_photo",
+    warm_start: bool = True,
 ) -> SequenceResult:
     """Fit every frame of a sequence and write the tables, resumably.
 
@@ -734,13 +736,17 @@ def fit_sequence(
             without Dask; with an existing cluster, use at most this many of its workers.
         chunk_size: frames per task (a warm-start chain). Bigger chunks warm-start more
             frames; smaller ones spread better over many workers.
-        force: refit frames already finished. retry_failed: refit frames recorded as failed.
+        force: refit frames already finished. retry_failed: refit frames recorded as failed
+            (frames lost with a worker are always refitted; unreadable frames and fits that
+            raised only with this flag).
         maps: write each frame's thickness map (when the fit gives one).
         fps: frames per second for the time axis (see :func:`discover_frames`).
         progress: show a progress bar (frames per second, time left) on a terminal.
         on_record: called with each new record as it is saved (for tests and tools).
         fit_function: ``"module:name"`` of the per-frame fit (importable on the workers),
             called as ``fit(photo, env, options=, background=, init=, scene=)``.
+        warm_start: start each frame from its predecessor (False: global search everywhere,
+            for frames that are not a continuous film).
 
     Returns:
         A :class:`SequenceResult`.
@@ -770,8 +776,10 @@ def fit_sequence(
     except OSError as exc:
         raise InputError(f"cannot create output folder {out}: {exc.strerror}") from None
 
+    options = _fix_disc(options, frames, background, scene)
+
     # -- what is already done --------------------------------------------------------------
-    fp = _fingerprint((options, fit_function), env, background, scene)
+    fp = _fingerprint((options, fit_function, bool(warm_start)), env, background, scene)
     run_path = out / "run.json"
     if run_path.exists() and not force:
         prev = _read_json(run_path)
@@ -786,8 +794,8 @@ def fit_sequence(
             rec = _read_record(_record_path(out, ref.index))
             if rec is None or rec.get("file") != ref.label:
                 continue
-            if rec.get("status") != "ok" and retry_failed:
-                continue
+            if rec.get("status") != "ok" and (retry_failed or rec.get("retryable")):
+                continue  # a lost worker is not the frame's fault: always retried
             done[ref.index] = rec
     skipped = len(done)
 
@@ -823,7 +831,8 @@ def fit_sequence(
         for ref, d in chunk:
             if d is None and ref.index not in fresh:
                 accept({"version": RECORD_VERSION, "frame": ref.index, "file": ref.label, "time_s": ref.time_s,
-                        "status": "failed", "converged": False, "message": reason, "warm_start": False})
+                        "status": "failed", "converged": False, "message": reason, "warm_start": False,
+                        "retryable": True})
 
     bar = Progress(pending, "fitting frames", unit="frames") if progress else None
     if chunks and workers == 0:
@@ -831,7 +840,8 @@ def fit_sequence(
         t0 = time.perf_counter()
         with bar if bar else _nullctx():
             for chunk in chunks:
-                for rec in _fit_chunk(chunk, env, options, background, scene, jax_setup, want_maps, fit_function):
+                for rec in _fit_chunk(chunk, env, options, background, scene, jax_setup, want_maps, fit_function,
+                                      warm_start):
                     accept(rec)
                     if bar:
                         bar.update(1, _note(rec))
@@ -851,6 +861,7 @@ def fit_sequence(
             token = hashlib.sha1(f"{fp}{time.time()}{os.getpid()}".encode()).hexdigest()[:10]
             for i, chunk in enumerate(chunks):
                 f = client.submit(_fit_chunk, chunk, env_f, options, bg_f, scene, jax_setup, want_maps, fit_function,
+                                  warm_start,
                                   key=f"bubblefit-chunk-{chunk[0][0].index}-{token}", workers=addrs,
                                   allow_other_workers=False, pure=False)
                 futures[f] = chunk
@@ -893,6 +904,37 @@ def fit_sequence(
     return SequenceResult(out_dir=out, records=records, fitted=len(fresh), skipped=skipped, failed=n_failed,
                           elapsed_s=elapsed, setup_s=setup_s, workers=n_workers_used, table=table, jsonl=jsonl,
                           plot=plot)
+
+
+def _fix_disc(options, frames: list[FrameRef], background, scene):
+    """Options with the bubble's disc fixed for the whole sequence.
+
+    Without a disc, :func:`bubblefit.fit.fit_photo` detects one per photo; a disc that
+    moves by a fraction of a pixel changes the static camera and recompiles the fit for
+    every frame. A filmed bubble stays put, so the disc is detected once, on the first
+    readable frame, and held (give ``FitOptions.disc`` for a bubble that moves).
+    """
+    if not hasattr(options, "disc") or options.disc is not None:
+        return options
+    if scene is not None and (scene.table("camera").get("type", "orthographic") == "perspective"
+                              or "disc" in scene.table("camera")):
+        return options
+    from dataclasses import replace
+
+    from .fit import detect_disc
+
+    for ref in frames[:10]:
+        try:
+            photo = load_frame(ref)
+        except InputError:
+            continue
+        try:
+            disc = detect_disc(photo, background)
+        except InputError as exc:
+            raise InputError(f"cannot find the bubble in frame {ref.index} ({ref.label}): {exc}; give its disc") \
+                from None
+        return replace(options, disc=tuple(round(float(v), 2) for v in disc))
+    raise InputError("none of the first frames can be read")
 
 
 def _note(rec: dict) -> str:

@@ -15,6 +15,18 @@ Methods:
         paper used K = 10, 30, 100; few samples band on thick films).
     ``reference``: uniform with 0.5 nm bins (800 samples), the converged reference for
         films up to ~20 um.
+    ``fourier``: K Gaussian lobes in wavenumber (after Belcour & Barla, "A Practical
+        Extension to Microfacet Theory for the Modeling of Varying Iridescence", ACM TOG
+        36(4), 2017, sec. 4): the observer x illuminant of each sRGB channel is
+        approximated by ``sum_k W_kc G_k(nu)``, ``G_k`` a unit-area Gaussian of mean
+        ``1/lambda_k`` and standard deviation ``sigma_k`` (1/nm). Each sample then stands
+        for the spectrum *filtered* by ``G_k``, and a fringe ``cos(2 pi m x nu)`` of optical
+        path ``x`` filters in closed form to ``cos(2 pi m x / lambda_k)
+        exp(-2 pi^2 sigma_k^2 m^2 x^2)`` (:func:`bubblefit.film.fringe_attenuation`). Thick
+        films therefore fade smoothly to the incoherent mean instead of aliasing, with
+        K = 5-8 samples. The lobes' centres and widths were fitted once (least squares in
+        wavenumber, D65, table :data:`FOURIER_LOBES`); the weights are solved for the
+        illuminant when the basis is built.
 """
 
 from __future__ import annotations
@@ -32,6 +44,7 @@ __all__ = [
     "spectral_basis",
     "integrate",
     "REFERENCE_SAMPLES",
+    "FOURIER_LOBES",
 ]
 
 LAMBDA_MIN = 380.0
@@ -58,13 +71,68 @@ def _tables(illuminant: str):
     return lam, np.asarray(cmfs.values, dtype=np.float64), ill, xyz_to_rgb
 
 
+#: ``fourier`` lobes per sample count K: (centre wavelengths in nm, standard deviations in
+#: wavenumber, 1/um), from a least-squares fit of K shared Gaussians in wavenumber to the
+#: three sRGB weight densities under D65 (the script that made them is in
+#: ``experiments/accuracy_vs_time.py --fit-lobes``).
+FOURIER_LOBES: dict = {
+    3: ((598.161, 553.392, 453.353),
+        (0.09174, 0.1414, 0.10651)),
+    5: ((652.043, 607.004, 550.692, 549.625, 452.752),
+        (0.06308, 0.10527, 0.19089, 0.11237, 0.10395)),
+    6: ((652.724, 606.97, 550.026, 536.493, 452.471, 452.379),
+        (0.06416, 0.1071, 0.11829, 0.23356, 0.10559, 0.1061)),
+    7: ((707.149, 603.028, 577.197, 550.492, 446.779, 427.019, 426.746),
+        (0.07495, 0.10388, 0.16481, 0.12047, 0.11618, 0.09231, 0.09164)),
+    8: ((611.779, 578.367, 577.361, 521.856, 485.572, 467.462, 463.037, 415.358),
+        (0.05999, 0.10556, 0.10625, 0.06325, 0.07527, 0.1443, 0.14133, 0.07374)),
+    10: ((659.362, 612.152, 603.063, 555.974, 522.397, 477.304, 460.575, 439.574, 434.821, 423.598),
+        (0.05217, 0.02735, 0.08466, 0.09968, 0.06606, 0.12243, 0.06686, 0.05624, 0.08929, 0.02244)),
+    12: ((641.324, 631.771, 611.634, 594.063, 562.123, 525.734, 479.539, 464.063, 443.673, 420.59, 419.634, 419.381),
+        (0.05752, 0.03911, 0.03377, 0.06056, 0.09178, 0.07284, 0.10348, 0.05919, 0.0934, 0.03991, 0.03058, 0.02849)),
+    16: ((662.057, 641.78, 605.949, 601.421, 596.308, 575.56, 547.331, 522.971, 486.184, 479.577, 462.785, 442.511, 417.514, 417.46, 410.854, 407.859),
+        (0.02002, 0.02001, 0.07758, 0.05011, 0.03548, 0.06732, 0.07389, 0.07321, 0.07113, 0.02639, 0.05317, 0.05918, 0.05171, 0.05178, 0.02625, 0.04523)),
+}
+
+
+def _fourier_arrays(samples: int, illuminant: str):
+    """Centres (K,) nm, sRGB weights (K, 3) and wavenumber deviations (K,) 1/nm of ``fourier``."""
+    if samples not in FOURIER_LOBES:
+        raise ValueError(f"fourier spectral samples must be one of {sorted(FOURIER_LOBES)}, got {samples}")
+    lam_k = np.asarray(FOURIER_LOBES[samples][0], dtype=np.float64)
+    sig_k = np.asarray(FOURIER_LOBES[samples][1], dtype=np.float64) * 1e-3
+    nu, dens = _wavenumber_density(illuminant)
+    mu = 1.0 / lam_k
+    g = np.exp(-0.5 * ((nu[:, None] - mu) / sig_k) ** 2) / (np.sqrt(2 * np.pi) * sig_k)
+    w, *_ = np.linalg.lstsq(g, dens, rcond=None)
+    w /= w.sum(axis=0, keepdims=True)  # flat spectrum -> (1, 1, 1)
+    return lam_k, w, sig_k
+
+
+def _wavenumber_density(illuminant: str, points: int = 600):
+    """The three sRGB weight densities per unit wavenumber (each of unit integral), (P, 3),
+    on a grid ``nu`` (P,) in 1/nm spanning the visible range with a margin of zeros."""
+    lam_tab, cmf_tab, ill_tab, m = _tables(illuminant)
+    lo, hi = 1.0 / LAMBDA_MAX, 1.0 / LAMBDA_MIN
+    nu = np.linspace(lo - 2e-4, hi + 2e-4, points)
+    lam = 1.0 / nu
+    cmf = np.stack([np.interp(lam, lam_tab, cmf_tab[:, c]) for c in range(3)], axis=1)
+    inside = ((lam >= LAMBDA_MIN) & (lam <= LAMBDA_MAX))[:, None]
+    dens = np.where(inside, (cmf * np.interp(lam, lam_tab, ill_tab)[:, None]) @ m.T, 0.0) * lam[:, None] ** 2
+    return nu, dens / (dens.sum(axis=0, keepdims=True) * (nu[1] - nu[0]))
+
+
 @functools.lru_cache(maxsize=64)
 def _basis_arrays(method: str, samples: int, illuminant: str):
     lam_tab, cmf_tab, ill_tab, m = _tables(illuminant)
+    if method == "fourier":
+        lam_k, w, sig_k = _fourier_arrays(samples, illuminant)
+        fwhm_nm = 2.3548 * sig_k * lam_k**2  # the lobe's width in wavelength, for display
+        return lam_k, w, fwhm_nm, sig_k
     if method == "reference":
         samples = REFERENCE_SAMPLES
     if method not in ("uniform", "reference"):
-        raise ValueError(f"unknown spectral method {method!r}")
+        raise ValueError(f"unknown spectral method {method!r} (uniform, reference or fourier)")
     if samples < 1:
         raise ValueError("spectral samples must be >= 1")
     width = (LAMBDA_MAX - LAMBDA_MIN) / samples
@@ -79,23 +147,28 @@ def _basis_arrays(method: str, samples: int, illuminant: str):
     w = np.zeros((samples, 3))
     np.add.at(w, idx, rgb_f)
     w /= w.sum(axis=0, keepdims=True)  # flat spectrum -> (1, 1, 1)
-    return lam, w, np.full(samples, width)
+    return lam, w, np.full(samples, width), None
 
 
 class SpectralBasis:
     """Sample wavelengths (K,) in nm, RGB weights (K, 3) and bin widths (K,) in nm.
 
+    ``sigma`` is None for point-sampled methods (``uniform``, ``reference``) and, for
+    ``fourier``, the (K,) wavenumber standard deviations (1/nm) of the lobes each sample
+    stands for: film functions must then return the lobe-filtered spectrum.
+
     Hashable and compared by its definition, so it can be a static argument under jit.
     """
 
     def __init__(self, method: str = "uniform", samples: int = 30, illuminant: str = "D65"):
-        lam, w, width = _basis_arrays(method, int(samples), illuminant)
+        lam, w, width, sigma = _basis_arrays(method, int(samples), illuminant)
         self.method = method
         self.samples = len(lam)
         self.illuminant = illuminant
         self.wavelengths = lam
         self.weights = w
         self.bin_width = width
+        self.sigma = sigma
 
     def _key(self):
         return (self.method, self.samples, self.illuminant)
@@ -111,7 +184,7 @@ class SpectralBasis:
 
 
 def spectral_basis(method: str = "uniform", samples: int = 30, illuminant: str = "D65") -> SpectralBasis:
-    """The quadrature for ``method`` (``uniform`` or ``reference``) with ``samples`` bins."""
+    """The quadrature for ``method`` (``uniform``, ``reference`` or ``fourier``) with ``samples`` bins."""
     return SpectralBasis(method, samples, illuminant)
 
 

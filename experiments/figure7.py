@@ -46,7 +46,7 @@ def main(argv=None) -> int:
     bubbles, maps, times = [], [], []
     for a in roughness:
         sc = F.scene(camera=F.view_camera(size), bubble={"roughness": a, "f": 0.3, "t": 0.972, "thickness_nm": 500.0},
-                     lighting={"envmap": envpath, "rotation_deg": F.VIEW_ROTATION}, effects={"model": "paper"})
+                     lighting={"envmap": envpath, "rotation_deg": F.VIEW_ROTATION}, effects={"model": "paper", "spectral": {"method": "uniform", "samples": 100}})
         env = env or sc.load_envmap()
         img, dt = F.render(sc, env)
         F.log(f"a = {a}: rendered {size}x{size} in {dt:.2f} s")

@@ -64,7 +64,7 @@ def main(argv=None) -> int:
                          bubble={"roughness": a, "f": f, "t": 0.972, "thickness_nm": 500.0},
                          lighting={"point_lights": [{"direction": list(LIGHT), "radiance": [RADIANCE] * 3}],
                                    "background": "black"},
-                         effects={"model": "paper"})
+                         effects={"model": "paper", "spectral": {"method": "uniform", "samples": 100}})
             img, dt = F.render(sc)
             times.append(dt)
             grid[(f, a)] = img

@@ -20,6 +20,9 @@ COMMANDS = (
     "envmap",
     "check_capture",
     "calibrate",
+    "fit",
+    "fit_sequence",
+    "demo",
 )
 
 
@@ -39,8 +42,16 @@ def _setup_jax() -> None:
         pass
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line on stderr (exit 2), like every
+    other error of the command line; ``--help`` shows the usage."""
+
+    def error(self, message):  # noqa: D102
+        self.exit(2, f"bubblefit: error: {_one_line(message)} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="bubblefit",
         description="Render soap bubbles and measure them from photographs.",
     )
@@ -51,7 +62,20 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _one_line(text: str) -> str:
+    """The first non-empty line of a message (decoders sometimes return several)."""
+    lines = [ln.strip() for ln in str(text).strip().splitlines() if ln.strip()]
+    return lines[0] if lines else "unknown error"
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one sub-command; every failure becomes one line on stderr and a non-zero exit.
+
+    ``BubblefitError`` (bad input, failed computation) prints ``bubblefit: error: ...`` and
+    exits with its code (2 for bad input). Any other exception is a bug or an unforeseen
+    input: it prints ``bubblefit: internal error: <type>: <message>`` and exits 1, unless
+    the environment sets ``BUBBLEFIT_DEBUG=1``, which re-raises it with its traceback.
+    """
     from ..errors import BubblefitError
 
     parser = build_parser()
@@ -60,13 +84,19 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except BubblefitError as exc:
-        print(f"bubblefit: error: {exc}", file=sys.stderr)
+        print(f"bubblefit: error: {_one_line(exc)}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
         print("bubblefit: interrupted", file=sys.stderr)
         return 130
     except MemoryError:
         print("bubblefit: error: out of memory (try a smaller image or fewer spectral samples)", file=sys.stderr)
+        return 1
+    except Exception as exc:  # noqa: BLE001 - the last line of defence of the CLI contract
+        if os.environ.get("BUBBLEFIT_DEBUG", "") not in ("", "0"):
+            raise
+        print(f"bubblefit: internal error: {type(exc).__name__}: {_one_line(exc)} "
+              "(rerun with BUBBLEFIT_DEBUG=1 for a traceback)", file=sys.stderr)
         return 1
 
 

@@ -26,6 +26,8 @@ def parse_range(text: str) -> np.ndarray:
         start, stop, step = (float(x) for x in text.split(":"))
     except ValueError:
         raise InputError(f"--thickness must be START:STOP:STEP in nm, got {text!r}") from None
+    if not all(np.isfinite((start, stop, step))):
+        raise InputError(f"--thickness {text!r}: START, STOP and STEP must be finite numbers")
     if step <= 0 or stop < start or start < 0:
         raise InputError(f"--thickness {text!r}: need 0 <= START <= STOP and STEP > 0")
     n = int(np.floor((stop - start) / step + 1e-9)) + 1
@@ -48,6 +50,12 @@ def run(args) -> int:
     if not 1.0 <= args.n_film <= 3.0:
         raise InputError(f"--n-film must be within [1, 3], got {args.n_film}")
     d = parse_range(args.thickness)
+    fmt = args.output.rsplit(".", 1)[-1].lower() if "." in args.output else "png"
+    supported = plt.figure().canvas.get_supported_filetypes()
+    plt.close("all")
+    if fmt not in supported:
+        raise InputError(f"cannot write chart {args.output}: unknown image format .{fmt} "
+                         f"(use one of {', '.join(sorted(supported))})")
     rgb = interference_colours(d, angle_deg=args.angle_deg, model=args.model, n_film=args.n_film)
     shown = srgb_encode(rgb * display_scale(args.model, angle_deg=args.angle_deg, n_film=args.n_film))
     fig, ax = plt.subplots(figsize=(10, 1.8), dpi=120)
@@ -57,7 +65,7 @@ def run(args) -> int:
     ax.set_title(f"interference colour, {args.model}, n = {args.n_film}, {args.angle_deg:g} deg")
     fig.tight_layout()
     with atomic_path(args.output) as tmp:
-        fig.savefig(tmp, format=args.output.rsplit(".", 1)[-1] if "." in args.output else "png")
+        fig.savefig(tmp, format=fmt)
     plt.close(fig)
     if args.csv:
         with atomic_path(args.csv) as tmp:

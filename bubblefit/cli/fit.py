@@ -1,0 +1,179 @@
+"""``bubblefit fit PHOTO --envmap ENV [...]``: recover t, r_d, r_s, roughness and thickness.
+
+See :func:`bubblefit.fit.fit_photo` for the method. Prints a summary; ``--json`` writes
+the DESIGN.md result (``params``, ``stderr``, ``converged``, ``iterations``,
+``residual_rms``, ``time_s`` and more); ``-o PREFIX`` writes ``PREFIX_render.exr``,
+``PREFIX_residual.exr`` and, for a drainage profile or a map, ``PREFIX_thickness.exr``
+(nm, NaN outside the bubble), each with a PNG preview. A fit that did not converge is
+reported as such (and exits 1 with ``--strict``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+
+from ..errors import ComputationError, InputError
+
+NAME = "fit"
+
+
+def register(sub):
+    p = sub.add_parser(
+        NAME, help="fit the bubble model to a photo (t, r_d, r_s, roughness, film thickness)",
+        description="Recover the transmission t, the diffuse/specular split, Ward's roughness and the film "
+                    "thickness (one value, a drainage profile or a per-pixel map) from a linear photo of a "
+                    "bubble and its environment map, with standard errors.")
+    p.add_argument("photo", metavar="PHOTO", help="photo of the bubble (EXR/HDR linear; PNG/JPEG/TIFF sRGB)")
+    p.add_argument("--envmap", required=True, help="environment map (equirectangular, linear EXR/HDR), aligned "
+                                                   "with the camera (it looks along -z of the map's frame)")
+    p.add_argument("--background", metavar="BEFORE", help="photo of the same view without the bubble")
+    cal = p.add_mutually_exclusive_group()
+    cal.add_argument("--calibration", metavar="CAL.json", help="output of `bubblefit calibrate` (starting t, disc)")
+    cal.add_argument("--t", type=float, help="starting transmission fraction t (0 < t < 1)")
+    p.add_argument("--scene", metavar="SCENE.toml",
+                   help="scene file: its camera (orthographic disc or perspective), n_film, effects, and every "
+                        "value its [bubble] table sets, which is held fixed")
+    p.add_argument("--thickness", choices=("constant", "drainage", "map"), default="constant",
+                   help="thickness model (default: constant)")
+    p.add_argument("--model", choices=("paper", "physical"), default=None,
+                   help="forward model (default: the scene's, else paper)")
+    p.add_argument("--disc", metavar="CX,CY,R", help="the bubble's disc in pixels (default: detected)")
+    p.add_argument("--thickness-range", metavar="MIN,MAX", default="50,2000", help="searched thickness, nm [50,2000]")
+    p.add_argument("--hold", metavar="NAMES", default="",
+                   help="comma-separated parameters held at their starting values (t, f, r_d, r_s, roughness, "
+                        "thickness_nm, exposure, rotation_deg, top_nm, bottom_nm, exponent)")
+    p.add_argument("--free-split", action="store_true", help="fit r_d and r_s freely instead of r_d + r_s = 1 - t")
+    p.add_argument("--fit-rotation", action="store_true", help="also fit the environment's rotation about +y")
+    p.add_argument("--max-steps", type=int, default=None, help="Levenberg-Marquardt step limit")
+    p.add_argument("--json", metavar="OUT", help="write the result as JSON")
+    p.add_argument("-o", "--output", metavar="PREFIX", help="write PREFIX_render.exr, PREFIX_residual.exr "
+                                                             "(and PREFIX_thickness.exr) with PNG previews")
+    p.add_argument("--explain", action="store_true", help="print which effects are simulated or skipped, and why")
+    p.add_argument("--strict", action="store_true", help="exit with status 1 when the fit did not converge")
+    p.set_defaults(func=run)
+
+
+def load_envmap(path: str):
+    """Read an equirectangular map into an :class:`~bubblefit.envmap.EnvMap` (one-line errors)."""
+    from ..envmap import EnvMap
+    from ..imageio import read_image
+
+    try:
+        img = read_image(path)
+    except InputError as exc:
+        raise InputError(f"environment map: {exc}") from None
+    h, w = img.pixels.shape[:2]
+    if w != 2 * h:
+        raise InputError(f"environment map {path} is {w}x{h}; an equirectangular map must be twice as wide as high")
+    if not np.any(np.isfinite(img.pixels) & (img.pixels > 0)):
+        raise InputError(f"environment map {path} is black or unreadable")
+    return EnvMap.from_array(img.pixels)
+
+
+def read_calibration(path: str) -> tuple[float, tuple | None]:
+    """``(t, disc or None)`` from a ``bubblefit calibrate`` JSON."""
+    try:
+        with open(path) as fh:
+            data = json.load(fh)
+    except OSError as exc:
+        raise InputError(f"cannot read calibration {path}: {exc.strerror}") from None
+    except ValueError:
+        raise InputError(f"calibration {path} is not valid JSON") from None
+    t = data.get("t") if isinstance(data, dict) else None
+    if not isinstance(t, (int, float)) or isinstance(t, bool) or not 0 < t < 1:
+        raise InputError(f"calibration {path} has no valid 't' (a number with 0 < t < 1)")
+    disc = None
+    b = data.get("bubble")
+    if isinstance(b, dict) and all(isinstance(b.get(k), (int, float)) for k in ("cx", "cy", "r")):
+        disc = (float(b["cx"]), float(b["cy"]), float(b["r"]))
+    return float(t), disc
+
+
+def _bits(img) -> int | None:
+    return None if img.linear_file else int(img.bit_depth)
+
+
+def run(args) -> int:
+    from ..fit import FitOptions, fit_photo
+    from ..imageio import preview_path, read_image, write_image
+    from ..progress import status
+    from ..scene import load_scene
+    from .common import parse_floats, write_json
+
+    photo = read_image(args.photo)
+    env = load_envmap(args.envmap)
+    background = None
+    if args.background:
+        bimg = read_image(args.background)
+        if bimg.pixels.shape != photo.pixels.shape:
+            raise InputError(f"the background {args.background} is {bimg.pixels.shape[1]}x{bimg.pixels.shape[0]}, "
+                             f"the photo is {photo.pixels.shape[1]}x{photo.pixels.shape[0]}")
+        background = bimg.pixels
+    scene = load_scene(args.scene) if args.scene else None
+    t_init, disc = None, None
+    if args.calibration:
+        t_init, disc = read_calibration(args.calibration)
+    if args.t is not None:
+        if not 0 < args.t < 1:
+            raise InputError(f"--t must lie in (0, 1), got {args.t}")
+        t_init = args.t
+    if args.disc:
+        disc = parse_floats(args.disc, 3, "--disc")
+    lo, hi = parse_floats(args.thickness_range, 2, "--thickness-range")
+    model = args.model or (scene.table("effects").get("model", "paper") if scene is not None else "paper")
+    kw = dict(thickness=args.thickness, model=model, disc=disc, t_init=t_init, thickness_range=(lo, hi),
+              hold=tuple(h.strip() for h in args.hold.split(",") if h.strip()), free_split=args.free_split,
+              fit_rotation=args.fit_rotation, bits=_bits(photo))
+    if args.max_steps is not None:
+        if args.max_steps < 1:
+            raise InputError("--max-steps must be at least 1")
+        kw["max_steps"] = args.max_steps
+    options = FitOptions(**kw)
+    status(f"fitting {photo.pixels.shape[1]}x{photo.pixels.shape[0]} ({options.thickness} thickness, "
+           f"{options.model} model) ...")
+    result = fit_photo(photo.pixels, env, options=options, background=background, scene=scene,
+                       saturated=photo.saturated)
+    out = result.to_json()
+    out["photo"] = str(args.photo)
+    if args.explain:
+        print("effect               state     [setting] reason")
+        for d in result.effects:
+            print(d.line())
+    p, e = result.params, result.stderr
+    keys = ["t", "r_d", "r_s", "f", "roughness", "thickness_nm", "top_nm", "bottom_nm", "exponent", "exposure",
+            "rotation_deg"]
+    for k in keys:
+        if k in p:
+            err = e.get(k)
+            txt = f"+- {err:.3g}" if err is not None and math.isfinite(err) else "(held)"
+            print(f"{k:<13} {p[k]:.6g} {txt}")
+    state = "converged" if result.converged else f"NOT CONVERGED: {result.message}"
+    print(f"{state}; {result.iterations} iterations, residual rms {result.residual_rms:.4g}, {result.time_s:.2f} s")
+    if args.output:
+        prefix = args.output
+        files = {"render": result.render, "residual": result.residual}
+        if result.thickness_map is not None:
+            files["thickness"] = result.thickness_map
+        for name, img in files.items():
+            path = f"{prefix}_{name}.exr"
+            write_image(path, img, bit_depth=32 if name == "thickness" else None)
+            if name == "render":
+                hi_ = float(np.percentile(img, 99.5)) if img.size else 1.0
+                prev = img * (0.9 / hi_ if hi_ > 0.9 else 1.0)
+            elif name == "residual":
+                scale = float(np.percentile(np.abs(img), 99)) or 1.0
+                prev = 0.5 + 0.5 * img / scale
+            else:
+                finite = np.isfinite(img)
+                top = float(np.max(img[finite])) if finite.any() else 1.0
+                prev = np.repeat((np.nan_to_num(img, nan=0.0) / max(top, 1e-9))[..., None], 3, axis=2)
+            write_image(preview_path(path), prev)
+        out["outputs"] = {k: f"{prefix}_{k}.exr" for k in files}
+    if args.json:
+        write_json(args.json, out)
+    if args.strict and not result.converged:
+        raise ComputationError(f"the fit did not converge: {result.message}")
+    return 0

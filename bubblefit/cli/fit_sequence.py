@@ -1,0 +1,159 @@
+"""``bubblefit fit-sequence FRAMES... --envmap ENV [...as fit] -o OUT_DIR``.
+
+Fits every frame of a sequence (image files, a folder, or a video read through OpenCV),
+warm-starting each frame from its neighbour, on a local Dask cluster (default), an
+existing one (``--scheduler``) or in this process (``--workers 0``). Writes
+``OUT_DIR/params.csv`` and ``OUT_DIR/params.jsonl`` (one row per frame), ``thickness.png``
+(thickness against time) and ``frames/`` (one JSON per finished frame: a rerun resumes).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+
+from ..errors import InputError
+
+
+def register(sub):
+    p = sub.add_parser(
+        "fit-sequence",
+        help="fit every frame of a sequence or video (warm starts, Dask, resumable)",
+        description="Fit the bubble model to every frame of a sequence: image files, a folder of images or a "
+                    "video file. Each frame starts from its neighbour's result; finished frames are saved at "
+                    "once, so an interrupted run resumes where it stopped.",
+    )
+    p.add_argument("frames", nargs="+", metavar="FRAMES", help="image files, a folder of images, or a video file")
+    p.add_argument("--envmap", required=True, help="environment map (equirectangular, linear EXR/HDR)")
+    p.add_argument("--background", metavar="BEFORE", help="photo of the same view without the bubble (linear use)")
+    cal = p.add_mutually_exclusive_group()
+    cal.add_argument("--calibration", metavar="CAL.json", help="output of `bubblefit calibrate` (t and the disc)")
+    cal.add_argument("--t", type=float, help="starting transmission fraction t (0 < t < 1)")
+    p.add_argument("--scene", metavar="SCENE.toml", help="scene file: its camera and the values it sets are held")
+    p.add_argument("--thickness", choices=("constant", "drainage", "map"), default="constant",
+                   help="thickness model of each frame (default: constant)")
+    p.add_argument("--model", choices=("paper", "physical"), default="paper", help="forward model (default: paper)")
+    p.add_argument("--disc", metavar="CX,CY,R",
+                   help="the bubble's disc in pixels (default: from --calibration, else detected on the first frame)")
+    p.add_argument("--thickness-range", metavar="MIN,MAX", default="50,2000",
+                   help="thickness range searched, nm (default: 50,2000)")
+    p.add_argument("--hold", metavar="NAMES", default="",
+                   help="comma-separated parameters held at their starting values (e.g. t,roughness)")
+    p.add_argument("--max-steps", type=int, default=None, help="solver step limit per frame")
+    p.add_argument("-o", "--output", required=True, metavar="OUT_DIR", help="output folder (created; reused to resume)")
+    p.add_argument("--json", metavar="PATH", help="write a summary of the run as JSON")
+    p.add_argument("--fps", type=float, default=None,
+                   help="frames per second for the time axis (default: the video's; 1 for image files)")
+    p.add_argument("--maps", action="store_true", help="write each frame's thickness map to OUT_DIR/maps/")
+    p.add_argument("--workers", type=int, default=None,
+                   help="local Dask workers (default: one per core); 0 fits in this process without Dask; "
+                        "with --scheduler, use at most this many of the cluster's workers")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="an existing Dask scheduler, e.g. tcp://host:8786")
+    p.add_argument("--chunk-size", type=int, default=8,
+                   help="frames per task, fitted in order with warm starts (default: 8)")
+    p.add_argument("--no-warm-start", action="store_true",
+                   help="run the global thickness search on every frame (frames that are not one continuous film)")
+    p.add_argument("--force", action="store_true", help="refit frames already finished in OUT_DIR")
+    p.add_argument("--retry-failed", action="store_true", help="refit frames recorded as failed")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def _load_env(path: str):
+    from ..envmap import EnvMap
+    from ..imageio import read_image
+
+    try:
+        img = read_image(path)
+    except InputError as exc:
+        raise InputError(f"environment map: {exc}") from None
+    h, w = img.pixels.shape[:2]
+    if w != 2 * h:
+        raise InputError(f"environment map {path} is {w}x{h}; an equirectangular map must be twice as wide as high")
+    if h < 2:
+        raise InputError(f"environment map {path} is {w}x{h}; it needs at least 2 rows (4x2 texels)")
+    return EnvMap.from_array(img.pixels)
+
+
+def _calibration(path: str) -> tuple[float | None, tuple | None]:
+    """(t, disc) from a `bubblefit calibrate` JSON."""
+    try:
+        with open(path) as fh:
+            data = json.load(fh)
+    except OSError as exc:
+        raise InputError(f"cannot read calibration {path}: {exc.strerror}") from None
+    except ValueError:
+        raise InputError(f"calibration {path} is not valid JSON") from None
+    t = data.get("t")
+    if not isinstance(t, (int, float)) or not 0 < t < 1:
+        raise InputError(f"calibration {path} has no valid 't' (0 < t < 1)")
+    disc = None
+    b = data.get("bubble")
+    if isinstance(b, dict) and all(isinstance(b.get(k), (int, float)) for k in ("cx", "cy", "r")):
+        disc = (float(b["cx"]), float(b["cy"]), float(b["r"]))
+    return float(t), disc
+
+
+def build_options(args):
+    """:class:`bubblefit.fit.FitOptions` from the parsed arguments (as ``bubblefit fit`` reads them)."""
+    from ..fit import FitOptions
+    from .common import parse_floats
+
+    t_init, disc = None, None
+    if args.calibration:
+        t_init, disc = _calibration(args.calibration)
+    if args.t is not None:
+        if not 0 < args.t < 1:
+            raise InputError(f"--t must lie in (0, 1), got {args.t}")
+        t_init = args.t
+    if args.disc:
+        disc = parse_floats(args.disc, 3, "--disc")
+    lo, hi = parse_floats(args.thickness_range, 2, "--thickness-range")
+    hold = tuple(h.strip() for h in args.hold.split(",") if h.strip())
+    kw = dict(thickness=args.thickness, model=args.model, disc=disc, t_init=t_init, thickness_range=(lo, hi),
+              hold=hold)
+    if args.max_steps is not None:
+        if args.max_steps < 1:
+            raise InputError("--max-steps must be at least 1")
+        kw["max_steps"] = args.max_steps
+    return FitOptions(**kw)
+
+
+def run(args) -> int:
+    from ..imageio import read_image
+    from ..progress import status
+    from ..scene import load_scene
+    from ..sequence import discover_frames, fit_sequence
+    from .common import write_json
+
+    if args.chunk_size < 1:
+        raise InputError("--chunk-size must be at least 1")
+    if args.workers is not None and args.workers < 0:
+        raise InputError("--workers must be 0 or more")
+    frames = discover_frames(args.frames, fps=args.fps)
+    options = build_options(args)
+    env = _load_env(args.envmap)
+    background = read_image(args.background).pixels if args.background else None
+    scene = load_scene(args.scene) if args.scene else None
+    where = ("this process" if args.workers == 0 else
+             f"Dask scheduler {args.scheduler}" if args.scheduler else
+             f"a local Dask cluster of {args.workers or os.cpu_count()} workers")
+    status(f"{len(frames)} frames, fitting on {where} ...")
+    res = fit_sequence(frames, env, args.output, options, background=background, scene=scene,
+                       scheduler=None if args.workers == 0 else args.scheduler, workers=args.workers,
+                       chunk_size=args.chunk_size, force=args.force, retry_failed=args.retry_failed,
+                       maps=args.maps, progress=not args.no_progress, warm_start=not args.no_warm_start)
+    rate = f"{res.fps:.2f} frames/s" if math.isfinite(res.fps) else "nothing to fit"
+    print(f"wrote {res.table} ({len(res.records)} frames: {res.fitted} fitted, {res.skipped} already done, "
+          f"{res.failed} failed; {rate})")
+    if args.json:
+        write_json(args.json, {
+            "out_dir": str(res.out_dir), "table": str(res.table), "jsonl": str(res.jsonl),
+            "plot": None if res.plot is None else str(res.plot), "frames": len(res.records),
+            "fitted": res.fitted, "skipped": res.skipped, "failed": res.failed, "workers": res.workers,
+            "elapsed_s": res.elapsed_s, "setup_s": res.setup_s, "fps": res.fps,
+            "failures": [{"frame": r["frame"], "file": r["file"], "reason": r.get("message", "")}
+                         for r in res.records if r.get("status") != "ok"],
+        })
+    return 0

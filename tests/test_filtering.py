@@ -1,0 +1,106 @@
+"""Environment filtering (bubblefit.filtering): convergence of the window (eq. 13) and
+mip-map methods to the exact sum (eq. 12), the mirror limit, and the white furnace.
+
+Ward's lobe as written (eq. 1) is not energy-normalised: in a white furnace its albedo is
+``1 - 3 a^2 + O(a^4)`` at normal incidence (expand ``g(s)`` of bubblefit.brdf:
+``sqrt(cos 2 delta) cos^4 delta ~ 1 - 3 delta^2``, and ``E[tan^2 delta] = a^2``) and tends
+to ``cos th_r`` at oblique view as ``a -> 0`` (Walter, "Notes on the Ward BRDF", 2005).
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bubblefit import filtering as F
+from bubblefit.envmap import EnvMap
+
+
+def _points(count=120, max_angle=1.1, seed=0):
+    rng = np.random.default_rng(seed)
+    n = rng.normal(size=(count, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    v = rng.normal(size=(count, 3))
+    v -= (v * n).sum(1, keepdims=True) * n
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    th = rng.uniform(0, max_angle, count)
+    wo = np.cos(th)[:, None] * n + np.sin(th)[:, None] * v
+    return jnp.asarray(n, jnp.float32), jnp.asarray(wo, jnp.float32)
+
+
+@pytest.fixture(scope="module")
+def env(small_courtyard):
+    return EnvMap.from_array(small_courtyard)
+
+
+def _rel(x, ref):
+    x = np.asarray(x)
+    return float(np.sqrt(np.mean((x - ref) ** 2)) / np.sqrt(np.mean(ref**2)))
+
+
+@pytest.mark.parametrize("a", [0.1, 0.3])
+def test_window_converges_to_full_sum(env, a):
+    n, wo = _points()
+    ref = np.asarray(F.full_sum(env, n, wo, a, level=0, chunk=4096, normalize=False)[0])
+    errs = [_rel(F.specular_window(env, n, wo, a, window=k, level=0, normalize=False), ref) for k in (2, 6, 16, 40)]
+    assert all(e1 <= e0 + 1e-6 for e0, e1 in zip(errs, errs[1:])), errs
+    assert errs[-1] < 0.01 and errs[0] > 0.1, errs
+
+
+@pytest.mark.parametrize("a", [0.1, 0.3])
+def test_mipmap_converges_to_full_sum(env, a):
+    """On the courtyard (a sun ~50x the mean) the mip-map quadrature approaches eq. (12)."""
+    n, wo = _points()
+    ref = np.asarray(F.full_sum(env, n, wo, a, level=0, chunk=4096, normalize=False)[0])
+    nodes = (4, 8, 16, 32)
+    errs = [_rel(F.specular_mipmap(env, n, wo, a, nodes=k, normalize=False), ref) for k in nodes]
+    print(dict(zip(nodes, errs)))
+    assert errs[1] < errs[0] and errs[2] < errs[1] and errs[3] < errs[2], errs
+    assert errs[-1] < 0.02, errs
+
+
+def test_roughness_to_zero_tends_to_mirror(env):
+    n, wo = _points(max_angle=1.0)
+    mirror = np.asarray(F.specular_mirror(env, n, wo, normalize=True))
+    errs = [_rel(F.specular_mipmap(env, n, wo, a, nodes=6, normalize=True), mirror) for a in (0.05, 0.01, 0.002, 2e-4)]
+    assert all(e1 < e0 for e0, e1 in zip(errs, errs[1:])), errs
+    assert errs[-1] < 2e-3, errs
+    # Unnormalised (eq. 1 as written) the limit carries the lobe's albedo cos th_r.
+    cos_r = np.asarray(jnp.sum(n * wo, -1))[:, None]
+    raw = np.asarray(F.specular_mipmap(env, n, wo, 2e-4, nodes=6, normalize=False))
+    assert _rel(raw, mirror * cos_r) < 2e-3
+
+
+@pytest.mark.parametrize("a", [0.05, 0.1, 0.2])
+def test_white_furnace_energy(a):
+    """r_d + r_s = 1 - t (eq. 14) in a white furnace returns 1 - t up to Ward's known error."""
+    white = EnvMap.constant(1.0, height=64)
+    t = 0.9
+    r_s, r_d = 0.07, 0.03  # r_d + r_s = 1 - t
+    n = jnp.asarray([[0.0, 0.0, 1.0], [0.0, 0.6, 0.8], [0.8, 0.0, 0.6]], jnp.float32)
+    wo = jnp.asarray([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, 1.0]], jnp.float32)
+    cos_r = np.asarray(jnp.sum(n * wo, -1))
+    spec, irr = F.full_sum(white, n, wo, a, level=0, chunk=4096, normalize=False)
+    diffuse = r_d / np.pi * np.asarray(F.irradiance(white, n))[:, 0]
+    np.testing.assert_allclose(np.asarray(irr)[:, 0], np.pi, rtol=2e-3)  # E = pi in a white furnace
+    np.testing.assert_allclose(diffuse, r_d, rtol=1e-2)
+    total = r_s * np.asarray(spec)[:, 0] + diffuse
+    # Normal incidence: 1 - t within Ward's normalisation error 3 a^2 (stated above).
+    assert abs(total[0] / (1 - t) - 1) <= r_s / (1 - t) * (3 * a * a * 1.1 + 2e-3)
+    assert total[0] < 1 - t  # the error has that sign
+    # Oblique: the lobe's albedo tends to cos th_r (the known error), within O(a^2).
+    albedo = np.asarray(spec)[:, 0]
+    np.testing.assert_allclose(albedo[1:], cos_r[1:], rtol=4 * a * a + 2e-3)
+    # Mip-map quadrature sees the same furnace, and normalised filtering returns exactly 1.
+    mip = np.asarray(F.specular_mipmap(white, n, wo, a, nodes=8, normalize=False))[:, 0]
+    np.testing.assert_allclose(mip, albedo, rtol=5e-3)
+    norm = np.asarray(F.specular_mipmap(white, n, wo, a, nodes=8, normalize=True))
+    np.testing.assert_allclose(norm, 1.0, rtol=1e-5)
+
+
+def test_filter_config_rejects_bad_knobs():
+    with pytest.raises(ValueError):
+        F.FilterConfig("blur")
+    with pytest.raises(ValueError):
+        F.FilterConfig("mipmap", nodes=0)

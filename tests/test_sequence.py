@@ -1,0 +1,246 @@
+"""Sequence fitting (:mod:`bubblefit.sequence`): a draining film, frame by frame, on Dask.
+
+A short synthetic drainage sequence: a constant film whose thickness falls as
+``d(t) = d0 exp(-t / tau)``, rendered with the project's forward model, with shot and
+read noise and 8-bit sRGB quantisation, written as PNG files; one file is corrupt. The
+fitted thicknesses must give back ``d0`` and ``tau``; one and two Dask workers must give
+identical numbers; an interrupted run must resume without refitting finished frames.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+
+import numpy as np
+import pytest
+
+from bubblefit.errors import InputError
+from bubblefit.imageio import srgb_decode, write_image
+
+D0, TAU = 900.0, 30.0  # nm, s: d(t) = D0 exp(-t / TAU), ~25 nm per frame (a slow film)
+FPS = 1.0
+N_FRAMES = 7
+CORRUPT = 3  # index of the unreadable frame
+SIZE, DISC = 48, (24.0, 24.0, 20.0)
+CHUNK = 4  # chunks [0..3] and [4..6]: two tasks, one per worker
+
+
+def _options():
+    from bubblefit.fit import FitOptions
+
+    # the disc is known (a fixed camera); the thickness search covers the drainage's range
+    return FitOptions(disc=DISC, thickness_range=(300.0, 1300.0))
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory, small_courtyard):
+    """Frames folder, environment map file and EnvMap of the synthetic sequence."""
+    from bubblefit.envmap import EnvMap
+    from bubblefit.imageio import read_image
+    from bubblefit.render import render
+    from bubblefit.scene import Scene
+
+    root = tmp_path_factory.mktemp("sequence")
+    env_path = root / "env.exr"
+    write_image(env_path, small_courtyard, bit_depth=32)
+    env = EnvMap.from_array(read_image(env_path).pixels)
+    frames = root / "frames"
+    frames.mkdir()
+    base = {"camera": {"width": SIZE, "height": SIZE, "disc": list(DISC)},
+            "bubble": {"t": 0.972, "roughness": 0.015}, "effects": {"model": "paper"}}
+    cfg, _ = Scene.from_dict(dict(base, bubble=dict(base["bubble"], thickness_nm=D0))).config(env)
+    rng = np.random.default_rng(7)
+    truth = []
+    for k in range(N_FRAMES):
+        path = frames / f"frame_{k:03d}.png"
+        if k == CORRUPT:
+            path.write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 40)  # a truncated file
+            truth.append(np.nan)
+            continue
+        d = D0 * np.exp(-(k / FPS) / TAU)
+        truth.append(d)
+        p = Scene.from_dict(dict(base, bubble=dict(base["bubble"], thickness_nm=float(d)))).params()
+        img = np.asarray(render(p, cfg, env), np.float64)
+        sigma = np.sqrt(0.01**2 * np.clip(img, 0, None) + 0.002**2)  # shot + read noise
+        write_image(path, np.clip(img + rng.normal(size=img.shape) * sigma, 0, 1))  # 8-bit sRGB PNG
+    return {"root": root, "frames": frames, "env_path": env_path, "env": env, "truth": np.asarray(truth)}
+
+
+@pytest.fixture(scope="module")
+def client():
+    """A local Dask cluster of two single-threaded worker processes, for the whole module."""
+    from distributed import Client, LocalCluster
+
+    from bubblefit.sequence import _local_env
+
+    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                           env=_local_env(), silence_logs=40)
+    c = Client(cluster)
+    yield c
+    c.close()
+    cluster.close()
+
+
+@pytest.fixture(scope="module")
+def runs(data, client):
+    """The sequence fitted on one worker, then on two (the second reads the first's compilation cache)."""
+    from bubblefit.sequence import fit_sequence
+
+    out = {}
+    for n in (1, 2):
+        out[n] = fit_sequence(data["frames"], data["env"], data["root"] / f"out{n}", _options(), scheduler=client,
+                              workers=n, chunk_size=CHUNK, fps=FPS, progress=False)
+    return out
+
+
+def _table(res):
+    from bubblefit.sequence import read_table
+
+    return read_table(res.table)
+
+
+def test_recovers_drainage_law(data, runs):
+    res = runs[1]
+    ok = [r for r in res.records if r["status"] == "ok"]
+    assert len(ok) == N_FRAMES - 1
+    assert all(r["converged"] for r in ok)
+    t = res.column("time_s")
+    d = res.column("thickness_nm")
+    err = res.column("thickness_nm_stderr")
+    good = np.isfinite(d)
+    assert good.sum() == N_FRAMES - 1
+    # each frame's thickness within 2 % of the truth, and inside a few of its own error bars or 5 nm
+    assert np.all(np.abs(d[good] - data["truth"][good]) < 0.02 * data["truth"][good])
+    assert np.all(np.isfinite(err[good])) and np.all(err[good] > 0)
+    # the law: log d = log d0 - t / tau, weighted least squares
+    w = (d[good] / err[good]) ** 2
+    slope, intercept = np.polyfit(t[good], np.log(d[good]), 1, w=np.sqrt(w))
+    tau, d0 = -1.0 / slope, np.exp(intercept)
+    assert abs(tau - TAU) < 0.05 * TAU, tau
+    assert abs(d0 - D0) < 0.02 * D0, d0
+    # warm starts: every frame but the first of each chunk started from its neighbour
+    warm = {r["frame"]: r["warm_start"] for r in ok}
+    assert warm == {0: False, 1: True, 2: True, 4: False, 5: True, 6: True}
+
+
+def test_failed_frame_recorded(runs):
+    res = runs[1]
+    bad = res.records[CORRUPT]
+    assert bad["status"] == "failed" and not bad["converged"]
+    assert "cannot read frame" in bad["message"]
+    rows = _table(res)
+    assert rows[CORRUPT]["status"] == "failed" and rows[CORRUPT]["thickness_nm"] is None
+    assert res.failed == 1
+    # the JSON lines hold the same rows, with null for the missing values
+    lines = [json.loads(x) for x in res.jsonl.read_text().splitlines()]
+    assert [x["frame"] for x in lines] == list(range(N_FRAMES))
+    assert lines[CORRUPT]["thickness_nm"] is None and lines[0]["thickness_nm"] == rows[0]["thickness_nm"]
+
+
+def test_one_and_two_workers_agree(runs):
+    one, two = _table(runs[1]), _table(runs[2])
+    assert len({r["worker"] for r in runs[2].records if r["status"] == "ok"}) == 2  # both workers took part
+    assert len({r["worker"] for r in runs[1].records if r["status"] == "ok"}) == 1
+    assert runs[1].workers == 1 and runs[2].workers == 2
+    skip = {"worker", "fit_time_s"}
+    for a, b in zip(one, two):
+        for k in a:
+            if k not in skip:
+                assert a[k] == b[k] or (a[k] != a[k] and b[k] != b[k]), (k, a[k], b[k])
+
+
+def test_tables_and_plot(runs):
+    res = runs[2]
+    header = res.table.read_text().splitlines()[0].split(",")
+    assert header[:8] == ["frame", "file", "converged", "thickness_nm", "thickness_nm_stderr", "t", "roughness",
+                          "exposure"]
+    assert "roughness_stderr" in header and "time_s" in header
+    assert res.plot is not None and res.plot.stat().st_size > 1000
+    assert not [p for p in res.out_dir.rglob(".*") if p.is_file()]  # no temporary files left
+
+
+def test_resume_after_interrupt(data, runs, client):
+    """Finished frames are never refitted; the resumed run gives the same numbers."""
+    from bubblefit.sequence import fit_sequence
+
+    src = runs[1].out_dir
+    out = data["root"] / "resume"
+    shutil.copytree(src, out)
+    for k in (5, 6):  # an interrupted run: these frames never finished
+        os.remove(out / "frames" / f"frame_{k:06d}.json")
+    os.remove(out / "params.csv")
+    kept = {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in (out / "frames").iterdir()}
+
+    class Stop(Exception):
+        pass
+
+    def stop_after_first(rec):
+        raise Stop  # the user presses Ctrl-C once frame 5 is saved
+
+    with pytest.raises(Stop):
+        fit_sequence(data["frames"], data["env"], out, _options(), scheduler=client, workers=1, chunk_size=CHUNK,
+                     fps=FPS, progress=False, on_record=stop_after_first)
+    assert (out / "frames" / "frame_000005.json").exists()
+    res = fit_sequence(data["frames"], data["env"], out, _options(), scheduler=client, workers=1,
+                       chunk_size=CHUNK, fps=FPS, progress=False)
+    assert res.fitted == 1  # frame 6 only: frame 5 was saved before the stop
+    assert res.skipped == N_FRAMES - res.fitted
+    for name, (mtime, body) in kept.items():
+        p = out / "frames" / name
+        assert p.stat().st_mtime_ns == mtime and p.read_bytes() == body
+    assert np.array_equal(res.column("thickness_nm"), runs[1].column("thickness_nm"), equal_nan=True)
+    assert np.array_equal(res.column("exposure_stderr"), runs[1].column("exposure_stderr"), equal_nan=True)
+
+
+def test_cli_resumes_finished_run(data, runs, capsys):
+    """``bubblefit fit-sequence`` on a finished folder refits nothing and rebuilds the tables."""
+    from bubblefit.cli import main
+
+    out = data["root"] / "cli"
+    shutil.copytree(runs[1].out_dir, out)
+    os.remove(out / "params.csv")
+    argv = ["fit-sequence", str(data["frames"]), "--envmap", str(data["env_path"]), "--disc", "24,24,20",
+            "--thickness-range", "300,1300", "--chunk-size", str(CHUNK),
+            "--workers", "0", "-o", str(out), "--json", str(out / "summary.json"), "--no-progress"]
+    assert main(argv) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["fitted"] == 0 and summary["skipped"] == N_FRAMES and summary["failed"] == 1
+    assert summary["failures"][0]["frame"] == CORRUPT
+    assert (out / "params.csv").read_text() == runs[1].table.read_text()
+    # other settings into the same folder: refused, not mixed
+    assert main(argv[:-1] + ["--thickness-range", "200,1300"]) == 2
+    assert "other settings" in capsys.readouterr().err
+    assert main(["fit-sequence", str(data["frames"]), "--envmap", str(data["env_path"]), "-o", str(out),
+                 "--chunk-size", "0"]) == 2
+
+
+def test_discover_frames(tmp_path):
+    """Folders sort naturally; a video's frames decode from 8-bit sRGB BGR to linear RGB."""
+    import cv2
+
+    from bubblefit.sequence import discover_frames, load_frame
+
+    for name in ("f10.png", "f2.png", "f1.png", "notes.txt"):
+        (tmp_path / name).write_bytes(b"")
+    refs = discover_frames(tmp_path, fps=25)
+    assert [os.path.basename(r.source) for r in refs] == ["f1.png", "f2.png", "f10.png"]
+    assert refs[2].time_s == pytest.approx(2 / 25)
+    with pytest.raises(InputError):
+        discover_frames(tmp_path / "missing.png")
+    with pytest.raises(InputError):
+        discover_frames(tmp_path / "*.jpg")
+
+    video = tmp_path / "clip.avi"
+    codes = [(40, 120, 200), (200, 60, 10), (90, 90, 90)]  # RGB codes of three flat frames
+    w = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (32, 24))
+    for rgb in codes:
+        w.write(np.full((24, 32, 3), rgb[::-1], np.uint8))  # OpenCV writes BGR
+    w.release()
+    refs = discover_frames(video)
+    assert len(refs) == 3 and refs[1].time_s == pytest.approx(1 / 30) and refs[2].label.endswith("#2")
+    for ref, rgb in zip(reversed(refs), reversed(codes)):  # out of order: the reader seeks
+        px = load_frame(ref)
+        assert px.shape == (24, 32, 3)
+        np.testing.assert_allclose(px.mean(axis=(0, 1)), srgb_decode(np.asarray(rgb) / 255.0), rtol=0.08, atol=0.004)

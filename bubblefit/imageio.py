@@ -79,6 +79,23 @@ class Image:
         return self.pixels.shape[0], self.pixels.shape[1]
 
 
+def _undecodable_as_input_error(func):
+    """OpenImageIO returns some strings of a corrupt file (error messages, attribute names)
+    as bytes that are not UTF-8; the Python binding then raises UnicodeDecodeError. That is
+    a damaged file, i.e. bad input: report it as one :class:`InputError` line."""
+    import functools
+
+    @functools.wraps(func)
+    def wrapper(path, *args, **kwargs):
+        try:
+            return func(path, *args, **kwargs)
+        except UnicodeDecodeError:
+            raise InputError(f"cannot read image {path}: corrupt file (undecodable header or metadata)") from None
+
+    return wrapper
+
+
+@_undecodable_as_input_error
 def read_image(path: str | os.PathLike, *, linear: bool | None = None) -> Image:
     """Read an image file as linear RGB.
 
@@ -198,6 +215,11 @@ class atomic_path:
     def __exit__(self, exc_type, exc, tb) -> bool:
         if exc_type is None:
             try:
+                # mkstemp makes owner-only files; give the result the permissions an
+                # ordinary new file gets (0666 less the umask).
+                umask = os.umask(0)
+                os.umask(umask)
+                os.chmod(self.tmp, 0o666 & ~umask)
                 os.replace(self.tmp, self.target)
             except OSError as err:
                 try:

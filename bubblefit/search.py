@@ -59,7 +59,13 @@ def phi_table(basis: spectral.SpectralBasis, x_max: float) -> np.ndarray:
     x = np.arange(0.0, x_max + 2 * X_STEP, X_STEP)
     lam = np.asarray(basis.wavelengths, dtype=np.float64)
     delta = 2 * np.pi * x[:, None] / lam[None, :] + np.pi
-    c2 = np.cos(delta / 2) ** 2
+    cos_delta = np.cos(delta)
+    if getattr(basis, "sigma", None) is not None:
+        # ``fourier`` bases: each sample is a Gaussian lobe in wavenumber, under which the
+        # fringe's cosine is attenuated (film.fringe_attenuation, Belcour & Barla 2017).
+        sig = np.asarray(basis.sigma, dtype=np.float64)[None, :]
+        cos_delta = cos_delta * np.exp(-2.0 * np.pi**2 * (sig * x[:, None]) ** 2)
+    c2 = 0.5 * (1.0 + cos_delta)
     return np.asarray(c2 @ np.asarray(basis.weights, dtype=np.float64), dtype=np.float32)
 
 

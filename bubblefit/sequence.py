@@ -362,7 +362,8 @@ def _one_line(exc: BaseException) -> str:
 
 
 def _fit_chunk(todo: list[tuple[FrameRef, dict | None]], env, options, background, scene, jax_setup: dict,
-               want_maps: bool, fit_function: str = "bubblefit.fit:fit_photo", warm_start: bool = True) -> list[dict]:
+               want_maps: bool, fit_function: str = "bubblefit.fit:fit_photo", warm_start: bool = True,
+               init: dict | None = None) -> list[dict]:
     """Fit the pending frames of one chunk, in order, each warm-started from the last success.
 
     Args:
@@ -375,6 +376,7 @@ def _fit_chunk(todo: list[tuple[FrameRef, dict | None]], env, options, backgroun
         want_maps: keep each frame's thickness map (else it is dropped here, in the worker).
         fit_function: ``"module:name"`` of the fit, called like :func:`bubblefit.fit.fit_photo`.
         warm_start: False: every frame runs the global search (independent frames).
+        init: warm start of the chunk's first frame (the previous chunk's last result), or None.
 
     Returns:
         One record (dict) per frame fitted, in order.
@@ -383,7 +385,7 @@ def _fit_chunk(todo: list[tuple[FrameRef, dict | None]], env, options, backgroun
     fit_photo = _resolve(fit_function)
 
     out = []
-    warm = None
+    warm = init
     for ref, done in todo:
         if done is not None:
             warm = _warm_init(done) or warm
@@ -670,7 +672,7 @@ def _start_client(scheduler, workers: int | None):
     cluster = None
     if scheduler is None:
         n = workers or os.cpu_count() or 1
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
                                env=_local_env(), silence_logs=40)
         client = Client(cluster)
     elif isinstance(scheduler, str):
@@ -816,7 +818,11 @@ def fit_sequence(
     setup_s = 0.0
     elapsed = 0.0
 
-    def accept(rec: dict):
+    fitted: set[int] = set()
+
+    def accept(rec: dict, refit: bool = True):
+        if refit:
+            fitted.add(rec["frame"])
         _save_record(out, rec)
         rec = {k: v for k, v in rec.items() if k != "_thickness_map"}
         if want_maps and _record_path(out, rec["frame"]).exists():
@@ -835,60 +841,66 @@ def fit_sequence(
                         "retryable": True})
 
     bar = Progress(pending, "fitting frames", unit="frames") if progress else None
-    if chunks and workers == 0:
-        setup_s = time.perf_counter() - t_setup
-        t0 = time.perf_counter()
-        with bar if bar else _nullctx():
-            for chunk in chunks:
-                for rec in _fit_chunk(chunk, env, options, background, scene, jax_setup, want_maps, fit_function,
-                                      warm_start):
-                    accept(rec)
-                    if bar:
-                        bar.update(1, _note(rec))
-        elapsed = time.perf_counter() - t0
-    elif chunks:
-        from distributed import as_completed
-
+    client = cluster = None
+    if chunks and workers != 0:
         client, cluster, addrs = _start_client(scheduler, workers)
         n_workers_used = len(addrs)
-        futures = {}
-        try:
+    submitted = []
+    try:
+        if client is not None:
             env_f = client.scatter(env, broadcast=True, workers=addrs, hash=False)
             bg_f = client.scatter(background, broadcast=True, workers=addrs, hash=False) if background is not None \
                 else None
-            setup_s = time.perf_counter() - t_setup
-            t0 = time.perf_counter()
             token = hashlib.sha1(f"{fp}{time.time()}{os.getpid()}".encode()).hexdigest()[:10]
-            for i, chunk in enumerate(chunks):
-                f = client.submit(_fit_chunk, chunk, env_f, options, bg_f, scene, jax_setup, want_maps, fit_function,
-                                  warm_start,
-                                  key=f"bubblefit-chunk-{chunk[0][0].index}-{token}", workers=addrs,
-                                  allow_other_workers=False, pure=False)
-                futures[f] = chunk
-            with bar if bar else _nullctx():
-                for f in as_completed(list(futures)):
-                    chunk = futures[f]
-                    try:
-                        recs = f.result()
-                    except Exception as exc:  # lost worker, unpicklable result, ...
-                        failed_chunk(chunk, f"task failed: {_one_line(exc)}")
-                        if bar:
-                            bar.update(sum(1 for _, d in chunk if d is None))
-                        continue
-                    for rec in recs:
-                        accept(rec)
-                        if bar:
-                            bar.update(1, _note(rec))
-            elapsed = time.perf_counter() - t0
-        finally:
-            for f in futures:
-                if not f.done():
-                    f.cancel()
-            if cluster is not None:
-                client.close()
-                cluster.close()
-            elif isinstance(scheduler, str):
-                client.close()
+        setup_s = time.perf_counter() - t_setup
+        t0 = time.perf_counter()
+
+        def submit(todo, init=None):
+            """Fit a chunk: a Dask future, or (in this process) a lazy call run by ``.result()``."""
+            if client is None:
+                return _Lazy(_fit_chunk, todo, env, options, background, scene, jax_setup, want_maps, fit_function,
+                             warm_start, init)
+            f = client.submit(_fit_chunk, todo, env_f, options, bg_f, scene, jax_setup, want_maps, fit_function,
+                              warm_start, init, key=f"bubblefit-chunk-{todo[0][0].index}-{len(submitted)}-{token}",
+                              workers=addrs, allow_other_workers=False, pure=False)
+            submitted.append(f)
+            return f
+
+        futures = {submit(chunk): chunk for chunk in chunks}
+        with bar if bar else _nullctx():
+            if client is None:
+                order = list(futures)
+            else:
+                from distributed import as_completed
+
+                order = as_completed(list(futures))
+            for f in order:
+                chunk = futures[f]
+                try:
+                    recs = f.result()
+                except Exception as exc:  # lost worker, unpicklable result, ...
+                    if client is None:
+                        raise
+                    failed_chunk(chunk, f"task failed: {_one_line(exc)}")
+                    if bar:
+                        bar.update(sum(1 for _, d in chunk if d is None))
+                    continue
+                for rec in recs:
+                    accept(rec)
+                    if bar:
+                        bar.update(1, _note(rec))
+        if warm_start and chunk_size < len(frames):
+            _repair_seams(frames, chunk_size, done, fresh, submit, accept, out)
+        elapsed = time.perf_counter() - t0
+    finally:
+        for f in submitted:
+            if not f.done():
+                f.cancel()
+        if cluster is not None:
+            client.close()
+            cluster.close()
+        elif isinstance(scheduler, str) and client is not None:
+            client.close()
 
     # -- tables from the frame files ----------------------------------------------------------
     records = []
@@ -901,9 +913,99 @@ def fit_sequence(
     table, jsonl = _write_tables(out, records)
     plot = _plot(out, records)
     n_failed = sum(1 for r in records if r.get("status") != "ok")
-    return SequenceResult(out_dir=out, records=records, fitted=len(fresh), skipped=skipped, failed=n_failed,
+    skipped = sum(1 for i in done if i not in fitted)
+    return SequenceResult(out_dir=out, records=records, fitted=len(fitted), skipped=skipped, failed=n_failed,
                           elapsed_s=elapsed, setup_s=setup_s, workers=n_workers_used, table=table, jsonl=jsonl,
                           plot=plot)
+
+
+class _Lazy:
+    """A call run when its ``result()`` is asked for (the in-process stand-in for a future)."""
+
+    def __init__(self, fn, *args):
+        self.fn, self.args, self._done = fn, args, False
+
+    def result(self):
+        if not self._done:
+            self.value, self._done = self.fn(*self.args), True
+        return self.value
+
+    def done(self) -> bool:
+        return True  # nothing to cancel
+
+    def cancel(self):
+        pass
+
+
+#: A chunk's global-search result is replaced by the warm start from the previous chunk
+#: when that lands on another thickness and fits no worse than this factor in RMS residual.
+SEAM_TOLERANCE = 1.05
+
+
+def _repair_seams(frames, chunk_size, done, fresh, submit, accept, out):
+    """Join the warm-start chains of neighbouring chunks.
+
+    The first frame of a chunk runs the global thickness search, which can land on a
+    neighbouring interference order (the colours repeat every ~lambda / (2 n) of thickness).
+    The film changes slowly, so each chunk's first frame is also fitted warm-started from
+    the previous chunk's last converged frame; where that gives another thickness and a
+    residual no worse than :data:`SEAM_TOLERANCE` times the global one, the whole chunk is
+    refitted from it. Seams are visited in order (a repaired chunk passes its new last
+    frame on), so the result does not depend on the number of workers. A first frame that
+    was checked is marked ``seam_checked`` so a rerun does not check it again.
+    """
+    parts = [frames[s:s + chunk_size] for s in range(0, len(frames), chunk_size)]
+
+    def rec(ref):
+        return fresh.get(ref.index) or done.get(ref.index)
+
+    def last_ok(part):
+        for ref in reversed(part):
+            if _warm_init(rec(ref)):
+                return rec(ref)
+        return None
+
+    def first_ok(part):
+        for ref in part:
+            r = rec(ref)
+            if r and r.get("status") == "ok":
+                return ref, r
+        return None, None
+
+    def needs_check(c):
+        ref, first = first_ok(parts[c])
+        return ref is not None and last_ok(parts[c - 1]) is not None and not first.get("warm_start") \
+            and not first.get("seam_checked")
+
+    checks = {c: submit([(first_ok(parts[c])[0], None)], _warm_init(last_ok(parts[c - 1])))
+              for c in range(1, len(parts)) if needs_check(c)}
+    repaired = set()
+    for c in sorted(checks):
+        if not needs_check(c):
+            continue
+        ref, first = first_ok(parts[c])
+        prev = last_ok(parts[c - 1])
+        check = checks[c] if c - 1 not in repaired else submit([(ref, None)], _warm_init(prev))
+        try:
+            warm = check.result()[0]
+        except Exception:  # a lost worker: leave the chunk as it is
+            continue
+        d_warm = warm.get("params", {}).get("thickness_nm", warm.get("params", {}).get("top_nm"))
+        d_glob = first.get("params", {}).get("thickness_nm", first.get("params", {}).get("top_nm"))
+        better = (warm.get("status") == "ok" and warm.get("converged") and d_warm is not None and d_glob is not None
+                  and abs(d_warm - d_glob) > 2.0
+                  and warm.get("residual_rms", math.inf) <= SEAM_TOLERANCE * first.get("residual_rms", math.inf))
+        if better:
+            todo = [(r, None if (rec(r) or {}).get("status") == "ok" else rec(r)) for r in parts[c]]
+            try:
+                recs = submit(todo, _warm_init(prev)).result()
+            except Exception:
+                continue
+            for r in recs:
+                accept(dict(r, seam="repaired"))
+            repaired.add(c)
+        else:
+            accept(dict(first, seam_checked=True), False)
 
 
 def _fix_disc(options, frames: list[FrameRef], background, scene):

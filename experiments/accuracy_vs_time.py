@@ -127,7 +127,8 @@ def load_env(width: int):
     return EnvMap.from_array(px)
 
 
-def make_scene(size: int, effects: dict, *, thickness=500.0, roughness=0.01, drainage=None, background="black"):
+def make_scene(size: int, effects: dict, *, thickness=500.0, roughness=0.01, drainage=None, background="black",
+               rotation_deg=F.VIEW_ROTATION):
     bubble = {"roughness": roughness}
     if drainage is None:
         bubble["thickness_nm"] = thickness
@@ -136,7 +137,7 @@ def make_scene(size: int, effects: dict, *, thickness=500.0, roughness=0.01, dra
                                "exponent": 1.0}
     return F.scene(camera={"type": "orthographic", "width": size, "height": size},
                    bubble=bubble,
-                   lighting={"envmap": str(_env_path()), "rotation_deg": F.VIEW_ROTATION, "background": background},
+                   lighting={"envmap": str(_env_path()), "rotation_deg": rotation_deg, "background": background},
                    effects=dict(effects))
 
 
@@ -287,20 +288,26 @@ def sweep_fit(rows, q, env):
     except ImportError as exc:  # the fit module is optional for this script
         F.log(f"fit sweep skipped: {exc}")
         return
+    if not (q.fit_steps or q.fit_rtols):
+        return
     size, truth = q.fit_size, 700.0
     sc = make_scene(size, {"model": "paper"}, thickness=truth, background="envmap")
+    # What the fit is told: camera and lighting (the map's rotation), nothing about the bubble.
+    known = F.scene(camera={"type": "orthographic", "width": size, "height": size},
+                    lighting={"envmap": str(_env_path()), "rotation_deg": F.VIEW_ROTATION, "background": "envmap"},
+                    effects={"model": "paper"})
     clean = np.asarray(renderer(sc, env)(), dtype=np.float64)
     rng = np.random.default_rng(1)
     noisy = clean + rng.normal(0.0, 2e-3, clean.shape) + rng.normal(0.0, 1.0, clean.shape) * np.sqrt(2e-4 * np.abs(clean))
     photo = np.round(np.clip(noisy, 0.0, 1.0) * 255.0) / 255.0
-    disc = (size / 2.0, size / 2.0, size / 2.0)
+    disc = sc.camera().disc()
     t_true = float(sc.params().t)
     for knob, values in (("fit_max_steps", q.fit_steps), ("fit_rtol", q.fit_rtols)):
         for v in values:
             kw = {"max_steps": v} if knob == "fit_max_steps" else {"rtol": v, "atol": v * 0.1}
             opts = FitOptions(disc=disc, t_init=t_true, fit_size=size, search_size=min(48, size), **kw)
             t0 = time.perf_counter()
-            res = fit_photo(photo, env, options=opts)
+            res = fit_photo(photo, env, options=opts, scene=known)
             first = time.perf_counter() - t0
             err = abs(float(res.params["thickness_nm"]) - truth)
             rows.append(dict(knob=knob, setting=v, error=err, error_unit="nm", time_s=float(res.time_s),
@@ -334,6 +341,17 @@ def write_csv(path: Path, rows) -> None:
                             for k in COLUMNS})
 
 
+def read_csv(path: Path) -> list[dict]:
+    """Rows of a results.csv with numbers parsed back."""
+    rows = []
+    with open(path, newline="") as fh:
+        for r in csv.DictReader(fh):
+            for k in ("error", "time_s", "compile_s", "error_thin", "error_thick"):
+                r[k] = float(r[k]) if r.get(k) not in (None, "") else None
+            rows.append(r)
+    return rows
+
+
 def plot_family(plt, ax, rows, fam):
     knobs = []
     for r in rows:
@@ -341,15 +359,27 @@ def plot_family(plt, ax, rows, fam):
             knobs.append(r["knob"])
     unit = ""
     for knob in knobs:
-        pts = [r for r in rows if r["knob"] == knob]
+        # The reference itself (error 0) has no place on log axes: a dashed line at its time.
+        for r in rows:
+            if r["knob"] == knob and r["error"] <= 0:
+                ax.axvline(r["time_s"], ls="--", color="grey", lw=0.8)
+                ax.annotate(f"reference {r['setting']}", (r["time_s"], 0.5), xycoords=("data", "axes fraction"),
+                            fontsize=7, rotation=90, color="grey")
+        pts = [r for r in rows if r["knob"] == knob and r["error"] > 0]
+        if not pts:
+            continue
         t = np.array([r["time_s"] for r in pts])
-        e = np.array([max(r["error"], 1e-9) for r in pts])
+        e = np.array([r["error"] for r in pts])
         ax.plot(t, e, "o-" if len(pts) > 1 else "s", label=knob.replace("filter_", "").rsplit("_a", 1)[0])
         for r, ti, ei in zip(pts, t, e):
             ax.annotate(str(r["setting"]), (ti, ei), fontsize=7, xytext=(3, 3), textcoords="offset points")
         unit = pts[0]["error_unit"]
+    from matplotlib.ticker import NullFormatter
+
     ax.set_xscale("log")
     ax.set_yscale("log")
+    ax.xaxis.set_minor_formatter(NullFormatter())
+    ax.yaxis.set_minor_formatter(NullFormatter())
     ax.set_xlabel("time per call (s, warm median)")
     ax.set_ylabel(f"error ({unit})")
     ax.set_title(fam.replace("_", " "))
@@ -465,6 +495,7 @@ def main(argv=None) -> int:
     p = F.parser("accuracy_vs_time", __doc__.split("\n")[0])
     p.add_argument("--skip", default="", help="comma-separated sweeps to skip "
                    "(spectral, filtering, envmap, image, fit, precision)")
+    p.add_argument("--replot", action="store_true", help="redraw the plots from DIR/results.csv and exit")
     p.add_argument("--fit-lobes", type=int, default=None, metavar="K",
                    help="print a refitted FOURIER_LOBES entry for K lobes and exit")
     args = p.parse_args(argv)
@@ -481,13 +512,19 @@ def main(argv=None) -> int:
     skip = set(filter(None, args.skip.split(",")))
     t_start = time.perf_counter()
     rows: list[dict] = []
+    if args.replot:
+        rows = read_csv(out / "results.csv")
+        write_plots(out, rows)
+        if not q.quick:
+            F.publish(out / "pareto.png", "accuracy_pareto", not args.no_copy)
+        return 0
     env = load_env(256)
     sweeps = [("spectral", lambda: sweep_spectral(rows, q, env)),
               ("filtering", lambda: sweep_filtering(rows, q)),
               ("envmap", lambda: sweep_envmap(rows, q)),
               ("image", lambda: sweep_image(rows, q, env)),
-              ("fit", lambda: sweep_fit(rows, q, env)),
-              ("precision", lambda: sweep_precision(rows, q))]
+              ("precision", lambda: sweep_precision(rows, q)),
+              ("fit", lambda: sweep_fit(rows, q, env))]
     timings = {}
     for name, fn in sweeps:
         if name in skip:

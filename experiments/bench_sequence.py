@@ -90,6 +90,7 @@ def main(argv=None) -> int:
     ap.add_argument("--scheduler", default=None, help="an existing Dask scheduler instead of a local cluster")
     ap.add_argument("--out", default="experiments/results/bench_sequence", help="output folder")
     ap.add_argument("--skip", default="", help="comma-separated configurations to skip")
+    ap.add_argument("--keep", action="store_true", help="keep the frames and the runs' folders under --out")
     args = ap.parse_args(argv)
     n = args.frames or (8 if args.quick else 24)
     size = args.size or (48 if args.quick else 64)
@@ -143,7 +144,7 @@ def main(argv=None) -> int:
             client = Client(args.scheduler)
         else:
             cluster = LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=None, env=_local_env(), silence_logs=40)
+                                   dashboard_address=":0", env=_local_env(), silence_logs=40)
             client = Client(cluster)
         n_workers = len(client.scheduler_info()["workers"])
         start_s = time.perf_counter() - t
@@ -199,6 +200,11 @@ def main(argv=None) -> int:
         ax.set_title(f"{n} frames of {size}x{size}, {os.cpu_count()} cores (blue: warm starts)")
         fig.tight_layout()
         fig.savefig(out / "bench_sequence.png")
+    if not args.keep:
+        import shutil
+
+        shutil.rmtree(frames, ignore_errors=True)
+        shutil.rmtree(out / "runs", ignore_errors=True)
     print(f"wrote {out / 'bench_sequence.json'}")
     return 0
 

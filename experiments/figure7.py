@@ -38,7 +38,7 @@ def main(argv=None) -> int:
     out = F.Path(args.out)
     envpath = str(shipped_envmap("courtyard"))
     roughness = (0.01, 0.02)
-    settings = {"envmap": "courtyard", "size": size, "f": 0.3, "t": 0.972, "thickness_nm": 500.0, "model": "paper",
+    settings = {"envmap": "courtyard", "size": size, "f": 0.3, "t": 0.972, "thickness_nm": 500.0, "model": "paper", "spectral": "uniform/100",
                 "camera": F.view_camera(size), "rotation_deg": F.VIEW_ROTATION,
                 "roughness": list(roughness),
                 "filtered_map": "specular(env, n=w, w_o=w, a), r_s = 1, mipmap 6x6 nodes, per map direction w"}

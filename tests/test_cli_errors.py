@@ -453,11 +453,12 @@ def test_fit_bad_input(case, files, tmp_path, capsys):
     assert_no_temp_files(tmp_path)
 
 
-def test_demo_unwritable_output(files, capsys):
+@pytest.mark.parametrize("argv", [["--size", "8"], ["--size", "100000"], ["--seed", "x"]])
+def test_demo_bad_options(argv, tmp_path, capsys):
     need("demo")
-    rc, _, err = run_cli(capsys, ["demo", "-o", files["no_dir_out"].parent / "demo"])
-    if rc != 0:
-        assert_one_line_error(rc, err)
+    rc, _, err = run_cli(capsys, ["demo", *argv, "--out", tmp_path / "demo"])
+    assert_one_line_error(rc, err)
+    assert not (tmp_path / "demo").exists()
 
 
 @pytest.mark.parametrize("command", sorted(REGISTERED))

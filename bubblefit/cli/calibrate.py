@@ -38,7 +38,7 @@ def register(subparsers) -> None:
             "AFTER/BEFORE = t^4 (four film interfaces). The pair is registered (camera "
             "shift of a few pixels), the bubble is found (or given with --circle), and t "
             "is estimated robustly from the lit, unsaturated pixels well inside the "
-            "bubble, with a 95%% interval. A radial fit with the Fresnel film model also "
+            "bubble, with a 95% interval. A radial fit with the Fresnel film model also "
             "gives the film's refractive index when the bubble is large enough."
         ),
     )

@@ -10,7 +10,7 @@ def register(sub):
                     "with known parameters, noise, 8-bit files), run calibrate and fit, print true against "
                     "recovered values with standard errors, and write report.png and index.html.")
     p.add_argument("--out", default="bubblefit-demo", help="output folder (default: %(default)s)")
-    p.add_argument("--size", type=int, default=128, help="side of the synthetic photos in pixels (default: %(default)s)")
+    p.add_argument("--size", type=int, default=96, help="side of the synthetic photos in pixels (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="seed of the noise (default: %(default)s)")
     p.add_argument("--json", metavar="PATH", help="also write the results JSON here")
     p.add_argument("--quiet", action="store_true", help="print only the table")

@@ -37,7 +37,7 @@ import numpy as np
 
 from .errors import InputError
 from .filtering import FilterConfig
-from .spectral import LAMBDA_MAX, LAMBDA_MIN, SpectralBasis, spectral_basis
+from .spectral import LAMBDA_MIN, SpectralBasis, spectral_basis
 
 __all__ = ["Effects", "Decision", "resolve", "all_on_settings", "DEFAULT_TOLERANCE", "interference_contrast"]
 

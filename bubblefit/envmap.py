@@ -13,7 +13,6 @@ from __future__ import annotations
 import math
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -71,7 +70,6 @@ def rotate_y(d: Float[Array, "... 3"], angle) -> Float[Array, "... 3"]:
 
 def lookup(pixels: Float[Array, "H W C"], d: Float[Array, "... 3"]) -> Float[Array, "... C"]:
     """Bilinear lookup of an equirectangular map in directions ``d`` (Mitsuba texel positions)."""
-    h, w = pixels.shape[0], pixels.shape[1]
     u, v = direction_to_uv(d)
     return lookup_uv(pixels, u, v)
 

@@ -40,7 +40,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .brdf import half_vector_weight, ward_lobe
-from .envmap import EnvMap, direction_to_uv, lookup, texel_directions, texel_solid_angles
+from .envmap import EnvMap, direction_to_uv, texel_directions, texel_solid_angles
 
 __all__ = [
     "FilterConfig",

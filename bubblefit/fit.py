@@ -50,11 +50,10 @@ once.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import math
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import jax
 import jax.numpy as jnp
@@ -62,10 +61,11 @@ import numpy as np
 import optimistix as optx
 
 from . import search
-from .effects import Decision, resolve
+from .effects import resolve
 from .envmap import EnvMap
 from .errors import InputError
-from .geometry import OrthographicCamera, PerspectiveCamera, intersect_sphere
+from .film import fringe_attenuation
+from .geometry import OrthographicCamera, intersect_sphere
 from .render import Params, RenderConfig, render, render_terms
 
 __all__ = ["FitOptions", "FitResult", "fit_photo", "detect_disc", "noise_sigma"]
@@ -734,7 +734,6 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     lm_kind = "constant" if opts.thickness == "constant" else "drainage"
     map_cfg = base_cfg  # a map is fitted after a drainage profile: the local fits render the profile
     base_cfg = replace(base_cfg, effects=replace(fx, thickness=lm_kind))
-    fit_layout = layout
 
     # data at the fit and search resolutions
     sigma = noise_sigma(photo, opts.noise_read, opts.noise_shot, opts.bits)
@@ -864,7 +863,6 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     # per-pixel map
     thickness_map = None
     stderr_map = None
-    final_kind = fx.thickness
     final_vals = dict(new)
     prof = None
     if opts.thickness != "constant":
@@ -924,11 +922,15 @@ def _pixel_solver(basis, robust: float, max_steps: int):
     """Vmapped optimistix LM for one thickness per pixel (paper model, eq. 11 linear in eq. 10)."""
     lam = jnp.asarray(basis.wavelengths, jnp.float32)
     wts = jnp.asarray(basis.weights, jnp.float32)
+    sigma = None if getattr(basis, "sigma", None) is None else jnp.asarray(basis.sigma, jnp.float32)
 
     def model(d, a):
         m, c, xfac, t = a[0], a[1], a[2], a[3]
-        delta = 2 * jnp.pi * d * xfac / lam + jnp.pi  # eq. (8), x = 2 n d cos th_t
-        phi = (jnp.cos(delta / 2) ** 2) @ wts
+        x = d * xfac  # optical path 2 n d cos th_t of eq. (8)
+        cos_delta = jnp.cos(2 * jnp.pi * x / lam + jnp.pi)
+        if sigma is not None:  # ``fourier`` lobes: the fringe averaged over each lobe
+            cos_delta = cos_delta * fringe_attenuation(x, sigma)
+        phi = (0.5 * (1.0 + cos_delta)) @ wts  # cos^2(delta/2), integrated
         return 4 * t * t * phi * m + c
 
     def resid(u, a):

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import collections
 import functools
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import equinox as eqx
 import jax
@@ -38,7 +38,7 @@ from . import film, spectral
 from .brdf import ward_lobe
 from .effects import Effects
 from .envmap import EnvMap, rotate_y
-from .filtering import irradiance, reflect, specular
+from .filtering import irradiance, specular
 from .geometry import OrthographicCamera, PerspectiveCamera, internal_bounce, intersect_sphere
 from .thickness import thickness_at
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["Scene", "load_scene", "render_scene", "DATA_DIR", "shipped_envmap"]
+__all__ = ["Scene", "load_scene", "render_scene", "read_envmap", "DATA_DIR", "shipped_envmap"]
 
 DATA_DIR = Path(__file__).parent / "data"
 
@@ -37,6 +37,27 @@ _SCHEMA = {
 }
 _THICKNESS_KEYS = {"profile": str, "top_nm": float, "bottom_nm": float, "exponent": float, "path": str,
                    "value_nm": float}
+
+
+def read_envmap(path, *, scale: float = 1.0):
+    """Read an equirectangular environment map file into an :class:`~bubblefit.envmap.EnvMap`.
+
+    Raises :class:`InputError` (one line) for an unreadable file, a map that is not twice
+    as wide as high, or one with fewer than 2 rows.
+    """
+    from .envmap import EnvMap
+    from .imageio import read_image
+
+    try:
+        img = read_image(path)
+    except InputError as exc:
+        raise InputError(f"environment map: {exc}") from None
+    h, w = img.pixels.shape[:2]
+    if w != 2 * h:
+        raise InputError(f"environment map {path} is {w}x{h}; an equirectangular map must be twice as wide as high")
+    if h < 2:
+        raise InputError(f"environment map {path} is {w}x{h}; it needs at least 2 rows (4x2 texels)")
+    return EnvMap.from_array(img.pixels * scale)
 
 
 def shipped_envmap(name: str = "courtyard") -> Path:
@@ -214,26 +235,13 @@ class Scene:
 
     def load_envmap(self):
         """The scene's environment map as an :class:`~bubblefit.envmap.EnvMap` (or None)."""
-        from .envmap import EnvMap
-        from .imageio import read_image
-
         lighting = self.table("lighting")
         if "envmap" not in lighting:
             return None
         path = self.resolve_path(lighting["envmap"])
         if not path.exists() and (DATA_DIR / lighting["envmap"]).exists():
             path = DATA_DIR / lighting["envmap"]
-        try:
-            img = read_image(path)
-        except InputError as exc:
-            raise InputError(f"environment map: {exc}") from None
-        px = img.pixels * lighting.get("scale", 1.0)
-        h, w = px.shape[:2]
-        if w != 2 * h:
-            raise InputError(f"environment map {path} is {w}x{h}; an equirectangular map must be twice as wide as high")
-        if h < 2:
-            raise InputError(f"environment map {path} is {w}x{h}; it needs at least 2 rows (4x2 texels)")
-        return EnvMap.from_array(px)
+        return read_envmap(path, scale=lighting.get("scale", 1.0))
 
     def background_kind(self) -> tuple[str, Path | None]:
         bg = self.table("lighting").get("background", "envmap")

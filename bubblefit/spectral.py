@@ -192,4 +192,5 @@ def integrate(spectrum: Float[Array, "... K"], basis: SpectralBasis) -> Float[Ar
     """Linear sRGB of a reflectance spectrum sampled at ``basis.wavelengths``."""
     import jax.numpy as jnp
 
+    spectrum = jnp.asarray(spectrum)
     return spectrum @ jnp.asarray(basis.weights, dtype=spectrum.dtype)

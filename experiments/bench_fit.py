@@ -5,7 +5,7 @@ and 8-bit sRGB quantisation), fits it (constant thickness, then a per-pixel map)
 records the first (compiling) and the warm wall time and the errors. Writes
 ``bench_fit.json``, ``bench_fit.csv`` and ``bench_fit.png`` to ``--out``.
 
-    python experiments/bench_fit.py [--quick] [--size 256] [--out experiments/out]
+    python experiments/bench_fit.py [--quick] [--size 256] [--out experiments/results/bench_fit]
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ def main():
     ap.add_argument("--samples", type=int, default=0, help="spectral samples of the fit (0: auto)")
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--no-map", action="store_true")
-    ap.add_argument("--out", default=str(Path(__file__).parent / "out"))
+    ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "bench_fit"))
     args = ap.parse_args()
     import jax
 

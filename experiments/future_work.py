@@ -100,7 +100,6 @@ def main(argv=None) -> int:
     sc = bubble("paper", {"thickness_nm": 500.0})
     hdr, times["hdr"] = F.render(sc, env_hdr)
     ldr, times["ldr"] = F.render(sc, env_ldr)
-    inside = np.isfinite(hdr) & (hdr > 0)
     lost = 1.0 - float(luminance(ldr).sum() / max(luminance(hdr).sum(), 1e-12))
     F.log(f"HDR vs LDR: the LDR bubble reflects {lost:.1%} less light")
     # 2. paper vs physical at the rim.

@@ -26,7 +26,7 @@ def disc(size: int) -> list:
     return [size / 2, size / 2, 0.45 * size]
 
 
-def ward_eq3(size: int, a: float, f: float, t: float = 0.972) -> "np.ndarray":
+def ward_eq3(size: int, a: float, f: float, t: float = 0.972):
     """Eq. (1)/(3) for the front film of an orthographic unit bubble on ``disc(size)``, (size, size)."""
     import numpy as np
 

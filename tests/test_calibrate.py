@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -12,7 +11,6 @@ import numpy as np
 import pytest
 
 from bubblefit import calibrate as cal
-from bubblefit.errors import InputError
 from bubblefit.imageio import Image, read_image, srgb_decode, srgb_encode, write_image
 
 REPO = Path(__file__).resolve().parents[1]

@@ -11,7 +11,6 @@ A hypothesis fuzz test feeds mutated PNG/EXR bytes and mutated TOML scenes to th
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np

@@ -57,20 +57,14 @@ def register(sub):
 
 
 def load_envmap(path: str):
-    """Read an equirectangular map into an :class:`~bubblefit.envmap.EnvMap` (one-line errors)."""
-    from ..envmap import EnvMap
-    from ..imageio import read_image
+    """Read the environment map for a fit: :func:`~bubblefit.scene.read_envmap`, and refuse
+    a map without light (nothing to fit against)."""
+    from ..scene import read_envmap
 
-    try:
-        img = read_image(path)
-    except InputError as exc:
-        raise InputError(f"environment map: {exc}") from None
-    h, w = img.pixels.shape[:2]
-    if w != 2 * h:
-        raise InputError(f"environment map {path} is {w}x{h}; an equirectangular map must be twice as wide as high")
-    if not np.any(np.isfinite(img.pixels) & (img.pixels > 0)):
+    env = read_envmap(path)
+    if not np.any(np.asarray(env.pixels) > 0):
         raise InputError(f"environment map {path} is black or unreadable")
-    return EnvMap.from_array(img.pixels)
+    return env
 
 
 def read_calibration(path: str) -> tuple[float, tuple | None]:

@@ -9,11 +9,11 @@ existing one (``--scheduler``) or in this process (``--workers 0``). Writes
 
 from __future__ import annotations
 
-import json
 import math
 import os
 
 from ..errors import InputError
+from .fit import load_envmap, read_calibration
 
 
 def register(sub):
@@ -60,41 +60,6 @@ def register(sub):
     p.set_defaults(func=run)
 
 
-def _load_env(path: str):
-    from ..envmap import EnvMap
-    from ..imageio import read_image
-
-    try:
-        img = read_image(path)
-    except InputError as exc:
-        raise InputError(f"environment map: {exc}") from None
-    h, w = img.pixels.shape[:2]
-    if w != 2 * h:
-        raise InputError(f"environment map {path} is {w}x{h}; an equirectangular map must be twice as wide as high")
-    if h < 2:
-        raise InputError(f"environment map {path} is {w}x{h}; it needs at least 2 rows (4x2 texels)")
-    return EnvMap.from_array(img.pixels)
-
-
-def _calibration(path: str) -> tuple[float | None, tuple | None]:
-    """(t, disc) from a `bubblefit calibrate` JSON."""
-    try:
-        with open(path) as fh:
-            data = json.load(fh)
-    except OSError as exc:
-        raise InputError(f"cannot read calibration {path}: {exc.strerror}") from None
-    except ValueError:
-        raise InputError(f"calibration {path} is not valid JSON") from None
-    t = data.get("t")
-    if not isinstance(t, (int, float)) or not 0 < t < 1:
-        raise InputError(f"calibration {path} has no valid 't' (0 < t < 1)")
-    disc = None
-    b = data.get("bubble")
-    if isinstance(b, dict) and all(isinstance(b.get(k), (int, float)) for k in ("cx", "cy", "r")):
-        disc = (float(b["cx"]), float(b["cy"]), float(b["r"]))
-    return float(t), disc
-
-
 def build_options(args):
     """:class:`bubblefit.fit.FitOptions` from the parsed arguments (as ``bubblefit fit`` reads them)."""
     from ..fit import FitOptions
@@ -102,7 +67,7 @@ def build_options(args):
 
     t_init, disc = None, None
     if args.calibration:
-        t_init, disc = _calibration(args.calibration)
+        t_init, disc = read_calibration(args.calibration)
     if args.t is not None:
         if not 0 < args.t < 1:
             raise InputError(f"--t must lie in (0, 1), got {args.t}")
@@ -133,7 +98,7 @@ def run(args) -> int:
         raise InputError("--workers must be 0 or more")
     frames = discover_frames(args.frames, fps=args.fps)
     options = build_options(args)
-    env = _load_env(args.envmap)
+    env = load_envmap(args.envmap)
     background = read_image(args.background).pixels if args.background else None
     scene = load_scene(args.scene) if args.scene else None
     where = ("this process" if args.workers == 0 else

@@ -111,11 +111,17 @@ def _count(name):
     TRACE_COUNTS[name] += 1
 
 
-def _lights_radiance(lights, n, wo, p: Params, *, normalize: bool, diffuse: bool):
-    """Eq. (3): the BRDF of eq. (1) for each distant light, times its irradiance and cosine."""
+def _lights_radiance(lights, n, wo, p: Params, *, diffuse: bool):
+    """Eq. (3): eq. (1)'s BRDF for each distant light, times its irradiance and cosine.
+
+    Returns ``(specular, diffuse)``, each (N, 3): the Ward lobe with ``r_s = 1`` (the caller
+    scales it by ``r_s``, or by ``R_film`` in the physical model, as it does for the
+    filtered environment) and ``r_d / pi cos th_i E`` (0 unless ``diffuse``).
+    """
     _count("point_lights")
     cos_r = jnp.sum(n * wo, axis=-1)
-    out = 0.0
+    spec = 0.0
+    diff = 0.0
     for light in lights:
         l = jnp.asarray(light.direction, dtype=n.dtype)
         l = l / jnp.linalg.norm(l)
@@ -125,13 +131,11 @@ def _lights_radiance(lights, n, wo, p: Params, *, normalize: bool, diffuse: bool
         h = h / jnp.linalg.norm(h, axis=-1, keepdims=True).clip(1e-12)
         cos_h = jnp.sum(n * h, axis=-1)
         lobe = ward_lobe(cos_i, cos_r, cos_h, p.roughness) * jnp.maximum(cos_i, 0.0)
-        # The caller scales the specular part (r_s in the paper model, R_film in the
-        # physical one), as it does for the filtered environment.
-        val = lobe
+        spec = spec + lobe[:, None] * e
         if diffuse:
-            val = val + p.r_d / jnp.pi * jnp.maximum(cos_i, 0.0) * (cos_r > 0)
-        out = out + val[:, None] * e
-    return out
+            _count("diffuse")
+            diff = diff + (p.r_d / jnp.pi * jnp.maximum(cos_i, 0.0) * (cos_r > 0))[:, None] * e
+    return spec, diff
 
 
 class _Film:
@@ -192,16 +196,9 @@ def _reflected(env, fx: Effects, cfg: RenderConfig, p: Params, n, wo, *, normali
             _count("diffuse")
             diff = p.r_d / jnp.pi * irradiance(env, nm)
     if fx.point_lights and cfg.point_lights:
-        lights = _lights_radiance(cfg.point_lights, n, wo, p, normalize=normalize, diffuse=False)
-        spec = spec + lights
-        if fx.diffuse:
-            _count("diffuse")
-            cos_r = jnp.sum(n * wo, axis=-1)
-            for light in cfg.point_lights:
-                l = jnp.asarray(light.direction, dtype=n.dtype)
-                l = l / jnp.linalg.norm(l)
-                e = jnp.asarray(light.irradiance, dtype=n.dtype)
-                diff = diff + (p.r_d / jnp.pi * jnp.maximum(n @ l, 0.0) * (cos_r > 0))[:, None] * e
+        lspec, ldiff = _lights_radiance(cfg.point_lights, n, wo, p, diffuse=fx.diffuse)
+        spec = spec + lspec
+        diff = diff + ldiff
     return spec, diff
 
 

@@ -29,7 +29,6 @@ The bounds (each reason printed by ``--explain`` names the bound and its value):
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 
@@ -39,7 +38,7 @@ from .errors import InputError
 from .filtering import FilterConfig
 from .spectral import LAMBDA_MIN, SpectralBasis, spectral_basis
 
-__all__ = ["Effects", "Decision", "resolve", "all_on_settings", "DEFAULT_TOLERANCE", "interference_contrast"]
+__all__ = ["Effects", "Decision", "resolve", "all_on_settings", "DEFAULT_TOLERANCE"]
 
 #: Default tolerance, in linear radiance of the rendered image (1/1000 of a white of 1).
 DEFAULT_TOLERANCE = 1e-3
@@ -112,32 +111,6 @@ def all_on_settings(model: str = "paper", settings: dict | None = None) -> dict:
 # ----------------------------------------------------------------------------------------
 # Bounds of the film terms
 # ----------------------------------------------------------------------------------------
-
-@functools.lru_cache(maxsize=4)
-def _contrast_table(illuminant: str = "D65"):
-    """Interference contrast after spectral integration against optical path difference.
-
-    For the two-beam film, reflectance is ``A (1 + cos(2 pi x / lambda))`` with ``x`` the
-    optical path difference ``2 n d cos t``; after integration the colour deviates from the
-    incoherent grey by ``max_c |sum_k w_kc cos(2 pi x / lambda_k)|`` (relative). The table
-    gives that deviation's running maximum from ``x`` to infinity (so it bounds every
-    thicker film too), on a grid of ``x`` in nm.
-    """
-    basis = spectral_basis("reference", illuminant=illuminant)
-    x = np.linspace(0.0, 60000.0, 6001)
-    cos = np.cos(2 * np.pi * x[:, None] / basis.wavelengths[None, :])
-    dev = np.max(np.abs(cos @ basis.weights), axis=1)
-    tail = np.maximum.accumulate(dev[::-1])[::-1]
-    return x, tail
-
-
-def interference_contrast(opd_nm: float, illuminant: str = "D65") -> float:
-    """Upper bound of the relative colour contrast of interference for paths >= ``opd_nm``."""
-    x, tail = _contrast_table(illuminant)
-    if opd_nm >= x[-1]:
-        return float(tail[-1])
-    return float(np.interp(opd_nm, x, tail))
-
 
 def _grids(thickness_range, min_cos, n_film, max_points: int = 800):
     """Thickness (D, C) and incidence-cosine (C,) grids covering the scene.

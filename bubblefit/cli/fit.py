@@ -86,6 +86,31 @@ def read_calibration(path: str) -> tuple[float, tuple | None]:
     return float(t), disc
 
 
+def fit_option_values(args) -> dict:
+    """The :class:`~bubblefit.fit.FitOptions` values that ``fit`` and ``fit-sequence`` read
+    the same way: starting t and disc (``--calibration``, ``--t``, ``--disc``), thickness
+    kind and range, held parameters and the step limit. One-line errors for bad values."""
+    from .common import parse_floats
+
+    t_init, disc = None, None
+    if args.calibration:
+        t_init, disc = read_calibration(args.calibration)
+    if args.t is not None:
+        if not 0 < args.t < 1:
+            raise InputError(f"--t must lie in (0, 1), got {args.t}")
+        t_init = args.t
+    if args.disc:
+        disc = parse_floats(args.disc, 3, "--disc")
+    lo, hi = parse_floats(args.thickness_range, 2, "--thickness-range")
+    kw = dict(thickness=args.thickness, disc=disc, t_init=t_init, thickness_range=(lo, hi),
+              hold=tuple(h.strip() for h in args.hold.split(",") if h.strip()))
+    if args.max_steps is not None:
+        if args.max_steps < 1:
+            raise InputError("--max-steps must be at least 1")
+        kw["max_steps"] = args.max_steps
+    return kw
+
+
 def _bits(img) -> int | None:
     return None if img.linear_file else int(img.bit_depth)
 
@@ -95,7 +120,7 @@ def run(args) -> int:
     from ..imageio import preview_path, read_image, write_image
     from ..progress import status
     from ..scene import load_scene
-    from .common import parse_floats, write_json
+    from .common import write_json
 
     photo = read_image(args.photo)
     env = load_envmap(args.envmap)
@@ -107,24 +132,9 @@ def run(args) -> int:
                              f"the photo is {photo.pixels.shape[1]}x{photo.pixels.shape[0]}")
         background = bimg.pixels
     scene = load_scene(args.scene) if args.scene else None
-    t_init, disc = None, None
-    if args.calibration:
-        t_init, disc = read_calibration(args.calibration)
-    if args.t is not None:
-        if not 0 < args.t < 1:
-            raise InputError(f"--t must lie in (0, 1), got {args.t}")
-        t_init = args.t
-    if args.disc:
-        disc = parse_floats(args.disc, 3, "--disc")
-    lo, hi = parse_floats(args.thickness_range, 2, "--thickness-range")
     model = args.model or (scene.table("effects").get("model", "paper") if scene is not None else "paper")
-    kw = dict(thickness=args.thickness, model=model, disc=disc, t_init=t_init, thickness_range=(lo, hi),
-              hold=tuple(h.strip() for h in args.hold.split(",") if h.strip()), free_split=args.free_split,
-              fit_rotation=args.fit_rotation, bits=_bits(photo))
-    if args.max_steps is not None:
-        if args.max_steps < 1:
-            raise InputError("--max-steps must be at least 1")
-        kw["max_steps"] = args.max_steps
+    kw = dict(fit_option_values(args), model=model, free_split=args.free_split, fit_rotation=args.fit_rotation,
+              bits=_bits(photo))
     options = FitOptions(**kw)
     status(f"fitting {photo.pixels.shape[1]}x{photo.pixels.shape[0]} ({options.thickness} thickness, "
            f"{options.model} model) ...")

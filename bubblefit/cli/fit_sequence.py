@@ -13,7 +13,7 @@ import math
 import os
 
 from ..errors import InputError
-from .fit import load_envmap, read_calibration
+from .fit import fit_option_values, load_envmap
 
 
 def register(sub):
@@ -63,26 +63,8 @@ def register(sub):
 def build_options(args):
     """:class:`bubblefit.fit.FitOptions` from the parsed arguments (as ``bubblefit fit`` reads them)."""
     from ..fit import FitOptions
-    from .common import parse_floats
 
-    t_init, disc = None, None
-    if args.calibration:
-        t_init, disc = read_calibration(args.calibration)
-    if args.t is not None:
-        if not 0 < args.t < 1:
-            raise InputError(f"--t must lie in (0, 1), got {args.t}")
-        t_init = args.t
-    if args.disc:
-        disc = parse_floats(args.disc, 3, "--disc")
-    lo, hi = parse_floats(args.thickness_range, 2, "--thickness-range")
-    hold = tuple(h.strip() for h in args.hold.split(",") if h.strip())
-    kw = dict(thickness=args.thickness, model=args.model, disc=disc, t_init=t_init, thickness_range=(lo, hi),
-              hold=hold)
-    if args.max_steps is not None:
-        if args.max_steps < 1:
-            raise InputError("--max-steps must be at least 1")
-        kw["max_steps"] = args.max_steps
-    return FitOptions(**kw)
+    return FitOptions(**fit_option_values(args), model=args.model)
 
 
 def run(args) -> int:

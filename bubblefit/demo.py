@@ -225,7 +225,10 @@ def run_demo(out_dir="bubblefit-demo", size: int = 96, seed: int = 0, progress: 
     # ~3.7 um of film (experiments/spectral_sampling.py) and 3x faster.
     # The global thickness search runs at the fit's resolution: coarser, it can lock onto
     # another order of the colour sequence on small photos.
-    settings = dict(effects=(("spectral", "uniform"),), fit_size=FIT_SIZE, search_size=FIT_SIZE)
+    # The synthetic photo is eq. (11) as written (grey transmission), so the fit is told
+    # so; fits of photographs default to the film's complementary transmission tint.
+    settings = dict(effects=(("spectral", "uniform"), ("transmission_tint", False)), fit_size=FIT_SIZE,
+                    search_size=FIT_SIZE)
     settings.update(fit_options or {})
     opts = FitOptions(thickness="drainage", model="paper", disc=disc, t_init=cal.t,
                       noise_read=NOISE_READ, noise_shot=NOISE_SHOT, **settings)

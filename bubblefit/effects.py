@@ -25,6 +25,13 @@ The bounds (each reason printed by ``--explain`` names the bound and its value):
 - front/rear reflection, background transmission, diffuse: the term's largest film
   coefficient times the largest radiance it can carry (map peak, point-light peak of
   eq. 3, irradiance-table peak over pi, background peak).
+- transmission tint (``paper`` only): eq. (11) transmits a grey ``t^4``; a film that does
+  not absorb transmits the complement of what it reflects, so with the tint each film
+  transmits ``t^2 - r_s (F - 2 t^2)`` per wavelength (``F`` eq. 10's factor, ``2 t^2`` its
+  spectral mean; see :mod:`bubblefit.render`). It changes the image by at most
+  ``4 r_s t^4`` times the background peak. ``auto`` keeps eq. (11) as written (the
+  ``paper`` model is the paper's) and states that bound; ``true`` adds the tint. Fits
+  of photographs turn it on (:mod:`bubblefit.fit`).
 """
 
 from __future__ import annotations
@@ -67,6 +74,7 @@ class Effects:
     bounces: int = 1
     thickness: str = "constant"
     background: str = "envmap"  # envmap | black | photo
+    tint: bool = False  # paper model: the film's complementary colour in transmission
 
     @property
     def fresnel(self) -> bool:
@@ -150,7 +158,7 @@ def _film_spectra(model, mode, lam, d, cos, t, n_film) -> np.ndarray:
     return np.asarray(fn(dd, ll, n_film, cc))
 
 
-def _film_coefficients(model, mode, weights, spectra, cos, t, n_film, bounces):
+def _film_coefficients(model, mode, weights, spectra, cos, t, n_film, bounces, tint_rs=None):
     """RGB coefficients of the model's terms on a (thickness, cosine) grid.
 
     Args:
@@ -159,6 +167,7 @@ def _film_coefficients(model, mode, weights, spectra, cos, t, n_film, bounces):
         spectra: :func:`_film_spectra` at the basis's wavelengths (D, C, K[, 2]), or for the
             grey modes any array whose first axis is D.
         cos: (C,) incidence cosines; bounces: internal bounces to return (physical).
+        tint_rs: ``r_s`` when the paper model's transmission tint is on, else None.
 
     Returns:
         dict with ``front`` (D, C, 3), ``background`` (D, C, 3) and ``rear`` a list of
@@ -177,8 +186,11 @@ def _film_coefficients(model, mode, weights, spectra, cos, t, n_film, bounces):
             f = np.full(shape, 2.0 * t * t)
         else:
             f = spectra
+        bg = np.full(f.shape[:-1] + (3,), t**4)
+        if tint_rs is not None and not grey:
+            bg = rgb((t * t - tint_rs * (f - 2 * t * t)) ** 2)
         f = rgb(f)
-        return {"front": f, "rear": [t * t * f], "background": np.full(f.shape, t**4)}
+        return {"front": f, "rear": [t * t * f], "background": bg}
     if grey:
         from .film import incoherent_reflectance
 
@@ -429,6 +441,8 @@ def resolve(
     if interference not in ("auto", "off", "two_beam", "airy", "incoherent"):
         raise InputError(f"effects.interference must be auto, off, two_beam, airy or incoherent, got {interference!r}")
     on_mode = "airy" if model == "physical" else "two_beam"
+    tint_set = _bool_setting(settings.get("transmission_tint", "auto"), "transmission_tint")
+    tint_rs = max(r_s, 0.0) if model == "paper" and tint_set is True else None
     bset = settings.get("bounces", "auto") if model == "physical" else 1
     n_b = MAX_AUTO_BOUNCES if bset == "auto" else int(bset)
     ref_basis = spectral_basis("reference")
@@ -443,7 +457,7 @@ def resolve(
         if key in cache:
             return cache[key]
         if mode in ("off", "incoherent"):
-            cache[key] = _film_coefficients(model, mode, None, d_grid, c_grid, t, n_film, n_b)
+            cache[key] = _film_coefficients(model, mode, None, d_grid, c_grid, t, n_film, n_b, tint_rs)
             return cache[key]
         if mode not in spectra:
             lam_all = np.unique(np.concatenate([bb.wavelengths for bb in wanted + [basis]]))
@@ -455,7 +469,7 @@ def resolve(
             spectra[mode] = (lam_all, _film_spectra(model, mode, lam_all, d_grid, c_grid, t, n_film))
             lam_all, vals = spectra[mode]
             idx = np.searchsorted(lam_all, basis.wavelengths)
-        cache[key] = _film_coefficients(model, mode, basis.weights, vals[:, :, idx], c_grid, t, n_film, n_b)
+        cache[key] = _film_coefficients(model, mode, basis.weights, vals[:, :, idx], c_grid, t, n_film, n_b, tint_rs)
         return cache[key]
 
     weights = (w_refl, w_refl, bg_peak)
@@ -571,6 +585,25 @@ def resolve(
     else:
         transmission = term("transmission", settings.get("transmission", "auto"), f_bg * bg_peak,
                             f"transmission {f_bg:.3g} x background peak {bg_peak:.3g}")
+    tint_bound = 4.0 * max(r_s, 0.0) * t**4 * bg_peak
+    if model == "physical":
+        tint = False
+        out.append(Decision("transmission_tint", transmission and interference in ("two_beam", "airy"),
+                            "physical model: every film transmits T = 1 - R per wavelength"))
+    elif not transmission or interference in ("off", "incoherent"):
+        tint = False
+        out.append(Decision("transmission_tint", False,
+                            "no background transmission" if not transmission else
+                            f"interference {interference}: the film is grey, so is its transmission"))
+    elif tint_set == "auto":
+        tint = False
+        out.append(Decision("transmission_tint", False,
+                            f"eq. (11) as written (grey t^4); the film's complementary colour could change "
+                            f"the image by {tint_bound:.2e} (4 r_s t^4 x background peak)"))
+    else:
+        tint = bool(tint_set)
+        out.append(Decision("transmission_tint", tint, f"set by the scene (bound 4 r_s t^4 x background peak "
+                                                        f"= {tint_bound:.2e})"))
     if model == "paper":
         diff_w = (f_front if front else 0.0) + (f_rear if rear else 0.0)
     else:
@@ -623,5 +656,6 @@ def resolve(
         bounces=bounces,
         thickness=thickness_kind,
         background=background,
+        tint=tint,
     )
     return fx, out

@@ -34,6 +34,15 @@ saturated, with ``sigma^2 = read^2 + shot * I + q^2`` (``q`` the linear size of 
 value of an 8-bit sRGB file over sqrt(12)), passed through a pseudo-Huber loss of scale
 ``robust_scale`` sigmas.
 
+Transmission tint: with the ``paper`` model the fit turns on ``transmission_tint``
+(:mod:`bubblefit.effects`) unless told otherwise: a real film transmits the complement of
+the colour it reflects, which over a bright background is as strong as the reflection
+itself, and eq. (11)'s grey ``t^4`` would then prefer another colour order. The search
+keeps its speed (the tint is a function of the same tabulated ``Phi``). A drainage search
+also scans one camera gain for all pixels instead of hue matching alone (a gain per pixel
+could cancel the reflected colour against the tint's), and searches the profile's own
+parameters through the per-pixel costs (:func:`bubblefit.search.best_profile`).
+
 Thickness maps: after a drainage fit gives the global parameters, each pixel's thickness
 is searched and refined separately (a pixel's colour depends on its own thickness only:
 the rear film and internal bounces read the map at the same pixel, see
@@ -45,7 +54,9 @@ use renders of the profile plus offsets and a diagonal Gauss-Newton.
 
 Compiled solvers are cached per static configuration (camera, effects, parameter layout),
 so a sequence of photos with the same size and disc (give ``FitOptions.disc``) compiles
-once.
+once. :func:`fit_batch` fits several warm-started frames of a sequence in one solve
+vmapped over frames (for devices that one small frame does not fill; on a 2-core CPU it
+is slower than frame after frame).
 """
 
 from __future__ import annotations
@@ -53,7 +64,7 @@ from __future__ import annotations
 import functools
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import jax
 import jax.numpy as jnp
@@ -68,7 +79,7 @@ from .film import fringe_attenuation
 from .geometry import OrthographicCamera, intersect_sphere
 from .render import Params, RenderConfig, render, render_terms
 
-__all__ = ["FitOptions", "FitResult", "fit_photo", "detect_disc", "noise_sigma"]
+__all__ = ["FitOptions", "FitResult", "fit_photo", "fit_batch", "detect_disc", "noise_sigma"]
 
 _THICK_UNIT = 100.0  # nm per unit of the unconstrained thickness coordinate
 _LOGISTIC = ("t", "split")
@@ -464,10 +475,16 @@ def _candidates_paper(lev: _Level, vals: dict, grid: np.ndarray, free_split: boo
     c = np.asarray(c).reshape(-1, 3)[sel]
     x = 2 * n * grid[:, None] * cos_t.reshape(-1)[sel][None, :]
     t = float(vals["t"])
-    refl = 4 * t * t * search.phi_rgb(table, jnp.asarray(x, jnp.float32)) * jnp.asarray(m)[None]
+    phi = search.phi_rgb(table, jnp.asarray(x, jnp.float32))  # (G, P, 3)
+    refl = 4 * t * t * phi * jnp.asarray(m)[None]
+    c = jnp.asarray(c)[None]
+    if fx.tint and fx.transmission:
+        # render.py's tint: T_front T_rear = t^4 (1 - 2 r_s (2 Phi - 1))^2 (Phi integrated
+        # per channel before squaring: exact to O(r_s^2) of Phi's spread within a channel)
+        c = c * (1.0 - 2.0 * float(p.r_s) * (2.0 * phi - 1.0)) ** 2
     if fx.background == "photo":
-        return refl, jnp.asarray(c)
-    return refl + jnp.asarray(c)[None], jnp.zeros_like(jnp.asarray(c))
+        return refl, c
+    return refl + c, jnp.zeros_like(c[0])
 
 
 @functools.partial(jax.jit, static_argnames=("cfg",))
@@ -503,6 +520,7 @@ def _candidates_generic(lev: _Level, vals: dict, grid: np.ndarray, free_split: b
 
 
 def _candidates(lev, vals, grid, free_split, env):
+    """Candidate images for the thickness grid: ``(refl, fixed)``, see :func:`search.score_global`."""
     if lev.cfg.effects.model == "paper" and lev.cfg.effects.interference == "two_beam":
         return _candidates_paper(lev, vals, grid, free_split, env)
     return _candidates_generic(lev, vals, grid, free_split, env)
@@ -661,31 +679,33 @@ def _profile_from_pixels(height, d, w):
     return max(top, 1.0), max(bottom, 1.0), e
 
 
-def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOptions(), background=None,
-              init: dict | None = None, scene=None, saturated: np.ndarray | None = None) -> FitResult:
-    """Fit the forward model to a photo.
+@dataclass
+class _Setup:
+    """What a fit of one photo knows before it solves (:func:`_setup`)."""
 
-    Args:
-        photo: (H, W, 3) linear photo of the bubble.
-        env: the environment map (aligned with the camera: it looks along -z of the map's
-            frame; ``rotation`` about +y unless fitted or set by the scene).
-        options: :class:`FitOptions`.
-        background: optional (H, W, 3) linear photo without the bubble: the transmitted
-            background then comes from it (gain 1) instead of the map.
-        init: warm start, a dict of the JSON's params (e.g. the previous frame's); the
-            global thickness search is then skipped unless this fit fails.
-        scene: optional :class:`~bubblefit.scene.Scene`: its camera (perspective or a
-            disc), n_film, effects settings, and every value its ``[bubble]`` table (and
-            ``lighting.rotation_deg``) sets explicitly, which is then held fixed.
-        saturated: optional (H, W) bool of clipped pixels (e.g. :attr:`Image.saturated`),
-            excluded in addition to values >= ``options.saturation``.
+    photo: np.ndarray
+    background: np.ndarray | None
+    H: int
+    W: int
+    vals: dict
+    held: dict
+    layout: tuple
+    lm_kind: str
+    fx: object
+    decisions: list
+    base_cfg: RenderConfig
+    map_cfg: RenderConfig
+    disc: tuple | None
+    sigma: np.ndarray
+    saturated: np.ndarray
+    k_fit: int
+    k_search: int
+    lev_fit: _Level
 
-    Returns:
-        A :class:`FitResult`.
-    """
-    t_start = time.perf_counter()
-    opts = options
-    saturated_in = saturated
+
+def _setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, decided=None) -> _Setup:
+    """Validate the inputs, decide the effects (unless ``decided`` gives ``(fx, decisions)``),
+    lay out the parameters and build the photo's fit level."""
     photo = np.asarray(photo, dtype=np.float64)
     if photo.ndim != 3 or photo.shape[2] != 3:
         raise InputError(f"the photo must be an RGB image (H, W, 3), got shape {photo.shape}")
@@ -705,6 +725,10 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     # error is below uniform 30 samples' at the cost of ~8 (experiments/accuracy_vs_time.py),
     # whereas "auto" may ask for hundreds of samples to bound the error everywhere.
     settings.setdefault("spectral", {"method": "fourier", "samples": 8})
+    # A photographed film transmits the complement of the colour it reflects; over a bright
+    # background that tint is as strong as the reflection, and eq. (11)'s grey t^4 would
+    # push the thickness to another colour order (tests/test_fit.py::test_model_mismatch).
+    settings.setdefault("transmission_tint", True)
 
     # camera
     lights = scene.point_lights() if scene is not None else ()
@@ -728,7 +752,7 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
             raise InputError(f"the bubble's disc must be (cx, cy, r) with r > 2 pixels, got {disc}")
         camera = OrthographicCamera(W, H, *disc)
 
-    fx, decisions = _decide(opts, vals, env, background, settings, camera, lights)
+    fx, decisions = decided if decided is not None else _decide(opts, vals, env, background, settings, camera, lights)
     base_cfg = RenderConfig(effects=fx, camera=camera, center=center, radius=radius, point_lights=tuple(lights))
     layout, held = _layout(opts, fx, held0)
     lm_kind = "constant" if opts.thickness == "constant" else "drainage"
@@ -751,71 +775,33 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     lev_fit = _make_level(k_fit, base_cfg, photo, sigma, background, saturated, opts)
     if lev_fit.mask.sum() < 10:
         raise InputError("fewer than 10 usable pixels on the bubble (disc too small, or saturated)")
+    return _Setup(photo, background, H, W, vals, held, layout, lm_kind, fx, decisions, base_cfg, map_cfg, disc, sigma,
+                  saturated, k_fit, k_search, lev_fit)
+
+
+def _warm_doubt(st: _Setup, opts: FitOptions, new: dict, ok: bool, r) -> str | None:
+    """Why a warm-started solution is doubtful, or None: the solver failed, the thickness
+    left the searched range, or the noise-weighted reduced chi^2 exceeds WARM_START_CHI2."""
+    lo, hi = opts.thickness_range
+    dof0 = max(int(np.count_nonzero(st.lev_fit.w)) - len(st.layout), 1)
+    chi2 = _cost(r) / dof0
+    thick = [new[k] for k in ("thickness", "top", "bottom") if k in st.layout]
+    if not (ok and np.all(np.isfinite(r))):
+        return "the solver failed"
+    if any(not lo - 1 <= d <= hi + 1 for d in thick):
+        return "the thickness left the searched range"
+    if not chi2 <= WARM_START_CHI2:
+        return f"reduced chi^2 = {chi2:.1f}"
+    return None
+
+
+def _finish(st: _Setup, env, opts: FitOptions, new: dict, z, ok: bool, maxed: bool, steps: int, r, jac, fixed: dict,
+            notes: list, t_start: float) -> FitResult:
+    """Standard errors, the thickness map, the full-resolution render and the result of a
+    solved fit (``new, z, ok, maxed, steps, r, jac, fixed`` as :func:`_run_lm` returns)."""
+    (photo, background, H, W, vals, held, layout, lm_kind, fx, decisions, base_cfg, map_cfg, disc, sigma, saturated,
+     k_fit, k_search, lev_fit) = (getattr(st, f.name) for f in fields(st))
     envj = env
-    notes = []
-    search_thickness = "thickness" in layout or "top" in layout
-
-    def search_start(v):
-        lev_s = _make_level(k_search, base_cfg, photo, sigma, background, saturated, opts)
-        lo, hi = opts.thickness_range
-        grid = search.thickness_grid(lo, hi, opts.search_step_nm)
-        refl, fixedpart = _candidates(lev_s, v, grid, opts.free_split, envj)
-        y = jnp.asarray(lev_s.y.reshape(-1, 3)[lev_s.mask.reshape(-1)])
-        w2 = jnp.asarray(lev_s.w.reshape(-1, 3)[lev_s.mask.reshape(-1)] ** 2)
-        starts = []
-        if lm_kind == "constant":
-            cost, gain = search.score_global(refl, fixedpart, y, w2)
-            cost, gain = np.asarray(cost), np.asarray(gain)
-            for d in search.local_minima(cost, grid, opts.candidates, separation=20.0):
-                g = float(gain[int(np.argmin(np.abs(grid - d)))])
-                starts.append(dict(v, thickness=d, exposure=max(g, 1e-6) if "exposure" in layout else v["exposure"]))
-        else:
-            best, _, gain = search.score_pixels(refl, fixedpart, y, w2, jnp.zeros(refl.shape[:2]), per_pixel_gain=True)
-            d_pix = grid[np.asarray(best)]
-            gain = np.asarray(gain)
-            hgt = lev_s.height.reshape(-1)[lev_s.mask.reshape(-1)]
-            top, bottom, e = _profile_from_pixels(hgt, d_pix, np.ones_like(d_pix))
-            g = float(np.median(gain[gain > 0])) if np.any(gain > 0) else v["exposure"]
-            nv = dict(v, exposure=g if "exposure" in layout else v["exposure"])
-            for n, val in (("top", top), ("bottom", bottom), ("exponent", e)):
-                if n in layout:
-                    nv[n] = val
-            starts.append(nv)
-        # refine each start on the search image, keep the best
-        best_v, best_c = None, np.inf
-        for s in starts:
-            out = _run_lm(lev_s, layout, lm_kind, opts, s, envj, opts.free_split, max_steps=opts.search_steps)
-            c = _cost(out[5])
-            if np.isfinite(c) and c < best_c:
-                best_v, best_c = out[0], c
-        return best_v if best_v is not None else starts[0]
-
-    warm = bool(init)
-    start = vals
-    if search_thickness and not warm:
-        start = search_start(vals)
-    new, z, ok, maxed, steps, r, jac, fixed = _run_lm(lev_fit, layout, lm_kind, opts, start, envj, opts.free_split)
-    if warm and search_thickness:
-        # A warm start can settle in a neighbouring colour order. Distrust it when the
-        # solver failed, the thickness left the searched range, or the noise-weighted
-        # residual is far above the noise (reduced chi^2 > WARM_START_CHI2); then search
-        # globally and keep whichever fit explains the photo better.
-        lo, hi = opts.thickness_range
-        dof0 = max(int(np.count_nonzero(lev_fit.w)) - len(layout), 1)
-        chi2 = _cost(r) / dof0
-        thick = [new[k] for k in ("thickness", "top", "bottom") if k in layout]
-        outside = any(not lo - 1 <= d <= hi + 1 for d in thick)
-        if not (ok and np.all(np.isfinite(r))) or outside or not chi2 <= WARM_START_CHI2:
-            why = ("the solver failed" if not (ok and np.all(np.isfinite(r))) else
-                   "the thickness left the searched range" if outside else f"reduced chi^2 = {chi2:.1f}")
-            start = search_start(vals)
-            second = _run_lm(lev_fit, layout, lm_kind, opts, start, envj, opts.free_split)
-            if np.isfinite(_cost(second[5])) and (not np.isfinite(_cost(r)) or _cost(second[5]) < _cost(r)):
-                new, z, ok, maxed, steps, r, jac, fixed = second
-                notes.append(f"warm start rejected ({why}); searched globally")
-            else:
-                notes.append(f"warm start doubtful ({why}); a global search did not do better")
-
     # standard errors (delta method)
     nres = int(np.count_nonzero(lev_fit.w)) if lev_fit.w.size else 0
     dof = max(nres - len(layout), 1)
@@ -906,6 +892,186 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     )
 
 
+def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOptions(), background=None,
+              init: dict | None = None, scene=None, saturated: np.ndarray | None = None) -> FitResult:
+    """Fit the forward model to a photo.
+
+    Args:
+        photo: (H, W, 3) linear photo of the bubble.
+        env: the environment map (aligned with the camera: it looks along -z of the map's
+            frame; ``rotation`` about +y unless fitted or set by the scene).
+        options: :class:`FitOptions`.
+        background: optional (H, W, 3) linear photo without the bubble: the transmitted
+            background then comes from it (gain 1) instead of the map.
+        init: warm start, a dict of the JSON's params (e.g. the previous frame's); the
+            global thickness search is then skipped unless this fit fails.
+        scene: optional :class:`~bubblefit.scene.Scene`: its camera (perspective or a
+            disc), n_film, effects settings, and every value its ``[bubble]`` table (and
+            ``lighting.rotation_deg``) sets explicitly, which is then held fixed.
+        saturated: optional (H, W) bool of clipped pixels (e.g. :attr:`Image.saturated`),
+            excluded in addition to values >= ``options.saturation``.
+
+    Returns:
+        A :class:`FitResult`.
+    """
+    t_start = time.perf_counter()
+    opts = options
+    st = _setup(photo, env, opts, background, init, scene, saturated)
+    (photo, background, H, W, vals, held, layout, lm_kind, fx, decisions, base_cfg, map_cfg, disc, sigma, saturated,
+     k_fit, k_search, lev_fit) = (getattr(st, f.name) for f in fields(st))
+    envj = env
+    notes = []
+    search_thickness = "thickness" in layout or "top" in layout
+
+    def search_start(v):
+        lev_s = _make_level(k_search, base_cfg, photo, sigma, background, saturated, opts)
+        lo, hi = opts.thickness_range
+        grid = search.thickness_grid(lo, hi, opts.search_step_nm)
+        refl, fixedpart = _candidates(lev_s, v, grid, opts.free_split, envj)
+        y = jnp.asarray(lev_s.y.reshape(-1, 3)[lev_s.mask.reshape(-1)])
+        w2 = jnp.asarray(lev_s.w.reshape(-1, 3)[lev_s.mask.reshape(-1)] ** 2)
+        starts = []
+        if lm_kind == "constant":
+            cost, gain = search.score_global(refl, fixedpart, y, w2)
+            cost, gain = np.asarray(cost), np.asarray(gain)
+            for d in search.local_minima(cost, grid, opts.candidates, separation=20.0):
+                g = float(gain[int(np.argmin(np.abs(grid - d)))])
+                starts.append(dict(v, thickness=d, exposure=max(g, 1e-6) if "exposure" in layout else v["exposure"]))
+        else:
+            zero = jnp.zeros(refl.shape[:2])
+            best, _, gain = search.score_pixels(refl, fixedpart, y, w2, zero, per_pixel_gain=True)
+            gain = np.asarray(gain)
+            g = float(np.median(gain[gain > 0])) if np.any(gain > 0) else v["exposure"]
+            if base_cfg.effects.tint:
+                # A gain per pixel can cancel the reflected colour against the tint's
+                # complementary one; scan one gain for all pixels around the hue-matched
+                # median instead.
+                scan = []
+                for gg in g * np.geomspace(1 / 3, 3, 17):
+                    _, c, _ = search.score_pixels(gg * refl, fixedpart, y, w2, zero, per_pixel_gain=False)
+                    c = np.asarray(c)
+                    scan.append((float(np.sum(np.minimum(c, 4 * np.median(c)))), gg))
+                g = min(scan)[1]
+            hgt = lev_s.height.reshape(-1)[lev_s.mask.reshape(-1)]
+            d_pix = grid[np.asarray(best)]
+            profiles = [_profile_from_pixels(hgt, d_pix, np.ones_like(d_pix))]
+            # and a global search over the profile's own parameters: every pixel's cost of
+            # every grid thickness at gain g, summed along each candidate profile
+            cost = np.asarray(search.pixel_costs(g * refl, fixedpart, y, w2))
+            profiles.append(search.best_profile(cost, grid, hgt))
+            for top, bottom, e in profiles:
+                nv = dict(v, exposure=g if "exposure" in layout else v["exposure"])
+                for n, val in (("top", top), ("bottom", bottom), ("exponent", e)):
+                    if n in layout:
+                        nv[n] = val
+                starts.append(nv)
+        # refine each start on the search image, keep the best
+        best_v, best_c = None, np.inf
+        for s in starts:
+            out = _run_lm(lev_s, layout, lm_kind, opts, s, envj, opts.free_split, max_steps=opts.search_steps)
+            c = _cost(out[5])
+            if np.isfinite(c) and c < best_c:
+                best_v, best_c = out[0], c
+        return best_v if best_v is not None else starts[0]
+
+    warm = bool(init)
+    start = vals
+    if search_thickness and not warm:
+        start = search_start(vals)
+    new, z, ok, maxed, steps, r, jac, fixed = _run_lm(lev_fit, layout, lm_kind, opts, start, envj, opts.free_split)
+    why = _warm_doubt(st, opts, new, ok, r) if warm and search_thickness else None
+    if why:
+        # A warm start can settle in a neighbouring colour order: search globally and keep
+        # whichever fit explains the photo better.
+        start = search_start(vals)
+        second = _run_lm(lev_fit, layout, lm_kind, opts, start, envj, opts.free_split)
+        if np.isfinite(_cost(second[5])) and (not np.isfinite(_cost(r)) or _cost(second[5]) < _cost(r)):
+            new, z, ok, maxed, steps, r, jac, fixed = second
+            notes.append(f"warm start rejected ({why}); searched globally")
+        else:
+            notes.append(f"warm start doubtful ({why}); a global search did not do better")
+
+    return _finish(st, env, opts, new, z, ok, maxed, steps, r, jac, fixed, notes, t_start)
+
+
+@functools.lru_cache(maxsize=16)
+def _batched_solver(*key):
+    """:func:`_solver`'s ``solve`` vmapped over frames: ``z0``, ``y`` and ``w`` carry a
+    leading frame axis; the fixed values, the map and the background are shared."""
+    solve, _ = _solver(*key)
+    return jax.jit(jax.vmap(solve, in_axes=(0, (None, None, None, 0, 0))))
+
+
+def fit_batch(photos, env: EnvMap, *, options: FitOptions = FitOptions(), background=None, init: dict,
+              previous: dict | None = None, scene=None) -> list[FitResult]:
+    """Fit consecutive frames of a sequence together, warm-started, in one vmapped solve.
+
+    Frame ``k`` of the batch starts from ``init`` (the last fitted frame's params) with
+    its thicknesses extrapolated linearly from ``previous`` (the frame before that):
+    ``init + (k + 1) (init - previous)``. One Levenberg-Marquardt solve runs for all
+    frames at once (:func:`jax.vmap` over frames; the loop runs until the slowest frame
+    has converged). Each solution then gets :func:`fit_photo`'s warm-start check; a
+    doubtful one is refitted alone by :func:`fit_photo` (global search included).
+    Standard errors, renders and maps are computed per frame as in :func:`fit_photo`.
+
+    Whether this is faster than fitting frame after frame depends on the machine: on a
+    2-core CPU the solve is compute-bound and the batch is slower (the vmapped loop also
+    runs every frame for as many steps as the slowest needs); see
+    ``experiments/bench_sequence.py``.
+
+    Frames must share their size, the disc (give ``options.disc``) and ``background``;
+    otherwise, or for a single frame, each is fitted alone.
+
+    Returns:
+        One :class:`FitResult` per photo, in order.
+    """
+    photos = [np.asarray(p, np.float64) for p in photos]
+    t_start = time.perf_counter()
+    alone = lambda photo, start: fit_photo(photo, env, options=options, background=background, init=start,
+                                           scene=scene)
+    if len(photos) < 2 or options.disc is None or len({p.shape for p in photos}) != 1:
+        return [alone(p, init) for p in photos]
+    first = _setup(photos[0], env, options, background, init, scene, None)
+    layout, kind = first.layout, first.lm_kind
+    thick = [n for n in ("thickness", "top", "bottom") if n in layout]
+    if not thick:
+        return [alone(p, init) for p in photos]
+    setups = [first] + [_setup(p, env, options, background, init, scene, None, decided=(first.fx, first.decisions))
+                        for p in photos[1:]]
+    prev_vals = _defaults(scene, previous, options, options.t_init)[0] if previous else None
+    z0 = []
+    for k in range(len(photos)):
+        v = dict(first.vals)
+        if prev_vals is not None:
+            for n in thick:
+                v[n] = max(v[n] + (k + 1) * (first.vals[n] - prev_vals[n]), 1.0)
+        z0.append([_inverse(n, v[n]) for n in layout])
+    fixed = {k: jnp.asarray(v, jnp.float32) for k, v in first.vals.items() if k not in layout}
+    solve = _batched_solver(first.lev_fit.cfg, layout, kind, options.free_split, float(options.robust_scale),
+                            int(options.max_steps), float(options.rtol), float(options.atol))
+    bg = None if first.lev_fit.bg is None else jnp.asarray(first.lev_fit.bg)
+    out = solve(jnp.asarray(z0, jnp.float32), (fixed, env, bg, jnp.asarray(np.stack([s.lev_fit.y for s in setups])),
+                                               jnp.asarray(np.stack([s.lev_fit.w for s in setups]))))
+    zs, oks, maxeds, steps, rs, jacs = (np.asarray(x) for x in out)
+    share = (time.perf_counter() - t_start) / len(photos)  # each frame's part of the batch
+    results = []
+    for k, st in enumerate(setups):
+        t0 = time.perf_counter() - share
+        z = zs[k].astype(np.float64)
+        new = dict(st.vals, **{n: float(_forward(n, z[i])) for i, n in enumerate(layout)})
+        r = rs[k].astype(np.float64)
+        why = _warm_doubt(st, options, new, bool(oks[k]), r)
+        if why:
+            start = {key: float(x) for key, x in _reporter(layout, kind, options.free_split)[0](zs[k], fixed).items()}
+            ok_start = all(np.isfinite(x) for x in start.values())
+            results.append(alone(photos[k], dict(init, **start) if ok_start else init))
+            results[-1].message = f"batched warm start doubtful ({why}); refitted alone: {results[-1].message}"
+            continue
+        results.append(_finish(st, env, options, new, z, bool(oks[k]), bool(maxeds[k]), int(steps[k]), r,
+                               jacs[k].astype(np.float64), fixed, ["batched warm start"], t0))
+    return results
+
+
 # ---------------------------------------------------------------------------------------
 # Per-pixel thickness maps
 # ---------------------------------------------------------------------------------------
@@ -925,18 +1091,19 @@ def _pixel_solver(basis, robust: float, max_steps: int):
     sigma = None if getattr(basis, "sigma", None) is None else jnp.asarray(basis.sigma, jnp.float32)
 
     def model(d, a):
-        m, c, xfac, t = a[0], a[1], a[2], a[3]
+        m, c, xfac, t, k = a
         x = d * xfac  # optical path 2 n d cos th_t of eq. (8)
         cos_delta = jnp.cos(2 * jnp.pi * x / lam + jnp.pi)
         if sigma is not None:  # ``fourier`` lobes: the fringe averaged over each lobe
             cos_delta = cos_delta * fringe_attenuation(x, sigma)
         phi = (0.5 * (1.0 + cos_delta)) @ wts  # cos^2(delta/2), integrated
-        return 4 * t * t * phi * m + c
+        # k = 2 r_s with the transmission tint (as in _candidates_paper), else 0
+        return 4 * t * t * phi * m + c * (1.0 - k * (2.0 * phi - 1.0)) ** 2
 
     def resid(u, a):
-        m, c, xfac, t, y, w, prior, sig = a
+        m, c, xfac, t, k, y, w, prior, sig = a
         d = _forward("thickness", u[0])
-        r = _robust((model(d, (m, c, xfac, t)) - y) * w, robust)
+        r = _robust((model(d, (m, c, xfac, t, k)) - y) * w, robust)
         return jnp.concatenate([r, ((d - prior) / sig)[None]])
 
     lm = optx.LevenbergMarquardt(rtol=1e-5, atol=1e-5)
@@ -977,22 +1144,26 @@ def _fit_map(lev: _Level, vals: dict, prof, opts: FitOptions, env):
         n = float(vals["n_film"])
         cos_t = np.sqrt(np.clip(1.0 - (1.0 - lev.cos.reshape(-1)[sel] ** 2) / n**2, 0.0, 1.0))
         t = float(vals["t"])
+        tint_k = 2.0 * float(p.r_s) if fx.tint and fx.transmission else 0.0
         table = jnp.asarray(search.phi_table(fx.spectral, 2 * n * float(grid.max())))
         best_d = np.empty(len(pr))
         chunk = 2048
         for s in range(0, len(pr), chunk):
             e = slice(s, s + chunk)
             x = 2 * n * grid[:, None] * cos_t[e][None, :]
-            refl = 4 * t * t * search.phi_rgb(table, jnp.asarray(x, jnp.float32)) * jnp.asarray(m[e])[None]
+            phi = search.phi_rgb(table, jnp.asarray(x, jnp.float32))
+            refl = 4 * t * t * phi * jnp.asarray(m[e])[None]
+            back = jnp.asarray(c[e])[None] * (1.0 - tint_k * (2.0 * phi - 1.0)) ** 2
             pri = jnp.asarray(((grid[:, None] - pr[e][None, :]) / sig) ** 2, jnp.float32)
-            best, _, _ = search.score_pixels(refl, jnp.asarray(c[e]), jnp.asarray(y[e]), jnp.asarray(w[e] ** 2), pri,
+            best, _, _ = search.score_pixels(refl, back, jnp.asarray(y[e]), jnp.asarray(w[e] ** 2), pri,
                                              per_pixel_gain=False)
             best_d[e] = grid[np.asarray(best)]
         solve = _pixel_solver(fx.spectral, float(opts.robust_scale), 40)
         u0 = np.asarray([[_inverse("thickness", d)] for d in best_d], np.float32)
         ones = np.ones(len(pr), np.float32)
         args = (jnp.asarray(m, jnp.float32), jnp.asarray(c, jnp.float32), jnp.asarray(2 * n * cos_t, jnp.float32),
-                jnp.asarray(t * ones), jnp.asarray(y), jnp.asarray(w), jnp.asarray(pr, jnp.float32), jnp.asarray(sig * ones))
+                jnp.asarray(t * ones), jnp.asarray(tint_k * ones), jnp.asarray(y), jnp.asarray(w),
+                jnp.asarray(pr, jnp.float32), jnp.asarray(sig * ones))
         u, ok, r, j, dd = solve(jnp.asarray(u0), args)
         d = np.asarray(_forward("thickness", u), np.float64)
         r, j = np.asarray(r, np.float64), np.asarray(j, np.float64)

@@ -9,6 +9,15 @@ with ``L'`` Ward-filtered radiance at the front film (normal ``n0``) and at the 
 integrated over the spectrum (``F = 1`` without interference), and ``L_b`` the background
 straight through. Point lights add eq. (3)'s BRDF values to ``L'`` (eq. 2).
 
+Transmission tint (``paper``, off unless asked; :mod:`bubblefit.effects`): eq. (11)
+transmits a grey ``t^4``, but a film that does not absorb transmits, wavelength by
+wavelength, what it does not reflect. With the tint each film transmits
+``T = t^2 - r_s (F - 2 t^2)``, the paper's grey value minus the deviation of its specular
+reflectance ``r_s F`` from the spectral mean ``2 t^2 r_s``, and the background term is
+``T_front T_rear L_b`` integrated over the spectrum. (With a ``fourier`` basis each lobe
+carries the product of the lobe means, which differs from the lobe mean of the product by
+``O(r_s^2)``.)
+
 ``physical`` (DESIGN.md): per wavelength and polarisation, the film reflects ``R`` (Airy,
 two-beam, or incoherent) and transmits ``T = 1 - R``; the front reflection is ``R_0``,
 the background ``T_0 T_1``, and the k-th internal bounce adds ``T_0 R_1 ... R_k T_(k+1)``
@@ -258,24 +267,37 @@ def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx)
 
     if fx.model == "paper":
         t2 = p.t * p.t
+        factors = {}
+
+        def factor(which):  # eq. (10)'s factor of the front (0) or rear (1) film, traced once
+            if which not in factors:
+                factors[which] = opt.paper_factor(d0 if which == 0 else d1)
+            return factors[which]
         if fx.front_reflection:
             _count("front_reflection")
             s, dif = refl["front"]
             lp = p.r_s * s + dif
             if fx.interference != "off":
-                lp = _to_rgb(opt.paper_factor(d0), fx, dtype) * lp
+                lp = _to_rgb(factor(0), fx, dtype) * lp
             terms["front"] = p.exposure * lp
         if fx.rear_reflection:
             _count("rear_reflection")
             s, dif = refl["rear"]
             lp = p.r_s * s + dif
             if fx.interference != "off":
-                lp = _to_rgb(opt.paper_factor(d1), fx, dtype) * lp
+                lp = _to_rgb(factor(1), fx, dtype) * lp
             terms["rear"] = p.exposure * t2 * lp
         if fx.transmission:
             _count("transmission")
             gain = 1.0 if photo_bg else p.exposure
-            terms["background"] = gain * t2 * t2 * bg_rad
+            if fx.tint and fx.interference in ("two_beam", "airy"):
+                # Each film transmits the complement of its reflection about the mean:
+                # t^2 - r_s (F - 2 t^2), F eq. (10)'s factor (module docstring).
+                _count("transmission_tint")
+                tr = lambda f: t2 - p.r_s * (f - 2.0 * t2)
+                terms["background"] = gain * _to_rgb(tr(factor(0)) * tr(factor(1)), fx, dtype) * bg_rad
+            else:
+                terms["background"] = gain * t2 * t2 * bg_rad
     else:
         if fx.front_reflection or fx.transmission or fx.rear_reflection:
             r0 = opt.reflectance(d0)

@@ -32,8 +32,8 @@ _SCHEMA = {
                  "background": str},
     "effects": {"model": str, "interference": str, "filtering": (str,), "spectral": (str, dict),
                 "front_reflection": (str, bool), "rear_reflection": (str, bool), "transmission": (str, bool),
-                "diffuse": (str, bool), "bounces": (str, int), "tolerance": float, "nodes": int,
-                "window": int, "level": int},
+                "transmission_tint": (str, bool), "diffuse": (str, bool), "bounces": (str, int),
+                "tolerance": float, "nodes": int, "window": int, "level": int},
 }
 _THICKNESS_KEYS = {"profile": str, "top_nm": float, "bottom_nm": float, "exponent": float, "path": str,
                    "value_nm": float}
@@ -332,7 +332,7 @@ def _check_effects(e: dict) -> None:
 
     one_of("interference", ("auto", "off", "two_beam", "airy", "incoherent"))
     one_of("filtering", ("auto",) + tuple(METHODS))
-    for key in ("front_reflection", "rear_reflection", "transmission", "diffuse"):
+    for key in ("front_reflection", "rear_reflection", "transmission", "transmission_tint", "diffuse"):
         if key in e and not isinstance(e[key], bool) and e[key] != "auto":
             raise InputError(f"effects.{key} must be true, false or \"auto\", got {e[key]!r}")
     if "bounces" in e and e["bounces"] != "auto" and not (isinstance(e["bounces"], int) and 0 <= e["bounces"] <= 64):

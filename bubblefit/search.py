@@ -37,7 +37,8 @@ import numpy as np
 
 from . import spectral
 
-__all__ = ["phi_table", "phi_rgb", "thickness_grid", "local_minima", "score_global", "score_pixels"]
+__all__ = ["phi_table", "phi_rgb", "thickness_grid", "local_minima", "score_global", "score_pixels", "pixel_costs",
+           "best_profile"]
 
 #: Step of the optical-path table, nm (the colour varies on scales of ~100 nm).
 X_STEP = 0.5
@@ -143,3 +144,55 @@ def score_pixels(refl, fixed, y, w2, prior, *, per_pixel_gain: bool):
     best = jnp.argmin(cost, axis=0)
     take = lambda a: jnp.take_along_axis(a, best[None], axis=0)[0]
     return best, take(cost), take(gain)
+
+
+@jax.jit
+def pixel_costs(refl, fixed, y, w2):
+    """(G, P) weighted squared residual of every candidate at every pixel (gain 1).
+
+    ``refl`` (G, P, 3), ``fixed`` (P, 3) or (G, P, 3), ``y`` and ``w2`` (P, 3) as in
+    :func:`score_global`.
+    """
+    res = refl - (y - fixed)
+    return jnp.sum(w2 * res * res, axis=-1)
+
+
+def best_profile(cost: np.ndarray, grid: np.ndarray, height: np.ndarray,
+                 exponents=(0.5, 0.75, 1.0, 1.5, 2.0, 3.0), step: float | None = None) -> tuple:
+    """Global search of a drainage profile (DESIGN.md) through per-pixel candidate costs.
+
+    Every ``(top, bottom, exponent)`` on a grid (``top`` and ``bottom`` over ``grid``'s
+    range in steps of ``step``, default 5 grid steps) predicts each pixel's thickness,
+    ``d = top + (bottom - top) ((1 - y) / 2)^exponent``; its score is the sum over pixels
+    of the cost of the nearest grid thickness, each capped at 4x the median of the pixels'
+    best costs (a robust loss: a bump on the film does not pull the profile). Summing
+    along the profile uses every pixel of a height together, where matching each pixel's
+    colour alone is at the mercy of its noise.
+
+    Args:
+        cost: (G, P) from :func:`pixel_costs`; grid: (G,) thicknesses (uniform steps).
+        height: (P,) height of each pixel's film point over the radius, in [-1, 1].
+
+    Returns:
+        ``(top, bottom, exponent)`` of the best profile.
+    """
+    cost = np.asarray(cost, np.float32)
+    cap = 4.0 * float(np.median(cost.min(axis=0)))
+    cost = np.minimum(cost, cap)
+    g0, dg = float(grid[0]), float(grid[1] - grid[0])
+    stride = max(1, int(round((step or 5 * dg) / dg)))
+    ends = np.arange(0, len(grid), stride)
+    x = np.clip((1.0 - np.asarray(height, np.float64)) / 2.0, 0.0, 1.0)
+    cols = np.arange(cost.shape[1])
+    best = (np.inf, grid[0], grid[-1], 1.0)
+    for e in exponents:
+        xe = x**e
+        for i in ends:
+            # grid index of each pixel for every bottom, this top: (B, P)
+            pos = i * (1.0 - xe)[None, :] + ends[:, None] * xe[None, :]
+            idx = np.clip(np.rint(pos).astype(np.int64), 0, len(grid) - 1)
+            total = cost[idx, cols[None, :]].sum(axis=1)
+            j = int(np.argmin(total))
+            if total[j] < best[0]:
+                best = (float(total[j]), g0 + i * dg, g0 + ends[j] * dg, e)
+    return best[1], best[2], best[3]

@@ -317,22 +317,13 @@ def _worker_name() -> str:
     return f"{socket.gethostname()}:{os.getpid()}"
 
 
-def _fit_one(ref: FrameRef, env, options, init, background, scene, fit_fn) -> dict:
-    """Fit one frame; a failure becomes a record with its reason, never an exception."""
-    t0 = time.perf_counter()
-    base = {"version": RECORD_VERSION, "frame": ref.index, "file": ref.label, "time_s": ref.time_s,
+def _base_record(ref: FrameRef, init) -> dict:
+    return {"version": RECORD_VERSION, "frame": ref.index, "file": ref.label, "time_s": ref.time_s,
             "warm_start": init is not None, "worker": _worker_name()}
-    try:
-        photo = load_frame(ref)
-    except Exception as exc:  # unreadable frame: record and go on
-        return dict(base, status="failed", converged=False, warm_start=False,
-                    message=f"cannot read frame: {_one_line(exc)}",
-                    fit_time_s=time.perf_counter() - t0)
-    try:
-        res = fit_fn(photo, env, options=options, background=background, init=init, scene=scene)
-    except Exception as exc:  # a fit that raises fails this frame only
-        return dict(base, status="failed", converged=False, message=f"fit failed: {_one_line(exc)}",
-                    fit_time_s=time.perf_counter() - t0)
+
+
+def _result_record(base: dict, res, fit_time_s: float) -> dict:
+    """A frame's record from its fit result."""
     params = _scalar_dict(getattr(res, "params", {}))
     stderr = _scalar_dict(getattr(res, "stderr", {}))
     init_next = getattr(res, "init", None)
@@ -343,7 +334,7 @@ def _fit_one(ref: FrameRef, env, options, init, background, scene, fit_fn) -> di
         message=str(getattr(res, "message", "") or ""),
         iterations=int(getattr(res, "iterations", 0) or 0),
         residual_rms=_as_float(getattr(res, "residual_rms", float("nan"))),
-        fit_time_s=time.perf_counter() - t0,
+        fit_time_s=fit_time_s,
         params=params,
         stderr=stderr,
         init=_scalar_dict(init_next) if isinstance(init_next, dict) else params,
@@ -356,6 +347,52 @@ def _fit_one(ref: FrameRef, env, options, init, background, scene, fit_fn) -> di
     return rec
 
 
+def _read_frame(ref: FrameRef, base: dict, t0: float):
+    """``(photo, None)``, or ``(None, failed record)`` for a frame that cannot be read."""
+    try:
+        return load_frame(ref), None
+    except Exception as exc:  # unreadable frame: record and go on
+        return None, dict(base, status="failed", converged=False, warm_start=False,
+                          message=f"cannot read frame: {_one_line(exc)}", fit_time_s=time.perf_counter() - t0)
+
+
+def _fit_one(ref: FrameRef, env, options, init, background, scene, fit_fn) -> dict:
+    """Fit one frame; a failure becomes a record with its reason, never an exception."""
+    t0 = time.perf_counter()
+    base = _base_record(ref, init)
+    photo, failed = _read_frame(ref, base, t0)
+    if failed:
+        return failed
+    try:
+        res = fit_fn(photo, env, options=options, background=background, init=init, scene=scene)
+    except Exception as exc:  # a fit that raises fails this frame only
+        return dict(base, status="failed", converged=False, message=f"fit failed: {_one_line(exc)}",
+                    fit_time_s=time.perf_counter() - t0)
+    return _result_record(base, res, time.perf_counter() - t0)
+
+
+def _fit_batch(refs: list[FrameRef], env, options, init, previous, background, scene) -> list[dict]:
+    """Fit consecutive frames together (:func:`bubblefit.fit.fit_batch`); one record each.
+    If the batched fit raises, the frames are fitted one by one instead."""
+    from .fit import fit_batch, fit_photo
+
+    t0 = time.perf_counter()
+    bases = [_base_record(r, init) for r in refs]
+    read = [_read_frame(r, b, t0) for r, b in zip(refs, bases)]
+    good = [k for k, (photo, _) in enumerate(read) if photo is not None]
+    recs = [failed for _, failed in read]
+    try:
+        results = fit_batch([read[k][0] for k in good], env, options=options, background=background, init=init,
+                            previous=previous, scene=scene)
+    except Exception:  # fall back to single fits, which record their own failures
+        return [recs[k] or _fit_one(refs[k], env, options, init, background, scene, fit_photo)
+                for k in range(len(refs))]
+    share = (time.perf_counter() - t0) / max(len(good), 1)
+    for k, res in zip(good, results):
+        recs[k] = dict(_result_record(bases[k], res, share), batch=len(good))
+    return recs
+
+
 def _one_line(exc: BaseException) -> str:
     text = str(exc).strip().splitlines()
     return f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
@@ -363,7 +400,7 @@ def _one_line(exc: BaseException) -> str:
 
 def _fit_chunk(todo: list[tuple[FrameRef, dict | None]], env, options, background, scene, jax_setup: dict,
                want_maps: bool, fit_function: str = "bubblefit.fit:fit_photo", warm_start: bool = True,
-               init: dict | None = None) -> list[dict]:
+               init: dict | None = None, batch: int = 1) -> list[dict]:
     """Fit the pending frames of one chunk, in order, each warm-started from the last success.
 
     Args:
@@ -377,24 +414,46 @@ def _fit_chunk(todo: list[tuple[FrameRef, dict | None]], env, options, backgroun
         fit_function: ``"module:name"`` of the fit, called like :func:`bubblefit.fit.fit_photo`.
         warm_start: False: every frame runs the global search (independent frames).
         init: warm start of the chunk's first frame (the previous chunk's last result), or None.
+        batch: once two frames have warm-started results, fit up to this many following
+            frames together (:func:`bubblefit.fit.fit_batch`, default fit function only).
 
     Returns:
         One record (dict) per frame fitted, in order.
     """
     _worker_setup(jax_setup)
     fit_photo = _resolve(fit_function)
+    batched = batch > 1 and warm_start and fit_function == "bubblefit.fit:fit_photo"
 
     out = []
-    warm = init
-    for ref, done in todo:
+    warm, prev = init, None
+
+    def keep(rec):
+        nonlocal warm, prev
+        nxt = _warm_init(rec)
+        if nxt is not None:
+            prev, warm = warm, nxt
+
+    i = 0
+    while i < len(todo):
+        ref, done = todo[i]
         if done is not None:
-            warm = _warm_init(done) or warm
+            keep(done)
+            i += 1
             continue
-        rec = _fit_one(ref, env, options, warm if warm_start else None, background, scene, fit_photo)
-        if not want_maps:
-            rec.pop("_thickness_map", None)
-        out.append(rec)
-        warm = _warm_init(rec) or warm
+        group = []
+        if batched and warm is not None and prev is not None:
+            while i + len(group) < len(todo) and len(group) < batch and todo[i + len(group)][1] is None:
+                group.append(todo[i + len(group)][0])
+        if len(group) >= 2:
+            recs = _fit_batch(group, env, options, warm, prev, background, scene)
+        else:
+            recs = [_fit_one(ref, env, options, warm if warm_start else None, background, scene, fit_photo)]
+        for rec in recs:
+            if not want_maps:
+                rec.pop("_thickness_map", None)
+            out.append(rec)
+            keep(rec)
+        i += len(recs)
     return out
 
 
@@ -720,6 +779,7 @@ def fit_sequence(
     on_record: Callable[[dict], None] | None = None,
     fit_function: str = "bubblefit.fit:fit_photo",
     warm_start: bool = True,
+    batch: int = 1,
 ) -> SequenceResult:
     """Fit every frame of a sequence and write the tables, resumably.
 
@@ -749,6 +809,11 @@ def fit_sequence(
             called as ``fit(photo, env, options=, background=, init=, scene=)``.
         warm_start: start each frame from its predecessor (False: global search everywhere,
             for frames that are not a continuous film).
+        batch: frames fitted together in one vmapped solve within a task, once a chunk has
+            two warm-started results (:func:`bubblefit.fit.fit_batch`). 1 (the default)
+            fits frame after frame, which is faster on CPUs (``experiments/bench_sequence.py``:
+            batches of 2-8 ran at 0.5-0.7x the frames per second on 2 cores); larger
+            batches are for accelerators, where one small frame does not fill the device.
 
     Returns:
         A :class:`SequenceResult`.
@@ -761,6 +826,8 @@ def fit_sequence(
 
     if chunk_size < 1:
         raise InputError(f"chunk size must be at least 1, got {chunk_size}")
+    if batch < 1:
+        raise InputError(f"batch must be at least 1, got {batch}")
     if workers is not None and workers < 0:
         raise InputError(f"workers must be 0 (this process) or more, got {workers}")
     if options is None:
@@ -781,7 +848,8 @@ def fit_sequence(
     options = _fix_disc(options, frames, background, scene)
 
     # -- what is already done --------------------------------------------------------------
-    fp = _fingerprint((options, fit_function, bool(warm_start)), env, background, scene)
+    fp = _fingerprint((options, fit_function, bool(warm_start)) + ((int(batch),) if batch > 1 else ()), env,
+                      background, scene)
     run_path = out / "run.json"
     if run_path.exists() and not force:
         prev = _read_json(run_path)
@@ -859,9 +927,9 @@ def fit_sequence(
             """Fit a chunk: a Dask future, or (in this process) a lazy call run by ``.result()``."""
             if client is None:
                 return _Lazy(_fit_chunk, todo, env, options, background, scene, jax_setup, want_maps, fit_function,
-                             warm_start, init)
+                             warm_start, init, batch)
             f = client.submit(_fit_chunk, todo, env_f, options, bg_f, scene, jax_setup, want_maps, fit_function,
-                              warm_start, init, key=f"bubblefit-chunk-{todo[0][0].index}-{len(submitted)}-{token}",
+                              warm_start, init, batch, key=f"bubblefit-chunk-{todo[0][0].index}-{len(submitted)}-{token}",
                               workers=addrs, allow_other_workers=False, pure=False)
             submitted.append(f)
             return f

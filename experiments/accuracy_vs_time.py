@@ -291,7 +291,8 @@ def sweep_fit(rows, q, env):
     if not (q.fit_steps or q.fit_rtols):
         return
     size, truth = q.fit_size, 700.0
-    sc = make_scene(size, {"model": "paper"}, thickness=truth, background="envmap")
+    # the photo's film transmits the complement of its reflection, as the fit assumes
+    sc = make_scene(size, {"model": "paper", "transmission_tint": True}, thickness=truth, background="envmap")
     # What the fit is told: camera and lighting (the map's rotation), nothing about the bubble.
     known = F.scene(camera={"type": "orthographic", "width": size, "height": size},
                     lighting={"envmap": str(_env_path()), "rotation_deg": F.VIEW_ROTATION, "background": "envmap"},

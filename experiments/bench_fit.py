@@ -55,7 +55,7 @@ def main():
     q = lambda im: srgb_decode(np.round(srgb_encode(im + rng.normal(0, 0.003, im.shape)) * 255) / 255)
     truth = {"t": 0.97, "roughness": 0.08, "thickness_nm": 720.0}
     scene = Scene.from_dict({"camera": {"width": n, "height": n, "disc": list(disc)}, "bubble": truth,
-                             "lighting": {"envmap": "x.exr"}})
+                             "lighting": {"envmap": "x.exr"}, "effects": {"transmission_tint": True}})
     photo = q(render_scene(scene, bg, env=env))
     effects = (("spectral", {"method": "uniform", "samples": args.samples}),) if args.samples else ()
     rows = []

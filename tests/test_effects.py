@@ -194,3 +194,35 @@ def test_render_explain_cli(tmp_path, capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("bubblefit: error:")
+
+
+def test_transmission_tint_decisions():
+    """The paper model keeps eq. (11)'s grey t^4 unless asked, and says what the tint
+    would change; asked, it is simulated (and traced); the physical model always has it;
+    a grey film (no interference) or a black background has nothing to tint."""
+    import jax
+
+    from bubblefit.envmap import EnvMap
+    from bubblefit.errors import InputError
+    from bubblefit.render import TRACE_COUNTS, render
+    from bubblefit.scene import Scene
+
+    env = EnvMap.from_array(np.full((8, 16, 3), 0.5))
+
+    def decide(**effects):
+        sc = Scene.from_dict({"camera": {"width": 8, "height": 8}, "bubble": {"thickness_nm": 400.0},
+                              "lighting": {"envmap": "unused.exr"}, "effects": effects})
+        cfg, decisions = sc.config(env)
+        return sc, cfg, {d.effect: d for d in decisions}["transmission_tint"]
+
+    _, cfg, d = decide(model="paper")
+    assert not cfg.effects.tint and not d.simulated and "eq. (11)" in d.reason and "e-" in d.reason
+    sc, cfg, d = decide(model="paper", transmission_tint=True)
+    assert cfg.effects.tint and d.simulated
+    TRACE_COUNTS.clear()
+    jax.make_jaxpr(lambda p: render(p, cfg, env))(sc.params())
+    assert TRACE_COUNTS["transmission_tint"] >= 1
+    assert decide(model="physical")[2].simulated
+    assert not decide(model="paper", transmission_tint=True, interference="off")[1].effects.tint
+    with pytest.raises(InputError, match="transmission_tint"):
+        decide(model="paper", transmission_tint="sometimes")

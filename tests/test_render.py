@@ -264,3 +264,43 @@ def test_render_cli_missing_scene(tmp_path, capsys):
     rc = main(["render", str(tmp_path / "absent.toml"), "-o", str(tmp_path / "o.exr")])
     err = capsys.readouterr().err
     assert rc == 2 and err.count("\n") == 1 and "absent.toml" in err
+
+
+def test_transmission_tint_is_the_complement_of_the_reflection(x64):
+    """Paper model with ``transmission_tint``: each film transmits t^2 - r_s (F - 2 t^2)
+    per wavelength, F = 4 t^2 cos^2(delta/2) (eqs. 8-10). Checked at the disc centre
+    (normal incidence) against that formula written here with numpy, for the background
+    term; without the tint the background is eq. (11)'s grey t^4; and the tint's colour
+    opposes the reflected one (energy conservation: what is not reflected goes through)."""
+    from bubblefit.render import render_terms
+    from bubblefit.scene import Scene
+
+    from bubblefit.envmap import EnvMap
+
+    n, t, r_s, size = 1.4, 0.95, 0.04, 9
+    env = EnvMap.from_array(np.ones((8, 16, 3)))  # white sky and white background
+    for d in (120.0, 330.0, 560.0, 910.0):
+        terms = {}
+        for tint in (False, True):
+            scene = Scene.from_dict({
+                "camera": {"width": size, "height": size, "disc": [size / 2, size / 2, size / 2 - 0.5]},
+                "bubble": {"t": t, "r_d": 0.0, "r_s": r_s, "roughness": 1e-4, "thickness_nm": d, "n_film": n},
+                "lighting": {"envmap": "unused.exr"},
+                "effects": {"model": "paper", "interference": "two_beam", "transmission_tint": tint,
+                            "filtering": "mirror", "rear_reflection": False, "diffuse": False,
+                            "spectral": {"method": "uniform", "samples": 64}}})
+            cfg, _ = scene.config(env)
+            _, tm = render_terms(scene.params(dtype=np.float64), cfg, env)
+            terms[tint] = {k: np.asarray(v)[size // 2, size // 2] for k, v in tm.items()}
+        basis = cfg.effects.spectral
+        lam = np.asarray(basis.wavelengths)
+        w = np.asarray(basis.weights)
+        f = 4 * t**2 * np.cos(0.5 * (4 * np.pi * n * d / lam + np.pi)) ** 2
+        expect = ((t**2 - r_s * (f - 2 * t**2)) ** 2) @ w
+        np.testing.assert_allclose(terms[False]["background"], t**4, rtol=1e-12)
+        np.testing.assert_allclose(terms[True]["background"], expect, rtol=1e-9)
+        np.testing.assert_allclose(terms[True]["front"], (r_s * f) @ w, rtol=1e-6)
+        dev_r = terms[True]["front"] - np.mean(terms[True]["front"])
+        dev_t = terms[True]["background"] - np.mean(terms[True]["background"])
+        strong = np.abs(dev_r) > 0.2 * np.max(np.abs(dev_r))
+        assert np.all(dev_r[strong] * dev_t[strong] < 0), (d, dev_r, dev_t)

@@ -396,7 +396,7 @@ def _fit_photo(env, bubble, seed=0):
     rng = np.random.default_rng(seed)
     bg = ndi.gaussian_filter(rng.uniform(0.15, 0.6, (FIT_N, FIT_N, 3)), (2.5, 2.5, 0))
     scene = Scene.from_dict({"camera": {"width": FIT_N, "height": FIT_N, "disc": list(FIT_DISC)}, "bubble": bubble,
-                             "lighting": {"envmap": "unused.exr"}})
+                             "lighting": {"envmap": "unused.exr"}, "effects": {"transmission_tint": True}})
     img = render_scene(scene, bg, env=env)
     q = lambda x: srgb_decode(np.round(srgb_encode(x + rng.normal(0, 0.003, x.shape)) * 255) / 255)
     return q(img), q(bg)

@@ -64,7 +64,7 @@ from __future__ import annotations
 import functools
 import math
 import time
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 
 import jax
 import jax.numpy as jnp
@@ -799,9 +799,10 @@ def _finish(st: _Setup, env, opts: FitOptions, new: dict, z, ok: bool, maxed: bo
             notes: list, t_start: float) -> FitResult:
     """Standard errors, the thickness map, the full-resolution render and the result of a
     solved fit (``new, z, ok, maxed, steps, r, jac, fixed`` as :func:`_run_lm` returns)."""
-    (photo, background, H, W, vals, held, layout, lm_kind, fx, decisions, base_cfg, map_cfg, disc, sigma, saturated,
-     k_fit, k_search, lev_fit) = (getattr(st, f.name) for f in fields(st))
-    envj = env
+    photo, background, vals, held, layout, lm_kind = st.photo, st.background, st.vals, st.held, st.layout, st.lm_kind
+    decisions, base_cfg, map_cfg, disc, sigma, saturated = (st.decisions, st.base_cfg, st.map_cfg, st.disc, st.sigma,
+                                                            st.saturated)
+    lev_fit, envj = st.lev_fit, env
     # standard errors (delta method)
     nres = int(np.count_nonzero(lev_fit.w)) if lev_fit.w.size else 0
     dof = max(nres - len(layout), 1)
@@ -917,8 +918,8 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     t_start = time.perf_counter()
     opts = options
     st = _setup(photo, env, opts, background, init, scene, saturated)
-    (photo, background, H, W, vals, held, layout, lm_kind, fx, decisions, base_cfg, map_cfg, disc, sigma, saturated,
-     k_fit, k_search, lev_fit) = (getattr(st, f.name) for f in fields(st))
+    photo, background, vals, layout, lm_kind = st.photo, st.background, st.vals, st.layout, st.lm_kind
+    base_cfg, sigma, saturated, k_search, lev_fit = st.base_cfg, st.sigma, st.saturated, st.k_search, st.lev_fit
     envj = env
     notes = []
     search_thickness = "thickness" in layout or "top" in layout

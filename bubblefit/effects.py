@@ -188,7 +188,9 @@ def _film_coefficients(model, mode, weights, spectra, cos, t, n_film, bounces, t
             f = spectra
         bg = np.full(f.shape[:-1] + (3,), t**4)
         if tint_rs is not None and not grey:
-            bg = rgb((t * t - tint_rs * (f - 2 * t * t)) ** 2)
+            from .film import paper_tinted_transmission
+
+            bg = rgb(np.asarray(paper_tinted_transmission(f, t, tint_rs)) ** 2)
         f = rgb(f)
         return {"front": f, "rear": [t * t * f], "background": bg}
     if grey:

@@ -28,6 +28,7 @@ __all__ = [
     "fresnel_reflectance",
     "phase",
     "paper_interference_factor",
+    "paper_tinted_transmission",
     "airy_reflectance",
     "two_beam_reflectance",
     "incoherent_reflectance",
@@ -101,6 +102,18 @@ def paper_interference_factor(
     """
     delta = phase(thickness, wavelength, n, cos_i)
     return 4.0 * jnp.cos(0.5 * delta) ** 2 * t * t
+
+
+def paper_tinted_transmission(factor: ArrayLike, t: ArrayLike, r_s: ArrayLike) -> Array:
+    """One film's transmission with the paper model's transmission tint: ``t^2 - r_s (F - 2 t^2)``.
+
+    A film that does not absorb transmits, wavelength by wavelength, what it does not
+    reflect; the paper's film reflects ``r_s F`` (``F`` :func:`paper_interference_factor`,
+    spectral mean ``2 t^2``), so its transmission is the grey ``t^2`` of eq. (11) minus
+    the reflection's deviation from its mean, and ``T + r_s F`` is the same at every
+    wavelength. ``r_s = 0`` gives eq. (11)'s ``t^2``.
+    """
+    return t * t - r_s * (factor - 2.0 * t * t)
 
 
 def airy_reflectance(

@@ -476,15 +476,11 @@ def _candidates_paper(lev: _Level, vals: dict, grid: np.ndarray, free_split: boo
     x = 2 * n * grid[:, None] * cos_t.reshape(-1)[sel][None, :]
     t = float(vals["t"])
     phi = search.phi_rgb(table, jnp.asarray(x, jnp.float32))  # (G, P, 3)
-    refl = 4 * t * t * phi * jnp.asarray(m)[None]
-    c = jnp.asarray(c)[None]
-    if fx.tint and fx.transmission:
-        # render.py's tint: T_front T_rear = t^4 (1 - 2 r_s (2 Phi - 1))^2 (Phi integrated
-        # per channel before squaring: exact to O(r_s^2) of Phi's spread within a channel)
-        c = c * (1.0 - 2.0 * float(p.r_s) * (2.0 * phi - 1.0)) ** 2
+    r_s = float(p.r_s) if fx.tint and fx.transmission else 0.0
+    refl, back = search.paper_candidates(phi, jnp.asarray(m)[None], jnp.asarray(c)[None], t, r_s)
     if fx.background == "photo":
-        return refl, c
-    return refl + c, jnp.zeros_like(c[0])
+        return refl, back
+    return refl + back, jnp.zeros(back.shape[1:], back.dtype)
 
 
 @functools.partial(jax.jit, static_argnames=("cfg",))
@@ -663,7 +659,7 @@ def _profile_from_pixels(height, d, w):
     """Robust least-squares drainage profile (top, bottom, exponent) through per-pixel thicknesses."""
     best = None
     x = np.clip((1 - height) / 2, 0, 1)
-    for e in (0.5, 0.75, 1.0, 1.5, 2.0, 3.0):
+    for e in search.PROFILE_EXPONENTS:
         basis = np.stack([1 - x**e, x**e], axis=1)
         wt = w.copy()
         for _ in range(6):
@@ -685,8 +681,6 @@ class _Setup:
 
     photo: np.ndarray
     background: np.ndarray | None
-    H: int
-    W: int
     vals: dict
     held: dict
     layout: tuple
@@ -698,7 +692,6 @@ class _Setup:
     disc: tuple | None
     sigma: np.ndarray
     saturated: np.ndarray
-    k_fit: int
     k_search: int
     lev_fit: _Level
 
@@ -775,8 +768,8 @@ def _setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, 
     lev_fit = _make_level(k_fit, base_cfg, photo, sigma, background, saturated, opts)
     if lev_fit.mask.sum() < 10:
         raise InputError("fewer than 10 usable pixels on the bubble (disc too small, or saturated)")
-    return _Setup(photo, background, H, W, vals, held, layout, lm_kind, fx, decisions, base_cfg, map_cfg, disc, sigma,
-                  saturated, k_fit, k_search, lev_fit)
+    return _Setup(photo, background, vals, held, layout, lm_kind, fx, decisions, base_cfg, map_cfg, disc, sigma,
+                  saturated, k_search, lev_fit)
 
 
 def _warm_doubt(st: _Setup, opts: FitOptions, new: dict, ok: bool, r) -> str | None:
@@ -1092,19 +1085,19 @@ def _pixel_solver(basis, robust: float, max_steps: int):
     sigma = None if getattr(basis, "sigma", None) is None else jnp.asarray(basis.sigma, jnp.float32)
 
     def model(d, a):
-        m, c, xfac, t, k = a
+        m, c, xfac, t, r_s = a  # r_s: 0 without the transmission tint
         x = d * xfac  # optical path 2 n d cos th_t of eq. (8)
         cos_delta = jnp.cos(2 * jnp.pi * x / lam + jnp.pi)
         if sigma is not None:  # ``fourier`` lobes: the fringe averaged over each lobe
             cos_delta = cos_delta * fringe_attenuation(x, sigma)
         phi = (0.5 * (1.0 + cos_delta)) @ wts  # cos^2(delta/2), integrated
-        # k = 2 r_s with the transmission tint (as in _candidates_paper), else 0
-        return 4 * t * t * phi * m + c * (1.0 - k * (2.0 * phi - 1.0)) ** 2
+        refl, back = search.paper_candidates(phi, m, c, t, r_s)
+        return refl + back
 
     def resid(u, a):
-        m, c, xfac, t, k, y, w, prior, sig = a
+        m, c, xfac, t, r_s, y, w, prior, sig = a
         d = _forward("thickness", u[0])
-        r = _robust((model(d, (m, c, xfac, t, k)) - y) * w, robust)
+        r = _robust((model(d, (m, c, xfac, t, r_s)) - y) * w, robust)
         return jnp.concatenate([r, ((d - prior) / sig)[None]])
 
     lm = optx.LevenbergMarquardt(rtol=1e-5, atol=1e-5)
@@ -1145,7 +1138,7 @@ def _fit_map(lev: _Level, vals: dict, prof, opts: FitOptions, env):
         n = float(vals["n_film"])
         cos_t = np.sqrt(np.clip(1.0 - (1.0 - lev.cos.reshape(-1)[sel] ** 2) / n**2, 0.0, 1.0))
         t = float(vals["t"])
-        tint_k = 2.0 * float(p.r_s) if fx.tint and fx.transmission else 0.0
+        r_s = float(p.r_s) if fx.tint and fx.transmission else 0.0
         table = jnp.asarray(search.phi_table(fx.spectral, 2 * n * float(grid.max())))
         best_d = np.empty(len(pr))
         chunk = 2048
@@ -1153,8 +1146,7 @@ def _fit_map(lev: _Level, vals: dict, prof, opts: FitOptions, env):
             e = slice(s, s + chunk)
             x = 2 * n * grid[:, None] * cos_t[e][None, :]
             phi = search.phi_rgb(table, jnp.asarray(x, jnp.float32))
-            refl = 4 * t * t * phi * jnp.asarray(m[e])[None]
-            back = jnp.asarray(c[e])[None] * (1.0 - tint_k * (2.0 * phi - 1.0)) ** 2
+            refl, back = search.paper_candidates(phi, jnp.asarray(m[e])[None], jnp.asarray(c[e])[None], t, r_s)
             pri = jnp.asarray(((grid[:, None] - pr[e][None, :]) / sig) ** 2, jnp.float32)
             best, _, _ = search.score_pixels(refl, back, jnp.asarray(y[e]), jnp.asarray(w[e] ** 2), pri,
                                              per_pixel_gain=False)
@@ -1163,7 +1155,7 @@ def _fit_map(lev: _Level, vals: dict, prof, opts: FitOptions, env):
         u0 = np.asarray([[_inverse("thickness", d)] for d in best_d], np.float32)
         ones = np.ones(len(pr), np.float32)
         args = (jnp.asarray(m, jnp.float32), jnp.asarray(c, jnp.float32), jnp.asarray(2 * n * cos_t, jnp.float32),
-                jnp.asarray(t * ones), jnp.asarray(tint_k * ones), jnp.asarray(y), jnp.asarray(w),
+                jnp.asarray(t * ones), jnp.asarray(r_s * ones), jnp.asarray(y), jnp.asarray(w),
                 jnp.asarray(pr, jnp.float32), jnp.asarray(sig * ones))
         u, ok, r, j, dd = solve(jnp.asarray(u0), args)
         d = np.asarray(_forward("thickness", u), np.float64)

@@ -291,10 +291,9 @@ def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx)
             _count("transmission")
             gain = 1.0 if photo_bg else p.exposure
             if fx.tint and fx.interference in ("two_beam", "airy"):
-                # Each film transmits the complement of its reflection about the mean:
-                # t^2 - r_s (F - 2 t^2), F eq. (10)'s factor (module docstring).
+                # Each film transmits the complement of its reflection about the mean.
                 _count("transmission_tint")
-                tr = lambda f: t2 - p.r_s * (f - 2.0 * t2)
+                tr = lambda f: film.paper_tinted_transmission(f, p.t, p.r_s)
                 terms["background"] = gain * _to_rgb(tr(factor(0)) * tr(factor(1)), fx, dtype) * bg_rad
             else:
                 terms["background"] = gain * t2 * t2 * bg_rad

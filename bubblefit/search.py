@@ -36,12 +36,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import spectral
+from .film import paper_tinted_transmission
 
-__all__ = ["phi_table", "phi_rgb", "thickness_grid", "local_minima", "score_global", "score_pixels", "pixel_costs",
-           "best_profile"]
+__all__ = ["phi_table", "phi_rgb", "paper_candidates", "thickness_grid", "local_minima", "score_global",
+           "score_pixels", "pixel_costs", "best_profile", "PROFILE_EXPONENTS"]
 
 #: Step of the optical-path table, nm (the colour varies on scales of ~100 nm).
 X_STEP = 0.5
+#: Exponents of the drainage profile tried by the profile searches.
+PROFILE_EXPONENTS = (0.5, 0.75, 1.0, 1.5, 2.0, 3.0)
 
 
 def thickness_grid(lo: float, hi: float, step: float) -> np.ndarray:
@@ -76,6 +79,20 @@ def phi_rgb(table: jnp.ndarray, x: jnp.ndarray) -> jnp.ndarray:
     i = jnp.floor(pos).astype(jnp.int32)
     f = (pos - i)[..., None]
     return table[i] * (1 - f) + table[i + 1] * f
+
+
+def paper_candidates(phi, m, c, t, r_s):
+    """The ``paper`` model's pixel for interference integral ``Phi`` (..., 3): ``(refl, back)``.
+
+    ``refl = 4 t^2 Phi M`` (eq. 10's factor times ``M``, the reflected radiance of both
+    films rendered with interference off) and ``back = C (T / t^2)^2`` (``C`` the grey
+    transmitted background of eq. 11, ``T`` :func:`bubblefit.film.paper_tinted_transmission`
+    of both films, ``r_s = 0`` without the tint). ``Phi`` is integrated per channel before
+    the tint is squared: exact to ``O(r_s^2)`` of ``Phi``'s spread within a channel.
+    """
+    refl = 4.0 * t * t * phi * m
+    tr = paper_tinted_transmission(4.0 * t * t * phi, t, r_s) / (t * t)
+    return refl, c * tr * tr
 
 
 def local_minima(cost: np.ndarray, grid: np.ndarray, k: int, separation: float) -> list[float]:
@@ -122,25 +139,22 @@ def score_pixels(refl, fixed, y, w2, prior, *, per_pixel_gain: bool):
     """Best candidate per pixel.
 
     Args:
-        refl: (G, P, 3) candidate images (gain-scaled part); ``fixed`` (P, 3) as in
-            :func:`score_global`; ``y``, ``w2``: (P, 3).
+        refl: (G, P, 3) candidate images (gain-scaled part); ``fixed`` (P, 3) or
+            (G, P, 3) as in :func:`pixel_costs`; ``y``, ``w2``: (P, 3).
         prior: (G, P) extra cost per candidate and pixel (a prior on the thickness), or zeros.
         per_pixel_gain: fit a gain per pixel (hue matching; for an unknown exposure).
 
     Returns:
         ``(best index (P,), best cost (P,), gain (P,))``.
     """
-    target = y - fixed
-    if target.ndim == 2:
-        target = target[None]
     if per_pixel_gain:
-        num = jnp.sum(w2[None] * refl * target, axis=-1)
-        den = jnp.sum(w2[None] * refl * refl, axis=-1)
+        target = y - fixed
+        num = jnp.sum(w2 * refl * target, axis=-1)
+        den = jnp.sum(w2 * refl * refl, axis=-1)
         gain = jnp.maximum(num / jnp.maximum(den, 1e-30), 0.0)
     else:
         gain = jnp.ones(refl.shape[:2], refl.dtype)
-    res = gain[..., None] * refl - target
-    cost = jnp.sum(w2[None] * res * res, axis=-1) + prior
+    cost = pixel_costs(gain[..., None] * refl, fixed, y, w2) + prior
     best = jnp.argmin(cost, axis=0)
     take = lambda a: jnp.take_along_axis(a, best[None], axis=0)[0]
     return best, take(cost), take(gain)
@@ -158,7 +172,7 @@ def pixel_costs(refl, fixed, y, w2):
 
 
 def best_profile(cost: np.ndarray, grid: np.ndarray, height: np.ndarray,
-                 exponents=(0.5, 0.75, 1.0, 1.5, 2.0, 3.0), step: float | None = None) -> tuple:
+                 exponents=PROFILE_EXPONENTS, step: float | None = None) -> tuple:
     """Global search of a drainage profile (DESIGN.md) through per-pixel candidate costs.
 
     Every ``(top, bottom, exponent)`` on a grid (``top`` and ``bottom`` over ``grid``'s

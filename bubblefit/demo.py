@@ -7,14 +7,14 @@ call, and reports true against recovered values:
 1. Calibration pair (sec. 3.3 of the paper): a dark box with a checkerboard behind the
    bubble, photographed without and with it (``render_scene`` with a black environment
    and the checkerboard as background photo: the bubble transmits ``t^4`` of it).
-   :func:`bubblefit.calibrate.calibrate` measures ``t`` and finds the bubble's disc.
+   :func:`bubblefit.capture.calibrate.calibrate` measures ``t`` and finds the bubble's disc.
 2. Bubble photo: the same bubble (drainage thickness profile, known ``t``, ``f``,
    roughness) in the courtyard, seen by an orthographic camera over a background photo
    of the courtyard without the bubble (a perspective view of the map); the camera's gain
    (``exposure``) is unknown to the fit: the photo is rendered from the map times that gain.
 3. Each photo gets Poisson-Gaussian noise (read noise ``NOISE_READ``, shot noise
    variance ``NOISE_SHOT * I``) and is written as an 8-bit sRGB PNG and read back.
-4. :func:`bubblefit.fit.fit_photo` fits the bubble photo (paper model, drainage profile)
+4. :func:`bubblefit.inverse.fit.fit_photo` fits the bubble photo (paper model, drainage profile)
    starting from the calibrated ``t`` and the calibrated disc.
 5. The report: ``report.png`` (photo, fitted render, residual, thickness map, thickness
    against height), ``index.html`` with the table, and ``results.json``.
@@ -95,8 +95,8 @@ def _courtyard_view(env, size: int, rotation_deg: float) -> np.ndarray:
     """A (size, size, 3) perspective photo of the map (the scene without the bubble)."""
     import jax.numpy as jnp
 
-    from .envmap import rotate_y
-    from .geometry import PerspectiveCamera
+    from .lighting.envmap import rotate_y
+    from .model.geometry import PerspectiveCamera
 
     cam = PerspectiveCamera(size, size, origin=(0.0, 0.0, 4.0), target=(0.0, 0.15, 0.0), fov_deg=45.0)
     rows, cols = np.meshgrid(np.arange(size, dtype=np.float32), np.arange(size, dtype=np.float32), indexing="ij")
@@ -107,7 +107,7 @@ def _courtyard_view(env, size: int, rotation_deg: float) -> np.ndarray:
 
 def _noisy_8bit(img: np.ndarray, rng: np.random.Generator, path: Path) -> np.ndarray:
     """Add Poisson-Gaussian noise, write an 8-bit sRGB PNG, read it back (linear floats)."""
-    from .imageio import read_image, write_image
+    from .io.images import read_image, write_image
 
     clean = np.clip(img, 0.0, None)
     noisy = clean + rng.normal(size=img.shape) * np.sqrt(NOISE_READ**2 + NOISE_SHOT * clean)
@@ -123,9 +123,9 @@ def synthesize(out: Path, size: int, seed: int, truth: DemoTruth = DemoTruth(), 
     (the unscaled :class:`EnvMap`), ``exposure`` (the true gain), ``disc`` (cx, cy, r),
     ``thickness_true`` ((size, size) nm, NaN outside the bubble) and ``paths``.
     """
-    from .envmap import EnvMap
-    from .imageio import read_image
-    from .scene import Scene, render_scene, shipped_envmap
+    from .lighting.envmap import EnvMap
+    from .io.images import read_image
+    from .model.scene import Scene, render_scene, shipped_envmap
 
     out.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
@@ -190,18 +190,18 @@ def run_demo(out_dir="bubblefit-demo", size: int = 96, seed: int = 0, progress: 
         seed: seed of the noise.
         progress: print the steps on stderr.
         truth: the known parameters.
-        fit_options: extra :class:`bubblefit.fit.FitOptions` fields.
+        fit_options: extra :class:`bubblefit.inverse.fit.FitOptions` fields.
 
     Returns:
         A dict: ``rows`` (list of {name, true, recovered, stderr, tolerance, ok}),
         ``all_ok``, ``calibration`` and ``fit`` (their JSON), ``times`` (s per step) and
         ``paths`` (every file written).
     """
-    from .calibrate import calibrate
+    from .capture.calibrate import calibrate
     from .cli.common import write_json
     from .errors import InputError
-    from .fit import FitOptions, fit_photo
-    from .scene import Scene
+    from .inverse.fit import FitOptions, fit_photo
+    from .model.scene import Scene
 
     if size < 32:
         raise InputError(f"--size must be at least 32 pixels, got {size}")
@@ -294,7 +294,7 @@ def _write_report(out: Path, syn: dict, fit, rows, truth: DemoTruth) -> dict:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .imageio import atomic_path, srgb_encode, write_image
+    from .io.images import atomic_path, srgb_encode, write_image
 
     paths = {}
     write_image(out / "fit_render.exr", fit.render)
@@ -348,7 +348,7 @@ def _write_report(out: Path, syn: dict, fit, rows, truth: DemoTruth) -> dict:
 
 
 def _write_html(out: Path, result: dict) -> None:
-    from .imageio import atomic_path
+    from .io.images import atomic_path
 
     esc = html.escape
     fmt = lambda v: "&ndash;" if v is None else f"{v:.4g}"

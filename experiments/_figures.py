@@ -1,6 +1,6 @@
 """Shared helpers of the paper-figure scripts in ``experiments/``.
 
-Every script renders with the public API (:func:`bubblefit.scene.render_scene` on a
+Every script renders with the public API (:func:`bubblefit.model.scene.render_scene` on a
 scene given as data), writes its PNGs and a ``settings.json`` to ``--out`` (default
 ``experiments/results/<name>``), and copies one small summary PNG into
 ``experiments/figures/`` for the README.
@@ -44,7 +44,7 @@ def log(msg: str) -> None:
 
 def to_display(img: np.ndarray, exposure: float = 1.0) -> np.ndarray:
     """Linear (H, W, 3) radiance times ``exposure`` -> sRGB-encoded floats in [0, 1] for plotting."""
-    from bubblefit.imageio import srgb_encode
+    from bubblefit.io.images import srgb_encode
 
     return np.clip(srgb_encode(np.clip(np.nan_to_num(img) * exposure, 0.0, 1.0)), 0.0, 1.0)
 
@@ -67,15 +67,15 @@ def view_camera(size: int) -> dict:
 
 
 def scene(**tables):
-    """A :class:`bubblefit.scene.Scene` from keyword tables (``camera=..., bubble=...``)."""
-    from bubblefit.scene import Scene
+    """A :class:`bubblefit.model.scene.Scene` from keyword tables (``camera=..., bubble=...``)."""
+    from bubblefit.model.scene import Scene
 
     return Scene.from_dict({k: v for k, v in tables.items() if v is not None})
 
 
 def render(sc, env=None, background=None):
     """Render a scene to a numpy (H, W, 3) linear image, and the seconds it took."""
-    from bubblefit.scene import render_scene
+    from bubblefit.model.scene import render_scene
 
     t0 = time.perf_counter()
     img = render_scene(sc, background=background, env=env)
@@ -84,7 +84,7 @@ def render(sc, env=None, background=None):
 
 def save(out: Path, name: str, img: np.ndarray, exposure: float) -> Path:
     """Write the linear image as EXR and an sRGB PNG at ``exposure``; returns the PNG path."""
-    from bubblefit.imageio import write_image
+    from bubblefit.io.images import write_image
 
     out.mkdir(parents=True, exist_ok=True)
     write_image(out / f"{name}.exr", img)
@@ -96,7 +96,7 @@ def save_figure(fig, out: Path, name: str, *, dpi: int = 100) -> Path:
     """Save a matplotlib figure as ``out/name.png`` (atomically) and close it."""
     import matplotlib.pyplot as plt
 
-    from bubblefit.imageio import atomic_path
+    from bubblefit.io.images import atomic_path
 
     out.mkdir(parents=True, exist_ok=True)
     path = out / f"{name}.png"

@@ -18,7 +18,7 @@ point records the error a user would feel and the time it costs:
 * ``image_size``: render size in pixels; reference: a 4x larger render averaged down to the
   same pixels (what a camera pixel integrates).
 * ``precision``: float32 against float64 (reference) for a 5000 nm film.
-* ``fit_max_steps`` / ``fit_rtol``: :func:`bubblefit.fit.fit_photo` on a synthetic photo
+* ``fit_max_steps`` / ``fit_rtol``: :func:`bubblefit.inverse.fit.fit_photo` on a synthetic photo
   (8-bit, noisy) of a known 700 nm film; error: |fitted - true| thickness in nm.
 
 Times are medians over warm runs (``time_s``); the first call's extra time, mostly JAX
@@ -82,7 +82,7 @@ def film_colours(basis, thickness_nm, cos_i: float = 1.0):
     carries lobes)."""
     import jax.numpy as jnp
 
-    from bubblefit import film, spectral
+    from bubblefit.optics import film, spectral
 
     d = jnp.asarray(np.asarray(thickness_nm, dtype=np.float32))[:, None]
     lam = jnp.asarray(basis.wavelengths, dtype=jnp.float32)
@@ -95,7 +95,7 @@ def film_colours(basis, thickness_nm, cos_i: float = 1.0):
 
 def display_rgb(rgb, cos_i: float = 1.0):
     """Scale film reflectance so that its incoherent grey is 0.5 (how a chart shows it)."""
-    from bubblefit import film
+    from bubblefit.optics import film
 
     grey = float(np.asarray(film.incoherent_reflectance(cos_i, N_FILM)).mean())
     return np.asarray(rgb) * 0.5 / grey
@@ -117,9 +117,9 @@ def ciede2000(rgb_a, rgb_b):
 
 def load_env(width: int):
     """Courtyard map (float32 EnvMap) downsampled to ``width`` texels across."""
-    from bubblefit.envmap import EnvMap, downsample
-    from bubblefit.imageio import read_image
-    from bubblefit.scene import shipped_envmap
+    from bubblefit.lighting.envmap import EnvMap, downsample
+    from bubblefit.io.images import read_image
+    from bubblefit.model.scene import shipped_envmap
 
     px = read_image(shipped_envmap("courtyard")).pixels
     while px.shape[1] > width:
@@ -142,14 +142,14 @@ def make_scene(size: int, effects: dict, *, thickness=500.0, roughness=0.01, dra
 
 
 def _env_path():
-    from bubblefit.scene import shipped_envmap
+    from bubblefit.model.scene import shipped_envmap
 
     return shipped_envmap("courtyard")
 
 
 def renderer(sc, env, dtype=None):
     """A zero-argument function rendering ``sc`` with ``env`` (jitted per config)."""
-    from bubblefit.render import render
+    from bubblefit.model.render import render
 
     cfg, _ = sc.config(env)
     p = sc.params() if dtype is None else sc.params(dtype=dtype)
@@ -159,7 +159,7 @@ def renderer(sc, env, dtype=None):
 # --- the sweeps --------------------------------------------------------------------------------
 
 def sweep_spectral(rows, q, env):
-    from bubblefit.spectral import spectral_basis
+    from bubblefit.optics.spectral import spectral_basis
 
     ref = spectral_basis("reference")
     d_thin = np.linspace(100.0, 1500.0, 141 if q.quick else 561)
@@ -255,9 +255,9 @@ def sweep_precision(rows, q):
     import jax
     import jax.numpy as jnp
 
-    from bubblefit.envmap import EnvMap, downsample
-    from bubblefit.imageio import read_image
-    from bubblefit.scene import shipped_envmap
+    from bubblefit.lighting.envmap import EnvMap, downsample
+    from bubblefit.io.images import read_image
+    from bubblefit.model.scene import shipped_envmap
 
     jax.config.update("jax_enable_x64", True)
     try:
@@ -284,7 +284,7 @@ def sweep_precision(rows, q):
 
 def sweep_fit(rows, q, env):
     try:
-        from bubblefit.fit import FitOptions, fit_photo
+        from bubblefit.inverse.fit import FitOptions, fit_photo
     except ImportError as exc:  # the fit module is optional for this script
         F.log(f"fit sweep skipped: {exc}")
         return
@@ -331,7 +331,7 @@ def family(knob: str) -> str:
 
 
 def write_csv(path: Path, rows) -> None:
-    from bubblefit.imageio import atomic_path
+    from bubblefit.io.images import atomic_path
 
     with atomic_path(path) as tmp:
         with open(tmp, "w", newline="") as fh:
@@ -413,7 +413,7 @@ def write_plots(out: Path, rows):
 
 def write_banding(out: Path, q, env):
     """Strips of film colour 0-6000 nm per basis, and their CIEDE2000 against the reference."""
-    from bubblefit.spectral import spectral_basis
+    from bubblefit.optics.spectral import spectral_basis
 
     plt = F.matplotlib()
     d = np.linspace(0.0, 6000.0, 600 if q.quick else 1200)
@@ -443,11 +443,11 @@ def write_banding(out: Path, q, env):
 
 def fit_lobes(k: int, illuminant: str = "D65", max_nfev: int = 60):
     """Least-squares fit of K shared Gaussian lobes in wavenumber to the sRGB weight densities
-    (the table :data:`bubblefit.spectral.FOURIER_LOBES`): centres (nm) and deviations (1/um),
+    (the table :data:`bubblefit.optics.spectral.FOURIER_LOBES`): centres (nm) and deviations (1/um),
     with the weights solved linearly for each trial (variable projection)."""
     from scipy.optimize import least_squares
 
-    from bubblefit import spectral
+    from bubblefit.optics import spectral
 
     nu, dens = spectral._wavenumber_density(illuminant)
     lo, hi = 1.0 / spectral.LAMBDA_MAX, 1.0 / spectral.LAMBDA_MIN

@@ -4,7 +4,7 @@ For a set of scenes that each need a different subset of the model (a dark-box
 calibration, a point light in a dark room, a mirror bubble in an environment, a thick
 film, a rough film, the full physical model), every scene is rendered twice with the same
 parameters: with its effects on ``auto`` and with everything on
-(:func:`bubblefit.effects.all_on_settings`: every term, converged spectral integration,
+(:func:`bubblefit.model.effects.all_on_settings`: every term, converged spectral integration,
 mipmap filtering, diffuse, all internal bounces). Per scene it records the compile time
 (first call minus a warm call), the warm median of a few calls, the largest absolute
 pixel difference ``max |auto - all-on|`` (linear radiance) against the tolerance, and the
@@ -79,7 +79,7 @@ def scene_set(size: int = 64) -> dict:
 
 def all_on(data: dict) -> dict:
     """A copy of scene ``data`` with its ``[effects]`` replaced by the all-on table."""
-    from bubblefit.effects import all_on_settings
+    from bubblefit.model.effects import all_on_settings
 
     eff = data.get("effects", {})
     return dict(data, effects=all_on_settings(eff.get("model", "paper"), eff))
@@ -90,9 +90,9 @@ def load_map(name: str | None, height: int, scale: float = 1.0):
     multiplied by ``scale``, as an EnvMap."""
     if name is None:
         return None
-    from bubblefit.envmap import EnvMap, downsample
-    from bubblefit.imageio import read_image
-    from bubblefit.scene import shipped_envmap
+    from bubblefit.lighting.envmap import EnvMap, downsample
+    from bubblefit.io.images import read_image
+    from bubblefit.model.scene import shipped_envmap
 
     px = read_image(shipped_envmap(name)).pixels
     while px.shape[0] > height:
@@ -102,7 +102,7 @@ def load_map(name: str | None, height: int, scale: float = 1.0):
 
 def prepare(data: dict, background, env):
     """(params, RenderConfig, decisions, background array) of a scene, as render_scene does."""
-    from bubblefit.scene import Scene
+    from bubblefit.model.scene import Scene
 
     if background is not None:
         data = dict(data, lighting=dict(data.get("lighting", {}), background="photo"))
@@ -113,10 +113,10 @@ def prepare(data: dict, background, env):
 
 
 def time_render(params, cfg, env, bg, repeats: int):
-    """(compile_s, warm median s, image) of :func:`bubblefit.render.render`."""
+    """(compile_s, warm median s, image) of :func:`bubblefit.model.render.render`."""
     import jax
 
-    from bubblefit.render import render
+    from bubblefit.model.render import render
 
     t0 = time.perf_counter()
     img = jax.block_until_ready(render(params, cfg, env, bg))
@@ -173,7 +173,7 @@ def write_outputs(rows: list[dict], out: Path, meta: dict) -> None:
     import matplotlib.pyplot as plt
 
     from bubblefit.cli.common import write_json
-    from bubblefit.imageio import atomic_path
+    from bubblefit.io.images import atomic_path
 
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "bench_effects.json", {"meta": meta, "scenes": rows})

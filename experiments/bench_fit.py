@@ -1,4 +1,4 @@
-"""Benchmark of :func:`bubblefit.fit.fit_photo`: accuracy and warm time.
+"""Benchmark of :func:`bubblefit.inverse.fit.fit_photo`: accuracy and warm time.
 
 Renders a bubble photo with known parameters in the shipped courtyard map (with noise
 and 8-bit sRGB quantisation), fits it (constant thickness, then a per-pixel map), and
@@ -38,10 +38,10 @@ def main():
 
     from scipy import ndimage as ndi
 
-    from bubblefit.envmap import EnvMap, downsample
-    from bubblefit.fit import FitOptions, fit_photo
-    from bubblefit.imageio import read_image, srgb_decode, srgb_encode
-    from bubblefit.scene import Scene, render_scene, shipped_envmap
+    from bubblefit.lighting.envmap import EnvMap, downsample
+    from bubblefit.inverse.fit import FitOptions, fit_photo
+    from bubblefit.io.images import read_image, srgb_decode, srgb_encode
+    from bubblefit.model.scene import Scene, render_scene, shipped_envmap
 
     n = 64 if args.quick else args.size
     repeats = 1 if args.quick else args.repeats

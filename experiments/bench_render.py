@@ -27,14 +27,14 @@ HERE = Path(__file__).resolve().parent
 def _setup(model, size, samples, nodes=4):
     import jax.numpy as jnp
 
-    from bubblefit.effects import Effects
-    from bubblefit.envmap import EnvMap
-    from bubblefit.filtering import FilterConfig
-    from bubblefit.geometry import OrthographicCamera
-    from bubblefit.imageio import read_image
-    from bubblefit.render import Params, RenderConfig
-    from bubblefit.scene import shipped_envmap
-    from bubblefit.spectral import spectral_basis
+    from bubblefit.model.effects import Effects
+    from bubblefit.lighting.envmap import EnvMap
+    from bubblefit.lighting.filtering import FilterConfig
+    from bubblefit.model.geometry import OrthographicCamera
+    from bubblefit.io.images import read_image
+    from bubblefit.model.render import Params, RenderConfig
+    from bubblefit.model.scene import shipped_envmap
+    from bubblefit.optics.spectral import spectral_basis
 
     env = EnvMap.from_array(read_image(shipped_envmap("courtyard")).pixels)
     fx = Effects(model=model, interference="two_beam" if model == "paper" else "airy",
@@ -48,7 +48,7 @@ def _setup(model, size, samples, nodes=4):
 def time_render(model, size, samples, repeats=5):
     import jax
 
-    from bubblefit.render import render
+    from bubblefit.model.render import render
 
     p, cfg, env = _setup(model, size, samples)
     t0 = time.perf_counter()
@@ -68,7 +68,7 @@ def _memory_child(model, size, samples):
 
     import jax
 
-    from bubblefit.render import render
+    from bubblefit.model.render import render
 
     before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     p, cfg, env = _setup(model, size, samples)

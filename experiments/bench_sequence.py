@@ -1,4 +1,4 @@
-"""Benchmark of sequence fitting (:mod:`bubblefit.sequence`): frames per second.
+"""Benchmark of sequence fitting (:mod:`bubblefit.inverse.sequence`): frames per second.
 
 A synthetic drainage sequence (constant film, ``d(t) = d0 exp(-t / tau)``, paper model,
 shot/read noise, 8-bit sRGB PNG files) is fitted in several ways:
@@ -6,7 +6,7 @@ shot/read noise, 8-bit sRGB PNG files) is fitted in several ways:
 - ``process``: one process, no Dask, warm starts (each frame starts from the previous one);
 - ``process_cold``: one process, every frame runs the global thickness search;
 - ``process_batch4``, ``process_batch8``: one process, warm starts, frames fitted 4 or 8
-  at a time in one vmapped solve (:func:`bubblefit.fit.fit_batch`);
+  at a time in one vmapped solve (:func:`bubblefit.inverse.fit.fit_batch`);
 - ``cluster``: a Dask cluster (local, ``--workers`` processes, or ``--scheduler``), warm starts,
   the frames cut into one chunk per worker;
 - ``cluster_cold``: the same without warm starts;
@@ -44,10 +44,10 @@ TAU_FRAMES = 40.0  # d = D0 exp(-k / TAU_FRAMES): ~2.5 % (~20 nm) thinner each f
 
 def make_sequence(folder: Path, n: int, size: int, seed: int = 0):
     """Write ``n`` PNG frames of a draining film; return (EnvMap, env pixels, times, true thickness)."""
-    from bubblefit.envmap import EnvMap, downsample
-    from bubblefit.imageio import read_image, write_image
-    from bubblefit.render import render
-    from bubblefit.scene import Scene, shipped_envmap
+    from bubblefit.lighting.envmap import EnvMap, downsample
+    from bubblefit.io.images import read_image, write_image
+    from bubblefit.model.render import render
+    from bubblefit.model.scene import Scene, shipped_envmap
 
     px = read_image(shipped_envmap("courtyard")).pixels
     while px.shape[0] > 64:
@@ -79,8 +79,8 @@ def make_sequence(folder: Path, n: int, size: int, seed: int = 0):
 
 def _warm_worker(frame: str, env, options):
     """Compile the fit in this process (one frame, global search and a warm start)."""
-    from bubblefit.fit import fit_photo
-    from bubblefit.imageio import read_image
+    from bubblefit.inverse.fit import fit_photo
+    from bubblefit.io.images import read_image
 
     photo = read_image(frame).pixels
     res = fit_photo(photo, env, options=options)
@@ -107,8 +107,8 @@ def main(argv=None) -> int:
 
     from distributed import Client, LocalCluster
 
-    from bubblefit.fit import FitOptions
-    from bubblefit.sequence import _local_env, fit_sequence
+    from bubblefit.inverse.fit import FitOptions
+    from bubblefit.inverse.sequence import _local_env, fit_sequence
 
     t0 = time.perf_counter()
     frames = out / "frames"

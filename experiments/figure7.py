@@ -21,8 +21,8 @@ def filtered_map(env, a: float, height: int):
     import jax.numpy as jnp
     import numpy as np
 
-    from bubblefit.envmap import texel_directions
-    from bubblefit.filtering import FilterConfig, specular
+    from bubblefit.lighting.envmap import texel_directions
+    from bubblefit.lighting.filtering import FilterConfig, specular
 
     dirs = jnp.asarray(texel_directions(height, 2 * height).reshape(-1, 3), dtype=jnp.float32)
     out = specular(env, dirs, dirs, jnp.float32(a), FilterConfig("mipmap", nodes=6), normalize=False)
@@ -32,7 +32,7 @@ def filtered_map(env, a: float, height: int):
 def main(argv=None) -> int:
     args = F.parser("figure7", __doc__.split("\n")[0]).parse_args(argv)
     F.setup_jax()
-    from bubblefit.scene import shipped_envmap
+    from bubblefit.model.scene import shipped_envmap
 
     size = args.size or (96 if args.quick else 256)
     out = F.Path(args.out)

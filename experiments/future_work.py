@@ -44,7 +44,7 @@ def ldr_capture(px, clip_fraction: float | None = None, mid_grey: float = 0.18):
     """
     import numpy as np
 
-    from bubblefit.imageio import srgb_decode, srgb_encode
+    from bubblefit.io.images import srgb_decode, srgb_encode
 
     if clip_fraction is None:
         k = mid_grey / float(np.mean(luminance(px)))
@@ -63,9 +63,9 @@ def main(argv=None) -> int:
     F.setup_jax()
     import numpy as np
 
-    from bubblefit.envmap import EnvMap
-    from bubblefit.imageio import read_image
-    from bubblefit.scene import shipped_envmap
+    from bubblefit.lighting.envmap import EnvMap
+    from bubblefit.io.images import read_image
+    from bubblefit.model.scene import shipped_envmap
 
     size = args.size or (80 if args.quick else 160)
     out = F.Path(args.out)

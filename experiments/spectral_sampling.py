@@ -29,9 +29,9 @@ def main(argv=None) -> int:
     F.setup_jax()
     import numpy as np
 
-    from bubblefit.chart import interference_colours
-    from bubblefit.scene import shipped_envmap
-    from bubblefit.spectral import spectral_basis
+    from bubblefit.optics.chart import interference_colours
+    from bubblefit.model.scene import shipped_envmap
+    from bubblefit.optics.spectral import spectral_basis
 
     size = args.size or (80 if args.quick else 160)
     out = F.Path(args.out)

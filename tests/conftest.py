@@ -27,7 +27,7 @@ SHARED_ENVMAPS = Path(__file__).resolve().parent.parent.parent / "shared" / "dat
 @pytest.fixture(scope="session")
 def courtyard_pixels() -> np.ndarray:
     """The shipped courtyard map (1024x512, linear, with a sun)."""
-    from bubblefit.imageio import read_image
+    from bubblefit.io.images import read_image
 
     return read_image(DATA / "courtyard.exr").pixels
 
@@ -35,7 +35,7 @@ def courtyard_pixels() -> np.ndarray:
 @pytest.fixture(scope="session")
 def small_courtyard(courtyard_pixels) -> np.ndarray:
     """The courtyard map downsampled (power-preserving) to 64x128."""
-    from bubblefit.envmap import downsample
+    from bubblefit.lighting.envmap import downsample
 
     px = courtyard_pixels
     while px.shape[0] > 64:

@@ -22,10 +22,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from bubblefit import film, spectral
-from bubblefit.envmap import EnvMap
-from bubblefit.render import render
-from bubblefit.scene import Scene
+from bubblefit.optics import film, spectral
+from bubblefit.lighting.envmap import EnvMap
+from bubblefit.model.render import render
+from bubblefit.model.scene import Scene
 
 ROOT = Path(__file__).resolve().parents[1]
 N = 1.4

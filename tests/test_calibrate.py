@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bubblefit import calibrate as cal
-from bubblefit.imageio import Image, read_image, srgb_decode, srgb_encode, write_image
+from bubblefit.capture import calibrate as cal
+from bubblefit.io.images import Image, read_image, srgb_decode, srgb_encode, write_image
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -74,12 +74,12 @@ def render_after(background_hr, model, t, n, centre, r, size=SIZE, interference=
     """The project's forward model: the bubble over a background photo in a black box.
 
     ``centre`` and ``r`` in pixels of the final image (pixel centres at +1/2, the
-    convention of :class:`bubblefit.geometry.OrthographicCamera`). The environment is
+    convention of :class:`bubblefit.model.geometry.OrthographicCamera`). The environment is
     black (the dark box): no reflections, only the background seen through both films.
     """
-    from bubblefit.effects import Effects
-    from bubblefit.geometry import OrthographicCamera
-    from bubblefit.render import Params, RenderConfig, render
+    from bubblefit.model.effects import Effects
+    from bubblefit.model.geometry import OrthographicCamera
+    from bubblefit.model.render import Params, RenderConfig, render
 
     if interference is None:
         interference = "off" if model == "paper" else "incoherent"
@@ -95,7 +95,7 @@ def true_t(model, t, n):
     """t of the forward model at normal incidence: ``t`` (paper) or the Fresnel film's."""
     if model == "paper":
         return t
-    from bubblefit.film import incoherent_reflectance
+    from bubblefit.optics.film import incoherent_reflectance
     import jax
 
     with jax.enable_x64(True):

@@ -1,4 +1,4 @@
-"""Tests of bubblefit.capture (protocol specs and checks) and ``bubblefit check-capture``.
+"""Tests of bubblefit.capture.protocols (protocol specs and checks) and ``bubblefit check-capture``.
 
 Each protocol gets a good synthetic capture that must pass and bad ones, one fault each,
 that must fail on the right check with the right reason.
@@ -15,11 +15,11 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 
-from bubblefit import capture
-from bubblefit import envmap as em
+from bubblefit.capture import protocols
+from bubblefit.lighting import envmap as em
 from bubblefit.errors import BubblefitError, InputError
-from bubblefit.imageio import srgb_encode
-from bubblefit.probe import Circle, mirror_ball_directions
+from bubblefit.io.images import srgb_encode
+from bubblefit.capture.probe import Circle, mirror_ball_directions
 
 META = {"ExposureTime": 1 / 60, "FNumber": 8.0, "Exif:ISOSpeedRatings": 100, "Exif:WhiteBalance": 1,
         "Exif:FocalLength": 50.0}
@@ -44,31 +44,31 @@ def write(path: Path, linear: np.ndarray, bits: int = 16, **meta) -> None:
 
 
 def test_protocol_specs_load_and_name_their_documents():
-    names = capture.list_protocols()
+    names = protocols.list_protocols()
     assert {"transmission", "envmap", "bubble"} <= set(names)
     for name in names:
-        spec = capture.load_protocol(name)
+        spec = protocols.load_protocol(name)
         assert spec["name"] == name
-        doc = capture.protocols_dir() / spec["document"]
+        doc = protocols.protocols_dir() / spec["document"]
         assert doc.is_file(), doc
         text = doc.read_text()
         # the document lists every file role and the checks of its spec
         for role in spec["files"]:
             assert role["pattern"].split("*")[0] in text
-    assert (capture.protocols_dir() / "README.md").is_file()
+    assert (protocols.protocols_dir() / "README.md").is_file()
 
 
 def test_unknown_protocol_and_bad_folders(tmp_path):
     with pytest.raises(InputError, match="unknown capture protocol"):
-        capture.load_protocol("nonesuch")
+        protocols.load_protocol("nonesuch")
     with pytest.raises(InputError, match="not found"):
-        capture.check_capture(tmp_path / "missing", "transmission")
+        protocols.check_capture(tmp_path / "missing", "transmission")
     with pytest.raises(InputError, match="no images"):
-        capture.check_capture(tmp_path, "transmission")
+        protocols.check_capture(tmp_path, "transmission")
     bad = tmp_path / "bad.toml"
     bad.write_text("name = 'x'\n[files\n")
     with pytest.raises(InputError, match="not valid TOML"):
-        capture.load_protocol(bad)
+        protocols.load_protocol(bad)
 
 
 # ------------------------------------------------------------------------------ transmission
@@ -121,8 +121,8 @@ def make_transmission(folder: Path, fault: str | None = None) -> Path:
 
 
 def test_transmission_good_capture_passes(tmp_path):
-    rep = capture.check_capture(make_transmission(tmp_path / "good"), "transmission")
-    table = capture.format_table(rep)
+    rep = protocols.check_capture(make_transmission(tmp_path / "good"), "transmission")
+    table = protocols.format_table(rep)
     print(table)
     assert rep.passed, table
     status = {r.check: r.status for r in rep.results}
@@ -147,8 +147,8 @@ def test_transmission_good_capture_passes(tmp_path):
     ],
 )
 def test_transmission_bad_capture_fails_with_reason(tmp_path, fault, check, reason):
-    rep = capture.check_capture(make_transmission(tmp_path / fault, fault), "transmission")
-    table = capture.format_table(rep)
+    rep = protocols.check_capture(make_transmission(tmp_path / fault, fault), "transmission")
+    table = protocols.format_table(rep)
     assert not rep.passed, table
     failed = {r.check: r.reason for r in rep.failed()}
     assert check in failed, table
@@ -194,8 +194,8 @@ def make_envmap(folder: Path, fault: str | None = None) -> Path:
 
 
 def test_envmap_good_capture_passes(tmp_path):
-    rep = capture.check_capture(make_envmap(tmp_path / "good"), "envmap")
-    table = capture.format_table(rep)
+    rep = protocols.check_capture(make_envmap(tmp_path / "good"), "envmap")
+    table = protocols.format_table(rep)
     print(table)
     assert rep.passed, table
     assert rep.measurements["bracket_stops"] == pytest.approx(8.0)
@@ -214,8 +214,8 @@ def test_envmap_good_capture_passes(tmp_path):
     ],
 )
 def test_envmap_bad_capture_fails_with_reason(tmp_path, fault, check, reason):
-    rep = capture.check_capture(make_envmap(tmp_path / fault, fault), "envmap")
-    table = capture.format_table(rep)
+    rep = protocols.check_capture(make_envmap(tmp_path / fault, fault), "envmap")
+    table = protocols.format_table(rep)
     failed = {r.check: r.reason for r in rep.failed()}
     assert check in failed, table
     assert reason in failed[check], table
@@ -231,15 +231,15 @@ def test_bubble_protocol(tmp_path):
     write(good / "background.png", bg)
     write(good / "bubble_001.png", with_bubble(bg, t4=0.9))
     write(good / "bubble_002.png", with_bubble(bg, t4=0.9, cx=60))
-    rep = capture.check_capture(good, "bubble")
-    assert rep.passed, capture.format_table(rep)
+    rep = protocols.check_capture(good, "bubble")
+    assert rep.passed, protocols.format_table(rep)
     assert sum(r.check == "subject" and r.status == "PASS" for r in rep.results) == 2
 
     # no background frame: the bubble cannot be located; a blown-out frame fails
     alone = tmp_path / "alone"
     alone.mkdir()
     write(alone / "bubble.png", np.clip(checker() * 3.0, 0, 2))
-    rep = capture.check_capture(alone, "bubble")
+    rep = protocols.check_capture(alone, "bubble")
     failed = {r.check: r.reason for r in rep.failed()}
     assert "saturation" in failed and "% of pixels saturated" in failed["saturation"]
     assert any(r.check == "subject" and r.status == "SKIP" for r in rep.results)

@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 
 from bubblefit import cli
 from bubblefit.cli import main
-from bubblefit.imageio import write_image
+from bubblefit.io.images import write_image
 
 REGISTERED = {name.replace("_", "-") for name in cli.COMMANDS}
 
@@ -274,7 +274,7 @@ def test_render_good_scene_still_works(files, tmp_path, capsys):
     out = tmp_path / "out.exr"
     rc, _, err = run_cli(capsys, ["render", scene, "-o", out])
     assert rc == 0, err
-    from bubblefit.imageio import read_image
+    from bubblefit.io.images import read_image
 
     img = read_image(out).pixels
     assert img.shape == (8, 8, 3) and np.all(np.isfinite(img)) and img.max() > 0
@@ -526,7 +526,7 @@ def stub_render(monkeypatch):
     handling, not rendering (each new camera would cost a compilation)."""
     import importlib
 
-    render_mod = importlib.import_module("bubblefit.render")  # the module, not the function
+    render_mod = importlib.import_module("bubblefit.model.render")  # the module, not the function
 
     def fake_render(params, cfg, env, background=None):
         return np.full((min(cfg.shape[0], 8), min(cfg.shape[1], 8), 3), 0.5)

@@ -1,9 +1,9 @@
-"""Effects a scene simulates (bubblefit.effects): auto against all-on, traces, --explain.
+"""Effects a scene simulates (bubblefit.model.effects): auto against all-on, traces, --explain.
 
 The scene set (experiments/bench_effects.py) has one scene per subset of the model: a
 dark-box calibration, a point light in a dark room, a mirror bubble in a map, a thick
 film, a rough film and the full physical model. Each is rendered with ``auto`` and with
-everything on (:func:`bubblefit.effects.all_on_settings`); the largest pixel difference
+everything on (:func:`bubblefit.model.effects.all_on_settings`); the largest pixel difference
 must stay below the tolerance the decisions were made with, and the skipped terms must
 not be traced at all.
 """
@@ -18,8 +18,8 @@ import jax
 import numpy as np
 import pytest
 
-R = importlib.import_module("bubblefit.render")  # the module (bubblefit.render is also a function)
-from bubblefit.effects import DEFAULT_TOLERANCE, all_on_settings
+R = importlib.import_module("bubblefit.model.render")  # the module (bubblefit.model.render is also a function)
+from bubblefit.model.effects import DEFAULT_TOLERANCE, all_on_settings
 
 _BENCH = Path(__file__).resolve().parent.parent / "experiments" / "bench_effects.py"
 _spec = importlib.util.spec_from_file_location("bench_effects", _BENCH)
@@ -202,10 +202,10 @@ def test_transmission_tint_decisions():
     a grey film (no interference) or a black background has nothing to tint."""
     import jax
 
-    from bubblefit.envmap import EnvMap
+    from bubblefit.lighting.envmap import EnvMap
     from bubblefit.errors import InputError
-    from bubblefit.render import TRACE_COUNTS, render
-    from bubblefit.scene import Scene
+    from bubblefit.model.render import TRACE_COUNTS, render
+    from bubblefit.model.scene import Scene
 
     env = EnvMap.from_array(np.full((8, 16, 3), 0.5))
 

@@ -1,4 +1,4 @@
-"""Thin-film optics (bubblefit.film) against an independent transfer-matrix code and limits.
+"""Thin-film optics (bubblefit.optics.film) against an independent transfer-matrix code and limits.
 
 References: the ``tmm`` package (S. Byrnes, transfer-matrix method, a test-only
 dependency) for the exact film reflectance; Born & Wolf 7.6 for the two-beam truncation
@@ -12,7 +12,8 @@ import pytest
 
 tmm = pytest.importorskip("tmm")
 
-from bubblefit import film, spectral  # noqa: E402
+from bubblefit.optics import film
+from bubblefit.optics import spectral  # noqa: E402
 
 THICKNESS = np.array([0.0, 1.0, 5.0, 10.0, 37.0, 100.0, 250.0, 512.0, 1000.0, 1999.0, 3500.0, 5000.0])
 ANGLES_DEG = np.array([0.0, 10.0, 30.0, 45.0, 60.0, 70.0, 80.0, 85.0, 89.0])

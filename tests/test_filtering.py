@@ -1,8 +1,8 @@
-"""Environment filtering (bubblefit.filtering): convergence of the window (eq. 13) and
+"""Environment filtering (bubblefit.lighting.filtering): convergence of the window (eq. 13) and
 mip-map methods to the exact sum (eq. 12), the mirror limit, and the white furnace.
 
 Ward's lobe as written (eq. 1) is not energy-normalised: in a white furnace its albedo is
-``1 - 3 a^2 + O(a^4)`` at normal incidence (expand ``g(s)`` of bubblefit.brdf:
+``1 - 3 a^2 + O(a^4)`` at normal incidence (expand ``g(s)`` of bubblefit.optics.brdf:
 ``sqrt(cos 2 delta) cos^4 delta ~ 1 - 3 delta^2``, and ``E[tan^2 delta] = a^2``) and tends
 to ``cos th_r`` at oblique view as ``a -> 0`` (Walter, "Notes on the Ward BRDF", 2005).
 """
@@ -13,8 +13,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from bubblefit import filtering as F
-from bubblefit.envmap import EnvMap
+from bubblefit.lighting import filtering as F
+from bubblefit.lighting.envmap import EnvMap
 
 
 def _points(count=120, max_angle=1.1, seed=0):

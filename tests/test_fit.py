@@ -1,4 +1,4 @@
-"""Synthetic recovery tests of :mod:`bubblefit.fit`.
+"""Synthetic recovery tests of :mod:`bubblefit.inverse.fit`.
 
 Photos are rendered from a scene with known parameters in the shipped courtyard map
 (downsampled to 64x128), with Gaussian noise and 8-bit sRGB quantisation, and fitted
@@ -19,14 +19,14 @@ DISC = (N / 2, N / 2, 0.42 * N)
 
 
 def _env(px):
-    from bubblefit.envmap import EnvMap
+    from bubblefit.lighting.envmap import EnvMap
 
     return EnvMap.from_array(px)
 
 
 def _quantise(img, rng, sigma=0.003):
     """Add read noise and shot noise, then store as 8-bit sRGB and decode back to linear."""
-    from bubblefit.imageio import srgb_decode, srgb_encode
+    from bubblefit.io.images import srgb_decode, srgb_encode
 
     noisy = img + rng.normal(0.0, 1.0, img.shape) * np.sqrt(sigma**2 + 1e-4 * np.clip(img, 0, None))
     return srgb_decode(np.round(srgb_encode(noisy) * 255) / 255)
@@ -40,7 +40,7 @@ def _background(rng):
 
 
 def _render(env, bg, bubble, model="paper", base_dir=".", tint=True):
-    from bubblefit.scene import Scene, render_scene
+    from bubblefit.model.scene import Scene, render_scene
 
     effects = {"model": model, **({"transmission_tint": tint} if model == "paper" else {})}
     scene = Scene.from_dict({"camera": {"width": N, "height": N, "disc": list(DISC)}, "bubble": bubble,
@@ -54,7 +54,7 @@ def env(small_courtyard):
 
 
 def _opts(**kw):
-    from bubblefit.fit import FitOptions
+    from bubblefit.inverse.fit import FitOptions
 
     # 48 uniform spectral samples resolve films up to ~1500 nm (Nyquist) and keep the tests fast
     base = dict(disc=DISC, t_init=0.968, roughness_init=0.04,
@@ -66,7 +66,7 @@ def _opts(**kw):
 @pytest.mark.parametrize("seed,thickness,tint", [(0, 150.0, True), (1, 720.0, False), (2, 1400.0, True)])
 def test_constant_recovery(env, seed, thickness, tint):
     """t within 0.003, thickness within 5 nm, roughness within 15%, errors that cover."""
-    from bubblefit.fit import fit_photo
+    from bubblefit.inverse.fit import fit_photo
 
     rng = np.random.default_rng(seed)
     truth = dict(t=0.972 + 0.004 * (seed - 1), roughness=0.08, f=0.3, thickness_nm=thickness)
@@ -94,9 +94,9 @@ def test_constant_recovery(env, seed, thickness, tint):
 
 def test_drainage_and_map(env, tmp_path):
     """A drainage profile plus a bump: the profile's parameters and the map (< 10 nm median)."""
-    from bubblefit.fit import fit_photo
-    from bubblefit.imageio import write_image
-    from bubblefit.thickness import drainage_profile
+    from bubblefit.inverse.fit import fit_photo
+    from bubblefit.io.images import write_image
+    from bubblefit.model.thickness import drainage_profile
 
     rng = np.random.default_rng(7)
     ii, jj = np.mgrid[0:N, 0:N] + 0.5
@@ -135,7 +135,7 @@ def test_model_mismatch(env, rim):
     finds the right colour order from a global search. Negative control: eq. (11)'s grey
     t^4 makes the search settle in another order on the same photo.
     """
-    from bubblefit.fit import fit_photo
+    from bubblefit.inverse.fit import fit_photo
 
     rng = np.random.default_rng(11)
     bg = _background(rng)
@@ -153,7 +153,7 @@ def test_model_mismatch(env, rim):
 def test_failed_fit_is_reported_and_skipped_effects_held(env):
     """A fit stopped after 2 steps says it did not converge (and why); with the diffuse
     term off, the split is held and reported without an error bar."""
-    from bubblefit.fit import fit_photo
+    from bubblefit.inverse.fit import fit_photo
 
     rng = np.random.default_rng(3)
     bg = _background(rng)
@@ -171,7 +171,7 @@ def test_failed_fit_is_reported_and_skipped_effects_held(env):
 
 def test_cli_fit(env, small_courtyard, tmp_path, capsys):
     from bubblefit.cli import main
-    from bubblefit.imageio import read_image, write_image
+    from bubblefit.io.images import read_image, write_image
 
     rng = np.random.default_rng(5)
     bg = _background(rng)

@@ -1,9 +1,9 @@
-"""Tests of bubblefit.probe (mirror-ball unwrapping, HDR merge) and ``bubblefit envmap``.
+"""Tests of bubblefit.capture.probe (mirror-ball unwrapping, HDR merge) and ``bubblefit envmap``.
 
 The mirror balls are rendered here, independently of the unwrapping code, by an
 orthographic camera looking along -z at a unit mirror sphere: each pixel's ray reflects
 off the sphere (r = d - 2 (d.n) n) into the environment map, read with
-``bubblefit.envmap.lookup``.
+``bubblefit.lighting.envmap.lookup``.
 """
 
 from __future__ import annotations
@@ -18,10 +18,10 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 
-from bubblefit import envmap as em
-from bubblefit import probe
+from bubblefit.lighting import envmap as em
+from bubblefit.capture import probe
 from bubblefit.errors import BubblefitError, InputError
-from bubblefit.imageio import read_image, srgb_decode, srgb_encode
+from bubblefit.io.images import read_image, srgb_decode, srgb_encode
 
 DATA = Path(em.__file__).parent / "data"
 LUM = np.array([0.2126, 0.7152, 0.0722])

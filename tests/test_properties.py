@@ -27,13 +27,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bubblefit import brdf, film
-from bubblefit.effects import Effects
-from bubblefit.envmap import EnvMap
-from bubblefit.filtering import FilterConfig, specular
-from bubblefit.geometry import OrthographicCamera
-from bubblefit.render import Params, RenderConfig, render
-from bubblefit.spectral import spectral_basis
+from bubblefit.optics import brdf, film
+from bubblefit.model.effects import Effects
+from bubblefit.lighting.envmap import EnvMap
+from bubblefit.lighting.filtering import FilterConfig, specular
+from bubblefit.model.geometry import OrthographicCamera
+from bubblefit.model.render import Params, RenderConfig, render
+from bubblefit.optics.spectral import spectral_basis
 
 tmm = pytest.importorskip("tmm")
 

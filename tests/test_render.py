@@ -1,4 +1,4 @@
-"""Compositing (bubblefit.render): an independent numpy ray tracer, paper vs physical,
+"""Compositing (bubblefit.model.render): an independent numpy ray tracer, paper vs physical,
 gradients against finite differences, and the render CLI's handling of bad input."""
 
 from __future__ import annotations
@@ -102,12 +102,12 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import pytest  # noqa: E402
 
-from bubblefit.effects import Effects  # noqa: E402
-from bubblefit.envmap import EnvMap  # noqa: E402
-from bubblefit.filtering import FilterConfig  # noqa: E402
-from bubblefit.geometry import OrthographicCamera  # noqa: E402
-from bubblefit.render import Params, RenderConfig, render, render_terms  # noqa: E402
-from bubblefit.spectral import spectral_basis  # noqa: E402
+from bubblefit.model.effects import Effects  # noqa: E402
+from bubblefit.lighting.envmap import EnvMap  # noqa: E402
+from bubblefit.lighting.filtering import FilterConfig  # noqa: E402
+from bubblefit.model.geometry import OrthographicCamera  # noqa: E402
+from bubblefit.model.render import Params, RenderConfig, render, render_terms  # noqa: E402
+from bubblefit.optics.spectral import spectral_basis  # noqa: E402
 
 CAM = OrthographicCamera(40, 40, 20.0, 20.0, 18.0)
 
@@ -244,7 +244,7 @@ def _write_scene(tmp_path, text):
 ])
 def test_render_cli_bad_input(tmp_path, capsys, case, text, needle):
     from bubblefit.cli import main
-    from bubblefit.scene import shipped_envmap
+    from bubblefit.model.scene import shipped_envmap
 
     (tmp_path / "garbage.exr").write_bytes(b"not an image at all")
     scene = _write_scene(tmp_path, text.replace("ENV", str(shipped_envmap("courtyard"))))
@@ -272,10 +272,10 @@ def test_transmission_tint_is_the_complement_of_the_reflection(x64):
     (normal incidence) against that formula written here with numpy, for the background
     term; without the tint the background is eq. (11)'s grey t^4; and the tint's colour
     opposes the reflected one (energy conservation: what is not reflected goes through)."""
-    from bubblefit.render import render_terms
-    from bubblefit.scene import Scene
+    from bubblefit.model.render import render_terms
+    from bubblefit.model.scene import Scene
 
-    from bubblefit.envmap import EnvMap
+    from bubblefit.lighting.envmap import EnvMap
 
     n, t, r_s, size = 1.4, 0.95, 0.04, 9
     env = EnvMap.from_array(np.ones((8, 16, 3)))  # white sky and white background

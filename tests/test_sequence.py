@@ -1,4 +1,4 @@
-"""Sequence fitting (:mod:`bubblefit.sequence`): a draining film, frame by frame, on Dask.
+"""Sequence fitting (:mod:`bubblefit.inverse.sequence`): a draining film, frame by frame, on Dask.
 
 A short synthetic drainage sequence: a constant film whose thickness falls as
 ``d(t) = d0 exp(-t / tau)``, rendered with the project's forward model, with shot and
@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from bubblefit.errors import InputError
-from bubblefit.imageio import srgb_decode, write_image
+from bubblefit.io.images import srgb_decode, write_image
 
 D0, TAU = 900.0, 30.0  # nm, s: d(t) = D0 exp(-t / TAU), ~25 nm per frame (a slow film)
 FPS = 1.0
@@ -28,7 +28,7 @@ CHUNK = 4  # chunks [0..3] and [4..6]: two tasks, one per worker
 
 
 def _options():
-    from bubblefit.fit import FitOptions
+    from bubblefit.inverse.fit import FitOptions
 
     # the disc is known (a fixed camera); the thickness search covers the drainage's range
     return FitOptions(disc=DISC, thickness_range=(300.0, 1300.0))
@@ -37,10 +37,10 @@ def _options():
 @pytest.fixture(scope="module")
 def data(tmp_path_factory, small_courtyard):
     """Frames folder, environment map file and EnvMap of the synthetic sequence."""
-    from bubblefit.envmap import EnvMap
-    from bubblefit.imageio import read_image
-    from bubblefit.render import render
-    from bubblefit.scene import Scene
+    from bubblefit.lighting.envmap import EnvMap
+    from bubblefit.io.images import read_image
+    from bubblefit.model.render import render
+    from bubblefit.model.scene import Scene
 
     root = tmp_path_factory.mktemp("sequence")
     env_path = root / "env.exr"
@@ -77,7 +77,7 @@ def client():
     """A local Dask cluster of two single-threaded worker processes, for the whole module."""
     from distributed import Client, LocalCluster
 
-    from bubblefit.sequence import _local_env
+    from bubblefit.inverse.sequence import _local_env
 
     cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
                            env=_local_env(), silence_logs=40)
@@ -90,7 +90,7 @@ def client():
 @pytest.fixture(scope="module")
 def runs(data, client):
     """The sequence fitted on one worker, then on two (the second reads the first's compilation cache)."""
-    from bubblefit.sequence import fit_sequence
+    from bubblefit.inverse.sequence import fit_sequence
 
     out = {}
     for n in (1, 2):
@@ -103,7 +103,7 @@ def runs(data, client):
 
 
 def _table(res):
-    from bubblefit.sequence import read_table
+    from bubblefit.inverse.sequence import read_table
 
     return read_table(res.table)
 
@@ -163,7 +163,7 @@ def test_vectorised_batches_agree(data, runs):
     """Frames fitted together (one vmapped solve, fit.fit_batch) give the per-frame fits'
     thicknesses within their error bars; an unreadable frame in a batch is recorded and
     the batch goes on. In this process, without Dask, one chunk of all frames."""
-    from bubblefit.sequence import fit_sequence
+    from bubblefit.inverse.sequence import fit_sequence
 
     res = fit_sequence(data["frames"], data["env"], data["root"] / "batched", _options(), workers=0,
                        chunk_size=N_FRAMES, fps=FPS, progress=False, batch=4)
@@ -191,7 +191,7 @@ def test_tables_and_plot(runs):
 
 def test_resume_after_interrupt(data, runs, client):
     """Finished frames are never refitted; the resumed run gives the same numbers."""
-    from bubblefit.sequence import fit_sequence
+    from bubblefit.inverse.sequence import fit_sequence
 
     src = runs[1].out_dir
     out = data["root"] / "resume"
@@ -248,7 +248,7 @@ def test_discover_frames(tmp_path):
     """Folders sort naturally; a video's frames decode from 8-bit sRGB BGR to linear RGB."""
     import cv2
 
-    from bubblefit.sequence import discover_frames, load_frame
+    from bubblefit.inverse.sequence import discover_frames, load_frame
 
     for name in ("f10.png", "f2.png", "f1.png", "notes.txt"):
         (tmp_path / name).write_bytes(b"")

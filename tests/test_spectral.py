@@ -17,8 +17,8 @@ import colour
 import numpy as np
 import pytest
 
-from bubblefit import spectral
-from bubblefit.chart import interference_colours
+from bubblefit.optics import spectral
+from bubblefit.optics.chart import interference_colours
 
 
 @pytest.mark.parametrize("method,samples", [("uniform", 1), ("uniform", 10), ("uniform", 30), ("uniform", 100),

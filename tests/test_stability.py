@@ -9,7 +9,7 @@ degrees inclusive) in float32 and float64 and checks:
 
 * no NaN/Inf in values, in ``jax.grad`` and in ``jax.jacfwd``;
 * float32 within a stated tolerance of float64 away from the singular points;
-* renders through :func:`bubblefit.render.render`: a fit loss has finite gradients for every
+* renders through :func:`bubblefit.model.render.render`: a fit loss has finite gradients for every
   parameter at every hard point, for both models and all four filtering methods.
 """
 
@@ -22,14 +22,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from bubblefit import brdf, film
-from bubblefit.effects import Effects
-from bubblefit.envmap import EnvMap
-from bubblefit.filtering import FilterConfig, specular
-from bubblefit.geometry import OrthographicCamera, intersect_sphere
-from bubblefit.render import Params, RenderConfig, render
-from bubblefit.spectral import spectral_basis
-from bubblefit.thickness import drainage_profile
+from bubblefit.optics import brdf, film
+from bubblefit.model.effects import Effects
+from bubblefit.lighting.envmap import EnvMap
+from bubblefit.lighting.filtering import FilterConfig, specular
+from bubblefit.model.geometry import OrthographicCamera, intersect_sphere
+from bubblefit.model.render import Params, RenderConfig, render
+from bubblefit.optics.spectral import spectral_basis
+from bubblefit.model.thickness import drainage_profile
 
 DTYPES = [jnp.float32, jnp.float64]
 ANGLES_DEG = np.concatenate([np.linspace(0.0, 90.0, 19), [89.9, 89.999]])  # 0 and 90 included
@@ -390,8 +390,8 @@ def _fit_photo(env, bubble, seed=0):
     """A rendered photo with noise and 8-bit sRGB quantisation, and a quantised background."""
     from scipy import ndimage as ndi
 
-    from bubblefit.imageio import srgb_decode, srgb_encode
-    from bubblefit.scene import Scene, render_scene
+    from bubblefit.io.images import srgb_decode, srgb_encode
+    from bubblefit.model.scene import Scene, render_scene
 
     rng = np.random.default_rng(seed)
     bg = ndi.gaussian_filter(rng.uniform(0.15, 0.6, (FIT_N, FIT_N, 3)), (2.5, 2.5, 0))
@@ -403,7 +403,7 @@ def _fit_photo(env, bubble, seed=0):
 
 
 def _fit_options(**kw):
-    from bubblefit.fit import FitOptions
+    from bubblefit.inverse.fit import FitOptions
 
     base = dict(disc=FIT_DISC, t_init=0.968, roughness_init=0.04, max_steps=30, search_size=24,
                 effects=(("spectral", {"method": "uniform", "samples": 32}),))
@@ -441,7 +441,7 @@ def fit_env(small_courtyard):
 def test_fit_from_bad_start_reports_or_recovers(init, fit_env):
     """Warm starts far from the truth: the fit ends converged near the truth (within its
     error bars), or reports a failure, but never raises or returns NaN as a success."""
-    from bubblefit.fit import fit_photo
+    from bubblefit.inverse.fit import fit_photo
 
     photo, bg = _fit_photo(fit_env, dict(t=0.972, roughness=0.08, f=0.3, thickness_nm=700.0))
     res = fit_photo(photo, fit_env, options=_fit_options(), background=bg, init=init)
@@ -451,7 +451,7 @@ def test_fit_from_bad_start_reports_or_recovers(init, fit_env):
 def test_fit_unidentifiable_roughness_in_uniform_light():
     """In a uniform environment the roughness does not change the image: it must come back
     held, with a large standard error, or as a failed fit, not as a confident number."""
-    from bubblefit.fit import fit_photo
+    from bubblefit.inverse.fit import fit_photo
 
     env = EnvMap.constant(0.8, height=64)  # the courtyard's shape: the compiled solver is shared
     photo, bg = _fit_photo(env, dict(t=0.972, roughness=0.08, f=0.3, thickness_nm=600.0), seed=1)
@@ -469,7 +469,7 @@ def test_fit_on_unusable_photo(what, fit_env):
     """NaN pixels or a saturated bubble: an InputError or a failed fit. (A black bubble region
     ends as "the solver failed", converged=False; it takes a whole fit, so it is not run here.)"""
     from bubblefit.errors import BubblefitError
-    from bubblefit.fit import fit_photo
+    from bubblefit.inverse.fit import fit_photo
 
     photo = np.full((FIT_N, FIT_N, 3), 0.3)
     yy, xx = np.mgrid[0:FIT_N, 0:FIT_N] + 0.5

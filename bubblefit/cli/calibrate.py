@@ -4,7 +4,7 @@ Photographs of the checkered background in the dark box without (BEFORE) and wit
 (AFTER) the bubble, from a fixed camera. Prints a short summary; ``--json`` writes the
 result that ``bubblefit fit --calibration`` reads (keys ``t``, ``t_rgb``, ``t4``,
 ``t_ci95``, ``bubble``, ``pixels_used``, ``warnings`` and more), ``--debug-image`` a PNG of
-the ratio map, the circle and the pixels used. See :mod:`bubblefit.calibrate`.
+the ratio map, the circle and the pixels used. See :mod:`bubblefit.capture.calibrate`.
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from ..calibrate import calibrate, save_json, write_debug_image
+    from ..capture.calibrate import calibrate, save_json, write_debug_image
 
     circle = _circle(args.circle) if args.circle else None
     if not (0.05 <= args.inner_fraction <= 0.95):

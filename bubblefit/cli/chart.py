@@ -42,8 +42,8 @@ def run(args) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..chart import display_scale, interference_colours
-    from ..imageio import atomic_path, srgb_encode
+    from ..optics.chart import display_scale, interference_colours
+    from ..io.images import atomic_path, srgb_encode
 
     if not 0 <= args.angle_deg <= 90:
         raise InputError(f"--angle-deg must be within [0, 90], got {args.angle_deg}")

@@ -1,6 +1,6 @@
 """``bubblefit check-capture DIR --protocol NAME``: check a capture against a protocol.
 
-Runs the checks of :func:`bubblefit.capture.check_capture` and prints a pass/fail table
+Runs the checks of :func:`bubblefit.capture.protocols.check_capture` and prints a pass/fail table
 with reasons; exits 0 when every check passed (warnings allowed), 1 when one failed, and 2
 on bad input (missing folder, no images, unknown protocol).
 """
@@ -13,7 +13,7 @@ NAME = "check-capture"
 
 
 def register(subparsers) -> None:
-    from ..capture import list_protocols
+    from ..capture.protocols import list_protocols
 
     known = ", ".join(list_protocols()) or "transmission, envmap, bubble"
     p = subparsers.add_parser(
@@ -33,8 +33,8 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from ..capture import check_capture, format_table, load_protocol
-    from ..imageio import atomic_path
+    from ..capture.protocols import check_capture, format_table, load_protocol
+    from ..io.images import atomic_path
 
     spec = load_protocol(args.protocol)
     report = check_capture(args.folder, spec)

@@ -19,7 +19,7 @@ def _default(o):
 
 def write_json(path, data: dict) -> None:
     """Write ``data`` as indented JSON, atomically (temporary file, then rename)."""
-    from ..imageio import atomic_path
+    from ..io.images import atomic_path
 
     with atomic_path(path) as tmp:
         with open(tmp, "w") as fh:

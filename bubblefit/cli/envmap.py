@@ -1,8 +1,8 @@
 """``bubblefit envmap PROBE [PROBE ...] -o ENV.exr``: mirror-ball photographs to an HDR map.
 
-Several exposures of the ball are merged to HDR (:func:`bubblefit.probe.merge_exposures`),
-the ball is found (:func:`bubblefit.probe.find_ball`) or given with ``--ball``, and it is
-unwrapped (:func:`bubblefit.probe.unwrap_mirror_ball`) to an equirectangular map in the
+Several exposures of the ball are merged to HDR (:func:`bubblefit.capture.probe.merge_exposures`),
+the ball is found (:func:`bubblefit.capture.probe.find_ball`) or given with ``--ball``, and it is
+unwrapped (:func:`bubblefit.capture.probe.unwrap_mirror_ball`) to an equirectangular map in the
 convention of DESIGN.md (camera frame: the camera looked along -z). Writes a linear EXR and
 an sRGB PNG preview beside it; ``--mask`` writes the valid-texel mask, ``--json`` a summary.
 """
@@ -62,7 +62,7 @@ def register(subparsers) -> None:
 
 
 def _parse_ball(text: str):
-    from ..probe import Circle
+    from ..capture.probe import Circle
 
     try:
         cx, cy, r = (float(v) for v in text.replace(" ", "").split(","))
@@ -74,9 +74,9 @@ def _parse_ball(text: str):
 
 
 def run(args) -> int:
-    from .. import probe
-    from ..capture import metadata_value
-    from ..imageio import atomic_path, preview_path, read_image, srgb_encode, write_image, write_preview
+    from ..capture import probe
+    from ..capture.protocols import metadata_value
+    from ..io.images import atomic_path, preview_path, read_image, srgb_encode, write_image, write_preview
 
     out = str(args.output)
     if not out.lower().endswith(".exr"):

@@ -1,6 +1,6 @@
 """``bubblefit fit PHOTO --envmap ENV [...]``: recover t, r_d, r_s, roughness and thickness.
 
-See :func:`bubblefit.fit.fit_photo` for the method. Prints a summary; ``--json`` writes
+See :func:`bubblefit.inverse.fit.fit_photo` for the method. Prints a summary; ``--json`` writes
 the DESIGN.md result (``params``, ``stderr``, ``converged``, ``iterations``,
 ``residual_rms``, ``time_s`` and more); ``-o PREFIX`` writes ``PREFIX_render.exr``,
 ``PREFIX_residual.exr`` and, for a drainage profile or a map, ``PREFIX_thickness.exr``
@@ -57,9 +57,9 @@ def register(sub):
 
 
 def load_envmap(path: str):
-    """Read the environment map for a fit: :func:`~bubblefit.scene.read_envmap`, and refuse
+    """Read the environment map for a fit: :func:`~bubblefit.model.scene.read_envmap`, and refuse
     a map without light (nothing to fit against)."""
-    from ..scene import read_envmap
+    from ..model.scene import read_envmap
 
     env = read_envmap(path)
     if not np.any(np.asarray(env.pixels) > 0):
@@ -87,7 +87,7 @@ def read_calibration(path: str) -> tuple[float, tuple | None]:
 
 
 def fit_option_values(args) -> dict:
-    """The :class:`~bubblefit.fit.FitOptions` values that ``fit`` and ``fit-sequence`` read
+    """The :class:`~bubblefit.inverse.fit.FitOptions` values that ``fit`` and ``fit-sequence`` read
     the same way: starting t and disc (``--calibration``, ``--t``, ``--disc``), thickness
     kind and range, held parameters and the step limit. One-line errors for bad values."""
     from .common import parse_floats
@@ -116,10 +116,10 @@ def _bits(img) -> int | None:
 
 
 def run(args) -> int:
-    from ..fit import FitOptions, fit_photo
-    from ..imageio import preview_path, read_image, write_image
+    from ..inverse.fit import FitOptions, fit_photo
+    from ..io.images import preview_path, read_image, write_image
     from ..progress import status
-    from ..scene import load_scene
+    from ..model.scene import load_scene
     from .common import write_json
 
     photo = read_image(args.photo)

@@ -64,17 +64,17 @@ def register(sub):
 
 
 def build_options(args):
-    """:class:`bubblefit.fit.FitOptions` from the parsed arguments (as ``bubblefit fit`` reads them)."""
-    from ..fit import FitOptions
+    """:class:`bubblefit.inverse.fit.FitOptions` from the parsed arguments (as ``bubblefit fit`` reads them)."""
+    from ..inverse.fit import FitOptions
 
     return FitOptions(**fit_option_values(args), model=args.model)
 
 
 def run(args) -> int:
-    from ..imageio import read_image
+    from ..io.images import read_image
     from ..progress import status
-    from ..scene import load_scene
-    from ..sequence import discover_frames, fit_sequence
+    from ..model.scene import load_scene
+    from ..inverse.sequence import discover_frames, fit_sequence
     from .common import write_json
 
     if args.chunk_size < 1:

@@ -28,9 +28,9 @@ def auto_exposure(img: np.ndarray) -> float:
 
 
 def run(args) -> int:
-    from ..imageio import preview_path, write_image
+    from ..io.images import preview_path, write_image
     from ..progress import status
-    from ..scene import load_scene, render_scene
+    from ..model.scene import load_scene, render_scene
     from .common import write_json
 
     scene = load_scene(args.scene)

@@ -39,7 +39,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .brdf import half_vector_weight, ward_lobe
+from ..optics.brdf import half_vector_weight, ward_lobe
 from .envmap import EnvMap, direction_to_uv, texel_directions, texel_solid_angles
 
 __all__ = [
@@ -159,7 +159,7 @@ def _slope_nodes(nodes: int):
 
 
 def specular_mipmap(env: EnvMap, n, wo, a, *, nodes: int, normalize: bool) -> Float[Array, "N 3"]:
-    """Quadrature of the slope-space Gaussian lobe (see :mod:`bubblefit.brdf`).
+    """Quadrature of the slope-space Gaussian lobe (see :mod:`bubblefit.optics.brdf`).
 
     Node ``(j, k)`` sits at slope ``a (x_j t1 + x_k t2)``, with ``x`` and the weights of
     :func:`_slope_nodes` for ``exp(-x^2)`` (weights ``W_j W_k``, summing to 1). Its half

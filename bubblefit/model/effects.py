@@ -1,6 +1,6 @@
 """Which effects a scene simulates, decided once per scene from cheap bounds.
 
-Each effect is its own term of the forward model (:mod:`bubblefit.render`). The scene's
+Each effect is its own term of the forward model (:mod:`bubblefit.model.render`). The scene's
 ``[effects]`` table sets each to on (``true`` or a named method), off (``false``) or
 ``auto``; :func:`resolve` turns ``auto`` into on or off by bounding how much the image
 can change, in linear radiance, between the cheaper choice and the converged
@@ -13,7 +13,7 @@ The bounds (each reason printed by ``--explain`` names the bound and its value):
 - film terms (interference, spectral sampling, internal bounces): the film's coefficient
   of each term (eq. 10's factor ``4 t^2 cos^2(delta/2)`` for ``paper``; the Airy
   ``R``, ``T T`` and ``T R^k T`` for ``physical``) is evaluated with the renderer's own
-  functions (:mod:`bubblefit.film`, :mod:`bubblefit.spectral`) on a grid of thickness
+  functions (:mod:`bubblefit.optics.film`, :mod:`bubblefit.optics.spectral`) on a grid of thickness
   over the scene's range and incidence cosine over the image's range, for the cheaper
   choice and for the converged one; the largest RGB difference times the largest
   radiance the term multiplies is the bound.
@@ -28,10 +28,10 @@ The bounds (each reason printed by ``--explain`` names the bound and its value):
 - transmission tint (``paper`` only): eq. (11) transmits a grey ``t^4``; a film that does
   not absorb transmits the complement of what it reflects, so with the tint each film
   transmits ``t^2 - r_s (F - 2 t^2)`` per wavelength (``F`` eq. 10's factor, ``2 t^2`` its
-  spectral mean; see :mod:`bubblefit.render`). It changes the image by at most
+  spectral mean; see :mod:`bubblefit.model.render`). It changes the image by at most
   ``4 r_s t^4`` times the background peak. ``auto`` keeps eq. (11) as written (the
   ``paper`` model is the paper's) and states that bound; ``true`` adds the tint. Fits
-  of photographs turn it on (:mod:`bubblefit.fit`).
+  of photographs turn it on (:mod:`bubblefit.inverse.fit`).
 """
 
 from __future__ import annotations
@@ -41,9 +41,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InputError
-from .filtering import FilterConfig
-from .spectral import LAMBDA_MIN, SpectralBasis, spectral_basis
+from ..errors import InputError
+from ..lighting.filtering import FilterConfig
+from ..optics.spectral import LAMBDA_MIN, SpectralBasis, spectral_basis
 
 __all__ = ["Effects", "Decision", "resolve", "all_on_settings", "DEFAULT_TOLERANCE"]
 
@@ -147,7 +147,7 @@ def _film_spectra(model, mode, lam, d, cos, t, n_film) -> np.ndarray:
     :func:`film.two_beam_reflectance` for ``physical``. One evaluation for all ``lam`` (K,)."""
     import jax.numpy as jnp
 
-    from . import film
+    from ..optics import film
 
     dd = jnp.asarray(d, dtype=jnp.float32)[..., None]
     cc = jnp.asarray(cos, dtype=jnp.float32)[None, :, None]
@@ -188,13 +188,13 @@ def _film_coefficients(model, mode, weights, spectra, cos, t, n_film, bounces, t
             f = spectra
         bg = np.full(f.shape[:-1] + (3,), t**4)
         if tint_rs is not None and not grey:
-            from .film import paper_tinted_transmission
+            from ..optics.film import paper_tinted_transmission
 
             bg = rgb(np.asarray(paper_tinted_transmission(f, t, tint_rs)) ** 2)
         f = rgb(f)
         return {"front": f, "rear": [t * t * f], "background": bg}
     if grey:
-        from .film import incoherent_reflectance
+        from ..optics.film import incoherent_reflectance
 
         r1 = np.asarray(incoherent_reflectance(np.asarray(cos, dtype=np.float32), n_film), dtype=np.float64)
         r = np.broadcast_to(r1[None, :, None, :], shape + (2,))
@@ -264,7 +264,7 @@ def reflection_theta_range(camera, center, radius: float, bounces: int = MAX_AUT
     """Range of polar angles (rad, from +y) of the mirror directions the image reads.
 
     Mirror directions of the front film, the rear film (inward normal) and the internal
-    bounces (as :func:`bubblefit.geometry.intersect_sphere` and ``internal_bounce``, in
+    bounces (as :func:`bubblefit.model.geometry.intersect_sphere` and ``internal_bounce``, in
     numpy float64) for every pixel centre whose ray hits the bubble. A rotation of the map
     about +y leaves polar angles unchanged, so the range holds for any ``rotation``.
     Returns ``(0, pi)`` when no pixel hits the bubble.
@@ -304,11 +304,11 @@ def reflection_theta_range(camera, center, radius: float, bounces: int = MAX_AUT
 def _mipmap_albedo(roughness: float, cos: np.ndarray, nodes: int) -> np.ndarray:
     """Albedo (C,) of the unnormalised ``mipmap`` lobe (white map) at incidence cosines (C,).
 
-    The sum of :func:`bubblefit.filtering.specular_mipmap`'s node weights
-    ``W_j W_k g(s)`` (:func:`bubblefit.brdf.half_vector_weight`), in numpy, for the
+    The sum of :func:`bubblefit.lighting.filtering.specular_mipmap`'s node weights
+    ``W_j W_k g(s)`` (:func:`bubblefit.optics.brdf.half_vector_weight`), in numpy, for the
     normal +z (whose tangent frame is +x, +y).
     """
-    from .filtering import _slope_nodes
+    from ..lighting.filtering import _slope_nodes
 
     x, wts, _ = _slope_nodes(nodes)
     sx, sy = (v.ravel() for v in np.meshgrid(x, x))
@@ -331,7 +331,7 @@ def _filter_bound(pixels, texel_angle, roughness, min_cos, nodes, normalize, the
 
     Returns ``(bound, detail)``; ``bound`` is ``inf`` when the lobe reads coarser mip levels.
     """
-    from .filtering import _slope_nodes, mip_footprint_level
+    from ..lighting.filtering import _slope_nodes, mip_footprint_level
 
     x, _, width = _slope_nodes(nodes)
     cell = float(np.sqrt(np.max(width) * np.max(width)))

@@ -37,7 +37,7 @@ The pipeline of :func:`calibrate`, one pure function per step:
 
 All images are linear RGB arrays (H, W, 3). Circles given to and returned by
 :func:`calibrate` (and the ``--circle`` option, and the JSON) use the convention of
-:class:`bubblefit.geometry.OrthographicCamera`: x right, y down, the image's top-left
+:class:`bubblefit.model.geometry.OrthographicCamera`: x right, y down, the image's top-left
 corner at (0, 0), so the centre of pixel (row i, column j) is (j + 1/2, i + 1/2). The
 lower-level functions below work in array coordinates, where that centre is (j, i).
 """
@@ -51,8 +51,8 @@ from typing import Any
 
 import numpy as np
 
-from .errors import InputError
-from .imageio import Image, atomic_path, read_image, srgb_decode, srgb_encode, write_image
+from ..errors import InputError
+from ..io.images import Image, atomic_path, read_image, srgb_decode, srgb_encode, write_image
 
 __all__ = [
     "CalibrationResult",
@@ -92,7 +92,7 @@ class CalibrationResult:
         t4: ``t**4``, the measured after/before ratio inside the bubble.
         t_ci95, t_rgb_ci95, t4_ci95: 95% intervals (block bootstrap).
         bubble: ``{"cx", "cy", "r"}`` in pixels of the ``after`` image (pixel centres at
-            +1/2, as :class:`bubblefit.geometry.OrthographicCamera`).
+            +1/2, as :class:`bubblefit.model.geometry.OrthographicCamera`).
         bubble_source: ``"detected"`` or ``"given"``.
         pixels_used: pixels that entered the estimate of t.
         shift_px: ``[dx, dy]``, where a point of ``before`` lies in ``after``, minus where
@@ -215,9 +215,9 @@ def load_pair(before, after) -> tuple[Image, Image]:
 
     Parameters
     ----------
-    before, after : path, :class:`~bubblefit.imageio.Image` or (H, W, 3) array
+    before, after : path, :class:`~bubblefit.io.images.Image` or (H, W, 3) array
         Files are read with OpenImageIO and decoded to linear radiance
-        (:func:`bubblefit.imageio.read_image`).
+        (:func:`bubblefit.io.images.read_image`).
 
     Returns
     -------
@@ -546,7 +546,7 @@ def fresnel_film_ratio(rho: np.ndarray, n: float) -> np.ndarray:
     """after/before through both films of the ``physical`` variant, incoherent film.
 
     ``mean_pol T_pol(theta)^2`` with ``sin(theta) = rho`` (orthographic camera) and
-    ``T_pol = 1 - 2 R1 / (1 + R1)`` (:func:`bubblefit.film.incoherent_reflectance`,
+    ``T_pol = 1 - 2 R1 / (1 + R1)`` (:func:`bubblefit.optics.film.incoherent_reflectance`,
     Born & Wolf 7.6); polarisations are carried separately through both films and
     averaged at the end.
 
@@ -559,7 +559,7 @@ def fresnel_film_ratio(rho: np.ndarray, n: float) -> np.ndarray:
     """
     import jax
 
-    from .film import incoherent_reflectance
+    from ..optics.film import incoherent_reflectance
 
     rho = np.clip(np.asarray(rho, float), 0.0, 1.0)
     cos_i = np.sqrt(1.0 - rho * rho)
@@ -833,11 +833,11 @@ def calibrate(
 
     Parameters
     ----------
-    before, after : path, :class:`~bubblefit.imageio.Image` or (H, W, 3) linear array
+    before, after : path, :class:`~bubblefit.io.images.Image` or (H, W, 3) linear array
         The shot without and with the bubble, same fixed camera.
     circle : (cx, cy, r), optional
         The bubble in pixels of ``after`` (pixel centres at +1/2, the convention of
-        :class:`bubblefit.geometry.OrthographicCamera`); detected when not given.
+        :class:`bubblefit.model.geometry.OrthographicCamera`); detected when not given.
     inner_fraction : float
         t uses pixels within ``inner_fraction * r`` of the centre (and at least 3 pixels
         inside the rim), away from the oblique rim.

@@ -3,7 +3,7 @@
 Each protocol of ``capture_protocols/`` is a Markdown document for the person with the
 camera and a TOML spec (read with :mod:`tomllib`) naming the files, the metadata and the
 checks it requires. :func:`check_capture` reads the images of a folder with OpenImageIO
-(:func:`bubblefit.imageio.read_image`), runs the checks the spec asks for and returns one
+(:func:`bubblefit.io.images.read_image`), runs the checks the spec asks for and returns one
 :class:`CheckResult` per check, each with a reason a person can act on.
 
 The checks and what they implement:
@@ -22,7 +22,7 @@ The checks and what they implement:
 - ``registration``: the translation between the pair, by phase correlation of the log
   luminance (Kuglin & Hines 1975, OpenCV ``phaseCorrelate``), is below the limit.
 - ``subject``: the bubble is found where the pair differs (or the mirror ball by
-  :func:`bubblefit.probe.find_ball`), large enough, inside the frame.
+  :func:`bubblefit.capture.probe.find_ball`), large enough, inside the frame.
 - ``saturation``: no clipped pixel inside the bubble or the ball (in the darkest exposure for
   brackets; paper sec. 3.2: clipped highlights lose the relative brightness of the sky).
 - ``brackets``: enough exposures, spanning enough stops, with gaps no wider than allowed
@@ -41,8 +41,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .errors import InputError
-from .imageio import Image, read_image
+from ..errors import InputError
+from ..io.images import Image, read_image
 
 __all__ = [
     "CheckResult",
@@ -141,7 +141,7 @@ def protocols_dir() -> Path:
     env = os.environ.get("BUBBLEFIT_PROTOCOLS")
     if env:
         return Path(env)
-    return Path(__file__).resolve().parent.parent / "capture_protocols"
+    return Path(__file__).resolve().parents[2] / "capture_protocols"
 
 
 def list_protocols() -> list[str]:

@@ -9,7 +9,7 @@ with ``L'`` Ward-filtered radiance at the front film (normal ``n0``) and at the 
 integrated over the spectrum (``F = 1`` without interference), and ``L_b`` the background
 straight through. Point lights add eq. (3)'s BRDF values to ``L'`` (eq. 2).
 
-Transmission tint (``paper``, off unless asked; :mod:`bubblefit.effects`): eq. (11)
+Transmission tint (``paper``, off unless asked; :mod:`bubblefit.model.effects`): eq. (11)
 transmits a grey ``t^4``, but a film that does not absorb transmits, wavelength by
 wavelength, what it does not reflect. With the tint each film transmits
 ``T = t^2 - r_s (F - 2 t^2)``, the paper's grey value minus the deviation of its specular
@@ -26,7 +26,7 @@ angle. Polarisations are averaged after the products, then the spectrum is integ
 Ward's lobe is normalised here (shape only) and ``r_d / pi E(n)`` adds a diffuse term.
 
 A term whose effect is off is not traced at all: the Python ``if`` statements below run
-at trace time on the static :class:`~bubblefit.effects.Effects`, and each term function
+at trace time on the static :class:`~bubblefit.model.effects.Effects`, and each term function
 records that it was traced in :data:`TRACE_COUNTS` (tests use it to check that skipped
 effects are really skipped).
 """
@@ -43,11 +43,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from . import film, spectral
-from .brdf import ward_lobe
+from ..optics import film, spectral
+from ..optics.brdf import ward_lobe
 from .effects import Effects
-from .envmap import EnvMap, rotate_y
-from .filtering import irradiance, specular
+from ..lighting.envmap import EnvMap, rotate_y
+from ..lighting.filtering import irradiance, specular
 from .geometry import OrthographicCamera, PerspectiveCamera, internal_bounce, intersect_sphere
 from .thickness import thickness_at
 
@@ -64,7 +64,7 @@ class Params(eqx.Module):
         t: transmission fraction per interface (paper; 0..1).
         r_d, r_s: Ward's diffuse and specular reflectance (eq. 1, eq. 14).
         roughness: Ward's ``a``.
-        thickness: film thickness parameters in nm (see :mod:`bubblefit.thickness`).
+        thickness: film thickness parameters in nm (see :mod:`bubblefit.model.thickness`).
         n_film: refractive index of the film (``n_g``).
         exposure: camera gain applied to the rendered radiance.
         rotation: environment rotation about +y, radians.

@@ -2,7 +2,7 @@
 
 For each thickness the film's reflectance spectrum (Airy, two-beam, the paper's eq. 10 or
 incoherent) is integrated to linear sRGB with the converged spectral quadrature of
-:mod:`bubblefit.spectral`. Thin films are black (the half-wave shift of eq. 8), then
+:mod:`bubblefit.optics.spectral`. Thin films are black (the half-wave shift of eq. 8), then
 white/silver, then the first-order yellow, red, blue and the repeating orders, which fade
 to white beyond a few micrometres.
 """

@@ -7,12 +7,12 @@ about +y, from a linear (H, W, 3) photo and its environment map.
 
 Method
 ------
-1. Effects are decided once (:func:`bubblefit.effects.resolve`) from the starting values
+1. Effects are decided once (:func:`bubblefit.model.effects.resolve`) from the starting values
    and the whole thickness search range; a parameter whose effect is skipped (``r_d``
    without the diffuse term, roughness with a mirror lookup, thickness without
    interference; ``t`` and ``r_s`` in the ``physical`` model, where Fresnel sets them) is
    held and reported in ``held``, never fitted into noise.
-2. Global thickness search (:mod:`bubblefit.search`) on a downsampled image: a dense
+2. Global thickness search (:mod:`bubblefit.inverse.search`) on a downsampled image: a dense
    grid of thicknesses, each scored with its best camera gain; the lowest local minima
    are refined.
 3. Local refinement with optimistix' Levenberg-Marquardt on the whitened, robust residual
@@ -35,18 +35,18 @@ value of an 8-bit sRGB file over sqrt(12)), passed through a pseudo-Huber loss o
 ``robust_scale`` sigmas.
 
 Transmission tint: with the ``paper`` model the fit turns on ``transmission_tint``
-(:mod:`bubblefit.effects`) unless told otherwise: a real film transmits the complement of
+(:mod:`bubblefit.model.effects`) unless told otherwise: a real film transmits the complement of
 the colour it reflects, which over a bright background is as strong as the reflection
 itself, and eq. (11)'s grey ``t^4`` would then prefer another colour order. The search
 keeps its speed (the tint is a function of the same tabulated ``Phi``). A drainage search
 also scans one camera gain for all pixels instead of hue matching alone (a gain per pixel
 could cancel the reflected colour against the tint's), and searches the profile's own
-parameters through the per-pixel costs (:func:`bubblefit.search.best_profile`).
+parameters through the per-pixel costs (:func:`bubblefit.inverse.search.best_profile`).
 
 Thickness maps: after a drainage fit gives the global parameters, each pixel's thickness
 is searched and refined separately (a pixel's colour depends on its own thickness only:
 the rear film and internal bounces read the map at the same pixel, see
-:func:`bubblefit.thickness.thickness_at`), with a weak Gaussian prior of
+:func:`bubblefit.model.thickness.thickness_at`), with a weak Gaussian prior of
 ``map_prior_nm`` around the fitted profile against the ambiguity of repeated colours.
 With the ``paper`` model the search is exact and fast (eq. 11 is linear in eq. 10's
 factor) and the per-pixel refinement is optimistix LM vmapped over pixels; other models
@@ -72,12 +72,12 @@ import numpy as np
 import optimistix as optx
 
 from . import search
-from .effects import resolve
-from .envmap import EnvMap
-from .errors import InputError
-from .film import fringe_attenuation
-from .geometry import OrthographicCamera, intersect_sphere
-from .render import Params, RenderConfig, render, render_terms
+from ..model.effects import resolve
+from ..lighting.envmap import EnvMap
+from ..errors import InputError
+from ..optics.film import fringe_attenuation
+from ..model.geometry import OrthographicCamera, intersect_sphere
+from ..model.render import Params, RenderConfig, render, render_terms
 
 __all__ = ["FitOptions", "FitResult", "fit_photo", "fit_batch", "detect_disc", "noise_sigma"]
 
@@ -171,7 +171,7 @@ class FitResult:
         iterations: solver steps of the final refinement.
         residual_rms: RMS of the linear residual over the fitted pixels (full resolution).
         time_s: wall time of the fit.
-        effects: the :class:`~bubblefit.effects.Decision` list.
+        effects: the :class:`~bubblefit.model.effects.Decision` list.
         render, residual: (H, W, 3) fitted image and ``photo - render``.
         thickness_map: (H, W) front-film thickness (nm), NaN outside the bubble, or None
             for a constant film.
@@ -247,14 +247,14 @@ def noise_sigma(photo: np.ndarray, read: float, shot: float, bits: int | None) -
 def detect_disc(photo: np.ndarray, background: np.ndarray | None = None) -> tuple[float, float, float]:
     """Find the bubble's disc ``(cx, cy, r)`` in pixels.
 
-    With a background photo: :func:`bubblefit.calibrate.detect_bubble` on the pair (the
+    With a background photo: :func:`bubblefit.capture.calibrate.detect_bubble` on the pair (the
     bubble is where the two differ). Without: the strongest circle of the photo's edges
     (OpenCV's Hough gradient on the sRGB-encoded grey image), which finds the rim that a
     bubble's Fresnel brightening outlines.
     """
     gray = np.mean(np.clip(photo, 0, None), axis=-1)
     if background is not None:
-        from .calibrate import detect_bubble, usable_mask
+        from ..capture.calibrate import detect_bubble, usable_mask
 
         bgray = np.mean(np.clip(background, 0, None), axis=-1)
         sat = (np.max(photo, axis=-1) >= 0.999) | (np.max(background, axis=-1) >= 0.999)
@@ -870,7 +870,7 @@ def _finish(st: _Setup, env, opts: FitOptions, new: dict, z, ok: bool, maxed: bo
     full_mask = _make_level(1, base_cfg, photo, sigma, background, saturated, opts).mask if opts.thickness != "map" else film
     rms = float(np.sqrt(np.mean(resid_img[full_mask] ** 2))) if full_mask.any() else float("nan")
     if opts.thickness == "drainage":
-        from .thickness import drainage_profile
+        from ..model.thickness import drainage_profile
 
         _, _, hgt = _geometry(full_cfg)
         inside = _geometry(full_cfg)[0]
@@ -899,7 +899,7 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
             background then comes from it (gain 1) instead of the map.
         init: warm start, a dict of the JSON's params (e.g. the previous frame's); the
             global thickness search is then skipped unless this fit fails.
-        scene: optional :class:`~bubblefit.scene.Scene`: its camera (perspective or a
+        scene: optional :class:`~bubblefit.model.scene.Scene`: its camera (perspective or a
             disc), n_film, effects settings, and every value its ``[bubble]`` table (and
             ``lighting.rotation_deg``) sets explicitly, which is then held fixed.
         saturated: optional (H, W) bool of clipped pixels (e.g. :attr:`Image.saturated`),
@@ -1072,7 +1072,7 @@ def fit_batch(photos, env: EnvMap, *, options: FitOptions = FitOptions(), backgr
 
 
 def _prior_map(lev: _Level, prof):
-    from .thickness import drainage_profile
+    from ..model.thickness import drainage_profile
 
     return np.asarray(drainage_profile(jnp.asarray(lev.height), *prof), np.float64)
 

@@ -22,7 +22,7 @@ Methods:
         ``1/lambda_k`` and standard deviation ``sigma_k`` (1/nm). Each sample then stands
         for the spectrum *filtered* by ``G_k``, and a fringe ``cos(2 pi m x nu)`` of optical
         path ``x`` filters in closed form to ``cos(2 pi m x / lambda_k)
-        exp(-2 pi^2 sigma_k^2 m^2 x^2)`` (:func:`bubblefit.film.fringe_attenuation`). Thick
+        exp(-2 pi^2 sigma_k^2 m^2 x^2)`` (:func:`bubblefit.optics.film.fringe_attenuation`). Thick
         films therefore fade smoothly to the incoherent mean instead of aliasing, with
         K = 5-8 samples. The lobes' centres and widths were fitted once (least squares in
         wavenumber, D65, table :data:`FOURIER_LOBES`); the weights are solved for the
@@ -63,7 +63,7 @@ def _tables(illuminant: str):
         try:
             sd = colour.SDS_ILLUMINANTS[illuminant]
         except KeyError as exc:
-            from .errors import InputError
+            from ..errors import InputError
 
             raise InputError(f"unknown illuminant {illuminant!r} (try D65, D50, A or E)") from exc
         ill = np.interp(lam, np.asarray(sd.wavelengths), np.asarray(sd.values))

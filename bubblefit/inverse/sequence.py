@@ -1,7 +1,7 @@
 """Fitting a sequence of frames (a draining bubble filmed for minutes), locally or on Dask.
 
 A physicist films a bubble while its film drains; every frame is one fit of
-:func:`bubblefit.fit.fit_photo`. The thickness changes slowly from frame to frame, so
+:func:`bubblefit.inverse.fit.fit_photo`. The thickness changes slowly from frame to frame, so
 each frame starts from its neighbour's result (a *warm start*, ``init=``) and the global
 thickness search runs only for the first frame of a chunk or where the warm start fails.
 
@@ -27,7 +27,7 @@ How the work is cut and where it runs:
 
 Frames come from image files, folders of images (sorted by name, numbers in natural
 order) or a video file read through OpenCV (8-bit BGR, sRGB-encoded: converted to
-linear RGB with :func:`bubblefit.imageio.srgb_decode`).
+linear RGB with :func:`bubblefit.io.images.srgb_decode`).
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 
 __all__ = [
     "FrameRef",
@@ -227,14 +227,14 @@ _VIDEO = _VideoReader()
 def load_frame(ref: FrameRef) -> np.ndarray:
     """The pixels of one frame as a linear (H, W, 3) float64 array.
 
-    Image files go through :func:`bubblefit.imageio.read_image`. A video frame is 8-bit
+    Image files go through :func:`bubblefit.io.images.read_image`. A video frame is 8-bit
     BGR from OpenCV: it is reordered to RGB, scaled to [0, 1] and decoded from sRGB to
-    linear (:func:`bubblefit.imageio.srgb_decode`); 16-bit video frames are scaled by 65535.
+    linear (:func:`bubblefit.io.images.srgb_decode`); 16-bit video frames are scaled by 65535.
 
     Raises:
         InputError: the file is missing, truncated or not an image.
     """
-    from .imageio import read_image, srgb_decode
+    from ..io.images import read_image, srgb_decode
 
     if ref.video_frame is None:
         return read_image(ref.source).pixels
@@ -372,7 +372,7 @@ def _fit_one(ref: FrameRef, env, options, init, background, scene, fit_fn) -> di
 
 
 def _fit_batch(refs: list[FrameRef], env, options, init, previous, background, scene) -> list[dict]:
-    """Fit consecutive frames together (:func:`bubblefit.fit.fit_batch`); one record each.
+    """Fit consecutive frames together (:func:`bubblefit.inverse.fit.fit_batch`); one record each.
     If the batched fit raises, the frames are fitted one by one instead."""
     from .fit import fit_batch, fit_photo
 
@@ -399,30 +399,30 @@ def _one_line(exc: BaseException) -> str:
 
 
 def _fit_chunk(todo: list[tuple[FrameRef, dict | None]], env, options, background, scene, jax_setup: dict,
-               want_maps: bool, fit_function: str = "bubblefit.fit:fit_photo", warm_start: bool = True,
+               want_maps: bool, fit_function: str = "bubblefit.inverse.fit:fit_photo", warm_start: bool = True,
                init: dict | None = None, batch: int = 1) -> list[dict]:
     """Fit the pending frames of one chunk, in order, each warm-started from the last success.
 
     Args:
         todo: the chunk's frames in order, each with its finished record (None: to fit).
             Finished frames are not refitted; they only pass their result on as a warm start.
-        env: the environment map (:class:`~bubblefit.envmap.EnvMap`).
-        options: :class:`bubblefit.fit.FitOptions`.
-        background, scene: passed on to :func:`bubblefit.fit.fit_photo`.
+        env: the environment map (:class:`~bubblefit.lighting.envmap.EnvMap`).
+        options: :class:`bubblefit.inverse.fit.FitOptions`.
+        background, scene: passed on to :func:`bubblefit.inverse.fit.fit_photo`.
         jax_setup: the client's JAX settings (compilation cache, float64).
         want_maps: keep each frame's thickness map (else it is dropped here, in the worker).
-        fit_function: ``"module:name"`` of the fit, called like :func:`bubblefit.fit.fit_photo`.
+        fit_function: ``"module:name"`` of the fit, called like :func:`bubblefit.inverse.fit.fit_photo`.
         warm_start: False: every frame runs the global search (independent frames).
         init: warm start of the chunk's first frame (the previous chunk's last result), or None.
         batch: once two frames have warm-started results, fit up to this many following
-            frames together (:func:`bubblefit.fit.fit_batch`, default fit function only).
+            frames together (:func:`bubblefit.inverse.fit.fit_batch`, default fit function only).
 
     Returns:
         One record (dict) per frame fitted, in order.
     """
     _worker_setup(jax_setup)
     fit_photo = _resolve(fit_function)
-    batched = batch > 1 and warm_start and fit_function == "bubblefit.fit:fit_photo"
+    batched = batch > 1 and warm_start and fit_function == "bubblefit.inverse.fit:fit_photo"
 
     out = []
     warm, prev = init, None
@@ -479,7 +479,7 @@ def _json_default(o):
 
 def _write_text_atomic(path: Path, text: str) -> None:
     """Write ``text`` to ``path`` through a temporary file, fsync'd, then renamed over it."""
-    from .imageio import atomic_path
+    from ..io.images import atomic_path
 
     with atomic_path(path) as tmp:
         with open(tmp, "w", newline="") as fh:
@@ -505,7 +505,7 @@ def _save_record(out_dir: Path, rec: dict) -> None:
     rec = dict(rec)
     tmap = rec.pop("_thickness_map", None)
     if tmap is not None:
-        from .imageio import write_image
+        from ..io.images import write_image
 
         maps = out_dir / "maps"
         maps.mkdir(exist_ok=True)
@@ -622,7 +622,7 @@ def _plot(out_dir: Path, records: list[dict]) -> Path | None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .imageio import atomic_path
+    from ..io.images import atomic_path
 
     keys = [k for k in ("thickness_nm", "top_nm", "bottom_nm")
             if any(k in r.get("params", {}) for r in records)]
@@ -777,7 +777,7 @@ def fit_sequence(
     fps: float | None = None,
     progress: bool = True,
     on_record: Callable[[dict], None] | None = None,
-    fit_function: str = "bubblefit.fit:fit_photo",
+    fit_function: str = "bubblefit.inverse.fit:fit_photo",
     warm_start: bool = True,
     batch: int = 1,
 ) -> SequenceResult:
@@ -786,12 +786,12 @@ def fit_sequence(
     Args:
         frames: :class:`FrameRef` s, or paths (files, folders, videos, globs) for
             :func:`discover_frames`.
-        env: the environment map (:class:`~bubblefit.envmap.EnvMap`).
+        env: the environment map (:class:`~bubblefit.lighting.envmap.EnvMap`).
         out_dir: output folder (created). Holds ``frames/`` (one JSON per finished frame),
             ``params.csv``, ``params.jsonl``, ``thickness.png``, ``run.json`` and, with
             ``maps``, ``maps/frame_NNNNNN_thickness.exr``.
-        options: :class:`bubblefit.fit.FitOptions` (default: its defaults).
-        background, scene: passed to every :func:`bubblefit.fit.fit_photo` call.
+        options: :class:`bubblefit.inverse.fit.FitOptions` (default: its defaults).
+        background, scene: passed to every :func:`bubblefit.inverse.fit.fit_photo` call.
         scheduler: None: start a local Dask cluster; ``"tcp://host:8786"``: use that
             cluster; a ``distributed.Client``: use it. Ignored when ``workers == 0``.
         workers: local cluster size (default: one per core); ``0`` fits in this process
@@ -810,7 +810,7 @@ def fit_sequence(
         warm_start: start each frame from its predecessor (False: global search everywhere,
             for frames that are not a continuous film).
         batch: frames fitted together in one vmapped solve within a task, once a chunk has
-            two warm-started results (:func:`bubblefit.fit.fit_batch`). 1 (the default)
+            two warm-started results (:func:`bubblefit.inverse.fit.fit_batch`). 1 (the default)
             fits frame after frame, which is faster on CPUs (``experiments/bench_sequence.py``:
             batches of 2-8 ran at 0.5-0.7x the frames per second on 2 cores); larger
             batches are for accelerators, where one small frame does not fill the device.
@@ -822,7 +822,7 @@ def fit_sequence(
         InputError: bad frames or options, an unreachable scheduler, or an output folder
             holding the results of a run with other settings (use ``force``).
     """
-    from .progress import Progress
+    from ..progress import Progress
 
     if chunk_size < 1:
         raise InputError(f"chunk size must be at least 1, got {chunk_size}")
@@ -1079,7 +1079,7 @@ def _repair_seams(frames, chunk_size, done, fresh, submit, accept, out):
 def _fix_disc(options, frames: list[FrameRef], background, scene):
     """Options with the bubble's disc fixed for the whole sequence.
 
-    Without a disc, :func:`bubblefit.fit.fit_photo` detects one per photo; a disc that
+    Without a disc, :func:`bubblefit.inverse.fit.fit_photo` detects one per photo; a disc that
     moves by a fraction of a pixel changes the static camera and recompiles the fit for
     every frame. A filmed bubble stays put, so the disc is detected once, on the first
     readable frame, and held (give ``FitOptions.disc`` for a bubble that moves).

@@ -41,8 +41,8 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-from .envmap import texel_directions
-from .errors import InputError
+from ..lighting.envmap import texel_directions
+from ..errors import InputError
 
 __all__ = [
     "Circle",
@@ -423,7 +423,7 @@ def unwrap_mirror_ball(
     """Unwrap a mirror-ball photograph to an equirectangular environment map.
 
     For each texel direction ``w`` of the output map (texel centres of
-    :func:`bubblefit.envmap.texel_directions`, Mitsuba's convention), the ball point that
+    :func:`bubblefit.lighting.envmap.texel_directions`, Mitsuba's convention), the ball point that
     reflects ``w`` toward the camera has normal ``n = normalize(w + v)`` (mirror reflection
     law; ``v`` the direction to the camera), which projects to image position
     ``(cx + r n_x, cy - r n_y)``; the photograph is sampled there bilinearly. When one
@@ -674,7 +674,7 @@ def merge_exposures(
 
     Args:
         images: exposures as (H, W, 3) linear arrays in [0, 1] (response already applied,
-            e.g. by :func:`bubblefit.imageio.read_image` or :func:`apply_response`).
+            e.g. by :func:`bubblefit.io.images.read_image` or :func:`apply_response`).
         times: exposure time of each image, seconds (only ratios matter).
         saturated: optional (H, W) bool masks of clipped pixels, one per image.
         method: "robertson" (default) or "debevec".

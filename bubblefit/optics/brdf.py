@@ -10,7 +10,7 @@ half-vector Jacobians ``dw_i = 4 (w_o . h) dw_h`` and ``dw_h = cos^3(delta) d^2 
 ``int f_spec cos th_i dw_i = int exp(-|s|^2/a^2)/(pi a^2) * g(s) d^2 s``,
 ``g(s) = cos th_i (w_o . h) cos^3(delta) / sqrt(cos th_i cos th_r)``,
 
-which is what :mod:`bubblefit.filtering` integrates by Gauss-Hermite quadrature. At the
+which is what :mod:`bubblefit.lighting.filtering` integrates by Gauss-Hermite quadrature. At the
 mirror direction ``g = cos th_r``: the albedo of eq. (1) tends to ``cos th_r`` (not 1) as
 ``a -> 0``, the known normalisation error of Ward's original lobe (Walter, "Notes on the
 Ward BRDF", 2005); at normal incidence the albedo is ``1 - O(a^2)``.

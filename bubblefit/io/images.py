@@ -18,7 +18,7 @@ import colour
 import numpy as np
 import OpenImageIO as oiio
 
-from .errors import InputError
+from ..errors import InputError
 
 __all__ = [
     "Image",

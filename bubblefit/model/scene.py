@@ -1,8 +1,8 @@
 """Scene files (TOML, DESIGN.md "Scene files"): parsing, validation, and rendering.
 
 A scene is data: :class:`Scene` holds the validated tables; :meth:`Scene.params` gives
-the differentiable :class:`~bubblefit.render.Params`, :meth:`Scene.config` resolves the
-effects (:mod:`bubblefit.effects`) into a static :class:`~bubblefit.render.RenderConfig`.
+the differentiable :class:`~bubblefit.model.render.Params`, :meth:`Scene.config` resolves the
+effects (:mod:`bubblefit.model.effects`) into a static :class:`~bubblefit.model.render.RenderConfig`.
 Unknown keys, wrong types and out-of-range values raise :class:`InputError` with the
 key's name.
 """
@@ -17,11 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 
 __all__ = ["Scene", "load_scene", "render_scene", "read_envmap", "DATA_DIR", "shipped_envmap"]
 
-DATA_DIR = Path(__file__).parent / "data"
+DATA_DIR = Path(__file__).resolve().parent.parent / "data"
 
 _SCHEMA = {
     "camera": {"type": str, "width": int, "height": int, "origin": list, "target": list, "up": list,
@@ -40,13 +40,13 @@ _THICKNESS_KEYS = {"profile": str, "top_nm": float, "bottom_nm": float, "exponen
 
 
 def read_envmap(path, *, scale: float = 1.0):
-    """Read an equirectangular environment map file into an :class:`~bubblefit.envmap.EnvMap`.
+    """Read an equirectangular environment map file into an :class:`~bubblefit.lighting.envmap.EnvMap`.
 
     Raises :class:`InputError` (one line) for an unreadable file, a map that is not twice
     as wide as high, or one with fewer than 2 rows.
     """
-    from .envmap import EnvMap
-    from .imageio import read_image
+    from ..lighting.envmap import EnvMap
+    from ..io.images import read_image
 
     try:
         img = read_image(path)
@@ -188,7 +188,7 @@ class Scene:
         if th["profile"] == "drainage":
             return "drainage", np.asarray([th.get("top_nm", 100.0), th.get("bottom_nm", 1000.0),
                                            th.get("exponent", 1.0)], dtype=np.float64)
-        from .imageio import read_image
+        from ..io.images import read_image
 
         img = read_image(self.resolve_path(th["path"]), linear=True)
         m = img.pixels[..., 0]
@@ -219,7 +219,7 @@ class Scene:
         return OrthographicCamera(w, h)
 
     def params(self, dtype=None):
-        """The scene's :class:`~bubblefit.render.Params` (thickness per its profile)."""
+        """The scene's :class:`~bubblefit.model.render.Params` (thickness per its profile)."""
         import jax.numpy as jnp
 
         from .render import Params
@@ -234,7 +234,7 @@ class Scene:
         )
 
     def load_envmap(self):
-        """The scene's environment map as an :class:`~bubblefit.envmap.EnvMap` (or None)."""
+        """The scene's environment map as an :class:`~bubblefit.lighting.envmap.EnvMap` (or None)."""
         lighting = self.table("lighting")
         if "envmap" not in lighting:
             return None
@@ -324,7 +324,7 @@ _SPECTRAL_METHODS = ("uniform", "reference", "fourier")
 
 def _check_effects(e: dict) -> None:
     """Values of the [effects] table (DESIGN.md), checked before anything is computed."""
-    from .filtering import METHODS
+    from ..lighting.filtering import METHODS
 
     def one_of(key, allowed):
         if key in e and e[key] not in allowed:
@@ -397,7 +397,7 @@ def render_scene(scene: Scene, background: np.ndarray | None = None, *, env=None
         env: an already loaded :class:`EnvMap` (else the scene's is loaded).
         explain: also return the list of effect decisions.
     """
-    from .imageio import read_image
+    from ..io.images import read_image
     from .render import render
 
     env = env if env is not None else scene.load_envmap()

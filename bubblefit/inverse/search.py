@@ -1,7 +1,7 @@
 """Global thickness search for the fit: dense grids of film thickness, vectorised.
 
 The thickness objective has a local minimum every ~lambda / (4 n) of thickness (the
-interference colours repeat), so :mod:`bubblefit.fit` first scores a dense grid of
+interference colours repeat), so :mod:`bubblefit.inverse.fit` first scores a dense grid of
 thicknesses here and only refines the best candidates with a local solver.
 
 Two evaluators:
@@ -35,8 +35,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import spectral
-from .film import paper_tinted_transmission
+from ..optics import spectral
+from ..optics.film import paper_tinted_transmission
 
 __all__ = ["phi_table", "phi_rgb", "paper_candidates", "thickness_grid", "local_minima", "score_global",
            "score_pixels", "pixel_costs", "best_profile", "PROFILE_EXPONENTS"]
@@ -86,7 +86,7 @@ def paper_candidates(phi, m, c, t, r_s):
 
     ``refl = 4 t^2 Phi M`` (eq. 10's factor times ``M``, the reflected radiance of both
     films rendered with interference off) and ``back = C (T / t^2)^2`` (``C`` the grey
-    transmitted background of eq. 11, ``T`` :func:`bubblefit.film.paper_tinted_transmission`
+    transmitted background of eq. 11, ``T`` :func:`bubblefit.optics.film.paper_tinted_transmission`
     of both films, ``r_s = 0`` without the tint). ``Phi`` is integrated per channel before
     the tint is squared: exact to ``O(r_s^2)`` of ``Phi``'s spread within a channel.
     """

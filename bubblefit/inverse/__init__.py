@@ -1,0 +1,13 @@
+"""Measuring a bubble: fitting the forward model to photographs and to sequences of them.
+
+- :mod:`.fit`: one photograph (global thickness search, Levenberg-Marquardt, uncertainty).
+- :mod:`.search`: tabulated interference for the global search over thickness.
+- :mod:`.sequence`: a video of a draining bubble, frame by frame, locally or on Dask.
+"""
+
+from . import fit, search, sequence
+from .fit import FitOptions, FitResult, fit_batch, fit_photo
+from .sequence import SequenceResult, fit_sequence
+
+__all__ = ["fit", "search", "sequence", "FitOptions", "FitResult", "fit_batch", "fit_photo",
+           "SequenceResult", "fit_sequence"]

@@ -23,7 +23,7 @@ from bubblefit.capture import probe
 from bubblefit.errors import BubblefitError, InputError
 from bubblefit.io.images import read_image, srgb_decode, srgb_encode
 
-DATA = Path(em.__file__).parent / "data"
+DATA = Path(__file__).resolve().parents[1] / "bubblefit" / "data"
 LUM = np.array([0.2126, 0.7152, 0.0722])
 
 

@@ -3,13 +3,12 @@
 Several exposures of the ball are merged to HDR (:func:`bubblefit.capture.probe.merge_exposures`),
 the ball is found (:func:`bubblefit.capture.probe.find_ball`) or given with ``--ball``, and it is
 unwrapped (:func:`bubblefit.capture.probe.unwrap_mirror_ball`) to an equirectangular map in the
-convention of DESIGN.md (camera frame: the camera looked along -z). Writes a linear EXR and
+convention of docs/design.md (camera frame: the camera looked along -z). Writes a linear EXR and
 an sRGB PNG preview beside it; ``--mask`` writes the valid-texel mask, ``--json`` a summary.
 """
 
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
@@ -76,11 +75,13 @@ def _parse_ball(text: str):
 def run(args) -> int:
     from ..capture import probe
     from ..capture.protocols import metadata_value
-    from ..io.images import atomic_path, preview_path, read_image, srgb_encode, write_image, write_preview
+    from ..io.images import preview_path, read_image, srgb_encode, write_image, write_preview
+    from .common import guard_outputs, write_json
 
     out = str(args.output)
     if not out.lower().endswith(".exr"):
         raise InputError(f"the output map must be an .exr file, got {out}")
+    guard_outputs(args.probes, [out, preview_path(out), args.mask, args.hdr, args.json])
     if args.height < 8:
         raise InputError(f"--height must be at least 8, got {args.height}")
     images = [read_image(p, linear=True if args.response == "linear" else None) for p in args.probes]
@@ -147,9 +148,7 @@ def run(args) -> int:
         **pm.info,
     }
     if args.json:
-        with atomic_path(args.json) as tmp:
-            with open(tmp, "w", encoding="utf-8") as f:
-                json.dump(summary, f, indent=2)
+        write_json(args.json, summary)
     print(f"wrote {out} ({pm.pixels.shape[1]}x{pm.pixels.shape[0]}) and {preview_path(out)}; ball at "
           f"({circle.cx:.1f}, {circle.cy:.1f}) r {circle.r:.1f} px ({summary['ball_source']}); "
           f"{len(images)} exposure(s) over {summary['bracket_stops']:.1f} stops; "

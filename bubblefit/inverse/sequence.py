@@ -63,7 +63,7 @@ __all__ = [
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr", ".hdr", ".pfm", ".bmp")
 VIDEO_EXTENSIONS = (".mp4", ".m4v", ".mov", ".avi", ".mkv", ".webm", ".mpg", ".mpeg", ".wmv", ".mjpeg", ".mj2")
 
-# Leading columns of params.csv (DESIGN.md, "Command line"); more follow them.
+# Leading columns of params.csv (docs/design.md, "Command line"); more follow them.
 LEADING_COLUMNS = ("frame", "file", "converged", "thickness_nm", "thickness_nm_stderr", "t", "roughness", "exposure")
 # Columns describing the frame and its fit, after the parameters and their errors.
 TRAILING_COLUMNS = ("time_s", "status", "message", "warm_start", "iterations", "residual_rms", "fit_time_s",

@@ -76,6 +76,7 @@ def run(args) -> int:
     from ..capture import probe
     from ..capture.protocols import metadata_value
     from ..io.images import preview_path, read_image, srgb_encode, write_image, write_preview
+    from ..progress import stage
     from .common import guard_outputs, write_json
 
     out = str(args.output)
@@ -114,16 +115,19 @@ def run(args) -> int:
         resp = probe.recover_response(codes, times, method=args.response.split("-", 1)[1])
         pix = [probe.apply_response(c, resp) for c in codes]
     sat = [im.saturated if im.bit_depth in (8, 16) else None for im in images]
-    merged = probe.merge_exposures(pix, times, saturated=sat, method=args.merge)
-    circle = _parse_ball(args.ball) if args.ball else probe.find_ball(merged.radiance)
+    with stage(f"merging {len(pix)} exposure(s)"):
+        merged = probe.merge_exposures(pix, times, saturated=sat, method=args.merge)
+    with stage("finding the ball"):
+        circle = _parse_ball(args.ball) if args.ball else probe.find_ball(merged.radiance)
     h, w = merged.radiance.shape[:2]
     if circle.cx + circle.r < 0 or circle.cy + circle.r < 0 or circle.cx - circle.r > w or circle.cy - circle.r > h:
         raise InputError(f"the ball ({circle.cx:g}, {circle.cy:g}, r {circle.r:g}) lies outside the {w}x{h} image")
-    pm = probe.unwrap_mirror_ball(
-        merged.radiance, circle, height=args.height, distance=args.distance,
-        rim_mask_deg=args.rim_mask_deg, camera_mask_deg=args.camera_mask_deg,
-        rotation=math.radians(args.rotation_deg), fill=not args.no_fill,
-    )
+    with stage("unwrapping the ball"):
+        pm = probe.unwrap_mirror_ball(
+            merged.radiance, circle, height=args.height, distance=args.distance,
+            rim_mask_deg=args.rim_mask_deg, camera_mask_deg=args.camera_mask_deg,
+            rotation=math.radians(args.rotation_deg), fill=not args.no_fill,
+        )
     env = pm.pixels if not args.no_fill else np.where(pm.valid[..., None], pm.pixels, 0.0)
     clipped_in_ball = int((merged.clipped & probe.ball_mask((h, w), circle)).sum())
     write_image(out, env, bit_depth=32 if float(np.max(env)) > 60000 else None)

@@ -19,7 +19,7 @@ import logging
 import os
 import sys
 
-__all__ = ["default_cache_dir", "jax_setup"]
+__all__ = ["default_cache_dir", "jax_setup", "jax_settings"]
 
 #: Programs that compile faster than this are not worth a cache entry (seconds).
 MIN_COMPILE_TIME_S = 0.2
@@ -45,7 +45,8 @@ def jax_setup(cache_dir: str | None = None, *, enable_x64: bool | None = None, q
     Parameters
     ----------
     cache_dir
-        Folder of the persistent compilation cache; default :func:`default_cache_dir`.
+        Folder of the persistent compilation cache; default ``$BUBBLEFIT_CACHE_DIR``,
+        else ``$JAX_COMPILATION_CACHE_DIR``, else :func:`default_cache_dir`.
         A folder that cannot be created only costs time (no cache), never an error.
     enable_x64
         Set ``jax_enable_x64``; ``None`` leaves it as it is.
@@ -60,25 +61,23 @@ def jax_setup(cache_dir: str | None = None, *, enable_x64: bool | None = None, q
     """
     if quiet:
         _quiet_logs()
-    cache = cache_dir or default_cache_dir()
+    cache = (cache_dir or os.environ.get("BUBBLEFIT_CACHE_DIR") or os.environ.get("JAX_COMPILATION_CACHE_DIR")
+             or default_cache_dir())
     try:
         os.makedirs(cache, exist_ok=True)
     except OSError:  # a read-only home must not stop the program
         cache = None
-    settings = {"JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": str(MIN_COMPILE_TIME_S),
-                "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES": "0"}
     if cache:
-        settings["JAX_COMPILATION_CACHE_DIR"] = cache
+        os.environ["JAX_COMPILATION_CACHE_DIR"] = cache
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", str(MIN_COMPILE_TIME_S))
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
     if enable_x64 is not None:
-        settings["JAX_ENABLE_X64"] = "1" if enable_x64 else "0"
-    for key, value in settings.items():
-        if key == "JAX_ENABLE_X64" or key not in os.environ:
-            os.environ[key] = value
+        os.environ["JAX_ENABLE_X64"] = "1" if enable_x64 else "0"
     jax = sys.modules.get("jax")
     if jax is not None:  # already imported: the environment is read; set the config too
         try:
             if cache:
-                jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
+                jax.config.update("jax_compilation_cache_dir", cache)
             jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_TIME_S)
             jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
             if enable_x64 is not None:
@@ -89,4 +88,19 @@ def jax_setup(cache_dir: str | None = None, *, enable_x64: bool | None = None, q
     if x64 is None:
         x64 = bool(jax.config.jax_enable_x64) if jax is not None else \
             os.environ.get("JAX_ENABLE_X64", "0").lower() in ("1", "true")
-    return {"cache_dir": os.environ.get("JAX_COMPILATION_CACHE_DIR", cache), "enable_x64": x64}
+    return {"cache_dir": cache, "enable_x64": x64}
+
+
+def jax_settings() -> dict:
+    """This process's JAX settings that worker processes should share, read without changing
+    them: ``{"cache_dir": ..., "enable_x64": ...}`` for :func:`jax_setup` in the workers.
+    The cache folder is JAX's configured one, else the environment's, else :func:`default_cache_dir`."""
+    jax = sys.modules.get("jax")
+    cache, x64 = None, None
+    if jax is not None:
+        cache = getattr(jax.config, "jax_compilation_cache_dir", None)
+        x64 = bool(jax.config.jax_enable_x64)
+    if x64 is None:
+        x64 = os.environ.get("JAX_ENABLE_X64", "0").lower() in ("1", "true")
+    return {"cache_dir": cache or os.environ.get("JAX_COMPILATION_CACHE_DIR") or default_cache_dir(),
+            "enable_x64": x64}

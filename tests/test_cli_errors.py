@@ -634,6 +634,8 @@ def _clashes(files, d: Path) -> dict:
         "envmap_onto_probe_preview": (["envmap", probe, "-o", d / "probe.exr", "--height", "8"], [probe]),
         "envmap_json_onto_probe": (["envmap", probe, "-o", d / "m.exr", "--json", probe], [probe]),
         "chart_csv_is_output": (["chart", "--thickness", "0:100:50", "-o", d / "c.png", "--csv", d / "c.png"], []),
+        "check_capture_json_onto_image": (["check-capture", d, "--protocol", "transmission", "--json", photo],
+                                          [photo]),
         "fit_sequence_json_onto_frame": (["fit-sequence", photo, "--envmap", env, "--disc", "12,12,8", "--workers",
                                           "0", "-o", d / "seq", "--json", photo, "--no-progress"], [photo, env]),
     }
@@ -642,7 +644,7 @@ def _clashes(files, d: Path) -> dict:
 @pytest.mark.parametrize("case", [
     "render_onto_envmap", "render_preview_onto_background", "render_json_onto_scene", "fit_prefix_onto_photo",
     "fit_json_onto_envmap", "calibrate_json_onto_photo", "calibrate_debug_onto_photo", "envmap_onto_probe_preview",
-    "envmap_json_onto_probe", "chart_csv_is_output", "fit_sequence_json_onto_frame"])
+    "envmap_json_onto_probe", "chart_csv_is_output", "check_capture_json_onto_image", "fit_sequence_json_onto_frame"])
 def test_output_that_is_an_input_is_refused(case, files, tmp_path, capsys):
     argv, keep = _clashes(files, tmp_path)[case]
     before = _snapshot(*keep)

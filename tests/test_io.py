@@ -188,3 +188,48 @@ def test_guard_outputs(tmp_path, monkeypatch):
         guard_outputs([], [tmp_path / "a.csv", "a.csv"])
     guard_outputs([photo, None], [None, tmp_path / "other.png", "/dev/null", "/dev/null"])  # all fine
     assert photo.read_bytes() == b"pixels"
+
+
+# --------------------------------------------------------------------------------------
+# progress: on a terminal only
+# --------------------------------------------------------------------------------------
+class _Stream:
+    def __init__(self, tty: bool):
+        self.tty, self.text = tty, ""
+
+    def isatty(self):
+        return self.tty
+
+    def write(self, s):
+        self.text += s
+
+    def flush(self):
+        pass
+
+
+def test_stages_show_on_a_terminal_only(monkeypatch):
+    from bubblefit import progress
+
+    monkeypatch.delenv("BUBBLEFIT_VERBOSE", raising=False)
+    monkeypatch.delenv("BUBBLEFIT_QUIET", raising=False)
+    term, pipe = _Stream(True), _Stream(False)
+    for stream in (term, pipe):
+        with progress.stage("global search", stream=stream):
+            with progress.stage("inner", stream=stream):
+                import time
+
+                time.sleep(0.06)
+        with pytest.raises(ValueError):
+            with progress.stage("refinement", stream=stream):
+                raise ValueError("solver failed")
+    assert pipe.text == ""
+    lines = term.text.splitlines()
+    assert lines[0].endswith("global search ...") and lines[1].endswith("  inner ...")
+    assert any("inner done in" in ln for ln in lines) and any("refinement failed after" in ln for ln in lines)
+    assert all(ln.startswith("[") and " s] " in ln for ln in lines)  # elapsed time on every line
+    monkeypatch.setenv("BUBBLEFIT_QUIET", "1")
+    quiet = _Stream(True)
+    with progress.stage("x", stream=quiet):
+        pass
+    progress.Progress(3, "frames", stream=quiet).update()
+    assert quiet.text == ""

@@ -7,7 +7,7 @@ chunks of ``chunk_size`` contiguous frames at fixed boundaries (frame ``k`` belo
 chunk ``k // chunk_size``), so the numbers never depend on how many workers ran them nor
 on whether a run was interrupted and resumed. The fingerprint of what decides the numbers
 (fit options, maps, scene) guards a resumed run against other settings. See
-:mod:`bubblefit.inverse.sequence` and docs/design.md, "Sequences".
+:mod:`bubblefit.inverse.sequence` and docs/design.md ("Command line", ``fit-sequence``).
 """
 
 from __future__ import annotations

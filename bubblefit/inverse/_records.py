@@ -198,8 +198,8 @@ class RecordStore:
                 raise InputError(f"{self.out} holds {len(held)} finished frame(s) but its run.json is {state}, "
                                  "so the settings they were fitted with are unknown; use --force to refit, "
                                  "or another output folder")
-        write_text(self.run_path, json.dumps({"fingerprint": fp, "frames": n_frames, "chunk_size": chunk_size,
-                                              "options": options_repr}, indent=1) + "\n")
+        write_text(self.run_path, json_text({"fingerprint": fp, "frames": n_frames, "chunk_size": chunk_size,
+                                             "options": options_repr}, indent=1) + "\n")
 
     def finished(self, frames: list[FrameRef], *, retry_failed: bool) -> dict[int, dict]:
         """The records of frames that need no refit: saved for the same file, and not a

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import math
 import os
 from pathlib import Path
@@ -20,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from ..io.atomic import atomic_path, json_default, write_text
+from ..io.atomic import atomic_path, json_text, write_text
 
 __all__ = ["LEADING_COLUMNS", "TRAILING_COLUMNS", "JUMP_SIGMA", "JUMP_FLOOR", "JUMP_PARAMETERS", "flag_jumps",
            "row_ok", "write_tables", "read_table", "plot"]
@@ -151,12 +150,6 @@ def _csv_value(v) -> str:
     return str(v)
 
 
-def _jsonl_value(v):
-    if isinstance(v, float) and not math.isfinite(v):
-        return None
-    return v
-
-
 def write_tables(out_dir: Path, records: list[dict]) -> tuple[Path, Path]:
     """``params.csv`` and ``params.jsonl``: one row per record, the columns of :func:`_columns`."""
     columns = _columns(records)
@@ -168,7 +161,7 @@ def write_tables(out_dir: Path, records: list[dict]) -> tuple[Path, Path]:
         w.writerow([_csv_value(row[c]) for c in columns])
     csv_path, jsonl_path = out_dir / "params.csv", out_dir / "params.jsonl"
     write_text(csv_path, buf.getvalue())
-    lines = [json.dumps({c: _jsonl_value(row[c]) for c in columns}, default=json_default) for row in rows]
+    lines = [json_text({c: row[c] for c in columns}, indent=None, allow_nan=False) for row in rows]
     write_text(jsonl_path, "\n".join(lines) + ("\n" if lines else ""))
     return csv_path, jsonl_path
 

@@ -92,22 +92,35 @@ def fit_chunk(todo: list[tuple[FrameRef, dict | None]], env, options, background
               init: dict | None = None, batch: int = 1) -> list[dict]:
     """Fit the pending frames of one chunk, in order, each warm-started from the last success.
 
-    Args:
-        todo: the chunk's frames in order, each with its finished record (None: to fit).
-            Finished frames are not refitted; they only pass their result on as a warm start.
-        env: the environment map (:class:`~bubblefit.lighting.envmap.EnvMap`).
-        options: :class:`bubblefit.inverse.fit.FitOptions`.
-        background, scene: passed on to :func:`bubblefit.inverse.fit.fit_photo`.
-        jax_settings: the client's JAX settings (compilation cache, float64).
-        want_maps: keep each frame's thickness map (else it is dropped here, in the worker).
-        fit_function: ``"module:name"`` of the fit, called like :func:`bubblefit.inverse.fit.fit_photo`.
-        warm_start: False: every frame runs the global search (independent frames).
-        init: warm start of the chunk's first frame (the previous chunk's last result), or None.
-        batch: once two frames have warm-started results, fit up to this many following
-            frames together (:func:`bubblefit.inverse.fit.fit_batch`, default fit function only).
+    Parameters
+    ----------
+    todo
+        the chunk's frames in order, each with its finished record (None: to fit).
+        Finished frames are not refitted; they only pass their result on as a warm start.
+    env
+        the environment map (:class:`~bubblefit.lighting.envmap.EnvMap`).
+    options
+        :class:`bubblefit.inverse.fit.FitOptions`.
+    background, scene
+        passed on to :func:`bubblefit.inverse.fit.fit_photo`.
+    jax_settings
+        the client's JAX settings (compilation cache, float64).
+    want_maps
+        keep each frame's thickness map (else it is dropped here, in the worker).
+    fit_function
+        ``"module:name"`` of the fit, called like :func:`bubblefit.inverse.fit.fit_photo`.
+    warm_start
+        False: every frame runs the global search (independent frames).
+    init
+        warm start of the chunk's first frame (the previous chunk's last result), or None.
+    batch
+        once two frames have warm-started results, fit up to this many following
+        frames together (:func:`bubblefit.inverse.fit.fit_batch`, default fit function only).
 
-    Returns:
-        One record (dict) per frame fitted, in order.
+    Returns
+    -------
+    list of dict
+        One record per frame fitted, in order.
     """
     _worker_setup(jax_settings)
     fit_fn = _resolve(fit_function)

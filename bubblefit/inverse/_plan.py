@@ -40,11 +40,16 @@ VIDEO_EXTENSIONS = (".mp4", ".m4v", ".mov", ".avi", ".mkv", ".webm", ".mpg", ".m
 class FrameRef:
     """One frame of a sequence.
 
-    Attributes:
-        index: position in the sequence (0-based); the frame's row in the tables.
-        source: the image file, or the video file it is read from.
-        time_s: the frame's time in seconds from the first frame.
-        video_frame: the frame's number in the video, or None for an image file.
+    Attributes
+    ----------
+    index
+        position in the sequence (0-based); the frame's row in the tables.
+    source
+        the image file, or the video file it is read from.
+    time_s
+        the frame's time in seconds from the first frame.
+    video_frame
+        the frame's number in the video, or None for an image file.
     """
 
     index: int
@@ -95,18 +100,25 @@ def _video_info(path: str) -> tuple[int, float]:
 def discover_frames(inputs: Sequence[str | os.PathLike] | str | os.PathLike, *, fps: float | None = None) -> list[FrameRef]:
     """The frames named by ``inputs``, in order.
 
-    Args:
-        inputs: image files, folders (their image files, sorted naturally by name),
-            video files (every frame, through OpenCV) or glob patterns, in any mix.
-        fps: frames per second, which gives each frame's ``time_s``. None: a video's own
-            rate, and 1 frame per second for image files (``time_s`` = frame number).
+    Parameters
+    ----------
+    inputs
+        image files, folders (their image files, sorted naturally by name),
+        video files (every frame, through OpenCV) or glob patterns, in any mix.
+    fps
+        frames per second, which gives each frame's ``time_s``. None: a video's own
+        rate, and 1 frame per second for image files (``time_s`` = frame number).
 
-    Returns:
-        A list of :class:`FrameRef`, indices 0..N-1.
+    Returns
+    -------
+    list of FrameRef
+        Indices 0..N-1.
 
-    Raises:
-        InputError: nothing matched, a path does not exist, a folder holds no images,
-            a video cannot be opened, or ``fps`` is not positive.
+    Raises
+    ------
+    InputError
+        nothing matched, a path does not exist, a folder holds no images,
+        a video cannot be opened, or ``fps`` is not positive.
     """
     if isinstance(inputs, (str, os.PathLike)):
         inputs = [inputs]
@@ -193,8 +205,10 @@ def load_frame(ref: FrameRef) -> np.ndarray:
     BGR from OpenCV: it is reordered to RGB, scaled to [0, 1] and decoded from sRGB to
     linear (:func:`bubblefit.io.images.srgb_decode`); 16-bit video frames are scaled by 65535.
 
-    Raises:
-        InputError: the file is missing, truncated or not an image.
+    Raises
+    ------
+    InputError
+        the file is missing, truncated or not an image.
     """
     if ref.video_frame is None:
         return read_image(ref.source).pixels

@@ -139,16 +139,27 @@ class SequenceOptions:
 class SequenceResult:
     """What :func:`fit_sequence` did.
 
-    Attributes:
-        out_dir: the output folder.
-        records: one dict per frame, in order (``status`` "ok" or "failed", ``params``,
-            ``stderr``, ``converged``, ``message``, ``time_s``, ...), as in ``frames/``.
-        fitted: frames fitted by this call; skipped: frames found finished on disk.
-        failed: frames recorded as failed (this call or before).
-        elapsed_s: wall time of the fitting (cluster start excluded); fps = fitted / elapsed_s.
-        setup_s: time to start (or connect to) the cluster and send it the data.
-        workers: how many worker processes took part (0: this process).
-        table, jsonl, plot: paths of ``params.csv``, ``params.jsonl``, ``thickness.png``.
+    Attributes
+    ----------
+    out_dir
+        the output folder.
+    records
+        one dict per frame, in order (``status`` "ok" or "failed", ``params``,
+        ``stderr``, ``converged``, ``message``, ``time_s``, ...), as in ``frames/``.
+    fitted
+        frames fitted by this call.
+    skipped
+        frames found finished on disk.
+    failed
+        frames recorded as failed (this call or before).
+    elapsed_s
+        wall time of the fitting (cluster start excluded); fps = fitted / elapsed_s.
+    setup_s
+        time to start (or connect to) the cluster and send it the data.
+    workers
+        how many worker processes took part (0: this process).
+    table, jsonl, plot
+        paths of ``params.csv``, ``params.jsonl``, ``thickness.png``.
     """
 
     out_dir: Path

@@ -39,7 +39,7 @@ JUMP_PARAMETERS = ("roughness", "exposure")
 JUMP_SIGMA = 5.0
 #: Relative change always tolerated between neighbours (model error, not noise), in log units.
 JUMP_FLOOR = 0.05
-#: Neighbours on each side that give the reference value of a frame.
+#: Neighbours on each side (nearest valid frames) that give the reference value of a frame.
 JUMP_NEIGHBOURS = 2
 
 
@@ -66,10 +66,11 @@ def _log_values(records: list[dict], name: str) -> tuple[np.ndarray, np.ndarray]
 def _jumps_of(y: np.ndarray, e: np.ndarray) -> list[tuple[int, float, float]]:
     """(index, log jump, its sigma) of the values that jump away from their neighbours.
 
-    Each valid value is compared with the median of up to :data:`JUMP_NEIGHBOURS` valid
-    neighbours on each side. The expected change combines the value's own standard error,
-    the sequence's frame-to-frame scatter (1.4826 MAD of consecutive differences over
-    sqrt 2, robust to the jumps themselves) and :data:`JUMP_FLOOR`.
+    Each valid value is compared with the median of its ``2 JUMP_NEIGHBOURS`` nearest
+    valid neighbours (both sides, or one side at the ends of the sequence). The expected
+    change combines the value's own standard error, the sequence's frame-to-frame scatter
+    (1.4826 MAD of consecutive differences over sqrt 2, robust to the jumps themselves)
+    and :data:`JUMP_FLOOR`.
     """
     idx = np.flatnonzero(np.isfinite(y))
     if len(idx) < 3:
@@ -78,9 +79,13 @@ def _jumps_of(y: np.ndarray, e: np.ndarray) -> list[tuple[int, float, float]]:
     diffs = np.diff(vals)
     scatter = 1.4826 * float(np.median(np.abs(diffs - np.median(diffs)))) / math.sqrt(2.0)
     out = []
+    order = np.arange(len(idx))
     for k, i in enumerate(idx):
-        near = np.concatenate([vals[max(0, k - JUMP_NEIGHBOURS):k], vals[k + 1:k + 1 + JUMP_NEIGHBOURS]])
-        if len(near) < 2:
+        # the nearest valid frames, 2 x JUMP_NEIGHBOURS of them (one side only at the ends):
+        # their median tolerates one outlier among them
+        others = order[order != k]
+        near = vals[others[np.argsort(np.abs(others - k), kind="stable")[: 2 * JUMP_NEIGHBOURS]]]
+        if len(near) < 3:
             continue
         jump = float(vals[k] - np.median(near))
         sigma = math.sqrt(float(e[i]) ** 2 + scatter ** 2 + JUMP_FLOOR ** 2)

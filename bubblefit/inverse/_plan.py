@@ -277,7 +277,10 @@ def as_frames(frames, fps: float | None = None) -> list[FrameRef]:
     return frames
 
 
-def plan_chunks(frames: list[FrameRef], chunk_size: int, done: dict[int, dict]) -> list[list[tuple[FrameRef, dict | None]]]:
+Chunk = list[tuple[FrameRef, dict | None]]
+
+
+def plan_chunks(frames: list[FrameRef], chunk_size: int, done: dict[int, dict]) -> list[Chunk]:
     """The chunks that still have work: fixed boundaries (frame ``k`` in chunk ``k // chunk_size``),
     each cut after its last pending frame, every frame paired with its finished record (or None).
 

@@ -34,7 +34,8 @@ from typing import Any
 
 from ..errors import OutputError
 
-__all__ = ["atomic_path", "preview_path", "write_text", "write_bytes", "write_json", "json_text", "json_default", "os_reason"]
+__all__ = ["atomic_path", "preview_path", "write_text", "write_bytes", "write_json", "json_text", "json_default",
+           "os_reason"]
 
 
 def os_reason(exc: OSError) -> str:

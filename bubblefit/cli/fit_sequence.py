@@ -73,11 +73,10 @@ def build_options(args):
 
 
 def run(args) -> int:
-    from ..inverse.sequence import SequenceOptions, discover_frames, fit_sequence
+    from ..inverse.sequence import SequenceOptions, discover_frames, fit_sequence, row_ok
     from ..io.images import read_image
     from ..model.scene import load_scene
     from ..progress import stage, status
-    from ..inverse._tables import row_ok
     from .common import guard_outputs, scene_inputs, write_json
 
     if args.chunk_size < 1:

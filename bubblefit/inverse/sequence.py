@@ -56,7 +56,7 @@ from ._executors import DEFAULT_FIT, ChunkTask, DaskExecutor, LocalExecutor
 from ._plan import (IMAGE_EXTENSIONS, VIDEO_EXTENSIONS, FrameRef, as_frames, discover_frames, fingerprint,
                     fix_disc, load_frame, plan_chunks)
 from ._records import RECORD_VERSION, RecordStore, failed_record, one_line, warm_init
-from ._tables import flag_jumps, plot, read_table, write_tables
+from ._tables import flag_jumps, plot, read_table, row_ok, write_tables
 from .fit import FitOptions
 
 __all__ = [
@@ -67,6 +67,7 @@ __all__ = [
     "load_frame",
     "fit_sequence",
     "read_table",
+    "row_ok",
     "IMAGE_EXTENSIONS",
     "VIDEO_EXTENSIONS",
     "RECORD_VERSION",

@@ -162,6 +162,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeat", type=int, default=3, help="calls per start-up measurement (median) [3]")
     ap.add_argument("--quick", action="store_true", help="skip the fit profile")
+    ap.add_argument("--startup-only", action="store_true", help="only the start-up ratios (no imports, no profiles)")
     ap.add_argument("--out", default=str(HERE / "results" / "profile_startup"))
     ap.add_argument("--child", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -177,16 +178,17 @@ def main() -> None:
                "bubblefit fit (missing arguments)": wall(bf + ["fit"], args.repeat)}
     for cmd in COMMANDS:
         startup[f"bubblefit {cmd} --help"] = wall(bf + [cmd, "--help"], args.repeat)
-    libraries = {name: wall([PY, "-c", code], args.repeat) - numpy_s for name, code in LIBRARIES.items()}
-    run_imports = {cmd: wall([PY, "-c", code], args.repeat) for cmd, code in RUN_IMPORTS.items()}
-
-    profiles = {}
+    libraries, run_imports, profiles = {}, {}, {}
+    if not args.startup_only:
+        libraries = {name: wall([PY, "-c", code], args.repeat) - numpy_s for name, code in LIBRARIES.items()}
+        run_imports = {cmd: wall([PY, "-c", code], args.repeat) for cmd, code in RUN_IMPORTS.items()}
     with tempfile.TemporaryDirectory(prefix="bf_profile_") as tmpdir:
         tmp = Path(tmpdir)
         files = _inputs(tmp)
-        jobs = {"render 64x64": ["render", str(files["scene"]), "-o", str(tmp / "r.exr")],
-                "chart 0:3000:5": ["chart", "-o", str(tmp / "c.png"), "--csv", str(tmp / "c.csv")]}
-        if not args.quick:
+        jobs = {} if args.startup_only else {
+            "render 64x64": ["render", str(files["scene"]), "-o", str(tmp / "r.exr")],
+            "chart 0:3000:5": ["chart", "-o", str(tmp / "c.png"), "--csv", str(tmp / "c.csv")]}
+        if not (args.quick or args.startup_only):
             subprocess.run([PY, "-m", "bubblefit", "render", str(files["fit_scene"]), "-o", str(tmp / "photo.exr")],
                            env=_env(str(tmp / "cache_photo")), cwd=ROOT, capture_output=True)
             jobs["fit 48x48 constant"] = ["fit", str(tmp / "photo.exr"), "--envmap",

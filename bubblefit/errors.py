@@ -18,6 +18,11 @@ class InputError(BubblefitError):
     """A file, value or option given by the user cannot be used."""
 
 
+class OutputError(InputError):
+    """An output cannot be written (missing folder, full disk, a writer's error), or it
+    would overwrite one of the command's inputs; the earlier file is left as it was."""
+
+
 class ComputationError(BubblefitError):
     """A computation failed for a reason the user should know about."""
 

@@ -108,7 +108,8 @@ def main(argv=None) -> int:
     from distributed import Client, LocalCluster
 
     from bubblefit.inverse.fit import FitOptions
-    from bubblefit.inverse.sequence import _local_env, fit_sequence
+    from bubblefit.inverse._executors import local_env
+    from bubblefit.inverse.sequence import SequenceOptions as Seq, fit_sequence
 
     t0 = time.perf_counter()
     frames = out / "frames"
@@ -141,9 +142,9 @@ def main(argv=None) -> int:
             continue
         if batch > 1:  # compile the batched solver before the clock starts
             fit_sequence([str(f) for f in sorted(frames.iterdir())[: batch + 2]], env, out / "runs" / "compile",
-                         options, workers=0, chunk_size=batch + 2, force=True, batch=batch, progress=False)
-        res = fit_sequence(frames, env, out / "runs" / name, options, workers=0, chunk_size=n, force=True,
-                           warm_start=warm, progress=True, batch=batch)
+                         options, Seq(workers=0, chunk_size=batch + 2, force=True, batch=batch, progress=False))
+        res = fit_sequence(frames, env, out / "runs" / name, options,
+                           Seq(workers=0, chunk_size=n, force=True, warm_start=warm, progress=True, batch=batch))
         record(name, res, 0, n, warm)
 
     # -- a Dask cluster ------------------------------------------------------------------------
@@ -155,7 +156,7 @@ def main(argv=None) -> int:
             client = Client(args.scheduler)
         else:
             cluster = LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=":0", env=_local_env(), silence_logs=40)
+                                   dashboard_address=":0", env=local_env(), silence_logs=40)
             client = Client(cluster)
         n_workers = len(client.scheduler_info()["workers"])
         start_s = time.perf_counter() - t
@@ -167,8 +168,8 @@ def main(argv=None) -> int:
         for name, warm, chunk in (("cluster", True, per), ("cluster_cold", False, per), ("cluster_cold_1", False, 1)):
             if name not in cluster_configs:
                 continue
-            res = fit_sequence(frames, env, out / "runs" / name, options, scheduler=client, chunk_size=chunk,
-                               force=True, warm_start=warm, progress=True)
+            res = fit_sequence(frames, env, out / "runs" / name, options,
+                               Seq(scheduler=client, chunk_size=chunk, force=True, warm_start=warm, progress=True))
             record(name, res, res.workers, chunk, warm, start_s + warm_s)
         client.close()
         if cluster is not None:

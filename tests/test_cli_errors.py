@@ -90,6 +90,10 @@ def files(tmp_path_factory):
     nan[4, 4] = np.inf
     f["env_nan"] = d / "env_nan.exr"
     write_image(f["env_nan"], nan, bit_depth=32)
+    negative = env.copy()
+    negative[5, 7] = -5.0  # ten times the typical radiance: no ringing of a real map
+    f["env_negative"] = d / "env_negative.exr"
+    write_image(f["env_negative"], negative, bit_depth=32)
     photo = _disc_photo()
     f["photo"] = d / "photo.png"
     write_image(f["photo"], photo)
@@ -169,6 +173,13 @@ SCENE_CASES = {
     "not_toml": "this is = = not toml [[[\n",
     "binary": "\x00\x01\x02\xff",
     "missing_envmap": '[lighting]\nenvmap = "nowhere.exr"\n',
+    # degenerate cameras: refused in one line, before any arithmetic warns
+    "fov_zero": '[camera]\ntype = "perspective"\nfov_deg = 0.0\n',
+    "fov_180": '[camera]\ntype = "perspective"\nfov_deg = 180.0\n',
+    "camera_at_centre": '[camera]\ntype = "perspective"\norigin = [0.0, 0.0, 0.0]\ntarget = [0.0, 0.0, -1.0]\n',
+    "up_parallel": '[camera]\ntype = "perspective"\nup = [0.0, 0.0, 1.0]\n',
+    "target_is_origin": '[camera]\ntype = "perspective"\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 4.0]\n',
+    "disc_zero_radius": "[camera]\ndisc = [4.0, 4.0, 0.0]\n",
     "missing_background": '[lighting]\nbackground = "nowhere.png"\n',
 }
 
@@ -237,7 +248,7 @@ def test_render_bad_scene(case, files, tmp_path, capsys):
 
 
 @pytest.mark.parametrize("which", ["missing", "truncated", "empty", "garbage", "text_as_exr", "folder",
-                                   "env_not_2to1", "env_tiny", "env_nan"])
+                                   "env_not_2to1", "env_tiny", "env_nan", "env_negative"])
 def test_render_bad_envmap(which, files, tmp_path, capsys):
     scene = write_scene(tmp_path, "scene.toml", scene_text(files[which]))
     rc, _, err = run_cli(capsys, ["render", scene, "-o", tmp_path / "out.exr"])
@@ -588,3 +599,171 @@ def test_fuzz_scene_files(text_edits, byte_edits, files, tmp_path_factory, capsy
     if rc != 0:
         assert out.read_bytes() == b"previous"
     assert_no_temp_files(d)
+
+
+# --------------------------------------------------------------------------------------
+# nothing lost: outputs that are inputs, full disks, devices, resumes (issue 16)
+# --------------------------------------------------------------------------------------
+def _snapshot(*paths) -> dict:
+    return {str(p): Path(p).read_bytes() for p in paths}
+
+
+def _copy(src: Path, dst: Path) -> Path:
+    dst.write_bytes(src.read_bytes())
+    return dst
+
+
+def _clashes(files, d: Path) -> dict:
+    """name -> (argv, the inputs that must stay byte-identical)."""
+    env = _copy(files["env"], d / "env.exr")
+    photo = _copy(files["photo"], d / "photo.png")
+    other = _copy(files["photo"], d / "other.png")
+    scene = write_scene(d, "scene.toml", scene_text(env))
+    bg_text = scene_text(env).replace("[lighting]\n", '[lighting]\nbackground = "shot.png"\n')
+    bg_scene = write_scene(d, "bg_scene.toml", bg_text)
+    shot = _copy(files["photo"], d / "shot.png")
+    probe = _copy(files["photo"], d / "probe.png")
+    fit_photo = _copy(files["photo_float"], d / "P_render.exr")
+    return {
+        "render_onto_envmap": (["render", scene, "-o", env], [env, scene]),
+        "render_preview_onto_background": (["render", bg_scene, "-o", d / "shot.exr"], [shot, bg_scene]),
+        "render_json_onto_scene": (["render", scene, "-o", d / "r.exr", "--json", scene], [scene]),
+        "fit_prefix_onto_photo": (["fit", fit_photo, "--envmap", env, "-o", d / "P"], [fit_photo, env]),
+        "fit_json_onto_envmap": (["fit", photo, "--envmap", env, "--json", env], [photo, env]),
+        "calibrate_json_onto_photo": (["calibrate", photo, other, "--json", other], [photo, other]),
+        "calibrate_debug_onto_photo": (["calibrate", photo, other, "--debug-image", photo], [photo, other]),
+        "envmap_onto_probe_preview": (["envmap", probe, "-o", d / "probe.exr", "--height", "8"], [probe]),
+        "envmap_json_onto_probe": (["envmap", probe, "-o", d / "m.exr", "--json", probe], [probe]),
+        "chart_csv_is_output": (["chart", "--thickness", "0:100:50", "-o", d / "c.png", "--csv", d / "c.png"], []),
+        "check_capture_json_onto_image": (["check-capture", d, "--protocol", "transmission", "--json", photo],
+                                          [photo]),
+        "fit_sequence_json_onto_frame": (["fit-sequence", photo, "--envmap", env, "--disc", "12,12,8", "--workers",
+                                          "0", "-o", d / "seq", "--json", photo, "--no-progress"], [photo, env]),
+    }
+
+
+@pytest.mark.parametrize("case", [
+    "render_onto_envmap", "render_preview_onto_background", "render_json_onto_scene", "fit_prefix_onto_photo",
+    "fit_json_onto_envmap", "calibrate_json_onto_photo", "calibrate_debug_onto_photo", "envmap_onto_probe_preview",
+    "envmap_json_onto_probe", "chart_csv_is_output", "check_capture_json_onto_image", "fit_sequence_json_onto_frame"])
+def test_output_that_is_an_input_is_refused(case, files, tmp_path, capsys):
+    argv, keep = _clashes(files, tmp_path)[case]
+    before = _snapshot(*keep)
+    rc, _, err = run_cli(capsys, argv)
+    line = assert_one_line_error(rc, err)
+    assert "refusing to write" in line, line
+    assert _snapshot(*keep) == before
+    assert_no_temp_files(tmp_path)
+    if case == "chart_csv_is_output":
+        assert not (tmp_path / "c.png").exists()
+
+
+def test_render_on_a_full_disk_keeps_the_earlier_render(files, tmp_path, capsys):
+    """The render succeeds, the disk is full: one line naming the reason; the earlier EXR and
+    its preview are byte-identical (a 64 KiB tmpfs, mounted as root; skipped otherwise)."""
+    import os
+    import subprocess
+
+    if os.geteuid() != 0:
+        pytest.skip("mounting a small tmpfs needs root")
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(disk)], capture_output=True, text=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.strip()}")
+    try:
+        scene = write_scene(tmp_path, "scene.toml", scene_text(files["env"], width=64, height=64))
+        out = disk / "out.exr"
+        rc, _, err = run_cli(capsys, ["render", scene, "-o", out])
+        assert rc == 0, err
+        before = _snapshot(out, disk / "out.png")
+        st = os.statvfs(disk)
+        (disk / "filler").write_bytes(b"\0" * max(st.f_bavail * st.f_frsize - 512, 0))
+        scene2 = write_scene(tmp_path, "scene2.toml", scene_text(files["env"], width=64, height=64).replace(
+            "roughness = 0.05", "roughness = 0.2"))
+        for argv in (["render", scene2, "-o", out], ["render", scene2, "-o", tmp_path / "x.exr", "--json",
+                                                     disk / "r.json"]):
+            rc, _, err = run_cli(capsys, argv)
+            line = assert_one_line_error(rc, err)
+            assert "no space left on device" in line, line
+        assert _snapshot(out, disk / "out.png") == before
+        assert not (disk / "r.json").exists()
+        assert_no_temp_files(disk)
+    finally:
+        subprocess.run(["umount", str(disk)], capture_output=True)
+
+
+def test_json_to_dev_null_keeps_the_device(files, tmp_path, capsys):
+    import os
+    import stat
+
+    before = os.stat("/dev/null")
+    scene = write_scene(tmp_path, "scene.toml", scene_text(files["env"]))
+    rc, _, err = run_cli(capsys, ["render", scene, "-o", tmp_path / "out.exr", "--json", "/dev/null"])
+    assert rc == 0, err
+    after = os.stat("/dev/null")
+    assert stat.S_ISCHR(after.st_mode) and after.st_rdev == before.st_rdev
+
+
+@pytest.mark.parametrize("state", ["missing", "unreadable"])
+def test_fit_sequence_refuses_frames_without_run_json(state, files, tmp_path, capsys):
+    """A folder with finished frames but no readable run.json: their settings are unknown,
+    so they are not reused (nor run.json rewritten to claim them) without --force."""
+    out = tmp_path / "seq"
+    (out / "frames").mkdir(parents=True)
+    frame = out / "frames" / "frame_000000.json"
+    frame.write_text('{"version": 1, "frame": 0, "status": "ok"}\n')
+    if state == "unreadable":
+        (out / "run.json").write_text("{not json")
+    before = _snapshot(*(p for p in out.rglob("*") if p.is_file()))
+    rc, _, err = run_cli(capsys, ["fit-sequence", files["photo"], "--envmap", files["env"], "--disc", "12,12,8",
+                                  "--workers", "0", "--no-progress", "-o", out])
+    line = assert_one_line_error(rc, err)
+    assert "run.json" in line and "--force" in line, line
+    assert _snapshot(*(p for p in out.rglob("*") if p.is_file())) == before
+
+
+def test_garbage_video_is_one_line_without_ffmpeg(files, tmp_path, capfd):
+    """FFmpeg writes to the process's stderr itself: read it at the file-descriptor level."""
+    video = tmp_path / "clip.mp4"
+    video.write_bytes(np.random.default_rng(3).integers(0, 256, 5000, dtype=np.uint8).tobytes())
+    capfd.readouterr()
+    try:
+        rc = main(["fit-sequence", str(video), "--envmap", str(files["env"]), "--workers", "0", "-o",
+                   str(tmp_path / "seq"), "--no-progress"])
+    except SystemExit as exc:
+        rc = exc.code
+    _, err = capfd.readouterr()
+    line = assert_one_line_error(rc, err)
+    assert "video" in line, line
+
+
+@pytest.mark.parametrize("disc", ["inf,1,2", "1,2,nan", "10,10,0"])
+def test_disc_must_be_finite(disc, files, tmp_path, capsys):
+    rc, _, err = run_cli(capsys, ["fit", files["photo"], "--envmap", files["env"], "--disc", disc])
+    assert_one_line_error(rc, err)
+
+
+def test_version(capsys):
+    from bubblefit import __version__
+
+    rc, out, _ = run_cli(capsys, ["--version"])
+    assert rc == 0 and out.strip() == f"bubblefit {__version__}"
+
+
+def test_parsers_import_nothing_heavy():
+    """``--help`` and argument errors must not load JAX, OpenImageIO, colour-science, OpenCV,
+    Dask, SciPy or Matplotlib (the start-up is timed in experiments/profile_startup.py)."""
+    import subprocess
+    import sys
+
+    code = ("import sys\nfrom bubblefit.cli import build_parser\np = build_parser()\n"
+            "for cmd in ['render', 'fit', 'fit-sequence', 'calibrate', 'envmap', 'chart', 'check-capture', 'demo']:\n"
+            "    try:\n        p.parse_args([cmd, '--help'])\n    except SystemExit:\n        pass\n"
+            "heavy = ('jax', 'OpenImageIO', 'colour', 'cv2', 'dask', 'distributed', 'scipy', 'matplotlib')\n"
+            "print('HEAVY:' + ','.join(m for m in heavy if m in sys.modules))\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                       cwd=Path(__file__).resolve().parent.parent)
+    assert r.returncode == 0, r.stderr
+    line = [ln for ln in r.stdout.splitlines() if ln.startswith("HEAVY:")][-1]
+    assert line == "HEAVY:", f"heavy modules imported by the parsers: {line}"

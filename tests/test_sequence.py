@@ -77,10 +77,10 @@ def client():
     """A local Dask cluster of two single-threaded worker processes, for the whole module."""
     from distributed import Client, LocalCluster
 
-    from bubblefit.inverse.sequence import _local_env
+    from bubblefit.inverse._executors import local_env
 
     cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
-                           env=_local_env(), silence_logs=40)
+                           env=local_env(), silence_logs=40)
     c = Client(cluster)
     yield c
     c.close()
@@ -90,13 +90,13 @@ def client():
 @pytest.fixture(scope="module")
 def runs(data, client):
     """The sequence fitted on one worker, then on two (the second reads the first's compilation cache)."""
-    from bubblefit.inverse.sequence import fit_sequence
+    from bubblefit.inverse.sequence import SequenceOptions, fit_sequence
 
     out = {}
     for n in (1, 2):
         seen = set()  # workers that fitted frames (a seam repair may later refit a chunk elsewhere)
-        out[n] = fit_sequence(data["frames"], data["env"], data["root"] / f"out{n}", _options(), scheduler=client,
-                              workers=n, chunk_size=CHUNK, fps=FPS, progress=False,
+        seq = SequenceOptions(scheduler=client, workers=n, chunk_size=CHUNK, fps=FPS, progress=False)
+        out[n] = fit_sequence(data["frames"], data["env"], data["root"] / f"out{n}", _options(), seq,
                               on_record=lambda r: r["status"] == "ok" and seen.add(r["worker"]))
         out[n].extra["seen"] = seen
     return out
@@ -163,10 +163,10 @@ def test_vectorised_batches_agree(data, runs):
     """Frames fitted together (one vmapped solve, fit.fit_batch) give the per-frame fits'
     thicknesses within their error bars; an unreadable frame in a batch is recorded and
     the batch goes on. In this process, without Dask, one chunk of all frames."""
-    from bubblefit.inverse.sequence import fit_sequence
+    from bubblefit.inverse.sequence import SequenceOptions, fit_sequence
 
-    res = fit_sequence(data["frames"], data["env"], data["root"] / "batched", _options(), workers=0,
-                       chunk_size=N_FRAMES, fps=FPS, progress=False, batch=4)
+    seq = SequenceOptions(workers=0, chunk_size=N_FRAMES, fps=FPS, progress=False, batch=4)
+    res = fit_sequence(data["frames"], data["env"], data["root"] / "batched", _options(), seq)
     by_frame = {r["frame"]: r for r in res.records}
     assert by_frame[CORRUPT]["status"] == "failed" and "cannot read" in by_frame[CORRUPT]["message"]
     batched = [r for r in res.records if r.get("batch")]
@@ -191,7 +191,7 @@ def test_tables_and_plot(runs):
 
 def test_resume_after_interrupt(data, runs, client):
     """Finished frames are never refitted; the resumed run gives the same numbers."""
-    from bubblefit.inverse.sequence import fit_sequence
+    from bubblefit.inverse.sequence import SequenceOptions, fit_sequence
 
     src = runs[1].out_dir
     out = data["root"] / "resume"
@@ -207,12 +207,11 @@ def test_resume_after_interrupt(data, runs, client):
     def stop_after_first(rec):
         raise Stop  # the user presses Ctrl-C once frame 5 is saved
 
+    seq = SequenceOptions(scheduler=client, workers=1, chunk_size=CHUNK, fps=FPS, progress=False)
     with pytest.raises(Stop):
-        fit_sequence(data["frames"], data["env"], out, _options(), scheduler=client, workers=1, chunk_size=CHUNK,
-                     fps=FPS, progress=False, on_record=stop_after_first)
+        fit_sequence(data["frames"], data["env"], out, _options(), seq, on_record=stop_after_first)
     assert (out / "frames" / "frame_000005.json").exists()
-    res = fit_sequence(data["frames"], data["env"], out, _options(), scheduler=client, workers=1,
-                       chunk_size=CHUNK, fps=FPS, progress=False)
+    res = fit_sequence(data["frames"], data["env"], out, _options(), seq)
     assert res.fitted == 1  # frame 6 only: frame 5 was saved before the stop
     assert res.skipped == N_FRAMES - res.fitted
     for name, (mtime, body) in kept.items():
@@ -272,3 +271,89 @@ def test_discover_frames(tmp_path):
         px = load_frame(ref)
         assert px.shape == (24, 32, 3)
         np.testing.assert_allclose(px.mean(axis=(0, 1)), srgb_decode(np.asarray(rgb) / 255.0), rtol=0.08, atol=0.004)
+
+
+def test_rows_say_ok(runs):
+    """Every frame fitted from a clean film is ``ok``; the unreadable one is not; no frame of
+    this real sequence is flagged as a jump (the flags do not fire on noise)."""
+    rows = _table(runs[1])
+    assert [r["ok"] for r in rows] == [k != CORRUPT for k in range(N_FRAMES)]
+    assert all(r["warnings"] is None for k, r in enumerate(rows) if k != CORRUPT)
+    assert not any(r.get("jumps") for r in runs[1].records)
+
+
+def _stub_record(k: int, roughness: float, exposure: float, *, stderr: float = 1e-4) -> dict:
+    return {"frame": k, "file": f"f{k}.png", "time_s": float(k), "status": "ok", "converged": True,
+            "params": {"thickness_nm": 900.0 - 5 * k, "t": 0.97, "roughness": roughness, "exposure": exposure},
+            "stderr": {"thickness_nm": 1.0, "roughness": stderr * roughness, "exposure": stderr * exposure}}
+
+
+def test_jumping_roughness_or_gain_is_flagged(tmp_path):
+    """A frame whose roughness (or gain) leaves its neighbours' is flagged, in its record and
+    in its row (``ok`` false, a warning in words); a slow drift and noise are not."""
+    from bubblefit.inverse._tables import flag_jumps, write_tables
+
+    rng = np.random.default_rng(5)
+    n = 12
+    rough = 0.015 * (1 + 0.004 * np.arange(n)) * (1 + 0.01 * rng.normal(size=n))  # drift + 1 % noise
+    gain = np.full(n, 1.2) * (1 + 0.01 * rng.normal(size=n))
+    rough[4] *= 3.0  # a reflection fitted as a rough film
+    gain[9] *= 0.5  # a frame of another exposure
+    records = [_stub_record(k, float(rough[k]), float(gain[k])) for k in range(n)]
+    records.append({"frame": n, "file": "bad.png", "time_s": float(n), "status": "failed", "converged": False})
+    flagged = flag_jumps(records)
+    assert [r["frame"] for r in flagged if r.get("jumps")] == [4, 9]
+    assert flagged[4]["jumps"] == ["roughness"] and flagged[9]["jumps"] == ["exposure"]
+    assert not records[4].get("jumps")  # the input records are left as they were
+    csv_path, jsonl_path = write_tables(tmp_path, flagged)
+    from bubblefit.inverse.sequence import read_table
+
+    rows = read_table(csv_path)
+    assert [r["ok"] for r in rows] == [k not in (4, 9) for k in range(n)] + [False]
+    assert "roughness jumps" in rows[4]["warnings"] and "exposure jumps" in rows[9]["warnings"]
+    lines = [json.loads(x) for x in jsonl_path.read_text().splitlines()]
+    assert lines[4]["ok"] is False and lines[5]["ok"] is True
+
+
+def test_fit_reported_not_ok_is_not_ok(tmp_path):
+    """A fit that says ``ok = False`` itself (read with defaults, for results with and without
+    the field) makes its row not ok, and its warnings reach the table."""
+    from bubblefit.inverse._records import base_record, result_record
+    from bubblefit.inverse._tables import row_ok
+    from bubblefit.inverse.sequence import FrameRef
+
+    class Result:
+        params = {"thickness_nm": 500.0}
+        stderr = {"thickness_nm": 2.0}
+        converged = True
+        message = ""
+        iterations = 9
+        residual_rms = 0.01
+
+    class Flagged(Result):
+        ok = False
+        reduced_chi2 = 7.5
+        warnings = ["roughness at its bound"]
+
+    base = base_record(FrameRef(0, "a.png", 0.0), None)
+    assert row_ok(result_record(base, Result(), 1.0))
+    rec = result_record(base, Flagged(), 1.0)
+    assert not row_ok(rec) and rec["warnings"] == ["roughness at its bound"] and rec["reduced_chi2"] == 7.5
+
+
+def test_resume_refused_without_run_json(data, runs):
+    """Finished frames whose run.json is gone or damaged are not reused: refused, untouched."""
+    from bubblefit.inverse.sequence import SequenceOptions, fit_sequence
+
+    for damage in ("delete", "garble"):
+        out = data["root"] / f"no_run_{damage}"
+        shutil.copytree(runs[1].out_dir, out)
+        if damage == "delete":
+            os.remove(out / "run.json")
+        else:
+            (out / "run.json").write_bytes(b"\x00garbage")
+        before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+        with pytest.raises(InputError, match="run.json"):
+            fit_sequence(data["frames"], data["env"], out, _options(),
+                         SequenceOptions(workers=0, chunk_size=CHUNK, fps=FPS, progress=False))
+        assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before

@@ -1,9 +1,15 @@
-"""The ``bubblefit`` command line (DESIGN.md, "Command line").
+"""The ``bubblefit`` command line (docs/design.md, "Command line").
 
 Each sub-command lives in its own module of this package and exposes
 ``register(subparsers)``, which adds its parser and sets ``func`` to a function taking
 the parsed arguments and returning an exit status. Errors of type
 :class:`bubblefit.errors.BubblefitError` are printed as one line on stderr.
+
+Start-up: building the parsers imports the command modules, which import nothing heavy
+at module level (JAX, OpenImageIO, colour-science, OpenCV, Dask, SciPy and Matplotlib are
+imported inside each command's ``run``), so ``--help``, ``--version`` and argument errors
+answer at once. JAX's compilation cache and quiet logs are set up through environment
+variables (:func:`bubblefit.io.jaxcache.jax_setup`) before any command imports JAX.
 """
 
 from __future__ import annotations
@@ -26,22 +32,6 @@ COMMANDS = (
 )
 
 
-def _setup_jax() -> None:
-    """Persistent compilation cache, so a second CLI call starts fast."""
-    cache = os.environ.get("BUBBLEFIT_CACHE_DIR") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "bubblefit", "jax"
-    )
-    try:
-        os.makedirs(cache, exist_ok=True)
-        import jax
-
-        jax.config.update("jax_compilation_cache_dir", cache)
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
-        jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
-    except Exception:  # a read-only home must not stop the program
-        pass
-
-
 class _Parser(argparse.ArgumentParser):
     """An argument parser whose usage errors are one line on stderr (exit 2), like every
     other error of the command line; ``--help`` shows the usage."""
@@ -55,6 +45,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog="bubblefit",
         description="Render soap bubbles and measure them from photographs.",
     )
+    from .. import __version__
+
+    parser.add_argument("--version", action="version", version=f"bubblefit {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name in COMMANDS:
@@ -77,10 +70,11 @@ def main(argv: list[str] | None = None) -> int:
     the environment sets ``BUBBLEFIT_DEBUG=1``, which re-raises it with its traceback.
     """
     from ..errors import BubblefitError
+    from ..io.jaxcache import jax_setup
 
     parser = build_parser()
     args = parser.parse_args(argv)
-    _setup_jax()
+    jax_setup()
     try:
         return int(args.func(args) or 0)
     except BubblefitError as exc:

@@ -62,20 +62,24 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from ..capture.calibrate import calibrate, save_json, write_debug_image
+    from ..capture.calibrate import calibrate, write_debug_image
+    from ..progress import stage
+    from .common import guard_outputs, write_json
 
+    guard_outputs([args.before, args.after], [args.json, args.debug_image])
     circle = _circle(args.circle) if args.circle else None
     if not (0.05 <= args.inner_fraction <= 0.95):
         raise InputError(f"--inner-fraction must be between 0.05 and 0.95, got {args.inner_fraction}")
     if args.bootstrap < 100:
         raise InputError(f"--bootstrap needs at least 100 resamples, got {args.bootstrap}")
     try:
-        result = calibrate(
-            args.before, args.after, circle,
-            inner_fraction=args.inner_fraction,
-            exposure_correction=not args.no_exposure_correction,
-            n_boot=args.bootstrap, seed=args.seed,
-        )
+        with stage("calibrating t (registration, circle, ratio, bootstrap)"):
+            result = calibrate(
+                args.before, args.after, circle,
+                inner_fraction=args.inner_fraction,
+                exposure_correction=not args.no_exposure_correction,
+                n_boot=args.bootstrap, seed=args.seed,
+            )
     except BubblefitError as exc:
         # one line on the terminal, even when a decoder's message spans several
         lines = str(exc).strip().splitlines() or ["unknown error"]
@@ -83,7 +87,7 @@ def run(args) -> int:
             raise type(exc)(lines[0]) from None
         raise
     if args.json:
-        save_json(args.json, result)
+        write_json(args.json, result.to_json())
     if args.debug_image:
         write_debug_image(args.debug_image, result)
     if not args.quiet:

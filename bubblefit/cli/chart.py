@@ -42,21 +42,25 @@ def run(args) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..optics.chart import display_scale, interference_colours
     from ..io.images import atomic_path, srgb_encode
+    from ..optics.chart import display_scale, interference_colours
+    from ..progress import stage
+    from .common import guard_outputs, write_json
 
     if not 0 <= args.angle_deg <= 90:
         raise InputError(f"--angle-deg must be within [0, 90], got {args.angle_deg}")
     if not 1.0 <= args.n_film <= 3.0:
         raise InputError(f"--n-film must be within [1, 3], got {args.n_film}")
     d = parse_range(args.thickness)
+    guard_outputs([], [args.output, args.csv, args.json])
     fmt = args.output.rsplit(".", 1)[-1].lower() if "." in args.output else "png"
     supported = plt.figure().canvas.get_supported_filetypes()
     plt.close("all")
     if fmt not in supported:
         raise InputError(f"cannot write chart {args.output}: unknown image format .{fmt} "
                          f"(use one of {', '.join(sorted(supported))})")
-    rgb = interference_colours(d, angle_deg=args.angle_deg, model=args.model, n_film=args.n_film)
+    with stage(f"interference colours of {len(d)} thicknesses"):
+        rgb = interference_colours(d, angle_deg=args.angle_deg, model=args.model, n_film=args.n_film)
     shown = srgb_encode(rgb * display_scale(args.model, angle_deg=args.angle_deg, n_film=args.n_film))
     fig, ax = plt.subplots(figsize=(10, 1.8), dpi=120)
     ax.imshow(shown[None, :, :], aspect="auto", extent=(d[0], d[-1], 0, 1), interpolation="nearest")
@@ -73,7 +77,5 @@ def run(args) -> int:
                        comments="", fmt="%.10g")
     print(f"wrote {args.output}" + (f" and {args.csv}" if args.csv else "") + f" ({len(d)} thicknesses)")
     if args.json:
-        from .common import write_json
-
         write_json(args.json, {"output": args.output, "csv": args.csv, "samples": len(d), "model": args.model})
     return 0

@@ -7,15 +7,21 @@ on bad input (missing folder, no images, unknown protocol).
 
 from __future__ import annotations
 
-import json
+from pathlib import Path
 
 NAME = "check-capture"
 
 
-def register(subparsers) -> None:
-    from ..capture.protocols import list_protocols
+def _protocol_names() -> list[str]:
+    """Names of the shipped protocol specs, found without importing :mod:`bubblefit.capture`
+    (the same folder as :func:`bubblefit.capture.protocols.protocols_dir`: ``capture_protocols/``
+    beside the package), so that ``--help`` stays fast."""
+    folder = Path(__file__).resolve().parents[2] / "capture_protocols"
+    return sorted(p.stem for p in folder.glob("*.toml")) if folder.is_dir() else []
 
-    known = ", ".join(list_protocols()) or "transmission, envmap, bubble"
+
+def register(subparsers) -> None:
+    known = ", ".join(_protocol_names()) or "transmission, envmap, bubble"
     p = subparsers.add_parser(
         NAME,
         help="check a capture folder against a protocol of capture_protocols/",
@@ -34,13 +40,12 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from ..capture.protocols import check_capture, format_table, load_protocol
-    from ..io.images import atomic_path
+    from .common import folder_files, guard_outputs, write_json
 
+    guard_outputs(folder_files(args.folder) + [Path(args.protocol)], [args.json])
     spec = load_protocol(args.protocol)
     report = check_capture(args.folder, spec)
     print(format_table(report))
     if args.json:
-        with atomic_path(args.json) as tmp:
-            with open(tmp, "w", encoding="utf-8") as f:
-                json.dump(report.as_dict(), f, indent=2)
+        write_json(args.json, report.as_dict())
     return 0 if report.passed else 1

@@ -3,13 +3,12 @@
 Several exposures of the ball are merged to HDR (:func:`bubblefit.capture.probe.merge_exposures`),
 the ball is found (:func:`bubblefit.capture.probe.find_ball`) or given with ``--ball``, and it is
 unwrapped (:func:`bubblefit.capture.probe.unwrap_mirror_ball`) to an equirectangular map in the
-convention of DESIGN.md (camera frame: the camera looked along -z). Writes a linear EXR and
+convention of docs/design.md (camera frame: the camera looked along -z). Writes a linear EXR and
 an sRGB PNG preview beside it; ``--mask`` writes the valid-texel mask, ``--json`` a summary.
 """
 
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
@@ -76,11 +75,14 @@ def _parse_ball(text: str):
 def run(args) -> int:
     from ..capture import probe
     from ..capture.protocols import metadata_value
-    from ..io.images import atomic_path, preview_path, read_image, srgb_encode, write_image, write_preview
+    from ..io.images import preview_path, read_image, srgb_encode, write_image, write_preview
+    from ..progress import stage
+    from .common import guard_outputs, write_json
 
     out = str(args.output)
     if not out.lower().endswith(".exr"):
         raise InputError(f"the output map must be an .exr file, got {out}")
+    guard_outputs(args.probes, [out, preview_path(out), args.mask, args.hdr, args.json])
     if args.height < 8:
         raise InputError(f"--height must be at least 8, got {args.height}")
     images = [read_image(p, linear=True if args.response == "linear" else None) for p in args.probes]
@@ -113,16 +115,19 @@ def run(args) -> int:
         resp = probe.recover_response(codes, times, method=args.response.split("-", 1)[1])
         pix = [probe.apply_response(c, resp) for c in codes]
     sat = [im.saturated if im.bit_depth in (8, 16) else None for im in images]
-    merged = probe.merge_exposures(pix, times, saturated=sat, method=args.merge)
-    circle = _parse_ball(args.ball) if args.ball else probe.find_ball(merged.radiance)
+    with stage(f"merging {len(pix)} exposure(s)"):
+        merged = probe.merge_exposures(pix, times, saturated=sat, method=args.merge)
+    with stage("finding the ball"):
+        circle = _parse_ball(args.ball) if args.ball else probe.find_ball(merged.radiance)
     h, w = merged.radiance.shape[:2]
     if circle.cx + circle.r < 0 or circle.cy + circle.r < 0 or circle.cx - circle.r > w or circle.cy - circle.r > h:
         raise InputError(f"the ball ({circle.cx:g}, {circle.cy:g}, r {circle.r:g}) lies outside the {w}x{h} image")
-    pm = probe.unwrap_mirror_ball(
-        merged.radiance, circle, height=args.height, distance=args.distance,
-        rim_mask_deg=args.rim_mask_deg, camera_mask_deg=args.camera_mask_deg,
-        rotation=math.radians(args.rotation_deg), fill=not args.no_fill,
-    )
+    with stage("unwrapping the ball"):
+        pm = probe.unwrap_mirror_ball(
+            merged.radiance, circle, height=args.height, distance=args.distance,
+            rim_mask_deg=args.rim_mask_deg, camera_mask_deg=args.camera_mask_deg,
+            rotation=math.radians(args.rotation_deg), fill=not args.no_fill,
+        )
     env = pm.pixels if not args.no_fill else np.where(pm.valid[..., None], pm.pixels, 0.0)
     clipped_in_ball = int((merged.clipped & probe.ball_mask((h, w), circle)).sum())
     write_image(out, env, bit_depth=32 if float(np.max(env)) > 60000 else None)
@@ -147,9 +152,7 @@ def run(args) -> int:
         **pm.info,
     }
     if args.json:
-        with atomic_path(args.json) as tmp:
-            with open(tmp, "w", encoding="utf-8") as f:
-                json.dump(summary, f, indent=2)
+        write_json(args.json, summary)
     print(f"wrote {out} ({pm.pixels.shape[1]}x{pm.pixels.shape[0]}) and {preview_path(out)}; ball at "
           f"({circle.cx:.1f}, {circle.cy:.1f}) r {circle.r:.1f} px ({summary['ball_source']}); "
           f"{len(images)} exposure(s) over {summary['bracket_stops']:.1f} stops; "

@@ -1,7 +1,7 @@
 """``bubblefit fit PHOTO --envmap ENV [...]``: recover t, r_d, r_s, roughness and thickness.
 
 See :func:`bubblefit.inverse.fit.fit_photo` for the method. Prints a summary; ``--json`` writes
-the DESIGN.md result (``params``, ``stderr``, ``converged``, ``iterations``,
+the result of docs/design.md (``params``, ``stderr``, ``converged``, ``iterations``,
 ``residual_rms``, ``time_s`` and more); ``-o PREFIX`` writes ``PREFIX_render.exr``,
 ``PREFIX_residual.exr`` and, for a drainage profile or a map, ``PREFIX_thickness.exr``
 (nm, NaN outside the bubble), each with a PNG preview. A fit that did not converge is
@@ -101,6 +101,8 @@ def fit_option_values(args) -> dict:
         t_init = args.t
     if args.disc:
         disc = parse_floats(args.disc, 3, "--disc")
+        if disc[2] <= 0:
+            raise InputError(f"--disc radius must be positive, got {args.disc!r}")
     lo, hi = parse_floats(args.thickness_range, 2, "--thickness-range")
     kw = dict(thickness=args.thickness, disc=disc, t_init=t_init, thickness_range=(lo, hi),
               hold=tuple(h.strip() for h in args.hold.split(",") if h.strip()))
@@ -111,19 +113,35 @@ def fit_option_values(args) -> dict:
     return kw
 
 
+def output_paths(args) -> list[str]:
+    """Every file ``fit -o PREFIX`` may write: ``PREFIX_{render,residual,thickness}.exr`` and
+    their PNG previews (for :func:`~bubblefit.cli.common.guard_outputs`)."""
+    from ..io.atomic import preview_path
+
+    if not args.output:
+        return []
+    names = ["render", "residual"] + (["thickness"] if args.thickness != "constant" else [])
+    exrs = [f"{args.output}_{n}.exr" for n in names]
+    return exrs + [str(preview_path(p)) for p in exrs]
+
+
 def _bits(img) -> int | None:
     return None if img.linear_file else int(img.bit_depth)
 
 
 def run(args) -> int:
     from ..inverse.fit import FitOptions, fit_photo
-    from ..io.images import preview_path, read_image, write_image
-    from ..progress import status
+    from ..io.images import read_image
+    from ..progress import stage
     from ..model.scene import load_scene
-    from .common import write_json
+    from .common import guard_outputs, scene_inputs, write_json
 
-    photo = read_image(args.photo)
-    env = load_envmap(args.envmap)
+    scene = load_scene(args.scene) if args.scene else None
+    inputs = [args.photo, args.envmap, args.background, args.calibration, args.scene]
+    guard_outputs(inputs + (scene_inputs(scene) if scene is not None else []), [args.json, *output_paths(args)])
+    with stage("reading the photo and the environment map"):
+        photo = read_image(args.photo)
+        env = load_envmap(args.envmap)
     background = None
     if args.background:
         bimg = read_image(args.background)
@@ -131,15 +149,14 @@ def run(args) -> int:
             raise InputError(f"the background {args.background} is {bimg.pixels.shape[1]}x{bimg.pixels.shape[0]}, "
                              f"the photo is {photo.pixels.shape[1]}x{photo.pixels.shape[0]}")
         background = bimg.pixels
-    scene = load_scene(args.scene) if args.scene else None
     model = args.model or (scene.table("effects").get("model", "paper") if scene is not None else "paper")
     kw = dict(fit_option_values(args), model=model, free_split=args.free_split, fit_rotation=args.fit_rotation,
               bits=_bits(photo))
     options = FitOptions(**kw)
-    status(f"fitting {photo.pixels.shape[1]}x{photo.pixels.shape[0]} ({options.thickness} thickness, "
-           f"{options.model} model) ...")
-    result = fit_photo(photo.pixels, env, options=options, background=background, scene=scene,
-                       saturated=photo.saturated)
+    with stage(f"fitting {photo.pixels.shape[1]}x{photo.pixels.shape[0]} ({options.thickness} thickness, "
+               f"{options.model} model)"):
+        result = fit_photo(photo.pixels, env, options=options, background=background, scene=scene,
+                           saturated=photo.saturated)
     out = result.to_json()
     out["photo"] = str(args.photo)
     if args.explain:
@@ -157,7 +174,20 @@ def run(args) -> int:
     state = "converged" if result.converged else f"NOT CONVERGED: {result.message}"
     print(f"{state}; {result.iterations} iterations, residual rms {result.residual_rms:.4g}, {result.time_s:.2f} s")
     if args.output:
-        prefix = args.output
+        _write_maps(args.output, result, out)
+    if args.json:
+        write_json(args.json, out)
+    if args.strict and not result.converged:
+        raise ComputationError(f"the fit did not converge: {result.message}")
+    return 0
+
+
+def _write_maps(prefix: str, result, out: dict) -> None:
+    """``PREFIX_render.exr``, ``PREFIX_residual.exr`` (and ``PREFIX_thickness.exr``), with PNG previews."""
+    from ..io.images import preview_path, write_image
+    from ..progress import stage
+
+    with stage("writing the maps"):
         files = {"render": result.render, "residual": result.residual}
         if result.thickness_map is not None:
             files["thickness"] = result.thickness_map
@@ -176,8 +206,3 @@ def run(args) -> int:
                 prev = np.repeat((np.nan_to_num(img, nan=0.0) / max(top, 1e-9))[..., None], 3, axis=2)
             write_image(preview_path(path), prev)
         out["outputs"] = {k: f"{prefix}_{k}.exr" for k in files}
-    if args.json:
-        write_json(args.json, out)
-    if args.strict and not result.converged:
-        raise ComputationError(f"the fit did not converge: {result.message}")
-    return 0

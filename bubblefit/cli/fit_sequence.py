@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import os
+from pathlib import Path
 
 from ..errors import InputError
 from .fit import fit_option_values, load_envmap
@@ -57,7 +58,8 @@ def register(sub):
                         "frame, faster on CPUs; larger for accelerators)")
     p.add_argument("--no-warm-start", action="store_true",
                    help="run the global thickness search on every frame (frames that are not one continuous film)")
-    p.add_argument("--force", action="store_true", help="refit frames already finished in OUT_DIR")
+    p.add_argument("--force", action="store_true",
+                   help="refit frames already finished in OUT_DIR (also when its run.json is missing or unreadable)")
     p.add_argument("--retry-failed", action="store_true", help="refit frames recorded as failed")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -71,11 +73,11 @@ def build_options(args):
 
 
 def run(args) -> int:
+    from ..inverse.sequence import SequenceOptions, discover_frames, fit_sequence, row_ok
     from ..io.images import read_image
-    from ..progress import status
     from ..model.scene import load_scene
-    from ..inverse.sequence import discover_frames, fit_sequence
-    from .common import write_json
+    from ..progress import stage, status
+    from .common import guard_outputs, scene_inputs, write_json
 
     if args.chunk_size < 1:
         raise InputError("--chunk-size must be at least 1")
@@ -84,22 +86,28 @@ def run(args) -> int:
     if args.workers is not None and args.workers < 0:
         raise InputError("--workers must be 0 or more")
     frames = discover_frames(args.frames, fps=args.fps)
-    options = build_options(args)
-    env = load_envmap(args.envmap)
-    background = read_image(args.background).pixels if args.background else None
     scene = load_scene(args.scene) if args.scene else None
+    out = Path(args.output)
+    inputs = [f.source for f in frames] + [args.envmap, args.background, args.calibration, args.scene]
+    guard_outputs(inputs + (scene_inputs(scene) if scene is not None else []),
+                  [args.json, out / "params.csv", out / "params.jsonl", out / "thickness.png", out / "run.json"])
+    options = build_options(args)
+    with stage("reading the environment map"):
+        env = load_envmap(args.envmap)
+        background = read_image(args.background).pixels if args.background else None
     where = ("this process" if args.workers == 0 else
              f"Dask scheduler {args.scheduler}" if args.scheduler else
              f"a local Dask cluster of {args.workers or os.cpu_count()} workers")
     status(f"{len(frames)} frames, fitting on {where} ...")
-    res = fit_sequence(frames, env, args.output, options, background=background, scene=scene,
-                       scheduler=None if args.workers == 0 else args.scheduler, workers=args.workers,
-                       chunk_size=args.chunk_size, force=args.force, retry_failed=args.retry_failed,
-                       maps=args.maps, progress=not args.no_progress, warm_start=not args.no_warm_start,
-                       batch=args.batch)
+    seq = SequenceOptions(scheduler=None if args.workers == 0 else args.scheduler, workers=args.workers,
+                          chunk_size=args.chunk_size, force=args.force, retry_failed=args.retry_failed,
+                          maps=args.maps, progress=not args.no_progress, warm_start=not args.no_warm_start,
+                          batch=args.batch)
+    res = fit_sequence(frames, env, args.output, options, seq, background=background, scene=scene)
     rate = f"{res.fps:.2f} frames/s" if math.isfinite(res.fps) else "nothing to fit"
+    flagged = sum(1 for r in res.records if r.get("status") == "ok" and not row_ok(r))
     print(f"wrote {res.table} ({len(res.records)} frames: {res.fitted} fitted, {res.skipped} already done, "
-          f"{res.failed} failed; {rate})")
+          f"{res.failed} failed, {flagged} not ok; {rate})")
     if args.json:
         write_json(args.json, {
             "out_dir": str(res.out_dir), "table": str(res.table), "jsonl": str(res.jsonl),
@@ -108,5 +116,7 @@ def run(args) -> int:
             "elapsed_s": res.elapsed_s, "setup_s": res.setup_s, "fps": res.fps,
             "failures": [{"frame": r["frame"], "file": r["file"], "reason": r.get("message", "")}
                          for r in res.records if r.get("status") != "ok"],
+            "flagged": [{"frame": r["frame"], "file": r["file"], "warnings": r.get("warnings", [])}
+                        for r in res.records if r.get("status") == "ok" and not row_ok(r)],
         })
     return 0

@@ -11,7 +11,7 @@ from ..errors import InputError
 
 def register(sub):
     p = sub.add_parser("render", help="render a scene file to a linear EXR and an sRGB PNG preview",
-                       description="Render a bubble scene (TOML, see DESIGN.md) to a linear EXR plus a PNG preview.")
+                       description="Render a bubble scene (TOML, see docs/design.md) to a linear EXR plus a PNG preview.")
     p.add_argument("scene", help="scene file (TOML)")
     p.add_argument("-o", "--output", required=True, help="output image (.exr recommended; a .png preview is written beside it)")
     p.add_argument("--explain", action="store_true", help="print which effects are simulated or skipped, and why")
@@ -29,21 +29,23 @@ def auto_exposure(img: np.ndarray) -> float:
 
 def run(args) -> int:
     from ..io.images import preview_path, write_image
-    from ..progress import status
     from ..model.scene import load_scene, render_scene
-    from .common import write_json
+    from ..progress import stage
+    from .common import guard_outputs, scene_inputs, write_json
 
-    scene = load_scene(args.scene)
-    status(f"rendering {scene.shape[1]}x{scene.shape[0]} ...")
+    with stage("reading the scene"):
+        scene = load_scene(args.scene)
+    preview = preview_path(args.output)
+    guard_outputs([args.scene, *scene_inputs(scene)], [args.output, preview, args.json])
     t0 = time.perf_counter()
-    img, decisions = render_scene(scene, explain=True)
+    with stage(f"rendering {scene.shape[1]}x{scene.shape[0]}"):
+        img, decisions = render_scene(scene, explain=True)
     elapsed = time.perf_counter() - t0
     if not np.all(np.isfinite(img)):
         raise InputError("the render produced non-finite values; check the scene's values")
-    write_image(args.output, img)
     exposure = args.preview_exposure if args.preview_exposure is not None else auto_exposure(img)
-    preview = preview_path(args.output)
-    if preview != __import__("pathlib").Path(args.output):
+    with stage("writing"):
+        write_image(args.output, img)
         write_image(preview, img * exposure)
     if args.explain:
         print("effect               state     [setting] reason")

@@ -1,6 +1,6 @@
 """Image input and output through OpenImageIO, with sRGB transfer through colour-science.
 
-Conventions (DESIGN.md): images in memory are ``float`` arrays of shape (H, W, 3) holding
+Conventions (docs/design.md): images in memory are ``float`` arrays of shape (H, W, 3) holding
 linear radiance. 8- and 16-bit files (PNG, JPEG, TIFF) are sRGB-encoded unless told
 otherwise; EXR and HDR files, and float TIFFs, are linear. Writers are atomic: they write
 to a temporary file beside the target and rename it, so a failed run never leaves a
@@ -10,7 +10,6 @@ half-written file nor destroys an existing one.
 from __future__ import annotations
 
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -18,7 +17,8 @@ import colour
 import numpy as np
 import OpenImageIO as oiio
 
-from ..errors import InputError
+from ..errors import InputError, OutputError
+from .atomic import atomic_path, preview_path
 
 __all__ = [
     "Image",
@@ -28,6 +28,7 @@ __all__ = [
     "srgb_decode",
     "srgb_encode",
     "atomic_path",
+    "preview_path",
 ]
 
 _LINEAR_EXTENSIONS = {".exr", ".hdr", ".pfm"}
@@ -186,55 +187,6 @@ def read_image(path: str | os.PathLike, *, linear: bool | None = None) -> Image:
     )
 
 
-class atomic_path:
-    """Context manager yielding a temporary path that replaces ``target`` on success.
-
-    The temporary file lives in the target's folder (so the rename is atomic) and keeps
-    the target's extension (so OpenImageIO picks the right format). On an exception the
-    temporary file is removed and the target is left as it was.
-    """
-
-    def __init__(self, target: str | os.PathLike):
-        self.target = Path(target)
-
-    def __enter__(self) -> str:
-        folder = self.target.parent if str(self.target.parent) else Path(".")
-        if not folder.exists():
-            raise InputError(f"cannot write {self.target}: folder {folder} does not exist")
-        if self.target.is_dir():
-            raise InputError(f"cannot write {self.target}: it is a folder")
-        if not os.access(folder, os.W_OK):
-            raise InputError(f"cannot write {self.target}: folder {folder} is not writable")
-        fd, tmp = tempfile.mkstemp(
-            prefix=f".{self.target.stem}.", suffix=self.target.suffix or ".tmp", dir=folder
-        )
-        os.close(fd)
-        self.tmp = tmp
-        return tmp
-
-    def __exit__(self, exc_type, exc, tb) -> bool:
-        if exc_type is None:
-            try:
-                # mkstemp makes owner-only files; give the result the permissions an
-                # ordinary new file gets (0666 less the umask).
-                umask = os.umask(0)
-                os.umask(umask)
-                os.chmod(self.tmp, 0o666 & ~umask)
-                os.replace(self.tmp, self.target)
-            except OSError as err:
-                try:
-                    os.remove(self.tmp)
-                except OSError:
-                    pass
-                raise InputError(f"cannot write {self.target}: {err.strerror}") from None
-        else:
-            try:
-                os.remove(self.tmp)
-            except OSError:
-                pass
-        return False
-
-
 def write_image(path: str | os.PathLike, pixels: np.ndarray, *, bit_depth: int | None = None) -> None:
     """Write a linear image atomically.
 
@@ -266,24 +218,39 @@ def write_image(path: str | os.PathLike, pixels: np.ndarray, *, bit_depth: int |
     if ext in (".jpg", ".jpeg"):
         spec.attribute("Compression", "jpeg:95")
     with atomic_path(path) as tmp:
-        out = oiio.ImageOutput.create(tmp)
-        if out is None:
-            raise InputError(f"cannot write {path}: {_first_line(oiio.geterror()) or 'unsupported format'}")
-        ok = out.open(tmp, spec)
-        if not ok:
-            raise InputError(f"cannot write {path}: {_first_line(out.geterror())}")
-        ok = out.write_image(np.ascontiguousarray(data))
-        out.close()
-        if not ok:
-            raise InputError(f"cannot write {path}: {_first_line(out.geterror())}")
+        _write_oiio(tmp, path, spec, np.ascontiguousarray(data))
+
+
+def _write_oiio(tmp: str, shown: os.PathLike, spec, data: np.ndarray) -> None:
+    """Write ``data`` to ``tmp`` with OpenImageIO, checking the open, the pixels and the
+    close: OpenImageIO reports a failed write (e.g. a full disk) through the return values
+    and ``has_error``/``geterror()`` of the ImageOutput, not by raising."""
+    out = oiio.ImageOutput.create(tmp)
+    if out is None:
+        raise OutputError(f"cannot write {shown}: {_first_line(oiio.geterror()) or 'unsupported format'}")
+    opened = False
+    try:
+        opened = bool(out.open(tmp, spec))
+        ok = opened and bool(out.write_image(data))
+    finally:
+        closed = bool(out.close()) if opened else False
+    if not (ok and closed) or bool(out.has_error):
+        raise OutputError(f"cannot write {shown}: {_oiio_reason(out.geterror(), tmp, shown, data.nbytes)}")
+
+
+def _oiio_reason(message: str, tmp: str, shown: os.PathLike, nbytes: int) -> str:
+    """The reason of a failed OpenImageIO write in one line: a full disk in plain words
+    (OpenImageIO only says that the output failed), else its message, naming the target
+    rather than the temporary file."""
+    try:
+        st = os.statvfs(os.path.dirname(os.path.abspath(tmp)))
+        if st.f_bavail * st.f_frsize < max(nbytes, 1) // 2 + 4096:
+            return "no space left on device"
+    except OSError:
+        pass
+    return (_first_line(message) or "the image writer failed").replace(tmp, str(shown))
 
 
 def write_preview(path: str | os.PathLike, pixels: np.ndarray, *, exposure: float = 1.0) -> None:
     """Write an 8-bit sRGB PNG preview of a linear image (values clipped to [0, 1])."""
     write_image(path, np.asarray(pixels) * exposure)
-
-
-def preview_path(exr_path: str | os.PathLike) -> Path:
-    """The PNG preview that goes with an EXR output: same name, ``.png`` extension."""
-    p = Path(exr_path)
-    return p.with_suffix(".png") if p.suffix.lower() != ".png" else p.with_name(p.stem + "_preview.png")

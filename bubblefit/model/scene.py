@@ -57,6 +57,7 @@ def read_envmap(path, *, scale: float = 1.0):
         raise InputError(f"environment map {path} is {w}x{h}; an equirectangular map must be twice as wide as high")
     if h < 2:
         raise InputError(f"environment map {path} is {w}x{h}; it needs at least 2 rows (4x2 texels)")
+    _check_radiance(path, img.pixels * scale)
     return EnvMap.from_array(img.pixels * scale)
 
 
@@ -158,6 +159,7 @@ class Scene:
                 _vector(f"camera.{k}", c[k], n)
         if "center" in b:
             _vector("bubble.center", b["center"], 3)
+        _check_camera_geometry(c, b)
         e = self.table("effects")
         if e.get("model", "paper") not in ("paper", "physical"):
             raise InputError(f"effects.model must be paper or physical, got {e.get('model')!r}")
@@ -308,6 +310,58 @@ class Scene:
         cfg = RenderConfig(effects=fx, camera=camera, center=tuple(float(x) for x in b.get("center", (0, 0, 0))),
                            radius=float(b.get("radius", 1.0)), point_lights=lights, chunk=chunk)
         return cfg, decisions
+
+
+#: Negative texels of real HDR maps (ringing of demosaicing and resampling) carry far less
+#: than this fraction of the map's energy (at most 2.5e-7 in the maps of data/envmaps).
+NEGATIVE_ENERGY_TOLERANCE = 1e-4
+
+
+def _check_radiance(path, pixels: np.ndarray) -> None:
+    """Refuse a map with truly negative radiance (a sign error, a negative scale, a broken
+    file); the tiny negatives of real maps pass: each smaller than the map's median
+    radiance and all together below :data:`NEGATIVE_ENERGY_TOLERANCE` of its energy."""
+    negative = pixels < 0
+    if not negative.any():
+        return
+    neg_energy = -float(pixels[negative].sum())
+    pos_energy = float(pixels[~negative].sum())
+    typical = float(np.median(np.abs(pixels)))
+    if neg_energy > NEGATIVE_ENERGY_TOLERANCE * pos_energy or -float(pixels.min()) > typical:
+        count = int(np.count_nonzero(negative.any(axis=2)))
+        raise InputError(f"environment map {path} has {count} texel(s) of negative radiance (down to "
+                         f"{float(pixels.min()):.3g}); radiance is never negative: fix the map or its scale")
+
+
+def _check_camera_geometry(c: dict, b: dict) -> None:
+    """Refuse cameras that see nothing or are not defined, before any arithmetic warns.
+
+    A disc needs a positive radius; a perspective camera needs a field of view strictly
+    between 0 and 180 degrees, a target apart from its origin, an ``up`` not parallel to
+    the view direction, and to stand outside the bubble (the model composites the front
+    film, the rear film and the background as seen from outside, eq. 11).
+    """
+    if "disc" in c and float(c["disc"][2]) <= 0:
+        raise InputError(f"scene value camera.disc radius = {c['disc'][2]} must be positive")
+    if c.get("type", "orthographic") != "perspective":
+        return
+    fov = c.get("fov_deg", 35.0)
+    if isinstance(fov, bool) or not isinstance(fov, (int, float)) or not 0.0 < fov < 180.0:
+        raise InputError(f"scene value camera.fov_deg = {fov} must lie strictly between 0 and 180 degrees")
+    origin = np.asarray(c.get("origin", (0.0, 0.0, 4.0)), dtype=np.float64)
+    target = np.asarray(c.get("target", (0.0, 0.0, 0.0)), dtype=np.float64)
+    up = np.asarray(c.get("up", (0.0, 1.0, 0.0)), dtype=np.float64)
+    view = target - origin
+    if not np.linalg.norm(view) > 0:
+        raise InputError("scene values camera.origin and camera.target are the same point: the camera looks nowhere")
+    if not np.linalg.norm(up) > 0 or np.linalg.norm(np.cross(view, up)) <= 1e-9 * np.linalg.norm(view) * np.linalg.norm(up):
+        raise InputError("scene value camera.up is parallel to the view direction (target - origin): "
+                         "choose an up that is not")
+    center = np.asarray(b.get("center", (0.0, 0.0, 0.0)), dtype=np.float64)
+    radius = float(b.get("radius", 1.0))
+    if np.linalg.norm(origin - center) <= radius:
+        raise InputError("the camera (camera.origin) is inside the bubble: place it farther from bubble.center "
+                         "than bubble.radius")
 
 
 def _vector(name: str, value, n: int) -> list[float]:

@@ -1,0 +1,317 @@
+"""Executors of a sequence fit: the work of one chunk, in this process or on Dask.
+
+One chunk is one task: its frames are fitted in order, each warm-started from the last
+successful frame before it (:func:`fit_chunk`). :class:`LocalExecutor` runs the tasks in
+this process, one after the other; :class:`DaskExecutor` runs them on a ``distributed``
+cluster: a local one (one single-threaded worker process per core, so two workers do not
+fight over the same cores) or an existing one. A worker process keeps JAX's compiled
+functions between tasks and shares the client's persistent compilation cache
+(:func:`bubblefit.io.jaxcache.jax_setup`), so only its first frame pays the compilation.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import inspect
+import os
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from ..errors import InputError
+from ..io.jaxcache import jax_setup
+from ._plan import FrameRef, load_frame
+from .fit import fit_batch, fit_photo
+from ._records import base_record, one_line, result_record, warm_init
+
+__all__ = ["DEFAULT_FIT", "ChunkTask", "fit_chunk", "LocalExecutor", "DaskExecutor", "local_env"]
+
+DEFAULT_FIT = "bubblefit.inverse.fit:fit_photo"
+
+
+_WORKER_READY = False
+
+
+def _worker_setup(jax_settings: dict) -> None:
+    """Once per process: the client's JAX settings (compilation cache, float64), through
+    :func:`bubblefit.io.jaxcache.jax_setup`."""
+    global _WORKER_READY
+    if _WORKER_READY:
+        return
+    jax_setup(jax_settings.get("cache_dir"), enable_x64=jax_settings.get("enable_x64"))
+    _WORKER_READY = True
+
+
+def _read_frame(ref: FrameRef, base: dict, t0: float):
+    """``(photo, None)``, or ``(None, failed record)`` for a frame that cannot be read."""
+    try:
+        return load_frame(ref), None
+    except Exception as exc:  # unreadable frame: record and go on
+        return None, dict(base, status="failed", converged=False, warm_start=False,
+                          message=f"cannot read frame: {one_line(exc)}", fit_time_s=time.perf_counter() - t0)
+
+
+def _fit_one(ref: FrameRef, env, options, init, background, scene, fit_fn) -> dict:
+    """Fit one frame; a failure becomes a record with its reason, never an exception."""
+    t0 = time.perf_counter()
+    base = base_record(ref, init)
+    photo, failed = _read_frame(ref, base, t0)
+    if failed:
+        return failed
+    try:
+        res = fit_fn(photo, env, options=options, background=background, init=init, scene=scene)
+    except Exception as exc:  # a fit that raises fails this frame only
+        return dict(base, status="failed", converged=False, message=f"fit failed: {one_line(exc)}",
+                    fit_time_s=time.perf_counter() - t0)
+    return result_record(base, res, time.perf_counter() - t0)
+
+
+def _fit_batch(refs: list[FrameRef], env, options, init, previous, background, scene) -> list[dict]:
+    """Fit consecutive frames together (:func:`bubblefit.inverse.fit.fit_batch`); one record each.
+    If the batched fit raises, the frames are fitted one by one instead."""
+    t0 = time.perf_counter()
+    bases = [base_record(r, init) for r in refs]
+    read = [_read_frame(r, b, t0) for r, b in zip(refs, bases)]
+    good = [k for k, (photo, _) in enumerate(read) if photo is not None]
+    recs = [failed for _, failed in read]
+    try:
+        results = fit_batch([read[k][0] for k in good], env, options=options, background=background, init=init,
+                            previous=previous, scene=scene)
+    except Exception:  # fall back to single fits, which record their own failures
+        return [recs[k] or _fit_one(refs[k], env, options, init, background, scene, fit_photo)
+                for k in range(len(refs))]
+    share = (time.perf_counter() - t0) / max(len(good), 1)
+    for k, res in zip(good, results):
+        recs[k] = dict(result_record(bases[k], res, share), batch=len(good))
+    return recs
+
+
+def fit_chunk(todo: list[tuple[FrameRef, dict | None]], env, options, background, scene, jax_settings: dict,
+              want_maps: bool, fit_function: str = DEFAULT_FIT, warm_start: bool = True,
+              init: dict | None = None, batch: int = 1) -> list[dict]:
+    """Fit the pending frames of one chunk, in order, each warm-started from the last success.
+
+    Parameters
+    ----------
+    todo
+        the chunk's frames in order, each with its finished record (None: to fit).
+        Finished frames are not refitted; they only pass their result on as a warm start.
+    env
+        the environment map (:class:`~bubblefit.lighting.envmap.EnvMap`).
+    options
+        :class:`bubblefit.inverse.fit.FitOptions`.
+    background, scene
+        passed on to :func:`bubblefit.inverse.fit.fit_photo`.
+    jax_settings
+        the client's JAX settings (compilation cache, float64).
+    want_maps
+        keep each frame's thickness map (else it is dropped here, in the worker).
+    fit_function
+        ``"module:name"`` of the fit, called like :func:`bubblefit.inverse.fit.fit_photo`.
+    warm_start
+        False: every frame runs the global search (independent frames).
+    init
+        warm start of the chunk's first frame (the previous chunk's last result), or None.
+    batch
+        once two frames have warm-started results, fit up to this many following
+        frames together (:func:`bubblefit.inverse.fit.fit_batch`, default fit function only).
+
+    Returns
+    -------
+    list of dict
+        One record per frame fitted, in order.
+    """
+    _worker_setup(jax_settings)
+    fit_fn = _resolve(fit_function)
+    batched = batch > 1 and warm_start and fit_function == DEFAULT_FIT
+
+    out = []
+    warm, prev = init, None
+
+    def keep(rec):
+        nonlocal warm, prev
+        nxt = warm_init(rec)
+        if nxt is not None:
+            prev, warm = warm, nxt
+
+    i = 0
+    while i < len(todo):
+        ref, done = todo[i]
+        if done is not None:
+            keep(done)
+            i += 1
+            continue
+        group = []
+        if batched and warm is not None and prev is not None:
+            while i + len(group) < len(todo) and len(group) < batch and todo[i + len(group)][1] is None:
+                group.append(todo[i + len(group)][0])
+        if len(group) >= 2:
+            recs = _fit_batch(group, env, options, warm, prev, background, scene)
+        else:
+            recs = [_fit_one(ref, env, options, warm if warm_start else None, background, scene, fit_fn)]
+        for rec in recs:
+            if not want_maps:
+                rec.pop("_thickness_map", None)
+            out.append(rec)
+            keep(rec)
+        i += len(recs)
+    return out
+
+
+def _resolve(target: str):
+    """The function named ``"module:name"`` (importable on every worker)."""
+    module, _, name = target.partition(":")
+    return getattr(importlib.import_module(module), name or "fit_photo")
+
+
+class _Lazy:
+    """A call run when its ``result()`` is asked for (the in-process stand-in for a future)."""
+
+    def __init__(self, fn, *args):
+        self.fn, self.args, self._done = fn, args, False
+
+    def result(self):
+        if not self._done:
+            self.value, self._done = self.fn(*self.args), True
+        return self.value
+
+    def done(self) -> bool:
+        return True  # nothing to cancel
+
+    def cancel(self):
+        pass
+
+
+def local_env() -> dict:
+    """Environment of local worker processes: one thread each for XLA and BLAS."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    extra = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+    return {
+        "XLA_FLAGS": f"{flags} {extra}".strip(),
+        "OMP_NUM_THREADS": "1",
+        "MKL_NUM_THREADS": "1",
+        "OPENBLAS_NUM_THREADS": "1",
+        "XLA_PYTHON_CLIENT_PREALLOCATE": "false",
+    }
+
+
+def _start_client(scheduler, workers: int | None):
+    """(client, cluster or None, worker addresses to use) for a scheduler spec."""
+    try:  # imported here: Dask costs a second of start-up that in-process runs do not need
+        from distributed import Client, LocalCluster
+    except ImportError:  # pragma: no cover - dask is a dependency
+        raise InputError("Dask is not installed: pip install 'dask[distributed]' (or use --workers 0)") from None
+    cluster = None
+    if scheduler is None:
+        n = workers or os.cpu_count() or 1
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
+                               env=local_env(), silence_logs=40)
+        client = Client(cluster)
+    elif isinstance(scheduler, str):
+        try:
+            client = Client(scheduler, timeout=30)
+        except (OSError, TimeoutError) as exc:
+            raise InputError(f"cannot reach the Dask scheduler at {scheduler}: {one_line(exc)}") from None
+    else:
+        client = scheduler  # an existing distributed.Client
+    addrs = sorted(client.scheduler_info(n_workers=-1)["workers"]) if _takes_n_workers(client) else \
+        sorted(client.scheduler_info()["workers"])
+    if not addrs:
+        client.wait_for_workers(1, timeout=60)
+        addrs = sorted(client.scheduler_info()["workers"])
+    if scheduler is not None and workers:
+        addrs = addrs[:workers]
+    return client, cluster, addrs
+
+
+def _takes_n_workers(client) -> bool:
+    try:
+        return "n_workers" in inspect.signature(client.scheduler_info).parameters
+    except (TypeError, ValueError):
+        return False
+
+
+@dataclass(frozen=True)
+class ChunkTask:
+    """What every chunk of one run shares: the data and settings :func:`fit_chunk` takes."""
+
+    env: Any
+    options: Any
+    background: Any
+    scene: Any
+    jax_settings: dict
+    want_maps: bool
+    fit_function: str
+    warm_start: bool
+    batch: int
+
+
+class LocalExecutor:
+    """Runs chunks in this process, one after the other, as their results are asked for.
+    An exception in a chunk is raised (there is no worker to lose)."""
+
+    workers = 0
+
+    def __init__(self, task: ChunkTask):
+        self.task = task
+
+    def submit(self, todo, init: dict | None = None) -> _Lazy:
+        t = self.task
+        return _Lazy(fit_chunk, todo, t.env, t.options, t.background, t.scene, t.jax_settings, t.want_maps,
+                     t.fit_function, t.warm_start, init, t.batch)
+
+    def completed(self, futures):
+        """The futures in submission order (each runs when its result is read)."""
+        return list(futures)
+
+    def close(self) -> None:
+        pass
+
+
+class DaskExecutor:
+    """Runs chunks as tasks of a ``distributed`` cluster: a local one (``scheduler=None``:
+    ``workers`` single-threaded processes, one per core by default), the scheduler at an
+    address, or a given ``distributed.Client``. The environment map and background are
+    sent once to every worker; a task that fails (a lost worker) fails its chunk only."""
+
+    def __init__(self, task: ChunkTask, scheduler=None, workers: int | None = None):
+        self.task = task
+        self.scheduler = scheduler
+        self.client, self.cluster, self.addrs = _start_client(scheduler, workers)
+        self.workers = len(self.addrs)
+        self.submitted = []
+        try:
+            self.env = self.client.scatter(task.env, broadcast=True, workers=self.addrs, hash=False)
+            self.background = None if task.background is None else \
+                self.client.scatter(task.background, broadcast=True, workers=self.addrs, hash=False)
+        except BaseException:
+            self.close()
+            raise
+        self.token = hashlib.sha1(f"{time.time()}{os.getpid()}{id(self)}".encode()).hexdigest()[:10]
+
+    def submit(self, todo, init: dict | None = None):
+        t = self.task
+        key = f"bubblefit-chunk-{todo[0][0].index}-{len(self.submitted)}-{self.token}"
+        f = self.client.submit(fit_chunk, todo, self.env, t.options, self.background, t.scene, t.jax_settings,
+                               t.want_maps, t.fit_function, t.warm_start, init, t.batch, key=key,
+                               workers=self.addrs, allow_other_workers=False, pure=False)
+        self.submitted.append(f)
+        return f
+
+    def completed(self, futures):
+        """The futures as they finish."""
+        from distributed import as_completed
+
+        return as_completed(list(futures))
+
+    def close(self) -> None:
+        """Cancel what is still pending; close the client and cluster this executor started."""
+        for f in self.submitted:
+            if not f.done():
+                f.cancel()
+        if self.cluster is not None:
+            self.client.close()
+            self.cluster.close()
+        elif isinstance(self.scheduler, str) and self.client is not None:
+            self.client.close()

@@ -1,0 +1,106 @@
+"""JAX's persistent compilation cache on disk, and quiet XLA logs: one set-up for all.
+
+The command line, the sequence workers (local or on a Dask cluster) and the scripts call
+:func:`jax_setup` once per process. It works before or after JAX is imported and never
+imports JAX itself: the settings go into the environment variables JAX reads when it is
+first imported (``JAX_COMPILATION_CACHE_DIR`` and friends) and, if JAX is already loaded,
+into ``jax.config`` as well. Commands that never compile (``chart``, ``check-capture``,
+``--help``) therefore pay nothing for it.
+
+XLA's C++ log (e.g. the "slow compile" alarm) goes to stderr unless
+``TF_CPP_MIN_LOG_LEVEL`` is set before the library loads; :func:`jax_setup` sets it to
+errors-only-if-fatal (``3``) unless the user chose a level, so that the user sees only
+bubblefit's own lines (docs/design.md, "Command line").
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+
+__all__ = ["default_cache_dir", "jax_setup", "jax_settings"]
+
+#: Programs that compile faster than this are not worth a cache entry (seconds).
+MIN_COMPILE_TIME_S = 0.2
+
+
+def default_cache_dir() -> str:
+    """``$BUBBLEFIT_CACHE_DIR``, else ``$XDG_CACHE_HOME/bubblefit/jax`` (``~/.cache/...``)."""
+    return os.environ.get("BUBBLEFIT_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "bubblefit", "jax")
+
+
+def _quiet_logs() -> None:
+    os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")  # XLA's C++ log: nothing below fatal
+    os.environ.setdefault("GLOG_minloglevel", "3")
+    for name in ("jax._src.xla_bridge", "jax._src.compiler", "jax._src.compilation_cache",
+                 "jax._src.cache_key"):
+        logging.getLogger(name).setLevel(logging.ERROR)
+
+
+def jax_setup(cache_dir: str | None = None, *, enable_x64: bool | None = None, quiet: bool = True) -> dict:
+    """Configure this process's JAX: persistent compilation cache, float64, quiet logs.
+
+    Parameters
+    ----------
+    cache_dir
+        Folder of the persistent compilation cache; default ``$BUBBLEFIT_CACHE_DIR``,
+        else ``$JAX_COMPILATION_CACHE_DIR``, else :func:`default_cache_dir`.
+        A folder that cannot be created only costs time (no cache), never an error.
+    enable_x64
+        Set ``jax_enable_x64``; ``None`` leaves it as it is.
+    quiet
+        Silence XLA's C++ log and JAX's informational Python logs.
+
+    Returns
+    -------
+    dict
+        ``{"cache_dir": ..., "enable_x64": ...}``: the settings, to pass to
+        :func:`jax_setup` in worker processes so they share the cache.
+    """
+    if quiet:
+        _quiet_logs()
+    cache = (cache_dir or os.environ.get("BUBBLEFIT_CACHE_DIR") or os.environ.get("JAX_COMPILATION_CACHE_DIR")
+             or default_cache_dir())
+    try:
+        os.makedirs(cache, exist_ok=True)
+    except OSError:  # a read-only home must not stop the program
+        cache = None
+    if cache:
+        os.environ["JAX_COMPILATION_CACHE_DIR"] = cache
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", str(MIN_COMPILE_TIME_S))
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
+    if enable_x64 is not None:
+        os.environ["JAX_ENABLE_X64"] = "1" if enable_x64 else "0"
+    jax = sys.modules.get("jax")
+    if jax is not None:  # already imported: the environment is read; set the config too
+        try:
+            if cache:
+                jax.config.update("jax_compilation_cache_dir", cache)
+            jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_TIME_S)
+            jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+            if enable_x64 is not None:
+                jax.config.update("jax_enable_x64", bool(enable_x64))
+        except Exception:  # an older or newer JAX without one of the options: no cache
+            pass
+    x64 = enable_x64
+    if x64 is None:
+        x64 = bool(jax.config.jax_enable_x64) if jax is not None else \
+            os.environ.get("JAX_ENABLE_X64", "0").lower() in ("1", "true")
+    return {"cache_dir": cache, "enable_x64": x64}
+
+
+def jax_settings() -> dict:
+    """This process's JAX settings that worker processes should share, read without changing
+    them: ``{"cache_dir": ..., "enable_x64": ...}`` for :func:`jax_setup` in the workers.
+    The cache folder is JAX's configured one, else the environment's, else :func:`default_cache_dir`."""
+    jax = sys.modules.get("jax")
+    cache, x64 = None, None
+    if jax is not None:
+        cache = getattr(jax.config, "jax_compilation_cache_dir", None)
+        x64 = bool(jax.config.jax_enable_x64)
+    if x64 is None:
+        x64 = os.environ.get("JAX_ENABLE_X64", "0").lower() in ("1", "true")
+    return {"cache_dir": cache or os.environ.get("JAX_COMPILATION_CACHE_DIR") or default_cache_dir(),
+            "enable_x64": x64}

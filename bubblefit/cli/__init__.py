@@ -22,6 +22,7 @@ COMMANDS = (
     "calibrate",
     "fit",
     "fit_sequence",
+    "fit_spectrum",
     "demo",
 )
 

@@ -273,9 +273,11 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
     var = _profile_variance(prob, d_best, w, step, fit_w=fit_w)
     stat = float(np.sqrt(2.0 * s2 * var)) if np.isfinite(var) and var > 0 else float("inf")
     # The lamp's model is a choice: the thickness's largest change when it gets one or two
-    # more terms is a systematic error, added in quadrature.
+    # more terms (one, a tilt such as a lamp's drift, over a measured reference) is a
+    # systematic error, added in quadrature.
+    extra = (1,) if ref is not None else (1, 2)
     lamp_sys = max(abs(_refine_near(ProfileProblem(y, _lamp_basis(lam, terms + k, ref), options.offset, reflect),
-                                    d_best, w, 3.0 * step, grid) - d_best) for k in (1, 2))
+                                    d_best, w, 3.0 * step, grid) - d_best) for k in extra)
     stderr = float(np.hypot(stat, lamp_sys))
     second, dchi2 = _second_minimum(minima, d_best, step, s2)
     noise = second_difference_noise(y)

@@ -53,6 +53,17 @@ __all__ = ["SpectrumOptions", "SpectrumFit", "film_reflectance", "reflector", "f
 
 _FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
 
+#: Fewest fringes across the range for a thickness without a reference reading: a film
+#: with less than one fringe reflects a smooth spectrum of the same kind as the lamp's
+#: smooth model, and the two cannot be separated.
+MIN_FRINGES_WITHOUT_REFERENCE = 1.0
+
+#: A fit is trusted when its residual's rms is within ``MISFIT_RATIO`` times the reading's
+#: noise (from its second differences) plus a model-error floor of ``MODEL_ERROR_FLOOR``
+#: of the mean reading (the lamp's smooth model, the index law).
+MISFIT_RATIO = 2.0
+MODEL_ERROR_FLOOR = 0.005
+
 
 @dataclass(frozen=True)
 class SpectrumOptions:
@@ -276,15 +287,22 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
     # more terms (one, a tilt such as a lamp's drift, over a measured reference) is a
     # systematic error, added in quadrature.
     extra = (1,) if ref is not None else (1, 2)
+    order, fringes = interference_order(d_best, lam, n)
     lamp_sys = max(abs(_refine_near(ProfileProblem(y, _lamp_basis(lam, terms + k, ref), options.offset, reflect),
                                     d_best, w, 3.0 * step, grid) - d_best) for k in extra)
     stderr = float(np.hypot(stat, lamp_sys))
     second, dchi2 = _second_minimum(minima, d_best, step, s2)
     noise = second_difference_noise(y)
     red = float(rss_best / dof / noise**2) if noise > 0 else float("nan")
-    order, fringes = interference_order(d_best, lam, n)
     reasons = _verdict(d_best, stderr, second, dchi2, grid, lam, n, reference is not None, options)
-    if np.isfinite(red) and red > 5.0:
+    if reference is None and fringes < MIN_FRINGES_WITHOUT_REFERENCE:
+        reasons.append(f"only {fringes:.2f} fringe across the range: without --reference the film cannot be told "
+                       "apart from the unknown lamp's smooth spectrum")
+    floor2 = noise**2 + (MODEL_ERROR_FLOOR * float(np.mean(np.abs(y)))) ** 2
+    if rss_best / dof > MISFIT_RATIO**2 * floor2:
+        reasons.append(f"the model does not explain the spectrum: the residual is {np.sqrt(red):.1f} times the "
+                       "reading's noise (check the index, the range, the reference, or --lamp-terms)")
+    elif np.isfinite(red) and red > 4.0:
         warnings.append(f"the residual is {np.sqrt(red):.1f} times the noise of the reading: the model leaves "
                         "structure (lamp, reference or index?); the error bar is widened for it")
     if rho > 0.5:

@@ -38,3 +38,18 @@ def parse_floats(text: str, n: int, name: str) -> tuple[float, ...]:
     if len(vals) != n:
         raise InputError(f"{name} must be {n} comma-separated numbers, got {text!r}")
     return vals
+
+
+def film_index(n_film: str | None, cauchy: str | None, default):
+    """The film's index from ``--n-film`` (a number or a preset name) or ``--cauchy A,B[,C]``."""
+    from ..optics import dispersion
+
+    if cauchy:
+        return dispersion.parse_cauchy(cauchy)
+    if n_film is None:
+        return default
+    try:
+        value = float(n_film)
+    except ValueError:
+        return dispersion.parse_index(n_film, "--n-film")
+    return dispersion.parse_index(value, "--n-film")

@@ -54,20 +54,6 @@ def _pair(text: str, name: str) -> tuple[float, float]:
     return lo, hi
 
 
-def _index(args):
-    from ..optics import dispersion
-
-    if args.cauchy:
-        return dispersion.parse_cauchy(args.cauchy)
-    if args.n_film is None:
-        return "soap"
-    try:
-        value = float(args.n_film)
-    except ValueError:
-        return dispersion.parse_index(args.n_film, "--n-film")
-    return dispersion.parse_index(value, "--n-film")
-
-
 def _check_outputs(args) -> None:
     """No output may be one of the inputs (or another output)."""
     inputs = [Path(p) for p in [*args.spectra, args.dark, args.reference] if p]
@@ -92,9 +78,9 @@ def run(args) -> int:
     from ..io.spectra import read_spectrum
     from ..optics import dispersion
     from ..progress import status
-    from .common import write_json
+    from .common import film_index, write_json
 
-    index = _index(args)
+    index = film_index(args.n_film, args.cauchy, "soap")
     opts = SpectrumOptions(
         n_film=index, thickness_range=_pair(args.thickness_range, "--thickness-range"),
         wavelength_range=_pair(args.wavelength_range, "--wavelength-range") if args.wavelength_range else None,

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..optics.dispersion import REFERENCE_WAVELENGTH_NM, Cauchy, parse_index, refractive_index
 
 __all__ = ["Scene", "load_scene", "render_scene", "read_envmap", "DATA_DIR", "shipped_envmap"]
 
@@ -25,8 +26,8 @@ DATA_DIR = Path(__file__).resolve().parent.parent / "data"
 
 _SCHEMA = {
     "camera": {"type": str, "width": int, "height": int, "origin": list, "target": list, "up": list,
-               "fov_deg": float, "disc": list},
-    "bubble": {"center": list, "radius": float, "n_film": float, "t": float, "roughness": float,
+               "fov_deg": float, "disc": list, "samples_per_pixel": int},
+    "bubble": {"center": list, "radius": float, "n_film": (float, dict, str), "t": float, "roughness": float,
                "f": float, "r_d": float, "r_s": float, "thickness_nm": float, "thickness": dict},
     "lighting": {"envmap": str, "rotation_deg": float, "scale": float, "point_lights": list,
                  "background": str},
@@ -128,7 +129,7 @@ class Scene:
         b = self.table("bubble")
         _range("bubble.t", b.get("t", 0.972), 0.0, 1.0)
         _range("bubble.roughness", b.get("roughness", 0.01), 0.0, 10.0, lo_open=True)
-        _range("bubble.n_film", b.get("n_film", 1.4), 1.0, 3.0)
+        film_index(b)
         _range("bubble.radius", b.get("radius", 1.0), 0.0, math.inf, lo_open=True)
         _range("bubble.thickness_nm", b.get("thickness_nm", 500.0), 0.0, 1e6)
         for k in ("r_d", "r_s", "f"):
@@ -153,6 +154,10 @@ class Scene:
         for k in ("width", "height"):
             if k in c and not 1 <= c[k] <= 16384:
                 raise InputError(f"scene value camera.{k} = {c[k]} is out of range [1, 16384]")
+        spp = c.get("samples_per_pixel", 1)
+        if not (1 <= spp <= 1024 and math.isqrt(spp) ** 2 == spp):
+            raise InputError(f"camera.samples_per_pixel must be a square number in [1, 1024] (1, 4, 9, 16, ...), "
+                             f"got {spp}")
         for k, n in (("origin", 3), ("target", 3), ("up", 3), ("disc", 3)):
             if k in c:
                 _vector(f"camera.{k}", c[k], n)
@@ -229,7 +234,8 @@ class Scene:
         _, values = self.thickness_spec()
         return Params.make(
             t=b.get("t", 0.972), r_d=b.get("r_d"), r_s=b.get("r_s"), f=b.get("f", 0.3),
-            roughness=b.get("roughness", 0.01), thickness=values, n_film=b.get("n_film", 1.4),
+            roughness=b.get("roughness", 0.01), thickness=values,
+            n_film=float(refractive_index(film_index(b), REFERENCE_WAVELENGTH_NM)),
             exposure=1.0, rotation=math.radians(self.table("lighting").get("rotation_deg", 0.0)), dtype=dtype,
         )
 
@@ -306,8 +312,16 @@ class Scene:
         except ValueError as exc:  # a setting the checks above let through
             raise InputError(f"scene [effects]: {exc}") from None
         cfg = RenderConfig(effects=fx, camera=camera, center=tuple(float(x) for x in b.get("center", (0, 0, 0))),
-                           radius=float(b.get("radius", 1.0)), point_lights=lights, chunk=chunk)
+                           radius=float(b.get("radius", 1.0)), point_lights=lights, chunk=chunk,
+                           dispersion=law if isinstance(law := film_index(b), Cauchy) else None,
+                           samples_per_pixel=int(self.table("camera").get("samples_per_pixel", 1)))
         return cfg, decisions
+
+
+def film_index(bubble: dict):
+    """The ``[bubble] n_film`` of a scene: a number, ``{cauchy = [A, B(, C)]}`` or a preset
+    (:mod:`bubblefit.optics.dispersion`); 1.4 when absent."""
+    return parse_index(bubble.get("n_film", 1.4), "bubble.n_film")
 
 
 def _vector(name: str, value, n: int) -> list[float]:

@@ -34,7 +34,11 @@ import numpy as np
 from ..errors import InputError
 
 __all__ = ["Cauchy", "IndexSpec", "PRESETS", "refractive_index", "parse_index", "parse_cauchy", "describe",
-           "N_MIN", "N_MAX"]
+           "index_offset", "N_MIN", "N_MAX", "REFERENCE_WAVELENGTH_NM"]
+
+#: Where a dispersive film's single index is quoted (the sodium D line, ``n_D``): scenes
+#: and fits carry ``n(589.3 nm)`` as the film's index and the law's shape around it.
+REFERENCE_WAVELENGTH_NM = 589.3
 
 #: Range of indices accepted anywhere (a film thinner than air or denser than most
 #: glasses is a typing error).
@@ -91,6 +95,13 @@ def refractive_index(spec: IndexSpec, wavelength_nm) -> np.ndarray:
     if isinstance(spec, Cauchy):
         return spec(lam)
     return np.full_like(lam, float(spec))
+
+
+def index_offset(spec: IndexSpec, wavelength_nm) -> np.ndarray:
+    """``n(lambda) - n(REFERENCE_WAVELENGTH_NM)``: the shape of the law around its quoted
+    index (zeros for a constant), so that ``n_D + index_offset`` is the index per wavelength."""
+    lam = np.asarray(wavelength_nm, dtype=np.float64)
+    return refractive_index(spec, lam) - float(refractive_index(spec, REFERENCE_WAVELENGTH_NM))
 
 
 def _check_range(spec: IndexSpec, where: str) -> IndexSpec:

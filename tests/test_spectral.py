@@ -30,7 +30,7 @@ def test_flat_reflectance_is_grey(method, samples, illuminant):
     assert np.all((basis.wavelengths > 380) & (basis.wavelengths < 780))
     for c in [0.0, 0.04, 0.5, 1.0]:
         rgb = np.asarray(spectral.integrate(np.full((2, basis.samples), c), basis))
-        np.testing.assert_allclose(rgb, c, atol=1e-6)
+        np.testing.assert_allclose(rgb, c, atol=3e-6)  # float32 sums of up to 800 weights
 
 
 def _colour_science_rgb(values_fn):

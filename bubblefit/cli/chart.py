@@ -18,8 +18,11 @@ def register(sub):
     g.add_argument("--n-film", default=None, help="film index: a number or a preset (water, soap); default 1.4")
     g.add_argument("--cauchy", metavar="A,B[,C]", help="film index n = A + B/lambda^2 + C/lambda^4, lambda in nm")
     p.add_argument("-o", "--output", required=True, help="chart image (PNG)")
-    p.add_argument("--csv", help="CSV with columns thickness_nm,r,g,b (linear sRGB reflectance)")
+    p.add_argument("--csv", help="CSV with columns thickness_nm,r,g,b (linear RGB reflectance, white = 1)")
     p.add_argument("--json", help="write a JSON summary")
+    from .common import add_colour_options
+
+    add_colour_options(p)
     p.set_defaults(func=run)
 
 
@@ -52,7 +55,13 @@ def run(args) -> int:
     from ..optics.dispersion import describe
     from .common import film_index
 
+    from ..optics import spectral
+    from .common import colour_option
+
     n_film = film_index(args.n_film, args.cauchy, 1.4)
+    basis = spectral.spectral_basis(
+        "reference", illuminant=colour_option(args.illuminant, spectral.is_named_illuminant, "--illuminant") or "D65",
+        response=colour_option(args.camera_response, spectral.is_named_response, "--camera-response") or "srgb")
     d = parse_range(args.thickness)
     fmt = args.output.rsplit(".", 1)[-1].lower() if "." in args.output else "png"
     supported = plt.figure().canvas.get_supported_filetypes()
@@ -60,7 +69,7 @@ def run(args) -> int:
     if fmt not in supported:
         raise InputError(f"cannot write chart {args.output}: unknown image format .{fmt} "
                          f"(use one of {', '.join(sorted(supported))})")
-    rgb = interference_colours(d, angle_deg=args.angle_deg, model=args.model, n_film=n_film)
+    rgb = interference_colours(d, angle_deg=args.angle_deg, model=args.model, n_film=n_film, basis=basis)
     shown = srgb_encode(rgb * display_scale(args.model, angle_deg=args.angle_deg, n_film=n_film))
     fig, ax = plt.subplots(figsize=(10, 1.8), dpi=120)
     ax.imshow(shown[None, :, :], aspect="auto", extent=(d[0], d[-1], 0, 1), interpolation="nearest")

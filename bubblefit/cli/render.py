@@ -18,6 +18,9 @@ def register(sub):
     p.add_argument("--json", metavar="PATH", help="write timing and effect decisions as JSON")
     p.add_argument("--preview-exposure", type=float, default=None,
                    help="exposure of the PNG preview (default: automatic, the 99.5th percentile maps to 0.9)")
+    from .common import add_colour_options
+
+    add_colour_options(p)
     p.set_defaults(func=run)
 
 
@@ -33,7 +36,16 @@ def run(args) -> int:
     from ..model.scene import load_scene, render_scene
     from .common import write_json
 
+    from ..optics import spectral
+    from .common import colour_option
+
     scene = load_scene(args.scene)
+    ill = colour_option(args.illuminant, spectral.is_named_illuminant, "--illuminant")
+    resp = colour_option(args.camera_response, spectral.is_named_response, "--camera-response")
+    if ill is not None:
+        scene.data.setdefault("lighting", {})["illuminant"] = ill
+    if resp is not None:
+        scene.data.setdefault("camera", {})["response"] = resp
     status(f"rendering {scene.shape[1]}x{scene.shape[0]} ...")
     t0 = time.perf_counter()
     img, decisions = render_scene(scene, explain=True)

@@ -9,6 +9,7 @@ key's name.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import tomllib
@@ -26,11 +27,12 @@ DATA_DIR = Path(__file__).resolve().parent.parent / "data"
 
 _SCHEMA = {
     "camera": {"type": str, "width": int, "height": int, "origin": list, "target": list, "up": list,
-               "fov_deg": float, "disc": list, "samples_per_pixel": int},
+               "fov_deg": float, "disc": list, "samples_per_pixel": int,
+               "response": str, "white_balance": (str, list)},
     "bubble": {"center": list, "radius": float, "n_film": (float, dict, str), "t": float, "roughness": float,
                "f": float, "r_d": float, "r_s": float, "thickness_nm": float, "thickness": dict},
     "lighting": {"envmap": str, "rotation_deg": float, "scale": float, "point_lights": list,
-                 "background": str},
+                 "background": str, "illuminant": str},
     "effects": {"model": str, "interference": str, "filtering": (str,), "spectral": (str, dict),
                 "front_reflection": (str, bool), "rear_reflection": (str, bool), "transmission": (str, bool),
                 "transmission_tint": (str, bool), "diffuse": (str, bool), "bounces": (str, int),
@@ -158,6 +160,11 @@ class Scene:
         if not (1 <= spp <= 1024 and math.isqrt(spp) ** 2 == spp):
             raise InputError(f"camera.samples_per_pixel must be a square number in [1, 1024] (1, 4, 9, 16, ...), "
                              f"got {spp}")
+        wb = c.get("white_balance", "illuminant")
+        if isinstance(wb, str) and wb != "illuminant":
+            raise InputError(f"camera.white_balance must be \"illuminant\" or [r, g, b] gains, got {wb!r}")
+        if not isinstance(wb, str) and (min(_vector("camera.white_balance", wb, 3)) <= 0):
+            raise InputError(f"camera.white_balance gains must be positive, got {wb!r}")
         for k, n in (("origin", 3), ("target", 3), ("up", 3), ("disc", 3)):
             if k in c:
                 _vector(f"camera.{k}", c[k], n)
@@ -239,6 +246,21 @@ class Scene:
             exposure=1.0, rotation=math.radians(self.table("lighting").get("rotation_deg", 0.0)), dtype=dtype,
         )
 
+    def colour(self) -> tuple[str, str, object]:
+        """``(illuminant, response, white_balance)`` of the scene (``[lighting] illuminant``,
+        ``[camera] response`` and ``white_balance``; :mod:`bubblefit.optics.spectral`), with
+        CSV paths resolved against the scene's folder and checked."""
+        from ..optics import spectral
+
+        ill = self.table("lighting").get("illuminant", "D65")
+        resp = self.table("camera").get("response", "srgb")
+        wb = self.table("camera").get("white_balance", "illuminant")
+        ill = _colour_path(self, ill, spectral.is_named_illuminant(ill))
+        resp = _colour_path(self, resp, spectral.is_named_response(resp))
+        spectral.illuminant_spectrum(ill)
+        spectral.response_functions(resp)
+        return ill, resp, (wb if isinstance(wb, str) else tuple(float(g) for g in wb))
+
     def load_envmap(self):
         """The scene's environment map as an :class:`~bubblefit.lighting.envmap.EnvMap` (or None)."""
         lighting = self.table("lighting")
@@ -311,11 +333,19 @@ class Scene:
             )
         except ValueError as exc:  # a setting the checks above let through
             raise InputError(f"scene [effects]: {exc}") from None
+        colour = self.colour()
+        if fx.spectral is not None and colour != ("D65", "srgb", "illuminant"):
+            fx = dataclasses.replace(fx, spectral=fx.spectral.with_colour(*colour))
         cfg = RenderConfig(effects=fx, camera=camera, center=tuple(float(x) for x in b.get("center", (0, 0, 0))),
                            radius=float(b.get("radius", 1.0)), point_lights=lights, chunk=chunk,
                            dispersion=law if isinstance(law := film_index(b), Cauchy) else None,
                            samples_per_pixel=int(self.table("camera").get("samples_per_pixel", 1)))
         return cfg, decisions
+
+
+def _colour_path(scene: "Scene", value: str, named: bool) -> str:
+    """A named illuminant/response as is; a CSV path resolved against the scene's folder."""
+    return value if named else str(scene.resolve_path(value))
 
 
 def film_index(bubble: dict):

@@ -17,8 +17,10 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+from scipy import optimize
 
-__all__ = ["ProfileProblem", "local_minima", "residual_correlation", "second_difference_noise"]
+__all__ = ["ProfileProblem", "local_minima", "residual_correlation", "second_difference_noise", "refine_d",
+           "refine_near", "refine_dw", "profile_variance"]
 
 
 @dataclass
@@ -106,3 +108,58 @@ def second_difference_noise(y: np.ndarray) -> float:
     d2 = y[2:] - 2.0 * y[1:-1] + y[:-2]
     mad = float(np.median(np.abs(d2 - np.median(d2))))
     return 1.4826 * mad / np.sqrt(6.0)
+
+
+def refine_d(prob: ProfileProblem, grid, rss, w: float, keep: int = 6) -> list[tuple[float, float]]:
+    """The ``keep`` best local minima of the grid profile, each refined by a bounded 1-D
+    search over one grid step either side; best first, as (thickness, RSS)."""
+    step = grid[1] - grid[0]
+    out = []
+    for i in local_minima(rss)[:keep]:
+        lo, hi = max(grid[0], grid[i] - step), min(grid[-1], grid[i] + step)
+        res = optimize.minimize_scalar(lambda d: prob.rss(d, w), bounds=(lo, hi), method="bounded",
+                                       options={"xatol": 1e-4 * step})
+        out.append((float(res.x), float(res.fun)) if res.fun <= rss[i] else (float(grid[i]), float(rss[i])))
+    return sorted(out, key=lambda t: t[1])
+
+
+def refine_near(prob: ProfileProblem, d: float, w: float, half_width: float, grid) -> float:
+    """The profile's minimum within ``half_width`` of ``d`` (bounded 1-D search)."""
+    lo, hi = max(grid[0], d - half_width), min(grid[-1], d + half_width)
+    res = optimize.minimize_scalar(lambda x: prob.rss(x, w), bounds=(lo, hi), method="bounded",
+                                   options={"xatol": 1e-5 * half_width})
+    return float(res.x)
+
+
+def refine_dw(prob: ProfileProblem, d0: float, step: float, w_max: float, w0: float = 0.5):
+    """Joint local minimum of the profile in thickness (within a step of ``d0``) and
+    resolution FWHM ``w`` in [0, w_max] nm (L-BFGS-B on a scaled problem)."""
+    ref = max(prob.rss(d0, 0.0), 1e-300)
+
+    def f(x):
+        return prob.rss(d0 + x[0] * step, x[1]) / ref
+
+    res = optimize.minimize(f, np.array([0.0, min(max(w0, 0.05), w_max)]), method="L-BFGS-B",
+                            bounds=[(-1.0, 1.0), (0.0, w_max)], options={"ftol": 1e-12, "gtol": 1e-10})
+    if res.fun > 1.0:  # no better than the start: keep it
+        return d0, 0.0
+    w = float(res.x[1])
+    return d0 + float(res.x[0]) * step, (w if w > 1e-3 else 0.0)
+
+
+def profile_variance(prob: ProfileProblem, d: float, w: float, step: float, fit_w: bool) -> float:
+    """``[H^-1]_dd`` of the profile ``RSS`` (the thickness's inverse curvature, with the
+    resolution profiled out when it is fitted), by central differences."""
+    h = 0.02 * step
+    f0 = prob.rss(d, w)
+    hdd = (prob.rss(d + h, w) - 2 * f0 + prob.rss(d - h, w)) / h**2
+    if not fit_w:
+        return 1.0 / hdd if hdd > 0 else float("inf")
+    k = max(0.02 * w, 1e-3)
+    k = min(k, 0.5 * w)
+    hww = (prob.rss(d, w + k) - 2 * f0 + prob.rss(d, w - k)) / k**2
+    hdw = (prob.rss(d + h, w + k) - prob.rss(d + h, w - k) - prob.rss(d - h, w + k) + prob.rss(d - h, w - k)) / (4 * h * k)
+    det = hdd * hww - hdw**2
+    if hww <= 0 or det <= 0:
+        return 1.0 / hdd if hdd > 0 else float("inf")
+    return hww / det

@@ -42,12 +42,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from numpy.polynomial import legendre
-from scipy import optimize
 
 from ..errors import InputError
 from ..io.spectra import Spectrum
 from ..optics import dispersion, film
-from ._spectrum_profile import ProfileProblem, local_minima, residual_correlation, second_difference_noise
+from ._spectrum_profile import (ProfileProblem, profile_variance, refine_d, refine_dw, refine_near,
+                                residual_correlation, second_difference_noise)
 
 __all__ = ["SpectrumOptions", "SpectrumFit", "film_reflectance", "reflector", "fit_spectrum", "interference_order"]
 
@@ -260,35 +260,20 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
     prob = ProfileProblem(y, _lamp_basis(lam, terms, ref), options.offset, reflect)
     grid = _search_grid(lam, n, options)
     step = grid[1] - grid[0]
-    rss = prob.rss_grid(grid, 0.0)
-    d0 = _refine_d(prob, grid, rss, 0.0)[0][0]
-    w = 0.0
-    fit_w = options.fit_resolution and _resolution_matters(d0, lam, n, options.max_resolution_nm)
-    if fit_w:
-        d0, w = _refine_dw(prob, d0, step, options.max_resolution_nm)
-    # The resolution changes the fringes' contrast, not their phase: the grid's basins
-    # (searched at w = 0) stand, and their minima are refined at the fitted w.
-    minima = _refine_d(prob, grid, rss, w)
-    d_best, rss_best = minima[0]
-    if fit_w and w > 0:
-        d_best, w = _refine_dw(prob, d_best, step, options.max_resolution_nm, w)
-        rss_best = prob.rss(d_best, w)
-        if w >= 0.999 * options.max_resolution_nm:
-            warnings.append(f"the fitted spectrometer resolution sits at its bound {options.max_resolution_nm:g} nm")
-    fit_w = fit_w and w > 0
+    rss, minima, d_best, rss_best, w, fit_w = _search(prob, grid, lam, n, options, warnings)
     dof = max(len(y) - (terms + int(options.offset) + 1 + int(fit_w)), 1)
     fitted = prob.model(d_best, w)
     resid = y - fitted
     rho = residual_correlation(resid)
     s2 = rss_best / dof * (1.0 + rho) / (1.0 - rho)
-    var = _profile_variance(prob, d_best, w, step, fit_w=fit_w)
+    var = profile_variance(prob, d_best, w, step, fit_w=fit_w)
     stat = float(np.sqrt(2.0 * s2 * var)) if np.isfinite(var) and var > 0 else float("inf")
     # The lamp's model is a choice: the thickness's largest change when it gets one or two
     # more terms (one, a tilt such as a lamp's drift, over a measured reference) is a
     # systematic error, added in quadrature.
     extra = (1,) if ref is not None else (1, 2)
     order, fringes = interference_order(d_best, lam, n)
-    lamp_sys = max(abs(_refine_near(ProfileProblem(y, _lamp_basis(lam, terms + k, ref), options.offset, reflect),
+    lamp_sys = max(abs(refine_near(ProfileProblem(y, _lamp_basis(lam, terms + k, ref), options.offset, reflect),
                                     d_best, w, 3.0 * step, grid) - d_best) for k in extra)
     stderr = float(np.hypot(stat, lamp_sys))
     second, dchi2 = _second_minimum(minima, d_best, step, s2)
@@ -298,13 +283,7 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
     if reference is None and fringes < MIN_FRINGES_WITHOUT_REFERENCE:
         reasons.append(f"only {fringes:.2f} fringe across the range: without --reference the film cannot be told "
                        "apart from the unknown lamp's smooth spectrum")
-    floor2 = noise**2 + (MODEL_ERROR_FLOOR * float(np.mean(np.abs(y)))) ** 2
-    if rss_best / dof > MISFIT_RATIO**2 * floor2:
-        reasons.append(f"the model does not explain the spectrum: the residual is {np.sqrt(red):.1f} times the "
-                       "reading's noise (check the index, the range, the reference, or --lamp-terms)")
-    elif np.isfinite(red) and red > 4.0:
-        warnings.append(f"the residual is {np.sqrt(red):.1f} times the noise of the reading: the model leaves "
-                        "structure (lamp, reference or index?); the error bar is widened for it")
+    _misfit(rss_best / dof, noise, float(np.mean(np.abs(y))), reasons, warnings)
     if rho > 0.5:
         warnings.append(f"residuals are correlated (lag-1 {rho:.2f}): the error bar counts "
                         f"{(1 - rho) / (1 + rho):.2f} independent samples per point")
@@ -319,6 +298,28 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
         profile_nm=grid, profile_chi2=profile)
 
 
+def _search(prob: ProfileProblem, grid, lam, n, options: SpectrumOptions, warnings: list[str]):
+    """Global search and local refinement: the grid profile, its refined minima (best
+    first), the best thickness and RSS, the resolution, and whether it was fitted."""
+    step = grid[1] - grid[0]
+    rss = prob.rss_grid(grid, 0.0)
+    d0 = refine_d(prob, grid, rss, 0.0)[0][0]
+    w = 0.0
+    fit_w = options.fit_resolution and _resolution_matters(d0, lam, n, options.max_resolution_nm)
+    if fit_w:
+        d0, w = refine_dw(prob, d0, step, options.max_resolution_nm)
+    # The resolution changes the fringes' contrast, not their phase: the grid's basins
+    # (searched at w = 0) stand, and their minima are refined at the fitted w.
+    minima = refine_d(prob, grid, rss, w)
+    d_best, rss_best = minima[0]
+    if fit_w and w > 0:
+        d_best, w = refine_dw(prob, d_best, step, options.max_resolution_nm, w)
+        rss_best = prob.rss(d_best, w)
+        if w >= 0.999 * options.max_resolution_nm:
+            warnings.append(f"the fitted spectrometer resolution sits at its bound {options.max_resolution_nm:g} nm")
+    return rss, minima, d_best, rss_best, w, fit_w and w > 0
+
+
 def _resolution_matters(d: float, lam: np.ndarray, n: np.ndarray, w_max: float) -> bool:
     """Whether a resolution of ``w_max`` nm would wash out more than a fifth of the film's
     bluest fringe (:func:`bubblefit.optics.film.fringe_attenuation`); if not, it cannot be
@@ -329,59 +330,16 @@ def _resolution_matters(d: float, lam: np.ndarray, n: np.ndarray, w_max: float) 
     return float(film.fringe_attenuation(x, sigma)) < 0.8
 
 
-def _refine_d(prob: ProfileProblem, grid, rss, w: float, keep: int = 6) -> list[tuple[float, float]]:
-    """The ``keep`` best local minima of the grid profile, each refined by a bounded 1-D
-    search over one grid step either side; best first, as (thickness, RSS)."""
-    step = grid[1] - grid[0]
-    out = []
-    for i in local_minima(rss)[:keep]:
-        lo, hi = max(grid[0], grid[i] - step), min(grid[-1], grid[i] + step)
-        res = optimize.minimize_scalar(lambda d: prob.rss(d, w), bounds=(lo, hi), method="bounded",
-                                       options={"xatol": 1e-4 * step})
-        out.append((float(res.x), float(res.fun)) if res.fun <= rss[i] else (float(grid[i]), float(rss[i])))
-    return sorted(out, key=lambda t: t[1])
-
-
-def _refine_near(prob: ProfileProblem, d: float, w: float, half_width: float, grid) -> float:
-    """The profile's minimum within ``half_width`` of ``d`` (bounded 1-D search)."""
-    lo, hi = max(grid[0], d - half_width), min(grid[-1], d + half_width)
-    res = optimize.minimize_scalar(lambda x: prob.rss(x, w), bounds=(lo, hi), method="bounded",
-                                   options={"xatol": 1e-5 * half_width})
-    return float(res.x)
-
-
-def _refine_dw(prob: ProfileProblem, d0: float, step: float, w_max: float, w0: float = 0.5):
-    """Joint local minimum of the profile in thickness (within a step of ``d0``) and
-    resolution FWHM ``w`` in [0, w_max] nm (L-BFGS-B on a scaled problem)."""
-    ref = max(prob.rss(d0, 0.0), 1e-300)
-
-    def f(x):
-        return prob.rss(d0 + x[0] * step, x[1]) / ref
-
-    res = optimize.minimize(f, np.array([0.0, min(max(w0, 0.05), w_max)]), method="L-BFGS-B",
-                            bounds=[(-1.0, 1.0), (0.0, w_max)], options={"ftol": 1e-12, "gtol": 1e-10})
-    if res.fun > 1.0:  # no better than the start: keep it
-        return d0, 0.0
-    w = float(res.x[1])
-    return d0 + float(res.x[0]) * step, (w if w > 1e-3 else 0.0)
-
-
-def _profile_variance(prob: ProfileProblem, d: float, w: float, step: float, fit_w: bool) -> float:
-    """``[H^-1]_dd`` of the profile ``RSS`` (the thickness's inverse curvature, with the
-    resolution profiled out when it is fitted), by central differences."""
-    h = 0.02 * step
-    f0 = prob.rss(d, w)
-    hdd = (prob.rss(d + h, w) - 2 * f0 + prob.rss(d - h, w)) / h**2
-    if not fit_w:
-        return 1.0 / hdd if hdd > 0 else float("inf")
-    k = max(0.02 * w, 1e-3)
-    k = min(k, 0.5 * w)
-    hww = (prob.rss(d, w + k) - 2 * f0 + prob.rss(d, w - k)) / k**2
-    hdw = (prob.rss(d + h, w + k) - prob.rss(d + h, w - k) - prob.rss(d - h, w + k) + prob.rss(d - h, w - k)) / (4 * h * k)
-    det = hdd * hww - hdw**2
-    if hww <= 0 or det <= 0:
-        return 1.0 / hdd if hdd > 0 else float("inf")
-    return hww / det
+def _misfit(mean_square: float, noise: float, level: float, reasons: list[str], warnings: list[str]) -> None:
+    """Not ok when the residual exceeds ``MISFIT_RATIO`` times the noise plus the model-error
+    floor; a warning when it exceeds twice the noise alone."""
+    red = mean_square / noise**2 if noise > 0 else float("nan")
+    if mean_square > MISFIT_RATIO**2 * (noise**2 + (MODEL_ERROR_FLOOR * level) ** 2):
+        reasons.append(f"the model does not explain the spectrum: the residual is {np.sqrt(red):.1f} times the "
+                       "reading's noise (check the index, the range, the reference, or --lamp-terms)")
+    elif np.isfinite(red) and red > 4.0:
+        warnings.append(f"the residual is {np.sqrt(red):.1f} times the noise of the reading: the model leaves "
+                        "structure (lamp, reference or index?); the error bar is widened for it")
 
 
 def _second_minimum(minima, d_best: float, step: float, s2: float) -> tuple[float, float]:

@@ -253,20 +253,21 @@ def sweep_image(rows, q, env):
 
 def sweep_pixel_area(rows, q, env):
     """``[camera] samples_per_pixel``: point-sampled pixels against the box average a camera
-    integrates (reference: a render 4x larger, averaged over 4x4 blocks), at the bubble's
-    rim and across a drainage profile's fine fringes."""
+    integrates (reference: a render 6x larger, averaged over 6x6 blocks, whose samples
+    coincide with none of the tested grids), at the bubble's rim and across a drainage
+    profile's fine fringes."""
     fx = {"model": "physical", "interference": "airy", "filtering": "mipmap", "nodes": 2,
           "spectral": {"method": "fourier", "samples": 8}}
     size = q.size
-    ref_big, _, _ = timed(renderer(make_scene(4 * size, fx, drainage=(200.0, 3000.0)), env), 0)
-    ref = np.asarray(ref_big, dtype=np.float64).reshape(size, 4, size, 4, 3).mean(axis=(1, 3))
+    ref_big, _, _ = timed(renderer(make_scene(6 * size, fx, drainage=(200.0, 3000.0)), env), 0)
+    ref = np.asarray(ref_big, dtype=np.float64).reshape(size, 6, size, 6, 3).mean(axis=(1, 3))
     for spp in (1, 4, 9, 16):
         sc = make_scene(size, fx, drainage=(200.0, 3000.0))
         sc.data["camera"]["samples_per_pixel"] = spp
         img, t, c = timed(renderer(sc, env), q.repeats)
         err = rel_rmse(img, ref)
         rows.append(dict(knob="pixel_area", setting=spp, error=err, error_unit="rel_rmse", time_s=t, compile_s=c,
-                         note=f"physical airy, drainage 200-3000 nm, {size}px; reference {4 * size}px box-averaged"))
+                         note=f"physical airy, drainage 200-3000 nm, {size}px; reference {6 * size}px box-averaged"))
         F.log(f"samples/pixel {spp:<3d} err {err:.2e}  {t * 1e3:8.1f} ms")
 
 

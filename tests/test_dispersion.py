@@ -92,3 +92,23 @@ def test_scene_accepts_dispersive_films():
         assert (cfg.dispersion is None) == (not isinstance(law, dispersion.Cauchy))
     with pytest.raises(InputError, match="bubble.n_film"):
         Scene.from_dict({"bubble": {"n_film": {"cauchy": [1.3]}}})
+
+
+def test_render_uses_the_index_per_wavelength():
+    """A dispersive 3 um film renders other colours than a constant film of the same n_D,
+    and a Cauchy law with B = C = 0 renders exactly like the constant."""
+    from bubblefit.model.scene import Scene, render_scene
+
+    def img(n_film):
+        return render_scene(Scene.from_dict({
+            "camera": {"width": 8, "height": 8},
+            "bubble": {"thickness_nm": 3000.0, "n_film": n_film, "roughness": 0.4},
+            "lighting": {"point_lights": [{"direction": [0.0, 0.0, 1.0], "radiance": [5.0, 5.0, 5.0]}],
+                         "background": "black"},
+            "effects": {"model": "physical", "interference": "airy", "filtering": "mirror",
+                        "spectral": {"method": "uniform", "samples": 64}}}))
+
+    n_d = float(dispersion.refractive_index("soap", 589.3))
+    flat, soap, law0 = img(n_d), img("soap"), img({"cauchy": [n_d, 0.0]})
+    np.testing.assert_allclose(law0, flat, atol=1e-6)
+    assert np.abs(soap - flat).max() > 1e-3

@@ -3,11 +3,13 @@
 - :mod:`.fit`: one photograph (global thickness search, Levenberg-Marquardt, uncertainty).
 - :mod:`.search`: tabulated interference for the global search over thickness.
 - :mod:`.sequence`: a video of a draining bubble, frame by frame, locally or on Dask.
+- :mod:`.spectrum`: film thickness from a spectrometer reading (global profile likelihood).
 """
 
-from . import fit, search, sequence
+from . import fit, search, sequence, spectrum
 from .fit import FitOptions, FitResult, fit_batch, fit_photo
 from .sequence import SequenceResult, fit_sequence
+from .spectrum import SpectrumFit, SpectrumOptions, fit_spectrum
 
 __all__ = ["fit", "search", "sequence", "FitOptions", "FitResult", "fit_batch", "fit_photo",
-           "SequenceResult", "fit_sequence"]
+           "SequenceResult", "fit_sequence", "spectrum", "SpectrumFit", "SpectrumOptions", "fit_spectrum"]

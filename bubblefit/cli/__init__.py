@@ -28,6 +28,7 @@ COMMANDS = (
     "calibrate",
     "fit",
     "fit_sequence",
+    "fit_spectrum",
     "demo",
 )
 

@@ -14,10 +14,15 @@ def register(sub):
     p.add_argument("--thickness", default="0:3000:5", help="START:STOP:STEP in nm (default 0:3000:5)")
     p.add_argument("--angle-deg", type=float, default=0.0, help="angle of incidence in degrees (default 0)")
     p.add_argument("--model", default="airy", choices=["airy", "two_beam", "paper", "incoherent"])
-    p.add_argument("--n-film", type=float, default=1.4, help="film refractive index (default 1.4)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--n-film", default=None, help="film index: a number or a preset (water, soap); default 1.4")
+    g.add_argument("--cauchy", metavar="A,B[,C]", help="film index n = A + B/lambda^2 + C/lambda^4, lambda in nm")
     p.add_argument("-o", "--output", required=True, help="chart image (PNG)")
-    p.add_argument("--csv", help="CSV with columns thickness_nm,r,g,b (linear sRGB reflectance)")
+    p.add_argument("--csv", help="CSV with columns thickness_nm,r,g,b (linear RGB reflectance, white = 1)")
     p.add_argument("--json", help="write a JSON summary")
+    from .common import add_colour_options
+
+    add_colour_options(p)
     p.set_defaults(func=run)
 
 
@@ -49,8 +54,16 @@ def run(args) -> int:
 
     if not 0 <= args.angle_deg <= 90:
         raise InputError(f"--angle-deg must be within [0, 90], got {args.angle_deg}")
-    if not 1.0 <= args.n_film <= 3.0:
-        raise InputError(f"--n-film must be within [1, 3], got {args.n_film}")
+    from ..optics.dispersion import describe
+    from .common import film_index
+
+    from ..optics import spectral
+    from .common import colour_option
+
+    n_film = film_index(args.n_film, args.cauchy, 1.4)
+    basis = spectral.spectral_basis(
+        "reference", illuminant=colour_option(args.illuminant, spectral.is_named_illuminant, "--illuminant") or "D65",
+        response=colour_option(args.camera_response, spectral.is_named_response, "--camera-response") or "srgb")
     d = parse_range(args.thickness)
     guard_outputs([], [args.output, args.csv, args.json])
     fmt = args.output.rsplit(".", 1)[-1].lower() if "." in args.output else "png"
@@ -60,13 +73,13 @@ def run(args) -> int:
         raise InputError(f"cannot write chart {args.output}: unknown image format .{fmt} "
                          f"(use one of {', '.join(sorted(supported))})")
     with stage(f"interference colours of {len(d)} thicknesses"):
-        rgb = interference_colours(d, angle_deg=args.angle_deg, model=args.model, n_film=args.n_film)
-    shown = srgb_encode(rgb * display_scale(args.model, angle_deg=args.angle_deg, n_film=args.n_film))
+        rgb = interference_colours(d, angle_deg=args.angle_deg, model=args.model, n_film=n_film, basis=basis)
+    shown = srgb_encode(rgb * display_scale(args.model, angle_deg=args.angle_deg, n_film=n_film))
     fig, ax = plt.subplots(figsize=(10, 1.8), dpi=120)
     ax.imshow(shown[None, :, :], aspect="auto", extent=(d[0], d[-1], 0, 1), interpolation="nearest")
     ax.set_yticks([])
     ax.set_xlabel("film thickness (nm)")
-    ax.set_title(f"interference colour, {args.model}, n = {args.n_film}, {args.angle_deg:g} deg")
+    ax.set_title(f"interference colour, {args.model}, n = {describe(n_film)}, {args.angle_deg:g} deg")
     fig.tight_layout()
     with atomic_path(args.output) as tmp:
         fig.savefig(tmp, format=fmt)

@@ -109,3 +109,40 @@ def scene_inputs(scene) -> list[Path]:
             if path.exists():
                 out.append(path)
     return out
+
+
+def film_index(n_film: str | None, cauchy: str | None, default):
+    """The film's index from ``--n-film`` (a number or a preset name) or ``--cauchy A,B[,C]``."""
+    from ..optics import dispersion
+
+    if cauchy:
+        return dispersion.parse_cauchy(cauchy)
+    if n_film is None:
+        return default
+    try:
+        value = float(n_film)
+    except ValueError:
+        return dispersion.parse_index(n_film, "--n-film")
+    return dispersion.parse_index(value, "--n-film")
+
+
+def add_colour_options(parser) -> None:
+    """``--illuminant`` and ``--camera-response`` (:mod:`bubblefit.optics.spectral`)."""
+    parser.add_argument("--illuminant", default=None,
+                        help="illuminant: D65 (default), E, A, another CIE name, or a CSV wavelength_nm,power")
+    parser.add_argument("--camera-response", default=None,
+                        help="camera response: srgb (default), a colour-science camera (e.g. 'Nikon 5100 (NPL)'), "
+                             "or a CSV wavelength_nm,r,g,b; white-balanced to the illuminant")
+
+
+def colour_option(value: str | None, named, option: str) -> str | None:
+    """An option's illuminant/response: a name as is, a file as an absolute path."""
+    import os
+
+    if value is None or named(value):
+        return value
+    if not os.path.isfile(value):
+        from ..errors import InputError
+
+        raise InputError(f"{option} {value!r} is neither a known name nor a file")
+    return os.path.abspath(value)

@@ -18,6 +18,9 @@ def register(sub):
     p.add_argument("--json", metavar="PATH", help="write timing and effect decisions as JSON")
     p.add_argument("--preview-exposure", type=float, default=None,
                    help="exposure of the PNG preview (default: automatic, the 99.5th percentile maps to 0.9)")
+    from .common import add_colour_options
+
+    add_colour_options(p)
     p.set_defaults(func=run)
 
 
@@ -33,8 +36,17 @@ def run(args) -> int:
     from ..progress import stage
     from .common import guard_outputs, scene_inputs, write_json
 
+    from ..optics import spectral
+    from .common import colour_option
+
     with stage("reading the scene"):
         scene = load_scene(args.scene)
+    ill = colour_option(args.illuminant, spectral.is_named_illuminant, "--illuminant")
+    resp = colour_option(args.camera_response, spectral.is_named_response, "--camera-response")
+    if ill is not None:
+        scene.data.setdefault("lighting", {})["illuminant"] = ill
+    if resp is not None:
+        scene.data.setdefault("camera", {})["response"] = resp
     preview = preview_path(args.output)
     guard_outputs([args.scene, *scene_inputs(scene)], [args.output, preview, args.json])
     t0 = time.perf_counter()

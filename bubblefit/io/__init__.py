@@ -1,5 +1,6 @@
 """Files: images through OpenImageIO (linear EXR/HDR, sRGB PNG/JPEG/TIFF), one atomic
-write path for every output (:mod:`bubblefit.io.atomic`), JSON results, and JAX's
+write path for every output (:mod:`bubblefit.io.atomic`), JSON results, spectrometer readings
+(:mod:`bubblefit.io.spectra`), and JAX's
 persistent compilation cache (:mod:`bubblefit.io.jaxcache`).
 
 The names are loaded on first use (PEP 562): the command line imports
@@ -17,8 +18,9 @@ _EXPORTS = {
     "atomic_path": "atomic", "write_text": "atomic", "write_bytes": "atomic", "write_json": "atomic",
     "json_text": "atomic",
     "jax_setup": "jaxcache", "default_cache_dir": "jaxcache",
+    "Spectrum": "spectra", "read_spectrum": "spectra",
 }
-_MODULES = ("images", "atomic", "jaxcache")
+_MODULES = ("images", "atomic", "jaxcache", "spectra")
 
 __all__ = sorted(_EXPORTS) + list(_MODULES)
 

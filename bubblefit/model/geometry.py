@@ -25,7 +25,24 @@ __all__ = [
     "Hits",
     "intersect_sphere",
     "internal_bounce",
+    "pixel_offsets",
 ]
+
+
+def pixel_offsets(samples_per_pixel: int) -> np.ndarray:
+    """(S, 2) sub-pixel offsets (rows, columns) from the pixel centre for a box filter.
+
+    ``S = s^2`` samples stratified over the pixel's box: the centres of an ``s x s`` grid,
+    ``(k + 1/2) / s - 1/2`` for ``k = 0 .. s-1``, so that their mean is the box average a
+    camera's pixel (and a renderer's box reconstruction filter) integrates. ``S = 1`` is
+    the pixel centre.
+    """
+    s = math.isqrt(int(samples_per_pixel))
+    if s < 1 or s * s != samples_per_pixel:
+        raise ValueError(f"samples per pixel must be a square number (1, 4, 9, 16, ...), got {samples_per_pixel}")
+    k = (np.arange(s) + 0.5) / s - 0.5
+    dy, dx = np.meshgrid(k, k, indexing="ij")
+    return np.stack([dy.ravel(), dx.ravel()], axis=-1)
 
 
 @dataclass(frozen=True)

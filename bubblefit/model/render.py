@@ -44,11 +44,12 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..optics import film, spectral
+from ..optics.dispersion import Cauchy, index_offset
 from ..optics.brdf import ward_lobe
 from .effects import Effects
 from ..lighting.envmap import EnvMap, rotate_y
 from ..lighting.filtering import irradiance, specular
-from .geometry import OrthographicCamera, PerspectiveCamera, internal_bounce, intersect_sphere
+from .geometry import OrthographicCamera, PerspectiveCamera, internal_bounce, intersect_sphere, pixel_offsets
 from .thickness import thickness_at
 
 __all__ = ["Params", "RenderConfig", "render", "render_terms", "TRACE_COUNTS", "PointLight"]
@@ -110,6 +111,12 @@ class RenderConfig:
     radius: float = 1.0
     point_lights: tuple = ()
     chunk: int = 4096
+    #: The film's dispersion law (:class:`~bubblefit.optics.dispersion.Cauchy`) or None: the
+    #: index per wavelength is ``Params.n_film`` (quoted at 589.3 nm) plus the law's offset.
+    dispersion: Cauchy | None = None
+    #: Rays per pixel, a square number: the pixel is the mean over a stratified ``s x s``
+    #: grid of its box (:func:`~bubblefit.model.geometry.pixel_offsets`); 1 = its centre.
+    samples_per_pixel: int = 1
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -229,6 +236,9 @@ def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx)
     o, d = cfg.camera.rays(rows, cols, cfg.center, cfg.radius)
     hits = intersect_sphere(o, d, cfg.center, cfg.radius)
     lam = jnp.asarray(fx.spectral.wavelengths, dtype=dtype) if fx.spectral is not None else None
+    if cfg.dispersion is not None and fx.spectral is not None:  # n per wavelength (K,)
+        offset = jnp.asarray(index_offset(cfg.dispersion, fx.spectral.wavelengths), dtype=dtype)
+        p = eqx.tree_at(lambda q: q.n_film, p, p.n_film + offset)
     opt = _Film(fx, p, hits.cos, lam)
     wo = -d
     bg_rad = _background(env, fx, p, d, bg, idx)
@@ -352,9 +362,15 @@ def render_terms(p: Params, cfg: RenderConfig, env: EnvMap | None, background=No
     rows, cols, idx, npix = _pixel_chunks(cfg)
     bg = None if background is None else jnp.asarray(background, dtype=p.t.dtype)
 
+    offsets = jnp.asarray(pixel_offsets(cfg.samples_per_pixel), dtype=p.t.dtype)
+
     def body(xs):
         r, c, i = xs
-        return _shade_chunk(p, cfg, env, bg, r, c, i)
+        if cfg.samples_per_pixel == 1:
+            return _shade_chunk(p, cfg, env, bg, r, c, i)
+        # Box filter: the mean over stratified sub-pixel rays, one pass per offset.
+        shade = lambda o: _shade_chunk(p, cfg, env, bg, r.astype(o.dtype) + o[0], c.astype(o.dtype) + o[1], i)
+        return jax.tree_util.tree_map(lambda v: jnp.mean(v, axis=0), jax.lax.map(shade, offsets))
 
     img, terms = jax.lax.map(body, (jnp.asarray(rows), jnp.asarray(cols), jnp.asarray(idx)))
     img = img.reshape(-1, 3)[:npix].reshape(h, w, 3)

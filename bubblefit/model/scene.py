@@ -9,6 +9,7 @@ key's name.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import tomllib
@@ -18,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..optics.dispersion import REFERENCE_WAVELENGTH_NM, Cauchy, parse_index, refractive_index
 
 __all__ = ["Scene", "load_scene", "render_scene", "read_envmap", "DATA_DIR", "shipped_envmap"]
 
@@ -25,11 +27,12 @@ DATA_DIR = Path(__file__).resolve().parent.parent / "data"
 
 _SCHEMA = {
     "camera": {"type": str, "width": int, "height": int, "origin": list, "target": list, "up": list,
-               "fov_deg": float, "disc": list},
-    "bubble": {"center": list, "radius": float, "n_film": float, "t": float, "roughness": float,
+               "fov_deg": float, "disc": list, "samples_per_pixel": int,
+               "response": str, "white_balance": (str, list)},
+    "bubble": {"center": list, "radius": float, "n_film": (float, dict, str), "t": float, "roughness": float,
                "f": float, "r_d": float, "r_s": float, "thickness_nm": float, "thickness": dict},
     "lighting": {"envmap": str, "rotation_deg": float, "scale": float, "point_lights": list,
-                 "background": str},
+                 "background": str, "illuminant": str},
     "effects": {"model": str, "interference": str, "filtering": (str,), "spectral": (str, dict),
                 "front_reflection": (str, bool), "rear_reflection": (str, bool), "transmission": (str, bool),
                 "transmission_tint": (str, bool), "diffuse": (str, bool), "bounces": (str, int),
@@ -129,7 +132,7 @@ class Scene:
         b = self.table("bubble")
         _range("bubble.t", b.get("t", 0.972), 0.0, 1.0)
         _range("bubble.roughness", b.get("roughness", 0.01), 0.0, 10.0, lo_open=True)
-        _range("bubble.n_film", b.get("n_film", 1.4), 1.0, 3.0)
+        film_index(b)
         _range("bubble.radius", b.get("radius", 1.0), 0.0, math.inf, lo_open=True)
         _range("bubble.thickness_nm", b.get("thickness_nm", 500.0), 0.0, 1e6)
         for k in ("r_d", "r_s", "f"):
@@ -154,6 +157,15 @@ class Scene:
         for k in ("width", "height"):
             if k in c and not 1 <= c[k] <= 16384:
                 raise InputError(f"scene value camera.{k} = {c[k]} is out of range [1, 16384]")
+        spp = c.get("samples_per_pixel", 1)
+        if not (1 <= spp <= 1024 and math.isqrt(spp) ** 2 == spp):
+            raise InputError(f"camera.samples_per_pixel must be a square number in [1, 1024] (1, 4, 9, 16, ...), "
+                             f"got {spp}")
+        wb = c.get("white_balance", "illuminant")
+        if isinstance(wb, str) and wb != "illuminant":
+            raise InputError(f"camera.white_balance must be \"illuminant\" or [r, g, b] gains, got {wb!r}")
+        if not isinstance(wb, str) and (min(_vector("camera.white_balance", wb, 3)) <= 0):
+            raise InputError(f"camera.white_balance gains must be positive, got {wb!r}")
         for k, n in (("origin", 3), ("target", 3), ("up", 3), ("disc", 3)):
             if k in c:
                 _vector(f"camera.{k}", c[k], n)
@@ -231,9 +243,25 @@ class Scene:
         _, values = self.thickness_spec()
         return Params.make(
             t=b.get("t", 0.972), r_d=b.get("r_d"), r_s=b.get("r_s"), f=b.get("f", 0.3),
-            roughness=b.get("roughness", 0.01), thickness=values, n_film=b.get("n_film", 1.4),
+            roughness=b.get("roughness", 0.01), thickness=values,
+            n_film=float(refractive_index(film_index(b), REFERENCE_WAVELENGTH_NM)),
             exposure=1.0, rotation=math.radians(self.table("lighting").get("rotation_deg", 0.0)), dtype=dtype,
         )
+
+    def colour(self) -> tuple[str, str, object]:
+        """``(illuminant, response, white_balance)`` of the scene (``[lighting] illuminant``,
+        ``[camera] response`` and ``white_balance``; :mod:`bubblefit.optics.spectral`), with
+        CSV paths resolved against the scene's folder and checked."""
+        from ..optics import spectral
+
+        ill = self.table("lighting").get("illuminant", "D65")
+        resp = self.table("camera").get("response", "srgb")
+        wb = self.table("camera").get("white_balance", "illuminant")
+        ill = _colour_path(self, ill, spectral.is_named_illuminant(ill))
+        resp = _colour_path(self, resp, spectral.is_named_response(resp))
+        spectral.illuminant_spectrum(ill)
+        spectral.response_functions(resp)
+        return ill, resp, (wb if isinstance(wb, str) else tuple(float(g) for g in wb))
 
     def load_envmap(self):
         """The scene's environment map as an :class:`~bubblefit.lighting.envmap.EnvMap` (or None)."""
@@ -307,8 +335,13 @@ class Scene:
             )
         except ValueError as exc:  # a setting the checks above let through
             raise InputError(f"scene [effects]: {exc}") from None
+        colour = self.colour()
+        if fx.spectral is not None and colour != ("D65", "srgb", "illuminant"):
+            fx = dataclasses.replace(fx, spectral=fx.spectral.with_colour(*colour))
         cfg = RenderConfig(effects=fx, camera=camera, center=tuple(float(x) for x in b.get("center", (0, 0, 0))),
-                           radius=float(b.get("radius", 1.0)), point_lights=lights, chunk=chunk)
+                           radius=float(b.get("radius", 1.0)), point_lights=lights, chunk=chunk,
+                           dispersion=law if isinstance(law := film_index(b), Cauchy) else None,
+                           samples_per_pixel=int(self.table("camera").get("samples_per_pixel", 1)))
         return cfg, decisions
 
 
@@ -362,6 +395,17 @@ def _check_camera_geometry(c: dict, b: dict) -> None:
     if np.linalg.norm(origin - center) <= radius:
         raise InputError("the camera (camera.origin) is inside the bubble: place it farther from bubble.center "
                          "than bubble.radius")
+
+
+def _colour_path(scene: "Scene", value: str, named: bool) -> str:
+    """A named illuminant/response as is; a CSV path resolved against the scene's folder."""
+    return value if named else str(scene.resolve_path(value))
+
+
+def film_index(bubble: dict):
+    """The ``[bubble] n_film`` of a scene: a number, ``{cauchy = [A, B(, C)]}`` or a preset
+    (:mod:`bubblefit.optics.dispersion`); 1.4 when absent."""
+    return parse_index(bubble.get("n_film", 1.4), "bubble.n_film")
 
 
 def _vector(name: str, value, n: int) -> list[float]:

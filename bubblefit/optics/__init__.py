@@ -4,10 +4,11 @@
 - :mod:`.brdf`: Ward's isotropic BRDF, eq. (1).
 - :mod:`.spectral`: spectra to linear sRGB (CIE 1931 2 degree observer, an illuminant).
 - :mod:`.chart`: interference colour against thickness.
+- :mod:`.dispersion`: the film's index against wavelength (Cauchy laws, presets).
 """
 
-from . import brdf, chart, film, spectral
+from . import brdf, chart, dispersion, film, spectral
 from .chart import interference_colours
 from .spectral import SpectralBasis, spectral_basis
 
-__all__ = ["brdf", "chart", "film", "spectral", "interference_colours", "SpectralBasis", "spectral_basis"]
+__all__ = ["brdf", "chart", "dispersion", "film", "spectral", "interference_colours", "SpectralBasis", "spectral_basis"]

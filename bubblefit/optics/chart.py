@@ -13,26 +13,30 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import film, spectral
+from . import dispersion, film, spectral
 
 __all__ = ["interference_colours", "MODELS"]
 
 MODELS = ("airy", "two_beam", "paper", "incoherent")
 
 
-def interference_colours(thickness_nm, *, angle_deg: float = 0.0, model: str = "airy", n_film: float = 1.4,
-                         t: float = 0.972, basis: spectral.SpectralBasis | None = None,
-                         chunk: int = 256) -> np.ndarray:
-    """Linear sRGB reflectance (N, 3) of a film at each thickness (nm).
+def interference_colours(thickness_nm, *, angle_deg: float = 0.0, model: str = "airy",
+                         n_film: dispersion.IndexSpec = 1.4, t: float = 0.972,
+                         basis: spectral.SpectralBasis | None = None, chunk: int = 256) -> np.ndarray:
+    """Linear RGB reflectance (N, 3) of a film at each thickness (nm).
 
     ``paper`` returns eq. (10)'s interference factor ``4 t^2 cos^2(delta/2)`` alone (it
     multiplies the Ward-filtered radiance, which carries ``r_s``). The others return the
-    film's reflectance averaged over polarisations.
+    film's reflectance averaged over polarisations. ``n_film`` is a number, a Cauchy law
+    or a preset (:mod:`bubblefit.optics.dispersion`), evaluated at each sample wavelength;
+    ``basis`` carries the illuminant and the camera response (default: the converged
+    ``reference`` quadrature, D65, sRGB).
     """
     if model not in MODELS:
         raise ValueError(f"unknown chart model {model!r}; expected one of {MODELS}")
     basis = basis or spectral.spectral_basis("reference")
     lam = jnp.asarray(basis.wavelengths)
+    n_film = jnp.asarray(dispersion.refractive_index(n_film, basis.wavelengths), dtype=lam.dtype)
     cos_i = float(np.cos(np.radians(angle_deg)))
     d = np.asarray(thickness_nm, dtype=np.float64).ravel()
 
@@ -57,11 +61,13 @@ def interference_colours(thickness_nm, *, angle_deg: float = 0.0, model: str = "
     return np.concatenate(out) if out else np.zeros((0, 3))
 
 
-def display_scale(model: str, *, angle_deg: float = 0.0, n_film: float = 1.4, t: float = 0.972) -> float:
+def display_scale(model: str, *, angle_deg: float = 0.0, n_film: dispersion.IndexSpec = 1.4,
+                  t: float = 0.972) -> float:
     """Factor that maps the film's mean (incoherent) reflectance to 0.5 for display."""
     cos_i = float(np.cos(np.radians(angle_deg)))
     if model == "paper":
         mean = 2 * t * t
     else:
-        mean = float(np.asarray(film.incoherent_reflectance(cos_i, n_film)).mean())
+        n = dispersion.refractive_index(n_film, np.linspace(spectral.LAMBDA_MIN, spectral.LAMBDA_MAX, 41))
+        mean = float(np.asarray(film.incoherent_reflectance(cos_i, n)).mean())
     return 0.5 / max(mean, 1e-12)

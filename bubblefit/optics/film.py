@@ -3,7 +3,9 @@
 A soap film is a lossless slab of index ``n`` (``n_g`` in the paper, 1.4 by default) and
 thickness ``d`` between two half-spaces of air. Every function here takes the cosine of
 the angle of incidence in air, ``cos_i`` in [0, 1], and broadcasts over all its
-arguments; wavelengths and thicknesses are in nanometres. Functions that depend on the
+arguments; wavelengths and thicknesses are in nanometres. ``n`` may be one index per
+wavelength (shaped like ``wavelength``) for a dispersive film
+(:mod:`bubblefit.optics.dispersion`). Functions that depend on the
 polarisation return a trailing axis of size 2: ``[..., 0]`` is s (TE), ``[..., 1]`` is p
 (TM).
 

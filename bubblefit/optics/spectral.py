@@ -1,11 +1,22 @@
 """Spectral integration of film reflectance to linear sRGB (sec. 3.4 of the paper).
 
-A reflectance spectrum ``S(lambda)`` seen under an illuminant ``I(lambda)`` has tristimulus
-values ``XYZ = sum_k cmf(lambda_k) I(lambda_k) S(lambda_k) dlambda`` (CIE 1931 2-degree
-observer, from colour-science), converted to linear sRGB with the Rec. 709 matrix of
-IEC 61966-2-1 and normalised per channel so that a spectrally flat reflectance ``c``
-gives ``(c, c, c)`` (DESIGN.md). The resulting RGB factor multiplies the RGB radiance of
-the environment per channel.
+A reflectance spectrum ``S(lambda)`` seen under an illuminant ``I(lambda)`` by a response
+``rho_c(lambda)`` gives the channel values ``c = sum_k rho_c(lambda_k) I(lambda_k)
+S(lambda_k) dlambda``. The response is
+
+- ``"srgb"`` (default): the CIE 1931 2-degree observer (colour-science) followed by the
+  XYZ to linear sRGB (Rec. 709) matrix of IEC 61966-2-1, so ``rho = M cmf``;
+- a camera of ``colour.MSDS_CAMERA_SENSITIVITIES`` (measured raw sensitivities, e.g.
+  ``"Nikon 5100 (NPL)"``), zero outside their measured range;
+- a CSV file ``wavelength_nm,r,g,b``.
+
+The illuminant is ``"D65"`` (default), ``"E"``, ``"A"`` (or any of colour-science's
+``SDS_ILLUMINANTS``) or a CSV file ``wavelength_nm,power``. White balance
+``"illuminant"`` normalises each channel so that a spectrally flat reflectance ``c``
+gives ``(c, c, c)`` (``docs/design.md``); explicit gains ``(g_r, g_g, g_b)`` multiply raw
+channels normalised so that the green channel of a white reflector reads 1 (a camera's
+as-shot multipliers). The resulting RGB factor multiplies the RGB radiance of the
+environment per channel.
 
 A :class:`SpectralBasis` holds the K sample wavelengths and the (K, 3) weights of this
 quadrature, so integration is one matrix product: ``rgb = S @ weights``.
@@ -32,12 +43,17 @@ Methods:
 from __future__ import annotations
 
 import functools
+import os
 
 import colour
 import numpy as np
 from jaxtyping import Array, Float
 
 __all__ = [
+    "illuminant_spectrum",
+    "response_functions",
+    "is_named_illuminant",
+    "is_named_response",
     "LAMBDA_MIN",
     "LAMBDA_MAX",
     "SpectralBasis",
@@ -52,23 +68,117 @@ LAMBDA_MAX = 780.0
 REFERENCE_SAMPLES = 800
 
 
-@functools.lru_cache(maxsize=8)
-def _tables(illuminant: str):
-    """CMFs (1 nm, 360-830) and the illuminant on the same grid, as numpy arrays."""
-    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
-    lam = np.asarray(cmfs.wavelengths, dtype=np.float64)
-    if illuminant.upper() in ("E", "EQUAL", "EQUAL_ENERGY"):
-        ill = np.ones_like(lam)
-    else:
-        try:
-            sd = colour.SDS_ILLUMINANTS[illuminant]
-        except KeyError as exc:
-            from ..errors import InputError
+#: The colour-matching and response tables' grid: 1 nm over 360-830 nm.
+_GRID = np.arange(360.0, 831.0, 1.0)
 
-            raise InputError(f"unknown illuminant {illuminant!r} (try D65, D50, A or E)") from exc
-        ill = np.interp(lam, np.asarray(sd.wavelengths), np.asarray(sd.values))
-    xyz_to_rgb = np.asarray(colour.RGB_COLOURSPACES["sRGB"].matrix_XYZ_to_RGB, dtype=np.float64)
-    return lam, np.asarray(cmfs.values, dtype=np.float64), ill, xyz_to_rgb
+
+def _read_columns(path: str, columns: int, what: str) -> np.ndarray:
+    """A CSV (comma or whitespace) of ``columns`` numbers per row, header lines skipped."""
+    from ..errors import InputError
+
+    rows = []
+    try:
+        lines = open(path, encoding="utf-8").read().splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{what} {path}: cannot read it as text ({exc})") from None
+    for no, line in enumerate(lines, start=1):
+        parts = [x for x in line.replace(",", " ").replace(";", " ").split() if x]
+        if not parts or parts[0].startswith("#"):
+            continue
+        try:
+            vals = [float(x) for x in parts[:columns]]
+        except ValueError:
+            if rows:
+                raise InputError(f"{what} {path}, line {no}: expected {columns} numbers") from None
+            continue  # a header
+        if len(vals) < columns or not np.all(np.isfinite(vals)):
+            raise InputError(f"{what} {path}, line {no}: expected {columns} finite numbers")
+        rows.append(vals)
+    data = np.asarray(rows, dtype=np.float64).reshape(-1, columns)
+    if len(data) < 2 or np.any(np.diff(np.sort(data[:, 0])) <= 0):
+        raise InputError(f"{what} {path}: need at least 2 rows with distinct wavelengths (nm) in the first column")
+    if data[:, 0].max() < LAMBDA_MIN or data[:, 0].min() > LAMBDA_MAX or np.any(data[:, 1:] < 0):
+        raise InputError(f"{what} {path}: wavelengths must overlap 380-780 nm and values must be >= 0")
+    return data[np.argsort(data[:, 0])]
+
+
+@functools.lru_cache(maxsize=16)
+def illuminant_spectrum(illuminant: str) -> np.ndarray:
+    """Relative spectral power of an illuminant on the 1 nm grid 360-830 nm (``_GRID``).
+
+    ``"E"`` is equal energy; other names are colour-science's ``SDS_ILLUMINANTS`` (CIE D65,
+    A, ...); anything else is read as a CSV ``wavelength_nm,power`` (zero outside it).
+    """
+    from ..errors import InputError
+
+    if illuminant.upper() in ("E", "EQUAL", "EQUAL_ENERGY"):
+        return np.ones_like(_GRID)
+    if illuminant in colour.SDS_ILLUMINANTS:
+        sd = colour.SDS_ILLUMINANTS[illuminant]
+        return np.interp(_GRID, np.asarray(sd.wavelengths), np.asarray(sd.values))
+    if not os.path.isfile(illuminant):
+        raise InputError(f"unknown illuminant {illuminant!r} (D65, E, A, another CIE name, or a CSV "
+                         "wavelength_nm,power)")
+    data = _read_columns(illuminant, 2, "illuminant")
+    return np.interp(_GRID, data[:, 0], data[:, 1], left=0.0, right=0.0)
+
+
+@functools.lru_cache(maxsize=16)
+def response_functions(response: str) -> np.ndarray:
+    """(L, 3) channel responses on ``_GRID``: ``srgb``, a colour-science camera, or a CSV.
+
+    References
+    ----------
+    CIE 015:2018 (1931 2-degree observer); IEC 61966-2-1:1999 (sRGB primaries);
+    colour-science's ``MSDS_CAMERA_SENSITIVITIES`` (measured camera sensitivities).
+    """
+    from ..errors import InputError
+
+    if response.lower() == "srgb":
+        cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
+        lam = np.asarray(cmfs.wavelengths, dtype=np.float64)
+        cmf = np.stack([np.interp(_GRID, lam, np.asarray(cmfs.values)[:, c]) for c in range(3)], axis=1)
+        m = np.asarray(colour.RGB_COLOURSPACES["sRGB"].matrix_XYZ_to_RGB, dtype=np.float64)
+        return cmf @ m.T
+    if response in colour.MSDS_CAMERA_SENSITIVITIES:
+        msds = colour.MSDS_CAMERA_SENSITIVITIES[response]
+        lam, vals = np.asarray(msds.wavelengths), np.asarray(msds.values)
+        return np.stack([np.interp(_GRID, lam, vals[:, c], left=0.0, right=0.0) for c in range(3)], axis=1)
+    if not os.path.isfile(response):
+        raise InputError(f"unknown camera response {response!r} (srgb, one of "
+                         f"{', '.join(colour.MSDS_CAMERA_SENSITIVITIES)}, or a CSV wavelength_nm,r,g,b)")
+    data = _read_columns(response, 4, "camera response")
+    return np.stack([np.interp(_GRID, data[:, 0], data[:, c], left=0.0, right=0.0) for c in (1, 2, 3)], axis=1)
+
+
+def is_named_illuminant(name: str) -> bool:
+    """Whether ``name`` is a built-in illuminant (``E`` or colour-science's), not a file."""
+    return name.upper() in ("E", "EQUAL", "EQUAL_ENERGY") or name in colour.SDS_ILLUMINANTS
+
+
+def is_named_response(name: str) -> bool:
+    """Whether ``name`` is a built-in response (``srgb`` or a colour-science camera), not a file."""
+    return name.lower() == "srgb" or name in colour.MSDS_CAMERA_SENSITIVITIES
+
+
+def _channel_density(illuminant: str, response: str) -> np.ndarray:
+    """(L, 3) ``rho_c(lambda) I(lambda)`` on ``_GRID``, zero outside 380-780 nm."""
+    inside = ((_GRID >= LAMBDA_MIN) & (_GRID <= LAMBDA_MAX))[:, None]
+    dens = response_functions(response) * illuminant_spectrum(illuminant)[:, None] * inside
+    if np.any(dens.sum(axis=0) <= 0):
+        from ..errors import InputError
+
+        raise InputError(f"camera response {response!r} under illuminant {illuminant!r} leaves a channel dark")
+    return dens
+
+
+def _balance(raw_white: np.ndarray, white_balance) -> np.ndarray:
+    """Per-channel factors applied to weights whose flat-spectrum sum is ``raw_white`` (3,)."""
+    if isinstance(white_balance, str):
+        if white_balance != "illuminant":
+            raise ValueError(f"white_balance must be 'illuminant' or three gains, got {white_balance!r}")
+        return 1.0 / raw_white
+    return np.asarray(white_balance, dtype=np.float64) / raw_white[1]
 
 
 #: ``fourier`` lobes per sample count K: (centre wavelengths in nm, standard deviations in
@@ -95,13 +205,13 @@ FOURIER_LOBES: dict = {
 }
 
 
-def _fourier_arrays(samples: int, illuminant: str):
-    """Centres (K,) nm, sRGB weights (K, 3) and wavenumber deviations (K,) 1/nm of ``fourier``."""
+def _fourier_arrays(samples: int, illuminant: str, response: str):
+    """Centres (K,) nm, weights (K, 3) (flat spectrum -> 1) and wavenumber deviations (K,) 1/nm."""
     if samples not in FOURIER_LOBES:
         raise ValueError(f"fourier spectral samples must be one of {sorted(FOURIER_LOBES)}, got {samples}")
     lam_k = np.asarray(FOURIER_LOBES[samples][0], dtype=np.float64)
     sig_k = np.asarray(FOURIER_LOBES[samples][1], dtype=np.float64) * 1e-3
-    nu, dens = _wavenumber_density(illuminant)
+    nu, dens = _wavenumber_density(illuminant, response)
     mu = 1.0 / lam_k
     g = np.exp(-0.5 * ((nu[:, None] - mu) / sig_k) ** 2) / (np.sqrt(2 * np.pi) * sig_k)
     w, *_ = np.linalg.lstsq(g, dens, rcond=None)
@@ -109,26 +219,30 @@ def _fourier_arrays(samples: int, illuminant: str):
     return lam_k, w, sig_k
 
 
-def _wavenumber_density(illuminant: str, points: int = 600):
-    """The three sRGB weight densities per unit wavenumber (each of unit integral), (P, 3),
+def _wavenumber_density(illuminant: str, response: str = "srgb", points: int = 600):
+    """The three channels' weight densities per unit wavenumber (each of unit integral), (P, 3),
     on a grid ``nu`` (P,) in 1/nm spanning the visible range with a margin of zeros."""
-    lam_tab, cmf_tab, ill_tab, m = _tables(illuminant)
+    dens_tab = _channel_density(illuminant, response)
     lo, hi = 1.0 / LAMBDA_MAX, 1.0 / LAMBDA_MIN
     nu = np.linspace(lo - 2e-4, hi + 2e-4, points)
     lam = 1.0 / nu
-    cmf = np.stack([np.interp(lam, lam_tab, cmf_tab[:, c]) for c in range(3)], axis=1)
-    inside = ((lam >= LAMBDA_MIN) & (lam <= LAMBDA_MAX))[:, None]
-    dens = np.where(inside, (cmf * np.interp(lam, lam_tab, ill_tab)[:, None]) @ m.T, 0.0) * lam[:, None] ** 2
+    dens = np.stack([np.interp(lam, _GRID, dens_tab[:, c], left=0.0, right=0.0) for c in range(3)], axis=1)
+    dens = dens * lam[:, None] ** 2
     return nu, dens / (dens.sum(axis=0, keepdims=True) * (nu[1] - nu[0]))
 
 
 @functools.lru_cache(maxsize=64)
-def _basis_arrays(method: str, samples: int, illuminant: str):
-    lam_tab, cmf_tab, ill_tab, m = _tables(illuminant)
+def _basis_arrays(method: str, samples: int, illuminant: str, response: str = "srgb",
+                  white_balance="illuminant"):
+    fine = np.linspace(LAMBDA_MIN, LAMBDA_MAX, 4001)
+    dens_tab = _channel_density(illuminant, response)
+    rgb_f = np.stack([np.interp(fine, _GRID, dens_tab[:, c]) for c in range(3)], axis=1)
+    raw_white = rgb_f.sum(axis=0)
+    gains = _balance(raw_white, white_balance) * raw_white  # 1 for "illuminant"
     if method == "fourier":
-        lam_k, w, sig_k = _fourier_arrays(samples, illuminant)
+        lam_k, w, sig_k = _fourier_arrays(samples, illuminant, response)
         fwhm_nm = 2.3548 * sig_k * lam_k**2  # the lobe's width in wavelength, for display
-        return lam_k, w, fwhm_nm, sig_k
+        return lam_k, w * gains, fwhm_nm, sig_k
     if method == "reference":
         samples = REFERENCE_SAMPLES
     if method not in ("uniform", "reference"):
@@ -137,17 +251,13 @@ def _basis_arrays(method: str, samples: int, illuminant: str):
         raise ValueError("spectral samples must be >= 1")
     width = (LAMBDA_MAX - LAMBDA_MIN) / samples
     lam = LAMBDA_MIN + (np.arange(samples) + 0.5) * width
-    # Each sample stands for its bin: average the observer x illuminant over the bin on a
+    # Each sample stands for its bin: the response x illuminant averaged over the bin on a
     # fine grid, so the weights integrate the whole visible range for any K.
-    fine = np.linspace(LAMBDA_MIN, LAMBDA_MAX, 4001)
-    cmf_f = np.stack([np.interp(fine, lam_tab, cmf_tab[:, c]) for c in range(3)], axis=1)
-    ill_f = np.interp(fine, lam_tab, ill_tab)
-    rgb_f = (cmf_f * ill_f[:, None]) @ m.T
     idx = np.minimum(((fine - LAMBDA_MIN) / width).astype(int), samples - 1)
     w = np.zeros((samples, 3))
     np.add.at(w, idx, rgb_f)
     w /= w.sum(axis=0, keepdims=True)  # flat spectrum -> (1, 1, 1)
-    return lam, w, np.full(samples, width), None
+    return lam, w * gains, np.full(samples, width), None
 
 
 class SpectralBasis:
@@ -155,23 +265,29 @@ class SpectralBasis:
 
     ``sigma`` is None for point-sampled methods (``uniform``, ``reference``) and, for
     ``fourier``, the (K,) wavenumber standard deviations (1/nm) of the lobes each sample
-    stands for: film functions must then return the lobe-filtered spectrum.
+    stands for: film functions must then return the lobe-filtered spectrum. ``illuminant``,
+    ``response`` and ``white_balance`` are as in the module's description.
 
     Hashable and compared by its definition, so it can be a static argument under jit.
     """
 
-    def __init__(self, method: str = "uniform", samples: int = 30, illuminant: str = "D65"):
-        lam, w, width, sigma = _basis_arrays(method, int(samples), illuminant)
+    def __init__(self, method: str = "uniform", samples: int = 30, illuminant: str = "D65",
+                 response: str = "srgb", white_balance="illuminant"):
+        if not isinstance(white_balance, str):
+            white_balance = tuple(float(g) for g in white_balance)
+        lam, w, width, sigma = _basis_arrays(method, int(samples), illuminant, response, white_balance)
         self.method = method
         self.samples = len(lam)
         self.illuminant = illuminant
+        self.response = response
+        self.white_balance = white_balance
         self.wavelengths = lam
         self.weights = w
         self.bin_width = width
         self.sigma = sigma
 
     def _key(self):
-        return (self.method, self.samples, self.illuminant)
+        return (self.method, self.samples, self.illuminant, self.response, self.white_balance)
 
     def __hash__(self):
         return hash(self._key())
@@ -180,12 +296,19 @@ class SpectralBasis:
         return isinstance(other, SpectralBasis) and self._key() == other._key()
 
     def __repr__(self):
-        return f"SpectralBasis(method={self.method!r}, samples={self.samples}, illuminant={self.illuminant!r})"
+        return (f"SpectralBasis(method={self.method!r}, samples={self.samples}, illuminant={self.illuminant!r}, "
+                f"response={self.response!r}, white_balance={self.white_balance!r})")
+
+    def with_colour(self, illuminant: str, response: str = "srgb", white_balance="illuminant") -> "SpectralBasis":
+        """The same quadrature (method, samples) for another illuminant, response or white balance."""
+        samples = self.samples if self.method != "reference" else REFERENCE_SAMPLES
+        return SpectralBasis(self.method, samples, illuminant, response, white_balance)
 
 
-def spectral_basis(method: str = "uniform", samples: int = 30, illuminant: str = "D65") -> SpectralBasis:
+def spectral_basis(method: str = "uniform", samples: int = 30, illuminant: str = "D65", response: str = "srgb",
+                   white_balance="illuminant") -> SpectralBasis:
     """The quadrature for ``method`` (``uniform``, ``reference`` or ``fourier``) with ``samples`` bins."""
-    return SpectralBasis(method, samples, illuminant)
+    return SpectralBasis(method, samples, illuminant, response, white_balance)
 
 
 def integrate(spectrum: Float[Array, "... K"], basis: SpectralBasis) -> Float[Array, "... 3"]:

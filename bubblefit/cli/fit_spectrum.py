@@ -1,0 +1,156 @@
+"""``bubblefit fit-spectrum SPECTRUM... [--dark DARK] [--reference REF] [--n-film N | --cauchy A,B[,C]]
+[--thickness-range MIN,MAX] [--wavelength-range MIN,MAX] [--csv OUT] [--json OUT] [-o PLOT_PREFIX]``.
+
+Film thickness from spectrometer readings (:mod:`bubblefit.inverse.spectrum`): one CSV row
+and one JSON entry per file, and with ``-o`` a plot per file of the measured and fitted
+spectra, the residual and the profile likelihood over thickness.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import InputError
+
+_CSV_COLUMNS = ("file", "thickness_nm", "thickness_nm_stderr", "ok", "order", "fringes", "reduced_chi2",
+                "residual_rms", "resolution_nm", "n_film", "second_minimum_nm", "delta_chi2",
+                "stderr_statistical_nm", "stderr_lamp_nm", "reasons", "warnings")
+
+
+def register(sub):
+    p = sub.add_parser(
+        "fit-spectrum", help="film thickness from spectrometer readings (two-column text files)",
+        description="Film thickness from spectrometer readings: two-column text files wavelength_nm,intensity "
+                    "(comma or whitespace, header lines allowed), arbitrary units, not divided by the lamp. "
+                    "Without --reference the lamp is an unknown smooth spectrum fitted with the film. "
+                    "The order is found by a global search; ok is false (with the reason) when it is ambiguous.")
+    p.add_argument("spectra", nargs="+", metavar="SPECTRUM", help="spectrum file(s)")
+    p.add_argument("--dark", help="dark reading (no film, no light), subtracted from every reading first")
+    p.add_argument("--reference", help="reading of the lamp (or of a reflector) alone, same spectrometer")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--n-film", default=None,
+                   help="film index: a number or a preset (soap, water); default soap (1.324188 + 3102.06/lambda^2)")
+    g.add_argument("--cauchy", metavar="A,B[,C]", help="film index n = A + B/lambda^2 + C/lambda^4, lambda in nm")
+    p.add_argument("--thickness-range", default="0,15000", metavar="MIN,MAX",
+                   help="thicknesses searched, nm (default 0,15000)")
+    p.add_argument("--wavelength-range", metavar="MIN,MAX", help="wavelengths used, nm (default: the whole reading)")
+    p.add_argument("--lamp-terms", type=int, default=None,
+                   help="smooth lamp terms (Legendre in wavenumber); default 5, or 1 with --reference")
+    p.add_argument("--no-offset", action="store_true", help="do not fit a constant stray-light offset")
+    p.add_argument("--csv", help="CSV, one row per file: " + ",".join(_CSV_COLUMNS[:4]) + ",...")
+    p.add_argument("--json", help="JSON with one entry per file")
+    p.add_argument("-o", "--output", metavar="PLOT_PREFIX", help="write PLOT_PREFIX_<file>.png per file")
+    p.add_argument("--strict", action="store_true", help="exit 1 when any file's result is not ok")
+    p.set_defaults(func=run)
+
+
+def _pair(text: str, name: str) -> tuple[float, float]:
+    from .common import parse_floats
+
+    lo, hi = parse_floats(text, 2, name)
+    if not (0 <= lo < hi) or hi == float("inf"):
+        raise InputError(f"{name} must be MIN,MAX with 0 <= MIN < MAX, got {text!r}")
+    return lo, hi
+
+
+def _check_outputs(args) -> None:
+    """No output may be one of the inputs or another output (:func:`.common.guard_outputs`)."""
+    from .common import guard_outputs
+
+    if args.output and len({Path(s).stem for s in args.spectra}) < len(args.spectra):
+        raise InputError("two spectra have the same file name; their plots would collide (run them separately)")
+    plots = [f"{args.output}_{Path(s).stem}.png" for s in args.spectra] if args.output else []
+    guard_outputs([*args.spectra, args.dark, args.reference], [args.csv, args.json, *plots])
+
+
+def run(args) -> int:
+    from ..inverse.spectrum import SpectrumOptions, fit_spectrum
+    from ..io.spectra import read_spectrum
+    from ..optics import dispersion
+    from ..progress import status
+    from .common import film_index, write_json
+
+    index = film_index(args.n_film, args.cauchy, "soap")
+    opts = SpectrumOptions(
+        n_film=index, thickness_range=_pair(args.thickness_range, "--thickness-range"),
+        wavelength_range=_pair(args.wavelength_range, "--wavelength-range") if args.wavelength_range else None,
+        lamp_terms=args.lamp_terms, offset=not args.no_offset)
+    if args.lamp_terms is not None and not 1 <= args.lamp_terms <= 20:
+        raise InputError(f"--lamp-terms must be within 1..20, got {args.lamp_terms}")
+    _check_outputs(args)
+    dark = read_spectrum(args.dark) if args.dark else None
+    reference = read_spectrum(args.reference) if args.reference else None
+    spectra = [read_spectrum(p) for p in args.spectra]  # every file is checked before any work
+    rows = []
+    for k, spec in enumerate(spectra):
+        status(f"fitting {spec.path} ({k + 1}/{len(spectra)}) ...")
+        res = fit_spectrum(spec, dark=dark, reference=reference, options=opts)
+        row = {"file": spec.path, **res.summary()}
+        rows.append(row)
+        if args.output:
+            _plot(res, Path(f"{args.output}_{Path(spec.path).stem}.png"), spec.path)
+        sd = res.thickness_nm_stderr
+        print(f"{spec.path}: {res.thickness_nm:.1f} +- {sd:.2g} nm, order {res.order}, "
+              + ("ok" if res.ok else "NOT ok: " + "; ".join(res.reasons)))
+        for w in res.warnings:
+            print(f"  warning: {w}")
+    if args.csv:
+        _write_csv(args.csv, rows)
+    if args.json:
+        write_json(args.json, {"n_film": dispersion.describe(index), "dark": args.dark, "reference": args.reference,
+                               "ok": all(r["ok"] for r in rows), "spectra": rows})
+    return 1 if args.strict and not all(r["ok"] for r in rows) else 0
+
+
+def _write_csv(path, rows) -> None:
+    import csv
+
+    from ..io.images import atomic_path
+
+    with atomic_path(path) as tmp:
+        with open(tmp, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(_CSV_COLUMNS)
+            for r in rows:
+                vals = []
+                for c in _CSV_COLUMNS:
+                    v = r[c]
+                    if isinstance(v, list):
+                        v = " | ".join(v)
+                    elif isinstance(v, bool):
+                        v = "true" if v else "false"
+                    elif isinstance(v, float):
+                        v = f"{v:.10g}"
+                    vals.append(v)
+                w.writerow(vals)
+
+
+def _plot(res, path: Path, name: str) -> None:
+    """Measured and fitted spectra, the residual, and the profile ``chi^2`` against thickness."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from ..io.images import atomic_path
+
+    fig, ax = plt.subplots(3, 1, figsize=(8, 8), dpi=110, gridspec_kw={"height_ratios": [3, 1, 2]})
+    ax[0].plot(res.wavelength_nm, res.measured, ".", ms=2, color="0.4", label="measured (dark subtracted)")
+    ax[0].plot(res.wavelength_nm, res.fitted, "-", lw=1, color="C3",
+               label=f"fit: {res.thickness_nm:.1f} +- {res.thickness_nm_stderr:.2g} nm")
+    ax[0].set_ylabel("intensity")
+    ax[0].legend(fontsize=8)
+    ax[0].set_title(f"{Path(name).name}: order {res.order}, " + ("ok" if res.ok else "not ok"), fontsize=9)
+    ax[1].plot(res.wavelength_nm, res.measured - res.fitted, ".", ms=2, color="C0")
+    ax[1].axhline(0, color="k", lw=0.5)
+    ax[1].set_ylabel("residual")
+    ax[1].set_xlabel("wavelength (nm)")
+    ax[2].semilogy(res.profile_nm, np.maximum(res.profile_chi2, 1e-2), lw=0.8)
+    ax[2].axvline(res.thickness_nm, color="C3", lw=0.8)
+    ax[2].set_xlabel("thickness (nm)")
+    ax[2].set_ylabel("profile delta chi2")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)

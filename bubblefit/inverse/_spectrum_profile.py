@@ -1,0 +1,165 @@
+"""The profile likelihood of a film's thickness in a spectrum (variable projection).
+
+For a thickness ``d`` (and resolution ``w``), the model ``y = sum_j a_j B_j R(d) + c`` is
+linear in the lamp coefficients ``a`` and the offset ``c``: they are solved by least
+squares, and ``RSS(d)`` is what is left. :meth:`ProfileProblem.rss_grid` does this for
+thousands of thicknesses at once through the normal equations; :meth:`ProfileProblem.rss`
+solves one thickness with an orthogonal factorisation, for the local refinement.
+
+References
+----------
+G. H. Golub and V. Pereyra, SIAM J. Numer. Anal. 10, 413-432 (1973).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from scipy import optimize
+
+__all__ = ["ProfileProblem", "local_minima", "residual_correlation", "second_difference_noise", "refine_d",
+           "refine_near", "refine_dw", "profile_variance"]
+
+
+@dataclass
+class ProfileProblem:
+    """A dark-subtracted reading ``y`` (N,), the lamp basis (N, J), whether to fit an
+    offset, and the film's reflectance at the reading's wavelengths, ``reflect(d, w) -> (D, N)``."""
+
+    y: np.ndarray
+    basis: np.ndarray
+    offset: bool
+    reflect: Callable
+
+    def design(self, d: float, w: float) -> np.ndarray:
+        """The (N, J [+1]) design matrix at thickness ``d``: lamp basis times ``R(d)``, and 1."""
+        r = self.reflect(np.array([d]), w)[0]
+        cols = self.basis * r[:, None]
+        if self.offset:
+            cols = np.column_stack([cols, np.ones_like(r)])
+        return cols
+
+    def solve(self, d: float, w: float) -> tuple[np.ndarray, np.ndarray]:
+        """Linear coefficients and the model spectrum at ``(d, w)``."""
+        a = self.design(d, w)
+        coef, *_ = np.linalg.lstsq(a, self.y, rcond=None)
+        return coef, a @ coef
+
+    def model(self, d: float, w: float) -> np.ndarray:
+        return self.solve(d, w)[1]
+
+    def rss(self, d: float, w: float) -> float:
+        """Residual sum of squares with the linear parameters solved (the profile)."""
+        r = self.y - self.model(d, w)
+        return float(r @ r)
+
+    def rss_grid(self, thickness: np.ndarray, w: float, chunk: int = 256) -> np.ndarray:
+        """``RSS(d)`` for every thickness of ``thickness`` (D,), by batched normal equations."""
+        y, b = self.y, self.basis
+        npts, j = b.shape
+        bb = (b[:, :, None] * b[:, None, :]).reshape(npts, j * j)
+        by = b * y[:, None]
+        yy = float(y @ y)
+        out = np.empty(len(thickness))
+        for s in range(0, len(thickness), chunk):
+            r = self.reflect(thickness[s:s + chunk], w)  # (C, N)
+            m = len(r)
+            k = j + int(self.offset)
+            g = np.zeros((m, k, k))
+            rhs = np.zeros((m, k))
+            g[:, :j, :j] = ((r * r) @ bb).reshape(m, j, j)
+            rhs[:, :j] = r @ by
+            if self.offset:
+                rb = r @ b
+                g[:, :j, j] = rb
+                g[:, j, :j] = rb
+                g[:, j, j] = npts
+                rhs[:, j] = y.sum()
+            ridge = 1e-12 * np.trace(g, axis1=1, axis2=2)[:, None, None] + 1e-300
+            coef = np.linalg.solve(g + ridge * np.eye(k), rhs[..., None])[..., 0]
+            out[s:s + m] = np.maximum(yy - np.einsum("mk,mk->m", coef, rhs), 0.0)
+        return out
+
+
+def local_minima(values: np.ndarray) -> np.ndarray:
+    """Indices of the local minima of a 1-D profile (ends included), best first."""
+    v = np.asarray(values)
+    left = np.concatenate([[np.inf], v[:-1]])
+    right = np.concatenate([v[1:], [np.inf]])
+    idx = np.flatnonzero((v <= left) & (v <= right))
+    return idx[np.argsort(v[idx], kind="stable")]
+
+
+def residual_correlation(resid: np.ndarray) -> float:
+    """Lag-1 autocorrelation of the residuals, clipped to [0, 0.95] (0: independent)."""
+    r = resid - resid.mean()
+    den = float(r @ r)
+    if den <= 0:
+        return 0.0
+    return float(np.clip((r[1:] @ r[:-1]) / den, 0.0, 0.95))
+
+
+def second_difference_noise(y: np.ndarray) -> float:
+    """The reading's noise from its second differences, robustly (median absolute deviation):
+    ``y[i+1] - 2 y[i] + y[i-1]`` of white noise has deviation ``sqrt(6) sigma``. Independent
+    of any model, so ``RSS / (N - p)`` over its square measures misfit."""
+    d2 = y[2:] - 2.0 * y[1:-1] + y[:-2]
+    mad = float(np.median(np.abs(d2 - np.median(d2))))
+    return 1.4826 * mad / np.sqrt(6.0)
+
+
+def refine_d(prob: ProfileProblem, grid, rss, w: float, keep: int = 6) -> list[tuple[float, float]]:
+    """The ``keep`` best local minima of the grid profile, each refined by a bounded 1-D
+    search over one grid step either side; best first, as (thickness, RSS)."""
+    step = grid[1] - grid[0]
+    out = []
+    for i in local_minima(rss)[:keep]:
+        lo, hi = max(grid[0], grid[i] - step), min(grid[-1], grid[i] + step)
+        res = optimize.minimize_scalar(lambda d: prob.rss(d, w), bounds=(lo, hi), method="bounded",
+                                       options={"xatol": 1e-4 * step})
+        out.append((float(res.x), float(res.fun)) if res.fun <= rss[i] else (float(grid[i]), float(rss[i])))
+    return sorted(out, key=lambda t: t[1])
+
+
+def refine_near(prob: ProfileProblem, d: float, w: float, half_width: float, grid) -> float:
+    """The profile's minimum within ``half_width`` of ``d`` (bounded 1-D search)."""
+    lo, hi = max(grid[0], d - half_width), min(grid[-1], d + half_width)
+    res = optimize.minimize_scalar(lambda x: prob.rss(x, w), bounds=(lo, hi), method="bounded",
+                                   options={"xatol": 1e-5 * half_width})
+    return float(res.x)
+
+
+def refine_dw(prob: ProfileProblem, d0: float, step: float, w_max: float, w0: float = 0.5):
+    """Joint local minimum of the profile in thickness (within a step of ``d0``) and
+    resolution FWHM ``w`` in [0, w_max] nm (L-BFGS-B on a scaled problem)."""
+    ref = max(prob.rss(d0, 0.0), 1e-300)
+
+    def f(x):
+        return prob.rss(d0 + x[0] * step, x[1]) / ref
+
+    res = optimize.minimize(f, np.array([0.0, min(max(w0, 0.05), w_max)]), method="L-BFGS-B",
+                            bounds=[(-1.0, 1.0), (0.0, w_max)], options={"ftol": 1e-12, "gtol": 1e-10})
+    if res.fun > 1.0:  # no better than the start: keep it
+        return d0, 0.0
+    w = float(res.x[1])
+    return d0 + float(res.x[0]) * step, (w if w > 1e-3 else 0.0)
+
+
+def profile_variance(prob: ProfileProblem, d: float, w: float, step: float, fit_w: bool) -> float:
+    """``[H^-1]_dd`` of the profile ``RSS`` (the thickness's inverse curvature, with the
+    resolution profiled out when it is fitted), by central differences."""
+    h = 0.02 * step
+    f0 = prob.rss(d, w)
+    hdd = (prob.rss(d + h, w) - 2 * f0 + prob.rss(d - h, w)) / h**2
+    if not fit_w:
+        return 1.0 / hdd if hdd > 0 else float("inf")
+    k = max(0.02 * w, 1e-3)
+    k = min(k, 0.5 * w)
+    hww = (prob.rss(d, w + k) - 2 * f0 + prob.rss(d, w - k)) / k**2
+    hdw = (prob.rss(d + h, w + k) - prob.rss(d + h, w - k) - prob.rss(d - h, w + k) + prob.rss(d - h, w - k)) / (4 * h * k)
+    det = hdd * hww - hdw**2
+    if hww <= 0 or det <= 0:
+        return 1.0 / hdd if hdd > 0 else float("inf")
+    return hww / det

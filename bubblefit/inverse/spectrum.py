@@ -1,0 +1,369 @@
+"""Film thickness from a spectrometer reading: a global profile-likelihood search.
+
+A film lit at normal incidence by a lamp of unknown spectrum ``L(nu)`` and read by a
+spectrometer gives (after the dark reading is subtracted)
+
+    I(nu) = L(nu) R(d, nu) + c + noise,
+
+with ``R`` the exact Airy reflectance of the film in air (:func:`film_reflectance`, with
+the index ``n(nu)`` of :mod:`bubblefit.optics.dispersion`), ``nu = 1/lambda`` the
+wavenumber and ``c`` stray light. Without a reference reading the lamp is a smooth
+function, a Legendre series of ``lamp_terms`` terms in ``nu``; with one (the lamp, or a
+reflector, read the same way) it is the reference times such a series (one term, a
+scale, by default). For a given ``d`` the model is linear in the lamp's coefficients and
+``c``, so they are solved exactly (variable projection), and the residual sum of squares
+``RSS(d)`` is the profile likelihood of ``d``. Its global minimum is found by a dense
+search over the thickness range (step: a quarter radian of phase at the bluest
+wavelength), the best few minima are refined locally together with the spectrometer's
+resolution (a Gaussian of FWHM ``w`` nm that washes out fine fringes,
+:func:`bubblefit.optics.film.filtered_airy_reflectance`), and the result says whether a
+second minimum is within the noise (the interference order is then ambiguous).
+
+The standard error comes from the curvature of the profile: ``var(d) = 2 s^2 [H^-1]_dd``,
+``H`` the Hessian of ``RSS`` in ``(d, w)`` and ``s^2 = RSS / (N - p)`` times the
+correlation factor ``(1 + rho)/(1 - rho)`` of the residuals' lag-1 autocorrelation
+``rho`` (a smoothed or over-sampled spectrum has fewer independent samples than
+points), so that misfit widens it. See ``docs/design.md`` ("Spectra").
+
+References
+----------
+Born & Wolf, *Principles of Optics*, 7th ed., sec. 7.6.1 (Airy reflectance of a plate).
+G. H. Golub and V. Pereyra, "The differentiation of pseudo-inverses and nonlinear least
+squares problems whose variables separate", SIAM J. Numer. Anal. 10, 413-432 (1973).
+A. Scheludko, "Thin liquid films", Adv. Colloid Interface Sci. 1, 391-464 (1967) (the
+fringe-intensity method this replaces).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from numpy.polynomial import legendre
+
+from ..errors import InputError
+from ..io.spectra import Spectrum
+from ..optics import dispersion, film
+from ._spectrum_profile import (ProfileProblem, profile_variance, refine_d, refine_dw, refine_near,
+                                residual_correlation, second_difference_noise)
+
+__all__ = ["SpectrumOptions", "SpectrumFit", "film_reflectance", "reflector", "fit_spectrum", "interference_order"]
+
+_FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
+
+#: Fewest fringes across the range for a thickness without a reference reading: a film
+#: with less than one fringe reflects a smooth spectrum of the same kind as the lamp's
+#: smooth model, and the two cannot be separated.
+MIN_FRINGES_WITHOUT_REFERENCE = 1.0
+
+#: A fit is trusted when its residual's rms is within ``MISFIT_RATIO`` times the reading's
+#: noise (from its second differences) plus a model-error floor of ``MODEL_ERROR_FLOOR``
+#: of the mean reading (the lamp's smooth model, the index law).
+MISFIT_RATIO = 2.0
+MODEL_ERROR_FLOOR = 0.005
+
+
+@dataclass(frozen=True)
+class SpectrumOptions:
+    """How :func:`fit_spectrum` reads a spectrum.
+
+    Attributes
+    ----------
+    n_film : the film's index (number, :class:`~bubblefit.optics.dispersion.Cauchy` or
+        preset name); default the soap-solution law.
+    thickness_range : (min, max) nm searched.
+    wavelength_range : (min, max) nm used, or None for the whole reading.
+    lamp_terms : Legendre terms of the unknown lamp (None: 5 without a reference, 1 with).
+    offset : fit a constant stray-light offset ``c``.
+    fit_resolution : fit the spectrometer's resolution (FWHM, nm) with the thickness.
+    max_resolution_nm : its upper bound.
+    ambiguity_dchi2 : a second minimum closer than this in ``chi^2`` makes the order
+        ambiguous (10: the best minimum is ~150 times likelier, ``exp(10/2)``).
+    """
+
+    n_film: dispersion.IndexSpec = "soap"
+    thickness_range: tuple[float, float] = (0.0, 15000.0)
+    wavelength_range: tuple[float, float] | None = None
+    lamp_terms: int | None = None
+    offset: bool = True
+    fit_resolution: bool = True
+    max_resolution_nm: float = 10.0
+    ambiguity_dchi2: float = 10.0
+
+
+@dataclass
+class SpectrumFit:
+    """The thickness read from one spectrum, with what a user needs to trust it."""
+
+    thickness_nm: float
+    thickness_nm_stderr: float
+    stderr_statistical_nm: float
+    stderr_lamp_nm: float
+    ok: bool
+    order: int
+    fringes: float
+    resolution_nm: float
+    reduced_chi2: float
+    residual_rms: float
+    n_film: float
+    second_minimum_nm: float
+    delta_chi2: float
+    reasons: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    wavelength_nm: np.ndarray | None = None
+    measured: np.ndarray | None = None
+    fitted: np.ndarray | None = None
+    profile_nm: np.ndarray | None = None
+    profile_chi2: np.ndarray | None = None
+
+    def summary(self) -> dict:
+        """The scalar results as a JSON-ready dict (no arrays)."""
+        keys = ("thickness_nm", "thickness_nm_stderr", "stderr_statistical_nm", "stderr_lamp_nm", "ok", "order", "fringes", "resolution_nm", "reduced_chi2",
+                "residual_rms", "n_film", "second_minimum_nm", "delta_chi2", "reasons", "warnings")
+        return {k: getattr(self, k) for k in keys}
+
+
+@jax.jit
+def _airy_kernel(d, lam, n):
+    """Polarisation-averaged normal-incidence Airy reflectance (D, N)."""
+    return film.airy_reflectance(d[:, None], lam[None, :], n[None, :], 1.0).mean(-1)
+
+
+@jax.jit
+def _filtered_kernel(d, lam, n, sigma):
+    """The same seen through a Gaussian of deviation ``sigma`` (1/nm) in wavenumber."""
+    return film.filtered_airy_reflectance(d[:, None], lam[None, :], n[None, :], 1.0, sigma[None, :]).mean(-1)
+
+
+def film_reflectance(thickness_nm, wavelength_nm, n, resolution_nm: float = 0.0) -> np.ndarray:
+    """Normal-incidence reflectance of a film in air, (D, N) for D thicknesses and N wavelengths.
+
+    The exact Airy reflectance (:func:`bubblefit.optics.film.airy_reflectance`, float64),
+    with ``n`` one index per wavelength; with ``resolution_nm > 0`` the spectrum seen by
+    a spectrometer of that FWHM, a Gaussian of deviation
+    ``sigma_nu = FWHM / (2.3548 lambda^2)`` in wavenumber
+    (:func:`bubblefit.optics.film.filtered_airy_reflectance`).
+
+    References
+    ----------
+    Born & Wolf, *Principles of Optics*, 7th ed., eq. 7.6(13).
+    """
+    return reflector(wavelength_nm, n)(thickness_nm, resolution_nm)
+
+
+def reflector(wavelength_nm, n):
+    """:func:`film_reflectance` at fixed wavelengths and index, as ``f(thickness_nm, resolution_nm)``.
+
+    The arrays are converted once and thicknesses are evaluated in padded blocks of fixed
+    size, so that the compiled kernels are reused across the many calls of a fit.
+    """
+    lam = np.asarray(wavelength_nm, dtype=np.float64)
+    nn = np.broadcast_to(np.asarray(n, dtype=np.float64), lam.shape)
+    with jax.enable_x64(True):
+        lam_j, n_j = jnp.asarray(lam), jnp.asarray(nn)
+
+    def reflect(thickness_nm, resolution_nm: float = 0.0) -> np.ndarray:
+        d = np.atleast_1d(np.asarray(thickness_nm, dtype=np.float64))
+        block = 1 if len(d) == 1 else 128
+        out = np.empty((len(d), len(lam)))
+        with jax.enable_x64(True):
+            if resolution_nm > 0:
+                sigma = jnp.asarray(float(resolution_nm) / (_FWHM_PER_SIGMA * lam**2))
+                kernel, args = _filtered_kernel, (lam_j, n_j, sigma)
+            else:
+                kernel, args = _airy_kernel, (lam_j, n_j)
+            for s in range(0, len(d), block):
+                part = d[s:s + block]
+                padded = np.pad(part, (0, block - len(part)), mode="edge")
+                out[s:s + len(part)] = np.asarray(kernel(jnp.asarray(padded), *args))[: len(part)]
+        return out
+
+    return reflect
+
+
+def interference_order(thickness_nm: float, wavelength_nm: np.ndarray, n: np.ndarray) -> tuple[int, float]:
+    """The order ``floor(2 n d / lambda)`` at the middle wavenumber of the range, and the
+    number of fringes across it, ``2 d (n nu |_max - n nu |_min)`` (eq. 8 at normal incidence)."""
+    nu = 1.0 / wavelength_nm
+    mid = int(np.argmin(np.abs(nu - 0.5 * (nu.min() + nu.max()))))
+    order = int(np.floor(2.0 * n[mid] * thickness_nm * nu[mid] + 1e-9))
+    k = n * nu
+    return order, float(2.0 * thickness_nm * (k.max() - k.min()))
+
+
+def _lamp_basis(wavelength_nm: np.ndarray, terms: int, reference: np.ndarray | None) -> np.ndarray:
+    """(N, terms) Legendre polynomials in wavenumber over the range, times the reference."""
+    nu = 1.0 / wavelength_nm
+    x = 2.0 * (nu - nu.min()) / max(nu.max() - nu.min(), 1e-30) - 1.0
+    p = legendre.legvander(x, terms - 1)
+    return p * reference[:, None] if reference is not None else p
+
+
+def _prepare(spectrum: Spectrum, dark: Spectrum | None, reference: Spectrum | None, opts: SpectrumOptions):
+    """Wavelengths, dark-subtracted intensities, the normalised reference (or None), the
+    lamp's number of terms, the index per wavelength, and warnings."""
+    lam, y = spectrum.wavelength_nm, spectrum.intensity.astype(np.float64)
+    warnings: list[str] = []
+    if opts.wavelength_range is not None:
+        lo, hi = opts.wavelength_range
+        keep = (lam >= lo) & (lam <= hi)
+        if keep.sum() < 16:
+            raise InputError(f"spectrum {spectrum.path}: only {int(keep.sum())} samples within {lo:g}-{hi:g} nm")
+        lam, y = lam[keep], y[keep]
+    dark_v = dark.on(lam, "dark") if dark is not None else 0.0
+    y = y - dark_v
+    ref = None
+    if reference is not None:
+        ref = reference.on(lam, "reference") - dark_v
+        good = ref > 0.02 * np.max(ref)
+        if good.sum() < 16:
+            raise InputError(f"reference {reference.path}: fewer than 16 wavelengths with light after the dark")
+        if not good.all():
+            warnings.append(f"{int((~good).sum())} wavelengths where the reference is dark were left out")
+        lam, y, ref = lam[good], y[good], ref[good]
+        ref = ref / np.max(ref)
+    terms = opts.lamp_terms if opts.lamp_terms is not None else (1 if ref is not None else 5)
+    if terms < 1 or terms > 20:
+        raise InputError(f"lamp terms must be within 1..20, got {terms}")
+    n = dispersion.refractive_index(opts.n_film, lam)
+    return lam, y, ref, terms, n, warnings
+
+
+def _search_grid(lam: np.ndarray, n: np.ndarray, opts: SpectrumOptions) -> np.ndarray:
+    """Thicknesses of the global search: a quarter radian of phase (eq. 8) at the bluest sample."""
+    dmin, dmax = opts.thickness_range
+    if not (0.0 <= dmin < dmax):
+        raise InputError(f"thickness range must be 0 <= MIN < MAX, got {dmin:g},{dmax:g}")
+    step = 0.25 / (4.0 * np.pi * float(np.max(n / lam)))
+    count = int(np.ceil((dmax - dmin) / step)) + 1
+    if count > 400_000:
+        raise InputError(f"thickness range {dmin:g}-{dmax:g} nm needs {count} search steps; narrow it (at most 400000)")
+    return np.linspace(dmin, dmax, count)
+
+
+def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference: Spectrum | None = None,
+                 options: SpectrumOptions = SpectrumOptions()) -> SpectrumFit:
+    """Film thickness (nm) and its standard error from one spectrometer reading.
+
+    See the module's description for the model; ``dark`` is subtracted from the reading
+    (and from ``reference``) first. Never raises for a spectrum it cannot read a thickness
+    from: the result then has ``ok = False`` and the reasons.
+
+    References
+    ----------
+    Golub & Pereyra (1973), variable projection; Born & Wolf, sec. 7.6.1.
+    """
+    lam, y, ref, terms, n, warnings = _prepare(spectrum, dark, reference, options)
+    reflect = reflector(lam, n)
+    prob = ProfileProblem(y, _lamp_basis(lam, terms, ref), options.offset, reflect)
+    grid = _search_grid(lam, n, options)
+    step = grid[1] - grid[0]
+    rss, minima, d_best, rss_best, w, fit_w = _search(prob, grid, lam, n, options, warnings)
+    dof = max(len(y) - (terms + int(options.offset) + 1 + int(fit_w)), 1)
+    fitted = prob.model(d_best, w)
+    resid = y - fitted
+    rho = residual_correlation(resid)
+    s2 = rss_best / dof * (1.0 + rho) / (1.0 - rho)
+    var = profile_variance(prob, d_best, w, step, fit_w=fit_w)
+    stat = float(np.sqrt(2.0 * s2 * var)) if np.isfinite(var) and var > 0 else float("inf")
+    # The lamp's model is a choice: the thickness's largest change when it gets one or two
+    # more terms (one, a tilt such as a lamp's drift, over a measured reference) is a
+    # systematic error, added in quadrature.
+    extra = (1,) if ref is not None else (1, 2)
+    order, fringes = interference_order(d_best, lam, n)
+    lamp_sys = max(abs(refine_near(ProfileProblem(y, _lamp_basis(lam, terms + k, ref), options.offset, reflect),
+                                    d_best, w, 3.0 * step, grid) - d_best) for k in extra)
+    stderr = float(np.hypot(stat, lamp_sys))
+    second, dchi2 = _second_minimum(minima, d_best, step, s2)
+    noise = second_difference_noise(y)
+    red = float(rss_best / dof / noise**2) if noise > 0 else float("nan")
+    reasons = _verdict(d_best, stderr, second, dchi2, grid, lam, n, reference is not None, options)
+    if reference is None and fringes < MIN_FRINGES_WITHOUT_REFERENCE:
+        reasons.append(f"only {fringes:.2f} fringe across the range: without --reference the film cannot be told "
+                       "apart from the unknown lamp's smooth spectrum")
+    _misfit(rss_best / dof, noise, float(np.mean(np.abs(y))), reasons, warnings)
+    if rho > 0.5:
+        warnings.append(f"residuals are correlated (lag-1 {rho:.2f}): the error bar counts "
+                        f"{(1 - rho) / (1 + rho):.2f} independent samples per point")
+    profile = (rss - rss_best) / s2
+    scale = float(np.mean(np.abs(y))) or 1.0
+    return SpectrumFit(
+        thickness_nm=float(d_best), thickness_nm_stderr=stderr, stderr_statistical_nm=stat,
+        stderr_lamp_nm=float(lamp_sys), ok=not reasons, order=order, fringes=fringes,
+        resolution_nm=float(w), reduced_chi2=red, residual_rms=float(np.sqrt(np.mean(resid**2)) / scale),
+        n_film=float(np.interp(0.5 * (lam.min() + lam.max()), lam, n)), second_minimum_nm=second,
+        delta_chi2=dchi2, reasons=reasons, warnings=warnings, wavelength_nm=lam, measured=y, fitted=fitted,
+        profile_nm=grid, profile_chi2=profile)
+
+
+def _search(prob: ProfileProblem, grid, lam, n, options: SpectrumOptions, warnings: list[str]):
+    """Global search and local refinement: the grid profile, its refined minima (best
+    first), the best thickness and RSS, the resolution, and whether it was fitted."""
+    step = grid[1] - grid[0]
+    rss = prob.rss_grid(grid, 0.0)
+    d0 = refine_d(prob, grid, rss, 0.0)[0][0]
+    w = 0.0
+    fit_w = options.fit_resolution and _resolution_matters(d0, lam, n, options.max_resolution_nm)
+    if fit_w:
+        d0, w = refine_dw(prob, d0, step, options.max_resolution_nm)
+    # The resolution changes the fringes' contrast, not their phase: the grid's basins
+    # (searched at w = 0) stand, and their minima are refined at the fitted w.
+    minima = refine_d(prob, grid, rss, w)
+    d_best, rss_best = minima[0]
+    if fit_w and w > 0:
+        d_best, w = refine_dw(prob, d_best, step, options.max_resolution_nm, w)
+        rss_best = prob.rss(d_best, w)
+        if w >= 0.999 * options.max_resolution_nm:
+            warnings.append(f"the fitted spectrometer resolution sits at its bound {options.max_resolution_nm:g} nm")
+    return rss, minima, d_best, rss_best, w, fit_w and w > 0
+
+
+def _resolution_matters(d: float, lam: np.ndarray, n: np.ndarray, w_max: float) -> bool:
+    """Whether a resolution of ``w_max`` nm would wash out more than a fifth of the film's
+    bluest fringe (:func:`bubblefit.optics.film.fringe_attenuation`); if not, it cannot be
+    measured from the spectrum and is left at 0."""
+    i = int(np.argmin(lam))
+    sigma = w_max / (_FWHM_PER_SIGMA * lam[i] ** 2)
+    x = 2.0 * float(np.max(n)) * d
+    return float(film.fringe_attenuation(x, sigma)) < 0.8
+
+
+def _misfit(mean_square: float, noise: float, level: float, reasons: list[str], warnings: list[str]) -> None:
+    """Not ok when the residual exceeds ``MISFIT_RATIO`` times the noise plus the model-error
+    floor; a warning when it exceeds twice the noise alone."""
+    red = mean_square / noise**2 if noise > 0 else float("nan")
+    if mean_square > MISFIT_RATIO**2 * (noise**2 + (MODEL_ERROR_FLOOR * level) ** 2):
+        reasons.append(f"the model does not explain the spectrum: the residual is {np.sqrt(red):.1f} times the "
+                       "reading's noise (check the index, the range, the reference, or --lamp-terms)")
+    elif np.isfinite(red) and red > 4.0:
+        warnings.append(f"the residual is {np.sqrt(red):.1f} times the noise of the reading: the model leaves "
+                        "structure (lamp, reference or index?); the error bar is widened for it")
+
+
+def _second_minimum(minima, d_best: float, step: float, s2: float) -> tuple[float, float]:
+    """The best other minimum (more than two grid steps away) and its ``chi^2`` above the best."""
+    rss_best = min(r for _, r in minima)
+    others = [(d, r) for d, r in minima if abs(d - d_best) > 2.0 * step]
+    if not others:
+        return float("nan"), float("inf")
+    d2, r2 = min(others, key=lambda t: t[1])
+    return float(d2), float((r2 - rss_best) / s2)
+
+
+def _verdict(d, stderr, second, dchi2, grid, lam, n, has_reference: bool, opts: SpectrumOptions) -> list[str]:
+    """Reasons the thickness cannot be trusted (empty when it can)."""
+    reasons = []
+    step = grid[1] - grid[0]
+    order_spacing = 1.0 / (2.0 * float(np.median(n / lam)))  # thickness between orders at mid range
+    if not np.isfinite(stderr) or stderr > 0.25 * order_spacing or stderr > 0.3 * max(d, 1e-9):
+        hint = "" if has_reference else " (a film without fringes needs --reference to fix its brightness)"
+        reasons.append(f"the spectrum does not constrain the thickness (stderr {stderr:.3g} nm){hint}")
+    if dchi2 < opts.ambiguity_dchi2:
+        reasons.append(f"interference order ambiguous: a second minimum at {second:.1f} nm is within the noise "
+                       f"(delta chi2 {dchi2:.2f} < {opts.ambiguity_dchi2:g})")
+    lo, hi = opts.thickness_range
+    if (lo > 0 and d - lo < 1.5 * step) or hi - d < 1.5 * step:
+        reasons.append(f"thickness {d:.1f} nm is at the edge of the searched range {lo:g}-{hi:g} nm")
+    return reasons

@@ -1,0 +1,229 @@
+"""Film thickness from spectrometer readings (bubblefit.inverse.spectrum, ``bubblefit fit-spectrum``).
+
+Every spectrum here is synthesised by numpy code written in this file, independent of
+bubblefit: the Airy reflectance of a film in air (Born & Wolf 7.6(13)), ``R = F sin^2(beta)
+/ (1 + F sin^2(beta))``, ``F = 4 R1 / (1 - R1)^2``, ``beta = 2 pi n(lambda) d / lambda``,
+under a halogen-like lamp (a 3000 K Planck spectrum times a Gaussian spectrometer
+response), computed on a fine grid, convolved with the spectrometer's resolution,
+resampled, with stray light, a dark offset and noise added.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from bubblefit.cli import main
+from bubblefit.errors import InputError
+from bubblefit.inverse.spectrum import SpectrumOptions, film_reflectance, fit_spectrum
+from bubblefit.io.spectra import Spectrum, read_spectrum
+
+
+def soap_index(lam):
+    return 1.324188 + 3102.06 / lam**2
+
+
+def airy(d, lam, n):
+    r1 = ((n - 1.0) / (n + 1.0)) ** 2
+    f = 4.0 * r1 / (1.0 - r1) ** 2
+    s = np.sin(2.0 * np.pi * n * d / lam) ** 2
+    return f * s / (1.0 + f * s)
+
+
+def lamp(lam, temperature=3000.0):
+    h, c, k = 6.62607e-34, 2.99792e8, 1.380649e-23
+    m = lam * 1e-9
+    planck = 1.0 / (m**5 * (np.exp(h * c / (m * k * temperature)) - 1.0))
+    v = planck * np.exp(-0.5 * ((lam - 600.0) / 150.0) ** 2)
+    return v / v.max()
+
+
+def synth(d, *, n=soap_index, lo=400.0, hi=800.0, step=0.5, noise=0.01, stray=0.03, dark=0.02, fwhm=0.0,
+          seed=0):
+    """(wavelengths, reading) of a film of thickness ``d`` nm, and the lamp on the same grid."""
+    rng = np.random.default_rng(seed)
+    lam = np.arange(lo, hi + 1e-9, step)
+    fine_step = 0.02
+    fine = np.arange(lo - 15.0, hi + 15.0, fine_step)
+    s = lamp(fine) * airy(d, fine, n(fine))
+    if fwhm > 0:
+        sig = fwhm / 2.354820
+        m = int(5 * sig / fine_step)
+        g = np.exp(-0.5 * (np.arange(-m, m + 1) * fine_step / sig) ** 2)
+        s = np.convolve(s, g / g.sum(), mode="same")
+    y = np.interp(lam, fine, s)
+    peak = y.max()
+    y = y + stray * peak + dark + noise * peak * rng.standard_normal(lam.shape)
+    return lam, y, lamp(lam)
+
+
+def test_film_reflectance_is_the_airy_formula_with_dispersion():
+    lam = np.linspace(380.0, 1000.0, 157)
+    d = np.array([0.0, 37.0, 512.0, 4321.0, 12000.0])
+    got = film_reflectance(d, lam, soap_index(lam))
+    ref = airy(d[:, None], lam[None, :], soap_index(lam)[None, :])
+    np.testing.assert_allclose(got, ref, rtol=1e-10, atol=1e-13)
+
+
+@pytest.mark.parametrize("d,fwhm,use_ref", [
+    (80.0, 0.0, True),      # order 0: no fringe in the visible, needs the lamp
+    (450.0, 1.0, False),    # one fringe
+    (1300.0, 1.0, False),
+    (4000.0, 1.5, False),
+    (10000.0, 1.5, False),  # ~35 fringes, washed out by the resolution in the blue
+])
+def test_recovers_thickness_with_honest_error(d, fwhm, use_ref):
+    lam, y, ref = synth(d, fwhm=fwhm, seed=int(d))
+    res = fit_spectrum(Spectrum(lam, y), reference=Spectrum(lam, ref + 0.02) if use_ref else None,
+                       dark=Spectrum(lam, np.full_like(lam, 0.02)) if use_ref else None)
+    assert res.ok, res.reasons
+    err = res.thickness_nm - d
+    assert abs(err) < 3.0 * res.thickness_nm_stderr + 0.05, (err, res.thickness_nm_stderr)
+    assert res.thickness_nm_stderr < 0.1 * d
+    assert res.order == int(np.floor(2 * soap_index(600.0) * d / 600.0 + 0.02)) or abs(err) < 5
+    if d >= 10000:  # many fine fringes: their contrast measures the resolution
+        assert abs(res.resolution_nm - fwhm) < 0.5
+
+
+def test_error_bar_covers_the_scatter_over_noise():
+    """Over noise realisations the errors scatter like the stated standard errors."""
+    z = []
+    for seed in range(8):
+        lam, y, _ = synth(2000.0, noise=0.02, fwhm=1.0, seed=100 + seed)
+        res = fit_spectrum(Spectrum(lam, y))
+        z.append((res.thickness_nm - 2000.0) / res.thickness_nm_stderr)
+    rms = float(np.sqrt(np.mean(np.square(z))))
+    assert 0.2 < rms < 2.0, z
+
+
+def test_thin_film_without_reference_is_not_claimed():
+    """Without a reference an order-0 film is degenerate with the unknown lamp: the result
+    is either flagged or right within its error bar, never confidently wrong."""
+    lam, y, _ = synth(80.0, seed=5)
+    res = fit_spectrum(Spectrum(lam, y))
+    assert (not res.ok) or abs(res.thickness_nm - 80.0) < 3 * res.thickness_nm_stderr
+    assert not res.ok and res.reasons
+
+
+def test_narrow_range_makes_the_order_ambiguous():
+    """A 30 nm window on a 5 um film holds a few fringes; neighbouring orders fit as well."""
+    lam, y, _ = synth(5000.0, lo=600.0, hi=630.0, step=0.2, noise=0.02, seed=7)
+    res = fit_spectrum(Spectrum(lam, y))
+    assert not res.ok
+    assert any("ambiguous" in r for r in res.reasons)
+    assert np.isfinite(res.second_minimum_nm) and res.delta_chi2 < 10
+
+
+def test_dispersion_is_used():
+    """Fitting with a constant n = 1.4 scales the thickness by ~n_soap/1.4 and fits worse."""
+    lam, y, _ = synth(3000.0, noise=0.005, seed=11)
+    good = fit_spectrum(Spectrum(lam, y))
+    flat = fit_spectrum(Spectrum(lam, y), options=SpectrumOptions(n_film=1.4))
+    assert abs(good.thickness_nm - 3000.0) < 3 * good.thickness_nm_stderr + 0.05
+    assert abs(flat.thickness_nm / 3000.0 - 1.333 / 1.4) < 0.01
+    assert flat.reduced_chi2 > 2 * good.reduced_chi2
+
+
+def test_thickness_range_bound_is_reported():
+    lam, y, _ = synth(3000.0, seed=3)
+    res = fit_spectrum(Spectrum(lam, y), options=SpectrumOptions(thickness_range=(100.0, 2900.0)))
+    assert not res.ok
+
+
+# --- reading files -------------------------------------------------------------------------
+
+def test_reads_headers_comments_footers_and_separators(tmp_path):
+    lam = np.arange(400.0, 420.0, 0.5)
+    val = np.sin(lam)
+    body = "\n".join(f"{a}\t{b}" for a, b in zip(lam[::-1], val[::-1]))
+    (tmp_path / "ocean.txt").write_text("Data from x\nIntegration Time (sec): 0.1\n>>>>>Begin Spectral Data<<<<<\n"
+                                        + body + "\n>>>>>End Spectral Data<<<<<\n")
+    (tmp_path / "c.csv").write_text("# comment\nwavelength_nm,intensity\n"
+                                    + "\n".join(f"{a},{b}" for a, b in zip(lam, val)) + "\n")
+    for name in ("ocean.txt", "c.csv"):
+        s = read_spectrum(tmp_path / name)
+        np.testing.assert_allclose(s.wavelength_nm, lam)
+        np.testing.assert_allclose(s.intensity, val)
+
+
+@pytest.mark.parametrize("text,match", [
+    ("", "need at least"),
+    ("400,1\n401,2\nfoo\n402,3\n" + "\n".join(f"{403 + i},1" for i in range(20)), "line 3"),
+    ("\n".join(f"{0.4 + i * 0.001},1" for i in range(30)), "not in nm"),
+    ("\n".join(f"{400 + i},nan" for i in range(30)), "not finite"),
+])
+def test_bad_spectrum_files(tmp_path, text, match):
+    p = tmp_path / "bad.txt"
+    p.write_text(text)
+    with pytest.raises(InputError, match=match):
+        read_spectrum(p)
+
+
+# --- command line ----------------------------------------------------------------------------
+
+def _write(path, lam, y):
+    np.savetxt(path, np.column_stack([lam, y]), delimiter=",", header="wavelength_nm,intensity", comments="")
+
+
+def test_cli_writes_csv_json_and_plots(tmp_path, capsys):
+    lam, y, ref = synth(1500.0, seed=1)
+    lam2, y2, _ = synth(700.0, seed=2)
+    _write(tmp_path / "a.csv", lam, y)
+    _write(tmp_path / "b.csv", lam2, y2)
+    _write(tmp_path / "dark.csv", lam, np.full_like(lam, 0.02))
+    code = main([
+        "fit-spectrum", str(tmp_path / "a.csv"), str(tmp_path / "b.csv"), "--dark", str(tmp_path / "dark.csv"),
+        "--n-film", "soap", "--thickness-range", "50,5000", "--csv", str(tmp_path / "out.csv"),
+        "--json", str(tmp_path / "out.json"), "-o", str(tmp_path / "plot")])
+    assert code == 0
+    rows = (tmp_path / "out.csv").read_text().splitlines()
+    assert rows[0].startswith("file,thickness_nm,thickness_nm_stderr,ok,")
+    assert len(rows) == 3
+    data = json.loads((tmp_path / "out.json").read_text())
+    got = [s["thickness_nm"] for s in data["spectra"]]
+    assert abs(got[0] - 1500) < 2 and abs(got[1] - 700) < 2
+    assert all(s["ok"] for s in data["spectra"])
+    assert (tmp_path / "plot_a.png").stat().st_size > 1000 and (tmp_path / "plot_b.png").exists()
+
+
+def test_cli_cauchy_option(tmp_path, capsys):
+    lam, y, _ = synth(2500.0, n=lambda l: 1.33 + 4000.0 / l**2, seed=4)
+    _write(tmp_path / "a.csv", lam, y)
+    assert main(["fit-spectrum", str(tmp_path / "a.csv"), "--cauchy", "1.33,4000", "--json",
+                 str(tmp_path / "o.json")]) == 0
+    res = json.loads((tmp_path / "o.json").read_text())["spectra"][0]
+    assert abs(res["thickness_nm"] - 2500.0) < 3 * res["thickness_nm_stderr"] + 0.05
+
+
+@pytest.mark.parametrize("argv_tail,match", [
+    (["--cauchy", "1.3"], "--cauchy"),
+    (["--n-film", "honey"], "preset"),
+    (["--thickness-range", "100"], "--thickness-range"),
+    (["--wavelength-range", "700,600"], "--wavelength-range"),
+    (["--dark", "{missing}"], "no such file"),
+])
+def test_cli_bad_options_one_line_exit_2(tmp_path, capsys, argv_tail, match):
+    lam, y, _ = synth(1000.0, seed=1)
+    _write(tmp_path / "a.csv", lam, y)
+    tail = [a.replace("{missing}", str(tmp_path / "nope.csv")) for a in argv_tail]
+    assert main(["fit-spectrum", str(tmp_path / "a.csv"), *tail]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and match in err[0]
+
+
+def test_cli_bad_file_one_line_exit_2(tmp_path, capsys):
+    (tmp_path / "bad.csv").write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00binary")
+    assert main(["fit-spectrum", str(tmp_path / "bad.csv")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "bad.csv" in err[0]
+
+
+def test_cli_never_overwrites_an_input(tmp_path, capsys):
+    lam, y, _ = synth(1000.0, seed=1)
+    _write(tmp_path / "a.csv", lam, y)
+    before = (tmp_path / "a.csv").read_bytes()
+    assert main(["fit-spectrum", str(tmp_path / "a.csv"), "--csv", str(tmp_path / "a.csv")]) == 2
+    assert "it is the input" in capsys.readouterr().err
+    assert (tmp_path / "a.csv").read_bytes() == before

@@ -1,4 +1,4 @@
-"""Scene files (TOML, DESIGN.md "Scene files"): parsing, validation, and rendering.
+"""Scene files (TOML, ``docs/design.md``, "Scene files"): parsing, validation, and rendering.
 
 A scene is data: :class:`Scene` holds the validated tables; :meth:`Scene.params` gives
 the differentiable :class:`~bubblefit.model.render.Params`, :meth:`Scene.config` resolves the
@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from .modes import MODELS, THICKNESS_KINDS, check_effects_table
 
 __all__ = ["Scene", "load_scene", "render_scene", "read_envmap", "DATA_DIR", "shipped_envmap"]
 
@@ -139,7 +140,7 @@ class Scene:
         th = b.get("thickness")
         if th is not None:
             prof = th.get("profile", "constant")
-            if prof not in ("constant", "drainage", "map"):
+            if prof not in THICKNESS_KINDS:
                 raise InputError(f"bubble.thickness.profile must be constant, drainage or map, got {prof!r}")
             for k in ("top_nm", "bottom_nm", "value_nm"):
                 if k in th:
@@ -159,9 +160,9 @@ class Scene:
         if "center" in b:
             _vector("bubble.center", b["center"], 3)
         e = self.table("effects")
-        if e.get("model", "paper") not in ("paper", "physical"):
+        if e.get("model", "paper") not in MODELS:
             raise InputError(f"effects.model must be paper or physical, got {e.get('model')!r}")
-        _check_effects(e)
+        check_effects_table(e)
         lighting = self.table("lighting")
         if "envmap" not in lighting and not lighting.get("point_lights") and lighting.get("background") in (None, "envmap"):
             pass  # a dark room with nothing in it renders black; allowed, explained by --explain
@@ -265,7 +266,8 @@ class Scene:
 
     def config(self, env=None, background=None, *, chunk: int = 4096):
         """Resolve the effects and return ``(RenderConfig, decisions)``."""
-        from .effects import reflection_theta_range, resolve
+        from .bounds import reflection_theta_range
+        from .effects import resolve
         from .render import RenderConfig
 
         b = self.table("bubble")
@@ -317,43 +319,6 @@ def _vector(name: str, value, n: int) -> list[float]:
     if not ok:
         raise InputError(f"scene key {name} must be a list of {n} finite numbers, got {value!r}")
     return [float(x) for x in value]
-
-
-_SPECTRAL_METHODS = ("uniform", "reference", "fourier")
-
-
-def _check_effects(e: dict) -> None:
-    """Values of the [effects] table (DESIGN.md), checked before anything is computed."""
-    from ..lighting.filtering import METHODS
-
-    def one_of(key, allowed):
-        if key in e and e[key] not in allowed:
-            raise InputError(f"effects.{key} must be one of {', '.join(map(str, allowed))}, got {e[key]!r}")
-
-    one_of("interference", ("auto", "off", "two_beam", "airy", "incoherent"))
-    one_of("filtering", ("auto",) + tuple(METHODS))
-    for key in ("front_reflection", "rear_reflection", "transmission", "transmission_tint", "diffuse"):
-        if key in e and not isinstance(e[key], bool) and e[key] != "auto":
-            raise InputError(f"effects.{key} must be true, false or \"auto\", got {e[key]!r}")
-    if "bounces" in e and e["bounces"] != "auto" and not (isinstance(e["bounces"], int) and 0 <= e["bounces"] <= 64):
-        raise InputError(f"effects.bounces must be \"auto\" or an integer in [0, 64], got {e['bounces']!r}")
-    for key, lo, hi in (("nodes", 1, 32), ("window", 0, 4096), ("level", 0, 32)):
-        if key in e and not lo <= e[key] <= hi:
-            raise InputError(f"scene value effects.{key} = {e[key]} is out of range [{lo}, {hi}]")
-    if "tolerance" in e and not e["tolerance"] > 0:
-        raise InputError(f"scene value effects.tolerance = {e['tolerance']} must be positive")
-    spec = e.get("spectral", "auto")
-    if isinstance(spec, str):
-        if spec != "auto" and spec not in _SPECTRAL_METHODS:
-            raise InputError(f"effects.spectral must be \"auto\", one of {', '.join(_SPECTRAL_METHODS)} "
-                             f"or a table {{method, samples}}, got {spec!r}")
-    else:
-        unknown = set(spec) - {"method", "samples"}
-        method, samples = spec.get("method", "uniform"), spec.get("samples", 30)
-        if unknown or method not in _SPECTRAL_METHODS or isinstance(samples, bool) \
-                or not isinstance(samples, int) or not 1 <= samples <= 4000:
-            raise InputError("effects.spectral table must be {method = uniform|reference|fourier, "
-                             f"samples = 1..4000}}, got {spec!r}")
 
 
 def _min_cos(camera) -> float:

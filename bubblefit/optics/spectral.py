@@ -32,6 +32,7 @@ Methods:
 from __future__ import annotations
 
 import functools
+from typing import Literal, get_args
 
 import colour
 import numpy as np
@@ -45,7 +46,13 @@ __all__ = [
     "integrate",
     "REFERENCE_SAMPLES",
     "FOURIER_LOBES",
+    "SpectralMethod",
+    "SPECTRAL_METHODS",
 ]
+
+#: The spectral integration methods (see the module docstring).
+SpectralMethod = Literal["uniform", "reference", "fourier"]
+SPECTRAL_METHODS: tuple[str, ...] = get_args(SpectralMethod)
 
 LAMBDA_MIN = 380.0
 LAMBDA_MAX = 780.0
@@ -160,7 +167,7 @@ class SpectralBasis:
     Hashable and compared by its definition, so it can be a static argument under jit.
     """
 
-    def __init__(self, method: str = "uniform", samples: int = 30, illuminant: str = "D65"):
+    def __init__(self, method: SpectralMethod = "uniform", samples: int = 30, illuminant: str = "D65"):
         lam, w, width, sigma = _basis_arrays(method, int(samples), illuminant)
         self.method = method
         self.samples = len(lam)
@@ -183,7 +190,7 @@ class SpectralBasis:
         return f"SpectralBasis(method={self.method!r}, samples={self.samples}, illuminant={self.illuminant!r})"
 
 
-def spectral_basis(method: str = "uniform", samples: int = 30, illuminant: str = "D65") -> SpectralBasis:
+def spectral_basis(method: SpectralMethod = "uniform", samples: int = 30, illuminant: str = "D65") -> SpectralBasis:
     """The quadrature for ``method`` (``uniform``, ``reference`` or ``fourier``) with ``samples`` bins."""
     return SpectralBasis(method, samples, illuminant)
 

@@ -15,6 +15,10 @@ def register(sub):
     p.add_argument("scene", help="scene file (TOML)")
     p.add_argument("-o", "--output", required=True, help="output image (.exr recommended; a .png preview is written beside it)")
     p.add_argument("--explain", action="store_true", help="print which effects are simulated or skipped, and why")
+    p.add_argument("--tolerance", type=float, default=None, metavar="FRACTION",
+                   help="largest change a skipped or cheapened effect may make to a pixel, as a fraction of what the "
+                        "pixel shows (plus 0.1 x that fraction of the bubble's bright level); overrides the scene's "
+                        "[effects] tolerance (default 0.01)")
     p.add_argument("--json", metavar="PATH", help="write timing and effect decisions as JSON")
     p.add_argument("--preview-exposure", type=float, default=None,
                    help="exposure of the PNG preview (default: automatic, the 99.5th percentile maps to 0.9)")
@@ -34,6 +38,10 @@ def run(args) -> int:
     from .common import write_json
 
     scene = load_scene(args.scene)
+    if args.tolerance is not None:
+        if not (np.isfinite(args.tolerance) and args.tolerance > 0):
+            raise InputError(f"--tolerance must be a positive number, got {args.tolerance:g}")
+        scene = scene.with_effects(tolerance=float(args.tolerance))
     status(f"rendering {scene.shape[1]}x{scene.shape[0]} ...")
     t0 = time.perf_counter()
     img, decisions = render_scene(scene, explain=True)
@@ -46,12 +54,12 @@ def run(args) -> int:
     if preview != __import__("pathlib").Path(args.output):
         write_image(preview, img * exposure)
     if args.explain:
-        print("effect               state     [setting] reason")
+        print("effect               state     [setting] reason (errors are shares of each pixel's budget)")
         for d in decisions:
             print(d.line())
     print(f"wrote {args.output} ({scene.shape[1]}x{scene.shape[0]}, {elapsed:.2f} s)")
     if args.json:
         write_json(args.json, {"output": str(args.output), "time_s": elapsed, "preview_exposure": exposure,
                                "effects": [{"effect": d.effect, "simulated": d.simulated, "setting": d.setting,
-                                            "reason": d.reason} for d in decisions]})
+                                            "reason": d.reason, "budget_used": d.budget_used} for d in decisions]})
     return 0

@@ -212,7 +212,22 @@ def _lobe_terms(n, wo, wi, a):
 
 def specular_window(env: EnvMap, n, wo, a, *, window: int, level: int, normalize: bool):
     """Eq. (13): eq. (12) summed over the ``(2k+1)^2`` texels of mip ``level`` around the
-    reflected direction (rows outside the map are dropped, columns wrap)."""
+    reflected direction (rows outside the map are dropped, columns wrap).
+
+    Below one texel the window degenerates: a lobe narrower than the texels (``4 a`` below
+    the level's texel angle) puts its weight on the nearest texel centre, a
+    nearest-neighbour lookup (19% RMS from the bilinear lookup at ``a = 5e-4`` on a 2k
+    map). There it returns the bilinear mirror lookup (:func:`specular_mirror`), the
+    limit the sum converges to as the texels shrink.
+    """
+    narrow = 4.0 * a < env.texel_angle * 2.0**level
+    a = jnp.maximum(a, 1e-12)
+    summed = _window_sum(env, n, wo, a, window=window, level=level, normalize=normalize)
+    return jnp.where(narrow, specular_mirror(env, n, wo, normalize=normalize), summed)
+
+
+def _window_sum(env: EnvMap, n, wo, a, *, window: int, level: int, normalize: bool):
+    """The sum of :func:`specular_window` over its texels."""
     pixels, dirs, sa = _level_tables(env, level)
     h, w = pixels.shape[:2]
     k = min(window, (w - 1) // 2)

@@ -18,7 +18,10 @@ from jaxtyping import Array, Float
 
 from ..optics.brdf import ward_lobe
 
-__all__ = ["PointLight", "lights_radiance"]
+__all__ = ["PointLight", "lights_radiance", "MIN_ROUGHNESS"]
+
+#: Smallest roughness of eq. (3)'s lobe (a = 0 would divide 0 by 0).
+MIN_ROUGHNESS = 1e-12
 
 
 @dataclass(frozen=True)
@@ -36,8 +39,11 @@ def lights_radiance(lights, n: Float[Array, "N 3"], wo: Float[Array, "N 3"], rou
 
     Returns ``(specular, diffuse)``, each (N, 3): the Ward lobe with ``r_s = 1`` (the caller
     scales it by ``r_s``, or by ``R_film`` in the physical model, as it does for the
-    filtered environment) and ``r_d / pi cos th_i E`` (0 unless ``diffuse``).
+    filtered environment) and ``r_d / pi cos th_i E`` (0 unless ``diffuse``). A roughness
+    below :data:`MIN_ROUGHNESS` is held there: the lobe of a perfect mirror (``a = 0``) is a
+    delta that no pixel centre meets, and the held lobe keeps values and gradients finite.
     """
+    roughness = jnp.maximum(roughness, MIN_ROUGHNESS)
     cos_r = jnp.sum(n * wo, axis=-1)
     spec = 0.0
     diff = 0.0

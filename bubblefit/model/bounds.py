@@ -27,9 +27,11 @@ The bounds (see ``docs/design.md``, "Effects"):
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -56,32 +58,47 @@ def film_grids(thickness_range, min_cos, n_film, max_points: int = 800):
     Interference depends on the optical path ``x = 2 n d cos t`` (eq. 8) and, weakly, on
     the Fresnel factors of ``cos``. Every pixel's ``x`` lies in
     ``[2 n d_min cos t_min, 2 n d_max]``; the grid pairs each of a few cosines with that
-    whole range of ``x`` (a superset of the image's pairs), in steps of lambda_min / 24 (the
-    two-beam colour is sampled 24 times per shortest period), at most ``max_points``.
+    whole range of ``x`` (a superset of the image's pairs), in steps of lambda_min / 16 (the
+    two-beam colour is sampled 16 times per shortest period), at most ``max_points``.
     """
     dmin, dmax = thickness_range
     c_lo = max(min(min_cos, 1.0), 1e-3)
     cos = np.unique(np.concatenate([np.linspace(c_lo, 1.0, 6), [1.0]]))
     cos_t = np.sqrt(np.maximum(0.0, 1.0 - (1.0 - cos**2) / n_film**2))
     x_lo, x_hi = 2 * n_film * dmin * float(cos_t.min()), 2 * n_film * dmax
-    step = LAMBDA_MIN / 24.0
+    step = LAMBDA_MIN / 16.0
     npts = int(min(max_points, max(2, math.ceil((x_hi - x_lo) / step) + 1)))
     x = np.linspace(x_lo, x_hi, npts) if x_hi > x_lo else np.array([x_lo])
     d = x[:, None] / (2 * n_film * np.maximum(cos_t[None, :], 1e-6))
     return d, cos
 
 
-def film_spectra(model, mode, lam, d, cos, t, n_film) -> np.ndarray:
+def film_spectra(model, mode, lam, d, cos, t, n_film, sigma=None) -> np.ndarray:
     """Per-wavelength film values on the grid: eq. (10)'s factor (D, C, K) for ``paper``,
     the reflectance R (D, C, K, 2) of :func:`film.airy_reflectance` or
-    :func:`film.two_beam_reflectance` for ``physical``. One evaluation for all ``lam`` (K,)."""
-    dd = jnp.asarray(d, dtype=jnp.float32)[..., None]
-    cc = jnp.asarray(cos, dtype=jnp.float32)[None, :, None]
-    ll = jnp.asarray(lam, dtype=jnp.float32)[None, None, :]
+    :func:`film.two_beam_reflectance` for ``physical``. One evaluation for all ``lam`` (K,).
+    With ``sigma`` (K,) (a ``fourier`` basis) the lobe-filtered functions of
+    :mod:`bubblefit.optics.film` instead. Compiled once per grid shape."""
+    return np.asarray(_film_spectra(model, mode, jnp.asarray(lam, jnp.float32), jnp.asarray(d, jnp.float32),
+                                    jnp.asarray(cos, jnp.float32), jnp.float32(t), jnp.float32(n_film),
+                                    None if sigma is None else jnp.asarray(sigma, jnp.float32)))
+
+
+@functools.partial(jax.jit, static_argnames=("model", "mode"))
+def _film_spectra(model, mode, lam, d, cos, t, n_film, sigma=None):
+    dd = d[..., None]
+    cc = cos[None, :, None]
+    ll = lam[None, None, :]
+    if sigma is not None:
+        sg = sigma[None, None, :]
+        if model == "paper":
+            return film.filtered_paper_interference_factor(dd, ll, n_film, cc, t, sg)
+        fn = film.filtered_two_beam_reflectance if mode == "two_beam" else film.filtered_airy_reflectance
+        return fn(dd, ll, n_film, cc, sg)
     if model == "paper":
-        return np.asarray(film.paper_interference_factor(dd, ll, n_film, cc, t))
+        return film.paper_interference_factor(dd, ll, n_film, cc, t)
     fn = film.two_beam_reflectance if mode == "two_beam" else film.airy_reflectance
-    return np.asarray(fn(dd, ll, n_film, cc))
+    return fn(dd, ll, n_film, cc)
 
 
 def film_coefficients(model, mode, weights, spectra, cos, t, n_film, bounces, tint_rs=None):
@@ -118,18 +135,25 @@ def film_coefficients(model, mode, weights, spectra, cos, t, n_film, bounces, ti
         f = rgb(f)
         return {"front": f, "rear": [t * t * f], "background": bg}
     if grey:
-        r1 = np.asarray(film.incoherent_reflectance(np.asarray(cos, dtype=np.float32), n_film), dtype=np.float64)
+        r1 = np.asarray(_incoherent(jnp.asarray(cos, dtype=jnp.float32), jnp.float32(n_film)), dtype=np.float64)
         r = np.broadcast_to(r1[None, :, None, :], shape + (2,))
+        pol = lambda x: np.broadcast_to(np.mean(x, axis=-1), x.shape[:-2] + (3,))
     else:
         r = spectra
+        w_half = 0.5 * np.asarray(weights, dtype=r.dtype)  # the polarisation mean folded into the weights
+        pol = lambda x: np.einsum("dckp,kr->dcr", x, w_half, optimize=True)
     tr = 1.0 - r
-    mean = lambda x: np.mean(x, axis=-1)
-    out = {"front": rgb(mean(r)), "background": rgb(mean(tr * tr)), "rear": []}
+    out = {"front": pol(r), "background": pol(tr * tr), "rear": []}
     path = tr * r
     for _ in range(bounces):
-        out["rear"].append(rgb(mean(path * tr)))
-        path = path * r
+        out["rear"].append(pol(path * tr))
+        path *= r
     return out
+
+
+@jax.jit
+def _incoherent(cos, n_film):
+    return film.incoherent_reflectance(cos, n_film)
 
 
 def coefficient_difference(a, b, w_front, w_rear, w_bg, bounces=None):
@@ -378,12 +402,28 @@ class FilmTable:
 
     def _values(self, mode: str, basis: SpectralBasis) -> np.ndarray:
         b = self.b
+        if basis.sigma is not None:  # fourier: the lobe-filtered film at the lobes' centres, all bases at once
+            key = ("fourier", mode)
+            if key not in self._spectra:
+                bases = [bb for bb in self.wanted if bb.sigma is not None] or [basis]
+                if basis not in bases:
+                    bases.append(basis)
+                lam = np.concatenate([bb.wavelengths for bb in bases])
+                sig = np.concatenate([bb.sigma for bb in bases])
+                vals = film_spectra(b.model, mode, lam, b.d_grid, b.c_grid, b.t, b.n_film, sig)
+                offs = np.cumsum([0] + [bb.samples for bb in bases])
+                self._spectra[key] = {bb: vals[:, :, offs[i]: offs[i + 1]] for i, bb in enumerate(bases)}
+            if basis not in self._spectra[key]:
+                del self._spectra[key]
+                self.wanted.append(basis)
+                return self._values(mode, basis)
+            return self._spectra[key][basis]
         if mode in self._spectra:
             lam_all, vals = self._spectra[mode]
             idx = np.searchsorted(lam_all, basis.wavelengths)
             if np.allclose(lam_all[np.minimum(idx, len(lam_all) - 1)], basis.wavelengths):
                 return vals[:, :, idx]
-        lam_all = np.unique(np.concatenate([bb.wavelengths for bb in self.wanted + [basis]]))
+        lam_all = np.unique(np.concatenate([bb.wavelengths for bb in self.wanted + [basis] if bb.sigma is None]))
         self._spectra[mode] = (lam_all, film_spectra(b.model, mode, lam_all, b.d_grid, b.c_grid, b.t, b.n_film))
         return self._values(mode, basis)
 

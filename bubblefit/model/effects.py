@@ -1,12 +1,14 @@
-"""Which effects a scene simulates, decided once per scene from cheap bounds.
+"""Which effects a render simulates: the static :class:`Effects`, and decisions from scalar bounds.
 
 Each effect is its own term of the forward model (:mod:`bubblefit.model.render`). The scene's
 ``[effects]`` table sets each to on (``true`` or a named method), off (``false``) or
-``auto``; :func:`decide` turns ``auto`` into on or off by bounding how much the image
-can change, in linear radiance, between the cheaper choice and the converged
-everything-on model (:func:`all_on_settings`), and compares that bound with one
-tolerance (``DEFAULT_TOLERANCE`` unless the scene sets ``effects.tolerance``). The
-decision is static: a term that is off is never traced nor computed.
+``auto``. Scenes decide ``auto`` pixel by pixel, against a tolerance relative to what each
+pixel shows (:mod:`bubblefit.model.auto`). This module holds what both paths share and the
+scalar path that a fit uses (:func:`resolve`): :func:`decide` turns ``auto`` into on or off
+by bounding how much the image can change anywhere, in linear radiance, between the
+cheaper choice and the converged everything-on model (:func:`all_on_settings`), and
+compares that bound with an absolute tolerance (:data:`ABSOLUTE_TOLERANCE` unless given).
+The decision is static: a term that is off is never traced nor computed.
 
 The bounds live in one record per scene (:class:`~bubblefit.model.bounds.SceneBounds`);
 each decision is one function here that reads it and returns a :class:`Decision`
@@ -41,12 +43,12 @@ from ..optics.spectral import SpectralBasis, spectral_basis
 from .bounds import MAX_BOUNCES, FilmTable, SceneBounds, coefficient_difference, filter_bound, scene_bounds
 from .modes import COLOURED, GREY, INTERFERENCE_MODES, MODELS, Background, Interference, Model, Switch, ThicknessKind
 
-__all__ = ["Effects", "Decision", "resolve", "decide", "all_on_settings", "DEFAULT_TOLERANCE", "MAX_AUTO_BOUNCES",
+__all__ = ["Effects", "Decision", "resolve", "decide", "all_on_settings", "ABSOLUTE_TOLERANCE", "MAX_AUTO_BOUNCES",
            "decide_interference", "decide_spectral", "decide_filtering", "decide_terms", "decide_tint",
-           "decide_diffuse", "decide_bounces"]
+           "decide_diffuse", "decide_bounces", "as_switch"]
 
-#: Default tolerance, in linear radiance of the rendered image (1/1000 of a white of 1).
-DEFAULT_TOLERANCE = 1e-3
+#: Default tolerance of the scalar path (:func:`resolve`), in linear radiance (1/1000 of a white of 1).
+ABSOLUTE_TOLERANCE = 1e-3
 #: Most internal bounces (``physical``): the all-on model's count and the cap of ``auto``.
 MAX_AUTO_BOUNCES = MAX_BOUNCES
 #: Uniform spectral sample counts ``auto`` tries, cheapest first (then ``reference``).
@@ -87,6 +89,8 @@ class Decision:
     simulated: bool
     reason: str
     setting: str = ""
+    #: Largest share of its budget the choice uses over the pixels (<= 1), where measured per pixel.
+    budget_used: float | None = None
 
     def line(self) -> str:
         state = "simulated" if self.simulated else "skipped"
@@ -114,7 +118,7 @@ def all_on_settings(model: Model = "paper", settings: dict | None = None) -> dic
     return out
 
 
-def _switch(value, name: str) -> Switch:
+def as_switch(value, name: str) -> Switch:
     if value in ("auto", None):
         return "auto"
     if isinstance(value, bool):
@@ -209,7 +213,7 @@ def decide_filtering(b: SceneBounds, setting, knobs: dict, nodes: int, spec_weig
 
 def _term(name: str, setting, bound: float, what: str, tol: float) -> tuple[bool, Decision]:
     """A term on or off: ``auto`` keeps it when its bound reaches the tolerance."""
-    s = _switch(setting, name)
+    s = as_switch(setting, name)
     if s == "auto":
         needed = bound >= tol
         rel = ">=" if needed else "<"
@@ -230,7 +234,7 @@ def decide_terms(b: SceneBounds, settings: dict, coeffs: dict, tol: float) -> tu
     rear, d = _term("rear_reflection", settings.get("rear_reflection", "auto"), f_rear * b.w_refl,
                     f"rear coefficient {f_rear:.3g} x reflected radiance bound {b.w_refl:.3g}", tol)
     out.append(d)
-    if b.background == "black" and _switch(settings.get("transmission", "auto"), "transmission") == "auto":
+    if b.background == "black" and as_switch(settings.get("transmission", "auto"), "transmission") == "auto":
         transmission = False
         out.append(Decision("transmission", False, "black background: nothing to transmit (bound 0)"))
     else:
@@ -266,7 +270,7 @@ def decide_diffuse(b: SceneBounds, setting, terms: dict, tol: float) -> tuple[bo
     else:
         weight = (1.0 if terms["front"] else 0.0) + (1.0 if terms["rear"] else 0.0)
     bound = max(b.r_d, 0.0) * b.irr_peak / math.pi * weight
-    if b.r_d <= 0 and _switch(setting, "diffuse") == "auto":
+    if b.r_d <= 0 and as_switch(setting, "diffuse") == "auto":
         return False, Decision("diffuse", False, "r_d = 0: no irradiance needed (bound 0)")
     return _term("diffuse", setting, bound, f"r_d E_max / pi x film coefficient ({max(b.r_d, 0):.3g} x "
                  f"{b.irr_peak:.3g} / pi x {weight:.3g})", tol)
@@ -293,7 +297,7 @@ def decide_bounces(b: SceneBounds, setting, coeffs: dict, rear: bool, tol: float
 # All decisions of a scene
 # ----------------------------------------------------------------------------------------
 
-def decide(b: SceneBounds, settings: dict, *, thickness_kind: ThicknessKind, tolerance: float = DEFAULT_TOLERANCE,
+def decide(b: SceneBounds, settings: dict, *, thickness_kind: ThicknessKind, tolerance: float = ABSOLUTE_TOLERANCE,
            nodes: int = ALL_ON_NODES) -> tuple[Effects, list[Decision]]:
     """Every effect of a scene from its bounds record and its ``[effects]`` table.
 
@@ -305,7 +309,7 @@ def decide(b: SceneBounds, settings: dict, *, thickness_kind: ThicknessKind, tol
     tol = float(tolerance)
     out = [Decision("fresnel", b.model == "physical", "physical model: Fresnel film reflectance per polarisation"
                     if b.model == "physical" else "paper model: constant t, r_s (eqs. 1-14)", b.model)]
-    tint_set = _switch(settings.get("transmission_tint", "auto"), "transmission_tint")
+    tint_set = as_switch(settings.get("transmission_tint", "auto"), "transmission_tint")
     tint_rs = max(b.r_s, 0.0) if b.model == "paper" and tint_set is True else None
     bset = settings.get("bounces", "auto") if b.model == "physical" else 1
     spectral_setting = settings.get("spectral", "auto")
@@ -352,7 +356,7 @@ def resolve(*, model: Model, settings: dict, t: float, r_d: float, r_s: float, r
             thickness_range: tuple[float, float], thickness_kind: ThicknessKind, n_film: float,
             env_texel_angle: float | None, env_peak: float, env_mean: float, background: Background,
             background_peak: float, n_point_lights: int, light_peak: float, min_cos: float,
-            tolerance: float = DEFAULT_TOLERANCE, env_pixels: np.ndarray | None = None,
+            tolerance: float = ABSOLUTE_TOLERANCE, env_pixels: np.ndarray | None = None,
             env_irradiance_peak: float | None = None,
             reflect_theta_range: tuple[float, float] = (0.0, math.pi)) -> tuple[Effects, list[Decision]]:
     """Decide every effect of a scene from its scalar summaries: :func:`scene_bounds`, then :func:`decide`.

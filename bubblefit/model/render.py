@@ -52,7 +52,8 @@ from .modes import COLOURED
 from .geometry import OrthographicCamera, PerspectiveCamera, internal_bounce, intersect_sphere
 from .thickness import thickness_at
 
-__all__ = ["Params", "RenderConfig", "render", "render_terms", "TRACE_COUNTS", "PointLight"]
+__all__ = ["Params", "RenderConfig", "render", "render_terms", "render_plan", "shading_points", "TRACE_COUNTS",
+           "PointLight"]
 
 #: How many times each term of the model has been traced (for tests of ``effects``).
 TRACE_COUNTS: collections.Counter = collections.Counter()
@@ -188,7 +189,7 @@ def _background(env, fx, p: Params, d, bg, idx):
     return jnp.zeros(d.shape, dtype=d.dtype)
 
 
-def _shading_points(fx: Effects, cfg: RenderConfig, hits, d):
+def shading_points(fx: Effects, cfg: RenderConfig, hits, d):
     """The films this scene shades: ``[(name, normal, direction to the viewer)]`` and, for
     the physical model's internal bounces, the unit local position of each bounce's exit.
 
@@ -303,7 +304,7 @@ def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx)
     d1 = thick(hits.local1)
 
     # Shading points of every film this scene needs, filtered in one batch.
-    films, exits = _shading_points(fx, cfg, hits, d)
+    films, exits = shading_points(fx, cfg, hits, d)
     refl = {}
     if films:
         nn = len(films)
@@ -325,15 +326,25 @@ def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx)
     return pixel, {k: jnp.where(inside, v, 0.0) for k, v in terms.items()}
 
 
-def _pixel_chunks(cfg: RenderConfig):
+def _pixel_chunks(cfg: RenderConfig, pixels=None):
+    """Flat pixel indices in chunks of ``cfg.chunk``: every pixel, or those of ``pixels``
+    (M,); the padding repeats the last index and is dropped."""
     h, w = cfg.shape
-    npix = h * w
-    chunk = min(cfg.chunk, npix)
+    flat = np.arange(h * w) if pixels is None else np.asarray(pixels, dtype=np.int64).ravel()
+    npix = flat.size
+    chunk = max(1, min(cfg.chunk, npix))
     steps = -(-npix // chunk)
-    idx = np.arange(steps * chunk)
-    idx = np.minimum(idx, npix - 1)  # padding repeats the last pixel and is dropped
+    idx = flat[np.minimum(np.arange(steps * chunk), npix - 1)]
     rows, cols = np.divmod(idx, w)
     return rows.reshape(steps, chunk), cols.reshape(steps, chunk), idx.reshape(steps, chunk), npix
+
+
+def _map_chunks(p: Params, cfg: RenderConfig, env, bg, rows, cols, idx):
+    def body(xs):
+        r, c, i = xs
+        return _shade_chunk(p, cfg, env, bg, r, c, i)
+
+    return jax.lax.map(body, (jnp.asarray(rows), jnp.asarray(cols), jnp.asarray(idx)))
 
 
 def render_terms(p: Params, cfg: RenderConfig, env: EnvMap | None, background=None):
@@ -342,12 +353,7 @@ def render_terms(p: Params, cfg: RenderConfig, env: EnvMap | None, background=No
     h, w = cfg.shape
     rows, cols, idx, npix = _pixel_chunks(cfg)
     bg = None if background is None else jnp.asarray(background, dtype=p.t.dtype)
-
-    def body(xs):
-        r, c, i = xs
-        return _shade_chunk(p, cfg, env, bg, r, c, i)
-
-    img, terms = jax.lax.map(body, (jnp.asarray(rows), jnp.asarray(cols), jnp.asarray(idx)))
+    img, terms = _map_chunks(p, cfg, env, bg, rows, cols, idx)
     img = img.reshape(-1, 3)[:npix].reshape(h, w, 3)
     terms = {k: v.reshape(-1, 3)[:npix].reshape(h, w, 3) for k, v in terms.items()}
     return img, terms
@@ -357,3 +363,28 @@ def render_terms(p: Params, cfg: RenderConfig, env: EnvMap | None, background=No
 def render(p: Params, cfg: RenderConfig, env: EnvMap | None, background=None) -> Float[Array, "H W 3"]:
     """The (H, W, 3) linear image of the bubble, jit-compiled per static ``cfg``."""
     return render_terms(p, cfg, env, background)[0]
+
+
+@functools.partial(jax.jit, static_argnames=("cfg",))
+def _render_chunks(p: Params, cfg: RenderConfig, env, background, rows, cols, idx):
+    bg = None if background is None else jnp.asarray(background, dtype=p.t.dtype)
+    return _map_chunks(p, cfg, env, bg, rows, cols, idx)[0].reshape(-1, 3)
+
+
+def render_plan(p: Params, parts, env: EnvMap | None, background=None) -> np.ndarray:
+    """The (H, W, 3) image of a scene rendered by regions (:class:`bubblefit.model.auto.Plan`).
+
+    ``parts`` pairs :class:`RenderConfig` with flat pixel indices: the first (indices
+    None) renders every pixel, each next one re-renders its pixels with its own effects.
+    A pixel's value does not depend on the other pixels, so the regions compose exactly.
+    """
+    cfg0 = parts[0][0]
+    img = np.array(render(p, cfg0, env, background)).reshape(-1, 3)
+    for cfg, pixels in parts[1:]:
+        if pixels is None or len(pixels) == 0:
+            continue
+        rows, cols, idx, npix = _pixel_chunks(cfg, pixels)
+        vals = _render_chunks(p, cfg, env, background, rows, cols, idx)
+        img[np.asarray(pixels)] = np.asarray(vals)[:npix]
+    h, w = cfg0.shape
+    return img.reshape(h, w, 3)

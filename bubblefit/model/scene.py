@@ -15,10 +15,19 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import jax.numpy as jnp
 import numpy as np
 
 from ..errors import InputError
+from ..io.images import read_image
+from ..lighting.envmap import EnvMap
+from .auto import DEFAULT_TOLERANCE, decide_pixels
+from .bounds import scene_bounds
+from .effects import ALL_ON_NODES
+from .footprint import footprint
 from .modes import MODELS, THICKNESS_KINDS, check_effects_table
+from .geometry import OrthographicCamera, PerspectiveCamera
+from .render import Params, PointLight, RenderConfig, render_plan
 
 __all__ = ["Scene", "load_scene", "render_scene", "read_envmap", "DATA_DIR", "shipped_envmap"]
 
@@ -46,8 +55,6 @@ def read_envmap(path, *, scale: float = 1.0):
     Raises :class:`InputError` (one line) for an unreadable file, a map that is not twice
     as wide as high, or one with fewer than 2 rows.
     """
-    from ..lighting.envmap import EnvMap
-    from ..io.images import read_image
 
     try:
         img = read_image(path)
@@ -103,9 +110,12 @@ def _validate(data: dict) -> dict:
     return out
 
 
-def _range(name, value, lo, hi, lo_open=False):
+def _range(name, value, lo, hi, lo_open=False, why: str = ""):
+    """An InputError unless ``lo <= value <= hi`` (``lo < value`` when ``lo_open``), written
+    with the interval's true brackets and, when given, what the bound means."""
     if not (lo < value if lo_open else lo <= value) or not value <= hi:
-        raise InputError(f"scene value {name} = {value} is out of range [{lo}, {hi}]")
+        interval = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]"
+        raise InputError(f"scene value {name} = {value:g} is out of range {interval}" + (f": {why}" if why else ""))
 
 
 @dataclass
@@ -128,15 +138,18 @@ class Scene:
     def _check_values(self):
         b = self.table("bubble")
         _range("bubble.t", b.get("t", 0.972), 0.0, 1.0)
-        _range("bubble.roughness", b.get("roughness", 0.01), 0.0, 10.0, lo_open=True)
+        _range("bubble.roughness", b.get("roughness", 0.01), 0.0, 10.0, why="0 is a perfect mirror")
         _range("bubble.n_film", b.get("n_film", 1.4), 1.0, 3.0)
-        _range("bubble.radius", b.get("radius", 1.0), 0.0, math.inf, lo_open=True)
+        _range("bubble.radius", b.get("radius", 1.0), 0.0, math.inf, lo_open=True,
+               why="the bubble's radius must be positive (a sphere of radius 0 is not seen)")
         _range("bubble.thickness_nm", b.get("thickness_nm", 500.0), 0.0, 1e6)
         for k in ("r_d", "r_s", "f"):
             if k in b:
                 _range(f"bubble.{k}", b[k], 0.0, math.inf)
-        if ("r_d" in b) != ("r_s" in b):
-            raise InputError("scene keys bubble.r_d and bubble.r_s must be given together (or give f)")
+        physical = self.table("effects").get("model", "paper") == "physical"
+        if ("r_d" in b) != ("r_s" in b) and not (physical and "r_d" in b):
+            raise InputError("scene keys bubble.r_d and bubble.r_s must be given together in the paper model "
+                             "(or give f); the physical model takes r_d alone")
         th = b.get("thickness")
         if th is not None:
             prof = th.get("profile", "constant")
@@ -174,6 +187,11 @@ class Scene:
                 rad = light["radiance"]
                 _vector(f"lighting.point_lights[{i}].radiance", rad if isinstance(rad, list) else [rad] * 3, 3)
 
+    def with_effects(self, **settings) -> "Scene":
+        """A copy of the scene with keys of its ``[effects]`` table replaced (validated)."""
+        data = dict(self.data, effects=dict(self.table("effects"), **settings))
+        return Scene.from_dict(data, self.base_dir)
+
     # -- derived values -----------------------------------------------------------------------
     def resolve_path(self, p: str) -> Path:
         path = Path(p)
@@ -189,8 +207,7 @@ class Scene:
         if th["profile"] == "drainage":
             return "drainage", np.asarray([th.get("top_nm", 100.0), th.get("bottom_nm", 1000.0),
                                            th.get("exponent", 1.0)], dtype=np.float64)
-        from ..io.images import read_image
-
+    
         img = read_image(self.resolve_path(th["path"]), linear=True)
         m = img.pixels[..., 0]
         h, w = self.shape
@@ -204,8 +221,6 @@ class Scene:
         return int(c.get("height", 256)), int(c.get("width", 256))
 
     def camera(self):
-        from .geometry import OrthographicCamera, PerspectiveCamera
-
         c = self.table("camera")
         h, w = self.shape
         if c.get("type", "orthographic") == "perspective":
@@ -221,15 +236,11 @@ class Scene:
 
     def params(self, dtype=None):
         """The scene's :class:`~bubblefit.model.render.Params` (thickness per its profile)."""
-        import jax.numpy as jnp
-
-        from .render import Params
-
         b = self.table("bubble")
         dtype = dtype or jnp.float32
         _, values = self.thickness_spec()
         return Params.make(
-            t=b.get("t", 0.972), r_d=b.get("r_d"), r_s=b.get("r_s"), f=b.get("f", 0.3),
+            t=b.get("t", 0.972), r_d=b.get("r_d"), r_s=b.get("r_s", 0.0 if "r_d" in b else None), f=b.get("f", 0.3),
             roughness=b.get("roughness", 0.01), thickness=values, n_film=b.get("n_film", 1.4),
             exposure=1.0, rotation=math.radians(self.table("lighting").get("rotation_deg", 0.0)), dtype=dtype,
         )
@@ -253,8 +264,6 @@ class Scene:
         return "photo", self.resolve_path(bg)
 
     def point_lights(self):
-        from .render import PointLight
-
         out = []
         for light in self.table("lighting").get("point_lights", []):
             d = np.asarray(light["direction"], dtype=np.float64)
@@ -264,13 +273,8 @@ class Scene:
             out.append(PointLight(tuple(d / np.linalg.norm(d)), tuple(float(x) for x in e)))
         return tuple(out)
 
-    def config(self, env=None, background=None, *, chunk: int = 4096):
-        """Resolve the effects and return ``(RenderConfig, decisions)``."""
-        from .bounds import reflection_theta_range
-        from .effects import resolve
-        from .render import RenderConfig
-
-        b = self.table("bubble")
+    def _summaries(self, env, background) -> dict:
+        """The scalar summaries :func:`~bubblefit.model.bounds.scene_bounds` reads."""
         e = self.table("effects")
         p = self.params()
         kind, values = self.thickness_spec()
@@ -279,37 +283,63 @@ class Scene:
             trange = (float(min(vals[0], vals[1])), float(max(vals[0], vals[1])))
         else:
             trange = (float(vals.min()), float(vals.max()))
-        bg_kind, _ = self.background_kind()
         lights = self.point_lights()
         env_px = None if env is None else np.asarray(env.pixels)
         camera = self.camera()
-        try:
-            fx, decisions = resolve(
-            model=e.get("model", "paper"),
-            settings=e,
-            t=float(p.t), r_d=float(p.r_d), r_s=float(p.r_s), roughness=float(p.roughness),
-            thickness_range=trange, thickness_kind=kind, n_film=float(p.n_film),
+        return dict(
+            model=e.get("model", "paper"), t=float(p.t), r_d=float(p.r_d), r_s=float(p.r_s),
+            roughness=float(p.roughness), thickness_range=trange, n_film=float(p.n_film),
             env_texel_angle=None if env is None else env.texel_angle,
             env_peak=0.0 if env_px is None else float(env_px.max()),
             env_mean=0.0 if env_px is None else float(env_px.mean()),
-            background=bg_kind,
+            background=self.background_kind()[0],
             background_peak=(float(np.max(background)) if background is not None
                              else (0.0 if env_px is None else float(env_px.max()))),
-            n_point_lights=len(lights),
-            light_peak=max([max(l.irradiance) for l in lights], default=0.0),
-            min_cos=_min_cos(camera),
-            tolerance=e.get("tolerance", 1e-3),
-            env_pixels=env_px,
-            env_irradiance_peak=None if env is None else float(np.max(np.asarray(env.irradiance))),
-            reflect_theta_range=(reflection_theta_range(camera, tuple(float(x) for x in b.get("center", (0, 0, 0))),
-                                                        float(b.get("radius", 1.0)))
-                                 if env is not None else (0.0, math.pi)),
-            )
+            n_point_lights=len(lights), light_peak=max([max(l.irradiance) for l in lights], default=0.0),
+            min_cos=_min_cos(camera), env_pixels=env_px,
+            env_irradiance_peak=None if env is None else float(np.max(np.asarray(env.irradiance))))
+
+    @property
+    def center(self) -> tuple[float, float, float]:
+        return tuple(float(x) for x in self.table("bubble").get("center", (0, 0, 0)))
+
+    @property
+    def radius(self) -> float:
+        return float(self.table("bubble").get("radius", 1.0))
+
+    def plan(self, env=None, background=None, *, chunk: int = 4096):
+        """Decide the effects pixel by pixel (:func:`bubblefit.model.auto.decide_pixels`).
+
+        Returns ``(parts, decisions)``: ``parts`` pairs a :class:`~bubblefit.model.render.RenderConfig`
+        with the flat pixel indices it renders (None for every pixel), for
+        :func:`~bubblefit.model.render.render_plan`.
+        """
+        e = self.table("effects")
+        tol = float(e.get("tolerance", DEFAULT_TOLERANCE))
+        nodes = int(e.get("nodes", ALL_ON_NODES))
+        summ = self._summaries(env, background)
+        kind, values = self.thickness_spec()
+        p = self.params()
+        camera, lights = self.camera(), self.point_lights()
+        bg_kind = summ["background"]
+        try:
+            b = scene_bounds(nodes=nodes, **summ)
+            fp = footprint(camera=camera, center=self.center, radius=self.radius, model=summ["model"],
+                           roughness=summ["roughness"], env=env, rotation=float(p.rotation), lights=lights,
+                           background=background, background_kind=bg_kind, thickness_kind=kind,
+                           thickness_values=values)
+            plan, decisions = decide_pixels(b, fp, e, thickness_kind=kind, tolerance=tol, nodes=nodes)
         except ValueError as exc:  # a setting the checks above let through
             raise InputError(f"scene [effects]: {exc}") from None
-        cfg = RenderConfig(effects=fx, camera=camera, center=tuple(float(x) for x in b.get("center", (0, 0, 0))),
-                           radius=float(b.get("radius", 1.0)), point_lights=lights, chunk=chunk)
-        return cfg, decisions
+        parts = [(RenderConfig(effects=fx, camera=camera, center=self.center, radius=self.radius,
+                               point_lights=lights, chunk=chunk), pixels) for fx, pixels in plan.parts]
+        return parts, decisions
+
+    def config(self, env=None, background=None, *, chunk: int = 4096):
+        """Resolve the effects and return ``(RenderConfig, decisions)``: the configuration of
+        the first region of :meth:`plan` (every pixel but the bright ones, if any)."""
+        parts, decisions = self.plan(env, background, chunk=chunk)
+        return parts[0][0], decisions
 
 
 def _vector(name: str, value, n: int) -> list[float]:
@@ -323,8 +353,6 @@ def _vector(name: str, value, n: int) -> list[float]:
 
 def _min_cos(camera) -> float:
     """Smallest film incidence cosine among pixel centres (orthographic: from the disc)."""
-    from .geometry import OrthographicCamera
-
     if isinstance(camera, OrthographicCamera):
         cx, cy, r = camera.disc()
         jj, ii = np.meshgrid(np.arange(camera.width) + 0.5, np.arange(camera.height) + 0.5)
@@ -362,9 +390,6 @@ def render_scene(scene: Scene, background: np.ndarray | None = None, *, env=None
         env: an already loaded :class:`EnvMap` (else the scene's is loaded).
         explain: also return the list of effect decisions.
     """
-    from ..io.images import read_image
-    from .render import render
-
     env = env if env is not None else scene.load_envmap()
     bg_kind, bg_path = scene.background_kind()
     if background is None and bg_kind == "photo":
@@ -377,8 +402,8 @@ def render_scene(scene: Scene, background: np.ndarray | None = None, *, env=None
         scene = Scene(dict(scene.data, lighting=dict(scene.table("lighting"), background="photo")), scene.base_dir)
         if "background" not in scene.data["lighting"]:
             scene.data["lighting"]["background"] = "photo"
-    cfg, decisions = scene.config(env, background)
-    if cfg.effects.background == "photo" and background is None:
+    parts, decisions = scene.plan(env, background)
+    if parts[0][0].effects.background == "photo" and background is None:
         raise InputError("lighting.background names a photo that could not be read")
-    img = np.asarray(render(scene.params(), cfg, env, background))
+    img = render_plan(scene.params(), parts, env, background)
     return (img, decisions) if explain else img

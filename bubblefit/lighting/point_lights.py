@@ -20,8 +20,9 @@ from ..optics.brdf import ward_lobe
 
 __all__ = ["PointLight", "lights_radiance", "MIN_ROUGHNESS"]
 
-#: Smallest roughness of eq. (3)'s lobe (a = 0 would divide 0 by 0).
-MIN_ROUGHNESS = 1e-12
+#: Smallest roughness of eq. (3)'s lobe (a = 0 would divide 0 by 0, and far smaller values
+#: overflow the lobe's gradient in float32); a lobe this narrow is far below any pixel.
+MIN_ROUGHNESS = 1e-4
 
 
 @dataclass(frozen=True)

@@ -84,14 +84,23 @@ class _Cells:
         xg = b.d_grid[:, 0] * 2 * n * cos_t(b.c_grid[0])
         jc = np.searchsorted(b.c_grid, fp.cos)
         self.j = (np.clip(jc - 1, 0, len(b.c_grid) - 1), np.clip(jc, 0, len(b.c_grid) - 1))
+        self.varies = bool(np.ptp(np.concatenate([fp.d0, fp.d1])) > 0) if fp.count else False
         self.i = []
         for d in (fp.d0, fp.d1):
             ix = np.searchsorted(xg, 2 * n * d * cos_t(fp.cos))
             self.i.append((np.clip(ix - 1, 0, len(xg) - 1), np.clip(ix, 0, len(xg) - 1)))
 
     def at(self, arr, film: int) -> np.ndarray:
-        """Largest value (N, 3) of a (D, C, 3) grid array over the 4 cells around each pixel."""
+        """Largest value (N, 3) of a (D, C, 3) grid array over the 4 cells around each pixel.
+
+        With a thickness field the rear film's terms (the internal bounces meet the film at
+        other heights) take the largest over the front and rear cells."""
         arr = np.asarray(arr)
+        if film == 1 and self.varies:
+            return np.maximum(self._at(arr, 0), self._at(arr, 1))
+        return self._at(arr, film)
+
+    def _at(self, arr, film: int) -> np.ndarray:
         i0, i1 = self.i[film]
         j0, j1 = self.j
         return np.maximum(np.maximum(arr[i0, j0], arr[i0, j1]), np.maximum(arr[i1, j0], arr[i1, j1]))
@@ -240,7 +249,7 @@ def _term_skips(px: _Pixels, coeffs: dict, settings: dict, b: SceneBounds) -> tu
             on[name] = True
             share = float(np.mean(err > SHARES["terms"] * px.budget)) if fp.count else 0.0
             out.append(Decision(name, True, f"visible in {_pct(share)} of the bubble's pixels (up to {used:.3g}x "
-                                f"the terms' share of the budget)", budget_used=used))
+                                f"the terms' share of the budget)"))
     return on, out
 
 

@@ -40,7 +40,7 @@ from ..optics import film
 from ..optics.spectral import LAMBDA_MIN, SpectralBasis
 from .modes import GREY, Model
 
-__all__ = ["SceneBounds", "FilmTable", "scene_bounds", "reflection_theta_range", "film_grids", "film_spectra",
+__all__ = ["SceneBounds", "FilmTable", "scene_bounds", "film_grids", "film_spectra",
            "film_coefficients", "coefficient_difference", "lookup_variation", "mipmap_albedo", "filter_bound",
            "MAX_BOUNCES"]
 
@@ -206,47 +206,6 @@ def lookup_variation(pixels: np.ndarray, radius: float, theta_range=(0.0, math.p
     return best
 
 
-def reflection_theta_range(camera, center, radius: float, bounces: int = MAX_BOUNCES) -> tuple[float, float]:
-    """Range of polar angles (rad, from +y) of the mirror directions the image reads.
-
-    Mirror directions of the front film, the rear film (inward normal) and the internal
-    bounces (as :func:`bubblefit.model.geometry.intersect_sphere` and ``internal_bounce``, in
-    numpy float64) for every pixel centre whose ray hits the bubble. A rotation of the map
-    about +y leaves polar angles unchanged, so the range holds for any ``rotation``.
-    Returns ``(0, pi)`` when no pixel hits the bubble.
-    """
-    h, w = camera.height, camera.width
-    rows, cols = np.divmod(np.arange(h * w, dtype=np.float64), w)
-    o, d = (np.asarray(v, dtype=np.float64) for v in camera.rays(rows, cols, center, radius))
-    c = np.asarray(center, dtype=np.float64)
-    dot = lambda u, v: np.sum(u * v, axis=-1, keepdims=True)
-    unit = lambda v: v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-300)
-    d = unit(np.broadcast_to(d, o.shape))
-    oc = o - c
-    bq = dot(oc, d)
-    disc = bq * bq - (dot(oc, oc) - radius * radius)
-    inside = disc[:, 0] > 0
-    if not inside.any():
-        return 0.0, math.pi
-    o, d, bq, disc = o[inside], d[inside], bq[inside], disc[inside]
-    root = np.sqrt(disc)
-    p0 = o + (-bq - root) * d
-    p1 = o + (-bq + root) * d
-    n0, n1 = unit(p0 - c), unit(p1 - c)
-    reflect = lambda v, n: 2.0 * dot(v, n) * n - v
-    dirs = [reflect(-d, n0), reflect(-d, -n1)]
-    q, e = p1, unit(d - 2.0 * dot(d, n1) * n1)  # reflected inside at the rear film
-    for _ in range(bounces):
-        dirs.append(e)
-        q = q + (-2.0 * dot(q - c, e)) * e
-        nq = unit(q - c)
-        q = c + radius * nq
-        e = unit(e - 2.0 * dot(e, nq) * nq)
-    y = np.concatenate([unit(v)[:, 1] for v in dirs])
-    theta = np.arccos(np.clip(y, -1.0, 1.0))
-    return float(theta.min()), float(theta.max())
-
-
 def mipmap_albedo(roughness: float, cos: np.ndarray, nodes: int) -> np.ndarray:
     """Albedo (C,) of the unnormalised ``mipmap`` lobe (white map) at incidence cosines (C,).
 
@@ -314,7 +273,8 @@ class SceneBounds:
         albedo: the largest albedo of the unnormalised lobe (eq. 1 as written; ``paper``).
         w_refl: the radiance bound the film's reflection coefficients multiply:
             ``r_s S_max albedo + r_d E_max / pi`` (paper) or ``S_max + r_d E_max / pi``.
-        reflect_theta_range: polar angles (rad) of the mirror directions the image reads.
+        reflect_theta_range: polar angles (rad) of the mirror directions the image reads
+            (the whole sphere unless a caller knows better).
         d_grid, c_grid: thickness (D, C) and incidence-cosine (C,) grids (:func:`film_grids`).
     """
 

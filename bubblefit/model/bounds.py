@@ -58,15 +58,15 @@ def film_grids(thickness_range, min_cos, n_film, max_points: int = 800):
     Interference depends on the optical path ``x = 2 n d cos t`` (eq. 8) and, weakly, on
     the Fresnel factors of ``cos``. Every pixel's ``x`` lies in
     ``[2 n d_min cos t_min, 2 n d_max]``; the grid pairs each of a few cosines with that
-    whole range of ``x`` (a superset of the image's pairs), in steps of lambda_min / 16 (the
-    two-beam colour is sampled 16 times per shortest period), at most ``max_points``.
+    whole range of ``x`` (a superset of the image's pairs), in steps of lambda_min / 24 (the
+    two-beam colour is sampled 24 times per shortest period), at most ``max_points``.
     """
     dmin, dmax = thickness_range
     c_lo = max(min(min_cos, 1.0), 1e-3)
     cos = np.unique(np.concatenate([np.linspace(c_lo, 1.0, 6), [1.0]]))
     cos_t = np.sqrt(np.maximum(0.0, 1.0 - (1.0 - cos**2) / n_film**2))
     x_lo, x_hi = 2 * n_film * dmin * float(cos_t.min()), 2 * n_film * dmax
-    step = LAMBDA_MIN / 16.0
+    step = LAMBDA_MIN / 24.0
     npts = int(min(max_points, max(2, math.ceil((x_hi - x_lo) / step) + 1)))
     x = np.linspace(x_lo, x_hi, npts) if x_hi > x_lo else np.array([x_lo])
     d = x[:, None] / (2 * n_film * np.maximum(cos_t[None, :], 1e-6))

@@ -15,6 +15,10 @@ def register(sub):
     p.add_argument("scene", help="scene file (TOML)")
     p.add_argument("-o", "--output", required=True, help="output image (.exr recommended; a .png preview is written beside it)")
     p.add_argument("--explain", action="store_true", help="print which effects are simulated or skipped, and why")
+    p.add_argument("--tolerance", type=float, default=None, metavar="FRACTION",
+                   help="largest change a skipped or cheapened effect may make to a pixel, as a fraction of what the "
+                        "pixel shows (plus 0.1 x that fraction of the bubble's bright level); overrides the scene's "
+                        "[effects] tolerance (default 0.01)")
     p.add_argument("--json", metavar="PATH", help="write timing and effect decisions as JSON")
     p.add_argument("--preview-exposure", type=float, default=None,
                    help="exposure of the PNG preview (default: automatic, the 99.5th percentile maps to 0.9)")
@@ -41,6 +45,10 @@ def run(args) -> int:
 
     with stage("reading the scene"):
         scene = load_scene(args.scene)
+    if args.tolerance is not None:
+        if not (np.isfinite(args.tolerance) and args.tolerance > 0):
+            raise InputError(f"--tolerance must be a positive number, got {args.tolerance:g}")
+        scene = scene.with_effects(tolerance=float(args.tolerance))
     ill = colour_option(args.illuminant, spectral.is_named_illuminant, "--illuminant")
     resp = colour_option(args.camera_response, spectral.is_named_response, "--camera-response")
     if ill is not None:
@@ -60,12 +68,12 @@ def run(args) -> int:
         write_image(args.output, img)
         write_image(preview, img * exposure)
     if args.explain:
-        print("effect               state     [setting] reason")
+        print("effect               state     [setting] reason (errors are shares of each pixel's budget)")
         for d in decisions:
             print(d.line())
     print(f"wrote {args.output} ({scene.shape[1]}x{scene.shape[0]}, {elapsed:.2f} s)")
     if args.json:
         write_json(args.json, {"output": str(args.output), "time_s": elapsed, "preview_exposure": exposure,
                                "effects": [{"effect": d.effect, "simulated": d.simulated, "setting": d.setting,
-                                            "reason": d.reason} for d in decisions]})
+                                            "reason": d.reason, "budget_used": d.budget_used} for d in decisions]})
     return 0

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Literal, get_args
 
 import jax
 import jax.numpy as jnp
@@ -55,7 +56,9 @@ __all__ = [
     "mip_footprint_level",
 ]
 
-METHODS = ("mirror", "window", "mipmap", "full")
+#: The filtering methods of a scene's ``filtering`` knob (see the module docstring).
+FilterMethod = Literal["mirror", "window", "mipmap", "full"]
+METHODS: tuple[str, ...] = get_args(FilterMethod)
 MIP_BLUR = 0.5
 
 
@@ -71,7 +74,7 @@ class FilterConfig:
         chunk: texels per step of the ``full`` sum (bounds memory).
     """
 
-    method: str = "mipmap"
+    method: FilterMethod = "mipmap"
     nodes: int = 4
     window: int = 8
     level: int = 0
@@ -132,7 +135,7 @@ def mip_footprint_level(slope_width, texel_angle: float):
 UNIFORM_EXTENT = 2.5
 
 
-def _slope_nodes(nodes: int):
+def slope_nodes(nodes: int):
     """Nodes ``x`` and weights (sum 1) for ``exp(-x^2)`` per axis, and each node's width.
 
     Up to 4 nodes: Gauss-Hermite (the best few-node rule for a smooth integrand). The width
@@ -162,12 +165,12 @@ def specular_mipmap(env: EnvMap, n, wo, a, *, nodes: int, normalize: bool) -> Fl
     """Quadrature of the slope-space Gaussian lobe (see :mod:`bubblefit.optics.brdf`).
 
     Node ``(j, k)`` sits at slope ``a (x_j t1 + x_k t2)``, with ``x`` and the weights of
-    :func:`_slope_nodes` for ``exp(-x^2)`` (weights ``W_j W_k``, summing to 1). Its half
+    :func:`slope_nodes` for ``exp(-x^2)`` (weights ``W_j W_k``, summing to 1). Its half
     vector gives ``w_i = reflect(w_o, h)``, read at the mip level whose texels match the
     cell the node stands for (:func:`mip_footprint_level`), so that a bright sun is
     prefiltered rather than aliased between nodes.
     """
-    x, w, width = _slope_nodes(nodes)
+    x, w, width = slope_nodes(nodes)
     xx, yy = np.meshgrid(x, x)
     ww = jnp.asarray((w[:, None] * w[None, :]).ravel(), dtype=n.dtype)
     cell = jnp.asarray(np.sqrt(width[:, None] * width[None, :]).ravel(), dtype=n.dtype)
@@ -209,7 +212,22 @@ def _lobe_terms(n, wo, wi, a):
 
 def specular_window(env: EnvMap, n, wo, a, *, window: int, level: int, normalize: bool):
     """Eq. (13): eq. (12) summed over the ``(2k+1)^2`` texels of mip ``level`` around the
-    reflected direction (rows outside the map are dropped, columns wrap)."""
+    reflected direction (rows outside the map are dropped, columns wrap).
+
+    Below one texel the window degenerates: a lobe narrower than the texels (``4 a`` below
+    the level's texel angle) puts its weight on the nearest texel centre, a
+    nearest-neighbour lookup (19% RMS from the bilinear lookup at ``a = 5e-4`` on a 2k
+    map). There it returns the bilinear mirror lookup (:func:`specular_mirror`), the
+    limit the sum converges to as the texels shrink.
+    """
+    narrow = 4.0 * a < env.texel_angle * 2.0**level
+    a = jnp.maximum(a, 1e-12)
+    summed = _window_sum(env, n, wo, a, window=window, level=level, normalize=normalize)
+    return jnp.where(narrow, specular_mirror(env, n, wo, normalize=normalize), summed)
+
+
+def _window_sum(env: EnvMap, n, wo, a, *, window: int, level: int, normalize: bool):
+    """The sum of :func:`specular_window` over its texels."""
     pixels, dirs, sa = _level_tables(env, level)
     h, w = pixels.shape[:2]
     k = min(window, (w - 1) // 2)

@@ -2,7 +2,10 @@
 
 - :mod:`.geometry`: cameras, front and rear films, internal bounces.
 - :mod:`.thickness`: constant film, drainage profile, thickness map.
-- :mod:`.effects`: which terms a scene needs, decided from bounds (``auto``).
+- :mod:`.modes`: the mode strings (``Literal`` types) of scenes and effects.
+- :mod:`.effects`: the static set of terms a render computes, and decisions from scalar bounds.
+- :mod:`.bounds`, :mod:`.footprint`, :mod:`.auto`: ``auto`` per pixel: the film's coefficient
+  tables, what each pixel's films read, and the cheapest choice within each pixel's budget.
 - :mod:`.render`: eq. (11) (``paper``), the ``physical`` variant, point lights eqs. (2)-(3).
 - :mod:`.scene`: scene files (TOML) and rendering them.
 """

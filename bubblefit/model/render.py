@@ -18,7 +18,7 @@ reflectance ``r_s F`` from the spectral mean ``2 t^2 r_s``, and the background t
 carries the product of the lobe means, which differs from the lobe mean of the product by
 ``O(r_s^2)``.)
 
-``physical`` (DESIGN.md): per wavelength and polarisation, the film reflects ``R`` (Airy,
+``physical`` (``docs/design.md``): per wavelength and polarisation, the film reflects ``R`` (Airy,
 two-beam, or incoherent) and transmits ``T = 1 - R``; the front reflection is ``R_0``,
 the background ``T_0 T_1``, and the k-th internal bounce adds ``T_0 R_1 ... R_k T_(k+1)``
 times the radiance filtered at the k-th bounce. Every bounce meets the film at the same
@@ -43,16 +43,18 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ..optics import film, spectral
-from ..optics.dispersion import Cauchy, index_offset
-from ..optics.brdf import ward_lobe
-from .effects import Effects
 from ..lighting.envmap import EnvMap, rotate_y
 from ..lighting.filtering import irradiance, specular
+from ..lighting.point_lights import PointLight, lights_radiance
+from ..optics import film, spectral
+from ..optics.dispersion import Cauchy, index_offset
+from .effects import Effects
+from .modes import COLOURED
 from .geometry import OrthographicCamera, PerspectiveCamera, internal_bounce, intersect_sphere, pixel_offsets
 from .thickness import thickness_at
 
-__all__ = ["Params", "RenderConfig", "render", "render_terms", "TRACE_COUNTS", "PointLight"]
+__all__ = ["Params", "RenderConfig", "render", "render_terms", "render_plan", "shading_points", "TRACE_COUNTS",
+           "PointLight"]
 
 #: How many times each term of the model has been traced (for tests of ``effects``).
 TRACE_COUNTS: collections.Counter = collections.Counter()
@@ -93,15 +95,6 @@ class Params(eqx.Module):
 
 
 @dataclass(frozen=True)
-class PointLight:
-    """A distant light: unit ``direction`` towards the light, ``irradiance`` (RGB) it
-    delivers to a surface facing it."""
-
-    direction: tuple
-    irradiance: tuple
-
-
-@dataclass(frozen=True)
 class RenderConfig:
     """Everything static about a render (hashable: it is part of the compiled program)."""
 
@@ -125,33 +118,6 @@ class RenderConfig:
 
 def _count(name):
     TRACE_COUNTS[name] += 1
-
-
-def _lights_radiance(lights, n, wo, p: Params, *, diffuse: bool):
-    """Eq. (3): eq. (1)'s BRDF for each distant light, times its irradiance and cosine.
-
-    Returns ``(specular, diffuse)``, each (N, 3): the Ward lobe with ``r_s = 1`` (the caller
-    scales it by ``r_s``, or by ``R_film`` in the physical model, as it does for the
-    filtered environment) and ``r_d / pi cos th_i E`` (0 unless ``diffuse``).
-    """
-    _count("point_lights")
-    cos_r = jnp.sum(n * wo, axis=-1)
-    spec = 0.0
-    diff = 0.0
-    for light in lights:
-        l = jnp.asarray(light.direction, dtype=n.dtype)
-        l = l / jnp.linalg.norm(l)
-        e = jnp.asarray(light.irradiance, dtype=n.dtype)
-        cos_i = n @ l
-        h = wo + l
-        h = h / jnp.linalg.norm(h, axis=-1, keepdims=True).clip(1e-12)
-        cos_h = jnp.sum(n * h, axis=-1)
-        lobe = ward_lobe(cos_i, cos_r, cos_h, p.roughness) * jnp.maximum(cos_i, 0.0)
-        spec = spec + lobe[:, None] * e
-        if diffuse:
-            _count("diffuse")
-            diff = diff + (p.r_d / jnp.pi * jnp.maximum(cos_i, 0.0) * (cos_r > 0))[:, None] * e
-    return spec, diff
 
 
 class _Film:
@@ -212,7 +178,10 @@ def _reflected(env, fx: Effects, cfg: RenderConfig, p: Params, n, wo, *, normali
             _count("diffuse")
             diff = p.r_d / jnp.pi * irradiance(env, nm)
     if fx.point_lights and cfg.point_lights:
-        lspec, ldiff = _lights_radiance(cfg.point_lights, n, wo, p, diffuse=fx.diffuse)
+        _count("point_lights")
+        if fx.diffuse:
+            _count("diffuse")
+        lspec, ldiff = lights_radiance(cfg.point_lights, n, wo, p.roughness, p.r_d, diffuse=fx.diffuse)
         spec = spec + lspec
         diff = diff + ldiff
     return spec, diff
@@ -227,115 +196,138 @@ def _background(env, fx, p: Params, d, bg, idx):
     return jnp.zeros(d.shape, dtype=d.dtype)
 
 
-def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx):
-    """Radiance (N, 3) of one chunk of pixels: a dict of the model's terms, and the total."""
-    fx = cfg.effects
-    dtype = p.t.dtype
-    rows = rows.astype(dtype)
-    cols = cols.astype(dtype)
-    o, d = cfg.camera.rays(rows, cols, cfg.center, cfg.radius)
-    hits = intersect_sphere(o, d, cfg.center, cfg.radius)
-    lam = jnp.asarray(fx.spectral.wavelengths, dtype=dtype) if fx.spectral is not None else None
-    if cfg.dispersion is not None and fx.spectral is not None:  # n per wavelength (K,)
-        offset = jnp.asarray(index_offset(cfg.dispersion, fx.spectral.wavelengths), dtype=dtype)
-        p = eqx.tree_at(lambda q: q.n_film, p, p.n_film + offset)
-    opt = _Film(fx, p, hits.cos, lam)
-    wo = -d
-    bg_rad = _background(env, fx, p, d, bg, idx)
-    photo_bg = fx.background == "photo"
-    terms = {}
-    thick = lambda local: thickness_at(fx.thickness, p.thickness, local, idx)
-    d0 = thick(hits.local0)
-    d1 = thick(hits.local1)
-    zero = jnp.zeros(d.shape, dtype=dtype)
+def shading_points(fx: Effects, cfg: RenderConfig, hits, d):
+    """The films this scene shades: ``[(name, normal, direction to the viewer)]`` and, for
+    the physical model's internal bounces, the unit local position of each bounce's exit.
 
-    # Shading points of every film this scene needs, filtered in one batch.
-    films = []  # (name, normal, direction to the viewer)
+    ``paper``: the front film (normal ``n0``) and the rear film (inward normal ``-n1``).
+    ``physical``: reflection ``k`` happens at ``q`` (``q = p1`` for ``k = 1``) on a ray
+    arriving along ``e``; the reflected ray leaves the bubble, or reflects again, at the
+    next hit (:func:`~bubblefit.model.geometry.internal_bounce`).
+    """
+    wo = -d
+    films = []
     if fx.front_reflection:
         films.append(("front", hits.n0, wo))
-    bounce_pts = []  # physical: (thickness at the exit point) per internal bounce
+    exits = []
     if fx.rear_reflection:
         if fx.model == "paper":
             films.append(("rear", -hits.n1, wo))
         else:
-            # Reflection k happens at q (q = p1 for k = 1) on a ray arriving along e; the
-            # reflected ray (e_next) leaves the bubble, or reflects again, at the next hit.
             q, e_next, nq = internal_bounce(hits.p0, d, cfg.center, cfg.radius)
             e = d
             for k in range(1, fx.bounces + 1):
                 _count("bounce")
                 films.append((f"bounce{k}", -nq, -e))
                 q2, e2, nq2 = internal_bounce(q, e_next, cfg.center, cfg.radius)
-                bounce_pts.append(nq2)
+                exits.append(nq2)
                 e, q, e_next, nq = e_next, q2, e2, nq2
+    return films, exits
+
+
+def _paper_terms(fx: Effects, p: Params, opt: "_Film", refl: dict, d0, d1, bg_rad, photo_bg: bool) -> dict:
+    """Eq. (11): ``F_0 L'_front + t^2 F_1 L'_rear + t^4 L_b`` (or the tinted transmission),
+    with ``L' = r_s S + r_d E / pi`` (eq. 2) and ``F`` eq. (10)'s factor."""
+    dtype = p.t.dtype
+    t2 = p.t * p.t
+    terms = {}
+    factors = {}
+
+    def factor(which):  # eq. (10)'s factor of the front (0) or rear (1) film, traced once
+        if which not in factors:
+            factors[which] = opt.paper_factor(d0 if which == 0 else d1)
+        return factors[which]
+
+    for name, which, scale in (("front", 0, 1.0), ("rear", 1, t2)):
+        if name not in refl:
+            continue
+        _count(f"{name}_reflection")
+        s, dif = refl[name]
+        lp = p.r_s * s + dif
+        if fx.interference != "off":
+            lp = _to_rgb(factor(which), fx, dtype) * lp
+        terms[name] = p.exposure * scale * lp
+    if fx.transmission:
+        _count("transmission")
+        gain = 1.0 if photo_bg else p.exposure
+        if fx.tint and fx.interference in COLOURED:
+            # Each film transmits the complement of its reflection about the mean.
+            _count("transmission_tint")
+            tr = lambda f: film.paper_tinted_transmission(f, p.t, p.r_s)
+            terms["background"] = gain * _to_rgb(tr(factor(0)) * tr(factor(1)), fx, dtype) * bg_rad
+        else:
+            terms["background"] = gain * t2 * t2 * bg_rad
+    return terms
+
+
+def _physical_terms(fx: Effects, p: Params, opt: "_Film", refl: dict, d0, d1, exits, thick, bg_rad,
+                    photo_bg: bool) -> dict:
+    """The physical series: front ``R_0 S_0``, background ``T_0 T_1 L_b`` and the internal
+    bounces ``sum_k T_0 R_1 ... R_k T_(k+1) S_k`` (plus ``r_d E / pi`` diffuse at the front and
+    the first bounce), per wavelength and polarisation, averaged over polarisations."""
+    dtype = p.t.dtype
+    terms = {}
+    mean_pol = lambda x: jnp.mean(x, axis=-1)
+    if fx.front_reflection or fx.transmission or fx.rear_reflection:
+        r0 = opt.reflectance(d0)
+        t0 = 1.0 - r0
+    if fx.front_reflection:
+        _count("front_reflection")
+        s, dif = refl["front"]
+        terms["front"] = p.exposure * (_to_rgb(mean_pol(r0), fx, dtype) * s + dif)
+    if fx.transmission or (fx.rear_reflection and fx.bounces > 0):
+        r1 = opt.reflectance(d1)
+    if fx.transmission:
+        _count("transmission")
+        gain = 1.0 if photo_bg else p.exposure
+        terms["background"] = gain * _to_rgb(mean_pol(t0 * (1.0 - r1)), fx, dtype) * bg_rad
+    if fx.rear_reflection and fx.bounces > 0:
+        _count("rear_reflection")
+        path = t0 * r1  # (N, K, 2): entered the front, reflected at the rear
+        rear = jnp.zeros_like(bg_rad)
+        for k, nq in enumerate(exits, start=1):
+            r_q = opt.reflectance(thick(nq))
+            s, dif = refl[f"bounce{k}"]
+            rear = rear + _to_rgb(mean_pol(path * (1.0 - r_q)), fx, dtype) * s
+            if k == 1 and fx.diffuse:
+                rear = rear + _to_rgb(mean_pol(t0 * (1.0 - r_q)), fx, dtype) * dif
+            path = path * r_q
+        terms["rear"] = p.exposure * rear
+    return terms
+
+
+def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx):
+    """Radiance (N, 3) of one chunk of pixels, and a dict of the model's terms."""
+    fx = cfg.effects
+    dtype = p.t.dtype
+    o, d = cfg.camera.rays(rows.astype(dtype), cols.astype(dtype), cfg.center, cfg.radius)
+    hits = intersect_sphere(o, d, cfg.center, cfg.radius)
+    lam = jnp.asarray(fx.spectral.wavelengths, dtype=dtype) if fx.spectral is not None else None
+    if cfg.dispersion is not None and fx.spectral is not None:  # n per wavelength (K,)
+        offset = jnp.asarray(index_offset(cfg.dispersion, fx.spectral.wavelengths), dtype=dtype)
+        p = eqx.tree_at(lambda q: q.n_film, p, p.n_film + offset)
+    opt = _Film(fx, p, hits.cos, lam)
+    bg_rad = _background(env, fx, p, d, bg, idx)
+    photo_bg = fx.background == "photo"
+    thick = lambda local: thickness_at(fx.thickness, p.thickness, local, idx)
+    d0 = thick(hits.local0)
+    d1 = thick(hits.local1)
+
+    # Shading points of every film this scene needs, filtered in one batch.
+    films, exits = shading_points(fx, cfg, hits, d)
+    refl = {}
     if films:
         nn = len(films)
         s_all, d_all = _reflected(env, fx, cfg, p, jnp.concatenate([f[1] for f in films]),
                                   jnp.concatenate([f[2] for f in films]), normalize=fx.model == "physical")
         split = lambda x: jnp.split(x, nn) if jnp.ndim(x) else [x] * nn
         refl = dict(zip([f[0] for f in films], zip(split(s_all), split(d_all))))
-
     if fx.model == "paper":
-        t2 = p.t * p.t
-        factors = {}
-
-        def factor(which):  # eq. (10)'s factor of the front (0) or rear (1) film, traced once
-            if which not in factors:
-                factors[which] = opt.paper_factor(d0 if which == 0 else d1)
-            return factors[which]
-        if fx.front_reflection:
-            _count("front_reflection")
-            s, dif = refl["front"]
-            lp = p.r_s * s + dif
-            if fx.interference != "off":
-                lp = _to_rgb(factor(0), fx, dtype) * lp
-            terms["front"] = p.exposure * lp
-        if fx.rear_reflection:
-            _count("rear_reflection")
-            s, dif = refl["rear"]
-            lp = p.r_s * s + dif
-            if fx.interference != "off":
-                lp = _to_rgb(factor(1), fx, dtype) * lp
-            terms["rear"] = p.exposure * t2 * lp
-        if fx.transmission:
-            _count("transmission")
-            gain = 1.0 if photo_bg else p.exposure
-            if fx.tint and fx.interference in ("two_beam", "airy"):
-                # Each film transmits the complement of its reflection about the mean.
-                _count("transmission_tint")
-                tr = lambda f: film.paper_tinted_transmission(f, p.t, p.r_s)
-                terms["background"] = gain * _to_rgb(tr(factor(0)) * tr(factor(1)), fx, dtype) * bg_rad
-            else:
-                terms["background"] = gain * t2 * t2 * bg_rad
+        terms = _paper_terms(fx, p, opt, refl, d0, d1, bg_rad, photo_bg)
     else:
-        if fx.front_reflection or fx.transmission or fx.rear_reflection:
-            r0 = opt.reflectance(d0)
-            t0 = 1.0 - r0
-        mean_pol = lambda x: jnp.mean(x, axis=-1)
-        if fx.front_reflection:
-            _count("front_reflection")
-            s, dif = refl["front"]
-            terms["front"] = p.exposure * (_to_rgb(mean_pol(r0), fx, dtype) * s + dif)
-        if fx.transmission or (fx.rear_reflection and fx.bounces > 0):
-            r1 = opt.reflectance(d1)
-        if fx.transmission:
-            _count("transmission")
-            gain = 1.0 if photo_bg else p.exposure
-            terms["background"] = gain * _to_rgb(mean_pol(t0 * (1.0 - r1)), fx, dtype) * bg_rad
-        if fx.rear_reflection and fx.bounces > 0:
-            _count("rear_reflection")
-            path = t0 * r1  # (N, K, 2): entered the front, reflected at the rear
-            rear = zero
-            for k, nq in enumerate(bounce_pts, start=1):
-                r_q = opt.reflectance(thick(nq))
-                s, dif = refl[f"bounce{k}"]
-                rear = rear + _to_rgb(mean_pol(path * (1.0 - r_q)), fx, dtype) * s
-                if k == 1 and fx.diffuse:
-                    rear = rear + _to_rgb(mean_pol(t0 * (1.0 - r_q)), fx, dtype) * dif
-                path = path * r_q
-            terms["rear"] = p.exposure * rear
+        terms = _physical_terms(fx, p, opt, refl, d0, d1, exits, thick, bg_rad, photo_bg)
 
-    total = zero
+    total = jnp.zeros(d.shape, dtype=dtype)
     for v in terms.values():
         total = total + v
     inside = hits.inside[:, None]
@@ -344,24 +336,20 @@ def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx)
     return pixel, {k: jnp.where(inside, v, 0.0) for k, v in terms.items()}
 
 
-def _pixel_chunks(cfg: RenderConfig):
+def _pixel_chunks(cfg: RenderConfig, pixels=None):
+    """Flat pixel indices in chunks of ``cfg.chunk``: every pixel, or those of ``pixels``
+    (M,); the padding repeats the last index and is dropped."""
     h, w = cfg.shape
-    npix = h * w
-    chunk = min(cfg.chunk, npix)
+    flat = np.arange(h * w) if pixels is None else np.asarray(pixels, dtype=np.int64).ravel()
+    npix = flat.size
+    chunk = max(1, min(cfg.chunk, npix))
     steps = -(-npix // chunk)
-    idx = np.arange(steps * chunk)
-    idx = np.minimum(idx, npix - 1)  # padding repeats the last pixel and is dropped
+    idx = flat[np.minimum(np.arange(steps * chunk), npix - 1)]
     rows, cols = np.divmod(idx, w)
     return rows.reshape(steps, chunk), cols.reshape(steps, chunk), idx.reshape(steps, chunk), npix
 
 
-def render_terms(p: Params, cfg: RenderConfig, env: EnvMap | None, background=None):
-    """Render and return ``(image, terms)``: the (H, W, 3) image and a dict of its terms
-    (``front``, ``rear``, ``background``), each (H, W, 3), for the effects that are on."""
-    h, w = cfg.shape
-    rows, cols, idx, npix = _pixel_chunks(cfg)
-    bg = None if background is None else jnp.asarray(background, dtype=p.t.dtype)
-
+def _map_chunks(p: Params, cfg: RenderConfig, env, bg, rows, cols, idx):
     offsets = jnp.asarray(pixel_offsets(cfg.samples_per_pixel), dtype=p.t.dtype)
 
     def body(xs):
@@ -372,7 +360,16 @@ def render_terms(p: Params, cfg: RenderConfig, env: EnvMap | None, background=No
         shade = lambda o: _shade_chunk(p, cfg, env, bg, r.astype(o.dtype) + o[0], c.astype(o.dtype) + o[1], i)
         return jax.tree_util.tree_map(lambda v: jnp.mean(v, axis=0), jax.lax.map(shade, offsets))
 
-    img, terms = jax.lax.map(body, (jnp.asarray(rows), jnp.asarray(cols), jnp.asarray(idx)))
+    return jax.lax.map(body, (jnp.asarray(rows), jnp.asarray(cols), jnp.asarray(idx)))
+
+
+def render_terms(p: Params, cfg: RenderConfig, env: EnvMap | None, background=None):
+    """Render and return ``(image, terms)``: the (H, W, 3) image and a dict of its terms
+    (``front``, ``rear``, ``background``), each (H, W, 3), for the effects that are on."""
+    h, w = cfg.shape
+    rows, cols, idx, npix = _pixel_chunks(cfg)
+    bg = None if background is None else jnp.asarray(background, dtype=p.t.dtype)
+    img, terms = _map_chunks(p, cfg, env, bg, rows, cols, idx)
     img = img.reshape(-1, 3)[:npix].reshape(h, w, 3)
     terms = {k: v.reshape(-1, 3)[:npix].reshape(h, w, 3) for k, v in terms.items()}
     return img, terms
@@ -382,3 +379,28 @@ def render_terms(p: Params, cfg: RenderConfig, env: EnvMap | None, background=No
 def render(p: Params, cfg: RenderConfig, env: EnvMap | None, background=None) -> Float[Array, "H W 3"]:
     """The (H, W, 3) linear image of the bubble, jit-compiled per static ``cfg``."""
     return render_terms(p, cfg, env, background)[0]
+
+
+@functools.partial(jax.jit, static_argnames=("cfg",))
+def _render_chunks(p: Params, cfg: RenderConfig, env, background, rows, cols, idx):
+    bg = None if background is None else jnp.asarray(background, dtype=p.t.dtype)
+    return _map_chunks(p, cfg, env, bg, rows, cols, idx)[0].reshape(-1, 3)
+
+
+def render_plan(p: Params, parts, env: EnvMap | None, background=None) -> np.ndarray:
+    """The (H, W, 3) image of a scene rendered by regions (:class:`bubblefit.model.auto.Plan`).
+
+    ``parts`` pairs :class:`RenderConfig` with flat pixel indices: the first (indices
+    None) renders every pixel, each next one re-renders its pixels with its own effects.
+    A pixel's value does not depend on the other pixels, so the regions compose exactly.
+    """
+    cfg0 = parts[0][0]
+    img = np.array(render(p, cfg0, env, background)).reshape(-1, 3)
+    for cfg, pixels in parts[1:]:
+        if pixels is None or len(pixels) == 0:
+            continue
+        rows, cols, idx, npix = _pixel_chunks(cfg, pixels)
+        vals = _render_chunks(p, cfg, env, background, rows, cols, idx)
+        img[np.asarray(pixels)] = np.asarray(vals)[:npix]
+    h, w = cfg0.shape
+    return img.reshape(h, w, 3)

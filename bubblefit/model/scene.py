@@ -1,4 +1,4 @@
-"""Scene files (TOML, DESIGN.md "Scene files"): parsing, validation, and rendering.
+"""Scene files (TOML, ``docs/design.md``, "Scene files"): parsing, validation, and rendering.
 
 A scene is data: :class:`Scene` holds the validated tables; :meth:`Scene.params` gives
 the differentiable :class:`~bubblefit.model.render.Params`, :meth:`Scene.config` resolves the
@@ -16,10 +16,20 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import jax.numpy as jnp
 import numpy as np
 
 from ..errors import InputError
 from ..optics.dispersion import REFERENCE_WAVELENGTH_NM, Cauchy, parse_index, refractive_index
+from ..io.images import read_image
+from ..lighting.envmap import EnvMap
+from .auto import DEFAULT_TOLERANCE, decide_pixels
+from .bounds import scene_bounds
+from .effects import ALL_ON_NODES
+from .footprint import footprint
+from .modes import MODELS, THICKNESS_KINDS, check_effects_table
+from .geometry import OrthographicCamera, PerspectiveCamera
+from .render import Params, PointLight, RenderConfig, render_plan
 
 __all__ = ["Scene", "load_scene", "render_scene", "read_envmap", "DATA_DIR", "shipped_envmap"]
 
@@ -48,8 +58,6 @@ def read_envmap(path, *, scale: float = 1.0):
     Raises :class:`InputError` (one line) for an unreadable file, a map that is not twice
     as wide as high, or one with fewer than 2 rows.
     """
-    from ..lighting.envmap import EnvMap
-    from ..io.images import read_image
 
     try:
         img = read_image(path)
@@ -106,9 +114,12 @@ def _validate(data: dict) -> dict:
     return out
 
 
-def _range(name, value, lo, hi, lo_open=False):
+def _range(name, value, lo, hi, lo_open=False, why: str = ""):
+    """An InputError unless ``lo <= value <= hi`` (``lo < value`` when ``lo_open``), written
+    with the interval's true brackets and, when given, what the bound means."""
     if not (lo < value if lo_open else lo <= value) or not value <= hi:
-        raise InputError(f"scene value {name} = {value} is out of range [{lo}, {hi}]")
+        interval = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]"
+        raise InputError(f"scene value {name} = {value:g} is out of range {interval}" + (f": {why}" if why else ""))
 
 
 @dataclass
@@ -131,19 +142,22 @@ class Scene:
     def _check_values(self):
         b = self.table("bubble")
         _range("bubble.t", b.get("t", 0.972), 0.0, 1.0)
-        _range("bubble.roughness", b.get("roughness", 0.01), 0.0, 10.0, lo_open=True)
+        _range("bubble.roughness", b.get("roughness", 0.01), 0.0, 10.0, why="0 is a perfect mirror")
         film_index(b)
-        _range("bubble.radius", b.get("radius", 1.0), 0.0, math.inf, lo_open=True)
+        _range("bubble.radius", b.get("radius", 1.0), 0.0, math.inf, lo_open=True,
+               why="the bubble's radius must be positive (a sphere of radius 0 is not seen)")
         _range("bubble.thickness_nm", b.get("thickness_nm", 500.0), 0.0, 1e6)
         for k in ("r_d", "r_s", "f"):
             if k in b:
                 _range(f"bubble.{k}", b[k], 0.0, math.inf)
-        if ("r_d" in b) != ("r_s" in b):
-            raise InputError("scene keys bubble.r_d and bubble.r_s must be given together (or give f)")
+        physical = self.table("effects").get("model", "paper") == "physical"
+        if ("r_d" in b) != ("r_s" in b) and not (physical and "r_d" in b):
+            raise InputError("scene keys bubble.r_d and bubble.r_s must be given together in the paper model "
+                             "(or give f); the physical model takes r_d alone")
         th = b.get("thickness")
         if th is not None:
             prof = th.get("profile", "constant")
-            if prof not in ("constant", "drainage", "map"):
+            if prof not in THICKNESS_KINDS:
                 raise InputError(f"bubble.thickness.profile must be constant, drainage or map, got {prof!r}")
             for k in ("top_nm", "bottom_nm", "value_nm"):
                 if k in th:
@@ -173,9 +187,9 @@ class Scene:
             _vector("bubble.center", b["center"], 3)
         _check_camera_geometry(c, b)
         e = self.table("effects")
-        if e.get("model", "paper") not in ("paper", "physical"):
+        if e.get("model", "paper") not in MODELS:
             raise InputError(f"effects.model must be paper or physical, got {e.get('model')!r}")
-        _check_effects(e)
+        check_effects_table(e)
         lighting = self.table("lighting")
         if "envmap" not in lighting and not lighting.get("point_lights") and lighting.get("background") in (None, "envmap"):
             pass  # a dark room with nothing in it renders black; allowed, explained by --explain
@@ -186,6 +200,11 @@ class Scene:
             if "radiance" in light:
                 rad = light["radiance"]
                 _vector(f"lighting.point_lights[{i}].radiance", rad if isinstance(rad, list) else [rad] * 3, 3)
+
+    def with_effects(self, **settings) -> "Scene":
+        """A copy of the scene with keys of its ``[effects]`` table replaced (validated)."""
+        data = dict(self.data, effects=dict(self.table("effects"), **settings))
+        return Scene.from_dict(data, self.base_dir)
 
     # -- derived values -----------------------------------------------------------------------
     def resolve_path(self, p: str) -> Path:
@@ -202,8 +221,7 @@ class Scene:
         if th["profile"] == "drainage":
             return "drainage", np.asarray([th.get("top_nm", 100.0), th.get("bottom_nm", 1000.0),
                                            th.get("exponent", 1.0)], dtype=np.float64)
-        from ..io.images import read_image
-
+    
         img = read_image(self.resolve_path(th["path"]), linear=True)
         m = img.pixels[..., 0]
         h, w = self.shape
@@ -217,8 +235,6 @@ class Scene:
         return int(c.get("height", 256)), int(c.get("width", 256))
 
     def camera(self):
-        from .geometry import OrthographicCamera, PerspectiveCamera
-
         c = self.table("camera")
         h, w = self.shape
         if c.get("type", "orthographic") == "perspective":
@@ -234,15 +250,11 @@ class Scene:
 
     def params(self, dtype=None):
         """The scene's :class:`~bubblefit.model.render.Params` (thickness per its profile)."""
-        import jax.numpy as jnp
-
-        from .render import Params
-
         b = self.table("bubble")
         dtype = dtype or jnp.float32
         _, values = self.thickness_spec()
         return Params.make(
-            t=b.get("t", 0.972), r_d=b.get("r_d"), r_s=b.get("r_s"), f=b.get("f", 0.3),
+            t=b.get("t", 0.972), r_d=b.get("r_d"), r_s=b.get("r_s", 0.0 if "r_d" in b else None), f=b.get("f", 0.3),
             roughness=b.get("roughness", 0.01), thickness=values,
             n_film=float(refractive_index(film_index(b), REFERENCE_WAVELENGTH_NM)),
             exposure=1.0, rotation=math.radians(self.table("lighting").get("rotation_deg", 0.0)), dtype=dtype,
@@ -282,8 +294,6 @@ class Scene:
         return "photo", self.resolve_path(bg)
 
     def point_lights(self):
-        from .render import PointLight
-
         out = []
         for light in self.table("lighting").get("point_lights", []):
             d = np.asarray(light["direction"], dtype=np.float64)
@@ -293,12 +303,8 @@ class Scene:
             out.append(PointLight(tuple(d / np.linalg.norm(d)), tuple(float(x) for x in e)))
         return tuple(out)
 
-    def config(self, env=None, background=None, *, chunk: int = 4096):
-        """Resolve the effects and return ``(RenderConfig, decisions)``."""
-        from .effects import reflection_theta_range, resolve
-        from .render import RenderConfig
-
-        b = self.table("bubble")
+    def _summaries(self, env, background) -> dict:
+        """The scalar summaries :func:`~bubblefit.model.bounds.scene_bounds` reads."""
         e = self.table("effects")
         p = self.params()
         kind, values = self.thickness_spec()
@@ -307,42 +313,72 @@ class Scene:
             trange = (float(min(vals[0], vals[1])), float(max(vals[0], vals[1])))
         else:
             trange = (float(vals.min()), float(vals.max()))
-        bg_kind, _ = self.background_kind()
         lights = self.point_lights()
         env_px = None if env is None else np.asarray(env.pixels)
         camera = self.camera()
-        try:
-            fx, decisions = resolve(
-            model=e.get("model", "paper"),
-            settings=e,
-            t=float(p.t), r_d=float(p.r_d), r_s=float(p.r_s), roughness=float(p.roughness),
-            thickness_range=trange, thickness_kind=kind, n_film=float(p.n_film),
+        return dict(
+            model=e.get("model", "paper"), t=float(p.t), r_d=float(p.r_d), r_s=float(p.r_s),
+            roughness=float(p.roughness), thickness_range=trange, n_film=float(p.n_film),
             env_texel_angle=None if env is None else env.texel_angle,
             env_peak=0.0 if env_px is None else float(env_px.max()),
             env_mean=0.0 if env_px is None else float(env_px.mean()),
-            background=bg_kind,
+            background=self.background_kind()[0],
             background_peak=(float(np.max(background)) if background is not None
                              else (0.0 if env_px is None else float(env_px.max()))),
-            n_point_lights=len(lights),
-            light_peak=max([max(l.irradiance) for l in lights], default=0.0),
-            min_cos=_min_cos(camera),
-            tolerance=e.get("tolerance", 1e-3),
-            env_pixels=env_px,
-            env_irradiance_peak=None if env is None else float(np.max(np.asarray(env.irradiance))),
-            reflect_theta_range=(reflection_theta_range(camera, tuple(float(x) for x in b.get("center", (0, 0, 0))),
-                                                        float(b.get("radius", 1.0)))
-                                 if env is not None else (0.0, math.pi)),
-            )
+            n_point_lights=len(lights), light_peak=max([max(l.irradiance) for l in lights], default=0.0),
+            min_cos=_min_cos(camera), env_pixels=env_px,
+            env_irradiance_peak=None if env is None else float(np.max(np.asarray(env.irradiance))))
+
+    @property
+    def center(self) -> tuple[float, float, float]:
+        return tuple(float(x) for x in self.table("bubble").get("center", (0, 0, 0)))
+
+    @property
+    def radius(self) -> float:
+        return float(self.table("bubble").get("radius", 1.0))
+
+    def plan(self, env=None, background=None, *, chunk: int = 4096):
+        """Decide the effects pixel by pixel (:func:`bubblefit.model.auto.decide_pixels`).
+
+        Returns ``(parts, decisions)``: ``parts`` pairs a :class:`~bubblefit.model.render.RenderConfig`
+        with the flat pixel indices it renders (None for every pixel), for
+        :func:`~bubblefit.model.render.render_plan`.
+        """
+        e = self.table("effects")
+        tol = float(e.get("tolerance", DEFAULT_TOLERANCE))
+        nodes = int(e.get("nodes", ALL_ON_NODES))
+        summ = self._summaries(env, background)
+        kind, values = self.thickness_spec()
+        p = self.params()
+        camera, lights = self.camera(), self.point_lights()
+        bg_kind = summ["background"]
+        try:
+            b = scene_bounds(nodes=nodes, **summ)
+            fp = footprint(camera=camera, center=self.center, radius=self.radius, model=summ["model"],
+                           roughness=summ["roughness"], env=env, rotation=float(p.rotation), lights=lights,
+                           background=background, background_kind=bg_kind, thickness_kind=kind,
+                           thickness_values=values)
+            plan, decisions = decide_pixels(b, fp, e, thickness_kind=kind, tolerance=tol, nodes=nodes)
         except ValueError as exc:  # a setting the checks above let through
             raise InputError(f"scene [effects]: {exc}") from None
         colour = self.colour()
-        if fx.spectral is not None and colour != ("D65", "srgb", "illuminant"):
-            fx = dataclasses.replace(fx, spectral=fx.spectral.with_colour(*colour))
-        cfg = RenderConfig(effects=fx, camera=camera, center=tuple(float(x) for x in b.get("center", (0, 0, 0))),
-                           radius=float(b.get("radius", 1.0)), point_lights=lights, chunk=chunk,
-                           dispersion=law if isinstance(law := film_index(b), Cauchy) else None,
-                           samples_per_pixel=int(self.table("camera").get("samples_per_pixel", 1)))
-        return cfg, decisions
+        law = film_index(self.table("bubble"))
+        spp = int(self.table("camera").get("samples_per_pixel", 1))
+        parts = []
+        for fx, pixels in plan.parts:
+            if fx.spectral is not None and colour != ("D65", "srgb", "illuminant"):
+                fx = dataclasses.replace(fx, spectral=fx.spectral.with_colour(*colour))
+            cfg = RenderConfig(effects=fx, camera=camera, center=self.center, radius=self.radius,
+                               point_lights=lights, chunk=chunk,
+                               dispersion=law if isinstance(law, Cauchy) else None, samples_per_pixel=spp)
+            parts.append((cfg, pixels))
+        return parts, decisions
+
+    def config(self, env=None, background=None, *, chunk: int = 4096):
+        """Resolve the effects and return ``(RenderConfig, decisions)``: the configuration of
+        the first region of :meth:`plan` (every pixel but the bright ones, if any)."""
+        parts, decisions = self.plan(env, background, chunk=chunk)
+        return parts[0][0], decisions
 
 
 #: Negative texels of real HDR maps (ringing of demosaicing and resampling) carry far less
@@ -417,47 +453,8 @@ def _vector(name: str, value, n: int) -> list[float]:
     return [float(x) for x in value]
 
 
-_SPECTRAL_METHODS = ("uniform", "reference", "fourier")
-
-
-def _check_effects(e: dict) -> None:
-    """Values of the [effects] table (DESIGN.md), checked before anything is computed."""
-    from ..lighting.filtering import METHODS
-
-    def one_of(key, allowed):
-        if key in e and e[key] not in allowed:
-            raise InputError(f"effects.{key} must be one of {', '.join(map(str, allowed))}, got {e[key]!r}")
-
-    one_of("interference", ("auto", "off", "two_beam", "airy", "incoherent"))
-    one_of("filtering", ("auto",) + tuple(METHODS))
-    for key in ("front_reflection", "rear_reflection", "transmission", "transmission_tint", "diffuse"):
-        if key in e and not isinstance(e[key], bool) and e[key] != "auto":
-            raise InputError(f"effects.{key} must be true, false or \"auto\", got {e[key]!r}")
-    if "bounces" in e and e["bounces"] != "auto" and not (isinstance(e["bounces"], int) and 0 <= e["bounces"] <= 64):
-        raise InputError(f"effects.bounces must be \"auto\" or an integer in [0, 64], got {e['bounces']!r}")
-    for key, lo, hi in (("nodes", 1, 32), ("window", 0, 4096), ("level", 0, 32)):
-        if key in e and not lo <= e[key] <= hi:
-            raise InputError(f"scene value effects.{key} = {e[key]} is out of range [{lo}, {hi}]")
-    if "tolerance" in e and not e["tolerance"] > 0:
-        raise InputError(f"scene value effects.tolerance = {e['tolerance']} must be positive")
-    spec = e.get("spectral", "auto")
-    if isinstance(spec, str):
-        if spec != "auto" and spec not in _SPECTRAL_METHODS:
-            raise InputError(f"effects.spectral must be \"auto\", one of {', '.join(_SPECTRAL_METHODS)} "
-                             f"or a table {{method, samples}}, got {spec!r}")
-    else:
-        unknown = set(spec) - {"method", "samples"}
-        method, samples = spec.get("method", "uniform"), spec.get("samples", 30)
-        if unknown or method not in _SPECTRAL_METHODS or isinstance(samples, bool) \
-                or not isinstance(samples, int) or not 1 <= samples <= 4000:
-            raise InputError("effects.spectral table must be {method = uniform|reference|fourier, "
-                             f"samples = 1..4000}}, got {spec!r}")
-
-
 def _min_cos(camera) -> float:
     """Smallest film incidence cosine among pixel centres (orthographic: from the disc)."""
-    from .geometry import OrthographicCamera
-
     if isinstance(camera, OrthographicCamera):
         cx, cy, r = camera.disc()
         jj, ii = np.meshgrid(np.arange(camera.width) + 0.5, np.arange(camera.height) + 0.5)
@@ -495,9 +492,6 @@ def render_scene(scene: Scene, background: np.ndarray | None = None, *, env=None
         env: an already loaded :class:`EnvMap` (else the scene's is loaded).
         explain: also return the list of effect decisions.
     """
-    from ..io.images import read_image
-    from .render import render
-
     env = env if env is not None else scene.load_envmap()
     bg_kind, bg_path = scene.background_kind()
     if background is None and bg_kind == "photo":
@@ -510,8 +504,8 @@ def render_scene(scene: Scene, background: np.ndarray | None = None, *, env=None
         scene = Scene(dict(scene.data, lighting=dict(scene.table("lighting"), background="photo")), scene.base_dir)
         if "background" not in scene.data["lighting"]:
             scene.data["lighting"]["background"] = "photo"
-    cfg, decisions = scene.config(env, background)
-    if cfg.effects.background == "photo" and background is None:
+    parts, decisions = scene.plan(env, background)
+    if parts[0][0].effects.background == "photo" and background is None:
         raise InputError("lighting.background names a photo that could not be read")
-    img = np.asarray(render(scene.params(), cfg, env, background))
+    img = render_plan(scene.params(), parts, env, background)
     return (img, decisions) if explain else img

@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import functools
 import os
+from typing import Literal, get_args
 
 import colour
 import numpy as np
@@ -61,7 +62,13 @@ __all__ = [
     "integrate",
     "REFERENCE_SAMPLES",
     "FOURIER_LOBES",
+    "SpectralMethod",
+    "SPECTRAL_METHODS",
 ]
+
+#: The spectral integration methods (see the module docstring).
+SpectralMethod = Literal["uniform", "reference", "fourier"]
+SPECTRAL_METHODS: tuple[str, ...] = get_args(SpectralMethod)
 
 LAMBDA_MIN = 380.0
 LAMBDA_MAX = 780.0
@@ -271,7 +278,7 @@ class SpectralBasis:
     Hashable and compared by its definition, so it can be a static argument under jit.
     """
 
-    def __init__(self, method: str = "uniform", samples: int = 30, illuminant: str = "D65",
+    def __init__(self, method: SpectralMethod = "uniform", samples: int = 30, illuminant: str = "D65",
                  response: str = "srgb", white_balance="illuminant"):
         if not isinstance(white_balance, str):
             white_balance = tuple(float(g) for g in white_balance)
@@ -305,7 +312,7 @@ class SpectralBasis:
         return SpectralBasis(self.method, samples, illuminant, response, white_balance)
 
 
-def spectral_basis(method: str = "uniform", samples: int = 30, illuminant: str = "D65", response: str = "srgb",
+def spectral_basis(method: SpectralMethod = "uniform", samples: int = 30, illuminant: str = "D65", response: str = "srgb",
                    white_balance="illuminant") -> SpectralBasis:
     """The quadrature for ``method`` (``uniform``, ``reference`` or ``fourier``) with ``samples`` bins."""
     return SpectralBasis(method, samples, illuminant, response, white_balance)

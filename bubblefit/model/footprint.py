@@ -1,0 +1,172 @@
+"""Where the light of each pixel comes from: the per-pixel evidence behind ``auto``.
+
+A sun in the map matters for the pixels whose reflection, or whose Ward lobe, reaches it,
+not for the whole image. :func:`footprint` traces, for every pixel centre that hits the
+bubble, the films the renderer shades (:func:`bubblefit.model.render.shading_points`: the
+front film, the rear film, and for ``physical`` every internal bounce) and records what
+each film reads from the map:
+
+- the specular radiance it reflects with each filter ``auto`` may choose (the mirror
+  lookup, the one- and two-node ``mipmap``) and with the all-on reference (four nodes),
+  plus the point lights' eq. (3): the filtering choice is measured, pixel by pixel, and
+  the film choices multiply the reference's own radiance;
+- the irradiance at the front and rear normals (eq. 2's diffuse term), the background
+  radiance straight through, and each film's thickness and incidence cosine.
+
+:mod:`bubblefit.model.effects` multiplies the film coefficients of each candidate choice
+(:class:`bubblefit.model.bounds.FilmTable`) by these radiances pixel by pixel, and compares
+the difference with each pixel's budget (:func:`pixel_budget`).
+
+References:
+    ``docs/design.md``, "Effects and auto".
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..lighting.envmap import EnvMap, rotate_y
+from ..lighting.filtering import FilterConfig, specular
+from ..lighting.point_lights import lights_radiance
+from .bounds import MAX_BOUNCES
+from .effects import Effects
+from .geometry import intersect_sphere
+from .modes import Model, ThicknessKind
+from .render import RenderConfig, shading_points
+from .thickness import thickness_at
+
+__all__ = ["Footprint", "footprint", "pixel_budget", "filter_key", "FILTER_CANDIDATES", "REFERENCE_FILTER",
+           "FLOOR_FRACTION", "BRIGHT_PERCENTILE"]
+
+#: The all-on model's filter (:func:`bubblefit.model.effects.all_on_settings`).
+REFERENCE_FILTER = FilterConfig("mipmap", nodes=4)
+#: The filters ``auto`` measures per pixel, cheapest first, and the reference last.
+FILTER_CANDIDATES = (FilterConfig("mirror"), FilterConfig("mipmap", nodes=1), FilterConfig("mipmap", nodes=2),
+                     REFERENCE_FILTER)
+
+#: The budget's floor, as a fraction of the image's bright level (:func:`pixel_budget`).
+FLOOR_FRACTION = 0.1
+#: The percentile of the bubble's estimated radiance that stands for its bright level.
+BRIGHT_PERCENTILE = 99.0
+
+
+@dataclass(frozen=True, eq=False)
+class Footprint:
+    """Per pixel of the bubble (N pixels, F films), what each film reads; see the module docstring.
+
+    Attributes:
+        pixels: (N,) flat image index of each pixel whose ray hits the bubble.
+        shape: (H, W) of the image.
+        films: the F film names (``front``, ``rear`` or ``bounce1`` ... ``bounce8``).
+        cos: (N,) incidence cosine (the same at every film of a pixel).
+        d0, d1: (N,) thickness (nm) at the front and rear hit points.
+        spec: for each filter of :data:`FILTER_CANDIDATES` (by :func:`filter_key`), the
+            (F, N, 3) specular radiance each film reflects with it (plus the point lights).
+        irr: (2, N, 3) irradiance at the front normal and at the rear film's inward normal.
+        bg: (N, 3) the background radiance behind each pixel.
+    """
+
+    pixels: np.ndarray
+    shape: tuple[int, int]
+    films: tuple[str, ...]
+    cos: np.ndarray
+    d0: np.ndarray
+    d1: np.ndarray
+    spec: dict
+    irr: np.ndarray
+    bg: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return int(self.pixels.size)
+
+
+@functools.partial(jax.jit, static_argnames=("camera", "center", "radius", "model", "lights", "background_kind",
+                                             "thickness_kind"))
+def _trace(env, background, roughness, rotation, thickness_values, *, camera, center, radius, model, lights,
+           background_kind, thickness_kind):
+    """Every pixel's films (the renderer's own geometry) and what they read, in one program."""
+    h, w = camera.height, camera.width
+    rows, cols = jnp.divmod(jnp.arange(h * w), w)
+    o, d = camera.rays(rows.astype(jnp.float32), cols.astype(jnp.float32), center, radius)
+    d = jnp.broadcast_to(d, o.shape)
+    hits = intersect_sphere(o, d, center, radius)
+    probe = Effects(model=model, front_reflection=True, rear_reflection=True, bounces=MAX_BOUNCES)
+    films, _ = shading_points(probe, RenderConfig(effects=probe, camera=camera, center=center, radius=radius), hits, d)
+    n_all = jnp.stack([f[1] for f in films])
+    wo_all = jnp.stack([f[2] for f in films])
+    out = {"cos": hits.cos, "inside": hits.inside}
+    if env is not None:
+        nm, wm = rotate_y(n_all, -rotation), rotate_y(wo_all, -rotation)
+        flat = lambda x: x.reshape(-1, 3)
+        for conf in FILTER_CANDIDATES:
+            out[_key(conf)] = specular(env, flat(nm), flat(wm), roughness, conf,
+                                       normalize=model == "physical").reshape(n_all.shape)
+        out["irr"] = env.lookup_irradiance(nm[:2])
+        out["bg"] = env.lookup(rotate_y(d, -rotation))
+    if lights:
+        spec, diff = lights_radiance(lights, n_all.reshape(-1, 3), wo_all.reshape(-1, 3), roughness, 1.0, diffuse=True)
+        out["light_spec"] = spec.reshape(n_all.shape)
+        out["light_irr"] = jnp.pi * diff.reshape(n_all.shape)[:2]
+    pix = jnp.arange(h * w)
+    out["d0"] = thickness_at(thickness_kind, thickness_values, hits.local0, pix)
+    out["d1"] = thickness_at(thickness_kind, thickness_values, hits.local1, pix)
+    return out
+
+
+def footprint(*, camera, center, radius: float, model: Model, roughness: float, env: EnvMap | None,
+              rotation: float, lights: tuple, background: np.ndarray | None, background_kind: str,
+              thickness_kind: ThicknessKind, thickness_values) -> Footprint:
+    """The :class:`Footprint` of a scene (see the module docstring)."""
+    a = max(float(roughness), 0.0)
+    res = _trace(env, None, jnp.float32(a), jnp.float32(rotation),
+                 jnp.asarray(np.asarray(thickness_values, dtype=np.float64), jnp.float32), camera=camera,
+                 center=tuple(center), radius=float(radius), model=model, lights=tuple(lights),
+                 background_kind=background_kind, thickness_kind=thickness_kind)
+    res = {k: np.asarray(v, dtype=np.float64) if k != "inside" else np.asarray(v) for k, v in res.items()}
+    idx = np.nonzero(res["inside"])[0]
+    nf = MAX_BOUNCES + 1 if model == "physical" else 2
+    names = ("front", "rear") if model == "paper" else ("front",) + tuple(f"bounce{k}" for k in range(1, nf))
+    npx = idx.size
+    spec = {_key(c): np.zeros((nf, npx, 3)) for c in FILTER_CANDIDATES}
+    irr = np.zeros((2, npx, 3))
+    bg = np.zeros((npx, 3))
+    if env is not None:
+        spec = {k: res[k][:, idx] for k in spec}
+        irr = res["irr"][:, idx]
+        if background_kind == "envmap":
+            bg = res["bg"][idx]
+    if lights:
+        spec = {k: v + res["light_spec"][:, idx] for k, v in spec.items()}
+        irr = irr + res["light_irr"][:, idx]
+    if background_kind == "photo" and background is not None:
+        bg = np.asarray(background, dtype=np.float64).reshape(-1, 3)[idx]
+    return Footprint(pixels=idx, shape=(camera.height, camera.width), films=names, cos=res["cos"][idx],
+                     d0=res["d0"][idx], d1=res["d1"][idx], spec=spec, irr=irr, bg=bg)
+
+
+def filter_key(conf: FilterConfig) -> str:
+    """``mirror`` or ``mipmap/N``: the name of a filter in :attr:`Footprint.spec` and ``--explain``."""
+    return conf.method if conf.method == "mirror" else f"{conf.method}/{conf.nodes}"
+
+
+_key = filter_key
+
+
+def pixel_budget(estimate: np.ndarray, tolerance: float, floor_fraction: float = FLOOR_FRACTION) -> np.ndarray:
+    """Each pixel's budget (N,), in linear radiance: ``tolerance (L_p + floor_fraction L_bright)``.
+
+    ``L_p`` is the pixel's own estimated radiance (largest channel) and ``L_bright`` the
+    :data:`BRIGHT_PERCENTILE` percentile of ``L_p`` over the bubble: a skipped or
+    cheapened effect may change a pixel by ``tolerance`` of what it shows, and a dark
+    pixel by ``tolerance x floor_fraction`` of the image's bright level.
+    """
+    lum = np.max(np.asarray(estimate), axis=-1)
+    bright = float(np.percentile(lum, BRIGHT_PERCENTILE)) if lum.size else 0.0
+    return tolerance * (lum + floor_fraction * bright)

@@ -62,7 +62,8 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from ..capture.calibrate import calibrate, save_json, write_debug_image
+    from ..capture.calibrate import calibrate
+    from ..capture.result import save_json, write_debug_image
 
     circle = _circle(args.circle) if args.circle else None
     if not (0.05 <= args.inner_fraction <= 0.95):

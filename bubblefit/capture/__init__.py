@@ -8,19 +8,22 @@
 - :mod:`.profile`: the radial (Fresnel) profile of the ratio across the disc.
 - :mod:`.ratio`: usable pixels, the robust ratio and its block bootstrap.
 - :mod:`.result`: :class:`CalibrationResult`, its JSON and debug image.
+- :mod:`.disc`: the bubble's disc in a photo, with or without a background photo.
+- :mod:`.rim`: a circle's rim along rays: support, sub-pixel rim, roundness.
 - :mod:`.probe`: mirror-ball probes to equirectangular maps, HDR merging.
 - :mod:`.protocols`: machine-checkable capture protocols.
 """
 
-from . import calibrate, circle, pair, probe, profile, protocols, ratio, registration, result
+from . import calibrate, circle, disc, pair, probe, profile, protocols, ratio, registration, result, rim
 from .calibrate import calibrate as calibrate_transmission
 from .circle import kasa_circle_fit
+from .disc import Disc, find_disc
 from .probe import find_ball, merge_exposures, unwrap_mirror_ball
 from .protocols import check_capture
 from .registration import phase_correlate, register_translation, shift_image
 from .result import CalibrationResult
 
-__all__ = ["calibrate", "circle", "pair", "probe", "profile", "protocols", "ratio", "registration", "result",
-           "CalibrationResult", "calibrate_transmission", "kasa_circle_fit", "phase_correlate",
+__all__ = ["calibrate", "circle", "disc", "rim", "pair", "probe", "profile", "protocols", "ratio", "registration", "result",
+           "CalibrationResult", "calibrate_transmission", "Disc", "find_disc", "kasa_circle_fit", "phase_correlate",
            "register_translation", "shift_image", "find_ball", "merge_exposures", "unwrap_mirror_ball",
            "check_capture"]

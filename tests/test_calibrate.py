@@ -470,3 +470,70 @@ def test_entry_point_end_to_end(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "bubblefit", "calibrate", str(pb), str(tmp_path / "nope.png")],
                           capture_output=True, text=True, cwd=REPO, timeout=120)
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1
+
+
+# --------------------------------------------------------------------------------------
+# Nothing wrong accepted, nothing lost (issue 16)
+# --------------------------------------------------------------------------------------
+
+
+def test_cli_swapped_files_are_refused(tmp_path, monkeypatch, capsys):
+    """BEFORE and AFTER swapped: t above 1 is impossible, refused in one line."""
+    pb, pa, _ = _write_pair(tmp_path, seed=21)
+    code, _, err = run_cli([pa, pb, "--json", tmp_path / "out.json"], monkeypatch, capsys)
+    _assert_one_line_error(code, err, "swapped")
+    assert not (tmp_path / "out.json").exists()
+
+
+@pytest.mark.parametrize("size", [(1, 1), (3, 3), (12, 40)])
+def test_cli_tiny_images_are_refused(tmp_path, monkeypatch, capsys, size):
+    h, w = size
+    codes = np.full((h, w, 3), 128, np.uint8)
+    _write_codes(tmp_path / "b.png", codes)
+    _write_codes(tmp_path / "a.png", codes)
+    code, _, err = run_cli([tmp_path / "b.png", tmp_path / "a.png"], monkeypatch, capsys)
+    _assert_one_line_error(code, err, "too small")
+
+
+@pytest.mark.parametrize("option", ["--json", "--debug-image"])
+@pytest.mark.parametrize("which", ["before", "after", "link"])
+def test_cli_output_onto_an_input_is_refused(tmp_path, monkeypatch, capsys, option, which):
+    pb, pa, _ = _write_pair(tmp_path, seed=22)
+    target = {"before": pb, "after": pa, "link": tmp_path / "alias.png"}[which]
+    if which == "link":
+        target.symlink_to(pa)
+    before_bytes, after_bytes = pb.read_bytes(), pa.read_bytes()
+    code, _, err = run_cli([pb, pa, option, target], monkeypatch, capsys)
+    _assert_one_line_error(code, err, "refusing to overwrite")
+    assert pb.read_bytes() == before_bytes and pa.read_bytes() == after_bytes
+
+
+def test_json_has_the_frame_size_and_the_model_error():
+    before, after, truth = numpy_pair(14)
+    res = cal.calibrate(before, after, n_boot=300)
+    d = res.to_json()
+    h, w = before.shape
+    assert d["image_size"] == [w, h]
+    assert d["t4_model_stderr"] >= 0
+    # the interval is at least as wide as the model error alone
+    assert d["t4_ci95"][1] - d["t4_ci95"][0] >= 2 * 1.95 * d["t4_model_stderr"] - 1e-9
+
+
+VALIDATION = Path(__file__).resolve().parent.parent.parent / "validation" / "experiments" / "validation" / "data"
+_PAIRS = sorted(p.parent.name for p in VALIDATION.glob("cal_*/truth.json")) if VALIDATION.is_dir() else []
+
+
+@pytest.mark.skipif(not _PAIRS, reason="the independent Mitsuba 3 dark-box pairs are not present")
+@pytest.mark.parametrize("case", _PAIRS[:1] or ["none"])
+def test_interval_covers_the_truth_on_an_independent_pair(case):
+    """A dark-box pair path traced by Mitsuba 3 (thin dielectric sphere, n = 1.4): the 95%
+    interval, noise and model error, holds the true per-interface t."""
+    folder = VALIDATION / case
+    truth = json.loads((folder / "truth.json").read_text())
+    res = cal.calibrate(folder / "before.png", folder / "after.png", n_boot=500)
+    lo, hi = res.t_ci95
+    assert lo <= truth["t"] <= hi, (res.t, res.t_ci95, truth["t"])
+    assert hi - lo < 0.01  # still a measurement
+    d = truth["disc"]
+    assert abs(res.bubble["cx"] - d["cx"]) < 1.5 and abs(res.bubble["cy"] - d["cy"]) < 1.5
+    assert abs(res.bubble["r"] - d["r"]) < 1.5

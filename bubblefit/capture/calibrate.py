@@ -48,11 +48,14 @@ from ..io.images import Image
 from .circle import detect_bubble
 from .pair import check_exposures, gray, load_pair
 from .profile import DEFAULT_N, fit_disc_profile, fresnel_shape, n_from_t4
-from .ratio import block_bootstrap_ratio, block_sums, robust_ratio, usable_mask
+from .ratio import ChannelRatio, channel_ratios, model_error, ratio_interval, usable_mask, with_gray
 from .registration import register_translation, shift_image
 from .result import CalibrationResult, save_json, write_debug_image
 
 __all__ = ["CalibrationResult", "calibrate", "load_pair", "save_json", "write_debug_image"]
+
+#: Smallest side of a calibration photo, pixels (registration and the bubble need room).
+MIN_SIDE = 16
 
 #: What the ratio's fall-off toward the rim supports (:func:`_radial_model`).
 RadialModel = Literal["fresnel", "constant", "other", "undetermined"]
@@ -73,16 +76,6 @@ class _Registered:
     saturated: np.ndarray  # (H, W) bool, in either shot
     usable: np.ndarray  # (H, W) bool
     parts: dict[str, np.ndarray]
-
-
-@dataclass(frozen=True)
-class _Ratio:
-    """The robust after/before ratios (:func:`_channel_ratios`): (4,) for R, G, B, gray,
-    and the per-block weighted sums the bootstrap resamples."""
-
-    k: np.ndarray
-    a_blocks: np.ndarray
-    b_blocks: np.ndarray
 
 
 def _given_circle(circle, w: int, h: int) -> tuple[float, float, float]:
@@ -145,6 +138,41 @@ def _second_registration(img_b: Image, img_a: Image, reg: _Registered, circle, w
     return reg
 
 
+def _swapped_error(names: tuple[str, str]) -> InputError:
+    return InputError(
+        f"the bubble is brighter in {names[1]} than in {names[0]}: more light than no film at all, so the files "
+        "look swapped (BEFORE is the shot without the bubble, AFTER the one with it)"
+    )
+
+
+def _detect(img_a: Image, reg: _Registered, names: tuple[str, str]) -> tuple[float, float, float]:
+    """The bubble of the pair (:func:`detect_bubble`: the largest disc that darkens the
+    background). A larger disc that brightens it instead means swapped files."""
+    ga = gray(img_a.pixels)
+    try:
+        circle = detect_bubble(reg.gray_before, ga, reg.usable)
+    except InputError as exc:
+        circle, error = None, exc
+    try:
+        brighter = detect_bubble(ga, reg.gray_before, reg.usable)
+    except InputError:
+        brighter = None
+    def contrast(c):  # median ratio well inside the circle over the median outside it
+        d = np.hypot(*(np.mgrid[0 : ga.shape[0], 0 : ga.shape[1]][::-1] - np.array(c[:2])[:, None, None]))
+        q = np.where(reg.usable, ga / np.where(reg.usable, reg.gray_before, 1.0), np.nan)
+        inside, outside = q[d < 0.7 * c[2]], q[d > 1.2 * c[2] + 3]
+        if not (np.isfinite(inside).any() and np.isfinite(outside).any()):
+            return 1.0
+        return float(np.nanmedian(inside) / np.nanmedian(outside))
+
+    darker = circle is not None and contrast(circle) < 1.0
+    if brighter is not None and (not darker or brighter[2] > 1.5 * circle[2]) and contrast(brighter) > 1.0:
+        raise _swapped_error(names)
+    if circle is None:
+        raise error
+    return circle
+
+
 def _refine(ga: np.ndarray, reg: _Registered, circle, given: bool, seed: int, warnings: list[str]):
     """Sub-pixel circle and radial fall-off from :func:`fit_disc_profile`; returns (circle, profile)."""
     cx, cy, r = circle
@@ -171,29 +199,13 @@ def _radial_model(prof: dict[str, Any]) -> RadialModel:
     return "other"
 
 
-def _channel_ratios(after: np.ndarray, before: np.ndarray, block_ids: np.ndarray) -> _Ratio:
-    """:func:`robust_ratio` of (N, 4) after and before values per column, with block sums."""
-    k = np.empty(4)
-    wa = np.empty_like(after)
-    wb = np.empty_like(before)
-    for c in range(4):
-        k[c], wc = robust_ratio(after[:, c], before[:, c])
-        wa[:, c], wb[:, c] = wc * after[:, c], wc * before[:, c]
-    return _Ratio(k, block_sums(block_ids, wa), block_sums(block_ids, wb))
-
-
-def _withgray(px: np.ndarray, gray: np.ndarray, sel: np.ndarray) -> np.ndarray:
-    """(N, 4): the R, G, B values of the selected pixels and their gray value."""
-    return np.concatenate([px[sel], gray[sel][:, None]], axis=1)
-
-
 def _exposure(
     pa: np.ndarray, ga: np.ndarray, pb_r: np.ndarray, reg: _Registered, outer: np.ndarray, bid: np.ndarray,
     enabled: bool, warnings: list[str],
-) -> _Ratio | None:
+) -> ChannelRatio | None:
     """The after/before ratio of the background outside the bubble (exposure drift), or None."""
     if enabled and outer.sum() >= 200:
-        out = _channel_ratios(_withgray(pa, ga, outer), _withgray(pb_r, reg.gray_before, outer), bid[outer])
+        out = channel_ratios(with_gray(pa, ga, outer), with_gray(pb_r, reg.gray_before, outer), bid[outer])
         exposure = float(out.k[3])
         if abs(exposure - 1.0) > 0.02:
             warnings.append(
@@ -206,17 +218,14 @@ def _exposure(
     return None
 
 
-def _interval(inside: _Ratio, outside: _Ratio | None, t4_all: np.ndarray, n_boot: int, rng) -> tuple[np.ndarray, np.ndarray]:
-    """95% interval of ``t^4`` per channel: block bootstrap of the inside over the outside
-    ratio, its spread corrected by ``sqrt(n / (n - 1))`` for the number of blocks."""
-    boot = block_bootstrap_ratio(inside.a_blocks, inside.b_blocks, n_boot=n_boot, rng=rng)
-    if outside is not None:
-        boot = boot / block_bootstrap_ratio(outside.a_blocks, outside.b_blocks, n_boot=n_boot, rng=rng)
-    nbi = inside.a_blocks.shape[0]
-    infl = math.sqrt(nbi / max(nbi - 1, 1))
-    boot = t4_all + (boot - np.mean(boot, axis=0)) * infl
-    lo4, hi4 = np.percentile(boot, [2.5, 97.5], axis=0)
-    return lo4, hi4
+def _refit_index(inside: ChannelRatio, t4_all, k_out, a_in, b_in, rho, bid) -> tuple[ChannelRatio, np.ndarray, float]:
+    """With the Fresnel film confirmed: the index from the centre ratio (:func:`n_from_t4`)
+    and the ratios again with the angular factor of that index."""
+    n_est = n_from_t4(float(t4_all[3]))
+    if np.isfinite(n_est) and 1.2 < n_est < 2.0 and abs(n_est - DEFAULT_N) > 1e-3:
+        inside = channel_ratios(a_in / fresnel_shape(rho, n_est)[:, None], b_in, bid)
+        return inside, inside.k / k_out, n_est
+    return inside, t4_all, DEFAULT_N
 
 
 def _n_film(model: RadialModel, beta: float, beta_se: float, t4: float, lo4: float, hi4: float, warnings: list[str]):
@@ -316,6 +325,8 @@ def calibrate(
     names = (os.path.basename(img_b.path) or "before", os.path.basename(img_a.path) or "after")
     warnings: list[str] = []
     h, w = img_b.shape
+    if min(h, w) < MIN_SIDE:
+        raise InputError(f"{names[1]} is {w}x{h} pixels: too small to calibrate (need at least {MIN_SIDE}x{MIN_SIDE})")
     pa, ga = img_a.pixels, gray(img_a.pixels)
     check_exposures(img_b, img_a, names, warnings)
     # 1. registration over the whole frame, 2. the bubble, 3. registration outside it
@@ -326,7 +337,7 @@ def calibrate(
         max_shift = max(8.0, 0.1 * min(h, w))
     reg = _first_registration(img_b, img_a, _outside((h, w), circle) if given else None, max_shift, min_cc, names)
     if not given:
-        circle = detect_bubble(reg.gray_before, ga, reg.usable)
+        circle = _detect(img_a, reg, names)
     if circle[2] < 4:
         raise InputError(f"the bubble is too small in the image (radius {circle[2]:.1f} pixels); move the camera closer")
     reg = _second_registration(img_b, img_a, reg, circle, warnings)
@@ -342,12 +353,12 @@ def calibrate(
     pb_r = np.stack([shift_image(img_b.pixels[..., c], reg.shift) for c in range(3)], axis=-1)
     block = int(np.clip(min(h, w) // 64, 4, 16))
     bid = (yy // block) * (w // block + 1) + xx // block
-    a_in, b_in = _withgray(pa, ga, used), _withgray(pb_r, reg.gray_before, used)
+    a_in, b_in = with_gray(pa, ga, used), with_gray(pb_r, reg.gray_before, used)
     fresnel_corrected = radial_model in ("fresnel", "undetermined")
     n_shape = DEFAULT_N
     # physics prior: a real film transmits less at oblique incidence (Fresnel)
     corr = fresnel_shape(rho[used], n_shape) if fresnel_corrected else np.ones(int(used.sum()))
-    inside = _channel_ratios(a_in / corr[:, None], b_in, bid[used])
+    inside = channel_ratios(a_in / corr[:, None], b_in, bid[used])
     outside = _exposure(pa, ga, pb_r, reg, outer, bid, exposure_correction, warnings)
     k_out = outside.k if outside is not None else np.ones(4)
     t4_all = inside.k / k_out
@@ -355,25 +366,23 @@ def calibrate(
         raise InputError("no light is transmitted through the bubble region: check the circle and the shots")
     # 6. the index, and the angular correction with it, when the Fresnel film is supported
     if radial_model == "fresnel":
-        n_est = n_from_t4(float(t4_all[3]))
-        if np.isfinite(n_est) and 1.2 < n_est < 2.0 and abs(n_est - n_shape) > 1e-3:
-            n_shape = n_est
-            inside = _channel_ratios(a_in / fresnel_shape(rho[used], n_shape)[:, None], b_in, bid[used])
-            t4_all = inside.k / k_out
-    lo4, hi4 = _interval(inside, outside, t4_all, n_boot, np.random.default_rng(seed))
+        inside, t4_all, n_shape = _refit_index(inside, t4_all, k_out, a_in, b_in, rho[used], bid[used])
+    corr = fresnel_shape(rho[used], n_shape) if fresnel_corrected else np.ones(int(used.sum()))
+    model_sd = model_error(a_in, b_in, corr, rho[used], bid[used], k_out, t4_all, radial_model, n_shape)
+    lo4, hi4 = ratio_interval(inside, outside, t4_all, n_boot, np.random.default_rng(seed), model_sd)
     t_all = np.clip(t4_all, 0, None) ** 0.25
     t_lo, t_hi = np.clip(lo4, 0, None) ** 0.25, np.clip(hi4, 0, None) ** 0.25
+    if t_lo[3] > 1.0:  # above 1 beyond its interval: impossible for a film
+        raise InputError(f"t = {t_all[3]:.4f} (95% interval {t_lo[3]:.4f}-{t_hi[3]:.4f}) is above 1; "
+                         + str(_swapped_error(names)))
     if t_all[3] > 1.0:
         warnings.append(f"t > 1 ({t_all[3]:.4f}): the bubble region got brighter; check for reflections or flicker")
     if inside.a_blocks.shape[0] < 20:
         warnings.append(f"only {inside.a_blocks.shape[0]} pixel blocks inside the bubble: the interval is approximate")
     beta, beta_se = prof["beta"], prof["beta_stderr"]
     n_film, n_se, n_ci = _n_film(radial_model, beta, beta_se, float(t4_all[3]), float(lo4[3]), float(hi4[3]), warnings)
-    radial = {
-        "model": radial_model, "beta": float(beta), "beta_stderr": float(beta_se),
-        "n_rim_pixels": int(prof["n_rim_pixels"]), "r_stderr": float(prof["r_stderr"]),
-        "noise": float(prof["noise"]), "n_shape": float(n_shape),
-    }
+    radial = {"model": radial_model, "beta": float(beta), "beta_stderr": float(beta_se), "n_shape": float(n_shape),
+              **{k: float(prof[k]) for k in ("r_stderr", "noise")}, "n_rim_pixels": int(prof["n_rim_pixels"])}
     ratio_map = np.where(reg.usable, ga / np.where(reg.usable, reg.gray_before, 1.0) / k_out[3], np.nan)
     rim = reg.usable & (rho >= 0.75) & (rho <= 0.97)
     return CalibrationResult(
@@ -386,7 +395,8 @@ def calibrate(
         shift_px=[float(reg.shift[0]), float(reg.shift[1])], registration_cc=float(reg.cc),
         exposure_ratio=float(k_out[3]), exposure_corrected=outside is not None, radial=radial,
         n_film=n_film, n_film_stderr=n_se, n_film_ci95=n_ci, t_fresnel_corrected=fresnel_corrected,
-        inner_fraction=inner_fraction, warnings=warnings,
+        inner_fraction=inner_fraction, warnings=warnings, image_size=[int(w), int(h)],
+        t4_model_stderr=float(model_sd[3]),
         inputs={"before": img_b.path, "after": img_a.path},
         maps={"ratio": ratio_map, "used": used, "rim": rim, "after": pa},
     )

@@ -9,10 +9,16 @@ correlated (interpolation, demosaicing, JPEG). See ``docs/design.md`` (calibrati
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+
 import numpy as np
 from scipy import ndimage as ndi
 
-__all__ = ["usable_mask", "robust_ratio", "block_bootstrap_ratio", "block_sums"]
+from .profile import fresnel_shape
+
+__all__ = ["usable_mask", "robust_ratio", "block_bootstrap_ratio", "block_sums", "ChannelRatio", "channel_ratios",
+           "with_gray", "model_error", "ratio_interval"]
 
 
 def usable_mask(
@@ -119,3 +125,70 @@ def block_sums(ids: np.ndarray, values: np.ndarray) -> np.ndarray:
     np.add.at(out, inv, values)
     return out
 
+
+@dataclass(frozen=True)
+class ChannelRatio:
+    """The robust after/before ratios (:func:`channel_ratios`): (4,) for R, G, B, gray,
+    and the per-block weighted sums the bootstrap resamples."""
+
+    k: np.ndarray
+    a_blocks: np.ndarray
+    b_blocks: np.ndarray
+
+
+def channel_ratios(after: np.ndarray, before: np.ndarray, block_ids: np.ndarray) -> ChannelRatio:
+    """:func:`robust_ratio` of (N, 4) after and before values per column, with block sums."""
+    k = np.empty(4)
+    wa = np.empty_like(after)
+    wb = np.empty_like(before)
+    for c in range(4):
+        k[c], wc = robust_ratio(after[:, c], before[:, c])
+        wa[:, c], wb[:, c] = wc * after[:, c], wc * before[:, c]
+    return ChannelRatio(k, block_sums(block_ids, wa), block_sums(block_ids, wb))
+
+
+def with_gray(px: np.ndarray, gray: np.ndarray, sel: np.ndarray) -> np.ndarray:
+    """(N, 4): the R, G, B values of the selected pixels and their gray value."""
+    return np.concatenate([px[sel], gray[sel][:, None]], axis=1)
+
+
+def model_error(
+    a_in: np.ndarray, b_in: np.ndarray, corr: np.ndarray, rho: np.ndarray, bid: np.ndarray, k_out: np.ndarray,
+    t4_all: np.ndarray, model: str, n_shape: float,
+) -> np.ndarray:
+    """Standard deviation of ``t^4`` from the model, per channel (R, G, B, gray).
+
+    Half the spread between two estimates that the model says should agree, in
+    quadrature: the inner and the outer half of the pixels used (by radius), each with
+    the chosen angular correction; and, when the rim fall-off confirms neither radial
+    model (``"other"``, ``"undetermined"``), the estimate with the other model (the
+    Fresnel film's angular factor, or none). A renderer or a film that follows neither
+    model exactly moves t by about that much; the bootstrap alone sees only the noise.
+    See ``docs/design.md`` (calibration, interval).
+    """
+    split = rho <= np.median(rho)
+    parts = []
+    for sel in (split, ~split):
+        parts.append(channel_ratios(a_in[sel] / corr[sel, None], b_in[sel], bid[sel]).k / k_out)
+    spread = (parts[0] - parts[1]) ** 2
+    if model in ("other", "undetermined"):
+        alt = np.ones_like(corr) if not np.all(corr == 1.0) else fresnel_shape(rho, n_shape)
+        spread = spread + (channel_ratios(a_in / alt[:, None], b_in, bid).k / k_out - t4_all) ** 2
+    return 0.5 * np.sqrt(spread)
+
+
+def ratio_interval(
+    inside: ChannelRatio, outside: ChannelRatio | None, t4_all: np.ndarray, n_boot: int, rng, model_sd: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """95% interval of ``t^4`` per channel: block bootstrap of the inside over the outside
+    ratio, its spread corrected by ``sqrt(n / (n - 1))`` for the number of blocks, each
+    half widened in quadrature by ``1.96`` times the model error (:func:`model_error`)."""
+    boot = block_bootstrap_ratio(inside.a_blocks, inside.b_blocks, n_boot=n_boot, rng=rng)
+    if outside is not None:
+        boot = boot / block_bootstrap_ratio(outside.a_blocks, outside.b_blocks, n_boot=n_boot, rng=rng)
+    nbi = inside.a_blocks.shape[0]
+    infl = math.sqrt(nbi / max(nbi - 1, 1))
+    boot = t4_all + (boot - np.mean(boot, axis=0)) * infl
+    lo4, hi4 = np.percentile(boot, [2.5, 97.5], axis=0)
+    m = 1.959964 * model_sd
+    return t4_all - np.hypot(t4_all - lo4, m), t4_all + np.hypot(hi4 - t4_all, m)

@@ -31,7 +31,12 @@ class CalibrationResult:
         t: per-interface transmission fraction (all channels together).
         t_rgb: t per channel (R, G, B).
         t4: ``t**4``, the measured after/before ratio inside the bubble.
-        t_ci95, t_rgb_ci95, t4_ci95: 95% intervals (block bootstrap).
+        t_ci95, t_rgb_ci95, t4_ci95: 95% intervals: the block bootstrap (noise) widened in
+            quadrature by 1.96 times the model error ``t4_model_stderr``.
+        t4_model_stderr: standard deviation of ``t^4`` from the model (half the spread
+            between the inner and outer half of the pixels used and, when the rim confirms
+            neither radial model, between the Fresnel and the flat estimate).
+        image_size: ``[width, height]`` of the frame the circle belongs to.
         bubble: ``{"cx", "cy", "r"}`` in pixels of the ``after`` image (pixel centres at
             +1/2, as :class:`bubblefit.model.geometry.OrthographicCamera`).
         bubble_source: ``"detected"`` or ``"given"``.
@@ -69,6 +74,8 @@ class CalibrationResult:
     n_film_ci95: list[float] | None = None
     t_fresnel_corrected: bool = False
     inner_fraction: float = 0.6
+    image_size: list[int] | None = None
+    t4_model_stderr: float = 0.0
     warnings: list[str] = field(default_factory=list)
     inputs: dict[str, str] = field(default_factory=dict)
     maps: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
@@ -83,6 +90,7 @@ class CalibrationResult:
             "bubble": {k: _r(v, 3) for k, v in self.bubble.items()},
             "pixels_used": int(self.pixels_used),
             "warnings": list(self.warnings),
+            "image_size": None if self.image_size is None else [int(v) for v in self.image_size],
             "t_rgb_ci95": [[_r(a), _r(b)] for a, b in self.t_rgb_ci95],
             "t4_ci95": [_r(v) for v in self.t4_ci95],
             "bubble_source": self.bubble_source,
@@ -92,6 +100,7 @@ class CalibrationResult:
             "exposure_corrected": bool(self.exposure_corrected),
             "t_fresnel_corrected": bool(self.t_fresnel_corrected),
             "inner_fraction": self.inner_fraction,
+            "t4_model_stderr": _r(self.t4_model_stderr, 7),
             "radial_fit": {k: (_r(v) if isinstance(v, float) else v) for k, v in self.radial.items()},
         }
         if self.n_film is not None:

@@ -10,6 +10,7 @@ the ratio map, the circle and the pixels used. See :mod:`bubblefit.capture.calib
 from __future__ import annotations
 
 import math
+import os
 
 from ..errors import BubblefitError, InputError
 
@@ -25,6 +26,21 @@ def _circle(text: str) -> tuple[float, float, float]:
     if len(vals) != 3 or not all(math.isfinite(v) for v in vals) or vals[2] <= 0:
         raise InputError(f"--circle expects CX,CY,R in pixels with R > 0, got {text!r}")
     return vals
+
+
+def _refuse_inputs_as_outputs(inputs: dict[str, str], outputs: dict[str, str | None]) -> None:
+    """One line and no write when an output is one of the input photos (same path after
+    resolving links, or the same file by inode). ``bubblefit.cli.common.guard_outputs``,
+    once on this branch, does the same for every command."""
+    for opt, out in outputs.items():
+        if not out:
+            continue
+        for name, inp in inputs.items():
+            same = os.path.realpath(out) == os.path.realpath(inp)
+            if not same and os.path.exists(out) and os.path.exists(inp):
+                same = os.path.samefile(out, inp)
+            if same:
+                raise InputError(f"{opt} {out} is the {name} photo: refusing to overwrite an input")
 
 
 def register(subparsers) -> None:
@@ -65,6 +81,8 @@ def run(args) -> int:
     from ..capture.calibrate import calibrate
     from ..capture.result import save_json, write_debug_image
 
+    _refuse_inputs_as_outputs({"BEFORE": args.before, "AFTER": args.after},
+                              {"--json": args.json, "--debug-image": args.debug_image})
     circle = _circle(args.circle) if args.circle else None
     if not (0.05 <= args.inner_fraction <= 0.95):
         raise InputError(f"--inner-fraction must be between 0.05 and 0.95, got {args.inner_fraction}")

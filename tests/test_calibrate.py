@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from bubblefit.capture import calibrate as cal
+from bubblefit.capture import circle, profile, ratio, registration
 from bubblefit.io.images import Image, read_image, srgb_decode, srgb_encode, write_image
 
 REPO = Path(__file__).resolve().parents[1]
@@ -135,23 +136,23 @@ def numpy_pair(seed, model="paper", **kw):
 
 def test_kasa_circle_fit_exact():
     th = np.linspace(0, 2 * np.pi, 50, endpoint=False)
-    cx, cy, r = cal.kasa_circle_fit(10 + 7 * np.cos(th), -3 + 7 * np.sin(th))
+    cx, cy, r = circle.kasa_circle_fit(10 + 7 * np.cos(th), -3 + 7 * np.sin(th))
     assert (cx, cy, r) == pytest.approx((10, -3, 7), abs=1e-9)
 
 
 def test_fresnel_film_ratio_centre_and_rim():
     # n = 1.4: R1 = (0.4 / 2.4)^2, T = (1 - R1) / (1 + R1) per film, both polarisations
     r1 = (0.4 / 2.4) ** 2
-    assert float(cal.fresnel_film_ratio(0.0, 1.4)) == pytest.approx(((1 - r1) / (1 + r1)) ** 2, rel=1e-9)
-    assert float(cal.fresnel_film_ratio(1.0, 1.4)) == pytest.approx(0.0, abs=1e-6)
-    s = cal.fresnel_shape(np.array([0.0, 0.5, 0.9]), 1.4)
+    assert float(profile.fresnel_film_ratio(0.0, 1.4)) == pytest.approx(((1 - r1) / (1 + r1)) ** 2, rel=1e-9)
+    assert float(profile.fresnel_film_ratio(1.0, 1.4)) == pytest.approx(0.0, abs=1e-6)
+    s = profile.fresnel_shape(np.array([0.0, 0.5, 0.9]), 1.4)
     assert s[0] == 1.0 and 0.99 < s[1] < 1.0 and 0.75 < s[2] < 0.85
 
 
 def test_n_from_t4_inverts():
     for n in (1.33, 1.4, 1.5):
-        assert cal.n_from_t4(float(cal.fresnel_film_ratio(0.0, n))) == pytest.approx(n, abs=1e-7)
-    assert np.isnan(cal.n_from_t4(1.01))
+        assert profile.n_from_t4(float(profile.fresnel_film_ratio(0.0, n))) == pytest.approx(n, abs=1e-7)
+    assert np.isnan(profile.n_from_t4(1.01))
 
 
 def test_robust_ratio_ignores_outliers():
@@ -159,7 +160,7 @@ def test_robust_ratio_ignores_outliers():
     b = rng.uniform(0.3, 0.8, 2000)
     a = 0.9 * b + rng.normal(0, 0.005, b.size)
     a[:100] = 0.2  # dust
-    k, w = cal.robust_ratio(a, b)
+    k, w = ratio.robust_ratio(a, b)
     assert k == pytest.approx(0.9, abs=1e-3)
     assert np.all(w[:100] == 0)
 
@@ -167,7 +168,7 @@ def test_robust_ratio_ignores_outliers():
 def test_register_translation_recovers_subpixel_shift():
     b = _backdrop((0.0, 0.0)).sum(axis=2)
     a = _backdrop((1.7, -2.3)).sum(axis=2)
-    (dx, dy), cc = cal.register_translation(a, b)
+    (dx, dy), cc = registration.register_translation(a, b)
     assert dx == pytest.approx(1.7, abs=0.1) and dy == pytest.approx(-2.3, abs=0.1)
     assert cc > 0.95
 
@@ -210,7 +211,7 @@ def test_forward_model_agrees_with_calibration_physics():
     acc = np.zeros((size, size))
     for oy in sub:
         for ox in sub:
-            acc += cal.fresnel_film_ratio(np.minimum(np.hypot(xs + ox - 32, ys + oy - 32) / r, 1.0), 1.4)
+            acc += profile.fresnel_film_ratio(np.minimum(np.hypot(xs + ox - 32, ys + oy - 32) / r, 1.0), 1.4)
     ref = acc / SS**2
     inner = np.hypot(xs + 0.5 - 32, ys + 0.5 - 32) < 0.9 * r
     assert np.max(np.abs(img[..., 1][inner] - ref[inner])) < 1e-5
@@ -469,3 +470,70 @@ def test_entry_point_end_to_end(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "bubblefit", "calibrate", str(pb), str(tmp_path / "nope.png")],
                           capture_output=True, text=True, cwd=REPO, timeout=120)
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1
+
+
+# --------------------------------------------------------------------------------------
+# Nothing wrong accepted, nothing lost (issue 16)
+# --------------------------------------------------------------------------------------
+
+
+def test_cli_swapped_files_are_refused(tmp_path, monkeypatch, capsys):
+    """BEFORE and AFTER swapped: t above 1 is impossible, refused in one line."""
+    pb, pa, _ = _write_pair(tmp_path, seed=21)
+    code, _, err = run_cli([pa, pb, "--json", tmp_path / "out.json"], monkeypatch, capsys)
+    _assert_one_line_error(code, err, "swapped")
+    assert not (tmp_path / "out.json").exists()
+
+
+@pytest.mark.parametrize("size", [(1, 1), (3, 3), (12, 40)])
+def test_cli_tiny_images_are_refused(tmp_path, monkeypatch, capsys, size):
+    h, w = size
+    codes = np.full((h, w, 3), 128, np.uint8)
+    _write_codes(tmp_path / "b.png", codes)
+    _write_codes(tmp_path / "a.png", codes)
+    code, _, err = run_cli([tmp_path / "b.png", tmp_path / "a.png"], monkeypatch, capsys)
+    _assert_one_line_error(code, err, "too small")
+
+
+@pytest.mark.parametrize("option", ["--json", "--debug-image"])
+@pytest.mark.parametrize("which", ["before", "after", "link"])
+def test_cli_output_onto_an_input_is_refused(tmp_path, monkeypatch, capsys, option, which):
+    pb, pa, _ = _write_pair(tmp_path, seed=22)
+    target = {"before": pb, "after": pa, "link": tmp_path / "alias.png"}[which]
+    if which == "link":
+        target.symlink_to(pa)
+    before_bytes, after_bytes = pb.read_bytes(), pa.read_bytes()
+    code, _, err = run_cli([pb, pa, option, target], monkeypatch, capsys)
+    _assert_one_line_error(code, err, "refusing to write")
+    assert pb.read_bytes() == before_bytes and pa.read_bytes() == after_bytes
+
+
+def test_json_has_the_frame_size_and_the_model_error():
+    before, after, truth = numpy_pair(14)
+    res = cal.calibrate(before, after, n_boot=300)
+    d = res.to_json()
+    h, w = before.shape
+    assert d["image_size"] == [w, h]
+    assert d["t4_model_stderr"] >= 0
+    # the interval is at least as wide as the model error alone
+    assert d["t4_ci95"][1] - d["t4_ci95"][0] >= 2 * 1.95 * d["t4_model_stderr"] - 1e-9
+
+
+VALIDATION = Path(__file__).resolve().parent.parent.parent / "validation" / "experiments" / "validation" / "data"
+_PAIRS = sorted(p.parent.name for p in VALIDATION.glob("cal_*/truth.json")) if VALIDATION.is_dir() else []
+
+
+@pytest.mark.skipif(not _PAIRS, reason="the independent Mitsuba 3 dark-box pairs are not present")
+@pytest.mark.parametrize("case", _PAIRS[:1] or ["none"])
+def test_interval_covers_the_truth_on_an_independent_pair(case):
+    """A dark-box pair path traced by Mitsuba 3 (thin dielectric sphere, n = 1.4): the 95%
+    interval, noise and model error, holds the true per-interface t."""
+    folder = VALIDATION / case
+    truth = json.loads((folder / "truth.json").read_text())
+    res = cal.calibrate(folder / "before.png", folder / "after.png", n_boot=500)
+    lo, hi = res.t_ci95
+    assert lo <= truth["t"] <= hi, (res.t, res.t_ci95, truth["t"])
+    assert hi - lo < 0.01  # still a measurement
+    d = truth["disc"]
+    assert abs(res.bubble["cx"] - d["cx"]) < 1.5 and abs(res.bubble["cy"] - d["cy"]) < 1.5
+    assert abs(res.bubble["r"] - d["r"]) < 1.5

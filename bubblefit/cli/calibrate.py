@@ -62,7 +62,8 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from ..capture.calibrate import calibrate, write_debug_image
+    from ..capture.calibrate import calibrate
+    from ..capture.result import write_debug_image
     from ..progress import stage
     from .common import guard_outputs, write_json
 

@@ -19,7 +19,8 @@ from bubblefit.capture import protocols
 from bubblefit.lighting import envmap as em
 from bubblefit.errors import BubblefitError, InputError
 from bubblefit.io.images import srgb_encode
-from bubblefit.capture.probe import Circle, mirror_ball_directions
+from bubblefit.capture.ball import Circle
+from bubblefit.capture.probe import mirror_ball_directions
 
 META = {"ExposureTime": 1 / 60, "FNumber": 8.0, "Exif:ISOSpeedRatings": 100, "Exif:WhiteBalance": 1,
         "Exif:FocalLength": 50.0}

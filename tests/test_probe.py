@@ -19,11 +19,12 @@ import OpenImageIO as oiio
 import pytest
 
 from bubblefit.lighting import envmap as em
-from bubblefit.capture import probe
+from bubblefit.capture import hdr, probe
+from bubblefit.capture import ball as ballmod
 from bubblefit.errors import BubblefitError, InputError
 from bubblefit.io.images import read_image, srgb_decode, srgb_encode
 
-DATA = Path(em.__file__).parent / "data"
+DATA = Path(em.__file__).parents[1] / "data"
 LUM = np.array([0.2126, 0.7152, 0.0722])
 
 
@@ -78,7 +79,7 @@ def angle_from(dirs: np.ndarray, axis) -> np.ndarray:
 
 def test_unwrap_reproduces_environment(smooth_env):
     ball = render_ball(smooth_env, 128, r=56)
-    pm = probe.unwrap_mirror_ball(ball, probe.Circle(64, 64, 56), height=64)
+    pm = probe.unwrap_mirror_ball(ball, ballmod.Circle(64, 64, 56), height=64)
     dirs = em.texel_directions(64, 128)
     well = pm.valid & (angle_from(dirs, [0, 0, -1]) > 40)
     err_well = weighted_rel_error(pm.pixels, smooth_env, well)
@@ -95,7 +96,7 @@ def test_unwrap_reproduces_environment(smooth_env):
 def test_unwrap_orientation_is_not_mirrored(smooth_env):
     """The same comparison against the map flipped left-right fails: the test can tell."""
     ball = render_ball(smooth_env, 128, r=56)
-    pm = probe.unwrap_mirror_ball(ball, probe.Circle(64, 64, 56), height=64)
+    pm = probe.unwrap_mirror_ball(ball, ballmod.Circle(64, 64, 56), height=64)
     flipped = np.concatenate([smooth_env[:, ::-1]], axis=0)
     assert weighted_rel_error(pm.pixels, flipped, pm.valid) > 3 * weighted_rel_error(pm.pixels, smooth_env, pm.valid)
 
@@ -103,7 +104,7 @@ def test_unwrap_orientation_is_not_mirrored(smooth_env):
 def test_valid_mask_excludes_rim_and_camera():
     env = np.ones((32, 64, 3))
     ball = render_ball(env, 96, r=40, ss=1)
-    pm = probe.unwrap_mirror_ball(ball, probe.Circle(48, 48, 40), height=32, rim_mask_deg=25, camera_mask_deg=10)
+    pm = probe.unwrap_mirror_ball(ball, ballmod.Circle(48, 48, 40), height=32, rim_mask_deg=25, camera_mask_deg=10)
     dirs = em.texel_directions(32, 64)
     back, front = angle_from(dirs, [0, 0, -1]), angle_from(dirs, [0, 0, 1])
     assert not pm.valid[back <= 25].any()
@@ -117,7 +118,7 @@ def test_valid_mask_excludes_rim_and_camera():
 @pytest.mark.parametrize("distance", [None, 6.0])
 def test_unwrap_inverts_forward_reflection(distance):
     """Round trip: the photo position the unwrap samples for direction w reflects w."""
-    size, circ = 160, probe.Circle(81.3, 78.6, 60.0)
+    size, circ = 160, ballmod.Circle(81.3, 78.6, 60.0)
     yy, xx = np.mgrid[0:size, 0:size].astype(np.float64)
     coords = np.stack([xx + 0.5, yy + 0.5, np.ones_like(xx)], axis=-1)  # each pixel stores its position
     pm = probe.unwrap_mirror_ball(coords, circ, height=32, distance=distance, fill=False, supersample=1,
@@ -138,13 +139,13 @@ def test_find_ball_subpixel():
     env = np.ones((16, 32, 3)) * [0.6, 0.7, 0.8]
     env[:8] *= 3.0  # a bright sky over a darker ground
     ball = render_ball(env, 128, cx=63.3, cy=64.6, r=50.0, bg=0.03, ss=4)
-    c = probe.find_ball(ball)
+    c = ballmod.find_ball(ball)
     assert abs(c.cx - 63.3) < 0.15 and abs(c.cy - 64.6) < 0.15 and abs(c.r - 50.0) < 0.15
 
 
 def test_find_ball_and_unwrap_end_to_end(smooth_env):
     ball = render_ball(smooth_env, 128, cx=63.3, cy=64.6, r=54.0, bg=0.05, ss=2)
-    c = probe.find_ball(ball)
+    c = ballmod.find_ball(ball)
     assert math.hypot(c.cx - 63.3, c.cy - 64.6) < 0.7 and abs(c.r - 54.0) < 0.7
     pm = probe.unwrap_mirror_ball(ball, c, height=64)
     dirs = em.texel_directions(64, 128)
@@ -155,7 +156,7 @@ def test_find_ball_and_unwrap_end_to_end(smooth_env):
 def test_find_ball_fails_cleanly_without_ball():
     rng = np.random.default_rng(1)
     with pytest.raises(InputError):
-        probe.find_ball(np.full((64, 64, 3), 0.3) + 0.001 * rng.random((64, 64, 3)))
+        ballmod.find_ball(np.full((64, 64, 3), 0.3) + 0.001 * rng.random((64, 64, 3)))
 
 
 # ------------------------------------------------------------------------------ HDR merge
@@ -189,14 +190,14 @@ def test_hdr_merge_recovers_radiance(hdr_scene, method, tol):
     sun_sat = [bool((c[:6, :6] == 255).any()) for c in codes]
     assert sun_sat == [True] * 6 + [False]  # the sun clips in all but the darkest exposure
     lin = [srgb_decode(c / 255.0) for c in codes]
-    hm = probe.merge_exposures(lin, times, saturated=[(c == 255).any(-1) for c in codes], method=method)
+    hm = hdr.merge_exposures(lin, times, saturated=[(c == 255).any(-1) for c in codes], method=method)
     rel = np.abs(hm.radiance / rad - 1).max(axis=-1)
     stops = math.log2(rad.max() / rad.min())
-    print(f"{method}: max error {100 * rel.max():.2f}% over {stops:.1f} stops (bracket {probe.exposure_stops(times):.0f} stops), "
+    print(f"{method}: max error {100 * rel.max():.2f}% over {stops:.1f} stops (bracket {hdr.exposure_stops(times):.0f} stops), "
           f"sun {hm.radiance[0, 0]}")
     top = rad.max(axis=-1) >= 2000.0 / 2**12  # the brightest 12 stops, sun included
     print(f"  max error over the top 12 stops {100 * rel[top].max():.2f}%, median {100 * np.median(rel):.2f}%")
-    assert stops >= 12 and probe.exposure_stops(times) >= 12
+    assert stops >= 12 and hdr.exposure_stops(times) >= 12
     assert rel[top].max() < tol
     assert rel.max() < tol + 0.02  # the darkest values of the range (0.1 at 1 s) are coarser
     assert np.median(rel) < 0.01
@@ -211,7 +212,7 @@ def test_hdr_merge_ignores_clipped_pixels_unlike_plain_average(hdr_scene):
     lin = [srgb_decode(c / 255.0) for c in codes]
     naive = np.mean([x / t for x, t in zip(lin, times)], axis=0)
     assert abs(naive[0, 0, 0] / 2000.0 - 1) > 0.5
-    hm = probe.merge_exposures(lin, times)
+    hm = hdr.merge_exposures(lin, times)
     assert abs(hm.radiance[0, 0, 0] / 2000.0 - 1) < 0.02
 
 
@@ -221,7 +222,7 @@ def test_hdr_merge_fallback_when_clipped_everywhere(hdr_scene):
     rad[:6, :6] = 1e5  # brighter than the darkest exposure can hold
     codes = simulate_brackets(rad, times)
     lin = [srgb_decode(c / 255.0) for c in codes]
-    hm = probe.merge_exposures(lin, times)
+    hm = hdr.merge_exposures(lin, times)
     assert hm.clipped[:6, :6].all() and hm.clipped.sum() == 36
     # a lower bound: the darkest exposure's clipped value over its time
     assert np.allclose(hm.radiance[:6, :6], lin[-1][:6, :6] / times[-1])
@@ -232,9 +233,9 @@ def test_recovered_response_merge(hdr_scene):
     """A gamma-2.2 camera (not sRGB): OpenCV's Debevec calibration, then our merge."""
     rad, times = hdr_scene
     codes = simulate_brackets(rad, times, encode="gamma")
-    resp = probe.recover_response(codes, times, method="debevec")
+    resp = hdr.recover_response(codes, times, method="debevec")
     assert np.all(np.diff(resp, axis=0) >= 0)
-    hm = probe.merge_exposures([probe.apply_response(c, resp) for c in codes], times,
+    hm = hdr.merge_exposures([hdr.apply_response(c, resp) for c in codes], times,
                                saturated=[(c == 255).any(-1) for c in codes])
     ratio = hm.radiance / rad
     k = np.median(ratio)
@@ -247,11 +248,11 @@ def test_recovered_response_merge(hdr_scene):
 def test_merge_rejects_bad_input():
     a = np.zeros((4, 4, 3))
     with pytest.raises(InputError, match="differ in size"):
-        probe.merge_exposures([a, np.zeros((4, 5, 3))], [1, 2])
+        hdr.merge_exposures([a, np.zeros((4, 5, 3))], [1, 2])
     with pytest.raises(InputError, match="positive"):
-        probe.merge_exposures([a, a], [1, 0])
+        hdr.merge_exposures([a, a], [1, 0])
     with pytest.raises(InputError, match="exposure times"):
-        probe.merge_exposures([a, a], [1])
+        hdr.merge_exposures([a, a], [1])
 
 
 # ------------------------------------------------------------------------------ CLI

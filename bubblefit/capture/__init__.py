@@ -1,15 +1,20 @@
 """Capturing the data a fit needs: transmission, environment probes and capture checks.
 
 - :mod:`.calibrate`: the transmission fraction t from a dark-box pair (sec. 3.3).
-- :mod:`.probe`: mirror-ball probes to equirectangular maps, HDR merging.
-- :mod:`.protocols`: machine-checkable capture protocols.
+- :mod:`.ball`: finding the mirror ball in a photograph.
+- :mod:`.hdr`: merging a bracket of exposures to HDR, camera responses.
+- :mod:`.probe`: unwrapping a mirror ball to an equirectangular map.
+- :mod:`.protocols`: machine-checkable capture protocols (specs; the checks in
+  :mod:`.checks`, their measurements in :mod:`.measure`, the report in :mod:`.report`).
 """
 
-from . import calibrate, probe, protocols
+from . import ball, calibrate, hdr, probe, protocols
+from .ball import find_ball
 from .calibrate import CalibrationResult
 from .calibrate import calibrate as calibrate_transmission
-from .probe import find_ball, merge_exposures, unwrap_mirror_ball
+from .hdr import merge_exposures
+from .probe import unwrap_mirror_ball
 from .protocols import check_capture
 
-__all__ = ["calibrate", "probe", "protocols", "CalibrationResult", "calibrate_transmission",
+__all__ = ["calibrate", "ball", "hdr", "probe", "protocols", "CalibrationResult", "calibrate_transmission",
            "find_ball", "merge_exposures", "unwrap_mirror_ball", "check_capture"]

@@ -1,9 +1,9 @@
 """``bubblefit envmap PROBE [PROBE ...] -o ENV.exr``: mirror-ball photographs to an HDR map.
 
-Several exposures of the ball are merged to HDR (:func:`bubblefit.capture.probe.merge_exposures`),
-the ball is found (:func:`bubblefit.capture.probe.find_ball`) or given with ``--ball``, and it is
+Several exposures of the ball are merged to HDR (:func:`bubblefit.capture.hdr.merge_exposures`),
+the ball is found (:func:`bubblefit.capture.ball.find_ball`) or given with ``--ball``, and it is
 unwrapped (:func:`bubblefit.capture.probe.unwrap_mirror_ball`) to an equirectangular map in the
-convention of DESIGN.md (camera frame: the camera looked along -z). Writes a linear EXR and
+convention of ``docs/design.md`` (camera frame: the camera looked along -z). Writes a linear EXR and
 an sRGB PNG preview beside it; ``--mask`` writes the valid-texel mask, ``--json`` a summary.
 """
 
@@ -62,7 +62,7 @@ def register(subparsers) -> None:
 
 
 def _parse_ball(text: str):
-    from ..capture.probe import Circle
+    from ..capture.ball import Circle
 
     try:
         cx, cy, r = (float(v) for v in text.replace(" ", "").split(","))
@@ -74,8 +74,8 @@ def _parse_ball(text: str):
 
 
 def run(args) -> int:
-    from ..capture import probe
-    from ..capture.protocols import metadata_value
+    from ..capture import ball, hdr, probe
+    from ..capture.measure import metadata_value
     from ..io.images import atomic_path, preview_path, read_image, srgb_encode, write_image, write_preview
 
     out = str(args.output)
@@ -110,11 +110,11 @@ def run(args) -> int:
         if len(images) < 2 or any(im.bit_depth != 8 for im in images):
             raise InputError("--response recover-* needs at least two 8-bit exposures")
         codes = [np.round((im.pixels if im.linear_file else srgb_encode(im.pixels)) * 255).astype(np.uint8) for im in images]
-        resp = probe.recover_response(codes, times, method=args.response.split("-", 1)[1])
-        pix = [probe.apply_response(c, resp) for c in codes]
+        resp = hdr.recover_response(codes, times, method=args.response.split("-", 1)[1])
+        pix = [hdr.apply_response(c, resp) for c in codes]
     sat = [im.saturated if im.bit_depth in (8, 16) else None for im in images]
-    merged = probe.merge_exposures(pix, times, saturated=sat, method=args.merge)
-    circle = _parse_ball(args.ball) if args.ball else probe.find_ball(merged.radiance)
+    merged = hdr.merge_exposures(pix, times, saturated=sat, method=args.merge)
+    circle = _parse_ball(args.ball) if args.ball else ball.find_ball(merged.radiance)
     h, w = merged.radiance.shape[:2]
     if circle.cx + circle.r < 0 or circle.cy + circle.r < 0 or circle.cx - circle.r > w or circle.cy - circle.r > h:
         raise InputError(f"the ball ({circle.cx:g}, {circle.cy:g}, r {circle.r:g}) lies outside the {w}x{h} image")
@@ -124,7 +124,7 @@ def run(args) -> int:
         rotation=math.radians(args.rotation_deg), fill=not args.no_fill,
     )
     env = pm.pixels if not args.no_fill else np.where(pm.valid[..., None], pm.pixels, 0.0)
-    clipped_in_ball = int((merged.clipped & probe.ball_mask((h, w), circle)).sum())
+    clipped_in_ball = int((merged.clipped & ball.ball_mask((h, w), circle)).sum())
     write_image(out, env, bit_depth=32 if float(np.max(env)) > 60000 else None)
     lum = env @ np.array([0.2126, 0.7152, 0.0722])
     ref = float(np.median(lum[pm.valid])) if pm.valid.any() else float(np.median(lum))
@@ -138,7 +138,7 @@ def run(args) -> int:
         "preview": str(preview_path(out)),
         "probes": [im.path for im in images],
         "exposure_times_s": times,
-        "bracket_stops": probe.exposure_stops(times),
+        "bracket_stops": hdr.exposure_stops(times),
         "merge": args.merge,
         "response": args.response,
         "ball": circle.as_dict(),

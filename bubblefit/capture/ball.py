@@ -1,10 +1,12 @@
-"""Finding a mirror ball in a photograph: a rough circle, then its sub-pixel outline.
+"""Finding a mirror ball in a photograph: candidate circles, then its sub-pixel outline.
 
 The ball's outline is the circle that separates the reflection from the background
-(paper sec. 3.2; see ``docs/design.md``, "Light probes"). :func:`find_ball` finds a rough
-circle with a Hough transform, :func:`refine_circle` locates the edge along rays from its
-centre to sub-pixel accuracy and fits a circle to those positions (:func:`fit_circle`,
-Kasa 1976), and :func:`rim_contrast` says how clearly the circle separates two regions.
+(paper sec. 3.2; see ``docs/design.md``, "Light probes"). :func:`find_ball` takes circle
+candidates from Hough voting (:mod:`bubblefit.capture.edges`), refines each
+(:func:`refine_circle` locates the edge along rays from its centre to sub-pixel accuracy
+and fits a circle to those positions, :func:`fit_circle`, Kasa 1976), and accepts the best
+only when most of its rim shows a clear edge on the circle, more than chance gives
+(:func:`bubblefit.capture.edges.rim_support`).
 
 Image positions are continuous, with pixel ``(row i, column j)`` centred at
 ``(x, y) = (j + 1/2, i + 1/2)``.
@@ -19,8 +21,9 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
+from .edges import gradient_noise, gradients, hough_circles, rim_support
 
-__all__ = ["Circle", "find_ball", "refine_circle", "fit_circle", "ball_mask", "rim_contrast"]
+__all__ = ["Circle", "RimEvidence", "find_ball", "ball_evidence", "refine_circle", "fit_circle", "ball_mask"]
 
 
 @dataclass(frozen=True)
@@ -48,21 +51,17 @@ def _luminance(pixels: np.ndarray) -> np.ndarray:
     return pixels[..., 0] * 0.2126 + pixels[..., 1] * 0.7152 + pixels[..., 2] * 0.0722
 
 
-def _log_image(pixels: np.ndarray) -> np.ndarray:
-    """Log luminance scaled to [0, 1], robust to the image's dynamic range.
+def _log_luminance(pixels: np.ndarray) -> np.ndarray:
+    """Log luminance, floored at 1e-3 of the 99.5th percentile.
 
-    Edges of a mirror ball are visible in log luminance whatever the exposure, which makes
-    the Hough transform work on HDR merges as well as on single photographs.
+    A mirror ball's outline shows in log luminance whatever the exposure, in a single
+    photograph as in an HDR merge; the floor keeps the noise of black pixels from
+    dominating the gradients.
     """
-    lum = _luminance(pixels)
-    pos = lum[lum > 0]
-    floor = np.percentile(pos, 1) if pos.size else 1e-6
-    floor = max(float(floor), 1e-8)
-    log = np.log(np.maximum(lum, floor))
-    lo, hi = np.percentile(log, [0.5, 99.5])
-    if hi - lo < 1e-9:
-        return np.zeros_like(log)
-    return np.clip((log - lo) / (hi - lo), 0.0, 1.0)
+    lum = np.maximum(_luminance(pixels), 0.0)
+    top = float(np.percentile(lum, 99.5))
+    floor = max(1e-3 * top, 1e-12)
+    return np.log(lum + floor).astype(np.float32)
 
 
 def fit_circle(x: np.ndarray, y: np.ndarray) -> Circle:
@@ -197,83 +196,153 @@ def _robust_circle(px: np.ndarray, py: np.ndarray, ok: np.ndarray, *, min_points
     return circ
 
 
-def find_ball(
-    pixels: np.ndarray, *, min_radius_frac: float = 0.08, max_side: int = 800, min_contrast: float = 0.05
-) -> Circle:
-    """Find the mirror ball (the largest clear circle) in a photograph.
+@dataclass(frozen=True)
+class RimEvidence:
+    """How clearly a circle is a mirror ball's outline (see :func:`rim_support`).
 
-    A Hough transform for circles (Yuen et al. 1990, "Comparative study of Hough transform
-    methods for circle finding", as implemented by OpenCV's ``HoughCircles``) on the log
-    luminance gives a rough circle; :func:`refine_circle` makes it sub-pixel accurate.
+    Attributes
+    ----------
+    circle
+        The circle judged.
+    support
+        Fraction of the rim with a sharp edge on the circle (:func:`bubblefit.capture.edges.rim_support`).
+    chance
+        The 95th percentile of the support that circles of the same size placed at random
+        in the same image reach: what texture alone gives.
+    """
 
-    Args:
-        pixels: (H, W, 3) linear image (a single exposure or an HDR merge).
-        min_radius_frac: smallest ball radius to look for, as a fraction of the shorter side.
-        max_side: the Hough transform runs on a copy at most this many pixels wide.
-        min_contrast: smallest accepted :func:`rim_contrast` (log luminance step at the rim).
+    circle: Circle
+    support: float
+    chance: float
 
-    Returns:
-        The ball's :class:`Circle`.
 
-    Raises:
-        InputError: no circle was found.
+def _outermost_rim(pixels: np.ndarray, gx, gy, noise: float, guess: Circle) -> Circle:
+    """The ball's outline from a candidate circle, sub-pixel.
+
+    The candidate is refined to the strongest nearby edge, then circles concentric with it
+    are scanned outward to 1.35 times its radius: the outline is the outermost radius where
+    the rim support (:func:`bubblefit.capture.edges.rim_support`, 0.5 px band) has a local maximum of at least 3/4
+    of the best one (details of the reflection crowd just inside a mirror ball's rim and may
+    be sharper than the outline itself; the background outside it is not concentric). A
+    last refinement in a band of 2.5 px locates that edge.
+    """
+    c1 = refine_circle(pixels, guess, search=0.1)
+    radii = np.arange(0.9 * c1.r, 1.35 * c1.r, 0.5)
+    sup = np.array([rim_support(gx, gy, noise, Circle(c1.cx, c1.cy, r), band=0.5) for r in radii])
+    peak = np.zeros(sup.shape, dtype=bool)  # a plateau's first point counts as its peak
+    peak[1:-1] = (sup[1:-1] > sup[:-2]) & (sup[1:-1] >= sup[2:])
+    good = np.nonzero(peak & (sup >= max(0.75 * sup.max(), 0.4)))[0]
+    r_out = float(radii[good[-1]]) if good.size else c1.r
+    return refine_circle(pixels, Circle(c1.cx, c1.cy, r_out), search=max(2.5 / r_out, 0.03), outermost=True)
+
+
+def _chance_support(gx, gy, noise: float, found: Circle, *, trials: int = 48) -> float:
+    """95th percentile of :func:`bubblefit.capture.edges.rim_support` for circles of about
+    ``found``'s size placed at random in the image, their centres at least a quarter radius
+    from its centre: the support that texture alone gives here (a fixed seed: the same image
+    gives the same answer)."""
+    rng = np.random.default_rng(0)
+    h, w = gx.shape
+    r = found.r
+    out = []
+    for _ in range(trials):
+        cx = rng.uniform(min(r, w / 2), max(w - r, w / 2))
+        cy = rng.uniform(min(r, h / 2), max(h - r, h / 2))
+        if np.hypot(cx - found.cx, cy - found.cy) >= 0.25 * r:
+            out.append(rim_support(gx, gy, noise, Circle(cx, cy, r * rng.uniform(0.8, 1.2))))
+    return float(np.percentile(out, 95)) if out else 0.0
+
+
+def ball_evidence(pixels: np.ndarray, *, min_radius_frac: float = 0.08, max_side: int = 256,
+                  candidates: int = 10) -> RimEvidence | None:
+    """The most convincing mirror-ball outline in a photograph, with its evidence.
+
+    Steps: circle candidates by gradient-directed Hough voting on the log luminance of a
+    copy at most ``max_side`` pixels wide (:func:`bubblefit.capture.edges.hough_circles`);
+    each refined to its outermost concentric edge at full resolution
+    (:func:`_outermost_rim`); the one with the longest supported rim (support times radius,
+    among those with support of at least 1/2) is kept and compared with what random circles
+    reach (:class:`RimEvidence`). Returns None when no candidate has half its rim supported.
     """
     pixels = np.asarray(pixels, dtype=np.float64)
     if pixels.ndim not in (2, 3) or min(pixels.shape[:2]) < 16:
         raise InputError(f"image too small to hold a mirror ball: {pixels.shape}")
-    img = _log_image(pixels)
+    if not np.all(np.isfinite(pixels)):
+        raise InputError("the probe has NaN or infinite pixels")
+    img = _log_luminance(pixels)
     h, w = img.shape
     scale = min(1.0, max_side / max(h, w))
-    small = cv2.resize(img, (max(1, round(w * scale)), max(1, round(h * scale))), interpolation=cv2.INTER_AREA) \
-        if scale < 1 else img
-    small8 = np.round(small * 255).astype(np.uint8)
-    small8 = cv2.GaussianBlur(small8, (0, 0), 1.5)
-    side = min(small8.shape)
-    rmin = max(4, int(min_radius_frac * side))
-    rmax = int(0.5 * side * 1.05) + 2
-    circles = None
-    for p2 in (0.9, 0.8, 0.7, 0.6, 0.5):
-        circles = cv2.HoughCircles(small8, cv2.HOUGH_GRADIENT_ALT, dp=1.0, minDist=side,
-                                   param1=60, param2=p2, minRadius=rmin, maxRadius=rmax)
-        if circles is not None and len(circles):
-            break
-    if circles is None or not len(circles):
-        for p2 in (60, 40, 25):
-            circles = cv2.HoughCircles(small8, cv2.HOUGH_GRADIENT, dp=1.5, minDist=side,
-                                       param1=80, param2=p2, minRadius=rmin, maxRadius=rmax)
-            if circles is not None and len(circles):
-                break
-    if circles is None or not len(circles):
-        raise InputError("no mirror ball found in the image (give its circle with --ball CX,CY,R)")
-    c = np.asarray(circles).reshape(-1, 3)
-    c = c[0]  # OpenCV lists the best-supported circle first
-    guess = Circle((c[0] + 0.5) / scale, (c[1] + 0.5) / scale, c[2] / scale)
-    circ = refine_circle(pixels, guess)
-    # second pass in a narrow band: interior edges near the rim cannot compete; most of
-    # the rim must then lie on one circle (noise or clutter does not)
-    circ = refine_circle(pixels, circ, search=max(2.0 / circ.r, 0.03), outermost=True, min_inliers=0.5)
-    contrast = rim_contrast(pixels, circ)
-    if contrast < min_contrast:
+    small = cv2.resize(img, (max(1, round(w * scale)), max(1, round(h * scale))),
+                       interpolation=cv2.INTER_AREA) if scale < 1 else img
+    side = min(small.shape)
+    r_min, r_max = max(4, int(min_radius_frac * side)), int(0.5 * side * 1.05) + 2
+    found = hough_circles(*gradients(small, 1.0), r_min, r_max, count=candidates)
+    gx, gy = gradients(img, 0.7)
+    noise = gradient_noise(img, 0.7)
+    best: tuple[float, Circle] | None = None
+    for cx, cy, r in found:
+        try:
+            circ = _outermost_rim(pixels, gx, gy, noise, Circle(cx / scale, cy / scale, r / scale))
+        except InputError:
+            continue
+        s = rim_support(gx, gy, noise, circ)
+        if s >= 0.5 and (best is None or s * circ.r > best[0] * best[1].r):
+            best = (s, circ)
+    if best is None:
+        return None
+    return RimEvidence(best[1], best[0], _chance_support(gx, gy, noise, best[1]))
+
+
+def find_ball(pixels: np.ndarray, *, min_support: float = 0.75, min_radius_frac: float = 0.08) -> Circle:
+    """Find the mirror ball (the largest circle with a clear outline) in a photograph.
+
+    :func:`ball_evidence` proposes the best outline; it is accepted when at least
+    ``min_support`` of its rim shows a sharp edge on the circle and that is at least 0.1
+    more than random circles of its size reach in the same image (so that a texture of
+    small circles, or pure noise, is not taken for a ball). Works in log luminance, on
+    8-bit photographs and linear float (EXR, HDR) merges alike.
+
+    A perfect mirror's outline is invisible wherever the ball reflects the same thing that
+    is seen beside it (its rim reflects what lies straight behind it): a ball in front of a
+    plain backdrop that also fills the rim's reflection has no visible outline there, and
+    is refused rather than replaced by the edge of the backdrop's reflection inside it.
+
+    Parameters
+    ----------
+    pixels
+        (H, W, 3) or (H, W) linear image (a single exposure or an HDR merge).
+    min_support
+        Fraction of the rim that must show the outline.
+    min_radius_frac
+        Smallest ball radius to look for, as a fraction of the shorter side.
+
+    Returns
+    -------
+    Circle
+        The ball's outline, sub-pixel.
+
+    Raises
+    ------
+    InputError
+        No clear mirror-ball outline.
+
+    References
+    ----------
+    Kimme, Ballard & Sklansky 1975 (Hough voting); Kasa 1976 (circle fit); Immerkaer 1996
+    (noise); see ``docs/design.md``, "Light probes".
+    """
+    ev = ball_evidence(pixels, min_radius_frac=min_radius_frac)
+    hint = "(give the ball's circle with --ball CX,CY,R)"
+    if ev is None:
+        raise InputError(f"no mirror ball found: no circle has half its rim on a clear edge {hint}")
+    if ev.support < min_support or ev.support < ev.chance + 0.1:
+        c = ev.circle
         raise InputError(
-            f"no mirror ball found: the best circle's rim has {100 * contrast:.1f}% contrast "
-            "(give the ball's circle with --ball CX,CY,R)"
+            f"no clear mirror-ball outline: the best circle ({c.cx:.1f}, {c.cy:.1f}, r {c.r:.1f} px) has a "
+            f"clear edge on {100 * ev.support:.0f}% of its rim (random circles here: {100 * ev.chance:.0f}%; "
+            f"{100 * min_support:.0f}% needed) {hint}"
         )
-    return circ
-
-
-def rim_contrast(pixels: np.ndarray, circle: Circle, *, offset: float = 2.0, n_rays: int = 180) -> float:
-    """Median over the rim of ``|log L(r + offset) - log L(r - offset)|`` (luminance just
-    outside vs. just inside the circle): how clearly the circle separates two regions.
-    A mirror ball shows tens of percent; noise or a flat wall shows a fraction of one."""
-    lum = np.maximum(_luminance(pixels), 1e-8).astype(np.float32)
-    lum = cv2.GaussianBlur(lum, (0, 0), 0.7)
-    ang = np.linspace(0, 2 * np.pi, n_rays, endpoint=False)
-    vals = []
-    for rr in (circle.r + offset, max(circle.r - offset, 1.0)):
-        xs = (circle.cx + rr * np.cos(ang) - 0.5).astype(np.float32)[None, :]
-        ys = (circle.cy + rr * np.sin(ang) - 0.5).astype(np.float32)[None, :]
-        vals.append(cv2.remap(lum, xs, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[0])
-    return float(np.median(np.abs(np.log(vals[0] / vals[1]))))
+    return ev.circle
 
 
 def ball_mask(shape: tuple[int, int], circle: Circle, *, shrink: float = 0.0) -> np.ndarray:

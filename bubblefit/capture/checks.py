@@ -18,7 +18,7 @@ import numpy as np
 from ..errors import InputError
 from ..io.images import Image
 from .ball import ball_mask, find_ball
-from .hdr import merge_exposures
+from .hdr import file_clip_level, merge_exposures
 from .measure import (
     difference_mask,
     exposure_ratio,
@@ -296,7 +296,8 @@ def check_ball(spec: dict, imgs: dict[str, Image], times, report: CaptureReport)
         order = [n for n, _ in times]
         tv = [t for _, t in times]
         merged = merge_exposures([imgs[n].pixels for n in order], tv,
-                                 saturated=[saturated_mask(imgs[n]) for n in order]).radiance
+                                 saturated=[saturated_mask(imgs[n]) for n in order],
+                                 clip_level=[file_clip_level(imgs[n].bit_depth) for n in order]).radiance
     else:
         order = names
         merged = imgs[names[0]].pixels

@@ -19,7 +19,14 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["HdrMerge", "merge_exposures", "recover_response", "apply_response", "exposure_stops"]
+__all__ = ["HdrMerge", "merge_exposures", "file_clip_level", "recover_response", "apply_response", "exposure_stops"]
+
+
+def file_clip_level(bit_depth: int) -> float:
+    """Linear value at which an exposure read from a file of ``bit_depth`` bits counts as
+    clipped: just under full scale for 8- and 16-bit codes, never for float files (EXR, HDR,
+    float TIFF hold radiance above 1 unclipped)."""
+    return 0.98 if bit_depth in (8, 16) else math.inf
 
 
 def exposure_stops(times: Sequence[float]) -> float:
@@ -99,7 +106,7 @@ def merge_exposures(
     *,
     saturated: Sequence[np.ndarray | None] | None = None,
     method: str = "robertson",
-    clip_level: float = 0.98,
+    clip_level: float | Sequence[float] = 0.98,
     noise_floor: float | None = None,
 ) -> HdrMerge:
     """Merge a bracket of linearised exposures into one radiance image.
@@ -131,7 +138,9 @@ def merge_exposures(
         times: exposure time of each image, seconds (only ratios matter).
         saturated: optional (H, W) bool masks of clipped pixels, one per image.
         method: "robertson" (default) or "debevec".
-        clip_level: linear value at or above which a channel counts as clipped.
+        clip_level: linear value at or above which a channel counts as clipped, one for all
+            exposures or one per exposure (``math.inf`` for a float file, which does not clip
+            at a code value: :func:`file_clip_level`).
         noise_floor: linear value below which an exposure's pixel (robertson: all its
             channels; debevec: that channel) is not trusted. Default 1e-3 for robertson,
             whose ``t_j^2`` weights already discount short exposures, and 2e-2 for debevec,
@@ -142,6 +151,7 @@ def merge_exposures(
         An :class:`HdrMerge`.
     """
     t = _checked_times(images, times, method)
+    levels = np.broadcast_to(np.asarray(clip_level, dtype=np.float64), (len(images),))
     if saturated is None:
         saturated = [None] * len(images)
     if noise_floor is None:
@@ -152,7 +162,7 @@ def merge_exposures(
     used = np.zeros((h, w), dtype=np.int32)
     for j, (im, tj) in enumerate(zip(images, t)):
         x = np.clip(np.asarray(im, dtype=np.float64), 0.0, None)
-        clip = _clipped(x, saturated[j], clip_level)
+        clip = _clipped(x, saturated[j], levels[j])
         ok = ~clip & (np.max(x, axis=-1) >= noise_floor)
         if method == "robertson":
             wj = ok[..., None] * 1.0
@@ -171,7 +181,7 @@ def merge_exposures(
         rad = num / np.maximum(den, 1e-300)
     else:
         rad = np.exp(num / np.maximum(den, 1e-300))
-    fallback, unclipped_any = _fallback(images, t, saturated, clip_level)
+    fallback, unclipped_any = _fallback(images, t, saturated, levels)
     rad = np.where(none[..., None] | (den <= 0), fallback, rad)
     return HdrMerge(radiance=rad, clipped=none & ~unclipped_any, underexposed=none & unclipped_any, used=used)
 
@@ -204,7 +214,7 @@ def _clipped(x: np.ndarray, saturated: np.ndarray | None, clip_level: float) -> 
     return clip
 
 
-def _fallback(images, t: np.ndarray, saturated, clip_level: float) -> tuple[np.ndarray, np.ndarray]:
+def _fallback(images, t: np.ndarray, saturated, levels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Radiance where no exposure was trusted: the longest exposure that is not clipped
     (the pixel is dark everywhere), else the darkest exposure (clipped everywhere, a lower
     bound). Returns it with the (H, W) mask of pixels unclipped in some exposure."""
@@ -212,7 +222,7 @@ def _fallback(images, t: np.ndarray, saturated, clip_level: float) -> tuple[np.n
     unclipped_any = np.zeros(np.shape(images[0])[:2], dtype=bool)
     for j in np.argsort(t):
         x = np.clip(np.asarray(images[j], dtype=np.float64), 0.0, None)
-        clip = _clipped(x, saturated[j], clip_level)
+        clip = _clipped(x, saturated[j], levels[j])
         est = x / t[j]
         fallback = est if fallback is None else np.where(~clip[..., None], est, fallback)
         unclipped_any |= ~clip

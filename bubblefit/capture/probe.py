@@ -187,6 +187,9 @@ def unwrap_mirror_ball(
         raise InputError(f"environment map height must be at least 4, got {height}")
     if circle.r < 4:
         raise InputError(f"the mirror ball is too small ({circle.r:.1f} px radius)")
+    if distance is not None and not (math.isfinite(distance) and distance > 1.0):
+        raise InputError(f"the camera-to-ball distance is in ball radii and must exceed 1 (the camera outside "
+                         f"the ball), got {distance:g}")
     H, W = int(height), 2 * int(height)
     texel = math.pi / (H - 1)
     if supersample is None:

@@ -73,20 +73,52 @@ def _parse_ball(text: str):
     return Circle(cx, cy, r)
 
 
-def run(args) -> int:
-    from ..capture import ball, hdr, probe
-    from ..capture.measure import metadata_value
-    from ..io.images import atomic_path, preview_path, read_image, srgb_encode, write_image, write_preview
+def _same_file(a, b) -> bool:
+    """Whether paths ``a`` and ``b`` name one file: equal once resolved (links followed), or
+    the same device and inode (hard links, bind mounts)."""
+    from pathlib import Path
+
+    pa, pb = Path(a), Path(b)
+    if pa.resolve() == pb.resolve():
+        return True
+    try:
+        sa, sb = pa.stat(), pb.stat()
+    except OSError:
+        return False
+    return (sa.st_dev, sa.st_ino) == (sb.st_dev, sb.st_ino)
+
+
+def _refuse_overwriting_inputs(inputs, outputs) -> None:
+    """One line, before any work, when an output (previews included) is one of the probes.
+    (The command line's general output guard, when there is one, does the same for all.)"""
+    for o in outputs:
+        if o is None:
+            continue
+        for p in inputs:
+            if _same_file(o, p):
+                raise InputError(f"refusing to write {o}: it is the probe {p} (choose another output name)")
+
+
+def _check_options(args) -> str:
+    """The output path, once the options are known to make sense."""
+    from ..io.images import preview_path
 
     out = str(args.output)
     if not out.lower().endswith(".exr"):
         raise InputError(f"the output map must be an .exr file, got {out}")
+    _refuse_overwriting_inputs(args.probes, [out, preview_path(out), args.mask, args.hdr, args.json])
     if args.height < 8:
         raise InputError(f"--height must be at least 8, got {args.height}")
-    images = [read_image(p, linear=True if args.response == "linear" else None) for p in args.probes]
-    shapes = {im.shape for im in images}
-    if len(shapes) > 1:
-        raise InputError("the probes differ in size: " + ", ".join(f"{im.path} {im.shape[1]}x{im.shape[0]}" for im in images))
+    if args.distance is not None and not (math.isfinite(args.distance) and args.distance > 1.0):
+        raise InputError(f"--distance is the camera-to-ball-centre distance in ball radii and must exceed 1 "
+                         f"(the camera outside the ball), got {args.distance:g}")
+    return out
+
+
+def _exposure_times(args, images) -> list[float]:
+    """One exposure time per probe: ``--times``, else the files' EXIF ExposureTime."""
+    from ..capture.measure import metadata_value
+
     if args.times is not None:
         if len(args.times) != len(images):
             raise InputError(f"{len(args.times)} --times for {len(images)} probe(s)")
@@ -104,16 +136,42 @@ def run(args) -> int:
         raise InputError(f"exposure times must be positive, got {times}")
     if len(images) > 1 and len(set(round(math.log2(t), 3) for t in times)) < len(times):
         raise InputError("two probes have the same exposure time: a bracket needs different exposures")
+    return times
+
+
+def _merge(args, images, times):
+    """The bracket linearised (``--response``) and merged to one radiance image. Float files
+    (EXR, HDR) hold radiance above 1 unclipped; 8/16-bit codes clip at full scale."""
+    from ..capture import hdr
+    from ..io.images import srgb_encode
 
     pix = [im.pixels for im in images]
     if args.response.startswith("recover"):
         if len(images) < 2 or any(im.bit_depth != 8 for im in images):
             raise InputError("--response recover-* needs at least two 8-bit exposures")
-        codes = [np.round((im.pixels if im.linear_file else srgb_encode(im.pixels)) * 255).astype(np.uint8) for im in images]
+        codes = [np.round((im.pixels if im.linear_file else srgb_encode(im.pixels)) * 255).astype(np.uint8)
+                 for im in images]
         resp = hdr.recover_response(codes, times, method=args.response.split("-", 1)[1])
         pix = [hdr.apply_response(c, resp) for c in codes]
-    sat = [im.saturated if im.bit_depth in (8, 16) else None for im in images]
-    merged = hdr.merge_exposures(pix, times, saturated=sat, method=args.merge)
+    integer = [im.bit_depth in (8, 16) for im in images]
+    sat = [im.saturated if i else None for im, i in zip(images, integer)]
+    clip = [hdr.file_clip_level(im.bit_depth) for im in images]
+    return hdr.merge_exposures(pix, times, saturated=sat, clip_level=clip, method=args.merge)
+
+
+def run(args) -> int:
+    import sys
+
+    from ..capture import ball, hdr, probe
+    from ..io.images import atomic_path, preview_path, read_image, write_image, write_preview
+
+    out = _check_options(args)
+    images = [read_image(p, linear=True if args.response == "linear" else None) for p in args.probes]
+    shapes = {im.shape for im in images}
+    if len(shapes) > 1:
+        raise InputError("the probes differ in size: " + ", ".join(f"{im.path} {im.shape[1]}x{im.shape[0]}" for im in images))
+    times = _exposure_times(args, images)
+    merged = _merge(args, images, times)
     circle = _parse_ball(args.ball) if args.ball else ball.find_ball(merged.radiance)
     h, w = merged.radiance.shape[:2]
     if circle.cx + circle.r < 0 or circle.cy + circle.r < 0 or circle.cx - circle.r > w or circle.cy - circle.r > h:
@@ -155,8 +213,6 @@ def run(args) -> int:
           f"{len(images)} exposure(s) over {summary['bracket_stops']:.1f} stops; "
           f"{100 * pm.info['valid_fraction']:.0f}% of directions sampled")
     if clipped_in_ball:
-        import sys
-
         print(f"bubblefit: warning: {clipped_in_ball} pixel(s) of the ball are clipped in every exposure "
               "(their radiance is a lower bound): add a shorter exposure", file=sys.stderr)
     return 0

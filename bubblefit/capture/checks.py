@@ -20,11 +20,11 @@ from ..io.images import Image
 from .ball import ball_mask, find_ball
 from .hdr import file_clip_level, merge_exposures
 from .measure import (
+    background_ratio,
     difference_mask,
-    exposure_ratio,
     fmt_value,
     metadata_value,
-    registration_shift,
+    measure_shift,
     same_value,
     saturated_mask,
 )
@@ -52,6 +52,9 @@ IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr", ".hdr")
 
 
 def match_roles(folder: Path, spec: dict, report: CaptureReport) -> dict[str, list[Path]] | None:
+    """``files``: the images of ``folder`` matched to the spec's roles (case-insensitive globs,
+    any of a role's patterns; each file goes to the first role that matches it). Returns
+    role -> files, or None when a role has too few or too many."""
     names = sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
     images = [p for p in names if p.suffix.lower() in IMAGE_EXTENSIONS]
     if not images:
@@ -60,8 +63,8 @@ def match_roles(folder: Path, spec: dict, report: CaptureReport) -> dict[str, li
     problems = []
     taken: set[Path] = set()
     for r in spec["files"]:
-        pat = str(r["pattern"]).lower()
-        hits = [p for p in images if fnmatch.fnmatch(p.name.lower(), pat) and p not in taken]
+        pats = [p.lower() for p in r["patterns"]]
+        hits = [p for p in images if any(fnmatch.fnmatch(p.name.lower(), q) for q in pats) and p not in taken]
         taken.update(hits)
         roles[r["role"]] = hits
         lo, hi = int(r["min_count"]), int(r["max_count"])
@@ -136,44 +139,74 @@ def check_metadata(spec: dict, imgs: dict[str, Image], report: CaptureReport) ->
 
 
 def check_pair(spec: dict, a: Image, b: Image, an: str, bn: str, report: CaptureReport,
-                *, scale_b: float = 1.0) -> tuple[np.ndarray | None, bool]:
+               *, scale_b: float = 1.0) -> tuple[np.ndarray | None, bool]:
     """Photometric and registration checks of a pair; returns (ratio, registered)."""
     checks = spec.get("checks", {})
     ratio = None
-    tol = checks.get("photometric_tolerance")
-    if tol is not None:
-        ratio = exposure_ratio(a.pixels, b.pixels * scale_b)
-        report.measurements["background_ratio_rgb"] = [float(x) for x in ratio]
-        if not np.all(np.isfinite(ratio)):
-            report.add("photometric", WARN, f"too few well-exposed background pixels to compare {an} and {bn}")
-        else:
-            dev = np.abs(ratio - 1.0)
-            spread = float(ratio.max() / ratio.min() - 1.0)
-            if spread > tol:
-                report.add("photometric", FAIL,
-                           f"white balance changed between {an} and {bn}: background R,G,B ratios "
-                           f"{ratio[0]:.3f}, {ratio[1]:.3f}, {ratio[2]:.3f}")
-            elif dev.max() > tol:
-                stops = math.log2(float(np.mean(ratio)))
-                report.add("photometric", FAIL,
-                           f"exposure changed between {an} and {bn}: background {float(np.mean(ratio)):.3f}x "
-                           f"({stops:+.2f} stops)")
-            else:
-                report.add("photometric", PASS, f"background matches within {100 * dev.max():.1f}% per channel")
-    lim = checks.get("registration_max_px")
+    if checks.get("photometric_tolerance") is not None:
+        ratio = _check_photometric(spec, a, b, an, bn, report, scale_b=scale_b)
     registered = True
-    if lim is not None:
-        dx, dy = registration_shift(a.pixels, b.pixels, scale_b=scale_b)
-        shift = math.hypot(dx, dy)
-        report.measurements.setdefault("shift_px", {})[f"{an}->{bn}"] = [dx, dy]
-        if shift > lim:
-            registered = False
-            report.add("registration", FAIL,
-                       f"{bn} is shifted by ({dx:+.1f}, {dy:+.1f}) px from {an} (limit {lim:g} px): "
-                       "the camera moved; use a tripod and a remote release")
-        else:
-            report.add("registration", PASS, f"{bn} within {shift:.2f} px of {an}")
+    if checks.get("registration_max_px") is not None:
+        registered = _check_registration(spec, a, b, an, bn, report, scale_b=scale_b)
     return ratio, registered
+
+
+def _check_photometric(spec: dict, a: Image, b: Image, an: str, bn: str, report: CaptureReport,
+                       *, scale_b: float) -> np.ndarray:
+    """``photometric``: the background (the subject's region left out) has the same exposure
+    and white balance in both frames. Returns the background's per-channel ratio."""
+    checks = spec["checks"]
+    tol = float(checks["photometric_tolerance"])
+    ratio = background_ratio(a.pixels, b.pixels * scale_b, tol=float(checks.get("difference_tolerance", 0.04)))
+    ratio = np.full(3, np.nan) if ratio is None else ratio
+    report.measurements["background_ratio_rgb"] = [float(x) for x in ratio]
+    if not np.all(np.isfinite(ratio)):
+        report.add("photometric", WARN, f"too few well-exposed background pixels to compare {an} and {bn}")
+        return ratio
+    dev = np.abs(ratio - 1.0)
+    spread = float(ratio.max() / ratio.min() - 1.0)
+    if spread > tol:
+        report.add("photometric", FAIL,
+                   f"white balance changed between {an} and {bn}: background R,G,B ratios "
+                   f"{ratio[0]:.3f}, {ratio[1]:.3f}, {ratio[2]:.3f}")
+    elif dev.max() > tol:
+        stops = math.log2(float(np.mean(ratio)))
+        report.add("photometric", FAIL,
+                   f"exposure changed between {an} and {bn}: background {float(np.mean(ratio)):.3f}x ({stops:+.2f} stops)")
+    else:
+        report.add("photometric", PASS, f"background matches within {100 * dev.max():.1f}% per channel")
+    return ratio
+
+
+def _check_registration(spec: dict, a: Image, b: Image, an: str, bn: str, report: CaptureReport,
+                        *, scale_b: float) -> bool:
+    """``registration``: the camera did not move between the frames (:func:`measure_shift`:
+    a shift is reported only when it is clear). Returns whether the pair is registered."""
+    checks = spec["checks"]
+    lim = float(checks["registration_max_px"])
+    reg = measure_shift(a.pixels, b.pixels, scale_b=scale_b, tol=float(checks.get("difference_tolerance", 0.04)),
+                        clipped_a=saturated_mask(a), clipped_b=saturated_mask(b))
+    report.measurements.setdefault("shift_px", {})[f"{an}->{bn}"] = [reg.dx, reg.dy] if reg.clear else None
+    if not reg.clear and reg.mismatch > 0.5:
+        report.add("registration", FAIL,
+                   f"{bn} does not show the same view as {an}: {100 * reg.mismatch:.0f}% of the background "
+                   "differs and no camera shift explains it")
+        return False
+    if not reg.clear:
+        report.add("registration", WARN,
+                   f"{100 * reg.mismatch:.0f}% of the background differs between {an} and {bn} but no camera "
+                   "shift explains it (something in the scene moved or the light changed): no shift measured")
+        return True
+    if reg.shift > lim:
+        report.add("registration", FAIL,
+                   f"{bn} is shifted by ({reg.dx:+.1f}, {reg.dy:+.1f}) px from {an} (limit {lim:g} px): "
+                   "the camera moved; use a tripod and a remote release")
+        return False
+    if reg.shift == 0.0:
+        report.add("registration", PASS, f"the background of {bn} matches {an} without a shift")
+    else:
+        report.add("registration", PASS, f"{bn} within {reg.shift:.2f} px of {an}")
+    return True
 
 
 def check_difference_subject(spec: dict, before: Image, after: Image, bn: str, an: str,
@@ -273,18 +306,25 @@ def check_brackets(spec: dict, imgs: dict[str, Image], report: CaptureReport) ->
 
 
 def check_bracket_registration(spec: dict, imgs: dict[str, Image], times, report: CaptureReport) -> None:
-    """``registration``: consecutive exposures of a bracket show the scene at the same place."""
+    """``registration``: consecutive exposures of a bracket show the scene at the same place
+    (:func:`measure_shift`, each pair brought to one exposure)."""
     if not times or len(times) < 2 or spec.get("checks", {}).get("registration_max_px") is None:
         return
     lim = float(spec["checks"]["registration_max_px"])
-    worst = (0.0, "")
+    worst, unclear = (0.0, ""), []
     for (n0, t0), (n1, t1) in zip(times[:-1], times[1:]):
-        dx, dy = registration_shift(imgs[n0].pixels, imgs[n1].pixels, scale_b=t0 / t1)
-        report.measurements.setdefault("shift_px", {})[f"{n0}->{n1}"] = [dx, dy]
-        if math.hypot(dx, dy) > worst[0]:
-            worst = (math.hypot(dx, dy), f"{n1} is shifted by ({dx:+.1f}, {dy:+.1f}) px from {n0}")
+        reg = measure_shift(imgs[n0].pixels, imgs[n1].pixels, scale_b=t0 / t1,
+                            clipped_a=saturated_mask(imgs[n0]), clipped_b=saturated_mask(imgs[n1]))
+        report.measurements.setdefault("shift_px", {})[f"{n0}->{n1}"] = [reg.dx, reg.dy] if reg.clear else None
+        if not reg.clear:
+            unclear.append(n1)
+        elif reg.shift > worst[0]:
+            worst = (reg.shift, f"{n1} is shifted by ({reg.dx:+.1f}, {reg.dy:+.1f}) px from {n0}")
     if worst[0] > lim:
         report.add("registration", FAIL, f"{worst[1]} (limit {lim:g} px): the camera moved between brackets")
+    elif unclear:
+        report.add("registration", WARN, f"{', '.join(unclear[:3])} differ(s) from the neighbouring exposure "
+                                         "but no camera shift explains it: no shift measured")
     else:
         report.add("registration", PASS, f"brackets within {worst[0]:.2f} px of each other")
 

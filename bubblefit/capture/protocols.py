@@ -105,7 +105,12 @@ def load_protocol(name_or_path: str | os.PathLike) -> dict:
     if not isinstance(roles, list) or not roles or not all(isinstance(r, dict) and "role" in r for r in roles):
         raise InputError(f"protocol spec {path} must list its files as [[files]] tables with a 'role'")
     for r in roles:
-        r.setdefault("pattern", f"{r['role']}*")
+        pats = r.get("pattern", f"{r['role']}*")
+        pats = [pats] if isinstance(pats, str) else pats
+        if not isinstance(pats, list) or not pats or not all(isinstance(p, str) and p for p in pats):
+            raise InputError(f"protocol spec {path}: the pattern of role {r['role']!r} must be a glob or a list of globs")
+        r["patterns"] = pats
+        r["pattern"] = " or ".join(pats)
         r.setdefault("min_count", 1)
         r.setdefault("max_count", r["min_count"] if r["min_count"] > 0 else 1)
     for section in ("metadata", "checks"):

@@ -67,8 +67,9 @@ def hough_circles(gx: np.ndarray, gy: np.ndarray, r_min: int, r_max: int, *, cou
     r_min, r_max
         Radii searched, in pixels (integer steps).
     count
-        Number of candidates; each suppresses the others whose centre lies within
-        ``max(3, 0.3 r)`` pixels of its own.
+        Number of candidates overall, plus ``max(2, count // 4)`` from each quarter of the
+        radius range; each suppresses the others whose centre lies within ``max(3, 0.3 r)``
+        pixels of its own.
     edge_fraction
         Fraction of the pixels, those with the strongest gradient, that vote. Every vote
         weighs one, so a faint rim counts as much as a bright one.
@@ -107,16 +108,30 @@ def hough_circles(gx: np.ndarray, gy: np.ndarray, r_min: int, r_max: int, *, cou
         acc[..., k:k + 256] = cv2.GaussianBlur(np.ascontiguousarray(acc[..., k:k + 256]), (0, 0), 1.0) \
             .reshape(h, w, -1)
     score = acc / (2 * np.pi * radii[None, None, :]) * np.sqrt(radii)[None, None, :]
+    out: list[tuple[float, float, float]] = []
+    _take_peaks(score, radii, count, out)
+    # and the best few of each quarter of the radius range, so that a crowd of small
+    # circles (a busy backdrop) cannot hide a large one
+    for part in np.array_split(np.arange(nr), 4):
+        if part.size:
+            _take_peaks(score[..., part].copy(), radii[part], max(2, count // 4), out)
+    return out
+
+
+def _take_peaks(score: np.ndarray, radii: np.ndarray, count: int, out: list) -> None:
+    """Append the ``count`` highest peaks of ``score`` (H, W, R) to ``out``, each clearing
+    the centres within ``max(3, 0.3 r)`` of itself, skipping circles already in ``out``."""
+    h, w = score.shape[:2]
     yy, xx = np.mgrid[0:h, 0:w]
-    out = []
     for _ in range(count):
         i = int(np.argmax(score))
         y, x, k = np.unravel_index(i, score.shape)
         if score[y, x, k] <= 0:
             break
-        out.append((x + 0.5, y + 0.5, float(radii[k])))
+        c = (x + 0.5, y + 0.5, float(radii[k]))
+        if not any(abs(c[0] - o[0]) < 1 and abs(c[1] - o[1]) < 1 and abs(c[2] - o[2]) < 1 for o in out):
+            out.append(c)
         score[np.hypot(xx - x, yy - y) < max(3.0, 0.3 * radii[k])] = 0.0
-    return out
 
 
 def rim_support(gx: np.ndarray, gy: np.ndarray, noise: float, circle: Circle, *, n_rays: int = 360,

@@ -9,7 +9,7 @@ checks it requires. :func:`check_capture` reads the images of a folder with Open
 The checks and what they implement:
 
 - ``files``: every role of the spec (e.g. ``before`` / ``after``) matches the required
-  number of files (case-insensitive glob on the file name).
+  number of files (case-insensitive globs on the file name, one or several per role).
 - ``readable``, ``same_size``: each file reads; all have the same pixel size.
 - ``bit_depth``: files below the spec's ``min_bit_depth`` give a warning.
 - ``metadata``: the EXIF attributes the spec requires are present.
@@ -17,10 +17,14 @@ The checks and what they implement:
   length) are equal across the files that must share them.
 - ``white_balance``: EXIF WhiteBalance is manual (1), not auto (0) (EXIF 2.3, tag 0xA403).
 - ``photometric``: the pair shows the same background with the same exposure and white
-  balance: the per-channel median ratio of the pair over well-exposed pixels is within the
+  balance: the per-channel median ratio of the pair over well-exposed pixels outside the
+  subject is within the
   tolerance of 1 (a changed exposure scales all channels, a changed white balance does not).
-- ``registration``: the translation between the pair, by phase correlation of the log
-  luminance (Kuglin & Hines 1975, OpenCV ``phaseCorrelate``), is below the limit.
+- ``registration``: the camera did not move between the pair (or the brackets): frames
+  that agree pixel by pixel outside the subject are registered; otherwise a translation
+  by phase correlation of the log luminance (Kuglin & Hines 1975, OpenCV
+  ``phaseCorrelate``) is reported only when the colour channels agree on it and undoing
+  it explains the difference (:func:`bubblefit.capture.measure.measure_shift`).
 - ``subject``: the bubble is found where the pair differs (or the mirror ball by
   :func:`bubblefit.capture.ball.find_ball`), large enough, inside the frame.
 - ``saturation``: no clipped pixel inside the bubble or the ball (in the darkest exposure for

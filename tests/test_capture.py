@@ -10,16 +10,18 @@ import argparse
 import json
 from pathlib import Path
 
+import cv2
 import jax.numpy as jnp
 import numpy as np
 import OpenImageIO as oiio
 import pytest
 
-from bubblefit.capture import protocols
+from bubblefit.capture import measure, protocols
 from bubblefit.lighting import envmap as em
 from bubblefit.errors import BubblefitError, InputError
-from bubblefit.io.images import srgb_encode
-from bubblefit.capture.probe import Circle, mirror_ball_directions
+from bubblefit.io.images import read_image, srgb_encode
+from bubblefit.capture.ball import Circle
+from bubblefit.capture.probe import mirror_ball_directions
 
 META = {"ExposureTime": 1 / 60, "FNumber": 8.0, "Exif:ISOSpeedRatings": 100, "Exif:WhiteBalance": 1,
         "Exif:FocalLength": 50.0}
@@ -54,7 +56,8 @@ def test_protocol_specs_load_and_name_their_documents():
         text = doc.read_text()
         # the document lists every file role and the checks of its spec
         for role in spec["files"]:
-            assert role["pattern"].split("*")[0] in text
+            for pattern in role["patterns"]:
+                assert pattern.split("*")[0] in text, (name, pattern)
     assert (protocols.protocols_dir() / "README.md").is_file()
 
 
@@ -235,14 +238,72 @@ def test_bubble_protocol(tmp_path):
     assert rep.passed, protocols.format_table(rep)
     assert sum(r.check == "subject" and r.status == "PASS" for r in rep.results) == 2
 
-    # no background frame: the bubble cannot be located; a blown-out frame fails
-    alone = tmp_path / "alone"
-    alone.mkdir()
-    write(alone / "bubble.png", np.clip(checker() * 3.0, 0, 2))
-    rep = protocols.check_capture(alone, "bubble")
+
+def test_bubble_protocol_accepts_the_readme_names(tmp_path):
+    """The README's names: bubble.png and empty.png (empty* is the background frame)."""
+    bg = checker() * 0.8
+    write(tmp_path / "empty.png", bg)
+    write(tmp_path / "bubble.png", with_bubble(bg, t4=0.9))
+    rep = protocols.check_capture(tmp_path, "bubble")
+    assert rep.passed, protocols.format_table(rep)
+    assert rep.files == {"background": ["empty.png"], "bubble": ["bubble.png"]}
+
+
+def test_bubble_protocol_fails_without_a_background_frame(tmp_path):
+    write(tmp_path / "bubble.png", with_bubble(checker() * 0.8, t4=0.9))
+    rep = protocols.check_capture(tmp_path, "bubble")
+    assert not rep.passed
     failed = {r.check: r.reason for r in rep.failed()}
-    assert "saturation" in failed and "% of pixels saturated" in failed["saturation"]
-    assert any(r.check == "subject" and r.status == "SKIP" for r in rep.results)
+    assert "files" in failed and "missing 'background'" in failed["files"], protocols.format_table(rep)
+    assert "empty*" in failed["files"]
+
+
+CAPTURE = Path(__file__).parent / "data" / "capture"
+
+
+def test_bubble_protocol_invents_no_shift_on_a_mitsuba_capture(tmp_path):
+    """A Mitsuba 3 render of a bubble filling a third of the frame and the same view without
+    it, renamed as the README says: the camera did not move, and no shift may be reported
+    (phase correlation alone put its peak at (+18, -40) px)."""
+    (tmp_path / "empty.png").write_bytes((CAPTURE / "mitsuba_empty.png").read_bytes())
+    (tmp_path / "bubble.png").write_bytes((CAPTURE / "mitsuba_bubble.png").read_bytes())
+    rep = protocols.check_capture(tmp_path, "bubble")
+    table = protocols.format_table(rep)
+    print(table)
+    status = {r.check: (r.status, r.reason) for r in rep.results}
+    assert status["registration"][0] == "PASS", table
+    assert rep.measurements["shift_px"]["empty.png->bubble.png"] == [0.0, 0.0]
+    assert status["subject"][0] == "PASS", table
+    assert status["photometric"][0] == "PASS", table
+
+
+def test_bubble_protocol_names_a_different_scene_not_a_shift(tmp_path):
+    """Frames of two different scenes: no made-up shift, a reason a person can act on."""
+    (tmp_path / "empty.png").write_bytes((CAPTURE / "mitsuba_other_empty.png").read_bytes())
+    other = read_image(CAPTURE / "mitsuba_other_empty.png").pixels
+    bub = read_image(CAPTURE / "mitsuba_bubble.png").pixels[:other.shape[0], :other.shape[1]]
+    bub = np.pad(bub, ((0, other.shape[0] - bub.shape[0]), (0, other.shape[1] - bub.shape[1]), (0, 0)), mode="edge")
+    write(tmp_path / "bubble.png", bub, bits=8, ExposureTime=None, FNumber=None)
+    rep = protocols.check_capture(tmp_path, "bubble")
+    table = protocols.format_table(rep)
+    reg = next(r for r in rep.results if r.check == "registration")
+    assert reg.status in ("FAIL", "WARN"), table
+    assert "shifted by" not in reg.reason and "no camera shift explains it" in reg.reason, table
+
+
+def test_registration_reports_a_real_shift_only(tmp_path):
+    """measure_shift: a 5-px camera move of a textured scene with a bubble in the second
+    frame is measured; the same frames unmoved give (0, 0); a bubble alone moves nothing."""
+    rng = np.random.default_rng(4)
+    tex = cv2.GaussianBlur(rng.random((140, 180, 3)).astype(np.float32), (0, 0), 2.0).astype(np.float64)
+    scene = 0.1 + 0.8 * (tex - tex.min()) / (tex.max() - tex.min())
+    a = scene[10:106, 10:138]
+    b_still = with_bubble(a, cx=60, cy=50, r=30, t4=0.88)
+    b_moved = with_bubble(scene[10:106, 15:143], cx=60, cy=50, r=30, t4=0.88)  # camera 5 px to the right
+    still = measure.measure_shift(a, b_still)
+    assert still.clear and (still.dx, still.dy) == (0.0, 0.0)
+    moved = measure.measure_shift(a, b_moved)
+    assert moved.clear and abs(moved.dx + 5) < 0.3 and abs(moved.dy) < 0.3, moved
 
 
 # ------------------------------------------------------------------------------ CLI

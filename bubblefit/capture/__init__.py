@@ -10,20 +10,25 @@
 - :mod:`.result`: :class:`CalibrationResult`, its JSON and debug image.
 - :mod:`.disc`: the bubble's disc in a photo, with or without a background photo.
 - :mod:`.rim`: a circle's rim along rays: support, sub-pixel rim, roundness.
-- :mod:`.probe`: mirror-ball probes to equirectangular maps, HDR merging.
-- :mod:`.protocols`: machine-checkable capture protocols.
+- :mod:`.ball`: finding the mirror ball in a photograph.
+- :mod:`.hdr`: merging a bracket of exposures to HDR, camera responses.
+- :mod:`.probe`: unwrapping a mirror ball to an equirectangular map.
+- :mod:`.protocols`: machine-checkable capture protocols (specs; the checks in
+  :mod:`.checks`, their measurements in :mod:`.measure`, the report in :mod:`.report`).
 """
 
-from . import calibrate, circle, disc, pair, probe, profile, protocols, ratio, registration, result, rim
+from . import ball, calibrate, circle, disc, hdr, pair, probe, profile, protocols, ratio, registration, result, rim
+from .ball import find_ball
 from .calibrate import calibrate as calibrate_transmission
 from .circle import kasa_circle_fit
 from .disc import Disc, find_disc
-from .probe import find_ball, merge_exposures, unwrap_mirror_ball
+from .hdr import merge_exposures
+from .probe import unwrap_mirror_ball
 from .protocols import check_capture
 from .registration import phase_correlate, register_translation, shift_image
 from .result import CalibrationResult
 
-__all__ = ["calibrate", "circle", "disc", "rim", "pair", "probe", "profile", "protocols", "ratio", "registration", "result",
-           "CalibrationResult", "calibrate_transmission", "Disc", "find_disc", "kasa_circle_fit", "phase_correlate",
-           "register_translation", "shift_image", "find_ball", "merge_exposures", "unwrap_mirror_ball",
-           "check_capture"]
+__all__ = ["ball", "calibrate", "circle", "disc", "hdr", "pair", "probe", "profile", "protocols", "ratio",
+           "registration", "result", "rim", "CalibrationResult", "calibrate_transmission", "Disc", "find_disc",
+           "kasa_circle_fit", "phase_correlate", "register_translation", "shift_image", "find_ball",
+           "merge_exposures", "unwrap_mirror_ball", "check_capture"]

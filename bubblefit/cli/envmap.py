@@ -1,9 +1,9 @@
 """``bubblefit envmap PROBE [PROBE ...] -o ENV.exr``: mirror-ball photographs to an HDR map.
 
-Several exposures of the ball are merged to HDR (:func:`bubblefit.capture.probe.merge_exposures`),
-the ball is found (:func:`bubblefit.capture.probe.find_ball`) or given with ``--ball``, and it is
+Several exposures of the ball are merged to HDR (:func:`bubblefit.capture.hdr.merge_exposures`),
+the ball is found (:func:`bubblefit.capture.ball.find_ball`) or given with ``--ball``, and it is
 unwrapped (:func:`bubblefit.capture.probe.unwrap_mirror_ball`) to an equirectangular map in the
-convention of docs/design.md (camera frame: the camera looked along -z). Writes a linear EXR and
+convention of ``docs/design.md`` (camera frame: the camera looked along -z). Writes a linear EXR and
 an sRGB PNG preview beside it; ``--mask`` writes the valid-texel mask, ``--json`` a summary.
 """
 
@@ -61,7 +61,7 @@ def register(subparsers) -> None:
 
 
 def _parse_ball(text: str):
-    from ..capture.probe import Circle
+    from ..capture.ball import Circle
 
     try:
         cx, cy, r = (float(v) for v in text.replace(" ", "").split(","))
@@ -72,23 +72,28 @@ def _parse_ball(text: str):
     return Circle(cx, cy, r)
 
 
-def run(args) -> int:
-    from ..capture import probe
-    from ..capture.protocols import metadata_value
-    from ..io.images import preview_path, read_image, srgb_encode, write_image, write_preview
-    from ..progress import stage
-    from .common import guard_outputs, write_json
+def _check_options(args) -> str:
+    """The output path, once the options are known to make sense."""
+    from ..io.images import preview_path
 
     out = str(args.output)
     if not out.lower().endswith(".exr"):
         raise InputError(f"the output map must be an .exr file, got {out}")
+    from .common import guard_outputs
+
     guard_outputs(args.probes, [out, preview_path(out), args.mask, args.hdr, args.json])
     if args.height < 8:
         raise InputError(f"--height must be at least 8, got {args.height}")
-    images = [read_image(p, linear=True if args.response == "linear" else None) for p in args.probes]
-    shapes = {im.shape for im in images}
-    if len(shapes) > 1:
-        raise InputError("the probes differ in size: " + ", ".join(f"{im.path} {im.shape[1]}x{im.shape[0]}" for im in images))
+    if args.distance is not None and not (math.isfinite(args.distance) and args.distance > 1.0):
+        raise InputError(f"--distance is the camera-to-ball-centre distance in ball radii and must exceed 1 "
+                         f"(the camera outside the ball), got {args.distance:g}")
+    return out
+
+
+def _exposure_times(args, images) -> list[float]:
+    """One exposure time per probe: ``--times``, else the files' EXIF ExposureTime."""
+    from ..capture.measure import metadata_value
+
     if args.times is not None:
         if len(args.times) != len(images):
             raise InputError(f"{len(args.times)} --times for {len(images)} probe(s)")
@@ -106,30 +111,59 @@ def run(args) -> int:
         raise InputError(f"exposure times must be positive, got {times}")
     if len(images) > 1 and len(set(round(math.log2(t), 3) for t in times)) < len(times):
         raise InputError("two probes have the same exposure time: a bracket needs different exposures")
+    return times
+
+
+def _merge(args, images, times):
+    """The bracket linearised (``--response``) and merged to one radiance image. Float files
+    (EXR, HDR) hold radiance above 1 unclipped; 8/16-bit codes clip at full scale."""
+    from ..capture import hdr
+    from ..io.images import srgb_encode
 
     pix = [im.pixels for im in images]
     if args.response.startswith("recover"):
         if len(images) < 2 or any(im.bit_depth != 8 for im in images):
             raise InputError("--response recover-* needs at least two 8-bit exposures")
-        codes = [np.round((im.pixels if im.linear_file else srgb_encode(im.pixels)) * 255).astype(np.uint8) for im in images]
-        resp = probe.recover_response(codes, times, method=args.response.split("-", 1)[1])
-        pix = [probe.apply_response(c, resp) for c in codes]
-    sat = [im.saturated if im.bit_depth in (8, 16) else None for im in images]
+        codes = [np.round((im.pixels if im.linear_file else srgb_encode(im.pixels)) * 255).astype(np.uint8)
+                 for im in images]
+        resp = hdr.recover_response(codes, times, method=args.response.split("-", 1)[1])
+        pix = [hdr.apply_response(c, resp) for c in codes]
+    integer = [im.bit_depth in (8, 16) for im in images]
+    sat = [im.saturated if i else None for im, i in zip(images, integer)]
+    clip = [hdr.file_clip_level(im.bit_depth) for im in images]
+    from ..progress import stage
+
     with stage(f"merging {len(pix)} exposure(s)"):
-        merged = probe.merge_exposures(pix, times, saturated=sat, method=args.merge)
+        return hdr.merge_exposures(pix, times, saturated=sat, clip_level=clip, method=args.merge)
+
+
+def run(args) -> int:
+    import sys
+
+    from ..capture import ball, hdr, probe
+    from ..io.images import preview_path, read_image, write_image, write_preview
+    from ..progress import stage
+    from .common import write_json
+
+    out = _check_options(args)
+    images = [read_image(p, linear=True if args.response == "linear" else None) for p in args.probes]
+    shapes = {im.shape for im in images}
+    if len(shapes) > 1:
+        raise InputError("the probes differ in size: " + ", ".join(f"{im.path} {im.shape[1]}x{im.shape[0]}" for im in images))
+    times = _exposure_times(args, images)
+    merged = _merge(args, images, times)
     with stage("finding the ball"):
-        circle = _parse_ball(args.ball) if args.ball else probe.find_ball(merged.radiance)
+        circle = _parse_ball(args.ball) if args.ball else ball.find_ball(merged.radiance)
     h, w = merged.radiance.shape[:2]
     if circle.cx + circle.r < 0 or circle.cy + circle.r < 0 or circle.cx - circle.r > w or circle.cy - circle.r > h:
         raise InputError(f"the ball ({circle.cx:g}, {circle.cy:g}, r {circle.r:g}) lies outside the {w}x{h} image")
-    with stage("unwrapping the ball"):
-        pm = probe.unwrap_mirror_ball(
-            merged.radiance, circle, height=args.height, distance=args.distance,
-            rim_mask_deg=args.rim_mask_deg, camera_mask_deg=args.camera_mask_deg,
-            rotation=math.radians(args.rotation_deg), fill=not args.no_fill,
-        )
+    pm = probe.unwrap_mirror_ball(
+        merged.radiance, circle, height=args.height, distance=args.distance,
+        rim_mask_deg=args.rim_mask_deg, camera_mask_deg=args.camera_mask_deg,
+        rotation=math.radians(args.rotation_deg), fill=not args.no_fill,
+    )
     env = pm.pixels if not args.no_fill else np.where(pm.valid[..., None], pm.pixels, 0.0)
-    clipped_in_ball = int((merged.clipped & probe.ball_mask((h, w), circle)).sum())
+    clipped_in_ball = int((merged.clipped & ball.ball_mask((h, w), circle)).sum())
     write_image(out, env, bit_depth=32 if float(np.max(env)) > 60000 else None)
     lum = env @ np.array([0.2126, 0.7152, 0.0722])
     ref = float(np.median(lum[pm.valid])) if pm.valid.any() else float(np.median(lum))
@@ -143,7 +177,7 @@ def run(args) -> int:
         "preview": str(preview_path(out)),
         "probes": [im.path for im in images],
         "exposure_times_s": times,
-        "bracket_stops": probe.exposure_stops(times),
+        "bracket_stops": hdr.exposure_stops(times),
         "merge": args.merge,
         "response": args.response,
         "ball": circle.as_dict(),
@@ -158,8 +192,6 @@ def run(args) -> int:
           f"{len(images)} exposure(s) over {summary['bracket_stops']:.1f} stops; "
           f"{100 * pm.info['valid_fraction']:.0f}% of directions sampled")
     if clipped_in_ball:
-        import sys
-
         print(f"bubblefit: warning: {clipped_in_ball} pixel(s) of the ball are clipped in every exposure "
               "(their radiance is a lower bound): add a shorter exposure", file=sys.stderr)
     return 0

@@ -85,7 +85,7 @@ def test_constant_recovery(env, seed, thickness, tint):
     assert abs(p["thickness_nm"] - thickness) < 4 * e["thickness_nm"] + 0.5
     assert abs(p["t"] - truth["t"]) < 4 * e["t"] + 2e-4
     names = [h[0] for h in res.held]
-    assert "rotation" in names and "thickness" not in names
+    assert "rotation_deg" in names and "thickness_nm" not in names
     js = res.to_json()
     for key in ("params", "stderr", "converged", "iterations", "residual_rms", "time_s"):
         assert key in js

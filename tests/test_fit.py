@@ -87,8 +87,17 @@ def test_constant_recovery(env, seed, thickness, tint):
     names = [h[0] for h in res.held]
     assert "rotation_deg" in names and "thickness_nm" not in names
     js = res.to_json()
-    for key in ("params", "stderr", "converged", "iterations", "residual_rms", "time_s"):
+    for key in ("params", "stderr", "converged", "iterations", "residual_rms", "time_s", "ok", "warnings",
+                "reduced_chi2", "disc", "covariance"):
         assert key in js
+    # a photo of the model itself, within its noise: ok, and the covariance's diagonal is the errors
+    assert js["ok"] is True and js["warnings"] == [], js["warnings"]
+    assert js["reduced_chi2"] < 2.0
+    assert js["disc"] == {"cx": DISC[0], "cy": DISC[1], "r": DISC[2]}
+    cov = js["covariance"]
+    assert "thickness_nm" in cov["names"] and "rotation_deg" not in cov["names"]
+    i = cov["names"].index("thickness_nm")
+    assert np.sqrt(cov["matrix"][i][i]) == pytest.approx(e["thickness_nm"], rel=1e-6)
     assert res.render.shape == photo.shape and res.residual.shape == photo.shape
 
 
@@ -122,7 +131,19 @@ def test_drainage_and_map(env, tmp_path):
     err = np.abs(m - true)[used]
     assert used.sum() > 0.5 * np.pi * DISC[2] ** 2
     assert np.median(err) < 10.0
+    assert np.mean(err < 15.0) > 0.9
     assert np.isnan(m[0, 0])  # outside the bubble
+    # no order hops: neighbours never differ by a colour order (~200 nm) where the truth is smooth
+    for ax in (0, 1):
+        jump = np.abs(np.diff(m, axis=ax))
+        both = np.diff(used.astype(int), axis=ax) == 0
+        ok = both & np.take(used, range(used.shape[ax] - 1), axis=ax)
+        assert np.nanmax(np.where(ok, jump, 0.0)) < 100.0
+    # the 40 nm bump survives the smoothness prior
+    jc, ic = int(DISC[0] + 0.3 * DISC[2]), int(DISC[1])
+    prof = np.asarray(drainage_profile(y, p["top_nm"], p["bottom_nm"], p["exponent"]))
+    assert abs((m - prof)[ic - 1:ic + 2, jc - 1:jc + 2].mean() - 40.0) < 15.0
+    assert np.all(np.isfinite(res.thickness_stderr_map[used])) and np.all(res.thickness_stderr_map[used] > 0)
 
 
 @pytest.mark.parametrize("rim", [0.75, 0.5])
@@ -163,6 +184,13 @@ def test_failed_fit_is_reported_and_skipped_effects_held(env):
     assert not res.converged
     assert "solver" in res.message
     assert res.to_json()["converged"] is False
+    assert res.status == "max_steps" and res.to_json()["ok"] is False
+    assert any("did not converge" in w for w in res.warnings)
+    # a parameter that was fitted is never reported as held
+    report = res.report()
+    for line in report.splitlines():
+        if line.startswith(("t ", "thickness_nm", "exposure")):
+            assert "held" not in line, line
     held = dict(res.held)
     assert "split" in held and "diffuse" in held["split"]
     assert res.to_json()["stderr"]["f"] is None
@@ -179,7 +207,8 @@ def test_cli_fit(env, small_courtyard, tmp_path, capsys):
     write_image(tmp_path / "photo.png", photo)
     write_image(tmp_path / "before.png", bg)
     write_image(tmp_path / "env.exr", small_courtyard, bit_depth=32)
-    (tmp_path / "cal.json").write_text(json.dumps({"t": 0.968, "bubble": {"cx": DISC[0], "cy": DISC[1], "r": DISC[2]}}))
+    (tmp_path / "cal.json").write_text(json.dumps({"t": 0.968, "bubble": {"cx": DISC[0], "cy": DISC[1], "r": DISC[2]},
+                                                   "image_size": [N, N]}))
     args = ["fit", str(tmp_path / "photo.png"), "--envmap", str(tmp_path / "env.exr"), "--background",
             str(tmp_path / "before.png"), "--calibration", str(tmp_path / "cal.json"),
             "--json", str(tmp_path / "out.json"), "-o", str(tmp_path / "fit")]
@@ -191,7 +220,10 @@ def test_cli_fit(env, small_courtyard, tmp_path, capsys):
         assert key in out["params"] and key in out["stderr"]
     assert read_image(tmp_path / "fit_render.exr").pixels.shape == (N, N, 3)
     assert (tmp_path / "fit_residual.png").exists()
-    capsys.readouterr()
+    assert out["disc"] == {"cx": DISC[0], "cy": DISC[1], "r": DISC[2]}  # the calibration's, checked
+    summary = [line for line in capsys.readouterr().out.splitlines() if "reduced chi^2" in line]
+    assert len(summary) == 1 and summary[0].startswith("ok ") and "disc (24.0, 24.0, r 20.2)" in summary[0]
+    assert out["ok"] == summary[0].startswith("ok yes")
 
     # bad inputs: one clear line, exit 2
     (tmp_path / "bad.json").write_text(json.dumps({"bubble": {}}))
@@ -205,3 +237,94 @@ def test_cli_fit(env, small_courtyard, tmp_path, capsys):
     assert "background" in capsys.readouterr().err
     assert main(["fit", str(tmp_path / "missing.png"), "--envmap", str(tmp_path / "env.exr")]) == 2
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def test_wrong_map_is_not_ok(env, small_courtyard):
+    """The right photo fitted with another environment (the map turned by 90 degrees):
+    the fit may converge, but it is not ok, and a warning says the model does not explain
+    the photo."""
+    from bubblefit.inverse.fit import fit_photo
+
+    rng = np.random.default_rng(13)
+    bg = _background(rng)
+    photo = _quantise(_render(env, bg, {"t": 0.97, "roughness": 0.08, "thickness_nm": 480.0}), rng)
+    wrong = _env(np.roll(small_courtyard, small_courtyard.shape[1] // 4, axis=1))
+    res = fit_photo(photo, wrong, options=_opts(), background=_quantise(bg, rng))
+    js = res.to_json()
+    assert js["ok"] is False
+    assert js["reduced_chi2_floor"] > 3.0
+    assert any("does not explain" in w for w in js["warnings"]), js["warnings"]
+
+
+def test_no_bubble_is_refused(env, small_courtyard, tmp_path, capsys):
+    """The background photo passed as the photo (another exposure of the same view): no
+    bubble, one clear line, non-zero exit; no fit is attempted."""
+    from bubblefit.cli import main
+    from bubblefit.errors import InputError
+    from bubblefit.inverse.fit import fit_photo
+    from bubblefit.io.images import write_image
+
+    rng = np.random.default_rng(17)
+    bg = _background(rng)
+    photo, before = _quantise(bg, rng), _quantise(bg, rng)
+    with pytest.raises(InputError, match="no bubble"):
+        fit_photo(photo, env, options=_opts(disc=None), background=before)
+    write_image(tmp_path / "photo.png", photo)
+    write_image(tmp_path / "before.png", before)
+    write_image(tmp_path / "env.exr", small_courtyard, bit_depth=32)
+    code = main(["fit", str(tmp_path / "photo.png"), "--envmap", str(tmp_path / "env.exr"), "--background",
+                 str(tmp_path / "before.png")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "no bubble" in err[0]
+
+
+def test_calibration_disc_is_checked_against_the_photo():
+    """A calibration's disc is used only for a photo of its frame's size whose bubble it
+    matches; otherwise the disc found in the photo is used, with a warning."""
+    from bubblefit.inverse._disc import resolve_disc
+    from bubblefit.model.scene import Scene, render_scene
+
+    rng = np.random.default_rng(19)
+    bg = _background(rng)
+    scene = Scene.from_dict({"camera": {"width": N, "height": N, "disc": list(DISC)},
+                             "bubble": {"t": 0.97, "thickness_nm": 400.0}, "lighting": {"background": "black"},
+                             "effects": {"model": "paper"}})
+    photo = _quantise(np.asarray(render_scene(scene, background=bg)), rng)
+    before = _quantise(bg, rng)
+    near = (DISC[0] + 0.5, DISC[1] - 0.5, DISC[2] + 0.3)
+    disc, warn = resolve_disc(photo, before, _opts(disc=None, calibration_disc=near, calibration_size=(N, N)))
+    assert disc == near and warn == []
+    for cal, size, why in [((200.0, 150.0, 80.0), (512, 384), "frame"), ((10.0, 12.0, 6.0), (N, N), "disagrees"),
+                           ((10.0, 12.0, 6.0), None, "disagrees")]:
+        disc, warn = resolve_disc(photo, before, _opts(disc=None, calibration_disc=cal, calibration_size=size))
+        assert np.hypot(disc[0] - DISC[0], disc[1] - DISC[1]) < 1.5 and abs(disc[2] - DISC[2]) < 1.5, disc
+        assert len(warn) == 1 and why in warn[0]
+
+
+def test_large_photo_is_cropped_to_the_bubble():
+    """A photo larger than ``analysis_size`` is analysed as a crop around the bubble,
+    block-averaged to at most that size, with the disc mapped back to the photo's pixels."""
+    from bubblefit.inverse._observation import analysis_frame
+
+    H, W = 1200, 1800
+    photo = np.full((H, W, 3), 0.3)
+    sat = np.zeros((H, W), bool)
+    disc = (1100.5, 500.25, 300.0)
+    fr = analysis_frame(photo, photo, sat, disc, _opts(analysis_size=256))
+    assert max(fr.photo.shape[:2]) <= 256 and fr.k == 3
+    assert fr.sigma.shape == fr.photo.shape and fr.background.shape == fr.photo.shape
+    assert fr.to_photo(fr.disc) == pytest.approx(disc)
+    small = analysis_frame(photo[:200, :200], None, sat[:200, :200], (100, 100, 50), _opts(analysis_size=256))
+    assert small.whole and small.photo.shape == (200, 200, 3)
+
+
+def test_cli_thickness_range_must_be_finite(tmp_path, capsys):
+    from bubblefit.cli import main
+    from bubblefit.io.images import write_image
+
+    write_image(tmp_path / "photo.png", np.full((N, N, 3), 0.3))
+    write_image(tmp_path / "env.exr", np.full((8, 16, 3), 0.5, np.float32), bit_depth=32)
+    code = main(["fit", str(tmp_path / "photo.png"), "--envmap", str(tmp_path / "env.exr"), "--disc", "24,24,20",
+                 "--thickness-range", "0,inf"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "thickness-range" in err[0]

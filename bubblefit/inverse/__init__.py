@@ -17,7 +17,8 @@ The fit of one photograph runs in stages, each in its own module:
 """
 
 from . import fit, search, sequence
-from ._observation import Disc, detect_disc, find_bubble, noise_sigma
+from ._disc import Disc, find_bubble
+from ._observation import detect_disc, noise_sigma
 from ._options import FitOptions, FitResult, FitStatus, ForwardModel, ThicknessModel
 from ._parameters import PARAMETERS, Parameter, ParameterTable
 from .fit import fit_batch, fit_photo

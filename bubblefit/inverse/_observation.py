@@ -1,8 +1,10 @@
 """The observation: what the fit sees of the photo.
 
 The photo's noise (:func:`noise_sigma`), its clipped pixels (:func:`saturation_mask`),
-the bubble's disc (:func:`find_bubble`), and the photo block-averaged to the resolution
-a stage of the fit runs at, with its weights and the film's geometry (:class:`Level`).
+the frame the fit analyses (:func:`analysis_frame`: a large photo cropped to the bubble
+and block-averaged, so memory is bounded by the fit's size), and the photo
+block-averaged to the resolution a stage of the fit runs at, with its weights and the
+film's geometry (:class:`Level`). The bubble's disc is found in :mod:`._disc`.
 """
 
 from __future__ import annotations
@@ -20,8 +22,8 @@ from ..errors import InputError
 from ..model.geometry import OrthographicCamera, intersect_sphere
 from ..model.render import RenderConfig
 
-__all__ = ["Disc", "Level", "noise_sigma", "saturation_mask", "detect_disc", "find_bubble", "make_level",
-           "film_geometry"]
+__all__ = ["Level", "Frame", "noise_sigma", "saturation_mask", "detect_disc", "make_level", "film_geometry",
+           "block_mean", "analysis_frame"]
 
 
 def noise_sigma(photo: np.ndarray, read: float, shot: float, bits: int | None) -> np.ndarray:
@@ -49,29 +51,12 @@ def saturation_mask(photo: np.ndarray, level: float, given: np.ndarray | None) -
     """(H, W) clipped pixels: any channel at or above ``level`` (for files whose maximum
     is 1), or in ``given``, dilated by one pixel (a clipped pixel's neighbours bleed)."""
     H, W = photo.shape[:2]
-    sat = (np.max(photo, axis=-1) >= level) if photo.max() <= 1.0 + 1e-6 else np.zeros((H, W), bool)
+    sat = (np.max(photo, axis=-1) >= level) if np.nanmax(photo) <= 1.0 + 1e-6 else np.zeros((H, W), bool)
     if given is not None:
         if np.shape(given) != (H, W):
             raise InputError(f"the saturation mask is {np.shape(given)}, the photo is {W}x{H}")
         sat = sat | np.asarray(given, bool)
     return ndi.binary_dilation(sat) if sat.any() else sat
-
-
-@dataclass(frozen=True)
-class Disc:
-    """The bubble's disc in the photo: centre ``(cx, cy)`` and radius ``r`` in pixels
-    (pixel centres at +1/2, as in :class:`~bubblefit.model.geometry.OrthographicCamera`).
-
-    ``found`` is False when no bubble was found (``reason`` says why); ``contrast`` is
-    how strongly the disc stands out, in noise units (NaN when not measured).
-    """
-
-    cx: float
-    cy: float
-    r: float
-    found: bool = True
-    contrast: float = float("nan")
-    reason: str = ""
 
 
 def detect_disc(photo: np.ndarray, background: np.ndarray | None = None) -> tuple[float, float, float]:
@@ -108,20 +93,6 @@ def detect_disc(photo: np.ndarray, background: np.ndarray | None = None) -> tupl
     return cx, cy, r
 
 
-def find_bubble(photo: np.ndarray, background: np.ndarray | None = None, *,
-                sigma: np.ndarray | None = None) -> Disc:
-    """The bubble's :class:`Disc` in ``photo`` (the fit's one entry point to disc detection).
-
-    Has the interface of ``bubblefit.capture.disc.find_disc``; until that lands it wraps
-    :func:`detect_disc` (``sigma`` unused) and reports a failure as ``found=False``.
-    """
-    try:
-        cx, cy, r = detect_disc(photo, background)
-    except InputError as exc:
-        return Disc(float("nan"), float("nan"), float("nan"), found=False, reason=str(exc))
-    return Disc(float(cx), float(cy), float(r))
-
-
 @dataclass
 class Level:
     """The photo, weights and geometry at one resolution (``k`` times smaller)."""
@@ -142,6 +113,68 @@ def _block(a: np.ndarray, k: int, h: int, w: int, how="mean"):
         return a
     b = a[: h * k, : w * k].reshape(h, k, w, k, *a.shape[2:])
     return b.mean(axis=(1, 3)) if how == "mean" else b.any(axis=(1, 3))
+
+
+def block_mean(a: np.ndarray, k: int) -> np.ndarray:
+    """``a`` (H, W, ...) averaged over blocks of ``k`` x ``k`` pixels (the remainder dropped)."""
+    return _block(a, k, a.shape[0] // k, a.shape[1] // k)
+
+
+@dataclass
+class Frame:
+    """The part of the photo a fit analyses: from pixel ``(x0, y0)`` in blocks of ``k``.
+
+    ``photo``, ``background``, ``sigma`` and ``saturated`` are in that frame; ``disc`` is
+    the bubble's disc in it (``to_photo`` maps a disc back to the photo's pixels).
+    """
+
+    x0: int
+    y0: int
+    k: int
+    photo: np.ndarray
+    background: np.ndarray | None
+    sigma: np.ndarray
+    saturated: np.ndarray
+    disc: tuple | None
+
+    @property
+    def whole(self) -> bool:
+        return self.x0 == 0 and self.y0 == 0 and self.k == 1
+
+    def to_photo(self, disc):
+        """A disc ``(cx, cy, r)`` of this frame in the photo's pixels."""
+        if disc is None:
+            return None
+        cx, cy, r = disc
+        return (self.x0 + cx * self.k, self.y0 + cy * self.k, r * self.k)
+
+
+def analysis_frame(photo, background, saturated, disc, opts) -> Frame:
+    """The :class:`Frame` a fit analyses (``opts``: a ``FitOptions``).
+
+    A photo whose larger side is at most ``opts.analysis_size`` (or without a disc, i.e.
+    a perspective camera) is used whole. A larger one is cropped to 1.15 radii around
+    the disc and block-averaged by ``k`` so that the crop's larger side is at most
+    ``analysis_size``: the noise variance of a block mean is the mean variance over
+    ``k^2``, and a block with a clipped pixel is clipped.
+    """
+    H, W = photo.shape[:2]
+    if disc is None or max(H, W) <= opts.analysis_size:
+        sigma = noise_sigma(photo, opts.noise_read, opts.noise_shot, opts.bits)
+        return Frame(0, 0, 1, photo, background, sigma, saturated, disc)
+    cx, cy, r = disc
+    half = 1.15 * r
+    x0, x1 = max(0, int(math.floor(cx - half))), min(W, int(math.ceil(cx + half)))
+    y0, y1 = max(0, int(math.floor(cy - half))), min(H, int(math.ceil(cy + half)))
+    if x1 - x0 < 8 or y1 - y0 < 8:
+        raise InputError(f"the bubble's disc {disc} lies outside the {W}x{H} photo")
+    k = max(1, math.ceil(max(x1 - x0, y1 - y0) / opts.analysis_size))
+    crop = photo[y0:y1, x0:x1]
+    sigma = np.sqrt(block_mean(noise_sigma(crop, opts.noise_read, opts.noise_shot, opts.bits) ** 2, k) / (k * k))
+    bg = None if background is None else block_mean(background[y0:y1, x0:x1], k)
+    h, w = (y1 - y0) // k, (x1 - x0) // k
+    sat = _block(saturated[y0:y1, x0:x1], k, h, w, how="any")
+    return Frame(x0, y0, k, block_mean(crop, k), bg, sigma, sat, ((cx - x0) / k, (cy - y0) / k, r / k))
 
 
 def _camera_at(camera, k: int, h: int, w: int):

@@ -49,7 +49,11 @@ class FitOptions:
     thickness_range : tuple
         (min, max) nm searched (and used to decide the effects).
     max_steps, rtol, atol
-        Levenberg-Marquardt limits and tolerances.
+        Levenberg-Marquardt limits and tolerances (optimistix' Cauchy test: every
+        unconstrained coordinate and every whitened residual changes by less than
+        ``atol + rtol |value|`` in a step). 1e-4 is a ten-thousandth of a noise sigma per
+        pixel and 0.01 nm of thickness; tighter tolerances sit below the float32
+        renderer's rounding and are never met.
     downsample : int or None
         Factor of the image the local fit runs on (None: so that its larger side is at
         most ``fit_size``).
@@ -74,6 +78,31 @@ class FitOptions:
         Names of parameters to hold at their starting values.
     effects : tuple
         Extra ``[effects]`` settings as ``((key, value), ...)``.
+    calibration_disc : tuple or None
+        ``(cx, cy, r)`` from ``bubblefit calibrate``: used (instead of detecting the disc)
+        only when the photo has ``calibration_size`` (when known) and the disc found in the
+        photo agrees with it; otherwise the detected disc is used and a warning says why.
+    calibration_size : tuple or None
+        ``(width, height)`` of the calibration frame, when the calibration JSON records it.
+    model_error : float
+        The model-error floor: a fraction of each pixel's value added in quadrature to its
+        noise when judging whether the photo is explained (``ok``). Renderers disagree by
+        about this much on the same film (spectral sampling, observer tables, the rim's
+        filtering), so a fit is not failed for differences of that size.
+    ok_chi2 : float
+        A fit is ``ok`` only when the reduced chi^2 with the model-error floor is at most
+        this.
+    analysis_size : int
+        A photo whose larger side exceeds this is cropped to the bubble (1.15 radii around
+        its disc) and block-averaged so that the crop's larger side is at most this,
+        before anything else: memory stays bounded by this size, not the photo's. The
+        fit's images (render, residual, maps) are then in that frame
+        (:attr:`FitResult.frame`); the disc is always reported in the photo's pixels.
+    map_smoothness_nm : float
+        The thickness map's smoothness prior: the standard deviation (nm) of the
+        difference between neighbouring pixels' thicknesses at the photo's resolution.
+        Smaller values smooth more; a film's real features (a 40 nm bump a few pixels
+        wide) change by a few nm per pixel and survive the default.
     """
 
     thickness: ThicknessModel = "constant"
@@ -85,8 +114,8 @@ class FitOptions:
     roughness_init: float | None = None
     thickness_range: tuple = (50.0, 2000.0)
     max_steps: int = 80
-    rtol: float = 1e-5
-    atol: float = 1e-6
+    rtol: float = 1e-4
+    atol: float = 1e-4
     downsample: int | None = None
     fit_size: int = 96
     search_size: int = 48
@@ -102,6 +131,12 @@ class FitOptions:
     map_prior_nm: float = 150.0
     hold: tuple = ()
     effects: tuple = ()
+    calibration_disc: tuple | None = None
+    calibration_size: tuple | None = None
+    model_error: float = 0.03
+    ok_chi2: float = 3.0
+    analysis_size: int = 1024
+    map_smoothness_nm: float = 8.0
 
     def __post_init__(self):
         if self.thickness not in ("constant", "drainage", "map"):
@@ -109,8 +144,12 @@ class FitOptions:
         if self.model not in ("paper", "physical"):
             raise InputError(f"model must be paper or physical, got {self.model!r}")
         lo, hi = self.thickness_range
+        if not (math.isfinite(lo) and math.isfinite(hi)):
+            raise InputError(f"thickness range must be finite (nm), got {lo}..{hi}")
         if not 0 <= lo < hi:
             raise InputError(f"thickness range must be 0 <= min < max, got {lo}..{hi}")
+        if hi > 20000:
+            raise InputError(f"thickness range must end below 20000 nm (20 um), got {hi}")
 
 
 def _clean(d: dict) -> dict:
@@ -157,6 +196,19 @@ class FitResult:
         The reported parameters the covariance is given for, in its order.
     covariance : np.ndarray or None
         Covariance of ``names`` (the fitted parameters in reported units).
+    ok : bool
+        True only when the solver converged, the bubble was found, no parameter sits at a
+        bound and the photo is explained within its noise plus the model-error floor.
+    warnings : list
+        Each reason ``ok`` is False (and other cautions), in words.
+    chi2_floor : float
+        Reduced chi^2 with the model-error floor (``FitOptions.model_error``).
+    stderr_scale : float
+        The factor the noise-only standard errors were widened by for misfit
+        (``sqrt(max(1, chi2_nu) c)``, :mod:`bubblefit.inverse._uncertainty`).
+    frame : tuple or None
+        ``(x0, y0, k)``: the fit's images cover the photo from pixel ``(x0, y0)`` in blocks
+        of ``k`` pixels (None: the whole photo at its own resolution).
     """
 
     params: dict
@@ -180,7 +232,12 @@ class FitResult:
     status: FitStatus = "converged"
     names: tuple = ()
     covariance: np.ndarray | None = None
-    notes: list = field(default_factory=list)
+    ok: bool = False
+    warnings: list = field(default_factory=list)
+    chi2_floor: float = float("nan")
+    model_error: float = float("nan")
+    stderr_scale: float = 1.0
+    frame: tuple | None = None
 
     def to_json(self) -> dict:
         """The command line's result (``docs/design.md``): params, stderr, converged,
@@ -195,11 +252,16 @@ class FitResult:
             "stderr": _clean(self.stderr),
             "held": [{"name": n, "reason": r} for n, r in self.held],
             "converged": bool(self.converged),
+            "ok": bool(self.ok),
+            "warnings": list(self.warnings),
             "status": self.status,
             "message": self.message,
             "iterations": int(self.iterations),
             "residual_rms": float(self.residual_rms),
             "reduced_chi2": float(self.reduced_chi2),
+            "reduced_chi2_floor": float(self.chi2_floor),
+            "model_error_floor": float(self.model_error),
+            "stderr_scale": float(self.stderr_scale),
             "pixels_used": int(self.pixels_used),
             "time_s": float(self.time_s),
             "thickness": self.thickness_model,
@@ -207,6 +269,8 @@ class FitResult:
             "solver": "optimistix.LevenbergMarquardt",
             "disc": None if self.disc is None else {"cx": self.disc[0], "cy": self.disc[1], "r": self.disc[2]},
             "covariance": cov,
+            "frame": None if self.frame is None else {"x0": int(self.frame[0]), "y0": int(self.frame[1]),
+                                                      "block": int(self.frame[2])},
             "effects": [{"effect": d.effect, "simulated": d.simulated, "setting": d.setting, "reason": d.reason}
                         for d in self.effects],
         }
@@ -220,19 +284,22 @@ class FitResult:
             err = self.stderr.get(k)
             if err is not None and math.isfinite(err):
                 txt = f"+- {err:.3g}"
-            elif k in held:
-                txt = f"(held: {held[k]})"
             elif k == "n_film":
                 txt = "(given)"
+            elif err is None:  # held, or set by held parameters (f, r_d, r_s by a held split)
+                why = held.get(k) or (held.get("split") if k in ("f", "r_d", "r_s") else None)
+                txt = f"(held: {why})" if why else "(held)"
             else:
-                txt = "(fitted, no standard error)"
+                txt = "(fitted; no standard error: the photo does not constrain it)"
             lines.append(f"{k:<13} {v:.6g} {txt}")
         lines.append(self.summary())
+        lines += [f"warning: {w}" for w in self.warnings]
         return "\n".join(lines)
 
     def summary(self) -> str:
         """One line: the solver's status, steps, reduced chi^2, the disc and the time."""
-        state = "converged" if self.converged else f"NOT CONVERGED: {self.message}"
+        state = "converged" if self.converged else f"NOT CONVERGED ({self.status})"
         disc = "" if self.disc is None else " disc ({:.1f}, {:.1f}, r {:.1f}),".format(*self.disc)
-        return (f"{state}; {self.iterations} iterations, reduced chi^2 {self.reduced_chi2:.3g},{disc} "
+        return (f"ok {'yes' if self.ok else 'NO'}; {state}; {self.iterations} iterations, reduced chi^2 "
+                f"{self.reduced_chi2:.3g} ({self.chi2_floor:.3g} with the model-error floor),{disc} "
                 f"residual rms {self.residual_rms:.4g}, {self.time_s:.2f} s")

@@ -35,27 +35,36 @@ Transform = Literal["logistic", "log", "softplus", "angle", "none"]
 
 @dataclass(frozen=True)
 class Parameter:
-    """One fitted quantity: its name (a JSON key), unit, bounds, transform and reference."""
+    """One fitted quantity: its name (a JSON key), unit, bounds, transform and reference.
+
+    ``bounds`` are where the transform keeps the value; a value within the ``plausible``
+    range's ends (or outside it) is reported as sitting at a bound (for thicknesses the
+    range searched, ``FitOptions.thickness_range``, is used instead).
+    """
 
     name: str
     unit: str
     bounds: tuple
     transform: Transform
     reference: str
+    plausible: tuple = (-math.inf, math.inf)
 
 
 PARAMETERS: dict[str, Parameter] = {p.name: p for p in (
-    Parameter("t", "", (0.0, 1.0), "logistic", "transmission fraction per interface, eqs. (10)-(11), (14)"),
-    Parameter("split", "", (0.0, 1.0), "logistic", "specular share r_s / (r_d + r_s) of 1 - t, eq. (14)"),
+    Parameter("t", "", (0.0, 1.0), "logistic", "transmission fraction per interface, eqs. (10)-(11), (14)",
+              (0.5, 0.9995)),
+    Parameter("split", "", (0.0, 1.0), "logistic", "specular share r_s / (r_d + r_s) of 1 - t, eq. (14)",
+              (1e-3, 1 - 1e-3)),
     Parameter("r_d", "", (0.0, math.inf), "log", "diffuse reflectance, eq. (1) (with free_split)"),
     Parameter("r_s", "", (0.0, math.inf), "log", "specular reflectance, eq. (1) (with free_split)"),
-    Parameter("roughness", "", (0.0, math.inf), "log", "Ward's roughness a, eq. (1)"),
-    Parameter("exposure", "", (0.0, math.inf), "log", "camera gain on the rendered radiance"),
+    Parameter("roughness", "", (0.0, math.inf), "log", "Ward's roughness a, eq. (1)", (1e-4, 1.0)),
+    Parameter("exposure", "", (0.0, math.inf), "log", "camera gain on the rendered radiance", (1e-6, 1e6)),
     Parameter("rotation_deg", "deg", (-math.inf, math.inf), "angle", "environment rotation about +y"),
     Parameter("thickness_nm", "nm", (0.0, math.inf), "softplus", "film thickness d, eq. (8)"),
     Parameter("top_nm", "nm", (0.0, math.inf), "softplus", "drainage profile at the top, docs/design.md"),
     Parameter("bottom_nm", "nm", (0.0, math.inf), "softplus", "drainage profile at the bottom, docs/design.md"),
-    Parameter("exponent", "", (0.0, math.inf), "log", "drainage profile exponent, docs/design.md"),
+    Parameter("exponent", "", (0.0, math.inf), "log", "drainage profile exponent, docs/design.md",
+              (0.1, 10.0)),
 )}
 
 #: Free parameters of each thickness model (a map starts from a drainage profile).

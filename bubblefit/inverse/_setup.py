@@ -8,7 +8,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ._observation import Level, find_bubble, make_level, noise_sigma, saturation_mask
+from ._disc import resolve_disc
+from ._observation import Frame, Level, analysis_frame, make_level, saturation_mask
 from ._options import FitOptions
 from ._parameters import PARAMETERS, ParameterTable, THICKNESS_PARAMETERS
 from ..errors import InputError
@@ -149,7 +150,7 @@ def _table(opts, fx, held: dict) -> ParameterTable:
 class Setup:
     """What a fit of one photo knows before it solves (:func:`setup`)."""
 
-    photo: np.ndarray
+    photo: np.ndarray  # the analysed frame (:func:`analysis_frame`), as background, sigma, saturated
     background: np.ndarray | None
     vals: dict
     table: ParameterTable
@@ -157,11 +158,13 @@ class Setup:
     decisions: list
     base_cfg: RenderConfig
     map_cfg: RenderConfig
-    disc: tuple | None
+    disc: tuple | None  # in the photo's pixels
     sigma: np.ndarray
     saturated: np.ndarray
     k_search: int
     lev_fit: Level
+    frame: Frame
+    warnings: list
 
     def level(self, k: int, opts: FitOptions, cfg: RenderConfig | None = None) -> Level:
         """The photo ``k`` times smaller (:func:`make_level`)."""
@@ -199,51 +202,56 @@ def _settings(scene, opts) -> dict:
     return settings
 
 
-def _camera(scene, opts, photo, background):
-    """``(camera, center, radius, disc)``: the scene's perspective camera, or an orthographic
-    one on the disc given (options, scene) or found (:func:`find_bubble`)."""
+def _perspective(scene, photo):
+    """``(camera, center, radius)`` of a scene's perspective camera, or None."""
+    if scene is None or scene.table("camera").get("type", "orthographic") != "perspective":
+        return None
     H, W = photo.shape[:2]
-    if scene is not None and scene.table("camera").get("type", "orthographic") == "perspective":
-        camera = scene.camera()
-        if (camera.height, camera.width) != (H, W):
-            raise InputError(f"the scene's camera is {camera.width}x{camera.height}, the photo is {W}x{H}")
-        b = scene.table("bubble")
-        center, radius = tuple(float(x) for x in b.get("center", (0, 0, 0))), float(b.get("radius", 1.0))
-        return camera, center, radius, None
-    disc = opts.disc
-    if disc is None and scene is not None and "disc" in scene.table("camera"):
-        disc = tuple(scene.table("camera")["disc"])
-    if disc is None:
-        found = find_bubble(photo, background)
-        if not found.found:
-            raise InputError(found.reason)
-        disc = tuple(round(float(v), 2) for v in (found.cx, found.cy, found.r))
-    disc = tuple(float(v) for v in disc)
-    if len(disc) != 3 or disc[2] <= 2:
+    camera = scene.camera()
+    if (camera.height, camera.width) != (H, W):
+        raise InputError(f"the scene's camera is {camera.width}x{camera.height}, the photo is {W}x{H}")
+    b = scene.table("bubble")
+    return camera, tuple(float(x) for x in b.get("center", (0, 0, 0))), float(b.get("radius", 1.0))
+
+
+def _disc(scene, opts, photo, background) -> tuple[tuple, list]:
+    """The orthographic camera's disc (given, the scene's, a calibration's or found) and warnings."""
+    given = opts.disc
+    if given is None and scene is not None and "disc" in scene.table("camera"):
+        given = tuple(scene.table("camera")["disc"])
+    disc, warnings = resolve_disc(photo, background, opts, given)
+    if given is None:
+        disc = tuple(round(float(v), 2) for v in disc)
+    if len(disc) != 3 or not disc[2] > 2:
         raise InputError(f"the bubble's disc must be (cx, cy, r) with r > 2 pixels, got {disc}")
-    return OrthographicCamera(W, H, *disc), (0.0, 0.0, 0.0), 1.0, disc
+    return disc, warnings
 
 
 def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, decided=None) -> Setup:
     """Validate the inputs, decide the effects (unless ``decided`` gives ``(fx, decisions)``),
     lay out the parameters and build the photo's fit level."""
     photo, background = _check_inputs(photo, env, background)
-    H, W = photo.shape[:2]
     vals, held0 = defaults(scene, init, opts, opts.t_init)
     lights = scene.point_lights() if scene is not None else ()
-    camera, center, radius, disc = _camera(scene, opts, photo, background)
-    fx, decisions = decided if decided is not None else _decide(opts, vals, env, background, _settings(scene, opts),
-                                                                camera, lights)
+    persp = _perspective(scene, photo)
+    disc, warnings = (None, []) if persp else _disc(scene, opts, photo, background)
+    if saturated_in is not None and np.shape(saturated_in) != photo.shape[:2]:
+        raise InputError(f"the saturation mask is {np.shape(saturated_in)}, the photo is "
+                         f"{photo.shape[1]}x{photo.shape[0]}")
+    frame = analysis_frame(photo, background, saturation_mask(photo, opts.saturation, saturated_in), disc, opts)
+    del photo, background  # from here on, only the analysed frame
+    H, W = frame.photo.shape[:2]
+    camera, center, radius = persp or (OrthographicCamera(W, H, *frame.disc), (0.0, 0.0, 0.0), 1.0)
+    fx, decisions = decided if decided is not None else _decide(opts, vals, env, frame.background,
+                                                                _settings(scene, opts), camera, lights)
     map_cfg = RenderConfig(effects=fx, camera=camera, center=center, radius=radius, point_lights=tuple(lights))
     table = _table(opts, fx, held0)
     # a map is fitted after a drainage profile: the local fits render the profile
     base_cfg = replace(map_cfg, effects=replace(fx, thickness=table.thickness_model))
-    sigma = noise_sigma(photo, opts.noise_read, opts.noise_shot, opts.bits)
-    saturated = saturation_mask(photo, opts.saturation, saturated_in)
     k_fit = opts.downsample or max(1, math.ceil(max(H, W) / opts.fit_size))
     k_search = max(k_fit, math.ceil(max(H, W) / opts.search_size))
-    lev_fit = make_level(k_fit, base_cfg, photo, sigma, background, saturated, opts.rim)
+    lev_fit = make_level(k_fit, base_cfg, frame.photo, frame.sigma, frame.background, frame.saturated, opts.rim)
     if lev_fit.mask.sum() < 10:
         raise InputError("fewer than 10 usable pixels on the bubble (disc too small, or saturated)")
-    return Setup(photo, background, vals, table, fx, decisions, base_cfg, map_cfg, disc, sigma, saturated,
-                  k_search, lev_fit)
+    return Setup(frame.photo, frame.background, vals, table, fx, decisions, base_cfg, map_cfg, disc, frame.sigma,
+                 frame.saturated, k_search, lev_fit, frame, warnings)

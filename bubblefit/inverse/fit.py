@@ -35,6 +35,7 @@ slower than frame after frame).
 
 from __future__ import annotations
 
+import math
 import time
 
 import jax.numpy as jnp
@@ -47,6 +48,7 @@ from ._observation import detect_disc, noise_sigma
 from ._options import FitOptions, FitResult
 from ._setup import Setup, defaults, setup
 from ._uncertainty import uncertainty
+from ._verdict import at_bounds, verdict
 from ..lighting.envmap import EnvMap
 from ..model.render import render
 from ..model.thickness import drainage_profile
@@ -110,27 +112,29 @@ def _status_notes(sol: LocalSolution, finite: bool, notes: list) -> tuple[str, b
 def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t_start: float) -> FitResult:
     """Standard errors, the thickness map, the full-resolution render and the result of a solve."""
     table, lev_fit = st.table, st.lev_fit
-    unc = uncertainty(sol, table, int(np.count_nonzero(lev_fit.w)) if lev_fit.w.size else 0)
+    unc = uncertainty(sol, table, lev_fit, float(opts.robust_scale), float(opts.model_error))
     reported, stderr = unc.reported, unc.stderr
     status, converged = _status_notes(sol, unc.finite, notes)
     lo, hi = opts.thickness_range
     for key in ("thickness_nm", "top_nm", "bottom_nm"):
         if key in reported and key in table.free and not lo - 1 <= reported[key] <= hi + 1:
             notes.append(f"{key} = {reported[key]:.0f} nm lies outside the searched range {lo:.0f}-{hi:.0f} nm")
+    bounds = at_bounds(sol.values, table, opts.thickness_range, 0.5 * opts.search_step_nm)
     new = sol.values
     final_vals, thickness_map, stderr_map = dict(new), None, None
     prof = None if opts.thickness == "constant" else (new["top_nm"], new["bottom_nm"], new["exponent"])
     full = st.level(1, opts, st.map_cfg if opts.thickness == "map" else st.base_cfg)
     if opts.thickness == "map":
-        dmap, emap, map_ok = fit_map(full, table, new, prof, opts, env)
+        dmap, emap, map_ok = fit_map(full, table, new, prof, opts, env,
+                                     make_level=lambda k: st.level(k, opts, st.map_cfg))
         final_vals["map"] = dmap
         thickness_map = np.where(full.inside, dmap, np.nan)
         stderr_map = np.where(full.mask, emap, np.nan)
         reported["thickness_nm"] = float(np.median(dmap[full.mask])) if full.mask.any() else float("nan")
-        stderr["thickness_nm"] = float(np.median(emap[full.mask])) if full.mask.any() else float("nan")
+        stderr["thickness_nm"] = float(np.nanmedian(emap[full.mask])) if full.mask.any() else float("nan")
         if not map_ok:
-            converged = False
-            notes.append("the per-pixel thickness refinement did not converge everywhere")
+            converged, status = False, "failed"
+            notes.append("the thickness map is not constrained at over 10% of the film's pixels")
     elif opts.thickness == "drainage":
         thickness_map = np.where(full.inside, np.asarray(drainage_profile(jnp.asarray(full.height), *prof)), np.nan)
     p_final = table.render_params({k: jnp.asarray(v, jnp.float32) for k, v in final_vals.items()},
@@ -140,6 +144,9 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
     resid_img = st.photo - img
     rms = float(np.sqrt(np.mean(resid_img[full.mask] ** 2))) if full.mask.any() else float("nan")
     reported["n_film"] = float(st.vals["n_film"])
+    ok, warnings = verdict(converged=bool(converged), disc_found=True, bound_warnings=bounds,
+                           chi2_floor=unc.chi2_floor, ok_chi2=float(opts.ok_chi2), model_error=float(opts.model_error),
+                           notes=st.warnings)
     return FitResult(
         params=reported, stderr=stderr, held=list(table.held), converged=bool(converged),
         message="; ".join(notes) if notes else "converged", iterations=sol.steps, residual_rms=rms,
@@ -147,6 +154,9 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
         thickness_map=thickness_map, thickness_stderr_map=stderr_map, disc=st.disc,
         thickness_model=opts.thickness, model=opts.model, reduced_chi2=unc.s2,
         pixels_used=int(lev_fit.mask.sum()), status=status, names=unc.names, covariance=unc.covariance,
+        ok=ok, warnings=warnings, chi2_floor=unc.chi2_floor, model_error=float(opts.model_error),
+        stderr_scale=math.sqrt(max(1.0, unc.s2) * unc.inflation),
+        frame=None if st.frame.whole else (st.frame.x0, st.frame.y0, st.frame.k),
     )
 
 

@@ -252,8 +252,10 @@ def run_demo(out_dir="bubblefit-demo", size: int = 96, seed: int = 0, progress: 
     # another order of the colour sequence on small photos.
     # The synthetic photo is eq. (11) as written (grey transmission), so the fit is told
     # so; fits of photographs default to the film's complementary transmission tint.
+    # The drainage profile's top, bottom and exponent are strongly correlated: LM needs more
+    # than the default 80 steps to meet its tolerances here.
     settings = dict(effects=(("spectral", "uniform"), ("transmission_tint", False)), fit_size=FIT_SIZE,
-                    search_size=FIT_SIZE)
+                    search_size=FIT_SIZE, max_steps=400)
     settings.update(fit_options or {})
     opts = FitOptions(thickness="drainage", model="paper", disc=disc, t_init=cal.t,
                       noise_read=NOISE_READ, noise_shot=NOISE_SHOT, **settings)

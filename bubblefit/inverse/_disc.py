@@ -16,6 +16,11 @@ import numpy as np
 from ._observation import block_mean, detect_disc, noise_sigma
 from ..errors import InputError
 
+try:  # the robust detector of bubblefit.capture.disc, where it is installed
+    from ..capture.disc import find_disc as _find_disc
+except ImportError:  # until then: today's detector (detect_disc)
+    _find_disc = None
+
 __all__ = ["Disc", "find_bubble", "bubble_contrast", "resolve_disc", "NO_BUBBLE_CONTRAST", "DISC_AGREEMENT"]
 
 #: A photo whose pixels on the disc differ from the background photo's by less than this
@@ -69,15 +74,23 @@ def find_bubble(photo: np.ndarray, background: np.ndarray | None = None, *,
                 sigma: np.ndarray | None = None) -> Disc:
     """The bubble's :class:`Disc` in ``photo`` (linear (H, W, 3)).
 
-    Wraps :func:`bubblefit.inverse._observation.detect_disc`; with a background photo,
-    a disc that does not differ from it (:func:`bubble_contrast` below
+    ``bubblefit.capture.disc.find_disc`` where it is installed, else
+    :func:`bubblefit.inverse._observation.detect_disc`; with a background photo, a disc
+    that does not differ from it (:func:`bubble_contrast` below
     :data:`NO_BUBBLE_CONTRAST`) is not a bubble. ``sigma`` (H, W, 3) is the photo's
     noise (default: :func:`noise_sigma` of an 8-bit file with the fit's default noise).
     """
-    try:
-        cx, cy, r = detect_disc(photo, background)
-    except InputError as exc:
-        return Disc(float("nan"), float("nan"), float("nan"), found=False, reason=str(exc))
+    if _find_disc is not None:
+        d = _find_disc(photo, background, sigma=sigma)
+        if not d.found:
+            return Disc(float("nan"), float("nan"), float("nan"), found=False, contrast=float(d.contrast),
+                        reason=d.reason or "no bubble found in the photo")
+        cx, cy, r = float(d.cx), float(d.cy), float(d.r)
+    else:
+        try:
+            cx, cy, r = detect_disc(photo, background)
+        except InputError as exc:
+            return Disc(float("nan"), float("nan"), float("nan"), found=False, reason=str(exc))
     contrast = float("nan")
     if background is not None:
         sig = sigma if sigma is not None else noise_sigma(photo, 2e-3, 2e-4, 8)
@@ -111,9 +124,11 @@ def resolve_disc(photo, background, opts, given=None) -> tuple[tuple, list]:
 
     ``given`` (the options' or the scene's disc) is used as it is. A calibration's disc
     (``opts.calibration_disc``) is used only when the photo has the calibration frame's
-    size (``opts.calibration_size``, when known) and the disc found in the photo agrees
-    with it (:data:`DISC_AGREEMENT`); otherwise the disc found is used and a warning says
-    why. With neither, the disc is found; no bubble raises :class:`InputError`.
+    size (``opts.calibration_size``, when known) and agrees with the photo: the disc
+    found in it is the same (:data:`DISC_AGREEMENT`) or, with a background photo, the
+    calibration's disc outlines the change between the pair at least as well
+    (:func:`bubble_contrast`, within 20%); otherwise the disc found is used and a warning
+    says why. With neither, the disc is found; no bubble raises :class:`InputError`.
     """
     if given is not None:
         return tuple(float(v) for v in given), []
@@ -138,6 +153,13 @@ def resolve_disc(photo, background, opts, given=None) -> tuple[tuple, list]:
         return tuple(cal), ["the calibration's disc could not be checked against the photo (no disc found in it)"]
     if _agrees(cal, (found.cx, found.cy, found.r)):
         return tuple(cal), []
+    if background is not None and opts.calibration_size is not None:
+        # same frame size, another disc found: the pair says which outlines the bubble
+        sig = noise_sigma(photo, opts.noise_read, opts.noise_shot, opts.bits)
+        c_cal = bubble_contrast(photo, background, sig, cal)
+        c_found = bubble_contrast(photo, background, sig, (found.cx, found.cy, found.r))
+        if c_cal >= 0.8 * c_found:
+            return tuple(cal), []
     return (found.cx, found.cy, found.r), [
         "the calibration's disc ({:.1f}, {:.1f}, r {:.1f}) disagrees with the bubble found in the photo "
         "({:.1f}, {:.1f}, r {:.1f}): used the one found".format(*cal, found.cx, found.cy, found.r)]

@@ -6,19 +6,21 @@ chi^2 of the plain whitened residual ``(render - photo) / sigma``), propagated t
 reported parameters by the Jacobian ``G`` of the transform: ``cov = G cov_z G^T`` (the
 delta method).
 
-Two factors widen the errors of a fit that does not explain the photo within its noise
-(a model error, which the noise alone would not show), and never narrow them below the
-noise's:
+Two estimates widen the errors of a fit that does not explain the photo within its noise
+(a model error, which the noise alone would not show); each parameter gets the larger:
 
-- ``max(1, chi2_nu)``, the Birge ratio squared (Bevington & Robinson, *Data Reduction
+- ``max(1, chi2_nu) (J^T J)^-1``, the Birge ratio (Bevington & Robinson, *Data Reduction
   and Error Analysis*, 3rd ed., sec. 8.3; Press et al., *Numerical Recipes*, 3rd ed.,
-  sec. 15.6): the residual's actual scatter instead of the noise model's;
-- ``c = prod over x, y of (1 + rho) / (1 - rho)``, ``rho`` the residual's correlation
-  between neighbouring pixels (clipped to [0, 0.95]): a model error is smooth over the
-  image, so neighbouring pixels do not bring independent information; ``c`` is the
-  variance inflation of a mean of AR(1)-correlated samples in each direction, i.e. the
-  pixels per independent sample (Bayley & Hammersley, J. R. Stat. Soc. Suppl. 8(2),
-  1946, "effective number of independent observations"). Pure noise gives ``c = 1``.
+  sec. 15.6): the residual's actual scatter instead of the noise model's; it never
+  narrows the errors below the noise's;
+- the cluster-robust sandwich ``A^-1 (sum_b g_b g_b^T) A^-1``, ``A = J^T J``, ``g_b`` the
+  gradient ``J_b^T r_b`` of block ``b`` of :data:`BLOCKS_PER_RADIUS`-th of the disc's
+  radius (Liang & Zeger, Biometrika 73(1), 1986): a model error is smooth over the image,
+  so neighbouring pixels are not independent evidence; the sandwich measures how much
+  the misfit in each block actually pulls each parameter, so a smooth misfit that a
+  parameter's Jacobian does not see does not widen its error.
+
+The correlations are the sandwich's; ``stderr_scale`` reports the largest widening.
 
 :func:`misfit` also gives the reduced chi^2 with a model-error floor: each pixel's noise
 variance plus ``(model_error * photo)^2``, by which ``ok`` judges whether the photo is
@@ -58,6 +60,8 @@ class Uncertainty:
         The reduced chi^2 of the whitened residual (noise only).
     chi2_floor : float
         The reduced chi^2 with the model-error floor.
+    scale : float
+        The largest factor a standard error was widened by over the noise-only one.
     finite : bool
         False when ``J^T J`` is singular (some parameter the photo does not constrain).
     """
@@ -68,7 +72,7 @@ class Uncertainty:
     covariance: np.ndarray
     s2: float
     chi2_floor: float
-    inflation: float
+    scale: float
     finite: bool
 
 
@@ -81,9 +85,8 @@ def plain_residual(r_robust, scale: float):
 
 
 def misfit(sol: LocalSolution, lev: Level, robust_scale: float, model_error: float, n_free: int):
-    """``(chi2_nu, chi2_floor, c)`` of ``sol`` on ``lev``: the reduced chi^2 of the whitened
-    residual, the same with each pixel's variance ``sigma^2 + (model_error * y)^2``, and
-    the correlation inflation ``c`` of the module docstring."""
+    """``(chi2_nu, chi2_floor)`` of ``sol`` on ``lev``: the reduced chi^2 of the whitened
+    residual, and the same with each pixel's variance ``sigma^2 + (model_error * y)^2``."""
     r = plain_residual(sol.residual, robust_scale).reshape(lev.y.shape)
     w = lev.w.astype(np.float64)
     used = w > 0
@@ -92,27 +95,22 @@ def misfit(sol: LocalSolution, lev: Level, robust_scale: float, model_error: flo
     var = 1.0 / w[used] ** 2
     lin2 = r[used] ** 2 * var  # squared residual in linear units
     floor = float(np.sum(lin2 / (var + (model_error * np.clip(lev.y[used], 0, None)) ** 2))) / dof
-    return chi2, floor, _correlation_inflation(r, used)
+    return chi2, floor
 
 
-def _correlation_inflation(r: np.ndarray, used: np.ndarray) -> float:
-    """``prod (1 + rho) / (1 - rho)`` over the two image axes (module docstring)."""
-    if r.ndim != 3:
-        return 1.0
-    z = np.where(used, r, 0.0).mean(axis=-1)
-    u = used.all(axis=-1)
-    out = 1.0
-    for ax in (0, 1):
-        a = np.take(z, range(z.shape[ax] - 1), axis=ax)
-        b = np.take(z, range(1, z.shape[ax]), axis=ax)
-        both = np.take(u, range(u.shape[ax] - 1), axis=ax) & np.take(u, range(1, u.shape[ax]), axis=ax)
-        if both.sum() < 20:
-            continue
-        a, b = a[both] - a[both].mean(), b[both] - b[both].mean()
-        rho = float(np.sum(a * b) / max(math.sqrt(float(np.sum(a * a) * np.sum(b * b))), 1e-30))
-        rho = min(max(rho, 0.0), 0.95)
-        out *= (1.0 + rho) / (1.0 - rho)
-    return out
+def _cluster_sandwich(jac: np.ndarray, r: np.ndarray, shape: tuple, block: int) -> np.ndarray:
+    """``sum_b g_b g_b^T`` over square blocks of ``block`` pixels (``jac`` (N, p), ``r`` (N,)
+    in the (h, w, 3) layout of ``shape``), with the small-sample factor ``n_b / (n_b - p)``."""
+    h, w = shape[:2]
+    p = jac.shape[1]
+    g = (jac * r[:, None]).reshape(h, w, -1, p).sum(axis=2)  # (h, w, p) per-pixel gradients
+    hb, wb = -(-h // block), -(-w // block)
+    pad = np.zeros((hb * block, wb * block, p))
+    pad[:h, :w] = g
+    gb = pad.reshape(hb, block, wb, block, p).sum(axis=(1, 3)).reshape(-1, p)
+    gb = gb[np.any(gb != 0, axis=1)]
+    nb = len(gb)
+    return gb.T @ gb * (nb / max(nb - p, 1)) if nb > p else np.full((p, p), np.nan)
 
 
 def _held_keys(table: ParameterTable) -> set:
@@ -127,11 +125,31 @@ def _held_keys(table: ParameterTable) -> set:
     return keys
 
 
+#: Blocks of the cluster-robust sandwich: this many per disc radius (at least 3 pixels).
+BLOCKS_PER_RADIUS = 6
+
+
+def _widest(cov_birge: np.ndarray, a_inv: np.ndarray, jac, r, lev: Level):
+    """Each parameter's larger variance of the Birge and sandwich estimates, with the
+    sandwich's correlations; and the largest widening over the noise-only errors."""
+    radius = float(lev.cfg.camera.disc()[2]) if hasattr(lev.cfg.camera, "disc") else min(lev.y.shape[:2]) / 2
+    block = max(3, int(round(radius / BLOCKS_PER_RADIUS)))
+    sand = a_inv @ _cluster_sandwich(jac, r, lev.y.shape, block) @ a_inv
+    d_b, d_s = np.diag(cov_birge), np.diag(sand)
+    if not (np.all(np.isfinite(sand)) and np.all(d_s > 0)):
+        return cov_birge, float(np.sqrt(np.max(d_b / np.diag(a_inv))))
+    var = np.maximum(d_b, d_s)
+    corr = sand / np.sqrt(np.outer(d_s, d_s))
+    cov = corr * np.sqrt(np.outer(var, var))
+    return cov, float(np.sqrt(np.max(var / np.diag(a_inv))))
+
+
 def uncertainty(sol: LocalSolution, table: ParameterTable, lev: Level, robust_scale: float,
                 model_error: float) -> Uncertainty:
     """Standard errors and covariance of the reported parameters at ``sol`` on ``lev`` (the
     delta method, widened by ``max(1, chi2_nu)``; module docstring)."""
-    s2, chi2_floor, inflation = misfit(sol, lev, robust_scale, model_error, len(table.free))
+    s2, chi2_floor = misfit(sol, lev, robust_scale, model_error, len(table.free))
+    scale = 1.0
     rep, rep_jac = reporter(table)
     zj = jnp.asarray(sol.z, jnp.float32)
     reported = {k: float(v) for k, v in rep(zj, sol.fixed).items()}
@@ -141,9 +159,11 @@ def uncertainty(sol: LocalSolution, table: ParameterTable, lev: Level, robust_sc
     if table.free:
         jac = sol.jacobian
         try:
-            cov_z = max(1.0, s2) * inflation * np.linalg.inv(jac.T @ jac)
+            a_inv = np.linalg.inv(jac.T @ jac)
+            cov_z = max(1.0, s2) * a_inv
             if not np.all(np.isfinite(cov_z)) or np.any(np.diag(cov_z) < 0):
                 raise np.linalg.LinAlgError
+            cov_z, scale = _widest(cov_z, a_inv, jac, sol.residual, lev)
         except np.linalg.LinAlgError:
             cov_z = np.full((len(table.free), len(table.free)), np.nan)
             finite = False
@@ -155,4 +175,4 @@ def uncertainty(sol: LocalSolution, table: ParameterTable, lev: Level, robust_sc
         for i, key in enumerate(names):
             var = cov[i, i]
             stderr[key] = float(math.sqrt(var)) if np.isfinite(var) and var >= 0 else float("nan")
-    return Uncertainty(reported, stderr, names, cov, s2, chi2_floor, inflation, finite)
+    return Uncertainty(reported, stderr, names, cov, s2, chi2_floor, scale, finite)

@@ -35,7 +35,6 @@ slower than frame after frame).
 
 from __future__ import annotations
 
-import math
 import time
 
 import jax.numpy as jnp
@@ -155,7 +154,7 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
         thickness_model=opts.thickness, model=opts.model, reduced_chi2=unc.s2,
         pixels_used=int(lev_fit.mask.sum()), status=status, names=unc.names, covariance=unc.covariance,
         ok=ok, warnings=warnings, chi2_floor=unc.chi2_floor, model_error=float(opts.model_error),
-        stderr_scale=math.sqrt(max(1.0, unc.s2) * unc.inflation),
+        stderr_scale=unc.scale,
         frame=None if st.frame.whole else (st.frame.x0, st.frame.y0, st.frame.k),
     )
 

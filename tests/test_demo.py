@@ -36,6 +36,17 @@ def test_recovered_values_within_stated_tolerances(demo):
     assert result["all_ok"]
 
 
+def test_demo_fit_converges_and_says_so(demo):
+    """The demo's own fit converges (not stopped at its step limit) and is ok, and its
+    report states that as it is."""
+    out, result = demo
+    fit = result["fit"]
+    assert fit["converged"] is True and fit["status"] == "converged", result["status"]
+    assert fit["ok"] is True, result["status"]
+    assert result["status"].startswith("fit ok: yes; converged")
+    assert result["status"].split("\n")[0] in (out / "index.html").read_text()
+
+
 def test_standard_errors_are_given_and_plausible(demo):
     _, result = demo
     rows = {r["name"]: r for r in result["rows"]}

@@ -85,15 +85,25 @@ def test_constant_recovery(env, seed, thickness, tint):
     assert abs(p["thickness_nm"] - thickness) < 4 * e["thickness_nm"] + 0.5
     assert abs(p["t"] - truth["t"]) < 4 * e["t"] + 2e-4
     names = [h[0] for h in res.held]
-    assert "rotation" in names and "thickness" not in names
+    assert "rotation_deg" in names and "thickness_nm" not in names
     js = res.to_json()
-    for key in ("params", "stderr", "converged", "iterations", "residual_rms", "time_s"):
+    for key in ("params", "stderr", "converged", "iterations", "residual_rms", "time_s", "ok", "warnings",
+                "reduced_chi2", "disc", "covariance"):
         assert key in js
+    # a photo of the model itself, within its noise: ok, and the covariance's diagonal is the errors
+    assert js["ok"] is True and js["warnings"] == [], js["warnings"]
+    assert js["reduced_chi2"] < 2.0
+    assert js["disc"] == {"cx": DISC[0], "cy": DISC[1], "r": DISC[2]}
+    cov = js["covariance"]
+    assert "thickness_nm" in cov["names"] and "rotation_deg" not in cov["names"]
+    i = cov["names"].index("thickness_nm")
+    assert np.sqrt(cov["matrix"][i][i]) == pytest.approx(e["thickness_nm"], rel=1e-6)
     assert res.render.shape == photo.shape and res.residual.shape == photo.shape
 
 
-def test_drainage_and_map(env, tmp_path):
-    """A drainage profile plus a bump: the profile's parameters and the map (< 10 nm median)."""
+@pytest.fixture(scope="module")
+def map_fit(env, tmp_path_factory):
+    """A drainage profile plus a 40 nm bump (paper model), fitted with ``--thickness map``."""
     from bubblefit.inverse.fit import fit_photo
     from bubblefit.io.images import write_image
     from bubblefit.model.thickness import drainage_profile
@@ -104,7 +114,7 @@ def test_drainage_and_map(env, tmp_path):
     x = (jj - DISC[0]) / DISC[2]
     top, bottom, expo = 250.0, 1100.0, 1.4
     true = np.asarray(drainage_profile(y, top, bottom, expo)) + 40.0 * np.exp(-((x - 0.3) ** 2 + y**2) / 0.1)
-    path = tmp_path / "truth.exr"
+    path = tmp_path_factory.mktemp("map") / "truth.exr"
     write_image(path, np.repeat(true[..., None], 3, axis=2), bit_depth=32)
     # A film transmits the complement of what it reflects: over a background as bright as
     # the reflected sky the two colours cancel (a film in uniform light is colourless) and
@@ -113,6 +123,12 @@ def test_drainage_and_map(env, tmp_path):
     photo = _quantise(_render(env, bg, {"t": 0.97, "roughness": 0.08,
                                         "thickness": {"profile": "map", "path": str(path)}}), rng)
     res = fit_photo(photo, env, options=_opts(thickness="map"), background=_quantise(bg, rng))
+    return res, true, y, (top, bottom, expo)
+
+
+def test_drainage_and_map(map_fit):
+    """The profile's parameters and the map (< 10 nm median), with per-pixel errors."""
+    res, true, _, (top, bottom, _) = map_fit
     p = res.params
     assert res.converged, res.message
     # the profile the map starts from follows the truth's trend
@@ -123,6 +139,30 @@ def test_drainage_and_map(env, tmp_path):
     assert used.sum() > 0.5 * np.pi * DISC[2] ** 2
     assert np.median(err) < 10.0
     assert np.isnan(m[0, 0])  # outside the bubble
+    assert np.all(res.thickness_stderr_map[used] > 0)
+
+
+@pytest.mark.xfail(reason="not met yet on this 48 px photo: 84% of pixels within 15 nm, a neighbour jump of "
+                          "128 nm, the bump recovered as 21 nm over the fitted profile (issue 14's map targets)",
+                   strict=False)
+def test_map_meets_order_targets(map_fit):
+    """Issue 14's targets for maps: >= 90% of pixels within 15 nm, no order hops, the 40 nm bump kept."""
+    from bubblefit.model.thickness import drainage_profile
+
+    res, true, y, _ = map_fit
+    p = res.params
+    m = res.thickness_map
+    used = np.isfinite(res.thickness_stderr_map)
+    err = np.abs(m - true)[used]
+    assert np.mean(err < 15.0) > 0.9
+    # no order hops: neighbours never differ by a colour order (~200 nm) where the truth is smooth
+    for ax in (0, 1):
+        jump = np.abs(np.diff(m, axis=ax))
+        both = np.take(used, range(used.shape[ax] - 1), axis=ax) & np.take(used, range(1, used.shape[ax]), axis=ax)
+        assert np.nanmax(np.where(both, jump, 0.0)) < 100.0
+    jc, ic = int(DISC[0] + 0.3 * DISC[2]), int(DISC[1])
+    prof = np.asarray(drainage_profile(y, p["top_nm"], p["bottom_nm"], p["exponent"]))
+    assert abs((m - prof)[ic - 1:ic + 2, jc - 1:jc + 2].mean() - 40.0) < 15.0
 
 
 @pytest.mark.parametrize("rim", [0.75, 0.5])
@@ -163,6 +203,13 @@ def test_failed_fit_is_reported_and_skipped_effects_held(env):
     assert not res.converged
     assert "solver" in res.message
     assert res.to_json()["converged"] is False
+    assert res.status == "max_steps" and res.to_json()["ok"] is False
+    assert any("did not converge" in w for w in res.warnings)
+    # a parameter that was fitted is never reported as held
+    report = res.report()
+    for line in report.splitlines():
+        if line.startswith(("t ", "thickness_nm", "exposure")):
+            assert "held" not in line, line
     held = dict(res.held)
     assert "split" in held and "diffuse" in held["split"]
     assert res.to_json()["stderr"]["f"] is None
@@ -179,7 +226,8 @@ def test_cli_fit(env, small_courtyard, tmp_path, capsys):
     write_image(tmp_path / "photo.png", photo)
     write_image(tmp_path / "before.png", bg)
     write_image(tmp_path / "env.exr", small_courtyard, bit_depth=32)
-    (tmp_path / "cal.json").write_text(json.dumps({"t": 0.968, "bubble": {"cx": DISC[0], "cy": DISC[1], "r": DISC[2]}}))
+    (tmp_path / "cal.json").write_text(json.dumps({"t": 0.968, "bubble": {"cx": DISC[0], "cy": DISC[1], "r": DISC[2]},
+                                                   "image_size": [N, N]}))
     args = ["fit", str(tmp_path / "photo.png"), "--envmap", str(tmp_path / "env.exr"), "--background",
             str(tmp_path / "before.png"), "--calibration", str(tmp_path / "cal.json"),
             "--json", str(tmp_path / "out.json"), "-o", str(tmp_path / "fit")]
@@ -191,7 +239,10 @@ def test_cli_fit(env, small_courtyard, tmp_path, capsys):
         assert key in out["params"] and key in out["stderr"]
     assert read_image(tmp_path / "fit_render.exr").pixels.shape == (N, N, 3)
     assert (tmp_path / "fit_residual.png").exists()
-    capsys.readouterr()
+    assert out["disc"] == {"cx": DISC[0], "cy": DISC[1], "r": DISC[2]}  # the calibration's, checked
+    summary = [line for line in capsys.readouterr().out.splitlines() if "reduced chi^2" in line]
+    assert len(summary) == 1 and summary[0].startswith("ok ") and "disc (24.0, 24.0, r 20.2)" in summary[0]
+    assert out["ok"] == summary[0].startswith("ok yes")
 
     # bad inputs: one clear line, exit 2
     (tmp_path / "bad.json").write_text(json.dumps({"bubble": {}}))
@@ -205,3 +256,94 @@ def test_cli_fit(env, small_courtyard, tmp_path, capsys):
     assert "background" in capsys.readouterr().err
     assert main(["fit", str(tmp_path / "missing.png"), "--envmap", str(tmp_path / "env.exr")]) == 2
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def test_wrong_map_is_not_ok(env, small_courtyard):
+    """The right photo fitted with another environment (the map turned by 90 degrees):
+    the fit may converge, but it is not ok, and a warning says the model does not explain
+    the photo."""
+    from bubblefit.inverse.fit import fit_photo
+
+    rng = np.random.default_rng(13)
+    bg = _background(rng)
+    photo = _quantise(_render(env, bg, {"t": 0.97, "roughness": 0.08, "thickness_nm": 480.0}), rng)
+    wrong = _env(np.roll(small_courtyard, small_courtyard.shape[1] // 4, axis=1))
+    res = fit_photo(photo, wrong, options=_opts(), background=_quantise(bg, rng))
+    js = res.to_json()
+    assert js["ok"] is False
+    assert js["reduced_chi2_floor"] > 3.0
+    assert any("does not explain" in w for w in js["warnings"]), js["warnings"]
+
+
+def test_no_bubble_is_refused(env, small_courtyard, tmp_path, capsys):
+    """The background photo passed as the photo (another exposure of the same view): no
+    bubble, one clear line, non-zero exit; no fit is attempted."""
+    from bubblefit.cli import main
+    from bubblefit.errors import InputError
+    from bubblefit.inverse.fit import fit_photo
+    from bubblefit.io.images import write_image
+
+    rng = np.random.default_rng(17)
+    bg = _background(rng)
+    photo, before = _quantise(bg, rng), _quantise(bg, rng)
+    with pytest.raises(InputError, match="no bubble"):
+        fit_photo(photo, env, options=_opts(disc=None), background=before)
+    write_image(tmp_path / "photo.png", photo)
+    write_image(tmp_path / "before.png", before)
+    write_image(tmp_path / "env.exr", small_courtyard, bit_depth=32)
+    code = main(["fit", str(tmp_path / "photo.png"), "--envmap", str(tmp_path / "env.exr"), "--background",
+                 str(tmp_path / "before.png")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "no bubble" in err[0]
+
+
+def test_calibration_disc_is_checked_against_the_photo():
+    """A calibration's disc is used only for a photo of its frame's size whose bubble it
+    matches; otherwise the disc found in the photo is used, with a warning."""
+    from bubblefit.inverse._disc import resolve_disc
+    from bubblefit.model.scene import Scene, render_scene
+
+    rng = np.random.default_rng(19)
+    bg = _background(rng)
+    scene = Scene.from_dict({"camera": {"width": N, "height": N, "disc": list(DISC)},
+                             "bubble": {"t": 0.97, "thickness_nm": 400.0}, "lighting": {"background": "black"},
+                             "effects": {"model": "paper"}})
+    photo = _quantise(np.asarray(render_scene(scene, background=bg)), rng)
+    before = _quantise(bg, rng)
+    near = (DISC[0] + 0.5, DISC[1] - 0.5, DISC[2] + 0.3)
+    disc, warn = resolve_disc(photo, before, _opts(disc=None, calibration_disc=near, calibration_size=(N, N)))
+    assert disc == near and warn == []
+    for cal, size, why in [((200.0, 150.0, 80.0), (512, 384), "frame"), ((10.0, 12.0, 6.0), (N, N), "disagrees"),
+                           ((10.0, 12.0, 6.0), None, "disagrees")]:
+        disc, warn = resolve_disc(photo, before, _opts(disc=None, calibration_disc=cal, calibration_size=size))
+        assert np.hypot(disc[0] - DISC[0], disc[1] - DISC[1]) < 1.5 and abs(disc[2] - DISC[2]) < 1.5, disc
+        assert len(warn) == 1 and why in warn[0]
+
+
+def test_large_photo_is_cropped_to_the_bubble():
+    """A photo larger than ``analysis_size`` is analysed as a crop around the bubble,
+    block-averaged to at most that size, with the disc mapped back to the photo's pixels."""
+    from bubblefit.inverse._observation import analysis_frame
+
+    H, W = 1200, 1800
+    photo = np.full((H, W, 3), 0.3)
+    sat = np.zeros((H, W), bool)
+    disc = (1100.5, 500.25, 300.0)
+    fr = analysis_frame(photo, photo, sat, disc, _opts(analysis_size=256))
+    assert max(fr.photo.shape[:2]) <= 256 and fr.k == 3
+    assert fr.sigma.shape == fr.photo.shape and fr.background.shape == fr.photo.shape
+    assert fr.to_photo(fr.disc) == pytest.approx(disc)
+    small = analysis_frame(photo[:200, :200], None, sat[:200, :200], (100, 100, 50), _opts(analysis_size=256))
+    assert small.whole and small.photo.shape == (200, 200, 3)
+
+
+def test_cli_thickness_range_must_be_finite(tmp_path, capsys):
+    from bubblefit.cli import main
+    from bubblefit.io.images import write_image
+
+    write_image(tmp_path / "photo.png", np.full((N, N, 3), 0.3))
+    write_image(tmp_path / "env.exr", np.full((8, 16, 3), 0.5, np.float32), bit_depth=32)
+    code = main(["fit", str(tmp_path / "photo.png"), "--envmap", str(tmp_path / "env.exr"), "--disc", "24,24,20",
+                 "--thickness-range", "0,inf"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "thickness-range" in err[0]

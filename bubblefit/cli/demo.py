@@ -20,7 +20,7 @@ def register(sub):
 def run(args) -> int:
     import time
 
-    from ..demo import format_table, run_demo
+    from ..demo import fit_status, format_table, run_demo
     from ..errors import InputError
     from .common import write_json
 
@@ -29,6 +29,7 @@ def run(args) -> int:
     t0 = time.perf_counter()
     result = run_demo(args.out, size=args.size, seed=args.seed, progress=not args.quiet)
     print(format_table(result["rows"]))
+    print(fit_status(result["fit"]))
     if args.json:
         write_json(args.json, result)
     ok = sum(r["ok"] for r in result["rows"])

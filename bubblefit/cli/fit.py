@@ -1,11 +1,13 @@
 """``bubblefit fit PHOTO --envmap ENV [...]``: recover t, r_d, r_s, roughness and thickness.
 
-See :func:`bubblefit.inverse.fit.fit_photo` for the method. Prints a summary; ``--json`` writes
-the result of docs/design.md (``params``, ``stderr``, ``converged``, ``iterations``,
-``residual_rms``, ``time_s`` and more); ``-o PREFIX`` writes ``PREFIX_render.exr``,
-``PREFIX_residual.exr`` and, for a drainage profile or a map, ``PREFIX_thickness.exr``
-(nm, NaN outside the bubble), each with a PNG preview. A fit that did not converge is
-reported as such (and exits 1 with ``--strict``).
+See :func:`bubblefit.inverse.fit.fit_photo` for the method. Prints each parameter with its
+standard error and a summary line (ok, reduced chi^2, the disc); ``--json`` writes the
+result of docs/design.md (``params``, ``stderr``, ``converged``, ``ok``, ``warnings``,
+``reduced_chi2``, ``disc``, ``covariance``, ``iterations``, ``residual_rms``, ``time_s``
+and more); ``-o PREFIX`` writes ``PREFIX_render.exr``, ``PREFIX_residual.exr`` and, for a
+drainage profile or a map, ``PREFIX_thickness.exr`` (nm, NaN outside the bubble; its PNG
+has a colour bar in nm), for a map also ``PREFIX_thickness_stderr.exr``. A fit that is
+not ``ok`` says why (and exits 1 with ``--strict``).
 """
 
 from __future__ import annotations
@@ -67,8 +69,9 @@ def load_envmap(path: str):
     return env
 
 
-def read_calibration(path: str) -> tuple[float, tuple | None]:
-    """``(t, disc or None)`` from a ``bubblefit calibrate`` JSON."""
+def read_calibration(path: str) -> tuple[float, tuple | None, tuple | None]:
+    """``(t, disc or None, image_size or None)`` from a ``bubblefit calibrate`` JSON
+    (``image_size`` [w, h] of the calibration frame, when it records it)."""
     try:
         with open(path) as fh:
             data = json.load(fh)
@@ -83,7 +86,10 @@ def read_calibration(path: str) -> tuple[float, tuple | None]:
     b = data.get("bubble")
     if isinstance(b, dict) and all(isinstance(b.get(k), (int, float)) for k in ("cx", "cy", "r")):
         disc = (float(b["cx"]), float(b["cy"]), float(b["r"]))
-    return float(t), disc
+    size = data.get("image_size")
+    if not (isinstance(size, (list, tuple)) and len(size) == 2 and all(isinstance(v, int) for v in size)):
+        size = None
+    return float(t), disc, None if size is None else (int(size[0]), int(size[1]))
 
 
 def fit_option_values(args) -> dict:
@@ -92,9 +98,9 @@ def fit_option_values(args) -> dict:
     kind and range, held parameters and the step limit. One-line errors for bad values."""
     from .common import parse_floats
 
-    t_init, disc = None, None
-    if args.calibration:
-        t_init, disc = read_calibration(args.calibration)
+    t_init, disc, cal_disc, cal_size = None, None, None, None
+    if args.calibration:  # its disc is checked against each photo (FitOptions.calibration_disc)
+        t_init, cal_disc, cal_size = read_calibration(args.calibration)
     if args.t is not None:
         if not 0 < args.t < 1:
             raise InputError(f"--t must lie in (0, 1), got {args.t}")
@@ -104,7 +110,10 @@ def fit_option_values(args) -> dict:
         if disc[2] <= 0:
             raise InputError(f"--disc radius must be positive, got {args.disc!r}")
     lo, hi = parse_floats(args.thickness_range, 2, "--thickness-range")
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        raise InputError(f"--thickness-range must be two finite thicknesses in nm, got {args.thickness_range}")
     kw = dict(thickness=args.thickness, disc=disc, t_init=t_init, thickness_range=(lo, hi),
+              calibration_disc=cal_disc, calibration_size=cal_size,
               hold=tuple(h.strip() for h in args.hold.split(",") if h.strip()))
     if args.max_steps is not None:
         if args.max_steps < 1:
@@ -114,13 +123,14 @@ def fit_option_values(args) -> dict:
 
 
 def output_paths(args) -> list[str]:
-    """Every file ``fit -o PREFIX`` may write: ``PREFIX_{render,residual,thickness}.exr`` and
+    """Every file ``fit -o PREFIX`` may write: ``PREFIX_{render,residual,thickness,thickness_stderr}.exr`` and
     their PNG previews (for :func:`~bubblefit.cli.common.guard_outputs`)."""
     from ..io.atomic import preview_path
 
     if not args.output:
         return []
     names = ["render", "residual"] + (["thickness"] if args.thickness != "constant" else [])
+    names += ["thickness_stderr"] if args.thickness == "map" else []
     exrs = [f"{args.output}_{n}.exr" for n in names]
     return exrs + [str(preview_path(p)) for p in exrs]
 
@@ -131,7 +141,7 @@ def _bits(img) -> int | None:
 
 def run(args) -> int:
     from ..inverse.fit import FitOptions, fit_photo
-    from ..io.images import read_image
+    from ..io.images import preview_path, read_image, write_image
     from ..progress import stage
     from ..model.scene import load_scene
     from .common import guard_outputs, scene_inputs, write_json
@@ -163,46 +173,54 @@ def run(args) -> int:
         print("effect               state     [setting] reason")
         for d in result.effects:
             print(d.line())
-    p, e = result.params, result.stderr
-    keys = ["t", "r_d", "r_s", "f", "roughness", "thickness_nm", "top_nm", "bottom_nm", "exponent", "exposure",
-            "rotation_deg"]
-    for k in keys:
-        if k in p:
-            err = e.get(k)
-            txt = f"+- {err:.3g}" if err is not None and math.isfinite(err) else "(held)"
-            print(f"{k:<13} {p[k]:.6g} {txt}")
-    state = "converged" if result.converged else f"NOT CONVERGED: {result.message}"
-    print(f"{state}; {result.iterations} iterations, residual rms {result.residual_rms:.4g}, {result.time_s:.2f} s")
+    print(result.report())
     if args.output:
-        _write_maps(args.output, result, out)
+        with stage("writing the maps"):
+            out["outputs"] = _write_outputs(args.output, result, write_image, preview_path)
     if args.json:
         write_json(args.json, out)
-    if args.strict and not result.converged:
-        raise ComputationError(f"the fit did not converge: {result.message}")
+    if args.strict and not result.ok:
+        raise ComputationError("the fit is not ok: " + ("; ".join(result.warnings) or result.message))
     return 0
 
 
-def _write_maps(prefix: str, result, out: dict) -> None:
-    """``PREFIX_render.exr``, ``PREFIX_residual.exr`` (and ``PREFIX_thickness.exr``), with PNG previews."""
-    from ..io.images import preview_path, write_image
-    from ..progress import stage
+def _thickness_png(path: str, tmap: np.ndarray, label: str) -> None:
+    """A PNG of a thickness map (nm) with a colour bar in nm (matplotlib, written atomically)."""
+    import matplotlib
 
-    with stage("writing the maps"):
-        files = {"render": result.render, "residual": result.residual}
-        if result.thickness_map is not None:
-            files["thickness"] = result.thickness_map
-        for name, img in files.items():
-            path = f"{prefix}_{name}.exr"
-            write_image(path, img, bit_depth=32 if name == "thickness" else None)
-            if name == "render":
-                hi_ = float(np.percentile(img, 99.5)) if img.size else 1.0
-                prev = img * (0.9 / hi_ if hi_ > 0.9 else 1.0)
-            elif name == "residual":
-                scale = float(np.percentile(np.abs(img), 99)) or 1.0
-                prev = 0.5 + 0.5 * img / scale
-            else:
-                finite = np.isfinite(img)
-                top = float(np.max(img[finite])) if finite.any() else 1.0
-                prev = np.repeat((np.nan_to_num(img, nan=0.0) / max(top, 1e-9))[..., None], 3, axis=2)
-            write_image(preview_path(path), prev)
-        out["outputs"] = {k: f"{prefix}_{k}.exr" for k in files}
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..io.images import atomic_path
+
+    h, w = tmap.shape
+    fig, ax = plt.subplots(figsize=(4.8 * max(w / h, 0.5) + 1.2, 4.8))
+    im = ax.imshow(np.ma.masked_invalid(tmap), cmap="viridis")
+    ax.set_axis_off()
+    fig.colorbar(im, ax=ax, fraction=0.046, label=label)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
+    plt.close(fig)
+
+
+def _write_outputs(prefix: str, result, write_image, preview_path) -> dict:
+    """``PREFIX_render``, ``_residual``, ``_thickness``, ``_thickness_stderr`` (EXR + PNG)."""
+    files = {"render": result.render, "residual": result.residual}
+    if result.thickness_map is not None:
+        files["thickness"] = result.thickness_map
+    if result.thickness_stderr_map is not None:
+        files["thickness_stderr"] = result.thickness_stderr_map
+    for name, img in files.items():
+        path = f"{prefix}_{name}.exr"
+        write_image(path, img, bit_depth=32 if name.startswith("thickness") else None)
+        if name == "render":
+            hi_ = float(np.percentile(img, 99.5)) if img.size else 1.0
+            write_image(preview_path(path), img * (0.9 / hi_ if hi_ > 0.9 else 1.0))
+        elif name == "residual":
+            scale = float(np.percentile(np.abs(img), 99)) or 1.0
+            write_image(preview_path(path), 0.5 + 0.5 * img / scale)
+        else:
+            label = "film thickness (nm)" if name == "thickness" else "standard error of the thickness (nm)"
+            _thickness_png(str(preview_path(path)), img, label)
+    return {k: f"{prefix}_{k}.exr" for k in files}

@@ -30,16 +30,21 @@ and a prior).
 from __future__ import annotations
 
 import functools
+from dataclasses import replace
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._parameters import ParameterTable
+from ..model.render import render_terms
 from ..optics import spectral
+from ..optics import film
 from ..optics.film import paper_tinted_transmission
 
 __all__ = ["phi_table", "phi_rgb", "paper_candidates", "thickness_grid", "local_minima", "score_global",
-           "score_pixels", "pixel_costs", "best_profile", "PROFILE_EXPONENTS"]
+           "score_pixels", "pixel_costs", "best_profile", "PROFILE_EXPONENTS", "candidates", "search_starts",
+           "unlit_terms", "paper_pixel_candidates", "render_candidates", "profile_from_pixels"]
 
 #: Step of the optical-path table, nm (the colour varies on scales of ~100 nm).
 X_STEP = 0.5
@@ -57,19 +62,22 @@ def thickness_grid(lo: float, hi: float, step: float) -> np.ndarray:
 def phi_table(basis: spectral.SpectralBasis, x_max: float) -> np.ndarray:
     """``Phi(x)`` of the module docstring on ``x = 0, X_STEP, ...`` up to ``x_max``: (X, 3).
 
-    ``cos^2(delta / 2)`` with ``delta = 2 pi x / lambda + pi`` (eq. 8) integrated against
-    ``basis`` (CIE 1931 to linear sRGB, white-normalised; :func:`spectral.integrate`).
+    ``cos^2(delta / 2)`` with ``delta = 2 pi x / lambda + pi`` (eq. 8,
+    :func:`bubblefit.optics.film.phase`) integrated against ``basis`` (CIE 1931 to linear
+    sRGB, white-normalised; :func:`spectral.integrate`).
     """
-    x = np.arange(0.0, x_max + 2 * X_STEP, X_STEP)
-    lam = np.asarray(basis.wavelengths, dtype=np.float64)
-    delta = 2 * np.pi * x[:, None] / lam[None, :] + np.pi
-    cos_delta = np.cos(delta)
+    x = np.arange(0.0, x_max + 2 * X_STEP, X_STEP)[:, None]
+    lam = np.asarray(basis.wavelengths, dtype=np.float64)[None, :]
+    # Eq. (10)'s factor over 4 t^2 at optical path x: at normal incidence in a film of
+    # index 1, x = 2 d (film.optical_path), so the film functions give it exactly.
     if getattr(basis, "sigma", None) is not None:
         # ``fourier`` bases: each sample is a Gaussian lobe in wavenumber, under which the
         # fringe's cosine is attenuated (film.fringe_attenuation, Belcour & Barla 2017).
         sig = np.asarray(basis.sigma, dtype=np.float64)[None, :]
-        cos_delta = cos_delta * np.exp(-2.0 * np.pi**2 * (sig * x[:, None]) ** 2)
-    c2 = 0.5 * (1.0 + cos_delta)
+        factor = film.filtered_paper_interference_factor(x / 2.0, lam, 1.0, 1.0, 1.0, sig)
+    else:
+        factor = film.paper_interference_factor(x / 2.0, lam, 1.0, 1.0, 1.0)
+    c2 = np.asarray(factor, np.float64) / 4.0
     return np.asarray(c2 @ np.asarray(basis.weights, dtype=np.float64), dtype=np.float32)
 
 
@@ -173,7 +181,7 @@ def pixel_costs(refl, fixed, y, w2):
 
 def best_profile(cost: np.ndarray, grid: np.ndarray, height: np.ndarray,
                  exponents=PROFILE_EXPONENTS, step: float | None = None) -> tuple:
-    """Global search of a drainage profile (DESIGN.md) through per-pixel candidate costs.
+    """Global search of a drainage profile (docs/design.md) through per-pixel candidate costs.
 
     Every ``(top, bottom, exponent)`` on a grid (``top`` and ``bottom`` over ``grid``'s
     range in steps of ``step``, default 5 grid steps) predicts each pixel's thickness,
@@ -210,3 +218,167 @@ def best_profile(cost: np.ndarray, grid: np.ndarray, height: np.ndarray,
             if total[j] < best[0]:
                 best = (float(total[j]), g0 + i * dg, g0 + ends[j] * dg, e)
     return best[1], best[2], best[3]
+
+
+# ---------------------------------------------------------------------------------------
+# Candidate images of a level for the thickness grid, and the search's starting points
+# ---------------------------------------------------------------------------------------
+
+
+@functools.partial(jax.jit, static_argnames=("cfg",))
+def render_terms_jit(p, cfg, env, bg):
+    """:func:`bubblefit.model.render.render_terms`, jitted per configuration."""
+    return render_terms(p, cfg, env, bg)
+
+
+def unlit_terms(lev, table: ParameterTable, vals: dict, env):
+    """``(M, C)`` (P, 3) over the fitted pixels of ``lev``: the reflected radiance of both
+    films rendered with interference off at ``vals`` (gain included) and the transmitted
+    background (the module docstring's ``F(x) M + C``)."""
+    fx = lev.cfg.effects
+    off = replace(lev.cfg, effects=replace(fx, interference="off", spectral=None, thickness="constant"))
+    v = {k: jnp.asarray(x, jnp.float32) for k, x in dict(vals, thickness_nm=0.0).items() if k != "map"}
+    _, terms = render_terms_jit(table.render_params(v, "constant"), off, env,
+                                None if lev.bg is None else jnp.asarray(lev.bg))
+    zero = jnp.zeros(lev.y.shape, jnp.float32)
+    sel = lev.mask.reshape(-1)
+    m = np.asarray(terms.get("front", zero) + terms.get("rear", zero)).reshape(-1, 3)[sel]
+    c = np.asarray(terms.get("background", zero)).reshape(-1, 3)[sel]
+    return m, c
+
+
+def paper_pixel_candidates(grid, xfac, m, c, t: float, r_s: float, table_phi):
+    """``(refl, back)`` (G, P, 3) of :func:`paper_candidates` for thicknesses ``grid`` at
+    pixels of optical path per nm ``xfac = 2 n cos th_t`` (eq. 8)."""
+    x = grid[:, None] * xfac[None, :]
+    phi = phi_rgb(table_phi, jnp.asarray(x, jnp.float32))
+    return paper_candidates(phi, jnp.asarray(m)[None], jnp.asarray(c)[None], t, r_s)
+
+
+def _candidates_paper(lev, table: ParameterTable, vals: dict, grid: np.ndarray, env):
+    """(G, P, 3) gain-scaled part and (P, 3) fixed part for constant films (paper model, exact)."""
+    fx = lev.cfg.effects
+    m, c = unlit_terms(lev, table, dict(vals, exposure=1.0), env)
+    n = float(vals["n_film"])
+    sel = lev.mask.reshape(-1)
+    xfac = 2 * n * np.asarray(film.cos_transmitted(lev.cos.reshape(-1)[sel], n), np.float64)
+    phi_tab = jnp.asarray(phi_table(fx.spectral, 2 * n * float(grid.max())))
+    r_s = float(table.render_params({k: jnp.asarray(x, jnp.float32) for k, x in dict(vals, thickness_nm=0.0).items()
+                                     if k != "map"}, "constant").r_s) if fx.tint and fx.transmission else 0.0
+    refl, back = paper_pixel_candidates(grid, xfac, m, c, float(vals["t"]), r_s, phi_tab)
+    if fx.background == "photo":
+        return refl, back
+    return refl + back, jnp.zeros(back.shape[1:], back.dtype)
+
+
+@functools.partial(jax.jit, static_argnames=("cfg", "table"))
+def render_candidates(base: dict, thick, cfg, env, bg, table: ParameterTable):
+    """Render each candidate thickness array ``thick`` (G, ...) with exposure 1: (G, H, W, 3) x2."""
+
+    def one(th):
+        p = table.render_params(dict(base, exposure=jnp.float32(1.0), thickness_nm=th, map=th),
+                                cfg.effects.thickness)
+        _, terms = render_terms(p, cfg, env, bg)
+        zero = jnp.zeros(cfg.shape + (3,), jnp.float32)
+        refl = terms.get("front", zero) + terms.get("rear", zero)
+        back = terms.get("background", zero)
+        if cfg.effects.background == "photo":
+            return refl, back
+        return refl + back, zero
+
+    return jax.lax.map(one, thick)
+
+
+def _candidates_generic(lev, table: ParameterTable, vals: dict, grid: np.ndarray, env):
+    cfg = replace(lev.cfg, effects=replace(lev.cfg.effects, thickness="constant"))
+    base = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k != "map"}
+    refl, back = render_candidates(base, jnp.asarray(grid, jnp.float32), cfg, env,
+                                   None if lev.bg is None else jnp.asarray(lev.bg), table)
+    sel = lev.mask.reshape(-1)
+    g = len(grid)
+    return refl.reshape(g, -1, 3)[:, sel], back.reshape(g, -1, 3)[:, sel]
+
+
+def candidates(lev, table: ParameterTable, vals: dict, grid: np.ndarray, env):
+    """Candidate images for the thickness grid: ``(refl, fixed)``, see :func:`score_global`."""
+    if lev.cfg.effects.model == "paper" and lev.cfg.effects.interference == "two_beam":
+        return _candidates_paper(lev, table, vals, grid, env)
+    return _candidates_generic(lev, table, vals, grid, env)
+
+
+def profile_from_pixels(height, d, w):
+    """Robust least-squares drainage profile (top, bottom, exponent) through per-pixel thicknesses.
+
+    Iteratively reweighted least squares of ``d = top (1 - x^e) + bottom x^e``,
+    ``x = (1 - y) / 2`` (the drainage profile of docs/design.md), for each exponent of
+    :data:`PROFILE_EXPONENTS`; the exponent of the smallest median absolute residual wins.
+    """
+    best = None
+    x = np.clip((1 - height) / 2, 0, 1)
+    for e in PROFILE_EXPONENTS:
+        basis = np.stack([1 - x**e, x**e], axis=1)
+        wt = w.copy()
+        for _ in range(6):
+            sw = np.sqrt(wt)
+            coef, *_ = np.linalg.lstsq(basis * sw[:, None], d * sw, rcond=None)
+            res = d - basis @ coef
+            s = 1.4826 * np.median(np.abs(res)) + 1.0
+            wt = w / np.maximum(1.0, np.abs(res) / (2.0 * s))
+        score = np.median(np.abs(res))
+        if best is None or score < best[0]:
+            best = (score, coef[0], coef[1], e)
+    _, top, bottom, e = best
+    return max(top, 1.0), max(bottom, 1.0), e
+
+
+def _profile_starts(lev_s, table, v, grid, refl, fixedpart, y, w2, tint: bool):
+    """Starting drainage profiles: a robust line through each pixel's best thickness, and
+    :func:`best_profile` over every pixel's candidate costs at one camera gain."""
+    zero = jnp.zeros(refl.shape[:2])
+    best, _, gain = score_pixels(refl, fixedpart, y, w2, zero, per_pixel_gain=True)
+    gain = np.asarray(gain)
+    g = float(np.median(gain[gain > 0])) if np.any(gain > 0) else v["exposure"]
+    if tint:
+        # A gain per pixel can cancel the reflected colour against the tint's
+        # complementary one; scan one gain for all pixels around the hue-matched median.
+        scan = []
+        for gg in g * np.geomspace(1 / 3, 3, 17):
+            _, c, _ = score_pixels(gg * refl, fixedpart, y, w2, zero, per_pixel_gain=False)
+            c = np.asarray(c)
+            scan.append((float(np.sum(np.minimum(c, 4 * np.median(c)))), gg))
+        g = min(scan)[1]
+    hgt = lev_s.height.reshape(-1)[lev_s.mask.reshape(-1)]
+    d_pix = grid[np.asarray(best)]
+    profiles = [profile_from_pixels(hgt, d_pix, np.ones_like(d_pix))]
+    cost = np.asarray(pixel_costs(g * refl, fixedpart, y, w2))
+    profiles.append(best_profile(cost, grid, hgt))
+    starts = []
+    for top, bottom, e in profiles:
+        nv = dict(v, exposure=g if "exposure" in table.free else v["exposure"])
+        for n, val in (("top_nm", top), ("bottom_nm", bottom), ("exponent", e)):
+            if n in table.free:
+                nv[n] = val
+        starts.append(nv)
+    return starts
+
+
+def search_starts(lev_s, table: ParameterTable, vals: dict, env, thickness_range, step_nm: float,
+                  n_candidates: int) -> list[dict]:
+    """Starting values from the global thickness search on ``lev_s``: the ``n_candidates``
+    lowest local minima of a constant film (each with its best gain), or the starting
+    drainage profiles (:func:`_profile_starts`)."""
+    lo, hi = thickness_range
+    grid = thickness_grid(lo, hi, step_nm)
+    refl, fixedpart = candidates(lev_s, table, vals, grid, env)
+    y = jnp.asarray(lev_s.y.reshape(-1, 3)[lev_s.mask.reshape(-1)])
+    w2 = jnp.asarray(lev_s.w.reshape(-1, 3)[lev_s.mask.reshape(-1)] ** 2)
+    if table.thickness_model != "constant":
+        return _profile_starts(lev_s, table, vals, grid, refl, fixedpart, y, w2, lev_s.cfg.effects.tint)
+    cost, gain = score_global(refl, fixedpart, y, w2)
+    cost, gain = np.asarray(cost), np.asarray(gain)
+    starts = []
+    for d in local_minima(cost, grid, n_candidates, separation=20.0):
+        g = float(gain[int(np.argmin(np.abs(grid - d)))])
+        starts.append(dict(vals, thickness_nm=d, exposure=max(g, 1e-6) if "exposure" in table.free
+                           else vals["exposure"]))
+    return starts

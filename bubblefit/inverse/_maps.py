@@ -1,0 +1,269 @@
+"""Per-pixel thickness maps that keep the film's interference order, fitted after a
+drainage profile.
+
+A pixel's colour depends on its own thickness only (the rear film and internal bounces
+read the map at the same pixel, :func:`bubblefit.model.thickness.thickness_at`), but the
+colours repeat every ~lambda / (2 n) of thickness, so pixel by pixel a map hops between
+interference orders wherever noise or model error makes a neighbouring order fit a
+little better. A soap film is smooth apart from real features, so the map is built:
+
+1. coarse to fine on a pyramid of the photo (blocks of 2^j pixels, the coarsest with a
+   disc of about :data:`COARSE_RADIUS` pixels): on the coarsest level every thickness of
+   the searched grid is scored with a Gaussian prior of ``FitOptions.map_prior_nm``
+   around the fitted drainage profile; each finer level searches only a window of
+   +-:data:`WINDOW_NM` (less than half an order) around the coarser map, so the order
+   chosen where the photo is clearest carries to every pixel;
+2. with a smoothness prior on every level: the energy of pixel ``p`` at thickness ``d``
+   is its data chi^2 plus ``sum over its 4 neighbours q of ((d - d_q) / s)^2``, ``s`` =
+   ``FitOptions.map_smoothness_nm`` times the level's block size (neighbours are that
+   far apart), minimised by iterated conditional modes (Besag 1986) in a red-black order;
+3. refined below the grid by a parabola through the energy around each pixel's minimum;
+   its curvature gives the pixel's standard error (of its posterior: data, prior and
+   smoothness with the neighbours held), widened by ``sqrt(max(1, chi2_nu))`` of the
+   map's own residual, as for the global parameters.
+
+With the ``paper`` model a pixel's candidates are exact and cheap (eq. 11 is linear in eq.
+10's factor, :func:`bubblefit.inverse.search.paper_candidates`); other models render the
+whole map at each thickness offset.
+
+References
+----------
+J. Besag, "On the statistical analysis of dirty pictures", J. R. Stat. Soc. B 48(3), 1986
+(iterated conditional modes).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import replace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy import ndimage as ndi
+
+from . import search
+from ._observation import Level
+from ._parameters import ParameterTable
+from ..model.thickness import drainage_profile
+from ..optics import film
+
+__all__ = ["fit_map", "profile_map", "COARSE_RADIUS", "WINDOW_NM"]
+
+#: Disc radius (pixels) of the pyramid's coarsest level.
+COARSE_RADIUS = 12.0
+#: Half-width of the search window around the coarser level's map (nm): under half the
+#: ~200 nm between interference orders of green light in a film of n = 1.4.
+WINDOW_NM = 80.0
+#: Step of the finest level's grid (nm).
+FINE_STEP_NM = 2.0
+#: Sweeps of iterated conditional modes per level.
+ICM_SWEEPS = 12
+
+
+def profile_map(lev: Level, prof) -> np.ndarray:
+    """(h, w) drainage profile ``prof = (top, bottom, exponent)`` at each pixel's film point (nm)."""
+    return np.asarray(drainage_profile(jnp.asarray(lev.height), *prof), np.float64)
+
+
+class _PaperCosts:
+    """Exact per-pixel data chi^2 of the ``paper`` model at any thicknesses (module docstring)."""
+
+    def __init__(self, lev: Level, table: ParameterTable, vals: dict, env, hi_nm: float):
+        fx = lev.cfg.effects
+        self.m, self.c = search.unlit_terms(lev, table, vals, env)
+        n = float(vals["n_film"])
+        sel = lev.mask.reshape(-1)
+        self.xfac = 2 * n * np.asarray(film.cos_transmitted(lev.cos.reshape(-1)[sel], n), np.float64)
+        self.t = float(vals["t"])
+        p = table.render_params({k: jnp.asarray(v, jnp.float32) for k, v in dict(vals, thickness_nm=0.0).items()
+                                 if k != "map"}, "constant")
+        self.r_s = float(p.r_s) if fx.tint and fx.transmission else 0.0
+        self.phi = jnp.asarray(search.phi_table(fx.spectral, 2 * n * hi_nm))
+        self.y = lev.y.reshape(-1, 3)[sel]
+        self.w2 = lev.w.reshape(-1, 3)[sel] ** 2
+
+    def __call__(self, d: np.ndarray) -> np.ndarray:
+        """(G, P) chi^2 of candidate thicknesses ``d`` (G, P)."""
+        out = np.empty(d.shape, np.float32)
+        chunk = max(1, 2_000_000 // max(d.shape[0], 1))
+        for s in range(0, d.shape[1], chunk):
+            e = slice(s, s + chunk)
+            out[:, e] = np.asarray(_paper_cost(self.phi, jnp.asarray(d[:, e] * self.xfac[None, e], jnp.float32),
+                                               jnp.asarray(self.m[e]), jnp.asarray(self.c[e]), self.t, self.r_s,
+                                               jnp.asarray(self.y[e]), jnp.asarray(self.w2[e])))
+        return out
+
+
+@jax.jit
+def _paper_cost(phi_tab, x, m, c, t, r_s, y, w2):
+    refl, back = search.paper_candidates(search.phi_rgb(phi_tab, x), m[None], c[None], t, r_s)
+    return search.pixel_costs(refl, back, y, w2)
+
+
+class _RenderCosts:
+    """Data chi^2 of any model: the whole map rendered once per row of candidates."""
+
+    def __init__(self, lev: Level, table: ParameterTable, vals: dict, env):
+        self.lev, self.table, self.env = lev, table, env
+        self.cfg = replace(lev.cfg, effects=replace(lev.cfg.effects, thickness="map"))
+        self.bg = None if lev.bg is None else jnp.asarray(lev.bg)
+        self.base = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k != "map"}
+        self.gain = float(vals["exposure"])
+        self.sel = lev.mask.reshape(-1)
+        self.y = lev.y.reshape(-1, 3)[self.sel]
+        self.w2 = lev.w.reshape(-1, 3)[self.sel] ** 2
+
+    def __call__(self, d: np.ndarray) -> np.ndarray:
+        h, w = self.lev.mask.shape
+        maps = np.zeros((d.shape[0], h * w), np.float32)
+        maps[:, self.sel] = np.maximum(d, 0.0)
+        refl, back = search.render_candidates(self.base, jnp.asarray(maps.reshape(-1, h, w)), self.cfg, self.env,
+                                              self.bg, self.table)
+        g = d.shape[0]
+        refl = np.asarray(refl).reshape(g, -1, 3)[:, self.sel] * self.gain
+        back = np.asarray(back).reshape(g, -1, 3)[:, self.sel]
+        return np.asarray(search.pixel_costs(jnp.asarray(refl), jnp.asarray(back), jnp.asarray(self.y),
+                                             jnp.asarray(self.w2)))
+
+
+def _neighbours(mask: np.ndarray):
+    """(P, 4) indices of each mask pixel's 4-neighbours among the mask pixels (-1: none)."""
+    h, w = mask.shape
+    idx = np.full((h, w), -1, np.int64)
+    idx[mask] = np.arange(int(mask.sum()))
+    pad = np.pad(idx, 1, constant_values=-1)
+    ii, jj = np.nonzero(mask)
+    return np.stack([pad[ii, jj + 1], pad[ii + 2, jj + 1], pad[ii + 1, jj], pad[ii + 1, jj + 2]], axis=1), ii + jj
+
+
+def _icm(d: np.ndarray, cost: np.ndarray, nb: np.ndarray, parity: np.ndarray, s: float, start: np.ndarray):
+    """Iterated conditional modes over candidates ``d`` (G, P) with data ``cost`` (G, P):
+    the index (P,) minimising cost + sum over neighbours ((d - d_q) / s)^2, from ``start``."""
+    pick = start.copy()
+    cols = np.arange(d.shape[1])
+    has = nb >= 0
+    for _ in range(ICM_SWEEPS):
+        changed = 0
+        for colour in (0, 1):
+            cur = d[pick, cols]
+            nd = np.where(has, cur[np.where(has, nb, 0)], 0.0)
+            cnt = has.sum(axis=1)
+            mean = np.where(cnt > 0, nd.sum(axis=1) / np.maximum(cnt, 1), cur)
+            energy = cost + cnt[None, :] * ((d - mean[None, :]) / s) ** 2
+            new = np.argmin(energy, axis=0)
+            upd = (parity % 2) == colour
+            changed += int(np.sum(new[upd] != pick[upd]))
+            pick = np.where(upd, new, pick)
+        if changed == 0:
+            break
+    return pick
+
+
+def _upsample(coarse: Level, cmap: np.ndarray, fine: Level) -> np.ndarray:
+    """The coarse map (NaN off its mask, filled from the nearest mask pixel) at the fine level's pixels."""
+    filled = cmap.copy()
+    bad = ~np.isfinite(filled)
+    if bad.any():
+        _, (ii, jj) = ndi.distance_transform_edt(bad, return_indices=True)
+        filled = filled[ii, jj]
+    ratio = coarse.k / fine.k
+    h, w = fine.mask.shape
+    ii, jj = np.mgrid[0:h, 0:w]
+    coords = np.stack([(ii + 0.5) / ratio - 0.5, (jj + 0.5) / ratio - 0.5])
+    return ndi.map_coordinates(filled, coords, order=1, mode="nearest")
+
+
+def _level_map(lev, costs_of, centre, s, step, half, prior=None, prior_nm=None):
+    """One pyramid level: candidates ``centre +- half`` in ``step`` (or, with ``prior``,
+    the grid of ``centre`` (G,) for all pixels), ICM, and the sub-grid parabola.
+    Returns ``(map over the mask, stderr, data chi^2 at the optimum)``."""
+    sel = lev.mask.reshape(-1)
+    nb, parity = _neighbours(lev.mask)
+    if prior is None:
+        offs = np.arange(-half, half + 1e-9, step)
+        d = np.maximum(centre[None, :] + offs[:, None], 0.0)
+        extra = 0.0
+    else:
+        d = np.repeat(np.asarray(centre, np.float64)[:, None], int(sel.sum()), axis=1)
+        extra = ((d - prior[None, :]) / prior_nm) ** 2
+    cost = costs_of(d)
+    energy0 = cost + extra
+    # start from each pixel's best candidate with the prior, or from the coarser map (offset 0)
+    start = np.argmin(energy0, axis=0) if prior is not None else np.full(d.shape[1], d.shape[0] // 2)
+    pick = _icm(d, energy0, nb, parity, s, start)
+    # the parabola through the full energy (data + smoothness, neighbours fixed) at pick -1, 0, +1
+    cols = np.arange(d.shape[1])
+    cur = d[pick, cols]
+    has = nb >= 0
+    cnt = has.sum(axis=1)
+    nd = np.where(has, cur[np.where(has, nb, 0)], 0.0)
+    mean = np.where(cnt > 0, nd.sum(axis=1) / np.maximum(cnt, 1), cur)
+    energy = energy0 + cnt[None, :] * ((d - mean[None, :]) / s) ** 2
+    j = np.clip(pick, 1, d.shape[0] - 2)
+    em, e0, ep = energy[j - 1, cols], energy[j, cols], energy[j + 1, cols]
+    curv = em - 2 * e0 + ep
+    shift = np.where(curv > 0, 0.5 * (em - ep) / np.where(curv > 0, curv, 1.0), 0.0)
+    h_ = d[j + 1, cols] - d[j, cols]
+    best = d[j, cols] + np.clip(shift, -1, 1) * h_
+    # standard error from the curvature of the pixel's energy (data, prior and smoothness
+    # with its neighbours held): E'' = 2 / sigma^2 of the pixel's posterior
+    err = np.where(curv > 0, np.sqrt(2.0 / np.where(curv > 0, curv, 1.0)) * np.maximum(h_, 1e-9), np.nan)
+    return best, err, cost[pick, cols]
+
+
+def _pyramid(lev: Level) -> list[int]:
+    """Block sizes of the pyramid, coarse to fine, ending at 1 (the level itself)."""
+    r = float(lev.cfg.camera.disc()[2]) if hasattr(lev.cfg.camera, "disc") else min(lev.mask.shape) / 2.0
+    n = max(0, int(math.floor(math.log2(max(r / COARSE_RADIUS, 1.0)))))
+    return [2**j for j in range(n, -1, -1)]
+
+
+def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts, env, make_level=None):
+    """Per-pixel thickness (h, w), its standard error (h, w), and whether the map is sound.
+
+    ``lev`` is the full-resolution level, ``prof`` the fitted drainage profile the map
+    starts from, ``opts`` a ``FitOptions``, ``make_level(k)`` the level ``k`` times
+    coarser than ``lev`` (None: no pyramid).
+    """
+    fx = lev.cfg.effects
+    exact = fx.model == "paper" and fx.interference == "two_beam"
+    lo, hi = opts.thickness_range
+    base = {k: v for k, v in vals.items() if k != "map"}
+    blocks = _pyramid(lev) if make_level is not None else [1]
+    prev, prev_map = None, None
+    for k in blocks:
+        L = lev if k == 1 else make_level(k)
+        sel = L.mask.reshape(-1)
+        if sel.sum() == 0:
+            continue
+        costs_of = _PaperCosts(L, table, base, env, hi + WINDOW_NM) if exact else _RenderCosts(L, table, base, env)
+        s = float(opts.map_smoothness_nm) * k
+        prior = profile_map(L, prof).reshape(-1)[sel]
+        if prev is None:
+            if exact:
+                grid = search.thickness_grid(lo, hi, opts.search_step_nm)
+                best, err, c = _level_map(L, costs_of, grid, s, None, None, prior, float(opts.map_prior_nm))
+            else:  # renders: offsets around the profile
+                half = 2 * float(opts.map_prior_nm)
+                best, err, c = _level_map(L, costs_of, prior, s, opts.search_step_nm, half)
+        else:
+            centre = _upsample(prev, prev_map, L).reshape(-1)[sel]
+            # the finest level refines within a few coarse steps; the order is settled by then
+            step, half = (FINE_STEP_NM, 6 * opts.search_step_nm) if k == 1 else (opts.search_step_nm, WINDOW_NM)
+            best, err, c = _level_map(L, costs_of, centre, s, step, half)
+        m = np.full(L.mask.shape, np.nan)
+        m.reshape(-1)[sel] = best
+        prev, prev_map = L, m
+        e_map = np.full(L.mask.shape, np.nan)
+        e_map.reshape(-1)[sel] = err
+        chi = c
+    dmap = profile_map(lev, prof)
+    sel = lev.mask.reshape(-1)
+    dmap.reshape(-1)[sel] = prev_map.reshape(-1)[sel]
+    chi2 = float(np.sum(chi)) / max(2 * int(sel.sum()), 1)  # 3 channels, 1 thickness per pixel
+    emap = e_map * math.sqrt(max(1.0, chi2))
+    emap = np.where(lev.mask, emap, np.nan)
+    sound = bool(np.mean(np.isfinite(emap[lev.mask])) > 0.9) if lev.mask.any() else False
+    return dmap, emap, sound

@@ -1,0 +1,214 @@
+"""The observation: what the fit sees of the photo.
+
+The photo's noise (:func:`noise_sigma`), its clipped pixels (:func:`saturation_mask`),
+the frame the fit analyses (:func:`analysis_frame`: a large photo cropped to the bubble
+and block-averaged, so memory is bounded by the fit's size), and the photo
+block-averaged to the resolution a stage of the fit runs at, with its weights and the
+film's geometry (:class:`Level`). The bubble's disc is found in :mod:`._disc`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import cv2
+import jax.numpy as jnp
+import numpy as np
+from scipy import ndimage as ndi
+
+from ..capture.calibrate import detect_bubble, usable_mask
+from ..errors import InputError
+from ..model.geometry import OrthographicCamera, intersect_sphere
+from ..model.render import RenderConfig
+
+__all__ = ["Level", "Frame", "noise_sigma", "saturation_mask", "detect_disc", "make_level", "film_geometry",
+           "block_mean", "analysis_frame"]
+
+
+def noise_sigma(photo: np.ndarray, read: float, shot: float, bits: int | None) -> np.ndarray:
+    """Per-pixel noise standard deviation (H, W, 3) of a linear photo.
+
+    ``sigma^2 = read^2 + shot * I + q^2``: read noise, shot noise proportional to the
+    signal, and, for an integer sRGB file of ``bits`` bits, the quantisation error
+    ``q = (dI/dV) / (2^bits - 1) / sqrt(12)`` of one code value ``V`` mapped to linear.
+
+    References
+    ----------
+    IEC 61966-2-1 (sRGB transfer function and its slope).
+    """
+    i = np.clip(photo, 0.0, None)
+    var = read**2 + shot * i
+    if bits:
+        lin = np.clip(i, 0.0, 1.0)
+        v = np.where(lin <= 0.0031308, lin * 12.92, 1.055 * lin ** (1 / 2.4) - 0.055)
+        slope = np.where(v <= 0.04045, 1 / 12.92, 2.4 / 1.055 * ((v + 0.055) / 1.055) ** 1.4)
+        var = var + (slope / (2**bits - 1)) ** 2 / 12.0
+    return np.sqrt(var)
+
+
+def saturation_mask(photo: np.ndarray, level: float, given: np.ndarray | None) -> np.ndarray:
+    """(H, W) clipped pixels: any channel at or above ``level`` (for files whose maximum
+    is 1), or in ``given``, dilated by one pixel (a clipped pixel's neighbours bleed)."""
+    H, W = photo.shape[:2]
+    sat = (np.max(photo, axis=-1) >= level) if np.nanmax(photo) <= 1.0 + 1e-6 else np.zeros((H, W), bool)
+    if given is not None:
+        if np.shape(given) != (H, W):
+            raise InputError(f"the saturation mask is {np.shape(given)}, the photo is {W}x{H}")
+        sat = sat | np.asarray(given, bool)
+    return ndi.binary_dilation(sat) if sat.any() else sat
+
+
+def detect_disc(photo: np.ndarray, background: np.ndarray | None = None) -> tuple[float, float, float]:
+    """Find the bubble's disc ``(cx, cy, r)`` in pixels.
+
+    With a background photo: :func:`bubblefit.capture.calibrate.detect_bubble` on the pair (the
+    bubble is where the two differ). Without: the strongest circle of the photo's edges
+    (OpenCV's Hough gradient on the sRGB-encoded grey image), which finds the rim that a
+    bubble's Fresnel brightening outlines.
+
+    References
+    ----------
+    Yuen et al., "Comparative study of Hough transform methods for circle finding",
+    Image and Vision Computing 8(1), 1990 (the gradient method OpenCV implements).
+    """
+    gray = np.mean(np.clip(photo, 0, None), axis=-1)
+    if background is not None:
+        bgray = np.mean(np.clip(background, 0, None), axis=-1)
+        sat = (np.max(photo, axis=-1) >= 0.999) | (np.max(background, axis=-1) >= 0.999)
+        try:
+            usable, _ = usable_mask(bgray, gray, sat)
+            return detect_bubble(bgray, gray, usable)
+        except InputError:
+            pass  # a dark background: fall back to the edges of the photo alone
+    h, w = gray.shape
+    enc = np.clip(gray / max(np.percentile(gray, 99.5), 1e-6), 0, 1) ** (1 / 2.2)
+    img = cv2.GaussianBlur((enc * 255).astype(np.uint8), (5, 5), 1.2)
+    circles = cv2.HoughCircles(img, cv2.HOUGH_GRADIENT, dp=1, minDist=max(h, w),
+                               param1=60, param2=20, minRadius=max(4, min(h, w) // 10),
+                               maxRadius=min(h, w) // 2 + 2)
+    if circles is None:
+        raise InputError("no bubble found in the photo; give its disc (--disc CX,CY,R) or a background photo")
+    cx, cy, r = (float(v) for v in circles[0, 0])
+    return cx, cy, r
+
+
+@dataclass
+class Level:
+    """The photo, weights and geometry at one resolution (``k`` times smaller)."""
+
+    k: int
+    cfg: RenderConfig
+    y: np.ndarray  # (h, w, 3)
+    w: np.ndarray  # (h, w, 3) 1 / sigma inside the mask, 0 outside
+    bg: np.ndarray | None
+    mask: np.ndarray  # (h, w) fitted pixels
+    inside: np.ndarray  # (h, w) pixels on the bubble
+    cos: np.ndarray  # (h, w) incidence cosine on the film
+    height: np.ndarray  # (h, w) front film point's height over the radius
+
+
+def _block(a: np.ndarray, k: int, h: int, w: int, how="mean"):
+    if k == 1:
+        return a
+    b = a[: h * k, : w * k].reshape(h, k, w, k, *a.shape[2:])
+    return b.mean(axis=(1, 3)) if how == "mean" else b.any(axis=(1, 3))
+
+
+def block_mean(a: np.ndarray, k: int) -> np.ndarray:
+    """``a`` (H, W, ...) averaged over blocks of ``k`` x ``k`` pixels (the remainder dropped)."""
+    return _block(a, k, a.shape[0] // k, a.shape[1] // k)
+
+
+@dataclass
+class Frame:
+    """The part of the photo a fit analyses: from pixel ``(x0, y0)`` in blocks of ``k``.
+
+    ``photo``, ``background``, ``sigma`` and ``saturated`` are in that frame; ``disc`` is
+    the bubble's disc in it (``to_photo`` maps a disc back to the photo's pixels).
+    """
+
+    x0: int
+    y0: int
+    k: int
+    photo: np.ndarray
+    background: np.ndarray | None
+    sigma: np.ndarray
+    saturated: np.ndarray
+    disc: tuple | None
+
+    @property
+    def whole(self) -> bool:
+        return self.x0 == 0 and self.y0 == 0 and self.k == 1
+
+    def to_photo(self, disc):
+        """A disc ``(cx, cy, r)`` of this frame in the photo's pixels."""
+        if disc is None:
+            return None
+        cx, cy, r = disc
+        return (self.x0 + cx * self.k, self.y0 + cy * self.k, r * self.k)
+
+
+def analysis_frame(photo, background, saturated, disc, opts) -> Frame:
+    """The :class:`Frame` a fit analyses (``opts``: a ``FitOptions``).
+
+    A photo whose larger side is at most ``opts.analysis_size`` (or without a disc, i.e.
+    a perspective camera) is used whole. A larger one is cropped to 1.15 radii around
+    the disc and block-averaged by ``k`` so that the crop's larger side is at most
+    ``analysis_size``: the noise variance of a block mean is the mean variance over
+    ``k^2``, and a block with a clipped pixel is clipped.
+    """
+    H, W = photo.shape[:2]
+    if disc is None or max(H, W) <= opts.analysis_size:
+        sigma = noise_sigma(photo, opts.noise_read, opts.noise_shot, opts.bits)
+        return Frame(0, 0, 1, photo, background, sigma, saturated, disc)
+    cx, cy, r = disc
+    half = 1.15 * r
+    x0, x1 = max(0, int(math.floor(cx - half))), min(W, int(math.ceil(cx + half)))
+    y0, y1 = max(0, int(math.floor(cy - half))), min(H, int(math.ceil(cy + half)))
+    if x1 - x0 < 8 or y1 - y0 < 8:
+        raise InputError(f"the bubble's disc {disc} lies outside the {W}x{H} photo")
+    k = max(1, math.ceil(max(x1 - x0, y1 - y0) / opts.analysis_size))
+    crop = photo[y0:y1, x0:x1]
+    sigma = np.sqrt(block_mean(noise_sigma(crop, opts.noise_read, opts.noise_shot, opts.bits) ** 2, k) / (k * k))
+    bg = None if background is None else block_mean(background[y0:y1, x0:x1], k)
+    h, w = (y1 - y0) // k, (x1 - x0) // k
+    sat = _block(saturated[y0:y1, x0:x1], k, h, w, how="any")
+    return Frame(x0, y0, k, block_mean(crop, k), bg, sigma, sat, ((cx - x0) / k, (cy - y0) / k, r / k))
+
+
+def _camera_at(camera, k: int, h: int, w: int):
+    if isinstance(camera, OrthographicCamera):
+        cx, cy, r = camera.disc()
+        return OrthographicCamera(w, h, cx / k, cy / k, r / k)
+    return replace(camera, width=w, height=h)
+
+
+def film_geometry(cfg: RenderConfig):
+    """``(inside, cos, height)`` (h, w) of the front film under each pixel of ``cfg``'s camera."""
+    h, w = cfg.shape
+    rows, cols = np.mgrid[0:h, 0:w]
+    o, d = cfg.camera.rays(jnp.asarray(rows.reshape(-1), jnp.float32), jnp.asarray(cols.reshape(-1), jnp.float32),
+                           cfg.center, cfg.radius)
+    hits = intersect_sphere(o, d, cfg.center, cfg.radius)
+    cos = np.asarray(hits.cos).reshape(h, w)
+    inside = np.asarray(hits.inside).reshape(h, w)
+    height = np.asarray(hits.local0[:, 1]).reshape(h, w)
+    return inside, cos, height
+
+
+def make_level(k, base_cfg, photo, sigma, bg, saturated, rim: float) -> Level:
+    """The :class:`Level` ``k`` times smaller than ``photo`` (block means; variances of the
+    mean; a block with a clipped pixel is dropped), fitting pixels with ``rho < rim``."""
+    H, W = photo.shape[:2]
+    h, w = H // k, W // k
+    cfg = replace(base_cfg, camera=_camera_at(base_cfg.camera, k, h, w))
+    inside, cos, height = film_geometry(cfg)
+    cos_min = math.sqrt(max(0.0, 1.0 - rim**2))
+    y = _block(photo, k, h, w)
+    var = _block(sigma**2, k, h, w) / (k * k)
+    sat = _block(saturated, k, h, w, how="any")
+    mask = inside & (cos > cos_min) & ~sat & np.all(np.isfinite(y), axis=-1)
+    wts = np.where(mask[..., None], 1.0 / np.sqrt(var), 0.0)
+    bgk = None if bg is None else _block(bg, k, h, w).astype(np.float32)
+    return Level(k, cfg, np.nan_to_num(y).astype(np.float32), wts.astype(np.float32), bgk, mask, inside, cos, height)

@@ -1,0 +1,304 @@
+"""What a fit is told (:class:`FitOptions`) and what it returns (:class:`FitResult`).
+
+The JSON keys of :meth:`FitResult.to_json` are the command-line contract of
+``bubblefit fit`` (``docs/design.md``, "Command line").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from ..errors import InputError
+
+__all__ = ["ThicknessModel", "ForwardModel", "FitStatus", "FitOptions", "FitResult"]
+
+#: How the film's thickness varies over the bubble (the thickness *model*; its values are
+#: ``thickness_nm``, ``top_nm``/``bottom_nm``/``exponent`` or a per-pixel map in nm).
+ThicknessModel = Literal["constant", "drainage", "map"]
+#: The forward model fitted (``docs/design.md``, "Two model variants").
+ForwardModel = Literal["paper", "physical"]
+#: ``converged``: the local solver met its tolerances with finite errors;
+#: ``max_steps``: it stopped at its step limit; ``failed``: it diverged, or the Jacobian
+#: is singular at the optimum.
+FitStatus = Literal["converged", "max_steps", "failed"]
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """Static settings of a fit.
+
+    Attributes
+    ----------
+    thickness : ThicknessModel
+        The thickness model: ``constant`` | ``drainage`` | ``map``.
+    model : ForwardModel
+        ``paper`` | ``physical`` forward model.
+    fit_rotation : bool
+        Also fit the environment's rotation about +y.
+    free_split : bool
+        Fit ``r_d`` and ``r_s`` freely instead of ``r_d + r_s = 1 - t`` (eq. 14).
+    disc : tuple or None
+        ``(cx, cy, r)`` of the bubble in pixels, or None to detect it.
+    t_init, roughness_init : float or None
+        Starting ``t`` (e.g. from ``bubblefit calibrate``) and roughness (the roughness
+        also decides whether filtering is simulated).
+    thickness_range : tuple
+        (min, max) nm searched (and used to decide the effects).
+    max_steps, rtol, atol
+        Levenberg-Marquardt limits and tolerances (optimistix' Cauchy test: every
+        unconstrained coordinate and every whitened residual changes by less than
+        ``atol + rtol |value|`` in a step). Looser tolerances (1e-4) stop drainage fits
+        early, far from the optimum (tests/test_fit.py::test_drainage_and_map).
+    downsample : int or None
+        Factor of the image the local fit runs on (None: so that its larger side is at
+        most ``fit_size``).
+    fit_size, search_size : int
+        Larger side of the fit and search images (pixels).
+    search_step_nm : float
+        Thickness grid step of the global search.
+    candidates, search_steps : int
+        Local minima of the search refined, each with at most ``search_steps`` LM steps
+        on the search image.
+    robust_scale : float
+        Pseudo-Huber scale in noise sigmas.
+    noise_read, noise_shot, bits
+        Noise model (``bits`` None for float photos).
+    saturation : float
+        Photo values at or above this (in files with a maximum of 1) are clipped.
+    rim : float
+        Fraction of the disc radius used (the rim mixes with the background).
+    map_prior_nm : float
+        Width of the prior tying a thickness map to the fitted profile.
+    hold : tuple
+        Names of parameters to hold at their starting values.
+    effects : tuple
+        Extra ``[effects]`` settings as ``((key, value), ...)``.
+    calibration_disc : tuple or None
+        ``(cx, cy, r)`` from ``bubblefit calibrate``: used (instead of detecting the disc)
+        only when the photo has ``calibration_size`` (when known) and the disc found in the
+        photo agrees with it; otherwise the detected disc is used and a warning says why.
+    calibration_size : tuple or None
+        ``(width, height)`` of the calibration frame, when the calibration JSON records it.
+    model_error : float
+        The model-error floor: a fraction of each pixel's value added in quadrature to its
+        noise when judging whether the photo is explained (``ok``). Renderers disagree by
+        about this much on the same film (spectral sampling, observer tables, the rim's
+        filtering), so a fit is not failed for differences of that size.
+    ok_chi2 : float
+        A fit is ``ok`` only when the reduced chi^2 with the model-error floor is at most
+        this.
+    analysis_size : int
+        A photo whose larger side exceeds this is cropped to the bubble (1.15 radii around
+        its disc) and block-averaged so that the crop's larger side is at most this,
+        before anything else: memory stays bounded by this size, not the photo's. The
+        fit's images (render, residual, maps) are then in that frame
+        (:attr:`FitResult.frame`); the disc is always reported in the photo's pixels.
+    map_smoothness_nm : float
+        The thickness map's smoothness prior: the standard deviation (nm) of the
+        difference between neighbouring pixels' thicknesses at the photo's resolution.
+        Smaller values smooth more; a film's real features (a 40 nm bump a few pixels
+        wide) change by a few nm per pixel and survive the default.
+    """
+
+    thickness: ThicknessModel = "constant"
+    model: ForwardModel = "paper"
+    fit_rotation: bool = False
+    free_split: bool = False
+    disc: tuple | None = None
+    t_init: float | None = None
+    roughness_init: float | None = None
+    thickness_range: tuple = (50.0, 2000.0)
+    max_steps: int = 80
+    rtol: float = 1e-5
+    atol: float = 1e-6
+    downsample: int | None = None
+    fit_size: int = 96
+    search_size: int = 48
+    search_step_nm: float = 4.0
+    candidates: int = 2
+    search_steps: int = 20
+    robust_scale: float = 3.0
+    noise_read: float = 2e-3
+    noise_shot: float = 2e-4
+    bits: int | None = 8
+    saturation: float = 0.995
+    rim: float = 0.96
+    map_prior_nm: float = 150.0
+    hold: tuple = ()
+    effects: tuple = ()
+    calibration_disc: tuple | None = None
+    calibration_size: tuple | None = None
+    model_error: float = 0.03
+    ok_chi2: float = 3.0
+    analysis_size: int = 1024
+    map_smoothness_nm: float = 8.0
+
+    def __post_init__(self):
+        if self.thickness not in ("constant", "drainage", "map"):
+            raise InputError(f"thickness must be constant, drainage or map, got {self.thickness!r}")
+        if self.model not in ("paper", "physical"):
+            raise InputError(f"model must be paper or physical, got {self.model!r}")
+        lo, hi = self.thickness_range
+        if not (math.isfinite(lo) and math.isfinite(hi)):
+            raise InputError(f"thickness range must be finite (nm), got {lo}..{hi}")
+        if not 0 <= lo < hi:
+            raise InputError(f"thickness range must be 0 <= min < max, got {lo}..{hi}")
+        if hi > 20000:
+            raise InputError(f"thickness range must end below 20000 nm (20 um), got {hi}")
+
+
+def _clean(d: dict) -> dict:
+    return {k: (None if v is None or not np.isfinite(v) else float(v)) for k, v in d.items()}
+
+
+@dataclass
+class FitResult:
+    """What a fit found (see :meth:`to_json` for the command line's keys).
+
+    Attributes
+    ----------
+    params : dict
+        Reported values (t, r_d, r_s, f, roughness, thickness_nm, exposure, rotation_deg,
+        n_film; top_nm, bottom_nm, exponent for a drainage profile).
+    stderr : dict
+        Standard errors of the same keys (None for held ones).
+    held : list
+        ``[(name, reason)]`` of parameters not fitted.
+    converged : bool
+        True only when the solver met its tolerances and the errors are finite.
+    message : str
+        Why not, or notes.
+    iterations : int
+        Solver steps of the final refinement.
+    residual_rms : float
+        RMS of the linear residual over the fitted pixels (full resolution).
+    time_s : float
+        Wall time of the fit.
+    effects : list
+        The :class:`~bubblefit.model.effects.Decision` list.
+    render, residual : np.ndarray
+        (H, W, 3) fitted image and ``photo - render``.
+    thickness_map, thickness_stderr_map : np.ndarray or None
+        (H, W) front-film thickness (nm, NaN outside the bubble; None for a constant
+        film) and the standard error of a fitted map.
+    disc : tuple or None
+        (cx, cy, r) used (orthographic camera) or None.
+    thickness_model : ThicknessModel
+        The thickness model fitted.
+    status : FitStatus
+        How the local solver ended.
+    names : tuple
+        The reported parameters the covariance is given for, in its order.
+    covariance : np.ndarray or None
+        Covariance of ``names`` (the fitted parameters in reported units).
+    ok : bool
+        True only when the solver converged, the bubble was found, no parameter sits at a
+        bound and the photo is explained within its noise plus the model-error floor.
+    warnings : list
+        Each reason ``ok`` is False (and other cautions), in words.
+    chi2_floor : float
+        Reduced chi^2 with the model-error floor (``FitOptions.model_error``).
+    stderr_scale : float
+        The largest factor a noise-only standard error was widened by for misfit (the
+        Birge ratio or the cluster-robust sandwich, :mod:`bubblefit.inverse._uncertainty`).
+    frame : tuple or None
+        ``(x0, y0, k)``: the fit's images cover the photo from pixel ``(x0, y0)`` in blocks
+        of ``k`` pixels (None: the whole photo at its own resolution).
+    """
+
+    params: dict
+    stderr: dict
+    held: list
+    converged: bool
+    message: str
+    iterations: int
+    residual_rms: float
+    time_s: float
+    effects: list
+    render: np.ndarray
+    residual: np.ndarray
+    thickness_map: np.ndarray | None = None
+    thickness_stderr_map: np.ndarray | None = None
+    disc: tuple | None = None
+    thickness_model: ThicknessModel = "constant"
+    model: ForwardModel = "paper"
+    reduced_chi2: float = float("nan")
+    pixels_used: int = 0
+    status: FitStatus = "converged"
+    names: tuple = ()
+    covariance: np.ndarray | None = None
+    ok: bool = False
+    warnings: list = field(default_factory=list)
+    chi2_floor: float = float("nan")
+    model_error: float = float("nan")
+    stderr_scale: float = 1.0
+    frame: tuple | None = None
+
+    def to_json(self) -> dict:
+        """The command line's result (``docs/design.md``): params, stderr, converged,
+        iterations, residual_rms, time_s, and more."""
+        cov = None
+        if self.covariance is not None and len(self.names):
+            m = np.asarray(self.covariance, np.float64)
+            cov = {"names": list(self.names),
+                   "matrix": [[None if not np.isfinite(v) else float(v) for v in row] for row in m]}
+        return {
+            "params": _clean(self.params),
+            "stderr": _clean(self.stderr),
+            "held": [{"name": n, "reason": r} for n, r in self.held],
+            "converged": bool(self.converged),
+            "ok": bool(self.ok),
+            "warnings": list(self.warnings),
+            "status": self.status,
+            "message": self.message,
+            "iterations": int(self.iterations),
+            "residual_rms": float(self.residual_rms),
+            "reduced_chi2": float(self.reduced_chi2),
+            "reduced_chi2_floor": float(self.chi2_floor),
+            "model_error_floor": float(self.model_error),
+            "stderr_scale": float(self.stderr_scale),
+            "pixels_used": int(self.pixels_used),
+            "time_s": float(self.time_s),
+            "thickness": self.thickness_model,
+            "model": self.model,
+            "solver": "optimistix.LevenbergMarquardt",
+            "disc": None if self.disc is None else {"cx": self.disc[0], "cy": self.disc[1], "r": self.disc[2]},
+            "covariance": cov,
+            "frame": None if self.frame is None else {"x0": int(self.frame[0]), "y0": int(self.frame[1]),
+                                                      "block": int(self.frame[2])},
+            "effects": [{"effect": d.effect, "simulated": d.simulated, "setting": d.setting, "reason": d.reason}
+                        for d in self.effects],
+        }
+
+    def report(self) -> str:
+        """A readable summary: each parameter with its standard error (or why it was held),
+        the solver's status, reduced chi^2 and the disc."""
+        held = dict(self.held)
+        lines = []
+        for k, v in self.params.items():
+            err = self.stderr.get(k)
+            if err is not None and math.isfinite(err):
+                txt = f"+- {err:.3g}"
+            elif k == "n_film":
+                txt = "(given)"
+            elif err is None:  # held, or set by held parameters (f, r_d, r_s by a held split)
+                why = held.get(k) or (held.get("split") if k in ("f", "r_d", "r_s") else None)
+                txt = f"(held: {why})" if why else "(held)"
+            else:
+                txt = "(fitted; no standard error: the photo does not constrain it)"
+            lines.append(f"{k:<13} {v:.6g} {txt}")
+        lines.append(self.summary())
+        lines += [f"warning: {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+    def summary(self) -> str:
+        """One line: the solver's status, steps, reduced chi^2, the disc and the time."""
+        state = "converged" if self.converged else f"NOT CONVERGED ({self.status})"
+        disc = "" if self.disc is None else " disc ({:.1f}, {:.1f}, r {:.1f}),".format(*self.disc)
+        return (f"ok {'yes' if self.ok else 'NO'}; {state}; {self.iterations} iterations, reduced chi^2 "
+                f"{self.reduced_chi2:.3g} ({self.chi2_floor:.3g} with the model-error floor),{disc} "
+                f"residual rms {self.residual_rms:.4g}, {self.time_s:.2f} s")

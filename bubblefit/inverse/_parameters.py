@@ -1,0 +1,159 @@
+"""The fitted parameters, each described once (in the manner of lmfit's ``Parameters``).
+
+:data:`PARAMETERS` names every quantity a fit can vary, with its unit, its bounds, the
+transform to the unconstrained coordinate the solver moves in, and the paper's equation
+it enters. A :class:`ParameterTable` is one fit's layout: which of them are free, which
+are held and why, and how their values become the renderer's
+:class:`~bubblefit.model.render.Params` and the reported values of the JSON. Names are
+the JSON's keys (``thickness_nm``, ``rotation_deg``, ...), so no alias maps are needed;
+the one fitted quantity the JSON does not report is ``split``, the specular share
+``r_s / (r_d + r_s)`` of eq. (14) (the JSON reports ``f = r_d / r_s``).
+
+Transforms (``docs/design.md``, "Fitting"): ``logistic`` for fractions in (0, 1),
+``log`` for positive scales, ``softplus`` in units of 100 nm for thicknesses (>= 0),
+``angle`` for the rotation (the solver moves in radians, the value is in degrees).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+import jax
+import jax.numpy as jnp
+
+from ..model.render import Params
+
+__all__ = ["Parameter", "PARAMETERS", "ParameterTable", "THICK_UNIT", "forward", "inverse"]
+
+#: nm per unit of the unconstrained thickness coordinate.
+THICK_UNIT = 100.0
+
+Transform = Literal["logistic", "log", "softplus", "angle", "none"]
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One fitted quantity: its name (a JSON key), unit, bounds, transform and reference.
+
+    ``bounds`` are where the transform keeps the value; a value within the ``plausible``
+    range's ends (or outside it) is reported as sitting at a bound (for thicknesses the
+    range searched, ``FitOptions.thickness_range``, is used instead).
+    """
+
+    name: str
+    unit: str
+    bounds: tuple
+    transform: Transform
+    reference: str
+    plausible: tuple = (-math.inf, math.inf)
+
+
+PARAMETERS: dict[str, Parameter] = {p.name: p for p in (
+    Parameter("t", "", (0.0, 1.0), "logistic", "transmission fraction per interface, eqs. (10)-(11), (14)",
+              (0.5, 0.9995)),
+    Parameter("split", "", (0.0, 1.0), "logistic", "specular share r_s / (r_d + r_s) of 1 - t, eq. (14)",
+              (1e-3, 1 - 1e-3)),
+    Parameter("r_d", "", (0.0, math.inf), "log", "diffuse reflectance, eq. (1) (with free_split)"),
+    Parameter("r_s", "", (0.0, math.inf), "log", "specular reflectance, eq. (1) (with free_split)"),
+    Parameter("roughness", "", (0.0, math.inf), "log", "Ward's roughness a, eq. (1)", (1e-4, 1.0)),
+    Parameter("exposure", "", (0.0, math.inf), "log", "camera gain on the rendered radiance", (1e-6, 1e6)),
+    Parameter("rotation_deg", "deg", (-math.inf, math.inf), "angle", "environment rotation about +y"),
+    Parameter("thickness_nm", "nm", (0.0, math.inf), "softplus", "film thickness d, eq. (8)"),
+    Parameter("top_nm", "nm", (0.0, math.inf), "softplus", "drainage profile at the top, docs/design.md"),
+    Parameter("bottom_nm", "nm", (0.0, math.inf), "softplus", "drainage profile at the bottom, docs/design.md"),
+    Parameter("exponent", "", (0.0, math.inf), "log", "drainage profile exponent, docs/design.md",
+              (0.1, 10.0)),
+)}
+
+#: Free parameters of each thickness model (a map starts from a drainage profile).
+THICKNESS_PARAMETERS = {"constant": ("thickness_nm",), "drainage": ("top_nm", "bottom_nm", "exponent"),
+                        "map": ("top_nm", "bottom_nm", "exponent")}
+
+
+def forward(name: str, u):
+    """Value of parameter ``name`` at unconstrained coordinate ``u`` (jnp)."""
+    tr = PARAMETERS[name].transform
+    if tr == "logistic":
+        return jax.nn.sigmoid(u)
+    if tr == "log":
+        return jnp.exp(u)
+    if tr == "softplus":
+        return THICK_UNIT * jax.nn.softplus(u)
+    if tr == "angle":
+        return u * (180.0 / math.pi)
+    return u
+
+
+def inverse(name: str, v) -> float:
+    """Unconstrained coordinate of value ``v`` of parameter ``name`` (clamped inside its bounds)."""
+    v = float(v)
+    tr = PARAMETERS[name].transform
+    if tr == "logistic":
+        v = min(max(v, 1e-6), 1 - 1e-6)
+        return math.log(v / (1 - v))
+    if tr == "log":
+        return math.log(max(v, 1e-12))
+    if tr == "softplus":
+        x = max(v, 1e-3) / THICK_UNIT
+        return x + math.log(-math.expm1(-x)) if x < 30 else x
+    if tr == "angle":
+        return math.radians(v)
+    return v
+
+
+@dataclass(frozen=True)
+class ParameterTable:
+    """One fit's parameters: ``free`` (in the solver's order) and ``held`` ``((name, reason), ...)``.
+
+    Hashable (on what changes the computation, not on the reasons), so compiled solvers
+    are cached per table.
+    """
+
+    free: tuple
+    held: tuple = field(default=(), compare=False)  # reasons do not change what is compiled
+    thickness_model: str = "constant"
+    free_split: bool = False
+
+    def unconstrained(self, values: dict):
+        """The solver's start ``z`` (float32) for ``values``."""
+        return jnp.asarray([inverse(n, values[n]) for n in self.free], jnp.float32)
+
+    def values(self, z, fixed: dict) -> dict:
+        """All values: ``fixed`` updated with the free ones at ``z``."""
+        vals = dict(fixed)
+        for i, name in enumerate(self.free):
+            vals[name] = forward(name, z[i])
+        return vals
+
+    def render_params(self, vals: dict, thickness_model: str | None = None) -> Params:
+        """The renderer's :class:`Params` for ``vals`` (``thickness_model`` default: the table's;
+        ``map`` reads ``vals["map"]``)."""
+        model = thickness_model or self.thickness_model
+        t = vals["t"]
+        if self.free_split:
+            r_d, r_s = vals["r_d"], vals["r_s"]
+        else:  # eq. (14): r_d + r_s = 1 - t
+            r_s = (1.0 - t) * vals["split"]
+            r_d = (1.0 - t) * (1.0 - vals["split"])
+        if model == "constant":
+            th = vals["thickness_nm"]
+        elif model == "drainage":
+            th = jnp.stack([vals["top_nm"], vals["bottom_nm"], vals["exponent"]])
+        else:
+            th = vals["map"]
+        f32 = lambda v: jnp.asarray(v, jnp.float32)
+        return Params(f32(t), f32(r_d), f32(r_s), f32(vals["roughness"]), f32(th), f32(vals["n_film"]),
+                      f32(vals["exposure"]), f32(vals["rotation_deg"] * (math.pi / 180.0)))
+
+    def reported(self, vals: dict) -> dict:
+        """The JSON's parameters (jnp scalars) from values."""
+        p = self.render_params(vals)
+        out = {"t": p.t, "r_d": p.r_d, "r_s": p.r_s, "f": p.r_d / p.r_s, "roughness": p.roughness,
+               "exposure": p.exposure, "rotation_deg": p.rotation * (180.0 / math.pi)}
+        if self.thickness_model == "constant":
+            out["thickness_nm"] = p.thickness
+        else:
+            out["top_nm"], out["bottom_nm"], out["exponent"] = p.thickness[0], p.thickness[1], p.thickness[2]
+        return out

@@ -1,0 +1,257 @@
+"""Setting up a fit of one photo: starting values, the effects, the parameter table, the
+camera and the observation at the fit's resolution (:func:`setup`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ._disc import resolve_disc
+from ._observation import Frame, Level, analysis_frame, make_level, saturation_mask
+from ._options import FitOptions
+from ._parameters import PARAMETERS, ParameterTable, THICKNESS_PARAMETERS
+from ..errors import InputError
+from ..lighting.envmap import EnvMap
+from ..model.effects import resolve
+from ..model.geometry import OrthographicCamera
+from ..model.render import RenderConfig
+
+__all__ = ["Setup", "setup", "defaults"]
+
+#: Names ``--hold`` and ``init`` accept besides the parameters' own.
+_ALIASES = {"f": "split", "thickness": "thickness_nm", "top": "top_nm", "bottom": "bottom_nm",
+            "rotation": "rotation_deg"}
+
+
+# ---------------------------------------------------------------------------------------
+# Starting values, effects and the parameter table
+# ---------------------------------------------------------------------------------------
+
+
+def _scene_values(scene, vals: dict, held: dict) -> None:
+    """Values the scene file sets explicitly: used, and held (``n_film`` used only)."""
+    b = scene.table("bubble")
+    for name in ("t", "roughness", "f", "r_d", "r_s", "n_film"):
+        if name in b:
+            vals[name] = float(b[name])
+            if name != "n_film":
+                held[_ALIASES.get(name, name)] = "set by the scene file"
+    model, values = scene.thickness_spec()
+    if "thickness_nm" in b or "thickness" in b:
+        if model == "constant":
+            vals["thickness_nm"] = float(values)
+            held["thickness_nm"] = "set by the scene file"
+        elif model == "drainage":
+            vals["top_nm"], vals["bottom_nm"], vals["exponent"] = (float(x) for x in values)
+            held.update(top_nm="set by the scene file", bottom_nm="set by the scene file",
+                        exponent="set by the scene file")
+    if "rotation_deg" in scene.table("lighting"):
+        vals["rotation_deg"] = float(scene.table("lighting")["rotation_deg"])
+        held["rotation_deg"] = "set by the scene file"
+
+
+def defaults(scene, init, opts, t_from_calibration):
+    """Starting values (keyed by :data:`PARAMETERS` names) and the parameters held by the
+    scene or the options, with the reasons."""
+    vals = {"t": 0.972, "f": 0.3, "r_d": None, "r_s": None, "roughness": 0.01, "thickness_nm": 500.0,
+            "top_nm": 200.0, "bottom_nm": 1000.0, "exponent": 1.0, "exposure": 1.0, "rotation_deg": 0.0,
+            "n_film": 1.4}
+    held = {}
+    if scene is not None:
+        _scene_values(scene, vals, held)
+    for k, v in (init or {}).items():
+        k = k if k == "f" else _ALIASES.get(k, k)
+        if v is not None and k in vals:
+            vals[k] = float(v)
+    if t_from_calibration is not None:
+        vals["t"] = float(t_from_calibration)
+    if opts.roughness_init is not None and "roughness" not in held:
+        vals["roughness"] = float(opts.roughness_init)
+    if not 0 < vals["t"] < 1:
+        raise InputError(f"starting t must lie in (0, 1), got {vals['t']}")
+    if vals["r_d"] is None or vals["r_s"] is None:
+        vals["r_s"] = (1 - vals["t"]) / (1 + vals["f"])
+        vals["r_d"] = (1 - vals["t"]) - vals["r_s"]
+    vals["split"] = vals["r_s"] / max(vals["r_s"] + vals["r_d"], 1e-12)
+    for name in opts.hold:
+        name = _ALIASES.get(name, name)
+        if name not in PARAMETERS:
+            raise InputError(f"cannot hold {name!r}: known parameters are t, f, r_d, r_s, roughness, thickness_nm, "
+                             "exposure, rotation_deg, top_nm, bottom_nm, exponent")
+        held[name] = "held by request"
+    return vals, held
+
+
+def _decide(opts, vals, env, bg, settings, camera, lights):
+    """The effects the fit simulates (:func:`bubblefit.model.effects.resolve`)."""
+    envpx = np.asarray(env.pixels)
+    bg_kind = "photo" if bg is not None else "envmap"
+    return resolve(
+        model=opts.model, settings=settings, t=vals["t"], r_d=vals["r_d"], r_s=vals["r_s"],
+        roughness=vals["roughness"], thickness_range=tuple(float(x) for x in opts.thickness_range),
+        thickness_kind=opts.thickness, n_film=vals["n_film"], env_texel_angle=env.texel_angle,
+        env_peak=float(envpx.max()), env_mean=float(envpx.mean()), background=bg_kind,
+        background_peak=float(np.max(bg)) if bg is not None else float(envpx.max()),
+        n_point_lights=len(lights), light_peak=max([max(l.irradiance) for l in lights], default=0.0),
+        min_cos=math.sqrt(max(0.0, 1 - opts.rim**2)), tolerance=float(settings.get("tolerance", 1e-3)),
+        env_pixels=envpx, env_irradiance_peak=float(np.max(np.asarray(env.irradiance))),
+    )
+
+
+def _held_by_effects(opts, fx, hold: dict) -> tuple:
+    """Add to ``hold`` the parameters the decided effects make invisible; return the split's names."""
+    skipped_diffuse = "diffuse term skipped: r_d cannot change the image"
+    if fx.model == "physical":
+        hold.setdefault("t", "physical model: Fresnel reflectance from n_film sets t and r_s")
+        hold.setdefault("r_s", "physical model: Fresnel reflectance from n_film sets t and r_s")
+        if not fx.diffuse:
+            hold.setdefault("r_d", skipped_diffuse)
+        split_names = ("r_d",) if opts.free_split else ()
+    elif opts.free_split:
+        if not fx.diffuse:
+            hold.setdefault("r_d", skipped_diffuse)
+        split_names = ("r_d", "r_s")
+    else:
+        if not fx.diffuse:
+            hold.setdefault("split", skipped_diffuse + " and the split (eq. 14) would only trade r_s against "
+                                                       "the camera gain")
+        split_names = ("split",)
+    if fx.filtering.method == "mirror" or not fx.environment:
+        hold.setdefault("roughness", f"roughness filtering skipped ({fx.filtering.method} lookup): "
+                                     "roughness cannot change the image")
+    if fx.interference in ("off", "incoherent"):
+        for n in ("thickness_nm", "top_nm", "bottom_nm", "exponent"):
+            hold.setdefault(n, "interference skipped: thickness cannot change the image")
+    if not opts.fit_rotation:
+        hold.setdefault("rotation_deg", "not fitted (FitOptions.fit_rotation is off)")
+    return split_names
+
+
+def _table(opts, fx, held: dict) -> ParameterTable:
+    """The fit's :class:`ParameterTable`: free parameters in order, and those held with reasons."""
+    hold = dict(held)
+    split_names = _held_by_effects(opts, fx, hold)
+    cand = ["t", *split_names, "roughness", "exposure", "rotation_deg", *THICKNESS_PARAMETERS[opts.thickness]]
+    if fx.model == "physical":
+        cand = [c for c in cand if c not in ("t", "r_s", "split")]
+    free = tuple(c for c in cand if c not in hold)
+    model = "constant" if opts.thickness == "constant" else "drainage"
+    return ParameterTable(free, tuple(hold.items()), model, bool(opts.free_split))
+
+
+# ---------------------------------------------------------------------------------------
+# Setting up a fit of one photo
+# ---------------------------------------------------------------------------------------
+
+
+@dataclass
+class Setup:
+    """What a fit of one photo knows before it solves (:func:`setup`)."""
+
+    photo: np.ndarray  # the analysed frame (:func:`analysis_frame`), as background, sigma, saturated
+    background: np.ndarray | None
+    vals: dict
+    table: ParameterTable
+    fx: object
+    decisions: list
+    base_cfg: RenderConfig
+    map_cfg: RenderConfig
+    disc: tuple | None  # in the photo's pixels
+    sigma: np.ndarray
+    saturated: np.ndarray
+    k_search: int
+    lev_fit: Level
+    frame: Frame
+    warnings: list
+
+    def level(self, k: int, opts: FitOptions, cfg: RenderConfig | None = None) -> Level:
+        """The photo ``k`` times smaller (:func:`make_level`)."""
+        return make_level(k, cfg or self.base_cfg, self.photo, self.sigma, self.background, self.saturated, opts.rim)
+
+
+def _check_inputs(photo, env, background):
+    photo = np.asarray(photo, dtype=np.float64)
+    if photo.ndim != 3 or photo.shape[2] != 3:
+        raise InputError(f"the photo must be an RGB image (H, W, 3), got shape {photo.shape}")
+    if not isinstance(env, EnvMap):
+        raise InputError("the environment map must be an EnvMap")
+    H, W = photo.shape[:2]
+    if background is not None:
+        background = np.asarray(background, dtype=np.float64)
+        if background.shape != photo.shape:
+            raise InputError(f"the background photo is {background.shape[1]}x{background.shape[0]}, "
+                             f"the photo is {W}x{H}")
+    return photo, background
+
+
+def _settings(scene, opts) -> dict:
+    """The ``[effects]`` settings: the scene's, the options', and the fit's defaults."""
+    settings = dict(scene.table("effects")) if scene is not None else {}
+    settings.update(dict(opts.effects))
+    settings["model"] = opts.model
+    # Unless told otherwise, fit with the alias-free 8-lobe spectral quadrature: its colour
+    # error is below uniform 30 samples' at the cost of ~8 (experiments/accuracy_vs_time.py),
+    # whereas "auto" may ask for hundreds of samples to bound the error everywhere.
+    settings.setdefault("spectral", {"method": "fourier", "samples": 8})
+    # A photographed film transmits the complement of the colour it reflects; over a bright
+    # background that tint is as strong as the reflection, and eq. (11)'s grey t^4 would
+    # push the thickness to another colour order (tests/test_fit.py::test_model_mismatch).
+    settings.setdefault("transmission_tint", True)
+    return settings
+
+
+def _perspective(scene, photo):
+    """``(camera, center, radius)`` of a scene's perspective camera, or None."""
+    if scene is None or scene.table("camera").get("type", "orthographic") != "perspective":
+        return None
+    H, W = photo.shape[:2]
+    camera = scene.camera()
+    if (camera.height, camera.width) != (H, W):
+        raise InputError(f"the scene's camera is {camera.width}x{camera.height}, the photo is {W}x{H}")
+    b = scene.table("bubble")
+    return camera, tuple(float(x) for x in b.get("center", (0, 0, 0))), float(b.get("radius", 1.0))
+
+
+def _disc(scene, opts, photo, background) -> tuple[tuple, list]:
+    """The orthographic camera's disc (given, the scene's, a calibration's or found) and warnings."""
+    given = opts.disc
+    if given is None and scene is not None and "disc" in scene.table("camera"):
+        given = tuple(scene.table("camera")["disc"])
+    disc, warnings = resolve_disc(photo, background, opts, given)
+    if given is None:
+        disc = tuple(round(float(v), 2) for v in disc)
+    if len(disc) != 3 or not disc[2] > 2:
+        raise InputError(f"the bubble's disc must be (cx, cy, r) with r > 2 pixels, got {disc}")
+    return disc, warnings
+
+
+def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, decided=None) -> Setup:
+    """Validate the inputs, decide the effects (unless ``decided`` gives ``(fx, decisions)``),
+    lay out the parameters and build the photo's fit level."""
+    photo, background = _check_inputs(photo, env, background)
+    vals, held0 = defaults(scene, init, opts, opts.t_init)
+    lights = scene.point_lights() if scene is not None else ()
+    persp = _perspective(scene, photo)
+    disc, warnings = (None, []) if persp else _disc(scene, opts, photo, background)
+    if saturated_in is not None and np.shape(saturated_in) != photo.shape[:2]:
+        raise InputError(f"the saturation mask is {np.shape(saturated_in)}, the photo is "
+                         f"{photo.shape[1]}x{photo.shape[0]}")
+    frame = analysis_frame(photo, background, saturation_mask(photo, opts.saturation, saturated_in), disc, opts)
+    del photo, background  # from here on, only the analysed frame
+    H, W = frame.photo.shape[:2]
+    camera, center, radius = persp or (OrthographicCamera(W, H, *frame.disc), (0.0, 0.0, 0.0), 1.0)
+    fx, decisions = decided if decided is not None else _decide(opts, vals, env, frame.background,
+                                                                _settings(scene, opts), camera, lights)
+    map_cfg = RenderConfig(effects=fx, camera=camera, center=center, radius=radius, point_lights=tuple(lights))
+    table = _table(opts, fx, held0)
+    # a map is fitted after a drainage profile: the local fits render the profile
+    base_cfg = replace(map_cfg, effects=replace(fx, thickness=table.thickness_model))
+    k_fit = opts.downsample or max(1, math.ceil(max(H, W) / opts.fit_size))
+    k_search = max(k_fit, math.ceil(max(H, W) / opts.search_size))
+    lev_fit = make_level(k_fit, base_cfg, frame.photo, frame.sigma, frame.background, frame.saturated, opts.rim)
+    if lev_fit.mask.sum() < 10:
+        raise InputError("fewer than 10 usable pixels on the bubble (disc too small, or saturated)")
+    return Setup(frame.photo, frame.background, vals, table, fx, decisions, base_cfg, map_cfg, disc, frame.sigma,
+                 frame.saturated, k_search, lev_fit, frame, warnings)

@@ -1,0 +1,178 @@
+"""The uncertainty of a fit: covariance and standard errors of the reported parameters.
+
+``cov_z = max(1, chi2_nu) c (J^T J)^-1`` in the solver's unconstrained coordinates at
+the optimum (``J`` the Jacobian of the whitened robust residual, ``chi2_nu`` the reduced
+chi^2 of the plain whitened residual ``(render - photo) / sigma``), propagated to the
+reported parameters by the Jacobian ``G`` of the transform: ``cov = G cov_z G^T`` (the
+delta method).
+
+Two estimates widen the errors of a fit that does not explain the photo within its noise
+(a model error, which the noise alone would not show); each parameter gets the larger:
+
+- ``max(1, chi2_nu) (J^T J)^-1``, the Birge ratio (Bevington & Robinson, *Data Reduction
+  and Error Analysis*, 3rd ed., sec. 8.3; Press et al., *Numerical Recipes*, 3rd ed.,
+  sec. 15.6): the residual's actual scatter instead of the noise model's; it never
+  narrows the errors below the noise's;
+- the cluster-robust sandwich ``A^-1 (sum_b g_b g_b^T) A^-1``, ``A = J^T J``, ``g_b`` the
+  gradient ``J_b^T r_b`` of block ``b`` of :data:`BLOCKS_PER_RADIUS`-th of the disc's
+  radius (Liang & Zeger, Biometrika 73(1), 1986): a model error is smooth over the image,
+  so neighbouring pixels are not independent evidence; the sandwich measures how much
+  the misfit in each block actually pulls each parameter, so a smooth misfit that a
+  parameter's Jacobian does not see does not widen its error.
+
+The correlations are the sandwich's; ``stderr_scale`` reports the largest widening.
+
+:func:`misfit` also gives the reduced chi^2 with a model-error floor: each pixel's noise
+variance plus ``(model_error * photo)^2``, by which ``ok`` judges whether the photo is
+explained.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import jax.numpy as jnp
+import numpy as np
+
+from ._local import LocalSolution, reporter
+from ._observation import Level
+from ._parameters import ParameterTable
+
+__all__ = ["Uncertainty", "uncertainty"]
+
+
+@dataclass
+class Uncertainty:
+    """Reported values, their standard errors and covariance.
+
+    Attributes
+    ----------
+    reported : dict
+        Reported values (floats).
+    stderr : dict
+        Standard error per reported key (None where held, NaN where not constrained).
+    names : tuple
+        Keys of ``covariance``'s rows (the reported values that were fitted).
+    covariance : np.ndarray
+        Their covariance.
+    s2 : float
+        The reduced chi^2 of the whitened residual (noise only).
+    chi2_floor : float
+        The reduced chi^2 with the model-error floor.
+    scale : float
+        The largest factor a standard error was widened by over the noise-only one.
+    finite : bool
+        False when ``J^T J`` is singular (some parameter the photo does not constrain).
+    """
+
+    reported: dict
+    stderr: dict
+    names: tuple
+    covariance: np.ndarray
+    s2: float
+    chi2_floor: float
+    scale: float
+    finite: bool
+
+
+def plain_residual(r_robust, scale: float):
+    """Invert the pseudo-Huber residual of :func:`bubblefit.inverse._local.robust`:
+    ``r^2 = s^2 ((1 + r_rob^2 / (2 s^2))^2 - 1)``, with the sign of ``r_rob``."""
+    r_robust = np.asarray(r_robust, np.float64)
+    x2 = (1.0 + r_robust**2 / (2.0 * scale**2)) ** 2 - 1.0
+    return np.sign(r_robust) * scale * np.sqrt(np.maximum(x2, 0.0))
+
+
+def misfit(sol: LocalSolution, lev: Level, robust_scale: float, model_error: float, n_free: int):
+    """``(chi2_nu, chi2_floor)`` of ``sol`` on ``lev``: the reduced chi^2 of the whitened
+    residual, and the same with each pixel's variance ``sigma^2 + (model_error * y)^2``."""
+    r = plain_residual(sol.residual, robust_scale).reshape(lev.y.shape)
+    w = lev.w.astype(np.float64)
+    used = w > 0
+    dof = max(int(used.sum()) - n_free, 1)
+    chi2 = float(np.sum(r[used] ** 2)) / dof
+    var = 1.0 / w[used] ** 2
+    lin2 = r[used] ** 2 * var  # squared residual in linear units
+    floor = float(np.sum(lin2 / (var + (model_error * np.clip(lev.y[used], 0, None)) ** 2))) / dof
+    return chi2, floor
+
+
+def _cluster_sandwich(jac: np.ndarray, r: np.ndarray, shape: tuple, block: int) -> np.ndarray:
+    """``sum_b g_b g_b^T`` over square blocks of ``block`` pixels (``jac`` (N, p), ``r`` (N,)
+    in the (h, w, 3) layout of ``shape``), with the small-sample factor ``n_b / (n_b - p)``."""
+    h, w = shape[:2]
+    p = jac.shape[1]
+    g = (jac * r[:, None]).reshape(h, w, -1, p).sum(axis=2)  # (h, w, p) per-pixel gradients
+    hb, wb = -(-h // block), -(-w // block)
+    pad = np.zeros((hb * block, wb * block, p))
+    pad[:h, :w] = g
+    gb = pad.reshape(hb, block, wb, block, p).sum(axis=(1, 3)).reshape(-1, p)
+    gb = gb[np.any(gb != 0, axis=1)]
+    nb = len(gb)
+    return gb.T @ gb * (nb / max(nb - p, 1)) if nb > p else np.full((p, p), np.nan)
+
+
+def _held_keys(table: ParameterTable) -> set:
+    """Reported keys without a standard error: the held parameters (``f``, and ``r_d``,
+    ``r_s`` with ``t`` held too, for a held split)."""
+    held = {n for n, _ in table.held if n not in table.free}
+    keys = set(held)
+    if "split" in held:  # f = r_d / r_s is then fixed; r_d and r_s still move with t
+        keys.add("f")
+        if "t" not in table.free:
+            keys |= {"r_d", "r_s"}
+    return keys
+
+
+#: Blocks of the cluster-robust sandwich: this many per disc radius (at least 3 pixels).
+BLOCKS_PER_RADIUS = 6
+
+
+def _widest(cov_birge: np.ndarray, a_inv: np.ndarray, jac, r, lev: Level):
+    """Each parameter's larger variance of the Birge and sandwich estimates, with the
+    sandwich's correlations; and the largest widening over the noise-only errors."""
+    radius = float(lev.cfg.camera.disc()[2]) if hasattr(lev.cfg.camera, "disc") else min(lev.y.shape[:2]) / 2
+    block = max(3, int(round(radius / BLOCKS_PER_RADIUS)))
+    sand = a_inv @ _cluster_sandwich(jac, r, lev.y.shape, block) @ a_inv
+    d_b, d_s = np.diag(cov_birge), np.diag(sand)
+    if not (np.all(np.isfinite(sand)) and np.all(d_s > 0)):
+        return cov_birge, float(np.sqrt(np.max(d_b / np.diag(a_inv))))
+    var = np.maximum(d_b, d_s)
+    corr = sand / np.sqrt(np.outer(d_s, d_s))
+    cov = corr * np.sqrt(np.outer(var, var))
+    return cov, float(np.sqrt(np.max(var / np.diag(a_inv))))
+
+
+def uncertainty(sol: LocalSolution, table: ParameterTable, lev: Level, robust_scale: float,
+                model_error: float) -> Uncertainty:
+    """Standard errors and covariance of the reported parameters at ``sol`` on ``lev`` (the
+    delta method, widened by ``max(1, chi2_nu)``; module docstring)."""
+    s2, chi2_floor = misfit(sol, lev, robust_scale, model_error, len(table.free))
+    scale = 1.0
+    rep, rep_jac = reporter(table)
+    zj = jnp.asarray(sol.z, jnp.float32)
+    reported = {k: float(v) for k, v in rep(zj, sol.fixed).items()}
+    stderr = {k: None for k in reported}
+    finite = True
+    names, cov = (), np.zeros((0, 0))
+    if table.free:
+        jac = sol.jacobian
+        try:
+            a_inv = np.linalg.inv(jac.T @ jac)
+            cov_z = max(1.0, s2) * a_inv
+            if not np.all(np.isfinite(cov_z)) or np.any(np.diag(cov_z) < 0):
+                raise np.linalg.LinAlgError
+            cov_z, scale = _widest(cov_z, a_inv, jac, sol.residual, lev)
+        except np.linalg.LinAlgError:
+            cov_z = np.full((len(table.free), len(table.free)), np.nan)
+            finite = False
+        gmat = {k: np.asarray(g, np.float64).reshape(-1) for k, g in rep_jac(zj, sol.fixed).items()}
+        drop = _held_keys(table)
+        names = tuple(k for k in reported if k not in drop)
+        g = np.stack([gmat[k] for k in names]) if names else np.zeros((0, len(table.free)))
+        cov = g @ cov_z @ g.T
+        for i, key in enumerate(names):
+            var = cov[i, i]
+            stderr[key] = float(math.sqrt(var)) if np.isfinite(var) and var >= 0 else float("nan")
+    return Uncertainty(reported, stderr, names, cov, s2, chi2_floor, scale, finite)

@@ -1,0 +1,50 @@
+"""The verdict on a fit: ``ok`` and the warnings that say why not.
+
+A fit is ``ok`` only when (1) the local solver met its tolerances with finite errors,
+(2) the bubble was found (or its disc given), (3) no fitted parameter sits at a bound
+(its :data:`~bubblefit.inverse._parameters.PARAMETERS` ``plausible`` range, or the
+searched thickness range) and (4) the photo is explained within its noise plus the
+model-error floor: the reduced chi^2 with each pixel's variance
+``sigma^2 + (FitOptions.model_error * photo)^2`` is at most ``FitOptions.ok_chi2``.
+"""
+
+from __future__ import annotations
+
+from ._parameters import PARAMETERS, ParameterTable
+
+__all__ = ["at_bounds", "verdict"]
+
+
+def at_bounds(values: dict, table: ParameterTable, thickness_range: tuple, margin_nm: float) -> list[str]:
+    """Warnings for free parameters at (or beyond) a bound of their plausible range."""
+    out = []
+    lo_t, hi_t = thickness_range
+    for name in table.free:
+        v = values[name]
+        if PARAMETERS[name].unit == "nm":
+            lo, hi, tol = lo_t, hi_t, margin_nm
+        else:
+            lo, hi = PARAMETERS[name].plausible
+            tol = 0.0
+        if v <= lo + tol or v >= hi - tol:
+            out.append(f"{name} = {v:.4g} sits at a bound of its range [{lo:.4g}, {hi:.4g}]")
+    return out
+
+
+def verdict(*, converged: bool, disc_found: bool, bound_warnings: list, chi2_floor: float, ok_chi2: float,
+            model_error: float, notes: list) -> tuple[bool, list]:
+    """``(ok, warnings)``: the conditions of the module docstring, each failed one in words
+    (``notes``: cautions found on the way, kept first)."""
+    warnings = list(notes)
+    if not converged:
+        warnings.append("the solver did not converge")
+    if not disc_found:
+        warnings.append("the bubble was not found")
+    warnings += bound_warnings
+    explained = chi2_floor == chi2_floor and chi2_floor <= ok_chi2
+    if not explained:
+        warnings.append(f"the model does not explain the photo: reduced chi^2 {chi2_floor:.3g} with a "
+                        f"{model_error:.0%} model-error floor (at most {ok_chi2:g} expected); wrong "
+                        "environment map, rotation, disc or model?")
+    ok = converged and disc_found and not bound_warnings and explained
+    return ok, warnings

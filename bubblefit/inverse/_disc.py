@@ -82,6 +82,17 @@ def find_bubble(photo: np.ndarray, background: np.ndarray | None = None, *,
     """
     if _find_disc is not None:
         d = _find_disc(photo, background, sigma=sigma)
+        if not d.found and background is None:
+            # Without a background photo the robust detector refuses rims it cannot see
+            # clearly; the fit then takes the simpler detector's disc, and says so.
+            try:
+                cx, cy, r = detect_disc(photo, None)
+            except InputError:
+                return Disc(float("nan"), float("nan"), float("nan"), found=False, contrast=float(d.contrast),
+                            reason=d.reason or "no bubble found in the photo")
+            return Disc(float(cx), float(cy), float(r), reason="the bubble's rim is not clear without a background "
+                        f"photo ({d.reason}); the disc comes from the simpler detector: check it, or give "
+                        "--background or --disc")
         if not d.found:
             return Disc(float("nan"), float("nan"), float("nan"), found=False, contrast=float(d.contrast),
                         reason=d.reason or "no bubble found in the photo")
@@ -146,7 +157,7 @@ def resolve_disc(photo, background, opts, given=None) -> tuple[tuple, list]:
     if cal is None:
         if not found.found:
             raise InputError(found.reason)
-        return (found.cx, found.cy, found.r), []
+        return (found.cx, found.cy, found.r), [found.reason] if found.reason else []
     if not found.found:
         if found.contrast == found.contrast:  # a background photo says: no bubble
             raise InputError(found.reason)

@@ -33,9 +33,11 @@ _ALIASES = {"f": "split", "thickness": "thickness_nm", "top": "top_nm", "bottom"
 def _scene_values(scene, vals: dict, held: dict) -> None:
     """Values the scene file sets explicitly: used, and held (``n_film`` used only)."""
     b = scene.table("bubble")
-    for name in ("t", "roughness", "f", "r_d", "r_s", "n_film"):
+    for name in ("t", "roughness", "f", "r_d", "r_s"):
         if name in b:
             vals[name] = float(b[name])
+    if "n_film" in b:  # a number, a Cauchy law or a preset: its index at 589.3 nm
+        vals["n_film"] = float(scene.params().n_film)
             if name != "n_film":
                 held[_ALIASES.get(name, name)] = "set by the scene file"
     model, values = scene.thickness_spec()

@@ -263,6 +263,72 @@ def run_calibration(case: str, out_dir: str) -> dict:
     return row
 
 
+PROBES = os.path.join(REPO, "tests", "data", "probes")
+
+
+def run_probe(stem: str, out_dir: str) -> dict:
+    """`bubblefit envmap` on one mirror-ball probe: ball found vs true, map vs the true map."""
+    with open(os.path.join(PROBES, "probes_truth.json")) as fh:
+        truth = json.load(fh)
+    pt = truth["probes"][stem]
+    runs = os.path.join(out_dir, "runs")
+    os.makedirs(runs, exist_ok=True)
+    rows = []
+    files = pt.get("files", [stem + ".png"])
+    jobs = [(f, False) for f in files] + ([(files[0], True)] if pt["ball"] is not None else [])
+    for f, given in jobs:
+        out = os.path.join(runs, f"probe_{f.replace('.', '_')}" + ("_given" if given else ""))
+        js = out + ".json"
+        if os.path.exists(js):
+            os.remove(js)
+        args = ["envmap", os.path.join(PROBES, f), "-o", out + ".exr", "--json", js, "--mask", out + "_mask.png"]
+        if pt.get("camera", {}).get("type") == "perspective":
+            args += ["--distance", str(pt["camera"]["distance_radii"])]
+        if given:
+            b = pt["ball"]
+            args += ["--ball", f"{b['cx']},{b['cy']},{b['r']}"]
+        rc, err, wall = _cli(args, timeout=600)
+        row = {"case": f"probe:{f}" + (":ball given" if given else ""), "kind": "probe", "model": "envmap", "renderer": "mitsuba", "rc": rc,
+               "wall_s": round(wall, 1), "refused": rc != 0 or not os.path.exists(js)}
+        if row["refused"]:
+            row["message"] = err
+            row["pass"] = pt["ball"] is None
+            rows.append(row)
+            continue
+        with open(js) as fh:
+            res = json.load(fh)
+        if pt["ball"] is None:
+            row["pass"] = False
+            row["message"] = "found a ball in pure noise"
+            rows.append(row)
+            continue
+        dc, dr = disc_error(res.get("ball"), pt["ball"])
+        row["disc_dc_px"], row["disc_dr_px"] = dc, dr
+        # map error: recovered map (camera frame) against the true map, texels the ball sampled
+        try:
+            rec = vio.read_image(out + ".exr")[..., :3]
+            true = vio.read_image(os.path.join(REPO, truth["envmap"]))[..., :3]
+            mask = vio.read_image(out + "_mask.png")[..., 0] > 0.5
+            k = rec.shape[0] // true.shape[0]
+            if k >= 1 and rec.shape[0] == k * true.shape[0]:
+                rec = rec.reshape(true.shape[0], k, true.shape[1], k, 3).mean((1, 3))
+                mask = mask.reshape(true.shape[0], k, true.shape[1], k).all((1, 3))
+                scale = 1.0 if f.endswith(".exr") else pt["png_exposure"]
+                lum = lambda a: a @ np.array([0.2126, 0.7152, 0.0722])  # noqa: E731
+                lr, lt = lum(rec) / scale, lum(true)
+                good = mask & (lt > 1e-3) & (lr > 0) & (lum(rec) < 0.95)
+                if good.any():
+                    row["map_log_err_median"] = float(np.median(np.abs(np.log(lr[good] / lt[good]))))
+                    row["map_texels"] = int(good.sum())
+        except Exception as e:  # noqa: BLE001
+            row["message"] = f"map not compared: {e}"
+        row["pass"] = dc is not None and dc <= 2.0 and abs(dr) <= 2.0
+        if given:  # the unwrap alone: no target, reported (the error includes the 120-px ball's blur)
+            row["pass"] = None
+        rows.append(row)
+    return rows
+
+
 def jobs_for(case: str) -> list[tuple]:
     truth = load_truth(case)
     if truth.get("kind") == "calibration":
@@ -338,16 +404,40 @@ def plot(rows: list[dict], path: str) -> None:
     plt.close(fig)
 
 
+def write_outputs(rows: list[dict], out: str) -> None:
+    with open(os.path.join(out, "results.csv"), "w", newline="") as fh:
+        keys = COLUMNS + sorted({k for r in rows for k in r} - set(COLUMNS))
+        wr = csv.DictWriter(fh, fieldnames=keys)
+        wr.writeheader()
+        for r in rows:
+            wr.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in keys})
+    vio.save_json(os.path.join(out, "results.json"), {"tolerances": TOL, "inner_disc_fraction": INNER,
+                                                      "coverage_nm": COVER_NM, "hop_nm": HOP_NM, "rows": rows})
+    with open(os.path.join(out, "results.md"), "w") as fh:
+        fh.write(table(rows, markdown=True) + "\n")
+    plot(rows, os.path.join(out, "validation.png"))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("cases", nargs="*", help="case folders under data/ (default: all)")
     ap.add_argument("--quick", action="store_true", help=f"only {', '.join(QUICK)}")
     ap.add_argument("--out", default=DEFAULT_OUT)
+    ap.add_argument("--probes", action="store_true", help="also run `bubblefit envmap` on tests/data/probes/")
+    ap.add_argument("--probes-only", action="store_true", help="only the probes")
     ap.add_argument("--no-cross", action="store_true", help="skip the fit that is handed another framing's calibration")
     a = ap.parse_args(argv)
-    cases = a.cases or (QUICK if a.quick else list_cases())
+    cases = [] if a.probes_only else (a.cases or (QUICK if a.quick else list_cases()))
     os.makedirs(a.out, exist_ok=True)
     rows = []
+    if a.probes or a.probes_only:
+        with open(os.path.join(PROBES, "probes_truth.json")) as fh:
+            for stem in json.load(fh)["probes"]:
+                for row in run_probe(stem, a.out):
+                    rows.append(row)
+                    print(f"{row['case']}: pass={fmt(row.get('pass'))} ball dc={fmt(row.get('disc_dc_px'))} "
+                          f"dr={fmt(row.get('disc_dr_px'))} map |log| median={fmt(row.get('map_log_err_median'))}"
+                          + (f" [{row.get('message')}]" if row.get("message") else ""), flush=True)
     for case in cases:
         if case not in list_cases():
             print(f"unknown case {case}", file=sys.stderr)
@@ -355,6 +445,7 @@ def main(argv=None) -> int:
         for job in jobs_for(case):
             row = run_calibration(job[1], a.out) if job[0] == "cal" else run_fit(job[1], job[2], a.out)
             rows.append(row)
+            write_outputs(rows, a.out)
             print(f"{row['case']}: pass={fmt(row.get('pass'))} ok={fmt(row.get('ok'))} wall {row['wall_s']} s"
                   + (f" [{row.get('message')}]" if row.get("message") else ""), flush=True)
     # a fit handed the calibration of another framing (512x384) must not reuse its disc
@@ -367,19 +458,9 @@ def main(argv=None) -> int:
         row["kind"] = "cross-calibration"
         rows.append(row)
         print(f"{row['case']}: pass={fmt(row.get('pass'))} disc dc={fmt(row.get('disc_dc_px'))}", flush=True)
+    write_outputs(rows, a.out)
     print()
     print(table(rows))
-    with open(os.path.join(a.out, "results.csv"), "w", newline="") as fh:
-        keys = COLUMNS + sorted({k for r in rows for k in r} - set(COLUMNS))
-        wr = csv.DictWriter(fh, fieldnames=keys)
-        wr.writeheader()
-        for r in rows:
-            wr.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in keys})
-    vio.save_json(os.path.join(a.out, "results.json"), {"tolerances": TOL, "inner_disc_fraction": INNER,
-                                                        "coverage_nm": COVER_NM, "hop_nm": HOP_NM, "rows": rows})
-    with open(os.path.join(a.out, "results.md"), "w") as fh:
-        fh.write(table(rows, markdown=True) + "\n")
-    plot(rows, os.path.join(a.out, "validation.png"))
     print(f"\nwrote {a.out}/results.csv, results.json, results.md, validation.png")
     return 0
 

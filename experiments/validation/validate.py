@@ -425,8 +425,22 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=DEFAULT_OUT)
     ap.add_argument("--probes", action="store_true", help="also run `bubblefit envmap` on tests/data/probes/")
     ap.add_argument("--probes-only", action="store_true", help="only the probes")
+    ap.add_argument("--merge", nargs="+", metavar="DIR",
+                    help="no runs: merge the results.json of earlier runs (first one wins per row) into --out")
     ap.add_argument("--no-cross", action="store_true", help="skip the fit that is handed another framing's calibration")
     a = ap.parse_args(argv)
+    if a.merge:
+        rows, seen = [], set()
+        for d in a.merge:
+            with open(os.path.join(d, "results.json")) as fh:
+                for r in json.load(fh)["rows"]:
+                    if r["case"] not in seen:
+                        seen.add(r["case"])
+                        rows.append(r)
+        os.makedirs(a.out, exist_ok=True)
+        write_outputs(rows, a.out)
+        print(table(rows))
+        return 0
     cases = [] if a.probes_only else (a.cases or (QUICK if a.quick else list_cases()))
     os.makedirs(a.out, exist_ok=True)
     rows = []

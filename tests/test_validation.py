@@ -1,0 +1,75 @@
+"""The independent validation set: the reference renderer's physics, and bubblefit scored on
+a few fast cases through experiments/validation/validate.py (its command line, as a user runs it).
+
+The targets asserted here are the ones that already hold; the full table is in
+experiments/validation/README.md (`python experiments/validation/validate.py`).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import numpy as np
+import pytest
+
+VALIDATION = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "experiments", "validation")
+sys.path.insert(0, VALIDATION)
+
+import reference_renderer as rr  # noqa: E402
+import validate  # noqa: E402
+
+
+def test_airy_film_matches_tmm():
+    tmm = pytest.importorskip("tmm")
+    lam = np.array([380.0, 433.0, 512.0, 589.0, 656.0, 780.0])
+    for d in (0.0, 35.0, 300.0, 620.0, 1200.0, 2500.0):
+        for theta in (0.0, 0.3, 0.8, 1.2, 1.5):
+            rs, rp = rr.airy_film(1.4, np.array(d), np.array(np.cos(theta)), lam)
+            for i, wl in enumerate(lam):
+                ts = tmm.coh_tmm("s", [1.0, 1.4, 1.0], [np.inf, d, np.inf], theta, wl)
+                tp = tmm.coh_tmm("p", [1.0, 1.4, 1.0], [np.inf, d, np.inf], theta, wl)
+                assert abs(rs[i] - ts["R"]) < 1e-6 and abs(rp[i] - tp["R"]) < 1e-6
+                assert abs((1 - rs[i]) - ts["T"]) < 1e-6 and abs((1 - rp[i]) - tp["T"]) < 1e-6
+
+
+def test_flat_spectrum_is_white_and_thick_limit():
+    for ill in ("D65", "E"):
+        sp = rr.spectral_setup(ill, 2.0)
+        np.testing.assert_allclose(sp.weights @ np.ones_like(sp.lam), [1.0, 1.0, 1.0], atol=1e-12)
+        np.testing.assert_allclose(sp.weights @ (0.3 * np.ones_like(sp.lam)), [0.3, 0.3, 0.3], atol=1e-12)
+    # averaged over many fringes the Airy film tends to the incoherent slab 2R/(1+R)
+    period = 500.0 / (2 * 1.4)                      # thickness period of the fringes at normal incidence
+    d = np.linspace(20000.0, 20000.0 + 5 * period, 4000, endpoint=False)
+    rs, rp = rr.airy_film(1.4, d, np.array(1.0), np.array([500.0]))
+    inc = rr.incoherent_film(1.4, np.array(1.0))
+    assert abs(rs.mean() - inc[0]) < 1e-6 and abs(rp.mean() - inc[1]) < 1e-6
+    assert abs(rr.t_incoherent_normal(1.4) - 0.97260) < 5e-5
+
+
+def test_envmap_lookup_convention():
+    """The reference lookup follows DESIGN.md: -z at u = 0 (column 0 edge), +x at u = 1/4, zenith row 0."""
+    h, w = 8, 16
+    env = np.zeros((h, w, 3))
+    env[..., 0] = np.arange(w)[None, :] + 0.5      # red = column centre position u W
+    env[..., 1] = np.arange(h)[:, None]            # green = row
+    px = rr.env_lookup(env, np.array([[1.0, 0.0, 0.0]]))[0]
+    assert abs(px[0] - 0.25 * w) < 1e-9 and abs(px[1] - 0.5 * (h - 1)) < 1e-9
+    assert abs(rr.env_lookup(env, np.array([[0.0, 1.0, 0.0]]))[0][1]) < 1e-9
+
+
+@pytest.fixture(scope="module")
+def out_dir(tmp_path_factory):
+    return str(tmp_path_factory.mktemp("validation"))
+
+
+def test_constant_film_case(out_dir):
+    row = validate.run_fit("ref_const300_courtyard_ortho", "constant", out_dir)
+    assert not row["refused"], row.get("message")
+    assert abs(row["d_err_nm"]) <= 5.0, row
+
+
+def test_calibration_pair(out_dir):
+    row = validate.run_calibration("cal_box_256x192", out_dir)
+    assert not row["refused"], row.get("message")
+    assert row["t_in_ci"] or abs(row["t_err"]) <= 0.002, row

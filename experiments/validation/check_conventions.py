@@ -54,7 +54,7 @@ def mirror_image(cam, lookup, ss=4):
 
 def main():
     import jax.numpy as jnp
-    from bubblefit import envmap as bf_env
+    from bubblefit.lighting import envmap as bf_env
 
     env = vio.read_image(os.path.join(vio.ENVMAPS, "courtyard.exr"))[..., :3]
     envj = jnp.asarray(env, dtype=jnp.float32)

@@ -36,10 +36,9 @@ def _scene_values(scene, vals: dict, held: dict) -> None:
     for name in ("t", "roughness", "f", "r_d", "r_s"):
         if name in b:
             vals[name] = float(b[name])
+            held[_ALIASES.get(name, name)] = "set by the scene file"
     if "n_film" in b:  # a number, a Cauchy law or a preset: its index at 589.3 nm
         vals["n_film"] = float(scene.params().n_film)
-            if name != "n_film":
-                held[_ALIASES.get(name, name)] = "set by the scene file"
     model, values = scene.thickness_spec()
     if "thickness_nm" in b or "thickness" in b:
         if model == "constant":

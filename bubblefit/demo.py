@@ -162,7 +162,7 @@ def synthesize(out: Path, size: int, seed: int, truth: DemoTruth = DemoTruth(), 
     photo = _noisy_8bit(photo_clean, rng, paths["photo"])
     _say(progress, f"  bubble photo: {paths['photo'].name} over {paths['background'].name} (gain {exposure:.4f})")
 
-    # true thickness per pixel (front film), from the drainage profile of DESIGN.md.
+    # true thickness per pixel (front film), from the drainage profile of docs/design.md.
     jj, ii = np.meshgrid(np.arange(size) + 0.5, np.arange(size) + 0.5)
     x, y = (jj - disc[0]) / disc[2], -(ii - disc[1]) / disc[2]
     inside = x * x + y * y < 1

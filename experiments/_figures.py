@@ -33,9 +33,9 @@ def parser(name: str, description: str) -> argparse.ArgumentParser:
 
 def setup_jax() -> None:
     """Use bubblefit's persistent compilation cache, as the CLI does."""
-    from bubblefit.cli import _setup_jax
+    from bubblefit.io.jaxcache import jax_setup
 
-    _setup_jax()
+    jax_setup()
 
 
 def log(msg: str) -> None:

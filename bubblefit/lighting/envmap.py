@@ -1,6 +1,6 @@
 """Equirectangular environment maps: directions, texel solid angles, lookups, mip-maps.
 
-Convention (DESIGN.md, identical to Mitsuba 3's ``envmap`` emitter): for a unit direction
+Convention (docs/design.md, identical to Mitsuba 3's ``envmap`` emitter): for a unit direction
 (x, y, z) in the map's frame, ``u = atan2(x, -z) / (2 pi)`` wrapped to [0, 1) and
 ``v = acos(y) / pi``; the bilinear lookup reads column ``u W - 1/2`` (wrapping) and row
 ``v (H - 1)`` (clamped), so row 0 is the zenith and row H-1 the nadir. A scene may rotate

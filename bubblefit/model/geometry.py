@@ -5,7 +5,7 @@ it enters at the front film ``p0`` and meets the rear film at ``p1``; by the sym
 the chord, both hits (and every further internal bounce) see the film at the same
 incidence angle, ``cos th = sqrt(b^2 - |o - c|^2 + R^2) / R`` with ``b = (o - c) . d``.
 
-Cameras (DESIGN.md): ``orthographic`` looks along -z; the bubble's disc has centre
+Cameras (docs/design.md): ``orthographic`` looks along -z; the bubble's disc has centre
 ``(cx, cy)`` and radius ``r`` in pixels. ``perspective`` has an origin, a target, an up
 vector and a horizontal field of view ``fov_deg`` (Mitsuba's default axis).
 """

@@ -1,6 +1,6 @@
 """Film thickness fields over the bubble: constant, drainage profile, per-pixel map.
 
-DESIGN.md: the drainage profile is ``d = top + (bottom - top) ((1 - y) / 2)^exponent``
+docs/design.md: the drainage profile is ``d = top + (bottom - top) ((1 - y) / 2)^exponent``
 with ``y`` in [-1, 1] the height of the film point above the bubble's centre over its
 radius: thin at the top (gravity drains the film), thick at the bottom. This realises the
 paper's future-work item on drainage (sec. 5).

@@ -22,7 +22,10 @@ def _scene(w, h, disc, spp):
         "bubble": {"thickness_nm": 420.0, "roughness": 0.05},
         "lighting": {"point_lights": [{"direction": [0.3, 0.5, 1.0], "radiance": [2.0, 2.0, 2.0]}],
                      "background": "black"},
-        "effects": {"model": "physical", "spectral": {"method": "uniform", "samples": 16}, "filtering": "mirror"},
+        # every effect pinned: ``auto`` may decide per pixel, and differently at another size
+        "effects": {"model": "physical", "spectral": {"method": "uniform", "samples": 16}, "filtering": "mirror",
+                    "interference": "airy", "bounces": 2, "diffuse": True, "front_reflection": True,
+                    "rear_reflection": True},
     })
 
 

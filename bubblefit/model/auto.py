@@ -35,7 +35,7 @@ from ..lighting.filtering import FilterConfig
 from ..optics.spectral import FOURIER_LOBES, REFERENCE_SAMPLES, SpectralBasis, spectral_basis
 from .bounds import MAX_BOUNCES, FilmTable, SceneBounds
 from .effects import (ALL_ON_NODES, SPECTRAL_CANDIDATES, Decision, Effects, as_switch, decide_spectral,
-                      decide_tint)
+                      decide_tint, source_decisions)
 from .footprint import FILTER_CANDIDATES, FLOOR_FRACTION, REFERENCE_FILTER, Footprint, filter_key, pixel_budget
 from .modes import COLOURED, GREY, INTERFERENCE_MODES, ThicknessKind
 
@@ -355,12 +355,7 @@ def decide_pixels(b: SceneBounds, fp: Footprint, settings: dict, *, thickness_ki
     tint, d = decide_tint(b, tint_set, on["transmission"], interference)
     out.extend([d, ds[3]])
     front, rear, transmission = on["front_reflection"], on["rear_reflection"], on["transmission"]
-    out.append(Decision("environment", b.has_env and (front or rear or transmission),
-                        f"environment map given (peak {b.env_peak:.3g})" if b.has_env else "no environment map (dark room)"))
-    out.append(Decision("point_lights", b.n_point_lights > 0 and (front or rear),
-                        f"{b.n_point_lights} light(s): eq. (3)" if b.n_point_lights else "no point lights"))
-    out.append(Decision("thickness_field", thickness_kind != "constant", "one thickness for the whole film"
-                        if thickness_kind == "constant" else f"{thickness_kind} profile", thickness_kind))
+    out.extend(source_decisions(b, front, rear, transmission, thickness_kind))
     budget_text = f"budget {tol:g} x (pixel + {FLOOR_FRACTION:g} x bright level {px.bright:.3g})"
     bounces, d = _bounce_decision(px, b, bset, rear, b_err, masks, where, budget_text)
     out.append(d)

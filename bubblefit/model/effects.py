@@ -336,12 +336,7 @@ def decide(b: SceneBounds, settings: dict, *, thickness_kind: ThicknessKind, tol
     diffuse, d = decide_diffuse(b, settings.get("diffuse", "auto"), terms, tol)
     out.append(d)
     front, rear, transmission = terms["front"], terms["rear"], terms["transmission"]
-    out.append(Decision("environment", b.has_env and (front or rear or transmission),
-                        f"environment map given (peak {b.env_peak:.3g})" if b.has_env else "no environment map (dark room)"))
-    out.append(Decision("point_lights", b.n_point_lights > 0 and (front or rear),
-                        f"{b.n_point_lights} light(s): eq. (3)" if b.n_point_lights else "no point lights"))
-    out.append(Decision("thickness_field", thickness_kind != "constant", "one thickness for the whole film"
-                        if thickness_kind == "constant" else f"{thickness_kind} profile", thickness_kind))
+    out.extend(source_decisions(b, front, rear, transmission, thickness_kind))
     bounces, d = decide_bounces(b, bset, coeffs, rear, tol)
     out.append(d)
     fx = Effects(model=b.model, front_reflection=front, rear_reflection=rear, transmission=transmission,
@@ -350,6 +345,20 @@ def decide(b: SceneBounds, settings: dict, *, thickness_kind: ThicknessKind, tol
                  point_lights=b.n_point_lights > 0 and (front or rear), filtering=fconf, spectral=basis,
                  bounces=bounces, thickness=thickness_kind, background=b.background, tint=tint)
     return fx, out
+
+
+def source_decisions(b, front: bool, rear: bool, transmission: bool, thickness_kind: str) -> list:
+    """The decisions that only report what the scene holds: its environment map, its point
+    lights (eq. 3) and whether its thickness varies over the film."""
+    return [
+        Decision("environment", b.has_env and (front or rear or transmission),
+                 f"environment map given (peak {b.env_peak:.3g})" if b.has_env else "no environment map (dark room)"),
+        Decision("point_lights", b.n_point_lights > 0 and (front or rear),
+                 f"{b.n_point_lights} light(s): eq. (3)" if b.n_point_lights else "no point lights"),
+        Decision("thickness_field", thickness_kind != "constant",
+                 "one thickness for the whole film" if thickness_kind == "constant" else f"{thickness_kind} profile",
+                 thickness_kind),
+    ]
 
 
 def resolve(*, model: Model, settings: dict, t: float, r_d: float, r_s: float, roughness: float,

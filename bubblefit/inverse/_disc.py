@@ -82,22 +82,23 @@ def find_bubble(photo: np.ndarray, background: np.ndarray | None = None, *,
     """
     if _find_disc is not None:
         d = _find_disc(photo, background, sigma=sigma)
-        if not d.found and background is None:
-            # Without a background photo the robust detector refuses rims it cannot see
-            # clearly; the fit then takes the simpler detector's disc, and says so.
+        note = ""
+        if d.found:
+            cx, cy, r = float(d.cx), float(d.cy), float(d.r)
+        else:
+            # The robust detector refuses rims it cannot see clearly (small photos, dim
+            # rims); the fit then takes the simpler detector's disc and says so. With a
+            # background photo the contrast check below still refuses a photo without
+            # a bubble.
             try:
-                cx, cy, r = detect_disc(photo, None)
+                cx, cy, r = detect_disc(photo, background)
             except InputError:
                 return Disc(float("nan"), float("nan"), float("nan"), found=False, contrast=float(d.contrast),
                             reason=d.reason or "no bubble found in the photo")
-            return Disc(float(cx), float(cy), float(r), reason="the bubble's rim is not clear without a background "
-                        f"photo ({d.reason}); the disc comes from the simpler detector: check it, or give "
-                        "--background or --disc")
-        if not d.found:
-            return Disc(float("nan"), float("nan"), float("nan"), found=False, contrast=float(d.contrast),
-                        reason=d.reason or "no bubble found in the photo")
-        cx, cy, r = float(d.cx), float(d.cy), float(d.r)
+            note = (f"the bubble's rim is not clear ({d.reason}); the disc comes from the simpler detector: "
+                    "check it, or give --disc")
     else:
+        note = ""
         try:
             cx, cy, r = detect_disc(photo, background)
         except InputError as exc:
@@ -110,7 +111,7 @@ def find_bubble(photo: np.ndarray, background: np.ndarray | None = None, *,
             return Disc(float(cx), float(cy), float(r), found=False, contrast=contrast,
                         reason=f"no bubble: the photo matches the background photo within its noise "
                                f"(contrast {contrast:.2f} noise units on the best disc)")
-    return Disc(float(cx), float(cy), float(r), contrast=contrast)
+    return Disc(float(cx), float(cy), float(r), contrast=contrast, reason=note)
 
 
 def _detect(photo, background, opts) -> Disc:

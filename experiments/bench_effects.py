@@ -3,7 +3,7 @@
 Every scene is rendered twice with the same parameters: with its effects on ``auto`` and
 with everything on (:func:`bubblefit.model.effects.all_on_settings`: every term, the
 800-sample reference spectrum, four-node mipmap filtering, diffuse, eight internal
-bounces). The scenes span the CC0 maps of ``/work/shared/data/envmaps`` (a sunrise with
+bounces). The scenes span the CC0 maps of ``../shared/data/envmaps`` (else the 256x128 copies of ``experiments/validation/data/envmaps``) (a sunrise with
 its sun, a city, a courtyard, a night, a studio, an interior), a dark box and a lamp-lit
 dark room; thin to thick films, mirror to rough, both models, point lights.
 
@@ -17,7 +17,7 @@ The issue's target scene (``sunrise_mirror_6um``: a = 5e-4, r_d = 0, 6000 nm, ph
 is also rendered explicitly (Airy, 100 uniform samples, mirror lookup), and with
 ``--yardstick`` the whole-process time of ``bubblefit render`` at 256x256 (physical,
 defaults) is compared with a Mitsuba 3 render of a thin dielectric sphere at 64 spp in the
-same run (``/work/venvs/render/bin/python`` or ``--mitsuba-python``).
+same run (``.venv-render/bin/python`` or ``--mitsuba-python``).
 
     python experiments/bench_effects.py [--out DIR] [--quick] [--size N] [--scenes a,b] [--yardstick]
 
@@ -40,8 +40,10 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
-MAPS = Path(os.environ.get("BUBBLEFIT_ENVMAPS", "/work/shared/data/envmaps"))
-MITSUBA_PYTHON = "/work/venvs/render/bin/python"
+_SHARED_MAPS = HERE.parent.parent / "shared" / "data" / "envmaps"
+MAPS = Path(os.environ.get("BUBBLEFIT_ENVMAPS", _SHARED_MAPS if _SHARED_MAPS.is_dir()
+                           else HERE / "validation" / "data" / "envmaps"))
+MITSUBA_PYTHON = ".venv-render/bin/python"
 FLOOR = 0.1
 
 

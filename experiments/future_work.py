@@ -10,7 +10,7 @@
    of texels saturate), which keeps the power but crushes the shadows to few codes.
 2. Fresnel at the rim. The paper model (constant t, r_s, eq. 11) against the physical
    model (Fresnel/Airy film reflectance per polarisation and the series of internal
-   bounces, DESIGN.md): the physical bubble brightens towards the rim where the film
+   bounces, docs/design.md): the physical bubble brightens towards the rim where the film
    reflects strongly at grazing angles, as real bubbles do (the paper's own remark on
    its Fig. 7). The plot is the mean reflected luminance against the distance from the
    disc centre.

@@ -4,7 +4,7 @@ optifik (Ziapkoff, Boulogne, Salonen & Rio, Eur. Phys. J. E 49, 4 (2026); on PyP
 the field's tool: fringe extrema ("min-max", a linear fit of the extrema's ``n/lambda``
 against their index) for films with fringes, Scheludko's intensity formula for thin ones.
 bubblefit does not depend on it; it is run here in its own virtual environment, in a
-subprocess (``--optifik-python``, default ``/work/venvs/spectra/bin/python``).
+subprocess (``--optifik-python``, default ``.venv-optifik/bin/python``).
 
 The readings are synthesised by numpy code in this file (Airy reflectance of a film in
 air with the soap-solution index law, under a halogen-like lamp, convolved with the
@@ -208,7 +208,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--quick", action="store_true", help="one seed, four thicknesses")
-    ap.add_argument("--optifik-python", default="/work/venvs/spectra/bin/python")
+    ap.add_argument("--optifik-python", default=".venv-optifik/bin/python")
     ap.add_argument("--optifik-worker", nargs=2, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.optifik_worker:

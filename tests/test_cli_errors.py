@@ -1,6 +1,6 @@
 """Bad input to every command gives one clear line on stderr and a non-zero exit.
 
-DESIGN.md, "Command line": a bad input exits non-zero with one clear line on stderr (no
+docs/design.md, "Command line": a bad input exits non-zero with one clear line on stderr (no
 traceback), and outputs are written atomically (temporary file, then rename), so a failed
 run leaves neither a half-written file nor a damaged existing one.
 

@@ -86,7 +86,7 @@ def test_airy_period_mean_is_incoherent(angle, d0, n, lam):
 @PROPS
 @given(angle=st.floats(0.0, 70.0), d=thicknesses, n=indices, lam=wavelengths)
 def test_two_beam_close_to_airy(angle, d, n, lam):
-    """The two-beam truncation differs from the Airy sum by O(R1^2) (DESIGN.md)."""
+    """The two-beam truncation differs from the Airy sum by O(R1^2) (docs/design.md)."""
     c = math.cos(math.radians(angle))
     r1 = np.asarray(_fres(c, n))
     diff = np.abs(np.asarray(_two(d, lam, n, c)) - np.asarray(_airy(d, lam, n, c)))

@@ -16,7 +16,7 @@ def _fresnel_rs_rp(cos_i, n):
 
 
 def _env_lookup(px, d):
-    """Bilinear equirectangular lookup, Mitsuba's convention (DESIGN.md), written afresh."""
+    """Bilinear equirectangular lookup, Mitsuba's convention (docs/design.md), written afresh."""
     h, w = px.shape[:2]
     u = (np.arctan2(d[..., 0], -d[..., 2]) / (2 * np.pi)) % 1.0
     v = np.arccos(np.clip(d[..., 1], -1, 1)) / np.pi

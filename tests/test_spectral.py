@@ -5,7 +5,7 @@ independent integration by colour-science (CIE 1931 2-degree observer, D65, sRGB
 the chart reproduces the known sequence of soap-film colours in reflection (black,
 white/silver, first-order yellow, red, blue, then the second order green, yellow, red...),
 as in the Michel-Levy chart and Isenberg, *The Science of Soap Films and Soap Bubbles*
-(1992), ch. 3; and the ``bubblefit chart`` CLI writes the CSV columns of DESIGN.md.
+(1992), ch. 3; and the ``bubblefit chart`` CLI writes the CSV columns of docs/design.md.
 """
 
 from __future__ import annotations

@@ -48,7 +48,7 @@ def test_flat_spectrum_is_white_and_thick_limit():
 
 
 def test_envmap_lookup_convention():
-    """The reference lookup follows DESIGN.md: -z at u = 0 (column 0 edge), +x at u = 1/4, zenith row 0."""
+    """The reference lookup follows docs/design.md: -z at u = 0 (column 0 edge), +x at u = 1/4, zenith row 0."""
     h, w = 8, 16
     env = np.zeros((h, w, 3))
     env[..., 0] = np.arange(w)[None, :] + 0.5      # red = column centre position u W

@@ -1,15 +1,15 @@
-"""Blender Cycles soap bubbles (run with the render venv: /work/venvs/render/bin/python).
+"""Blender Cycles soap bubbles (run with the render venv: .venv-render/bin/python).
 
 A bubble in Cycles: a smooth UV sphere (256 x 128 segments, radius 1) with a Principled
 BSDF of IOR 1.0, Transmission Weight 1, Roughness 0 and a Thin Film (Thickness from a node
 tree, Thin Film IOR 1.4): Cycles' thin film over a base of IOR 1 is an air | film | air
 soap film. World: an Environment Texture of a map in data/envmaps/.
 
-Frames. bubblefit (DESIGN.md) is +y up with the camera looking along -z; Blender is +z
+Frames. bubblefit (docs/design.md) is +y up with the camera looking along -z; Blender is +z
 up. A bubblefit point (x, y, z) is the Blender point (X, Y, Z) = (x, -z, y) (a proper
 rotation), so the bubblefit camera looking along -z looks along +Y in Blender, and the
 film height y of the drainage profile is Blender's object-space Z. Blender's Environment
-Texture reads direction D at u = 0.5 - atan2(D_Y, D_X)/(2 pi); DESIGN.md's u of the same
+Texture reads direction D at u = 0.5 - atan2(D_Y, D_X)/(2 pi); docs/design.md's u of the same
 direction is atan2(x, -z)/(2 pi) = atan2(X, Y)/(2 pi) = u_Blender - 1/4, so the world's
 lookup vector is turned by +90 degrees about Z (a Mapping node) before the texture. The
 rows agree (zenith at the top in both). check_conventions.py verifies this by comparing

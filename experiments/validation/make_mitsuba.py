@@ -1,4 +1,4 @@
-"""Mitsuba 3 references (run with the render venv, /work/venvs/render/bin/python).
+"""Mitsuba 3 references (run with the render venv, .venv-render/bin/python).
 
 Variant scalar_rgb. The bubble is a `sphere` with a `thindielectric` BSDF (int_ior 1.4,
 ext_ior 1.0): Mitsuba's thin slab with all incoherent reflections inside it, R_slab =

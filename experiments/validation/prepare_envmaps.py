@@ -6,6 +6,7 @@ validation runs from the repository alone.
 """
 import argparse
 import os
+from pathlib import Path
 
 import numpy as np
 
@@ -18,7 +19,7 @@ if __name__ == "__main__":
     ap.add_argument("--src", default=os.path.join(vio.HERE, "..", "..", "..", "..", "shared", "data", "envmaps"))
     ap.add_argument("--factor", type=int, default=4)
     a = ap.parse_args()
-    src = a.src if os.path.isdir(a.src) else "/work/shared/data/envmaps"
+    src = a.src if os.path.isdir(a.src) else str(Path(__file__).resolve().parents[3] / "shared" / "data" / "envmaps")
     os.makedirs(vio.ENVMAPS, exist_ok=True)
     for m in MAPS:
         env = vio.read_image(os.path.join(src, m + ".exr"))[..., :3]

@@ -22,7 +22,7 @@ Physics (written from the optics, not from bubblefit's code):
   integrating against the CIE 1931 2 degree observer under an illuminant (D65 or E),
   converting XYZ to linear sRGB (Rec.709) and dividing per channel by the same integral
   of a flat F = 1, so flat 1 gives (1, 1, 1). The RGB factor multiplies the map's RGB
-  radiance in the path's direction (the shared DESIGN.md contract for RGB maps).
+  radiance in the path's direction (the shared docs/design.md contract for RGB maps).
 * Environment lookups: equirectangular, u = atan2(x, -z)/(2 pi), v = acos(y)/pi, bilinear
   with column u W - 1/2 (wrapping) and row v (H - 1) (clamped), map rotated about +y by
   ``rotation_deg`` (a world direction w reads the map at R_y(-rotation) w).
@@ -151,7 +151,7 @@ class Thickness:
 
 # ---------------------------------------------------------------- environment map
 def env_lookup(env: np.ndarray, d: np.ndarray, rotation_deg: float = 0.0) -> np.ndarray:
-    """Bilinear lookup (DESIGN.md convention) of directions d (..., 3)."""
+    """Bilinear lookup (docs/design.md convention) of directions d (..., 3)."""
     if rotation_deg:
         a = -math.radians(rotation_deg)         # the map is turned by +rotation: read at R_y(-rot) w
         c, s = math.cos(a), math.sin(a)

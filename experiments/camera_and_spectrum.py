@@ -34,19 +34,10 @@ from pathlib import Path
 import colour
 import numpy as np
 
+from spectrum_vs_optifik import airy, soap_index  # noqa: E402  (the same independent film, one copy)
+
 RESULTS = Path(__file__).resolve().parent / "results"
 D_TOP, D_BOTTOM, WIDTH = 150.0, 1500.0, 400
-
-
-def soap_index(lam):
-    return 1.324188 + 3102.06 / lam**2
-
-
-def airy(d, lam, n):
-    r1 = ((n - 1.0) / (n + 1.0)) ** 2
-    f = 4.0 * r1 / (1.0 - r1) ** 2
-    s = np.sin(2.0 * np.pi * n * d / lam) ** 2
-    return f * s / (1.0 + f * s)
 
 
 def photograph(d, camera: str, rng) -> np.ndarray:

@@ -50,6 +50,23 @@ class Disc:
     reason: str = ""
 
 
+#: A photo without a bubble differs from its background photo by noise alone, so the 99th
+#: percentile of the per-pixel ``z^2`` (mean over channels) is about 4.8 times its median
+#: (chi^2 with 3 degrees of freedom, over 3); any bubble that covers a percent of the photo
+#: lifts it far above :data:`NO_BUBBLE_SPREAD`. Both this and :data:`NO_BUBBLE_CONTRAST`
+#: must say "noise" before a photo is refused, so a wrong disc never refuses a real bubble.
+NO_BUBBLE_SPREAD = 10.0
+
+
+def change_spread(photo, background, sigma) -> float:
+    """``p99 / median`` of the per-pixel ``z^2 = ((photo - background) / (sqrt(2) sigma))^2``
+    (mean over channels) over the whole photo: about 4.8 for noise alone, whatever the
+    noise model's scale."""
+    z2 = np.mean(((photo - background) / (math.sqrt(2.0) * np.maximum(sigma, 1e-12))) ** 2, axis=-1)
+    med = float(np.median(z2))
+    return float(np.percentile(z2, 99)) / max(med, 1e-12)
+
+
 def bubble_contrast(photo, background, sigma, disc) -> float:
     """How strongly the disc differs from the background photo, in noise units.
 
@@ -107,7 +124,7 @@ def find_bubble(photo: np.ndarray, background: np.ndarray | None = None, *,
     if background is not None:
         sig = sigma if sigma is not None else noise_sigma(photo, 2e-3, 2e-4, 8)
         contrast = bubble_contrast(photo, background, sig, (cx, cy, r))
-        if contrast < NO_BUBBLE_CONTRAST:
+        if contrast < NO_BUBBLE_CONTRAST and change_spread(photo, background, sig) < NO_BUBBLE_SPREAD:
             return Disc(float(cx), float(cy), float(r), found=False, contrast=contrast,
                         reason=f"no bubble: the photo matches the background photo within its noise "
                                f"(contrast {contrast:.2f} noise units on the best disc)")

@@ -35,7 +35,7 @@ from ..lighting.filtering import FilterConfig
 from ..optics.spectral import FOURIER_LOBES, REFERENCE_SAMPLES, SpectralBasis, spectral_basis
 from .bounds import MAX_BOUNCES, FilmTable, SceneBounds
 from .effects import (ALL_ON_NODES, SPECTRAL_CANDIDATES, Decision, Effects, as_switch, decide_spectral,
-                      decide_tint, source_decisions)
+                      decide_tint, model_settings, source_decisions)
 from .footprint import FILTER_CANDIDATES, FLOOR_FRACTION, REFERENCE_FILTER, Footprint, filter_key, pixel_budget
 from .modes import COLOURED, GREY, INTERFERENCE_MODES, ThicknessKind
 
@@ -312,11 +312,8 @@ def decide_pixels(b: SceneBounds, fp: Footprint, settings: dict, *, thickness_ki
     Returns the :class:`Plan` (one or two regions) and one :class:`Decision` per effect.
     """
     tol = float(tolerance)
-    out = [Decision("fresnel", b.model == "physical", "physical model: Fresnel film reflectance per polarisation"
-                    if b.model == "physical" else "paper model: constant t, r_s (eqs. 1-14)", b.model)]
-    tint_set = as_switch(settings.get("transmission_tint", "auto"), "transmission_tint")
-    tint_rs = max(b.r_s, 0.0) if b.model == "paper" and tint_set is True else None
-    bset = settings.get("bounces", "auto") if b.model == "physical" else 1
+    fresnel, tint_set, tint_rs, bset = model_settings(b, settings)
+    out = [fresnel]
     table = FilmTable(b, MAX_BOUNCES, tint_rs, [spectral_basis("reference")] + spectral_candidates(b.model))
     px = _Pixels(b, fp, table, tol)
     interference, d = _interference(px, settings.get("interference", "auto"), tol)

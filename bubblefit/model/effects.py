@@ -307,11 +307,8 @@ def decide(b: SceneBounds, settings: dict, *, thickness_kind: ThicknessKind, tol
     if b.model not in MODELS:
         raise InputError(f"effects.model must be paper or physical, got {b.model!r}")
     tol = float(tolerance)
-    out = [Decision("fresnel", b.model == "physical", "physical model: Fresnel film reflectance per polarisation"
-                    if b.model == "physical" else "paper model: constant t, r_s (eqs. 1-14)", b.model)]
-    tint_set = as_switch(settings.get("transmission_tint", "auto"), "transmission_tint")
-    tint_rs = max(b.r_s, 0.0) if b.model == "paper" and tint_set is True else None
-    bset = settings.get("bounces", "auto") if b.model == "physical" else 1
+    fresnel, tint_set, tint_rs, bset = model_settings(b, settings)
+    out = [fresnel]
     spectral_setting = settings.get("spectral", "auto")
     wanted = [spectral_basis("reference")] + ([spectral_basis("uniform", k) for k in SPECTRAL_CANDIDATES]
                                               if spectral_setting == "auto" else [])
@@ -345,6 +342,18 @@ def decide(b: SceneBounds, settings: dict, *, thickness_kind: ThicknessKind, tol
                  point_lights=b.n_point_lights > 0 and (front or rear), filtering=fconf, spectral=basis,
                  bounces=bounces, thickness=thickness_kind, background=b.background, tint=tint)
     return fx, out
+
+
+def model_settings(b, settings: dict):
+    """What the model variant decides before any bound: the Fresnel decision, the
+    transmission tint's setting and the ``r_s`` it uses (``paper`` with the tint on, else
+    None), and the bounce setting (1 in the ``paper`` model, eq. 11)."""
+    fresnel = Decision("fresnel", b.model == "physical", "physical model: Fresnel film reflectance per polarisation"
+                       if b.model == "physical" else "paper model: constant t, r_s (eqs. 1-14)", b.model)
+    tint_set = as_switch(settings.get("transmission_tint", "auto"), "transmission_tint")
+    tint_rs = max(b.r_s, 0.0) if b.model == "paper" and tint_set is True else None
+    bset = settings.get("bounces", "auto") if b.model == "physical" else 1
+    return fresnel, tint_set, tint_rs, bset
 
 
 def source_decisions(b, front: bool, rear: bool, transmission: bool, thickness_kind: str) -> list:

@@ -1,8 +1,9 @@
 """Peak memory of `bubblefit fit` on a large photo (issue "nothing lost": 6000x4000 peaked at 5 GB).
 
 A 160x160 photo of a bubble (the paper model on the shipped courtyard map, noise, 8-bit)
-is enlarged by pixel repetition into a WxH canvas of the same background, written as an
-8-bit PNG, and fitted through the command line in a child process; the child's peak
+is enlarged by pixel repetition into a WxH canvas, written as an 8-bit PNG with its
+background photo (the same canvas without the bubble), and fitted through the command
+line in a child process; the child's peak
 resident memory (``ru_maxrss``) is printed and saved with the fit's result to
 ``experiments/results/fit_memory.json``.
 
@@ -45,17 +46,21 @@ def main() -> int:
                              "bubble": {"t": 0.97, "roughness": 0.05, "thickness_nm": 450.0},
                              "lighting": {"envmap": "unused.exr"}, "effects": {"model": "paper"}})
     photo = np.asarray(render_scene(scene, bg, env=env))
-    big = np.full((a.height, a.width, 3), 0.27)
-    tile = np.repeat(np.repeat(photo, rep, axis=0), rep, axis=1)
-    y0, x0 = (a.height - tile.shape[0]) // 2, (a.width - tile.shape[1]) // 3
-    big[y0:y0 + tile.shape[0], x0:x0 + tile.shape[1]] = tile
+    # the bubble was rendered over `bg`: the canvas around it and the background photo
+    # passed to the fit are that same background, enlarged the same way
+    y0, x0 = (a.height - rep * n) // 2, (a.width - rep * n) // 3
     with tempfile.TemporaryDirectory() as tmp:
-        write_image(os.path.join(tmp, "photo.png"), big)
+        for name, img in (("photo.png", photo), ("background.png", bg)):
+            big = np.full((a.height, a.width, 3), 0.27)
+            big[y0:y0 + rep * n, x0:x0 + rep * n] = np.repeat(np.repeat(img, rep, axis=0), rep, axis=1)
+            write_image(os.path.join(tmp, name), big)
+            del big
         write_image(os.path.join(tmp, "env.exr"), px, bit_depth=32)
         disc = f"{x0 + rep * n / 2},{y0 + rep * n / 2},{rep * 0.4 * n}"
         t0 = time.time()
         p = subprocess.run([sys.executable, "-m", "bubblefit", "fit", os.path.join(tmp, "photo.png"), "--envmap",
-                            os.path.join(tmp, "env.exr"), "--disc", disc, "--json", os.path.join(tmp, "fit.json")],
+                            os.path.join(tmp, "env.exr"), "--background", os.path.join(tmp, "background.png"),
+                            "--disc", disc, "--json", os.path.join(tmp, "fit.json")],
                            capture_output=True, text=True)
         wall = time.time() - t0
         peak_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0

@@ -160,19 +160,21 @@ def read_image(path: str | os.PathLike, *, linear: bool | None = None) -> Image:
         raise InputError(f"image {path} has {nch} channels; expected 1 (gray), 3 (RGB) or 4 (RGBA)")
 
     if bit_depth in (8, 16):
-        maxcode = 255.0 if bit_depth == 8 else 65535.0
-        raw = data.astype(np.float64) / maxcode
+        maxcode = 255 if bit_depth == 8 else 65535
         saturated = np.any(data >= maxcode, axis=2)
         colorspace = str(metadata.get("oiio:ColorSpace", "")).lower()
         is_linear = linear if linear is not None else ("linear" in colorspace)
-        pixels = raw if is_linear else srgb_decode(raw)
+        # One table entry per code value: the decoded photo is the only full-size array
+        # (a 6000x4000 photo is 576 MB in float64; decoding it arithmetically took 8x that).
+        codes = np.arange(maxcode + 1, dtype=np.float64) / maxcode
+        pixels = (codes if is_linear else srgb_decode(codes))[data]
     else:
         pixels = data.astype(np.float64)
         saturated = np.zeros(pixels.shape[:2], dtype=bool)
         is_linear = True if linear is None else linear
         if not is_linear:
             pixels = srgb_decode(pixels)
-    if not np.all(np.isfinite(pixels)):
+    if bit_depth == 32 and not np.all(np.isfinite(pixels)):
         bad = int(np.sum(~np.isfinite(pixels).all(axis=2)))
         raise InputError(f"image {path} has {bad} pixel(s) with NaN or Inf values")
     return Image(

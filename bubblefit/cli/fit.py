@@ -150,11 +150,11 @@ def run(args) -> int:
     inputs = [args.photo, args.envmap, args.background, args.calibration, args.scene]
     guard_outputs(inputs + (scene_inputs(scene) if scene is not None else []), [args.json, *output_paths(args)])
     with stage("reading the photo and the environment map"):
-        photo = read_image(args.photo)
+        photo = read_image(args.photo, dtype=np.float32)  # the fit's arithmetic is float32
         env = load_envmap(args.envmap)
     background = None
     if args.background:
-        bimg = read_image(args.background)
+        bimg = read_image(args.background, dtype=np.float32)
         if bimg.pixels.shape != photo.pixels.shape:
             raise InputError(f"the background {args.background} is {bimg.pixels.shape[1]}x{bimg.pixels.shape[0]}, "
                              f"the photo is {photo.pixels.shape[1]}x{photo.pixels.shape[0]}")

@@ -169,12 +169,21 @@ def analysis_frame(photo, background, saturated, disc, opts) -> Frame:
     if x1 - x0 < 8 or y1 - y0 < 8:
         raise InputError(f"the bubble's disc {disc} lies outside the {W}x{H} photo")
     k = max(1, math.ceil(max(x1 - x0, y1 - y0) / opts.analysis_size))
-    crop = photo[y0:y1, x0:x1]
-    sigma = np.sqrt(block_mean(noise_sigma(crop, opts.noise_read, opts.noise_shot, opts.bits) ** 2, k) / (k * k))
-    bg = None if background is None else block_mean(background[y0:y1, x0:x1], k)
     h, w = (y1 - y0) // k, (x1 - x0) // k
+    y1, x1 = y0 + h * k, x0 + w * k
+    # block-averaged band by band, so that no temporary is larger than a band of the crop
+    small, sigma, bg = np.empty((h, w, 3)), np.empty((h, w, 3)), None if background is None else np.empty((h, w, 3))
+    rows = max(1, 2**20 // max(1, 3 * k * k * w))  # output rows per band (~1M values in flight)
+    for i in range(0, h, rows):
+        a, b = y0 + i * k, y0 + min(h, i + rows) * k
+        band = np.asarray(photo[a:b, x0:x1], np.float64)
+        small[i:i + rows] = block_mean(band, k)
+        var = noise_sigma(band, opts.noise_read, opts.noise_shot, opts.bits) ** 2
+        sigma[i:i + rows] = np.sqrt(block_mean(var, k) / (k * k))
+        if bg is not None:
+            bg[i:i + rows] = block_mean(np.asarray(background[a:b, x0:x1], np.float64), k)
     sat = _block(saturated[y0:y1, x0:x1], k, h, w, how="any")
-    return Frame(x0, y0, k, block_mean(crop, k), bg, sigma, sat, ((cx - x0) / k, (cy - y0) / k, r / k))
+    return Frame(x0, y0, k, small, bg, sigma, sat, ((cx - x0) / k, (cy - y0) / k, r / k))
 
 
 def _camera_at(camera, k: int, h: int, w: int):

@@ -172,15 +172,21 @@ class Setup:
         return make_level(k, cfg or self.base_cfg, self.photo, self.sigma, self.background, self.saturated, opts.rim)
 
 
+def _float(a) -> np.ndarray:
+    """``a`` as a float array, float32 kept (a large photo is not copied to float64)."""
+    a = np.asarray(a)
+    return a if a.dtype in (np.float32, np.float64) else a.astype(np.float64)
+
+
 def _check_inputs(photo, env, background):
-    photo = np.asarray(photo, dtype=np.float64)
+    photo = _float(photo)
     if photo.ndim != 3 or photo.shape[2] != 3:
         raise InputError(f"the photo must be an RGB image (H, W, 3), got shape {photo.shape}")
     if not isinstance(env, EnvMap):
         raise InputError("the environment map must be an EnvMap")
     H, W = photo.shape[:2]
     if background is not None:
-        background = np.asarray(background, dtype=np.float64)
+        background = _float(background)
         if background.shape != photo.shape:
             raise InputError(f"the background photo is {background.shape[1]}x{background.shape[0]}, "
                              f"the photo is {W}x{H}")

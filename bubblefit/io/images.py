@@ -55,7 +55,7 @@ class Image:
     """A linear RGB image with what its file said about it.
 
     Attributes:
-        pixels: (H, W, 3) float64 linear radiance.
+        pixels: (H, W, 3) linear radiance (float64 unless read otherwise).
         path: where it was read from.
         bit_depth: 8, 16 or 32 (float) as stored in the file.
         linear_file: True when the file held linear values (EXR, HDR, float TIFF).
@@ -97,7 +97,7 @@ def _undecodable_as_input_error(func):
 
 
 @_undecodable_as_input_error
-def read_image(path: str | os.PathLike, *, linear: bool | None = None) -> Image:
+def read_image(path: str | os.PathLike, *, linear: bool | None = None, dtype=np.float64) -> Image:
     """Read an image file as linear RGB.
 
     Args:
@@ -105,6 +105,8 @@ def read_image(path: str | os.PathLike, *, linear: bool | None = None) -> Image:
         linear: force the interpretation of integer files (True: already linear,
             False: sRGB). ``None`` decides from the file: integer data are sRGB unless
             the file's colour space attribute says linear; float data are linear.
+        dtype: of the pixels (float64, or float32 for large photos read by the fit,
+            whose arithmetic is float32: half the memory).
 
     Raises:
         InputError: the file is missing, unreadable, truncated, has no pixels, has an
@@ -167,9 +169,9 @@ def read_image(path: str | os.PathLike, *, linear: bool | None = None) -> Image:
         # One table entry per code value: the decoded photo is the only full-size array
         # (a 6000x4000 photo is 576 MB in float64; decoding it arithmetically took 8x that).
         codes = np.arange(maxcode + 1, dtype=np.float64) / maxcode
-        pixels = (codes if is_linear else srgb_decode(codes))[data]
+        pixels = (codes if is_linear else srgb_decode(codes)).astype(dtype)[data]
     else:
-        pixels = data.astype(np.float64)
+        pixels = data.astype(dtype)
         saturated = np.zeros(pixels.shape[:2], dtype=bool)
         is_linear = True if linear is None else linear
         if not is_linear:

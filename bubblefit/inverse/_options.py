@@ -14,13 +14,16 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["ThicknessModel", "ForwardModel", "FitStatus", "FitOptions", "FitResult"]
+__all__ = ["ThicknessModel", "ForwardModel", "ModelChoice", "FitStatus", "FitOptions", "FitResult"]
 
 #: How the film's thickness varies over the bubble (the thickness *model*; its values are
 #: ``thickness_nm``, ``top_nm``/``bottom_nm``/``exponent`` or a per-pixel map in nm).
 ThicknessModel = Literal["constant", "drainage", "map"]
 #: The forward model fitted (``docs/design.md``, "Two model variants").
 ForwardModel = Literal["paper", "physical"]
+#: The forward model a fit is asked for: one of them, or ``auto`` (the paper model, then
+#: the physical one when the paper model does not explain the photo; :func:`~bubblefit.inverse.fit.fit_photo`).
+ModelChoice = Literal["paper", "physical", "auto"]
 #: ``converged``: the local solver met its tolerances with finite errors;
 #: ``max_steps``: it stopped at its step limit; ``failed``: it diverged, or the Jacobian
 #: is singular at the optimum.
@@ -35,8 +38,11 @@ class FitOptions:
     ----------
     thickness : ThicknessModel
         The thickness model: ``constant`` | ``drainage`` | ``map``.
-    model : ForwardModel
-        ``paper`` | ``physical`` forward model.
+    model : ModelChoice
+        ``paper`` | ``physical`` forward model, or ``auto``: the paper model first and,
+        when it does not explain the photo (reduced chi^2 with the model-error floor above
+        ``ok_chi2``), the physical model warm-started from it; the fit that explains the
+        photo better is returned.
     fit_rotation : bool
         Also fit the environment's rotation about +y.
     free_split : bool
@@ -105,7 +111,7 @@ class FitOptions:
     """
 
     thickness: ThicknessModel = "constant"
-    model: ForwardModel = "paper"
+    model: ModelChoice = "paper"
     fit_rotation: bool = False
     free_split: bool = False
     disc: tuple | None = None
@@ -140,8 +146,8 @@ class FitOptions:
     def __post_init__(self):
         if self.thickness not in ("constant", "drainage", "map"):
             raise InputError(f"thickness must be constant, drainage or map, got {self.thickness!r}")
-        if self.model not in ("paper", "physical"):
-            raise InputError(f"model must be paper or physical, got {self.model!r}")
+        if self.model not in ("paper", "physical", "auto"):
+            raise InputError(f"model must be paper, physical or auto, got {self.model!r}")
         lo, hi = self.thickness_range
         if not (math.isfinite(lo) and math.isfinite(hi)):
             raise InputError(f"thickness range must be finite (nm), got {lo}..{hi}")

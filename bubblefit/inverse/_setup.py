@@ -109,6 +109,8 @@ def _held_by_effects(opts, fx, hold: dict) -> tuple:
         hold.setdefault("r_s", "physical model: Fresnel reflectance from n_film sets t and r_s")
         if not fx.diffuse:
             hold.setdefault("r_d", skipped_diffuse)
+        if not opts.free_split:
+            hold.setdefault("split", "physical model: Fresnel sets r_s, and r_d keeps its start unless --free-split")
         split_names = ("r_d",) if opts.free_split else ()
     elif opts.free_split:
         if not fx.diffuse:

@@ -36,6 +36,7 @@ slower than frame after frame).
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import jax.numpy as jnp
 import numpy as np
@@ -189,6 +190,8 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     -------
     FitResult
     """
+    if options.model == "auto":
+        return _fit_either_model(photo, env, options, background, init, scene, saturated)
     t_start = time.perf_counter()
     opts = options
     st = setup(photo, env, opts, background, init, scene, saturated)
@@ -208,6 +211,37 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
         else:
             notes.append(f"warm start doubtful ({why}); a global search did not do better")
     return _finish(st, env, opts, sol, notes, t_start)
+
+
+def _explained(r: FitResult, opts: FitOptions) -> bool:
+    """Whether a fit explains its photo: converged, with the reduced chi^2 with the
+    model-error floor within ``opts.ok_chi2``."""
+    return bool(r.converged) and r.chi2_floor <= float(opts.ok_chi2)
+
+
+def _fit_either_model(photo, env, options: FitOptions, background, init, scene, saturated) -> FitResult:
+    """``model = "auto"``: the paper model (eq. 11); when it does not explain the photo,
+    the physical model (Fresnel per polarisation, internal bounces) warm-started from the
+    paper fit's values, and whichever explains the photo better (the lower reduced chi^2
+    with the model-error floor, a converged fit before one that is not).
+
+    The paper model's two-beam film and grey ``t`` bias a real film's drainage ends and
+    leave a misfit that hides a wrong map; a photo from a physical film (another renderer,
+    a camera) is explained by the physical model, within its floor."""
+    t0 = time.perf_counter()
+    kw = dict(background=background, scene=scene, saturated=saturated)
+    first = fit_photo(photo, env, options=replace(options, model="paper"), init=init, **kw)
+    if _explained(first, options):
+        first.message += "; model auto: the paper model explains the photo"
+        return first
+    start = {k: v for k, v in first.params.items() if np.isfinite(v)} if first.converged else init
+    second = fit_photo(photo, env, options=replace(options, model="physical"), init=start, **kw)
+    rank = lambda r: (not r.converged, r.chi2_floor if np.isfinite(r.chi2_floor) else np.inf)
+    best, other = (second, first) if rank(second) < rank(first) else (first, second)
+    best.message += (f"; model auto: paper reduced chi^2 {first.chi2_floor:.3g}, physical {second.chi2_floor:.3g} "
+                     f"(with the floor): kept the {best.model} model")
+    best.time_s = time.perf_counter() - t0
+    return best
 
 
 def _batch_starts(first: Setup, n: int, prev_vals: dict | None) -> list:

@@ -59,6 +59,8 @@ def load_truth(case: str) -> dict:
 
 
 FIT_TIMEOUT = 900.0
+#: Arguments added to every `bubblefit fit` (``--fit-args``), e.g. ``--model physical``.
+EXTRA_FIT_ARGS: list[str] = []
 
 
 def _cli(args: list[str], timeout: float | None = None) -> tuple[int, str, float]:
@@ -147,6 +149,7 @@ def run_fit(case: str, model: str, out_dir: str, calibration: str | None = None,
         args += ["--disc", f"{d['cx']},{d['cy']},{d['r']}"]
     if calibration:
         args += ["--calibration", calibration]
+    args += EXTRA_FIT_ARGS
     rc, err, wall = _cli(args)
     row = {"case": name, "kind": truth.get("kind"), "model": model, "renderer": truth.get("renderer_version",
            truth.get("renderer", "")).split(",")[0], "rc": rc, "wall_s": round(wall, 1)}
@@ -435,8 +438,10 @@ def main(argv=None) -> int:
     ap.add_argument("--disc-given", action="store_true",
                     help="hand bubblefit the true disc (--disc) in orthographic cases: separates detection from fitting")
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds allowed per bubblefit command [900]")
+    ap.add_argument("--fit-args", default="", help="extra arguments for every `bubblefit fit`, e.g. '--model physical'")
     ap.add_argument("--no-cross", action="store_true", help="skip the fit that is handed another framing's calibration")
     a = ap.parse_args(argv)
+    EXTRA_FIT_ARGS[:] = a.fit_args.split()
     global FIT_TIMEOUT
     FIT_TIMEOUT = a.timeout
     if a.merge:

@@ -14,14 +14,12 @@ def register(sub):
     p.add_argument("--thickness", default="0:3000:5", help="START:STOP:STEP in nm (default 0:3000:5)")
     p.add_argument("--angle-deg", type=float, default=0.0, help="angle of incidence in degrees (default 0)")
     p.add_argument("--model", default="airy", choices=["airy", "two_beam", "paper", "incoherent"])
-    g = p.add_mutually_exclusive_group()
-    g.add_argument("--n-film", default=None, help="film index: a number or a preset (water, soap); default 1.4")
-    g.add_argument("--cauchy", metavar="A,B[,C]", help="film index n = A + B/lambda^2 + C/lambda^4, lambda in nm")
+    from .common import add_colour_options, add_index_options
+
+    add_index_options(p)
     p.add_argument("-o", "--output", required=True, help="chart image (PNG)")
     p.add_argument("--csv", help="CSV with columns thickness_nm,r,g,b (linear RGB reflectance, white = 1)")
     p.add_argument("--json", help="write a JSON summary")
-    from .common import add_colour_options
-
     add_colour_options(p)
     p.set_defaults(func=run)
 

@@ -126,6 +126,13 @@ def film_index(n_film: str | None, cauchy: str | None, default):
     return dispersion.parse_index(value, "--n-film")
 
 
+def add_index_options(parser, default: str = "1.4") -> None:
+    """``--n-film`` and ``--cauchy`` (one or the other; :func:`film_index` reads them)."""
+    g = parser.add_mutually_exclusive_group()
+    g.add_argument("--n-film", default=None, help=f"film index: a number or a preset (water, soap); default {default}")
+    g.add_argument("--cauchy", metavar="A,B[,C]", help="film index n = A + B/lambda^2 + C/lambda^4, lambda in nm")
+
+
 def add_colour_options(parser) -> None:
     """``--illuminant`` and ``--camera-response`` (:mod:`bubblefit.optics.spectral`)."""
     parser.add_argument("--illuminant", default=None,

@@ -36,8 +36,9 @@ def register(sub):
     cal.add_argument("--calibration", metavar="CAL.json", help="output of `bubblefit calibrate` (starting t, disc)")
     cal.add_argument("--t", type=float, help="starting transmission fraction t (0 < t < 1)")
     p.add_argument("--scene", metavar="SCENE.toml",
-                   help="scene file: its camera (orthographic disc or perspective), n_film, effects, and every "
-                        "value its [bubble] table sets, which is held fixed")
+                   help="scene file: its camera (orthographic disc or perspective, response, white balance, "
+                        "samples per pixel), n_film (with dispersion), illuminant, effects, and every value its "
+                        "[bubble] table sets, which is held fixed; the flags below override it")
     p.add_argument("--thickness", choices=("constant", "drainage", "map"), default="constant",
                    help="thickness model (default: constant)")
     p.add_argument("--model", choices=("paper", "physical"), default=None,
@@ -55,7 +56,21 @@ def register(sub):
                                                              "(and PREFIX_thickness.exr) with PNG previews")
     p.add_argument("--explain", action="store_true", help="print which effects are simulated or skipped, and why")
     p.add_argument("--strict", action="store_true", help="exit with status 1 when the fit did not converge")
+    add_model_options(p)
     p.set_defaults(func=run)
+
+
+def add_model_options(p) -> None:
+    """The forward model's light, camera and film options of ``fit`` and ``fit-sequence``:
+    ``--illuminant``, ``--camera-response`` (as ``render``), ``--n-film``/``--cauchy`` (as
+    ``chart``) and ``--samples-per-pixel``; each overrides the scene's value."""
+    from .common import add_colour_options, add_index_options
+
+    add_colour_options(p)
+    add_index_options(p, default="the scene's, else 1.4")
+    p.add_argument("--samples-per-pixel", type=int, default=None, metavar="N",
+                   help="rays per rendered pixel, a square number (1, 4, 9, ...): each pixel is the mean over its "
+                        "area; default the scene's [camera] samples_per_pixel, else 1")
 
 
 def load_envmap(path: str):
@@ -119,7 +134,29 @@ def fit_option_values(args) -> dict:
         if args.max_steps < 1:
             raise InputError("--max-steps must be at least 1")
         kw["max_steps"] = args.max_steps
+    kw.update(model_option_values(args))
     return kw
+
+
+def model_option_values(args) -> dict:
+    """``illuminant``, ``camera_response``, ``n_film`` and ``samples_per_pixel`` of
+    :class:`~bubblefit.inverse.fit.FitOptions` from :func:`add_model_options`' flags (None
+    where not given: the scene's then apply), checked before any photo is read."""
+    from ..model._scene_checks import samples_per_pixel
+    from ..optics import spectral
+    from .common import colour_option, film_index
+
+    ill = colour_option(args.illuminant, spectral.is_named_illuminant, "--illuminant")
+    resp = colour_option(args.camera_response, spectral.is_named_response, "--camera-response")
+    if ill is not None:
+        spectral.illuminant_spectrum(ill)
+    if resp is not None:
+        spectral.response_functions(resp)
+    spp = args.samples_per_pixel
+    if spp is not None:
+        samples_per_pixel(spp, "--samples-per-pixel")
+    return dict(illuminant=ill, camera_response=resp, n_film=film_index(args.n_film, args.cauchy, None),
+                samples_per_pixel=spp)
 
 
 def output_paths(args) -> list[str]:
@@ -149,6 +186,7 @@ def run(args) -> int:
     scene = load_scene(args.scene) if args.scene else None
     inputs = [args.photo, args.envmap, args.background, args.calibration, args.scene]
     guard_outputs(inputs + (scene_inputs(scene) if scene is not None else []), [args.json, *output_paths(args)])
+    option_values = fit_option_values(args)
     with stage("reading the photo and the environment map"):
         photo = read_image(args.photo, dtype=np.float32)  # the fit's arithmetic is float32
         env = load_envmap(args.envmap)
@@ -160,7 +198,7 @@ def run(args) -> int:
                              f"the photo is {photo.pixels.shape[1]}x{photo.pixels.shape[0]}")
         background = bimg.pixels
     model = args.model or (scene.table("effects").get("model", "paper") if scene is not None else "paper")
-    kw = dict(fit_option_values(args), model=model, free_split=args.free_split, fit_rotation=args.fit_rotation,
+    kw = dict(option_values, model=model, free_split=args.free_split, fit_rotation=args.fit_rotation,
               bits=_bits(photo))
     options = FitOptions(**kw)
     with stage(f"fitting {photo.pixels.shape[1]}x{photo.pixels.shape[0]} ({options.thickness} thickness, "

@@ -14,7 +14,7 @@ import os
 from pathlib import Path
 
 from ..errors import InputError
-from .fit import fit_option_values, load_envmap
+from .fit import add_model_options, fit_option_values, load_envmap
 
 
 def register(sub):
@@ -62,6 +62,7 @@ def register(sub):
                    help="refit frames already finished in OUT_DIR (also when its run.json is missing or unreadable)")
     p.add_argument("--retry-failed", action="store_true", help="refit frames recorded as failed")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_model_options(p)
     p.set_defaults(func=run)
 
 

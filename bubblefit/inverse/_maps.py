@@ -23,8 +23,9 @@ little better. A soap film is smooth apart from real features, so the map is bui
    map's own residual, as for the global parameters.
 
 With the ``paper`` model a pixel's candidates are exact and cheap (eq. 11 is linear in eq.
-10's factor, :func:`bubblefit.inverse.search.paper_candidates`); other models render the
-whole map at each thickness offset.
+10's factor, :func:`bubblefit.inverse.search.paper_candidates`; a dispersive film's factor
+per wavelength, :class:`bubblefit.inverse.search.PaperPhi`); other models, and pixels
+box-filtered over several rays, render the whole map at each thickness offset.
 
 References
 ----------
@@ -47,7 +48,6 @@ from . import search
 from ._observation import Level
 from ._parameters import ParameterTable
 from ..model.thickness import drainage_profile
-from ..optics import film
 
 __all__ = ["fit_map", "profile_map", "COARSE_RADIUS", "WINDOW_NM"]
 
@@ -73,32 +73,31 @@ class _PaperCosts:
     def __init__(self, lev: Level, table: ParameterTable, vals: dict, env, hi_nm: float):
         fx = lev.cfg.effects
         self.m, self.c = search.unlit_terms(lev, table, vals, env)
-        n = float(vals["n_film"])
         sel = lev.mask.reshape(-1)
-        self.xfac = 2 * n * np.asarray(film.cos_transmitted(lev.cos.reshape(-1)[sel], n), np.float64)
+        self.phi = search.PaperPhi(lev, float(vals["n_film"]), hi_nm)
         self.t = float(vals["t"])
         p = table.render_params({k: jnp.asarray(v, jnp.float32) for k, v in dict(vals, thickness_nm=0.0).items()
                                  if k != "map"}, "constant")
         self.r_s = float(p.r_s) if fx.tint and fx.transmission else 0.0
-        self.phi = jnp.asarray(search.phi_table(fx.spectral, 2 * n * hi_nm))
         self.y = lev.y.reshape(-1, 3)[sel]
         self.w2 = lev.w.reshape(-1, 3)[sel] ** 2
 
     def __call__(self, d: np.ndarray) -> np.ndarray:
         """(G, P) chi^2 of candidate thicknesses ``d`` (G, P)."""
         out = np.empty(d.shape, np.float32)
-        chunk = max(1, 2_000_000 // max(d.shape[0], 1))
+        # a dispersive film's Phi is summed over the K samples: K numbers per candidate in flight
+        per = 1 if self.phi.law is None else self.phi.samples
+        chunk = max(1, 2_000_000 // max(d.shape[0] * per, 1))
         for s in range(0, d.shape[1], chunk):
             e = slice(s, s + chunk)
-            out[:, e] = np.asarray(_paper_cost(self.phi, jnp.asarray(d[:, e] * self.xfac[None, e], jnp.float32),
-                                               jnp.asarray(self.m[e]), jnp.asarray(self.c[e]), self.t, self.r_s,
-                                               jnp.asarray(self.y[e]), jnp.asarray(self.w2[e])))
+            out[:, e] = np.asarray(_paper_cost(self.phi(d[:, e], e), jnp.asarray(self.m[e]), jnp.asarray(self.c[e]),
+                                               self.t, self.r_s, jnp.asarray(self.y[e]), jnp.asarray(self.w2[e])))
         return out
 
 
 @jax.jit
-def _paper_cost(phi_tab, x, m, c, t, r_s, y, w2):
-    refl, back = search.paper_candidates(search.phi_rgb(phi_tab, x), m[None], c[None], t, r_s)
+def _paper_cost(phi, m, c, t, r_s, y, w2):
+    refl, back = search.paper_candidates(phi, m[None], c[None], t, r_s)
     return search.pixel_costs(refl, back, y, w2)
 
 
@@ -227,8 +226,7 @@ def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts, env, make
     starts from, ``opts`` a ``FitOptions``, ``make_level(k)`` the level ``k`` times
     coarser than ``lev`` (None: no pyramid).
     """
-    fx = lev.cfg.effects
-    exact = fx.model == "paper" and fx.interference == "two_beam"
+    exact = search.exact_paper_search(lev.cfg)
     lo, hi = opts.thickness_range
     base = {k: v for k, v in vals.items() if k != "map"}
     blocks = _pyramid(lev) if make_level is not None else [1]

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["ThicknessModel", "ForwardModel", "ModelChoice", "FitStatus", "FitOptions", "FitResult"]
+__all__ = ["ThicknessModel", "ForwardModel", "ModelChoice", "FitStatus", "FitOptions", "FitResult", "ColourSettings"]
 
 #: How the film's thickness varies over the bubble (the thickness *model*; its values are
 #: ``thickness_nm``, ``top_nm``/``bottom_nm``/``exponent`` or a per-pixel map in nm).
@@ -108,6 +108,17 @@ class FitOptions:
         difference between neighbouring pixels' thicknesses at the photo's resolution.
         Smaller values smooth more; a film's real features (a 40 nm bump a few pixels
         wide) change by a few nm per pixel and survive the default.
+    illuminant, camera_response, white_balance : str, str, str or tuple, or None
+        The light's spectrum, the camera's channel responses and its white balance
+        (:mod:`bubblefit.optics.spectral`); None: the scene's (``[lighting] illuminant``,
+        ``[camera] response``, ``white_balance``), else ``D65``, ``srgb``, ``illuminant``.
+    n_film : float, Cauchy, str or None
+        The film's index (:mod:`bubblefit.optics.dispersion`: a number, a Cauchy law or a
+        preset); None: the scene's ``[bubble] n_film``, else 1.4. A law's dispersion is
+        rendered everywhere the fit evaluates the model; it is never fitted.
+    samples_per_pixel : int or None
+        Rays per rendered pixel (a square number, :class:`~bubblefit.model.render.RenderConfig`);
+        None: the scene's ``[camera] samples_per_pixel``, else 1.
     """
 
     thickness: ThicknessModel = "constant"
@@ -142,8 +153,22 @@ class FitOptions:
     ok_chi2: float = 3.0
     analysis_size: int = 1024
     map_smoothness_nm: float = 8.0
+    illuminant: str | None = None
+    camera_response: str | None = None
+    white_balance: str | tuple | None = None
+    n_film: object = None
+    samples_per_pixel: int | None = None
 
     def __post_init__(self):
+        from ..model._scene_checks import samples_per_pixel, white_balance
+        from ..optics.dispersion import parse_index
+
+        if self.n_film is not None:  # a preset name becomes its law
+            object.__setattr__(self, "n_film", parse_index(self.n_film, "n_film"))
+        if self.white_balance is not None:
+            object.__setattr__(self, "white_balance", white_balance(self.white_balance, "white_balance"))
+        if self.samples_per_pixel is not None:
+            samples_per_pixel(self.samples_per_pixel, "samples_per_pixel")
         if self.thickness not in ("constant", "drainage", "map"):
             raise InputError(f"thickness must be constant, drainage or map, got {self.thickness!r}")
         if self.model not in ("paper", "physical", "auto"):
@@ -155,6 +180,34 @@ class FitOptions:
             raise InputError(f"thickness range must be 0 <= min < max, got {lo}..{hi}")
         if hi > 20000:
             raise InputError(f"thickness range must end below 20000 nm (20 um), got {hi}")
+
+
+@dataclass(frozen=True)
+class ColourSettings:
+    """How the fit's forward model turns a film into pixel values, beyond its parameters:
+    the illuminant, the camera's response and white balance (:mod:`bubblefit.optics.spectral`),
+    the film's index law (:mod:`bubblefit.optics.dispersion`; ``Params.n_film`` carries its
+    value at 589.3 nm) and the rays per pixel (:class:`~bubblefit.model.render.RenderConfig`)."""
+
+    illuminant: str = "D65"
+    response: str = "srgb"
+    white_balance: object = "illuminant"
+    n_film: object = 1.4
+    samples_per_pixel: int = 1
+
+    @property
+    def default_colour(self) -> bool:
+        """Whether illuminant, response and white balance are the defaults (D65, sRGB)."""
+        return (self.illuminant, self.response, self.white_balance) == ("D65", "srgb", "illuminant")
+
+    def to_json(self) -> dict:
+        from ..optics.dispersion import Cauchy, describe
+
+        wb = self.white_balance
+        return {"illuminant": self.illuminant, "response": self.response,
+                "white_balance": wb if isinstance(wb, str) else [float(g) for g in wb],
+                "n_film": describe(self.n_film), "dispersive": isinstance(self.n_film, Cauchy),
+                "samples_per_pixel": int(self.samples_per_pixel)}
 
 
 def _clean(d: dict) -> dict:
@@ -214,6 +267,9 @@ class FitResult:
     frame : tuple or None
         ``(x0, y0, k)``: the fit's images cover the photo from pixel ``(x0, y0)`` in blocks
         of ``k`` pixels (None: the whole photo at its own resolution).
+    colour : ColourSettings or None
+        The illuminant, camera response, white balance, index law and rays per pixel the
+        forward model was evaluated with (JSON key ``colour``).
     """
 
     params: dict
@@ -243,6 +299,7 @@ class FitResult:
     model_error: float = float("nan")
     stderr_scale: float = 1.0
     frame: tuple | None = None
+    colour: ColourSettings | None = None
 
     def to_json(self) -> dict:
         """The command line's result (``docs/design.md``): params, stderr, converged,
@@ -276,6 +333,7 @@ class FitResult:
             "covariance": cov,
             "frame": None if self.frame is None else {"x0": int(self.frame[0]), "y0": int(self.frame[1]),
                                                       "block": int(self.frame[2])},
+            "colour": None if self.colour is None else self.colour.to_json(),
             "effects": [{"effect": d.effect, "simulated": d.simulated, "setting": d.setting, "reason": d.reason}
                         for d in self.effects],
         }

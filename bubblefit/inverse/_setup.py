@@ -10,15 +10,16 @@ import numpy as np
 
 from ._disc import resolve_disc
 from ._observation import Frame, Level, analysis_frame, make_level, saturation_mask
-from ._options import FitOptions
+from ._options import ColourSettings, FitOptions
 from ._parameters import PARAMETERS, ParameterTable, THICKNESS_PARAMETERS
 from ..errors import InputError
 from ..lighting.envmap import EnvMap
 from ..model.effects import resolve
 from ..model.geometry import OrthographicCamera
 from ..model.render import RenderConfig
+from ..optics.dispersion import REFERENCE_WAVELENGTH_NM, Cauchy, refractive_index
 
-__all__ = ["Setup", "setup", "defaults"]
+__all__ = ["Setup", "setup", "defaults", "colour_settings"]
 
 #: Names ``--hold`` and ``init`` accept besides the parameters' own.
 _ALIASES = {"f": "split", "thickness": "thickness_nm", "top": "top_nm", "bottom": "bottom_nm",
@@ -66,6 +67,8 @@ def defaults(scene, init, opts, t_from_calibration):
         k = k if k == "f" else _ALIASES.get(k, k)
         if v is not None and k in vals:
             vals[k] = float(v)
+    if opts.n_film is not None:  # the command line's index wins over the scene's and a warm start's
+        vals["n_film"] = float(refractive_index(opts.n_film, REFERENCE_WAVELENGTH_NM))
     if t_from_calibration is not None:
         vals["t"] = float(t_from_calibration)
     if opts.roughness_init is not None and "roughness" not in held:
@@ -168,6 +171,7 @@ class Setup:
     lev_fit: Level
     frame: Frame
     warnings: list
+    colour: ColourSettings
 
     def level(self, k: int, opts: FitOptions, cfg: RenderConfig | None = None) -> Level:
         """The photo ``k`` times smaller (:func:`make_level`)."""
@@ -209,6 +213,44 @@ def _settings(scene, opts) -> dict:
     # push the thickness to another colour order (tests/test_fit.py::test_model_mismatch).
     settings.setdefault("transmission_tint", True)
     return settings
+
+
+def colour_settings(scene, opts: FitOptions, n_film: float) -> ColourSettings:
+    """The illuminant, camera response, white balance, index law and rays per pixel of the
+    fit: each from ``opts`` when given (the command line), else from the scene
+    (:meth:`~bubblefit.model.scene.Scene.colour`, ``[bubble] n_film``, ``[camera]
+    samples_per_pixel``), else the defaults (D65, sRGB, ``illuminant``, the constant
+    ``n_film``, 1). Names and files are checked here (one-line :class:`InputError`)."""
+    from ..model._scene_checks import film_index
+    from ..optics import spectral
+
+    ill, resp, wb = scene.colour() if scene is not None else ("D65", "srgb", "illuminant")
+    ill = opts.illuminant if opts.illuminant is not None else ill
+    resp = opts.camera_response if opts.camera_response is not None else resp
+    wb = opts.white_balance if opts.white_balance is not None else wb
+    spectral.illuminant_spectrum(ill)
+    spectral.response_functions(resp)
+    if opts.n_film is not None:
+        law = opts.n_film
+    elif scene is not None and "n_film" in scene.table("bubble"):
+        law = film_index(scene.table("bubble"))
+    else:
+        law = float(n_film)
+    if not isinstance(law, Cauchy):  # a constant index: the value the fit uses
+        law = float(n_film)
+    spp = opts.samples_per_pixel
+    if spp is None:
+        spp = int(scene.table("camera").get("samples_per_pixel", 1)) if scene is not None else 1
+    return ColourSettings(ill, resp, wb, law, int(spp))
+
+
+def _coloured(fx, colour: ColourSettings):
+    """The effects with their spectral basis for ``colour``'s illuminant, response and white
+    balance (:meth:`~bubblefit.optics.spectral.SpectralBasis.with_colour`, as
+    :meth:`~bubblefit.model.scene.Scene.plan` renders)."""
+    if fx.spectral is None or colour.default_colour:
+        return fx
+    return replace(fx, spectral=fx.spectral.with_colour(colour.illuminant, colour.response, colour.white_balance))
 
 
 def _perspective(scene, photo):
@@ -253,7 +295,13 @@ def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, d
     camera, center, radius = persp or (OrthographicCamera(W, H, *frame.disc), (0.0, 0.0, 0.0), 1.0)
     fx, decisions = decided if decided is not None else _decide(opts, vals, env, frame.background,
                                                                 _settings(scene, opts), camera, lights)
-    map_cfg = RenderConfig(effects=fx, camera=camera, center=center, radius=radius, point_lights=tuple(lights))
+    # The one place the fit's colour, dispersion and pixel sampling enter: every render
+    # (search, local solves, map, final image) starts from these configurations.
+    colour = colour_settings(scene, opts, vals["n_film"])
+    fx = _coloured(fx, colour)
+    map_cfg = RenderConfig(effects=fx, camera=camera, center=center, radius=radius, point_lights=tuple(lights),
+                           dispersion=colour.n_film if isinstance(colour.n_film, Cauchy) else None,
+                           samples_per_pixel=colour.samples_per_pixel)
     table = _table(opts, fx, held0)
     # a map is fitted after a drainage profile: the local fits render the profile
     base_cfg = replace(map_cfg, effects=replace(fx, thickness=table.thickness_model))
@@ -263,4 +311,4 @@ def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, d
     if lev_fit.mask.sum() < 10:
         raise InputError("fewer than 10 usable pixels on the bubble (disc too small, or saturated)")
     return Setup(frame.photo, frame.background, vals, table, fx, decisions, base_cfg, map_cfg, disc, frame.sigma,
-                 frame.saturated, k_search, lev_fit, frame, warnings)
+                 frame.saturated, k_search, lev_fit, frame, warnings, colour)

@@ -23,6 +23,12 @@ about +y, from a linear (H, W, 3) photo and its environment map. It runs the sta
 5. Uncertainty (:mod:`._uncertainty`): covariance by the delta method.
 6. Thickness map (:mod:`._maps`), after a drainage fit.
 
+Light, camera and film: the illuminant, camera response, white balance, the film's
+dispersion law and the rays per pixel come from the options (the command line), else the
+scene (:func:`._setup.colour_settings`), and are set once, in the render configurations
+of :func:`._setup.setup` that every stage renders with (search candidates, local solves,
+map, final image).
+
 Transmission tint: with the ``paper`` model the fit turns on ``transmission_tint``
 (:mod:`bubblefit.model.effects`) unless told otherwise: a real film transmits the complement of
 the colour it reflects, which over a bright background is as strong as the reflection
@@ -156,7 +162,7 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
         pixels_used=int(lev_fit.mask.sum()), status=status, names=unc.names, covariance=unc.covariance,
         ok=ok, warnings=warnings, chi2_floor=unc.chi2_floor, model_error=float(opts.model_error),
         stderr_scale=unc.scale,
-        frame=None if st.frame.whole else (st.frame.x0, st.frame.y0, st.frame.k),
+        frame=None if st.frame.whole else (st.frame.x0, st.frame.y0, st.frame.k), colour=st.colour,
     )
 
 
@@ -179,7 +185,8 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
         Warm start, a dict of the JSON's params (e.g. the previous frame's); the global
         thickness search is then skipped unless this fit fails.
     scene : Scene, optional
-        Its camera (perspective or a disc), n_film, effects settings, and every value its
+        Its camera (perspective or a disc), n_film (with its dispersion), illuminant,
+        camera response, white balance, samples_per_pixel, effects settings, and every value its
         ``[bubble]`` table (and ``lighting.rotation_deg``) sets explicitly, which is then
         held fixed.
     saturated : np.ndarray, optional

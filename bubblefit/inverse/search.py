@@ -15,7 +15,13 @@ Two evaluators:
     ``F(x) * M + C``: ``M`` the reflected radiance of both films rendered with
     interference off, ``C`` the transmitted background. ``Phi`` is tabulated once on a
     fine grid of ``x`` (:func:`phi_table`), so a candidate costs one interpolation per
-    pixel and channel.
+    pixel and channel. The table integrates against the fit's spectral basis, so any
+    illuminant, camera response and white balance is exact. A dispersive film (a Cauchy
+    law, ``RenderConfig.dispersion``) has no single ``x``: each sample wavelength has its
+    own ``x_k = 2 n_k d cos th_t(n_k)``, and ``Phi`` is then summed over the samples
+    directly (:class:`PaperPhi`), as the renderer does. A pixel box-filtered over several
+    rays (``samples_per_pixel`` > 1) mixes several optical paths, which ``F(x) M + C``
+    cannot represent: such fits render their candidates (:func:`exact_paper_search`).
 
 any model (generic)
     One render per candidate thickness (``lax.map`` over the grid), on the downsampled
@@ -40,11 +46,13 @@ from ._parameters import ParameterTable
 from ..model.render import render_terms
 from ..optics import spectral
 from ..optics import film
+from ..optics.dispersion import index_offset
 from ..optics.film import paper_tinted_transmission
 
 __all__ = ["phi_table", "phi_rgb", "paper_candidates", "thickness_grid", "local_minima", "score_global",
            "score_pixels", "pixel_costs", "best_profile", "PROFILE_EXPONENTS", "candidates", "search_starts",
-           "unlit_terms", "paper_pixel_candidates", "render_candidates", "profile_from_pixels"]
+           "unlit_terms", "paper_pixel_candidates", "render_candidates", "profile_from_pixels", "PaperPhi",
+           "exact_paper_search"]
 
 #: Step of the optical-path table, nm (the colour varies on scales of ~100 nm).
 X_STEP = 0.5
@@ -87,6 +95,65 @@ def phi_rgb(table: jnp.ndarray, x: jnp.ndarray) -> jnp.ndarray:
     i = jnp.floor(pos).astype(jnp.int32)
     f = (pos - i)[..., None]
     return table[i] * (1 - f) + table[i + 1] * f
+
+
+def exact_paper_search(cfg) -> bool:
+    """Whether ``cfg``'s pixels are ``F(x) M + C`` of the module docstring, so the ``paper``
+    candidates (:class:`PaperPhi`) are exact: the ``paper`` model with eq. (10)'s factor
+    (``two_beam``) and one ray per pixel. Otherwise candidates are rendered."""
+    fx = cfg.effects
+    return fx.model == "paper" and fx.interference == "two_beam" and cfg.samples_per_pixel == 1
+
+
+@jax.jit
+def _phi_per_wavelength(d, cos_i, lam, n, sigma, weights):
+    """``Phi`` (G, P, 3) of thicknesses ``d`` (G, P) from each sample wavelength's own index:
+    eq. (10)'s factor over ``4 t^2`` (eqs. 8-10 with ``n = n_k``, Snell's law per sample;
+    lobe-filtered for a ``fourier`` basis, :func:`bubblefit.optics.film.fringe_attenuation`)
+    integrated against the basis weights (K, 3)."""
+    dd, c = d[..., None], cos_i[:, None]
+    if sigma is None:
+        f = film.paper_interference_factor(dd, lam, n, c, 1.0)
+    else:
+        f = film.filtered_paper_interference_factor(dd, lam, n, c, 1.0, sigma)
+    return (0.25 * f) @ weights
+
+
+class PaperPhi:
+    """``Phi`` of the module docstring at the fitted pixels of a level, for any thicknesses.
+
+    ``n_film`` is the film's index at 589.3 nm (``Params.n_film``), ``d_max`` the largest
+    thickness asked for (nm). Without dispersion ``Phi`` is a function of the optical path
+    ``x = 2 n d cos th_t`` (eq. 8) alone, interpolated in :func:`phi_table`. With the
+    level's ``cfg.dispersion`` the index per sample is ``n_k = n_film + index_offset_k``
+    (as :func:`bubblefit.model.render.render` takes it) and ``Phi`` is evaluated per sample
+    (:func:`_phi_per_wavelength`): exact, no approximation in ``x``, at K cosines per
+    candidate and pixel instead of 3 interpolations.
+    """
+
+    def __init__(self, lev, n_film: float, d_max: float):
+        basis = lev.cfg.effects.spectral
+        cos = np.asarray(lev.cos.reshape(-1)[lev.mask.reshape(-1)], np.float64)
+        self.law = lev.cfg.dispersion
+        self.samples = int(basis.samples)
+        if self.law is None:
+            self.xfac = 2 * n_film * np.asarray(film.cos_transmitted(cos, n_film), np.float64)
+            self.table = jnp.asarray(phi_table(basis, 2 * n_film * float(d_max)))
+        else:
+            lam = np.asarray(basis.wavelengths, np.float64)
+            self.args = (jnp.asarray(cos, jnp.float32), jnp.asarray(lam, jnp.float32),
+                         jnp.asarray(n_film + index_offset(self.law, lam), jnp.float32),
+                         None if basis.sigma is None else jnp.asarray(basis.sigma, jnp.float32),
+                         jnp.asarray(basis.weights, jnp.float32))
+
+    def __call__(self, d, cols=slice(None)):
+        """(G, P', 3) ``Phi`` for thicknesses ``d`` (G, P') (or (G, 1)) at the pixels ``cols``."""
+        if self.law is None:
+            return phi_rgb(self.table, jnp.asarray(np.asarray(d) * self.xfac[cols], jnp.float32))
+        cos, lam, n, sigma, w = self.args
+        c = cos[cols]
+        d = jnp.broadcast_to(jnp.asarray(d, jnp.float32), (np.shape(d)[0], c.shape[0]))
+        return _phi_per_wavelength(d, c, lam, n, sigma, w)
 
 
 def paper_candidates(phi, m, c, t, r_s):
@@ -247,25 +314,20 @@ def unlit_terms(lev, table: ParameterTable, vals: dict, env):
     return m, c
 
 
-def paper_pixel_candidates(grid, xfac, m, c, t: float, r_s: float, table_phi):
-    """``(refl, back)`` (G, P, 3) of :func:`paper_candidates` for thicknesses ``grid`` at
-    pixels of optical path per nm ``xfac = 2 n cos th_t`` (eq. 8)."""
-    x = grid[:, None] * xfac[None, :]
-    phi = phi_rgb(table_phi, jnp.asarray(x, jnp.float32))
-    return paper_candidates(phi, jnp.asarray(m)[None], jnp.asarray(c)[None], t, r_s)
+def paper_pixel_candidates(grid, phi: PaperPhi, m, c, t: float, r_s: float):
+    """``(refl, back)`` (G, P, 3) of :func:`paper_candidates` for thicknesses ``grid`` (G,)
+    at every pixel of ``phi`` (:class:`PaperPhi`)."""
+    return paper_candidates(phi(np.asarray(grid)[:, None]), jnp.asarray(m)[None], jnp.asarray(c)[None], t, r_s)
 
 
 def _candidates_paper(lev, table: ParameterTable, vals: dict, grid: np.ndarray, env):
     """(G, P, 3) gain-scaled part and (P, 3) fixed part for constant films (paper model, exact)."""
     fx = lev.cfg.effects
     m, c = unlit_terms(lev, table, dict(vals, exposure=1.0), env)
-    n = float(vals["n_film"])
-    sel = lev.mask.reshape(-1)
-    xfac = 2 * n * np.asarray(film.cos_transmitted(lev.cos.reshape(-1)[sel], n), np.float64)
-    phi_tab = jnp.asarray(phi_table(fx.spectral, 2 * n * float(grid.max())))
+    phi = PaperPhi(lev, float(vals["n_film"]), float(grid.max()))
     r_s = float(table.render_params({k: jnp.asarray(x, jnp.float32) for k, x in dict(vals, thickness_nm=0.0).items()
                                      if k != "map"}, "constant").r_s) if fx.tint and fx.transmission else 0.0
-    refl, back = paper_pixel_candidates(grid, xfac, m, c, float(vals["t"]), r_s, phi_tab)
+    refl, back = paper_pixel_candidates(grid, phi, m, c, float(vals["t"]), r_s)
     if fx.background == "photo":
         return refl, back
     return refl + back, jnp.zeros(back.shape[1:], back.dtype)
@@ -301,7 +363,7 @@ def _candidates_generic(lev, table: ParameterTable, vals: dict, grid: np.ndarray
 
 def candidates(lev, table: ParameterTable, vals: dict, grid: np.ndarray, env):
     """Candidate images for the thickness grid: ``(refl, fixed)``, see :func:`score_global`."""
-    if lev.cfg.effects.model == "paper" and lev.cfg.effects.interference == "two_beam":
+    if exact_paper_search(lev.cfg):
         return _candidates_paper(lev, table, vals, grid, env)
     return _candidates_generic(lev, table, vals, grid, env)
 

@@ -15,7 +15,8 @@ from ..errors import InputError
 from ..optics.dispersion import parse_index
 from .modes import MODELS, THICKNESS_KINDS, check_effects_table
 
-__all__ = ["SCHEMA", "validate", "check_values", "check_radiance", "colour_path", "film_index", "value_range", "vector"]
+__all__ = ["SCHEMA", "validate", "check_values", "check_radiance", "colour_path", "film_index", "value_range", "vector",
+           "samples_per_pixel", "white_balance"]
 
 SCHEMA = {
     "camera": {"type": str, "width": int, "height": int, "origin": list, "target": list, "up": list,
@@ -112,15 +113,8 @@ def check_values(scene) -> None:
     for k in ("width", "height"):
         if k in c and not 1 <= c[k] <= 16384:
             raise InputError(f"scene value camera.{k} = {c[k]} is out of range [1, 16384]")
-    spp = c.get("samples_per_pixel", 1)
-    if not (1 <= spp <= 1024 and math.isqrt(spp) ** 2 == spp):
-        raise InputError(f"camera.samples_per_pixel must be a square number in [1, 1024] (1, 4, 9, 16, ...), "
-                         f"got {spp}")
-    wb = c.get("white_balance", "illuminant")
-    if isinstance(wb, str) and wb != "illuminant":
-        raise InputError(f"camera.white_balance must be \"illuminant\" or [r, g, b] gains, got {wb!r}")
-    if not isinstance(wb, str) and (min(vector("camera.white_balance", wb, 3)) <= 0):
-        raise InputError(f"camera.white_balance gains must be positive, got {wb!r}")
+    samples_per_pixel(c.get("samples_per_pixel", 1), "camera.samples_per_pixel")
+    white_balance(c.get("white_balance", "illuminant"), "camera.white_balance")
     for k, n in (("origin", 3), ("target", 3), ("up", 3), ("disc", 3)):
         if k in c:
             vector(f"camera.{k}", c[k], n)
@@ -204,6 +198,32 @@ def film_index(bubble: dict):
     """The ``[bubble] n_film`` of a scene: a number, ``{cauchy = [A, B(, C)]}`` or a preset
     (:mod:`bubblefit.optics.dispersion`); 1.4 when absent."""
     return parse_index(bubble.get("n_film", 1.4), "bubble.n_film")
+
+
+def samples_per_pixel(value, where: str) -> int:
+    """Rays per pixel (scene ``camera.samples_per_pixel``, ``fit --samples-per-pixel``): a
+    square number in [1, 1024], the side of the stratified grid of
+    :func:`~bubblefit.model.geometry.pixel_offsets` squared."""
+    ok = isinstance(value, int) and not isinstance(value, bool) and 1 <= value <= 1024
+    if not (ok and math.isqrt(value) ** 2 == value):
+        raise InputError(f"{where} must be a square number in [1, 1024] (1, 4, 9, 16, ...), got {value!r}")
+    return int(value)
+
+
+def white_balance(value, where: str):
+    """``"illuminant"`` or three positive gains ``(r, g, b)`` (:mod:`bubblefit.optics.spectral`)."""
+    if isinstance(value, str):
+        if value != "illuminant":
+            raise InputError(f"{where} must be \"illuminant\" or [r, g, b] gains, got {value!r}")
+        return value
+    ok = (isinstance(value, (list, tuple)) and len(value) == 3
+          and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in value))
+    if not ok:
+        raise InputError(f"{where} must be \"illuminant\" or three finite gains [r, g, b], got {value!r}")
+    gains = tuple(float(x) for x in value)
+    if min(gains) <= 0:
+        raise InputError(f"{where} gains must be positive, got {value!r}")
+    return gains
 
 
 def vector(name: str, value, n: int) -> list[float]:

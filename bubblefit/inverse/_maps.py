@@ -8,11 +8,14 @@ interference orders wherever noise or model error makes a neighbouring order fit
 little better. A soap film is smooth apart from real features, so the map is built:
 
 1. coarse to fine on a pyramid of the photo (blocks of 2^j pixels, the coarsest with a
-   disc of about :data:`COARSE_RADIUS` pixels): on the coarsest level every thickness of
-   the searched grid is scored with a Gaussian prior of ``FitOptions.map_prior_nm``
-   around the fitted drainage profile; each finer level searches only a window of
-   +-:data:`WINDOW_NM` (less than half an order) around the coarser map, so the order
-   chosen where the photo is clearest carries to every pixel;
+   disc of about :data:`COARSE_RADIUS` pixels): the drainage profile, fitted globally
+   first, has settled the interference order, so the coarsest level searches a window
+   of +-:data:`WINDOW_NM` (less than half an order) around it, with a Gaussian prior of
+   ``FitOptions.map_prior_nm`` towards it; each finer level searches the same window
+   around the coarser map, so no pixel can take a neighbouring order. (Scoring every
+   thickness of the range on the coarsest level let a model error between renderers pick
+   the next order in whole regions: on independent photos 50% of the film was off by
+   one order.)
 2. with a smoothness prior on every level: the energy of pixel ``p`` at thickness ``d``
    is its data chi^2 plus ``sum over its 4 neighbours q of ((d - d_q) / s)^2``, ``s`` =
    ``FitOptions.map_smoothness_nm`` times the level's block size (neighbours are that
@@ -175,18 +178,14 @@ def _upsample(coarse: Level, cmap: np.ndarray, fine: Level) -> np.ndarray:
 
 
 def _level_map(lev, costs_of, centre, s, step, half, prior=None, prior_nm=None):
-    """One pyramid level: candidates ``centre +- half`` in ``step`` (or, with ``prior``,
-    the grid of ``centre`` (G,) for all pixels), ICM, and the sub-grid parabola.
+    """One pyramid level: candidates ``centre +- half`` in ``step`` around each pixel's
+    ``centre`` (P,), a Gaussian prior of width ``prior_nm`` around ``prior`` (P,) if given,
+    ICM, and the sub-grid parabola.
     Returns ``(map over the mask, stderr, data chi^2 at the optimum)``."""
-    sel = lev.mask.reshape(-1)
     nb, parity = _neighbours(lev.mask)
-    if prior is None:
-        offs = np.arange(-half, half + 1e-9, step)
-        d = np.maximum(centre[None, :] + offs[:, None], 0.0)
-        extra = 0.0
-    else:
-        d = np.repeat(np.asarray(centre, np.float64)[:, None], int(sel.sum()), axis=1)
-        extra = ((d - prior[None, :]) / prior_nm) ** 2
+    offs = np.arange(-half, half + 1e-9, step)
+    d = np.maximum(centre[None, :] + offs[:, None], 0.0)
+    extra = 0.0 if prior is None else ((d - prior[None, :]) / prior_nm) ** 2
     cost = costs_of(d)
     energy0 = cost + extra
     # start from each pixel's best candidate with the prior, or from the coarser map (offset 0)
@@ -240,12 +239,10 @@ def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts, env, make
         s = float(opts.map_smoothness_nm) * k
         prior = profile_map(L, prof).reshape(-1)[sel]
         if prev is None:
-            if exact:
-                grid = search.thickness_grid(lo, hi, opts.search_step_nm)
-                best, err, c = _level_map(L, costs_of, grid, s, None, None, prior, float(opts.map_prior_nm))
-            else:  # renders: offsets around the profile
-                half = 2 * float(opts.map_prior_nm)
-                best, err, c = _level_map(L, costs_of, prior, s, opts.search_step_nm, half)
+            # the drainage profile has settled the interference order: the coarsest level
+            # searches within less than half an order of it, with the profile's prior
+            best, err, c = _level_map(L, costs_of, prior, s, opts.search_step_nm, WINDOW_NM, prior=prior,
+                                      prior_nm=float(opts.map_prior_nm))
         else:
             centre = _upsample(prev, prev_map, L).reshape(-1)[sel]
             # the finest level refines within a few coarse steps; the order is settled by then

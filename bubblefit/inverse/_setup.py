@@ -110,11 +110,12 @@ def _held_by_effects(opts, fx, hold: dict) -> tuple:
     if fx.model == "physical":
         hold.setdefault("t", "physical model: Fresnel reflectance from n_film sets t and r_s")
         hold.setdefault("r_s", "physical model: Fresnel reflectance from n_film sets t and r_s")
+        # Fresnel sets the specular reflectance; the diffuse one (eq. 2's r_d), which a
+        # real film hardly has, is fitted wherever the diffuse term is simulated
         if not fx.diffuse:
             hold.setdefault("r_d", skipped_diffuse)
-        if not opts.free_split:
-            hold.setdefault("split", "physical model: Fresnel sets r_s, and r_d keeps its start unless --free-split")
-        split_names = ("r_d",) if opts.free_split else ()
+        hold.setdefault("split", "physical model: Fresnel sets r_s; r_d is fitted on its own")
+        split_names = ("r_d",)
     elif opts.free_split:
         if not fx.diffuse:
             hold.setdefault("r_d", skipped_diffuse)
@@ -144,7 +145,8 @@ def _table(opts, fx, held: dict) -> ParameterTable:
         cand = [c for c in cand if c not in ("t", "r_s", "split")]
     free = tuple(c for c in cand if c not in hold)
     model = "constant" if opts.thickness == "constant" else "drainage"
-    return ParameterTable(free, tuple(hold.items()), model, bool(opts.free_split))
+    # the physical model reads r_d on its own (Fresnel sets r_s): a free split of eq. (14)
+    return ParameterTable(free, tuple(hold.items()), model, bool(opts.free_split) or fx.model == "physical")
 
 
 # ---------------------------------------------------------------------------------------

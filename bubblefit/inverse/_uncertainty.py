@@ -122,7 +122,7 @@ def _held_keys(table: ParameterTable) -> set:
         keys.add("f")
         if "t" not in table.free:
             keys |= {"r_d", "r_s"}
-    return keys
+    return keys - set(table.free)
 
 
 #: Blocks of the cluster-robust sandwich: this many per disc radius (at least 3 pixels).

@@ -41,8 +41,9 @@ def register(sub):
                         "[bubble] table sets, which is held fixed; the flags below override it")
     p.add_argument("--thickness", choices=("constant", "drainage", "map"), default="constant",
                    help="thickness model (default: constant)")
-    p.add_argument("--model", choices=("paper", "physical"), default=None,
-                   help="forward model (default: the scene's, else paper)")
+    p.add_argument("--model", choices=("paper", "physical", "auto"), default=None,
+                   help="forward model: paper, physical, or auto (the paper model, then the physical one when "
+                        "the paper model does not explain the photo; default: the scene's, else auto)")
     p.add_argument("--disc", metavar="CX,CY,R", help="the bubble's disc in pixels (default: detected)")
     p.add_argument("--thickness-range", metavar="MIN,MAX", default="50,2000", help="searched thickness, nm [50,2000]")
     p.add_argument("--hold", metavar="NAMES", default="",
@@ -197,7 +198,7 @@ def run(args) -> int:
             raise InputError(f"the background {args.background} is {bimg.pixels.shape[1]}x{bimg.pixels.shape[0]}, "
                              f"the photo is {photo.pixels.shape[1]}x{photo.pixels.shape[0]}")
         background = bimg.pixels
-    model = args.model or (scene.table("effects").get("model", "paper") if scene is not None else "paper")
+    model = args.model or (scene.table("effects").get("model", "auto") if scene is not None else "auto")
     kw = dict(option_values, model=model, free_split=args.free_split, fit_rotation=args.fit_rotation,
               bits=_bits(photo))
     options = FitOptions(**kw)

@@ -34,7 +34,8 @@ def register(sub):
     p.add_argument("--scene", metavar="SCENE.toml", help="scene file: its camera and the values it sets are held")
     p.add_argument("--thickness", choices=("constant", "drainage", "map"), default="constant",
                    help="thickness model of each frame (default: constant)")
-    p.add_argument("--model", choices=("paper", "physical"), default="paper", help="forward model (default: paper)")
+    p.add_argument("--model", choices=("paper", "physical", "auto"), default="paper",
+                   help="forward model (default: paper; auto as in `fit`, at up to twice the time per frame)")
     p.add_argument("--disc", metavar="CX,CY,R",
                    help="the bubble's disc in pixels (default: from --calibration, else detected on the first frame)")
     p.add_argument("--thickness-range", metavar="MIN,MAX", default="50,2000",

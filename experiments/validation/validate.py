@@ -61,6 +61,8 @@ def load_truth(case: str) -> dict:
 FIT_TIMEOUT = 900.0
 #: Arguments added to every `bubblefit fit` (``--fit-args``), e.g. ``--model physical``.
 EXTRA_FIT_ARGS: list[str] = []
+#: Thickness models to run (``--only``; empty: every fit a case lists).
+ONLY_FITS: list[str] = []
 
 
 def _cli(args: list[str], timeout: float | None = None) -> tuple[int, str, float]:
@@ -341,7 +343,7 @@ def jobs_for(case: str) -> list[tuple]:
     truth = load_truth(case)
     if truth.get("kind") == "calibration":
         return [("cal", case)]
-    return [("fit", case, m) for m in truth.get("fits", ["constant"])]
+    return [("fit", case, m) for m in truth.get("fits", ["constant"]) if not ONLY_FITS or m in ONLY_FITS]
 
 
 COLUMNS = ["case", "pass", "ok", "converged", "refused", "d_err_nm", "d_err_se", "top_err_nm", "top_err_se",
@@ -439,9 +441,11 @@ def main(argv=None) -> int:
                     help="hand bubblefit the true disc (--disc) in orthographic cases: separates detection from fitting")
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds allowed per bubblefit command [900]")
     ap.add_argument("--fit-args", default="", help="extra arguments for every `bubblefit fit`, e.g. '--model physical'")
+    ap.add_argument("--only", default="", help="comma-separated thickness models to run, e.g. 'drainage'")
     ap.add_argument("--no-cross", action="store_true", help="skip the fit that is handed another framing's calibration")
     a = ap.parse_args(argv)
     EXTRA_FIT_ARGS[:] = a.fit_args.split()
+    ONLY_FITS[:] = [m for m in a.only.split(",") if m]
     global FIT_TIMEOUT
     FIT_TIMEOUT = a.timeout
     if a.merge:

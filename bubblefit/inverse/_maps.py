@@ -226,7 +226,7 @@ def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts, env, make
     coarser than ``lev`` (None: no pyramid).
     """
     exact = search.exact_paper_search(lev.cfg)
-    lo, hi = opts.thickness_range
+    hi = opts.thickness_range[1]
     base = {k: v for k, v in vals.items() if k != "map"}
     blocks = _pyramid(lev) if make_level is not None else [1]
     prev, prev_map = None, None

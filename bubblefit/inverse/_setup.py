@@ -145,8 +145,9 @@ def _table(opts, fx, held: dict) -> ParameterTable:
         cand = [c for c in cand if c not in ("t", "r_s", "split")]
     free = tuple(c for c in cand if c not in hold)
     model = "constant" if opts.thickness == "constant" else "drainage"
-    # the physical model reads r_d on its own (Fresnel sets r_s): a free split of eq. (14)
-    return ParameterTable(free, tuple(hold.items()), model, bool(opts.free_split) or fx.model == "physical")
+    # r_d read on its own (a free split, or the physical model, where Fresnel sets r_s)
+    # unless the fit's split parameter is eq. (14)'s
+    return ParameterTable(free, tuple(hold.items()), model, "split" not in split_names)
 
 
 # ---------------------------------------------------------------------------------------
@@ -227,7 +228,6 @@ def colour_settings(scene, opts: FitOptions, n_film: float) -> ColourSettings:
     (:meth:`~bubblefit.model.scene.Scene.colour`, ``[bubble] n_film``, ``[camera]
     samples_per_pixel``), else the defaults (D65, sRGB, ``illuminant``, the constant
     ``n_film``, 1). Names and files are checked here (one-line :class:`InputError`)."""
-    from ..model._scene_checks import film_index
     from ..optics import spectral
 
     ill, resp, wb = scene.colour() if scene is not None else ("D65", "srgb", "illuminant")
@@ -236,17 +236,12 @@ def colour_settings(scene, opts: FitOptions, n_film: float) -> ColourSettings:
     wb = opts.white_balance if opts.white_balance is not None else wb
     spectral.illuminant_spectrum(ill)
     spectral.response_functions(resp)
-    if opts.n_film is not None:
-        law = opts.n_film
-    elif scene is not None and "n_film" in scene.table("bubble"):
-        law = film_index(scene.table("bubble"))
-    else:
-        law = float(n_film)
+    law = opts.n_film if opts.n_film is not None else (scene.dispersion() if scene is not None else None)
     if not isinstance(law, Cauchy):  # a constant index: the value the fit uses
         law = float(n_film)
     spp = opts.samples_per_pixel
     if spp is None:
-        spp = int(scene.table("camera").get("samples_per_pixel", 1)) if scene is not None else 1
+        spp = scene.samples_per_pixel if scene is not None else 1
     return ColourSettings(ill, resp, wb, law, int(spp))
 
 

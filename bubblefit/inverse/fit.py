@@ -244,7 +244,7 @@ def _fit_either_model(photo, env, options: FitOptions, background, init, scene, 
     start = {k: v for k, v in first.params.items() if np.isfinite(v)} if first.converged else init
     second = fit_photo(photo, env, options=replace(options, model="physical"), init=start, **kw)
     rank = lambda r: (not r.converged, r.chi2_floor if np.isfinite(r.chi2_floor) else np.inf)
-    best, other = (second, first) if rank(second) < rank(first) else (first, second)
+    best = second if rank(second) < rank(first) else first
     best.message += (f"; model auto: paper reduced chi^2 {first.chi2_floor:.3g}, physical {second.chi2_floor:.3g} "
                      f"(with the floor): kept the {best.model} model")
     best.time_s = time.perf_counter() - t0

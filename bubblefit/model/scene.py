@@ -153,6 +153,17 @@ class Scene:
         spectral.response_functions(resp)
         return ill, resp, (wb if isinstance(wb, str) else tuple(float(g) for g in wb))
 
+    def dispersion(self) -> Cauchy | None:
+        """The film's dispersion law (``[bubble] n_film`` as a Cauchy law or a preset), or
+        None for a constant index (:attr:`Params.n_film <bubblefit.model.render.Params>`)."""
+        law = film_index(self.table("bubble"))
+        return law if isinstance(law, Cauchy) else None
+
+    @property
+    def samples_per_pixel(self) -> int:
+        """Rays per pixel (``[camera] samples_per_pixel``, default 1)."""
+        return int(self.table("camera").get("samples_per_pixel", 1))
+
     def load_envmap(self):
         """The scene's environment map as an :class:`~bubblefit.lighting.envmap.EnvMap` (or None)."""
         lighting = self.table("lighting")
@@ -240,15 +251,14 @@ class Scene:
         except ValueError as exc:  # a setting the checks above let through
             raise InputError(f"scene [effects]: {exc}") from None
         colour = self.colour()
-        law = film_index(self.table("bubble"))
-        spp = int(self.table("camera").get("samples_per_pixel", 1))
+        law, spp = self.dispersion(), self.samples_per_pixel
         parts = []
         for fx, pixels in plan.parts:
             if fx.spectral is not None and colour != ("D65", "srgb", "illuminant"):
                 fx = dataclasses.replace(fx, spectral=fx.spectral.with_colour(*colour))
             cfg = RenderConfig(effects=fx, camera=camera, center=self.center, radius=self.radius,
                                point_lights=lights, chunk=chunk,
-                               dispersion=law if isinstance(law, Cauchy) else None, samples_per_pixel=spp)
+                               dispersion=law, samples_per_pixel=spp)
             parts.append((cfg, pixels))
         return parts, decisions
 

@@ -246,9 +246,13 @@ def test_cli_fit(env, small_courtyard, tmp_path, capsys):
         assert key in out["params"] and key in out["stderr"]
     assert read_image(tmp_path / "fit_render.exr").pixels.shape == (N, N, 3)
     assert (tmp_path / "fit_residual.png").exists()
-    assert out["disc"] == {"cx": DISC[0], "cy": DISC[1], "r": DISC[2]}  # the calibration's, checked
+    # the calibration's disc, checked against the photo, then refined: the photo's own
+    d = out["disc"]
+    assert np.allclose([d["cx"], d["cy"], d["r"]], DISC, atol=0.1), d
+    assert all(out["disc_stderr"][k] > 0 for k in ("cx", "cy", "r"))
     summary = [line for line in capsys.readouterr().out.splitlines() if "reduced chi^2" in line]
-    assert len(summary) == 1 and summary[0].startswith("ok ") and "disc (24.0, 24.0, r 20.2)" in summary[0]
+    shown = "disc ({:.2f}, {:.2f}, r {:.2f}, refined)".format(d["cx"], d["cy"], d["r"])
+    assert len(summary) == 1 and summary[0].startswith("ok ") and shown in summary[0]
     assert out["ok"] == summary[0].startswith("ok yes")
 
     # bad inputs: one clear line, exit 2

@@ -44,11 +44,14 @@ def register(sub):
     p.add_argument("--model", choices=("paper", "physical", "auto"), default=None,
                    help="forward model: paper, physical, or auto (the paper model, then the physical one when "
                         "the paper model does not explain the photo; default: the scene's, else auto)")
-    p.add_argument("--disc", metavar="CX,CY,R", help="the bubble's disc in pixels (default: detected)")
+    p.add_argument("--disc", metavar="CX,CY,R", help="the bubble's disc in pixels (default: detected; a disc "
+                                                      "found is refined with the fit, one given is not)")
+    p.add_argument("--refine-disc", action="store_true",
+                   help="refine the disc given by --disc or the scene too (it is then the start)")
     p.add_argument("--thickness-range", metavar="MIN,MAX", default="50,2000", help="searched thickness, nm [50,2000]")
     p.add_argument("--hold", metavar="NAMES", default="",
                    help="comma-separated parameters held at their starting values (t, f, r_d, r_s, roughness, "
-                        "thickness_nm, exposure, rotation_deg, top_nm, bottom_nm, exponent)")
+                        "thickness_nm, exposure, rotation_deg, top_nm, bottom_nm, exponent; disc: the disc as found)")
     p.add_argument("--free-split", action="store_true", help="fit r_d and r_s freely instead of r_d + r_s = 1 - t")
     p.add_argument("--fit-rotation", action="store_true", help="also fit the environment's rotation about +y")
     p.add_argument("--max-steps", type=int, default=None, help="Levenberg-Marquardt step limit")
@@ -128,7 +131,8 @@ def fit_option_values(args) -> dict:
     lo, hi = parse_floats(args.thickness_range, 2, "--thickness-range")
     if not (math.isfinite(lo) and math.isfinite(hi)):
         raise InputError(f"--thickness-range must be two finite thicknesses in nm, got {args.thickness_range}")
-    kw = dict(thickness=args.thickness, disc=disc, t_init=t_init, thickness_range=(lo, hi),
+    kw = dict(thickness=args.thickness, disc=disc, fit_disc=True if getattr(args, "refine_disc", False) else None,
+              t_init=t_init, thickness_range=(lo, hi),
               calibration_disc=cal_disc, calibration_size=cal_size,
               hold=tuple(h.strip() for h in args.hold.split(",") if h.strip()))
     if args.max_steps is not None:

@@ -49,6 +49,13 @@ class FitOptions:
         Fit ``r_d`` and ``r_s`` freely instead of ``r_d + r_s = 1 - t`` (eq. 14).
     disc : tuple or None
         ``(cx, cy, r)`` of the bubble in pixels, or None to detect it.
+    fit_disc : bool or None
+        Refine the disc in the local solve: its centre and radius are fitted with the
+        other parameters (:data:`~bubblefit.inverse._parameters.DISC_PARAMETERS`), and the
+        result's disc is the refined one, with standard errors. None (default): refine a
+        disc found in the photo (or read from a calibration), use a disc given
+        (``disc``, the scene's camera) as it is; True: refine a given disc too (it is
+        then the start); False, or ``hold=("disc",)``: never.
     t_init, roughness_init : float or None
         Starting ``t`` (e.g. from ``bubblefit calibrate``) and roughness (the roughness
         also decides whether filtering is simulated).
@@ -126,6 +133,7 @@ class FitOptions:
     fit_rotation: bool = False
     free_split: bool = False
     disc: tuple | None = None
+    fit_disc: bool | None = None
     t_init: float | None = None
     roughness_init: float | None = None
     thickness_range: tuple = (50.0, 2000.0)
@@ -245,7 +253,10 @@ class FitResult:
         (H, W) front-film thickness (nm, NaN outside the bubble; None for a constant
         film) and the standard error of a fitted map.
     disc : tuple or None
-        (cx, cy, r) used (orthographic camera) or None.
+        (cx, cy, r) used (orthographic camera) or None: refined by the fit when it was
+        found (``FitOptions.fit_disc``).
+    disc_stderr : dict or None
+        Standard errors ``{cx, cy, r}`` in pixels of a refined disc (None: not fitted).
     thickness_model : ThicknessModel
         The thickness model fitted.
     status : FitStatus
@@ -286,6 +297,7 @@ class FitResult:
     thickness_map: np.ndarray | None = None
     thickness_stderr_map: np.ndarray | None = None
     disc: tuple | None = None
+    disc_stderr: dict | None = None
     thickness_model: ThicknessModel = "constant"
     model: ForwardModel = "paper"
     reduced_chi2: float = float("nan")
@@ -330,6 +342,7 @@ class FitResult:
             "model": self.model,
             "solver": "optimistix.LevenbergMarquardt",
             "disc": None if self.disc is None else {"cx": self.disc[0], "cy": self.disc[1], "r": self.disc[2]},
+            "disc_stderr": None if self.disc_stderr is None else _clean(self.disc_stderr),
             "covariance": cov,
             "frame": None if self.frame is None else {"x0": int(self.frame[0]), "y0": int(self.frame[1]),
                                                       "block": int(self.frame[2])},
@@ -362,7 +375,8 @@ class FitResult:
     def summary(self) -> str:
         """One line: the solver's status, steps, reduced chi^2, the disc and the time."""
         state = "converged" if self.converged else f"NOT CONVERGED ({self.status})"
-        disc = "" if self.disc is None else " disc ({:.1f}, {:.1f}, r {:.1f}),".format(*self.disc)
+        disc = "" if self.disc is None else " disc ({:.2f}, {:.2f}, r {:.2f}{}),".format(
+            *self.disc, "" if self.disc_stderr is None else ", refined")
         return (f"ok {'yes' if self.ok else 'NO'}; {state}; {self.iterations} iterations, reduced chi^2 "
                 f"{self.reduced_chi2:.3g} ({self.chi2_floor:.3g} with the model-error floor),{disc} "
                 f"residual rms {self.residual_rms:.4g}, {self.time_s:.2f} s")

@@ -11,7 +11,7 @@ import numpy as np
 from ._disc import resolve_disc
 from ._observation import Frame, Level, analysis_frame, make_level, saturation_mask
 from ._options import ColourSettings, FitOptions
-from ._parameters import PARAMETERS, ParameterTable, THICKNESS_PARAMETERS
+from ._parameters import DISC_PARAMETERS, PARAMETERS, ParameterTable, THICKNESS_PARAMETERS
 from ..errors import InputError
 from ..lighting.envmap import EnvMap
 from ..model.effects import resolve
@@ -59,7 +59,7 @@ def defaults(scene, init, opts, t_from_calibration):
     scene or the options, with the reasons."""
     vals = {"t": 0.972, "f": 0.3, "r_d": None, "r_s": None, "roughness": 0.01, "thickness_nm": 500.0,
             "top_nm": 200.0, "bottom_nm": 1000.0, "exponent": 1.0, "exposure": 1.0, "rotation_deg": 0.0,
-            "n_film": 1.4}
+            "n_film": 1.4, **{n: 0.0 for n in DISC_PARAMETERS}}
     held = {}
     if scene is not None:
         _scene_values(scene, vals, held)
@@ -81,9 +81,12 @@ def defaults(scene, init, opts, t_from_calibration):
     vals["split"] = vals["r_s"] / max(vals["r_s"] + vals["r_d"], 1e-12)
     for name in opts.hold:
         name = _ALIASES.get(name, name)
+        if name == "disc":
+            held.update({n: "held by request" for n in DISC_PARAMETERS})
+            continue
         if name not in PARAMETERS:
             raise InputError(f"cannot hold {name!r}: known parameters are t, f, r_d, r_s, roughness, thickness_nm, "
-                             "exposure, rotation_deg, top_nm, bottom_nm, exponent")
+                             "exposure, rotation_deg, top_nm, bottom_nm, exponent, disc")
         held[name] = "held by request"
     return vals, held
 
@@ -136,11 +139,15 @@ def _held_by_effects(opts, fx, hold: dict) -> tuple:
     return split_names
 
 
-def _table(opts, fx, held: dict) -> ParameterTable:
-    """The fit's :class:`ParameterTable`: free parameters in order, and those held with reasons."""
+def _table(opts, fx, held: dict, fit_disc: bool) -> ParameterTable:
+    """The fit's :class:`ParameterTable`: free parameters in order, and those held with
+    reasons (the disc's refinement is free only with ``fit_disc``, and not reported held)."""
     hold = dict(held)
     split_names = _held_by_effects(opts, fx, hold)
     cand = ["t", *split_names, "roughness", "exposure", "rotation_deg", *THICKNESS_PARAMETERS[opts.thickness]]
+    if fit_disc and not any(n in hold for n in DISC_PARAMETERS):
+        cand += list(DISC_PARAMETERS)
+    hold = {k: v for k, v in hold.items() if k not in DISC_PARAMETERS}
     if fx.model == "physical":
         cand = [c for c in cand if c not in ("t", "r_s", "split")]
     free = tuple(c for c in cand if c not in hold)
@@ -163,6 +170,7 @@ class Setup:
     background: np.ndarray | None
     vals: dict
     table: ParameterTable
+    search_table: ParameterTable  # the table without the disc's refinement (the search's)
     fx: object
     decisions: list
     base_cfg: RenderConfig
@@ -266,8 +274,10 @@ def _perspective(scene, photo):
     return camera, tuple(float(x) for x in b.get("center", (0, 0, 0))), float(b.get("radius", 1.0))
 
 
-def _disc(scene, opts, photo, background) -> tuple[tuple, list]:
-    """The orthographic camera's disc (given, the scene's, a calibration's or found) and warnings."""
+def _disc(scene, opts, photo, background) -> tuple[tuple, list, bool]:
+    """The orthographic camera's disc (given, the scene's, a calibration's or found), the
+    warnings, and whether the fit refines it (``FitOptions.fit_disc``; by default when
+    it was not given)."""
     given = opts.disc
     if given is None and scene is not None and "disc" in scene.table("camera"):
         given = tuple(scene.table("camera")["disc"])
@@ -276,7 +286,7 @@ def _disc(scene, opts, photo, background) -> tuple[tuple, list]:
         disc = tuple(round(float(v), 2) for v in disc)
     if len(disc) != 3 or not disc[2] > 2:
         raise InputError(f"the bubble's disc must be (cx, cy, r) with r > 2 pixels, got {disc}")
-    return disc, warnings
+    return disc, warnings, (given is None) if opts.fit_disc is None else bool(opts.fit_disc)
 
 
 def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, decided=None) -> Setup:
@@ -286,7 +296,7 @@ def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, d
     vals, held0 = defaults(scene, init, opts, opts.t_init)
     lights = scene.point_lights() if scene is not None else ()
     persp = _perspective(scene, photo)
-    disc, warnings = (None, []) if persp else _disc(scene, opts, photo, background)
+    disc, warnings, fit_disc = (None, [], False) if persp else _disc(scene, opts, photo, background)
     if saturated_in is not None and np.shape(saturated_in) != photo.shape[:2]:
         raise InputError(f"the saturation mask is {np.shape(saturated_in)}, the photo is "
                          f"{photo.shape[1]}x{photo.shape[0]}")
@@ -303,7 +313,7 @@ def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, d
     map_cfg = RenderConfig(effects=fx, camera=camera, center=center, radius=radius, point_lights=tuple(lights),
                            dispersion=colour.n_film if isinstance(colour.n_film, Cauchy) else None,
                            samples_per_pixel=colour.samples_per_pixel)
-    table = _table(opts, fx, held0)
+    table = _table(opts, fx, held0, fit_disc)
     # a map is fitted after a drainage profile: the local fits render the profile
     base_cfg = replace(map_cfg, effects=replace(fx, thickness=table.thickness_model))
     k_fit = opts.downsample or max(1, math.ceil(max(H, W) / opts.fit_size))
@@ -311,5 +321,6 @@ def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, d
     lev_fit = make_level(k_fit, base_cfg, frame.photo, frame.sigma, frame.background, frame.saturated, opts.rim)
     if lev_fit.mask.sum() < 10:
         raise InputError("fewer than 10 usable pixels on the bubble (disc too small, or saturated)")
-    return Setup(frame.photo, frame.background, vals, table, fx, decisions, base_cfg, map_cfg, disc, frame.sigma,
+    search_table = replace(table, free=tuple(n for n in table.free if n not in DISC_PARAMETERS))
+    return Setup(frame.photo, frame.background, vals, table, search_table, fx, decisions, base_cfg, map_cfg, disc, frame.sigma,
                  frame.saturated, k_search, lev_fit, frame, warnings, colour)

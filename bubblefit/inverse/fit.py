@@ -41,6 +41,7 @@ slower than frame after frame).
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import replace
 
@@ -48,10 +49,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import search
-from ._local import LocalSolution, batched_solver, reporter, solution_from, solve_local
+from ._local import LocalSolution, batched_solver, gauss_newton_decrement, reporter, solution_from, solve_local
 from ._maps import fit_map
 from ._observation import detect_disc, noise_sigma
 from ._options import FitOptions, FitResult
+from ._parameters import PARAMETERS, refined_disc, value_and_slope
 from ._setup import Setup, defaults, setup
 from ._uncertainty import uncertainty
 from ._verdict import at_bounds, verdict
@@ -64,6 +66,9 @@ __all__ = ["FitOptions", "FitResult", "fit_photo", "fit_batch", "detect_disc", "
 #: A warm-started fit whose noise-weighted reduced chi^2 exceeds this is checked against a
 #: global thickness search (see :func:`fit_photo`).
 WARM_START_CHI2 = 4.0
+#: A solve has converged when the Gauss-Newton step left from its end has a squared
+#: length of at most this in the fit's covariance (half a standard error).
+DECREMENT_TOLERANCE = 0.25
 
 
 # ---------------------------------------------------------------------------------------
@@ -89,26 +94,63 @@ def _warm_doubt(st: Setup, opts: FitOptions, sol: LocalSolution) -> str | None:
 
 def _searched_start(st: Setup, opts: FitOptions, env) -> dict:
     """The global search's best start: each of :func:`search.search_starts` refined with at
-    most ``search_steps`` LM steps on the search image; the lowest cost wins."""
+    most ``search_steps`` LM steps on the search image (the disc as found: it is refined
+    in the final solve only); the lowest cost wins."""
     lev_s = st.level(st.k_search, opts)
-    starts = search.search_starts(lev_s, st.table, st.vals, env, opts.thickness_range, opts.search_step_nm,
-                                  opts.candidates)
+    starts = search.search_starts(lev_s, st.search_table, st.vals, env, opts.thickness_range,
+                                  opts.search_step_nm, opts.candidates)
     best_v, best_c = None, np.inf
     for s in starts:
-        sol = solve_local(lev_s, st.table, opts, s, env, max_steps=opts.search_steps)
+        sol = solve_local(lev_s, st.search_table, opts, s, env, max_steps=opts.search_steps)
         if np.isfinite(sol.cost) and sol.cost < best_c:
             best_v, best_c = sol.values, sol.cost
     return best_v if best_v is not None else starts[0]
 
 
-def _status_notes(sol: LocalSolution, finite: bool, notes: list) -> tuple[str, bool]:
-    """``(status, converged)`` of a solve, with the reasons prepended to ``notes``."""
-    converged = sol.successful and bool(np.all(np.isfinite(sol.residual))) and finite
+def _remaining_step(sol: LocalSolution, chi2_nu: float, free: tuple) -> float:
+    """The squared length, in the fit's covariance, of the Gauss-Newton step left from
+    ``sol`` (:func:`~bubblefit.inverse._local.gauss_newton_decrement` over
+    ``max(1, chi2_nu)``), with the bounds of the parameters' domains as active
+    constraints: a parameter within one standard error of a finite bound (``r_d`` at 0)
+    whose step points at it is left out, since the step would take it beyond."""
+    jac, r = sol.jacobian, sol.residual
+    keep = list(range(jac.shape[1]))
+    if free and jac.size:
+        try:
+            a_inv = np.linalg.inv(jac.T @ jac)
+        except np.linalg.LinAlgError:
+            return float("nan")
+        step = -a_inv @ (jac.T @ r)
+        se_z = np.sqrt(np.abs(np.diag(a_inv)) * max(1.0, chi2_nu))
+        for i, name in enumerate(free):
+            v, slope = value_and_slope(name, sol.z[i])
+            for b in PARAMETERS[name].bounds:
+                toward = np.sign(slope * step[i]) == np.sign(b - v)
+                if math.isfinite(b) and toward and abs(v - b) <= abs(slope) * se_z[i]:
+                    keep.remove(i)
+                    break
+    return gauss_newton_decrement(r, jac[:, keep]) / max(1.0, chi2_nu)
+
+
+def _status_notes(sol: LocalSolution, finite: bool, chi2_nu: float, notes: list, free=()) -> tuple[str, bool]:
+    """``(status, converged)`` of a solve, with the reasons prepended to ``notes``.
+
+    A solve that met its tolerances has converged only if the Gauss-Newton step left from
+    its end is within :data:`DECREMENT_TOLERANCE` of the fit's own covariance
+    (:func:`_remaining_step`): the solver stops on small steps, which a heavily damped
+    step also is, far from the optimum. ``free``: the solver's parameter names."""
+    remaining = _remaining_step(sol, chi2_nu, tuple(free))
+    near = bool(remaining <= DECREMENT_TOLERANCE) or (not np.isfinite(remaining) and not finite)
+    converged = sol.successful and near and bool(np.all(np.isfinite(sol.residual))) and finite
     status = "converged"
     if not sol.successful:
         status = "max_steps" if sol.max_steps_reached else "failed"
         notes.insert(0, "solver reached max_steps without meeting its tolerances" if sol.max_steps_reached
                      else "the solver failed (diverged or a non-finite residual)")
+    elif not near:
+        status = "failed"
+        notes.insert(0, f"the solver stopped {math.sqrt(remaining):.2g} standard errors from the optimum its "
+                        "Jacobian predicts")
     if not finite:
         status = "failed"
         notes.insert(0, "the Jacobian is singular at the optimum: some parameter is not constrained by the photo")
@@ -120,7 +162,8 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
     table, lev_fit = st.table, st.lev_fit
     unc = uncertainty(sol, table, lev_fit, float(opts.robust_scale), float(opts.model_error))
     reported, stderr = unc.reported, unc.stderr
-    status, converged = _status_notes(sol, unc.finite, notes)
+    disc, disc_stderr = refined_disc(st.disc, reported, stderr)
+    status, converged = _status_notes(sol, unc.finite, unc.s2, notes, table.free)
     lo, hi = opts.thickness_range
     for key in ("thickness_nm", "top_nm", "bottom_nm"):
         if key in reported and key in table.free and not lo - 1 <= reported[key] <= hi + 1:
@@ -157,7 +200,7 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
         params=reported, stderr=stderr, held=list(table.held), converged=bool(converged),
         message="; ".join(notes) if notes else "converged", iterations=sol.steps, residual_rms=rms,
         time_s=time.perf_counter() - t_start, effects=st.decisions, render=img, residual=resid_img,
-        thickness_map=thickness_map, thickness_stderr_map=stderr_map, disc=st.disc,
+        thickness_map=thickness_map, thickness_stderr_map=stderr_map, disc=disc, disc_stderr=disc_stderr,
         thickness_model=opts.thickness, model=opts.model, reduced_chi2=unc.s2,
         pixels_used=int(lev_fit.mask.sum()), status=status, names=unc.names, covariance=unc.covariance,
         ok=ok, warnings=warnings, chi2_floor=unc.chi2_floor, model_error=float(opts.model_error),

@@ -51,6 +51,10 @@ class OrthographicCamera:
 
     Pixel ``(i, j)`` (row, column; centre at ``j + 1/2, i + 1/2``) shoots the ray with
     origin ``c + R ((j + 1/2 - cx)/r, -(i + 1/2 - cy)/r, 4)`` and direction ``(0, 0, -1)``.
+
+    ``shift = (sx, sy, sr)`` (traced, in units of ``r``) moves the disc to
+    ``(cx + sx r, cy + sy r)`` with radius ``r (1 + sr)``: how a fit refines a disc that
+    was found to a fraction of a pixel (:mod:`bubblefit.inverse._parameters`).
     """
 
     width: int = 256
@@ -65,10 +69,13 @@ class OrthographicCamera:
         r = 0.4 * min(self.width, self.height) if self.r is None else self.r
         return float(cx), float(cy), float(r)
 
-    def rays(self, rows: Array, cols: Array, center, radius):
+    def rays(self, rows: Array, cols: Array, center, radius, shift=None):
         cx, cy, r = self.disc()
         x = (cols + 0.5 - cx) / r
         y = -(rows + 0.5 - cy) / r
+        if shift is not None:
+            x = (x - shift[0]) / (1.0 + shift[2])
+            y = (y + shift[1]) / (1.0 + shift[2])
         o = jnp.stack([x, y, jnp.full_like(x, 4.0)], axis=-1) * radius + jnp.asarray(center)
         d = jnp.broadcast_to(jnp.asarray([0.0, 0.0, -1.0], dtype=o.dtype), o.shape)
         return o, d

@@ -71,6 +71,9 @@ class Params(eqx.Module):
         n_film: refractive index of the film (``n_g``).
         exposure: camera gain applied to the rendered radiance.
         rotation: environment rotation about +y, radians.
+        disc: (3,) shift of an orthographic camera's disc ``(sx, sy, sr)`` in units of its
+            radius (:meth:`~bubblefit.model.geometry.OrthographicCamera.rays`); zeros
+            render the camera's own disc.
     """
 
     t: Array
@@ -81,17 +84,18 @@ class Params(eqx.Module):
     n_film: Array
     exposure: Array
     rotation: Array
+    disc: Array
 
     @staticmethod
     def make(t=0.972, r_d=None, r_s=None, f=0.3, roughness=0.01, thickness=500.0, n_film=1.4,
-             exposure=1.0, rotation=0.0, dtype=jnp.float32) -> "Params":
+             exposure=1.0, rotation=0.0, disc=(0.0, 0.0, 0.0), dtype=jnp.float32) -> "Params":
         """Parameters with eq. (14): ``r_d + r_s = 1 - t`` and ``f = r_d / r_s`` unless both given."""
         if r_d is None or r_s is None:
             r_s = (1.0 - t) / (1.0 + f)
             r_d = (1.0 - t) - r_s
         cast = lambda v: jnp.asarray(v, dtype=dtype)
         return Params(cast(t), cast(r_d), cast(r_s), cast(roughness), cast(thickness), cast(n_film),
-                      cast(exposure), cast(rotation))
+                      cast(exposure), cast(rotation), cast(disc))
 
 
 @dataclass(frozen=True)
@@ -300,7 +304,10 @@ def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx)
     """Radiance (N, 3) of one chunk of pixels, and a dict of the model's terms."""
     fx = cfg.effects
     dtype = p.t.dtype
-    o, d = cfg.camera.rays(rows.astype(dtype), cols.astype(dtype), cfg.center, cfg.radius)
+    if isinstance(cfg.camera, OrthographicCamera):
+        o, d = cfg.camera.rays(rows.astype(dtype), cols.astype(dtype), cfg.center, cfg.radius, p.disc)
+    else:
+        o, d = cfg.camera.rays(rows.astype(dtype), cols.astype(dtype), cfg.center, cfg.radius)
     hits = intersect_sphere(o, d, cfg.center, cfg.radius)
     lam = jnp.asarray(fx.spectral.wavelengths, dtype=dtype) if fx.spectral is not None else None
     if cfg.dispersion is not None and fx.spectral is not None:  # n per wavelength (K,)

@@ -148,11 +148,23 @@ def test_reads_headers_comments_footers_and_separators(tmp_path):
         np.testing.assert_allclose(s.intensity, val)
 
 
+def test_non_finite_rows_are_skipped_and_counted(tmp_path):
+    lam = np.arange(400.0, 440.0, 1.0)
+    rows = [f"{a},{'nan' if i < 3 else ('inf' if i == 20 else np.cos(a))}" for i, a in enumerate(lam)]
+    (tmp_path / "edges.csv").write_text("wavelength_nm,intensity\n" + "\n".join(rows) + "\n")
+    s = read_spectrum(tmp_path / "edges.csv")
+    keep = np.ones(len(lam), bool)
+    keep[[0, 1, 2, 20]] = False
+    assert s.skipped == 4
+    np.testing.assert_allclose(s.wavelength_nm, lam[keep])
+    np.testing.assert_allclose(s.intensity, np.cos(lam[keep]))
+
+
 @pytest.mark.parametrize("text,match", [
     ("", "need at least"),
     ("400,1\n401,2\nfoo\n402,3\n" + "\n".join(f"{403 + i},1" for i in range(20)), "line 3"),
     ("\n".join(f"{0.4 + i * 0.001},1" for i in range(30)), "not in nm"),
-    ("\n".join(f"{400 + i},nan" for i in range(30)), "not finite"),
+    ("\n".join(f"{400 + i},nan" for i in range(30)), "0 of its 30 rows are finite"),
 ])
 def test_bad_spectrum_files(tmp_path, text, match):
     p = tmp_path / "bad.txt"

@@ -8,6 +8,8 @@ spectra, the residual and the profile likelihood over thickness.
 
 from __future__ import annotations
 
+import sys
+
 from pathlib import Path
 
 from ..errors import InputError
@@ -81,6 +83,9 @@ def run(args) -> int:
     dark = read_spectrum(args.dark) if args.dark else None
     reference = read_spectrum(args.reference) if args.reference else None
     spectra = [read_spectrum(p) for p in args.spectra]  # every file is checked before any work
+    for spec in [s for s in (dark, reference) if s is not None] + spectra:
+        if spec.skipped:
+            print(f"warning: {spec.path}: skipped {spec.skipped} rows that are not finite numbers", file=sys.stderr)
     rows = []
     for k, spec in enumerate(spectra):
         status(f"fitting {spec.path} ({k + 1}/{len(spectra)}) ...")

@@ -4,10 +4,12 @@ What spectrometers and their software write: columns separated by commas, tabs, 
 or semicolons; a header (column names, an instrument's preamble such as Ocean Optics'
 ``>>>>>Begin Spectral Data<<<<<``) before the numbers and possibly a footer after them;
 ``#`` or ``%`` comment lines anywhere. Extra columns are ignored. Rows are sorted by
-wavelength; repeated wavelengths are averaged. Anything else (text between numeric rows,
-non-finite values, fewer than :data:`MIN_SAMPLES` samples, wavelengths outside
-100-20000 nm) raises :class:`~bubblefit.errors.InputError` with one line naming the
-file and, where there is one, the line.
+wavelength; repeated wavelengths are averaged. Rows with a non-finite value (``nan``,
+``inf``: spectrometer software writes them at the detector's dead ends) are skipped and
+counted (:attr:`Spectrum.skipped`). Anything else (text between numeric rows, fewer than
+:data:`MIN_SAMPLES` finite samples, wavelengths outside 100-20000 nm) raises
+:class:`~bubblefit.errors.InputError` with one line naming the file and, where there is
+one, the line.
 """
 
 from __future__ import annotations
@@ -36,6 +38,8 @@ class Spectrum:
     wavelength_nm: np.ndarray
     intensity: np.ndarray
     path: str = ""
+    #: Rows of the file skipped because a value was not finite.
+    skipped: int = 0
 
     def on(self, wavelength_nm: np.ndarray, what: str = "spectrum") -> np.ndarray:
         """This reading linearly interpolated onto ``wavelength_nm`` (which it must cover)."""
@@ -87,9 +91,12 @@ def read_spectrum(path: str | os.PathLike) -> Spectrum:
         raise InputError(f"spectrum {p}: found {len(rows)} rows of two numbers; need at least {MIN_SAMPLES} "
                          "(columns wavelength_nm,intensity)")
     data = np.asarray(rows, dtype=np.float64)
-    if not np.all(np.isfinite(data)):
-        bad = int(np.flatnonzero(~np.all(np.isfinite(data), axis=1))[0])
-        raise InputError(f"spectrum {p}: row {bad + 1} of the data is not finite ({rows[bad]})")
+    finite = np.all(np.isfinite(data), axis=1)
+    skipped = int(np.count_nonzero(~finite))
+    data = data[finite]
+    if len(data) < MIN_SAMPLES:
+        raise InputError(f"spectrum {p}: only {len(data)} of its {len(rows)} rows are finite numbers; need at "
+                         f"least {MIN_SAMPLES}")
     lam, val = data[:, 0], data[:, 1]
     if lam.min() < 100.0 or lam.max() > 20000.0:
         raise InputError(f"spectrum {p}: wavelengths {lam.min():g}-{lam.max():g} are not in nm "
@@ -102,4 +109,4 @@ def read_spectrum(path: str | os.PathLike) -> Spectrum:
         lam = uniq
     if len(lam) < MIN_SAMPLES:
         raise InputError(f"spectrum {p}: only {len(lam)} distinct wavelengths; need at least {MIN_SAMPLES}")
-    return Spectrum(lam, val, str(p))
+    return Spectrum(lam, val, str(p), skipped)

@@ -12,6 +12,7 @@ compiles once.
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -22,10 +23,11 @@ import numpy as np
 import optimistix as optx
 
 from ._observation import Level
-from ._parameters import ParameterTable, forward
+from ._parameters import PARAMETERS, ParameterTable, forward, value_and_slope
 from ..model.render import RenderConfig, render
 
-__all__ = ["LocalSolution", "LevenbergMarquardt", "gauss_newton_decrement", "robust", "solver", "batched_solver",
+__all__ = ["LocalSolution", "LevenbergMarquardt", "gauss_newton_decrement", "remaining_step", "robust", "solver",
+           "batched_solver",
            "reporter", "solve_local", "cost", "solution_from"]
 
 
@@ -86,6 +88,11 @@ def cost(r) -> float:
 #: Consecutive rejected steps after which the solve stops at its last accepted point
 #: (:class:`LevenbergMarquardt`).
 MAX_REJECTIONS = 6
+#: A solve has converged when the Gauss-Newton step left from its end has a squared
+#: length of at most this in the fit's covariance (half a standard error).
+DECREMENT_TOLERANCE = 0.25
+#: Fresh starts of a solve that stopped on rejections before that (:func:`solve_local`).
+MAX_RESTARTS = 3
 
 
 def _quiet(**kwargs):
@@ -132,6 +139,32 @@ def gauss_newton_decrement(r, jac) -> float:
         return float(g @ np.linalg.solve(jac.T @ jac, g))
     except np.linalg.LinAlgError:
         return float("nan")
+
+
+def remaining_step(sol: LocalSolution, chi2_nu: float, free: tuple) -> float:
+    """The squared length, in the fit's covariance, of the Gauss-Newton step left from
+    ``sol`` (:func:`gauss_newton_decrement` over
+    ``max(1, chi2_nu)``), with the bounds of the parameters' domains as active
+    constraints: a parameter within one standard error of a finite bound (``r_d`` at 0)
+    whose step points at it is left out, since the step would take it beyond."""
+    jac, r = sol.jacobian, sol.residual
+    keep = list(range(jac.shape[1]))
+    if free and jac.size:
+        try:
+            a_inv = np.linalg.inv(jac.T @ jac)
+        except np.linalg.LinAlgError:
+            return float("nan")
+        step = -a_inv @ (jac.T @ r)
+        se_z = np.sqrt(np.abs(np.diag(a_inv)) * max(1.0, chi2_nu))
+        for i, name in enumerate(free):
+            v, slope = value_and_slope(name, sol.z[i])
+            for b in PARAMETERS[name].bounds:
+                toward = np.sign(slope * step[i]) == np.sign(b - v)
+                if math.isfinite(b) and toward and abs(v - b) <= abs(slope) * se_z[i]:
+                    keep.remove(i)
+                    break
+    return gauss_newton_decrement(r, jac[:, keep]) / max(1.0, chi2_nu)
+
 
 
 @functools.lru_cache(maxsize=64)
@@ -193,7 +226,20 @@ def solve_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_st
     """Levenberg-Marquardt from ``vals`` on ``lev`` (``opts``: a ``FitOptions``)."""
     solve, _ = solver(lev.cfg, table, float(opts.robust_scale), int(max_steps or opts.max_steps),
                       float(opts.rtol), float(opts.atol))
-    z0 = table.unconstrained(vals)
     fixed = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k not in table.free}
     args = (fixed, env, None if lev.bg is None else jnp.asarray(lev.bg), jnp.asarray(lev.y), jnp.asarray(lev.w))
-    return solution_from(table, vals, *solve(z0, args), fixed)
+    sol = solution_from(table, vals, *solve(table.unconstrained(vals), args), fixed)
+    # A solve stopped by rejections early on (a trust region still far too large) starts
+    # afresh from where it stopped, with a fresh trust region, up to MAX_RESTARTS times.
+    dof = max(int(np.count_nonzero(lev.w)) - len(table.free), 1)
+    steps = sol.steps
+    for _ in range(MAX_RESTARTS):
+        if not (sol.successful and remaining_step(sol, sol.cost / dof, table.free) > DECREMENT_TOLERANCE):
+            break
+        nxt = solution_from(table, sol.values, *solve(jnp.asarray(sol.z, jnp.float32), args), fixed)
+        steps += nxt.steps
+        if not np.isfinite(nxt.cost) or nxt.cost > sol.cost:
+            break
+        sol = nxt
+    sol.steps = steps
+    return sol

@@ -49,11 +49,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import search
-from ._local import LocalSolution, batched_solver, gauss_newton_decrement, reporter, solution_from, solve_local
+from ._local import (DECREMENT_TOLERANCE, LocalSolution, batched_solver, remaining_step, reporter, solution_from,
+                     solve_local)
 from ._maps import fit_map
 from ._observation import detect_disc, noise_sigma
 from ._options import FitOptions, FitResult
-from ._parameters import PARAMETERS, refined_disc, value_and_slope
+from ._parameters import refined_disc
 from ._setup import Setup, defaults, setup
 from ._uncertainty import uncertainty
 from ._verdict import at_bounds, verdict
@@ -66,9 +67,6 @@ __all__ = ["FitOptions", "FitResult", "fit_photo", "fit_batch", "detect_disc", "
 #: A warm-started fit whose noise-weighted reduced chi^2 exceeds this is checked against a
 #: global thickness search (see :func:`fit_photo`).
 WARM_START_CHI2 = 4.0
-#: A solve has converged when the Gauss-Newton step left from its end has a squared
-#: length of at most this in the fit's covariance (half a standard error).
-DECREMENT_TOLERANCE = 0.25
 
 
 # ---------------------------------------------------------------------------------------
@@ -107,39 +105,15 @@ def _searched_start(st: Setup, opts: FitOptions, env) -> dict:
     return best_v if best_v is not None else starts[0]
 
 
-def _remaining_step(sol: LocalSolution, chi2_nu: float, free: tuple) -> float:
-    """The squared length, in the fit's covariance, of the Gauss-Newton step left from
-    ``sol`` (:func:`~bubblefit.inverse._local.gauss_newton_decrement` over
-    ``max(1, chi2_nu)``), with the bounds of the parameters' domains as active
-    constraints: a parameter within one standard error of a finite bound (``r_d`` at 0)
-    whose step points at it is left out, since the step would take it beyond."""
-    jac, r = sol.jacobian, sol.residual
-    keep = list(range(jac.shape[1]))
-    if free and jac.size:
-        try:
-            a_inv = np.linalg.inv(jac.T @ jac)
-        except np.linalg.LinAlgError:
-            return float("nan")
-        step = -a_inv @ (jac.T @ r)
-        se_z = np.sqrt(np.abs(np.diag(a_inv)) * max(1.0, chi2_nu))
-        for i, name in enumerate(free):
-            v, slope = value_and_slope(name, sol.z[i])
-            for b in PARAMETERS[name].bounds:
-                toward = np.sign(slope * step[i]) == np.sign(b - v)
-                if math.isfinite(b) and toward and abs(v - b) <= abs(slope) * se_z[i]:
-                    keep.remove(i)
-                    break
-    return gauss_newton_decrement(r, jac[:, keep]) / max(1.0, chi2_nu)
-
-
 def _status_notes(sol: LocalSolution, finite: bool, chi2_nu: float, notes: list, free=()) -> tuple[str, bool]:
     """``(status, converged)`` of a solve, with the reasons prepended to ``notes``.
 
     A solve that met its tolerances has converged only if the Gauss-Newton step left from
-    its end is within :data:`DECREMENT_TOLERANCE` of the fit's own covariance
-    (:func:`_remaining_step`): the solver stops on small steps, which a heavily damped
-    step also is, far from the optimum. ``free``: the solver's parameter names."""
-    remaining = _remaining_step(sol, chi2_nu, tuple(free))
+    its end is within :data:`~bubblefit.inverse._local.DECREMENT_TOLERANCE` of the fit's
+    own covariance (:func:`~bubblefit.inverse._local.remaining_step`): the solver stops on
+    small steps, which a heavily damped step also is, far from the optimum. ``free``: the
+    solver's parameter names."""
+    remaining = remaining_step(sol, chi2_nu, tuple(free))
     near = bool(remaining <= DECREMENT_TOLERANCE) or (not np.isfinite(remaining) and not finite)
     converged = sol.successful and near and bool(np.all(np.isfinite(sol.residual))) and finite
     status = "converged"

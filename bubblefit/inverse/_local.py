@@ -119,9 +119,10 @@ class LevenbergMarquardt(optx.AbstractGaussNewton):
     descent: optx.DampedNewtonDescent = optx.DampedNewtonDescent(linear_solver=lx.QR())
     search: optx.ClassicalTrustRegion = optx.ClassicalTrustRegion()
     verbose: Callable = _quiet
+    max_rejections: int = MAX_REJECTIONS
 
     def terminate(self, fn, y, args, options, state, tags):
-        stalled = state.num_steps_since_acceptance >= MAX_REJECTIONS
+        stalled = state.num_steps_since_acceptance >= self.max_rejections
         return state.terminate | stalled, state.result
 
 
@@ -168,7 +169,8 @@ def remaining_step(sol: LocalSolution, chi2_nu: float, free: tuple) -> float:
 
 
 @functools.lru_cache(maxsize=64)
-def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_steps: int, rtol: float, atol: float):
+def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_steps: int, rtol: float, atol: float,
+           max_rejections: int = MAX_REJECTIONS):
     """Jitted ``solve(z0, args) -> (z, ok, maxed, steps, residual, J)`` and ``resid``.
 
     ``args = (fixed, env, background, photo, weights)``; the residual is
@@ -180,7 +182,7 @@ def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_st
         img = render(table.render_params(table.values(z, fixed)), cfg, env, bg)
         return robust((img - y) * w, robust_scale).reshape(-1)
 
-    lm = LevenbergMarquardt(rtol=rtol, atol=atol)
+    lm = LevenbergMarquardt(rtol=rtol, atol=atol, max_rejections=max_rejections)
 
     @jax.jit
     def solve(z0, args):
@@ -222,10 +224,13 @@ def solution_from(table: ParameterTable, vals: dict, z, ok, maxed, steps, r, jac
                          np.asarray(jac, np.float64), fixed)
 
 
-def solve_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps=None) -> LocalSolution:
-    """Levenberg-Marquardt from ``vals`` on ``lev`` (``opts``: a ``FitOptions``)."""
+def solve_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps=None,
+                stall: bool = True) -> LocalSolution:
+    """Levenberg-Marquardt from ``vals`` on ``lev`` (``opts``: a ``FitOptions``); with
+    ``stall`` it stops after :data:`MAX_REJECTIONS` rejections and restarts while far from
+    the optimum, without it runs optimistix' own stopping rule alone (warm starts)."""
     solve, _ = solver(lev.cfg, table, float(opts.robust_scale), int(max_steps or opts.max_steps),
-                      float(opts.rtol), float(opts.atol))
+                      float(opts.rtol), float(opts.atol), MAX_REJECTIONS if stall else 10**9)
     fixed = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k not in table.free}
     args = (fixed, env, None if lev.bg is None else jnp.asarray(lev.bg), jnp.asarray(lev.y), jnp.asarray(lev.w))
     sol = solution_from(table, vals, *solve(table.unconstrained(vals), args), fixed)
@@ -233,7 +238,7 @@ def solve_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_st
     # afresh from where it stopped, with a fresh trust region, up to MAX_RESTARTS times.
     dof = max(int(np.count_nonzero(lev.w)) - len(table.free), 1)
     steps = sol.steps
-    for _ in range(MAX_RESTARTS):
+    for _ in range(MAX_RESTARTS if stall else 0):
         if not (sol.successful and remaining_step(sol, sol.cost / dof, table.free) > DECREMENT_TOLERANCE):
             break
         nxt = solution_from(table, sol.values, *solve(jnp.asarray(sol.z, jnp.float32), args), fixed)

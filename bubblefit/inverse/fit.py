@@ -108,23 +108,22 @@ def _searched_start(st: Setup, opts: FitOptions, env) -> dict:
 def _status_notes(sol: LocalSolution, finite: bool, chi2_nu: float, notes: list, free=()) -> tuple[str, bool]:
     """``(status, converged)`` of a solve, with the reasons prepended to ``notes``.
 
-    A solve that met its tolerances has converged only if the Gauss-Newton step left from
-    its end is within :data:`~bubblefit.inverse._local.DECREMENT_TOLERANCE` of the fit's
-    own covariance (:func:`~bubblefit.inverse._local.remaining_step`): the solver stops on
-    small steps, which a heavily damped step also is, far from the optimum. ``free``: the
+    A solve that met its tolerances has converged. When the Gauss-Newton step left from
+    its end exceeds :data:`~bubblefit.inverse._local.DECREMENT_TOLERANCE` of the fit's
+    own covariance (:func:`~bubblefit.inverse._local.remaining_step`) a note says how far
+    (the solver stops on small steps, which a heavily damped step also is). ``free``: the
     solver's parameter names."""
     remaining = remaining_step(sol, chi2_nu, tuple(free))
     near = bool(remaining <= DECREMENT_TOLERANCE) or (not np.isfinite(remaining) and not finite)
-    converged = sol.successful and near and bool(np.all(np.isfinite(sol.residual))) and finite
+    converged = sol.successful and bool(np.all(np.isfinite(sol.residual))) and finite
     status = "converged"
     if not sol.successful:
         status = "max_steps" if sol.max_steps_reached else "failed"
         notes.insert(0, "solver reached max_steps without meeting its tolerances" if sol.max_steps_reached
                      else "the solver failed (diverged or a non-finite residual)")
-    elif not near:
-        status = "failed"
-        notes.insert(0, f"the solver stopped {math.sqrt(remaining):.2g} standard errors from the optimum its "
-                        "Jacobian predicts")
+    elif not near:  # a caution: the restarts of solve_local did not close the gap
+        notes.append(f"the solver stopped {math.sqrt(remaining):.2g} standard errors from the optimum its "
+                     "Jacobian predicts")
     if not finite:
         status = "failed"
         notes.insert(0, "the Jacobian is singular at the optimum: some parameter is not constrained by the photo")
@@ -223,7 +222,7 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     search_thickness = "thickness_nm" in st.table.free or "top_nm" in st.table.free
     warm = bool(init)
     start = _searched_start(st, opts, env) if search_thickness and not warm else st.vals
-    sol = solve_local(st.lev_fit, st.table, opts, start, env)
+    sol = solve_local(st.lev_fit, st.table, opts, start, env, stall=not warm)
     why = _warm_doubt(st, opts, sol) if warm and search_thickness else None
     if why:
         # A warm start can settle in a neighbouring colour order: search globally and keep
@@ -316,7 +315,7 @@ def fit_batch(photos, env: EnvMap, *, options: FitOptions = FitOptions(), backgr
     z0 = _batch_starts(first, len(photos), prev_vals)
     fixed = {k: jnp.asarray(v, jnp.float32) for k, v in first.vals.items() if k not in table.free}
     solve = batched_solver(first.lev_fit.cfg, table, float(options.robust_scale), int(options.max_steps),
-                           float(options.rtol), float(options.atol))
+                           float(options.rtol), float(options.atol), 10**9)
     bg = None if first.lev_fit.bg is None else jnp.asarray(first.lev_fit.bg)
     out = solve(jnp.asarray(np.stack(z0), jnp.float32),
                 (fixed, env, bg, jnp.asarray(np.stack([s.lev_fit.y for s in setups])),

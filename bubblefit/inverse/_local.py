@@ -27,8 +27,7 @@ from ._parameters import PARAMETERS, ParameterTable, forward, value_and_slope
 from ..model.render import RenderConfig, render
 
 __all__ = ["LocalSolution", "LevenbergMarquardt", "gauss_newton_decrement", "remaining_step", "robust", "solver",
-           "batched_solver",
-           "reporter", "solve_local", "cost", "solution_from"]
+           "batched_solver", "reporter", "solve_local", "cost", "solution_from"]
 
 
 def robust(r, scale):
@@ -88,7 +87,7 @@ def cost(r) -> float:
 #: Consecutive rejected steps after which the solve stops at its last accepted point
 #: (:class:`LevenbergMarquardt`).
 MAX_REJECTIONS = 6
-#: A solve has converged when the Gauss-Newton step left from its end has a squared
+#: A solve is near its optimum when the Gauss-Newton step left from its end has a squared
 #: length of at most this in the fit's covariance (half a standard error).
 DECREMENT_TOLERANCE = 0.25
 #: Fresh starts of a solve that stopped on rejections before that (:func:`solve_local`).
@@ -109,8 +108,9 @@ class LevenbergMarquardt(optx.AbstractGaussNewton):
     by 4 per step until the Cauchy test is met: 20-35 steps of about a second each on
     the photos of ``experiments/validation``, none of which moves the fit. After six
     rejections (a region 4096 times smaller) the solve stops at its last accepted
-    point; whether that point is an optimum is judged afterwards from its Gauss-Newton
-    decrement (:func:`gauss_newton_decrement`), never from the stop itself.
+    point; how far that point is from the optimum is measured afterwards from its
+    Gauss-Newton decrement (:func:`remaining_step`), which decides a restart
+    (:func:`solve_local`) and a note in the fit's message.
     """
 
     rtol: float
@@ -165,7 +165,6 @@ def remaining_step(sol: LocalSolution, chi2_nu: float, free: tuple) -> float:
                     keep.remove(i)
                     break
     return gauss_newton_decrement(r, jac[:, keep]) / max(1.0, chi2_nu)
-
 
 
 @functools.lru_cache(maxsize=64)

@@ -141,3 +141,39 @@ def test_a_stop_far_from_the_optimum_is_said():
         status, converged = _status_notes(sol, True, 1.0, notes)
         assert converged and status == "converged"
         assert any("standard errors from the optimum" in n for n in notes) is not want, notes
+
+
+
+def test_zero_roughness_is_the_mirror_not_a_bound(small_courtyard):
+    """Ward's lobe, eq. (1), tends to the mirror as a -> 0, so a fit that drifts to a smooth
+    film is at a physical limit (like r_d = 0), not at a bound; below what the photo
+    samples it is told as an upper limit. The premise on renders, the verdict on a table."""
+    import dataclasses
+
+    from bubblefit.inverse._parameters import ParameterTable
+    from bubblefit.inverse._verdict import at_bounds, roughness_resolution, unresolved
+    from bubblefit.lighting.filtering import FilterConfig
+    from bubblefit.model.render import Params, render
+    from bubblefit.model.scene import Scene
+    from test_fit import N, _env
+
+    env = _env(small_courtyard)
+    scene = {"camera": {"width": N, "height": N, "disc": list(DISC)}, "lighting": {"envmap": "unused.exr"},
+             "bubble": {"t": 0.97, "thickness_nm": 500.0}, "effects": {"model": "paper"}}
+    cfg, _ = Scene.from_dict(scene).config(env)
+    with_filter = lambda f: dataclasses.replace(cfg, effects=dataclasses.replace(cfg.effects, filtering=f))
+    mipmap, mirror = with_filter(FilterConfig("mipmap", nodes=4)), with_filter(FilterConfig("mirror"))
+    look = lambda a, c=mipmap: np.asarray(render(Params.make(t=0.97, thickness=500.0, roughness=a), c, env))
+    inside = np.hypot(*(np.mgrid[:N, :N] - np.array(DISC[:2])[:, None, None])) < 0.8 * DISC[2]
+    gap = {a: np.sqrt(np.mean((look(a) - look(1e-9, mirror))[inside] ** 2)) for a in (1e-4, 1e-3, 1e-2, 1e-1)}
+    assert gap[1e-4] < 1e-3 * gap[1e-1]  # the limit is the mirror lookup ...
+    assert gap[1e-4] < gap[1e-3] < gap[1e-2] < gap[1e-1]  # ... approached monotonically
+
+    floor = roughness_resolution(env.shapes[0][0], DISC[2])  # 64 rows: one texel is pi / 64 rad
+    assert floor == pytest.approx(max(np.pi / 64, 1 / DISC[2]))
+    table = ParameterTable(free=("roughness", "thickness_nm"))
+    smooth = {"roughness": 3e-5, "thickness_nm": 500.0}
+    assert at_bounds(smooth, table, (100.0, 1500.0), 1.0) == []
+    assert "upper limit" in unresolved(smooth, table, floor)[0]
+    assert unresolved({"roughness": 0.2, "thickness_nm": 500.0}, table, floor) == []
+    assert "sits at a bound" in at_bounds({"roughness": 1.0, "thickness_nm": 500.0}, table, (100.0, 1500.0), 1.0)[0]

@@ -273,13 +273,12 @@ def test_discover_frames(tmp_path):
         np.testing.assert_allclose(px.mean(axis=(0, 1)), srgb_decode(np.asarray(rgb) / 255.0), rtol=0.08, atol=0.004)
 
 
-@pytest.mark.xfail(reason="known since the solver changes of this version: 4 of the 7 frames are ok, not 5; "
-                          "converged is optimistix' verdict again, so the difference is in ok's other conditions "
-                          "(to be read from the frames' warnings)", strict=False)
 def test_rows_say_ok(runs):
     """The unreadable frame is not ``ok``; a fitted frame's row is ``ok`` exactly when its fit
     is (and then carries no warning), and a row that is not says why; no frame of this real
-    sequence is flagged as a jump (the flags do not fire on noise)."""
+    sequence is flagged as a jump (the flags do not fire on noise). The film's roughness,
+    0.015, is below one texel of the 64-row map (0.049 rad): the fits drift towards a mirror,
+    which is an upper limit on the roughness, not a fit at a bound."""
     rows = _table(runs[1])
     recs = {r["frame"]: r for r in runs[1].records}
     assert not rows[CORRUPT]["ok"]
@@ -289,6 +288,8 @@ def test_rows_say_ok(runs):
         assert r["ok"] == (recs[k].get("fit_ok", True) is not False and bool(recs[k].get("converged"))), k
         assert r["ok"] or r["warnings"], k
     assert sum(r["ok"] for r in rows) >= N_FRAMES - 2
+    assert all("upper limit" in recs[k]["message"] for k, r in enumerate(rows)
+               if k != CORRUPT and recs[k]["params"]["roughness"] < 0.049)
     assert not any(r.get("jumps") for r in runs[1].records)
 
 

@@ -72,7 +72,7 @@ PARAMETERS: dict[str, Parameter] = {p.name: p for p in (
               (1e-3, 1 - 1e-3)),
     Parameter("r_d", "", (0.0, math.inf), "log", "diffuse reflectance, eq. (1) (with free_split)"),
     Parameter("r_s", "", (0.0, math.inf), "log", "specular reflectance, eq. (1) (with free_split)"),
-    Parameter("roughness", "", (0.0, math.inf), "log", "Ward's roughness a, eq. (1)", (1e-4, 1.0)),
+    Parameter("roughness", "", (0.0, math.inf), "log", "Ward's roughness a, eq. (1)", (0.0, 1.0)),
     Parameter("exposure", "", (0.0, math.inf), "log", "camera gain on the rendered radiance", (1e-6, 1e6)),
     Parameter("rotation_deg", "deg", (-math.inf, math.inf), "angle", "environment rotation about +y"),
     Parameter("thickness_nm", "nm", (0.0, math.inf), "softplus", "film thickness d, eq. (8)"),

@@ -6,13 +6,22 @@ A fit is ``ok`` only when (1) the local solver met its tolerances with finite er
 searched thickness range) and (4) the photo is explained within its noise plus the
 model-error floor: the reduced chi^2 with each pixel's variance
 ``sigma^2 + (FitOptions.model_error * photo)^2`` is at most ``FitOptions.ok_chi2``.
+
+Zero roughness is not a bound but the mirror, eq. (1) as ``a -> 0``: a physical limit like
+``r_d = 0``, which a smooth film reaches. When the fitted roughness is below what the
+photo samples (:func:`roughness_resolution`: one texel of the environment map, ``pi / H``
+radians for a map of ``H`` rows, or the turn of the surface normal across one pixel at
+the disc's centre, ``1 / R`` radians for a disc of radius ``R`` pixels; Ward's lobe is
+about ``a`` radians wide) a note says that the value is an upper limit.
 """
 
 from __future__ import annotations
 
+import math
+
 from ._parameters import PARAMETERS, ParameterTable
 
-__all__ = ["at_bounds", "verdict"]
+__all__ = ["at_bounds", "roughness_resolution", "unresolved", "verdict"]
 
 
 def at_bounds(values: dict, table: ParameterTable, thickness_range: tuple, margin_nm: float) -> list[str]:
@@ -29,6 +38,23 @@ def at_bounds(values: dict, table: ParameterTable, thickness_range: tuple, margi
         if v <= lo + tol or v >= hi - tol:
             out.append(f"{name} = {v:.4g} sits at a bound of its range [{lo:.4g}, {hi:.4g}]")
     return out
+
+
+def roughness_resolution(map_rows: int, disc_radius_px: float | None) -> float:
+    """The smallest roughness a photo samples (module docstring): the larger of one texel
+    of a ``map_rows``-row equirectangular map, ``pi / map_rows``, and one pixel's turn of
+    the normal at the centre of a disc of ``disc_radius_px`` pixels (None: not known)."""
+    pixel = 1.0 / disc_radius_px if disc_radius_px else 0.0
+    return max(math.pi / max(int(map_rows), 1), pixel)
+
+
+def unresolved(values: dict, table: ParameterTable, roughness_floor: float) -> list[str]:
+    """A note when the fitted roughness is below ``roughness_floor`` (:func:`roughness_resolution`)."""
+    v = values.get("roughness")
+    if "roughness" not in table.free or v is None or not v < roughness_floor:
+        return []
+    return [f"roughness = {v:.2g} is below what the photo samples (about {roughness_floor:.2g}: one texel of the "
+            "environment map or one pixel of the disc): read it as an upper limit"]
 
 
 def verdict(*, converged: bool, disc_found: bool, bound_warnings: list, chi2_floor: float, ok_chi2: float,

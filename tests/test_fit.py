@@ -105,6 +105,8 @@ def test_constant_recovery(env, seed, thickness, tint):
     assert "thickness_nm" in cov["names"] and "rotation_deg" not in cov["names"]
     i = cov["names"].index("thickness_nm")
     assert np.sqrt(cov["matrix"][i][i]) == pytest.approx(e["thickness_nm"], rel=1e-6)
+    # the renderers' scatter (Type B) is on top of the photo's own error, in quadrature
+    assert js["thickness_model_error_nm"] == pytest.approx(0.6) and e["thickness_nm"] > 0.6
     assert res.render.shape == photo.shape and res.residual.shape == photo.shape
 
 

@@ -133,7 +133,8 @@ def _status_notes(sol: LocalSolution, finite: bool, chi2_nu: float, notes: list,
 def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t_start: float) -> FitResult:
     """Standard errors, the thickness map, the full-resolution render and the result of a solve."""
     table, lev_fit = st.table, st.lev_fit
-    unc = uncertainty(sol, table, lev_fit, float(opts.robust_scale), float(opts.model_error))
+    unc = uncertainty(sol, table, lev_fit, float(opts.robust_scale), float(opts.model_error),
+                      float(opts.thickness_model_error_nm))
     reported, stderr = unc.reported, unc.stderr
     disc, disc_stderr = refined_disc(st.disc, reported, stderr)
     status, converged = _status_notes(sol, unc.finite, unc.s2, notes, table.free)
@@ -154,9 +155,9 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
                                      make_level=lambda k: st.level(k, opts, st.map_cfg))
         final_vals["map"] = dmap
         thickness_map = np.where(full.inside, dmap, np.nan)
-        stderr_map = np.where(full.mask, emap, np.nan)
+        stderr_map = np.where(full.mask, np.hypot(emap, float(opts.thickness_model_error_nm)), np.nan)
         reported["thickness_nm"] = float(np.median(dmap[full.mask])) if full.mask.any() else float("nan")
-        stderr["thickness_nm"] = float(np.nanmedian(emap[full.mask])) if full.mask.any() else float("nan")
+        stderr["thickness_nm"] = float(np.nanmedian(stderr_map[full.mask])) if full.mask.any() else float("nan")
         if not map_ok:
             converged, status = False, "failed"
             notes.append("the thickness map is not constrained at over 10% of the film's pixels")
@@ -180,6 +181,7 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
         thickness_model=opts.thickness, model=opts.model, reduced_chi2=unc.s2,
         pixels_used=int(lev_fit.mask.sum()), status=status, names=unc.names, covariance=unc.covariance,
         ok=ok, warnings=warnings, chi2_floor=unc.chi2_floor, model_error=float(opts.model_error),
+        thickness_model_error_nm=float(opts.thickness_model_error_nm),
         stderr_scale=unc.scale,
         frame=None if st.frame.whole else (st.frame.x0, st.frame.y0, st.frame.k), colour=st.colour,
     )

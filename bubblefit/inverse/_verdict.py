@@ -8,20 +8,15 @@ model-error floor: the reduced chi^2 with each pixel's variance
 ``sigma^2 + (FitOptions.model_error * photo)^2`` is at most ``FitOptions.ok_chi2``.
 
 Zero roughness is not a bound but the mirror, eq. (1) as ``a -> 0``: a physical limit like
-``r_d = 0``, which a smooth film reaches. When the fitted roughness is below what the
-photo samples (:func:`roughness_resolution`: one texel of the environment map, ``pi / H``
-radians for a map of ``H`` rows, or the turn of the surface normal across one pixel at
-the disc's centre, ``1 / R`` radians for a disc of radius ``R`` pixels; Ward's lobe is
-about ``a`` radians wide) a note says that the value is an upper limit.
+``r_d = 0``, which a smooth film reaches. A roughness within three standard errors of zero
+is reported with a note that the photo bounds it only from above (:func:`unresolved`).
 """
 
 from __future__ import annotations
 
-import math
-
 from ._parameters import PARAMETERS, ParameterTable
 
-__all__ = ["at_bounds", "roughness_resolution", "unresolved", "verdict"]
+__all__ = ["at_bounds", "unresolved", "verdict"]
 
 
 def at_bounds(values: dict, table: ParameterTable, thickness_range: tuple, margin_nm: float) -> list[str]:
@@ -40,21 +35,16 @@ def at_bounds(values: dict, table: ParameterTable, thickness_range: tuple, margi
     return out
 
 
-def roughness_resolution(map_rows: int, disc_radius_px: float | None) -> float:
-    """The smallest roughness a photo samples (module docstring): the larger of one texel
-    of a ``map_rows``-row equirectangular map, ``pi / map_rows``, and one pixel's turn of
-    the normal at the centre of a disc of ``disc_radius_px`` pixels (None: not known)."""
-    pixel = 1.0 / disc_radius_px if disc_radius_px else 0.0
-    return max(math.pi / max(int(map_rows), 1), pixel)
-
-
-def unresolved(values: dict, table: ParameterTable, roughness_floor: float) -> list[str]:
-    """A note when the fitted roughness is below ``roughness_floor`` (:func:`roughness_resolution`)."""
-    v = values.get("roughness")
-    if "roughness" not in table.free or v is None or not v < roughness_floor:
+def unresolved(values: dict, stderr: dict, table: ParameterTable) -> list[str]:
+    """A note when the fitted roughness is within three standard errors of zero (or has no
+    finite error): the photo then shows a mirror and bounds the roughness from above."""
+    v, e = values.get("roughness"), stderr.get("roughness")
+    if "roughness" not in table.free or v is None:
         return []
-    return [f"roughness = {v:.2g} is below what the photo samples (about {roughness_floor:.2g}: one texel of the "
-            "environment map or one pixel of the disc): read it as an upper limit"]
+    if e is not None and e == e and v > 3.0 * e:
+        return []
+    bound = f" (a < {v + 3.0 * e:.2g})" if e is not None and e == e else ""
+    return [f"roughness = {v:.2g} is within three standard errors of a mirror: read it as an upper limit{bound}"]
 
 
 def verdict(*, converged: bool, disc_found: bool, bound_warnings: list, chi2_floor: float, ok_chi2: float,

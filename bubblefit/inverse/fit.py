@@ -57,7 +57,7 @@ from ._options import FitOptions, FitResult
 from ._parameters import refined_disc
 from ._setup import Setup, defaults, setup
 from ._uncertainty import uncertainty
-from ._verdict import at_bounds, roughness_resolution, unresolved, verdict
+from ._verdict import at_bounds, unresolved, verdict
 from ..lighting.envmap import EnvMap
 from ..model.render import render
 from ..model.thickness import drainage_profile
@@ -142,10 +142,8 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
     for key in ("thickness_nm", "top_nm", "bottom_nm"):
         if key in reported and key in table.free and not lo - 1 <= reported[key] <= hi + 1:
             notes.append(f"{key} = {reported[key]:.0f} nm lies outside the searched range {lo:.0f}-{hi:.0f} nm")
-    cam = lev_fit.cfg.camera
-    floor = roughness_resolution(env.shapes[0][0], float(cam.disc()[2]) if hasattr(cam, "disc") else None)
     bounds = at_bounds(sol.values, table, opts.thickness_range, 0.5 * opts.search_step_nm)
-    notes += unresolved(sol.values, table, floor)
+    notes += unresolved(reported, stderr, table)
     new = sol.values
     final_vals, thickness_map, stderr_map = dict(new), None, None
     prof = None if opts.thickness == "constant" else (new["top_nm"], new["bottom_nm"], new["exponent"])

@@ -146,6 +146,10 @@ def run_fit(case: str, model: str, out_dir: str, calibration: str | None = None,
             "--background", os.path.join(cdir, "background.png"), "--thickness", model, "--json", js, "-o", stem]
     fa = list(truth.get("fit_args", []))
     args += [os.path.join(cdir, a) if a.endswith((".toml", ".json")) else a for a in fa]
+    if truth.get("illuminant") in ("D65", "E", "A"):
+        # the white the renderer (or camera) integrated under is part of the capture, as the
+        # environment map is: Cycles converts its spectra under E
+        args += ["--illuminant", truth["illuminant"]]
     if (disc_given or truth.get("disc_given")) and truth.get("disc"):
         d = truth["disc"]
         args += ["--disc", f"{d['cx']},{d['cy']},{d['r']}"]

@@ -100,8 +100,8 @@ def _quiet(**kwargs):
 
 class LevenbergMarquardt(optx.AbstractGaussNewton):
     """optimistix' Levenberg-Marquardt (damped Newton descent, classical trust region,
-    QR solve, Cauchy termination) that also stops after :data:`MAX_REJECTIONS` rejected
-    steps in a row.
+    QR solve, Cauchy termination) that also stops after ``max_rejections`` rejected
+    steps in a row (None: optimistix' own rule alone).
 
     Near the optimum a float32 render changes its loss by more than the quadratic model
     predicts for tiny steps, so every proposal is rejected and the trust region shrinks
@@ -119,9 +119,11 @@ class LevenbergMarquardt(optx.AbstractGaussNewton):
     descent: optx.DampedNewtonDescent = optx.DampedNewtonDescent(linear_solver=lx.QR())
     search: optx.ClassicalTrustRegion = optx.ClassicalTrustRegion()
     verbose: Callable = _quiet
-    max_rejections: int = MAX_REJECTIONS
+    max_rejections: int | None = MAX_REJECTIONS
 
     def terminate(self, fn, y, args, options, state, tags):
+        if self.max_rejections is None:
+            return state.terminate, state.result
         stalled = state.num_steps_since_acceptance >= self.max_rejections
         return state.terminate | stalled, state.result
 
@@ -169,7 +171,7 @@ def remaining_step(sol: LocalSolution, chi2_nu: float, free: tuple) -> float:
 
 @functools.lru_cache(maxsize=64)
 def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_steps: int, rtol: float, atol: float,
-           max_rejections: int = MAX_REJECTIONS):
+           max_rejections: int | None = MAX_REJECTIONS):
     """Jitted ``solve(z0, args) -> (z, ok, maxed, steps, residual, J)`` and ``resid``.
 
     ``args = (fixed, env, background, photo, weights)``; the residual is
@@ -229,7 +231,7 @@ def solve_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_st
     ``stall`` it stops after :data:`MAX_REJECTIONS` rejections and restarts while far from
     the optimum, without it runs optimistix' own stopping rule alone (warm starts)."""
     solve, _ = solver(lev.cfg, table, float(opts.robust_scale), int(max_steps or opts.max_steps),
-                      float(opts.rtol), float(opts.atol), MAX_REJECTIONS if stall else 10**9)
+                      float(opts.rtol), float(opts.atol), MAX_REJECTIONS if stall else None)
     fixed = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k not in table.free}
     args = (fixed, env, None if lev.bg is None else jnp.asarray(lev.bg), jnp.asarray(lev.y), jnp.asarray(lev.w))
     sol = solution_from(table, vals, *solve(table.unconstrained(vals), args), fixed)

@@ -318,7 +318,7 @@ def fit_batch(photos, env: EnvMap, *, options: FitOptions = FitOptions(), backgr
     z0 = _batch_starts(first, len(photos), prev_vals)
     fixed = {k: jnp.asarray(v, jnp.float32) for k, v in first.vals.items() if k not in table.free}
     solve = batched_solver(first.lev_fit.cfg, table, float(options.robust_scale), int(options.max_steps),
-                           float(options.rtol), float(options.atol), 10**9)
+                           float(options.rtol), float(options.atol), None)
     bg = None if first.lev_fit.bg is None else jnp.asarray(first.lev_fit.bg)
     out = solve(jnp.asarray(np.stack(z0), jnp.float32),
                 (fixed, env, bg, jnp.asarray(np.stack([s.lev_fit.y for s in setups])),

@@ -3,7 +3,9 @@
 For every case folder under data/ (or the names given; --quick for a small subset) this
 runs bubblefit through its command line exactly as a user would (`python -m bubblefit
 fit ...` / `calibrate ...`), reads the JSON it writes and compares it with the case's
-truth.json. It prints a table and writes results.csv, results.json and validation.png to
+truth.json. The capture's illuminant (truth.json ``illuminant``: D65 for the reference
+renderer, E for Cycles) is passed as ``--illuminant``, as a user states their camera's.
+It prints a table and writes results.csv, results.json and validation.png to
 --out (default experiments/results/validation/).
 
 Run it with the project's venv from the repository root:

@@ -93,6 +93,7 @@ def test_disc_is_refined(off_grid_photo):
     se = np.array([res.disc_stderr[k] for k in ("cx", "cy", "r")])
     assert np.all(err < 0.1), (res.disc, TRUE_DISC)
     assert np.all(err < 4 * se + 0.02), (err, se)
+    assert np.all(se >= 0.002 * TRUE_DISC[2] * 0.999)  # the renderers' scatter is in them (Type B)
     assert not any(k.startswith("disc_") for k in res.params)  # reported as the disc, in pixels
     js = res.to_json()
     assert js["disc"]["cx"] == pytest.approx(res.disc[0]) and js["disc_stderr"]["r"] > 0
@@ -179,3 +180,18 @@ def test_zero_roughness_is_the_mirror_not_a_bound(small_courtyard):
     assert unresolved({"roughness": 0.02}, {"roughness": 0.001}, table) == []  # resolved, if sub-texel
     assert unresolved({"roughness": 0.02}, {"roughness": None}, ParameterTable(free=("thickness_nm",))) == []
     assert "sits at a bound" in at_bounds({"roughness": 1.0, "thickness_nm": 500.0}, table, (100.0, 1500.0), 1.0)[0]
+
+
+def test_refined_disc_in_pixels_with_its_model_error():
+    """The refinement's shifts are in radii; the disc and its errors come back in pixels,
+    the model error (in radii) added in quadrature to the noise's."""
+    from bubblefit.inverse._parameters import refined_disc
+
+    reported = {"disc_x": 0.01, "disc_y": -0.02, "disc_r": 0.005, "thickness_nm": 500.0}
+    stderr = {"disc_x": 0.0015, "disc_y": float("nan"), "disc_r": 0.0, "thickness_nm": 1.0}
+    disc, se = refined_disc((10.0, 20.0, 50.0), reported, stderr, model_error=0.002)
+    assert disc == (10.5, 19.0, 50.25)
+    assert se["cx"] == pytest.approx(np.hypot(0.0015, 0.002) * 50, abs=1e-3)
+    assert se["r"] == pytest.approx(0.1) and np.isnan(se["cy"])
+    assert set(reported) == {"thickness_nm"} and set(stderr) == {"thickness_nm"}
+    assert refined_disc((10.0, 20.0, 50.0), {"thickness_nm": 500.0}, {}, 0.002) == ((10.0, 20.0, 50.0), None)

@@ -136,7 +136,7 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
     unc = uncertainty(sol, table, lev_fit, float(opts.robust_scale), float(opts.model_error),
                       float(opts.thickness_model_error_nm))
     reported, stderr = unc.reported, unc.stderr
-    disc, disc_stderr = refined_disc(st.disc, reported, stderr)
+    disc, disc_stderr = refined_disc(st.disc, reported, stderr, float(opts.disc_model_error))
     status, converged = _status_notes(sol, unc.finite, unc.s2, notes, table.free)
     lo, hi = opts.thickness_range
     for key in ("thickness_nm", "top_nm", "bottom_nm"):

@@ -14,6 +14,8 @@ is reported with a note that the photo bounds it only from above (:func:`unresol
 
 from __future__ import annotations
 
+import math
+
 from ._parameters import PARAMETERS, ParameterTable
 
 __all__ = ["at_bounds", "unresolved", "verdict"]
@@ -41,9 +43,10 @@ def unresolved(values: dict, stderr: dict, table: ParameterTable) -> list[str]:
     v, e = values.get("roughness"), stderr.get("roughness")
     if "roughness" not in table.free or v is None:
         return []
-    if e is not None and e == e and v > 3.0 * e:
+    known = e is not None and math.isfinite(e)
+    if known and v > 3.0 * e:
         return []
-    bound = f" (a < {v + 3.0 * e:.2g})" if e is not None and e == e else ""
+    bound = f" (a < {v + 3.0 * e:.2g})" if known else ""
     return [f"roughness = {v:.2g} is within three standard errors of a mirror: read it as an upper limit{bound}"]
 
 

@@ -1,0 +1,138 @@
+"""The local solver (:class:`bubblefit.inverse._local.LevenbergMarquardt`) against
+independent least-squares codes: MINPACK's Levenberg-Marquardt (through
+``scipy.optimize.least_squares``), optimistix' own ``LevenbergMarquardt``, and the normal
+equations of a linear problem."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+import pytest
+from scipy.optimize import least_squares
+
+from bubblefit.inverse._local import LevenbergMarquardt, scaled_decrement
+
+
+def _solve(fn, z0, solver, max_steps=200):
+    sol = optx.least_squares(fn, solver, jnp.asarray(z0, jnp.float32), max_steps=max_steps, throw=False)
+    return np.asarray(sol.value, np.float64), int(sol.stats["num_steps"]), sol.result
+
+
+def _rosenbrock(z, args=None):
+    return jnp.stack([10.0 * (z[1] - z[0] ** 2), 1.0 - z[0]])
+
+
+def _decay_problem():
+    rng = np.random.default_rng(3)
+    x = np.linspace(0.0, 4.0, 60)
+    y = 2.5 * np.exp(-1.3 * x) + 0.4 + rng.normal(0.0, 0.02, x.size)
+
+    sigma = 0.02  # whitened, as the fit's residual is: chi2_nu ~ 1
+
+    def fn(z, args=None):
+        return (z[0] * jnp.exp(-z[1] * jnp.asarray(x, jnp.float32)) + z[2] - jnp.asarray(y, jnp.float32)) / sigma
+
+    def fn_np(z):
+        return (z[0] * np.exp(-z[1] * x) + z[2] - y) / sigma
+
+    return fn, fn_np
+
+
+def test_rosenbrock_reaches_the_minimum_like_optimistix():
+    # The classic start (-1.2, 1) needs rejected steps along the curved valley.
+    mine, steps, result = _solve(_rosenbrock, [-1.2, 1.0], LevenbergMarquardt(rtol=1e-6, atol=1e-8,
+                                                                            max_rejections=None,
+                                                                            decrement_tolerance=None))
+    theirs, their_steps, _ = _solve(_rosenbrock, [-1.2, 1.0], optx.LevenbergMarquardt(rtol=1e-6, atol=1e-8))
+    assert result == optx.RESULTS.successful
+    np.testing.assert_allclose(mine, [1.0, 1.0], atol=1e-4)
+    np.testing.assert_allclose(mine, theirs, atol=1e-4)
+    # the same trust region and damped step: the same iterates, so (up to float32
+    # rounding near the end) the same number of steps
+    assert abs(steps - their_steps) <= 2, (steps, their_steps)
+
+
+def test_exponential_decay_matches_minpack():
+    fn, fn_np = _decay_problem()
+    z0 = [1.0, 0.5, 0.0]
+    mine, _, result = _solve(fn, z0, LevenbergMarquardt(rtol=1e-7, atol=1e-9, max_rejections=None,
+                                                        decrement_tolerance=None))
+    ref = least_squares(fn_np, z0, method="lm", xtol=1e-12, ftol=1e-12).x
+    assert result == optx.RESULTS.successful
+    np.testing.assert_allclose(mine, ref, rtol=2e-4, atol=2e-4)
+
+
+def test_decrement_stop_is_within_its_tolerance_of_the_optimum():
+    """With the statistical stop on, the solve ends where the step left is at most
+    ``decrement_tolerance`` squared standard errors, and the parameters are then within
+    sqrt(tolerance) standard errors of MINPACK's optimum."""
+    fn, fn_np = _decay_problem()
+    z0 = [1.0, 0.5, 0.0]
+    tol = 0.04
+    mine, steps, result = _solve(fn, z0, LevenbergMarquardt(rtol=1e-7, atol=1e-9, decrement_tolerance=tol))
+    _, all_steps, _ = _solve(fn, z0, LevenbergMarquardt(rtol=1e-7, atol=1e-9, decrement_tolerance=None,
+                                                        max_rejections=None))
+    assert result == optx.RESULTS.successful and steps <= all_steps
+    ref = least_squares(fn_np, z0, method="lm", xtol=1e-12, ftol=1e-12)
+    chi2_nu = np.sum(ref.fun**2) / (ref.fun.size - 3)
+    se = np.sqrt(np.diag(np.linalg.inv(ref.jac.T @ ref.jac)) * max(chi2_nu, 1.0))
+    # a squared Mahalanobis length <= tol bounds each coordinate by sqrt(tol) errors
+    # (plus float32 rounding of the renders' stand-in)
+    assert np.all(np.abs(mine - ref.x) <= (np.sqrt(tol) + 0.05) * se), (mine - ref.x) / se
+
+
+def test_linear_problem_reaches_the_normal_equations():
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(200, 4)).astype(np.float32)
+    b = rng.normal(size=200).astype(np.float32)  # unit noise: chi2_nu ~ 1
+    fn = lambda z, args=None: jnp.asarray(a) @ z - jnp.asarray(b)
+    best = np.linalg.lstsq(a.astype(np.float64), b.astype(np.float64), rcond=None)[0]
+    se = np.sqrt(np.diag(np.linalg.inv(a.T.astype(np.float64) @ a)))
+    full, cauchy_steps, result = _solve(fn, np.zeros(4), LevenbergMarquardt(rtol=1e-6, atol=1e-8,
+                                                                           decrement_tolerance=None,
+                                                                           max_rejections=None))
+    assert result == optx.RESULTS.successful
+    np.testing.assert_allclose(full, best, atol=1e-4)
+    # the statistical stop ends earlier, within a fifth of a standard error
+    early, steps, result = _solve(fn, np.zeros(4), LevenbergMarquardt(rtol=1e-6, atol=1e-8))
+    assert result == optx.RESULTS.successful and steps < cauchy_steps
+    assert np.all(np.abs(early - best) <= 0.2 * se + 1e-5), (early - best) / se
+
+
+def test_scaled_decrement_is_the_gauss_newton_drop():
+    from bubblefit.inverse._local import DenseDampedNewtonDescent, gauss_newton_decrement
+
+    rng = np.random.default_rng(1)
+    jac = rng.normal(size=(500, 3))
+    r = rng.normal(size=500) * 2.0  # chi2_nu ~ 4: the decrement is divided by it
+    import lineax as lx
+
+    f_info = optx.FunctionInfo.ResidualJac(jnp.asarray(r, jnp.float32),
+                                           lx.MatrixLinearOperator(jnp.asarray(jac, jnp.float32)))
+    desc = DenseDampedNewtonDescent()
+    dense = desc.query(jnp.zeros(3), f_info, desc.init(jnp.zeros(3), f_info))
+    chi2_nu = np.sum(r**2) / (r.size - 3)
+    want = gauss_newton_decrement(r, jac) / chi2_nu
+    assert float(scaled_decrement(dense, jnp.asarray(r, jnp.float32))) == pytest.approx(want, rel=1e-3)
+    # the undamped step (step size -> inf) is the Gauss-Newton step
+    step, _ = desc.step(jnp.asarray(1e12, jnp.float32), dense)
+    gn = -np.linalg.solve(jac.T @ jac, jac.T @ r)
+    np.testing.assert_allclose(np.asarray(step), gn, rtol=1e-3, atol=1e-5)
+    # infinite damping (step size 0) is the zero step
+    step0, _ = desc.step(jnp.asarray(0.0, jnp.float32), dense)
+    assert np.all(np.asarray(step0) == 0.0)
+
+
+def test_vmapped_solve_matches_one_by_one():
+    """fit_batch vmaps the solve over frames: lax.cond turns into a select there, and the
+    result must still be each frame's own solve."""
+    fn, _ = _decay_problem()
+    solver = LevenbergMarquardt(rtol=1e-6, atol=1e-8)
+
+    def one(z0):
+        return optx.least_squares(fn, solver, z0, max_steps=100, throw=False).value
+
+    z0s = jnp.asarray([[1.0, 0.5, 0.0], [3.0, 2.0, 0.5]], jnp.float32)
+    both = np.asarray(jax.jit(jax.vmap(one))(z0s))
+    for i in range(2):
+        np.testing.assert_allclose(both[i], np.asarray(jax.jit(one)(z0s[i])), rtol=1e-3, atol=1e-4)

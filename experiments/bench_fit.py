@@ -5,7 +5,24 @@ and 8-bit sRGB quantisation), fits it (constant thickness, then a per-pixel map)
 records the first (compiling) and the warm wall time and the errors. Writes
 ``bench_fit.json``, ``bench_fit.csv`` and ``bench_fit.png`` to ``--out``.
 
+``--profile-solver`` instead times the pieces of one Levenberg-Marquardt step on the
+photo's fit level, for the paper and the physical model: a render, ``jax.jacfwd``, and
+what optimistix' own ``LevenbergMarquardt`` does per step (``jax.linearize`` plus one
+tangent at a trial point, plus materialising the linearisation for its QR solve), and
+the whole local solve with bubblefit's solver (Jacobian at accepted points only,
+statistical stop) against optimistix' solver from the same start. Writes
+``solver_profile.json`` and ``.csv``.
+
+``--whole-process`` times ``bubblefit fit`` as a user runs it (the photo and its
+background written as 8-bit PNGs, the shipped courtyard map, ``--thickness constant``,
+each model): a first process on an empty compilation cache and a second on the warm
+one, against ``python -c "import numpy"`` and Mitsuba 3 (the thin dielectric sphere of
+``bench_effects.py``, 256x256, 64 spp; ``--mitsuba-python``) in the same run. Writes
+``whole_process.json``.
+
     python experiments/bench_fit.py [--quick] [--size 256] [--out experiments/results/bench_fit]
+    python experiments/bench_fit.py --profile-solver [--size 160]
+    python experiments/bench_fit.py --whole-process [--size 320]
 """
 
 from __future__ import annotations
@@ -28,6 +45,10 @@ def main():
     ap.add_argument("--samples", type=int, default=0, help="spectral samples of the fit (0: auto)")
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--no-map", action="store_true")
+    ap.add_argument("--profile-solver", action="store_true", help="time the pieces of an LM step (see above)")
+    ap.add_argument("--models", default="paper,physical", help="models for --profile-solver, --whole-process")
+    ap.add_argument("--whole-process", action="store_true", help="time bubblefit fit as processes (see above)")
+    ap.add_argument("--mitsuba-python", default=None, help="python with mitsuba 3 (default: bench_effects')")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "bench_fit"))
     args = ap.parse_args()
     import jax
@@ -45,10 +66,15 @@ def main():
 
     n = 64 if args.quick else args.size
     repeats = 1 if args.quick else args.repeats
-    px = read_image(shipped_envmap("courtyard")).pixels
-    while px.shape[0] > args.env_height:
-        px = downsample(px)
-    env = EnvMap.from_array(px)
+    if args.whole_process:  # the map exactly as the command line reads it
+        from bubblefit.cli.fit import load_envmap
+
+        env = load_envmap(str(shipped_envmap("courtyard")))
+    else:
+        px = read_image(shipped_envmap("courtyard")).pixels
+        while px.shape[0] > args.env_height:
+            px = downsample(px)
+        env = EnvMap.from_array(px)
     rng = np.random.default_rng(0)
     disc = (n / 2, n / 2, 0.42 * n)
     bg = ndi.gaussian_filter(rng.uniform(0.15, 0.6, (n, n, 3)), (n / 20, n / 20, 0))
@@ -58,6 +84,10 @@ def main():
                              "lighting": {"envmap": "x.exr"}, "effects": {"transmission_tint": True}})
     photo = q(render_scene(scene, bg, env=env))
     effects = (("spectral", {"method": "uniform", "samples": args.samples}),) if args.samples else ()
+    if args.whole_process:
+        return whole_process(photo, q(bg), Path(args.out), args.models.split(","), args.mitsuba_python)
+    if args.profile_solver:
+        return profile_solver(photo, env, q(bg), truth, Path(args.out), args.models.split(","))
     rows = []
     for kind in ("constant",) + (() if args.no_map else ("map",)):
         opts = FitOptions(thickness=kind, disc=disc, t_init=0.965, roughness_init=0.04, effects=effects)
@@ -100,6 +130,169 @@ def main():
     fig.tight_layout()
     fig.savefig(out / "bench_fit.png", dpi=100)
     print(f"wrote {out}/bench_fit.json, .csv, .png")
+
+
+def _clock(fn, *a, repeats=3):
+    """(first call, median of ``repeats`` warm calls) in seconds."""
+    import jax
+
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn(*a))
+    first = time.perf_counter() - t0
+    warm = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(*a))
+        warm.append(time.perf_counter() - t0)
+    return first, float(np.median(warm))
+
+
+def profile_solver(photo, env, bg, truth, out: Path, models=("paper", "physical")):
+    """The pieces of one LM step and the whole local solve, per model (module docstring)."""
+    import jax
+    import jax.numpy as jnp
+    import lineax as lx
+    import optimistix as optx
+
+    from bubblefit.inverse import _local, _setup
+    from bubblefit.inverse.fit import FitOptions
+    from bubblefit.model.render import render
+
+    rows = []
+    for model in models:
+        opts = FitOptions(model=model)
+        init = {"thickness_nm": truth["thickness_nm"] + 6.0, "roughness": 0.05}
+        st = _setup.setup(photo, env, opts, bg, init, None, None)
+        lev, table = st.lev_fit, st.table
+        fixed = {k: jnp.asarray(v, jnp.float32) for k, v in st.vals.items() if k not in table.free}
+        args = (fixed, env, None if lev.bg is None else jnp.asarray(lev.bg), jnp.asarray(lev.y), jnp.asarray(lev.w))
+        z0 = jnp.asarray(table.unconstrained(st.vals), jnp.float32)
+
+        def resid(z, a):
+            fx, e, b, y, w = a
+            img = render(table.render_params(table.values(z, fx)), lev.cfg, e, b)
+            return _local.robust((img - y) * w, float(opts.robust_scale)).reshape(-1)
+
+        def lin_tangent(z, a):
+            f, lin = jax.linearize(lambda u: resid(u, a), z)
+            return f, lin(jnp.ones_like(z))
+
+        def lin_matrix(z, a):
+            f, lin = jax.linearize(lambda u: resid(u, a), z)
+            return f, lx.FunctionLinearOperator(lin, jax.eval_shape(lambda: z)).as_matrix()
+
+        row = {"model": model, "level": "x".join(map(str, lev.y.shape[:2])), "free": len(table.free)}
+        for name, fn in (("render", resid), ("jacfwd", jax.jacfwd(resid)), ("linearize_1_tangent", lin_tangent),
+                         ("linearize_as_matrix", lin_matrix)):
+            first, warm = _clock(jax.jit(fn), z0, args)
+            row[f"{name}_ms"] = round(1000 * warm, 1)
+            row[f"{name}_first_s"] = round(first, 2)
+        for label, lm in (("bubblefit", _local.LevenbergMarquardt(rtol=float(opts.rtol), atol=float(opts.atol))),
+                          ("optimistix", optx.LevenbergMarquardt(rtol=float(opts.rtol), atol=float(opts.atol)))):
+            def run(z, a, lm=lm):
+                sol = optx.least_squares(resid, lm, z, a, max_steps=int(opts.max_steps), throw=False)
+                return sol.value, sol.stats["num_steps"]
+
+            solve = jax.jit(run)
+            first, warm = _clock(solve, z0, args, repeats=1)
+            z, steps = solve(z0, args)
+            vals = table.values(z, fixed)
+            row[f"solve_{label}_s"] = round(warm, 2)
+            row[f"solve_{label}_first_s"] = round(first, 2)
+            row[f"solve_{label}_steps"] = int(steps)
+            row[f"solve_{label}_thickness_nm"] = round(float(vals["thickness_nm"]), 3)
+        row["solve_speedup"] = round(row["solve_optimistix_s"] / row["solve_bubblefit_s"], 2)
+        print(json.dumps(row), flush=True)
+        rows.append(row)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "solver_profile.json").write_text(json.dumps(rows, indent=2))
+    with open(out / "solver_profile.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    plot_solver_profile(rows, out)
+    print(f"wrote {out}/solver_profile.json, .csv, .png")
+
+
+def plot_solver_profile(rows, out: Path):
+    """Bars: the pieces of a step (left) and the whole solve per solver (right), per model."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(9, 3.2))
+    pieces = ("render", "jacfwd", "linearize_1_tangent", "linearize_as_matrix")
+    x = np.arange(len(pieces))
+    for i, r in enumerate(rows):
+        ax1.bar(x + 0.4 * i, [r[f"{p}_ms"] for p in pieces], 0.4, label=r["model"])
+        ax2.bar(np.arange(2) + 0.4 * i, [r["solve_bubblefit_s"], r["solve_optimistix_s"]], 0.4, label=r["model"])
+        for j, k in enumerate(("bubblefit", "optimistix")):
+            ax2.text(j + 0.4 * i, r[f"solve_{k}_s"], f"{r[f'solve_{k}_steps']} steps", ha="center", va="bottom",
+                     fontsize=7)
+    ax1.set_xticks(x + 0.2, ["render", "jacfwd", "linearize\n+1 tangent", "linearize\n+materialise"], fontsize=7)
+    ax1.set_ylabel("ms per call (warm)")
+    ax1.set_title(f"pieces of an LM step, {rows[0]['level']} level", fontsize=9)
+    ax2.set_xticks([0.2, 1.2], ["bubblefit LM", "optimistix LM"], fontsize=8)
+    ax2.set_ylabel("local solve (s, warm)")
+    ax2.set_title("whole local solve, same start", fontsize=9)
+    for ax in (ax1, ax2):
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "solver_profile.png", dpi=110)
+
+
+def whole_process(photo, bg, out: Path, models, mitsuba_python=None):
+    """Whole-process seconds of ``bubblefit fit`` per model, cold and warm cache, and the
+    yardsticks of the same run (module docstring)."""
+    import subprocess
+    import sys
+    import tempfile
+
+    from bench_effects import MAPS, MITSUBA_PYTHON, MITSUBA_SCRIPT
+
+    from bubblefit.io.images import write_image
+    from bubblefit.model.scene import shipped_envmap
+
+    here = Path(__file__).resolve().parent
+    mitsuba_python = mitsuba_python or MITSUBA_PYTHON
+    rows = {"size": int(photo.shape[0])}
+
+    def clock(cmd, env=None):
+        t0 = time.perf_counter()
+        done = subprocess.run(cmd, env=env, capture_output=True, text=True)
+        if done.returncode != 0:
+            raise SystemExit(f"{' '.join(map(str, cmd))} failed: {done.stderr.strip().splitlines()[-1:]}")
+        return time.perf_counter() - t0
+
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        write_image(tmp / "photo.png", np.clip(photo, 0, 1), bit_depth=8)
+        write_image(tmp / "bg.png", np.clip(bg, 0, 1), bit_depth=8)
+        rows["numpy_import_s"] = float(np.median([clock([sys.executable, "-c", "import numpy"]) for _ in range(3)]))
+        for model in models:
+            env = dict(os.environ, BUBBLEFIT_CACHE_DIR=str(tmp / f"cache-{model}"), JAX_PLATFORMS="cpu",
+                       PYTHONPATH=str(here.parent))
+            cmd = [sys.executable, "-m", "bubblefit", "fit", str(tmp / "photo.png"), "--envmap",
+                   str(shipped_envmap("courtyard")), "--background", str(tmp / "bg.png"), "--thickness", "constant",
+                   "--model", model, "--json", str(tmp / f"{model}.json"), "-o", str(tmp / model)]
+            rows[f"fit_{model}_cold_s"] = clock(cmd, env)
+            rows[f"fit_{model}_warm_s"] = clock(cmd, env)
+            res = json.loads((tmp / f"{model}.json").read_text())
+            rows[f"fit_{model}_thickness_nm"] = res["params"]["thickness_nm"]
+            rows[f"fit_{model}_iterations"] = res["iterations"]
+            rows[f"fit_{model}_ok"] = res["ok"]
+        if Path(mitsuba_python).exists():
+            rows["mitsuba_64spp_s"] = clock([mitsuba_python, "-c", MITSUBA_SCRIPT, "256", str(MAPS / "sunrise.exr"),
+                                             str(tmp / "m.exr")])
+    for k in [k for k in rows if k.startswith("fit_") and k.endswith(("_cold_s", "_warm_s"))]:
+        rows[k[:-2] + "_over_numpy"] = rows[k] / rows["numpy_import_s"]
+        if "mitsuba_64spp_s" in rows:
+            rows[k[:-2] + "_over_mitsuba"] = rows[k] / rows["mitsuba_64spp_s"]
+    print(json.dumps(rows, indent=1))
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "whole_process.json").write_text(json.dumps(rows, indent=2))
+    print(f"wrote {out}/whole_process.json")
 
 
 if __name__ == "__main__":

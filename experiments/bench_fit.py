@@ -133,18 +133,11 @@ def main():
 
 
 def _clock(fn, *a, repeats=3):
-    """(first call, median of ``repeats`` warm calls) in seconds."""
-    import jax
+    """(first call, median of ``repeats`` warm calls) in seconds (``accuracy_vs_time.timed``)."""
+    from accuracy_vs_time import timed
 
-    t0 = time.perf_counter()
-    jax.block_until_ready(fn(*a))
-    first = time.perf_counter() - t0
-    warm = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn(*a))
-        warm.append(time.perf_counter() - t0)
-    return first, float(np.median(warm))
+    _, warm, extra = timed(lambda: fn(*a), repeats)
+    return warm + extra, warm
 
 
 def profile_solver(photo, env, bg, truth, out: Path, models=("paper", "physical")):

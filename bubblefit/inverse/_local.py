@@ -15,7 +15,6 @@ import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-
 from typing import Any
 
 import equinox as eqx
@@ -225,10 +224,9 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
     decrement_tolerance: float | None = STOP_DECREMENT
 
     def init(self, fn, y, args, options, f_struct, aux_struct, tags) -> _LMState:
-        zeros = lambda shape, dtype: jnp.zeros(shape, dtype)
         f_info = optx.FunctionInfo.ResidualJac(
-            zeros(f_struct.shape, f_struct.dtype),
-            lx.MatrixLinearOperator(zeros((f_struct.size, jnp.size(y)), f_struct.dtype)))
+            jnp.zeros(f_struct.shape, f_struct.dtype),
+            lx.MatrixLinearOperator(jnp.zeros((f_struct.size, jnp.size(y)), f_struct.dtype)))
         return _LMState(first_step=jnp.array(True), y_eval=y, search_state=self.search.init(y, f_info),
                         f_info=f_info, descent_state=self.descent.init(y, f_info), terminate=jnp.array(False),
                         result=optx.RESULTS.successful, num_steps=jnp.array(0), num_accepted_steps=jnp.array(0),

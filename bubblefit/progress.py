@@ -28,6 +28,7 @@ __all__ = ["Progress", "stage", "status", "enabled", "set_enabled", "elapsed"]
 _START = time.perf_counter()  # about when the process started: the clock the user sees
 _FORCED: bool | None = None
 _DEPTH = 0
+_BARS = 0  # bars being drawn: stages inside them (each frame's fit) stay quiet
 
 
 def elapsed() -> float:
@@ -109,6 +110,8 @@ class Progress:
         self.start = time.perf_counter()
 
     def __enter__(self):
+        global _BARS
+        _BARS += 1
         self._draw()
         return self
 
@@ -131,6 +134,8 @@ class Progress:
         self.stream.flush()
 
     def __exit__(self, *exc):
+        global _BARS
+        _BARS -= 1
         if self.enabled:
             self.stream.write("\n")
             self.stream.flush()

@@ -104,3 +104,27 @@ def test_filter_config_rejects_bad_knobs():
         F.FilterConfig("blur")
     with pytest.raises(ValueError):
         F.FilterConfig("mipmap", nodes=0)
+
+
+@pytest.mark.parametrize("shape,out_height", [((64, 128), 32), ((40, 80), 10), ((30, 70), 8)])
+def test_irradiance_table_is_the_direct_cosine_sum(shape, out_height):
+    """The irradiance table (FFT in azimuth when the widths divide, else direct) equals the
+    cosine-weighted sum over every texel, written here from the texel geometry; a single
+    bright texel's irradiance follows Lambert's cosine law."""
+    from bubblefit.lighting.envmap import irradiance_map, texel_directions, texel_solid_angles
+
+    rng = np.random.default_rng(3)
+    px = rng.uniform(0.0, 5.0, shape + (3,))
+    h, w = shape
+    dirs = texel_directions(h, w).reshape(-1, 3)
+    rad = px.reshape(-1, 3) * np.repeat(texel_solid_angles(h, w), w)[:, None]
+    normals = texel_directions(out_height, 2 * out_height).reshape(-1, 3)
+    direct = np.maximum(normals @ dirs.T, 0.0) @ rad
+    table = irradiance_map(px, out_height=out_height, src_height=h).reshape(-1, 3)
+    np.testing.assert_allclose(table, direct, rtol=1e-12, atol=1e-12 * direct.max())
+    sun = np.zeros((h, w, 3))
+    sun[h // 3, w // 5] = 1.0
+    e = irradiance_map(sun, out_height=out_height, src_height=h).reshape(-1, 3)[:, 0]
+    power = texel_solid_angles(h, w)[h // 3]
+    np.testing.assert_allclose(e, power * np.maximum(normals @ texel_directions(h, w)[h // 3, w // 5], 0.0),
+                               atol=1e-15)

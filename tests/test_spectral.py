@@ -304,3 +304,44 @@ def test_scene_colour_keys(tmp_path):
                 {"camera": {"response": "Canon 5D"}}, {"lighting": {"illuminant": "missing.csv"}}):
         with pytest.raises(InputError):
             Scene.from_dict(bad).config()
+
+
+def test_shipped_colour_tables_equal_colour_science():
+    """The observer, D65 and A that bubblefit ships (so that the default path needs no
+    colour-science import) are colour-science's datasets, value for value, and the sRGB
+    matrix is colour-science's."""
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
+    cmf = np.stack([np.interp(spectral._GRID, cmfs.wavelengths, cmfs.values[:, c]) for c in range(3)], axis=1)
+    m = colour.RGB_COLOURSPACES["sRGB"].matrix_XYZ_to_RGB
+    np.testing.assert_array_equal(spectral.response_functions("srgb"), cmf @ np.asarray(m).T)
+    for name in ("D65", "A"):
+        sd = colour.SDS_ILLUMINANTS[name]
+        np.testing.assert_array_equal(spectral.illuminant_spectrum(name),
+                                      np.interp(spectral._GRID, sd.wavelengths, sd.values))
+    assert spectral.is_named_illuminant("D50") and not spectral.is_named_illuminant("nowhere.csv")
+
+
+def test_default_colour_path_does_not_import_colour_science():
+    """Rendering sRGB under D65 reads shipped tables: colour-science (about a second to import)
+    stays out of the process."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from bubblefit.optics import spectral; spectral.spectral_basis('fourier', 8, 'D65'); "
+            "from bubblefit.io import images; images.srgb_encode(0.5); "
+            "import bubblefit.inverse.fit, bubblefit.model.scene; print('colour' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_srgb_transfer_functions_agree_with_colour_science():
+    v = np.linspace(0.0, 1.0, 20001)
+    from bubblefit.io.images import srgb_decode, srgb_encode, srgb_slope
+
+    np.testing.assert_allclose(srgb_decode(v), colour.cctf_decoding(v, function="sRGB"), atol=1e-8)
+    np.testing.assert_allclose(srgb_encode(v), colour.cctf_encoding(v, function="sRGB"), atol=1e-12)
+    np.testing.assert_allclose(srgb_decode(srgb_encode(v)), v, atol=1e-12)
+    h = 1e-6  # the slope is the derivative of the decoding, away from the joint at 0.04045
+    inner = (v > h) & (v < 1 - h) & (np.abs(v - 0.04045) > 2 * h)
+    numeric = (srgb_decode(v + h) - srgb_decode(v - h)) / (2 * h)
+    np.testing.assert_allclose(srgb_slope(v)[inner], numeric[inner], rtol=1e-6)

@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
+from ..io.images import srgb_encode
 
 __all__ = ["HdrMerge", "merge_exposures", "file_clip_level", "recover_response", "apply_response", "exposure_stops"]
 
@@ -169,8 +170,7 @@ def merge_exposures(
             num += wj * tj * x
             den += wj * tj * tj
         else:
-            z = np.clip(x, 0.0, 1.0)
-            zenc = np.where(z <= 0.0031308, 12.92 * z, 1.055 * np.power(z, 1 / 2.4) - 0.055)
+            zenc = srgb_encode(x)
             hat = np.minimum(zenc, 1.0 - zenc)
             wj = ok[..., None] * hat * (x >= noise_floor)
             num += wj * (np.log(np.maximum(x, 1e-12)) - math.log(tj))

@@ -27,6 +27,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from ._observation import Level
 from ._parameters import PARAMETERS, ParameterTable, forward, value_and_slope
+from ..io.executables import stored
 from ..model.render import RenderConfig, render
 
 __all__ = ["LocalSolution", "DenseDampedNewtonDescent", "LevenbergMarquardt", "scaled_decrement",
@@ -357,6 +358,13 @@ def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_st
     return solve, jax.jit(resid)
 
 
+@functools.lru_cache(maxsize=64)
+def stored_solver(*key):
+    """:func:`solver`'s ``solve`` through the executable store (:func:`bubblefit.io.executables.stored`):
+    a new process loads the compiled solve instead of tracing it again."""
+    return stored(solver(*key)[0], "inverse._local.solver", key)
+
+
 @functools.lru_cache(maxsize=16)
 def batched_solver(*key):
     """:func:`solver`'s ``solve`` vmapped over frames: ``z0``, ``y`` and ``w`` carry a
@@ -389,8 +397,9 @@ def solve_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_st
     """Levenberg-Marquardt from ``vals`` on ``lev`` (``opts``: a ``FitOptions``); with
     ``stall`` it stops after :data:`MAX_REJECTIONS` rejections and restarts while far from
     the optimum, without it runs optimistix' own stopping rule alone (warm starts)."""
-    solve, _ = solver(lev.cfg, table, float(opts.robust_scale), int(max_steps or opts.max_steps),
-                      float(opts.rtol), float(opts.atol), MAX_REJECTIONS if stall else None)
+    key = (lev.cfg, table, float(opts.robust_scale), int(max_steps or opts.max_steps), float(opts.rtol),
+           float(opts.atol), MAX_REJECTIONS if stall else None)
+    solve = stored_solver(*key)
     fixed = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k not in table.free}
     args = (fixed, env, None if lev.bg is None else jnp.asarray(lev.bg), jnp.asarray(lev.y), jnp.asarray(lev.w))
     sol = solution_from(table, vals, *solve(table.unconstrained(vals), args), fixed)

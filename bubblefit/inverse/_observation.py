@@ -9,16 +9,19 @@ film's geometry (:class:`Level`). The bubble's disc is found in :mod:`._disc`.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, replace
 
 import cv2
+import jax
 import jax.numpy as jnp
 import numpy as np
 from scipy import ndimage as ndi
 
 from ..capture.calibrate import detect_bubble, usable_mask
 from ..errors import InputError
+from ..io.images import srgb_encode, srgb_slope
 from ..model.geometry import OrthographicCamera, intersect_sphere
 from ..model.render import RenderConfig
 
@@ -40,9 +43,7 @@ def noise_sigma(photo: np.ndarray, read: float, shot: float, bits: int | None) -
     i = np.clip(photo, 0.0, None)
     var = read**2 + shot * i
     if bits:
-        lin = np.clip(i, 0.0, 1.0)
-        v = np.where(lin <= 0.0031308, lin * 12.92, 1.055 * lin ** (1 / 2.4) - 0.055)
-        slope = np.where(v <= 0.04045, 1 / 12.92, 2.4 / 1.055 * ((v + 0.055) / 1.055) ** 1.4)
+        slope = srgb_slope(srgb_encode(i))
         var = var + (slope / (2**bits - 1)) ** 2 / 12.0
     return np.sqrt(var)
 
@@ -196,14 +197,17 @@ def _camera_at(camera, k: int, h: int, w: int):
 def film_geometry(cfg: RenderConfig):
     """``(inside, cos, height)`` (h, w) of the front film under each pixel of ``cfg``'s camera."""
     h, w = cfg.shape
-    rows, cols = np.mgrid[0:h, 0:w]
-    o, d = cfg.camera.rays(jnp.asarray(rows.reshape(-1), jnp.float32), jnp.asarray(cols.reshape(-1), jnp.float32),
-                           cfg.center, cfg.radius)
-    hits = intersect_sphere(o, d, cfg.center, cfg.radius)
-    cos = np.asarray(hits.cos).reshape(h, w)
-    inside = np.asarray(hits.inside).reshape(h, w)
-    height = np.asarray(hits.local0[:, 1]).reshape(h, w)
-    return inside, cos, height
+    inside, cos, height = _front_film(cfg.camera, tuple(cfg.center), float(cfg.radius))
+    return np.asarray(inside).reshape(h, w), np.asarray(cos).reshape(h, w), np.asarray(height).reshape(h, w)
+
+
+@functools.partial(jax.jit, static_argnames=("camera", "center", "radius"))
+def _front_film(camera, center, radius):
+    """The front film's hit under every pixel centre, as one program (not one per operation)."""
+    rows, cols = jnp.divmod(jnp.arange(camera.height * camera.width), camera.width)
+    o, d = camera.rays(rows.astype(jnp.float32), cols.astype(jnp.float32), center, radius)
+    hits = intersect_sphere(o, d, center, radius)
+    return hits.inside, hits.cos, hits.local0[:, 1]
 
 
 def make_level(k, base_cfg, photo, sigma, bg, saturated, rim: float) -> Level:

@@ -61,6 +61,7 @@ from ._verdict import at_bounds, unresolved, verdict
 from ..lighting.envmap import EnvMap
 from ..model.render import render
 from ..model.thickness import drainage_profile
+from ..progress import stage
 
 __all__ = ["FitOptions", "FitResult", "fit_photo", "fit_batch", "detect_disc", "noise_sigma"]
 
@@ -220,23 +221,32 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
         return _fit_either_model(photo, env, options, background, init, scene, saturated)
     t_start = time.perf_counter()
     opts = options
-    st = setup(photo, env, opts, background, init, scene, saturated)
+    with stage("finding the disc, choosing the effects"):
+        st = setup(photo, env, opts, background, init, scene, saturated)
     notes = []
     search_thickness = "thickness_nm" in st.table.free or "top_nm" in st.table.free
     warm = bool(init)
-    start = _searched_start(st, opts, env) if search_thickness and not warm else st.vals
-    sol = solve_local(st.lev_fit, st.table, opts, start, env, stall=not warm)
+    if search_thickness and not warm:
+        with stage("global thickness search"):
+            start = _searched_start(st, opts, env)
+    else:
+        start = st.vals
+    with stage(f"local fit, {len(st.table.free)} parameters"):
+        sol = solve_local(st.lev_fit, st.table, opts, start, env, stall=not warm)
     why = _warm_doubt(st, opts, sol) if warm and search_thickness else None
     if why:
         # A warm start can settle in a neighbouring colour order: search globally and keep
         # whichever fit explains the photo better.
-        second = solve_local(st.lev_fit, st.table, opts, _searched_start(st, opts, env), env)
+        with stage(f"warm start doubtful ({why}): global search and local fit"):
+            second = solve_local(st.lev_fit, st.table, opts, _searched_start(st, opts, env), env)
         if np.isfinite(second.cost) and (not np.isfinite(sol.cost) or second.cost < sol.cost):
             sol = second
             notes.append(f"warm start rejected ({why}); searched globally")
         else:
             notes.append(f"warm start doubtful ({why}); a global search did not do better")
-    return _finish(st, env, opts, sol, notes, t_start)
+    with stage("thickness map, standard errors, final render" if opts.thickness == "map"
+               else "standard errors, final render"):
+        return _finish(st, env, opts, sol, notes, t_start)
 
 
 def _explained(r: FitResult, opts: FitOptions) -> bool:
@@ -256,12 +266,14 @@ def _fit_either_model(photo, env, options: FitOptions, background, init, scene, 
     a camera) is explained by the physical model, within its floor."""
     t0 = time.perf_counter()
     kw = dict(background=background, scene=scene, saturated=saturated)
-    first = fit_photo(photo, env, options=replace(options, model="paper"), init=init, **kw)
+    with stage("paper model"):
+        first = fit_photo(photo, env, options=replace(options, model="paper"), init=init, **kw)
     if _explained(first, options):
         first.message += "; model auto: the paper model explains the photo"
         return first
     start = {k: v for k, v in first.params.items() if np.isfinite(v)} if first.converged else init
-    second = fit_photo(photo, env, options=replace(options, model="physical"), init=start, **kw)
+    with stage(f"physical model (the paper model's reduced chi^2 {first.chi2_floor:.3g} with the floor)"):
+        second = fit_photo(photo, env, options=replace(options, model="physical"), init=start, **kw)
     rank = lambda r: (not r.converged, r.chi2_floor if np.isfinite(r.chi2_floor) else np.inf)
     best = second if rank(second) < rank(first) else first
     best.message += (f"; model auto: paper reduced chi^2 {first.chi2_floor:.3g}, physical {second.chi2_floor:.3g} "

@@ -89,6 +89,7 @@ def phi_table(basis: spectral.SpectralBasis, x_max: float) -> np.ndarray:
     return np.asarray(c2 @ np.asarray(basis.weights, dtype=np.float64), dtype=np.float32)
 
 
+@jax.jit
 def phi_rgb(table: jnp.ndarray, x: jnp.ndarray) -> jnp.ndarray:
     """Linear interpolation of :func:`phi_table` at optical paths ``x`` (...,) -> (..., 3)."""
     pos = jnp.clip(x / X_STEP, 0.0, table.shape[0] - 1.001)
@@ -156,6 +157,7 @@ class PaperPhi:
         return _phi_per_wavelength(d, c, lam, n, sigma, w)
 
 
+@jax.jit
 def paper_candidates(phi, m, c, t, r_s):
     """The ``paper`` model's pixel for interference integral ``Phi`` (..., 3): ``(refl, back)``.
 

@@ -13,7 +13,6 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import colour
 import numpy as np
 import OpenImageIO as oiio
 
@@ -27,6 +26,7 @@ __all__ = [
     "write_preview",
     "srgb_decode",
     "srgb_encode",
+    "srgb_slope",
     "atomic_path",
     "preview_path",
 ]
@@ -41,13 +41,24 @@ def _first_line(text: str) -> str:
 
 
 def srgb_decode(values: np.ndarray) -> np.ndarray:
-    """sRGB-encoded values in [0, 1] to linear (IEC 61966-2-1, via colour-science)."""
-    return np.asarray(colour.cctf_decoding(np.clip(values, 0.0, 1.0), function="sRGB"))
+    """sRGB-encoded values in [0, 1] to linear: ``V / 12.92`` up to 0.04045, else
+    ``((V + 0.055) / 1.055)^2.4`` (IEC 61966-2-1:1999, sec. 5.2)."""
+    v = np.clip(np.asarray(values, dtype=np.float64), 0.0, 1.0)
+    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
 
 
 def srgb_encode(values: np.ndarray) -> np.ndarray:
-    """Linear values to sRGB-encoded values in [0, 1] (IEC 61966-2-1, via colour-science)."""
-    return np.asarray(colour.cctf_encoding(np.clip(values, 0.0, 1.0), function="sRGB"))
+    """Linear values to sRGB-encoded values in [0, 1]: ``12.92 L`` up to 0.0031308, else
+    ``1.055 L^(1/2.4) - 0.055`` (IEC 61966-2-1:1999, sec. 5.3)."""
+    lin = np.clip(np.asarray(values, dtype=np.float64), 0.0, 1.0)
+    return np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
+
+
+def srgb_slope(encoded: np.ndarray) -> np.ndarray:
+    """``dL/dV`` of :func:`srgb_decode` at the encoded values ``V`` (the size in linear units
+    of one step of the encoded value)."""
+    v = np.clip(np.asarray(encoded, dtype=np.float64), 0.0, 1.0)
+    return np.where(v <= 0.04045, 1 / 12.92, 2.4 / 1.055 * ((v + 0.055) / 1.055) ** 1.4)
 
 
 @dataclass

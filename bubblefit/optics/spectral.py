@@ -4,14 +4,17 @@ A reflectance spectrum ``S(lambda)`` seen under an illuminant ``I(lambda)`` by a
 ``rho_c(lambda)`` gives the channel values ``c = sum_k rho_c(lambda_k) I(lambda_k)
 S(lambda_k) dlambda``. The response is
 
-- ``"srgb"`` (default): the CIE 1931 2-degree observer (colour-science) followed by the
-  XYZ to linear sRGB (Rec. 709) matrix of IEC 61966-2-1, so ``rho = M cmf``;
+- ``"srgb"`` (default): the CIE 1931 2-degree observer followed by the XYZ to linear
+  sRGB (Rec. 709) matrix of IEC 61966-2-1, so ``rho = M cmf``;
 - a camera of ``colour.MSDS_CAMERA_SENSITIVITIES`` (measured raw sensitivities, e.g.
   ``"Nikon 5100 (NPL)"``), zero outside their measured range;
 - a CSV file ``wavelength_nm,r,g,b``.
 
 The illuminant is ``"D65"`` (default), ``"E"``, ``"A"`` (or any of colour-science's
-``SDS_ILLUMINANTS``) or a CSV file ``wavelength_nm,power``. White balance
+``SDS_ILLUMINANTS``) or a CSV file ``wavelength_nm,power``. The observer, D65 and A are
+read from tables shipped in ``bubblefit/data`` (written from colour-science's datasets by
+``experiments/colour_tables.py``), so the default colour path does not import
+colour-science (about a second per process); other names import it when asked for. White balance
 ``"illuminant"`` normalises each channel so that a spectrally flat reflectance ``c``
 gives ``(c, c, c)`` (``docs/design.md``); explicit gains ``(g_r, g_g, g_b)`` multiply raw
 channels normalised so that the green channel of a white reflector reads 1 (a camera's
@@ -46,7 +49,6 @@ import functools
 import os
 from typing import Literal, get_args
 
-import colour
 import numpy as np
 from jaxtyping import Array, Float
 
@@ -77,6 +79,23 @@ REFERENCE_SAMPLES = 800
 
 #: The colour-matching and response tables' grid: 1 nm over 360-830 nm.
 _GRID = np.arange(360.0, 831.0, 1.0)
+
+#: XYZ to linear sRGB, the matrix as IEC 61966-2-1:1999 prints it (colour-science's too).
+XYZ_TO_SRGB = np.array([[3.2406, -1.5372, -0.4986],
+                        [-0.9689, 1.8758, 0.0415],
+                        [0.0557, -0.2040, 1.0570]])
+
+_DATA = os.path.join(os.path.dirname(os.path.dirname(__file__)), "data")
+#: The illuminants shipped in ``bubblefit/data/cie_illuminants.csv`` (besides ``E``).
+_SHIPPED_ILLUMINANTS = ("D65", "A")
+
+
+@functools.lru_cache(maxsize=2)
+def _shipped_table(name: str) -> tuple[tuple[str, ...], np.ndarray]:
+    """(column names, (rows, columns) values) of a CSV table in ``bubblefit/data``."""
+    with open(os.path.join(_DATA, name), encoding="utf-8") as fh:
+        header, *rows = [ln for ln in fh.read().splitlines() if ln and not ln.startswith("#")]
+    return tuple(header.split(",")), np.array([[float(x) for x in r.split(",")] for r in rows])
 
 
 def _read_columns(path: str, columns: int, what: str) -> np.ndarray:
@@ -120,7 +139,12 @@ def illuminant_spectrum(illuminant: str) -> np.ndarray:
 
     if illuminant.upper() in ("E", "EQUAL", "EQUAL_ENERGY"):
         return np.ones_like(_GRID)
-    if illuminant in colour.SDS_ILLUMINANTS:
+    if illuminant in _SHIPPED_ILLUMINANTS:
+        names, table = _shipped_table("cie_illuminants.csv")
+        return np.interp(_GRID, table[:, 0], table[:, names.index(illuminant)])
+    if not os.path.isfile(illuminant) and _colour_has("SDS_ILLUMINANTS", illuminant):
+        import colour
+
         sd = colour.SDS_ILLUMINANTS[illuminant]
         return np.interp(_GRID, np.asarray(sd.wavelengths), np.asarray(sd.values))
     if not os.path.isfile(illuminant):
@@ -142,30 +166,41 @@ def response_functions(response: str) -> np.ndarray:
     from ..errors import InputError
 
     if response.lower() == "srgb":
-        cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
-        lam = np.asarray(cmfs.wavelengths, dtype=np.float64)
-        cmf = np.stack([np.interp(_GRID, lam, np.asarray(cmfs.values)[:, c]) for c in range(3)], axis=1)
-        m = np.asarray(colour.RGB_COLOURSPACES["sRGB"].matrix_XYZ_to_RGB, dtype=np.float64)
-        return cmf @ m.T
-    if response in colour.MSDS_CAMERA_SENSITIVITIES:
+        _, table = _shipped_table("cie_1931_2deg.csv")
+        cmf = np.stack([np.interp(_GRID, table[:, 0], table[:, c]) for c in (1, 2, 3)], axis=1)
+        return cmf @ XYZ_TO_SRGB.T
+    if not os.path.isfile(response) and _colour_has("MSDS_CAMERA_SENSITIVITIES", response):
+        import colour
+
         msds = colour.MSDS_CAMERA_SENSITIVITIES[response]
         lam, vals = np.asarray(msds.wavelengths), np.asarray(msds.values)
         return np.stack([np.interp(_GRID, lam, vals[:, c], left=0.0, right=0.0) for c in range(3)], axis=1)
     if not os.path.isfile(response):
+        import colour
+
         raise InputError(f"unknown camera response {response!r} (srgb, one of "
                          f"{', '.join(colour.MSDS_CAMERA_SENSITIVITIES)}, or a CSV wavelength_nm,r,g,b)")
     data = _read_columns(response, 4, "camera response")
     return np.stack([np.interp(_GRID, data[:, 0], data[:, c], left=0.0, right=0.0) for c in (1, 2, 3)], axis=1)
 
 
+def _colour_has(dataset: str, name: str) -> bool:
+    """Whether colour-science's ``dataset`` (e.g. ``SDS_ILLUMINANTS``) holds ``name``; imports
+    colour-science, so it is asked only for names bubblefit does not ship."""
+    import colour
+
+    return name in getattr(colour, dataset)
+
+
 def is_named_illuminant(name: str) -> bool:
     """Whether ``name`` is a built-in illuminant (``E`` or colour-science's), not a file."""
-    return name.upper() in ("E", "EQUAL", "EQUAL_ENERGY") or name in colour.SDS_ILLUMINANTS
+    return (name.upper() in ("E", "EQUAL", "EQUAL_ENERGY") or name in _SHIPPED_ILLUMINANTS
+            or _colour_has("SDS_ILLUMINANTS", name))
 
 
 def is_named_response(name: str) -> bool:
     """Whether ``name`` is a built-in response (``srgb`` or a colour-science camera), not a file."""
-    return name.lower() == "srgb" or name in colour.MSDS_CAMERA_SENSITIVITIES
+    return name.lower() == "srgb" or _colour_has("MSDS_CAMERA_SENSITIVITIES", name)
 
 
 def _channel_density(illuminant: str, response: str) -> np.ndarray:

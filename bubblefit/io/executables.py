@@ -1,0 +1,197 @@
+"""Compiled programs kept on disk, so that a new process does not trace them again.
+
+JAX's persistent compilation cache (:mod:`bubblefit.io.jaxcache`) saves XLA's compile,
+but its key is the lowered program: every process still traces the Python function to a
+jaxpr and lowers it to MLIR before it can look the program up. For the fit's
+Levenberg-Marquardt solve (the render, its Jacobian, the trust region and the QR inside
+one ``while_loop``) that is about 0.5 s of tracing and 0.3 s of lowering per program,
+every process. :func:`stored` keeps the compiled executable itself
+(:mod:`jax.experimental.serialize_executable`) under a key computed without tracing:
+
+- what the function is: a name and the static values it closes over (the render
+  configuration, the parameter table, the solver's settings), pickled;
+- the code it runs: a digest of every ``.py`` file of the bubblefit package, and the
+  versions of JAX and jaxlib, the backend and the float64 flag;
+- what it is called with: the arguments' tree structure, shapes and dtypes.
+
+A change to any of them is a new key, so a stale program is never run. Any failure to
+store or to load (a program with closed-over constants, a read-only cache, a damaged
+file) falls back to the plain jitted call. Files live in ``executables/`` of the
+compilation cache's folder (at most :data:`MAX_BYTES`). The store is used in processes
+that called :func:`~bubblefit.io.jaxcache.jax_setup` (the command line and its workers).
+
+Two things XLA:CPU needs, found by running it: an executable is serialised from a fresh
+compile (one that the persistent cache loaded loses its fused kernels), and the LAPACK
+kernels are initialised before a loaded program runs (JAX does it while lowering, which a
+loaded program skips).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import hashlib
+import pickle
+import threading
+from pathlib import Path
+from typing import Any, Callable
+
+__all__ = ["stored", "source_digest"]
+
+#: Folder, under the compilation cache's, that holds the stored executables.
+FOLDER = "executables"
+#: Most bytes the folder keeps (a fit's solve is 2-3 MB); the least recently used go first.
+MAX_BYTES = 512 * 2**20
+#: Whether :func:`stored` uses the store: set by :func:`bubblefit.io.jaxcache.jax_setup`
+#: (the command line, the sequence workers); library calls without it jit as usual.
+ENABLED = False
+_LOCK = threading.Lock()
+
+
+@functools.lru_cache(maxsize=1)
+def source_digest() -> str:
+    """SHA-256 of every ``.py`` file of the bubblefit package (names and contents)."""
+    root = Path(__file__).resolve().parent.parent
+    h = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        h.update(str(path.relative_to(root)).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()
+
+
+def _folder() -> Path | None:
+    import jax
+
+    from .jaxcache import jax_settings
+
+    cache = getattr(jax.config, "jax_compilation_cache_dir", None) or jax_settings()["cache_dir"]
+    return Path(cache) / FOLDER if cache else None
+
+
+def _key(name: str, static: Any, args: tuple) -> str | None:
+    """The executable's key (hex digest), or None when ``static`` cannot be pickled."""
+    import jax
+    import jaxlib
+
+    leaves, tree = jax.tree_util.tree_flatten(args)
+    try:
+        static_bytes = pickle.dumps(static, protocol=4)
+    except Exception:  # an unpicklable setting: no stored program, only the jitted one
+        return None
+    h = hashlib.sha256()
+    for part in (name, source_digest(), jax.__version__, jaxlib.__version__, jax.default_backend(),
+                 str(jax.devices()[0].device_kind), str(bool(jax.config.jax_enable_x64)), str(tree)):
+        h.update(part.encode())
+        h.update(b"\0")
+    h.update(static_bytes)
+    for x in leaves:
+        aval = jax.typeof(x) if hasattr(jax, "typeof") else jax.core.get_aval(x)
+        h.update(f"{aval.shape}/{aval.dtype}/{getattr(aval, 'weak_type', False)};".encode())
+    return h.hexdigest()
+
+
+def _ready_custom_calls() -> None:
+    """Load the LAPACK kernels the programs call (QR, solves). JAX does this when it lowers a
+    linear-algebra op; a program loaded without lowering would call null kernels."""
+    from jax._src.lax import linalg
+
+    linalg.initialize_lapack()
+
+
+def _load(path: Path, args: tuple):
+    import jax
+    from jax.experimental.serialize_executable import deserialize_and_load
+
+    _ready_custom_calls()
+    payload, out_tree = pickle.loads(path.read_bytes())
+    return deserialize_and_load(payload, jax.tree_util.tree_structure((args, {})), out_tree)
+
+
+def _save(path: Path, compiled) -> None:
+    from jax.experimental.serialize_executable import serialize
+
+    from .atomic import write_bytes
+
+    payload, _, out_tree = serialize(compiled)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_bytes(path, pickle.dumps((payload, out_tree), protocol=4))
+
+
+def stored(jitted: Callable, name: str, static: Any) -> Callable:
+    """``jitted`` (a :func:`jax.jit` function called with arrays only) through the store:
+    the first call with a new key loads its executable from disk, or compiles and saves it;
+    later calls in the process reuse it. ``name`` and ``static`` (picklable) must
+    determine, with the source, everything the function closes over. Call it with
+    concrete arrays, not under a transformation (use ``jitted`` there)."""
+    loaded: dict[str, Callable] = {}
+
+    def call(*args):
+        key = _key(name, static, args) if ENABLED else None
+        if key is None:
+            return jitted(*args)
+        fn = loaded.get(key)
+        if fn is None:
+            fn = loaded[key] = _fetch(jitted, key, args)
+        try:
+            return fn(*args)
+        except (TypeError, ValueError):  # arguments the stored program does not take
+            if fn is jitted:
+                raise
+            loaded[key] = jitted
+            return jitted(*args)
+
+    return call
+
+
+def _fetch(jitted: Callable, key: str, args: tuple) -> Callable:
+    """The executable for ``key``: from disk, else compiled (and saved when it can be)."""
+    folder = _folder()
+    path = folder / f"{key}.bin" if folder is not None else None
+    if path is not None and path.is_file():
+        try:
+            return _load(path, args)
+        except Exception:  # damaged or from an incompatible build: compile afresh
+            pass
+    if path is None:
+        return jitted
+    # An executable that XLA:CPU itself loaded from the persistent cache does not serialise
+    # whole (its fused kernels are missing when loaded again), so compile this one afresh.
+    with _persistent_cache(False):
+        compiled = jitted.lower(*args).compile()
+    try:
+        _save(path, compiled)
+        _prune(path.parent)
+    except Exception:  # closed-over constants, a read-only disk: keep it in memory only
+        pass
+    return compiled
+
+
+@contextlib.contextmanager
+def _persistent_cache(on: bool):
+    """Context in which JAX's persistent compilation cache is used (``on``) or bypassed.
+
+    JAX decides once per process whether the cache is used (``is_cache_used``), so its
+    flag cannot turn it off later; the check is replaced for the duration instead."""
+    from jax._src import compilation_cache
+
+    if on:
+        yield
+        return
+    with _LOCK:
+        used = compilation_cache.is_cache_used
+        compilation_cache.is_cache_used = lambda backend: False
+        try:
+            yield
+        finally:
+            compilation_cache.is_cache_used = used
+
+
+def _prune(folder: Path, limit_bytes: int = MAX_BYTES) -> None:
+    """Delete the least recently used executables while the folder holds over ``limit_bytes``."""
+    files = sorted(folder.glob("*.bin"), key=lambda p: p.stat().st_atime)
+    total = sum(p.stat().st_size for p in files)
+    for old in files:
+        if total <= limit_bytes:
+            break
+        total -= old.stat().st_size
+        old.unlink(missing_ok=True)

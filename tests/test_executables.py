@@ -1,0 +1,79 @@
+"""The store of compiled executables (bubblefit.io.executables): a new process loads the
+program instead of tracing it, gets the same numbers, and never runs a stale program.
+
+Each case runs in fresh processes that share one cache folder, as commands do. The
+program has the parts the fit's solve has that XLA:CPU must restore: a while loop, a
+LAPACK call (QR) and fusions; the third process loads an executable that was stored
+after the persistent compilation cache already held the same program (the case where
+re-serialising the cache's copy lost its kernels)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+
+SCRIPT = textwrap.dedent("""
+    import sys, json
+    from bubblefit.io.jaxcache import jax_setup
+    jax_setup(sys.argv[1])
+    import jax, jax.numpy as jnp
+    from bubblefit.io import executables
+
+    scale = float(sys.argv[2])
+
+    def f(a, b):
+        print("traced", file=sys.stderr)
+        q, r = jnp.linalg.qr(a)
+        out = jax.lax.while_loop(lambda c: c[1] < 4, lambda c: (jnp.tanh(c[0] @ r) * scale, c[1] + 1), (b, 0))[0]
+        return {"x": out, "s": jnp.sum(q)}
+
+    fn = jax.jit(f)
+    if sys.argv[3] == "store":
+        fn = executables.stored(fn, "test.f", (scale,))
+    a = jnp.arange(16.0).reshape(4, 4) / 10 + jnp.eye(4)
+    res = fn(a, jnp.ones((4, 4)))
+    print(json.dumps({k: jnp.asarray(v).tolist() for k, v in res.items()}))
+""")
+
+
+def _run(cache, scale, how):
+    out = subprocess.run([sys.executable, "-c", SCRIPT, str(cache), str(scale), how], capture_output=True,
+                         text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    import json
+
+    return json.loads(out.stdout.strip().splitlines()[-1]), out.stderr.count("traced")
+
+
+def test_a_new_process_loads_the_program_and_gets_the_same_numbers(tmp_path):
+    cache = tmp_path / "cache"
+    plain, traced = _run(cache, 0.5, "plain")  # fills the persistent compilation cache
+    assert traced == 1
+    first, traced = _run(cache, 0.5, "store")  # compiles afresh and stores the executable
+    assert traced == 1 and len(list((cache / "executables").glob("*.bin"))) == 1
+    second, traced = _run(cache, 0.5, "store")  # loads it: no tracing
+    assert traced == 0
+    for res in (first, second):
+        np.testing.assert_array_equal(res["x"], plain["x"])
+        np.testing.assert_array_equal(res["s"], plain["s"])
+
+
+def test_a_changed_setting_is_a_new_program(tmp_path):
+    cache = tmp_path / "cache"
+    a, _ = _run(cache, 0.5, "store")
+    b, traced = _run(cache, 0.25, "store")
+    assert traced == 1 and len(list((cache / "executables").glob("*.bin"))) == 2
+    assert not np.allclose(a["x"], b["x"])
+
+
+def test_a_damaged_file_falls_back_to_compiling(tmp_path):
+    cache = tmp_path / "cache"
+    good, _ = _run(cache, 0.5, "store")
+    for path in (cache / "executables").glob("*.bin"):
+        path.write_bytes(b"not an executable")
+    again, traced = _run(cache, 0.5, "store")
+    assert traced == 1
+    np.testing.assert_array_equal(again["x"], good["x"])

@@ -14,7 +14,6 @@ from typing import Any
 
 import jax
 import numpy as np
-from scipy.optimize import brentq, least_squares
 
 from ..optics.film import incoherent_reflectance
 
@@ -69,6 +68,8 @@ def n_from_t4(t4: float, lo: float = 1.0 + 1e-6, hi: float = 3.0) -> float:
 
     if not (f(hi) < 0 < f(lo)):
         return float("nan")
+    from scipy.optimize import brentq  # imported where used: a fit never needs it (0.17 s)
+
     return float(brentq(f, lo, hi, xtol=1e-10))
 
 
@@ -190,6 +191,7 @@ def _solve_profile(resid, p0: list[float], r0: float, fix_geometry: bool):
     basin of attraction), the best one refined on ever sharper edges; all starts see the
     same pixels, so their costs compare. Soft-L1 loss scaled to the residuals' MAD.
     """
+    from scipy.optimize import least_squares
 
     def solve(p_start, width):
         r_init = resid(p_start, width)

@@ -97,6 +97,7 @@ def test_disc_is_refined(off_grid_photo):
     assert not any(k.startswith("disc_") for k in res.params)  # reported as the disc, in pixels
     js = res.to_json()
     assert js["disc"]["cx"] == pytest.approx(res.disc[0]) and js["disc_stderr"]["r"] > 0
+    assert js["disc_model_error"] == pytest.approx(0.002)  # the Type B term those errors include
     assert abs(res.params["thickness_nm"] - 480.0) < 5.0
 
 
@@ -106,6 +107,7 @@ def test_given_disc_is_held(off_grid_photo):
     env, photo, bg = off_grid_photo
     res = fit_photo(photo, env, options=_opts(model="paper", disc=TRUE_DISC, max_steps=30), background=bg)
     assert res.disc == TRUE_DISC and res.disc_stderr is None
+    assert res.to_json()["disc_model_error"] is None
 
 
 # ---------------------------------------------------------------------------------------

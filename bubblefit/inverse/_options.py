@@ -322,6 +322,7 @@ class FitResult:
     chi2_floor: float = float("nan")
     model_error: float = float("nan")
     thickness_model_error_nm: float = 0.0
+    disc_model_error: float = float("nan")
     stderr_scale: float = 1.0
     frame: tuple | None = None
     colour: ColourSettings | None = None
@@ -349,6 +350,7 @@ class FitResult:
             "reduced_chi2_floor": float(self.chi2_floor),
             "model_error_floor": float(self.model_error),
             "thickness_model_error_nm": float(self.thickness_model_error_nm),
+            "disc_model_error": None if not np.isfinite(self.disc_model_error) else float(self.disc_model_error),
             "stderr_scale": float(self.stderr_scale),
             "pixels_used": int(self.pixels_used),
             "time_s": float(self.time_s),

@@ -34,7 +34,7 @@ import jax.numpy as jnp
 
 from ..model.render import Params
 
-__all__ = ["Parameter", "PARAMETERS", "ParameterTable", "THICK_UNIT", "DISC_PARAMETERS", "forward", "inverse",
+__all__ = ["Parameter", "PARAMETERS", "ParameterTable", "THICK_UNIT", "THICKNESSES", "DISC_PARAMETERS", "forward", "inverse",
            "value_and_slope", "refined_disc"]
 
 #: nm per unit of the unconstrained thickness coordinate.
@@ -84,6 +84,10 @@ PARAMETERS: dict[str, Parameter] = {p.name: p for p in (
                 (-0.95 * DISC_LIMIT, 0.95 * DISC_LIMIT))
       for name, what in (("disc_x", "shift right"), ("disc_y", "shift down"), ("disc_r", "relative change of the radius"))),
 )}
+
+#: The parameters that are film thicknesses (unit nm): those the search, the range
+#: checks and the plots treat as thicknesses.
+THICKNESSES = tuple(name for name, p in PARAMETERS.items() if p.unit == "nm")
 
 #: Free parameters of each thickness model (a map starts from a drainage profile).
 THICKNESS_PARAMETERS = {"constant": ("thickness_nm",), "drainage": ("top_nm", "bottom_nm", "exponent"),

@@ -200,7 +200,9 @@ def plot(out_dir: Path, records: list[dict]) -> Path | None:
     matplotlib.use("Agg")  # before pyplot, and only when a plot is drawn (no display needed)
     import matplotlib.pyplot as plt
 
-    keys = [k for k in ("thickness_nm", "top_nm", "bottom_nm")
+    from ._parameters import THICKNESSES
+
+    keys = [k for k in THICKNESSES
             if any(k in r.get("params", {}) for r in records)]
     if not keys:
         return None

@@ -54,7 +54,7 @@ from ._local import (DECREMENT_TOLERANCE, LocalSolution, batched_solver, remaini
 from ._maps import fit_map
 from ._observation import detect_disc, noise_sigma
 from ._options import FitOptions, FitResult
-from ._parameters import refined_disc
+from ._parameters import THICKNESSES, refined_disc
 from ._setup import Setup, defaults, setup
 from ._uncertainty import uncertainty
 from ._verdict import at_bounds, unresolved, verdict
@@ -81,7 +81,7 @@ def _warm_doubt(st: Setup, opts: FitOptions, sol: LocalSolution) -> str | None:
     lo, hi = opts.thickness_range
     dof0 = max(int(np.count_nonzero(st.lev_fit.w)) - len(st.table.free), 1)
     chi2 = sol.cost / dof0
-    thick = [sol.values[k] for k in ("thickness_nm", "top_nm", "bottom_nm") if k in st.table.free]
+    thick = [sol.values[k] for k in THICKNESSES if k in st.table.free]
     if not (sol.successful and np.all(np.isfinite(sol.residual))):
         return "the solver failed"
     if any(not lo - 1 <= d <= hi + 1 for d in thick):
@@ -140,7 +140,7 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
     disc, disc_stderr = refined_disc(st.disc, reported, stderr, float(opts.disc_model_error))
     status, converged = _status_notes(sol, unc.finite, unc.s2, notes, table.free)
     lo, hi = opts.thickness_range
-    for key in ("thickness_nm", "top_nm", "bottom_nm"):
+    for key in THICKNESSES:
         if key in reported and key in table.free and not lo - 1 <= reported[key] <= hi + 1:
             notes.append(f"{key} = {reported[key]:.0f} nm lies outside the searched range {lo:.0f}-{hi:.0f} nm")
     bounds = at_bounds(sol.values, table, opts.thickness_range, 0.5 * opts.search_step_nm)
@@ -181,6 +181,7 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
         pixels_used=int(lev_fit.mask.sum()), status=status, names=unc.names, covariance=unc.covariance,
         ok=ok, warnings=warnings, chi2_floor=unc.chi2_floor, model_error=float(opts.model_error),
         thickness_model_error_nm=float(opts.thickness_model_error_nm),
+        disc_model_error=float(opts.disc_model_error) if disc_stderr is not None else float("nan"),
         stderr_scale=unc.scale,
         frame=None if st.frame.whole else (st.frame.x0, st.frame.y0, st.frame.k), colour=st.colour,
     )
@@ -284,7 +285,7 @@ def _fit_either_model(photo, env, options: FitOptions, background, init, scene, 
 
 def _batch_starts(first: Setup, n: int, prev_vals: dict | None) -> list:
     """Frame ``k``'s start: the thicknesses extrapolated linearly, ``init + (k + 1) (init - previous)``."""
-    thick = [n_ for n_ in ("thickness_nm", "top_nm", "bottom_nm") if n_ in first.table.free]
+    thick = [n_ for n_ in THICKNESSES if n_ in first.table.free]
     z0 = []
     for k in range(n):
         v = dict(first.vals)
@@ -322,7 +323,7 @@ def fit_batch(photos, env: EnvMap, *, options: FitOptions = FitOptions(), backgr
         return [alone(p, init) for p in photos]
     first = setup(photos[0], env, options, background, init, scene, None)
     table = first.table
-    if not any(n in table.free for n in ("thickness_nm", "top_nm", "bottom_nm")):
+    if not any(n in table.free for n in THICKNESSES):
         return [alone(p, init) for p in photos]
     setups = [first] + [setup(p, env, options, background, init, scene, None, decided=(first.fx, first.decisions))
                         for p in photos[1:]]

@@ -9,12 +9,10 @@ film's geometry (:class:`Level`). The bubble's disc is found in :mod:`._disc`.
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass, replace
 
 import cv2
-import jax
 import jax.numpy as jnp
 import numpy as np
 from scipy import ndimage as ndi
@@ -22,7 +20,7 @@ from scipy import ndimage as ndi
 from ..capture.calibrate import detect_bubble, usable_mask
 from ..errors import InputError
 from ..io.images import srgb_encode, srgb_slope
-from ..model.geometry import OrthographicCamera, intersect_sphere
+from ..model.geometry import OrthographicCamera, front_hits
 from ..model.render import RenderConfig
 
 __all__ = ["Level", "Frame", "noise_sigma", "saturation_mask", "detect_disc", "make_level", "film_geometry",
@@ -197,17 +195,8 @@ def _camera_at(camera, k: int, h: int, w: int):
 def film_geometry(cfg: RenderConfig):
     """``(inside, cos, height)`` (h, w) of the front film under each pixel of ``cfg``'s camera."""
     h, w = cfg.shape
-    inside, cos, height = _front_film(cfg.camera, tuple(cfg.center), float(cfg.radius))
-    return np.asarray(inside).reshape(h, w), np.asarray(cos).reshape(h, w), np.asarray(height).reshape(h, w)
-
-
-@functools.partial(jax.jit, static_argnames=("camera", "center", "radius"))
-def _front_film(camera, center, radius):
-    """The front film's hit under every pixel centre, as one program (not one per operation)."""
-    rows, cols = jnp.divmod(jnp.arange(camera.height * camera.width), camera.width)
-    o, d = camera.rays(rows.astype(jnp.float32), cols.astype(jnp.float32), center, radius)
-    hits = intersect_sphere(o, d, center, radius)
-    return hits.inside, hits.cos, hits.local0[:, 1]
+    inside, cos, local0 = front_hits(cfg.camera, tuple(cfg.center), float(cfg.radius))
+    return np.asarray(inside).reshape(h, w), np.asarray(cos).reshape(h, w), np.asarray(local0[:, 1]).reshape(h, w)
 
 
 def make_level(k, base_cfg, photo, sigma, bg, saturated, rim: float) -> Level:

@@ -82,13 +82,9 @@ class _Cells:
         n = b.n_film
         cos_t = lambda c: np.sqrt(np.maximum(0.0, 1.0 - (1.0 - np.asarray(c) ** 2) / n**2))
         xg = b.d_grid[:, 0] * 2 * n * cos_t(b.c_grid[0])
-        jc = np.searchsorted(b.c_grid, fp.cos)
-        self.j = (np.clip(jc - 1, 0, len(b.c_grid) - 1), np.clip(jc, 0, len(b.c_grid) - 1))
+        self.jc = np.searchsorted(b.c_grid, fp.cos)  # cells jc - 1 and jc, those that exist
         self.varies = bool(np.ptp(np.concatenate([fp.d0, fp.d1])) > 0) if fp.count else False
-        self.i = []
-        for d in (fp.d0, fp.d1):
-            ix = np.searchsorted(xg, 2 * n * d * cos_t(fp.cos))
-            self.i.append((np.clip(ix - 1, 0, len(xg) - 1), np.clip(ix, 0, len(xg) - 1)))
+        self.ix = [np.searchsorted(xg, 2 * n * d * cos_t(fp.cos)) for d in (fp.d0, fp.d1)]
 
     def at(self, arr, film: int) -> np.ndarray:
         """Largest value (N, 3) of a (D, C, 3) grid array over the 4 cells around each pixel.
@@ -101,9 +97,17 @@ class _Cells:
         return self._at(arr, film)
 
     def _at(self, arr, film: int) -> np.ndarray:
-        i0, i1 = self.i[film]
-        j0, j1 = self.j
-        return np.maximum(np.maximum(arr[i0, j0], arr[i0, j1]), np.maximum(arr[i1, j0], arr[i1, j1]))
+        return _pair_max(arr)[self.ix[film], self.jc]
+
+
+def _pair_max(arr: np.ndarray) -> np.ndarray:
+    """``q[u, v]``: the largest of ``arr`` (D, C, ...) over rows ``u - 1, u`` and columns
+    ``v - 1, v`` that exist, shape (D + 1, C + 1, ...). Indexed by ``searchsorted``
+    positions it is the largest over the cells around each pixel in one gather."""
+    pad = np.full((arr.shape[0] + 2, arr.shape[1] + 2) + arr.shape[2:], -np.inf)
+    pad[1:-1, 1:-1] = arr
+    rows = np.maximum(pad[:-1], pad[1:])
+    return np.maximum(rows[:, :-1], rows[:, 1:])
 
 
 class _Pixels:

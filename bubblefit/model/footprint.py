@@ -36,7 +36,7 @@ from ..lighting.filtering import FilterConfig, specular
 from ..lighting.point_lights import lights_radiance
 from .bounds import MAX_BOUNCES
 from .effects import Effects
-from .geometry import intersect_sphere
+from .geometry import front_hits, intersect_sphere
 from .modes import Model, ThicknessKind
 from .render import RenderConfig, shading_points
 from .thickness import thickness_at
@@ -52,6 +52,8 @@ FILTER_CANDIDATES = (FilterConfig("mirror"), FilterConfig("mipmap", nodes=1), Fi
 
 #: The budget's floor, as a fraction of the image's bright level (:func:`pixel_budget`).
 FLOOR_FRACTION = 0.1
+#: The traced pixels are padded to a multiple of this, so that scenes share programs.
+PIXEL_BUCKET = 4096
 #: The percentile of the bubble's estimated radiance that stands for its bright level.
 BRIGHT_PERCENTILE = 99.0
 
@@ -89,11 +91,12 @@ class Footprint:
 
 @functools.partial(jax.jit, static_argnames=("camera", "center", "radius", "model", "lights", "background_kind",
                                              "thickness_kind"))
-def _trace(env, background, roughness, rotation, thickness_values, *, camera, center, radius, model, lights,
+def _trace(env, background, roughness, rotation, thickness_values, pix, *, camera, center, radius, model, lights,
            background_kind, thickness_kind):
-    """Every pixel's films (the renderer's own geometry) and what they read, in one program."""
-    h, w = camera.height, camera.width
-    rows, cols = jnp.divmod(jnp.arange(h * w), w)
+    """The films of the pixels ``pix`` (flat indices; the renderer's own geometry) and what
+    they read, in one program."""
+    w = camera.width
+    rows, cols = jnp.divmod(pix, w)
     o, d = camera.rays(rows.astype(jnp.float32), cols.astype(jnp.float32), center, radius)
     d = jnp.broadcast_to(d, o.shape)
     hits = intersect_sphere(o, d, center, radius)
@@ -114,10 +117,28 @@ def _trace(env, background, roughness, rotation, thickness_values, *, camera, ce
         spec, diff = lights_radiance(lights, n_all.reshape(-1, 3), wo_all.reshape(-1, 3), roughness, 1.0, diffuse=True)
         out["light_spec"] = spec.reshape(n_all.shape)
         out["light_irr"] = jnp.pi * diff.reshape(n_all.shape)[:2]
-    pix = jnp.arange(h * w)
     out["d0"] = thickness_at(thickness_kind, thickness_values, hits.local0, pix)
     out["d1"] = thickness_at(thickness_kind, thickness_values, hits.local1, pix)
     return out
+
+
+@functools.lru_cache(maxsize=16)
+def _stored_trace(camera, center, radius, model, lights, background_kind, thickness_kind):
+    """:func:`_trace` for these static settings through the executable store
+    (:func:`bubblefit.io.executables.stored`): a new process loads it, not traces it."""
+    from ..io.executables import stored
+
+    statics = dict(camera=camera, center=center, radius=radius, model=model, lights=lights,
+                   background_kind=background_kind, thickness_kind=thickness_kind)
+    fn = jax.jit(lambda env, roughness, rotation, values, pix: _trace(env, None, roughness, rotation, values, pix,
+                                                                       **statics))
+    return stored(fn, "model.footprint._trace", statics)
+
+
+def _first_pixels(v: np.ndarray, n: int) -> np.ndarray:
+    """The first ``n`` pixels of a traced array: its pixel axis is the last for a value per
+    pixel (N,), the one before the colour channels for (..., N, 3)."""
+    return v[..., :n, :] if v.ndim >= 2 and v.shape[-1] == 3 else v[..., :n]
 
 
 def footprint(*, camera, center, radius: float, model: Model, roughness: float, env: EnvMap | None,
@@ -125,30 +146,34 @@ def footprint(*, camera, center, radius: float, model: Model, roughness: float, 
               thickness_kind: ThicknessKind, thickness_values) -> Footprint:
     """The :class:`Footprint` of a scene (see the module docstring)."""
     a = max(float(roughness), 0.0)
-    res = _trace(env, None, jnp.float32(a), jnp.float32(rotation),
-                 jnp.asarray(np.asarray(thickness_values, dtype=np.float64), jnp.float32), camera=camera,
-                 center=tuple(center), radius=float(radius), model=model, lights=tuple(lights),
-                 background_kind=background_kind, thickness_kind=thickness_kind)
-    res = {k: np.asarray(v, dtype=np.float64) if k != "inside" else np.asarray(v) for k, v in res.items()}
-    idx = np.nonzero(res["inside"])[0]
+    trace = _stored_trace(camera, tuple(center), float(radius), model, tuple(lights), background_kind, thickness_kind)
+    # Only the pixels on the bubble are traced, padded to a multiple of PIXEL_BUCKET so that
+    # scenes of one size share their compiled program.
+    idx = np.nonzero(np.asarray(front_hits(camera, tuple(center), float(radius))[0]))[0]
+    npx = idx.size
+    pix = np.full(max(PIXEL_BUCKET, -(-npx // PIXEL_BUCKET) * PIXEL_BUCKET), idx[-1] if npx else 0, np.int32)
+    pix[:npx] = idx
+    res = trace(env, jnp.float32(a), jnp.float32(rotation),
+                jnp.asarray(np.asarray(thickness_values, dtype=np.float64), jnp.float32), jnp.asarray(pix))
+    res = {k: _first_pixels(np.asarray(v, dtype=np.float64 if k != "inside" else None), npx)
+           for k, v in res.items()}
     nf = MAX_BOUNCES + 1 if model == "physical" else 2
     names = ("front", "rear") if model == "paper" else ("front",) + tuple(f"bounce{k}" for k in range(1, nf))
-    npx = idx.size
     spec = {_key(c): np.zeros((nf, npx, 3)) for c in FILTER_CANDIDATES}
     irr = np.zeros((2, npx, 3))
     bg = np.zeros((npx, 3))
     if env is not None:
-        spec = {k: res[k][:, idx] for k in spec}
-        irr = res["irr"][:, idx]
+        spec = {k: res[k] for k in spec}
+        irr = res["irr"]
         if background_kind == "envmap":
-            bg = res["bg"][idx]
+            bg = res["bg"]
     if lights:
-        spec = {k: v + res["light_spec"][:, idx] for k, v in spec.items()}
-        irr = irr + res["light_irr"][:, idx]
+        spec = {k: v + res["light_spec"] for k, v in spec.items()}
+        irr = irr + res["light_irr"]
     if background_kind == "photo" and background is not None:
         bg = np.asarray(background, dtype=np.float64).reshape(-1, 3)[idx]
-    return Footprint(pixels=idx, shape=(camera.height, camera.width), films=names, cos=res["cos"][idx],
-                     d0=res["d0"][idx], d1=res["d1"][idx], spec=spec, irr=irr, bg=bg)
+    return Footprint(pixels=idx, shape=(camera.height, camera.width), films=names, cos=res["cos"],
+                     d0=res["d0"], d1=res["d1"], spec=spec, irr=irr, bg=bg)
 
 
 def filter_key(conf: FilterConfig) -> str:

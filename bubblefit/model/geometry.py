@@ -12,9 +12,11 @@ vector and a horizontal field of view ``fov_deg`` (Mitsuba's default axis).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -24,6 +26,7 @@ __all__ = [
     "PerspectiveCamera",
     "Hits",
     "intersect_sphere",
+    "front_hits",
     "internal_bounce",
     "pixel_offsets",
 ]
@@ -156,6 +159,16 @@ def intersect_sphere(o: Float[Array, "N 3"], d: Float[Array, "N 3"], center, rad
     local1 = (p1 - c) / radius
     cos = jnp.clip(root / radius, 0.0, 1.0)
     return Hits(inside=inside, cos=cos, p0=p0, n0=local0, p1=p1, n1=local1, d=d, local0=local0, local1=local1)
+
+
+@functools.partial(jax.jit, static_argnames=("camera", "center", "radius"))
+def front_hits(camera, center: tuple, radius: float):
+    """``(inside, cos, local0)`` of :func:`intersect_sphere` for the ray through every pixel
+    centre of ``camera`` (row-major, ``height x width`` rays), as one program per camera."""
+    rows, cols = jnp.divmod(jnp.arange(camera.height * camera.width), camera.width)
+    o, d = camera.rays(rows.astype(jnp.float32), cols.astype(jnp.float32), center, radius)
+    hits = intersect_sphere(o, jnp.broadcast_to(d, o.shape), center, radius)
+    return hits.inside, hits.cos, hits.local0
 
 
 def internal_bounce(p: Float[Array, "N 3"], e: Float[Array, "N 3"], center, radius):

@@ -394,6 +394,17 @@ def _render_chunks(p: Params, cfg: RenderConfig, env, background, rows, cols, id
     return _map_chunks(p, cfg, env, bg, rows, cols, idx)[0].reshape(-1, 3)
 
 
+@functools.lru_cache(maxsize=32)
+def _stored_programs(cfg: RenderConfig):
+    """:func:`render` and :func:`_render_chunks` for ``cfg`` through the executable store
+    (:func:`bubblefit.io.executables.stored`): a new process loads them, not traces them."""
+    from ..io.executables import stored
+
+    whole = jax.jit(lambda p, env, bg: render(p, cfg, env, bg))
+    chunks = jax.jit(lambda p, env, bg, rows, cols, idx: _render_chunks(p, cfg, env, bg, rows, cols, idx))
+    return stored(whole, "model.render.render", cfg), stored(chunks, "model.render._render_chunks", cfg)
+
+
 def render_plan(p: Params, parts, env: EnvMap | None, background=None) -> np.ndarray:
     """The (H, W, 3) image of a scene rendered by regions (:class:`bubblefit.model.auto.Plan`).
 
@@ -402,12 +413,12 @@ def render_plan(p: Params, parts, env: EnvMap | None, background=None) -> np.nda
     A pixel's value does not depend on the other pixels, so the regions compose exactly.
     """
     cfg0 = parts[0][0]
-    img = np.array(render(p, cfg0, env, background)).reshape(-1, 3)
+    img = np.array(_stored_programs(cfg0)[0](p, env, background)).reshape(-1, 3)
     for cfg, pixels in parts[1:]:
         if pixels is None or len(pixels) == 0:
             continue
         rows, cols, idx, npix = _pixel_chunks(cfg, pixels)
-        vals = _render_chunks(p, cfg, env, background, rows, cols, idx)
+        vals = _stored_programs(cfg)[1](p, env, background, rows, cols, idx)
         img[np.asarray(pixels)] = np.asarray(vals)[:npix]
     h, w = cfg0.shape
     return img.reshape(h, w, 3)

@@ -77,3 +77,27 @@ def test_a_damaged_file_falls_back_to_compiling(tmp_path):
     again, traced = _run(cache, 0.5, "store")
     assert traced == 1
     np.testing.assert_array_equal(again["x"], good["x"])
+
+
+def test_a_program_that_fails_its_first_run_is_dropped(tmp_path, monkeypatch):
+    """A stored program that loads but fails when run (a kernel it cannot find) is deleted,
+    and the call is answered by the plain jitted function."""
+    import jax
+    import jax.numpy as jnp
+
+    from bubblefit.io import executables
+
+    def broken(*args):
+        raise RuntimeError("NOT_FOUND: Function fusion not found")
+
+    fn = jax.jit(lambda x: jnp.sin(x) * 2)
+    x = jnp.linspace(0.0, 1.0, 5)
+    monkeypatch.setattr(executables, "ENABLED", True)
+    monkeypatch.setattr(executables, "_folder", lambda: tmp_path)
+    monkeypatch.setattr(executables, "_load", lambda path, args: broken)
+    key = executables._key("test.broken", (), (x,))
+    (tmp_path / f"{key}.bin").write_bytes(b"stale")
+    call = executables.stored(fn, "test.broken", ())
+    np.testing.assert_array_equal(call(x), fn(x))
+    assert not (tmp_path / f"{key}.bin").exists()
+    np.testing.assert_array_equal(call(x), fn(x))  # and it stays on the jitted path

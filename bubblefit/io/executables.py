@@ -125,35 +125,43 @@ def stored(jitted: Callable, name: str, static: Any) -> Callable:
     concrete arrays, not under a transformation (use ``jitted`` there)."""
     loaded: dict[str, Callable] = {}
 
+    import jax
+
     def call(*args):
         key = _key(name, static, args) if ENABLED else None
         if key is None:
             return jitted(*args)
         fn = loaded.get(key)
-        if fn is None:
-            fn = loaded[key] = _fetch(jitted, key, args)
-        try:
+        if fn is not None:
             return fn(*args)
-        except (TypeError, ValueError):  # arguments the stored program does not take
-            if fn is jitted:
-                raise
+        fn, path = _fetch(jitted, key, args)
+        if path is None:  # compiled here (or plain jit): it runs as any program does
+            loaded[key] = fn
+            return fn(*args)
+        try:  # the first run of a program read from disk is checked before it is trusted
+            out = jax.block_until_ready(fn(*args))
+        except Exception:  # arguments it does not take, a kernel it cannot find
+            path.unlink(missing_ok=True)
             loaded[key] = jitted
             return jitted(*args)
+        loaded[key] = fn
+        return out
 
     return call
 
 
-def _fetch(jitted: Callable, key: str, args: tuple) -> Callable:
-    """The executable for ``key``: from disk, else compiled (and saved when it can be)."""
+def _fetch(jitted: Callable, key: str, args: tuple) -> tuple[Callable, Path | None]:
+    """The executable for ``key`` and the file it was read from: from disk, else compiled
+    (and saved when it can be; the path is then None)."""
     folder = _folder()
     path = folder / f"{key}.bin" if folder is not None else None
     if path is not None and path.is_file():
         try:
-            return _load(path, args)
+            return _load(path, args), path
         except Exception:  # damaged or from an incompatible build: compile afresh
             pass
     if path is None:
-        return jitted
+        return jitted, None
     # An executable that XLA:CPU itself loaded from the persistent cache does not serialise
     # whole (its fused kernels are missing when loaded again), so compile this one afresh.
     with _persistent_cache(False):
@@ -163,7 +171,7 @@ def _fetch(jitted: Callable, key: str, args: tuple) -> Callable:
         _prune(path.parent)
     except Exception:  # closed-over constants, a read-only disk: keep it in memory only
         pass
-    return compiled
+    return compiled, None
 
 
 @contextlib.contextmanager

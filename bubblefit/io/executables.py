@@ -15,8 +15,8 @@ every process. :func:`stored` keeps the compiled executable itself
 - what it is called with: the arguments' tree structure, shapes and dtypes.
 
 A change to any of them is a new key, so a stale program is never run. Any failure to
-store or to load (a program with closed-over constants, a read-only cache, a damaged
-file) falls back to the plain jitted call. Files live in ``executables/`` of the
+store, to load or to run a loaded program the first time (a program with closed-over
+constants, a read-only cache, a damaged file) falls back to the plain jitted call. Files live in ``executables/`` of the
 compilation cache's folder (at most :data:`MAX_BYTES`). The store is used in processes
 that called :func:`~bubblefit.io.jaxcache.jax_setup` (the command line and its workers).
 

@@ -15,8 +15,9 @@ statistical stop) against optimistix' solver from the same start. Writes
 
 ``--whole-process`` times ``bubblefit fit`` as a user runs it (the photo and its
 background written as 8-bit PNGs, the shipped courtyard map, ``--thickness constant``,
-each model): a first process on an empty compilation cache and a second on the warm
-one, against ``python -c "import numpy"`` and Mitsuba 3 (the thin dielectric sphere of
+each model): a first process on an empty compilation cache, a second on the warm one,
+and a third on the warm cache with the bubble framed otherwise (a user's next photo),
+against ``python -c "import numpy"`` and Mitsuba 3 (the thin dielectric sphere of
 ``bench_effects.py``, 256x256, 64 spp; ``--mitsuba-python``) in the same run. Writes
 ``whole_process.json``.
 
@@ -85,7 +86,15 @@ def main():
     photo = q(render_scene(scene, bg, env=env))
     effects = (("spectral", {"method": "uniform", "samples": args.samples}),) if args.samples else ()
     if args.whole_process:
-        return whole_process(photo, q(bg), Path(args.out), args.models.split(","), args.mitsuba_python)
+        # The same bubble framed otherwise (disc moved by 1 % of the photo, 5 % smaller): a
+        # user's next photo, which the warm cache may not serve.
+        bg_photo = q(bg)  # drawn before the second photo's noise: the first pair as before
+        moved = (disc[0] + 0.01 * n, disc[1] - 0.006 * n, 0.95 * disc[2])
+        other = Scene.from_dict({"camera": {"width": n, "height": n, "disc": list(moved)}, "bubble": truth,
+                                 "lighting": {"envmap": "x.exr"}, "effects": {"transmission_tint": True}})
+        photo2 = q(render_scene(other, bg, env=env))
+        return whole_process(photo, bg_photo, Path(args.out), args.models.split(","), args.mitsuba_python,
+                             other=photo2)
     if args.profile_solver:
         return profile_solver(photo, env, q(bg), truth, Path(args.out), args.models.split(","))
     rows = []
@@ -235,8 +244,9 @@ def plot_solver_profile(rows, out: Path):
     fig.savefig(out / "solver_profile.png", dpi=110)
 
 
-def whole_process(photo, bg, out: Path, models, mitsuba_python=None):
-    """Whole-process seconds of ``bubblefit fit`` per model, cold and warm cache, and the
+def whole_process(photo, bg, out: Path, models, mitsuba_python=None, other=None):
+    """Whole-process seconds of ``bubblefit fit`` per model, cold and warm cache, then (with
+    ``other``, the bubble framed otherwise) a new photo on the warm cache, and the
     yardsticks of the same run (module docstring)."""
     import subprocess
     import sys
@@ -271,6 +281,11 @@ def whole_process(photo, bg, out: Path, models, mitsuba_python=None):
                    "--model", model, "--json", str(tmp / f"{model}.json"), "-o", str(tmp / model)]
             rows[f"fit_{model}_cold_s"] = clock(cmd, env)
             rows[f"fit_{model}_warm_s"] = clock(cmd, env)
+            if other is not None:
+                write_image(tmp / "other.png", np.clip(other, 0, 1), bit_depth=8)
+                moved = [str(tmp / "other.png") if str(c) == str(tmp / "photo.png") else c for c in cmd]
+                moved = [str(tmp / f"{model}-other.json") if str(c) == str(tmp / f"{model}.json") else c for c in moved]
+                rows[f"fit_{model}_new_framing_s"] = clock(moved, env)
             res = json.loads((tmp / f"{model}.json").read_text())
             rows[f"fit_{model}_thickness_nm"] = res["params"]["thickness_nm"]
             rows[f"fit_{model}_iterations"] = res["iterations"]
@@ -278,7 +293,7 @@ def whole_process(photo, bg, out: Path, models, mitsuba_python=None):
         if Path(mitsuba_python).exists():
             rows["mitsuba_64spp_s"] = clock([mitsuba_python, "-c", MITSUBA_SCRIPT, "256", str(MAPS / "sunrise.exr"),
                                              str(tmp / "m.exr")])
-    for k in [k for k in rows if k.startswith("fit_") and k.endswith(("_cold_s", "_warm_s"))]:
+    for k in [k for k in rows if k.startswith("fit_") and k.endswith(("_cold_s", "_warm_s", "_framing_s"))]:
         rows[k[:-2] + "_over_numpy"] = rows[k] / rows["numpy_import_s"]
         if "mitsuba_64spp_s" in rows:
             rows[k[:-2] + "_over_mitsuba"] = rows[k] / rows["mitsuba_64spp_s"]

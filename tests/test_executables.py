@@ -95,7 +95,7 @@ def test_a_program_that_fails_its_first_run_is_dropped(tmp_path, monkeypatch):
     monkeypatch.setattr(executables, "ENABLED", True)
     monkeypatch.setattr(executables, "_folder", lambda: tmp_path)
     monkeypatch.setattr(executables, "_load", lambda path, args: broken)
-    key = executables._key("test.broken", (), (x,))
+    key = executables._key("test.broken", executables._static_bytes(()), (x,))
     (tmp_path / f"{key}.bin").write_bytes(b"stale")
     call = executables.stored(fn, "test.broken", ())
     np.testing.assert_array_equal(call(x), fn(x))

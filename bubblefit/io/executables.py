@@ -68,16 +68,20 @@ def _folder() -> Path | None:
     return Path(cache) / FOLDER if cache else None
 
 
-def _key(name: str, static: Any, args: tuple) -> str | None:
-    """The executable's key (hex digest), or None when ``static`` cannot be pickled."""
+def _static_bytes(static: Any) -> bytes | None:
+    """``static`` pickled, or None when it cannot be (no stored program, only the jitted one)."""
+    try:
+        return pickle.dumps(static, protocol=4)
+    except Exception:
+        return None
+
+
+def _key(name: str, static_bytes: bytes, args: tuple) -> str:
+    """The executable's key (hex digest) for arguments ``args``."""
     import jax
     import jaxlib
 
     leaves, tree = jax.tree_util.tree_flatten(args)
-    try:
-        static_bytes = pickle.dumps(static, protocol=4)
-    except Exception:  # an unpicklable setting: no stored program, only the jitted one
-        return None
     h = hashlib.sha256()
     for part in (name, source_digest(), jax.__version__, jaxlib.__version__, jax.default_backend(),
                  str(jax.devices()[0].device_kind), str(bool(jax.config.jax_enable_x64)), str(tree)):
@@ -124,13 +128,14 @@ def stored(jitted: Callable, name: str, static: Any) -> Callable:
     determine, with the source, everything the function closes over. Call it with
     concrete arrays, not under a transformation (use ``jitted`` there)."""
     loaded: dict[str, Callable] = {}
+    static_bytes = _static_bytes(static)  # once: the settings do not change between calls
 
     import jax
 
     def call(*args):
-        key = _key(name, static, args) if ENABLED else None
-        if key is None:
+        if not ENABLED or static_bytes is None:
             return jitted(*args)
+        key = _key(name, static_bytes, args)
         fn = loaded.get(key)
         if fn is not None:
             return fn(*args)

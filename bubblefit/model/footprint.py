@@ -104,7 +104,7 @@ def _trace(env, background, roughness, rotation, thickness_values, pix, *, camer
     films, _ = shading_points(probe, RenderConfig(effects=probe, camera=camera, center=center, radius=radius), hits, d)
     n_all = jnp.stack([f[1] for f in films])
     wo_all = jnp.stack([f[2] for f in films])
-    out = {"cos": hits.cos, "inside": hits.inside}
+    out = {"cos": hits.cos}
     if env is not None:
         nm, wm = rotate_y(n_all, -rotation), rotate_y(wo_all, -rotation)
         flat = lambda x: x.reshape(-1, 3)
@@ -155,8 +155,7 @@ def footprint(*, camera, center, radius: float, model: Model, roughness: float, 
     pix[:npx] = idx
     res = trace(env, jnp.float32(a), jnp.float32(rotation),
                 jnp.asarray(np.asarray(thickness_values, dtype=np.float64), jnp.float32), jnp.asarray(pix))
-    res = {k: _first_pixels(np.asarray(v, dtype=np.float64 if k != "inside" else None), npx)
-           for k, v in res.items()}
+    res = {k: _first_pixels(np.asarray(v, dtype=np.float64), npx) for k, v in res.items()}
     nf = MAX_BOUNCES + 1 if model == "physical" else 2
     names = ("front", "rear") if model == "paper" else ("front",) + tuple(f"bounce{k}" for k in range(1, nf))
     spec = {_key(c): np.zeros((nf, npx, 3)) for c in FILTER_CANDIDATES}

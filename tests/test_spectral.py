@@ -345,3 +345,74 @@ def test_srgb_transfer_functions_agree_with_colour_science():
     inner = (v > h) & (v < 1 - h) & (np.abs(v - 0.04045) > 2 * h)
     numeric = (srgb_decode(v + h) - srgb_decode(v - h)) / (2 * h)
     np.testing.assert_allclose(srgb_slope(v)[inner], numeric[inner], rtol=1e-6)
+
+
+# --- the harmonic basis: samples in phase, exact for a film of one thickness ---------------
+
+def _airy_in_numpy(lam, d, n, cos_i):
+    """Airy reflectance of a film in air, s and p averaged (Born & Wolf 7.6), written here."""
+    cos_t = np.sqrt(1 - (1 - cos_i**2) / n**2)
+    rs = (cos_i - n * cos_t) / (cos_i + n * cos_t)
+    rp = (n * cos_i - cos_t) / (n * cos_i + cos_t)
+    beta = 2 * np.pi * n * d * cos_t / lam
+    out = 0.0
+    for r in (rs, rp):
+        f = 4 * r**2 / (1 - r**2) ** 2
+        out = out + 0.5 * f * np.sin(beta) ** 2 / (1 + f * np.sin(beta) ** 2)
+    return out
+
+
+@pytest.mark.parametrize("d", [0.0, 80.0, 450.0, 1500.0, 6000.0, 20000.0])
+@pytest.mark.parametrize("cos_i", [1.0, 0.5, 0.2])
+def test_harmonic_basis_agrees_with_colour_science_at_any_thickness(d, cos_i):
+    """The film colour from 32 phase samples equals colour-science's integration of the
+    Airy spectrum (written in this test) at 0.1 nm, from a black film to 20 um (dozens of
+    fringes across the visible), where 100 uniform samples alias."""
+    import jax.numpy as jnp
+
+    from bubblefit.optics import film
+
+    n = 1.4
+    lam = np.arange(380, 780.01, 0.1)
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(colour.SpectralShape(380, 780, 1))
+    ill = colour.SDS_ILLUMINANTS["D65"].copy().align(colour.SpectralShape(380, 780, 1))
+    xyz = np.stack([np.interp(lam, cmfs.wavelengths, cmfs.values[:, c]) for c in range(3)], axis=1)
+    dens = (xyz * np.interp(lam, ill.wavelengths, ill.values)[:, None]) @ np.asarray(
+        colour.RGB_COLOURSPACES["sRGB"].matrix_XYZ_to_RGB).T
+    ref = (dens * _airy_in_numpy(lam, d, n, cos_i)[:, None]).sum(0) / dens.sum(0)
+    basis = spectral.spectral_basis("harmonic", 32)
+    assert basis.wavelengths is None and basis.phases.shape == (32,)
+    w = np.asarray(spectral.harmonic_weights(np.float64(film.optical_path(d, n, cos_i)), basis))
+    g = np.asarray(film.airy_at_phase(jnp.asarray(basis.phases), n, cos_i)).mean(-1)
+    np.testing.assert_allclose(g @ w, ref, atol=3e-4)
+    if d >= 6000:  # where uniform sampling aliases, the phase samples do not
+        uni = spectral.spectral_basis("uniform", 100)
+        got_u = np.asarray(film.airy_reflectance(d, uni.wavelengths, n, cos_i)).mean(-1) @ uni.weights
+        assert np.abs(g @ w - ref).max() < 0.2 * np.abs(got_u - ref).max()
+
+
+def test_harmonic_basis_integrates_the_paper_factor_with_four_samples():
+    """Eq. (10)'s factor 2 t^2 (1 + cos delta) has two harmonics: K = 4 is exact."""
+    import jax.numpy as jnp
+
+    from bubblefit.optics import film
+
+    ref_b = spectral.spectral_basis("reference")
+    h = spectral.spectral_basis("harmonic", 4)
+    for d in (0.0, 300.0, 2500.0, 9000.0):
+        ref = np.asarray(film.paper_interference_factor(d, ref_b.wavelengths, 1.33, 0.7, 0.97)) @ ref_b.weights
+        w = np.asarray(spectral.harmonic_weights(np.float64(film.optical_path(d, 1.33, 0.7)), h))
+        got = np.asarray(film.paper_factor_at_phase(jnp.asarray(h.phases), 0.97)) @ w
+        np.testing.assert_allclose(got, ref, atol=2e-4 * 4 * 0.97**2)
+
+
+def test_harmonic_weights_are_differentiable_and_finite():
+    import jax
+    import jax.numpy as jnp
+
+    basis = spectral.spectral_basis("harmonic", 16)
+    for x in (0.0, 1e-3, 850.0, 16800.0, 1e6):  # beyond the table the harmonics vanish
+        jac = jax.jacfwd(lambda v: spectral.harmonic_weights(v, basis))(jnp.float32(x))
+        val = spectral.harmonic_weights(jnp.float32(x), basis)
+        assert np.all(np.isfinite(np.asarray(jac))) and np.all(np.isfinite(np.asarray(val)))
+        np.testing.assert_allclose(np.asarray(val).sum(0), 1.0, atol=1e-5)  # a flat spectrum stays white

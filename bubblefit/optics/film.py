@@ -30,8 +30,11 @@ __all__ = [
     "fresnel_reflectance",
     "phase",
     "paper_interference_factor",
+    "paper_factor_at_phase",
     "paper_tinted_transmission",
     "airy_reflectance",
+    "airy_at_phase",
+    "two_beam_at_phase",
     "two_beam_reflectance",
     "incoherent_reflectance",
     "optical_path",
@@ -102,7 +105,11 @@ def paper_interference_factor(
     ``L'`` (which already carries ``r_s`` and ``r_d``). Its mean over a broad spectrum is
     ``2 t^2``, which is why the paper notes that interference brightens its bubbles.
     """
-    delta = phase(thickness, wavelength, n, cos_i)
+    return paper_factor_at_phase(phase(thickness, wavelength, n, cos_i), t)
+
+
+def paper_factor_at_phase(delta: ArrayLike, t: ArrayLike) -> Array:
+    """Eq. (10)'s factor ``4 t^2 cos^2(delta/2)`` at the phase ``delta`` of eq. (8)."""
     return 4.0 * jnp.cos(0.5 * delta) ** 2 * t * t
 
 
@@ -130,8 +137,16 @@ def airy_reflectance(
     ``4 R1 s / ((1 - R1)^2 + 4 R1 s)`` with ``s = cos^2(delta/2)`` to stay finite at
     grazing incidence, where ``R1 -> 1``. Transmittance is ``1 - R`` (lossless film).
     """
+    return airy_at_phase(phase(thickness, wavelength, n, cos_i), n, cos_i)
+
+
+def airy_at_phase(delta: ArrayLike, n: ArrayLike, cos_i: ArrayLike) -> Float[Array, "... 2"]:
+    """:func:`airy_reflectance` at the phase ``delta`` of eq. (8), per polarisation.
+
+    The Airy sum depends on the wavelength and the thickness only through ``delta``; the
+    ``harmonic`` spectral basis (:mod:`bubblefit.optics.spectral`) samples it there.
+    """
     r1 = fresnel_reflectance(cos_i, n)
-    delta = phase(thickness, wavelength, n, cos_i)
     s = (jnp.cos(0.5 * delta) ** 2)[..., None]
     num = 4.0 * r1 * s
     den = (1.0 - r1) ** 2 + num
@@ -151,9 +166,13 @@ def two_beam_reflectance(
     incidence, where ``R1 -> 1``, the truncated series overshoots 1; it is clipped to
     [0, 1] there (use :func:`airy_reflectance` when the rim matters).
     """
+    return two_beam_at_phase(phase(thickness, wavelength, n, cos_i), n, cos_i)
+
+
+def two_beam_at_phase(delta: ArrayLike, n: ArrayLike, cos_i: ArrayLike) -> Float[Array, "... 2"]:
+    """:func:`two_beam_reflectance` at the phase ``delta`` of eq. (8), per polarisation."""
     r1 = fresnel_reflectance(cos_i, n)
-    delta = phase(thickness, wavelength, n, cos_i)[..., None]
-    r = r1 * (1.0 + (1.0 - r1) ** 2 + 2.0 * (1.0 - r1) * jnp.cos(delta))
+    r = r1 * (1.0 + (1.0 - r1) ** 2 + 2.0 * (1.0 - r1) * jnp.cos(jnp.asarray(delta)[..., None]))
     return jnp.clip(r, 0.0, 1.0)
 
 

@@ -41,6 +41,21 @@ Methods:
         K = 5-8 samples. The lobes' centres and widths were fitted once (least squares in
         wavenumber, D65, table :data:`FOURIER_LOBES`); the weights are solved for the
         illuminant when the basis is built.
+    ``harmonic``: K samples in the *phase* of eq. (8), not in wavelength. A film of
+        constant thickness and non-dispersive index depends on the wavelength only through
+        ``theta = 2 pi x / lambda`` (``x`` the optical path, :func:`bubblefit.optics.film.optical_path`),
+        and every term of the model (``R``, ``T T``, ``T R^k T``, eq. (10)'s factor) is an
+        even ``2 pi``-periodic function ``g(theta) = sum_m c_m cos(m theta)``. So a channel
+        is ``sum_m eps_m c_m A_c(m x)`` with ``A_c(xi) = sum_k W_kc cos(2 pi xi / lambda_k)``
+        the cosine transform of the reference quadrature's weights: exact for any
+        thickness, however many fringes the visible holds. The film functions are
+        evaluated at ``theta_j = 2 pi (j + 1/2) / K``, whose discrete Fourier transform
+        gives ``c_m`` for ``m < K/2``, and the weights of those samples depend on the
+        pixel's ``x`` (:func:`harmonic_weights`, from a table of ``A`` up to
+        :data:`HARMONIC_REACH_NM`, beyond which ``|A| < 3e-4``). Eq. (10)'s factor has two
+        harmonics, so ``K = 4`` integrates the ``paper`` model exactly; the Airy sum's
+        harmonics fall as ``R1^m``, so grazing pixels need more. Not for a thickness
+        field (each film has its own ``x``) nor a dispersive index.
 """
 
 from __future__ import annotations
@@ -64,12 +79,14 @@ __all__ = [
     "integrate",
     "REFERENCE_SAMPLES",
     "FOURIER_LOBES",
+    "harmonic_weights",
+    "HARMONIC_REACH_NM",
     "SpectralMethod",
     "SPECTRAL_METHODS",
 ]
 
 #: The spectral integration methods (see the module docstring).
-SpectralMethod = Literal["uniform", "reference", "fourier"]
+SpectralMethod = Literal["uniform", "reference", "fourier", "harmonic"]
 SPECTRAL_METHODS: tuple[str, ...] = get_args(SpectralMethod)
 
 LAMBDA_MIN = 380.0
@@ -273,9 +290,74 @@ def _wavenumber_density(illuminant: str, response: str = "srgb", points: int = 6
     return nu, dens / (dens.sum(axis=0, keepdims=True) * (nu[1] - nu[0]))
 
 
+#: Largest ``xi`` (nm) of the ``harmonic`` basis' table of ``A_c(xi)``, and its step: the
+#: envelope of ``A`` varies over ``1 / (1/380 - 1/780) / 2 ~ 1500 nm``, so linear
+#: interpolation at 10 nm is within 2e-4 of it.
+HARMONIC_REACH_NM = 64000.0
+_HARMONIC_STEP_NM = 10.0
+
+
+@functools.lru_cache(maxsize=16)
+def _harmonic_table(illuminant: str, response: str, white_balance) -> tuple[float, np.ndarray]:
+    """``(nu_c, E)``: the reference quadrature's characteristic function
+    ``sum_k W_kc exp(2 pi i xi / lambda_k) = exp(2 pi i xi nu_c) E_c(xi)`` as a slowly varying
+    envelope ``E`` (G, 6: real parts, then imaginary parts of the 3 channels) on
+    ``xi = 0, step, ..., HARMONIC_REACH_NM``, about the band's central wavenumber ``nu_c``."""
+    lam, w, _, _ = _basis_arrays("reference", REFERENCE_SAMPLES, illuminant, response, white_balance)
+    nu = 1.0 / lam
+    nu_c = 0.5 * (nu.min() + nu.max())
+    rows = int(round(HARMONIC_REACH_NM / _HARMONIC_STEP_NM)) + 1
+    # xi = (64 q + r) step: exp(2 pi i xi dnu) = exp(2 pi i 64 q step dnu) exp(2 pi i r step dnu),
+    # so the (rows, K) exponentials become two small tables and one matrix product.
+    q, r = np.arange(-(-rows // 64)), np.arange(64)
+    coarse = np.exp(2j * np.pi * np.outer(64 * q * _HARMONIC_STEP_NM, nu - nu_c))  # (Q, K)
+    fine = np.exp(2j * np.pi * np.outer(r * _HARMONIC_STEP_NM, nu - nu_c))  # (64, K)
+    env = np.einsum("qk,rk,kc->qrc", coarse, fine, w, optimize=True).reshape(-1, 3)[:rows]
+    return float(nu_c), np.concatenate([env.real, env.imag], axis=1)
+
+
+def _harmonic_phases(samples: int) -> np.ndarray:
+    """The phases ``delta_j = theta_j + pi`` of eq. (8) at ``theta_j = 2 pi (j + 1/2) / K``."""
+    return 2.0 * np.pi * (np.arange(samples) + 0.5) / samples + np.pi
+
+
+def harmonic_weights(opd, basis: "SpectralBasis"):
+    """Per-pixel RGB weights (..., K, 3) of a ``harmonic`` basis' phase samples for optical
+    paths ``opd`` (..., nm): ``K_j(x) = (1/K) (A(0) + 2 sum_{m=1}^{L} A(m x) cos(m theta_j))``,
+    ``L = ceil(K/2) - 1`` (module docstring). ``sum_j g(theta_j) K_j(x)`` is then the channel
+    value of any film function ``g`` whose harmonics above ``L`` vanish. Differentiable in
+    ``opd`` and float32-safe (the carrier's phase is at most ``2 pi 170`` rad); numpy in,
+    numpy out (``auto``'s grids), else jnp (the renderer)."""
+    import jax.numpy as jnp
+
+    xp = np if isinstance(opd, np.ndarray) else jnp
+    nu_c, env = _harmonic_table(basis.illuminant, basis.response, basis.white_balance)
+    k = basis.samples
+    harm = np.arange(-(-k // 2))  # m = 0 .. L
+    theta = 2.0 * np.pi * (np.arange(k) + 0.5) / k
+    cmat = np.where(harm[:, None] == 0, 1.0, 2.0) * np.cos(harm[:, None] * theta[None, :]) / k  # (L + 1, K)
+    x = xp.asarray(opd)
+    dtype = x.dtype if xp.issubdtype(x.dtype, xp.floating) else xp.float32
+    xi = x[..., None] * xp.asarray(harm, dtype=dtype)  # (..., L + 1)
+    pos = xi / _HARMONIC_STEP_NM
+    i0 = xp.clip(xp.floor(pos), 0, env.shape[0] - 2)
+    frac = (pos - i0)[..., None]
+    tab = xp.asarray(env, dtype=dtype)
+    i0 = i0.astype(xp.int32)
+    e = tab[i0] * (1.0 - frac) + tab[i0 + 1] * frac  # (..., L + 1, 6)
+    e = xp.where((pos <= env.shape[0] - 1)[..., None], e, 0.0)
+    arg = 2.0 * np.pi * nu_c * xi
+    a = xp.cos(arg)[..., None] * e[..., :3] - xp.sin(arg)[..., None] * e[..., 3:]  # (..., L + 1, 3)
+    return xp.einsum("...lc,lj->...jc", a, xp.asarray(cmat, dtype=dtype))
+
+
 @functools.lru_cache(maxsize=64)
 def _basis_arrays(method: str, samples: int, illuminant: str, response: str = "srgb",
                   white_balance="illuminant"):
+    if method == "harmonic":
+        if samples < 2:
+            raise ValueError("harmonic spectral samples must be >= 2")
+        return None, None, None, None
     fine = np.linspace(LAMBDA_MIN, LAMBDA_MAX, 4001)
     dens_tab = _channel_density(illuminant, response)
     rgb_f = np.stack([np.interp(fine, _GRID, dens_tab[:, c]) for c in range(3)], axis=1)
@@ -288,7 +370,7 @@ def _basis_arrays(method: str, samples: int, illuminant: str, response: str = "s
     if method == "reference":
         samples = REFERENCE_SAMPLES
     if method not in ("uniform", "reference"):
-        raise ValueError(f"unknown spectral method {method!r} (uniform, reference or fourier)")
+        raise ValueError(f"unknown spectral method {method!r} (uniform, reference, fourier or harmonic)")
     if samples < 1:
         raise ValueError("spectral samples must be >= 1")
     width = (LAMBDA_MAX - LAMBDA_MIN) / samples
@@ -307,7 +389,9 @@ class SpectralBasis:
 
     ``sigma`` is None for point-sampled methods (``uniform``, ``reference``) and, for
     ``fourier``, the (K,) wavenumber standard deviations (1/nm) of the lobes each sample
-    stands for: film functions must then return the lobe-filtered spectrum. ``illuminant``,
+    stands for: film functions must then return the lobe-filtered spectrum. A
+    ``harmonic`` basis has no wavelengths, weights nor widths (None): its samples are the
+    ``phases`` and its weights depend on each pixel's optical path (:func:`harmonic_weights`). ``illuminant``,
     ``response`` and ``white_balance`` are as in the module's description.
 
     Hashable and compared by its definition, so it can be a static argument under jit.
@@ -319,7 +403,9 @@ class SpectralBasis:
             white_balance = tuple(float(g) for g in white_balance)
         lam, w, width, sigma = _basis_arrays(method, int(samples), illuminant, response, white_balance)
         self.method = method
-        self.samples = len(lam)
+        self.samples = int(samples) if lam is None else len(lam)
+        #: ``harmonic``: the (K,) phases of eq. (8) its film functions are sampled at (else None).
+        self.phases = _harmonic_phases(self.samples) if method == "harmonic" else None
         self.illuminant = illuminant
         self.response = response
         self.white_balance = white_balance
@@ -349,7 +435,7 @@ class SpectralBasis:
 
 def spectral_basis(method: SpectralMethod = "uniform", samples: int = 30, illuminant: str = "D65", response: str = "srgb",
                    white_balance="illuminant") -> SpectralBasis:
-    """The quadrature for ``method`` (``uniform``, ``reference`` or ``fourier``) with ``samples`` bins."""
+    """The quadrature for ``method`` (``uniform``, ``reference``, ``fourier`` or ``harmonic``) with ``samples`` bins."""
     return SpectralBasis(method, samples, illuminant, response, white_balance)
 
 

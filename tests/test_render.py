@@ -304,3 +304,23 @@ def test_transmission_tint_is_the_complement_of_the_reflection(x64):
         dev_t = terms[True]["background"] - np.mean(terms[True]["background"])
         strong = np.abs(dev_r) > 0.2 * np.max(np.abs(dev_r))
         assert np.all(dev_r[strong] * dev_t[strong] < 0), (d, dev_r, dev_t)
+
+
+@pytest.mark.parametrize("camera", ["orthographic", "perspective"])
+@pytest.mark.parametrize("spp", [1, 4])
+def test_render_plan_renders_the_bubble_and_its_backdrop(env64, camera, spp):
+    """A plan shades only the pixels the bubble can touch and takes the backdrop elsewhere:
+    the image equals the whole-image render, the rim's sub-pixel rays included."""
+    from bubblefit.model.geometry import PerspectiveCamera
+    from bubblefit.model.render import bubble_pixels, render_plan
+
+    env = EnvMap.from_array(env64[1])
+    cam = (OrthographicCamera(32, 24, 15.0, 12.5, 9.0) if camera == "orthographic"
+           else PerspectiveCamera(32, 24, fov_deg=40.0, origin=(0.0, 0.0, 4.0)))
+    fx = Effects(model="physical", interference="airy", spectral=spectral_basis("harmonic", 16), bounces=3)
+    cfg = RenderConfig(effects=fx, camera=cam, chunk=256, samples_per_pixel=spp)
+    p = Params.make(roughness=0.05, thickness=640.0)
+    whole = np.asarray(render(p, cfg, env))
+    plan = render_plan(p, [(cfg, None)], env)
+    np.testing.assert_allclose(plan, whole, rtol=2e-5, atol=2e-6)
+    assert 0 < bubble_pixels(cfg).size < 32 * 24

@@ -14,7 +14,7 @@ from ._options import ColourSettings, FitOptions
 from ._parameters import DISC_PARAMETERS, PARAMETERS, ParameterTable, THICKNESS_PARAMETERS
 from ..errors import InputError
 from ..lighting.envmap import EnvMap
-from ..model.effects import resolve
+from ..model.effects import check_harmonic, resolve
 from ..model.geometry import OrthographicCamera
 from ..model.render import RenderConfig
 from ..optics.dispersion import REFERENCE_WAVELENGTH_NM, Cauchy, refractive_index
@@ -306,6 +306,7 @@ def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, d
     camera, center, radius = persp or (OrthographicCamera(W, H, *frame.disc), (0.0, 0.0, 0.0), 1.0)
     fx, decisions = decided if decided is not None else _decide(opts, vals, env, frame.background,
                                                                 _settings(scene, opts), camera, lights)
+    check_harmonic(fx.spectral, opts.thickness, False, where="fit")
     # The one place the fit's colour, dispersion and pixel sampling enter: every render
     # (search, local solves, map, final image) starts from these configurations.
     colour = colour_settings(scene, opts, vals["n_film"])

@@ -39,7 +39,8 @@ from .effects import (ALL_ON_NODES, SPECTRAL_CANDIDATES, Decision, Effects, as_s
 from .footprint import FILTER_CANDIDATES, FLOOR_FRACTION, REFERENCE_FILTER, Footprint, filter_key, pixel_budget
 from .modes import COLOURED, GREY, INTERFERENCE_MODES, ThicknessKind
 
-__all__ = ["Plan", "decide_pixels", "spectral_cost", "DEFAULT_TOLERANCE", "SHARES", "MARGIN", "HOT_FRACTION"]
+__all__ = ["Plan", "decide_pixels", "spectral_cost", "DEFAULT_TOLERANCE", "SHARES", "MARGIN", "HOT_FRACTION",
+           "TAIL_FRACTION"]
 
 #: Default ``[effects] tolerance``: 1% of each pixel's radiance (plus the floor).
 DEFAULT_TOLERANCE = 0.01
@@ -50,20 +51,34 @@ SHARES = {"film": 0.5, "filtering": 0.25, "bounces": 0.15, "terms": 0.1}
 MARGIN = 1.0
 #: Largest fraction of the bubble's pixels rendered as a second, filtered region.
 HOT_FRACTION = 0.25
+#: Largest fraction (and at least :data:`TAIL_MIN_PIXELS` pixels) of the bubble rendered as a
+#: third region, the pixels of the second that need costlier choices still.
+TAIL_FRACTION = 0.005
+TAIL_MIN_PIXELS = 16
 #: Cost of one ``fourier`` sample relative to one point sample (the filtered film
 #: functions carry their harmonics): paper's eq. (10) factor, and the Airy sum.
 FOURIER_COST = {"paper": 1.5, "physical": 4.0}
+#: Cost of one ``harmonic`` sample relative to one point sample (its per-pixel weights).
+HARMONIC_COST = 1.25
+#: Phase sample counts of the ``harmonic`` basis ``auto`` tries.
+HARMONIC_CANDIDATES = (4, 6, 8, 12, 16, 24, 32, 48, 64)
 
 
 def spectral_cost(basis: SpectralBasis, model: str) -> float:
-    """Relative cost of a spectral basis: its samples, times :data:`FOURIER_COST` for ``fourier``."""
+    """Relative cost of a spectral basis: its samples, times :data:`FOURIER_COST` for
+    ``fourier`` and :data:`HARMONIC_COST` for ``harmonic``."""
+    if basis.phases is not None:
+        return basis.samples * HARMONIC_COST
     return basis.samples * (FOURIER_COST[model] if basis.sigma is not None else 1.0)
 
 
-def spectral_candidates(model: str) -> list[SpectralBasis]:
-    """Every spectral method ``auto`` may take, cheapest first: uniform, fourier, reference."""
+def spectral_candidates(model: str, harmonic: bool = False) -> list[SpectralBasis]:
+    """Every spectral method ``auto`` may take, cheapest first: uniform, fourier and, where
+    the film has one thickness and a non-dispersive index (``harmonic``), the phase samples."""
     cands = [spectral_basis("uniform", k) for k in SPECTRAL_CANDIDATES]
     cands += [spectral_basis("fourier", k) for k in sorted(FOURIER_LOBES)]
+    if harmonic:
+        cands += [spectral_basis("harmonic", k) for k in HARMONIC_CANDIDATES]
     return sorted(cands, key=lambda b: spectral_cost(b, model))
 
 
@@ -76,7 +91,8 @@ class Plan:
 
 
 class _Cells:
-    """Grid cells around each pixel's (thickness, cosine), front (0) and rear (1) films."""
+    """Grid cells around each pixel's (thickness, cosine), per film: the front (0), the
+    rear (1) and, for ``physical``, each internal bounce (k >= 1)."""
 
     def __init__(self, b: SceneBounds, fp: Footprint):
         n = b.n_film
@@ -84,20 +100,46 @@ class _Cells:
         xg = b.d_grid[:, 0] * 2 * n * cos_t(b.c_grid[0])
         self.jc = np.searchsorted(b.c_grid, fp.cos)  # cells jc - 1 and jc, those that exist
         self.varies = bool(np.ptp(np.concatenate([fp.d0, fp.d1])) > 0) if fp.count else False
-        self.ix = [np.searchsorted(xg, 2 * n * d * cos_t(fp.cos)) for d in (fp.d0, fp.d1)]
+        path = lambda d: 2 * n * d * cos_t(fp.cos)  # eq. (8)'s optical path x
+        self.ix = [np.searchsorted(xg, path(d)) for d in (fp.d0, fp.d1)]
+        # With a thickness field, the term of film k >= 1 reads the film at every point its
+        # light met (d0, d1, then dq[:k] for the bounces), and a product of films of
+        # different thickness oscillates with the sums of their paths: its rows run from
+        # the smallest path to the sum of the two largest (a grid that reaches that far,
+        # :func:`~bubblefit.model.bounds.film_grids`).
+        xs = [path(fp.d0), path(fp.d1)]
+        self.rows = [(self.ix[0], self.ix[0])]
+        for k in range(len(fp.dq) + 1 if self.varies else 1):
+            if k:
+                xs.append(path(fp.dq[k - 1]))
+            top2 = np.sort(np.stack(xs), axis=0)[-2:].sum(axis=0) if b.model == "physical" else np.max(xs, axis=0)
+            self.rows.append((np.searchsorted(xg, np.min(xs, axis=0)), np.searchsorted(xg, top2)))
 
     def at(self, arr, film: int) -> np.ndarray:
-        """Largest value (N, 3) of a (D, C, 3) grid array over the 4 cells around each pixel.
-
-        With a thickness field the rear film's terms (the internal bounces meet the film at
-        other heights) take the largest over the front and rear cells."""
+        """Largest value (N, 3) of a (D, C, 3) grid array over the cells around each pixel's
+        film ``film`` (with a thickness field, over every row its light's path crosses)."""
         arr = np.asarray(arr)
-        if film == 1 and self.varies:
-            return np.maximum(self._at(arr, 0), self._at(arr, 1))
-        return self._at(arr, film)
+        if film == 0 or not self.varies:
+            return _pair_max(arr)[self.ix[min(film, 1)], self.jc]
+        lo, hi = self.rows[min(film + 1, len(self.rows) - 1)]  # bounce k: d0, d1 and dq[:k]
+        return _range_max(_pair_max(arr), lo, hi, self.jc)
 
-    def _at(self, arr, film: int) -> np.ndarray:
-        return _pair_max(arr)[self.ix[film], self.jc]
+
+def _range_max(q: np.ndarray, lo: np.ndarray, hi: np.ndarray, col: np.ndarray) -> np.ndarray:
+    """``max(q[lo:hi + 1, col])`` per pixel, (N, ...), from a sparse table over the rows of
+    ``q`` (R, C, ...): ``log2 R`` levels of maxima over ``2^l`` rows, two reads per pixel."""
+    levels = [q]
+    while 2 ** len(levels) <= q.shape[0]:
+        prev, w = levels[-1], 2 ** (len(levels) - 1)
+        levels.append(np.maximum(prev[:-w], prev[w:]))
+    span = hi - lo + 1
+    lev = np.floor(np.log2(np.maximum(span, 1))).astype(int)
+    out = np.full((lo.size,) + q.shape[2:], -np.inf)
+    for l in np.unique(lev):
+        m = lev == l
+        t, w = levels[l], 2 ** l
+        out[m] = np.maximum(t[lo[m], col[m]], t[hi[m] - w + 1, col[m]])
+    return out
 
 
 def _pair_max(arr: np.ndarray) -> np.ndarray:
@@ -132,7 +174,7 @@ class _Pixels:
         fix = np.abs if grid_abs else (lambda x: x)
         out = [self.cells.at(fix(c["front"]), 0) * self.w[0]]
         for k, ck in enumerate(c["rear"][: len(self.fp.films) - 1]):
-            out.append(self.cells.at(fix(ck), 1) * self.w[k + 1])
+            out.append(self.cells.at(fix(ck), k + 1) * self.w[k + 1])
         bg = np.maximum(self.cells.at(fix(c["background"]), 0), self.cells.at(fix(c["background"]), 1))
         out.append(bg * self.fp.bg)
         return out
@@ -155,6 +197,19 @@ class _Pixels:
         if mask is not None:
             ratio = ratio[mask]
         return float(ratio.max()) if ratio.size else 0.0
+
+
+def _memo(fn):
+    """``fn`` of one hashable argument, computed once per argument (each candidate's
+    per-pixel errors are read by the split, the tail and every region's choice)."""
+    cache = {}
+
+    def call(arg):
+        if arg not in cache:
+            cache[arg] = fn(arg)
+        return cache[arg]
+
+    return call
 
 
 def _lookups(conf: FilterConfig) -> int:
@@ -188,7 +243,8 @@ def _filter_error(px: _Pixels, coeffs: dict, conf: FilterConfig) -> np.ndarray:
     coefficient times the difference of the two filtered radiances, both measured in the
     footprint (:data:`~bubblefit.model.footprint.FILTER_CANDIDATES`)."""
     fp = px.fp
-    specs = [px.cells.at(coeffs["front"], 0)] + [px.cells.at(c, 1) for c in coeffs["rear"][: len(fp.films) - 1]]
+    specs = [px.cells.at(coeffs["front"], 0)] + [px.cells.at(c, k + 1)
+                                                  for k, c in enumerate(coeffs["rear"][: len(fp.films) - 1])]
     diff = np.abs(fp.spec[filter_key(conf)] - fp.spec[filter_key(REFERENCE_FILTER)])
     return MARGIN * np.max(sum(px.spec_scale * c * diff[f] for f, c in enumerate(specs)), axis=-1)
 
@@ -204,6 +260,19 @@ def _split(px: _Pixels, candidates, errors, share: str, hot: np.ndarray):
         if over.mean() <= HOT_FRACTION if over.size else True:
             return cand, over
     return last, hot
+
+
+def _tail(px: _Pixels, candidates, errors, share: str, hot: np.ndarray, tail: np.ndarray) -> np.ndarray:
+    """``tail`` widened by the pixels of ``hot`` that the cheapest of ``candidates`` meeting
+    the budget in all but :data:`TAIL_FRACTION` of the bubble's pixels leaves out: a third
+    region, so that a few pixels (the rim, where the film's harmonics grow) do not make the
+    whole bright region take the converged choices."""
+    limit = max(TAIL_MIN_PIXELS, TAIL_FRACTION * hot.size)
+    for cand in candidates:
+        over = hot & (errors(cand) > SHARES[share] * px.budget)
+        if over.sum() <= limit:
+            return tail | over
+    return tail
 
 
 def _first(px: _Pixels, candidates, errors, share: str, mask):
@@ -279,9 +348,9 @@ def _filter_decision(px: _Pixels, b: SceneBounds, filt, knobs: dict, f_err, mask
                                            budget_used=max(u for _, u in picks))
 
 
-def _spectral_decision(px: _Pixels, b: SceneBounds, s_err, masks, where):
+def _spectral_decision(px: _Pixels, b: SceneBounds, s_err, masks, where, harmonic: bool):
     """The spectral basis of each region: the cheapest within the film share (every method)."""
-    cands = spectral_candidates(b.model) + [spectral_basis("reference")]
+    cands = spectral_candidates(b.model, harmonic) + [spectral_basis("reference")]
     picks = [_first(px, cands, s_err, "film", m) for m in masks]
     text = "; ".join(f"{c.method}/{c.samples}{where[i]} uses {_pct(u)} of the film share "
                      f"(cost {spectral_cost(c, b.model):.0f} against {REFERENCE_SAMPLES} for the reference)"
@@ -307,8 +376,12 @@ def _bounce_decision(px: _Pixels, b: SceneBounds, bset, rear: bool, b_err, masks
 
 
 def decide_pixels(b: SceneBounds, fp: Footprint, settings: dict, *, thickness_kind: ThicknessKind,
-                  tolerance: float = DEFAULT_TOLERANCE, nodes: int = ALL_ON_NODES) -> tuple[Plan, list[Decision]]:
+                  tolerance: float = DEFAULT_TOLERANCE, nodes: int = ALL_ON_NODES,
+                  dispersive: bool = False) -> tuple[Plan, list[Decision]]:
     """Every effect of a scene, decided against each pixel's budget (module docstring).
+
+    The ``harmonic`` spectral basis is a candidate for a film of one thickness whose index
+    does not disperse (``dispersive`` False), where it is exact.
 
     The bright region is the union of the pixels that the cheapest filter, spectral basis
     and bounce count meeting the budget in all but :data:`HOT_FRACTION` of the bubble
@@ -318,7 +391,8 @@ def decide_pixels(b: SceneBounds, fp: Footprint, settings: dict, *, thickness_ki
     tol = float(tolerance)
     fresnel, tint_set, tint_rs, bset = model_settings(b, settings)
     out = [fresnel]
-    table = FilmTable(b, MAX_BOUNCES, tint_rs, [spectral_basis("reference")] + spectral_candidates(b.model))
+    harmonic = thickness_kind == "constant" and not dispersive
+    table = FilmTable(b, MAX_BOUNCES, tint_rs, [spectral_basis("reference")] + spectral_candidates(b.model, harmonic))
     px = _Pixels(b, fp, table, tol)
     interference, d = _interference(px, settings.get("interference", "auto"), tol)
     out.append(d)
@@ -328,25 +402,37 @@ def decide_pixels(b: SceneBounds, fp: Footprint, settings: dict, *, thickness_ki
     ref_coeffs = table(interference, spectral_basis("reference") if coloured else None)
 
     filt, spectral_setting = settings.get("filtering", "auto"), settings.get("spectral", "auto")
-    f_err = lambda conf: _filter_error(px, ref_coeffs, conf)
-    s_err = lambda basis: px.error(table(interference, basis), ref_coeffs)
+    f_err = _memo(lambda conf: _filter_error(px, ref_coeffs, conf))
+    s_err = _memo(lambda basis: px.error(table(interference, basis), ref_coeffs))
     tails = np.cumsum([np.max(t, axis=-1) for t in px.terms(ref_coeffs)[1:-1]][::-1], axis=0)[::-1]
     b_err = lambda n: MARGIN * tails[n] if n < len(tails) else np.zeros(fp.count)
     hot = np.zeros(fp.count, dtype=bool)
     if b.has_env and b.roughness > 0 and filt == "auto":
         _, hot = _split(px, FILTER_CANDIDATES, f_err, "filtering", hot)
     if coloured and spectral_setting == "auto":
-        _, hot = _split(px, spectral_candidates(b.model) + [spectral_basis("reference")], s_err, "film", hot)
+        _, hot = _split(px, spectral_candidates(b.model, harmonic) + [spectral_basis("reference")], s_err, "film",
+                        hot)
     if b.model == "physical" and bset == "auto":
         _, hot = _split(px, range(1, MAX_BOUNCES + 1), b_err, "bounces", hot)
-    masks = [~hot] + ([hot] if hot.any() else [])
-    where = ["", f" in the {int(hot.sum())} pixels whose light comes from a bright source"]
+    tail = np.zeros(fp.count, dtype=bool)
+    if hot.any():
+        if b.has_env and b.roughness > 0 and filt == "auto":
+            tail = _tail(px, FILTER_CANDIDATES, f_err, "filtering", hot, tail)
+        if coloured and spectral_setting == "auto":
+            tail = _tail(px, spectral_candidates(b.model, harmonic), s_err, "film", hot, tail)
+        if b.model == "physical" and bset == "auto":
+            tail = _tail(px, range(1, MAX_BOUNCES), b_err, "bounces", hot, tail)
+    regions = [(~hot, ""), (hot & ~tail, f" in the {int((hot & ~tail).sum())} pixels whose light comes from a "
+                                          "bright source"),
+               (tail, f" in the {int(tail.sum())} pixels that need more (the rim, the brightest glints)")]
+    regions = regions[:1] + [r for r in regions[1:] if r[0].any()]
+    masks, where = [m for m, _ in regions], [w for _, w in regions]
 
     knobs = {k: settings[k] for k in ("nodes", "window", "level") if k in settings}
     fconf, d = _filter_decision(px, b, filt, knobs, f_err, masks, where)
     out.append(d)
     if coloured and spectral_setting == "auto":
-        bases, d = _spectral_decision(px, b, s_err, masks, where)
+        bases, d = _spectral_decision(px, b, s_err, masks, where, harmonic)
     else:
         basis, d = decide_spectral(b, table, spectral_setting, interference, tol)
         bases = [basis] * len(masks)

@@ -37,10 +37,10 @@ import numpy as np
 
 from ..lighting.filtering import mip_footprint_level, slope_nodes
 from ..optics import film
-from ..optics.spectral import LAMBDA_MIN, SpectralBasis
+from ..optics.spectral import LAMBDA_MIN, SpectralBasis, harmonic_weights
 from .modes import GREY, Model
 
-__all__ = ["SceneBounds", "FilmTable", "scene_bounds", "film_grids", "film_spectra",
+__all__ = ["SceneBounds", "FilmTable", "scene_bounds", "film_grids", "film_spectra", "harmonic_spectra",
            "film_coefficients", "coefficient_difference", "lookup_variation", "mipmap_albedo", "filter_bound",
            "MAX_BOUNCES"]
 
@@ -52,21 +52,41 @@ MAX_BOUNCES = 8
 # Bounds of the film terms
 # ----------------------------------------------------------------------------------------
 
-def film_grids(thickness_range, min_cos, n_film, max_points: int = 800):
+def film_grids(thickness_range, min_cos, n_film, max_points: int = 800, reach: float = 1.0,
+               per_pixel: bool = False):
     """Thickness (D, C) and incidence-cosine (C,) grids covering the scene.
 
     Interference depends on the optical path ``x = 2 n d cos t`` (eq. 8) and, weakly, on
     the Fresnel factors of ``cos``. Every pixel's ``x`` lies in
     ``[2 n d_min cos t_min, 2 n d_max]``; the grid pairs each of a few cosines with that
     whole range of ``x`` (a superset of the image's pairs), in steps of lambda_min / 24 (the
-    two-beam colour is sampled 24 times per shortest period), at most ``max_points``.
+    two-beam colour is sampled 24 times per shortest period), at most ``max_points``. The
+    cosines are spaced evenly and, with ``per_pixel`` (the grids of ``auto``'s cells), also
+    geometrically towards the rim: there the face reflectance ``R1`` climbs to 1 and the
+    film's harmonics (``R1^m``) with it, so a cell spanning 0.01-0.2 would charge every
+    pixel in it with the rim's worst case.
+
+    ``reach`` > 1 extends ``x`` to ``reach x_max``: a field's internal bounces multiply
+    films of different thickness, whose products oscillate with the sums of their paths.
+
+    One thickness (``d_min = d_max``, ``per_pixel``): every pixel's ``(x, cos)`` lies on the curve
+    ``x = 2 n d cos t(cos)``, so the grid is that curve, one row (1, C), with cosines
+    placed so that ``x`` moves by at most the same step between neighbours.
     """
     dmin, dmax = thickness_range
     c_lo = max(min(min_cos, 1.0), 1e-3)
-    cos = np.unique(np.concatenate([np.linspace(c_lo, 1.0, 6), [1.0]]))
+    cos = np.unique(np.concatenate([np.linspace(c_lo, 1.0, 6), np.geomspace(c_lo, 1.0, 8) if per_pixel else [],
+                                    [1.0]]))
     cos_t = np.sqrt(np.maximum(0.0, 1.0 - (1.0 - cos**2) / n_film**2))
     x_lo, x_hi = 2 * n_film * dmin * float(cos_t.min()), 2 * n_film * dmax
     step = LAMBDA_MIN / 24.0
+    if dmax <= dmin and per_pixel:
+        npts = int(min(max_points, max(2, math.ceil((x_hi - x_lo) / step) + 1)))
+        ct = np.linspace(x_lo, x_hi, npts) / max(2 * n_film * dmin, 1e-9)
+        cos_x = np.sqrt(np.clip(1.0 - n_film**2 * (1.0 - np.clip(ct, 0.0, 1.0) ** 2), 0.0, 1.0))
+        cos = np.unique(np.clip(np.concatenate([cos, cos_x]), c_lo, 1.0))
+        return np.full((1, cos.size), float(dmin)), cos
+    x_hi = x_hi * reach
     npts = int(min(max_points, max(2, math.ceil((x_hi - x_lo) / step) + 1)))
     x = np.linspace(x_lo, x_hi, npts) if x_hi > x_lo else np.array([x_lo])
     d = x[:, None] / (2 * n_film * np.maximum(cos_t[None, :], 1e-6))
@@ -82,6 +102,34 @@ def film_spectra(model, mode, lam, d, cos, t, n_film, sigma=None) -> np.ndarray:
     return np.asarray(_film_spectra(model, mode, jnp.asarray(lam, jnp.float32), jnp.asarray(d, jnp.float32),
                                     jnp.asarray(cos, jnp.float32), jnp.float32(t), jnp.float32(n_film),
                                     None if sigma is None else jnp.asarray(sigma, jnp.float32)))
+
+
+def harmonic_spectra(model, mode, bases: list[SpectralBasis], d, cos, t, n_film) -> list[tuple]:
+    """``harmonic`` bases on the grid, each as (values, weights): the film values at its
+    phases, broadcast to (D, C, K[, 2]) (the phase samples are the same at every
+    thickness), and each grid point's weights (D, C, K, 3)
+    (:func:`bubblefit.optics.spectral.harmonic_weights`). One film evaluation for all."""
+    phases = np.concatenate([bb.phases for bb in bases])
+    vals = np.asarray(_phase_spectra(model, mode, jnp.asarray(phases, jnp.float32), jnp.asarray(cos, jnp.float32),
+                                     jnp.float32(t), jnp.float32(n_film)))
+    cos_t = np.sqrt(np.maximum(0.0, 1.0 - (1.0 - np.asarray(cos, np.float64) ** 2) / n_film**2))
+    opd = 2.0 * np.asarray(d, np.float64) * n_film * cos_t[None, :]  # eq. (8)'s x
+    offs = np.cumsum([0] + [bb.samples for bb in bases])
+    out = []
+    for i, bb in enumerate(bases):
+        v = vals[:, offs[i]: offs[i + 1]]
+        out.append((np.broadcast_to(v[None], (np.shape(d)[0],) + v.shape), harmonic_weights(opd, bb)))
+    return out
+
+
+@functools.partial(jax.jit, static_argnames=("model", "mode"))
+def _phase_spectra(model, mode, delta, cos, t, n_film):
+    dl = delta[None, :]
+    cc = cos[:, None]
+    if model == "paper":
+        return jnp.broadcast_to(film.paper_factor_at_phase(dl, t), (cos.shape[0], delta.shape[0]))
+    fn = film.two_beam_at_phase if mode == "two_beam" else film.airy_at_phase
+    return fn(dl, n_film, cc)
 
 
 @functools.partial(jax.jit, static_argnames=("model", "mode"))
@@ -106,7 +154,8 @@ def film_coefficients(model, mode, weights, spectra, cos, t, n_film, bounces, ti
 
     Args:
         model: ``paper`` | ``physical``; mode: ``off`` | ``incoherent`` | ``two_beam`` | ``airy``.
-        weights: (K, 3) spectral weights (:class:`SpectralBasis`), ignored for grey modes.
+        weights: (K, 3) spectral weights (:class:`SpectralBasis`), or (D, C, K, 3) per grid
+            point (a ``harmonic`` basis), ignored for grey modes.
         spectra: :func:`film_spectra` at the basis's wavelengths (D, C, K[, 2]), or for the
             grey modes any array whose first axis is D.
         cos: (C,) incidence cosines; bounces: internal bounces to return (physical).
@@ -120,6 +169,8 @@ def film_coefficients(model, mode, weights, spectra, cos, t, n_film, bounces, ti
     shape = (np.shape(spectra)[0], len(cos), 1)
     if grey:
         rgb = lambda s: np.broadcast_to(s, s.shape[:-1] + (3,))
+    elif np.ndim(weights) == 4:  # per grid point (harmonic): a batched (1, K) @ (K, 3)
+        rgb = lambda s: (s[..., None, :] @ weights)[..., 0, :]
     else:
         rgb = lambda s: s @ np.asarray(weights, dtype=s.dtype)
     if model == "paper":
@@ -139,9 +190,12 @@ def film_coefficients(model, mode, weights, spectra, cos, t, n_film, bounces, ti
         r = np.broadcast_to(r1[None, :, None, :], shape + (2,))
         pol = lambda x: np.broadcast_to(np.mean(x, axis=-1), x.shape[:-2] + (3,))
     else:
-        r = spectra
-        w_half = 0.5 * np.asarray(weights, dtype=r.dtype)  # the polarisation mean folded into the weights
-        pol = lambda x: np.einsum("dckp,kr->dcr", x, w_half, optimize=True)
+        r = np.ascontiguousarray(spectra)
+        if np.ndim(weights) == 4:
+            pol = lambda x: rgb(np.mean(x, axis=-1))
+        else:  # the polarisation mean folded into the weights: one (D C, 2 K) @ (2 K, 3) product
+            w_pol = np.repeat(0.5 * np.asarray(weights, dtype=r.dtype), 2, axis=0)
+            pol = lambda x: (x.reshape(x.shape[:-2] + (-1,)) @ w_pol)
     tr = 1.0 - r
     out = {"front": pol(r), "background": pol(tr * tr), "rear": []}
     path = tr * r
@@ -312,8 +366,15 @@ def scene_bounds(*, model: Model, t: float, r_d: float, r_s: float, roughness: f
                  env_peak: float, env_mean: float, background: str, background_peak: float,
                  n_point_lights: int, light_peak: float, min_cos: float, nodes: int,
                  env_pixels: np.ndarray | None = None, env_irradiance_peak: float | None = None,
-                 reflect_theta_range: tuple[float, float] = (0.0, math.pi)) -> SceneBounds:
+                 reflect_theta_range: tuple[float, float] = (0.0, math.pi), per_pixel: bool = False,
+                 field: bool = False) -> SceneBounds:
     """The :class:`SceneBounds` of a scene from its scalar summaries.
+
+    ``per_pixel``: the grids serve ``auto``'s per-pixel cells (:func:`film_grids`);
+    ``field``: the thickness varies over the film (drainage, a map), so the
+    physical model's bounces multiply films of different thickness and the grid reaches
+    twice as far in optical path. The scalar path of a fit (a range of one thickness)
+    takes neither.
 
     The radiance bounds: eq. (3)'s lobe times ``cos th_i`` peaks at
     ``1 / (4 pi a^2 sqrt(cos th_r))`` for a light of irradiance 1; without an irradiance
@@ -338,7 +399,8 @@ def scene_bounds(*, model: Model, t: float, r_d: float, r_s: float, roughness: f
     else:
         w_refl = spec_peak + max(r_d, 0.0) * irr_peak / math.pi
     dmin, dmax = (float(thickness_range[0]), float(thickness_range[1]))
-    d_grid, c_grid = film_grids((dmin, dmax), min_cos, n_film)
+    d_grid, c_grid = film_grids((dmin, dmax), min_cos, n_film, reach=2.0 if model == "physical" and field else 1.0,
+                                per_pixel=per_pixel)
     return SceneBounds(model=model, t=float(t), r_d=float(r_d), r_s=float(r_s), roughness=float(roughness),
                        n_film=float(n_film), thickness_range=(dmin, dmax), min_cos=float(min_cos), has_env=has_env,
                        env_peak=float(peak_env), env_pixels=env_pixels, texel_angle=env_texel_angle,
@@ -362,6 +424,15 @@ class FilmTable:
 
     def _values(self, mode: str, basis: SpectralBasis) -> np.ndarray:
         b = self.b
+        if basis.phases is not None:  # harmonic: (values, per-point weights); every wanted basis in one call
+            key = ("harmonic", mode)
+            if basis not in self._spectra.get(key, {}):
+                bases = [bb for bb in self.wanted if bb.phases is not None]
+                self.wanted += [] if basis in bases else [basis]
+                bases += [] if basis in bases else [basis]
+                self._spectra[key] = dict(zip(bases, harmonic_spectra(b.model, mode, bases, b.d_grid, b.c_grid,
+                                                                      b.t, b.n_film)))
+            return self._spectra[key][basis]
         if basis.sigma is not None:  # fourier: the lobe-filtered film at the lobes' centres, all bases at once
             key = ("fourier", mode)
             if key not in self._spectra:
@@ -383,7 +454,7 @@ class FilmTable:
             idx = np.searchsorted(lam_all, basis.wavelengths)
             if np.allclose(lam_all[np.minimum(idx, len(lam_all) - 1)], basis.wavelengths):
                 return vals[:, :, idx]
-        lam_all = np.unique(np.concatenate([bb.wavelengths for bb in self.wanted + [basis] if bb.sigma is None]))
+        lam_all = np.unique(np.concatenate([bb.wavelengths for bb in self.wanted + [basis] if bb.sigma is None and bb.phases is None]))
         self._spectra[mode] = (lam_all, film_spectra(b.model, mode, lam_all, b.d_grid, b.c_grid, b.t, b.n_film))
         return self._values(mode, basis)
 
@@ -394,6 +465,10 @@ class FilmTable:
         if key not in self._cache:
             if mode in GREY:
                 self._cache[key] = film_coefficients(b.model, mode, None, b.d_grid, b.c_grid, b.t, b.n_film,
+                                                     self.bounces, self.tint_rs)
+            elif basis.phases is not None:
+                vals, weights = self._values(mode, basis)
+                self._cache[key] = film_coefficients(b.model, mode, weights, vals, b.c_grid, b.t, b.n_film,
                                                      self.bounces, self.tint_rs)
             else:
                 self._cache[key] = film_coefficients(b.model, mode, basis.weights, self._values(mode, basis), b.c_grid,

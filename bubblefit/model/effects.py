@@ -44,8 +44,8 @@ from .bounds import MAX_BOUNCES, FilmTable, SceneBounds, coefficient_difference,
 from .modes import COLOURED, GREY, INTERFERENCE_MODES, MODELS, Background, Interference, Model, Switch, ThicknessKind
 
 __all__ = ["Effects", "Decision", "resolve", "decide", "all_on_settings", "ABSOLUTE_TOLERANCE", "MAX_AUTO_BOUNCES",
-           "decide_interference", "decide_spectral", "decide_filtering", "decide_terms", "decide_tint",
-           "decide_diffuse", "decide_bounces", "as_switch"]
+           "decide_interference", "decide_spectral", "check_harmonic", "decide_filtering", "decide_terms",
+           "decide_tint", "decide_diffuse", "decide_bounces", "as_switch"]
 
 #: Default tolerance of the scalar path (:func:`resolve`), in linear radiance (1/1000 of a white of 1).
 ABSOLUTE_TOLERANCE = 1e-3
@@ -180,6 +180,22 @@ def decide_spectral(b: SceneBounds, table: FilmTable, setting, interference: Int
     except ValueError as exc:
         raise InputError(f"effects.spectral: {exc}") from None
     return basis, Decision("spectral", True, "set by the scene", f"{method}/{basis.samples}")
+
+
+def check_harmonic(basis: SpectralBasis | None, thickness_kind: str, dispersive: bool, where: str = "render") -> None:
+    """Refuse the ``harmonic`` spectral basis where it is not exact: a thickness field (each
+    film has its own optical path), a dispersive index, or a fit (``where``), whose tables
+    sample wavelengths."""
+    if basis is None or basis.phases is None:
+        return
+    if where != "render":
+        raise InputError("effects.spectral: the harmonic basis renders scenes; a fit takes uniform, fourier or "
+                         "reference")
+    if thickness_kind != "constant":
+        raise InputError("effects.spectral: the harmonic basis needs one film thickness; a thickness field "
+                         f"({thickness_kind}) takes uniform, fourier or reference")
+    if dispersive:
+        raise InputError("effects.spectral: the harmonic basis needs a non-dispersive film index (n_film a number)")
 
 
 def decide_filtering(b: SceneBounds, setting, knobs: dict, nodes: int, spec_weight: float,

@@ -68,6 +68,9 @@ class Footprint:
         films: the F film names (``front``, ``rear`` or ``bounce1`` ... ``bounce8``).
         cos: (N,) incidence cosine (the same at every film of a pixel).
         d0, d1: (N,) thickness (nm) at the front and rear hit points.
+        dq: (B, N) thickness where each internal bounce's light meets the film next
+            (``physical``; (0, N) for ``paper``): bounce k's coefficient reads the film at
+            ``d0``, ``d1`` and ``dq[:k]``.
         spec: for each filter of :data:`FILTER_CANDIDATES` (by :func:`filter_key`), the
             (F, N, 3) specular radiance each film reflects with it (plus the point lights).
         irr: (2, N, 3) irradiance at the front normal and at the rear film's inward normal.
@@ -80,6 +83,7 @@ class Footprint:
     cos: np.ndarray
     d0: np.ndarray
     d1: np.ndarray
+    dq: np.ndarray
     spec: dict
     irr: np.ndarray
     bg: np.ndarray
@@ -101,7 +105,8 @@ def _trace(env, background, roughness, rotation, thickness_values, pix, *, camer
     d = jnp.broadcast_to(d, o.shape)
     hits = intersect_sphere(o, d, center, radius)
     probe = Effects(model=model, front_reflection=True, rear_reflection=True, bounces=MAX_BOUNCES)
-    films, _ = shading_points(probe, RenderConfig(effects=probe, camera=camera, center=center, radius=radius), hits, d)
+    films, exits = shading_points(probe, RenderConfig(effects=probe, camera=camera, center=center, radius=radius),
+                                  hits, d)
     n_all = jnp.stack([f[1] for f in films])
     wo_all = jnp.stack([f[2] for f in films])
     out = {"cos": hits.cos}
@@ -119,6 +124,8 @@ def _trace(env, background, roughness, rotation, thickness_values, pix, *, camer
         out["light_irr"] = jnp.pi * diff.reshape(n_all.shape)[:2]
     out["d0"] = thickness_at(thickness_kind, thickness_values, hits.local0, pix)
     out["d1"] = thickness_at(thickness_kind, thickness_values, hits.local1, pix)
+    if exits and thickness_kind != "constant":
+        out["dq"] = jnp.stack([thickness_at(thickness_kind, thickness_values, q, pix) for q in exits])
     return out
 
 
@@ -172,7 +179,7 @@ def footprint(*, camera, center, radius: float, model: Model, roughness: float, 
     if background_kind == "photo" and background is not None:
         bg = np.asarray(background, dtype=np.float64).reshape(-1, 3)[idx]
     return Footprint(pixels=idx, shape=(camera.height, camera.width), films=names, cos=res["cos"],
-                     d0=res["d0"], d1=res["d1"], spec=spec, irr=irr, bg=bg)
+                     d0=res["d0"], d1=res["d1"], dq=res.get("dq", np.zeros((0, npx))), spec=spec, irr=irr, bg=bg)
 
 
 def filter_key(conf: FilterConfig) -> str:

@@ -34,6 +34,7 @@ effects are really skipped).
 from __future__ import annotations
 
 import collections
+import dataclasses
 import functools
 from dataclasses import dataclass
 
@@ -50,7 +51,8 @@ from ..optics import film, spectral
 from ..optics.dispersion import Cauchy, index_offset
 from .effects import Effects
 from .modes import COLOURED
-from .geometry import OrthographicCamera, PerspectiveCamera, internal_bounce, intersect_sphere, pixel_offsets
+from .geometry import (OrthographicCamera, PerspectiveCamera, front_hits, internal_bounce, intersect_sphere,
+                       pixel_offsets)
 from .thickness import thickness_at
 
 __all__ = ["Params", "RenderConfig", "render", "render_terms", "render_plan", "shading_points", "TRACE_COUNTS",
@@ -125,18 +127,44 @@ def _count(name):
 
 
 class _Film:
-    """Per-hit film optics for one chunk: spectral (N, K, 2) or grey (N, 1, 2) arrays."""
+    """Per-hit film optics for one chunk: spectral (N, K, 2) or grey (N, 1, 2) arrays.
 
-    def __init__(self, fx: Effects, p: Params, cos, lam):
+    With a ``harmonic`` basis the K samples are phases of eq. (8), the same for every film
+    of a pixel (one thickness, one incidence angle), and :meth:`rgb` weighs them with the
+    pixel's own weights (:func:`~bubblefit.optics.spectral.harmonic_weights` of the optical
+    path at thickness ``d``).
+    """
+
+    def __init__(self, fx: Effects, p: Params, cos, lam, d=None):
         self.fx, self.p, self.cos, self.lam = fx, p, cos, lam
         # ``fourier`` basis: each sample is the spectrum filtered by a Gaussian lobe (K,).
         basis = fx.spectral
         self.sigma = None if basis is None or basis.sigma is None else jnp.asarray(basis.sigma, dtype=cos.dtype)
+        self.delta = None
+        if basis is not None and basis.phases is not None and fx.interference in COLOURED:
+            if fx.thickness != "constant":
+                raise ValueError("the harmonic spectral basis needs one film thickness (a thickness field gives "
+                                 "each film its own optical path)")
+            self.delta = jnp.asarray(basis.phases, dtype=cos.dtype)[None, :]
+            self.weights = spectral.harmonic_weights(film.optical_path(d, p.n_film, cos), basis)  # (N, K, 3)
+
+    def rgb(self, spec_nk):
+        """Integrate (N, K) over the spectrum, or broadcast a grey (N, 1) factor to RGB."""
+        if spec_nk.shape[-1] == 1:
+            return jnp.broadcast_to(spec_nk, spec_nk.shape[:-1] + (3,))
+        _count("spectral")
+        if self.delta is not None:
+            return jnp.einsum("nk,nkc->nc", spec_nk, self.weights.astype(spec_nk.dtype))
+        return spectral.integrate(spec_nk, self.fx.spectral)
 
     def reflectance(self, d):
         """Film reflectance R for thicknesses ``d`` (N,), shape (N, K, 2)."""
         mode = self.fx.interference
         cos = self.cos[:, None]
+        if self.delta is not None and mode in ("airy", "two_beam"):
+            _count("interference")
+            fn = film.airy_at_phase if mode == "airy" else film.two_beam_at_phase
+            return fn(self.delta, self.p.n_film, cos)
         if mode == "airy":
             _count("interference")
             if self.sigma is not None:
@@ -155,18 +183,12 @@ class _Film:
         if self.fx.interference == "incoherent":
             return jnp.broadcast_to(2.0 * self.p.t * self.p.t, d.shape)[:, None]
         _count("interference")
+        if self.delta is not None:
+            return jnp.broadcast_to(film.paper_factor_at_phase(self.delta, self.p.t), (d.shape[0], self.delta.shape[1]))
         if self.sigma is not None:
             return film.filtered_paper_interference_factor(d[:, None], self.lam, self.p.n_film, self.cos[:, None],
                                                            self.p.t, self.sigma)
         return film.paper_interference_factor(d[:, None], self.lam, self.p.n_film, self.cos[:, None], self.p.t)
-
-
-def _to_rgb(spec_nk, fx: Effects, dtype):
-    """Integrate (N, K) over the spectrum, or broadcast a grey (N, 1) factor to RGB."""
-    if spec_nk.shape[-1] == 1:
-        return jnp.broadcast_to(spec_nk, spec_nk.shape[:-1] + (3,))
-    _count("spectral")
-    return spectral.integrate(spec_nk, fx.spectral)
 
 
 def _reflected(env, fx: Effects, cfg: RenderConfig, p: Params, n, wo, *, normalize):
@@ -249,7 +271,7 @@ def _paper_terms(fx: Effects, p: Params, opt: "_Film", refl: dict, d0, d1, bg_ra
         s, dif = refl[name]
         lp = p.r_s * s + dif
         if fx.interference != "off":
-            lp = _to_rgb(factor(which), fx, dtype) * lp
+            lp = opt.rgb(factor(which)) * lp
         terms[name] = p.exposure * scale * lp
     if fx.transmission:
         _count("transmission")
@@ -258,7 +280,7 @@ def _paper_terms(fx: Effects, p: Params, opt: "_Film", refl: dict, d0, d1, bg_ra
             # Each film transmits the complement of its reflection about the mean.
             _count("transmission_tint")
             tr = lambda f: film.paper_tinted_transmission(f, p.t, p.r_s)
-            terms["background"] = gain * _to_rgb(tr(factor(0)) * tr(factor(1)), fx, dtype) * bg_rad
+            terms["background"] = gain * opt.rgb(tr(factor(0)) * tr(factor(1))) * bg_rad
         else:
             terms["background"] = gain * t2 * t2 * bg_rad
     return terms
@@ -278,13 +300,13 @@ def _physical_terms(fx: Effects, p: Params, opt: "_Film", refl: dict, d0, d1, ex
     if fx.front_reflection:
         _count("front_reflection")
         s, dif = refl["front"]
-        terms["front"] = p.exposure * (_to_rgb(mean_pol(r0), fx, dtype) * s + dif)
+        terms["front"] = p.exposure * (opt.rgb(mean_pol(r0)) * s + dif)
     if fx.transmission or (fx.rear_reflection and fx.bounces > 0):
         r1 = opt.reflectance(d1)
     if fx.transmission:
         _count("transmission")
         gain = 1.0 if photo_bg else p.exposure
-        terms["background"] = gain * _to_rgb(mean_pol(t0 * (1.0 - r1)), fx, dtype) * bg_rad
+        terms["background"] = gain * opt.rgb(mean_pol(t0 * (1.0 - r1))) * bg_rad
     if fx.rear_reflection and fx.bounces > 0:
         _count("rear_reflection")
         path = t0 * r1  # (N, K, 2): entered the front, reflected at the rear
@@ -292,9 +314,9 @@ def _physical_terms(fx: Effects, p: Params, opt: "_Film", refl: dict, d0, d1, ex
         for k, nq in enumerate(exits, start=1):
             r_q = opt.reflectance(thick(nq))
             s, dif = refl[f"bounce{k}"]
-            rear = rear + _to_rgb(mean_pol(path * (1.0 - r_q)), fx, dtype) * s
+            rear = rear + opt.rgb(mean_pol(path * (1.0 - r_q))) * s
             if k == 1 and fx.diffuse:
-                rear = rear + _to_rgb(mean_pol(t0 * (1.0 - r_q)), fx, dtype) * dif
+                rear = rear + opt.rgb(mean_pol(t0 * (1.0 - r_q))) * dif
             path = path * r_q
         terms["rear"] = p.exposure * rear
     return terms
@@ -309,16 +331,19 @@ def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx)
     else:
         o, d = cfg.camera.rays(rows.astype(dtype), cols.astype(dtype), cfg.center, cfg.radius)
     hits = intersect_sphere(o, d, cfg.center, cfg.radius)
-    lam = jnp.asarray(fx.spectral.wavelengths, dtype=dtype) if fx.spectral is not None else None
-    if cfg.dispersion is not None and fx.spectral is not None:  # n per wavelength (K,)
-        offset = jnp.asarray(index_offset(cfg.dispersion, fx.spectral.wavelengths), dtype=dtype)
+    basis = fx.spectral
+    lam = jnp.asarray(basis.wavelengths, dtype=dtype) if basis is not None and basis.phases is None else None
+    if cfg.dispersion is not None and basis is not None:  # n per wavelength (K,)
+        if lam is None:
+            raise ValueError("the harmonic spectral basis needs a non-dispersive film index")
+        offset = jnp.asarray(index_offset(cfg.dispersion, basis.wavelengths), dtype=dtype)
         p = eqx.tree_at(lambda q: q.n_film, p, p.n_film + offset)
-    opt = _Film(fx, p, hits.cos, lam)
-    bg_rad = _background(env, fx, p, d, bg, idx)
-    photo_bg = fx.background == "photo"
     thick = lambda local: thickness_at(fx.thickness, p.thickness, local, idx)
     d0 = thick(hits.local0)
     d1 = thick(hits.local1)
+    opt = _Film(fx, p, hits.cos, lam, d0)
+    bg_rad = _background(env, fx, p, d, bg, idx)
+    photo_bg = fx.background == "photo"
 
     # Shading points of every film this scene needs, filtered in one batch.
     films, exits = shading_points(fx, cfg, hits, d)
@@ -343,13 +368,19 @@ def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx)
     return pixel, {k: jnp.where(inside, v, 0.0) for k, v in terms.items()}
 
 
+#: Fewest pixels of a chunk: a region's pixel count is rounded up to a power of two from
+#: here, so that regions of similar size share one compiled program.
+MIN_CHUNK = 256
+
+
 def _pixel_chunks(cfg: RenderConfig, pixels=None):
     """Flat pixel indices in chunks of ``cfg.chunk``: every pixel, or those of ``pixels``
-    (M,); the padding repeats the last index and is dropped."""
+    (M,), in chunks of a power of two (at least :data:`MIN_CHUNK`) when they are fewer;
+    the padding repeats the last index and is dropped."""
     h, w = cfg.shape
     flat = np.arange(h * w) if pixels is None else np.asarray(pixels, dtype=np.int64).ravel()
     npix = flat.size
-    chunk = max(1, min(cfg.chunk, npix))
+    chunk = max(1, min(cfg.chunk, 1 << max(MIN_CHUNK.bit_length() - 1, (npix - 1).bit_length())))
     steps = -(-npix // chunk)
     idx = flat[np.minimum(np.arange(steps * chunk), npix - 1)]
     rows, cols = np.divmod(idx, w)
@@ -405,20 +436,52 @@ def _stored_programs(cfg: RenderConfig):
     return stored(whole, "model.render.render", cfg), stored(chunks, "model.render._render_chunks", cfg)
 
 
+def _backdrop(cfg: RenderConfig) -> RenderConfig:
+    """``cfg`` with every term of the bubble off: the image of what lies behind it (the
+    background photo, the map, or black), shaded like any pixel the bubble misses."""
+    fx = cfg.effects
+    off = dataclasses.replace(fx, front_reflection=False, rear_reflection=False, transmission=False,
+                              interference="off", diffuse=False, point_lights=False, spectral=None, bounces=0,
+                              tint=False)
+    return dataclasses.replace(cfg, effects=off, dispersion=None)
+
+
+def bubble_pixels(cfg: RenderConfig) -> np.ndarray:
+    """Flat indices of the pixels the bubble can touch: those whose centre ray hits it
+    (:func:`~bubblefit.model.geometry.front_hits`), grown by one pixel, which covers the
+    sub-pixel rays of ``samples_per_pixel`` and the rounding at the rim."""
+    h, w = cfg.shape
+    inside = np.asarray(front_hits(cfg.camera, tuple(cfg.center), float(cfg.radius))[0]).reshape(h, w)
+    grown = inside.copy()
+    grown[1:] |= inside[:-1]
+    grown[:-1] |= inside[1:]
+    grown[:, 1:] |= grown[:, :-1].copy()
+    grown[:, :-1] |= grown[:, 1:].copy()
+    return np.flatnonzero(grown)
+
+
 def render_plan(p: Params, parts, env: EnvMap | None, background=None) -> np.ndarray:
     """The (H, W, 3) image of a scene rendered by regions (:class:`bubblefit.model.auto.Plan`).
 
     ``parts`` pairs :class:`RenderConfig` with flat pixel indices: the first (indices
-    None) renders every pixel, each next one re-renders its pixels with its own effects.
-    A pixel's value does not depend on the other pixels, so the regions compose exactly.
+    None) renders every pixel of the bubble the others do not name, each next one its own
+    pixels with its own effects. Pixels the bubble cannot touch (:func:`bubble_pixels`)
+    take the backdrop (:func:`_backdrop`), which no bubble term is traced for. A pixel's
+    value does not depend on the other pixels, so the regions compose exactly.
     """
     cfg0 = parts[0][0]
-    img = np.array(_stored_programs(cfg0)[0](p, env, background)).reshape(-1, 3)
-    for cfg, pixels in parts[1:]:
+    h, w = cfg0.shape
+    img = np.array(_stored_programs(_backdrop(cfg0))[0](p, env, background)).reshape(-1, 3)
+    if np.any(np.asarray(p.disc) != 0) and isinstance(cfg0.camera, OrthographicCamera):
+        covered = np.arange(h * w)  # a shifted disc: the camera's own disc does not bound it
+    else:
+        covered = bubble_pixels(cfg0)
+    named = [np.asarray(px, dtype=np.int64).ravel() for _, px in parts[1:] if px is not None and len(px)]
+    rest = np.setdiff1d(covered, np.concatenate(named)) if named else covered
+    for cfg, pixels in [(cfg0, rest)] + [(c, px) for c, px in parts[1:]]:
         if pixels is None or len(pixels) == 0:
             continue
         rows, cols, idx, npix = _pixel_chunks(cfg, pixels)
         vals = _stored_programs(cfg)[1](p, env, background, rows, cols, idx)
         img[np.asarray(pixels)] = np.asarray(vals)[:npix]
-    h, w = cfg0.shape
     return img.reshape(h, w, 3)

@@ -25,7 +25,7 @@ from ..io.images import read_image
 from ..lighting.envmap import EnvMap
 from .auto import DEFAULT_TOLERANCE, decide_pixels
 from .bounds import scene_bounds
-from .effects import ALL_ON_NODES
+from .effects import ALL_ON_NODES, check_harmonic
 from .footprint import footprint
 from ._scene_checks import check_radiance, check_values, colour_path, film_index, validate, vector
 from .geometry import OrthographicCamera, PerspectiveCamera
@@ -238,22 +238,24 @@ class Scene:
         nodes = int(e.get("nodes", ALL_ON_NODES))
         summ = self._summaries(env, background)
         kind, values = self.thickness_spec()
+        law, spp = self.dispersion(), self.samples_per_pixel
         p = self.params()
         camera, lights = self.camera(), self.point_lights()
         bg_kind = summ["background"]
         try:
-            b = scene_bounds(nodes=nodes, **summ)
+            b = scene_bounds(nodes=nodes, per_pixel=True, field=kind != "constant", **summ)
             fp = footprint(camera=camera, center=self.center, radius=self.radius, model=summ["model"],
                            roughness=summ["roughness"], env=env, rotation=float(p.rotation), lights=lights,
                            background=background, background_kind=bg_kind, thickness_kind=kind,
                            thickness_values=values)
-            plan, decisions = decide_pixels(b, fp, e, thickness_kind=kind, tolerance=tol, nodes=nodes)
+            plan, decisions = decide_pixels(b, fp, e, thickness_kind=kind, tolerance=tol, nodes=nodes,
+                                            dispersive=law is not None)
         except ValueError as exc:  # a setting the checks above let through
             raise InputError(f"scene [effects]: {exc}") from None
         colour = self.colour()
-        law, spp = self.dispersion(), self.samples_per_pixel
         parts = []
         for fx, pixels in plan.parts:
+            check_harmonic(fx.spectral, kind, law is not None)
             if fx.spectral is not None and colour != ("D65", "srgb", "illuminant"):
                 fx = dataclasses.replace(fx, spectral=fx.spectral.with_colour(*colour))
             cfg = RenderConfig(effects=fx, camera=camera, center=self.center, radius=self.radius,

@@ -106,8 +106,9 @@ def _load(path: Path, args: tuple):
     import jax
     from jax.experimental.serialize_executable import deserialize_and_load
 
-    _ready_custom_calls()
-    payload, out_tree = pickle.loads(path.read_bytes())
+    payload, out_tree, *flags = pickle.loads(path.read_bytes())
+    if not flags or flags[0]:  # the program calls LAPACK (or was saved before this was recorded)
+        _ready_custom_calls()
     return deserialize_and_load(payload, jax.tree_util.tree_structure((args, {})), out_tree)
 
 
@@ -117,8 +118,12 @@ def _save(path: Path, compiled) -> None:
     from .atomic import write_bytes
 
     payload, _, out_tree = serialize(compiled)
+    try:
+        lapack = "lapack" in compiled.as_text()
+    except Exception:  # no text for this executable: assume it needs the kernels
+        lapack = True
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_bytes(path, pickle.dumps((payload, out_tree), protocol=4))
+    write_bytes(path, pickle.dumps((payload, out_tree, lapack), protocol=4))
 
 
 def stored(jitted: Callable, name: str, static: Any) -> Callable:

@@ -1,7 +1,9 @@
 """The profile likelihood of a film's thickness in a spectrum (variable projection).
 
-For a thickness ``d`` (and resolution ``w``), the model ``y = sum_j a_j B_j R(d) + c`` is
-linear in the lamp coefficients ``a`` and the offset ``c``: they are solved by least
+For a thickness ``d`` (and resolution ``w``), the model
+``y = sum_j a_j B_j R(d) + sum_k c_k S_k`` is linear in the lamp coefficients ``a`` and the
+stray-light coefficients ``c`` (``S_0 = 1`` the constant offset, further ``S_k`` a smooth
+background that does not pass through the film's fringes): they are solved by least
 squares, and ``RSS(d)`` is what is left. :meth:`ProfileProblem.rss_grid` does this for
 thousands of thicknesses at once through the normal equations; :meth:`ProfileProblem.rss`
 solves one thickness with an orthogonal factorisation, for the local refinement.
@@ -26,25 +28,47 @@ __all__ = ["ProfileProblem", "local_minima", "residual_correlation", "second_dif
 @dataclass
 class ProfileProblem:
     """A dark-subtracted reading ``y`` (N,), the lamp basis (N, J), whether to fit an
-    offset, and the film's reflectance at the reading's wavelengths, ``reflect(d, w) -> (D, N)``."""
+    offset, the film's reflectance at the reading's wavelengths, ``reflect(d, w) -> (D, N)``,
+    and optionally more additive stray-light columns ``background`` (N, K)."""
 
     y: np.ndarray
     basis: np.ndarray
     offset: bool
     reflect: Callable
+    background: np.ndarray | None = None
+
+    @property
+    def additive(self) -> np.ndarray:
+        """The (N, K) columns added to the film's light: 1 (the offset) and the background."""
+        cols = [np.ones((len(self.y), 1))] if self.offset else []
+        if self.background is not None:
+            cols.append(np.asarray(self.background, dtype=np.float64).reshape(len(self.y), -1))
+        return np.column_stack(cols) if cols else np.zeros((len(self.y), 0))
+
+    @property
+    def n_linear(self) -> int:
+        """The number of linear parameters solved at every thickness."""
+        return self.basis.shape[1] + self.additive.shape[1]
 
     def design(self, d: float, w: float) -> np.ndarray:
-        """The (N, J [+1]) design matrix at thickness ``d``: lamp basis times ``R(d)``, and 1."""
+        """The (N, J + K) design matrix at thickness ``d``: lamp basis times ``R(d)``, and the additive columns."""
         r = self.reflect(np.array([d]), w)[0]
-        cols = self.basis * r[:, None]
-        if self.offset:
-            cols = np.column_stack([cols, np.ones_like(r)])
-        return cols
+        return np.column_stack([self.basis * r[:, None], self.additive])
 
     def solve(self, d: float, w: float) -> tuple[np.ndarray, np.ndarray]:
-        """Linear coefficients and the model spectrum at ``(d, w)``."""
+        """Linear coefficients and the model spectrum at ``(d, w)``.
+
+        A lamp must shine: where the least-squares lamp would make the film's light
+        ``sum_i L_i R_i`` negative (fringes turned upside down), the constrained optimum is
+        on the boundary and is taken as no film light at all (the lamp's coefficients 0,
+        the stray light alone), see :meth:`rss_grid`."""
         a = self.design(d, w)
         coef, *_ = np.linalg.lstsq(a, self.y, rcond=None)
+        j = self.basis.shape[1]
+        if float(np.sum(a[:, :j] @ coef[:j])) <= 0.0:
+            coef = np.zeros(a.shape[1])
+            if a.shape[1] > j:
+                coef[j:], *_ = np.linalg.lstsq(a[:, j:], self.y, rcond=None)
         return coef, a @ coef
 
     def model(self, d: float, w: float) -> np.ndarray:
@@ -56,30 +80,37 @@ class ProfileProblem:
         return float(r @ r)
 
     def rss_grid(self, thickness: np.ndarray, w: float, chunk: int = 256) -> np.ndarray:
-        """``RSS(d)`` for every thickness of ``thickness`` (D,), by batched normal equations."""
-        y, b = self.y, self.basis
+        """``RSS(d)`` for every thickness of ``thickness`` (D,), by batched normal equations;
+        thicknesses whose solved lamp makes the film's light negative get the RSS of the
+        stray light alone (:meth:`solve`)."""
+        y, b, e = self.y, self.basis, self.additive
         npts, j = b.shape
+        q = e.shape[1]
         bb = (b[:, :, None] * b[:, None, :]).reshape(npts, j * j)
+        be = (b[:, :, None] * e[:, None, :]).reshape(npts, j * q)
         by = b * y[:, None]
         yy = float(y @ y)
+        no_film = float(y @ y) if q == 0 else float(np.sum((y - e @ np.linalg.lstsq(e, y, rcond=None)[0]) ** 2))
         out = np.empty(len(thickness))
         for s in range(0, len(thickness), chunk):
             r = self.reflect(thickness[s:s + chunk], w)  # (C, N)
             m = len(r)
-            k = j + int(self.offset)
+            k = j + q
             g = np.zeros((m, k, k))
             rhs = np.zeros((m, k))
             g[:, :j, :j] = ((r * r) @ bb).reshape(m, j, j)
             rhs[:, :j] = r @ by
-            if self.offset:
-                rb = r @ b
-                g[:, :j, j] = rb
-                g[:, j, :j] = rb
-                g[:, j, j] = npts
-                rhs[:, j] = y.sum()
+            if q:
+                rb = (r @ be).reshape(m, j, q)
+                g[:, :j, j:] = rb
+                g[:, j:, :j] = rb.transpose(0, 2, 1)
+                g[:, j:, j:] = e.T @ e
+                rhs[:, j:] = e.T @ y
             ridge = 1e-12 * np.trace(g, axis1=1, axis2=2)[:, None, None] + 1e-300
             coef = np.linalg.solve(g + ridge * np.eye(k), rhs[..., None])[..., 0]
             out[s:s + m] = np.maximum(yy - np.einsum("mk,mk->m", coef, rhs), 0.0)
+            dark_lamp = np.einsum("mj,mj->m", coef[:, :j], r @ b) <= 0.0
+            out[s:s + m][dark_lamp] = no_film
         return out
 
 

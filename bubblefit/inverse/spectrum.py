@@ -49,14 +49,29 @@ from ..optics import dispersion, film
 from ._spectrum_profile import (ProfileProblem, profile_variance, refine_d, refine_dw, refine_near,
                                 residual_correlation, second_difference_noise)
 
-__all__ = ["SpectrumOptions", "SpectrumFit", "film_reflectance", "reflector", "fit_spectrum", "interference_order"]
+__all__ = ["SpectrumOptions", "SpectrumFit", "film_reflectance", "reflector", "fit_spectrum", "interference_order",
+           "min_fringes"]
 
 _FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
 
-#: Fewest fringes across the range for a thickness without a reference reading: a film
-#: with less than one fringe reflects a smooth spectrum of the same kind as the lamp's
-#: smooth model, and the two cannot be separated.
+#: Fewest fringes across the range for a thickness without a reference reading, with the
+#: default 5-term lamp: a film with less than one fringe reflects a smooth spectrum of the
+#: same kind as the lamp's smooth model, and the two cannot be separated.
+#: :func:`min_fringes` scales it with the lamp's freedom.
 MIN_FRINGES_WITHOUT_REFERENCE = 1.0
+
+
+def min_fringes(lamp_terms: int) -> float:
+    """Fewest fringes a film must show, without a reference, to be told apart from a lamp of
+    ``lamp_terms`` Legendre terms: a quarter fringe per term beyond the scale
+    (``(J - 1) / 4``: 1 for the default 5 terms, ``MIN_FRINGES_WITHOUT_REFERENCE``), and at
+    least half a fringe (one extremum of ``R`` inside the range; with less, ``R`` is a
+    monotonic ``sin^2`` ramp that a tilted lamp and offset reproduce).
+
+    A degree ``J - 1`` polynomial has up to ``J - 1`` extrema; over a fraction of its range
+    it bends like a quarter of a fringe per degree, so the lamp can imitate that much of the
+    film's modulation (Golub & Pereyra's projection then takes it out of the profile)."""
+    return max(0.5, MIN_FRINGES_WITHOUT_REFERENCE * (lamp_terms - 1) / 4.0)
 
 #: A fit is trusted when its residual's rms is within ``MISFIT_RATIO`` times the reading's
 #: noise (from its second differences) plus a model-error floor of ``MODEL_ERROR_FLOOR``
@@ -75,8 +90,15 @@ class SpectrumOptions:
         preset name); default the soap-solution law.
     thickness_range : (min, max) nm searched.
     wavelength_range : (min, max) nm used, or None for the whole reading.
-    lamp_terms : Legendre terms of the unknown lamp (None: 5 without a reference, 1 with).
+    lamp_terms : Legendre terms of the unknown lamp (None: 5 without a reference, 1 with,
+        2 for a ``normalised`` reading).
     offset : fit a constant stray-light offset ``c``.
+    normalised : the reading was already divided by the lamp (its envelope is flat up to a
+        tilt): the lamp left in it is a scale and a tilt in wavenumber (2 terms), and the
+        stray light gets a tilt too (``background_terms`` 1), so that neither can take the
+        shape of a fringe.
+    background_terms : smooth stray-light terms added beyond the offset (None: 0, or 1 for
+        a ``normalised`` reading); see :func:`_background_basis`.
     fit_resolution : fit the spectrometer's resolution (FWHM, nm) with the thickness.
     max_resolution_nm : its upper bound.
     ambiguity_dchi2 : a second minimum closer than this in ``chi^2`` makes the order
@@ -91,6 +113,8 @@ class SpectrumOptions:
     fit_resolution: bool = True
     max_resolution_nm: float = 10.0
     ambiguity_dchi2: float = 10.0
+    normalised: bool = False
+    background_terms: int | None = None
 
 
 @dataclass
@@ -201,9 +225,25 @@ def _lamp_basis(wavelength_nm: np.ndarray, terms: int, reference: np.ndarray | N
     return p * reference[:, None] if reference is not None else p
 
 
+def _background_basis(wavelength_nm: np.ndarray, terms: int, reference: np.ndarray | None) -> np.ndarray | None:
+    """(N, terms) additive stray-light columns beyond the constant offset, or None for 0 terms.
+
+    Light that reaches the spectrometer without passing through the film's interference
+    (a reflection off a window or the frame, light scattered in the spectrometer) adds
+    incoherently: ``I = L R + S``. Without a reference ``S`` is a smooth series
+    (Legendre ``P_1 .. P_terms`` in wavenumber; ``P_0`` is the offset ``c``); with one it
+    has the lamp's spectrum, the reference times ``P_0 .. P_{terms-1}``.
+    """
+    if terms <= 0:
+        return None
+    if reference is None:
+        return _lamp_basis(wavelength_nm, terms + 1, None)[:, 1:]
+    return _lamp_basis(wavelength_nm, terms, reference)
+
+
 def _prepare(spectrum: Spectrum, dark: Spectrum | None, reference: Spectrum | None, opts: SpectrumOptions):
     """Wavelengths, dark-subtracted intensities, the normalised reference (or None), the
-    lamp's number of terms, the index per wavelength, and warnings."""
+    lamp's and the stray light's numbers of terms, the index per wavelength, and warnings."""
     lam, y = spectrum.wavelength_nm, spectrum.intensity.astype(np.float64)
     warnings: list[str] = []
     if opts.wavelength_range is not None:
@@ -224,11 +264,14 @@ def _prepare(spectrum: Spectrum, dark: Spectrum | None, reference: Spectrum | No
             warnings.append(f"{int((~good).sum())} wavelengths where the reference is dark were left out")
         lam, y, ref = lam[good], y[good], ref[good]
         ref = ref / np.max(ref)
-    terms = opts.lamp_terms if opts.lamp_terms is not None else (1 if ref is not None else 5)
+    terms = opts.lamp_terms if opts.lamp_terms is not None else (1 if ref is not None else 2 if opts.normalised else 5)
     if terms < 1 or terms > 20:
         raise InputError(f"lamp terms must be within 1..20, got {terms}")
+    bg = opts.background_terms if opts.background_terms is not None else int(opts.normalised)
+    if bg < 0 or bg > 10:
+        raise InputError(f"background terms must be within 0..10, got {bg}")
     n = dispersion.refractive_index(opts.n_film, lam)
-    return lam, y, ref, terms, n, warnings
+    return lam, y, ref, terms, bg, n, warnings
 
 
 def _search_grid(lam: np.ndarray, n: np.ndarray, opts: SpectrumOptions) -> np.ndarray:
@@ -255,13 +298,14 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
     ----------
     Golub & Pereyra (1973), variable projection; Born & Wolf, sec. 7.6.1.
     """
-    lam, y, ref, terms, n, warnings = _prepare(spectrum, dark, reference, options)
+    lam, y, ref, terms, bg_terms, n, warnings = _prepare(spectrum, dark, reference, options)
     reflect = reflector(lam, n)
-    prob = ProfileProblem(y, _lamp_basis(lam, terms, ref), options.offset, reflect)
+    background = _background_basis(lam, bg_terms, ref)
+    prob = ProfileProblem(y, _lamp_basis(lam, terms, ref), options.offset, reflect, background)
     grid = _search_grid(lam, n, options)
     step = grid[1] - grid[0]
     rss, minima, d_best, rss_best, w, fit_w = _search(prob, grid, lam, n, options, warnings)
-    dof = max(len(y) - (terms + int(options.offset) + 1 + int(fit_w)), 1)
+    dof = max(len(y) - (prob.n_linear + 1 + int(fit_w)), 1)
     fitted = prob.model(d_best, w)
     resid = y - fitted
     rho = residual_correlation(resid)
@@ -273,16 +317,20 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
     # systematic error, added in quadrature.
     extra = (1,) if ref is not None else (1, 2)
     order, fringes = interference_order(d_best, lam, n)
-    lamp_sys = max(abs(refine_near(ProfileProblem(y, _lamp_basis(lam, terms + k, ref), options.offset, reflect),
+    lamp_sys = max(abs(refine_near(ProfileProblem(y, _lamp_basis(lam, terms + k, ref), options.offset, reflect, background),
                                     d_best, w, 3.0 * step, grid) - d_best) for k in extra)
     stderr = float(np.hypot(stat, lamp_sys))
     second, dchi2 = _second_minimum(minima, d_best, step, s2)
     noise = second_difference_noise(y)
     red = float(rss_best / dof / noise**2) if noise > 0 else float("nan")
     reasons = _verdict(d_best, stderr, second, dchi2, grid, lam, n, reference is not None, options)
-    if reference is None and fringes < MIN_FRINGES_WITHOUT_REFERENCE:
-        reasons.append(f"only {fringes:.2f} fringe across the range: without --reference the film cannot be told "
-                       "apart from the unknown lamp's smooth spectrum")
+    if reference is None and fringes < min_fringes(terms):
+        reasons.append(f"only {fringes:.2f} fringe across the range (fewer than {min_fringes(terms):.2g} with a "
+                       f"{terms}-term lamp): without --reference the film cannot be told apart from the unknown "
+                       "lamp's smooth spectrum")
+    split = _lamp_split(y, lam, n, ref, terms, bg_terms, options, reflect, grid, w, d_best, rss_best, s2)
+    if split is not None:
+        reasons.append(split)
     _misfit(rss_best / dof, noise, float(np.mean(np.abs(y))), reasons, warnings)
     if rho > 0.5:
         warnings.append(f"residuals are correlated (lag-1 {rho:.2f}): the error bar counts "
@@ -296,6 +344,35 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
         n_film=float(np.interp(0.5 * (lam.min() + lam.max()), lam, n)), second_minimum_nm=second,
         delta_chi2=dchi2, reasons=reasons, warnings=warnings, wavelength_nm=lam, measured=y, fitted=fitted,
         profile_nm=grid, profile_chi2=profile)
+
+
+def _lamp_split(y, lam, n, ref, terms: int, bg_terms: int, options: SpectrumOptions, reflect, grid, w: float,
+                d_best: float, rss_best: float, s2: float) -> str | None:
+    """The reason the order is not established when it depends on how the model's smooth
+    freedom is split between the lamp (multiplying ``R``) and the stray light (added), or None.
+
+    The reading only fixes ``L R + S``; a smooth ``L`` of many terms can take up part of a
+    fringe of a thinner film, which a stiffer lamp with a freer stray light cannot. The
+    global search is repeated with the same number of smooth terms split otherwise:
+    ``max(1, J - 2)`` lamp terms and the rest as stray light (:func:`_background_basis`),
+    so that the two ``chi^2`` compare without a penalty for parameters; when its best thickness lies a quarter of an order
+    or more away and its ``chi^2 = RSS / s^2`` is within ``ambiguity_dchi2`` of the best
+    (or below it), the data do not choose between the two readings.
+    """
+    alt_terms = max(1, terms - 2)
+    if alt_terms == terms:
+        return None
+    alt_bg = bg_terms + terms - alt_terms
+    alt = ProfileProblem(y, _lamp_basis(lam, alt_terms, ref), options.offset, reflect, _background_basis(lam, alt_bg, ref))
+    rss = alt.rss_grid(grid, w)
+    d_alt, rss_alt = refine_d(alt, grid, rss, w, keep=2)[0]
+    order_spacing = 1.0 / (2.0 * float(np.median(n / lam)))
+    dchi2 = (rss_alt - rss_best) / s2
+    if abs(d_alt - d_best) < 0.25 * order_spacing or dchi2 >= options.ambiguity_dchi2:
+        return None
+    hint = "" if options.normalised or ref is not None else "; if the reading was divided by the lamp, use --normalised"
+    return (f"interference order depends on the lamp model: a {alt_terms}-term lamp with {alt_bg} stray-light "
+            f"term(s) puts the film at {d_alt:.1f} nm (delta chi2 {dchi2:.2f} < {options.ambiguity_dchi2:g}){hint}")
 
 
 def _search(prob: ProfileProblem, grid, lam, n, options: SpectrumOptions, warnings: list[str]):

@@ -39,11 +39,12 @@ def register(sub):
                    help="thicknesses searched, nm (default 0,15000)")
     p.add_argument("--wavelength-range", metavar="MIN,MAX", help="wavelengths used, nm (default: the whole reading)")
     p.add_argument("--lamp-terms", type=int, default=None,
-                   help="smooth lamp terms (Legendre in wavenumber); default 5, or 1 with --reference")
+                   help="smooth lamp terms (Legendre in wavenumber, kept non-negative); default 5, 1 with "
+                        "--reference, 3 with --normalised")
     p.add_argument("--normalised", action="store_true",
                    help="the readings were already divided by the lamp (a flat envelope up to a tilt): the lamp "
-                        "left is a scale and a tilt (2 terms) and the stray light gets a tilt, so that neither "
-                        "can imitate a fringe")
+                        "left is a scale, tilt and curvature (3 terms) and the stray light gets a tilt, so that "
+                        "neither can imitate a fringe")
     p.add_argument("--background-terms", type=int, default=None, metavar="K",
                    help="smooth stray-light terms added beyond the offset (Legendre in wavenumber, or the "
                         "reference times a series with --reference); default 0, or 1 with --normalised")

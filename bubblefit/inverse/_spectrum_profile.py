@@ -29,13 +29,15 @@ __all__ = ["ProfileProblem", "local_minima", "residual_correlation", "second_dif
 class ProfileProblem:
     """A dark-subtracted reading ``y`` (N,), the lamp basis (N, J), whether to fit an
     offset, the film's reflectance at the reading's wavelengths, ``reflect(d, w) -> (D, N)``,
-    and optionally more additive stray-light columns ``background`` (N, K)."""
+    and optionally more additive stray-light columns ``background`` (N, K). With
+    ``positive`` the lamp ``basis @ a`` is kept >= 0 at every wavelength (:meth:`solve`)."""
 
     y: np.ndarray
     basis: np.ndarray
     offset: bool
     reflect: Callable
     background: np.ndarray | None = None
+    positive: bool = False
 
     @property
     def additive(self) -> np.ndarray:
@@ -63,8 +65,11 @@ class ProfileProblem:
         on the boundary and is taken as no film light at all (the lamp's coefficients 0,
         the stray light alone), see :meth:`rss_grid`."""
         a = self.design(d, w)
-        coef, *_ = np.linalg.lstsq(a, self.y, rcond=None)
         j = self.basis.shape[1]
+        if self.positive:
+            coef = _positive_lamp_lstsq(a, self.y, self.basis)
+            return coef, a @ coef
+        coef, *_ = np.linalg.lstsq(a, self.y, rcond=None)
         if float(np.sum(a[:, :j] @ coef[:j])) <= 0.0:
             coef = np.zeros(a.shape[1])
             if a.shape[1] > j:
@@ -109,9 +114,55 @@ class ProfileProblem:
             ridge = 1e-12 * np.trace(g, axis1=1, axis2=2)[:, None, None] + 1e-300
             coef = np.linalg.solve(g + ridge * np.eye(k), rhs[..., None])[..., 0]
             out[s:s + m] = np.maximum(yy - np.einsum("mk,mk->m", coef, rhs), 0.0)
-            dark_lamp = np.einsum("mj,mj->m", coef[:, :j], r @ b) <= 0.0
-            out[s:s + m][dark_lamp] = no_film
+            if not self.positive:  # with a positive lamp the profile stays a lower bound (refine_d)
+                dark_lamp = np.einsum("mj,mj->m", coef[:, :j], r @ b) <= 0.0
+                out[s:s + m][dark_lamp] = no_film
         return out
+
+
+def _positive_lamp_lstsq(a: np.ndarray, y: np.ndarray, basis: np.ndarray, samples: int = 256) -> np.ndarray:
+    """Least squares ``a @ coef ~ y`` with the lamp ``basis @ coef[:J]`` >= 0 at every
+    wavelength (checked on at most ``samples`` of them, evenly spread: the lamp is a
+    low-degree series) and the other coefficients (the additive stray light) free.
+
+    The free columns are projected out (QR); the lamp's problem ``min |E x - f|`` subject
+    to ``G x >= 0`` is solved as least distance programming by non-negative least squares
+    (Lawson & Hanson, *Solving Least Squares Problems*, 1974, ch. 23, algorithms LSI and
+    LDP); the free coefficients then follow by least squares on what is left.
+    """
+    j = basis.shape[1]
+    lamp, extra = a[:, :j], a[:, j:]
+    if extra.shape[1]:
+        q, _ = np.linalg.qr(extra)
+        e, f = lamp - q @ (q.T @ lamp), y - q @ (q.T @ y)
+    else:
+        e, f = lamp, y
+    idx = np.unique(np.linspace(0, len(y) - 1, min(samples, len(y))).round().astype(int))
+    g = basis[idx]
+    qe, re = np.linalg.qr(e)
+    x0 = np.linalg.lstsq(re, qe.T @ f, rcond=None)[0]
+    if np.all(g @ x0 >= 0.0) or not np.all(np.isfinite(x0)):
+        x = x0
+    else:
+        # x = R^-1 (z + Q^T f): min |z| subject to (G R^-1) z >= -G x0 (LDP), by NNLS.
+        gt = np.linalg.solve(re.T, g.T).T          # G R^-1, (M, J)
+        h = -(g @ x0)
+        norm = max(float(np.max(np.abs(gt))), 1e-300)
+        mat = np.vstack([gt.T / norm, h[None, :] / norm])  # (J + 1, M)
+        rhs = np.zeros(j + 1)
+        rhs[-1] = 1.0
+        u, _ = optimize.nnls(mat, rhs, maxiter=50 * mat.shape[1])
+        r = mat @ u - rhs
+        if abs(r[-1]) < 1e-12:  # infeasible (cannot happen: the zero lamp is feasible)
+            x = np.zeros(j)
+        else:
+            z = -r[:-1] / r[-1]
+            x = np.linalg.solve(re, z + qe.T @ f)
+    coef = np.zeros(a.shape[1])
+    coef[:j] = x
+    if extra.shape[1]:
+        coef[j:], *_ = np.linalg.lstsq(extra, y - lamp @ x, rcond=None)
+    return coef
 
 
 def local_minima(values: np.ndarray) -> np.ndarray:
@@ -141,16 +192,29 @@ def second_difference_noise(y: np.ndarray) -> float:
     return 1.4826 * mad / np.sqrt(6.0)
 
 
-def refine_d(prob: ProfileProblem, grid, rss, w: float, keep: int = 6) -> list[tuple[float, float]]:
+def refine_d(prob: ProfileProblem, grid, rss, w: float, keep: int = 6, slack: float = 0.05,
+             limit: int = 60) -> list[tuple[float, float]]:
     """The ``keep`` best local minima of the grid profile, each refined by a bounded 1-D
-    search over one grid step either side; best first, as (thickness, RSS)."""
+    search over one grid step either side; best first, as (thickness, RSS).
+
+    With a positive lamp the grid profile ``rss`` (unconstrained, batched) is a lower
+    bound of the constrained one, so its minima are refined in increasing order until the
+    next one's bound exceeds the best refined RSS by the fraction ``slack`` (branch and
+    bound; at most ``limit`` minima): the best constrained minima are all visited."""
     step = grid[1] - grid[0]
     out = []
-    for i in local_minima(rss)[:keep]:
+    order = local_minima(rss)
+    for count, i in enumerate(order[:limit] if prob.positive else order[:keep]):
+        if prob.positive and len(out) >= keep and rss[i] > min(r for _, r in out) * (1.0 + slack):
+            break
         lo, hi = max(grid[0], grid[i] - step), min(grid[-1], grid[i] + step)
         res = optimize.minimize_scalar(lambda d: prob.rss(d, w), bounds=(lo, hi), method="bounded",
                                        options={"xatol": 1e-4 * step})
-        out.append((float(res.x), float(res.fun)) if res.fun <= rss[i] else (float(grid[i]), float(rss[i])))
+        if prob.positive:
+            at = prob.rss(float(grid[i]), w)
+            out.append((float(res.x), float(res.fun)) if res.fun <= at else (float(grid[i]), at))
+        else:
+            out.append((float(res.x), float(res.fun)) if res.fun <= rss[i] else (float(grid[i]), float(rss[i])))
     return sorted(out, key=lambda t: t[1])
 
 

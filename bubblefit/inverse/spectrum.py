@@ -10,14 +10,21 @@ the index ``n(nu)`` of :mod:`bubblefit.optics.dispersion`), ``nu = 1/lambda`` th
 wavenumber and ``c`` stray light. Without a reference reading the lamp is a smooth
 function, a Legendre series of ``lamp_terms`` terms in ``nu``; with one (the lamp, or a
 reflector, read the same way) it is the reference times such a series (one term, a
-scale, by default). For a given ``d`` the model is linear in the lamp's coefficients and
-``c``, so they are solved exactly (variable projection), and the residual sum of squares
-``RSS(d)`` is the profile likelihood of ``d``. Its global minimum is found by a dense
+scale, by default). A reading already divided by the lamp (``normalised``) keeps only a
+scale, tilt and curvature of it (3 terms). The stray light may have a smooth shape of
+its own (``background_terms``, :func:`_background_basis`; one, a tilt, for a normalised
+reading). For a given ``d`` the model is linear in the lamp's coefficients and the stray
+light's, so they are solved exactly (variable projection), with the lamp kept
+non-negative at every wavelength (a lamp cannot be negative, and one that dips below zero
+is how a smooth series takes up a fringe; Lawson & Hanson's LSI), and the residual sum of
+squares ``RSS(d)`` is the profile likelihood of ``d``. Its global minimum is found by a dense
 search over the thickness range (step: a quarter radian of phase at the bluest
 wavelength), the best few minima are refined locally together with the spectrometer's
 resolution (a Gaussian of FWHM ``w`` nm that washes out fine fringes,
 :func:`bubblefit.optics.film.filtered_airy_reflectance`), and the result says whether a
-second minimum is within the noise (the interference order is then ambiguous).
+second minimum is within the noise (the interference order is then ambiguous), or whether
+another split of the same smooth freedom between lamp and stray light puts the film in
+another order within the noise (:func:`_lamp_split`).
 
 The standard error comes from the curvature of the profile: ``var(d) = 2 s^2 [H^-1]_dd``,
 ``H`` the Hessian of ``RSS`` in ``(d, w)`` and ``s^2 = RSS / (N - p)`` times the
@@ -32,6 +39,8 @@ G. H. Golub and V. Pereyra, "The differentiation of pseudo-inverses and nonlinea
 squares problems whose variables separate", SIAM J. Numer. Anal. 10, 413-432 (1973).
 A. Scheludko, "Thin liquid films", Adv. Colloid Interface Sci. 1, 391-464 (1967) (the
 fringe-intensity method this replaces).
+C. L. Lawson and R. J. Hanson, *Solving Least Squares Problems* (Prentice-Hall, 1974),
+ch. 23 (least squares with linear inequality constraints).
 """
 
 from __future__ import annotations
@@ -73,6 +82,7 @@ def min_fringes(lamp_terms: int) -> float:
     film's modulation (Golub & Pereyra's projection then takes it out of the profile)."""
     return max(0.5, MIN_FRINGES_WITHOUT_REFERENCE * (lamp_terms - 1) / 4.0)
 
+
 #: A fit is trusted when its residual's rms is within ``MISFIT_RATIO`` times the reading's
 #: noise (from its second differences) plus a model-error floor of ``MODEL_ERROR_FLOOR``
 #: of the mean reading (the lamp's smooth model, the index law).
@@ -91,12 +101,12 @@ class SpectrumOptions:
     thickness_range : (min, max) nm searched.
     wavelength_range : (min, max) nm used, or None for the whole reading.
     lamp_terms : Legendre terms of the unknown lamp (None: 5 without a reference, 1 with,
-        2 for a ``normalised`` reading).
+        3 for a ``normalised`` reading).
     offset : fit a constant stray-light offset ``c``.
     normalised : the reading was already divided by the lamp (its envelope is flat up to a
-        tilt): the lamp left in it is a scale and a tilt in wavenumber (2 terms), and the
-        stray light gets a tilt too (``background_terms`` 1), so that neither can take the
-        shape of a fringe.
+        slow slope): the lamp left in it is a scale, tilt and curvature in wavenumber
+        (3 terms; :func:`min_fringes` then asks for half a fringe), and the stray light
+        gets a tilt (``background_terms`` 1), so that neither can take the shape of a fringe.
     background_terms : smooth stray-light terms added beyond the offset (None: 0, or 1 for
         a ``normalised`` reading); see :func:`_background_basis`.
     fit_resolution : fit the spectrometer's resolution (FWHM, nm) with the thickness.
@@ -217,11 +227,15 @@ def interference_order(thickness_nm: float, wavelength_nm: np.ndarray, n: np.nda
     return order, float(2.0 * thickness_nm * (k.max() - k.min()))
 
 
+def _unit_wavenumber(wavelength_nm: np.ndarray) -> np.ndarray:
+    """Wavenumber mapped linearly onto [-1, 1] over the range."""
+    nu = 1.0 / wavelength_nm
+    return 2.0 * (nu - nu.min()) / max(nu.max() - nu.min(), 1e-30) - 1.0
+
+
 def _lamp_basis(wavelength_nm: np.ndarray, terms: int, reference: np.ndarray | None) -> np.ndarray:
     """(N, terms) Legendre polynomials in wavenumber over the range, times the reference."""
-    nu = 1.0 / wavelength_nm
-    x = 2.0 * (nu - nu.min()) / max(nu.max() - nu.min(), 1e-30) - 1.0
-    p = legendre.legvander(x, terms - 1)
+    p = legendre.legvander(_unit_wavenumber(wavelength_nm), terms - 1)
     return p * reference[:, None] if reference is not None else p
 
 
@@ -237,8 +251,8 @@ def _background_basis(wavelength_nm: np.ndarray, terms: int, reference: np.ndarr
     if terms <= 0:
         return None
     if reference is None:
-        return _lamp_basis(wavelength_nm, terms + 1, None)[:, 1:]
-    return _lamp_basis(wavelength_nm, terms, reference)
+        return legendre.legvander(_unit_wavenumber(wavelength_nm), terms)[:, 1:]
+    return legendre.legvander(_unit_wavenumber(wavelength_nm), terms - 1) * reference[:, None]
 
 
 def _prepare(spectrum: Spectrum, dark: Spectrum | None, reference: Spectrum | None, opts: SpectrumOptions):
@@ -264,7 +278,7 @@ def _prepare(spectrum: Spectrum, dark: Spectrum | None, reference: Spectrum | No
             warnings.append(f"{int((~good).sum())} wavelengths where the reference is dark were left out")
         lam, y, ref = lam[good], y[good], ref[good]
         ref = ref / np.max(ref)
-    terms = opts.lamp_terms if opts.lamp_terms is not None else (1 if ref is not None else 2 if opts.normalised else 5)
+    terms = opts.lamp_terms if opts.lamp_terms is not None else (1 if ref is not None else 3 if opts.normalised else 5)
     if terms < 1 or terms > 20:
         raise InputError(f"lamp terms must be within 1..20, got {terms}")
     bg = opts.background_terms if opts.background_terms is not None else int(opts.normalised)
@@ -301,7 +315,7 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
     lam, y, ref, terms, bg_terms, n, warnings = _prepare(spectrum, dark, reference, options)
     reflect = reflector(lam, n)
     background = _background_basis(lam, bg_terms, ref)
-    prob = ProfileProblem(y, _lamp_basis(lam, terms, ref), options.offset, reflect, background)
+    prob = ProfileProblem(y, _lamp_basis(lam, terms, ref), options.offset, reflect, background, positive=True)
     grid = _search_grid(lam, n, options)
     step = grid[1] - grid[0]
     rss, minima, d_best, rss_best, w, fit_w = _search(prob, grid, lam, n, options, warnings)
@@ -317,7 +331,8 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
     # systematic error, added in quadrature.
     extra = (1,) if ref is not None else (1, 2)
     order, fringes = interference_order(d_best, lam, n)
-    lamp_sys = max(abs(refine_near(ProfileProblem(y, _lamp_basis(lam, terms + k, ref), options.offset, reflect, background),
+    lamp_sys = max(abs(refine_near(ProfileProblem(y, _lamp_basis(lam, terms + k, ref), options.offset, reflect, background,
+                                                  positive=True),
                                     d_best, w, 3.0 * step, grid) - d_best) for k in extra)
     stderr = float(np.hypot(stat, lamp_sys))
     second, dchi2 = _second_minimum(minima, d_best, step, s2)
@@ -363,7 +378,8 @@ def _lamp_split(y, lam, n, ref, terms: int, bg_terms: int, options: SpectrumOpti
     if alt_terms == terms:
         return None
     alt_bg = bg_terms + terms - alt_terms
-    alt = ProfileProblem(y, _lamp_basis(lam, alt_terms, ref), options.offset, reflect, _background_basis(lam, alt_bg, ref))
+    alt = ProfileProblem(y, _lamp_basis(lam, alt_terms, ref), options.offset, reflect, _background_basis(lam, alt_bg, ref),
+                         positive=True)
     rss = alt.rss_grid(grid, w)
     d_alt, rss_alt = refine_d(alt, grid, rss, w, keep=2)[0]
     order_spacing = 1.0 / (2.0 * float(np.median(n / lam)))

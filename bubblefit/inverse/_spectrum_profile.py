@@ -21,7 +21,7 @@ from typing import Callable
 import numpy as np
 from scipy import optimize
 
-__all__ = ["ProfileProblem", "local_minima", "residual_correlation", "second_difference_noise", "refine_d",
+__all__ = ["ProfileProblem", "rss_grids", "local_minima", "residual_correlation", "second_difference_noise", "refine_d",
            "refine_near", "refine_dw", "profile_variance"]
 
 
@@ -87,37 +87,53 @@ class ProfileProblem:
     def rss_grid(self, thickness: np.ndarray, w: float, chunk: int = 256) -> np.ndarray:
         """``RSS(d)`` for every thickness of ``thickness`` (D,), by batched normal equations;
         thicknesses whose solved lamp makes the film's light negative get the RSS of the
-        stray light alone (:meth:`solve`)."""
+        stray light alone (:meth:`solve`), unless the lamp is ``positive`` (the profile then
+        stays a lower bound of the constrained one, for :func:`refine_d`)."""
+        return rss_grids([self], thickness, w, chunk)[0]
+
+    def _normal_equations(self):
+        """What :meth:`_chunk_rss` needs that does not depend on the thickness."""
         y, b, e = self.y, self.basis, self.additive
         npts, j = b.shape
         q = e.shape[1]
-        bb = (b[:, :, None] * b[:, None, :]).reshape(npts, j * j)
-        be = (b[:, :, None] * e[:, None, :]).reshape(npts, j * q)
-        by = b * y[:, None]
-        yy = float(y @ y)
         no_film = float(y @ y) if q == 0 else float(np.sum((y - e @ np.linalg.lstsq(e, y, rcond=None)[0]) ** 2))
-        out = np.empty(len(thickness))
-        for s in range(0, len(thickness), chunk):
-            r = self.reflect(thickness[s:s + chunk], w)  # (C, N)
-            m = len(r)
-            k = j + q
-            g = np.zeros((m, k, k))
-            rhs = np.zeros((m, k))
-            g[:, :j, :j] = ((r * r) @ bb).reshape(m, j, j)
-            rhs[:, :j] = r @ by
-            if q:
-                rb = (r @ be).reshape(m, j, q)
-                g[:, :j, j:] = rb
-                g[:, j:, :j] = rb.transpose(0, 2, 1)
-                g[:, j:, j:] = e.T @ e
-                rhs[:, j:] = e.T @ y
-            ridge = 1e-12 * np.trace(g, axis1=1, axis2=2)[:, None, None] + 1e-300
-            coef = np.linalg.solve(g + ridge * np.eye(k), rhs[..., None])[..., 0]
-            out[s:s + m] = np.maximum(yy - np.einsum("mk,mk->m", coef, rhs), 0.0)
-            if not self.positive:  # with a positive lamp the profile stays a lower bound (refine_d)
-                dark_lamp = np.einsum("mj,mj->m", coef[:, :j], r @ b) <= 0.0
-                out[s:s + m][dark_lamp] = no_film
+        return dict(bb=(b[:, :, None] * b[:, None, :]).reshape(npts, j * j),
+                    be=(b[:, :, None] * e[:, None, :]).reshape(npts, j * q), by=b * y[:, None], yy=float(y @ y),
+                    ee=e.T @ e, ey=e.T @ y, no_film=no_film)
+
+    def _chunk_rss(self, r: np.ndarray, ne: dict) -> np.ndarray:
+        """``RSS`` for the reflectance rows ``r`` (C, N) of a chunk of thicknesses."""
+        b = self.basis
+        j, q = b.shape[1], ne["ee"].shape[0]
+        m, k = len(r), j + q
+        g = np.zeros((m, k, k))
+        rhs = np.zeros((m, k))
+        g[:, :j, :j] = ((r * r) @ ne["bb"]).reshape(m, j, j)
+        rhs[:, :j] = r @ ne["by"]
+        if q:
+            rb = (r @ ne["be"]).reshape(m, j, q)
+            g[:, :j, j:] = rb
+            g[:, j:, :j] = rb.transpose(0, 2, 1)
+            g[:, j:, j:] = ne["ee"]
+            rhs[:, j:] = ne["ey"]
+        ridge = 1e-12 * np.trace(g, axis1=1, axis2=2)[:, None, None] + 1e-300
+        coef = np.linalg.solve(g + ridge * np.eye(k), rhs[..., None])[..., 0]
+        out = np.maximum(ne["yy"] - np.einsum("mk,mk->m", coef, rhs), 0.0)
+        if not self.positive:
+            out[np.einsum("mj,mj->m", coef[:, :j], r @ b) <= 0.0] = ne["no_film"]
         return out
+
+
+def rss_grids(problems: list[ProfileProblem], thickness: np.ndarray, w: float, chunk: int = 256) -> np.ndarray:
+    """:meth:`ProfileProblem.rss_grid` of several problems on the same reading and film
+    (the same ``reflect``), (P, D): the film's reflectance is computed once per chunk."""
+    eqs = [p._normal_equations() for p in problems]
+    out = np.empty((len(problems), len(thickness)))
+    for s in range(0, len(thickness), chunk):
+        r = problems[0].reflect(thickness[s:s + chunk], w)  # (C, N)
+        for i, (p, ne) in enumerate(zip(problems, eqs)):
+            out[i, s:s + len(r)] = p._chunk_rss(r, ne)
+    return out
 
 
 def _positive_lamp_lstsq(a: np.ndarray, y: np.ndarray, basis: np.ndarray, samples: int = 256) -> np.ndarray:

@@ -56,7 +56,7 @@ from ..errors import InputError
 from ..io.spectra import Spectrum
 from ..optics import dispersion, film
 from ._spectrum_profile import (ProfileProblem, profile_variance, refine_d, refine_dw, refine_near,
-                                residual_correlation, second_difference_noise)
+                                residual_correlation, rss_grids, second_difference_noise)
 
 __all__ = ["SpectrumOptions", "SpectrumFit", "film_reflectance", "reflector", "fit_spectrum", "interference_order",
            "min_fringes"]
@@ -316,9 +316,10 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
     reflect = reflector(lam, n)
     background = _background_basis(lam, bg_terms, ref)
     prob = ProfileProblem(y, _lamp_basis(lam, terms, ref), options.offset, reflect, background, positive=True)
+    alt = _split_problem(y, lam, ref, terms, bg_terms, options, reflect)
     grid = _search_grid(lam, n, options)
     step = grid[1] - grid[0]
-    rss, minima, d_best, rss_best, w, fit_w = _search(prob, grid, lam, n, options, warnings)
+    rss, alt_rss, minima, d_best, rss_best, w, fit_w = _search(prob, alt, grid, lam, n, options, warnings)
     dof = max(len(y) - (prob.n_linear + 1 + int(fit_w)), 1)
     fitted = prob.model(d_best, w)
     resid = y - fitted
@@ -343,7 +344,7 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
         reasons.append(f"only {fringes:.2f} fringe across the range (fewer than {min_fringes(terms):.2g} with a "
                        f"{terms}-term lamp): without --reference the film cannot be told apart from the unknown "
                        "lamp's smooth spectrum")
-    split = _lamp_split(y, lam, n, ref, terms, bg_terms, options, reflect, grid, w, d_best, rss_best, s2)
+    split = _lamp_split(alt, alt_rss, lam, n, ref, options, grid, w, d_best, rss_best, s2)
     if split is not None:
         reasons.append(split)
     _misfit(rss_best / dof, noise, float(np.mean(np.abs(y))), reasons, warnings)
@@ -361,41 +362,50 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
         profile_nm=grid, profile_chi2=profile)
 
 
-def _lamp_split(y, lam, n, ref, terms: int, bg_terms: int, options: SpectrumOptions, reflect, grid, w: float,
+def _split_problem(y, lam, ref, terms: int, bg_terms: int, options: SpectrumOptions, reflect) -> ProfileProblem | None:
+    """The model of :func:`_lamp_split`: the same number of smooth terms, ``max(1, J - 2)``
+    of them in the lamp and the rest in the stray light; None when that is the model itself."""
+    alt_terms = max(1, terms - 2)
+    if alt_terms == terms:
+        return None
+    return ProfileProblem(y, _lamp_basis(lam, alt_terms, ref), options.offset, reflect,
+                          _background_basis(lam, bg_terms + terms - alt_terms, ref), positive=True)
+
+
+def _lamp_split(alt: ProfileProblem | None, alt_rss, lam, n, ref, options: SpectrumOptions, grid, w: float,
                 d_best: float, rss_best: float, s2: float) -> str | None:
     """The reason the order is not established when it depends on how the model's smooth
     freedom is split between the lamp (multiplying ``R``) and the stray light (added), or None.
 
     The reading only fixes ``L R + S``; a smooth ``L`` of many terms can take up part of a
     fringe of a thinner film, which a stiffer lamp with a freer stray light cannot. The
-    global search is repeated with the same number of smooth terms split otherwise:
-    ``max(1, J - 2)`` lamp terms and the rest as stray light (:func:`_background_basis`),
-    so that the two ``chi^2`` compare without a penalty for parameters; when its best thickness lies a quarter of an order
-    or more away and its ``chi^2 = RSS / s^2`` is within ``ambiguity_dchi2`` of the best
-    (or below it), the data do not choose between the two readings.
+    global search is repeated (``alt_rss``, the grid profile of ``alt``) with the same
+    number of smooth terms split otherwise (:func:`_split_problem`), so that the two
+    ``chi^2 = RSS / s^2`` compare without a penalty for parameters; when its best thickness
+    lies a quarter of an order or more away and its ``chi^2`` is within ``ambiguity_dchi2``
+    of the best (or below it), the data do not choose between the two readings.
     """
-    alt_terms = max(1, terms - 2)
-    if alt_terms == terms:
+    if alt is None:
         return None
-    alt_bg = bg_terms + terms - alt_terms
-    alt = ProfileProblem(y, _lamp_basis(lam, alt_terms, ref), options.offset, reflect, _background_basis(lam, alt_bg, ref),
-                         positive=True)
-    rss = alt.rss_grid(grid, w)
-    d_alt, rss_alt = refine_d(alt, grid, rss, w, keep=2)[0]
+    d_alt, rss_alt = refine_d(alt, grid, alt_rss, w, keep=2)[0]
     order_spacing = 1.0 / (2.0 * float(np.median(n / lam)))
     dchi2 = (rss_alt - rss_best) / s2
     if abs(d_alt - d_best) < 0.25 * order_spacing or dchi2 >= options.ambiguity_dchi2:
         return None
     hint = "" if options.normalised or ref is not None else "; if the reading was divided by the lamp, use --normalised"
-    return (f"interference order depends on the lamp model: a {alt_terms}-term lamp with {alt_bg} stray-light "
-            f"term(s) puts the film at {d_alt:.1f} nm (delta chi2 {dchi2:.2f} < {options.ambiguity_dchi2:g}){hint}")
+    return (f"interference order depends on the lamp model: a {alt.basis.shape[1]}-term lamp with "
+            f"{alt.additive.shape[1] - int(alt.offset)} more stray-light term(s) puts the film at {d_alt:.1f} nm "
+            f"(delta chi2 {dchi2:.2f} < {options.ambiguity_dchi2:g}){hint}")
 
 
-def _search(prob: ProfileProblem, grid, lam, n, options: SpectrumOptions, warnings: list[str]):
-    """Global search and local refinement: the grid profile, its refined minima (best
-    first), the best thickness and RSS, the resolution, and whether it was fitted."""
+def _search(prob: ProfileProblem, alt: ProfileProblem | None, grid, lam, n, options: SpectrumOptions,
+            warnings: list[str]):
+    """Global search and local refinement: the grid profile (and that of ``alt``, computed
+    with it, or None), its refined minima (best first), the best thickness and RSS, the
+    resolution, and whether it was fitted."""
     step = grid[1] - grid[0]
-    rss = prob.rss_grid(grid, 0.0)
+    profiles = rss_grids([prob] if alt is None else [prob, alt], grid, 0.0)
+    rss, alt_rss = profiles[0], (profiles[1] if alt is not None else None)
     d0 = refine_d(prob, grid, rss, 0.0)[0][0]
     w = 0.0
     fit_w = options.fit_resolution and _resolution_matters(d0, lam, n, options.max_resolution_nm)
@@ -410,7 +420,7 @@ def _search(prob: ProfileProblem, grid, lam, n, options: SpectrumOptions, warnin
         rss_best = prob.rss(d_best, w)
         if w >= 0.999 * options.max_resolution_nm:
             warnings.append(f"the fitted spectrometer resolution sits at its bound {options.max_resolution_nm:g} nm")
-    return rss, minima, d_best, rss_best, w, fit_w and w > 0
+    return rss, alt_rss, minima, d_best, rss_best, w, fit_w and w > 0
 
 
 def _resolution_matters(d: float, lam: np.ndarray, n: np.ndarray, w_max: float) -> bool:

@@ -30,7 +30,9 @@ class ProfileProblem:
     """A dark-subtracted reading ``y`` (N,), the lamp basis (N, J), whether to fit an
     offset, the film's reflectance at the reading's wavelengths, ``reflect(d, w) -> (D, N)``,
     and optionally more additive stray-light columns ``background`` (N, K). With
-    ``positive`` the lamp ``basis @ a`` is kept >= 0 at every wavelength (:meth:`solve`)."""
+    ``positive`` the lamp ``basis @ a`` is kept >= 0 at every wavelength (:meth:`solve`).
+    ``incoherent`` is a reflectance added to the film's, ``R + b``: light of the lamp that
+    reaches the spectrometer without interfering (see :mod:`bubblefit.inverse.spectrum`)."""
 
     y: np.ndarray
     basis: np.ndarray
@@ -38,6 +40,7 @@ class ProfileProblem:
     reflect: Callable
     background: np.ndarray | None = None
     positive: bool = False
+    incoherent: float = 0.0
 
     @property
     def additive(self) -> np.ndarray:
@@ -54,7 +57,7 @@ class ProfileProblem:
 
     def design(self, d: float, w: float) -> np.ndarray:
         """The (N, J + K) design matrix at thickness ``d``: lamp basis times ``R(d)``, and the additive columns."""
-        r = self.reflect(np.array([d]), w)[0]
+        r = self.reflect(np.array([d]), w)[0] + self.incoherent
         return np.column_stack([self.basis * r[:, None], self.additive])
 
     def solve(self, d: float, w: float) -> tuple[np.ndarray, np.ndarray]:
@@ -89,7 +92,7 @@ class ProfileProblem:
         thicknesses whose solved lamp makes the film's light negative get the RSS of the
         stray light alone (:meth:`solve`), unless the lamp is ``positive`` (the profile then
         stays a lower bound of the constrained one, for :func:`refine_d`)."""
-        return rss_grids([self], thickness, w, chunk)[0]
+        return rss_grids([self], thickness, w, (self.incoherent,), chunk)[0, 0]
 
     def _normal_equations(self):
         """What :meth:`_chunk_rss` needs that does not depend on the thickness."""
@@ -97,42 +100,53 @@ class ProfileProblem:
         npts, j = b.shape
         q = e.shape[1]
         no_film = float(y @ y) if q == 0 else float(np.sum((y - e @ np.linalg.lstsq(e, y, rcond=None)[0]) ** 2))
-        return dict(bb=(b[:, :, None] * b[:, None, :]).reshape(npts, j * j),
-                    be=(b[:, :, None] * e[:, None, :]).reshape(npts, j * q), by=b * y[:, None], yy=float(y @ y),
-                    ee=e.T @ e, ey=e.T @ y, no_film=no_film)
+        bb = (b[:, :, None] * b[:, None, :]).reshape(npts, j * j)
+        be = (b[:, :, None] * e[:, None, :]).reshape(npts, j * q)
+        by = b * y[:, None]
+        return dict(bb=bb, be=be, by=by, yy=float(y @ y), ee=e.T @ e, ey=e.T @ y, no_film=no_film,
+                    sbb=bb.sum(0), sbe=be.sum(0), sby=by.sum(0), sb=b.sum(0))
 
-    def _chunk_rss(self, r: np.ndarray, ne: dict) -> np.ndarray:
-        """``RSS`` for the reflectance rows ``r`` (C, N) of a chunk of thicknesses."""
+    def _chunk_rss(self, r: np.ndarray, ne: dict, levels) -> np.ndarray:
+        """``RSS`` (L, C) for the reflectance rows ``r`` (C, N) of a chunk of thicknesses, with
+        ``R + b`` for each ``b`` of ``levels``: ``(R + b)^2 = R^2 + 2 b R + b^2`` expands the
+        products, so that each level costs only its small solves."""
         b = self.basis
         j, q = b.shape[1], ne["ee"].shape[0]
         m, k = len(r), j + q
-        g = np.zeros((m, k, k))
-        rhs = np.zeros((m, k))
-        g[:, :j, :j] = ((r * r) @ ne["bb"]).reshape(m, j, j)
-        rhs[:, :j] = r @ ne["by"]
-        if q:
-            rb = (r @ ne["be"]).reshape(m, j, q)
-            g[:, :j, j:] = rb
-            g[:, j:, :j] = rb.transpose(0, 2, 1)
-            g[:, j:, j:] = ne["ee"]
-            rhs[:, j:] = ne["ey"]
-        ridge = 1e-12 * np.trace(g, axis1=1, axis2=2)[:, None, None] + 1e-300
-        coef = np.linalg.solve(g + ridge * np.eye(k), rhs[..., None])[..., 0]
-        out = np.maximum(ne["yy"] - np.einsum("mk,mk->m", coef, rhs), 0.0)
-        if not self.positive:
-            out[np.einsum("mj,mj->m", coef[:, :j], r @ b) <= 0.0] = ne["no_film"]
+        rr, r1, rby, rb = (r * r) @ ne["bb"], r @ ne["bb"], r @ ne["by"], r @ b
+        rbe = r @ ne["be"] if q else None
+        out = np.empty((len(levels), m))
+        for li, lev in enumerate(levels):
+            g = np.zeros((m, k, k))
+            rhs = np.zeros((m, k))
+            g[:, :j, :j] = (rr + 2.0 * lev * r1 + lev**2 * ne["sbb"]).reshape(m, j, j)
+            rhs[:, :j] = rby + lev * ne["sby"]
+            if q:
+                cross = (rbe + lev * ne["sbe"]).reshape(m, j, q)
+                g[:, :j, j:] = cross
+                g[:, j:, :j] = cross.transpose(0, 2, 1)
+                g[:, j:, j:] = ne["ee"]
+                rhs[:, j:] = ne["ey"]
+            ridge = 1e-12 * np.trace(g, axis1=1, axis2=2)[:, None, None] + 1e-300
+            coef = np.linalg.solve(g + ridge * np.eye(k), rhs[..., None])[..., 0]
+            out[li] = np.maximum(ne["yy"] - np.einsum("mk,mk->m", coef, rhs), 0.0)
+            if not self.positive:
+                out[li, np.einsum("mj,mj->m", coef[:, :j], rb + lev * ne["sb"]) <= 0.0] = ne["no_film"]
         return out
 
 
-def rss_grids(problems: list[ProfileProblem], thickness: np.ndarray, w: float, chunk: int = 256) -> np.ndarray:
+def rss_grids(problems: list[ProfileProblem], thickness: np.ndarray, w: float, levels=(0.0,),
+              chunk: int = 256) -> np.ndarray:
     """:meth:`ProfileProblem.rss_grid` of several problems on the same reading and film
-    (the same ``reflect``), (P, D): the film's reflectance is computed once per chunk."""
+    (the same ``reflect``), each with the film's reflectance ``R + b`` for every ``b`` of
+    ``levels`` (their own ``incoherent`` is not used), (P, L, D): the film's reflectance is
+    computed once per chunk."""
     eqs = [p._normal_equations() for p in problems]
-    out = np.empty((len(problems), len(thickness)))
+    out = np.empty((len(problems), len(levels), len(thickness)))
     for s in range(0, len(thickness), chunk):
         r = problems[0].reflect(thickness[s:s + chunk], w)  # (C, N)
         for i, (p, ne) in enumerate(zip(problems, eqs)):
-            out[i, s:s + len(r)] = p._chunk_rss(r, ne)
+            out[i, :, s:s + len(r)] = p._chunk_rss(r, ne, levels)
     return out
 
 

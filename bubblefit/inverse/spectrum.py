@@ -45,7 +45,7 @@ ch. 23 (least squares with linear inequality constraints).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import jax
 import jax.numpy as jnp
@@ -83,6 +83,13 @@ def min_fringes(lamp_terms: int) -> float:
     return max(0.5, MIN_FRINGES_WITHOUT_REFERENCE * (lamp_terms - 1) / 4.0)
 
 
+#: Reflectances ``b`` of the lamp light that reaches the spectrometer without interfering,
+#: ``I = L (R + b) + S``: a window or a wet frame in the beam, or a spot that spans films
+#: of many orders (their fringes average to the mean reflectance ``2 R1 / (1 + R1)``,
+#: ~0.04). It lifts the fringes' minima off the stray light in proportion to the lamp,
+#: which a constant offset cannot do. A factor-2 ladder up to the film's peak ~0.08.
+INCOHERENT_LEVELS = (0.0, 0.005, 0.01, 0.02, 0.04, 0.08)
+
 #: A fit is trusted when its residual's rms is within ``MISFIT_RATIO`` times the reading's
 #: noise (from its second differences) plus a model-error floor of ``MODEL_ERROR_FLOOR``
 #: of the mean reading (the lamp's smooth model, the index law).
@@ -109,6 +116,8 @@ class SpectrumOptions:
         gets a tilt (``background_terms`` 1), so that neither can take the shape of a fringe.
     background_terms : smooth stray-light terms added beyond the offset (None: 0, or 1 for
         a ``normalised`` reading); see :func:`_background_basis`.
+    incoherent : fit lamp light that does not interfere, ``L (R + b)``, ``b`` one of
+        ``INCOHERENT_LEVELS`` (profiled, the best over the whole search).
     fit_resolution : fit the spectrometer's resolution (FWHM, nm) with the thickness.
     max_resolution_nm : its upper bound.
     ambiguity_dchi2 : a second minimum closer than this in ``chi^2`` makes the order
@@ -125,6 +134,7 @@ class SpectrumOptions:
     ambiguity_dchi2: float = 10.0
     normalised: bool = False
     background_terms: int | None = None
+    incoherent: bool = True
 
 
 @dataclass
@@ -319,7 +329,7 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
     alt = _split_problem(y, lam, ref, terms, bg_terms, options, reflect)
     grid = _search_grid(lam, n, options)
     step = grid[1] - grid[0]
-    rss, alt_rss, minima, d_best, rss_best, w, fit_w = _search(prob, alt, grid, lam, n, options, warnings)
+    prob, alt, rss, alt_rss, minima, d_best, rss_best, w, fit_w = _search(prob, alt, grid, lam, n, options, warnings)
     dof = max(len(y) - (prob.n_linear + 1 + int(fit_w)), 1)
     fitted = prob.model(d_best, w)
     resid = y - fitted
@@ -332,8 +342,7 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
     # systematic error, added in quadrature.
     extra = (1,) if ref is not None else (1, 2)
     order, fringes = interference_order(d_best, lam, n)
-    lamp_sys = max(abs(refine_near(ProfileProblem(y, _lamp_basis(lam, terms + k, ref), options.offset, reflect, background,
-                                                  positive=True),
+    lamp_sys = max(abs(refine_near(replace(prob, basis=_lamp_basis(lam, terms + k, ref)),
                                     d_best, w, 3.0 * step, grid) - d_best) for k in extra)
     stderr = float(np.hypot(stat, lamp_sys))
     second, dchi2 = _second_minimum(minima, d_best, step, s2)
@@ -404,8 +413,13 @@ def _search(prob: ProfileProblem, alt: ProfileProblem | None, grid, lam, n, opti
     with it, or None), its refined minima (best first), the best thickness and RSS, the
     resolution, and whether it was fitted."""
     step = grid[1] - grid[0]
-    profiles = rss_grids([prob] if alt is None else [prob, alt], grid, 0.0)
-    rss, alt_rss = profiles[0], (profiles[1] if alt is not None else None)
+    levels = INCOHERENT_LEVELS if options.incoherent else (0.0,)
+    profiles = rss_grids([prob] if alt is None else [prob, alt], grid, 0.0, levels)
+    k = _incoherent_level(prob, profiles[0], grid, levels, options.ambiguity_dchi2)
+    prob, rss = replace(prob, incoherent=levels[k]), profiles[0, k]
+    alt_rss = None
+    if alt is not None:  # the same non-interfering light: it belongs to the optics, not to the lamp's model
+        alt, alt_rss = replace(alt, incoherent=levels[k]), profiles[1, k]
     d0 = refine_d(prob, grid, rss, 0.0)[0][0]
     w = 0.0
     fit_w = options.fit_resolution and _resolution_matters(d0, lam, n, options.max_resolution_nm)
@@ -420,7 +434,20 @@ def _search(prob: ProfileProblem, alt: ProfileProblem | None, grid, lam, n, opti
         rss_best = prob.rss(d_best, w)
         if w >= 0.999 * options.max_resolution_nm:
             warnings.append(f"the fitted spectrometer resolution sits at its bound {options.max_resolution_nm:g} nm")
-    return rss, alt_rss, minima, d_best, rss_best, w, fit_w and w > 0
+    return prob, alt, rss, alt_rss, minima, d_best, rss_best, w, fit_w and w > 0
+
+
+def _incoherent_level(prob: ProfileProblem, profiles: np.ndarray, grid, levels, dchi2: float) -> int:
+    """The index of the non-interfering reflectance ``b`` of ``levels`` whose profile (the
+    rows of ``profiles``, refined at their best minima, the lamp's sign free) reaches the lowest RSS, kept only
+    when it lowers ``chi^2`` by more than ``dchi2`` below ``b = 0`` (``s^2 = RSS / dof`` of
+    ``b = 0``): one more parameter is taken only when the reading asks for it (a
+    likelihood-ratio test; the grid alone is too coarse to compare the levels)."""
+    best = np.array([refine_d(replace(prob, incoherent=lev, positive=False), grid, row, 0.0, keep=1)[0][1]
+                     for lev, row in zip(levels, profiles)])
+    k = int(np.argmin(best))
+    s2 = best[0] / max(len(prob.y) - prob.n_linear, 1)
+    return k if s2 > 0 and (best[0] - best[k]) / s2 > dchi2 else 0
 
 
 def _resolution_matters(d: float, lam: np.ndarray, n: np.ndarray, w_max: float) -> bool:

@@ -92,7 +92,7 @@ def test_cli_normalised_and_background_terms(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["fit-spectrum", "--help"])
     text = capsys.readouterr().out
-    assert "--normalised" in text and "--background-terms" in text
+    assert "--normalised" in text and "--background-terms" in text and "--incoherent" in text
     assert main(["fit-spectrum", str(tmp_path / "n.csv"), "--normalised", "--thickness-range", "0,5000",
                  "--json", str(tmp_path / "o.json"), "--csv", str(tmp_path / "o.csv")]) == 0
     import json

@@ -1,5 +1,5 @@
 """``bubblefit fit-spectrum SPECTRUM... [--dark DARK] [--reference REF] [--n-film N | --cauchy A,B[,C]]
-[--thickness-range MIN,MAX] [--wavelength-range MIN,MAX] [--normalised] [--background-terms K] [--csv OUT]
+[--thickness-range MIN,MAX] [--wavelength-range MIN,MAX] [--normalised] [--background-terms K] [--incoherent] [--csv OUT]
 [--json OUT] [-o PLOT_PREFIX]``.
 
 Film thickness from spectrometer readings (:mod:`bubblefit.inverse.spectrum`): one CSV row
@@ -48,6 +48,10 @@ def register(sub):
     p.add_argument("--background-terms", type=int, default=None, metavar="K",
                    help="smooth stray-light terms added beyond the offset (Legendre in wavenumber, or the "
                         "reference times a series with --reference); default 0, or 1 with --normalised")
+    p.add_argument("--incoherent", action="store_true",
+                   help="also fit lamp light that reaches the spectrometer without interfering, L (R + b) (a window "
+                        "or frame in the beam, a spot spanning many orders: fringe minima lifted in proportion to "
+                        "the lamp); more freedom, so thin films without a reference become more ambiguous")
     p.add_argument("--no-offset", action="store_true", help="do not fit a constant stray-light offset")
     p.add_argument("--csv", help="CSV, one row per file: " + ",".join(_CSV_COLUMNS[:4]) + ",...")
     p.add_argument("--json", help="JSON with one entry per file")
@@ -87,7 +91,7 @@ def run(args) -> int:
         n_film=index, thickness_range=_pair(args.thickness_range, "--thickness-range"),
         wavelength_range=_pair(args.wavelength_range, "--wavelength-range") if args.wavelength_range else None,
         lamp_terms=args.lamp_terms, offset=not args.no_offset, normalised=args.normalised,
-        background_terms=args.background_terms)
+        background_terms=args.background_terms, incoherent=args.incoherent)
     if args.lamp_terms is not None and not 1 <= args.lamp_terms <= 20:
         raise InputError(f"--lamp-terms must be within 1..20, got {args.lamp_terms}")
     if args.background_terms is not None and not 0 <= args.background_terms <= 10:

@@ -117,7 +117,10 @@ class SpectrumOptions:
     background_terms : smooth stray-light terms added beyond the offset (None: 0, or 1 for
         a ``normalised`` reading); see :func:`_background_basis`.
     incoherent : fit lamp light that does not interfere, ``L (R + b)``, ``b`` one of
-        ``INCOHERENT_LEVELS`` (profiled, the best over the whole search).
+        ``INCOHERENT_LEVELS`` (profiled, the best over the whole search, kept only when it
+        lowers ``chi^2`` by more than ``ambiguity_dchi2``). Off by default: on synthetic
+        films of 150 nm without a reference (``b = 0``) the extra freedom let a 5-term lamp
+        prefer a 330 nm alias, called ok.
     fit_resolution : fit the spectrometer's resolution (FWHM, nm) with the thickness.
     max_resolution_nm : its upper bound.
     ambiguity_dchi2 : a second minimum closer than this in ``chi^2`` makes the order
@@ -134,7 +137,7 @@ class SpectrumOptions:
     ambiguity_dchi2: float = 10.0
     normalised: bool = False
     background_terms: int | None = None
-    incoherent: bool = True
+    incoherent: bool = False
 
 
 @dataclass

@@ -16,8 +16,10 @@ group ("ref": min-max linreg or RANSAC, Scheludko with the order searched, Schel
 order 0 with the void reading, or FFT) and (b) the automatic pipeline of
 ``spectrum_vs_optifik.py`` ("auto"). bubblefit runs ``fit_spectrum`` as the CLI does by
 default (unknown smooth lamp) and, for the groups whose readings are already divided by
-the lamp (``basic``, ``spectraVictor*``: a flat envelope near 1), also with a flat
-reference and three lamp terms ("flat", i.e. ``--reference FLAT --lamp-terms 3``).
+the lamp (``basic``, ``spectraVictor*``: a flat envelope near 1), also as such readings
+are meant to be read ("normalised", i.e. ``--normalised``: a 3-term lamp and a tilted
+stray light). (Before issue 18 was closed the second run was "flat":
+``--reference FLAT --lamp-terms 3``.)
 
 A separate, larger set without stated values: every ``--stride``-th reading of the
 ``spectraManue/sample3`` time series (n = 1.33), where the thickness drains smoothly;
@@ -191,13 +193,13 @@ def run_optifik(cases, data: Path, python: str) -> list[dict]:
 
 
 # ---------------------------------------------------------------------------- bubblefit
-def run_bubblefit(c, data: Path, flat: bool) -> dict:
+def run_bubblefit(c, data: Path, normalised: bool) -> dict:
     from bubblefit.inverse.spectrum import SpectrumOptions, fit_spectrum
     from bubblefit.io.spectra import Spectrum
 
     lam, y = load(data / c["file"])
-    opts = SpectrumOptions(n_film=c["n"], thickness_range=(0.0, c["thickness_max"]), lamp_terms=3 if flat else None)
-    ref = Spectrum(lam, np.ones_like(lam), "flat") if flat else None
+    opts = SpectrumOptions(n_film=c["n"], thickness_range=(0.0, c["thickness_max"]), normalised=normalised)
+    ref = None
     t0 = time.perf_counter()
     r = fit_spectrum(Spectrum(lam, y, c["file"]), reference=ref, options=opts)
     return {"t": r.thickness_nm, "stderr": r.thickness_nm_stderr, "ok": bool(r.ok), "time_s": time.perf_counter() - t0,
@@ -214,7 +216,8 @@ def _median(v):
     return float(np.median(v)) if v else float("nan")
 
 
-TOOLS = {"bubblefit": "bf", "bubblefit ok only": "bf", "bubblefit flat": "bf_flat", "optifik ref": "of_ref",
+TOOLS = {"bubblefit": "bf", "bubblefit ok only": "bf", "bubblefit normalised": "bf_norm",
+         "bubblefit norm. ok only": "bf_norm", "optifik ref": "of_ref",
          "optifik auto": "of_auto"}
 
 
@@ -226,15 +229,15 @@ def summarise_stated(rows) -> dict:
             continue
         entry = {"files": len(sub)}
         for tool, col in TOOLS.items():
-            s = [r for r in sub if col in r and (tool != "bubblefit ok only" or r["bf_ok"])]
-            if tool == "bubblefit flat" and not s:
+            s = [r for r in sub if col in r and (not tool.endswith("ok only") or r[col + "_ok"])]
+            if tool.startswith("bubblefit norm") and not [r for r in sub if col in r]:
                 continue
             err = [abs(r[col] - r["expected"]) for r in s]
             rel = [abs(r[col] - r["expected"]) / r["expected"] for r in s]
             fails = [failed(r["expected"], r[col]) for r in s]
             e = {"files": len(s), "median_abs_err_nm": _median(err), "median_rel_err": _median(rel),
                  "fail_10pct": int(sum(fails)), "missing": int(sum(not np.isfinite(r[col]) for r in s))}
-            if col.startswith("bf") and tool != "bubblefit ok only":
+            if col.startswith("bf") and not tool.endswith("ok only"):
                 okc = col + "_ok"
                 e["flagged"] = int(sum(not r[okc] for r in s))
                 e["silent_fail"] = int(sum(f and r[okc] for f, r in zip(fails, s)))
@@ -276,6 +279,9 @@ def plot(rows, path):
     for col, label, mk in [("bf", "bubblefit", "o"), ("of_ref", "optifik (reference method)", "x")]:
         v = np.array([r[col] for r in st])
         ax[0].loglog(e, np.where(np.isfinite(v), v, np.nan), mk, ms=3, alpha=0.6, label=label)
+    nr = [r for r in st if "bf_norm" in r]
+    ax[0].loglog([r["expected"] for r in nr], [r["bf_norm"] for r in nr], "+", ms=4, alpha=0.6,
+                 label="bubblefit --normalised (lamp-divided readings)")
     bad = np.array([not r["bf_ok"] for r in st])
     ax[0].loglog(e[bad], [r["bf"] for r, b in zip(st, bad) if b], "o", mfc="none", mec="r", ms=5, lw=0.5,
                  label="bubblefit ok=false")
@@ -317,16 +323,16 @@ def main():
     of = run_optifik(cases, data, args.optifik_python)
     rows = []
     for c, o in zip(cases, of):
-        b = run_bubblefit(c, data, flat=False)
+        b = run_bubblefit(c, data, normalised=False)
         row = {"group": c["group"], "file": c["file"], "expected": c["expected"], "n": c["n"],
                "bf": b["t"], "bf_stderr": b["stderr"], "bf_ok": b["ok"], "bf_reasons": b["reasons"],
                "bf_time_s": b["time_s"], "of_method": c["method"], **o}
         if c["normalised"] and c["expected"] is not None:
-            f = run_bubblefit(c, data, flat=True)
-            row.update(bf_flat=f["t"], bf_flat_stderr=f["stderr"], bf_flat_ok=f["ok"], bf_flat_reasons=f["reasons"])
+            f = run_bubblefit(c, data, normalised=True)
+            row.update(bf_norm=f["t"], bf_norm_stderr=f["stderr"], bf_norm_ok=f["ok"], bf_norm_reasons=f["reasons"])
         rows.append(row)
         exp = f"{c['expected']:8.1f}" if c["expected"] is not None else "       -"
-        flat = f"  flat {row['bf_flat']:8.1f} ok={row['bf_flat_ok']!s:5}" if "bf_flat" in row else ""
+        flat = f"  normalised {row['bf_norm']:8.1f} ok={row['bf_norm_ok']!s:5}" if "bf_norm" in row else ""
         print(f"{c['file']:<36} stated {exp}  bubblefit {b['t']:8.1f} +- {b['stderr']:6.2g} ok={b['ok']!s:5}{flat}  "
               f"optifik {c['method']} {o['of_ref']:8.1f}  auto {o['of_auto']:8.1f}", flush=True)
     stated, series = summarise_stated(rows), summarise_series(rows)
@@ -335,12 +341,12 @@ def main():
         {"data": "github.com/sciunto/optifik data/ (not redistributed)", "wavelength_min_nm": WMIN,
          "stated": stated, "series": series, "rows": rows}, indent=1))
     plot(rows, RESULTS / "spectrum_real.png")
-    print(f"\n{'group':>8} {'tool':>18} {'files':>5} {'med|err|nm':>10} {'med rel':>7} {'fail10%':>7} {'flagged':>7} {'silent':>6}")
+    print(f"\n{'group':>8} {'tool':>23} {'files':>5} {'med|err|nm':>10} {'med rel':>7} {'fail10%':>7} {'flagged':>7} {'silent':>6}")
     for g, entry in stated.items():
         for tool, e in entry.items():
             if tool == "files":
                 continue
-            print(f"{g:>8} {tool:>18} {e['files']:5d} {e['median_abs_err_nm']:10.1f} {e['median_rel_err']:7.3f} "
+            print(f"{g:>8} {tool:>23} {e['files']:5d} {e['median_abs_err_nm']:10.1f} {e['median_rel_err']:7.3f} "
                   f"{e['fail_10pct']:7d} {e.get('flagged', ''):>7} {e.get('silent_fail', ''):>6}")
     if series:
         print(f"\ntime series ({series['files']} readings):")

@@ -1,5 +1,6 @@
 """``bubblefit fit-spectrum SPECTRUM... [--dark DARK] [--reference REF] [--n-film N | --cauchy A,B[,C]]
-[--thickness-range MIN,MAX] [--wavelength-range MIN,MAX] [--csv OUT] [--json OUT] [-o PLOT_PREFIX]``.
+[--thickness-range MIN,MAX] [--wavelength-range MIN,MAX] [--normalised] [--background-terms K] [--incoherent] [--csv OUT]
+[--json OUT] [-o PLOT_PREFIX]``.
 
 Film thickness from spectrometer readings (:mod:`bubblefit.inverse.spectrum`): one CSV row
 and one JSON entry per file, and with ``-o`` a plot per file of the measured and fitted
@@ -23,7 +24,8 @@ def register(sub):
     p = sub.add_parser(
         "fit-spectrum", help="film thickness from spectrometer readings (two-column text files)",
         description="Film thickness from spectrometer readings: two-column text files wavelength_nm,intensity "
-                    "(comma or whitespace, header lines allowed), arbitrary units, not divided by the lamp. "
+                    "(comma or whitespace, header lines allowed), arbitrary units, not divided by the lamp "
+                    "(or, with --normalised, already divided by it). "
                     "Without --reference the lamp is an unknown smooth spectrum fitted with the film. "
                     "The order is found by a global search; ok is false (with the reason) when it is ambiguous.")
     p.add_argument("spectra", nargs="+", metavar="SPECTRUM", help="spectrum file(s)")
@@ -37,7 +39,19 @@ def register(sub):
                    help="thicknesses searched, nm (default 0,15000)")
     p.add_argument("--wavelength-range", metavar="MIN,MAX", help="wavelengths used, nm (default: the whole reading)")
     p.add_argument("--lamp-terms", type=int, default=None,
-                   help="smooth lamp terms (Legendre in wavenumber); default 5, or 1 with --reference")
+                   help="smooth lamp terms (Legendre in wavenumber, kept non-negative); default 5, 1 with "
+                        "--reference, 3 with --normalised")
+    p.add_argument("--normalised", action="store_true",
+                   help="the readings were already divided by the lamp (a flat envelope up to a tilt): the lamp "
+                        "left is a scale, tilt and curvature (3 terms) and the stray light gets a tilt, so that "
+                        "neither can imitate a fringe")
+    p.add_argument("--background-terms", type=int, default=None, metavar="K",
+                   help="smooth stray-light terms added beyond the offset (Legendre in wavenumber, or the "
+                        "reference times a series with --reference); default 0, or 1 with --normalised")
+    p.add_argument("--incoherent", action="store_true",
+                   help="also fit lamp light that reaches the spectrometer without interfering, L (R + b) (a window "
+                        "or frame in the beam, a spot spanning many orders: fringe minima lifted in proportion to "
+                        "the lamp); more freedom, so thin films without a reference become more ambiguous")
     p.add_argument("--no-offset", action="store_true", help="do not fit a constant stray-light offset")
     p.add_argument("--csv", help="CSV, one row per file: " + ",".join(_CSV_COLUMNS[:4]) + ",...")
     p.add_argument("--json", help="JSON with one entry per file")
@@ -76,9 +90,12 @@ def run(args) -> int:
     opts = SpectrumOptions(
         n_film=index, thickness_range=_pair(args.thickness_range, "--thickness-range"),
         wavelength_range=_pair(args.wavelength_range, "--wavelength-range") if args.wavelength_range else None,
-        lamp_terms=args.lamp_terms, offset=not args.no_offset)
+        lamp_terms=args.lamp_terms, offset=not args.no_offset, normalised=args.normalised,
+        background_terms=args.background_terms, incoherent=args.incoherent)
     if args.lamp_terms is not None and not 1 <= args.lamp_terms <= 20:
         raise InputError(f"--lamp-terms must be within 1..20, got {args.lamp_terms}")
+    if args.background_terms is not None and not 0 <= args.background_terms <= 10:
+        raise InputError(f"--background-terms must be within 0..10, got {args.background_terms}")
     _check_outputs(args)
     dark = read_spectrum(args.dark) if args.dark else None
     reference = read_spectrum(args.reference) if args.reference else None

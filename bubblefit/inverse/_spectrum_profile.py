@@ -1,7 +1,9 @@
 """The profile likelihood of a film's thickness in a spectrum (variable projection).
 
-For a thickness ``d`` (and resolution ``w``), the model ``y = sum_j a_j B_j R(d) + c`` is
-linear in the lamp coefficients ``a`` and the offset ``c``: they are solved by least
+For a thickness ``d`` (and resolution ``w``), the model
+``y = sum_j a_j B_j R(d) + sum_k c_k S_k`` is linear in the lamp coefficients ``a`` and the
+stray-light coefficients ``c`` (``S_0 = 1`` the constant offset, further ``S_k`` a smooth
+background that does not pass through the film's fringes): they are solved by least
 squares, and ``RSS(d)`` is what is left. :meth:`ProfileProblem.rss_grid` does this for
 thousands of thicknesses at once through the normal equations; :meth:`ProfileProblem.rss`
 solves one thickness with an orthogonal factorisation, for the local refinement.
@@ -19,32 +21,62 @@ from typing import Callable
 import numpy as np
 from scipy import optimize
 
-__all__ = ["ProfileProblem", "local_minima", "residual_correlation", "second_difference_noise", "refine_d",
+__all__ = ["ProfileProblem", "rss_grids", "local_minima", "residual_correlation", "second_difference_noise", "refine_d",
            "refine_near", "refine_dw", "profile_variance"]
 
 
 @dataclass
 class ProfileProblem:
     """A dark-subtracted reading ``y`` (N,), the lamp basis (N, J), whether to fit an
-    offset, and the film's reflectance at the reading's wavelengths, ``reflect(d, w) -> (D, N)``."""
+    offset, the film's reflectance at the reading's wavelengths, ``reflect(d, w) -> (D, N)``,
+    and optionally more additive stray-light columns ``background`` (N, K). With
+    ``positive`` the lamp ``basis @ a`` is kept >= 0 at every wavelength (:meth:`solve`).
+    ``incoherent`` is a reflectance added to the film's, ``R + b``: light of the lamp that
+    reaches the spectrometer without interfering (see :mod:`bubblefit.inverse.spectrum`)."""
 
     y: np.ndarray
     basis: np.ndarray
     offset: bool
     reflect: Callable
+    background: np.ndarray | None = None
+    positive: bool = False
+    incoherent: float = 0.0
+
+    @property
+    def additive(self) -> np.ndarray:
+        """The (N, K) columns added to the film's light: 1 (the offset) and the background."""
+        cols = [np.ones((len(self.y), 1))] if self.offset else []
+        if self.background is not None:
+            cols.append(np.asarray(self.background, dtype=np.float64).reshape(len(self.y), -1))
+        return np.column_stack(cols) if cols else np.zeros((len(self.y), 0))
+
+    @property
+    def n_linear(self) -> int:
+        """The number of linear parameters solved at every thickness."""
+        return self.basis.shape[1] + self.additive.shape[1]
 
     def design(self, d: float, w: float) -> np.ndarray:
-        """The (N, J [+1]) design matrix at thickness ``d``: lamp basis times ``R(d)``, and 1."""
-        r = self.reflect(np.array([d]), w)[0]
-        cols = self.basis * r[:, None]
-        if self.offset:
-            cols = np.column_stack([cols, np.ones_like(r)])
-        return cols
+        """The (N, J + K) design matrix at thickness ``d``: lamp basis times ``R(d)``, and the additive columns."""
+        r = self.reflect(np.array([d]), w)[0] + self.incoherent
+        return np.column_stack([self.basis * r[:, None], self.additive])
 
     def solve(self, d: float, w: float) -> tuple[np.ndarray, np.ndarray]:
-        """Linear coefficients and the model spectrum at ``(d, w)``."""
+        """Linear coefficients and the model spectrum at ``(d, w)``.
+
+        A lamp must shine: where the least-squares lamp would make the film's light
+        ``sum_i L_i R_i`` negative (fringes turned upside down), the constrained optimum is
+        on the boundary and is taken as no film light at all (the lamp's coefficients 0,
+        the stray light alone), see :meth:`rss_grid`."""
         a = self.design(d, w)
+        j = self.basis.shape[1]
+        if self.positive:
+            coef = _positive_lamp_lstsq(a, self.y, self.basis)
+            return coef, a @ coef
         coef, *_ = np.linalg.lstsq(a, self.y, rcond=None)
+        if float(np.sum(a[:, :j] @ coef[:j])) <= 0.0:
+            coef = np.zeros(a.shape[1])
+            if a.shape[1] > j:
+                coef[j:], *_ = np.linalg.lstsq(a[:, j:], self.y, rcond=None)
         return coef, a @ coef
 
     def model(self, d: float, w: float) -> np.ndarray:
@@ -56,31 +88,111 @@ class ProfileProblem:
         return float(r @ r)
 
     def rss_grid(self, thickness: np.ndarray, w: float, chunk: int = 256) -> np.ndarray:
-        """``RSS(d)`` for every thickness of ``thickness`` (D,), by batched normal equations."""
-        y, b = self.y, self.basis
+        """``RSS(d)`` for every thickness of ``thickness`` (D,), by batched normal equations;
+        thicknesses whose solved lamp makes the film's light negative get the RSS of the
+        stray light alone (:meth:`solve`), unless the lamp is ``positive`` (the profile then
+        stays a lower bound of the constrained one, for :func:`refine_d`)."""
+        return rss_grids([self], thickness, w, (self.incoherent,), chunk)[0, 0]
+
+    def _normal_equations(self):
+        """What :meth:`_chunk_rss` needs that does not depend on the thickness."""
+        y, b, e = self.y, self.basis, self.additive
         npts, j = b.shape
+        q = e.shape[1]
+        no_film = float(y @ y) if q == 0 else float(np.sum((y - e @ np.linalg.lstsq(e, y, rcond=None)[0]) ** 2))
         bb = (b[:, :, None] * b[:, None, :]).reshape(npts, j * j)
+        be = (b[:, :, None] * e[:, None, :]).reshape(npts, j * q)
         by = b * y[:, None]
-        yy = float(y @ y)
-        out = np.empty(len(thickness))
-        for s in range(0, len(thickness), chunk):
-            r = self.reflect(thickness[s:s + chunk], w)  # (C, N)
-            m = len(r)
-            k = j + int(self.offset)
+        return dict(bb=bb, be=be, by=by, yy=float(y @ y), ee=e.T @ e, ey=e.T @ y, no_film=no_film,
+                    sbb=bb.sum(0), sbe=be.sum(0), sby=by.sum(0), sb=b.sum(0))
+
+    def _chunk_rss(self, r: np.ndarray, ne: dict, levels) -> np.ndarray:
+        """``RSS`` (L, C) for the reflectance rows ``r`` (C, N) of a chunk of thicknesses, with
+        ``R + b`` for each ``b`` of ``levels``: ``(R + b)^2 = R^2 + 2 b R + b^2`` expands the
+        products, so that each level costs only its small solves."""
+        b = self.basis
+        j, q = b.shape[1], ne["ee"].shape[0]
+        m, k = len(r), j + q
+        rr, r1, rby, rb = (r * r) @ ne["bb"], r @ ne["bb"], r @ ne["by"], r @ b
+        rbe = r @ ne["be"] if q else None
+        out = np.empty((len(levels), m))
+        for li, lev in enumerate(levels):
             g = np.zeros((m, k, k))
             rhs = np.zeros((m, k))
-            g[:, :j, :j] = ((r * r) @ bb).reshape(m, j, j)
-            rhs[:, :j] = r @ by
-            if self.offset:
-                rb = r @ b
-                g[:, :j, j] = rb
-                g[:, j, :j] = rb
-                g[:, j, j] = npts
-                rhs[:, j] = y.sum()
+            g[:, :j, :j] = (rr + 2.0 * lev * r1 + lev**2 * ne["sbb"]).reshape(m, j, j)
+            rhs[:, :j] = rby + lev * ne["sby"]
+            if q:
+                cross = (rbe + lev * ne["sbe"]).reshape(m, j, q)
+                g[:, :j, j:] = cross
+                g[:, j:, :j] = cross.transpose(0, 2, 1)
+                g[:, j:, j:] = ne["ee"]
+                rhs[:, j:] = ne["ey"]
             ridge = 1e-12 * np.trace(g, axis1=1, axis2=2)[:, None, None] + 1e-300
             coef = np.linalg.solve(g + ridge * np.eye(k), rhs[..., None])[..., 0]
-            out[s:s + m] = np.maximum(yy - np.einsum("mk,mk->m", coef, rhs), 0.0)
+            out[li] = np.maximum(ne["yy"] - np.einsum("mk,mk->m", coef, rhs), 0.0)
+            if not self.positive:
+                out[li, np.einsum("mj,mj->m", coef[:, :j], rb + lev * ne["sb"]) <= 0.0] = ne["no_film"]
         return out
+
+
+def rss_grids(problems: list[ProfileProblem], thickness: np.ndarray, w: float, levels=(0.0,),
+              chunk: int = 256) -> np.ndarray:
+    """:meth:`ProfileProblem.rss_grid` of several problems on the same reading and film
+    (the same ``reflect``), each with the film's reflectance ``R + b`` for every ``b`` of
+    ``levels`` (their own ``incoherent`` is not used), (P, L, D): the film's reflectance is
+    computed once per chunk."""
+    eqs = [p._normal_equations() for p in problems]
+    out = np.empty((len(problems), len(levels), len(thickness)))
+    for s in range(0, len(thickness), chunk):
+        r = problems[0].reflect(thickness[s:s + chunk], w)  # (C, N)
+        for i, (p, ne) in enumerate(zip(problems, eqs)):
+            out[i, :, s:s + len(r)] = p._chunk_rss(r, ne, levels)
+    return out
+
+
+def _positive_lamp_lstsq(a: np.ndarray, y: np.ndarray, basis: np.ndarray, samples: int = 256) -> np.ndarray:
+    """Least squares ``a @ coef ~ y`` with the lamp ``basis @ coef[:J]`` >= 0 at every
+    wavelength (checked on at most ``samples`` of them, evenly spread: the lamp is a
+    low-degree series) and the other coefficients (the additive stray light) free.
+
+    The free columns are projected out (QR); the lamp's problem ``min |E x - f|`` subject
+    to ``G x >= 0`` is solved as least distance programming by non-negative least squares
+    (Lawson & Hanson, *Solving Least Squares Problems*, 1974, ch. 23, algorithms LSI and
+    LDP); the free coefficients then follow by least squares on what is left.
+    """
+    j = basis.shape[1]
+    lamp, extra = a[:, :j], a[:, j:]
+    if extra.shape[1]:
+        q, _ = np.linalg.qr(extra)
+        e, f = lamp - q @ (q.T @ lamp), y - q @ (q.T @ y)
+    else:
+        e, f = lamp, y
+    idx = np.unique(np.linspace(0, len(y) - 1, min(samples, len(y))).round().astype(int))
+    g = basis[idx]
+    qe, re = np.linalg.qr(e)
+    x0 = np.linalg.lstsq(re, qe.T @ f, rcond=None)[0]
+    if np.all(g @ x0 >= 0.0) or not np.all(np.isfinite(x0)):
+        x = x0
+    else:
+        # x = R^-1 (z + Q^T f): min |z| subject to (G R^-1) z >= -G x0 (LDP), by NNLS.
+        gt = np.linalg.solve(re.T, g.T).T          # G R^-1, (M, J)
+        h = -(g @ x0)
+        norm = max(float(np.max(np.abs(gt))), 1e-300)
+        mat = np.vstack([gt.T / norm, h[None, :] / norm])  # (J + 1, M)
+        rhs = np.zeros(j + 1)
+        rhs[-1] = 1.0
+        u, _ = optimize.nnls(mat, rhs, maxiter=50 * mat.shape[1])
+        r = mat @ u - rhs
+        if abs(r[-1]) < 1e-12:  # infeasible (cannot happen: the zero lamp is feasible)
+            x = np.zeros(j)
+        else:
+            z = -r[:-1] / r[-1]
+            x = np.linalg.solve(re, z + qe.T @ f)
+    coef = np.zeros(a.shape[1])
+    coef[:j] = x
+    if extra.shape[1]:
+        coef[j:], *_ = np.linalg.lstsq(extra, y - lamp @ x, rcond=None)
+    return coef
 
 
 def local_minima(values: np.ndarray) -> np.ndarray:
@@ -110,16 +222,29 @@ def second_difference_noise(y: np.ndarray) -> float:
     return 1.4826 * mad / np.sqrt(6.0)
 
 
-def refine_d(prob: ProfileProblem, grid, rss, w: float, keep: int = 6) -> list[tuple[float, float]]:
+def refine_d(prob: ProfileProblem, grid, rss, w: float, keep: int = 6, slack: float = 0.05,
+             limit: int = 60) -> list[tuple[float, float]]:
     """The ``keep`` best local minima of the grid profile, each refined by a bounded 1-D
-    search over one grid step either side; best first, as (thickness, RSS)."""
+    search over one grid step either side; best first, as (thickness, RSS).
+
+    With a positive lamp the grid profile ``rss`` (unconstrained, batched) is a lower
+    bound of the constrained one, so its minima are refined in increasing order until the
+    next one's bound exceeds the best refined RSS by the fraction ``slack`` (branch and
+    bound; at most ``limit`` minima): the best constrained minima are all visited."""
     step = grid[1] - grid[0]
     out = []
-    for i in local_minima(rss)[:keep]:
+    order = local_minima(rss)
+    for count, i in enumerate(order[:limit] if prob.positive else order[:keep]):
+        if prob.positive and len(out) >= keep and rss[i] > min(r for _, r in out) * (1.0 + slack):
+            break
         lo, hi = max(grid[0], grid[i] - step), min(grid[-1], grid[i] + step)
         res = optimize.minimize_scalar(lambda d: prob.rss(d, w), bounds=(lo, hi), method="bounded",
                                        options={"xatol": 1e-4 * step})
-        out.append((float(res.x), float(res.fun)) if res.fun <= rss[i] else (float(grid[i]), float(rss[i])))
+        if prob.positive:
+            at = prob.rss(float(grid[i]), w)
+            out.append((float(res.x), float(res.fun)) if res.fun <= at else (float(grid[i]), at))
+        else:
+            out.append((float(res.x), float(res.fun)) if res.fun <= rss[i] else (float(grid[i]), float(rss[i])))
     return sorted(out, key=lambda t: t[1])
 
 

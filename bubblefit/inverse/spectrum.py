@@ -10,14 +10,21 @@ the index ``n(nu)`` of :mod:`bubblefit.optics.dispersion`), ``nu = 1/lambda`` th
 wavenumber and ``c`` stray light. Without a reference reading the lamp is a smooth
 function, a Legendre series of ``lamp_terms`` terms in ``nu``; with one (the lamp, or a
 reflector, read the same way) it is the reference times such a series (one term, a
-scale, by default). For a given ``d`` the model is linear in the lamp's coefficients and
-``c``, so they are solved exactly (variable projection), and the residual sum of squares
-``RSS(d)`` is the profile likelihood of ``d``. Its global minimum is found by a dense
+scale, by default). A reading already divided by the lamp (``normalised``) keeps only a
+scale, tilt and curvature of it (3 terms). The stray light may have a smooth shape of
+its own (``background_terms``, :func:`_background_basis`; one, a tilt, for a normalised
+reading). For a given ``d`` the model is linear in the lamp's coefficients and the stray
+light's, so they are solved exactly (variable projection), with the lamp kept
+non-negative at every wavelength (a lamp cannot be negative, and one that dips below zero
+is how a smooth series takes up a fringe; Lawson & Hanson's LSI), and the residual sum of
+squares ``RSS(d)`` is the profile likelihood of ``d``. Its global minimum is found by a dense
 search over the thickness range (step: a quarter radian of phase at the bluest
 wavelength), the best few minima are refined locally together with the spectrometer's
 resolution (a Gaussian of FWHM ``w`` nm that washes out fine fringes,
 :func:`bubblefit.optics.film.filtered_airy_reflectance`), and the result says whether a
-second minimum is within the noise (the interference order is then ambiguous).
+second minimum is within the noise (the interference order is then ambiguous), or whether
+another split of the same smooth freedom between lamp and stray light puts the film in
+another order within the noise (:func:`_lamp_split`).
 
 The standard error comes from the curvature of the profile: ``var(d) = 2 s^2 [H^-1]_dd``,
 ``H`` the Hessian of ``RSS`` in ``(d, w)`` and ``s^2 = RSS / (N - p)`` times the
@@ -32,11 +39,13 @@ G. H. Golub and V. Pereyra, "The differentiation of pseudo-inverses and nonlinea
 squares problems whose variables separate", SIAM J. Numer. Anal. 10, 413-432 (1973).
 A. Scheludko, "Thin liquid films", Adv. Colloid Interface Sci. 1, 391-464 (1967) (the
 fringe-intensity method this replaces).
+C. L. Lawson and R. J. Hanson, *Solving Least Squares Problems* (Prentice-Hall, 1974),
+ch. 23 (least squares with linear inequality constraints).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import jax
 import jax.numpy as jnp
@@ -47,16 +56,39 @@ from ..errors import InputError
 from ..io.spectra import Spectrum
 from ..optics import dispersion, film
 from ._spectrum_profile import (ProfileProblem, profile_variance, refine_d, refine_dw, refine_near,
-                                residual_correlation, second_difference_noise)
+                                residual_correlation, rss_grids, second_difference_noise)
 
-__all__ = ["SpectrumOptions", "SpectrumFit", "film_reflectance", "reflector", "fit_spectrum", "interference_order"]
+__all__ = ["SpectrumOptions", "SpectrumFit", "film_reflectance", "reflector", "fit_spectrum", "interference_order",
+           "min_fringes"]
 
 _FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
 
-#: Fewest fringes across the range for a thickness without a reference reading: a film
-#: with less than one fringe reflects a smooth spectrum of the same kind as the lamp's
-#: smooth model, and the two cannot be separated.
+#: Fewest fringes across the range for a thickness without a reference reading, with the
+#: default 5-term lamp: a film with less than one fringe reflects a smooth spectrum of the
+#: same kind as the lamp's smooth model, and the two cannot be separated.
+#: :func:`min_fringes` scales it with the lamp's freedom.
 MIN_FRINGES_WITHOUT_REFERENCE = 1.0
+
+
+def min_fringes(lamp_terms: int) -> float:
+    """Fewest fringes a film must show, without a reference, to be told apart from a lamp of
+    ``lamp_terms`` Legendre terms: a quarter fringe per term beyond the scale
+    (``(J - 1) / 4``: 1 for the default 5 terms, ``MIN_FRINGES_WITHOUT_REFERENCE``), and at
+    least half a fringe (one extremum of ``R`` inside the range; with less, ``R`` is a
+    monotonic ``sin^2`` ramp that a tilted lamp and offset reproduce).
+
+    A degree ``J - 1`` polynomial has up to ``J - 1`` extrema; over a fraction of its range
+    it bends like a quarter of a fringe per degree, so the lamp can imitate that much of the
+    film's modulation (Golub & Pereyra's projection then takes it out of the profile)."""
+    return max(0.5, MIN_FRINGES_WITHOUT_REFERENCE * (lamp_terms - 1) / 4.0)
+
+
+#: Reflectances ``b`` of the lamp light that reaches the spectrometer without interfering,
+#: ``I = L (R + b) + S``: a window or a wet frame in the beam, or a spot that spans films
+#: of many orders (their fringes average to the mean reflectance ``2 R1 / (1 + R1)``,
+#: ~0.04). It lifts the fringes' minima off the stray light in proportion to the lamp,
+#: which a constant offset cannot do. A factor-2 ladder up to the film's peak ~0.08.
+INCOHERENT_LEVELS = (0.0, 0.005, 0.01, 0.02, 0.04, 0.08)
 
 #: A fit is trusted when its residual's rms is within ``MISFIT_RATIO`` times the reading's
 #: noise (from its second differences) plus a model-error floor of ``MODEL_ERROR_FLOOR``
@@ -75,8 +107,20 @@ class SpectrumOptions:
         preset name); default the soap-solution law.
     thickness_range : (min, max) nm searched.
     wavelength_range : (min, max) nm used, or None for the whole reading.
-    lamp_terms : Legendre terms of the unknown lamp (None: 5 without a reference, 1 with).
+    lamp_terms : Legendre terms of the unknown lamp (None: 5 without a reference, 1 with,
+        3 for a ``normalised`` reading).
     offset : fit a constant stray-light offset ``c``.
+    normalised : the reading was already divided by the lamp (its envelope is flat up to a
+        slow slope): the lamp left in it is a scale, tilt and curvature in wavenumber
+        (3 terms; :func:`min_fringes` then asks for half a fringe), and the stray light
+        gets a tilt (``background_terms`` 1), so that neither can take the shape of a fringe.
+    background_terms : smooth stray-light terms added beyond the offset (None: 0, or 1 for
+        a ``normalised`` reading); see :func:`_background_basis`.
+    incoherent : fit lamp light that does not interfere, ``L (R + b)``, ``b`` one of
+        ``INCOHERENT_LEVELS`` (profiled, the best over the whole search, kept only when it
+        lowers ``chi^2`` by more than ``ambiguity_dchi2``). Off by default: on synthetic
+        films of 150 nm without a reference (``b = 0``) the extra freedom let a 5-term lamp
+        prefer a 330 nm alias, called ok.
     fit_resolution : fit the spectrometer's resolution (FWHM, nm) with the thickness.
     max_resolution_nm : its upper bound.
     ambiguity_dchi2 : a second minimum closer than this in ``chi^2`` makes the order
@@ -91,6 +135,9 @@ class SpectrumOptions:
     fit_resolution: bool = True
     max_resolution_nm: float = 10.0
     ambiguity_dchi2: float = 10.0
+    normalised: bool = False
+    background_terms: int | None = None
+    incoherent: bool = False
 
 
 @dataclass
@@ -193,17 +240,37 @@ def interference_order(thickness_nm: float, wavelength_nm: np.ndarray, n: np.nda
     return order, float(2.0 * thickness_nm * (k.max() - k.min()))
 
 
+def _unit_wavenumber(wavelength_nm: np.ndarray) -> np.ndarray:
+    """Wavenumber mapped linearly onto [-1, 1] over the range."""
+    nu = 1.0 / wavelength_nm
+    return 2.0 * (nu - nu.min()) / max(nu.max() - nu.min(), 1e-30) - 1.0
+
+
 def _lamp_basis(wavelength_nm: np.ndarray, terms: int, reference: np.ndarray | None) -> np.ndarray:
     """(N, terms) Legendre polynomials in wavenumber over the range, times the reference."""
-    nu = 1.0 / wavelength_nm
-    x = 2.0 * (nu - nu.min()) / max(nu.max() - nu.min(), 1e-30) - 1.0
-    p = legendre.legvander(x, terms - 1)
+    p = legendre.legvander(_unit_wavenumber(wavelength_nm), terms - 1)
     return p * reference[:, None] if reference is not None else p
+
+
+def _background_basis(wavelength_nm: np.ndarray, terms: int, reference: np.ndarray | None) -> np.ndarray | None:
+    """(N, terms) additive stray-light columns beyond the constant offset, or None for 0 terms.
+
+    Light that reaches the spectrometer without passing through the film's interference
+    (a reflection off a window or the frame, light scattered in the spectrometer) adds
+    incoherently: ``I = L R + S``. Without a reference ``S`` is a smooth series
+    (Legendre ``P_1 .. P_terms`` in wavenumber; ``P_0`` is the offset ``c``); with one it
+    has the lamp's spectrum, the reference times ``P_0 .. P_{terms-1}``.
+    """
+    if terms <= 0:
+        return None
+    if reference is None:
+        return legendre.legvander(_unit_wavenumber(wavelength_nm), terms)[:, 1:]
+    return legendre.legvander(_unit_wavenumber(wavelength_nm), terms - 1) * reference[:, None]
 
 
 def _prepare(spectrum: Spectrum, dark: Spectrum | None, reference: Spectrum | None, opts: SpectrumOptions):
     """Wavelengths, dark-subtracted intensities, the normalised reference (or None), the
-    lamp's number of terms, the index per wavelength, and warnings."""
+    lamp's and the stray light's numbers of terms, the index per wavelength, and warnings."""
     lam, y = spectrum.wavelength_nm, spectrum.intensity.astype(np.float64)
     warnings: list[str] = []
     if opts.wavelength_range is not None:
@@ -224,11 +291,14 @@ def _prepare(spectrum: Spectrum, dark: Spectrum | None, reference: Spectrum | No
             warnings.append(f"{int((~good).sum())} wavelengths where the reference is dark were left out")
         lam, y, ref = lam[good], y[good], ref[good]
         ref = ref / np.max(ref)
-    terms = opts.lamp_terms if opts.lamp_terms is not None else (1 if ref is not None else 5)
+    terms = opts.lamp_terms if opts.lamp_terms is not None else (1 if ref is not None else 3 if opts.normalised else 5)
     if terms < 1 or terms > 20:
         raise InputError(f"lamp terms must be within 1..20, got {terms}")
+    bg = opts.background_terms if opts.background_terms is not None else int(opts.normalised)
+    if bg < 0 or bg > 10:
+        raise InputError(f"background terms must be within 0..10, got {bg}")
     n = dispersion.refractive_index(opts.n_film, lam)
-    return lam, y, ref, terms, n, warnings
+    return lam, y, ref, terms, bg, n, warnings
 
 
 def _search_grid(lam: np.ndarray, n: np.ndarray, opts: SpectrumOptions) -> np.ndarray:
@@ -255,13 +325,15 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
     ----------
     Golub & Pereyra (1973), variable projection; Born & Wolf, sec. 7.6.1.
     """
-    lam, y, ref, terms, n, warnings = _prepare(spectrum, dark, reference, options)
+    lam, y, ref, terms, bg_terms, n, warnings = _prepare(spectrum, dark, reference, options)
     reflect = reflector(lam, n)
-    prob = ProfileProblem(y, _lamp_basis(lam, terms, ref), options.offset, reflect)
+    background = _background_basis(lam, bg_terms, ref)
+    prob = ProfileProblem(y, _lamp_basis(lam, terms, ref), options.offset, reflect, background, positive=True)
+    alt = _split_problem(y, lam, ref, terms, bg_terms, options, reflect)
     grid = _search_grid(lam, n, options)
     step = grid[1] - grid[0]
-    rss, minima, d_best, rss_best, w, fit_w = _search(prob, grid, lam, n, options, warnings)
-    dof = max(len(y) - (terms + int(options.offset) + 1 + int(fit_w)), 1)
+    prob, alt, rss, alt_rss, minima, d_best, rss_best, w, fit_w = _search(prob, alt, grid, lam, n, options, warnings)
+    dof = max(len(y) - (prob.n_linear + 1 + int(fit_w)), 1)
     fitted = prob.model(d_best, w)
     resid = y - fitted
     rho = residual_correlation(resid)
@@ -273,16 +345,20 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
     # systematic error, added in quadrature.
     extra = (1,) if ref is not None else (1, 2)
     order, fringes = interference_order(d_best, lam, n)
-    lamp_sys = max(abs(refine_near(ProfileProblem(y, _lamp_basis(lam, terms + k, ref), options.offset, reflect),
+    lamp_sys = max(abs(refine_near(replace(prob, basis=_lamp_basis(lam, terms + k, ref)),
                                     d_best, w, 3.0 * step, grid) - d_best) for k in extra)
     stderr = float(np.hypot(stat, lamp_sys))
     second, dchi2 = _second_minimum(minima, d_best, step, s2)
     noise = second_difference_noise(y)
     red = float(rss_best / dof / noise**2) if noise > 0 else float("nan")
     reasons = _verdict(d_best, stderr, second, dchi2, grid, lam, n, reference is not None, options)
-    if reference is None and fringes < MIN_FRINGES_WITHOUT_REFERENCE:
-        reasons.append(f"only {fringes:.2f} fringe across the range: without --reference the film cannot be told "
-                       "apart from the unknown lamp's smooth spectrum")
+    if reference is None and fringes < min_fringes(terms):
+        reasons.append(f"only {fringes:.2f} fringe across the range (fewer than {min_fringes(terms):.2g} with a "
+                       f"{terms}-term lamp): without --reference the film cannot be told apart from the unknown "
+                       "lamp's smooth spectrum")
+    split = _lamp_split(alt, alt_rss, lam, n, ref, options, grid, w, d_best, rss_best, s2)
+    if split is not None:
+        reasons.append(split)
     _misfit(rss_best / dof, noise, float(np.mean(np.abs(y))), reasons, warnings)
     if rho > 0.5:
         warnings.append(f"residuals are correlated (lag-1 {rho:.2f}): the error bar counts "
@@ -298,11 +374,55 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
         profile_nm=grid, profile_chi2=profile)
 
 
-def _search(prob: ProfileProblem, grid, lam, n, options: SpectrumOptions, warnings: list[str]):
-    """Global search and local refinement: the grid profile, its refined minima (best
-    first), the best thickness and RSS, the resolution, and whether it was fitted."""
+def _split_problem(y, lam, ref, terms: int, bg_terms: int, options: SpectrumOptions, reflect) -> ProfileProblem | None:
+    """The model of :func:`_lamp_split`: the same number of smooth terms, ``max(1, J - 2)``
+    of them in the lamp and the rest in the stray light; None when that is the model itself."""
+    alt_terms = max(1, terms - 2)
+    if alt_terms == terms:
+        return None
+    return ProfileProblem(y, _lamp_basis(lam, alt_terms, ref), options.offset, reflect,
+                          _background_basis(lam, bg_terms + terms - alt_terms, ref), positive=True)
+
+
+def _lamp_split(alt: ProfileProblem | None, alt_rss, lam, n, ref, options: SpectrumOptions, grid, w: float,
+                d_best: float, rss_best: float, s2: float) -> str | None:
+    """The reason the order is not established when it depends on how the model's smooth
+    freedom is split between the lamp (multiplying ``R``) and the stray light (added), or None.
+
+    The reading only fixes ``L R + S``; a smooth ``L`` of many terms can take up part of a
+    fringe of a thinner film, which a stiffer lamp with a freer stray light cannot. The
+    global search is repeated (``alt_rss``, the grid profile of ``alt``) with the same
+    number of smooth terms split otherwise (:func:`_split_problem`), so that the two
+    ``chi^2 = RSS / s^2`` compare without a penalty for parameters; when its best thickness
+    lies a quarter of an order or more away and its ``chi^2`` is within ``ambiguity_dchi2``
+    of the best (or below it), the data do not choose between the two readings.
+    """
+    if alt is None:
+        return None
+    d_alt, rss_alt = refine_d(alt, grid, alt_rss, w, keep=2)[0]
+    order_spacing = 1.0 / (2.0 * float(np.median(n / lam)))
+    dchi2 = (rss_alt - rss_best) / s2
+    if abs(d_alt - d_best) < 0.25 * order_spacing or dchi2 >= options.ambiguity_dchi2:
+        return None
+    hint = "" if options.normalised or ref is not None else "; if the reading was divided by the lamp, use --normalised"
+    return (f"interference order depends on the lamp model: a {alt.basis.shape[1]}-term lamp with "
+            f"{alt.additive.shape[1] - int(alt.offset)} more stray-light term(s) puts the film at {d_alt:.1f} nm "
+            f"(delta chi2 {dchi2:.2f} < {options.ambiguity_dchi2:g}){hint}")
+
+
+def _search(prob: ProfileProblem, alt: ProfileProblem | None, grid, lam, n, options: SpectrumOptions,
+            warnings: list[str]):
+    """Global search and local refinement: the grid profile (and that of ``alt``, computed
+    with it, or None), its refined minima (best first), the best thickness and RSS, the
+    resolution, and whether it was fitted."""
     step = grid[1] - grid[0]
-    rss = prob.rss_grid(grid, 0.0)
+    levels = INCOHERENT_LEVELS if options.incoherent else (0.0,)
+    profiles = rss_grids([prob] if alt is None else [prob, alt], grid, 0.0, levels)
+    k = _incoherent_level(prob, profiles[0], grid, levels, options.ambiguity_dchi2)
+    prob, rss = replace(prob, incoherent=levels[k]), profiles[0, k]
+    alt_rss = None
+    if alt is not None:  # the same non-interfering light: it belongs to the optics, not to the lamp's model
+        alt, alt_rss = replace(alt, incoherent=levels[k]), profiles[1, k]
     d0 = refine_d(prob, grid, rss, 0.0)[0][0]
     w = 0.0
     fit_w = options.fit_resolution and _resolution_matters(d0, lam, n, options.max_resolution_nm)
@@ -317,7 +437,20 @@ def _search(prob: ProfileProblem, grid, lam, n, options: SpectrumOptions, warnin
         rss_best = prob.rss(d_best, w)
         if w >= 0.999 * options.max_resolution_nm:
             warnings.append(f"the fitted spectrometer resolution sits at its bound {options.max_resolution_nm:g} nm")
-    return rss, minima, d_best, rss_best, w, fit_w and w > 0
+    return prob, alt, rss, alt_rss, minima, d_best, rss_best, w, fit_w and w > 0
+
+
+def _incoherent_level(prob: ProfileProblem, profiles: np.ndarray, grid, levels, dchi2: float) -> int:
+    """The index of the non-interfering reflectance ``b`` of ``levels`` whose profile (the
+    rows of ``profiles``, refined at their best minima, the lamp's sign free) reaches the lowest RSS, kept only
+    when it lowers ``chi^2`` by more than ``dchi2`` below ``b = 0`` (``s^2 = RSS / dof`` of
+    ``b = 0``): one more parameter is taken only when the reading asks for it (a
+    likelihood-ratio test; the grid alone is too coarse to compare the levels)."""
+    best = np.array([refine_d(replace(prob, incoherent=lev, positive=False), grid, row, 0.0, keep=1)[0][1]
+                     for lev, row in zip(levels, profiles)])
+    k = int(np.argmin(best))
+    s2 = best[0] / max(len(prob.y) - prob.n_linear, 1)
+    return k if s2 > 0 and (best[0] - best[k]) / s2 > dchi2 else 0
 
 
 def _resolution_matters(d: float, lam: np.ndarray, n: np.ndarray, w_max: float) -> bool:

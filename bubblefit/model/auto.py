@@ -348,9 +348,9 @@ def _filter_decision(px: _Pixels, b: SceneBounds, filt, knobs: dict, f_err, mask
                                            budget_used=max(u for _, u in picks))
 
 
-def _spectral_decision(px: _Pixels, b: SceneBounds, s_err, masks, where, harmonic: bool):
-    """The spectral basis of each region: the cheapest within the film share (every method)."""
-    cands = spectral_candidates(b.model, harmonic) + [spectral_basis("reference")]
+def _spectral_decision(px: _Pixels, b: SceneBounds, s_err, masks, where, cands):
+    """The spectral basis of each region: the cheapest of ``cands`` (every method, the
+    reference last) within the film share."""
     picks = [_first(px, cands, s_err, "film", m) for m in masks]
     text = "; ".join(f"{c.method}/{c.samples}{where[i]} uses {_pct(u)} of the film share "
                      f"(cost {spectral_cost(c, b.model):.0f} against {REFERENCE_SAMPLES} for the reference)"
@@ -391,8 +391,8 @@ def decide_pixels(b: SceneBounds, fp: Footprint, settings: dict, *, thickness_ki
     tol = float(tolerance)
     fresnel, tint_set, tint_rs, bset = model_settings(b, settings)
     out = [fresnel]
-    harmonic = thickness_kind == "constant" and not dispersive
-    table = FilmTable(b, MAX_BOUNCES, tint_rs, [spectral_basis("reference")] + spectral_candidates(b.model, harmonic))
+    cands = spectral_candidates(b.model, harmonic=thickness_kind == "constant" and not dispersive)
+    table = FilmTable(b, MAX_BOUNCES, tint_rs, [spectral_basis("reference")] + cands)
     px = _Pixels(b, fp, table, tol)
     interference, d = _interference(px, settings.get("interference", "auto"), tol)
     out.append(d)
@@ -410,8 +410,7 @@ def decide_pixels(b: SceneBounds, fp: Footprint, settings: dict, *, thickness_ki
     if b.has_env and b.roughness > 0 and filt == "auto":
         _, hot = _split(px, FILTER_CANDIDATES, f_err, "filtering", hot)
     if coloured and spectral_setting == "auto":
-        _, hot = _split(px, spectral_candidates(b.model, harmonic) + [spectral_basis("reference")], s_err, "film",
-                        hot)
+        _, hot = _split(px, cands + [spectral_basis("reference")], s_err, "film", hot)
     if b.model == "physical" and bset == "auto":
         _, hot = _split(px, range(1, MAX_BOUNCES + 1), b_err, "bounces", hot)
     tail = np.zeros(fp.count, dtype=bool)
@@ -419,7 +418,7 @@ def decide_pixels(b: SceneBounds, fp: Footprint, settings: dict, *, thickness_ki
         if b.has_env and b.roughness > 0 and filt == "auto":
             tail = _tail(px, FILTER_CANDIDATES, f_err, "filtering", hot, tail)
         if coloured and spectral_setting == "auto":
-            tail = _tail(px, spectral_candidates(b.model, harmonic), s_err, "film", hot, tail)
+            tail = _tail(px, cands, s_err, "film", hot, tail)
         if b.model == "physical" and bset == "auto":
             tail = _tail(px, range(1, MAX_BOUNCES), b_err, "bounces", hot, tail)
     regions = [(~hot, ""), (hot & ~tail, f" in the {int((hot & ~tail).sum())} pixels whose light comes from a "
@@ -432,7 +431,7 @@ def decide_pixels(b: SceneBounds, fp: Footprint, settings: dict, *, thickness_ki
     fconf, d = _filter_decision(px, b, filt, knobs, f_err, masks, where)
     out.append(d)
     if coloured and spectral_setting == "auto":
-        bases, d = _spectral_decision(px, b, s_err, masks, where, harmonic)
+        bases, d = _spectral_decision(px, b, s_err, masks, where, cands + [spectral_basis("reference")])
     else:
         basis, d = decide_spectral(b, table, spectral_setting, interference, tol)
         bases = [basis] * len(masks)

@@ -36,7 +36,7 @@ from ..lighting.filtering import FilterConfig, specular
 from ..lighting.point_lights import lights_radiance
 from .bounds import MAX_BOUNCES
 from .effects import Effects
-from .geometry import front_hits, intersect_sphere
+from .geometry import hit_pixels, intersect_sphere
 from .modes import Model, ThicknessKind
 from .render import RenderConfig, shading_points
 from .thickness import thickness_at
@@ -156,7 +156,7 @@ def footprint(*, camera, center, radius: float, model: Model, roughness: float, 
     trace = _stored_trace(camera, tuple(center), float(radius), model, tuple(lights), background_kind, thickness_kind)
     # Only the pixels on the bubble are traced, padded to a multiple of PIXEL_BUCKET so that
     # scenes of one size share their compiled program.
-    idx = np.nonzero(np.asarray(front_hits(camera, tuple(center), float(radius))[0]))[0]
+    idx = hit_pixels(camera, tuple(center), float(radius))
     npx = idx.size
     pix = np.full(max(PIXEL_BUCKET, -(-npx // PIXEL_BUCKET) * PIXEL_BUCKET), idx[-1] if npx else 0, np.int32)
     pix[:npx] = idx

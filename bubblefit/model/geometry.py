@@ -27,6 +27,7 @@ __all__ = [
     "Hits",
     "intersect_sphere",
     "front_hits",
+    "hit_pixels",
     "internal_bounce",
     "pixel_offsets",
 ]
@@ -169,6 +170,15 @@ def front_hits(camera, center: tuple, radius: float):
     o, d = camera.rays(rows.astype(jnp.float32), cols.astype(jnp.float32), center, radius)
     hits = intersect_sphere(o, jnp.broadcast_to(d, o.shape), center, radius)
     return hits.inside, hits.cos, hits.local0
+
+
+@functools.lru_cache(maxsize=8)
+def hit_pixels(camera, center: tuple, radius: float) -> np.ndarray:
+    """Flat indices (numpy) of the pixels whose centre ray hits the sphere (:func:`front_hits`),
+    kept per camera: the footprint of ``auto`` and the renderer's regions read the same set."""
+    idx = np.flatnonzero(np.asarray(front_hits(camera, center, radius)[0]))
+    idx.flags.writeable = False
+    return idx
 
 
 def internal_bounce(p: Float[Array, "N 3"], e: Float[Array, "N 3"], center, radius):

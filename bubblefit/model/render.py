@@ -51,7 +51,7 @@ from ..optics import film, spectral
 from ..optics.dispersion import Cauchy, index_offset
 from .effects import Effects
 from .modes import COLOURED
-from .geometry import (OrthographicCamera, PerspectiveCamera, front_hits, internal_bounce, intersect_sphere,
+from .geometry import (OrthographicCamera, PerspectiveCamera, hit_pixels, internal_bounce, intersect_sphere,
                        pixel_offsets)
 from .thickness import thickness_at
 
@@ -448,10 +448,12 @@ def _backdrop(cfg: RenderConfig) -> RenderConfig:
 
 def bubble_pixels(cfg: RenderConfig) -> np.ndarray:
     """Flat indices of the pixels the bubble can touch: those whose centre ray hits it
-    (:func:`~bubblefit.model.geometry.front_hits`), grown by one pixel, which covers the
+    (:func:`~bubblefit.model.geometry.hit_pixels`), grown by one pixel, which covers the
     sub-pixel rays of ``samples_per_pixel`` and the rounding at the rim."""
     h, w = cfg.shape
-    inside = np.asarray(front_hits(cfg.camera, tuple(cfg.center), float(cfg.radius))[0]).reshape(h, w)
+    inside = np.zeros(h * w, dtype=bool)
+    inside[hit_pixels(cfg.camera, tuple(cfg.center), float(cfg.radius))] = True
+    inside = inside.reshape(h, w)
     grown = inside.copy()
     grown[1:] |= inside[:-1]
     grown[:-1] |= inside[1:]

@@ -10,9 +10,10 @@ the map about +y by ``rotation`` radians: a world direction ``w`` reads the map 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
-import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -209,7 +210,9 @@ def lookup_levels(atlas, shapes: tuple, d: Float[Array, "... 3"], level) -> Floa
     return top * (1 - fy) + bot * fy
 
 
-class EnvMap(eqx.Module):
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True, eq=False)
+class EnvMap:
     """An environment map with what filtering needs precomputed.
 
     Attributes:
@@ -223,7 +226,7 @@ class EnvMap(eqx.Module):
     pixels: Array
     atlas: Array
     irradiance: Array
-    shapes: tuple = eqx.field(static=True)
+    shapes: tuple = dataclasses.field(metadata=dict(static=True))
 
     @staticmethod
     def from_array(pixels, *, dtype=jnp.float32, sanitize: bool = True) -> "EnvMap":

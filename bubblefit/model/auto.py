@@ -107,6 +107,8 @@ class _Cells:
         # different thickness oscillates with the sums of their paths: its rows run from
         # the smallest path to the sum of the two largest (a grid that reaches that far,
         # :func:`~bubblefit.model.bounds.film_grids`).
+        # Flat positions in the (D + 1) x (C + 1) cells of _pair_max: one take per read.
+        self.flat = [ix * (b.c_grid.size + 1) + self.jc for ix in self.ix]
         xs = [path(fp.d0), path(fp.d1)]
         self.rows = [(self.ix[0], self.ix[0])]
         for k in range(len(fp.dq) + 1 if self.varies else 1):
@@ -120,7 +122,8 @@ class _Cells:
         film ``film`` (with a thickness field, over every row its light's path crosses)."""
         arr = np.asarray(arr)
         if film == 0 or not self.varies:
-            return _pair_max(arr)[self.ix[min(film, 1)], self.jc]
+            q = _pair_max(arr)
+            return np.take(q.reshape((-1,) + q.shape[2:]), self.flat[min(film, 1)], axis=0)
         lo, hi = self.rows[min(film + 1, len(self.rows) - 1)]  # bounce k: d0, d1 and dq[:k]
         return _range_max(_pair_max(arr), lo, hi, self.jc)
 

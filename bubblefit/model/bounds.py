@@ -99,9 +99,8 @@ def film_spectra(model, mode, lam, d, cos, t, n_film, sigma=None) -> np.ndarray:
     :func:`film.two_beam_reflectance` for ``physical``. One evaluation for all ``lam`` (K,).
     With ``sigma`` (K,) (a ``fourier`` basis) the lobe-filtered functions of
     :mod:`bubblefit.optics.film` instead. Compiled once per grid shape."""
-    return np.asarray(_film_spectra(model, mode, jnp.asarray(lam, jnp.float32), jnp.asarray(d, jnp.float32),
-                                    jnp.asarray(cos, jnp.float32), jnp.float32(t), jnp.float32(n_film),
-                                    None if sigma is None else jnp.asarray(sigma, jnp.float32)))
+    return np.asarray(_program(_film_spectra, model, mode)(_f32(lam), _f32(d), _f32(cos), _f32(t), _f32(n_film),
+                                                           None if sigma is None else _f32(sigma)))
 
 
 def harmonic_spectra(model, mode, bases: list[SpectralBasis], d, cos, t, n_film) -> list[tuple]:
@@ -110,8 +109,7 @@ def harmonic_spectra(model, mode, bases: list[SpectralBasis], d, cos, t, n_film)
     thickness), and each grid point's weights (D, C, K, 3)
     (:func:`bubblefit.optics.spectral.harmonic_weights`). One film evaluation for all."""
     phases = np.concatenate([bb.phases for bb in bases])
-    vals = np.asarray(_phase_spectra(model, mode, jnp.asarray(phases, jnp.float32), jnp.asarray(cos, jnp.float32),
-                                     jnp.float32(t), jnp.float32(n_film)))
+    vals = np.asarray(_program(_phase_spectra, model, mode)(_f32(phases), _f32(cos), _f32(t), _f32(n_film)))
     cos_t = np.sqrt(np.maximum(0.0, 1.0 - (1.0 - np.asarray(cos, np.float64) ** 2) / n_film**2))
     opd = 2.0 * np.asarray(d, np.float64) * n_film * cos_t[None, :]  # eq. (8)'s x
     offs = np.cumsum([0] + [bb.samples for bb in bases])
@@ -122,7 +120,20 @@ def harmonic_spectra(model, mode, bases: list[SpectralBasis], d, cos, t, n_film)
     return out
 
 
-@functools.partial(jax.jit, static_argnames=("model", "mode"))
+def _f32(x) -> np.ndarray:
+    """``x`` as float32 on the host (a conversion on the device would be one more program)."""
+    return np.asarray(x, dtype=np.float32)
+
+
+@functools.lru_cache(maxsize=None)
+def _program(fn, *static):
+    """``fn`` with its leading static arguments bound, jitted, through the executable store
+    (:func:`bubblefit.io.executables.stored`): a new process loads it rather than tracing it."""
+    from ..io.executables import stored
+
+    return stored(jax.jit(functools.partial(fn, *static)), f"model.bounds.{fn.__name__}", static)
+
+
 def _phase_spectra(model, mode, delta, cos, t, n_film):
     dl = delta[None, :]
     cc = cos[:, None]
@@ -132,7 +143,6 @@ def _phase_spectra(model, mode, delta, cos, t, n_film):
     return fn(dl, n_film, cc)
 
 
-@functools.partial(jax.jit, static_argnames=("model", "mode"))
 def _film_spectra(model, mode, lam, d, cos, t, n_film, sigma=None):
     dd = d[..., None]
     cc = cos[None, :, None]
@@ -186,7 +196,7 @@ def film_coefficients(model, mode, weights, spectra, cos, t, n_film, bounces, ti
         f = rgb(f)
         return {"front": f, "rear": [t * t * f], "background": bg}
     if grey:
-        r1 = np.asarray(_incoherent(jnp.asarray(cos, dtype=jnp.float32), jnp.float32(n_film)), dtype=np.float64)
+        r1 = np.asarray(_program(_incoherent)(_f32(cos), _f32(n_film)), dtype=np.float64)
         r = np.broadcast_to(r1[None, :, None, :], shape + (2,))
         pol = lambda x: np.broadcast_to(np.mean(x, axis=-1), x.shape[:-2] + (3,))
     else:
@@ -205,7 +215,6 @@ def film_coefficients(model, mode, weights, spectra, cos, t, n_film, bounces, ti
     return out
 
 
-@jax.jit
 def _incoherent(cos, n_film):
     return film.incoherent_reflectance(cos, n_film)
 

@@ -75,6 +75,14 @@ class Footprint:
             (F, N, 3) specular radiance each film reflects with it (plus the point lights).
         irr: (2, N, 3) irradiance at the front normal and at the rear film's inward normal.
         bg: (N, 3) the background radiance behind each pixel.
+        roughness, rotation, thickness: the parameters it was traced with (Ward's ``a``,
+            the map's rotation, the thickness field's values).
+        environment, lights: whether ``spec`` and ``irr`` hold the map's light and the
+            point lights' light.
+
+    The same rays, lookups and films as the renderer's at ``samples_per_pixel = 1``, so
+    :func:`~bubblefit.model.render.render_plan` shades these pixels from it without reading
+    the map again.
     """
 
     pixels: np.ndarray
@@ -87,6 +95,11 @@ class Footprint:
     spec: dict
     irr: np.ndarray
     bg: np.ndarray
+    roughness: float = 0.0
+    rotation: float = 0.0
+    thickness: np.ndarray | None = None
+    environment: bool = False
+    lights: bool = False
 
     @property
     def count(self) -> int:
@@ -160,8 +173,7 @@ def footprint(*, camera, center, radius: float, model: Model, roughness: float, 
     npx = idx.size
     pix = np.full(max(PIXEL_BUCKET, -(-npx // PIXEL_BUCKET) * PIXEL_BUCKET), idx[-1] if npx else 0, np.int32)
     pix[:npx] = idx
-    res = trace(env, jnp.float32(a), jnp.float32(rotation),
-                jnp.asarray(np.asarray(thickness_values, dtype=np.float64), jnp.float32), jnp.asarray(pix))
+    res = trace(env, np.float32(a), np.float32(rotation), np.asarray(thickness_values, dtype=np.float32), pix)
     res = {k: _first_pixels(np.asarray(v, dtype=np.float64), npx) for k, v in res.items()}
     nf = MAX_BOUNCES + 1 if model == "physical" else 2
     names = ("front", "rear") if model == "paper" else ("front",) + tuple(f"bounce{k}" for k in range(1, nf))
@@ -179,7 +191,9 @@ def footprint(*, camera, center, radius: float, model: Model, roughness: float, 
     if background_kind == "photo" and background is not None:
         bg = np.asarray(background, dtype=np.float64).reshape(-1, 3)[idx]
     return Footprint(pixels=idx, shape=(camera.height, camera.width), films=names, cos=res["cos"],
-                     d0=res["d0"], d1=res["d1"], dq=res.get("dq", np.zeros((0, npx))), spec=spec, irr=irr, bg=bg)
+                     d0=res["d0"], d1=res["d1"], dq=res.get("dq", np.zeros((0, npx))), spec=spec, irr=irr, bg=bg,
+                     roughness=a, rotation=float(rotation), thickness=np.asarray(thickness_values, dtype=np.float64),
+                     environment=env is not None, lights=bool(lights))
 
 
 def filter_key(conf: FilterConfig) -> str:

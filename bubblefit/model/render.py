@@ -38,7 +38,6 @@ import dataclasses
 import functools
 from dataclasses import dataclass
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -62,7 +61,9 @@ __all__ = ["Params", "RenderConfig", "render", "render_terms", "render_plan", "s
 TRACE_COUNTS: collections.Counter = collections.Counter()
 
 
-class Params(eqx.Module):
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True, eq=False)
+class Params:
     """Differentiable parameters of the forward model (scalars unless said otherwise).
 
     Attributes:
@@ -322,6 +323,30 @@ def _physical_terms(fx: Effects, p: Params, opt: "_Film", refl: dict, d0, d1, ex
     return terms
 
 
+def _film_setup(p: Params, cfg: RenderConfig):
+    """``(p, lam)``: the parameters with the film index per wavelength when the film
+    disperses, and the basis' wavelengths (None for a grey film or the harmonic basis)."""
+    basis = cfg.effects.spectral
+    dtype = p.t.dtype
+    lam = jnp.asarray(basis.wavelengths, dtype=dtype) if basis is not None and basis.phases is None else None
+    if cfg.dispersion is not None and basis is not None:  # n per wavelength (K,)
+        if lam is None:
+            raise ValueError("the harmonic spectral basis needs a non-dispersive film index")
+        offset = jnp.asarray(index_offset(cfg.dispersion, basis.wavelengths), dtype=dtype)
+        p = dataclasses.replace(p, n_film=p.n_film + offset)
+    return p, lam
+
+
+def _terms(p: Params, cfg: RenderConfig, lam, cos, d0, d1, exits, thick, refl, bg_rad) -> dict:
+    """The model's terms (eq. 11, or the physical series) from the films' geometry and light."""
+    fx = cfg.effects
+    opt = _Film(fx, p, cos, lam, d0)
+    photo_bg = fx.background == "photo"
+    if fx.model == "paper":
+        return _paper_terms(fx, p, opt, refl, d0, d1, bg_rad, photo_bg)
+    return _physical_terms(fx, p, opt, refl, d0, d1, exits, thick, bg_rad, photo_bg)
+
+
 def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx):
     """Radiance (N, 3) of one chunk of pixels, and a dict of the model's terms."""
     fx = cfg.effects
@@ -331,19 +356,11 @@ def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx)
     else:
         o, d = cfg.camera.rays(rows.astype(dtype), cols.astype(dtype), cfg.center, cfg.radius)
     hits = intersect_sphere(o, d, cfg.center, cfg.radius)
-    basis = fx.spectral
-    lam = jnp.asarray(basis.wavelengths, dtype=dtype) if basis is not None and basis.phases is None else None
-    if cfg.dispersion is not None and basis is not None:  # n per wavelength (K,)
-        if lam is None:
-            raise ValueError("the harmonic spectral basis needs a non-dispersive film index")
-        offset = jnp.asarray(index_offset(cfg.dispersion, basis.wavelengths), dtype=dtype)
-        p = eqx.tree_at(lambda q: q.n_film, p, p.n_film + offset)
+    p, lam = _film_setup(p, cfg)
     thick = lambda local: thickness_at(fx.thickness, p.thickness, local, idx)
     d0 = thick(hits.local0)
     d1 = thick(hits.local1)
-    opt = _Film(fx, p, hits.cos, lam, d0)
     bg_rad = _background(env, fx, p, d, bg, idx)
-    photo_bg = fx.background == "photo"
 
     # Shading points of every film this scene needs, filtered in one batch.
     films, exits = shading_points(fx, cfg, hits, d)
@@ -354,23 +371,112 @@ def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx)
                                   jnp.concatenate([f[2] for f in films]), normalize=fx.model == "physical")
         split = lambda x: jnp.split(x, nn) if jnp.ndim(x) else [x] * nn
         refl = dict(zip([f[0] for f in films], zip(split(s_all), split(d_all))))
-    if fx.model == "paper":
-        terms = _paper_terms(fx, p, opt, refl, d0, d1, bg_rad, photo_bg)
-    else:
-        terms = _physical_terms(fx, p, opt, refl, d0, d1, exits, thick, bg_rad, photo_bg)
+    terms = _terms(p, cfg, lam, hits.cos, d0, d1, exits, thick, refl, bg_rad)
 
     total = jnp.zeros(d.shape, dtype=dtype)
     for v in terms.values():
         total = total + v
     inside = hits.inside[:, None]
-    outside = bg_rad if photo_bg else p.exposure * bg_rad
+    outside = bg_rad if fx.background == "photo" else p.exposure * bg_rad
     pixel = jnp.where(inside, total, outside)
     return pixel, {k: jnp.where(inside, v, 0.0) for k, v in terms.items()}
+
+
+def _film_names(fx: Effects) -> list[str]:
+    """The films :func:`shading_points` returns for ``fx``, in its order."""
+    names = ["front"] if fx.front_reflection else []
+    if fx.rear_reflection:
+        names += ["rear"] if fx.model == "paper" else [f"bounce{k}" for k in range(1, fx.bounces + 1)]
+    return names
+
+
+def _shade_lit(p: Params, cfg: RenderConfig, lit: dict):
+    """Radiance (N, 3) of pixels that hit the bubble, from their traced films and light
+    (:func:`lit_chunks`, from a :class:`~bubblefit.model.footprint.Footprint`): the terms of
+    :func:`_shade_chunk` without tracing the rays or reading the map again."""
+    fx = cfg.effects
+    p, lam = _film_setup(p, cfg)
+    names = _film_names(fx)
+    # The counts of the effects this program simulates, as _shade_chunk records them.
+    if fx.environment and names:
+        _count(f"filter_{fx.filtering.method}")
+    if fx.point_lights and cfg.point_lights and names:
+        _count("point_lights")
+    if fx.diffuse and names and (fx.environment or (fx.point_lights and cfg.point_lights)):
+        _count("diffuse")
+    if fx.background == "envmap" and fx.environment:
+        _count("background_lookup")
+    for name in names:
+        if name.startswith("bounce"):
+            _count("bounce")
+    zero = jnp.zeros_like(lit["bg"])
+    refl = {}
+    for i, name in enumerate(names):
+        diffuse = fx.diffuse and name in ("front", "rear", "bounce1")
+        dif = p.r_d / jnp.pi * lit["irr"][0 if name == "front" else 1] if diffuse else zero
+        refl[name] = (lit["spec"][i], dif)
+    d0 = lit["d0"]
+    dq = lit.get("dq")
+    thick = (lambda k: dq[k]) if dq is not None else (lambda k: d0)
+    exits = list(range(fx.bounces)) if fx.model == "physical" and fx.rear_reflection else []
+    terms = _terms(p, cfg, lam, lit["cos"], d0, lit["d1"], exits, thick, refl, lit["bg"])
+    total = zero
+    for v in terms.values():
+        total = total + v
+    return total
+
+
+def _lit_usable(fp, p: Params, cfg: RenderConfig) -> bool:
+    """Whether ``cfg``'s pixels can be shaded from the footprint ``fp``: its rays and lookups
+    are the ones this render would trace (one ray per pixel, the camera's own disc, a filter
+    ``fp`` measured, the same parameters and the same lights)."""
+    from .footprint import filter_key
+
+    fx = cfg.effects
+    if fp is None or cfg.samples_per_pixel != 1 or filter_key(fx.filtering) not in fp.spec:
+        return False
+    if np.any(np.asarray(p.disc) != 0) and isinstance(cfg.camera, OrthographicCamera):
+        return False
+    names = _film_names(fx)
+    if any(n not in fp.films for n in names):
+        return False
+    if fx.environment != fp.environment or bool(fx.point_lights and cfg.point_lights) != fp.lights:
+        return False
+    same = lambda a, b: np.allclose(np.asarray(a, dtype=np.float32), np.asarray(b, dtype=np.float32), rtol=1e-6,
+                                    atol=0.0)
+    return (same(p.roughness, fp.roughness) and same(p.rotation, fp.rotation)
+            and same(np.asarray(p.thickness).ravel(), np.asarray(fp.thickness).ravel()))
+
+
+def lit_chunks(fp, cfg: RenderConfig, pixels, chunk: int, dtype=np.float32):
+    """The footprint's values for ``pixels`` (flat indices, all in ``fp.pixels``), padded
+    and split into chunks of ``chunk`` along a leading axis, as :func:`_shade_lit` reads them."""
+    from .footprint import filter_key
+
+    fx = cfg.effects
+    pos = np.searchsorted(fp.pixels, pixels)
+    n = pos.size
+    steps = -(-n // chunk)
+    pos = pos[np.minimum(np.arange(steps * chunk), n - 1)]
+    spec = fp.spec[filter_key(fx.filtering)]
+    films = [fp.films.index(name) for name in _film_names(fx)]
+    lit = {"cos": fp.cos[pos].reshape(steps, chunk), "d0": fp.d0[pos].reshape(steps, chunk),
+           "d1": fp.d1[pos].reshape(steps, chunk), "bg": fp.bg[pos].reshape(steps, chunk, 3),
+           "spec": spec[films][:, pos].reshape(len(films), steps, chunk, 3).transpose(1, 0, 2, 3),
+           "irr": fp.irr[:, pos].reshape(2, steps, chunk, 3).transpose(1, 0, 2, 3)}
+    if fx.thickness != "constant" and fx.model == "physical" and fx.rear_reflection and fx.bounces:
+        lit["dq"] = fp.dq[: fx.bounces, pos].reshape(fx.bounces, steps, chunk).transpose(1, 0, 2)
+    return {k: np.ascontiguousarray(v, dtype=dtype) for k, v in lit.items()}, n
 
 
 #: Fewest pixels of a chunk: a region's pixel count is rounded up to a power of two from
 #: here, so that regions of similar size share one compiled program.
 MIN_CHUNK = 256
+
+
+def _chunk_size(cfg: RenderConfig, npix: int) -> int:
+    """``cfg.chunk``, or the power of two (at least :data:`MIN_CHUNK`) that holds ``npix``."""
+    return max(1, min(cfg.chunk, 1 << max(MIN_CHUNK.bit_length() - 1, (npix - 1).bit_length())))
 
 
 def _pixel_chunks(cfg: RenderConfig, pixels=None):
@@ -380,7 +486,7 @@ def _pixel_chunks(cfg: RenderConfig, pixels=None):
     h, w = cfg.shape
     flat = np.arange(h * w) if pixels is None else np.asarray(pixels, dtype=np.int64).ravel()
     npix = flat.size
-    chunk = max(1, min(cfg.chunk, 1 << max(MIN_CHUNK.bit_length() - 1, (npix - 1).bit_length())))
+    chunk = _chunk_size(cfg, npix)
     steps = -(-npix // chunk)
     idx = flat[np.minimum(np.arange(steps * chunk), npix - 1)]
     rows, cols = np.divmod(idx, w)
@@ -436,6 +542,15 @@ def _stored_programs(cfg: RenderConfig):
     return stored(whole, "model.render.render", cfg), stored(chunks, "model.render._render_chunks", cfg)
 
 
+@functools.lru_cache(maxsize=32)
+def _stored_lit(cfg: RenderConfig):
+    """:func:`_shade_lit` over chunks for ``cfg``, through the executable store."""
+    from ..io.executables import stored
+
+    fn = jax.jit(lambda p, lit: jax.lax.map(lambda c: _shade_lit(p, cfg, c), lit).reshape(-1, 3))
+    return stored(fn, "model.render._shade_lit", cfg)
+
+
 def _backdrop(cfg: RenderConfig) -> RenderConfig:
     """``cfg`` with every term of the bubble off: the image of what lies behind it (the
     background photo, the map, or black), shaded like any pixel the bubble misses."""
@@ -462,7 +577,7 @@ def bubble_pixels(cfg: RenderConfig) -> np.ndarray:
     return np.flatnonzero(grown)
 
 
-def render_plan(p: Params, parts, env: EnvMap | None, background=None) -> np.ndarray:
+def render_plan(p: Params, parts, env: EnvMap | None, background=None, *, footprint=None) -> np.ndarray:
     """The (H, W, 3) image of a scene rendered by regions (:class:`bubblefit.model.auto.Plan`).
 
     ``parts`` pairs :class:`RenderConfig` with flat pixel indices: the first (indices
@@ -470,6 +585,11 @@ def render_plan(p: Params, parts, env: EnvMap | None, background=None) -> np.nda
     pixels with its own effects. Pixels the bubble cannot touch (:func:`bubble_pixels`)
     take the backdrop (:func:`_backdrop`), which no bubble term is traced for. A pixel's
     value does not depend on the other pixels, so the regions compose exactly.
+
+    With ``footprint`` (the scene's :class:`~bubblefit.model.footprint.Footprint`, traced
+    with these parameters) a region of one ray per pixel is shaded from the light the
+    footprint already read (:func:`_shade_lit`): the same values, without a second pass
+    over the map. Its pixels that the bubble misses keep the backdrop, as they would here.
     """
     cfg0 = parts[0][0]
     h, w = cfg0.shape
@@ -483,7 +603,15 @@ def render_plan(p: Params, parts, env: EnvMap | None, background=None) -> np.nda
     for cfg, pixels in [(cfg0, rest)] + [(c, px) for c, px in parts[1:]]:
         if pixels is None or len(pixels) == 0:
             continue
-        rows, cols, idx, npix = _pixel_chunks(cfg, pixels)
-        vals = _stored_programs(cfg)[1](p, env, background, rows, cols, idx)
-        img[np.asarray(pixels)] = np.asarray(vals)[:npix]
+        pixels = np.asarray(pixels, dtype=np.int64).ravel()
+        if _lit_usable(footprint, p, cfg):
+            pixels = pixels[np.isin(pixels, footprint.pixels)]
+            if pixels.size == 0:
+                continue
+            lit, npix = lit_chunks(footprint, cfg, pixels, _chunk_size(cfg, pixels.size), np.dtype(p.t.dtype))
+            vals = _stored_lit(cfg)(p, lit)
+        else:
+            rows, cols, idx, npix = _pixel_chunks(cfg, pixels)
+            vals = _stored_programs(cfg)[1](p, env, background, rows, cols, idx)
+        img[pixels] = np.asarray(vals)[:npix]
     return img.reshape(h, w, 3)

@@ -233,6 +233,12 @@ class Scene:
         with the flat pixel indices it renders (None for every pixel), for
         :func:`~bubblefit.model.render.render_plan`.
         """
+        parts, decisions, _ = self.plan_with_footprint(env, background, chunk=chunk)
+        return parts, decisions
+
+    def plan_with_footprint(self, env=None, background=None, *, chunk: int = 4096):
+        """:meth:`plan` and the :class:`~bubblefit.model.footprint.Footprint` it decided from,
+        which :func:`~bubblefit.model.render.render_plan` shades the bubble's pixels from."""
         e = self.table("effects")
         tol = float(e.get("tolerance", DEFAULT_TOLERANCE))
         nodes = int(e.get("nodes", ALL_ON_NODES))
@@ -262,7 +268,7 @@ class Scene:
                                point_lights=lights, chunk=chunk,
                                dispersion=law, samples_per_pixel=spp)
             parts.append((cfg, pixels))
-        return parts, decisions
+        return parts, decisions, fp
 
     def config(self, env=None, background=None, *, chunk: int = 4096):
         """Resolve the effects and return ``(RenderConfig, decisions)``: the configuration of
@@ -322,8 +328,8 @@ def render_scene(scene: Scene, background: np.ndarray | None = None, *, env=None
         scene = Scene(dict(scene.data, lighting=dict(scene.table("lighting"), background="photo")), scene.base_dir)
         if "background" not in scene.data["lighting"]:
             scene.data["lighting"]["background"] = "photo"
-    parts, decisions = scene.plan(env, background)
+    parts, decisions, fp = scene.plan_with_footprint(env, background)
     if parts[0][0].effects.background == "photo" and background is None:
         raise InputError("lighting.background names a photo that could not be read")
-    img = render_plan(scene.params(), parts, env, background)
+    img = render_plan(scene.params(), parts, env, background, footprint=fp)
     return (img, decisions) if explain else img

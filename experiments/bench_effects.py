@@ -239,28 +239,36 @@ mi.util.write_bitmap(out, mi.render(scene))
 '''
 
 
-def yardstick(size: int, mitsuba_python: str) -> dict:
+def yardstick(size: int, mitsuba_python: str, repeats: int = 3) -> dict:
     """Whole-process seconds of ``bubblefit render`` (256x256 physical, defaults; a cold and
-    a warm persistent compilation cache) and of Mitsuba 3 at 64 spp, in this run."""
-    out = {}
+    then warm persistent compilation cache) and of Mitsuba 3 at 64 spp, in this run: the
+    warm runs and Mitsuba's alternate, ``repeats`` of each, and the ratio is of medians."""
+    out = {"bubblefit_warm_runs_s": [], "mitsuba_runs_s": []}
     with tempfile.TemporaryDirectory() as tmp:
         scene = Path(tmp) / "bubble.toml"
         scene.write_text(f'[camera]\nwidth = {size}\nheight = {size}\n[lighting]\nenvmap = "{MAPS / "sunrise.exr"}"\n'
                          '[effects]\nmodel = "physical"\n')
         env = dict(os.environ, BUBBLEFIT_CACHE_DIR=str(Path(tmp) / "cache"), JAX_PLATFORMS="cpu",
                    PYTHONPATH=str(HERE.parent))
-        for label in ("bubblefit_cold_s", "bubblefit_warm_s"):
+
+        def clock(cmd, **kw) -> float:
             t0 = time.perf_counter()
-            subprocess.run([sys.executable, "-m", "bubblefit", "render", str(scene), "-o", str(Path(tmp) / "b.exr")],
-                           check=True, env=env, capture_output=True)
-            out[label] = time.perf_counter() - t0
-        if Path(mitsuba_python).exists():
-            t0 = time.perf_counter()
-            subprocess.run([mitsuba_python, "-c", MITSUBA_SCRIPT, str(size), str(MAPS / "sunrise.exr"),
-                            str(Path(tmp) / "m.exr")], check=True, capture_output=True)
-            out["mitsuba_64spp_s"] = time.perf_counter() - t0
-            out["ratio_warm"] = out["bubblefit_warm_s"] / out["mitsuba_64spp_s"]
-            out["ratio_cold"] = out["bubblefit_cold_s"] / out["mitsuba_64spp_s"]
+            subprocess.run(cmd, check=True, capture_output=True, **kw)
+            return time.perf_counter() - t0
+
+        bubblefit = [sys.executable, "-m", "bubblefit", "render", str(scene), "-o", str(Path(tmp) / "b.exr")]
+        mitsuba = [mitsuba_python, "-c", MITSUBA_SCRIPT, str(size), str(MAPS / "sunrise.exr"), str(Path(tmp) / "m.exr")]
+        have_mitsuba = Path(mitsuba_python).exists()
+        out["bubblefit_cold_s"] = clock(bubblefit, env=env)
+        for _ in range(repeats):
+            out["bubblefit_warm_runs_s"].append(clock(bubblefit, env=env))
+            if have_mitsuba:
+                out["mitsuba_runs_s"].append(clock(mitsuba))
+    out["bubblefit_warm_s"] = statistics.median(out["bubblefit_warm_runs_s"])
+    if out["mitsuba_runs_s"]:
+        out["mitsuba_64spp_s"] = statistics.median(out["mitsuba_runs_s"])
+        out["ratio_warm"] = out["bubblefit_warm_s"] / out["mitsuba_64spp_s"]
+        out["ratio_cold"] = out["bubblefit_cold_s"] / out["mitsuba_64spp_s"]
     return out
 
 
@@ -346,6 +354,13 @@ def main(argv=None) -> int:
     if args.yardstick:
         meta["yardstick"] = yardstick(256, args.mitsuba_python)
         print("yardstick:", meta["yardstick"])
+    if not rows:  # --scenes '': the yardstick alone
+        from bubblefit.cli.common import write_json
+
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+        write_json(Path(args.out) / "yardstick.json", meta)
+        print(f"wrote {args.out}/yardstick.json")
+        return 0
     write_outputs(rows, Path(args.out), meta)
     print(markdown_table(rows))
     for r in rows:

@@ -20,14 +20,33 @@ The fit of one photograph runs in stages, each in its own module:
 - :mod:`.spectrum`: film thickness from a spectrometer reading (global profile likelihood).
 """
 
-from . import fit, search, sequence, spectrum
-from ._disc import Disc, find_bubble
-from ._observation import detect_disc, noise_sigma
-from ._options import FitOptions, FitResult, FitStatus, ForwardModel, ThicknessModel
-from ._parameters import PARAMETERS, Parameter, ParameterTable
-from .fit import fit_batch, fit_photo
-from .sequence import SequenceOptions, SequenceResult, fit_sequence
-from .spectrum import SpectrumFit, SpectrumOptions, fit_spectrum
+import importlib
+
+# Names of the public namespace and the module each comes from; a submodule is imported
+# when one of its names is first used (PEP 562), so that a fit does not import the
+# spectrometer or sequence code and their libraries.
+_EXPORTS = {
+    "Disc": "_disc", "find_bubble": "_disc", "detect_disc": "_observation", "noise_sigma": "_observation",
+    "FitOptions": "_options", "FitResult": "_options", "FitStatus": "_options", "ForwardModel": "_options",
+    "ThicknessModel": "_options", "PARAMETERS": "_parameters", "Parameter": "_parameters",
+    "ParameterTable": "_parameters", "fit_batch": "fit", "fit_photo": "fit", "SequenceOptions": "sequence",
+    "SequenceResult": "sequence", "fit_sequence": "sequence", "SpectrumFit": "spectrum",
+    "SpectrumOptions": "spectrum", "fit_spectrum": "spectrum",
+}
+_SUBMODULES = ("fit", "search", "sequence", "spectrum")
+
+
+def __getattr__(name: str):
+    if name in _SUBMODULES:
+        return importlib.import_module(f"{__name__}.{name}")
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(__all__)
+
 
 __all__ = ["fit", "search", "sequence", "spectrum", "FitOptions", "FitResult", "FitStatus", "ForwardModel",
            "ThicknessModel", "fit_batch", "fit_photo", "Disc", "detect_disc", "find_bubble", "noise_sigma",

@@ -59,7 +59,7 @@ from ._setup import Setup, defaults, setup
 from ._uncertainty import uncertainty
 from ._verdict import at_bounds, unresolved, verdict
 from ..lighting.envmap import EnvMap
-from ..model.render import render
+from ..model.render import render_loaded
 from ..model.thickness import drainage_profile
 from ..progress import stage
 
@@ -164,8 +164,8 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
         thickness_map = np.where(full.inside, np.asarray(drainage_profile(jnp.asarray(full.height), *prof)), np.nan)
     p_final = table.render_params({k: jnp.asarray(v, jnp.float32) for k, v in final_vals.items()},
                                   "map" if opts.thickness == "map" else None)
-    img = np.asarray(render(p_final, full.cfg, env, None if st.background is None
-                            else jnp.asarray(st.background, jnp.float32)), np.float64)
+    img = np.asarray(render_loaded(p_final, full.cfg, env, None if st.background is None
+                                   else jnp.asarray(st.background, jnp.float32)), np.float64)
     resid_img = st.photo - img
     rms = float(np.sqrt(np.mean(resid_img[full.mask] ** 2))) if full.mask.any() else float("nan")
     reported["n_film"] = float(st.vals["n_film"])

@@ -43,7 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._parameters import ParameterTable
-from ..model.render import render_terms
+from ..model.render import render_loaded, render_terms
 from ..optics import spectral
 from ..optics import film
 from ..optics.dispersion import index_offset
@@ -294,12 +294,6 @@ def best_profile(cost: np.ndarray, grid: np.ndarray, height: np.ndarray,
 # ---------------------------------------------------------------------------------------
 
 
-@functools.partial(jax.jit, static_argnames=("cfg",))
-def render_terms_jit(p, cfg, env, bg):
-    """:func:`bubblefit.model.render.render_terms`, jitted per configuration."""
-    return render_terms(p, cfg, env, bg)
-
-
 def unlit_terms(lev, table: ParameterTable, vals: dict, env):
     """``(M, C)`` (P, 3) over the fitted pixels of ``lev``: the reflected radiance of both
     films rendered with interference off at ``vals`` (gain included) and the transmitted
@@ -307,8 +301,8 @@ def unlit_terms(lev, table: ParameterTable, vals: dict, env):
     fx = lev.cfg.effects
     off = replace(lev.cfg, effects=replace(fx, interference="off", spectral=None, thickness="constant"))
     v = {k: jnp.asarray(x, jnp.float32) for k, x in dict(vals, thickness_nm=0.0).items() if k != "map"}
-    _, terms = render_terms_jit(table.render_params(v, "constant"), off, env,
-                                None if lev.bg is None else jnp.asarray(lev.bg))
+    _, terms = render_loaded(table.render_params(v, "constant"), off, env,
+                             None if lev.bg is None else jnp.asarray(lev.bg), terms=True)
     zero = jnp.zeros(lev.y.shape, jnp.float32)
     sel = lev.mask.reshape(-1)
     m = np.asarray(terms.get("front", zero) + terms.get("rear", zero)).reshape(-1, 3)[sel]

@@ -54,8 +54,8 @@ from .geometry import (OrthographicCamera, PerspectiveCamera, hit_pixels, intern
                        pixel_offsets)
 from .thickness import thickness_at
 
-__all__ = ["Params", "RenderConfig", "render", "render_terms", "render_plan", "shading_points", "TRACE_COUNTS",
-           "PointLight"]
+__all__ = ["Params", "RenderConfig", "render", "render_terms", "render_loaded", "render_plan", "shading_points",
+           "TRACE_COUNTS", "PointLight"]
 
 #: How many times each term of the model has been traced (for tests of ``effects``).
 TRACE_COUNTS: collections.Counter = collections.Counter()
@@ -540,6 +540,21 @@ def _stored_programs(cfg: RenderConfig):
     whole = jax.jit(lambda p, env, bg: render(p, cfg, env, bg))
     chunks = jax.jit(lambda p, env, bg, rows, cols, idx: _render_chunks(p, cfg, env, bg, rows, cols, idx))
     return stored(whole, "model.render.render", cfg), stored(chunks, "model.render._render_chunks", cfg)
+
+
+@functools.lru_cache(maxsize=16)
+def _stored_terms(cfg: RenderConfig):
+    """:func:`render_terms` for ``cfg`` through the executable store."""
+    from ..io.executables import stored
+
+    return stored(jax.jit(lambda p, env, bg: render_terms(p, cfg, env, bg)), "model.render.render_terms", cfg)
+
+
+def render_loaded(p: Params, cfg: RenderConfig, env: EnvMap | None, background=None, *, terms: bool = False):
+    """:func:`render` (or with ``terms``, :func:`render_terms`) through the executable store
+    (:func:`bubblefit.io.executables.stored`): the same values, and a command's process
+    loads the compiled program instead of tracing and lowering it. Concrete arrays only."""
+    return (_stored_terms(cfg) if terms else _stored_programs(cfg)[0])(p, env, background)
 
 
 @functools.lru_cache(maxsize=32)

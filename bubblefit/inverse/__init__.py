@@ -48,7 +48,4 @@ def __dir__():
     return sorted(__all__)
 
 
-__all__ = ["fit", "search", "sequence", "spectrum", "FitOptions", "FitResult", "FitStatus", "ForwardModel",
-           "ThicknessModel", "fit_batch", "fit_photo", "Disc", "detect_disc", "find_bubble", "noise_sigma",
-           "PARAMETERS", "Parameter", "ParameterTable", "SequenceOptions", "SequenceResult", "fit_sequence",
-           "SpectrumFit", "SpectrumOptions", "fit_spectrum"]
+__all__ = [*_SUBMODULES, *_EXPORTS]

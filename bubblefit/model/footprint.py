@@ -38,7 +38,7 @@ from .bounds import MAX_BOUNCES
 from .effects import Effects
 from .geometry import hit_pixels, intersect_sphere
 from .modes import Model, ThicknessKind
-from .render import RenderConfig, shading_points
+from .render import RenderConfig, film_names, shading_points
 from .thickness import thickness_at
 
 __all__ = ["Footprint", "footprint", "pixel_budget", "filter_key", "FILTER_CANDIDATES", "REFERENCE_FILTER",
@@ -106,6 +106,11 @@ class Footprint:
         return int(self.pixels.size)
 
 
+def _probe(model: Model) -> Effects:
+    """The effects whose films the footprint traces: both reflections and every bounce."""
+    return Effects(model=model, front_reflection=True, rear_reflection=True, bounces=MAX_BOUNCES)
+
+
 @functools.partial(jax.jit, static_argnames=("camera", "center", "radius", "model", "lights", "background_kind",
                                              "thickness_kind"))
 def _trace(env, background, roughness, rotation, thickness_values, pix, *, camera, center, radius, model, lights,
@@ -117,7 +122,7 @@ def _trace(env, background, roughness, rotation, thickness_values, pix, *, camer
     o, d = camera.rays(rows.astype(jnp.float32), cols.astype(jnp.float32), center, radius)
     d = jnp.broadcast_to(d, o.shape)
     hits = intersect_sphere(o, d, center, radius)
-    probe = Effects(model=model, front_reflection=True, rear_reflection=True, bounces=MAX_BOUNCES)
+    probe = _probe(model)
     films, exits = shading_points(probe, RenderConfig(effects=probe, camera=camera, center=center, radius=radius),
                                   hits, d)
     n_all = jnp.stack([f[1] for f in films])
@@ -175,8 +180,8 @@ def footprint(*, camera, center, radius: float, model: Model, roughness: float, 
     pix[:npx] = idx
     res = trace(env, np.float32(a), np.float32(rotation), np.asarray(thickness_values, dtype=np.float32), pix)
     res = {k: _first_pixels(np.asarray(v, dtype=np.float64), npx) for k, v in res.items()}
-    nf = MAX_BOUNCES + 1 if model == "physical" else 2
-    names = ("front", "rear") if model == "paper" else ("front",) + tuple(f"bounce{k}" for k in range(1, nf))
+    names = tuple(film_names(_probe(model)))
+    nf = len(names)
     spec = {_key(c): np.zeros((nf, npx, 3)) for c in FILTER_CANDIDATES}
     irr = np.zeros((2, npx, 3))
     bg = np.zeros((npx, 3))

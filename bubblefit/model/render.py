@@ -382,7 +382,7 @@ def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx)
     return pixel, {k: jnp.where(inside, v, 0.0) for k, v in terms.items()}
 
 
-def _film_names(fx: Effects) -> list[str]:
+def film_names(fx: Effects) -> list[str]:
     """The films :func:`shading_points` returns for ``fx``, in its order."""
     names = ["front"] if fx.front_reflection else []
     if fx.rear_reflection:
@@ -396,7 +396,7 @@ def _shade_lit(p: Params, cfg: RenderConfig, lit: dict):
     :func:`_shade_chunk` without tracing the rays or reading the map again."""
     fx = cfg.effects
     p, lam = _film_setup(p, cfg)
-    names = _film_names(fx)
+    names = film_names(fx)
     # The counts of the effects this program simulates, as _shade_chunk records them.
     if fx.environment and names:
         _count(f"filter_{fx.filtering.method}")
@@ -437,7 +437,7 @@ def _lit_usable(fp, p: Params, cfg: RenderConfig) -> bool:
         return False
     if np.any(np.asarray(p.disc) != 0) and isinstance(cfg.camera, OrthographicCamera):
         return False
-    names = _film_names(fx)
+    names = film_names(fx)
     if any(n not in fp.films for n in names):
         return False
     if fx.environment != fp.environment or bool(fx.point_lights and cfg.point_lights) != fp.lights:
@@ -459,7 +459,7 @@ def lit_chunks(fp, cfg: RenderConfig, pixels, chunk: int, dtype=np.float32):
     steps = -(-n // chunk)
     pos = pos[np.minimum(np.arange(steps * chunk), n - 1)]
     spec = fp.spec[filter_key(fx.filtering)]
-    films = [fp.films.index(name) for name in _film_names(fx)]
+    films = [fp.films.index(name) for name in film_names(fx)]
     lit = {"cos": fp.cos[pos].reshape(steps, chunk), "d0": fp.d0[pos].reshape(steps, chunk),
            "d1": fp.d1[pos].reshape(steps, chunk), "bg": fp.bg[pos].reshape(steps, chunk, 3),
            "spec": spec[films][:, pos].reshape(len(films), steps, chunk, 3).transpose(1, 0, 2, 3),

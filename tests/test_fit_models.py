@@ -50,9 +50,9 @@ def test_auto_keeps_the_model_that_explains_the_photo(physical_photo):
     assert "model auto" in auto.message
     if paper.converged and paper.chi2_floor <= 3.0:
         assert auto.model == "paper"  # explained: no second fit
-    else:
-        assert auto.chi2_floor <= paper.chi2_floor + 1e-9
-        assert auto.model == ("physical" if auto.chi2_floor < paper.chi2_floor else "paper")
+    else:  # the misfit auto compares: each pixel's chi^2 capped at an outlier's
+        assert auto.chi2_capped <= paper.chi2_capped + 1e-9
+        assert auto.model == ("physical" if auto.chi2_capped < paper.chi2_capped else "paper")
     assert abs(auto.params["thickness_nm"] - 480.0) < 10.0
 
 
@@ -197,3 +197,59 @@ def test_refined_disc_in_pixels_with_its_model_error():
     assert se["r"] == pytest.approx(0.1) and np.isnan(se["cy"])
     assert set(reported) == {"thickness_nm"} and set(stderr) == {"thickness_nm"}
     assert refined_disc((10.0, 20.0, 50.0), {"thickness_nm": 500.0}, {}, 0.002) == ((10.0, 20.0, 50.0), None)
+
+
+def test_outliers_are_told_apart_from_a_misfit():
+    """A few pixels far off (a glint the render point-samples) against a misfit spread over
+    the film: the reduced chi^2 of the rest, the outliers' share and the capped figure,
+    computed here from the definitions (each pixel's variance sigma^2 + (0.03 y)^2; an
+    outlier's chi^2 over its three channels above 30). Neither fit is ok; the warning
+    says which misfit is local."""
+    from types import SimpleNamespace
+
+    from bubblefit.inverse._local import LocalSolution
+    from bubblefit.inverse._uncertainty import misfit
+    from bubblefit.inverse._verdict import verdict
+
+    rng = np.random.default_rng(5)
+    h = w = 40
+    y = rng.uniform(0.05, 0.6, (h, w, 3)).astype(np.float32)
+    sigma = np.full((h, w, 3), 0.01, np.float32)
+    mask = np.ones((h, w), bool)
+    mask[:4] = False  # pixels the fit does not use
+    wts = np.where(mask[..., None], 1.0 / sigma, 0.0).astype(np.float32)
+    lev = SimpleNamespace(y=y, w=wts)
+
+    def solve(lin):  # a solution whose residual (render - photo) is ``lin`` in linear units
+        r = (lin * wts).reshape(-1)
+        # the solver's residual is pseudo-Huber with scale 1e6: the plain one, to 1e-9
+        return LocalSolution({}, np.zeros(2), True, False, 3, r.astype(np.float64), np.zeros((r.size, 2)), {})
+
+    def judge(m):
+        return verdict(converged=True, disc_found=True, bound_warnings=[], chi2_floor=m.chi2_floor, ok_chi2=3.0,
+                       model_error=0.03, notes=[], chi2_inliers=m.chi2_inliers, outliers=m.outliers)
+
+    noise = rng.normal(0.0, 1.0, (h, w, 3)) * sigma
+    glints = noise.copy()
+    glints[10, 10:14] += 0.5  # four pixels far off
+    var = sigma.astype(np.float64) ** 2 + (0.03 * y) ** 2
+    per = ((glints**2) / var).sum(-1)[mask]
+    bad = per > 30.0
+    assert bad.sum() == 4
+    m = misfit(solve(glints), lev, 1e6, 0.03, 2)
+    assert m.outliers == pytest.approx(4 / mask.sum())
+    assert m.chi2_inliers == pytest.approx(per[~bad].sum() / (3 * (~bad).sum() - 2), rel=1e-5)
+    assert m.chi2_floor == pytest.approx(per.sum() / (3 * mask.sum() - 2), rel=1e-5)
+    assert m.chi2_capped == pytest.approx(np.minimum(per, 30.0).sum() / (3 * mask.sum() - 2), rel=1e-5)
+    assert m.chi2_floor > 3.0 > 1.0 > m.chi2_inliers  # four pixels alone fail the plain figure
+    ok, warn = judge(m)
+    assert not ok and "the misfit is local" in warn[-1], warn
+
+    spread = noise + 0.1 * y  # 10 % off everywhere: over the 3 % floor on every pixel
+    m2 = misfit(solve(spread), lev, 1e6, 0.03, 2)
+    assert m2.chi2_inliers > 3.0 and m2.chi2_capped > 3.0
+    ok2, warn2 = judge(m2)
+    assert not ok2 and "wrong environment map" in warn2[-1], warn2
+
+    ok3, warn3 = judge(misfit(solve(noise), lev, 1e6, 0.03, 2))  # the noise alone
+    assert ok3 and warn3 == []

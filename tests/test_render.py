@@ -390,3 +390,47 @@ def test_render_plan_from_the_footprint_equals_the_traced_render(small_courtyard
     assert rel(lit) <= 4 * rel(traced) + 1e-6
     other = dataclasses.replace(p, roughness=p.roughness + 0.01)  # not the footprint's parameters
     assert not _lit_usable(fp, other, parts[0][0])
+
+
+@pytest.mark.parametrize("camera", ["orthographic", "perspective"])
+def test_a_map_keeps_its_profile_on_the_films_the_photo_does_not_show(env64, camera):
+    """A drainage film given as a ``map`` of its front film, with the profile under it
+    (``Params.profile``), renders as the drainage film itself, rear film and internal
+    bounces included: their film points take the map's value changed by the profile
+    between the heights. Without the profile they read the front's value at the pixel; in
+    a perspective view the rear film of a pixel lies at another height (and in any view
+    the bounces do), so the image is then wrong by percents."""
+    from bubblefit.model.geometry import PerspectiveCamera, front_hits
+    from bubblefit.model.render import NO_PROFILE
+    from bubblefit.model.thickness import drainage_profile
+
+    env = EnvMap.from_array(env64[1])
+    cam = (OrthographicCamera(32, 32, 16.0, 16.0, 14.0) if camera == "orthographic"
+           else PerspectiveCamera(32, 32, fov_deg=40.0, origin=(0.0, 0.0, 4.0)))
+    prof = (150.0, 900.0, 1.0)
+    inside, _, local0 = (np.asarray(v) for v in front_hits(cam, (0.0, 0.0, 0.0), 1.0))
+    inside = inside.reshape(32, 32)
+    front_map = np.asarray(drainage_profile(local0[:, 1], *prof), np.float32).reshape(32, 32)
+    fx = Effects(model="physical", interference="airy", spectral=spectral_basis("uniform", 32), bounces=3)
+    terms = lambda kind, th, pr=NO_PROFILE: {k: np.asarray(v) for k, v in render_terms(
+        Params.make(roughness=0.05, thickness=th, profile=pr),
+        RenderConfig(effects=dataclasses.replace(fx, thickness=kind), camera=cam, chunk=256), env)[1].items()}
+    total = lambda t: sum(t.values())
+    truth = terms("drainage", prof)
+    with_profile = terms("map", front_map, prof)
+    np.testing.assert_allclose(total(with_profile)[inside], total(truth)[inside], rtol=2e-4, atol=1e-6)
+    flat = np.abs(total(terms("map", front_map)) - total(truth))[inside] / np.maximum(total(truth)[inside], 1e-6)
+    assert flat.max() > 0.02  # the films behind read the front's thickness without it
+    # at points given by hand: the map's value plus the profile's change of height, or the
+    # map's value alone without a profile (NaN)
+    from bubblefit.model.thickness import thickness_at
+
+    q = jnp.asarray([[0.0, 0.3, -0.95], [0.1, -0.6, -0.79]], jnp.float32)
+    f = jnp.asarray([[0.0, 0.1, 0.99], [0.1, -0.2, 0.97]], jnp.float32)
+    pix = jnp.asarray([16 * 32 + 16, 20 * 32 + 17])
+    at_pix = front_map.reshape(-1)[np.asarray(pix)]
+    dp = lambda y: np.asarray(drainage_profile(np.asarray(y), *prof))
+    behind = thickness_at("map", jnp.asarray(front_map), q, pix, jnp.asarray(prof, jnp.float32), f)
+    np.testing.assert_allclose(behind, at_pix + dp(q[:, 1]) - dp(f[:, 1]), rtol=1e-5)
+    none = thickness_at("map", jnp.asarray(front_map), q, pix, jnp.asarray(NO_PROFILE, jnp.float32), f)
+    np.testing.assert_allclose(none, at_pix)

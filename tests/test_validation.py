@@ -69,6 +69,21 @@ def test_constant_film_case(out_dir):
     assert abs(row["d_err_nm"]) <= 5.0, row
 
 
+def test_draining_film_from_blender_cycles(out_dir):
+    """A film draining from 150 nm at the top to 900 nm at the bottom, path traced by
+    Blender Cycles in a perspective view of a map with the sun in it: the drainage ends
+    within 20 / 30 nm and 3 stated standard errors (the issue's targets). The sun's glints,
+    which one ray per pixel point-samples, are outliers (a few % of the pixels) that carry
+    the plain reduced chi^2 to about 70: compared by it, ``auto`` kept the paper model and
+    its top 45 nm off. The fit is not ``ok`` (the glints are not explained) and its warning
+    says the misfit is local."""
+    row = validate.run_fit("cyc_drain_lin_sunrise_persp", "drainage", out_dir)
+    assert not row["refused"], row.get("message")
+    assert row["pass"], row
+    assert row["model_kept"] == "physical" and 0 < row["outliers"] <= 0.1 and row["chi2_inliers"] <= 3.0, row
+    assert row["ok"] is False and "the misfit is local" in row["warnings"], row
+
+
 def test_calibration_pair(out_dir):
     row = validate.run_calibration("cal_box_256x192", out_dir)
     assert not row["refused"], row.get("message")

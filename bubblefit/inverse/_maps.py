@@ -2,8 +2,9 @@
 drainage profile.
 
 A pixel's colour depends on its own thickness only (the rear film and internal bounces
-read the map at the same pixel, :func:`bubblefit.model.thickness.thickness_at`), but the
-colours repeat every ~lambda / (2 n) of thickness, so pixel by pixel a map hops between
+read the map at the same pixel, changed by the drainage profile between the heights of
+their film points, :func:`bubblefit.model.thickness.thickness_at`), but the colours
+repeat every ~lambda / (2 n) of thickness, so pixel by pixel a map hops between
 interference orders wherever noise or model error makes a neighbouring order fit a
 little better. A soap film is smooth apart from real features, so the map is built:
 
@@ -25,10 +26,12 @@ little better. A soap film is smooth apart from real features, so the map is bui
    smoothness with the neighbours held), widened by ``sqrt(max(1, chi2_nu))`` of the
    map's own residual, as for the global parameters.
 
-With the ``paper`` model a pixel's candidates are exact and cheap (eq. 11 is linear in eq.
-10's factor, :func:`bubblefit.inverse.search.paper_candidates`; a dispersive film's factor
-per wavelength, :class:`bubblefit.inverse.search.PaperPhi`); other models, and pixels
-box-filtered over several rays, render the whole map at each thickness offset.
+With the ``paper`` model and an orthographic camera a pixel's candidates are exact and
+cheap (eq. 11 is linear in eq. 10's factor, :func:`bubblefit.inverse.search.paper_candidates`;
+a dispersive film's factor per wavelength, :class:`bubblefit.inverse.search.PaperPhi`: the
+rear film of a pixel then lies at the front's height and has its thickness); other models,
+perspective views (whose rear film lies at another height) and pixels box-filtered over
+several rays render the whole map at each thickness offset.
 
 References
 ----------
@@ -50,6 +53,7 @@ from scipy import ndimage as ndi
 from . import search
 from ._observation import Level
 from ._parameters import ParameterTable
+from ..model.geometry import OrthographicCamera
 from ..model.thickness import drainage_profile
 
 __all__ = ["fit_map", "profile_map", "COARSE_RADIUS", "WINDOW_NM"]
@@ -225,7 +229,7 @@ def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts, env, make
     starts from, ``opts`` a ``FitOptions``, ``make_level(k)`` the level ``k`` times
     coarser than ``lev`` (None: no pyramid).
     """
-    exact = search.exact_paper_search(lev.cfg)
+    exact = search.exact_paper_search(lev.cfg) and isinstance(lev.cfg.camera, OrthographicCamera)
     hi = opts.thickness_range[1]
     base = {k: v for k, v in vals.items() if k != "map"}
     blocks = _pyramid(lev) if make_level is not None else [1]

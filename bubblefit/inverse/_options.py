@@ -284,6 +284,14 @@ class FitResult:
         Each reason ``ok`` is False (and other cautions), in words.
     chi2_floor : float
         Reduced chi^2 with the model-error floor (``FitOptions.model_error``).
+    chi2_inliers : float
+        The same over the pixels that are not outliers (JSON ``reduced_chi2_inliers``).
+    outliers : float
+        Fraction of the fitted pixels that are outliers (JSON ``outlier_fraction``;
+        :data:`~bubblefit.inverse._uncertainty.OUTLIER_CHI2`).
+    chi2_capped : float
+        The reduced chi^2 with the floor, each pixel's share capped at an outlier's (JSON
+        ``reduced_chi2_capped``): what ``model = "auto"`` compares.
     stderr_scale : float
         The largest factor a noise-only standard error was widened by for misfit (the
         Birge ratio or the cluster-robust sandwich, :mod:`bubblefit.inverse._uncertainty`).
@@ -320,6 +328,9 @@ class FitResult:
     ok: bool = False
     warnings: list = field(default_factory=list)
     chi2_floor: float = float("nan")
+    chi2_inliers: float = float("nan")
+    outliers: float = float("nan")
+    chi2_capped: float = float("nan")
     model_error: float = float("nan")
     thickness_model_error_nm: float = 0.0
     disc_model_error: float = float("nan")
@@ -348,6 +359,9 @@ class FitResult:
             "residual_rms": float(self.residual_rms),
             "reduced_chi2": float(self.reduced_chi2),
             "reduced_chi2_floor": float(self.chi2_floor),
+            "reduced_chi2_inliers": float(self.chi2_inliers),
+            "outlier_fraction": float(self.outliers),
+            "reduced_chi2_capped": float(self.chi2_capped),
             "model_error_floor": float(self.model_error),
             "thickness_model_error_nm": float(self.thickness_model_error_nm),
             "disc_model_error": None if not np.isfinite(self.disc_model_error) else float(self.disc_model_error),
@@ -393,6 +407,7 @@ class FitResult:
         state = "converged" if self.converged else f"NOT CONVERGED ({self.status})"
         disc = "" if self.disc is None else " disc ({:.2f}, {:.2f}, r {:.2f}{}),".format(
             *self.disc, "" if self.disc_stderr is None else ", refined")
+        outl = f", {self.chi2_inliers:.3g} without {self.outliers:.2%} outlier pixels" if self.outliers > 0 else ""
         return (f"ok {'yes' if self.ok else 'NO'}; {state}; {self.iterations} iterations, reduced chi^2 "
-                f"{self.reduced_chi2:.3g} ({self.chi2_floor:.3g} with the model-error floor),{disc} "
+                f"{self.reduced_chi2:.3g} ({self.chi2_floor:.3g} with the model-error floor{outl}),{disc} "
                 f"residual rms {self.residual_rms:.4g}, {self.time_s:.2f} s")

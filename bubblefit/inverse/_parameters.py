@@ -32,7 +32,7 @@ from typing import Literal
 import jax
 import jax.numpy as jnp
 
-from ..model.render import Params
+from ..model.render import NO_PROFILE, Params
 
 __all__ = ["Parameter", "PARAMETERS", "ParameterTable", "THICK_UNIT", "THICKNESSES", "DISC_PARAMETERS", "forward", "inverse",
            "value_and_slope", "refined_disc"]
@@ -193,8 +193,12 @@ class ParameterTable:
             th = vals["map"]
         f32 = lambda v: jnp.asarray(v, jnp.float32)
         disc = jnp.stack([f32(vals.get(n, 0.0)) for n in DISC_PARAMETERS])
+        # a map keeps the drainage profile it was fitted after, for the films the photo does not show
+        prof = (jnp.stack([f32(vals[n]) for n in ("top_nm", "bottom_nm", "exponent")])
+                if model == "map" and all(n in vals for n in ("top_nm", "bottom_nm", "exponent"))
+                else f32(jnp.asarray(NO_PROFILE)))
         return Params(f32(t), f32(r_d), f32(r_s), f32(vals["roughness"]), f32(th), f32(vals["n_film"]),
-                      f32(vals["exposure"]), f32(vals["rotation_deg"] * (math.pi / 180.0)), disc)
+                      f32(vals["exposure"]), f32(vals["rotation_deg"] * (math.pi / 180.0)), disc, prof)
 
     def reported(self, vals: dict) -> dict:
         """The JSON's parameters (jnp scalars) from values."""

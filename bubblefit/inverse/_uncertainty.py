@@ -33,7 +33,17 @@ between the thickness keys.
 
 :func:`misfit` also gives the reduced chi^2 with a model-error floor: each pixel's noise
 variance plus ``(model_error * photo)^2``, by which ``ok`` judges whether the photo is
-explained.
+explained, and splits it between the pixels the model explains and the outliers: pixels
+whose chi^2 with the floor, summed over the three channels, exceeds :data:`OUTLIER_CHI2`
+(a chance of 1.4e-6 per pixel for chi^2 with 3 degrees of freedom, so a photo the model
+explains has essentially none). Outliers are local features the forward model lacks:
+the glint of a sun or a studio lamp, which one ray per pixel point-samples while the
+camera integrates it over the pixel; dust; a clipped highlight's halo. A handful of them
+carries almost all of the plain reduced chi^2 (on a Blender Cycles photo of a draining
+film in a sunrise map, 1 % of the pixels held 99.6 % of it with the true profile fitted):
+the verdict's warning says when a misfit is local (:mod:`bubblefit.inverse._verdict`), and
+``model = "auto"`` compares its models by the capped figure. The error bars and ``ok``
+still use every pixel.
 """
 
 from __future__ import annotations
@@ -48,7 +58,11 @@ from ._local import LocalSolution, reporter
 from ._observation import Level
 from ._parameters import PARAMETERS, ParameterTable
 
-__all__ = ["Uncertainty", "uncertainty"]
+__all__ = ["Uncertainty", "uncertainty", "Misfit", "misfit", "OUTLIER_CHI2"]
+
+#: A pixel whose chi^2 with the model-error floor, summed over its three channels, exceeds
+#: this is an outlier: P(chi^2_3 > 30) = 1.4e-6 (module docstring).
+OUTLIER_CHI2 = 30.0
 
 
 @dataclass
@@ -69,6 +83,12 @@ class Uncertainty:
         The reduced chi^2 of the whitened residual (noise only).
     chi2_floor : float
         The reduced chi^2 with the model-error floor.
+    chi2_inliers : float
+        The reduced chi^2 with the floor over the pixels that are not outliers.
+    outliers : float
+        The fraction of the fitted pixels that are outliers (:data:`OUTLIER_CHI2`).
+    chi2_capped : float
+        The reduced chi^2 with the floor, each pixel's share capped at :data:`OUTLIER_CHI2`.
     scale : float
         The largest factor a standard error was widened by over the noise-only one.
     finite : bool
@@ -81,6 +101,9 @@ class Uncertainty:
     covariance: np.ndarray
     s2: float
     chi2_floor: float
+    chi2_inliers: float
+    outliers: float
+    chi2_capped: float
     scale: float
     finite: bool
 
@@ -93,18 +116,41 @@ def plain_residual(r_robust, scale: float):
     return np.sign(r_robust) * scale * np.sqrt(np.maximum(x2, 0.0))
 
 
-def misfit(sol: LocalSolution, lev: Level, robust_scale: float, model_error: float, n_free: int):
-    """``(chi2_nu, chi2_floor)`` of ``sol`` on ``lev``: the reduced chi^2 of the whitened
-    residual, and the same with each pixel's variance ``sigma^2 + (model_error * y)^2``."""
+@dataclass
+class Misfit:
+    """How well a solve explains its level (:func:`misfit`)."""
+
+    chi2_nu: float       # reduced chi^2 of the whitened residual (noise only)
+    chi2_floor: float    # the same with each pixel's variance sigma^2 + (model_error y)^2
+    chi2_inliers: float  # chi2_floor over the pixels that are not outliers
+    outliers: float      # fraction of the fitted pixels that are outliers (OUTLIER_CHI2)
+    chi2_capped: float   # chi2_floor with each pixel's share capped at OUTLIER_CHI2
+
+
+def misfit(sol: LocalSolution, lev: Level, robust_scale: float, model_error: float, n_free: int) -> Misfit:
+    """The :class:`Misfit` of ``sol`` on ``lev``: reduced chi^2 of the whitened residual,
+    with each pixel's variance ``sigma^2 + (model_error * y)^2``, that split between
+    outlier pixels (:data:`OUTLIER_CHI2`) and the rest, and the same with each pixel's
+    share capped at :data:`OUTLIER_CHI2` (a truncated quadratic loss: no pixel moves it by
+    more than an outlier's worth; ``auto`` compares models by it). The degrees of freedom
+    of the inliers are their count less the free parameters, as for the whole."""
     r = plain_residual(sol.residual, robust_scale).reshape(lev.y.shape)
     w = lev.w.astype(np.float64)
     used = w > 0
     dof = max(int(used.sum()) - n_free, 1)
     chi2 = float(np.sum(r[used] ** 2)) / dof
-    var = 1.0 / w[used] ** 2
-    lin2 = r[used] ** 2 * var  # squared residual in linear units
-    floor = float(np.sum(lin2 / (var + (model_error * np.clip(lev.y[used], 0, None)) ** 2))) / dof
-    return chi2, floor
+    var = 1.0 / np.where(used, w, 1.0) ** 2
+    lin2 = r**2 * var  # squared residual in linear units
+    per = np.where(used, lin2 / (var + (model_error * np.clip(lev.y, 0, None)) ** 2), 0.0)
+    floor = float(np.sum(per)) / dof
+    pix = np.any(used, axis=-1)
+    chi_pix = per.sum(axis=-1)[pix]  # (P,) per fitted pixel, over its channels
+    bad = chi_pix > OUTLIER_CHI2
+    channels = used[pix].sum(axis=-1)
+    dof_in = max(int(channels[~bad].sum()) - n_free, 1)
+    inliers = float(np.sum(chi_pix[~bad])) / dof_in
+    capped = float(np.sum(np.minimum(chi_pix, OUTLIER_CHI2))) / dof
+    return Misfit(chi2, floor, inliers, float(np.mean(bad)) if bad.size else 0.0, capped)
 
 
 def _cluster_sandwich(jac: np.ndarray, r: np.ndarray, shape: tuple, block: int) -> np.ndarray:
@@ -158,7 +204,8 @@ def uncertainty(sol: LocalSolution, table: ParameterTable, lev: Level, robust_sc
     """Standard errors and covariance of the reported parameters at ``sol`` on ``lev`` (the
     delta method, widened for misfit, plus ``thickness_model_error_nm`` squared on every
     thickness's variance; module docstring)."""
-    s2, chi2_floor = misfit(sol, lev, robust_scale, model_error, len(table.free))
+    fit = misfit(sol, lev, robust_scale, model_error, len(table.free))
+    s2 = fit.chi2_nu
     scale = 1.0
     rep, rep_jac = reporter(table)
     zj = jnp.asarray(sol.z, jnp.float32)
@@ -187,4 +234,5 @@ def uncertainty(sol: LocalSolution, table: ParameterTable, lev: Level, robust_sc
         for i, key in enumerate(names):
             var = cov[i, i]
             stderr[key] = float(math.sqrt(var)) if np.isfinite(var) and var >= 0 else float("nan")
-    return Uncertainty(reported, stderr, names, cov, s2, chi2_floor, scale, finite)
+    return Uncertainty(reported, stderr, names, cov, s2, fit.chi2_floor, fit.chi2_inliers, fit.outliers,
+                       fit.chi2_capped, scale, finite)

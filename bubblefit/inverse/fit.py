@@ -171,7 +171,7 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
     reported["n_film"] = float(st.vals["n_film"])
     ok, warnings = verdict(converged=bool(converged), disc_found=True, bound_warnings=bounds,
                            chi2_floor=unc.chi2_floor, ok_chi2=float(opts.ok_chi2), model_error=float(opts.model_error),
-                           notes=st.warnings)
+                           notes=st.warnings, chi2_inliers=unc.chi2_inliers, outliers=unc.outliers)
     return FitResult(
         params=reported, stderr=stderr, held=list(table.held), converged=bool(converged),
         message="; ".join(notes) if notes else "converged", iterations=sol.steps, residual_rms=rms,
@@ -179,7 +179,8 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
         thickness_map=thickness_map, thickness_stderr_map=stderr_map, disc=disc, disc_stderr=disc_stderr,
         thickness_model=opts.thickness, model=opts.model, reduced_chi2=unc.s2,
         pixels_used=int(lev_fit.mask.sum()), status=status, names=unc.names, covariance=unc.covariance,
-        ok=ok, warnings=warnings, chi2_floor=unc.chi2_floor, model_error=float(opts.model_error),
+        ok=ok, warnings=warnings, chi2_floor=unc.chi2_floor, chi2_inliers=unc.chi2_inliers, outliers=unc.outliers,
+        chi2_capped=unc.chi2_capped, model_error=float(opts.model_error),
         thickness_model_error_nm=float(opts.thickness_model_error_nm),
         disc_model_error=float(opts.disc_model_error) if disc_stderr is not None else float("nan"),
         stderr_scale=unc.scale,
@@ -250,6 +251,13 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
         return _finish(st, env, opts, sol, notes, t_start)
 
 
+def _judged_chi2(r: FitResult) -> float:
+    """The misfit ``auto`` compares: the reduced chi^2 with the model-error floor, each
+    pixel's share capped at an outlier's (:func:`bubblefit.inverse._uncertainty.misfit`),
+    so that glints both models point-sample do not decide between them."""
+    return float(r.chi2_capped) if np.isfinite(r.chi2_capped) else float("inf")
+
+
 def _explained(r: FitResult, opts: FitOptions) -> bool:
     """Whether a fit explains its photo: converged, with the reduced chi^2 with the
     model-error floor within ``opts.ok_chi2``."""
@@ -260,7 +268,11 @@ def _fit_either_model(photo, env, options: FitOptions, background, init, scene, 
     """``model = "auto"``: the paper model (eq. 11); when it does not explain the photo,
     the physical model (Fresnel per polarisation, internal bounces) warm-started from the
     paper fit's values, and whichever explains the photo better (the lower reduced chi^2
-    with the model-error floor, a converged fit before one that is not).
+    with the model-error floor, each pixel's share capped at an outlier's,
+    :func:`_judged_chi2`; a converged fit before one that is not). Uncapped, the glints
+    of a sun that both models point-sample decided: on a Blender Cycles photo the
+    physical model's right profile (top 148 nm for 150) scored 70.5 against the paper
+    model's 18.5 (top 105 nm), capped 1.83 against 4.65.
 
     The paper model's two-beam film and grey ``t`` bias a real film's drainage ends and
     leave a misfit that hides a wrong map; a photo from a physical film (another renderer,
@@ -273,12 +285,13 @@ def _fit_either_model(photo, env, options: FitOptions, background, init, scene, 
         first.message += "; model auto: the paper model explains the photo"
         return first
     start = {k: v for k, v in first.params.items() if np.isfinite(v)} if first.converged else init
-    with stage(f"physical model (the paper model's reduced chi^2 {first.chi2_floor:.3g} with the floor)"):
+    c1 = _judged_chi2(first)
+    with stage(f"physical model (the paper model's reduced chi^2 {c1:.3g} with the floor)"):
         second = fit_photo(photo, env, options=replace(options, model="physical"), init=start, **kw)
-    rank = lambda r: (not r.converged, r.chi2_floor if np.isfinite(r.chi2_floor) else np.inf)
-    best = second if rank(second) < rank(first) else first
-    best.message += (f"; model auto: paper reduced chi^2 {first.chi2_floor:.3g}, physical {second.chi2_floor:.3g} "
-                     f"(with the floor): kept the {best.model} model")
+    c2 = _judged_chi2(second)
+    best = second if (not second.converged, c2) < (not first.converged, c1) else first
+    best.message += (f"; model auto: paper reduced chi^2 {c1:.3g}, physical {c2:.3g} "
+                     f"(with the floor, each pixel capped at an outlier's share): kept the {best.model} model")
     best.time_s = time.perf_counter() - t0
     return best
 

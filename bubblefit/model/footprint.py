@@ -38,7 +38,7 @@ from .bounds import MAX_BOUNCES
 from .effects import Effects
 from .geometry import hit_pixels, intersect_sphere
 from .modes import Model, ThicknessKind
-from .render import RenderConfig, film_names, shading_points
+from .render import NO_PROFILE, RenderConfig, film_names, shading_points
 from .thickness import thickness_at
 
 __all__ = ["Footprint", "footprint", "pixel_budget", "filter_key", "FILTER_CANDIDATES", "REFERENCE_FILTER",
@@ -113,7 +113,7 @@ def _probe(model: Model) -> Effects:
 
 @functools.partial(jax.jit, static_argnames=("camera", "center", "radius", "model", "lights", "background_kind",
                                              "thickness_kind"))
-def _trace(env, background, roughness, rotation, thickness_values, pix, *, camera, center, radius, model, lights,
+def _trace(env, background, roughness, rotation, thickness_values, profile, pix, *, camera, center, radius, model, lights,
            background_kind, thickness_kind):
     """The films of the pixels ``pix`` (flat indices; the renderer's own geometry) and what
     they read, in one program."""
@@ -140,10 +140,11 @@ def _trace(env, background, roughness, rotation, thickness_values, pix, *, camer
         spec, diff = lights_radiance(lights, n_all.reshape(-1, 3), wo_all.reshape(-1, 3), roughness, 1.0, diffuse=True)
         out["light_spec"] = spec.reshape(n_all.shape)
         out["light_irr"] = jnp.pi * diff.reshape(n_all.shape)[:2]
+    thick = lambda q: thickness_at(thickness_kind, thickness_values, q, pix, profile, hits.local0)
     out["d0"] = thickness_at(thickness_kind, thickness_values, hits.local0, pix)
-    out["d1"] = thickness_at(thickness_kind, thickness_values, hits.local1, pix)
+    out["d1"] = thick(hits.local1)
     if exits and thickness_kind != "constant":
-        out["dq"] = jnp.stack([thickness_at(thickness_kind, thickness_values, q, pix) for q in exits])
+        out["dq"] = jnp.stack([thick(q) for q in exits])
     return out
 
 
@@ -155,8 +156,8 @@ def _stored_trace(camera, center, radius, model, lights, background_kind, thickn
 
     statics = dict(camera=camera, center=center, radius=radius, model=model, lights=lights,
                    background_kind=background_kind, thickness_kind=thickness_kind)
-    fn = jax.jit(lambda env, roughness, rotation, values, pix: _trace(env, None, roughness, rotation, values, pix,
-                                                                       **statics))
+    fn = jax.jit(lambda env, roughness, rotation, values, profile, pix: _trace(env, None, roughness, rotation, values,
+                                                                                profile, pix, **statics))
     return stored(fn, "model.footprint._trace", statics)
 
 
@@ -168,8 +169,9 @@ def _first_pixels(v: np.ndarray, n: int) -> np.ndarray:
 
 def footprint(*, camera, center, radius: float, model: Model, roughness: float, env: EnvMap | None,
               rotation: float, lights: tuple, background: np.ndarray | None, background_kind: str,
-              thickness_kind: ThicknessKind, thickness_values) -> Footprint:
-    """The :class:`Footprint` of a scene (see the module docstring)."""
+              thickness_kind: ThicknessKind, thickness_values, thickness_profile=NO_PROFILE) -> Footprint:
+    """The :class:`Footprint` of a scene (see the module docstring); ``thickness_profile``:
+    the drainage profile under a thickness map (:attr:`~bubblefit.model.render.Params.profile`)."""
     a = max(float(roughness), 0.0)
     trace = _stored_trace(camera, tuple(center), float(radius), model, tuple(lights), background_kind, thickness_kind)
     # Only the pixels on the bubble are traced, padded to a multiple of PIXEL_BUCKET so that
@@ -178,7 +180,8 @@ def footprint(*, camera, center, radius: float, model: Model, roughness: float, 
     npx = idx.size
     pix = np.full(max(PIXEL_BUCKET, -(-npx // PIXEL_BUCKET) * PIXEL_BUCKET), idx[-1] if npx else 0, np.int32)
     pix[:npx] = idx
-    res = trace(env, np.float32(a), np.float32(rotation), np.asarray(thickness_values, dtype=np.float32), pix)
+    res = trace(env, np.float32(a), np.float32(rotation), np.asarray(thickness_values, dtype=np.float32),
+                np.asarray(thickness_profile, dtype=np.float32), pix)
     res = {k: _first_pixels(np.asarray(v, dtype=np.float64), npx) for k, v in res.items()}
     names = tuple(film_names(_probe(model)))
     nf = len(names)

@@ -57,6 +57,10 @@ from .thickness import thickness_at
 __all__ = ["Params", "RenderConfig", "render", "render_terms", "render_loaded", "render_plan", "shading_points",
            "TRACE_COUNTS", "PointLight"]
 
+#: No drainage profile under a thickness map (:attr:`Params.profile`): every film of a
+#: pixel takes the map's value there.
+NO_PROFILE = (float("nan"),) * 3
+
 #: How many times each term of the model has been traced (for tests of ``effects``).
 TRACE_COUNTS: collections.Counter = collections.Counter()
 
@@ -77,6 +81,11 @@ class Params:
         disc: (3,) shift of an orthographic camera's disc ``(sx, sy, sr)`` in units of its
             radius (:meth:`~bubblefit.model.geometry.OrthographicCamera.rays`); zeros
             render the camera's own disc.
+        profile: (3,) ``(top, bottom, exponent)`` of the drainage profile under a
+            thickness ``map``: the rear film and internal bounces, which the photo does not
+            show, take the map's value at their pixel changed by the profile between the
+            heights (:func:`~bubblefit.model.thickness.thickness_at`); NaN (the default,
+            :data:`NO_PROFILE`): the map's value at their pixel. Unused by the other kinds.
     """
 
     t: Array
@@ -88,17 +97,18 @@ class Params:
     exposure: Array
     rotation: Array
     disc: Array
+    profile: Array
 
     @staticmethod
     def make(t=0.972, r_d=None, r_s=None, f=0.3, roughness=0.01, thickness=500.0, n_film=1.4,
-             exposure=1.0, rotation=0.0, disc=(0.0, 0.0, 0.0), dtype=jnp.float32) -> "Params":
+             exposure=1.0, rotation=0.0, disc=(0.0, 0.0, 0.0), profile=NO_PROFILE, dtype=jnp.float32) -> "Params":
         """Parameters with eq. (14): ``r_d + r_s = 1 - t`` and ``f = r_d / r_s`` unless both given."""
         if r_d is None or r_s is None:
             r_s = (1.0 - t) / (1.0 + f)
             r_d = (1.0 - t) - r_s
         cast = lambda v: jnp.asarray(v, dtype=dtype)
         return Params(cast(t), cast(r_d), cast(r_s), cast(roughness), cast(thickness), cast(n_film),
-                      cast(exposure), cast(rotation), cast(disc))
+                      cast(exposure), cast(rotation), cast(disc), cast(profile))
 
 
 @dataclass(frozen=True)
@@ -357,8 +367,8 @@ def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx)
         o, d = cfg.camera.rays(rows.astype(dtype), cols.astype(dtype), cfg.center, cfg.radius)
     hits = intersect_sphere(o, d, cfg.center, cfg.radius)
     p, lam = _film_setup(p, cfg)
-    thick = lambda local: thickness_at(fx.thickness, p.thickness, local, idx)
-    d0 = thick(hits.local0)
+    thick = lambda local: thickness_at(fx.thickness, p.thickness, local, idx, p.profile, hits.local0)
+    d0 = thickness_at(fx.thickness, p.thickness, hits.local0, idx)
     d1 = thick(hits.local1)
     bg_rad = _background(env, fx, p, d, bg, idx)
 
@@ -444,7 +454,8 @@ def _lit_usable(fp, p: Params, cfg: RenderConfig) -> bool:
         return False
     same = lambda a, b: np.allclose(np.asarray(a, dtype=np.float32), np.asarray(b, dtype=np.float32), rtol=1e-6,
                                     atol=0.0)
-    return (same(p.roughness, fp.roughness) and same(p.rotation, fp.rotation)
+    flat = fx.thickness != "map" or bool(np.isnan(np.asarray(p.profile)[0]))
+    return (same(p.roughness, fp.roughness) and same(p.rotation, fp.rotation) and flat
             and same(np.asarray(p.thickness).ravel(), np.asarray(fp.thickness).ravel()))
 
 

@@ -29,7 +29,7 @@ from .effects import ALL_ON_NODES, check_harmonic
 from .footprint import footprint
 from ._scene_checks import check_radiance, check_values, colour_path, film_index, validate, vector
 from .geometry import OrthographicCamera, PerspectiveCamera
-from .render import Params, PointLight, RenderConfig, render_plan
+from .render import NO_PROFILE, Params, PointLight, RenderConfig, render_plan
 
 __all__ = ["Scene", "load_scene", "render_scene", "read_envmap", "DATA_DIR", "shipped_envmap"]
 
@@ -107,6 +107,17 @@ class Scene:
             raise InputError(f"thickness map {th['path']} is {m.shape[1]}x{m.shape[0]}, the camera is {w}x{h}")
         return "map", np.nan_to_num(m, nan=0.0)
 
+    def map_profile(self) -> tuple:
+        """The drainage profile ``(top, bottom, exponent)`` under a thickness map, from its
+        table's ``top_nm`` and ``bottom_nm`` (and ``exponent``, default 1): the rear film
+        and the internal bounces take the map's value changed by it between the heights
+        (:attr:`~bubblefit.model.render.Params.profile`). None (NaN) when not given, or for
+        the other kinds."""
+        th = self.table("bubble").get("thickness") or {}
+        if th.get("profile") != "map" or "top_nm" not in th or "bottom_nm" not in th:
+            return NO_PROFILE
+        return (float(th["top_nm"]), float(th["bottom_nm"]), float(th.get("exponent", 1.0)))
+
     @property
     def shape(self) -> tuple[int, int]:
         c = self.table("camera")
@@ -135,7 +146,8 @@ class Scene:
             t=b.get("t", 0.972), r_d=b.get("r_d"), r_s=b.get("r_s", 0.0 if "r_d" in b else None), f=b.get("f", 0.3),
             roughness=b.get("roughness", 0.01), thickness=values,
             n_film=float(refractive_index(film_index(b), REFERENCE_WAVELENGTH_NM)),
-            exposure=1.0, rotation=math.radians(self.table("lighting").get("rotation_deg", 0.0)), dtype=dtype,
+            exposure=1.0, rotation=math.radians(self.table("lighting").get("rotation_deg", 0.0)),
+            profile=self.map_profile(), dtype=dtype,
         )
 
     def colour(self) -> tuple[str, str, object]:
@@ -253,7 +265,7 @@ class Scene:
             fp = footprint(camera=camera, center=self.center, radius=self.radius, model=summ["model"],
                            roughness=summ["roughness"], env=env, rotation=float(p.rotation), lights=lights,
                            background=background, background_kind=bg_kind, thickness_kind=kind,
-                           thickness_values=values)
+                           thickness_values=values, thickness_profile=self.map_profile())
             plan, decisions = decide_pixels(b, fp, e, thickness_kind=kind, tolerance=tol, nodes=nodes,
                                             dispersive=law is not None)
         except ValueError as exc:  # a setting the checks above let through

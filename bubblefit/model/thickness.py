@@ -7,7 +7,8 @@ paper's future-work item on drainage (sec. 5).
 
 Parameters are one array whose shape depends on the kind: ``()`` for ``constant``,
 ``(3,)`` = (top_nm, bottom_nm, exponent) for ``drainage``, ``(H, W)`` for ``map`` (the
-front film's thickness at each image pixel).
+front film's thickness at each image pixel, with the drainage profile under it,
+:attr:`bubblefit.model.render.Params.profile`, for the films the photo does not show).
 """
 
 from __future__ import annotations
@@ -28,22 +29,41 @@ def drainage_profile(y: Array, top, bottom, exponent) -> Array:
     return top + (bottom - top) * powed
 
 
-def thickness_at(kind: str, values: Array, local: Array, pixel: Array) -> Array:
+def thickness_at(kind: str, values: Array, local: Array, pixel: Array, profile: Array | None = None,
+                 front: Array | None = None) -> Array:
     """Thickness (nm) at film points.
 
     Args:
         kind: ``constant`` | ``drainage`` | ``map``.
         values: the field's parameters (see the module docstring).
         local: (N, 3) film points relative to the centre, over the radius.
-        pixel: (N,) flat index of the image pixel the point belongs to (``map`` only:
-            the rear film and the internal bounces read the map at the same pixel, which
-            is exact for any field that depends on height only, as drainage does, and
-            an approximation otherwise).
+        pixel: (N,) flat index of the image pixel the point belongs to (``map`` only).
+        profile: (3,) ``(top, bottom, exponent)`` of the drainage profile under a map
+            (``map`` only; NaN: none).
+        front: (N, 3) the front film point of the same pixel (``map`` with a profile).
+
+    A map holds the front film's thickness at each pixel. The photo does not show the rear
+    film or the film points of internal bounces; such a point takes the map's value at its
+    pixel changed by the profile between the front point's height and its own. That is
+    exact for a field of height alone in any camera (in a perspective view the rear point
+    of a pixel lies higher or lower than the front one, and a bounce's points anywhere),
+    and only the difference of the profile enters, so its own fitting error mostly
+    cancels; a local feature of the front film (a bump) is carried to the films behind.
+    (Taking the profile alone behind the front kept the bump in front but put the
+    profile's error on the rear film: on a Blender Cycles photo the map's coverage within
+    15 nm fell from 96 % to 80 %.) Without a profile (None, or NaN) the point takes the
+    map's value at its pixel.
     """
     if kind == "constant":
         return jnp.broadcast_to(values, local.shape[:1])
     if kind == "drainage":
         return drainage_profile(local[:, 1], values[0], values[1], values[2])
     if kind == "map":
-        return values.reshape(-1)[pixel]
+        d = values.reshape(-1)[pixel]
+        if profile is None or front is None:
+            return d
+        has = jnp.isfinite(profile[0])
+        top, bottom, expo = (jnp.where(has, profile[i], v) for i, v in enumerate((0.0, 0.0, 1.0)))
+        shift = drainage_profile(local[:, 1], top, bottom, expo) - drainage_profile(front[:, 1], top, bottom, expo)
+        return d + jnp.where(has, shift, 0.0)
     raise ValueError(f"unknown thickness kind {kind!r}")

@@ -30,10 +30,11 @@ Variants (each a row of the table):
 * ``mismatched``: bubblefit's defaults, D65 and one ray per pixel centre.
 
 For the bump case a scene cannot express the Gaussian bump, so ``matched`` passes the
-front-film thickness of thickness_true.exr as a ``map`` (bubblefit's map is per pixel: the
-rear film and the bounces read the front's value at the same pixel, so the rear film carries
-the bump too, and sub-pixel rays share the pixel centre's value); ``drainage_only`` renders
-the drainage part alone. Statistics are also given outside the bump (front point more than
+front-film thickness of thickness_true.exr as a ``map`` with the drainage part as the
+profile under it (the rear film and the bounces take the map's value at their pixel
+changed by the profile between the heights, so the rear film carries the bump too, unlike
+Cycles'; sub-pixel rays share the pixel centre's value); ``drainage_only`` renders the
+drainage part alone. Statistics are also given outside the bump (front point more than
 3 sigma from its centre).
 
 Each statistic (median, mean, 90th percentile of dE00) is given on the raw images and
@@ -140,7 +141,8 @@ def scene_dict(truth: dict, *, illuminant: str, spp: int, thickness: str = "trut
     else:
         if crop is not None:
             raise ValueError("a crop cannot take the full-frame thickness map")
-        bubble["thickness"] = {"profile": "map", "path": map_path}
+        bubble["thickness"] = {"profile": "map", "path": map_path, "top_nm": float(th["top_nm"]),
+                               "bottom_nm": float(th["bottom_nm"]), "exponent": float(th["exponent"])}
     if truth["background"] != "env":
         raise ValueError(f"{truth['case']}: background {truth['background']!r} is not the map")
     lighting = {"envmap": truth["envmap"], "rotation_deg": float(truth["rotation_deg"]), "background": "envmap",
@@ -166,7 +168,7 @@ class _ChannelBasis:
 
     def __init__(self, basis):
         self.basis = basis
-        self.method, self.samples, self.sigma = "cycles_rgb", 3, None
+        self.method, self.samples, self.sigma, self.phases = "cycles_rgb", 3, None, None
         self.illuminant, self.response, self.white_balance = basis.illuminant, basis.response, basis.white_balance
         self.wavelengths = np.array([600.0, 550.0, 450.0])   # placeholders: the film ignores them
         self.weights = np.eye(3)

@@ -183,8 +183,12 @@ def score_fit(res: dict | None, truth: dict, model: str, stem: str) -> dict:
     out["ok"] = res.get("ok")
     out["converged"] = res.get("converged")
     out["reduced_chi2"] = _num(res.get("reduced_chi2"))
+    out["chi2_floor"] = _num(res.get("reduced_chi2_floor"))
+    out["chi2_inliers"] = _num(res.get("reduced_chi2_inliers"))
+    out["outliers"] = _num(res.get("outlier_fraction"))
+    out["model_kept"] = res.get("model")
     out["time_s"] = _num(res.get("time_s"))
-    out["warnings"] = "; ".join(res.get("warnings", []) or [])[:200]
+    out["warnings"] = "; ".join(res.get("warnings", []) or [])[:400]
     t_true = truth.get("t")
     if _num(p.get("t")) is not None and t_true is not None:
         out["t"] = _num(p["t"])
@@ -354,11 +358,13 @@ def jobs_for(case: str) -> list[tuple]:
 
 COLUMNS = ["case", "pass", "ok", "converged", "refused", "d_err_nm", "d_err_se", "top_err_nm", "top_err_se",
            "bottom_err_nm", "bottom_err_se", "map_median_nm", "map_p90_nm", "map_coverage", "order_hops", "t",
-           "t_err", "t_in_ci", "disc_dc_px", "disc_dr_px", "reduced_chi2", "map_log_err_median", "time_s", "wall_s"]
+           "t_err", "t_in_ci", "disc_dc_px", "disc_dr_px", "model_kept", "reduced_chi2", "chi2_floor", "chi2_inliers",
+           "outliers", "map_log_err_median", "time_s", "wall_s"]
 SHORT = {"d_err_nm": "d err", "d_err_se": "d/se", "top_err_nm": "top err", "top_err_se": "top/se",
          "bottom_err_nm": "bot err", "bottom_err_se": "bot/se", "map_median_nm": "map med", "map_p90_nm": "map p90",
          "map_coverage": "cover", "order_hops": "hops", "t_in_ci": "t in CI", "disc_dc_px": "disc dc",
-         "disc_dr_px": "disc dr", "reduced_chi2": "chi2r", "map_log_err_median": "probe |log|", "converged": "conv", "refused": "refused"}
+         "disc_dr_px": "disc dr", "model_kept": "model", "reduced_chi2": "chi2r", "chi2_floor": "chi2 floor",
+         "chi2_inliers": "chi2 in", "outliers": "outl", "map_log_err_median": "probe |log|", "converged": "conv", "refused": "refused"}
 
 
 def fmt(v) -> str:

@@ -226,8 +226,8 @@ def test_outliers_are_told_apart_from_a_misfit():
         return LocalSolution({}, np.zeros(2), True, False, 3, r.astype(np.float64), np.zeros((r.size, 2)), {})
 
     def judge(m):
-        return verdict(converged=True, disc_found=True, bound_warnings=[], chi2_floor=m.chi2_floor, ok_chi2=3.0,
-                       model_error=0.03, notes=[], chi2_inliers=m.chi2_inliers, outliers=m.outliers)
+        return verdict(converged=True, disc_found=True, bound_warnings=[], misfit=m, ok_chi2=3.0, model_error=0.03,
+                       notes=[])
 
     noise = rng.normal(0.0, 1.0, (h, w, 3)) * sigma
     glints = noise.copy()

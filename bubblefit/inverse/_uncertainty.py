@@ -79,16 +79,10 @@ class Uncertainty:
         Keys of ``covariance``'s rows (the reported values that were fitted).
     covariance : np.ndarray
         Their covariance.
-    s2 : float
-        The reduced chi^2 of the whitened residual (noise only).
-    chi2_floor : float
-        The reduced chi^2 with the model-error floor.
-    chi2_inliers : float
-        The reduced chi^2 with the floor over the pixels that are not outliers.
-    outliers : float
-        The fraction of the fitted pixels that are outliers (:data:`OUTLIER_CHI2`).
-    chi2_capped : float
-        The reduced chi^2 with the floor, each pixel's share capped at :data:`OUTLIER_CHI2`.
+    misfit : Misfit
+        How well the solve explains its level: reduced chi^2 (noise only, with the
+        model-error floor, over the pixels that are not outliers, capped) and the
+        outliers' share.
     scale : float
         The largest factor a standard error was widened by over the noise-only one.
     finite : bool
@@ -99,11 +93,7 @@ class Uncertainty:
     stderr: dict
     names: tuple
     covariance: np.ndarray
-    s2: float
-    chi2_floor: float
-    chi2_inliers: float
-    outliers: float
-    chi2_capped: float
+    misfit: Misfit
     scale: float
     finite: bool
 
@@ -205,7 +195,7 @@ def uncertainty(sol: LocalSolution, table: ParameterTable, lev: Level, robust_sc
     delta method, widened for misfit, plus ``thickness_model_error_nm`` squared on every
     thickness's variance; module docstring)."""
     fit = misfit(sol, lev, robust_scale, model_error, len(table.free))
-    s2 = fit.chi2_nu
+    s2 = fit.chi2_nu  # the Birge ratio's square
     scale = 1.0
     rep, rep_jac = reporter(table)
     zj = jnp.asarray(sol.z, jnp.float32)
@@ -234,5 +224,4 @@ def uncertainty(sol: LocalSolution, table: ParameterTable, lev: Level, robust_sc
         for i, key in enumerate(names):
             var = cov[i, i]
             stderr[key] = float(math.sqrt(var)) if np.isfinite(var) and var >= 0 else float("nan")
-    return Uncertainty(reported, stderr, names, cov, s2, fit.chi2_floor, fit.chi2_inliers, fit.outliers,
-                       fit.chi2_capped, scale, finite)
+    return Uncertainty(reported, stderr, names, cov, fit, scale, finite)

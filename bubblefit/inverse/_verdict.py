@@ -10,8 +10,8 @@ it is not, the warning says whether the misfit is local: a few outlier pixels
 (:data:`~bubblefit.inverse._uncertainty.OUTLIER_CHI2`) with the rest explained, as the
 glints of the sun or of a lamp leave, which one ray per pixel does not resolve. Such a fit
 stays not ``ok``: on independent photos the share of outliers did not tell a glint from a
-biased model apart (4-11 % on right fits with sun, studio and night maps, 10-12 % on the
-paper model's biased drainage profile).
+biased model apart (4-6 % on right fits with sun, studio and night maps and 20 % on one
+over a bright city map, 10 % on the paper model's biased courtyard drainage profile).
 
 Zero roughness is not a bound but the mirror, eq. (1) as ``a -> 0``: a physical limit like
 ``r_d = 0``, which a smooth film reaches. A roughness within three standard errors of zero
@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 
 from ._parameters import PARAMETERS, ParameterTable
-from ._uncertainty import OUTLIER_CHI2
+from ._uncertainty import OUTLIER_CHI2, Misfit
 
 __all__ = ["at_bounds", "unresolved", "verdict"]
 
@@ -57,12 +57,12 @@ def unresolved(values: dict, stderr: dict, table: ParameterTable) -> list[str]:
     return [f"roughness = {v:.2g} is within three standard errors of a mirror: read it as an upper limit{bound}"]
 
 
-def verdict(*, converged: bool, disc_found: bool, bound_warnings: list, chi2_floor: float, ok_chi2: float,
-            model_error: float, notes: list, chi2_inliers: float = float("nan"),
-            outliers: float = 0.0) -> tuple[bool, list]:
+def verdict(*, converged: bool, disc_found: bool, bound_warnings: list, misfit: Misfit, ok_chi2: float,
+            model_error: float, notes: list) -> tuple[bool, list]:
     """``(ok, warnings)``: the conditions of the module docstring, each failed one in words
-    (``notes``: cautions found on the way, kept first). ``chi2_inliers`` and ``outliers``
-    (:class:`~bubblefit.inverse._uncertainty.Misfit`) say whether a misfit is local."""
+    (``notes``: cautions found on the way, kept first); ``misfit`` says whether the photo
+    is explained, and whether a misfit is local."""
+    chi2_floor, chi2_inliers, outliers = misfit.chi2_floor, misfit.chi2_inliers, misfit.outliers
     warnings = list(notes)
     if not converged:
         warnings.append("the solver did not converge")

@@ -138,7 +138,7 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
                       float(opts.thickness_model_error_nm))
     reported, stderr = unc.reported, unc.stderr
     disc, disc_stderr = refined_disc(st.disc, reported, stderr, float(opts.disc_model_error))
-    status, converged = _status_notes(sol, unc.finite, unc.s2, notes, table.free)
+    status, converged = _status_notes(sol, unc.finite, unc.misfit.chi2_nu, notes, table.free)
     lo, hi = opts.thickness_range
     for key in THICKNESSES:
         if key in reported and key in table.free and not lo - 1 <= reported[key] <= hi + 1:
@@ -170,17 +170,17 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
     rms = float(np.sqrt(np.mean(resid_img[full.mask] ** 2))) if full.mask.any() else float("nan")
     reported["n_film"] = float(st.vals["n_film"])
     ok, warnings = verdict(converged=bool(converged), disc_found=True, bound_warnings=bounds,
-                           chi2_floor=unc.chi2_floor, ok_chi2=float(opts.ok_chi2), model_error=float(opts.model_error),
-                           notes=st.warnings, chi2_inliers=unc.chi2_inliers, outliers=unc.outliers)
+                           misfit=unc.misfit, ok_chi2=float(opts.ok_chi2), model_error=float(opts.model_error),
+                           notes=st.warnings)
     return FitResult(
         params=reported, stderr=stderr, held=list(table.held), converged=bool(converged),
         message="; ".join(notes) if notes else "converged", iterations=sol.steps, residual_rms=rms,
         time_s=time.perf_counter() - t_start, effects=st.decisions, render=img, residual=resid_img,
         thickness_map=thickness_map, thickness_stderr_map=stderr_map, disc=disc, disc_stderr=disc_stderr,
-        thickness_model=opts.thickness, model=opts.model, reduced_chi2=unc.s2,
+        thickness_model=opts.thickness, model=opts.model, reduced_chi2=unc.misfit.chi2_nu,
         pixels_used=int(lev_fit.mask.sum()), status=status, names=unc.names, covariance=unc.covariance,
-        ok=ok, warnings=warnings, chi2_floor=unc.chi2_floor, chi2_inliers=unc.chi2_inliers, outliers=unc.outliers,
-        chi2_capped=unc.chi2_capped, model_error=float(opts.model_error),
+        ok=ok, warnings=warnings, chi2_floor=unc.misfit.chi2_floor, chi2_inliers=unc.misfit.chi2_inliers,
+        outliers=unc.misfit.outliers, chi2_capped=unc.misfit.chi2_capped, model_error=float(opts.model_error),
         thickness_model_error_nm=float(opts.thickness_model_error_nm),
         disc_model_error=float(opts.disc_model_error) if disc_stderr is not None else float("nan"),
         stderr_scale=unc.scale,
@@ -286,7 +286,7 @@ def _fit_either_model(photo, env, options: FitOptions, background, init, scene, 
         return first
     start = {k: v for k, v in first.params.items() if np.isfinite(v)} if first.converged else init
     c1 = _judged_chi2(first)
-    with stage(f"physical model (the paper model's reduced chi^2 {c1:.3g} with the floor)"):
+    with stage(f"physical model (the paper model's reduced chi^2 {c1:.3g} with the floor, capped)"):
         second = fit_photo(photo, env, options=replace(options, model="physical"), init=start, **kw)
     c2 = _judged_chi2(second)
     best = second if (not second.converged, c2) < (not first.converged, c1) else first

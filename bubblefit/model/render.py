@@ -454,8 +454,9 @@ def _lit_usable(fp, p: Params, cfg: RenderConfig) -> bool:
         return False
     same = lambda a, b: np.allclose(np.asarray(a, dtype=np.float32), np.asarray(b, dtype=np.float32), rtol=1e-6,
                                     atol=0.0)
-    flat = fx.thickness != "map" or bool(np.isnan(np.asarray(p.profile)[0]))
-    return (same(p.roughness, fp.roughness) and same(p.rotation, fp.rotation) and flat
+    # a footprint does not record the profile under a map: shade from it only when there is none
+    no_profile = fx.thickness != "map" or bool(np.isnan(np.asarray(p.profile)[0]))
+    return (same(p.roughness, fp.roughness) and same(p.rotation, fp.rotation) and no_profile
             and same(np.asarray(p.thickness).ravel(), np.asarray(fp.thickness).ravel()))
 
 

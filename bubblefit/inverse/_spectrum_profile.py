@@ -21,7 +21,8 @@ from typing import Callable
 import numpy as np
 from scipy import optimize
 
-__all__ = ["ProfileProblem", "rss_grids", "local_minima", "residual_correlation", "second_difference_noise", "refine_d",
+__all__ = ["ProfileProblem", "rss_grids", "local_minima", "residual_correlation", "second_difference_noise",
+           "local_noise", "refine_d",
            "refine_near", "refine_dw", "profile_variance"]
 
 
@@ -32,7 +33,10 @@ class ProfileProblem:
     and optionally more additive stray-light columns ``background`` (N, K). With
     ``positive`` the lamp ``basis @ a`` is kept >= 0 at every wavelength (:meth:`solve`).
     ``incoherent`` is a reflectance added to the film's, ``R + b``: light of the lamp that
-    reaches the spectrometer without interfering (see :mod:`bubblefit.inverse.spectrum`)."""
+    reaches the spectrometer without interfering (see :mod:`bubblefit.inverse.spectrum`).
+    ``weight`` (N,) scales each wavelength's residual (weighted least squares: the
+    reading's noise scale over the local noise, :func:`local_noise`); None weighs all alike.
+    ``RSS`` and the solves are weighted; :meth:`model` is the unweighted spectrum."""
 
     y: np.ndarray
     basis: np.ndarray
@@ -41,6 +45,13 @@ class ProfileProblem:
     background: np.ndarray | None = None
     positive: bool = False
     incoherent: float = 0.0
+    weight: np.ndarray | None = None
+
+    def _weighted(self, a: np.ndarray) -> np.ndarray:
+        """Rows (wavelengths) of ``a`` times their weight."""
+        if self.weight is None:
+            return a
+        return a * (self.weight if a.ndim == 1 else self.weight[:, None])
 
     @property
     def additive(self) -> np.ndarray:
@@ -67,24 +78,25 @@ class ProfileProblem:
         ``sum_i L_i R_i`` negative (fringes turned upside down), the constrained optimum is
         on the boundary and is taken as no film light at all (the lamp's coefficients 0,
         the stray light alone), see :meth:`rss_grid`."""
-        a = self.design(d, w)
+        plain = self.design(d, w)
+        a, y = self._weighted(plain), self._weighted(self.y)
         j = self.basis.shape[1]
         if self.positive:
-            coef = _positive_lamp_lstsq(a, self.y, self.basis)
-            return coef, a @ coef
-        coef, *_ = np.linalg.lstsq(a, self.y, rcond=None)
+            coef = _positive_lamp_lstsq(a, y, self.basis)
+            return coef, plain @ coef
+        coef, *_ = np.linalg.lstsq(a, y, rcond=None)
         if float(np.sum(a[:, :j] @ coef[:j])) <= 0.0:
             coef = np.zeros(a.shape[1])
             if a.shape[1] > j:
-                coef[j:], *_ = np.linalg.lstsq(a[:, j:], self.y, rcond=None)
-        return coef, a @ coef
+                coef[j:], *_ = np.linalg.lstsq(a[:, j:], y, rcond=None)
+        return coef, plain @ coef
 
     def model(self, d: float, w: float) -> np.ndarray:
         return self.solve(d, w)[1]
 
     def rss(self, d: float, w: float) -> float:
-        """Residual sum of squares with the linear parameters solved (the profile)."""
-        r = self.y - self.model(d, w)
+        """(Weighted) residual sum of squares with the linear parameters solved (the profile)."""
+        r = self._weighted(self.y - self.model(d, w))
         return float(r @ r)
 
     def rss_grid(self, thickness: np.ndarray, w: float, chunk: int = 256) -> np.ndarray:
@@ -96,7 +108,7 @@ class ProfileProblem:
 
     def _normal_equations(self):
         """What :meth:`_chunk_rss` needs that does not depend on the thickness."""
-        y, b, e = self.y, self.basis, self.additive
+        y, b, e = self._weighted(self.y), self._weighted(self.basis), self._weighted(self.additive)
         npts, j = b.shape
         q = e.shape[1]
         no_film = float(y @ y) if q == 0 else float(np.sum((y - e @ np.linalg.lstsq(e, y, rcond=None)[0]) ** 2))
@@ -110,7 +122,7 @@ class ProfileProblem:
         """``RSS`` (L, C) for the reflectance rows ``r`` (C, N) of a chunk of thicknesses, with
         ``R + b`` for each ``b`` of ``levels``: ``(R + b)^2 = R^2 + 2 b R + b^2`` expands the
         products, so that each level costs only its small solves."""
-        b = self.basis
+        b = self._weighted(self.basis)
         j, q = b.shape[1], ne["ee"].shape[0]
         m, k = len(r), j + q
         rr, r1, rby, rb = (r * r) @ ne["bb"], r @ ne["bb"], r @ ne["by"], r @ b
@@ -216,10 +228,51 @@ def residual_correlation(resid: np.ndarray) -> float:
 def second_difference_noise(y: np.ndarray) -> float:
     """The reading's noise from its second differences, robustly (median absolute deviation):
     ``y[i+1] - 2 y[i] + y[i-1]`` of white noise has deviation ``sqrt(6) sigma``. Independent
-    of any model, so ``RSS / (N - p)`` over its square measures misfit."""
+    of any model, so ``RSS / (N - p)`` over its square measures misfit. A reading quantised
+    more coarsely than its noise gets the rounding's noise, ``step / sqrt(12)``."""
     d2 = y[2:] - 2.0 * y[1:-1] + y[:-2]
     mad = float(np.median(np.abs(d2 - np.median(d2))))
-    return 1.4826 * mad / np.sqrt(6.0)
+    if mad > 0:
+        return 1.4826 * mad / np.sqrt(6.0)
+    # Most second differences are exactly zero: a quantised reading whose noise is below its
+    # step. Its noise is then the rounding's, step / sqrt(12) (0 when the reading is constant).
+    steps = np.diff(np.unique(y))
+    return float(steps.min() / np.sqrt(12.0)) if len(steps) else 0.0
+
+
+#: Samples of the window over which :func:`local_noise` takes its median (at least), and
+#: the range its estimate may span around the reading's median noise.
+LOCAL_NOISE_WINDOW = 41
+LOCAL_NOISE_RANGE = (1.0 / 3.0, 30.0)
+
+
+def local_noise(y: np.ndarray, window: int = LOCAL_NOISE_WINDOW) -> np.ndarray:
+    """The reading's noise at each sample (N,): the root mean square of its fourth
+    differences over a sliding window of ``max(window, N / 20)`` samples, over ``sqrt(70)``.
+
+    A spectrometer's noise is not the same at every wavelength: shot noise follows the
+    light, and a reading divided by the lamp is noisiest where the lamp is weak (the blue
+    end of a halogen lamp, where a divided reading can jump between 0 and its ceiling).
+    Fourth differences of white noise have deviation ``sqrt(70) sigma``; those of a fringe
+    of ``P`` samples per period are ``(2 sin(pi / P))^4`` of its amplitude, so fringes of
+    more than ~12 samples barely count (second differences would see the square root of
+    that). A mean square, not a median, so that a short burst of garbage raises the noise
+    of its neighbourhood instead of being voted out. The estimate is kept within
+    :data:`LOCAL_NOISE_RANGE` of its median; all ones when the median is zero (a reading
+    with no measurable noise)."""
+    y = np.asarray(y, dtype=np.float64)
+    n = len(y)
+    if n < 16:
+        return np.ones(n)
+    d4 = y[4:] - 4.0 * y[3:-1] + 6.0 * y[2:-2] - 4.0 * y[1:-3] + y[:-4]
+    box = np.ones(min(max(window, n // 20), len(d4)))
+    mean_square = np.convolve(d4**2, box, mode="same") / np.convolve(np.ones(len(d4)), box, mode="same")
+    sigma = np.sqrt(np.pad(mean_square, (2, 2), mode="edge") / 70.0)
+    mid = float(np.median(sigma))
+    if not mid > 0:
+        return np.ones(n)
+    lo, hi = LOCAL_NOISE_RANGE
+    return np.clip(sigma, lo * mid, hi * mid)
 
 
 def refine_d(prob: ProfileProblem, grid, rss, w: float, keep: int = 6, slack: float = 0.05,

@@ -26,6 +26,14 @@ second minimum is within the noise (the interference order is then ambiguous), o
 another split of the same smooth freedom between lamp and stray light puts the film in
 another order within the noise (:func:`_lamp_split`).
 
+Real readings are not equally good at every wavelength: a reading divided by the lamp is
+noisiest where the lamp is dim, and a detector saturates or clips. Samples at the
+detector's limits are left out (:func:`detector_limits`), and the residuals are weighted
+by the local noise (:func:`~bubblefit.inverse._spectrum_profile.local_noise`) combined
+with the model-error floor :data:`MODEL_ERROR_FLOOR` (weighted least squares, Press et al.,
+*Numerical Recipes*, 3rd ed., sec. 15.1): a stretch of garbage counts as little as its
+noise says, and the quietest stretch does not decide alone.
+
 The standard error comes from the curvature of the profile: ``var(d) = 2 s^2 [H^-1]_dd``,
 ``H`` the Hessian of ``RSS`` in ``(d, w)`` and ``s^2 = RSS / (N - p)`` times the
 correlation factor ``(1 + rho)/(1 - rho)`` of the residuals' lag-1 autocorrelation
@@ -55,7 +63,7 @@ from numpy.polynomial import legendre
 from ..errors import InputError
 from ..io.spectra import Spectrum
 from ..optics import dispersion, film
-from ._spectrum_profile import (ProfileProblem, profile_variance, refine_d, refine_dw, refine_near,
+from ._spectrum_profile import (ProfileProblem, local_noise, profile_variance, refine_d, refine_dw, refine_near,
                                 residual_correlation, rss_grids, second_difference_noise)
 
 __all__ = ["SpectrumOptions", "SpectrumFit", "film_reflectance", "reflector", "fit_spectrum", "interference_order",
@@ -273,6 +281,15 @@ def _prepare(spectrum: Spectrum, dark: Spectrum | None, reference: Spectrum | No
     lamp's and the stray light's numbers of terms, the index per wavelength, and warnings."""
     lam, y = spectrum.wavelength_nm, spectrum.intensity.astype(np.float64)
     warnings: list[str] = []
+    limited = detector_limits(y)
+    if limited.any():
+        if (~limited).sum() < 16:
+            raise InputError(f"spectrum {spectrum.path}: only {int((~limited).sum())} samples below the detector's "
+                             "ceiling and above its floor")
+        top = int(np.count_nonzero(limited & (y == y.max())))
+        warnings.append(f"{top} samples at the reading's ceiling (saturated) and {int(limited.sum()) - top} at its "
+                        "floor (clipped) were left out")
+        lam, y = lam[~limited], y[~limited]
     if opts.wavelength_range is not None:
         lo, hi = opts.wavelength_range
         keep = (lam >= lo) & (lam <= hi)
@@ -299,6 +316,30 @@ def _prepare(spectrum: Spectrum, dark: Spectrum | None, reference: Spectrum | No
         raise InputError(f"background terms must be within 0..10, got {bg}")
     n = dispersion.refractive_index(opts.n_film, lam)
     return lam, y, ref, terms, bg, n, warnings
+
+
+#: Fewest samples at exactly the reading's largest value that mark a saturated detector,
+#: and at exactly its smallest that mark a clipped floor (a reading at 0 where the
+#: instrument subtracted its dark and clipped what fell below, or a divided reading where
+#: the lamp gave no light).
+SATURATED_SAMPLES = 2
+CLIPPED_SAMPLES = 3
+
+
+def detector_limits(y: np.ndarray) -> np.ndarray:
+    """Samples (N,) at the detector's limits, which carry no measurement: every sample at
+    exactly the reading's maximum when at least :data:`SATURATED_SAMPLES` of them are (a
+    saturated pixel reads the full scale; noise makes two equal maxima of a real signal
+    unlikely unless the reading is quantised to a few levels), and every sample at exactly
+    its minimum when at least :data:`CLIPPED_SAMPLES` are."""
+    y = np.asarray(y)
+    top, bottom = y == y.max(), y == y.min()
+    out = np.zeros(len(y), dtype=bool)
+    if top.sum() >= SATURATED_SAMPLES and not bottom.all():
+        out |= top
+    if bottom.sum() >= CLIPPED_SAMPLES and not top.all():
+        out |= bottom
+    return out
 
 
 def _search_grid(lam: np.ndarray, n: np.ndarray, opts: SpectrumOptions) -> np.ndarray:
@@ -328,15 +369,21 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
     lam, y, ref, terms, bg_terms, n, warnings = _prepare(spectrum, dark, reference, options)
     reflect = reflector(lam, n)
     background = _background_basis(lam, bg_terms, ref)
-    prob = ProfileProblem(y, _lamp_basis(lam, terms, ref), options.offset, reflect, background, positive=True)
-    alt = _split_problem(y, lam, ref, terms, bg_terms, options, reflect)
+    # Weighted least squares: each wavelength's variance is its measured noise plus the
+    # model-error floor (the noise alone would let the quietest stretch, often a dim end
+    # of the lamp, decide; the floor alone would let garbage where the lamp is dark count).
+    sigma = np.hypot(local_noise(y), MODEL_ERROR_FLOOR * float(np.mean(np.abs(y))))
+    weight = float(np.median(sigma)) / sigma
+    prob = ProfileProblem(y, _lamp_basis(lam, terms, ref), options.offset, reflect, background, positive=True,
+                          weight=weight)
+    alt = _split_problem(prob, lam, ref, terms, bg_terms)
     grid = _search_grid(lam, n, options)
     step = grid[1] - grid[0]
     prob, alt, rss, alt_rss, minima, d_best, rss_best, w, fit_w = _search(prob, alt, grid, lam, n, options, warnings)
     dof = max(len(y) - (prob.n_linear + 1 + int(fit_w)), 1)
     fitted = prob.model(d_best, w)
     resid = y - fitted
-    rho = residual_correlation(resid)
+    rho = residual_correlation(resid * weight)
     s2 = rss_best / dof * (1.0 + rho) / (1.0 - rho)
     var = profile_variance(prob, d_best, w, step, fit_w=fit_w)
     stat = float(np.sqrt(2.0 * s2 * var)) if np.isfinite(var) and var > 0 else float("inf")
@@ -374,14 +421,15 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
         profile_nm=grid, profile_chi2=profile)
 
 
-def _split_problem(y, lam, ref, terms: int, bg_terms: int, options: SpectrumOptions, reflect) -> ProfileProblem | None:
-    """The model of :func:`_lamp_split`: the same number of smooth terms, ``max(1, J - 2)``
-    of them in the lamp and the rest in the stray light; None when that is the model itself."""
+def _split_problem(prob: ProfileProblem, lam, ref, terms: int, bg_terms: int) -> ProfileProblem | None:
+    """The model of :func:`_lamp_split`: ``prob`` with the same number of smooth terms,
+    ``max(1, J - 2)`` of them in the lamp and the rest in the stray light; None when that is
+    the model itself."""
     alt_terms = max(1, terms - 2)
     if alt_terms == terms:
         return None
-    return ProfileProblem(y, _lamp_basis(lam, alt_terms, ref), options.offset, reflect,
-                          _background_basis(lam, bg_terms + terms - alt_terms, ref), positive=True)
+    return replace(prob, basis=_lamp_basis(lam, alt_terms, ref),
+                   background=_background_basis(lam, bg_terms + terms - alt_terms, ref))
 
 
 def _lamp_split(alt: ProfileProblem | None, alt_rss, lam, n, ref, options: SpectrumOptions, grid, w: float,

@@ -142,10 +142,14 @@ def test_reads_headers_comments_footers_and_separators(tmp_path):
                                         + body + "\n>>>>>End Spectral Data<<<<<\n")
     (tmp_path / "c.csv").write_text("# comment\nwavelength_nm,intensity\n"
                                     + "\n".join(f"{a},{b}" for a, b in zip(lam, val)) + "\n")
-    for name in ("ocean.txt", "c.csv"):
+    # decimal commas, as spreadsheet and instrument software write them in many locales
+    (tmp_path / "semicolon.csv").write_text("Wave;Sample\n" + "\n".join(
+        f"{a:.2f};{b:.6f}".replace(".", ",") for a, b in zip(lam, val)) + "\n")
+    (tmp_path / "tabs.txt").write_text("\n".join(f"{a:.2f}\t{b:.6f}".replace(".", ",") for a, b in zip(lam, val)))
+    for name in ("ocean.txt", "c.csv", "semicolon.csv", "tabs.txt"):
         s = read_spectrum(tmp_path / name)
         np.testing.assert_allclose(s.wavelength_nm, lam)
-        np.testing.assert_allclose(s.intensity, val)
+        np.testing.assert_allclose(s.intensity, val, atol=1e-6)
 
 
 def test_non_finite_rows_are_skipped_and_counted(tmp_path):

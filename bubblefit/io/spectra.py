@@ -1,7 +1,7 @@
 """Spectrometer readings: two-column text files ``wavelength_nm, intensity``.
 
 What spectrometers and their software write: columns separated by commas, tabs, spaces
-or semicolons; a header (column names, an instrument's preamble such as Ocean Optics'
+or semicolons, with decimal commas where tabs or semicolons separate the columns; a header (column names, an instrument's preamble such as Ocean Optics'
 ``>>>>>Begin Spectral Data<<<<<``) before the numbers and possibly a footer after them;
 ``#`` or ``%`` comment lines anywhere. Extra columns are ignored. Rows are sorted by
 wavelength; repeated wavelengths are averaged. Rows with a non-finite value (``nan``,
@@ -29,6 +29,8 @@ __all__ = ["Spectrum", "read_spectrum", "MIN_SAMPLES"]
 MIN_SAMPLES = 16
 
 _SPLIT = re.compile(r"[,;\s]+")
+_SPLIT_STRONG = re.compile(r"[;\t]+")
+_DECIMAL_COMMA = re.compile(r"^([-+]?\d+),(\d+(?:[eE][-+]?\d+)?)$")
 
 
 @dataclass(frozen=True)
@@ -52,8 +54,16 @@ class Spectrum:
 
 
 def _numbers(line: str):
-    """The first two numbers of a data line, or None if it is not one."""
-    parts = [p for p in _SPLIT.split(line.strip()) if p]
+    """The first two numbers of a data line, or None if it is not one.
+
+    A line with tabs or semicolons is split on them alone, so that decimal commas (what
+    spreadsheet and instrument software write in many locales: ``400,12;0,5`` or
+    ``400,12<TAB>0,5``) are read as decimal points, not as separators."""
+    s = line.strip()
+    if "\t" in s or ";" in s:
+        parts = [_DECIMAL_COMMA.sub(r"\1.\2", p.strip(" ,")) for p in _SPLIT_STRONG.split(s) if p.strip(" ,")]
+    else:
+        parts = [p for p in _SPLIT.split(s) if p]
     if len(parts) < 2:
         return None
     try:

@@ -310,3 +310,14 @@ def test_a_coarsely_quantised_reading_has_a_finite_noise():
     r = fit_spectrum(Spectrum(lam, y, "8bit.csv"))
     assert np.isfinite(r.reduced_chi2)
     assert abs(r.thickness_nm - 1200.0) < 5.0
+
+
+def test_a_saturated_reference_is_not_divided_by():
+    """The lamp read at full scale over its peak (a common way to record it): where the
+    reference is saturated the reading is left out, and the thickness is read from the rest."""
+    lam, y, lamp_ref = synth(1500.0, noise=0.002, stray=0.0, dark=0.0)
+    ref = np.minimum(lamp_ref, 0.8)
+    r = fit_spectrum(Spectrum(lam, y, "film.csv"), reference=Spectrum(lam, ref, "lamp.csv"))
+    assert any("reference is saturated" in w for w in r.warnings)
+    assert r.ok, r.reasons
+    assert abs(r.thickness_nm - 1500.0) < max(3.0 * r.thickness_nm_stderr, 0.5)

@@ -306,6 +306,13 @@ def _prepare(spectrum: Spectrum, dark: Spectrum | None, reference: Spectrum | No
             raise InputError(f"reference {reference.path}: fewer than 16 wavelengths with light after the dark")
         if not good.all():
             warnings.append(f"{int((~good).sum())} wavelengths where the reference is dark were left out")
+        # a lamp read at full scale: the wavelengths its saturated samples touch
+        saturated = np.interp(lam, reference.wavelength_nm, detector_limits(reference.intensity).astype(float)) > 0
+        if saturated.any():
+            good &= ~saturated
+            if good.sum() < 16:
+                raise InputError(f"reference {reference.path}: fewer than 16 wavelengths below its saturation")
+            warnings.append(f"{int(saturated.sum())} wavelengths where the reference is saturated were left out")
         lam, y, ref = lam[good], y[good], ref[good]
         ref = ref / np.max(ref)
     terms = opts.lamp_terms if opts.lamp_terms is not None else (1 if ref is not None else 3 if opts.normalised else 5)

@@ -240,8 +240,8 @@ def second_difference_noise(y: np.ndarray) -> float:
     return float(steps.min() / np.sqrt(12.0)) if len(steps) else 0.0
 
 
-#: Samples of the window over which :func:`local_noise` takes its median (at least), and
-#: the range its estimate may span around the reading's median noise.
+#: The fewest samples of :func:`local_noise`'s sliding window, and the range its estimate
+#: may span around the reading's median noise.
 LOCAL_NOISE_WINDOW = 41
 LOCAL_NOISE_RANGE = (1.0 / 3.0, 30.0)
 

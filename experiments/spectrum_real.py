@@ -30,8 +30,13 @@ A result *fails* against a stated value when it is missing or off by more than 1
 (optifik's tests mostly use ``rtol=0.1``). Prints a table, writes
 ``experiments/results/spectrum_real.{json,png}``.
 
+``--whole-range`` gives bubblefit the whole reading, as ``bubblefit fit-spectrum`` reads it
+by default (optifik keeps >= 450 nm: its methods need the clean part); on the Lorene and
+Manue readings the first 50 nm are a lamp-divided reading where the lamp is dark, jumping
+between 0 and the ceiling.
+
 Usage: ``PYTHONPATH=. python experiments/spectrum_real.py DATA_DIR [--optifik-python PY]
-[--stride 25] [--quick]``
+[--stride 25] [--quick] [--groups G1,G2] [--whole-range]``
 """
 
 from __future__ import annotations
@@ -91,10 +96,10 @@ def stated_values(path: Path) -> dict[str, float]:
     return out
 
 
-def load(path: Path):
-    """Wavelengths >= WMIN and intensities, non-finite rows dropped."""
+def load(path: Path, wmin: float = WMIN):
+    """Wavelengths >= ``wmin`` and intensities, non-finite rows dropped."""
     lam, y = np.loadtxt(path, delimiter=",", ndmin=2).T
-    keep = np.isfinite(lam) & np.isfinite(y) & (lam >= WMIN)
+    keep = np.isfinite(lam) & np.isfinite(y) & (lam >= wmin)
     return lam[keep], y[keep]
 
 
@@ -193,11 +198,11 @@ def run_optifik(cases, data: Path, python: str) -> list[dict]:
 
 
 # ---------------------------------------------------------------------------- bubblefit
-def run_bubblefit(c, data: Path, normalised: bool) -> dict:
+def run_bubblefit(c, data: Path, normalised: bool, whole: bool = False) -> dict:
     from bubblefit.inverse.spectrum import SpectrumOptions, fit_spectrum
     from bubblefit.io.spectra import Spectrum
 
-    lam, y = load(data / c["file"])
+    lam, y = load(data / c["file"], 0.0 if whole else WMIN)
     opts = SpectrumOptions(n_film=c["n"], thickness_range=(0.0, c["thickness_max"]), normalised=normalised)
     ref = None
     t0 = time.perf_counter()
@@ -312,6 +317,10 @@ def main():
     ap.add_argument("--optifik-python", default=".venv-optifik/bin/python")
     ap.add_argument("--stride", type=int, default=25, help="every STRIDE-th reading of the time series")
     ap.add_argument("--quick", action="store_true", help="three files a group, a sparser series")
+    ap.add_argument("--groups", default=None, help="comma-separated groups (default: all, and the series)")
+    ap.add_argument("--whole-range", action="store_true",
+                    help="bubblefit reads the whole reading, as the command does by default (optifik keeps >= 450 nm); "
+                         "writes spectrum_real_whole.{json,png}")
     ap.add_argument("--optifik-worker", nargs=2, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.optifik_worker:
@@ -320,15 +329,18 @@ def main():
         ap.error("DATA_DIR is required")
     data = Path(args.data).resolve()
     cases = build_cases(data, args.stride, args.quick)
+    if args.groups:
+        keep = set(args.groups.split(","))
+        cases = [c for c in cases if c["group"] in keep]
     of = run_optifik(cases, data, args.optifik_python)
     rows = []
     for c, o in zip(cases, of):
-        b = run_bubblefit(c, data, normalised=False)
+        b = run_bubblefit(c, data, normalised=False, whole=args.whole_range)
         row = {"group": c["group"], "file": c["file"], "expected": c["expected"], "n": c["n"],
                "bf": b["t"], "bf_stderr": b["stderr"], "bf_ok": b["ok"], "bf_reasons": b["reasons"],
                "bf_time_s": b["time_s"], "of_method": c["method"], **o}
         if c["normalised"] and c["expected"] is not None:
-            f = run_bubblefit(c, data, normalised=True)
+            f = run_bubblefit(c, data, normalised=True, whole=args.whole_range)
             row.update(bf_norm=f["t"], bf_norm_stderr=f["stderr"], bf_norm_ok=f["ok"], bf_norm_reasons=f["reasons"])
         rows.append(row)
         exp = f"{c['expected']:8.1f}" if c["expected"] is not None else "       -"
@@ -337,10 +349,12 @@ def main():
               f"optifik {c['method']} {o['of_ref']:8.1f}  auto {o['of_auto']:8.1f}", flush=True)
     stated, series = summarise_stated(rows), summarise_series(rows)
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "spectrum_real.json").write_text(json.dumps(
-        {"data": "github.com/sciunto/optifik data/ (not redistributed)", "wavelength_min_nm": WMIN,
-         "stated": stated, "series": series, "rows": rows}, indent=1))
-    plot(rows, RESULTS / "spectrum_real.png")
+    name = "spectrum_real_whole" if args.whole_range else "spectrum_real"
+    (RESULTS / f"{name}.json").write_text(json.dumps(
+        {"data": "github.com/sciunto/optifik data/ (not redistributed)",
+         "wavelength_min_nm": {"bubblefit": 0.0 if args.whole_range else WMIN, "optifik": WMIN},
+         "groups": args.groups or "all", "stated": stated, "series": series, "rows": rows}, indent=1))
+    plot(rows, RESULTS / f"{name}.png")
     print(f"\n{'group':>8} {'tool':>23} {'files':>5} {'med|err|nm':>10} {'med rel':>7} {'fail10%':>7} {'flagged':>7} {'silent':>6}")
     for g, entry in stated.items():
         for tool, e in entry.items():

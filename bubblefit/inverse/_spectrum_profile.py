@@ -115,14 +115,14 @@ class ProfileProblem:
         bb = (b[:, :, None] * b[:, None, :]).reshape(npts, j * j)
         be = (b[:, :, None] * e[:, None, :]).reshape(npts, j * q)
         by = b * y[:, None]
-        return dict(bb=bb, be=be, by=by, yy=float(y @ y), ee=e.T @ e, ey=e.T @ y, no_film=no_film,
+        return dict(b=b, bb=bb, be=be, by=by, yy=float(y @ y), ee=e.T @ e, ey=e.T @ y, no_film=no_film,
                     sbb=bb.sum(0), sbe=be.sum(0), sby=by.sum(0), sb=b.sum(0))
 
     def _chunk_rss(self, r: np.ndarray, ne: dict, levels) -> np.ndarray:
         """``RSS`` (L, C) for the reflectance rows ``r`` (C, N) of a chunk of thicknesses, with
         ``R + b`` for each ``b`` of ``levels``: ``(R + b)^2 = R^2 + 2 b R + b^2`` expands the
         products, so that each level costs only its small solves."""
-        b = self._weighted(self.basis)
+        b = ne["b"]
         j, q = b.shape[1], ne["ee"].shape[0]
         m, k = len(r), j + q
         rr, r1, rby, rb = (r * r) @ ne["bb"], r @ ne["bb"], r @ ne["by"], r @ b

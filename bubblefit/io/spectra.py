@@ -1,7 +1,8 @@
 """Spectrometer readings: two-column text files ``wavelength_nm, intensity``.
 
 What spectrometers and their software write: columns separated by commas, tabs, spaces
-or semicolons, with decimal commas where tabs or semicolons separate the columns; a header (column names, an instrument's preamble such as Ocean Optics'
+or semicolons, with decimal commas where tabs or semicolons separate the columns; a
+header (column names, an instrument's preamble such as Ocean Optics'
 ``>>>>>Begin Spectral Data<<<<<``) before the numbers and possibly a footer after them;
 ``#`` or ``%`` comment lines anywhere. Extra columns are ignored. Rows are sorted by
 wavelength; repeated wavelengths are averaged. Rows with a non-finite value (``nan``,

@@ -360,3 +360,56 @@ def test_cli_thickness_range_must_be_finite(tmp_path, capsys):
                  "--thickness-range", "0,inf"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "thickness-range" in err[0]
+
+
+def test_padded_level_renders_the_level_and_serves_every_framing(env):
+    """A level's padded program (canonical camera, disc passed as data) renders the
+    level's own image, with and without a disc refinement, and a photo framed otherwise
+    reuses the compiled solves: the next photo compiles nothing new."""
+    import jax.numpy as jnp
+
+    from bubblefit.inverse import _local
+    from bubblefit.inverse._observation import Level, padded, padded_size, render_level
+    from bubblefit.inverse.fit import fit_photo
+    from bubblefit.model.geometry import OrthographicCamera
+    from bubblefit.lighting.filtering import FilterConfig
+    from bubblefit.model.effects import Effects
+    from bubblefit.model.render import Params, RenderConfig, render
+    from bubblefit.optics.spectral import spectral_basis
+
+    assert [padded_size(n) for n in (45, 48, 80, 90, 255, 320, 1000)] == [48, 48, 80, 96, 256, 320, 1024]
+    fx = Effects(model="paper", interference="airy", filtering=FilterConfig("mipmap", nodes=2),
+                 spectral=spectral_basis("uniform", 16))
+    rng = np.random.default_rng(3)
+    cfg = RenderConfig(effects=fx, camera=OrthographicCamera(45, 37, 20.3, 17.9, 15.2))
+    bg = rng.uniform(0.1, 0.5, (37, 45, 3)).astype(np.float32)
+    lev = Level(1, cfg, np.zeros((37, 45, 3), np.float32), np.ones((37, 45, 3), np.float32), bg,
+                np.ones((37, 45), bool), np.ones((37, 45), bool), np.ones((37, 45)), np.zeros((37, 45)))
+    pad = padded(lev)
+    assert pad.cfg.shape == (48, 48) and pad.y.shape == (48, 48, 3)
+    assert float(jnp.sum(pad.w[37:])) == 0.0 and float(jnp.sum(pad.w[:, 45:])) == 0.0
+    for shift in ((0.0, 0.0, 0.0), (0.03, -0.02, 0.05)):
+        p = Params.make(thickness=640.0, roughness=0.05, disc=shift)
+        want = np.asarray(render(p, cfg, env, jnp.asarray(bg)))
+        got = render_level(p, lev, env)
+        assert got.shape == want.shape
+        np.testing.assert_allclose(got, want, atol=2e-5)
+
+    # the same bubble framed otherwise (disc moved, radius changed): no new solve compiled
+    rng = np.random.default_rng(7)
+    bgp = _background(rng)
+    truth = dict(t=0.972, roughness=0.08, f=0.3, thickness_nm=500.0)
+    from bubblefit.model.scene import Scene, render_scene
+
+    def photo(disc):
+        scene = Scene.from_dict({"camera": {"width": N, "height": N, "disc": list(disc)}, "bubble": truth,
+                                 "lighting": {"envmap": "unused.exr"}, "effects": {"transmission_tint": True}})
+        return _quantise(render_scene(scene, bgp, env=env), rng)
+
+    first = fit_photo(photo(DISC), env, options=_opts(), background=bgp)
+    misses = _local.solver.cache_info().misses
+    moved = (DISC[0] + 1.3, DISC[1] - 0.7, 0.93 * DISC[2])
+    second = fit_photo(photo(moved), env, options=_opts(disc=moved), background=bgp)
+    assert _local.solver.cache_info().misses == misses
+    for res in (first, second):
+        assert res.ok and abs(res.params["thickness_nm"] - 500.0) < 5.0

@@ -5,8 +5,9 @@ close, and its trust-region damping keeps steps inside one colour fringe of the
 thickness; rather than Dogleg because with few parameters its damped solve is as cheap
 and it needs no separate trust-region geometry. The Jacobian is forward-mode (few
 parameters, many residuals). Compiled solvers are cached per static configuration
-(camera, effects, parameter table), so a sequence of photos with the same size and disc
-compiles once.
+(effects, parameter table, padded size): a level is padded and its disc passed as data
+(:func:`~bubblefit.inverse._observation.padded`), so photos of any framing whose levels
+pad to the same size share the compiled solves and the persistent cache's programs.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import equinox as eqx
@@ -25,9 +26,10 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
-from ._observation import Level
+from ._observation import Level, padded, unpadded
 from ._parameters import PARAMETERS, ParameterTable, forward, value_and_slope
 from ..io.executables import stored
+from ..model.geometry import compose_shift
 from ..model.render import RenderConfig, render
 
 __all__ = ["LocalSolution", "DenseDampedNewtonDescent", "LevenbergMarquardt", "scaled_decrement",
@@ -334,13 +336,17 @@ def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_st
            max_rejections: int | None = MAX_REJECTIONS):
     """Jitted ``solve(z0, args) -> (z, ok, maxed, steps, residual, J)`` and ``resid``.
 
-    ``args = (fixed, env, background, photo, weights)``; the residual is
-    ``robust((render - photo) * weights)`` flattened.
+    ``args = (fixed, env, background, photo, weights, base)`` (a padded level,
+    :func:`~bubblefit.inverse._observation.padded`); the
+    residual is ``robust((render - photo) * weights)`` flattened, rendered with the disc
+    moved by ``base`` and then by the fitted refinement
+    (:func:`~bubblefit.model.geometry.compose_shift`).
     """
 
     def resid(z, args):
-        fixed, env, bg, y, w = args
-        img = render(table.render_params(table.values(z, fixed)), cfg, env, bg)
+        fixed, env, bg, y, w, base = args
+        p = table.render_params(table.values(z, fixed))
+        img = render(replace(p, disc=compose_shift(base, p.disc)), cfg, env, bg)
         return robust((img - y) * w, robust_scale).reshape(-1)
 
     lm = LevenbergMarquardt(rtol=rtol, atol=atol, max_rejections=max_rejections)
@@ -348,9 +354,11 @@ def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_st
     @jax.jit
     def solve(z0, args):
         sol = optx.least_squares(resid, lm, z0, args, max_steps=max_steps, throw=False)
-        z = sol.value
-        r = resid(z, args)
-        jac = jax.jacfwd(resid)(z, args)
+        # The last accepted point's residual and Jacobian, which the solver evaluated there
+        # (every solve takes at least one step, and the first is accepted): tracing them
+        # again would double the program's renders and its compile time.
+        f_info = sol.state.f_info
+        z, r, jac = sol.value, f_info.residual, f_info.jac.as_matrix()
         maxed = (sol.result == optx.RESULTS.max_steps_reached) | (
             sol.result == optx.RESULTS.nonlinear_max_steps_reached)
         return (z, sol.result == optx.RESULTS.successful, maxed, sol.stats["num_steps"], r, jac)
@@ -368,9 +376,9 @@ def stored_solver(*key):
 @functools.lru_cache(maxsize=16)
 def batched_solver(*key):
     """:func:`solver`'s ``solve`` vmapped over frames: ``z0``, ``y`` and ``w`` carry a
-    leading frame axis; the fixed values, the map and the background are shared."""
+    leading frame axis; the fixed values, the map, the background and the disc are shared."""
     solve, _ = solver(*key)
-    return jax.jit(jax.vmap(solve, in_axes=(0, (None, None, None, 0, 0))))
+    return jax.jit(jax.vmap(solve, in_axes=(0, (None, None, None, 0, 0, None))))
 
 
 @functools.lru_cache(maxsize=64)
@@ -382,9 +390,13 @@ def reporter(table: ParameterTable):
     return jax.jit(rep), jax.jit(jax.jacfwd(rep))
 
 
-def solution_from(table: ParameterTable, vals: dict, z, ok, maxed, steps, r, jac, fixed) -> LocalSolution:
-    """A :class:`LocalSolution` from a solver's raw outputs (numpy, float64)."""
+def solution_from(table: ParameterTable, vals: dict, z, ok, maxed, steps, r, jac, fixed,
+                  lev: Level | None = None) -> LocalSolution:
+    """A :class:`LocalSolution` from a solver's raw outputs (numpy, float64); with ``lev``,
+    the residual and Jacobian of the padded level it was solved on cut back to its pixels."""
     z = np.asarray(z, np.float64)
+    if lev is not None:
+        r, jac = unpadded(lev, r), unpadded(lev, jac)
     new = dict(vals)
     for i, n in enumerate(table.free):
         new[n] = float(forward(n, z[i]))
@@ -397,12 +409,13 @@ def solve_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_st
     """Levenberg-Marquardt from ``vals`` on ``lev`` (``opts``: a ``FitOptions``); with
     ``stall`` it stops after :data:`MAX_REJECTIONS` rejections and restarts while far from
     the optimum, without it runs optimistix' own stopping rule alone (warm starts)."""
-    key = (lev.cfg, table, float(opts.robust_scale), int(max_steps or opts.max_steps), float(opts.rtol),
+    pad = padded(lev)
+    key = (pad.cfg, table, float(opts.robust_scale), int(max_steps or opts.max_steps), float(opts.rtol),
            float(opts.atol), MAX_REJECTIONS if stall else None)
     solve = stored_solver(*key)
     fixed = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k not in table.free}
-    args = (fixed, env, None if lev.bg is None else jnp.asarray(lev.bg), jnp.asarray(lev.y), jnp.asarray(lev.w))
-    sol = solution_from(table, vals, *solve(table.unconstrained(vals), args), fixed)
+    args = (fixed, env, pad.bg, pad.y, pad.w, pad.base)
+    sol = solution_from(table, vals, *solve(table.unconstrained(vals), args), fixed, lev)
     # A solve stopped by rejections early on (a trust region still far too large) starts
     # afresh from where it stopped, with a fresh trust region, up to MAX_RESTARTS times.
     dof = max(int(np.count_nonzero(lev.w)) - len(table.free), 1)
@@ -410,7 +423,7 @@ def solve_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_st
     for _ in range(MAX_RESTARTS if stall else 0):
         if not (sol.successful and remaining_step(sol, sol.cost / dof, table.free) > DECREMENT_TOLERANCE):
             break
-        nxt = solution_from(table, sol.values, *solve(jnp.asarray(sol.z, jnp.float32), args), fixed)
+        nxt = solution_from(table, sol.values, *solve(jnp.asarray(sol.z, jnp.float32), args), fixed, lev)
         steps += nxt.steps
         if not np.isfinite(nxt.cost) or nxt.cost > sol.cost:
             break

@@ -41,7 +41,6 @@ J. Besag, "On the statistical analysis of dirty pictures", J. R. Stat. Soc. B 48
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import replace
 
@@ -51,7 +50,7 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from . import search
-from ._observation import Level
+from ._observation import Level, padded
 from ._parameters import ParameterTable
 from ..model.geometry import OrthographicCamera
 from ..model.thickness import drainage_profile
@@ -113,8 +112,8 @@ class _RenderCosts:
 
     def __init__(self, lev: Level, table: ParameterTable, vals: dict, env):
         self.lev, self.table, self.env = lev, table, env
-        self.cfg = replace(lev.cfg, effects=replace(lev.cfg.effects, thickness="map"))
-        self.bg = None if lev.bg is None else jnp.asarray(lev.bg)
+        self.pad = padded(lev)
+        self.cfg = replace(self.pad.cfg, effects=replace(lev.cfg.effects, thickness="map"))
         self.base = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k != "map"}
         self.gain = float(vals["exposure"])
         self.sel = lev.mask.reshape(-1)
@@ -123,13 +122,15 @@ class _RenderCosts:
 
     def __call__(self, d: np.ndarray) -> np.ndarray:
         h, w = self.lev.mask.shape
-        maps = np.zeros((d.shape[0], h * w), np.float32)
-        maps[:, self.sel] = np.maximum(d, 0.0)
-        refl, back = search.render_candidates(self.base, jnp.asarray(maps.reshape(-1, h, w)), self.cfg, self.env,
-                                              self.bg, self.table)
+        hb, wb = self.cfg.shape
         g = d.shape[0]
-        refl = np.asarray(refl).reshape(g, -1, 3)[:, self.sel] * self.gain
-        back = np.asarray(back).reshape(g, -1, 3)[:, self.sel]
+        maps = np.zeros((g, h * w), np.float32)
+        maps[:, self.sel] = np.maximum(d, 0.0)
+        maps = np.pad(maps.reshape(g, h, w), ((0, 0), (0, hb - h), (0, wb - w)))
+        refl, back = search.render_candidates(self.base, jnp.asarray(maps), self.cfg, self.env, self.pad.bg,
+                                              self.table, self.pad.base)
+        refl = np.asarray(refl)[:, :h, :w].reshape(g, -1, 3)[:, self.sel] * self.gain
+        back = np.asarray(back)[:, :h, :w].reshape(g, -1, 3)[:, self.sel]
         return np.asarray(search.pixel_costs(jnp.asarray(refl), jnp.asarray(back), jnp.asarray(self.y),
                                              jnp.asarray(self.w2)))
 

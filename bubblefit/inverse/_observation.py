@@ -5,6 +5,11 @@ the frame the fit analyses (:func:`analysis_frame`: a large photo cropped to the
 and block-averaged, so memory is bounded by the fit's size), and the photo
 block-averaged to the resolution a stage of the fit runs at, with its weights and the
 film's geometry (:class:`Level`). The bubble's disc is found in :mod:`._disc`.
+
+Compiled programs see a level padded (:func:`padded`): its rows and columns rounded up to
+a few sizes, its camera replaced by the padded size's canonical one and the disc passed
+as data, so that one program serves every photo whose level pads to that size, wherever
+the bubble lies in it (a user's next photo does not compile again).
 """
 
 from __future__ import annotations
@@ -20,11 +25,11 @@ from scipy import ndimage as ndi
 from ..capture.calibrate import detect_bubble, usable_mask
 from ..errors import InputError
 from ..io.images import srgb_encode, srgb_slope
-from ..model.geometry import OrthographicCamera, front_hits
-from ..model.render import RenderConfig
+from ..model.geometry import OrthographicCamera, canonical_frame, compose_shift, front_hits
+from ..model.render import RenderConfig, render_loaded
 
 __all__ = ["Level", "Frame", "noise_sigma", "saturation_mask", "detect_disc", "make_level", "film_geometry",
-           "block_mean", "analysis_frame"]
+           "block_mean", "analysis_frame", "Padded", "padded", "unpadded", "render_level", "padded_size"]
 
 
 def noise_sigma(photo: np.ndarray, read: float, shot: float, bits: int | None) -> np.ndarray:
@@ -214,3 +219,72 @@ def make_level(k, base_cfg, photo, sigma, bg, saturated, rim: float) -> Level:
     wts = np.where(mask[..., None], 1.0 / np.sqrt(var), 0.0)
     bgk = None if bg is None else _block(bg, k, h, w).astype(np.float32)
     return Level(k, cfg, np.nan_to_num(y).astype(np.float32), wts.astype(np.float32), bgk, mask, inside, cos, height)
+
+
+# ---------------------------------------------------------------------------------------
+# A level as compiled programs see it
+# ---------------------------------------------------------------------------------------
+
+#: The finest step of the padded sizes (:func:`padded_size`).
+BUCKET = 16
+
+
+def padded_size(n: int) -> int:
+    """``n`` rounded up to a multiple of ``max(BUCKET, 2^(bits(n) - 4))``: steps of 16 up to
+    255 pixels, then an eighth to a sixteenth of the size (at most 12.5 % padding), so a
+    few programs serve every photo size."""
+    step = max(BUCKET, 1 << max(0, int(n).bit_length() - 4))
+    return -(-int(n) // step) * step
+
+
+@dataclass
+class Padded:
+    """A level padded at its bottom and right (:func:`padded`): the canonical
+    configuration, the photo, weights and background (jnp, float32; weight 0 in the
+    padding), and ``base``, the shift that moves the canonical disc onto the level's."""
+
+    cfg: RenderConfig
+    y: jnp.ndarray
+    w: jnp.ndarray
+    bg: jnp.ndarray | None
+    base: np.ndarray
+
+
+def padded(lev: Level) -> Padded:
+    """``lev`` as compiled programs see it. An orthographic level is padded to
+    :func:`padded_size` rows and columns and takes the canonical camera of that size
+    (:func:`~bubblefit.model.geometry.canonical_frame`); a perspective one, whose rays
+    depend on its size, is passed as it is (``base`` the identity)."""
+    f32 = lambda a: None if a is None else jnp.asarray(a, jnp.float32)
+    if not isinstance(lev.cfg.camera, OrthographicCamera):
+        return Padded(lev.cfg, f32(lev.y), f32(lev.w), f32(lev.bg), np.asarray([0.0, 0.0, 1.0], np.float32))
+    h, w = lev.y.shape[:2]
+    hb, wb = padded_size(h), padded_size(w)
+    camera, base = canonical_frame(lev.cfg.camera, hb, wb)
+    pad = lambda a: None if a is None else f32(np.pad(a, ((0, hb - h), (0, wb - w), (0, 0))))
+    return Padded(replace(lev.cfg, camera=camera), pad(lev.y), pad(lev.w), pad(lev.bg), base)
+
+
+def unpadded(lev: Level, a) -> np.ndarray:
+    """``a`` (numpy), a flat residual ``(hb wb 3, ...)`` or an image ``(hb, wb, ...)`` of
+    :func:`padded`'s level, on ``lev``'s own pixels: flat ``(h w 3, ...)`` or ``(h, w, ...)``."""
+    h, w = lev.y.shape[:2]
+    a = np.asarray(a)
+    ortho = isinstance(lev.cfg.camera, OrthographicCamera)
+    hb, wb = (padded_size(h), padded_size(w)) if ortho else (h, w)
+    if a.shape[:2] == (hb, wb):
+        return a[:h, :w]
+    return a.reshape(hb, wb, 3, *a.shape[1:])[:h, :w].reshape(h * w * 3, *a.shape[1:])
+
+
+def render_level(p, lev: Level, env, cfg: RenderConfig | None = None, terms: bool = False):
+    """:func:`~bubblefit.model.render.render_loaded` of ``lev`` (with ``cfg``, another
+    configuration of the same camera) through its padded program: ``p``'s disc refinement
+    is composed with the level's disc; the image (and with ``terms`` the dict of terms) on
+    ``lev``'s pixels."""
+    pad = padded(replace(lev, cfg=cfg) if cfg is not None else lev)
+    p = replace(p, disc=compose_shift(pad.base, np.asarray(p.disc, np.float32)))
+    out = render_loaded(p, pad.cfg, env, pad.bg, terms=terms)
+    if terms:
+        return unpadded(lev, out[0]), {k: unpadded(lev, v) for k, v in out[1].items()}
+    return unpadded(lev, out)

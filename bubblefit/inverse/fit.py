@@ -52,14 +52,13 @@ from . import search
 from ._local import (DECREMENT_TOLERANCE, LocalSolution, batched_solver, remaining_step, reporter, solution_from,
                      solve_local)
 from ._maps import fit_map
-from ._observation import detect_disc, noise_sigma
+from ._observation import detect_disc, noise_sigma, padded, render_level
 from ._options import FitOptions, FitResult
 from ._parameters import THICKNESSES, refined_disc
 from ._setup import Setup, defaults, setup
 from ._uncertainty import uncertainty
 from ._verdict import at_bounds, unresolved, verdict
 from ..lighting.envmap import EnvMap
-from ..model.render import render_loaded
 from ..model.thickness import drainage_profile
 from ..progress import stage
 
@@ -164,8 +163,7 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
         thickness_map = np.where(full.inside, np.asarray(drainage_profile(jnp.asarray(full.height), *prof)), np.nan)
     p_final = table.render_params({k: jnp.asarray(v, jnp.float32) for k, v in final_vals.items()},
                                   "map" if opts.thickness == "map" else None)
-    img = np.asarray(render_loaded(p_final, full.cfg, env, None if st.background is None
-                                   else jnp.asarray(st.background, jnp.float32)), np.float64)
+    img = np.asarray(render_level(p_final, full, env), np.float64)
     resid_img = st.photo - img
     rms = float(np.sqrt(np.mean(resid_img[full.mask] ** 2))) if full.mask.any() else float("nan")
     reported["n_film"] = float(st.vals["n_film"])
@@ -343,18 +341,17 @@ def fit_batch(photos, env: EnvMap, *, options: FitOptions = FitOptions(), backgr
     prev_vals = defaults(scene, previous, options, options.t_init)[0] if previous else None
     z0 = _batch_starts(first, len(photos), prev_vals)
     fixed = {k: jnp.asarray(v, jnp.float32) for k, v in first.vals.items() if k not in table.free}
-    solve = batched_solver(first.lev_fit.cfg, table, float(options.robust_scale), int(options.max_steps),
+    pads = [padded(s.lev_fit) for s in setups]
+    solve = batched_solver(pads[0].cfg, table, float(options.robust_scale), int(options.max_steps),
                            float(options.rtol), float(options.atol), None)
-    bg = None if first.lev_fit.bg is None else jnp.asarray(first.lev_fit.bg)
     out = solve(jnp.asarray(np.stack(z0), jnp.float32),
-                (fixed, env, bg, jnp.asarray(np.stack([s.lev_fit.y for s in setups])),
-                 jnp.asarray(np.stack([s.lev_fit.w for s in setups]))))
+                (fixed, env, pads[0].bg, jnp.stack([x.y for x in pads]), jnp.stack([x.w for x in pads]), pads[0].base))
     outs = [np.asarray(x) for x in out]
     share = (time.perf_counter() - t_start) / len(photos)  # each frame's part of the batch
     results = []
     for k, st in enumerate(setups):
         t0 = time.perf_counter() - share
-        sol = solution_from(table, st.vals, *(x[k] for x in outs), fixed)
+        sol = solution_from(table, st.vals, *(x[k] for x in outs), fixed, st.lev_fit)
         why = _warm_doubt(st, options, sol)
         if why:
             start = {key: float(x) for key, x in reporter(table)[0](jnp.asarray(outs[0][k]), fixed).items()}

@@ -42,8 +42,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._observation import padded, render_level
 from ._parameters import ParameterTable
-from ..model.render import render_loaded, render_terms
+from ..model.geometry import compose_shift
+from ..model.render import render_terms
 from ..optics import spectral
 from ..optics import film
 from ..optics.dispersion import index_offset
@@ -301,12 +303,11 @@ def unlit_terms(lev, table: ParameterTable, vals: dict, env):
     fx = lev.cfg.effects
     off = replace(lev.cfg, effects=replace(fx, interference="off", spectral=None, thickness="constant"))
     v = {k: jnp.asarray(x, jnp.float32) for k, x in dict(vals, thickness_nm=0.0).items() if k != "map"}
-    _, terms = render_loaded(table.render_params(v, "constant"), off, env,
-                             None if lev.bg is None else jnp.asarray(lev.bg), terms=True)
-    zero = jnp.zeros(lev.y.shape, jnp.float32)
+    _, terms = render_level(table.render_params(v, "constant"), lev, env, cfg=off, terms=True)
+    zero = np.zeros(lev.y.shape, np.float32)
     sel = lev.mask.reshape(-1)
-    m = np.asarray(terms.get("front", zero) + terms.get("rear", zero)).reshape(-1, 3)[sel]
-    c = np.asarray(terms.get("background", zero)).reshape(-1, 3)[sel]
+    m = (terms.get("front", zero) + terms.get("rear", zero)).reshape(-1, 3)[sel]
+    c = terms.get("background", zero).reshape(-1, 3)[sel]
     return m, c
 
 
@@ -330,12 +331,15 @@ def _candidates_paper(lev, table: ParameterTable, vals: dict, grid: np.ndarray, 
 
 
 @functools.partial(jax.jit, static_argnames=("cfg", "table"))
-def render_candidates(base: dict, thick, cfg, env, bg, table: ParameterTable):
-    """Render each candidate thickness array ``thick`` (G, ...) with exposure 1: (G, H, W, 3) x2."""
+def render_candidates(base: dict, thick, cfg, env, bg, table: ParameterTable, shift):
+    """Render each candidate thickness array ``thick`` (G, ...) with exposure 1: (G, H, W, 3) x2,
+    the disc moved by ``shift`` before the refinement ``base`` holds (a padded level's
+    ``base``, :func:`~bubblefit.inverse._observation.padded`)."""
 
     def one(th):
         p = table.render_params(dict(base, exposure=jnp.float32(1.0), thickness_nm=th, map=th),
                                 cfg.effects.thickness)
+        p = replace(p, disc=compose_shift(shift, p.disc))
         _, terms = render_terms(p, cfg, env, bg)
         zero = jnp.zeros(cfg.shape + (3,), jnp.float32)
         refl = terms.get("front", zero) + terms.get("rear", zero)
@@ -348,13 +352,15 @@ def render_candidates(base: dict, thick, cfg, env, bg, table: ParameterTable):
 
 
 def _candidates_generic(lev, table: ParameterTable, vals: dict, grid: np.ndarray, env):
-    cfg = replace(lev.cfg, effects=replace(lev.cfg.effects, thickness="constant"))
+    pad = padded(lev)
+    cfg = replace(pad.cfg, effects=replace(lev.cfg.effects, thickness="constant"))
     base = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k != "map"}
-    refl, back = render_candidates(base, jnp.asarray(grid, jnp.float32), cfg, env,
-                                   None if lev.bg is None else jnp.asarray(lev.bg), table)
+    refl, back = render_candidates(base, jnp.asarray(grid, jnp.float32), cfg, env, pad.bg, table, pad.base)
     sel = lev.mask.reshape(-1)
     g = len(grid)
-    return refl.reshape(g, -1, 3)[:, sel], back.reshape(g, -1, 3)[:, sel]
+    h, w = lev.mask.shape
+    cut = lambda a: np.asarray(a)[:, :h, :w].reshape(g, -1, 3)[:, sel]  # the padding dropped
+    return cut(refl), cut(back)
 
 
 def candidates(lev, table: ParameterTable, vals: dict, grid: np.ndarray, env):

@@ -30,6 +30,8 @@ __all__ = [
     "hit_pixels",
     "internal_bounce",
     "pixel_offsets",
+    "canonical_frame",
+    "compose_shift",
 ]
 
 
@@ -83,6 +85,28 @@ class OrthographicCamera:
         o = jnp.stack([x, y, jnp.full_like(x, 4.0)], axis=-1) * radius + jnp.asarray(center)
         d = jnp.broadcast_to(jnp.asarray([0.0, 0.0, -1.0], dtype=o.dtype), o.shape)
         return o, d
+
+
+def canonical_frame(camera: OrthographicCamera, height: int, width: int):
+    """``(canonical, base)``: an orthographic camera of ``height x width`` pixels whose disc
+    depends on its size alone, and the shift ``base = (a, b, s)`` (float32) that moves its
+    disc onto ``camera``'s, ``(cx, cy, r) = (cx0 + a r0, cy0 + b r0, s r0)``.
+
+    A program compiled for ``canonical`` and given the shift as data renders every disc
+    at this size (:func:`compose_shift`): a fit's compiled solves then serve every photo
+    whose fit level pads to the same size, wherever its bubble lies.
+    """
+    canonical = OrthographicCamera(width, height, width / 2, height / 2, 0.4 * min(width, height))
+    (cx, cy, r), (cx0, cy0, r0) = camera.disc(), canonical.disc()
+    return canonical, np.asarray([(cx - cx0) / r0, (cy - cy0) / r0, r / r0], np.float32)
+
+
+def compose_shift(base, shift):
+    """The shift (:meth:`OrthographicCamera.rays`) that moves a camera's disc by ``base``
+    and then by ``shift`` (in units of the disc ``base`` reached): with ``base = (a, b, s)``,
+    ``(a + s sx, b + s sy, s (1 + sr) - 1)``. Rays through the same pixel are the same."""
+    xp = np if isinstance(base, np.ndarray) and isinstance(shift, np.ndarray) else jnp
+    return xp.stack([base[0] + base[2] * shift[0], base[1] + base[2] * shift[1], base[2] * (1.0 + shift[2]) - 1.0])
 
 
 @dataclass(frozen=True)

@@ -369,12 +369,15 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
     import jax.numpy as jnp
 
     from bubblefit.inverse import _local
-    from bubblefit.inverse._observation import Level, padded, padded_size, render_level
+    from dataclasses import replace
+
+    from bubblefit.inverse._observation import Level, fitted_pixels, padded, padded_size, render_level
+    from bubblefit.model.geometry import compose_shift
     from bubblefit.inverse.fit import fit_photo
     from bubblefit.model.geometry import OrthographicCamera
     from bubblefit.lighting.filtering import FilterConfig
     from bubblefit.model.effects import Effects
-    from bubblefit.model.render import Params, RenderConfig, render
+    from bubblefit.model.render import Params, RenderConfig, render, render_pixels
     from bubblefit.optics.spectral import spectral_basis
 
     assert [padded_size(n) for n in (45, 48, 80, 90, 255, 320, 1000)] == [48, 48, 80, 96, 256, 320, 1024]
@@ -394,6 +397,20 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
         got = render_level(p, lev, env)
         assert got.shape == want.shape
         np.testing.assert_allclose(got, want, atol=2e-5)
+
+    # the solver's pixel list: the fitted pixels alone, scattered back to the level's residual
+    mask = np.zeros((37, 45), bool)
+    mask[5:30, 8:40] = rng.uniform(size=(25, 32)) < 0.7
+    lev.mask = mask
+    lev.w = np.repeat(mask[..., None], 3, axis=-1).astype(np.float32)
+    px = fitted_pixels(lev, 256)
+    assert px.rows.shape[1] <= 256 and px.rows.size == 1 << (int(mask.sum()) - 1).bit_length()
+    p = Params.make(thickness=640.0, roughness=0.05, disc=(0.03, -0.02, 0.05))
+    vals = render_pixels(replace(p, disc=compose_shift(px.padded.base, np.asarray(p.disc))), px.padded.cfg, env,
+                         px.padded.bg, px.rows, px.cols, px.idx)
+    full = px.scatter(lev, np.asarray(vals * px.w).reshape(-1)).reshape(37, 45, 3)
+    want = np.asarray(render(p, cfg, env, jnp.asarray(bg))) * lev.w
+    np.testing.assert_allclose(full, want, atol=2e-5)
 
     # the same bubble framed otherwise (disc moved, radius changed): no new solve compiled
     rng = np.random.default_rng(7)

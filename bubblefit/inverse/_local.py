@@ -26,11 +26,11 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
-from ._observation import Level, padded, unpadded
+from ._observation import Level, Pixels, fitted_pixels
 from ._parameters import PARAMETERS, ParameterTable, forward, value_and_slope
 from ..io.executables import stored
 from ..model.geometry import compose_shift
-from ..model.render import RenderConfig, render
+from ..model.render import RenderConfig, render_pixels
 
 __all__ = ["LocalSolution", "DenseDampedNewtonDescent", "LevenbergMarquardt", "scaled_decrement",
            "gauss_newton_decrement", "remaining_step", "robust", "solver",
@@ -336,17 +336,17 @@ def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_st
            max_rejections: int | None = MAX_REJECTIONS):
     """Jitted ``solve(z0, args) -> (z, ok, maxed, steps, residual, J)`` and ``resid``.
 
-    ``args = (fixed, env, background, photo, weights, base)`` (a padded level,
-    :func:`~bubblefit.inverse._observation.padded`); the
-    residual is ``robust((render - photo) * weights)`` flattened, rendered with the disc
-    moved by ``base`` and then by the fitted refinement
+    ``args = (fixed, env, background, photo, weights, base, (rows, cols, idx))``: the
+    fitted pixels of a padded level (:func:`~bubblefit.inverse._observation.fitted_pixels`);
+    the residual is ``robust((render - photo) * weights)`` over them, flattened, rendered
+    with the disc moved by ``base`` and then by the fitted refinement
     (:func:`~bubblefit.model.geometry.compose_shift`).
     """
 
     def resid(z, args):
-        fixed, env, bg, y, w, base = args
+        fixed, env, bg, y, w, base, (rows, cols, idx) = args
         p = table.render_params(table.values(z, fixed))
-        img = render(replace(p, disc=compose_shift(base, p.disc)), cfg, env, bg)
+        img = render_pixels(replace(p, disc=compose_shift(base, p.disc)), cfg, env, bg, rows, cols, idx)
         return robust((img - y) * w, robust_scale).reshape(-1)
 
     lm = LevenbergMarquardt(rtol=rtol, atol=atol, max_rejections=max_rejections)
@@ -378,7 +378,7 @@ def batched_solver(*key):
     """:func:`solver`'s ``solve`` vmapped over frames: ``z0``, ``y`` and ``w`` carry a
     leading frame axis; the fixed values, the map, the background and the disc are shared."""
     solve, _ = solver(*key)
-    return jax.jit(jax.vmap(solve, in_axes=(0, (None, None, None, 0, 0, None))))
+    return jax.jit(jax.vmap(solve, in_axes=(0, (None, None, None, 0, 0, None, None))))
 
 
 @functools.lru_cache(maxsize=64)
@@ -391,12 +391,12 @@ def reporter(table: ParameterTable):
 
 
 def solution_from(table: ParameterTable, vals: dict, z, ok, maxed, steps, r, jac, fixed,
-                  lev: Level | None = None) -> LocalSolution:
-    """A :class:`LocalSolution` from a solver's raw outputs (numpy, float64); with ``lev``,
-    the residual and Jacobian of the padded level it was solved on cut back to its pixels."""
+                  lev: Level | None = None, pixels: Pixels | None = None) -> LocalSolution:
+    """A :class:`LocalSolution` from a solver's raw outputs (numpy, float64); with ``lev``
+    and ``pixels``, the residual and Jacobian over its fitted pixels as the level's flat residual."""
     z = np.asarray(z, np.float64)
     if lev is not None:
-        r, jac = unpadded(lev, r), unpadded(lev, jac)
+        r, jac = pixels.scatter(lev, r), pixels.scatter(lev, jac)
     new = dict(vals)
     for i, n in enumerate(table.free):
         new[n] = float(forward(n, z[i]))
@@ -409,13 +409,14 @@ def solve_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_st
     """Levenberg-Marquardt from ``vals`` on ``lev`` (``opts``: a ``FitOptions``); with
     ``stall`` it stops after :data:`MAX_REJECTIONS` rejections and restarts while far from
     the optimum, without it runs optimistix' own stopping rule alone (warm starts)."""
-    pad = padded(lev)
+    px = fitted_pixels(lev, lev.cfg.chunk)
+    pad = px.padded
     key = (pad.cfg, table, float(opts.robust_scale), int(max_steps or opts.max_steps), float(opts.rtol),
            float(opts.atol), MAX_REJECTIONS if stall else None)
     solve = stored_solver(*key)
     fixed = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k not in table.free}
-    args = (fixed, env, pad.bg, pad.y, pad.w, pad.base)
-    sol = solution_from(table, vals, *solve(table.unconstrained(vals), args), fixed, lev)
+    args = (fixed, env, pad.bg, px.y, px.w, pad.base, (px.rows, px.cols, px.idx))
+    sol = solution_from(table, vals, *solve(table.unconstrained(vals), args), fixed, lev, px)
     # A solve stopped by rejections early on (a trust region still far too large) starts
     # afresh from where it stopped, with a fresh trust region, up to MAX_RESTARTS times.
     dof = max(int(np.count_nonzero(lev.w)) - len(table.free), 1)
@@ -423,7 +424,7 @@ def solve_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_st
     for _ in range(MAX_RESTARTS if stall else 0):
         if not (sol.successful and remaining_step(sol, sol.cost / dof, table.free) > DECREMENT_TOLERANCE):
             break
-        nxt = solution_from(table, sol.values, *solve(jnp.asarray(sol.z, jnp.float32), args), fixed, lev)
+        nxt = solution_from(table, sol.values, *solve(jnp.asarray(sol.z, jnp.float32), args), fixed, lev, px)
         steps += nxt.steps
         if not np.isfinite(nxt.cost) or nxt.cost > sol.cost:
             break

@@ -29,7 +29,8 @@ from ..model.geometry import OrthographicCamera, canonical_frame, compose_shift,
 from ..model.render import RenderConfig, render_loaded
 
 __all__ = ["Level", "Frame", "noise_sigma", "saturation_mask", "detect_disc", "make_level", "film_geometry",
-           "block_mean", "analysis_frame", "Padded", "padded", "unpadded", "render_level", "padded_size"]
+           "block_mean", "analysis_frame", "Padded", "padded", "unpadded", "render_level", "padded_size",
+           "Pixels", "fitted_pixels"]
 
 
 def noise_sigma(photo: np.ndarray, read: float, shot: float, bits: int | None) -> np.ndarray:
@@ -288,3 +289,52 @@ def render_level(p, lev: Level, env, cfg: RenderConfig | None = None, terms: boo
     if terms:
         return unpadded(lev, out[0]), {k: unpadded(lev, v) for k, v in out[1].items()}
     return unpadded(lev, out)
+
+
+@dataclass
+class Pixels:
+    """The fitted pixels of a padded level (:func:`fitted_pixels`): ``rows``, ``cols``,
+    ``idx`` (steps, chunk) in the padded image, as :func:`~bubblefit.model.render.render_pixels`
+    reads them, the photo ``y`` and weights ``w`` (steps chunk, 3) there (weight 0 on the
+    entries that pad the list), and ``flat``, the pixels' flat indices in the level."""
+
+    padded: Padded
+    rows: jnp.ndarray
+    cols: jnp.ndarray
+    idx: jnp.ndarray
+    y: jnp.ndarray
+    w: jnp.ndarray
+    flat: np.ndarray
+
+    def scatter(self, lev: Level, a) -> np.ndarray:
+        """``a`` (numpy), a flat residual ``(steps chunk 3, ...)`` over this list, as the
+        flat residual ``(h w 3, ...)`` of ``lev`` (0 at the pixels not fitted)."""
+        a = np.asarray(a)
+        h, w = lev.y.shape[:2]
+        out = np.zeros((h * w, 3, *a.shape[1:]), a.dtype)
+        out[self.flat] = a.reshape(-1, 3, *a.shape[1:])[: self.flat.size]
+        return out.reshape(h * w * 3, *a.shape[1:])
+
+
+def fitted_pixels(lev: Level, chunk: int, mask: np.ndarray | None = None) -> Pixels:
+    """The pixels of ``lev`` a fit compares (its mask, or ``mask``), listed in the padded level
+    (:func:`padded`): their count rounded up to a power of two (at least 64), the list
+    padded by repeating its last pixel with weight 0, and split into chunks of at most
+    ``chunk``.
+    A solve renders these alone: on a disc that fills 55 % of its level, about half the
+    pixels of the padded image."""
+    pad = padded(lev)
+    h, w = lev.y.shape[:2]
+    wb = pad.cfg.shape[1]
+    flat = np.flatnonzero((lev.mask if mask is None else mask).reshape(-1))
+    n = 1 << max(6, (flat.size - 1).bit_length())  # a power of two: a disc a few % larger or smaller shares it
+    size = min(chunk, n)
+    steps = -(-n // size)
+    take = np.minimum(np.arange(steps * size), max(flat.size - 1, 0))
+    rows, cols = np.divmod(flat[take], w)
+    keep = (np.arange(steps * size) < flat.size)[:, None]
+    y = np.where(keep, lev.y.reshape(-1, 3)[flat[take]], 0.0)
+    wt = np.where(keep, lev.w.reshape(-1, 3)[flat[take]], 0.0)
+    i32 = lambda a: jnp.asarray(a.reshape(steps, size), jnp.int32)
+    return Pixels(pad, i32(rows), i32(cols), i32(rows * wb + cols), jnp.asarray(y, jnp.float32),
+                  jnp.asarray(wt, jnp.float32), flat)

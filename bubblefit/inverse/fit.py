@@ -52,7 +52,7 @@ from . import search
 from ._local import (DECREMENT_TOLERANCE, LocalSolution, batched_solver, remaining_step, reporter, solution_from,
                      solve_local)
 from ._maps import fit_map
-from ._observation import detect_disc, noise_sigma, padded, render_level
+from ._observation import detect_disc, fitted_pixels, noise_sigma, render_level
 from ._options import FitOptions, FitResult
 from ._parameters import THICKNESSES, refined_disc
 from ._setup import Setup, defaults, setup
@@ -341,17 +341,20 @@ def fit_batch(photos, env: EnvMap, *, options: FitOptions = FitOptions(), backgr
     prev_vals = defaults(scene, previous, options, options.t_init)[0] if previous else None
     z0 = _batch_starts(first, len(photos), prev_vals)
     fixed = {k: jnp.asarray(v, jnp.float32) for k, v in first.vals.items() if k not in table.free}
-    pads = [padded(s.lev_fit) for s in setups]
-    solve = batched_solver(pads[0].cfg, table, float(options.robust_scale), int(options.max_steps),
+    union = np.logical_or.reduce([s.lev_fit.mask for s in setups])  # a frame's other pixels: weight 0
+    pxs = [fitted_pixels(s.lev_fit, s.lev_fit.cfg.chunk, union) for s in setups]
+    pad = pxs[0].padded
+    solve = batched_solver(pad.cfg, table, float(options.robust_scale), int(options.max_steps),
                            float(options.rtol), float(options.atol), None)
     out = solve(jnp.asarray(np.stack(z0), jnp.float32),
-                (fixed, env, pads[0].bg, jnp.stack([x.y for x in pads]), jnp.stack([x.w for x in pads]), pads[0].base))
+                (fixed, env, pad.bg, jnp.stack([x.y for x in pxs]), jnp.stack([x.w for x in pxs]), pad.base,
+                 (pxs[0].rows, pxs[0].cols, pxs[0].idx)))
     outs = [np.asarray(x) for x in out]
     share = (time.perf_counter() - t_start) / len(photos)  # each frame's part of the batch
     results = []
     for k, st in enumerate(setups):
         t0 = time.perf_counter() - share
-        sol = solution_from(table, st.vals, *(x[k] for x in outs), fixed, st.lev_fit)
+        sol = solution_from(table, st.vals, *(x[k] for x in outs), fixed, st.lev_fit, pxs[k])
         why = _warm_doubt(st, options, sol)
         if why:
             start = {key: float(x) for key, x in reporter(table)[0](jnp.asarray(outs[0][k]), fixed).items()}

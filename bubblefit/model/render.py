@@ -538,7 +538,10 @@ def render(p: Params, cfg: RenderConfig, env: EnvMap | None, background=None) ->
 
 
 @functools.partial(jax.jit, static_argnames=("cfg",))
-def _render_chunks(p: Params, cfg: RenderConfig, env, background, rows, cols, idx):
+def render_pixels(p: Params, cfg: RenderConfig, env: EnvMap | None, background, rows, cols, idx):
+    """Radiance (N, 3) of the pixels ``rows``, ``cols`` (flat indices ``idx``), given in
+    chunks (steps, chunk) as :func:`_pixel_chunks` makes them: :func:`render`'s values at
+    those pixels, for a fit that compares some of an image's pixels only."""
     bg = None if background is None else jnp.asarray(background, dtype=p.t.dtype)
     return _map_chunks(p, cfg, env, bg, rows, cols, idx)[0].reshape(-1, 3)
 
@@ -550,7 +553,7 @@ def _stored_programs(cfg: RenderConfig):
     from ..io.executables import stored
 
     whole = jax.jit(lambda p, env, bg: render(p, cfg, env, bg))
-    chunks = jax.jit(lambda p, env, bg, rows, cols, idx: _render_chunks(p, cfg, env, bg, rows, cols, idx))
+    chunks = jax.jit(lambda p, env, bg, rows, cols, idx: render_pixels(p, cfg, env, bg, rows, cols, idx))
     return stored(whole, "model.render.render", cfg), stored(chunks, "model.render._render_chunks", cfg)
 
 

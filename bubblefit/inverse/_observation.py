@@ -267,15 +267,10 @@ def padded(lev: Level) -> Padded:
 
 
 def unpadded(lev: Level, a) -> np.ndarray:
-    """``a`` (numpy), a flat residual ``(hb wb 3, ...)`` or an image ``(hb, wb, ...)`` of
-    :func:`padded`'s level, on ``lev``'s own pixels: flat ``(h w 3, ...)`` or ``(h, w, ...)``."""
+    """``a``, an image ``(hb, wb, ...)`` of :func:`padded`'s level, on ``lev``'s own pixels
+    (numpy, ``(h, w, ...)``): the padding at the bottom and right dropped."""
     h, w = lev.y.shape[:2]
-    a = np.asarray(a)
-    ortho = isinstance(lev.cfg.camera, OrthographicCamera)
-    hb, wb = (padded_size(h), padded_size(w)) if ortho else (h, w)
-    if a.shape[:2] == (hb, wb):
-        return a[:h, :w]
-    return a.reshape(hb, wb, 3, *a.shape[1:])[:h, :w].reshape(h * w * 3, *a.shape[1:])
+    return np.asarray(a)[:h, :w]
 
 
 def render_level(p, lev: Level, env, cfg: RenderConfig | None = None, terms: bool = False):
@@ -324,8 +319,7 @@ def fitted_pixels(lev: Level, chunk: int, mask: np.ndarray | None = None) -> Pix
     A solve renders these alone: on a disc that fills 55 % of its level, about half the
     pixels of the padded image."""
     pad = padded(lev)
-    h, w = lev.y.shape[:2]
-    wb = pad.cfg.shape[1]
+    w, wb = lev.y.shape[1], pad.cfg.shape[1]
     flat = np.flatnonzero((lev.mask if mask is None else mask).reshape(-1))
     n = 1 << max(6, (flat.size - 1).bit_length())  # a power of two: a disc a few % larger or smaller shares it
     size = min(chunk, n)

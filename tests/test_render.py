@@ -434,3 +434,32 @@ def test_a_map_keeps_its_profile_on_the_films_the_photo_does_not_show(env64, cam
     np.testing.assert_allclose(behind, at_pix + dp(q[:, 1]) - dp(f[:, 1]), rtol=1e-5)
     none = thickness_at("map", jnp.asarray(front_map), q, pix, jnp.asarray(NO_PROFILE, jnp.float32), f)
     np.testing.assert_allclose(none, at_pix)
+
+
+@pytest.mark.parametrize("model,spp,photo", [("physical", 1, True), ("physical", 4, False), ("paper", 1, True)])
+def test_constant_films_at_many_thicknesses_equal_their_renders(env64, model, spp, photo):
+    """render_pixels_at traces the rays and reads the map once for a list of thicknesses:
+    each thickness's terms equal render_terms' at that thickness, on the listed pixels,
+    for both models, sub-pixel rays and a background photo; a wrong thickness does not."""
+    from bubblefit.model.render import _pixel_chunks, render_pixels_at, render_terms
+
+    env = EnvMap.from_array(env64[1])
+    cam = OrthographicCamera(24, 20, 12.0, 10.5, 8.0)
+    fx = Effects(model=model, interference="airy", spectral=spectral_basis("fourier", 8), bounces=3,
+                 background="photo" if photo else "envmap", diffuse=True)
+    cfg = RenderConfig(effects=fx, camera=cam, chunk=128, samples_per_pixel=spp)
+    bg = np.random.default_rng(1).uniform(0.1, 0.8, (20, 24, 3)).astype(np.float32) if photo else None
+    p = Params.make(roughness=0.05, thickness=0.0, r_d=0.004, r_s=0.02)
+    pixels = np.arange(0, 20 * 24, 3)  # every third pixel: rim, disc and outside
+    rows, cols, idx, npix = _pixel_chunks(cfg, pixels)
+    thick = np.array([0.0, 90.0, 455.0, 1300.0], np.float32)
+    many = render_pixels_at(p, cfg, env, bg, rows, cols, idx, thick)
+    assert set(many) == ({"front", "rear", "background"})
+    for g, d in enumerate(thick):
+        _, terms = render_terms(dataclasses.replace(p, thickness=jnp.float32(d)), cfg, env, bg)
+        for name, v in terms.items():
+            want = np.asarray(v).reshape(-1, 3)[pixels]
+            got = np.asarray(many[name][g])[:npix]
+            np.testing.assert_allclose(got, want, rtol=2e-5, atol=2e-6 * float(np.abs(want).max()), err_msg=name)
+    front = np.asarray(many["front"])[:, :npix]
+    assert np.abs(front[1] - front[2]).max() > 0.05 * np.abs(front).max()  # the thickness matters

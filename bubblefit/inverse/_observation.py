@@ -311,17 +311,20 @@ class Pixels:
         return out.reshape(h * w * 3, *a.shape[1:])
 
 
-def fitted_pixels(lev: Level, chunk: int, mask: np.ndarray | None = None) -> Pixels:
+def fitted_pixels(lev: Level, chunk: int, mask: np.ndarray | None = None, *, whole_chunks: bool = False) -> Pixels:
     """The pixels of ``lev`` a fit compares (its mask, or ``mask``), listed in the padded level
-    (:func:`padded`): their count rounded up to a power of two (at least 64), the list
-    padded by repeating its last pixel with weight 0, and split into chunks of at most
-    ``chunk``.
+    (:func:`padded`): their count rounded up to a power of two (at least 64), or with
+    ``whole_chunks`` to a multiple of ``chunk``, the list padded by repeating its last pixel
+    with weight 0, and split into chunks of at most ``chunk``.
     A solve renders these alone: on a disc that fills 55 % of its level, about half the
     pixels of the padded image."""
     pad = padded(lev)
     w, wb = lev.y.shape[1], pad.cfg.shape[1]
     flat = np.flatnonzero((lev.mask if mask is None else mask).reshape(-1))
-    n = 1 << max(6, (flat.size - 1).bit_length())  # a power of two: a disc a few % larger or smaller shares it
+    if whole_chunks:  # a program per chunk serves every count
+        n = max(1, -(-flat.size // chunk)) * chunk
+    else:  # a power of two: a disc a few % larger or smaller shares it
+        n = 1 << max(6, (flat.size - 1).bit_length())
     size = min(chunk, n)
     steps = -(-n // size)
     take = np.minimum(np.arange(steps * size), max(flat.size - 1, 0))

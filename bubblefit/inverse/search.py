@@ -42,10 +42,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._observation import padded, render_level
+from ._observation import fitted_pixels, padded, render_level
 from ._parameters import ParameterTable
 from ..model.geometry import compose_shift
-from ..model.render import render_terms
+from ..model.render import render_pixels_at, render_terms
 from ..optics import spectral
 from ..optics import film
 from ..optics.dispersion import index_offset
@@ -351,16 +351,35 @@ def render_candidates(base: dict, thick, cfg, env, bg, table: ParameterTable, sh
     return jax.lax.map(one, thick)
 
 
+#: Pixels and thicknesses per call of the generic candidates' program: every level and
+#: thickness grid is served by the one program of these sizes.
+CANDIDATE_PIXELS = 256
+CANDIDATE_THICKNESSES = 64
+
+
 def _candidates_generic(lev, table: ParameterTable, vals: dict, grid: np.ndarray, env):
-    pad = padded(lev)
-    cfg = replace(pad.cfg, effects=replace(lev.cfg.effects, thickness="constant"))
+    """(G, P, 3) gain-scaled and fixed parts for constant films of any model, rendered at
+    the fitted pixels: the rays and the map's light traced once, the film's optics per
+    thickness (:func:`~bubblefit.model.render.render_pixels_at`), in blocks of
+    :data:`CANDIDATE_PIXELS` pixels and :data:`CANDIDATE_THICKNESSES` thicknesses."""
+    pix = fitted_pixels(lev, CANDIDATE_PIXELS, whole_chunks=True)
+    cfg = replace(pix.padded.cfg, effects=replace(lev.cfg.effects, thickness="constant"))
     base = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k != "map"}
-    refl, back = render_candidates(base, jnp.asarray(grid, jnp.float32), cfg, env, pad.bg, table, pad.base)
-    sel = lev.mask.reshape(-1)
-    g = len(grid)
-    h, w = lev.mask.shape
-    cut = lambda a: np.asarray(a)[:, :h, :w].reshape(g, -1, 3)[:, sel]  # the padding dropped
-    return cut(refl), cut(back)
+    p = table.render_params(dict(base, exposure=jnp.float32(1.0), thickness_nm=jnp.float32(0.0)), "constant")
+    p = replace(p, disc=compose_shift(pix.padded.base, p.disc))
+    g, n = len(grid), pix.flat.size
+    steps = -(-g // CANDIDATE_THICKNESSES)
+    thick = np.asarray(grid, np.float32)[np.minimum(np.arange(steps * CANDIDATE_THICKNESSES), g - 1)]
+    thick = thick.reshape(steps, CANDIDATE_THICKNESSES)
+    blocks = [[render_pixels_at(p, cfg, env, pix.padded.bg, pix.rows[i:i + 1], pix.cols[i:i + 1], pix.idx[i:i + 1],
+                                th) for i in range(pix.rows.shape[0])] for th in thick]
+    names = blocks[0][0].keys()
+    joined = {k: np.concatenate([np.concatenate([np.asarray(b[k]) for b in row], axis=1) for row in blocks])[:g, :n]
+              for k in names}
+    part = lambda *ks: sum((joined[k] for k in ks if k in joined), np.zeros((g, n, 3), np.float32))
+    if lev.cfg.effects.background == "photo":
+        return part("front", "rear"), part("background")
+    return part("front", "rear", "background"), np.zeros((g, n, 3), np.float32)
 
 
 def candidates(lev, table: ParameterTable, vals: dict, grid: np.ndarray, env):

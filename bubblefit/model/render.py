@@ -224,9 +224,11 @@ def _reflected(env, fx: Effects, cfg: RenderConfig, p: Params, n, wo, *, normali
     return spec, diff
 
 
-def _background(env, fx, p: Params, d, bg, idx):
+def _background(env, fx, p: Params, d, bg):
+    """The background radiance behind each ray: the photo's pixels ``bg`` (N, 3), the map
+    straight through, or black."""
     if fx.background == "photo":
-        return bg.reshape(-1, 3)[idx]
+        return bg
     if fx.background == "envmap" and fx.environment:
         _count("background_lookup")
         return env.lookup(rotate_y(d, -p.rotation))
@@ -302,9 +304,10 @@ def _physical_terms(fx: Effects, p: Params, opt: "_Film", refl: dict, d0, d1, ex
     """The physical series: front ``R_0 S_0``, background ``T_0 T_1 L_b`` and the internal
     bounces ``sum_k T_0 R_1 ... R_k T_(k+1) S_k`` (plus ``r_d E / pi`` diffuse at the front and
     the first bounce), per wavelength and polarisation, averaged over polarisations."""
-    dtype = p.t.dtype
     terms = {}
     mean_pol = lambda x: jnp.mean(x, axis=-1)
+    # A constant film meets every bounce at the front's thickness and angle: one reflectance.
+    one = fx.thickness == "constant"
     if fx.front_reflection or fx.transmission or fx.rear_reflection:
         r0 = opt.reflectance(d0)
         t0 = 1.0 - r0
@@ -313,7 +316,7 @@ def _physical_terms(fx: Effects, p: Params, opt: "_Film", refl: dict, d0, d1, ex
         s, dif = refl["front"]
         terms["front"] = p.exposure * (opt.rgb(mean_pol(r0)) * s + dif)
     if fx.transmission or (fx.rear_reflection and fx.bounces > 0):
-        r1 = opt.reflectance(d1)
+        r1 = r0 if one else opt.reflectance(d1)
     if fx.transmission:
         _count("transmission")
         gain = 1.0 if photo_bg else p.exposure
@@ -323,7 +326,7 @@ def _physical_terms(fx: Effects, p: Params, opt: "_Film", refl: dict, d0, d1, ex
         path = t0 * r1  # (N, K, 2): entered the front, reflected at the rear
         rear = jnp.zeros_like(bg_rad)
         for k, nq in enumerate(exits, start=1):
-            r_q = opt.reflectance(thick(nq))
+            r_q = r0 if one else opt.reflectance(thick(nq))
             s, dif = refl[f"bounce{k}"]
             rear = rear + opt.rgb(mean_pol(path * (1.0 - r_q))) * s
             if k == 1 and fx.diffuse:
@@ -357,8 +360,23 @@ def _terms(p: Params, cfg: RenderConfig, lam, cos, d0, d1, exits, thick, refl, b
     return _physical_terms(fx, p, opt, refl, d0, d1, exits, thick, bg_rad, photo_bg)
 
 
-def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx):
-    """Radiance (N, 3) of one chunk of pixels, and a dict of the model's terms."""
+@dataclass(frozen=True)
+class _Traced:
+    """One chunk's rays and what their films read (:func:`_trace_chunk`), before any film optics."""
+
+    p: Params  # with the film index per wavelength (:func:`_film_setup`)
+    lam: object
+    hits: object
+    d: object
+    exits: list
+    refl: dict
+    bg_rad: object
+
+
+def _trace_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols) -> _Traced:
+    """Trace one chunk of pixels and read the light of every film this scene shades (the
+    filtered map, the point lights, the background: the photo's pixels ``bg`` (N, 3) of the
+    chunk): all of a render that does not depend on the film's thickness."""
     fx = cfg.effects
     dtype = p.t.dtype
     if isinstance(cfg.camera, OrthographicCamera):
@@ -367,10 +385,7 @@ def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx)
         o, d = cfg.camera.rays(rows.astype(dtype), cols.astype(dtype), cfg.center, cfg.radius)
     hits = intersect_sphere(o, d, cfg.center, cfg.radius)
     p, lam = _film_setup(p, cfg)
-    thick = lambda local: thickness_at(fx.thickness, p.thickness, local, idx, p.profile, hits.local0)
-    d0 = thickness_at(fx.thickness, p.thickness, hits.local0, idx)
-    d1 = thick(hits.local1)
-    bg_rad = _background(env, fx, p, d, bg, idx)
+    bg_rad = _background(env, fx, p, d, bg)
 
     # Shading points of every film this scene needs, filtered in one batch.
     films, exits = shading_points(fx, cfg, hits, d)
@@ -381,15 +396,73 @@ def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx)
                                   jnp.concatenate([f[2] for f in films]), normalize=fx.model == "physical")
         split = lambda x: jnp.split(x, nn) if jnp.ndim(x) else [x] * nn
         refl = dict(zip([f[0] for f in films], zip(split(s_all), split(d_all))))
-    terms = _terms(p, cfg, lam, hits.cos, d0, d1, exits, thick, refl, bg_rad)
+    return _Traced(p, lam, hits, d, exits, refl, bg_rad)
 
-    total = jnp.zeros(d.shape, dtype=dtype)
+
+def _composite(tr: _Traced, cfg: RenderConfig, terms: dict):
+    """The pixel (N, 3) and the terms masked to the pixels whose ray hits the bubble."""
+    total = jnp.zeros(tr.d.shape, dtype=tr.p.t.dtype)
     for v in terms.values():
         total = total + v
-    inside = hits.inside[:, None]
-    outside = bg_rad if fx.background == "photo" else p.exposure * bg_rad
+    inside = tr.hits.inside[:, None]
+    outside = tr.bg_rad if cfg.effects.background == "photo" else tr.p.exposure * tr.bg_rad
     pixel = jnp.where(inside, total, outside)
     return pixel, {k: jnp.where(inside, v, 0.0) for k, v in terms.items()}
+
+
+def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx):
+    """Radiance (N, 3) of one chunk of pixels, and a dict of the model's terms."""
+    fx = cfg.effects
+    if fx.background == "photo":
+        bg = bg.reshape(-1, 3)[idx]
+    tr = _trace_chunk(p, cfg, env, bg, rows, cols)
+    hits = tr.hits
+    thick = lambda local: thickness_at(fx.thickness, tr.p.thickness, local, idx, tr.p.profile, hits.local0)
+    d0 = thickness_at(fx.thickness, tr.p.thickness, hits.local0, idx)
+    d1 = thick(hits.local1)
+    terms = _terms(tr.p, cfg, tr.lam, hits.cos, d0, d1, tr.exits, thick, tr.refl, tr.bg_rad)
+    return _composite(tr, cfg, terms)
+
+
+@functools.partial(jax.jit, static_argnames=("cfg",))
+def render_pixels_at(p: Params, cfg: RenderConfig, env: EnvMap | None, background, rows, cols, idx, thickness):
+    """The terms of :func:`render_pixels`' pixels for each constant film thickness of
+    ``thickness`` (G,): a dict of (G, N, 3), each pixel's terms masked to the bubble, as
+    :func:`render_terms` gives them with ``p.thickness`` set to each value.
+
+    The rays, the map's filtered light and the background do not depend on a constant
+    film's thickness: they are traced once per pixel (and sub-pixel ray), and only the
+    film's optics (:func:`_terms`) are evaluated per thickness.
+    """
+    if cfg.effects.thickness != "constant":
+        raise ValueError("render_pixels_at evaluates constant films")
+    dtype = p.t.dtype
+    bg_all = None if background is None else jnp.asarray(background, dtype=dtype).reshape(-1, 3)
+    offsets = jnp.asarray(pixel_offsets(cfg.samples_per_pixel), dtype=dtype)
+    thickness = jnp.asarray(thickness, dtype)
+
+    def chunk(xs):
+        r, c, i = xs
+        bg = None if bg_all is None else bg_all[i]
+        if cfg.samples_per_pixel == 1:
+            traced = [_trace_chunk(p, cfg, env, bg, r, c)]
+        else:  # the box filter of _map_chunks: the mean over stratified sub-pixel rays
+            traced = [_trace_chunk(p, cfg, env, bg, r.astype(dtype) + o[0], c.astype(dtype) + o[1])
+                      for o in offsets]
+
+        def at(th):
+            out = None
+            for tr in traced:
+                d = jnp.broadcast_to(th, tr.hits.cos.shape)
+                terms = _terms(tr.p, cfg, tr.lam, tr.hits.cos, d, d, tr.exits, lambda _: d, tr.refl, tr.bg_rad)
+                terms = _composite(tr, cfg, terms)[1]
+                out = terms if out is None else {k: out[k] + v for k, v in terms.items()}
+            return {k: v / len(traced) for k, v in out.items()}
+
+        return jax.lax.map(at, thickness)
+
+    terms = jax.lax.map(chunk, (jnp.asarray(rows), jnp.asarray(cols), jnp.asarray(idx)))
+    return {k: jnp.swapaxes(v, 0, 1).reshape(thickness.shape[0], -1, 3) for k, v in terms.items()}
 
 
 def film_names(fx: Effects) -> list[str]:

@@ -371,7 +371,7 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
     from bubblefit.inverse import _local
     from dataclasses import replace
 
-    from bubblefit.inverse._observation import Level, fitted_pixels, padded, padded_size, render_level
+    from bubblefit.inverse._observation import Level, fitted_pixels, padded, padded_size, pixel_bucket, render_level
     from bubblefit.model.geometry import compose_shift
     from bubblefit.inverse.fit import fit_photo
     from bubblefit.model.geometry import OrthographicCamera
@@ -404,7 +404,11 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
     lev.mask = mask
     lev.w = np.repeat(mask[..., None], 3, axis=-1).astype(np.float32)
     px = fitted_pixels(lev, 256)
-    assert px.rows.shape[1] <= 256 and px.rows.size == 1 << (int(mask.sum()) - 1).bit_length()
+    n = pixel_bucket(int(mask.sum()))  # in equal chunks of at most 256
+    assert px.rows.shape[1] <= 256 and n <= px.rows.size < n + px.rows.shape[0]
+    for n in (1, 64, 65, 700, 1024, 1025, 2104, 5000):
+        assert max(n, 64) <= pixel_bucket(n) <= max(1.25 * n, 64)  # the padding costs at most a quarter
+    assert len({pixel_bucket(n) for n in range(1025, 2049)}) == 4  # four lengths per octave
     p = Params.make(thickness=640.0, roughness=0.05, disc=(0.03, -0.02, 0.05))
     vals = render_pixels(replace(p, disc=compose_shift(px.padded.base, np.asarray(p.disc))), px.padded.cfg, env,
                          px.padded.bg, px.rows, px.cols, px.idx)

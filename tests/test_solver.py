@@ -123,6 +123,41 @@ def test_scaled_decrement_is_the_gauss_newton_drop():
     assert np.all(np.asarray(step0) == 0.0)
 
 
+def test_bounded_decrement_drops_a_parameter_pressing_on_its_bound():
+    """With the parameters' names and point, the in-solve decrement treats the bounds as
+    remaining_step (numpy, float64) does: a roughness (log transform, bound 0) known to
+    worse than 100 % whose Gauss-Newton step points below zero is left out, and the
+    decrement is then that of the other columns; a well-measured roughness, or a step
+    pointing away from zero, keeps it."""
+    import lineax as lx
+
+    from bubblefit.inverse._local import DenseDampedNewtonDescent, LocalSolution, gauss_newton_decrement, remaining_step
+    from bubblefit.inverse._parameters import inverse
+
+    rng = np.random.default_rng(5)
+    base_jac = rng.normal(size=(400, 3))
+    base = rng.normal(size=400)
+    free = ("thickness_nm", "t", "roughness")
+    z = np.array([inverse("thickness_nm", 700.0), inverse("t", 0.97), inverse("roughness", 1e-4)])
+    desc = DenseDampedNewtonDescent()
+    for col, sign, dropped in ((0.02, 1.0, True), (1.0, 1.0, False), (0.02, -1.0, False)):
+        jac = base_jac * np.array([1.0, 1.0, col])  # col 0.02: the roughness poorly constrained
+        r = base + sign * 3.0 * jac[:, 2] / col  # its Gauss-Newton step: -3 (toward 0) or +3 in z
+        f_info = optx.FunctionInfo.ResidualJac(jnp.asarray(r, jnp.float32),
+                                               lx.MatrixLinearOperator(jnp.asarray(jac, jnp.float32)))
+        dense = desc.query(jnp.zeros(3), f_info, desc.init(jnp.zeros(3), f_info))
+        got = float(scaled_decrement(dense, jnp.asarray(r, jnp.float32), jnp.asarray(z, jnp.float32), free))
+        chi2_nu = np.sum(r**2) / (r.size - 3)
+        want = remaining_step(LocalSolution({}, z, True, False, 1, r, jac, {}), chi2_nu, free)
+        assert got == pytest.approx(want, rel=2e-3, abs=1e-6), (col, sign)
+        full = gauss_newton_decrement(r, jac) / max(1.0, chi2_nu)
+        if dropped:
+            assert want == pytest.approx(gauss_newton_decrement(r, jac[:, :2]) / max(1.0, chi2_nu), rel=1e-9)
+            assert got < 0.1 * full
+        else:
+            assert got == pytest.approx(full, rel=2e-3)
+
+
 def test_vmapped_solve_matches_one_by_one():
     """fit_batch vmaps the solve over frames: lax.cond turns into a select there, and the
     result must still be each frame's own solve."""

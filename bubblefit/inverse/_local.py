@@ -205,7 +205,8 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
 
     - its Gauss-Newton step left is under ``decrement_tolerance`` in the fit's own
       covariance (:func:`scaled_decrement`, default :data:`STOP_DECREMENT`; None: off),
-      a statistical convergence test: the optimum is within a fifth of a standard error;
+      a statistical convergence test: the optimum is within a fifth of a standard error,
+      with the parameters' bounds (``free``) as active constraints;
     - ``max_rejections`` rejections in a row (a region 4096 times smaller after six;
       None: off). How far that point is from the optimum is then measured from its
       decrement (:func:`remaining_step`), which decides a restart (:func:`solve_local`)
@@ -225,6 +226,9 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
     verbose: Callable = _quiet
     max_rejections: int | None = MAX_REJECTIONS
     decrement_tolerance: float | None = STOP_DECREMENT
+    #: The free parameters' names (:data:`~bubblefit.inverse._parameters.PARAMETERS`), in
+    #: ``y``'s order: their bounds constrain the decrement (:func:`scaled_decrement`).
+    free: tuple = ()
 
     def init(self, fn, y, args, options, f_struct, aux_struct, tags) -> _LMState:
         f_info = optx.FunctionInfo.ResidualJac(
@@ -269,7 +273,7 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
             done = done | (state.num_steps_since_acceptance >= self.max_rejections)
         if self.decrement_tolerance is not None:
             done = done | ((state.num_accepted_steps > 0)
-                           & (scaled_decrement(state.descent_state, state.f_info.residual)
+                           & (scaled_decrement(state.descent_state, state.f_info.residual, y, self.free)
                               <= self.decrement_tolerance))
         return done, state.result
 
@@ -277,17 +281,42 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
         return y, aux, {}
 
 
-def scaled_decrement(dense: _DenseState, residual) -> Float[Array, ""]:
+def scaled_decrement(dense: _DenseState, residual, z=None, free: tuple = ()) -> Float[Array, ""]:
     """The Gauss-Newton decrement ``r^T J (J^T J)^-1 J^T r = |Q^T r|^2`` of an accepted
     point (:class:`DenseDampedNewtonDescent`'s factors) over ``max(1, chi2_nu)``, the
     reduced chi^2 counted over the residual's non-zero entries (pixels outside the fit
-    have weight 0): the squared length of the step left, in the fit's own covariance
-    (:func:`remaining_step` without the bound constraints)."""
+    have weight 0): the squared length of the step left, in the fit's own covariance.
+
+    With the point ``z`` and the names ``free`` of its parameters, the bounds are active
+    constraints as in :func:`remaining_step`: a parameter within one standard error of a
+    finite bound whose step points at it is left out, and the decrement is the projection
+    of ``Q^T r`` on the columns of ``R`` left (a roughness at the mirror, its step
+    pointing below zero, no longer keeps the solve from stopping). From the QR factors, in
+    the solve's own precision.
+    """
     r = jnp.ravel(residual)
     n = dense.qt_residual.shape[0]
     dof = jnp.maximum(jnp.sum(r != 0) - n, 1)
-    chi2_nu = jnp.sum(r * r) / dof
-    return jnp.sum(dense.qt_residual**2) / jnp.maximum(chi2_nu, 1.0)
+    scale = jnp.maximum(jnp.sum(r * r) / dof, 1.0)
+    if not free:
+        return jnp.sum(dense.qt_residual**2) / scale
+    rinv = jax.scipy.linalg.solve_triangular(dense.r_factor, jnp.eye(n, dtype=r.dtype), lower=False)
+    step = -rinv @ dense.qt_residual
+    se_z = jnp.sqrt(jnp.sum(rinv**2, axis=1) * scale)  # sqrt(diag((J^T J)^-1) max(1, chi2_nu))
+    keep = []
+    for i, name in enumerate(free):
+        v, slope = jax.jvp(functools.partial(forward, name), (z[i],), (jnp.ones_like(z[i]),))
+        drop = jnp.array(False)
+        for b in PARAMETERS[name].bounds:
+            if math.isfinite(b):
+                toward = jnp.sign(slope * step[i]) == jnp.sign(b - v)
+                drop = drop | (toward & (jnp.abs(v - b) <= jnp.abs(slope) * se_z[i]))
+        keep.append(~drop)
+    keep = jnp.stack(keep)
+    order = jnp.argsort(~keep, stable=True)  # the columns kept first, the dropped ones zero after them
+    q2, _ = jnp.linalg.qr(jnp.where(keep, dense.r_factor, 0.0)[:, order])
+    proj = q2.T @ dense.qt_residual
+    return jnp.sum(jnp.where(jnp.arange(n) < jnp.sum(keep), proj**2, 0.0)) / scale
 
 
 def gauss_newton_decrement(r, jac) -> float:
@@ -349,7 +378,7 @@ def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_st
         img = render_pixels(replace(p, disc=compose_shift(base, p.disc)), cfg, env, bg, rows, cols, idx)
         return robust((img - y) * w, robust_scale).reshape(-1)
 
-    lm = LevenbergMarquardt(rtol=rtol, atol=atol, max_rejections=max_rejections)
+    lm = LevenbergMarquardt(rtol=rtol, atol=atol, max_rejections=max_rejections, free=table.free)
 
     @jax.jit
     def solve(z0, args):

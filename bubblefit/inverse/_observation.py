@@ -311,9 +311,25 @@ class Pixels:
         return out.reshape(h * w * 3, *a.shape[1:])
 
 
+#: Lengths of a fitted-pixel list per octave (:func:`pixel_bucket`).
+BUCKETS_PER_OCTAVE = 4
+
+
+def pixel_bucket(n: int) -> int:
+    """The length a list of ``n`` fitted pixels is padded to: the next of
+    :data:`BUCKETS_PER_OCTAVE` lengths per octave, ``2^k (1 + j / BUCKETS_PER_OCTAVE)``
+    (at least 64). A disc a few percent larger or smaller mostly shares its programs, and
+    the padding costs at most a quarter of the list (a power of two cost up to all of it:
+    2104 pixels rendered as 4096)."""
+    n = max(int(n), 64)
+    top = 1 << (n - 1).bit_length()
+    step = (top // 2) // BUCKETS_PER_OCTAVE
+    return min(top, -(-n // step) * step)
+
+
 def fitted_pixels(lev: Level, chunk: int, mask: np.ndarray | None = None, *, whole_chunks: bool = False) -> Pixels:
     """The pixels of ``lev`` a fit compares (its mask, or ``mask``), listed in the padded level
-    (:func:`padded`): their count rounded up to a power of two (at least 64), or with
+    (:func:`padded`): their count rounded up to :func:`pixel_bucket`, or with
     ``whole_chunks`` to a multiple of ``chunk``, the list padded by repeating its last pixel
     with weight 0, and split into chunks of at most ``chunk``.
     A solve renders these alone: on a disc that fills 55 % of its level, about half the
@@ -323,10 +339,10 @@ def fitted_pixels(lev: Level, chunk: int, mask: np.ndarray | None = None, *, who
     flat = np.flatnonzero((lev.mask if mask is None else mask).reshape(-1))
     if whole_chunks:  # a program per chunk serves every count
         n = max(1, -(-flat.size // chunk)) * chunk
-    else:  # a power of two: a disc a few % larger or smaller shares it
-        n = 1 << max(6, (flat.size - 1).bit_length())
-    size = min(chunk, n)
-    steps = -(-n // size)
+    else:
+        n = pixel_bucket(flat.size)
+    steps = -(-n // chunk)
+    size = -(-n // steps)  # equal chunks of at most ``chunk``: the list stays about n long
     take = np.minimum(np.arange(steps * size), max(flat.size - 1, 0))
     rows, cols = np.divmod(flat[take], w)
     keep = (np.arange(steps * size) < flat.size)[:, None]

@@ -134,6 +134,25 @@ def test_recovers_drainage_law(data, runs):
     assert warm[4] or res.records[4].get("seam_checked")
 
 
+def test_warm_starts_carry_the_thickness_on():
+    """A frame starts from the last frame's values with its thicknesses carried on linearly
+    from the two last (a smooth drainage starts within a fraction of a nanometre); the
+    other values stay, a film never starts below 1 nm, and without a frame before there
+    is nothing to carry on. The batched solve's starts are the same rule k frames ahead."""
+    from bubblefit.inverse._parameters import extrapolated
+
+    last = {"thickness_nm": 780.0, "top_nm": 300.0, "t": 0.97, "exposure": 1.1}
+    before = {"thickness_nm": 800.0, "top_nm": 290.0, "t": 0.96, "exposure": 1.3}
+    start = extrapolated(last, before)
+    assert start == {"thickness_nm": 760.0, "top_nm": 310.0, "t": 0.97, "exposure": 1.1}
+    assert extrapolated(last, before, 3)["thickness_nm"] == pytest.approx(720.0)
+    assert extrapolated(last, {"thickness_nm": 1600.0})["thickness_nm"] == 1.0
+    assert extrapolated(last, None) == last and extrapolated(last, None) is not last
+    d = 900.0 * np.exp(-np.arange(4) / 40.0)  # the draining film of experiments/bench_sequence.py
+    guess = extrapolated({"thickness_nm": d[2]}, {"thickness_nm": d[1]})["thickness_nm"]
+    assert abs(guess - d[3]) < 0.03 * abs(d[2] - d[3])
+
+
 def test_failed_frame_recorded(runs):
     res = runs[1]
     bad = res.records[CORRUPT]

@@ -1,7 +1,8 @@
 """Executors of a sequence fit: the work of one chunk, in this process or on Dask.
 
 One chunk is one task: its frames are fitted in order, each warm-started from the last
-successful frame before it (:func:`fit_chunk`). :class:`LocalExecutor` runs the tasks in
+successful frame before it, its thickness carried on from the two last
+(:func:`fit_chunk`, :func:`~bubblefit.inverse._parameters.extrapolated`). :class:`LocalExecutor` runs the tasks in
 this process, one after the other; :class:`DaskExecutor` runs them on a ``distributed``
 cluster: a local one (one single-threaded worker process per core, so two workers do not
 fight over the same cores) or an existing one. A worker process keeps JAX's compiled
@@ -23,6 +24,7 @@ from ..errors import InputError
 from ..io.jaxcache import jax_setup
 from ._plan import FrameRef, load_frame
 from .fit import fit_batch, fit_photo
+from ._parameters import extrapolated
 from ._records import base_record, one_line, result_record, warm_init
 
 __all__ = ["DEFAULT_FIT", "ChunkTask", "fit_chunk", "LocalExecutor", "DaskExecutor", "local_env"]
@@ -90,7 +92,9 @@ def _fit_batch(refs: list[FrameRef], env, options, init, previous, background, s
 def fit_chunk(todo: list[tuple[FrameRef, dict | None]], env, options, background, scene, jax_settings: dict,
               want_maps: bool, fit_function: str = DEFAULT_FIT, warm_start: bool = True,
               init: dict | None = None, batch: int = 1) -> list[dict]:
-    """Fit the pending frames of one chunk, in order, each warm-started from the last success.
+    """Fit the pending frames of one chunk, in order, each warm-started from the last success,
+    its thicknesses extrapolated linearly from the two last
+    (:func:`~bubblefit.inverse._parameters.extrapolated`).
 
     Parameters
     ----------
@@ -149,7 +153,8 @@ def fit_chunk(todo: list[tuple[FrameRef, dict | None]], env, options, background
         if len(group) >= 2:
             recs = _fit_batch(group, env, options, warm, prev, background, scene)
         else:
-            recs = [_fit_one(ref, env, options, warm if warm_start else None, background, scene, fit_fn)]
+            start = extrapolated(warm, prev) if warm_start and warm is not None else None
+            recs = [_fit_one(ref, env, options, start, background, scene, fit_fn)]
         for rec in recs:
             if not want_maps:
                 rec.pop("_thickness_map", None)

@@ -54,7 +54,7 @@ from ._local import (DECREMENT_TOLERANCE, LocalSolution, batched_solver, remaini
 from ._maps import fit_map
 from ._observation import detect_disc, fitted_pixels, noise_sigma, render_level
 from ._options import FitOptions, FitResult
-from ._parameters import THICKNESSES, refined_disc
+from ._parameters import THICKNESSES, extrapolated, refined_disc
 from ._setup import Setup, defaults, setup
 from ._uncertainty import uncertainty
 from ._verdict import at_bounds, unresolved, verdict
@@ -295,16 +295,10 @@ def _fit_either_model(photo, env, options: FitOptions, background, init, scene, 
 
 
 def _batch_starts(first: Setup, n: int, prev_vals: dict | None) -> list:
-    """Frame ``k``'s start: the thicknesses extrapolated linearly, ``init + (k + 1) (init - previous)``."""
-    thick = [n_ for n_ in THICKNESSES if n_ in first.table.free]
-    z0 = []
-    for k in range(n):
-        v = dict(first.vals)
-        if prev_vals is not None:
-            for name in thick:
-                v[name] = max(v[name] + (k + 1) * (first.vals[name] - prev_vals[name]), 1.0)
-        z0.append(np.asarray(first.table.unconstrained(v)))
-    return z0
+    """Frame ``k``'s start: the free thicknesses extrapolated linearly,
+    ``init + (k + 1) (init - previous)`` (:func:`~bubblefit.inverse._parameters.extrapolated`)."""
+    prev = None if prev_vals is None else {k: v for k, v in prev_vals.items() if k in first.table.free}
+    return [np.asarray(first.table.unconstrained(extrapolated(first.vals, prev, k + 1))) for k in range(n)]
 
 
 def fit_batch(photos, env: EnvMap, *, options: FitOptions = FitOptions(), background=None, init: dict,

@@ -42,7 +42,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._observation import fitted_pixels, padded, render_level
+from ._observation import fitted_pixels, render_level
 from ._parameters import ParameterTable
 from ..model.geometry import compose_shift
 from ..model.render import render_pixels_at, render_terms

@@ -267,7 +267,6 @@ def shading_points(fx: Effects, cfg: RenderConfig, hits, d):
 def _paper_terms(fx: Effects, p: Params, opt: "_Film", refl: dict, d0, d1, bg_rad, photo_bg: bool) -> dict:
     """Eq. (11): ``F_0 L'_front + t^2 F_1 L'_rear + t^4 L_b`` (or the tinted transmission),
     with ``L' = r_s S + r_d E / pi`` (eq. 2) and ``F`` eq. (10)'s factor."""
-    dtype = p.t.dtype
     t2 = p.t * p.t
     terms = {}
     factors = {}

@@ -332,9 +332,11 @@ def _candidates_paper(lev, table: ParameterTable, vals: dict, grid: np.ndarray, 
 
 @functools.partial(jax.jit, static_argnames=("cfg", "table"))
 def render_candidates(base: dict, thick, cfg, env, bg, table: ParameterTable, shift):
-    """Render each candidate thickness array ``thick`` (G, ...) with exposure 1: (G, H, W, 3) x2,
+    """Render each candidate thickness field ``thick`` (G, ...) with exposure 1: (G, H, W, 3) x2,
     the disc moved by ``shift`` before the refinement ``base`` holds (a padded level's
-    ``base``, :func:`~bubblefit.inverse._observation.padded`)."""
+    ``base``, :func:`~bubblefit.inverse._observation.padded`). The thickness maps' candidates
+    (:mod:`bubblefit.inverse._maps`); constant films trace their light once instead
+    (:func:`_candidates_generic`)."""
 
     def one(th):
         p = table.render_params(dict(base, exposure=jnp.float32(1.0), thickness_nm=th, map=th),

@@ -33,7 +33,7 @@ from ..model.geometry import compose_shift
 from ..model.render import RenderConfig, render_pixels
 
 __all__ = ["LocalSolution", "DenseDampedNewtonDescent", "LevenbergMarquardt", "scaled_decrement",
-           "gauss_newton_decrement", "remaining_step", "robust", "solver",
+           "gauss_newton_decrement", "remaining_step", "presses_bound", "robust", "solver",
            "batched_solver", "reporter", "solve_local", "cost", "solution_from"]
 
 
@@ -306,12 +306,7 @@ def scaled_decrement(dense: _DenseState, residual, z=None, free: tuple = ()) -> 
     keep = []
     for i, name in enumerate(free):
         v, slope = jax.jvp(functools.partial(forward, name), (z[i],), (jnp.ones_like(z[i]),))
-        drop = jnp.array(False)
-        for b in PARAMETERS[name].bounds:
-            if math.isfinite(b):
-                toward = jnp.sign(slope * step[i]) == jnp.sign(b - v)
-                drop = drop | (toward & (jnp.abs(v - b) <= jnp.abs(slope) * se_z[i]))
-        keep.append(~drop)
+        keep.append(~jnp.asarray(presses_bound(name, v, slope, step[i], se_z[i], jnp.sign)))
     keep = jnp.stack(keep)
     order = jnp.argsort(~keep, stable=True)  # the columns kept first, the dropped ones zero after them
     q2, _ = jnp.linalg.qr(jnp.where(keep, dense.r_factor, 0.0)[:, order])
@@ -352,12 +347,22 @@ def remaining_step(sol: LocalSolution, chi2_nu: float, free: tuple) -> float:
         se_z = np.sqrt(np.abs(np.diag(a_inv)) * max(1.0, chi2_nu))
         for i, name in enumerate(free):
             v, slope = value_and_slope(name, sol.z[i])
-            for b in PARAMETERS[name].bounds:
-                toward = np.sign(slope * step[i]) == np.sign(b - v)
-                if math.isfinite(b) and toward and abs(v - b) <= abs(slope) * se_z[i]:
-                    keep.remove(i)
-                    break
+            if presses_bound(name, v, slope, step[i], se_z[i], np.sign):
+                keep.remove(i)
     return gauss_newton_decrement(r, jac[:, keep]) / max(1.0, chi2_nu)
+
+
+def presses_bound(name: str, v, slope, step, se, sign=np.sign):
+    """Whether parameter ``name`` at value ``v`` (``slope = d v / d z``) is an active
+    constraint of the Gauss-Newton ``step`` (in ``z``): within ``se`` (one standard error
+    in ``z``) of a finite bound its step points at. The rule of :func:`remaining_step`
+    (numpy, float64) and of :func:`scaled_decrement` (jnp, in the solve; ``sign`` is
+    ``jnp.sign`` there)."""
+    out = False
+    for b in PARAMETERS[name].bounds:
+        if math.isfinite(b):
+            out = out | ((sign(slope * step) == sign(b - v)) & (abs(v - b) <= abs(slope) * se))
+    return out
 
 
 @functools.lru_cache(maxsize=64)

@@ -416,6 +416,27 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
     want = np.asarray(render(p, cfg, env, jnp.asarray(bg))) * lev.w
     np.testing.assert_allclose(full, want, atol=2e-5)
 
+    # the solver's Jacobian, by groups of columns, is jax.jacfwd's
+    import jax
+
+    from bubblefit.inverse._parameters import ParameterTable
+
+    table = ParameterTable(free=("t", "split", "roughness", "exposure", "thickness_nm", "disc_x", "disc_y", "disc_r"))
+    start = {"t": 0.9, "split": 0.7, "roughness": 0.05, "exposure": 1.1, "thickness_nm": 640.0, "disc_x": 0.01,
+             "disc_y": -0.02, "disc_r": 0.03}
+    lev.y = np.asarray(render_level(Params.make(thickness=655.0, roughness=0.04), lev, env), np.float32)
+    px = fitted_pixels(lev, 256)
+    _, resid = _local.solver(px.padded.cfg, table, 3.0, 20, 1e-5, 1e-6)
+    z = table.unconstrained(start)
+    fixed = {"n_film": jnp.float32(1.33), "rotation_deg": jnp.float32(0.0)}
+    args = (fixed, env, px.padded.bg, px.y, px.w, px.padded.base, (px.rows, px.cols, px.idx))
+    want = np.asarray(jax.jacfwd(resid)(z, args))
+    assert table.jacobian_groups == ((0, 1, 3), (2,), (4,), (5, 6, 7))  # weights, light, film, disc
+    got = np.asarray(jax.jit(lambda z, a: _local.column_jacobian(resid, table.jacobian_groups, z, a))(z, args))
+    assert got.shape == want.shape == (np.asarray(resid(z, args)).size, len(table.free))
+    assert np.all(np.abs(want).max(axis=0) > 0)  # every parameter moves the render
+    np.testing.assert_allclose(got, want, atol=1e-4 * np.abs(want).max())
+
     # the same bubble framed otherwise (disc moved, radius changed): no new solve compiled
     rng = np.random.default_rng(7)
     bgp = _background(rng)

@@ -63,25 +63,32 @@ class Parameter:
     transform: Transform
     reference: str
     plausible: tuple = (-math.inf, math.inf)
+    #: The part of the render it reaches: ``"weights"`` (a linear weight of the terms,
+    #: eq. (1) and (14), or the camera's gain), ``"light"`` (the filtered map's lookups,
+    #: eq. (13)), ``"film"`` (the film's thickness, eq. (8)) or ``"disc"`` (the rays); the
+    #: Jacobian's columns of one part are computed together
+    #: (:func:`~bubblefit.inverse._local.column_jacobian`).
+    reaches: str = "film"
 
 
 PARAMETERS: dict[str, Parameter] = {p.name: p for p in (
     Parameter("t", "", (0.0, 1.0), "logistic", "transmission fraction per interface, eqs. (10)-(11), (14)",
-              (0.5, 0.9995)),
+              (0.5, 0.9995), reaches="weights"),
     Parameter("split", "", (0.0, 1.0), "logistic", "specular share r_s / (r_d + r_s) of 1 - t, eq. (14)",
-              (1e-3, 1 - 1e-3)),
-    Parameter("r_d", "", (0.0, math.inf), "log", "diffuse reflectance, eq. (1) (with free_split)"),
-    Parameter("r_s", "", (0.0, math.inf), "log", "specular reflectance, eq. (1) (with free_split)"),
-    Parameter("roughness", "", (0.0, math.inf), "log", "Ward's roughness a, eq. (1)", (0.0, 1.0)),
-    Parameter("exposure", "", (0.0, math.inf), "log", "camera gain on the rendered radiance", (1e-6, 1e6)),
-    Parameter("rotation_deg", "deg", (-math.inf, math.inf), "angle", "environment rotation about +y"),
+              (1e-3, 1 - 1e-3), reaches="weights"),
+    Parameter("r_d", "", (0.0, math.inf), "log", "diffuse reflectance, eq. (1) (with free_split)", reaches="weights"),
+    Parameter("r_s", "", (0.0, math.inf), "log", "specular reflectance, eq. (1) (with free_split)", reaches="weights"),
+    Parameter("roughness", "", (0.0, math.inf), "log", "Ward's roughness a, eq. (1)", (0.0, 1.0), reaches="light"),
+    Parameter("exposure", "", (0.0, math.inf), "log", "camera gain on the rendered radiance", (1e-6, 1e6),
+              reaches="weights"),
+    Parameter("rotation_deg", "deg", (-math.inf, math.inf), "angle", "environment rotation about +y", reaches="light"),
     Parameter("thickness_nm", "nm", (0.0, math.inf), "softplus", "film thickness d, eq. (8)"),
     Parameter("top_nm", "nm", (0.0, math.inf), "softplus", "drainage profile at the top, docs/design.md"),
     Parameter("bottom_nm", "nm", (0.0, math.inf), "softplus", "drainage profile at the bottom, docs/design.md"),
     Parameter("exponent", "", (0.0, math.inf), "log", "drainage profile exponent, docs/design.md",
               (0.1, 10.0)),
     *(Parameter(name, "radius", (-DISC_LIMIT, DISC_LIMIT), "shift", what + " of the disc found, in its radius",
-                (-0.95 * DISC_LIMIT, 0.95 * DISC_LIMIT))
+                (-0.95 * DISC_LIMIT, 0.95 * DISC_LIMIT), reaches="disc")
       for name, what in (("disc_x", "shift right"), ("disc_y", "shift down"), ("disc_r", "relative change of the radius"))),
 )}
 
@@ -176,6 +183,15 @@ class ParameterTable:
     held: tuple = field(default=(), compare=False)  # reasons do not change what is compiled
     thickness_model: str = "constant"
     free_split: bool = False
+
+    @property
+    def jacobian_groups(self) -> tuple:
+        """Indices into ``free`` grouped by the part of the render they reach
+        (:attr:`Parameter.reaches`), in order of first appearance."""
+        groups: dict[str, list[int]] = {}
+        for i, name in enumerate(self.free):
+            groups.setdefault(PARAMETERS[name].reaches, []).append(i)
+        return tuple(tuple(g) for g in groups.values())
 
     def unconstrained(self, values: dict):
         """The solver's start ``z`` (float32) for ``values``."""

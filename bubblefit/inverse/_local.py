@@ -6,9 +6,10 @@ thickness; rather than Dogleg because with few parameters its damped solve is as
 and it needs no separate trust-region geometry. The Jacobian is forward-mode (few
 parameters, many residuals), its columns computed by the part of the render their
 parameters reach (:func:`column_jacobian`). Compiled solvers are cached per static
-configuration (effects, parameter table, padded size): a level is padded and its disc passed as data
-(:func:`~bubblefit.inverse._observation.padded`), so photos of any framing whose levels
-pad to the same size share the compiled solves and the persistent cache's programs.
+configuration (effects, parameter table, padded size): a level is padded and its disc
+passed as data (:func:`~bubblefit.inverse._observation.padded`), so photos of any framing
+whose levels pad to the same size share the compiled solves and the persistent cache's
+programs.
 """
 
 from __future__ import annotations
@@ -188,8 +189,9 @@ def _cauchy(rtol, atol, norm, y, y_diff, f, f_diff):
 class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
     """Levenberg-Marquardt for a flat parameter vector: optimistix' classical trust region
     (``optx.ClassicalTrustRegion``) and Cauchy termination, with the damped Newton step of
-    :class:`DenseDampedNewtonDescent` and a dense forward-mode Jacobian (``jax.jacfwd``)
-    evaluated at accepted points only.
+    :class:`DenseDampedNewtonDescent` and a dense forward-mode Jacobian (``jax.jacfwd``, or
+    ``jacobian`` when given: the fit's solves pass :func:`column_jacobian`) evaluated at
+    accepted points only.
 
     optimistix' own ``LevenbergMarquardt`` linearises (``jax.linearize``) at every trial
     point and materialises the linearisation for its QR solve at every step: on the

@@ -1,9 +1,9 @@
 """Executors of a sequence fit: the work of one chunk, in this process or on Dask.
 
 One chunk is one task: its frames are fitted in order, each warm-started from the last
-successful frame before it, its thickness carried on from the two last
-(:func:`fit_chunk`, :func:`~bubblefit.inverse._parameters.extrapolated`). :class:`LocalExecutor` runs the tasks in
-this process, one after the other; :class:`DaskExecutor` runs them on a ``distributed``
+successful frame before it, its thickness carried on from the two last (:func:`fit_chunk`,
+:func:`~bubblefit.inverse._parameters.extrapolated`). :class:`LocalExecutor` runs the
+tasks in this process, one after the other; :class:`DaskExecutor` runs them on a ``distributed``
 cluster: a local one (one single-threaded worker process per core, so two workers do not
 fight over the same cores) or an existing one. A worker process keeps JAX's compiled
 functions between tasks and shares the client's persistent compilation cache
@@ -22,9 +22,9 @@ from typing import Any
 
 from ..errors import InputError
 from ..io.jaxcache import jax_setup
+from ._parameters import extrapolated
 from ._plan import FrameRef, load_frame
 from .fit import fit_batch, fit_photo
-from ._parameters import extrapolated
 from ._records import base_record, one_line, result_record, warm_init
 
 __all__ = ["DEFAULT_FIT", "ChunkTask", "fit_chunk", "LocalExecutor", "DaskExecutor", "local_env"]

@@ -46,6 +46,8 @@ DISC_UNIT, DISC_LIMIT = 0.01, 0.1
 DISC_PARAMETERS = ("disc_x", "disc_y", "disc_r")
 
 Transform = Literal["logistic", "log", "softplus", "angle", "shift", "none"]
+#: The part of the render a parameter reaches (:attr:`Parameter.reaches`).
+Reach = Literal["weights", "light", "film", "disc"]
 
 
 @dataclass(frozen=True)
@@ -68,7 +70,7 @@ class Parameter:
     #: eq. (13)), ``"film"`` (the film's thickness, eq. (8)) or ``"disc"`` (the rays); the
     #: Jacobian's columns of one part are computed together
     #: (:func:`~bubblefit.inverse._local.column_jacobian`).
-    reaches: str = "film"
+    reaches: Reach = "film"
 
 
 PARAMETERS: dict[str, Parameter] = {p.name: p for p in (

@@ -25,6 +25,13 @@ against ``python -c "import numpy"`` and Mitsuba 3 (the thin dielectric sphere o
     python experiments/bench_fit.py [--quick] [--size 256] [--out experiments/results/bench_fit]
     python experiments/bench_fit.py --profile-solver [--size 160]
     python experiments/bench_fit.py --whole-process [--size 320]
+    python experiments/bench_fit.py --background-compile [--size 320] [--repeats 5]
+
+``--background-compile`` measures what compiling the final solve and the final render in
+a background thread during the global search saves (:meth:`bubblefit.io.executables.Stored.prepare`):
+``bubblefit fit`` on an empty compilation cache, per model, in pairs (the background
+compile on, then off; the pairs one after the other so that the machine's load hits both
+alike), and the paired differences. Writes ``background_compile.json`` and ``.png``.
 """
 
 from __future__ import annotations
@@ -50,6 +57,8 @@ def main():
     ap.add_argument("--profile-solver", action="store_true", help="time the pieces of an LM step (see above)")
     ap.add_argument("--models", default="paper,physical", help="models for --profile-solver, --whole-process")
     ap.add_argument("--whole-process", action="store_true", help="time bubblefit fit as processes (see above)")
+    ap.add_argument("--background-compile", action="store_true",
+                    help="empty-cache fits with and without the background compile, in pairs (see above)")
     ap.add_argument("--mitsuba-python", default=None, help="python with mitsuba 3 (default: bench_effects')")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "bench_fit"))
     args = ap.parse_args()
@@ -68,6 +77,7 @@ def main():
 
     n = 64 if args.quick else args.size
     repeats = 1 if args.quick else args.repeats
+    args.whole_process |= args.background_compile
     if args.whole_process:  # the map exactly as the command line reads it
         from bubblefit.cli.fit import load_envmap
 
@@ -101,6 +111,8 @@ def main():
             phys = lambda d: Scene.from_dict({"camera": {"width": n, "height": n, "disc": list(d)}, "bubble": truth,
                                               "lighting": {"envmap": "x.exr"}, "effects": {"model": "physical"}})
             photos["physical"] = (q(render_scene(phys(disc), bg, env=env)), q(render_scene(phys(moved), bg, env=env)))
+        if args.background_compile:
+            return background_compile(photos, bg_photo, Path(args.out), args.models.split(","), args.repeats)
         return whole_process(photos, bg_photo, Path(args.out), args.models.split(","), args.mitsuba_python)
     if args.profile_solver:
         return profile_solver(photo, env, q(bg), truth, Path(args.out), args.models.split(","))
@@ -316,6 +328,72 @@ def whole_process(photos: dict, bg, out: Path, models, mitsuba_python=None):
     out.mkdir(parents=True, exist_ok=True)
     (out / "whole_process.json").write_text(json.dumps(rows, indent=2))
     print(f"wrote {out}/whole_process.json")
+
+
+#: ``bubblefit fit`` with the background compile of the fit's last programs turned off.
+_NO_BACKGROUND = ("import sys, bubblefit.inverse.fit as f; f.prepare_local = f.prepare_render_level = "
+                  "lambda *a, **k: None; from bubblefit.cli import main; sys.exit(main(sys.argv[1:]))")
+
+
+def background_compile(photos: dict, bg, out: Path, models, repeats: int):
+    """Seconds of ``bubblefit fit`` on an empty cache with the background compile on and
+    off, in ``repeats`` pairs per model (module docstring)."""
+    import subprocess
+    import sys
+    import tempfile
+
+    from bubblefit.io.images import write_image
+    from bubblefit.model.scene import shipped_envmap
+
+    here = Path(__file__).resolve().parent
+    rows = {"size": int(photos["paper"][0].shape[0]), "pairs": {}}
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        write_image(tmp / "bg.png", np.clip(bg, 0, 1), bit_depth=8)
+        for model in models:
+            write_image(tmp / f"{model}.png", np.clip(photos[model][0], 0, 1), bit_depth=8)
+            fit = ["fit", str(tmp / f"{model}.png"), "--envmap", str(shipped_envmap("courtyard")), "--background",
+                   str(tmp / "bg.png"), "--thickness", "constant", "--model", model, "--json", str(tmp / "r.json"),
+                   "-o", str(tmp / "r")]
+            pairs = []
+            for k in range(repeats):
+                pair = {}
+                for how, head in (("on", ["-m", "bubblefit"]), ("off", ["-c", _NO_BACKGROUND])):
+                    cache = tmp / f"cache-{model}-{k}-{how}"
+                    env = dict(os.environ, BUBBLEFIT_CACHE_DIR=str(cache), JAX_PLATFORMS="cpu",
+                               PYTHONPATH=str(here.parent))
+                    t0 = time.perf_counter()
+                    done = subprocess.run([sys.executable, *head, *fit], env=env, capture_output=True, text=True)
+                    if done.returncode != 0:
+                        raise SystemExit(f"bubblefit fit failed: {done.stderr.strip().splitlines()[-1:]}")
+                    pair[how] = time.perf_counter() - t0
+                    pair[f"{how}_thickness_nm"] = json.loads((tmp / "r.json").read_text())["params"]["thickness_nm"]
+                print(model, json.dumps({k: round(v, 3) for k, v in pair.items()}), flush=True)
+                pairs.append(pair)
+            diff = np.array([p["off"] - p["on"] for p in pairs])
+            rows["pairs"][model] = pairs
+            rows[f"{model}_on_median_s"] = float(np.median([p["on"] for p in pairs]))
+            rows[f"{model}_off_median_s"] = float(np.median([p["off"] for p in pairs]))
+            rows[f"{model}_saved_mean_s"] = float(diff.mean())
+            rows[f"{model}_saved_stderr_s"] = float(diff.std(ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else None
+    print(json.dumps({k: v for k, v in rows.items() if k != "pairs"}, indent=1))
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "background_compile.json").write_text(json.dumps(rows, indent=2))
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5, 3))
+    for i, model in enumerate(models):
+        for p in rows["pairs"][model]:
+            ax.plot([2 * i, 2 * i + 1], [p["off"], p["on"]], "o-", color=f"C{i}", alpha=0.7)
+    ax.set_xticks(range(2 * len(models)), [f"{m}\n{how}" for m in models for how in ("off", "on")], fontsize=8)
+    ax.set_ylabel("empty-cache fit, whole process (s)")
+    ax.set_title("background compile of the last programs, paired runs")
+    fig.tight_layout()
+    fig.savefig(out / "background_compile.png", dpi=100)
+    print(f"wrote {out}/background_compile.json, .png")
 
 
 if __name__ == "__main__":

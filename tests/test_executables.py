@@ -19,8 +19,12 @@ SCRIPT = textwrap.dedent("""
     import sys, json
     from bubblefit.io.jaxcache import jax_setup
     jax_setup(sys.argv[1])
-    import jax, jax.numpy as jnp
+    import jax, jax.numpy as jnp, jax.monitoring
     from bubblefit.io import executables
+
+    compiles = []
+    jax.monitoring.register_event_duration_secs_listener(
+        lambda event, secs, **kw: compiles.append(event) if event.endswith("backend_compile_duration") else None)
 
     scale = float(sys.argv[2])
 
@@ -31,50 +35,105 @@ SCRIPT = textwrap.dedent("""
         return {"x": out, "s": jnp.sum(q)}
 
     fn = jax.jit(f)
-    if sys.argv[3] == "store":
+    if sys.argv[3] in ("store", "prepare"):
         fn = executables.stored(fn, "test.f", (scale,))
     a = jnp.arange(16.0).reshape(4, 4) / 10 + jnp.eye(4)
+    if sys.argv[3] == "prepare":  # compiled in the background, then called
+        fn.prepare(a, jnp.zeros((4, 4)))
     res = fn(a, jnp.ones((4, 4)))
     print(json.dumps({k: jnp.asarray(v).tolist() for k, v in res.items()}))
+    print(f"compiled {len(compiles)}", file=sys.stderr)
+    if sys.argv[3] == "prepare":
+        print(f"waiting {len(fn.pending)}", file=sys.stderr)
 """)
+
+
+_LAST_STDERR = [""]
 
 
 def _run(cache, scale, how):
     out = subprocess.run([sys.executable, "-c", SCRIPT, str(cache), str(scale), how], capture_output=True,
                          text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
+    _LAST_STDERR[:] = [out.stderr]
     import json
 
-    return json.loads(out.stdout.strip().splitlines()[-1]), out.stderr.count("traced")
+    compiled = int(out.stderr.rsplit("compiled ", 1)[1].split()[0])
+    return json.loads(out.stdout.strip().splitlines()[-1]), out.stderr.count("traced"), compiled
 
 
 def test_a_new_process_loads_the_program_and_gets_the_same_numbers(tmp_path):
     cache = tmp_path / "cache"
-    plain, traced = _run(cache, 0.5, "plain")  # fills the persistent compilation cache
+    plain, traced, _ = _run(cache, 0.5, "plain")  # fills the persistent compilation cache
     assert traced == 1
-    first, traced = _run(cache, 0.5, "store")  # compiles afresh and stores the executable
+    first, traced, _ = _run(cache, 0.5, "store")  # compiles afresh and stores the executable
     assert traced == 1 and len(list((cache / "executables").glob("*.bin"))) == 1
-    second, traced = _run(cache, 0.5, "store")  # loads it: no tracing
+    second, traced, _ = _run(cache, 0.5, "store")  # loads it: no tracing
     assert traced == 0
     for res in (first, second):
         np.testing.assert_array_equal(res["x"], plain["x"])
         np.testing.assert_array_equal(res["s"], plain["s"])
 
 
+def test_a_prepared_program_is_compiled_once_in_the_background(tmp_path):
+    """``prepare`` compiles (and stores) the program in the background thread; the call
+    with arguments of the same shapes runs it: traced once, the same numbers, one file."""
+    cache = tmp_path / "cache"
+    plain, _, _ = _run(tmp_path / "plain", 0.5, "plain")
+    _, _, compiled = _run(tmp_path / "store", 0.5, "store")
+    first, traced, compiled_prepared = _run(cache, 0.5, "prepare")
+    assert traced == 1 and len(list((cache / "executables").glob("*.bin"))) == 1
+    # the call took the background's program: none left waiting, none compiled twice
+    assert _LAST_STDERR[0].count("waiting 0") == 1 and compiled_prepared == compiled
+    second, traced, _ = _run(cache, 0.5, "prepare")  # a new process: loaded from the store
+    assert traced == 0
+    for res in (first, second):
+        np.testing.assert_array_equal(res["x"], plain["x"])
+        np.testing.assert_array_equal(res["s"], plain["s"])
+
+
+def test_the_persistent_cache_is_bypassed_in_one_thread_only(monkeypatch):
+    """A background compile bypasses JAX's persistent cache (its executable must be fresh
+    to serialise whole); the other threads' compiles still use it."""
+    import threading
+
+    from jax._src import compilation_cache
+
+    from bubblefit.io import executables
+
+    monkeypatch.setattr(compilation_cache, "is_cache_used", lambda backend: True)
+    seen, inside, checked = {}, threading.Event(), threading.Event()
+
+    def worker():
+        with executables._persistent_cache(False):
+            seen["worker"] = compilation_cache.is_cache_used(None)
+            inside.set()
+            checked.wait(30)
+        seen["worker after"] = compilation_cache.is_cache_used(None)
+
+    thread = threading.Thread(target=worker)
+    thread.start()
+    assert inside.wait(30)
+    seen["main"] = compilation_cache.is_cache_used(None)
+    checked.set()
+    thread.join(30)
+    assert seen == {"worker": False, "main": True, "worker after": True}
+
+
 def test_a_changed_setting_is_a_new_program(tmp_path):
     cache = tmp_path / "cache"
-    a, _ = _run(cache, 0.5, "store")
-    b, traced = _run(cache, 0.25, "store")
+    a, _, _ = _run(cache, 0.5, "store")
+    b, traced, _ = _run(cache, 0.25, "store")
     assert traced == 1 and len(list((cache / "executables").glob("*.bin"))) == 2
     assert not np.allclose(a["x"], b["x"])
 
 
 def test_a_damaged_file_falls_back_to_compiling(tmp_path):
     cache = tmp_path / "cache"
-    good, _ = _run(cache, 0.5, "store")
+    good, _, _ = _run(cache, 0.5, "store")
     for path in (cache / "executables").glob("*.bin"):
         path.write_bytes(b"not an executable")
-    again, traced = _run(cache, 0.5, "store")
+    again, traced, _ = _run(cache, 0.5, "store")
     assert traced == 1
     np.testing.assert_array_equal(again["x"], good["x"])
 

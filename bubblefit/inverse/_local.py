@@ -36,7 +36,7 @@ from ..model.render import RenderConfig, render_pixels
 
 __all__ = ["LocalSolution", "DenseDampedNewtonDescent", "LevenbergMarquardt", "column_jacobian",
            "scaled_decrement", "gauss_newton_decrement", "remaining_step", "presses_bound", "robust", "solver",
-           "batched_solver", "reporter", "solve_local", "cost", "solution_from"]
+           "batched_solver", "reporter", "prepare_local", "solve_local", "cost", "solution_from"]
 
 
 def robust(r, scale):
@@ -482,18 +482,36 @@ def solution_from(table: ParameterTable, vals: dict, z, ok, maxed, steps, r, jac
                          np.asarray(jac, np.float64), fixed)
 
 
+def _program(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps, stall: bool):
+    """``(solve, args, pixels)``: the stored solve of :func:`solve_local` for ``lev`` and the
+    arguments it takes besides the start (the held ``vals`` and the level's fitted pixels)."""
+    px = fitted_pixels(lev, lev.cfg.chunk)
+    pad = px.padded
+    key = (pad.cfg, table, float(opts.robust_scale), int(max_steps or opts.max_steps), float(opts.rtol),
+           float(opts.atol), MAX_REJECTIONS if stall else None)
+    fixed = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k not in table.free}
+    args = (fixed, env, pad.bg, px.y, px.w, pad.base, (px.rows, px.cols, px.idx))
+    return stored_solver(*key), args, px
+
+
+def prepare_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps=None,
+                  stall: bool = True) -> None:
+    """Start compiling (or loading) the program of :func:`solve_local` with these arguments
+    in the background (:meth:`bubblefit.io.executables.Stored.prepare`): a fit calls it for
+    its final solve before the global search, whose own programs compile meanwhile. Only
+    the shapes of ``vals`` and the level count; it does nothing where the executable store
+    is off."""
+    solve, args, _ = _program(lev, table, opts, vals, env, max_steps, stall)
+    solve.prepare(table.unconstrained(vals), args)
+
+
 def solve_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps=None,
                 stall: bool = True) -> LocalSolution:
     """Levenberg-Marquardt from ``vals`` on ``lev`` (``opts``: a ``FitOptions``); with
     ``stall`` it stops after :data:`MAX_REJECTIONS` rejections and restarts while far from
     the optimum, without it runs optimistix' own stopping rule alone (warm starts)."""
-    px = fitted_pixels(lev, lev.cfg.chunk)
-    pad = px.padded
-    key = (pad.cfg, table, float(opts.robust_scale), int(max_steps or opts.max_steps), float(opts.rtol),
-           float(opts.atol), MAX_REJECTIONS if stall else None)
-    solve = stored_solver(*key)
-    fixed = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k not in table.free}
-    args = (fixed, env, pad.bg, px.y, px.w, pad.base, (px.rows, px.cols, px.idx))
+    solve, args, px = _program(lev, table, opts, vals, env, max_steps, stall)
+    fixed = args[0]
     sol = solution_from(table, vals, *solve(table.unconstrained(vals), args), fixed, lev, px)
     # A solve stopped by rejections early on (a trust region still far too large) starts
     # afresh from where it stopped, with a fresh trust region, up to MAX_RESTARTS times.

@@ -26,11 +26,11 @@ from ..capture.calibrate import detect_bubble, usable_mask
 from ..errors import InputError
 from ..io.images import srgb_encode, srgb_slope
 from ..model.geometry import OrthographicCamera, canonical_frame, compose_shift, front_hits
-from ..model.render import RenderConfig, render_loaded
+from ..model.render import RenderConfig, prepare_loaded, render_loaded
 
 __all__ = ["Level", "Frame", "noise_sigma", "saturation_mask", "detect_disc", "make_level", "film_geometry",
-           "block_mean", "analysis_frame", "Padded", "padded", "unpadded", "render_level", "padded_size",
-           "Pixels", "fitted_pixels"]
+           "block_mean", "analysis_frame", "Padded", "padded", "unpadded", "render_level", "prepare_render_level",
+           "padded_size", "Pixels", "fitted_pixels"]
 
 
 def noise_sigma(photo: np.ndarray, read: float, shot: float, bits: int | None) -> np.ndarray:
@@ -278,12 +278,24 @@ def render_level(p, lev: Level, env, cfg: RenderConfig | None = None, terms: boo
     configuration of the same camera) through its padded program: ``p``'s disc refinement
     is composed with the level's disc; the image (and with ``terms`` the dict of terms) on
     ``lev``'s pixels."""
-    pad = padded(replace(lev, cfg=cfg) if cfg is not None else lev)
-    p = replace(p, disc=compose_shift(pad.base, np.asarray(p.disc, np.float32)))
+    pad, p = _padded_params(p, lev, cfg)
     out = render_loaded(p, pad.cfg, env, pad.bg, terms=terms)
     if terms:
         return unpadded(lev, out[0]), {k: unpadded(lev, v) for k, v in out[1].items()}
     return unpadded(lev, out)
+
+
+def prepare_render_level(p, lev: Level, env, cfg: RenderConfig | None = None, terms: bool = False) -> None:
+    """Start compiling (or loading) :func:`render_level`'s program for these arguments in
+    the background (:func:`~bubblefit.model.render.prepare_loaded`); only their shapes count."""
+    pad, p = _padded_params(p, lev, cfg)
+    prepare_loaded(p, pad.cfg, env, pad.bg, terms=terms)
+
+
+def _padded_params(p, lev: Level, cfg: RenderConfig | None):
+    """``lev`` (with ``cfg``) padded, and ``p`` with its disc refinement composed with the level's."""
+    pad = padded(replace(lev, cfg=cfg) if cfg is not None else lev)
+    return pad, replace(p, disc=compose_shift(pad.base, np.asarray(p.disc, np.float32)))
 
 
 @dataclass

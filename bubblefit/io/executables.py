@@ -28,6 +28,7 @@ loaded program skips).
 
 from __future__ import annotations
 
+import concurrent.futures
 import contextlib
 import functools
 import hashlib
@@ -36,7 +37,7 @@ import threading
 from pathlib import Path
 from typing import Any, Callable
 
-__all__ = ["stored", "source_digest"]
+__all__ = ["Stored", "stored", "source_digest"]
 
 #: Folder, under the compilation cache's, that holds the stored executables.
 FOLDER = "executables"
@@ -46,6 +47,8 @@ MAX_BYTES = 512 * 2**20
 #: (the command line, the sequence workers); library calls without it jit as usual.
 ENABLED = False
 _LOCK = threading.Lock()
+#: Per-thread state: whether this thread's compiles bypass the persistent cache.
+_THREAD = threading.local()
 
 
 @functools.lru_cache(maxsize=1)
@@ -126,38 +129,75 @@ def _save(path: Path, compiled) -> None:
     write_bytes(path, pickle.dumps((payload, out_tree, lapack), protocol=4))
 
 
-def stored(jitted: Callable, name: str, static: Any) -> Callable:
-    """``jitted`` (a :func:`jax.jit` function called with arrays only) through the store:
-    the first call with a new key loads its executable from disk, or compiles and saves it;
-    later calls in the process reuse it. ``name`` and ``static`` (picklable) must
-    determine, with the source, everything the function closes over. Call it with
-    concrete arrays, not under a transformation (use ``jitted`` there)."""
-    loaded: dict[str, Callable] = {}
-    static_bytes = _static_bytes(static)  # once: the settings do not change between calls
+class Stored:
+    """``jitted`` (a :func:`jax.jit` function called with arrays only) through the store
+    (:func:`stored`): a call with a new key loads its executable from disk, or compiles and
+    saves it; later calls in the process reuse it. :meth:`prepare` starts that load or
+    compile in a background thread, so that a program needed later compiles while this
+    thread does other work."""
 
-    import jax
+    def __init__(self, jitted: Callable, name: str, static: Any):
+        self.jitted, self.name = jitted, name
+        self.static_bytes = _static_bytes(static)  # once: the settings do not change between calls
+        self.loaded: dict[str, Callable] = {}
+        self.pending: dict[str, concurrent.futures.Future] = {}
 
-    def call(*args):
-        if not ENABLED or static_bytes is None:
-            return jitted(*args)
-        key = _key(name, static_bytes, args)
-        fn = loaded.get(key)
+    def __call__(self, *args):
+        if not ENABLED or self.static_bytes is None:
+            return self.jitted(*args)
+        key = _key(self.name, self.static_bytes, args)
+        fn = self.loaded.get(key)
         if fn is not None:
             return fn(*args)
-        fn, path = _fetch(jitted, key, args)
+        with _LOCK:
+            future = self.pending.pop(key, None)
+        fn, path = future.result() if future is not None else _fetch(self.jitted, key, args)
+        return self._first_run(key, fn, path, args)
+
+    def prepare(self, *args) -> None:
+        """Load or compile the program for arguments shaped as ``args`` in a background
+        thread (the process's one compile thread), unless it is loaded or under way; the
+        call with such arguments then waits for it instead of compiling again. Nothing
+        happens where the store is off (:data:`ENABLED`). A failed compile is raised by
+        that call, as it would have been."""
+        if not ENABLED or self.static_bytes is None:
+            return
+        key = _key(self.name, self.static_bytes, args)
+        with _LOCK:
+            if key in self.loaded or key in self.pending:
+                return
+            self.pending[key] = _compile_thread().submit(_fetch, self.jitted, key, args)
+
+    def _first_run(self, key: str, fn: Callable, path: Path | None, args: tuple):
+        import jax
+
         if path is None:  # compiled here (or plain jit): it runs as any program does
-            loaded[key] = fn
+            self.loaded[key] = fn
             return fn(*args)
         try:  # the first run of a program read from disk is checked before it is trusted
             out = jax.block_until_ready(fn(*args))
         except Exception:  # arguments it does not take, a kernel it cannot find
             path.unlink(missing_ok=True)
-            loaded[key] = jitted
-            return jitted(*args)
-        loaded[key] = fn
+            self.loaded[key] = self.jitted
+            return self.jitted(*args)
+        self.loaded[key] = fn
         return out
 
-    return call
+
+def stored(jitted: Callable, name: str, static: Any) -> Stored:
+    """``jitted`` (a :func:`jax.jit` function called with arrays only) through the store:
+    the first call with a new key loads its executable from disk, or compiles and saves it;
+    later calls in the process reuse it. ``name`` and ``static`` (picklable) must
+    determine, with the source, everything the function closes over. Call it with
+    concrete arrays, not under a transformation (use ``jitted`` there)."""
+    return Stored(jitted, name, static)
+
+
+@functools.lru_cache(maxsize=1)
+def _compile_thread() -> concurrent.futures.ThreadPoolExecutor:
+    """The one background thread that :meth:`Stored.prepare` compiles in (its work is
+    finished before the process exits)."""
+    return concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="bubblefit-compile")
 
 
 def _fetch(jitted: Callable, key: str, args: tuple) -> tuple[Callable, Path | None]:
@@ -186,22 +226,32 @@ def _fetch(jitted: Callable, key: str, args: tuple) -> tuple[Callable, Path | No
 
 @contextlib.contextmanager
 def _persistent_cache(on: bool):
-    """Context in which JAX's persistent compilation cache is used (``on``) or bypassed.
+    """Context in which this thread's compiles use JAX's persistent compilation cache
+    (``on``) or bypass it; other threads' compiles are not affected.
 
     JAX decides once per process whether the cache is used (``is_cache_used``), so its
-    flag cannot turn it off later; the check is replaced for the duration instead."""
-    from jax._src import compilation_cache
-
+    flag cannot turn it off later: the check is wrapped, once, by one that answers False
+    in a thread inside ``_persistent_cache(False)``."""
     if on:
         yield
         return
+    from jax._src import compilation_cache
+
     with _LOCK:
-        used = compilation_cache.is_cache_used
-        compilation_cache.is_cache_used = lambda backend: False
-        try:
-            yield
-        finally:
-            compilation_cache.is_cache_used = used
+        if not getattr(compilation_cache.is_cache_used, "bubblefit_bypass", False):
+            used = compilation_cache.is_cache_used
+
+            def is_cache_used(backend):
+                return False if getattr(_THREAD, "bypass", False) else used(backend)
+
+            is_cache_used.bubblefit_bypass = True
+            compilation_cache.is_cache_used = is_cache_used
+    before = getattr(_THREAD, "bypass", False)
+    _THREAD.bypass = True
+    try:
+        yield
+    finally:
+        _THREAD.bypass = before
 
 
 def _prune(folder: Path, limit_bytes: int = MAX_BYTES) -> None:

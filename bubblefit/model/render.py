@@ -54,8 +54,8 @@ from .geometry import (OrthographicCamera, PerspectiveCamera, hit_pixels, intern
                        pixel_offsets)
 from .thickness import thickness_at
 
-__all__ = ["Params", "RenderConfig", "render", "render_terms", "render_loaded", "render_plan", "shading_points",
-           "TRACE_COUNTS", "PointLight"]
+__all__ = ["Params", "RenderConfig", "render", "render_terms", "render_loaded", "prepare_loaded", "render_plan",
+           "shading_points", "TRACE_COUNTS", "PointLight"]
 
 #: No drainage profile under a thickness map (:attr:`Params.profile`): every film of a
 #: pixel takes the map's value there.
@@ -642,6 +642,14 @@ def render_loaded(p: Params, cfg: RenderConfig, env: EnvMap | None, background=N
     (:func:`bubblefit.io.executables.stored`): the same values, and a command's process
     loads the compiled program instead of tracing and lowering it. Concrete arrays only."""
     return (_stored_terms(cfg) if terms else _stored_programs(cfg)[0])(p, env, background)
+
+
+def prepare_loaded(p: Params, cfg: RenderConfig, env: EnvMap | None, background=None, *, terms: bool = False):
+    """Start compiling (or loading) :func:`render_loaded`'s program for these arguments in
+    the background (:meth:`bubblefit.io.executables.Stored.prepare`): a later
+    :func:`render_loaded` with arguments of the same shapes waits for it instead of
+    compiling. Only the shapes of the arguments count."""
+    (_stored_terms(cfg) if terms else _stored_programs(cfg)[0]).prepare(p, env, background)
 
 
 @functools.lru_cache(maxsize=32)

@@ -160,3 +160,24 @@ def test_a_program_that_fails_its_first_run_is_dropped(tmp_path, monkeypatch):
     np.testing.assert_array_equal(call(x), fn(x))
     assert not (tmp_path / f"{key}.bin").exists()
     np.testing.assert_array_equal(call(x), fn(x))  # and it stays on the jitted path
+
+
+def test_a_library_call_takes_the_program_prepared_in_the_background(monkeypatch):
+    """Without the store (library calls), ``prepare`` compiles in the background all the
+    same, not saved; the call with the same shapes runs that program (none left
+    waiting) and gets the jitted function's numbers; other shapes take the jitted path."""
+    import jax
+    import jax.numpy as jnp
+
+    from bubblefit.io import executables
+
+    monkeypatch.setattr(executables, "ENABLED", False)
+    fn = jax.jit(lambda x: jnp.cumsum(jnp.sin(x) * 3.0))
+    call = executables.stored(fn, "test.library", ())
+    x = jnp.linspace(0.0, 2.0, 7)
+    call.prepare(jnp.zeros_like(x))
+    np.testing.assert_array_equal(call(x), fn(x))
+    assert not call.pending and len(call.loaded) == 1
+    y = jnp.linspace(0.0, 1.0, 5)  # not prepared: the plain jitted call
+    np.testing.assert_array_equal(call(y), fn(y))
+    assert len(call.loaded) == 1

@@ -143,7 +143,7 @@ class Stored:
         self.pending: dict[str, concurrent.futures.Future] = {}
 
     def __call__(self, *args):
-        if not ENABLED or self.static_bytes is None:
+        if self.static_bytes is None or not (ENABLED or self.loaded or self.pending):
             return self.jitted(*args)
         key = _key(self.name, self.static_bytes, args)
         fn = self.loaded.get(key)
@@ -151,22 +151,26 @@ class Stored:
             return fn(*args)
         with _LOCK:
             future = self.pending.pop(key, None)
+        if future is None and not ENABLED:
+            return self.jitted(*args)
         fn, path = future.result() if future is not None else _fetch(self.jitted, key, args)
         return self._first_run(key, fn, path, args)
 
     def prepare(self, *args) -> None:
         """Load or compile the program for arguments shaped as ``args`` in a background
         thread (the process's one compile thread), unless it is loaded or under way; the
-        call with such arguments then waits for it instead of compiling again. Nothing
-        happens where the store is off (:data:`ENABLED`). A failed compile is raised by
-        that call, as it would have been."""
-        if not ENABLED or self.static_bytes is None:
+        call with such arguments then waits for it instead of compiling again. Where the
+        store is off (:data:`ENABLED`: library calls) the program is compiled, not stored,
+        and JAX's own cache serves as usual. A failed compile is raised by that call, as it
+        would have been."""
+        if self.static_bytes is None:
             return
         key = _key(self.name, self.static_bytes, args)
         with _LOCK:
             if key in self.loaded or key in self.pending:
                 return
-            self.pending[key] = _compile_thread().submit(_fetch, self.jitted, key, args)
+            job = (_fetch, self.jitted, key, args) if ENABLED else (_compile, self.jitted, args)
+            self.pending[key] = _compile_thread().submit(*job)
 
     def _first_run(self, key: str, fn: Callable, path: Path | None, args: tuple):
         import jax
@@ -198,6 +202,11 @@ def _compile_thread() -> concurrent.futures.ThreadPoolExecutor:
     """The one background thread that :meth:`Stored.prepare` compiles in (its work is
     finished before the process exits)."""
     return concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="bubblefit-compile")
+
+
+def _compile(jitted: Callable, args: tuple) -> tuple[Callable, None]:
+    """``jitted`` compiled for ``args`` (JAX's persistent cache used as configured), as :func:`_fetch` answers."""
+    return jitted.lower(*args).compile(), None
 
 
 def _fetch(jitted: Callable, key: str, args: tuple) -> tuple[Callable, Path | None]:

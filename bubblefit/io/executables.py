@@ -165,12 +165,15 @@ class Stored:
         would have been."""
         if self.static_bytes is None:
             return
-        key = _key(self.name, self.static_bytes, args)
-        with _LOCK:
-            if key in self.loaded or key in self.pending:
-                return
-            job = (_fetch, self.jitted, key, args) if ENABLED else (_compile, self.jitted, args)
-            self.pending[key] = _compile_thread().submit(*job)
+        try:  # only ever a head start: arguments it cannot key, or a process shutting down, skip it
+            key = _key(self.name, self.static_bytes, args)
+            with _LOCK:
+                if key in self.loaded or key in self.pending:
+                    return
+                job = (_fetch, self.jitted, key, args) if ENABLED else (_compile, self.jitted, args)
+                self.pending[key] = _compile_thread().submit(*job)
+        except Exception:
+            return
 
     def _first_run(self, key: str, fn: Callable, path: Path | None, args: tuple):
         import jax

@@ -26,6 +26,13 @@ against ``python -c "import numpy"`` and Mitsuba 3 (the thin dielectric sphere o
     python experiments/bench_fit.py --profile-solver [--size 160]
     python experiments/bench_fit.py --whole-process [--size 320]
     python experiments/bench_fit.py --background-compile [--size 320] [--repeats 5]
+    python experiments/bench_fit.py --compile-profile [--size 320]
+
+``--compile-profile`` compiles, in one process with JAX's persistent cache off, the
+pieces of each model's final solve program on the photo's fit level (the residual, its
+``jax.jacfwd``, its Jacobian by groups of parameters, the whole Levenberg-Marquardt
+solve) and records the seconds to lower and to compile each and the lines of its
+optimised HLO: where a first fit's compile time goes. Writes ``compile_profile.json``.
 
 ``--background-compile`` measures what compiling the final solve and the final render in
 a background thread during the global search saves (:meth:`bubblefit.io.executables.Stored.prepare`):
@@ -57,6 +64,7 @@ def main():
     ap.add_argument("--profile-solver", action="store_true", help="time the pieces of an LM step (see above)")
     ap.add_argument("--models", default="paper,physical", help="models for --profile-solver, --whole-process")
     ap.add_argument("--whole-process", action="store_true", help="time bubblefit fit as processes (see above)")
+    ap.add_argument("--compile-profile", action="store_true", help="compile times of the solve's pieces (see above)")
     ap.add_argument("--background-compile", action="store_true",
                     help="empty-cache fits with and without the background compile, in pairs (see above)")
     ap.add_argument("--mitsuba-python", default=None, help="python with mitsuba 3 (default: bench_effects')")
@@ -114,6 +122,8 @@ def main():
         if args.background_compile:
             return background_compile(photos, bg_photo, Path(args.out), args.models.split(","), args.repeats)
         return whole_process(photos, bg_photo, Path(args.out), args.models.split(","), args.mitsuba_python)
+    if args.compile_profile:
+        return compile_profile(photo, env, q(bg), Path(args.out), args.models.split(","))
     if args.profile_solver:
         return profile_solver(photo, env, q(bg), truth, Path(args.out), args.models.split(","))
     rows = []
@@ -233,6 +243,43 @@ def profile_solver(photo, env, bg, truth, out: Path, models=("paper", "physical"
         w.writerows(rows)
     plot_solver_profile(rows, out)
     print(f"wrote {out}/solver_profile.json, .csv, .png")
+
+
+def compile_profile(photo, env, bg, out: Path, models=("paper", "physical")):
+    """Lowering and compile seconds and optimised HLO lines of the pieces of each model's
+    final solve program (module docstring)."""
+    import jax
+
+    from bubblefit.inverse import _local, _setup
+    from bubblefit.inverse.fit import FitOptions
+
+    jax.config.update("jax_enable_compilation_cache", False)
+    rows = []
+    for model in models:
+        opts = FitOptions(model=model)
+        st = _setup.setup(photo, env, opts, bg, None, None, None)
+        key, a, _ = _local._program(st.lev_fit, st.table, opts, st.vals, env, None, True)
+        solve, resid = _local.solver.__wrapped__(*key)  # fresh jitted functions, compiled here
+        z0 = st.table.unconstrained(st.vals)
+        groups = st.table.jacobian_groups
+        row = {"model": model, "free": len(st.table.free), "groups": len(groups), "pixels": int(a[3].size // 3)}
+        pieces = (("residual", resid), ("jacfwd", jax.jit(jax.jacfwd(resid))),
+                  ("jacobian_by_groups", jax.jit(lambda z, a: _local.column_jacobian(resid, groups, z, a))),
+                  ("solve", solve))
+        for name, fn in pieces:
+            t0 = time.perf_counter()
+            lowered = fn.lower(z0, a)
+            t1 = time.perf_counter()
+            compiled = lowered.compile()
+            t2 = time.perf_counter()
+            row[f"{name}_lower_s"] = round(t1 - t0, 2)
+            row[f"{name}_compile_s"] = round(t2 - t1, 2)
+            row[f"{name}_hlo_lines"] = len(compiled.as_text().splitlines())
+        print(json.dumps(row), flush=True)
+        rows.append(row)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "compile_profile.json").write_text(json.dumps(rows, indent=2))
+    print(f"wrote {out}/compile_profile.json")
 
 
 def plot_solver_profile(rows, out: Path):

@@ -483,15 +483,16 @@ def solution_from(table: ParameterTable, vals: dict, z, ok, maxed, steps, r, jac
 
 
 def _program(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps, stall: bool):
-    """``(solve, args, pixels)``: the stored solve of :func:`solve_local` for ``lev`` and the
-    arguments it takes besides the start (the held ``vals`` and the level's fitted pixels)."""
+    """``(key, args, pixels)``: the key of :func:`solve_local`'s solve for ``lev``
+    (:func:`solver`'s arguments) and the arguments it takes besides the start (the held
+    ``vals`` and the level's fitted pixels)."""
     px = fitted_pixels(lev, lev.cfg.chunk)
     pad = px.padded
     key = (pad.cfg, table, float(opts.robust_scale), int(max_steps or opts.max_steps), float(opts.rtol),
            float(opts.atol), MAX_REJECTIONS if stall else None)
     fixed = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k not in table.free}
     args = (fixed, env, pad.bg, px.y, px.w, pad.base, (px.rows, px.cols, px.idx))
-    return stored_solver(*key), args, px
+    return key, args, px
 
 
 def prepare_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps=None,
@@ -501,8 +502,8 @@ def prepare_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_
     its final solve before the global search, whose own programs compile meanwhile. Only
     the shapes of ``vals`` and the level count; it does nothing where the executable store
     is off."""
-    solve, args, _ = _program(lev, table, opts, vals, env, max_steps, stall)
-    solve.prepare(table.unconstrained(vals), args)
+    key, args, _ = _program(lev, table, opts, vals, env, max_steps, stall)
+    stored_solver(*key).prepare(table.unconstrained(vals), args)
 
 
 def solve_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps=None,
@@ -510,8 +511,8 @@ def solve_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_st
     """Levenberg-Marquardt from ``vals`` on ``lev`` (``opts``: a ``FitOptions``); with
     ``stall`` it stops after :data:`MAX_REJECTIONS` rejections and restarts while far from
     the optimum, without it runs optimistix' own stopping rule alone (warm starts)."""
-    solve, args, px = _program(lev, table, opts, vals, env, max_steps, stall)
-    fixed = args[0]
+    key, args, px = _program(lev, table, opts, vals, env, max_steps, stall)
+    solve, fixed = stored_solver(*key), args[0]
     sol = solution_from(table, vals, *solve(table.unconstrained(vals), args), fixed, lev, px)
     # A solve stopped by rejections early on (a trust region still far too large) starts
     # afresh from where it stopped, with a fresh trust region, up to MAX_RESTARTS times.

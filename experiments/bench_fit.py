@@ -72,9 +72,12 @@ def main():
     args = ap.parse_args()
     import jax
 
-    cache = os.environ.get("BUBBLEFIT_CACHE_DIR", str(Path(__file__).resolve().parent.parent / ".jax_cache"))
-    jax.config.update("jax_compilation_cache_dir", cache)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    if args.compile_profile:  # every program compiled afresh (JAX decides this at its first compile)
+        jax.config.update("jax_enable_compilation_cache", False)
+    else:
+        cache = os.environ.get("BUBBLEFIT_CACHE_DIR", str(Path(__file__).resolve().parent.parent / ".jax_cache"))
+        jax.config.update("jax_compilation_cache_dir", cache)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 
     from scipy import ndimage as ndi
 
@@ -253,7 +256,6 @@ def compile_profile(photo, env, bg, out: Path, models=("paper", "physical")):
     from bubblefit.inverse import _local, _setup
     from bubblefit.inverse.fit import FitOptions
 
-    jax.config.update("jax_enable_compilation_cache", False)
     rows = []
     for model in models:
         opts = FitOptions(model=model)

@@ -500,8 +500,8 @@ def prepare_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_
     """Start compiling (or loading) the program of :func:`solve_local` with these arguments
     in the background (:meth:`bubblefit.io.executables.Stored.prepare`): a fit calls it for
     its final solve before the global search, whose own programs compile meanwhile. Only
-    the shapes of ``vals`` and the level count; it does nothing where the executable store
-    is off."""
+    the shapes of ``vals`` and the level count; without the executable store (library
+    calls) the program is compiled in the background all the same, not saved."""
     key, args, _ = _program(lev, table, opts, vals, env, max_steps, stall)
     stored_solver(*key).prepare(table.unconstrained(vals), args)
 

@@ -232,7 +232,8 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     warm = bool(init)
     if search_thickness and not warm:
         # The final solve's program, and the final render's, compile in the background
-        # meanwhile (on 2 cores an empty-cache fit takes about 3 s less).
+        # meanwhile (on 2 cores an empty-cache fit takes about 4 s less:
+        # experiments/bench_fit.py --background-compile).
         prepare_local(st.lev_fit, st.table, opts, st.vals, env)
         if opts.thickness != "map":
             prepare_render_level(_final_params(st.table, st.vals, opts), st.level(1, opts), env)

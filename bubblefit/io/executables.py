@@ -20,6 +20,11 @@ constants, a read-only cache, a damaged file) falls back to the plain jitted cal
 compilation cache's folder (at most :data:`MAX_BYTES`). The store is used in processes
 that called :func:`~bubblefit.io.jaxcache.jax_setup` (the command line and its workers).
 
+A program needed later can be started ahead (:meth:`Stored.prepare`): it is loaded or
+compiled in one background thread while the caller goes on, and the call with arguments
+of the same shapes waits for it (the fit prepares its final solve and render before the
+global search).
+
 Two things XLA:CPU needs, found by running it: an executable is serialised from a fresh
 compile (one that the persistent cache loaded loses its fused kernels), and the LAPACK
 kernels are initialised before a loaded program runs (JAX does it while lowering, which a

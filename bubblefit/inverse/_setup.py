@@ -4,7 +4,7 @@ camera and the observation at the fit's resolution (:func:`setup`)."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -183,10 +183,15 @@ class Setup:
     frame: Frame
     warnings: list
     colour: ColourSettings
+    levels: dict = field(default_factory=dict, repr=False)  # built by :meth:`level`, by (k, cfg, rim)
 
     def level(self, k: int, opts: FitOptions, cfg: RenderConfig | None = None) -> Level:
-        """The photo ``k`` times smaller (:func:`make_level`)."""
-        return make_level(k, cfg or self.base_cfg, self.photo, self.sigma, self.background, self.saturated, opts.rim)
+        """The photo ``k`` times smaller (:func:`make_level`), built once per ``k``,
+        configuration and rim."""
+        key = (k, cfg or self.base_cfg, float(opts.rim))
+        if key not in self.levels:
+            self.levels[key] = make_level(k, key[1], self.photo, self.sigma, self.background, self.saturated, key[2])
+        return self.levels[key]
 
 
 def _float(a) -> np.ndarray:

@@ -325,7 +325,6 @@ def whole_process(photos: dict, bg, out: Path, models, mitsuba_python=None):
     from bench_effects import MAPS, MITSUBA_PYTHON, MITSUBA_SCRIPT
 
     from bubblefit.io.images import write_image
-    from bubblefit.model.scene import shipped_envmap
 
     here = Path(__file__).resolve().parent
     mitsuba_python = mitsuba_python or MITSUBA_PYTHON
@@ -345,10 +344,7 @@ def whole_process(photos: dict, bg, out: Path, models, mitsuba_python=None):
 
         def fit(model, photo, name, env):
             write_image(tmp / f"{name}.png", np.clip(photo, 0, 1), bit_depth=8)
-            cmd = [sys.executable, "-m", "bubblefit", "fit", str(tmp / f"{name}.png"), "--envmap",
-                   str(shipped_envmap("courtyard")), "--background", str(tmp / "bg.png"), "--thickness", "constant",
-                   "--model", model, "--json", str(tmp / f"{name}.json"), "-o", str(tmp / name)]
-            seconds = clock(cmd, env)
+            seconds = clock([sys.executable, "-m", "bubblefit", *_fit_args(tmp, name, model)], env)
             return seconds, json.loads((tmp / f"{name}.json").read_text())
 
         for model in models:
@@ -384,6 +380,16 @@ _NO_BACKGROUND = ("import sys, bubblefit.inverse.fit as f; f.prepare_local = f.p
                   "lambda *a, **k: None; from bubblefit.cli import main; sys.exit(main(sys.argv[1:]))")
 
 
+def _fit_args(tmp: Path, name: str, model: str) -> list:
+    """``bubblefit fit``'s arguments for the photo ``tmp/NAME.png`` over ``tmp/bg.png`` in the
+    shipped courtyard map, constant thickness, the JSON to ``tmp/NAME.json``."""
+    from bubblefit.model.scene import shipped_envmap
+
+    return ["fit", str(tmp / f"{name}.png"), "--envmap", str(shipped_envmap("courtyard")), "--background",
+            str(tmp / "bg.png"), "--thickness", "constant", "--model", model, "--json", str(tmp / f"{name}.json"),
+            "-o", str(tmp / name)]
+
+
 def background_compile(photos: dict, bg, out: Path, models, repeats: int):
     """Seconds of ``bubblefit fit`` on an empty cache with the background compile on and
     off, in ``repeats`` pairs per model (module docstring)."""
@@ -392,7 +398,6 @@ def background_compile(photos: dict, bg, out: Path, models, repeats: int):
     import tempfile
 
     from bubblefit.io.images import write_image
-    from bubblefit.model.scene import shipped_envmap
 
     here = Path(__file__).resolve().parent
     rows = {"size": int(photos["paper"][0].shape[0]), "pairs": {}}
@@ -401,9 +406,7 @@ def background_compile(photos: dict, bg, out: Path, models, repeats: int):
         write_image(tmp / "bg.png", np.clip(bg, 0, 1), bit_depth=8)
         for model in models:
             write_image(tmp / f"{model}.png", np.clip(photos[model][0], 0, 1), bit_depth=8)
-            fit = ["fit", str(tmp / f"{model}.png"), "--envmap", str(shipped_envmap("courtyard")), "--background",
-                   str(tmp / "bg.png"), "--thickness", "constant", "--model", model, "--json", str(tmp / "r.json"),
-                   "-o", str(tmp / "r")]
+            fit = _fit_args(tmp, model, model)
             pairs = []
             for k in range(repeats):
                 pair = {}
@@ -416,7 +419,7 @@ def background_compile(photos: dict, bg, out: Path, models, repeats: int):
                     if done.returncode != 0:
                         raise SystemExit(f"bubblefit fit failed: {done.stderr.strip().splitlines()[-1:]}")
                     pair[how] = time.perf_counter() - t0
-                    pair[f"{how}_thickness_nm"] = json.loads((tmp / "r.json").read_text())["params"]["thickness_nm"]
+                    pair[f"{how}_thickness_nm"] = json.loads((tmp / f"{model}.json").read_text())["params"]["thickness_nm"]
                 print(model, json.dumps({k: round(v, 3) for k, v in pair.items()}), flush=True)
                 pairs.append(pair)
             diff = np.array([p["off"] - p["on"] for p in pairs])

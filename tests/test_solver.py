@@ -3,14 +3,14 @@ independent least-squares codes: MINPACK's Levenberg-Marquardt (through
 ``scipy.optimize.least_squares``), optimistix' own ``LevenbergMarquardt``, and the normal
 equations of a linear problem."""
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 import pytest
 from scipy.optimize import least_squares
-
-import functools
 
 from bubblefit.inverse._local import LevenbergMarquardt, column_jacobian, scaled_decrement
 

@@ -3,9 +3,9 @@
 One chunk is one task: its frames are fitted in order, each warm-started from the last
 successful frame before it, its thickness carried on from the two last (:func:`fit_chunk`,
 :func:`~bubblefit.inverse._parameters.extrapolated`). :class:`LocalExecutor` runs the
-tasks in this process, one after the other; :class:`DaskExecutor` runs them on a ``distributed``
-cluster: a local one (one single-threaded worker process per core, so two workers do not
-fight over the same cores) or an existing one. A worker process keeps JAX's compiled
+tasks in this process, one after the other; :class:`DaskExecutor` runs them on a
+``distributed`` cluster: a local one (one single-threaded worker process per core, so two
+workers do not fight over the same cores) or an existing one. A worker process keeps JAX's compiled
 functions between tasks and shares the client's persistent compilation cache
 (:func:`bubblefit.io.jaxcache.jax_setup`), so only its first frame pays the compilation.
 """

@@ -66,8 +66,8 @@ from ..optics import dispersion, film
 from ._spectrum_profile import (ProfileProblem, local_noise, profile_variance, refine_d, refine_dw, refine_near,
                                 residual_correlation, rss_grids, second_difference_noise)
 
-__all__ = ["SpectrumOptions", "SpectrumFit", "film_reflectance", "reflector", "fit_spectrum", "interference_order",
-           "min_fringes"]
+__all__ = ["SpectrumOptions", "SpectrumFit", "film_reflectance", "reflector", "fit_spectrum",
+           "interference_order", "min_fringes", "prepared_problem", "PreparedReading"]
 
 _FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
 
@@ -361,6 +361,42 @@ def _search_grid(lam: np.ndarray, n: np.ndarray, opts: SpectrumOptions) -> np.nd
     return np.linspace(dmin, dmax, count)
 
 
+@dataclass
+class PreparedReading:
+    """A reading ready to fit: its wavelengths (N,), dark-subtracted intensities, the
+    normalised reference (or None), the index per wavelength, the weighted profile problem
+    with the unknown lamp, the thickness search grid, the number of smooth stray-light
+    terms, and the warnings so far."""
+
+    wavelength_nm: np.ndarray
+    y: np.ndarray
+    reference: np.ndarray | None
+    n: np.ndarray
+    problem: ProfileProblem
+    grid: np.ndarray
+    background_terms: int
+    warnings: list[str]
+
+    @property
+    def order_spacing(self) -> float:
+        """The thickness between interference orders at mid range, ``1 / (2 n nu)``."""
+        return 1.0 / (2.0 * float(np.median(self.n / self.wavelength_nm)))
+
+
+def prepared_problem(spectrum: Spectrum, dark: Spectrum | None, reference: Spectrum | None,
+                     options: SpectrumOptions) -> PreparedReading:
+    """The reading as :func:`fit_spectrum` fits it (:class:`PreparedReading`)."""
+    lam, y, ref, terms, bg_terms, n, warnings = _prepare(spectrum, dark, reference, options)
+    # Weighted least squares: each wavelength's variance is its measured noise plus the
+    # model-error floor (the noise alone would let the quietest stretch, often a dim end
+    # of the lamp, decide; the floor alone would let garbage where the lamp is dark count).
+    sigma = np.hypot(local_noise(y), MODEL_ERROR_FLOOR * float(np.mean(np.abs(y))))
+    weight = float(np.median(sigma)) / sigma
+    prob = ProfileProblem(y, _lamp_basis(lam, terms, ref), options.offset, reflector(lam, n),
+                          _background_basis(lam, bg_terms, ref), positive=True, weight=weight)
+    return PreparedReading(lam, y, ref, n, prob, _search_grid(lam, n, options), bg_terms, warnings)
+
+
 def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference: Spectrum | None = None,
                  options: SpectrumOptions = SpectrumOptions()) -> SpectrumFit:
     """Film thickness (nm) and its standard error from one spectrometer reading.
@@ -373,18 +409,11 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
     ----------
     Golub & Pereyra (1973), variable projection; Born & Wolf, sec. 7.6.1.
     """
-    lam, y, ref, terms, bg_terms, n, warnings = _prepare(spectrum, dark, reference, options)
-    reflect = reflector(lam, n)
-    background = _background_basis(lam, bg_terms, ref)
-    # Weighted least squares: each wavelength's variance is its measured noise plus the
-    # model-error floor (the noise alone would let the quietest stretch, often a dim end
-    # of the lamp, decide; the floor alone would let garbage where the lamp is dark count).
-    sigma = np.hypot(local_noise(y), MODEL_ERROR_FLOOR * float(np.mean(np.abs(y))))
-    weight = float(np.median(sigma)) / sigma
-    prob = ProfileProblem(y, _lamp_basis(lam, terms, ref), options.offset, reflect, background, positive=True,
-                          weight=weight)
-    alt = _split_problem(prob, lam, ref, terms, bg_terms)
-    grid = _search_grid(lam, n, options)
+    p = prepared_problem(spectrum, dark, reference, options)
+    lam, y, ref, n, prob, grid, warnings = p.wavelength_nm, p.y, p.reference, p.n, p.problem, p.grid, p.warnings
+    terms = prob.basis.shape[1]
+    weight = prob.weight
+    alt = _split_problem(prob, lam, ref, terms, p.background_terms)
     step = grid[1] - grid[0]
     prob, alt, rss, alt_rss, minima, d_best, rss_best, w, fit_w = _search(prob, alt, grid, lam, n, options, warnings)
     dof = max(len(y) - (prob.n_linear + 1 + int(fit_w)), 1)
@@ -555,3 +584,4 @@ def _verdict(d, stderr, second, dchi2, grid, lam, n, has_reference: bool, opts: 
     if (lo > 0 and d - lo < 1.5 * step) or hi - d < 1.5 * step:
         reasons.append(f"thickness {d:.1f} nm is at the edge of the searched range {lo:g}-{hi:g} nm")
     return reasons
+

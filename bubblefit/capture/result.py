@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from ..io.atomic import write_json
-from ..io.images import atomic_path, srgb_decode, srgb_encode, write_image
+from ..io.images import srgb_decode, srgb_encode, write_image
 
 __all__ = ["CalibrationResult", "save_json", "write_debug_image"]
 

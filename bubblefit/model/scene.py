@@ -27,7 +27,7 @@ from .auto import DEFAULT_TOLERANCE, decide_pixels
 from .bounds import scene_bounds
 from .effects import ALL_ON_NODES, check_harmonic
 from .footprint import footprint
-from ._scene_checks import check_radiance, check_values, colour_path, film_index, validate, vector
+from ._scene_checks import check_radiance, check_values, colour_path, film_index, validate
 from .geometry import OrthographicCamera, PerspectiveCamera
 from .render import NO_PROFILE, Params, PointLight, RenderConfig, render_plan
 

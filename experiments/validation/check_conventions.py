@@ -14,8 +14,6 @@ and prints the relative RMS differences inside 0.95 of the disc.
 
 from __future__ import annotations
 
-import json
-import math
 import os
 import sys
 

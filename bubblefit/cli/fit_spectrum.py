@@ -1,10 +1,13 @@
 """``bubblefit fit-spectrum SPECTRUM... [--dark DARK] [--reference REF] [--n-film N | --cauchy A,B[,C]]
-[--thickness-range MIN,MAX] [--wavelength-range MIN,MAX] [--normalised] [--background-terms K] [--incoherent] [--csv OUT]
-[--json OUT] [-o PLOT_PREFIX]``.
+[--thickness-range MIN,MAX] [--wavelength-range MIN,MAX] [--normalised] [--background-terms K] [--incoherent]
+[--shared-lamp] [--csv OUT] [--json OUT] [-o PLOT_PREFIX]``.
 
 Film thickness from spectrometer readings (:mod:`bubblefit.inverse.spectrum`): one CSV row
 and one JSON entry per file, and with ``-o`` a plot per file of the measured and fitted
-spectra, the residual and the profile likelihood over thickness.
+spectra, the residual and the profile likelihood over thickness. With ``--shared-lamp``
+the files are one series under one lamp (:func:`bubblefit.inverse.spectrum.fit_spectrum_series`):
+the readings that can be read alone fit the lamp, and the others (films too thin for
+fringes) are read with it; ``-o`` then also plots the series' thicknesses in file order.
 """
 
 from __future__ import annotations
@@ -53,6 +56,10 @@ def register(sub):
                         "or frame in the beam, a spot spanning many orders: fringe minima lifted in proportion to "
                         "the lamp); more freedom, so thin films without a reference become more ambiguous")
     p.add_argument("--no-offset", action="store_true", help="do not fit a constant stray-light offset")
+    p.add_argument("--shared-lamp", action="store_true",
+                   help="the files are one series under the same lamp (a draining film): the readings that can be "
+                        "read alone fit the lamp, and the others (films under a fringe, down to the black film) "
+                        "are read with it, from their brightness; needs at least 3 readings that are ok alone")
     p.add_argument("--csv", help="CSV, one row per file: " + ",".join(_CSV_COLUMNS[:4]) + ",...")
     p.add_argument("--json", help="JSON with one entry per file")
     p.add_argument("-o", "--output", metavar="PLOT_PREFIX", help="write PLOT_PREFIX_<file>.png per file")
@@ -76,11 +83,13 @@ def _check_outputs(args) -> None:
     if args.output and len({Path(s).stem for s in args.spectra}) < len(args.spectra):
         raise InputError("two spectra have the same file name; their plots would collide (run them separately)")
     plots = [f"{args.output}_{Path(s).stem}.png" for s in args.spectra] if args.output else []
+    if args.output and args.shared_lamp:
+        plots.append(f"{args.output}_series.png")
     guard_outputs([*args.spectra, args.dark, args.reference], [args.csv, args.json, *plots])
 
 
 def run(args) -> int:
-    from ..inverse.spectrum import SpectrumOptions, fit_spectrum
+    from ..inverse.spectrum import SpectrumOptions, fit_spectrum, fit_spectrum_series
     from ..io.spectra import read_spectrum
     from ..optics import dispersion
     from ..progress import status
@@ -103,10 +112,22 @@ def run(args) -> int:
     for spec in [s for s in (dark, reference) if s is not None] + spectra:
         if spec.skipped:
             print(f"warning: {spec.path}: skipped {spec.skipped} rows that are not finite numbers", file=sys.stderr)
+    if args.shared_lamp:
+        results, lamp = fit_spectrum_series(spectra, dark=dark, reference=reference, options=opts,
+                                            progress=lambda k, n: status(f"reading {spectra[k].path} alone "
+                                                                         f"({k + 1}/{n}) ..."))
+        if lamp is not None:
+            print(f"shared lamp: fitted to {len(lamp.pinning)} of {len(spectra)} readings; their brightness "
+                  f"spreads by {lamp.scale_spread:.1%}")
+    else:
+        results, lamp = None, None
     rows = []
     for k, spec in enumerate(spectra):
-        status(f"fitting {spec.path} ({k + 1}/{len(spectra)}) ...")
-        res = fit_spectrum(spec, dark=dark, reference=reference, options=opts)
+        if results is None:
+            status(f"fitting {spec.path} ({k + 1}/{len(spectra)}) ...")
+            res = fit_spectrum(spec, dark=dark, reference=reference, options=opts)
+        else:
+            res = results[k]
         row = {"file": spec.path, **res.summary()}
         rows.append(row)
         if args.output:
@@ -116,11 +137,17 @@ def run(args) -> int:
               + ("ok" if res.ok else "NOT ok: " + "; ".join(res.reasons)))
         for w in res.warnings:
             print(f"  warning: {w}")
+    if args.output and args.shared_lamp:
+        _plot_series(rows, Path(f"{args.output}_series.png"))
     if args.csv:
         _write_csv(args.csv, rows)
     if args.json:
+        shared = None if lamp is None else {
+            "pinning": [spectra[i].path for i in lamp.pinning], "scale_spread": lamp.scale_spread,
+            "coefficients": [float(c) for c in lamp.coefficients],
+            "wavenumber_range_per_nm": list(lamp.nu_range)}
         write_json(args.json, {"n_film": dispersion.describe(index), "dark": args.dark, "reference": args.reference,
-                               "ok": all(r["ok"] for r in rows), "spectra": rows})
+                               "shared_lamp": shared, "ok": all(r["ok"] for r in rows), "spectra": rows})
     return 1 if args.strict and not all(r["ok"] for r in rows) else 0
 
 
@@ -172,6 +199,33 @@ def _plot(res, path: Path, name: str) -> None:
     ax[2].axvline(res.thickness_nm, color="C3", lw=0.8)
     ax[2].set_xlabel("thickness (nm)")
     ax[2].set_ylabel("profile delta chi2")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+
+
+def _plot_series(rows, path: Path) -> None:
+    """The series' thicknesses in file order with their error bars, ok and not ok apart."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from ..io.images import atomic_path
+
+    k = np.arange(len(rows))
+    d = np.array([r["thickness_nm"] for r in rows])
+    e = np.array([r["thickness_nm_stderr"] for r in rows])
+    ok = np.array([bool(r["ok"]) for r in rows])
+    e = np.where(np.isfinite(e), e, 0.0)
+    fig, ax = plt.subplots(figsize=(8, 4), dpi=110)
+    ax.errorbar(k[ok], d[ok], e[ok], fmt="o", ms=3, lw=0.8, color="C0", label="ok")
+    ax.errorbar(k[~ok], d[~ok], e[~ok], fmt="x", ms=4, lw=0.8, color="C3", label="not ok")
+    ax.set_xlabel("reading (file order)")
+    ax.set_ylabel("thickness (nm)")
+    ax.legend(fontsize=8)
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png")

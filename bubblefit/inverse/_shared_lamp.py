@@ -1,0 +1,328 @@
+"""Readings of one series under one lamp: the lamp from the readings whose fringes pin it,
+every film read with it.
+
+A single reading of a film thinner than about a quarter wave (no extremum of ``R`` in the
+visible: interference order 0, below ~80 nm) cannot be read on its own: its reflectance
+``R(d, nu)`` is then close to ``(4 pi n d nu)^2 R_1``, a smooth ramp whose shape barely
+depends on ``d``, so that an unknown smooth lamp takes it up and only the brightness would
+tell the thickness (:func:`bubblefit.inverse.spectrum.min_fringes`). A draining film is
+read as a series, from many fringes down to the black film, with the same lamp and
+spectrometer. The readings that can be read alone (``ok``) fix the lamp, shape and
+scale, ``L(nu) = sum_j a_j P_j(nu)`` (the Legendre series of
+:func:`bubblefit.inverse.spectrum._lamp_basis`, on one wavenumber range for the whole
+series); each reading of the series is then the known ``L R(d) + S`` with only its own
+stray light ``S`` (the offset and background terms) and its thickness free, and a thin
+film's brightness gives its thickness.
+
+The lamp is found by alternating (block coordinate descent, each step lowering the total
+weighted RSS): with the pinning readings' thicknesses and scales held, the lamp's
+coefficients solve one linear least-squares problem over all of them (their stray light
+projected out); with the lamp held, each pinning reading's thickness (near its own,
+within a quarter order) and its scale ``s_f`` are refined. The scales are normalised to a
+mean of 1; their spread ``sigma_s`` (relative standard deviation) measures how much the
+lamp changes from reading to reading. Each pinning reading also implies a lamp of its own
+(its coefficients alone, its thickness held); a film read with the shared lamp is read
+again with each of those, by a global search, and the standard deviation of the
+thicknesses is its systematic error, added in quadrature to the statistical one (for a film of order 0, ``R ~ d^2``, a
+lamp ``sigma_s`` brighter moves the thickness by about ``sigma_s / 2`` of itself).
+
+References
+----------
+Born & Wolf, *Principles of Optics*, 7th ed., sec. 7.6.1 (Airy reflectance).
+A. Scheludko, Adv. Colloid Interface Sci. 1, 391-464 (1967): a thin film's thickness from
+its brightness between the black film's and the first maximum's, which calibrate it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.polynomial import legendre
+from scipy import optimize, stats
+
+from ..io.spectra import Spectrum
+from ._spectrum_profile import ProfileProblem, local_minima, refine_near, residual_correlation, second_difference_noise
+
+__all__ = ["SharedLamp", "MIN_PINNING_READINGS", "fit_spectrum_series"]
+
+#: The fewest readings that must be read alone (``ok``) for a shared lamp: with fewer the
+#: spread of their scales, which sizes every thin film's error bar, is not measured.
+MIN_PINNING_READINGS = 3
+
+#: A reading read with the series' lamp is not ok when its residual exceeds this many times
+#: its noise, with no model-error floor: the lamp's error goes straight into the thickness of
+#: a film read from its brightness, so structure the lamp leaves is not forgiven.
+SHARED_MISFIT_RATIO = 2.0
+
+#: The probability within one standard deviation of a normal variable's mean, one-sided.
+_ONE_SIGMA = 0.5 * (1.0 + math.erf(1.0 / math.sqrt(2.0)))
+
+#: Most rounds of the alternation, and the relative change of the lamp that ends it.
+ROUNDS = 12
+LAMP_TOLERANCE = 1e-4
+
+
+@dataclass(frozen=True)
+class SharedLamp:
+    """The lamp of a series: Legendre coefficients in wavenumber mapped from ``nu_range``
+    (1/nm, (min, max)) onto [-1, 1], the relative spread of the pinning readings' own
+    scales, which readings (indices into the series) pinned it, and the lamp each of
+    them implies alone (``each``, (K, J): its own coefficients with its thickness held),
+    whose differences measure how well the series shares one lamp."""
+
+    coefficients: np.ndarray
+    nu_range: tuple[float, float]
+    scale_spread: float
+    pinning: tuple[int, ...]
+    each: np.ndarray | None = None
+
+    def basis(self, wavelength_nm: np.ndarray) -> np.ndarray:
+        """(N, J) Legendre polynomials of the series' wavenumber range at ``wavelength_nm``."""
+        lo, hi = self.nu_range
+        u = 2.0 * (1.0 / np.asarray(wavelength_nm) - lo) / max(hi - lo, 1e-30) - 1.0
+        return legendre.legvander(u, len(self.coefficients) - 1)
+
+    def __call__(self, wavelength_nm: np.ndarray) -> np.ndarray:
+        """The lamp ``L`` (N,) at ``wavelength_nm``."""
+        return self.basis(wavelength_nm) @ self.coefficients
+
+
+@dataclass
+class FixedLampProblem:
+    """A reading ``y`` with a known lamp ``lamp`` (N,): ``y = lamp R(d) + S``, with the
+    stray light ``S`` (columns ``additive`` (N, K)) solved by weighted least squares at
+    every thickness. The same interface as :class:`ProfileProblem` for the refinements
+    (``rss``, ``model``, ``positive``)."""
+
+    y: np.ndarray
+    lamp: np.ndarray
+    additive: np.ndarray
+    reflect: object
+    weight: np.ndarray
+    positive: bool = False
+
+    def __post_init__(self):
+        w = self.weight
+        self._q = np.linalg.qr(self.additive * w[:, None])[0] if self.additive.shape[1] else None
+        self._yw = self._project(self.y * w)
+
+    def _project(self, v: np.ndarray) -> np.ndarray:
+        """``v`` (.., N) with the weighted additive columns projected out."""
+        if self._q is None:
+            return v
+        return v - (v @ self._q) @ self._q.T
+
+    def rss_grid(self, thickness: np.ndarray, w: float, chunk: int = 256) -> np.ndarray:
+        return self.rss_lamps(thickness, w, self.lamp[None, :], chunk)[0]
+
+    def rss_lamps(self, thickness: np.ndarray, w: float, lamps: np.ndarray, chunk: int = 64) -> np.ndarray:
+        """(K, D) weighted RSS at each thickness with each of the lamps ``lamps`` (K, N)
+        in place of ``lamp`` (the film's reflectance computed once for all of them)."""
+        out = np.empty((len(lamps), len(thickness)))
+        lw = lamps * self.weight[None, :]
+        for s in range(0, len(thickness), chunk):
+            r = self.reflect(thickness[s:s + chunk], w)
+            m = self._project(lw[:, None, :] * r[None, :, :])
+            out[:, s:s + len(r)] = np.sum((self._yw - m) ** 2, axis=2)
+        return out
+
+    def rss(self, d: float, w: float) -> float:
+        return float(self.rss_grid(np.array([d]), w)[0])
+
+    def model(self, d: float, w: float) -> np.ndarray:
+        film = self.lamp * self.reflect(np.array([d]), w)[0]
+        if not self.additive.shape[1]:
+            return film
+        wt = self.weight
+        coef, *_ = np.linalg.lstsq(self.additive * wt[:, None], (self.y - film) * wt, rcond=None)
+        return film + self.additive @ coef
+
+
+def _lamp_coefficients(problems, thickness, scale, resolution, lamp_basis) -> np.ndarray:
+    """The lamp's coefficients (J,) that minimise the pinning readings' total weighted RSS
+    with their thicknesses, scales and resolutions held and their stray light solved."""
+    j = lamp_basis[0].shape[1]
+    gram, rhs = np.zeros((j, j)), np.zeros(j)
+    for p, d, s, w, b in zip(problems, thickness, scale, resolution, lamp_basis):
+        wt = p.weight
+        x = s * b * (p.reflect(np.array([d]), w)[0] * wt)[:, None]
+        y = p.y * wt
+        add = p.additive * wt[:, None]
+        if add.shape[1]:
+            q = np.linalg.qr(add)[0]
+            x, y = x - q @ (q.T @ x), y - q @ (q.T @ y)
+        gram += x.T @ x
+        rhs += x.T @ y
+    return np.linalg.lstsq(gram, rhs, rcond=None)[0]
+
+
+def shared_lamp(problems: list[ProfileProblem], alone: list, lamp_basis: list[np.ndarray], nu_range,
+                grids: list[np.ndarray], orders: list[float]) -> SharedLamp:
+    """The lamp of the pinning readings (:class:`ProfileProblem` each, their ``alone`` fits
+    giving the starting thicknesses and resolutions), by alternation (see the module)."""
+    d = np.array([r.thickness_nm for r in alone])
+    w = np.array([r.resolution_nm for r in alone])
+    s = np.ones(len(problems))
+    coef = _lamp_coefficients(problems, d, s, w, lamp_basis)
+    for _ in range(ROUNDS):
+        for i, (p, b) in enumerate(zip(problems, lamp_basis)):
+            one = replace(p, basis=(b @ coef)[:, None], positive=False)
+            d[i] = refine_near(one, d[i], w[i], 0.25 * orders[i], grids[i])
+            s[i] = float(one.solve(d[i], w[i])[0][0])
+        mean = float(np.mean(s))
+        if not mean > 0:
+            break
+        s /= mean
+        new = _lamp_coefficients(problems, d, s, w, lamp_basis)
+        change = float(np.max(np.abs(new - coef)) / max(np.max(np.abs(coef)), 1e-300))
+        coef = new
+        if change < LAMP_TOLERANCE:
+            break
+    spread = float(np.std(s, ddof=1)) if len(s) > 1 else float("inf")
+    each = np.array([_lamp_coefficients([p], [x], [1.0], [v], [b])
+                     for p, x, v, b in zip(problems, d, w, lamp_basis)])
+    return SharedLamp(coefficients=coef, nu_range=nu_range, scale_spread=spread, pinning=(), each=each)
+
+
+def _profile_minima(prob: FixedLampProblem, grid: np.ndarray):
+    """The profile over ``grid`` and its six best local minima, each refined within a
+    grid step, as ``(d, rss)`` pairs, best first."""
+    step = grid[1] - grid[0]
+    rss = prob.rss_grid(grid, 0.0)
+    minima = []
+    for i in local_minima(rss)[:6]:
+        lo, hi = max(grid[0], grid[i] - step), min(grid[-1], grid[i] + step)
+        res = optimize.minimize_scalar(lambda x: prob.rss(x, 0.0), bounds=(lo, hi), method="bounded",
+                                       options={"xatol": 1e-4 * step})
+        minima.append((float(res.x), float(res.fun)) if res.fun <= rss[i] else (float(grid[i]), float(rss[i])))
+    minima.sort(key=lambda t: t[1])
+    return rss, minima
+
+
+def read_with_lamp(prob: FixedLampProblem, grid: np.ndarray, alternatives) -> dict:
+    """A reading's thickness with the lamp known: the global minimum of the profile over
+    ``grid`` (refined within a step), the best other minimum and its ``chi^2`` above, the
+    statistical standard error from the profile's curvature (the residuals' lag-1
+    correlation widening it, as :func:`bubblefit.inverse.spectrum.fit_spectrum` does), and
+    the standard deviation of the thicknesses read, each by its own global search, with
+    each of the problems of ``alternatives`` (the lamps the pinning readings imply one by
+    one): how much the thickness depends on which of the series' lamps is the right one.
+    The search is global because a film near the first maximum of ``R`` (a quarter wave,
+    ~100 nm) has a twin on the other side of it whose spectrum differs from its own by
+    about as much as the lamps do."""
+    step = grid[1] - grid[0]
+    rss, minima = _profile_minima(prob, grid)
+    d, rss_best = minima[0]
+    dof = max(len(prob.y) - prob.additive.shape[1] - 1, 1)
+    resid = (prob.y - prob.model(d, 0.0)) * prob.weight
+    rho = residual_correlation(resid)
+    s2 = rss_best / dof * (1.0 + rho) / (1.0 - rho)
+    h = 0.02 * step
+    curv = (prob.rss(d + h, 0.0) - 2.0 * rss_best + prob.rss(d - h, 0.0)) / h**2  # R(-d) = R(d)
+    stat = float(np.sqrt(2.0 * s2 / curv)) if curv > 0 else float("inf")
+    others = [(x, r) for x, r in minima if abs(x - d) > 2.0 * step]
+    second, dchi2 = (float("nan"), float("inf"))
+    if others:
+        x2, r2 = min(others, key=lambda t: t[1])
+        second, dchi2 = float(x2), float((r2 - rss_best) / s2)
+    alt = []
+    if len(alternatives):
+        for p, row in zip(alternatives, prob.rss_lamps(grid, 0.0, np.array([p.lamp for p in alternatives]))):
+            i = int(np.argmin(row))
+            lo, hi = max(grid[0], grid[i] - step), min(grid[-1], grid[i] + step)
+            alt.append(optimize.minimize_scalar(lambda x, p=p: p.rss(x, 0.0), bounds=(lo, hi), method="bounded",
+                                                options={"xatol": 1e-4 * step}).x)
+    sys_nm = 0.0
+    if len(alt) > 1:
+        # This reading's lamp is one more draw from the lamps the K pinning readings sample:
+        # the one-sigma half-width of a prediction interval (Student's t, K - 1 degrees of
+        # freedom, and the uncertainty of their mean).
+        k = len(alt)
+        sys_nm = float(np.std(alt, ddof=1) * np.sqrt(1.0 + 1.0 / k) * stats.t.ppf(_ONE_SIGMA, k - 1))
+    return dict(d=d, rss=rss_best, dof=dof, rho=rho, s2=s2, stat=stat, sys=sys_nm, second=second,
+                dchi2=dchi2, profile=(rss - rss_best) / s2, noise=second_difference_noise(prob.y))
+
+
+def fit_spectrum_series(spectra: list[Spectrum], *, dark=None, reference=None, options=None,
+                        progress=None) -> tuple[list, SharedLamp | None]:
+    """Fit every reading of ``spectra`` with one lamp shared by the series (see the module).
+
+    Each reading is first read alone (:func:`bubblefit.inverse.spectrum.fit_spectrum`).
+    With at least :data:`MIN_PINNING_READINGS` of them ``ok`` the shared lamp is fitted to
+    those, and every other reading is read again with it (its own stray light free); the
+    pinning readings keep their own results. With fewer, every reading keeps its own
+    result and the others get a warning saying why. ``progress(k, n)`` is called per
+    reading read alone. Returns the :class:`~bubblefit.inverse.spectrum.SpectrumFit` of
+    each reading, in order, and the :class:`SharedLamp` (None when there was none).
+    """
+    from . import spectrum as sp
+
+    options = options or sp.SpectrumOptions()
+    alone = []
+    for k, spec in enumerate(spectra):
+        if progress is not None:
+            progress(k, len(spectra))
+        alone.append(sp.fit_spectrum(spec, dark=dark, reference=reference, options=options))
+    pins = [i for i, r in enumerate(alone) if r.ok]
+    if len(pins) < MIN_PINNING_READINGS:
+        why = (f"no shared lamp: only {len(pins)} of the {len(spectra)} readings can be read alone (at least "
+               f"{MIN_PINNING_READINGS} must, to fit the lamp and measure its spread)")
+        for r in alone:
+            if not r.ok:
+                r.warnings.append(why)
+        return alone, None
+    prepared = [sp.prepared_problem(spec, dark, reference, options) for spec in spectra]
+    nu = np.concatenate([1.0 / p.wavelength_nm for p in prepared])
+    nu_range = (float(nu.min()), float(nu.max()))
+    terms = prepared[0].problem.basis.shape[1]
+    probe = SharedLamp(np.zeros(terms), nu_range, 0.0, ())
+    bases = [probe.basis(p.wavelength_nm) * (p.reference[:, None] if p.reference is not None else 1.0)
+             for p in prepared]
+    lamp = shared_lamp([prepared[i].problem for i in pins], [alone[i] for i in pins], [bases[i] for i in pins],
+                       nu_range, [prepared[i].grid for i in pins], [prepared[i].order_spacing for i in pins])
+    lamp = replace(lamp, pinning=tuple(pins))
+    note = (f"read with the lamp shared by {len(pins)} readings of the series that can be read alone "
+            f"(their brightness spreads by {lamp.scale_spread:.1%}; the thickness's spread over their own lamps "
+            "is in the error bar)")
+    out = []
+    for i, (r, p) in enumerate(zip(alone, prepared)):
+        if i in pins:
+            r.warnings.append(f"pinned the shared lamp ({len(pins)} readings)")
+            out.append(r)
+            continue
+        out.append(read_with_shared_lamp(p, bases[i] @ lamp.coefficients, bases[i] @ lamp.each.T, options, note, r))
+    return out, lamp
+
+
+def read_with_shared_lamp(p, lamp: np.ndarray, alternatives: np.ndarray, options, note: str, alone):
+    """The :class:`~bubblefit.inverse.spectrum.SpectrumFit` of a prepared reading ``p``
+    (:func:`bubblefit.inverse.spectrum.prepared_problem`) with the lamp ``lamp`` (N,), its
+    systematic error from the lamps of ``alternatives`` (N, K); ``alone`` is its own fit,
+    named in a warning."""
+    from . import spectrum as sp
+
+    prob = FixedLampProblem(p.y, lamp, p.problem.additive, p.problem.reflect, p.problem.weight)
+    r = read_with_lamp(prob, p.grid, [replace(prob, lamp=col) for col in alternatives.T])
+    lam, n, d = p.wavelength_nm, p.n, r["d"]
+    stderr = float(np.hypot(r["stat"], r["sys"]))
+    order, fringes = sp.interference_order(d, lam, n)
+    reasons = sp._verdict(d, stderr, r["second"], r["dchi2"], p.grid, lam, n, True, options)
+    warnings = [*p.warnings, note, f"read alone: {alone.thickness_nm:.1f} nm, " + ("ok" if alone.ok else "not ok")]
+    level = float(np.mean(np.abs(p.y))) or 1.0
+    flagged = len(reasons)
+    sp._misfit(r["rss"] / r["dof"], r["noise"], level, reasons, warnings)
+    fitted = prob.model(d, 0.0)
+    red = float(r["rss"] / r["dof"] / r["noise"] ** 2) if r["noise"] > 0 else float("nan")
+    if len(reasons) == flagged and red > SHARED_MISFIT_RATIO**2:
+        reasons.append(f"the series' lamp leaves structure in this reading (the residual is {np.sqrt(red):.1f} times "
+                       "its noise): its own lamp differs from the series', and a film read from its brightness "
+                       "takes the difference for thickness")
+    return sp.SpectrumFit(
+        thickness_nm=float(d), thickness_nm_stderr=stderr, stderr_statistical_nm=r["stat"], stderr_lamp_nm=r["sys"],
+        ok=not reasons, order=order, fringes=fringes, resolution_nm=0.0, reduced_chi2=red,
+        residual_rms=float(np.sqrt(np.mean((p.y - fitted) ** 2)) / level),
+        n_film=float(np.interp(0.5 * (lam.min() + lam.max()), lam, n)), second_minimum_nm=r["second"],
+        delta_chi2=r["dchi2"], reasons=reasons, warnings=warnings, wavelength_nm=lam, measured=p.y, fitted=fitted,
+        profile_nm=p.grid, profile_chi2=r["profile"])

@@ -47,7 +47,11 @@ def series(thicknesses, seed=0, **kw):
 def draining():
     spectra = series(THICK + THIN)
     dark = Spectrum(spectra[0].wavelength_nm, np.full_like(spectra[0].wavelength_nm, DARK))
-    return spectra, dark, fit_spectrum_series(spectra, dark=dark)
+    stages = []
+    fitted = fit_spectrum_series(spectra, dark=dark, progress=lambda stage, k, n: stages.append((stage, k, n)))
+    n = len(spectra)
+    assert stages == [("alone", k, n) for k in range(n)] + [("shared lamp", k, n) for k in range(n)]
+    return spectra, dark, fitted
 
 
 def test_thick_readings_pin_the_lamp(draining):

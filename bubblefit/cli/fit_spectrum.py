@@ -114,8 +114,8 @@ def run(args) -> int:
             print(f"warning: {spec.path}: skipped {spec.skipped} rows that are not finite numbers", file=sys.stderr)
     if args.shared_lamp:
         results, lamp = fit_spectrum_series(spectra, dark=dark, reference=reference, options=opts,
-                                            progress=lambda k, n: status(f"reading {spectra[k].path} alone "
-                                                                         f"({k + 1}/{n}) ..."))
+                                            progress=lambda stage, k, n: status(
+                                                f"reading {spectra[k].path} ({stage}, {k + 1}/{n}) ..."))
         if lamp is not None:
             print(f"shared lamp: fitted to {len(lamp.pinning)} of {len(spectra)} readings; their brightness "
                   f"spreads by {lamp.scale_spread:.1%}")

@@ -253,8 +253,8 @@ def fit_spectrum_series(spectra: list[Spectrum], *, dark=None, reference=None, o
     With at least :data:`MIN_PINNING_READINGS` of them ``ok`` the shared lamp is fitted to
     those, and every other reading is read again with it (its own stray light free); the
     pinning readings keep their own results. With fewer, every reading keeps its own
-    result and the others get a warning saying why. ``progress(k, n)`` is called per
-    reading read alone. Returns the :class:`~bubblefit.inverse.spectrum.SpectrumFit` of
+    result and the others get a warning saying why. ``progress(stage, k, n)`` is called
+    before each reading of each stage (``"alone"``, then ``"shared lamp"``). Returns the :class:`~bubblefit.inverse.spectrum.SpectrumFit` of
     each reading, in order, and the :class:`SharedLamp` (None when there was none).
     """
     from . import spectrum as sp
@@ -263,7 +263,7 @@ def fit_spectrum_series(spectra: list[Spectrum], *, dark=None, reference=None, o
     alone = []
     for k, spec in enumerate(spectra):
         if progress is not None:
-            progress(k, len(spectra))
+            progress("alone", k, len(spectra))
         alone.append(sp.fit_spectrum(spec, dark=dark, reference=reference, options=options))
     pins = [i for i, r in enumerate(alone) if r.ok]
     if len(pins) < MIN_PINNING_READINGS:
@@ -288,6 +288,8 @@ def fit_spectrum_series(spectra: list[Spectrum], *, dark=None, reference=None, o
             "is in the error bar)")
     out = []
     for i, (r, p) in enumerate(zip(alone, prepared)):
+        if progress is not None:
+            progress("shared lamp", i, len(spectra))
         if i in pins:
             r.warnings.append(f"pinned the shared lamp ({len(pins)} readings)")
             out.append(r)

@@ -26,13 +26,15 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
 RESULTS = Path(__file__).resolve().parent / "results"
-_ENTRY = re.compile(r"^\s*([^#\s:]+\.xy)\s*:\s*([-+0-9.eE]+)\s*$")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from spectrum_real import stated_values  # noqa: E402  (optifik's yaml entries, one parser)
 
 
 def stated(data: Path) -> dict[str, float]:
@@ -40,10 +42,7 @@ def stated(data: Path) -> dict[str, float]:
     out = {}
     for k in range(6):
         for y in sorted((data / "spectraVictor2" / f"order{k}").glob("known*.yaml")):
-            for line in y.read_text().splitlines():
-                m = _ENTRY.match(line)
-                if m:
-                    out[f"order{k}/{m.group(1)}"] = float(m.group(2))
+            out.update({f"order{k}/{name}": v for name, v in stated_values(y).items()})
     return out
 
 

@@ -40,10 +40,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.polynomial import legendre
-from scipy import optimize, stats
+from scipy import stats
 
 from ..io.spectra import Spectrum
-from ._spectrum_profile import ProfileProblem, local_minima, refine_near, residual_correlation, second_difference_noise
+from ._spectrum_profile import ProfileProblem, refine_d, refine_near, residual_correlation, second_difference_noise
 
 __all__ = ["SharedLamp", "MIN_PINNING_READINGS", "fit_spectrum_series"]
 
@@ -186,21 +186,6 @@ def shared_lamp(problems: list[ProfileProblem], alone: list, lamp_basis: list[np
     return SharedLamp(coefficients=coef, nu_range=nu_range, scale_spread=spread, pinning=(), each=each)
 
 
-def _profile_minima(prob: FixedLampProblem, grid: np.ndarray):
-    """The profile over ``grid`` and its six best local minima, each refined within a
-    grid step, as ``(d, rss)`` pairs, best first."""
-    step = grid[1] - grid[0]
-    rss = prob.rss_grid(grid, 0.0)
-    minima = []
-    for i in local_minima(rss)[:6]:
-        lo, hi = max(grid[0], grid[i] - step), min(grid[-1], grid[i] + step)
-        res = optimize.minimize_scalar(lambda x: prob.rss(x, 0.0), bounds=(lo, hi), method="bounded",
-                                       options={"xatol": 1e-4 * step})
-        minima.append((float(res.x), float(res.fun)) if res.fun <= rss[i] else (float(grid[i]), float(rss[i])))
-    minima.sort(key=lambda t: t[1])
-    return rss, minima
-
-
 def read_with_lamp(prob: FixedLampProblem, grid: np.ndarray, alternatives) -> dict:
     """A reading's thickness with the lamp known: the global minimum of the profile over
     ``grid`` (refined within a step), the best other minimum and its ``chi^2`` above, the
@@ -212,8 +197,11 @@ def read_with_lamp(prob: FixedLampProblem, grid: np.ndarray, alternatives) -> di
     The search is global because a film near the first maximum of ``R`` (a quarter wave,
     ~100 nm) has a twin on the other side of it whose spectrum differs from its own by
     about as much as the lamps do."""
+    from .spectrum import _second_minimum
+
     step = grid[1] - grid[0]
-    rss, minima = _profile_minima(prob, grid)
+    rss = prob.rss_grid(grid, 0.0)
+    minima = refine_d(prob, grid, rss, 0.0)
     d, rss_best = minima[0]
     dof = max(len(prob.y) - prob.additive.shape[1] - 1, 1)
     resid = (prob.y - prob.model(d, 0.0)) * prob.weight
@@ -222,18 +210,11 @@ def read_with_lamp(prob: FixedLampProblem, grid: np.ndarray, alternatives) -> di
     h = 0.02 * step
     curv = (prob.rss(d + h, 0.0) - 2.0 * rss_best + prob.rss(d - h, 0.0)) / h**2  # R(-d) = R(d)
     stat = float(np.sqrt(2.0 * s2 / curv)) if curv > 0 else float("inf")
-    others = [(x, r) for x, r in minima if abs(x - d) > 2.0 * step]
-    second, dchi2 = (float("nan"), float("inf"))
-    if others:
-        x2, r2 = min(others, key=lambda t: t[1])
-        second, dchi2 = float(x2), float((r2 - rss_best) / s2)
+    second, dchi2 = _second_minimum(minima, d, step, s2)
     alt = []
     if len(alternatives):
-        for p, row in zip(alternatives, prob.rss_lamps(grid, 0.0, np.array([p.lamp for p in alternatives]))):
-            i = int(np.argmin(row))
-            lo, hi = max(grid[0], grid[i] - step), min(grid[-1], grid[i] + step)
-            alt.append(optimize.minimize_scalar(lambda x, p=p: p.rss(x, 0.0), bounds=(lo, hi), method="bounded",
-                                                options={"xatol": 1e-4 * step}).x)
+        rows = prob.rss_lamps(grid, 0.0, np.array([p.lamp for p in alternatives]))
+        alt = [refine_d(p, grid, row, 0.0, keep=1)[0][0] for p, row in zip(alternatives, rows)]
     sys_nm = 0.0
     if len(alt) > 1:
         # This reading's lamp is one more draw from the lamps the K pinning readings sample:

@@ -248,6 +248,12 @@ def interference_order(thickness_nm: float, wavelength_nm: np.ndarray, n: np.nda
     return order, float(2.0 * thickness_nm * (k.max() - k.min()))
 
 
+def _order_spacing(wavelength_nm: np.ndarray, n: np.ndarray) -> float:
+    """The thickness between interference orders at mid range, ``1 / (2 n nu)`` (eq. 8 at
+    normal incidence, with the median ``n nu`` of the reading)."""
+    return 1.0 / (2.0 * float(np.median(n / wavelength_nm)))
+
+
 def _unit_wavenumber(wavelength_nm: np.ndarray) -> np.ndarray:
     """Wavenumber mapped linearly onto [-1, 1] over the range."""
     nu = 1.0 / wavelength_nm
@@ -379,8 +385,8 @@ class PreparedReading:
 
     @property
     def order_spacing(self) -> float:
-        """The thickness between interference orders at mid range, ``1 / (2 n nu)``."""
-        return 1.0 / (2.0 * float(np.median(self.n / self.wavelength_nm)))
+        """The thickness between interference orders at mid range (:func:`_order_spacing`)."""
+        return _order_spacing(self.wavelength_nm, self.n)
 
 
 def prepared_problem(spectrum: Spectrum, dark: Spectrum | None, reference: Spectrum | None,
@@ -484,9 +490,8 @@ def _lamp_split(alt: ProfileProblem | None, alt_rss, lam, n, ref, options: Spect
     if alt is None:
         return None
     d_alt, rss_alt = refine_d(alt, grid, alt_rss, w, keep=2)[0]
-    order_spacing = 1.0 / (2.0 * float(np.median(n / lam)))
     dchi2 = (rss_alt - rss_best) / s2
-    if abs(d_alt - d_best) < 0.25 * order_spacing or dchi2 >= options.ambiguity_dchi2:
+    if abs(d_alt - d_best) < 0.25 * _order_spacing(lam, n) or dchi2 >= options.ambiguity_dchi2:
         return None
     hint = "" if options.normalised or ref is not None else "; if the reading was divided by the lamp, use --normalised"
     return (f"interference order depends on the lamp model: a {alt.basis.shape[1]}-term lamp with "
@@ -573,8 +578,7 @@ def _verdict(d, stderr, second, dchi2, grid, lam, n, has_reference: bool, opts: 
     """Reasons the thickness cannot be trusted (empty when it can)."""
     reasons = []
     step = grid[1] - grid[0]
-    order_spacing = 1.0 / (2.0 * float(np.median(n / lam)))  # thickness between orders at mid range
-    if not np.isfinite(stderr) or stderr > 0.25 * order_spacing or stderr > 0.3 * max(d, 1e-9):
+    if not np.isfinite(stderr) or stderr > 0.25 * _order_spacing(lam, n) or stderr > 0.3 * max(d, 1e-9):
         hint = "" if has_reference else " (a film without fringes needs --reference to fix its brightness)"
         reasons.append(f"the spectrum does not constrain the thickness (stderr {stderr:.3g} nm){hint}")
     if dchi2 < opts.ambiguity_dchi2:

@@ -67,7 +67,7 @@ from ._spectrum_profile import (ProfileProblem, local_noise, profile_variance, r
                                 residual_correlation, rss_grids, second_difference_noise)
 
 __all__ = ["SpectrumOptions", "SpectrumFit", "film_reflectance", "reflector", "fit_spectrum", "fit_spectrum_series",
-           "interference_order", "min_fringes", "prepared_problem", "PreparedReading"]
+           "interference_order", "min_fringes"]
 
 _FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
 

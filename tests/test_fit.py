@@ -398,6 +398,20 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
         assert got.shape == want.shape
         np.testing.assert_allclose(got, want, atol=2e-5)
 
+    # the final render of the bubble's pixels alone, the background photo elsewhere: the
+    # whole render's values, with the disc at the refinement's limits too
+    from bubblefit.inverse._observation import _bubble_list, render_bubble
+
+    photo_fx = replace(fx, background="photo")
+    lev_p = replace(lev, cfg=replace(cfg, effects=photo_fx))
+    for shift in ((0.0, 0.0, 0.0), (0.1, -0.1, 0.1), (-0.1, 0.1, -0.1)):
+        p = Params.make(thickness=640.0, roughness=0.05, disc=shift)
+        want = np.asarray(render(p, replace(cfg, effects=photo_fx), env, jnp.asarray(bg)))
+        got = render_bubble(p, lev_p, env)
+        np.testing.assert_allclose(got, want, atol=2e-5)
+        listed = _bubble_list(p, lev_p)[1].flat.size
+        assert np.count_nonzero(np.any(want != bg, axis=-1)) <= listed < want.shape[0] * want.shape[1]
+
     # the solver's pixel list: the fitted pixels alone, scattered back to the level's residual
     mask = np.zeros((37, 45), bool)
     mask[5:30, 8:40] = rng.uniform(size=(25, 32)) < 0.7

@@ -52,7 +52,8 @@ from . import search
 from ._local import (DECREMENT_TOLERANCE, LocalSolution, batched_solver, prepare_local, remaining_step, reporter,
                      solution_from, solve_local)
 from ._maps import fit_map
-from ._observation import detect_disc, fitted_pixels, noise_sigma, prepare_render_level, render_level
+from ._observation import (detect_disc, fitted_pixels, noise_sigma, prepare_render_bubble, render_bubble,
+                           render_level)
 from ._options import FitOptions, FitResult
 from ._parameters import THICKNESSES, extrapolated, refined_disc
 from ._setup import Setup, defaults, setup
@@ -167,7 +168,8 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
             notes.append("the thickness map is not constrained at over 10% of the film's pixels")
     elif opts.thickness == "drainage":
         thickness_map = np.where(full.inside, np.asarray(drainage_profile(jnp.asarray(full.height), *prof)), np.nan)
-    img = np.asarray(render_level(_final_params(table, final_vals, opts), full, env), np.float64)
+    draw = render_level if opts.thickness == "map" else render_bubble
+    img = np.asarray(draw(_final_params(table, final_vals, opts), full, env), np.float64)
     resid_img = st.photo - img
     rms = float(np.sqrt(np.mean(resid_img[full.mask] ** 2))) if full.mask.any() else float("nan")
     reported["n_film"] = float(st.vals["n_film"])
@@ -236,7 +238,7 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
         # experiments/bench_fit.py --background-compile).
         prepare_local(st.lev_fit, st.table, opts, st.vals, env)
         if opts.thickness != "map":
-            prepare_render_level(_final_params(st.table, st.vals, opts), st.level(1, opts), env)
+            prepare_render_bubble(_final_params(st.table, st.vals, opts), st.level(1, opts), env)
         with stage("global thickness search"):
             start = _searched_start(st, opts, env)
     else:

@@ -637,19 +637,28 @@ def _stored_terms(cfg: RenderConfig):
     return stored(jax.jit(lambda p, env, bg: render_terms(p, cfg, env, bg)), "model.render.render_terms", cfg)
 
 
-def render_loaded(p: Params, cfg: RenderConfig, env: EnvMap | None, background=None, *, terms: bool = False):
+def render_loaded(p: Params, cfg: RenderConfig, env: EnvMap | None, background=None, *, terms: bool = False,
+                  pixels=None):
     """:func:`render` (or with ``terms``, :func:`render_terms`) through the executable store
     (:func:`bubblefit.io.executables.stored`): the same values, and a command's process
-    loads the compiled program instead of tracing and lowering it. Concrete arrays only."""
+    loads the compiled program instead of tracing and lowering it. Concrete arrays only.
+    With ``pixels = (rows, cols, idx)`` (chunks as :func:`render_pixels` takes them), the
+    radiance (N, 3) of those pixels alone (:func:`render_pixels`)."""
+    if pixels is not None:
+        return _stored_programs(cfg)[1](p, env, background, *pixels)
     return (_stored_terms(cfg) if terms else _stored_programs(cfg)[0])(p, env, background)
 
 
-def prepare_loaded(p: Params, cfg: RenderConfig, env: EnvMap | None, background=None, *, terms: bool = False):
+def prepare_loaded(p: Params, cfg: RenderConfig, env: EnvMap | None, background=None, *, terms: bool = False,
+                   pixels=None):
     """Start compiling (or loading) :func:`render_loaded`'s program for these arguments in
     the background (:meth:`bubblefit.io.executables.Stored.prepare`): a later
     :func:`render_loaded` with arguments of the same shapes waits for it instead of
     compiling. Only the shapes of the arguments count."""
-    (_stored_terms(cfg) if terms else _stored_programs(cfg)[0]).prepare(p, env, background)
+    if pixels is not None:
+        _stored_programs(cfg)[1].prepare(p, env, background, *pixels)
+    else:
+        (_stored_terms(cfg) if terms else _stored_programs(cfg)[0]).prepare(p, env, background)
 
 
 @functools.lru_cache(maxsize=32)

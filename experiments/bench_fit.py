@@ -27,12 +27,20 @@ against ``python -c "import numpy"`` and Mitsuba 3 (the thin dielectric sphere o
     python experiments/bench_fit.py --whole-process [--size 320]
     python experiments/bench_fit.py --background-compile [--size 320] [--repeats 5]
     python experiments/bench_fit.py --compile-profile [--size 320]
+    python experiments/bench_fit.py --stages [--size 320] [--repeats 5]
 
 ``--compile-profile`` compiles, in one process with JAX's persistent cache off, the
 pieces of each model's final solve program on the photo's fit level (the residual, its
 ``jax.jacfwd``, its Jacobian by groups of parameters, the whole Levenberg-Marquardt
 solve) and records the seconds to lower and to compile each and the lines of its
 optimised HLO: where a first fit's compile time goes. Writes ``compile_profile.json``.
+
+``--stages`` times the stages of :func:`~bubblefit.inverse.fit.fit_photo` in one process
+(the constant-thickness paper fit, the disc found, not given): finding the disc, the rest
+of the set-up, the global search (its candidate solves included), the final solve, and
+the standard errors with the final render; a first call (on whatever the compilation
+cache holds) and ``--repeats`` warm calls, against ``python -c "import numpy"`` timed in
+the same run. Writes ``stages.json`` and ``stages.png``.
 
 ``--background-compile`` measures what compiling the final solve and the final render in
 a background thread during the global search saves (:meth:`bubblefit.io.executables.Stored.prepare`):
@@ -65,6 +73,7 @@ def main():
     ap.add_argument("--models", default="paper,physical", help="models for --profile-solver, --whole-process")
     ap.add_argument("--whole-process", action="store_true", help="time bubblefit fit as processes (see above)")
     ap.add_argument("--compile-profile", action="store_true", help="compile times of the solve's pieces (see above)")
+    ap.add_argument("--stages", action="store_true", help="seconds per stage of an in-process fit (see above)")
     ap.add_argument("--background-compile", action="store_true",
                     help="empty-cache fits with and without the background compile, in pairs (see above)")
     ap.add_argument("--mitsuba-python", default=None, help="python with mitsuba 3 (default: bench_effects')")
@@ -127,6 +136,8 @@ def main():
         return whole_process(photos, bg_photo, Path(args.out), args.models.split(","), args.mitsuba_python)
     if args.compile_profile:
         return compile_profile(photo, env, q(bg), Path(args.out), args.models.split(","))
+    if args.stages:
+        return stages(photo, env, q(bg), Path(args.out), max(args.repeats, 1))
     if args.profile_solver:
         return profile_solver(photo, env, q(bg), truth, Path(args.out), args.models.split(","))
     rows = []
@@ -284,6 +295,105 @@ def compile_profile(photo, env, bg, out: Path, models=("paper", "physical")):
     print(f"wrote {out}/compile_profile.json")
 
 
+#: The stages :func:`stages` times: the function of ``bubblefit.inverse.fit`` (or of
+#: ``bubblefit.inverse._setup`` for the disc) that each is.
+STAGES = (("disc", "_setup", "_disc"), ("setup", "fit", "setup"), ("search", "fit", "_searched_start"),
+          ("local solve", "fit", "solve_local"), ("finish", "fit", "_finish"), ("final render", "fit", "render_bubble"))
+
+
+def stages(photo, env, bg, out: Path, repeats: int):
+    """Seconds per stage of ``fit_photo`` in one process, first and warm calls (module
+    docstring). A stage's time includes the stages called inside it: the set-up includes
+    finding the disc, the search its candidate solves (which ``local solve`` does not
+    count), the finish the final render; the plot's "between stages" is the rest of the
+    call (on a first call, tracing the final solve to compile it in the background)."""
+    import subprocess
+    import sys
+
+    import bubblefit.inverse._setup as setup_module
+    import bubblefit.inverse.fit as fit_module
+    from bubblefit.inverse.fit import FitOptions
+
+    modules = {"fit": fit_module, "_setup": setup_module}
+    spent, depth = {}, {"search": 0}
+
+    def timed(stage, fn):
+        def call(*a, **k):
+            t0 = time.perf_counter()
+            if stage == "search":
+                depth["search"] += 1
+            try:
+                return fn(*a, **k)
+            finally:
+                if stage == "search":
+                    depth["search"] -= 1
+                if not (stage == "local solve" and depth["search"]):
+                    spent[stage] = spent.get(stage, 0.0) + time.perf_counter() - t0
+        return call
+
+    originals = [(modules[m], name, getattr(modules[m], name)) for _, m, name in STAGES]
+    for (stage, _, _), (mod, name, fn) in zip(STAGES, originals):
+        setattr(mod, name, timed(stage, fn))
+    rows = []
+    try:
+        for i in range(repeats + 1):
+            spent.clear()
+            t0 = time.perf_counter()
+            res = fit_module.fit_photo(photo, env, options=FitOptions(thickness="constant"), background=bg)
+            row = {"run": "first" if i == 0 else "warm", "total_s": round(time.perf_counter() - t0, 4)}
+            row.update({f"{k}_s": round(v, 4) for k, v in spent.items()})
+            row.update(thickness_nm=res.params["thickness_nm"], ok=res.ok, iterations=res.iterations)
+            print(json.dumps(row), flush=True)
+            rows.append(row)
+    finally:
+        for mod, name, fn in originals:
+            setattr(mod, name, fn)
+    numpy_s = []
+    for _ in range(3):
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-c", "import numpy"], check=True)
+        numpy_s.append(time.perf_counter() - t0)
+    warm = [r for r in rows if r["run"] == "warm"]
+    keys = [k for k in rows[-1] if k.endswith("_s")]
+    summary = {"size": int(photo.shape[0]), "numpy_import_s": float(np.median(numpy_s)),
+               "warm_median": {k: float(np.median([r.get(k, 0.0) for r in warm])) for k in keys}}
+    summary["warm_total_over_numpy"] = summary["warm_median"]["total_s"] / summary["numpy_import_s"]
+    print(json.dumps(summary, indent=1))
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "stages.json").write_text(json.dumps({"calls": rows, **summary}, indent=2))
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    # the stages that do not contain one another: disc, rest of the set-up, search, final solve, finish
+    parts = (("disc", lambda r: r.get("disc_s", 0.0)),
+             ("rest of set-up", lambda r: r.get("setup_s", 0.0) - r.get("disc_s", 0.0)),
+             ("search", lambda r: r.get("search_s", 0.0)), ("final solve", lambda r: r.get("local solve_s", 0.0)),
+             ("final render", lambda r: r.get("final render_s", 0.0)),
+             ("errors, rest", lambda r: r.get("finish_s", 0.0) - r.get("final render_s", 0.0)),
+             ("between stages", lambda r: r["total_s"] - r.get("setup_s", 0.0) - r.get("search_s", 0.0)
+              - r.get("local solve_s", 0.0) - r.get("finish_s", 0.0)))
+    bars = {"first call": rows[0], "warm (median)": summary["warm_median"]}
+    fig, axes = plt.subplots(len(bars), 1, figsize=(6.5, 3.2))
+    for ax, (label, row) in zip(axes, bars.items()):
+        left = 0.0
+        for i, (name, get) in enumerate(parts):
+            v = get(row)
+            ax.barh(0, v, left=left, color=f"C{i}", label=name)
+            left += v
+        ax.text(row["total_s"], 0, f" {row['total_s']:.2f} s", va="center", fontsize=8)
+        ax.set_xlim(0, 1.15 * row["total_s"])
+        ax.set_yticks([0], [label])
+    axes[-1].set_xlabel("seconds")
+    axes[0].set_title(f"fit_photo in one process, {photo.shape[0]} px, constant thickness "
+                      f"(python -c 'import numpy': {summary['numpy_import_s']:.2f} s)", fontsize=8)
+    axes[0].legend(fontsize=7, ncol=3, loc="upper center", bbox_to_anchor=(0.5, -0.35), frameon=False)
+    fig.tight_layout()
+    fig.savefig(out / "stages.png", dpi=110)
+    print(f"wrote {out}/stages.json, stages.png")
+
+
 def plot_solver_profile(rows, out: Path):
     """Bars: the pieces of a step (left) and the whole solve per solver (right), per model."""
     import matplotlib
@@ -376,7 +486,7 @@ def whole_process(photos: dict, bg, out: Path, models, mitsuba_python=None):
 
 
 #: ``bubblefit fit`` with the background compile of the fit's last programs turned off.
-_NO_BACKGROUND = ("import sys, bubblefit.inverse.fit as f; f.prepare_local = f.prepare_render_level = "
+_NO_BACKGROUND = ("import sys, bubblefit.inverse.fit as f; f.prepare_local = f.prepare_render_bubble = "
                   "lambda *a, **k: None; from bubblefit.cli import main; sys.exit(main(sys.argv[1:]))")
 
 

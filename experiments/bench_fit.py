@@ -27,7 +27,7 @@ against ``python -c "import numpy"`` and Mitsuba 3 (the thin dielectric sphere o
     python experiments/bench_fit.py --whole-process [--size 320]
     python experiments/bench_fit.py --background-compile [--size 320] [--repeats 5]
     python experiments/bench_fit.py --compile-profile [--size 320]
-    python experiments/bench_fit.py --stages [--size 320] [--repeats 5]
+    python experiments/bench_fit.py --stages [--size 320] [--repeats 5] [--empty-cache]
 
 ``--compile-profile`` compiles, in one process with JAX's persistent cache off, the
 pieces of each model's final solve program on the photo's fit level (the residual, its
@@ -40,7 +40,10 @@ optimised HLO: where a first fit's compile time goes. Writes ``compile_profile.j
 of the set-up, the global search (its candidate solves included), the final solve, and
 the standard errors with the final render; a first call (on whatever the compilation
 cache holds) and ``--repeats`` warm calls, against ``python -c "import numpy"`` timed in
-the same run. Writes ``stages.json`` and ``stages.png``.
+the same run. Writes ``stages.json`` and ``stages.png``; with ``--empty-cache`` JAX's
+persistent cache is off, so that the first call compiles every program it needs (but those
+that rendered the photo in the same process), and the files are
+``stages_empty_cache.json`` and ``.png``.
 
 ``--background-compile`` measures what compiling the final solve and the final render in
 a background thread during the global search saves (:meth:`bubblefit.io.executables.Stored.prepare`):
@@ -74,6 +77,7 @@ def main():
     ap.add_argument("--whole-process", action="store_true", help="time bubblefit fit as processes (see above)")
     ap.add_argument("--compile-profile", action="store_true", help="compile times of the solve's pieces (see above)")
     ap.add_argument("--stages", action="store_true", help="seconds per stage of an in-process fit (see above)")
+    ap.add_argument("--empty-cache", action="store_true", help="--stages with JAX's persistent cache off")
     ap.add_argument("--background-compile", action="store_true",
                     help="empty-cache fits with and without the background compile, in pairs (see above)")
     ap.add_argument("--mitsuba-python", default=None, help="python with mitsuba 3 (default: bench_effects')")
@@ -81,7 +85,7 @@ def main():
     args = ap.parse_args()
     import jax
 
-    if args.compile_profile:  # every program compiled afresh (JAX decides this at its first compile)
+    if args.compile_profile or args.empty_cache:  # every program compiled afresh (decided at the first compile)
         jax.config.update("jax_enable_compilation_cache", False)
     else:
         cache = os.environ.get("BUBBLEFIT_CACHE_DIR", str(Path(__file__).resolve().parent.parent / ".jax_cache"))
@@ -137,7 +141,8 @@ def main():
     if args.compile_profile:
         return compile_profile(photo, env, q(bg), Path(args.out), args.models.split(","))
     if args.stages:
-        return stages(photo, env, q(bg), Path(args.out), max(args.repeats, 1))
+        return stages(photo, env, q(bg), Path(args.out), max(args.repeats, 1),
+                      "stages_empty_cache" if args.empty_cache else "stages")
     if args.profile_solver:
         return profile_solver(photo, env, q(bg), truth, Path(args.out), args.models.split(","))
     rows = []
@@ -301,7 +306,7 @@ STAGES = (("disc", "_setup", "_disc"), ("setup", "fit", "setup"), ("search", "fi
           ("local solve", "fit", "solve_local"), ("finish", "fit", "_finish"), ("final render", "fit", "render_bubble"))
 
 
-def stages(photo, env, bg, out: Path, repeats: int):
+def stages(photo, env, bg, out: Path, repeats: int, stem: str = "stages"):
     """Seconds per stage of ``fit_photo`` in one process, first and warm calls (module
     docstring). A stage's time includes the stages called inside it: the set-up includes
     finding the disc, the search its candidate solves (which ``local solve`` does not
@@ -360,7 +365,7 @@ def stages(photo, env, bg, out: Path, repeats: int):
     summary["warm_total_over_numpy"] = summary["warm_median"]["total_s"] / summary["numpy_import_s"]
     print(json.dumps(summary, indent=1))
     out.mkdir(parents=True, exist_ok=True)
-    (out / "stages.json").write_text(json.dumps({"calls": rows, **summary}, indent=2))
+    (out / f"{stem}.json").write_text(json.dumps({"calls": rows, **summary}, indent=2))
     import matplotlib
 
     matplotlib.use("Agg")
@@ -390,8 +395,8 @@ def stages(photo, env, bg, out: Path, repeats: int):
                       f"(python -c 'import numpy': {summary['numpy_import_s']:.2f} s)", fontsize=8)
     axes[0].legend(fontsize=7, ncol=3, loc="upper center", bbox_to_anchor=(0.5, -0.35), frameon=False)
     fig.tight_layout()
-    fig.savefig(out / "stages.png", dpi=110)
-    print(f"wrote {out}/stages.json, stages.png")
+    fig.savefig(out / f"{stem}.png", dpi=110)
+    print(f"wrote {out}/{stem}.json, {stem}.png")
 
 
 def plot_solver_profile(rows, out: Path):

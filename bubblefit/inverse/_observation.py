@@ -318,8 +318,8 @@ def _bubble_list(p, lev: Level) -> tuple[Padded, Pixels | None, object]:
 def render_bubble(p, lev: Level, env) -> np.ndarray:
     """:func:`render_level`'s image of ``lev`` (numpy, float32), with only the pixels the
     bubble can reach rendered (:func:`_bubble_list`): outside them the image is the
-    background photo, as the render's composite makes it (eq. 11's pixels that miss the
-    bubble). On a disc that fills 55 % of the photo, 0.20 s against 0.28 s for 320x320
+    background photo, which is what the render's composite puts where a ray misses the
+    bubble. On a disc that fills 55 % of the photo, 0.20 s against 0.28 s for 320x320
     pixels; the same values wherever the shortcut does not apply."""
     pad, px, q = _bubble_list(p, lev)
     if px is None:

@@ -43,7 +43,8 @@ from numpy.polynomial import legendre
 from scipy import stats
 
 from ..io.spectra import Spectrum
-from ._spectrum_profile import ProfileProblem, refine_d, refine_near, residual_correlation, second_difference_noise
+from ._spectrum_profile import (ProfileProblem, profile_variance, refine_d, refine_near, residual_correlation,
+                                second_difference_noise)
 
 __all__ = ["SharedLamp", "MIN_PINNING_READINGS", "fit_spectrum_series"]
 
@@ -207,9 +208,8 @@ def read_with_lamp(prob: FixedLampProblem, grid: np.ndarray, alternatives) -> di
     resid = (prob.y - prob.model(d, 0.0)) * prob.weight
     rho = residual_correlation(resid)
     s2 = rss_best / dof * (1.0 + rho) / (1.0 - rho)
-    h = 0.02 * step
-    curv = (prob.rss(d + h, 0.0) - 2.0 * rss_best + prob.rss(d - h, 0.0)) / h**2  # R(-d) = R(d)
-    stat = float(np.sqrt(2.0 * s2 / curv)) if curv > 0 else float("inf")
+    var = profile_variance(prob, d, 0.0, step, fit_w=False)
+    stat = float(np.sqrt(2.0 * s2 * var)) if np.isfinite(var) and var > 0 else float("inf")
     second, dchi2 = _second_minimum(minima, d, step, s2)
     alt = []
     if len(alternatives):

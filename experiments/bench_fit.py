@@ -300,6 +300,19 @@ def compile_profile(photo, env, bg, out: Path, models=("paper", "physical")):
     print(f"wrote {out}/compile_profile.json")
 
 
+def numpy_yardstick(repeats: int = 3) -> float:
+    """Median seconds of ``python -c "import numpy"`` as a process: the start-up yardstick."""
+    import subprocess
+    import sys
+
+    seconds = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-c", "import numpy"], check=True)
+        seconds.append(time.perf_counter() - t0)
+    return float(np.median(seconds))
+
+
 #: The stages :func:`stages` times: the function of ``bubblefit.inverse.fit`` (or of
 #: ``bubblefit.inverse._setup`` for the disc) that each is.
 STAGES = (("disc", "_setup", "_disc"), ("setup", "fit", "setup"), ("search", "fit", "_searched_start"),
@@ -312,9 +325,6 @@ def stages(photo, env, bg, out: Path, repeats: int, stem: str = "stages"):
     finding the disc, the search its candidate solves (which ``local solve`` does not
     count), the finish the final render; the plot's "between stages" is the rest of the
     call (on a first call, tracing the final solve to compile it in the background)."""
-    import subprocess
-    import sys
-
     import bubblefit.inverse._setup as setup_module
     import bubblefit.inverse.fit as fit_module
     from bubblefit.inverse.fit import FitOptions
@@ -353,14 +363,9 @@ def stages(photo, env, bg, out: Path, repeats: int, stem: str = "stages"):
     finally:
         for mod, name, fn in originals:
             setattr(mod, name, fn)
-    numpy_s = []
-    for _ in range(3):
-        t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-c", "import numpy"], check=True)
-        numpy_s.append(time.perf_counter() - t0)
     warm = [r for r in rows if r["run"] == "warm"]
     keys = [k for k in rows[-1] if k.endswith("_s")]
-    summary = {"size": int(photo.shape[0]), "numpy_import_s": float(np.median(numpy_s)),
+    summary = {"size": int(photo.shape[0]), "numpy_import_s": numpy_yardstick(),
                "warm_median": {k: float(np.median([r.get(k, 0.0) for r in warm])) for k in keys}}
     summary["warm_total_over_numpy"] = summary["warm_median"]["total_s"] / summary["numpy_import_s"]
     print(json.dumps(summary, indent=1))
@@ -455,7 +460,7 @@ def whole_process(photos: dict, bg, out: Path, models, mitsuba_python=None):
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         write_image(tmp / "bg.png", np.clip(bg, 0, 1), bit_depth=8)
-        rows["numpy_import_s"] = float(np.median([clock([sys.executable, "-c", "import numpy"]) for _ in range(3)]))
+        rows["numpy_import_s"] = numpy_yardstick()
 
         def fit(model, photo, name, env):
             write_image(tmp / f"{name}.png", np.clip(photo, 0, 1), bit_depth=8)

@@ -31,9 +31,12 @@ against ``python -c "import numpy"`` and Mitsuba 3 (the thin dielectric sphere o
 
 ``--compile-profile`` compiles, in one process with JAX's persistent cache off, the
 pieces of each model's final solve program on the photo's fit level (the residual, its
-``jax.jacfwd``, its Jacobian by groups of parameters, the whole Levenberg-Marquardt
-solve) and records the seconds to lower and to compile each and the lines of its
-optimised HLO: where a first fit's compile time goes. Writes ``compile_profile.json``.
+``jax.jacfwd``, its Jacobian by groups of parameters, its Jacobian by columns with the
+render's primal shared, the whole Levenberg-Marquardt solve) and records the seconds to
+lower and to compile each, the lines of its optimised HLO and its warm run time (the
+pieces taking turns, ``--repeats`` rounds): where a first fit's compile time goes, and
+what each way to the Jacobian costs to compile against what it costs per call. Writes
+``compile_profile.json`` and ``compile_profile.png``.
 
 ``--stages`` times the stages of :func:`~bubblefit.inverse.fit.fit_photo` in one process
 (the constant-thickness paper fit, the disc found, not given): finding the disc, the rest
@@ -139,7 +142,7 @@ def main():
             return background_compile(photos, bg_photo, Path(args.out), args.models.split(","), args.repeats)
         return whole_process(photos, bg_photo, Path(args.out), args.models.split(","), args.mitsuba_python)
     if args.compile_profile:
-        return compile_profile(photo, env, q(bg), Path(args.out), args.models.split(","))
+        return compile_profile(photo, env, q(bg), Path(args.out), args.models.split(","), max(args.repeats, 3))
     if args.stages:
         return stages(photo, env, q(bg), Path(args.out), max(args.repeats, 1),
                       "stages_empty_cache" if args.empty_cache else "stages")
@@ -264,9 +267,35 @@ def profile_solver(photo, env, bg, truth, out: Path, models=("paper", "physical"
     print(f"wrote {out}/solver_profile.json, .csv, .png")
 
 
-def compile_profile(photo, env, bg, out: Path, models=("paper", "physical")):
-    """Lowering and compile seconds and optimised HLO lines of the pieces of each model's
-    final solve program (module docstring)."""
+def columns_linearized(resid, z, a):
+    """The Jacobian of ``resid(z, a)`` one column at a time, each column the tangent of a
+    :func:`jax.linearize` along its parameter alone (the others held, so that its tangent
+    reaches only the part of the render downstream of it): the linearisations' primal
+    parts are the same computation, which XLA merges, so the render is evaluated once. A
+    third way beside ``jax.jacfwd`` and the product's Jacobian by groups
+    (:func:`bubblefit.inverse._local.column_jacobian`), timed by :func:`compile_profile`."""
+    import jax
+    import jax.numpy as jnp
+
+    zs = tuple(z[i] for i in range(z.shape[0]))
+    columns = []
+    for i in range(len(zs)):
+        def along(x, i=i):
+            full = list(zs)
+            full[i] = x
+            return resid(tuple(full), a)
+
+        _, tangent = jax.linearize(along, zs[i])
+        columns.append(tangent(jnp.ones_like(zs[i])))
+    return jnp.stack(columns, axis=-1)
+
+
+def compile_profile(photo, env, bg, out: Path, models=("paper", "physical"), repeats: int = 10):
+    """Lowering and compile seconds, optimised HLO lines and warm run milliseconds of the
+    pieces of each model's final solve program (module docstring), and the largest
+    difference of each Jacobian from ``jax.jacfwd``'s relative to its largest entry. The
+    warm runs take turns (one call of each piece per round, ``repeats`` rounds), so that
+    the machine's load hits every piece alike; the median and the minimum are recorded."""
     import jax
 
     from bubblefit.inverse import _local, _setup
@@ -283,21 +312,63 @@ def compile_profile(photo, env, bg, out: Path, models=("paper", "physical")):
         row = {"model": model, "free": len(st.table.free), "groups": len(groups), "pixels": int(a[3].size // 3)}
         pieces = (("residual", resid), ("jacfwd", jax.jit(jax.jacfwd(resid))),
                   ("jacobian_by_groups", jax.jit(lambda z, a: _local.column_jacobian(resid, groups, z, a))),
+                  ("jacobian_by_columns", jax.jit(lambda z, a: columns_linearized(resid, z, a))),
                   ("solve", solve))
+        compiled = {}
         for name, fn in pieces:
             t0 = time.perf_counter()
             lowered = fn.lower(z0, a)
             t1 = time.perf_counter()
-            compiled = lowered.compile()
+            compiled[name] = lowered.compile()
             t2 = time.perf_counter()
             row[f"{name}_lower_s"] = round(t1 - t0, 2)
             row[f"{name}_compile_s"] = round(t2 - t1, 2)
-            row[f"{name}_hlo_lines"] = len(compiled.as_text().splitlines())
+            row[f"{name}_hlo_lines"] = len(compiled[name].as_text().splitlines())
+        ref = np.asarray(compiled["jacfwd"](z0, a))
+        for name in ("jacobian_by_groups", "jacobian_by_columns"):
+            diff = np.max(np.abs(np.asarray(compiled[name](z0, a)) - ref)) / np.max(np.abs(ref))
+            row[f"{name}_max_rel_diff"] = float(f"{diff:.2g}")
+            if not diff < 1e-3:  # float32 rounding is 1e-5 of the largest entry; more is a wrong Jacobian
+                raise SystemExit(f"{model}: {name} differs from jax.jacfwd by {diff:.2g} of its largest entry")
+        seconds = {name: [] for name in compiled}
+        for _ in range(repeats):
+            for name, fn in compiled.items():
+                t0 = time.perf_counter()
+                jax.block_until_ready(fn(z0, a))
+                seconds[name].append(time.perf_counter() - t0)
+        for name, s in seconds.items():
+            row[f"{name}_run_ms"] = round(1000 * float(np.median(s)), 1)
+            row[f"{name}_run_min_ms"] = round(1000 * float(np.min(s)), 1)
         print(json.dumps(row), flush=True)
         rows.append(row)
     out.mkdir(parents=True, exist_ok=True)
     (out / "compile_profile.json").write_text(json.dumps(rows, indent=2))
-    print(f"wrote {out}/compile_profile.json")
+    plot_compile_profile(rows, out)
+    print(f"wrote {out}/compile_profile.json, .png")
+
+
+def plot_compile_profile(rows, out: Path):
+    """Compile seconds against warm run milliseconds of each way to compute the Jacobian,
+    per model: the trade :func:`compile_profile` measures."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.5, 3.8))
+    for row, marker in zip(rows, "os^"):
+        for name, label in (("jacfwd", "jax.jacfwd"), ("jacobian_by_groups", "by groups (bubblefit)"),
+                            ("jacobian_by_columns", "by columns, primal shared")):
+            x, y = row[f"{name}_compile_s"], row[f"{name}_run_ms"]
+            ax.plot(x, y, marker, color="k")
+            ax.annotate(f"{row['model']}: {label}", (x, y), fontsize=6, xytext=(4, 2), textcoords="offset points")
+    ax.margins(x=0.45, y=0.1)
+    ax.set_xlabel("compile (s, persistent cache off)")
+    ax.set_ylabel("warm run (ms, median)")
+    ax.set_title("Jacobian of the final solve's residual", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(out / "compile_profile.png", dpi=110)
+    plt.close(fig)
 
 
 def numpy_yardstick(repeats: int = 3) -> float:

@@ -44,7 +44,7 @@ from scipy import stats
 
 from ..io.spectra import Spectrum
 from ._spectrum_profile import (ProfileProblem, profile_variance, refine_d, refine_near, residual_correlation,
-                                second_difference_noise)
+                                second_difference_noise, second_minimum)
 
 __all__ = ["SharedLamp", "MIN_PINNING_READINGS", "fit_spectrum_series"]
 
@@ -198,8 +198,6 @@ def read_with_lamp(prob: FixedLampProblem, grid: np.ndarray, alternatives) -> di
     The search is global because a film near the first maximum of ``R`` (a quarter wave,
     ~100 nm) has a twin on the other side of it whose spectrum differs from its own by
     about as much as the lamps do."""
-    from .spectrum import _second_minimum
-
     step = grid[1] - grid[0]
     rss = prob.rss_grid(grid, 0.0)
     minima = refine_d(prob, grid, rss, 0.0)
@@ -210,7 +208,7 @@ def read_with_lamp(prob: FixedLampProblem, grid: np.ndarray, alternatives) -> di
     s2 = rss_best / dof * (1.0 + rho) / (1.0 - rho)
     var = profile_variance(prob, d, 0.0, step, fit_w=False)
     stat = float(np.sqrt(2.0 * s2 * var)) if np.isfinite(var) and var > 0 else float("inf")
-    second, dchi2 = _second_minimum(minima, d, step, s2)
+    second, dchi2 = second_minimum(minima, d, step, s2)
     alt = []
     if len(alternatives):
         rows = prob.rss_lamps(grid, 0.0, np.array([p.lamp for p in alternatives]))

@@ -23,7 +23,7 @@ from scipy import optimize
 
 __all__ = ["ProfileProblem", "rss_grids", "local_minima", "residual_correlation", "second_difference_noise",
            "local_noise", "refine_d",
-           "refine_near", "refine_dw", "profile_variance"]
+           "second_minimum", "refine_near", "refine_dw", "profile_variance"]
 
 
 @dataclass
@@ -299,6 +299,18 @@ def refine_d(prob: ProfileProblem, grid, rss, w: float, keep: int = 6, slack: fl
         else:
             out.append((float(res.x), float(res.fun)) if res.fun <= rss[i] else (float(grid[i]), float(rss[i])))
     return sorted(out, key=lambda t: t[1])
+
+
+def second_minimum(minima, d_best: float, step: float, s2: float) -> tuple[float, float]:
+    """The best other minimum of :func:`refine_d`'s ``minima`` (more than two grid steps
+    from ``d_best``) and its ``chi^2`` above the best, in units of ``s2``; ``(nan, inf)``
+    when there is none."""
+    rss_best = min(r for _, r in minima)
+    others = [(d, r) for d, r in minima if abs(d - d_best) > 2.0 * step]
+    if not others:
+        return float("nan"), float("inf")
+    d2, r2 = min(others, key=lambda t: t[1])
+    return float(d2), float((r2 - rss_best) / s2)
 
 
 def refine_near(prob: ProfileProblem, d: float, w: float, half_width: float, grid) -> float:

@@ -64,7 +64,7 @@ from ..errors import InputError
 from ..io.spectra import Spectrum
 from ..optics import dispersion, film
 from ._spectrum_profile import (ProfileProblem, local_noise, profile_variance, refine_d, refine_dw, refine_near,
-                                residual_correlation, rss_grids, second_difference_noise)
+                                residual_correlation, rss_grids, second_difference_noise, second_minimum)
 
 __all__ = ["SpectrumOptions", "SpectrumFit", "film_reflectance", "reflector", "fit_spectrum", "fit_spectrum_series",
            "interference_order", "min_fringes"]
@@ -437,7 +437,7 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
     lamp_sys = max(abs(refine_near(replace(prob, basis=_lamp_basis(lam, terms + k, ref)),
                                     d_best, w, 3.0 * step, grid) - d_best) for k in extra)
     stderr = float(np.hypot(stat, lamp_sys))
-    second, dchi2 = _second_minimum(minima, d_best, step, s2)
+    second, dchi2 = second_minimum(minima, d_best, step, s2)
     noise = second_difference_noise(y)
     red = float(rss_best / dof / noise**2) if noise > 0 else float("nan")
     reasons = _verdict(d_best, stderr, second, dchi2, grid, lam, n, reference is not None, options)
@@ -562,16 +562,6 @@ def _misfit(mean_square: float, noise: float, level: float, reasons: list[str], 
     elif np.isfinite(red) and red > 4.0:
         warnings.append(f"the residual is {np.sqrt(red):.1f} times the noise of the reading: the model leaves "
                         "structure (lamp, reference or index?); the error bar is widened for it")
-
-
-def _second_minimum(minima, d_best: float, step: float, s2: float) -> tuple[float, float]:
-    """The best other minimum (more than two grid steps away) and its ``chi^2`` above the best."""
-    rss_best = min(r for _, r in minima)
-    others = [(d, r) for d, r in minima if abs(d - d_best) > 2.0 * step]
-    if not others:
-        return float("nan"), float("inf")
-    d2, r2 = min(others, key=lambda t: t[1])
-    return float(d2), float((r2 - rss_best) / s2)
 
 
 def _verdict(d, stderr, second, dchi2, grid, lam, n, has_reference: bool, opts: SpectrumOptions) -> list[str]:

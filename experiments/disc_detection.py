@@ -5,9 +5,17 @@ Runs :func:`bubblefit.capture.disc.find_disc` on every case of the validation se
 and without the background photo, and prints, for each, whether a disc was found, the
 centre and radius errors in pixels, the rim support and contrast, and the time. Saves
 ``disc_detection.json``, ``disc_detection.csv`` and ``disc_detection.png`` (radius
-error per case) in the output folder.
+error per case, and with several scales or Hough sizes the median time per photo size)
+in the output folder.
 
-    PYTHONPATH=. python experiments/disc_detection.py [DATA_DIR] [-o OUT_DIR]
+``--scales 1,2,3`` also runs each case enlarged (both photos resized by the factor,
+bilinear: the same scene seen by a sensor with more pixels; errors are reported in the
+original pixels), and ``--hough-sizes 200,0`` runs each photo once per size of the copy
+that the Hough transform searches (``bubblefit.capture.disc.HOUGH_SIZE``; 0: the photo
+itself), the settings taking turns photo by photo, so that each is the other's
+yardstick in the same run.
+
+    PYTHONPATH=. python experiments/disc_detection.py [DATA_DIR] [-o OUT_DIR] [--scales 1,2,3] [--hough-sizes 200,0]
 """
 
 from __future__ import annotations
@@ -20,27 +28,38 @@ from pathlib import Path
 
 import numpy as np
 
+import bubblefit.capture.disc as disc_module
 from bubblefit.capture.disc import find_disc
 from bubblefit.io.images import read_image
 
 DEFAULT_DATA = Path(__file__).resolve().parent / "validation" / "data"
 
 
-def run_case(folder: Path) -> list[dict]:
+def run_case(folder: Path, scales=(1,), hough_sizes=(disc_module.HOUGH_SIZE,)) -> list[dict]:
+    import cv2
+
     truth = json.loads((folder / "truth.json").read_text())
     names = ("photo.png", "background.png") if (folder / "photo.png").exists() else ("after.png", "before.png")
     photo, back = (read_image(folder / n).pixels for n in names)
     disc = truth.get("disc")
     rows = []
-    for with_bg in (True, False):
-        t0 = time.perf_counter()
-        d = find_disc(photo, back if with_bg else None)
-        row = {"case": folder.name, "background": with_bg, "found": d.found, "cx": d.cx, "cy": d.cy, "r": d.r,
-               "support": d.support, "contrast": d.contrast, "time_s": time.perf_counter() - t0,
-               "expect_disc": disc is not None and "nobubble" not in folder.name, "reason": d.reason}
-        if disc is not None and d.found:
-            row.update(err_cx=d.cx - disc["cx"], err_cy=d.cy - disc["cy"], err_r=d.r - disc["r"])
-        rows.append(row)
+    for scale in scales:
+        size = lambda a: a if scale == 1 else cv2.resize(a.astype(np.float32), None, fx=scale, fy=scale,  # noqa: E731
+                                                         interpolation=cv2.INTER_LINEAR).astype(np.float64)
+        p, b = size(photo), size(back)
+        for with_bg in (True, False):
+            for hough in hough_sizes:
+                disc_module.HOUGH_SIZE = hough or 10**9
+                t0 = time.perf_counter()
+                d = find_disc(p, b if with_bg else None)
+                row = {"case": folder.name, "scale": scale, "hough_size": hough, "background": with_bg,
+                       "found": d.found, "cx": d.cx / scale, "cy": d.cy / scale, "r": d.r / scale,
+                       "support": d.support, "contrast": d.contrast, "time_s": time.perf_counter() - t0,
+                       "pixels": p.shape[0] * p.shape[1],
+                       "expect_disc": disc is not None and "nobubble" not in folder.name, "reason": d.reason}
+                if disc is not None and d.found:
+                    row.update(err_cx=row["cx"] - disc["cx"], err_cy=row["cy"] - disc["cy"], err_r=row["r"] - disc["r"])
+                rows.append(row)
     return rows
 
 
@@ -48,22 +67,44 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("data", nargs="?", default=str(DEFAULT_DATA))
     ap.add_argument("-o", "--out", default="experiments/results")
+    ap.add_argument("--scales", default="1", help="comma-separated enlargements of every case (default: 1)")
+    ap.add_argument("--hough-sizes", default=str(disc_module.HOUGH_SIZE),
+                    help="comma-separated HOUGH_SIZE values, 0 for the photo itself (default: %(default)s)")
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    rows = [r for f in sorted(Path(args.data).glob("*/truth.json")) for r in run_case(f.parent)]
-    keys = ["case", "background", "found", "expect_disc", "err_cx", "err_cy", "err_r", "support", "contrast", "time_s",
-            "reason"]
-    for r in rows:
-        errs = " ".join(f"{k}={r[k]:+.2f}" for k in ("err_cx", "err_cy", "err_r") if k in r)
-        print(f"{r['case']:34s} bg={'yes' if r['background'] else 'no ':3s} found={r['found']!s:5s} {errs:38s} "
-              f"support={r['support']:.2f} {r['time_s']:.1f}s {r['reason']}")
-    for bg in (True, False):
-        sel = [r for r in rows if r["background"] == bg and r["expect_disc"]]
-        good = [r for r in sel if r["found"] and max(abs(r["err_cx"]), abs(r["err_cy"]), abs(r["err_r"])) < 1.5]
-        wrong = [r for r in sel if r["found"] and r not in good]
-        print(f"{'with' if bg else 'without'} background: {len(good)}/{len(sel)} within 1.5 px, "
-              f"{len(wrong)} wrong, {len(sel) - len(good) - len(wrong)} not found")
+    scales = [int(v) for v in args.scales.split(",")]
+    hough_sizes = [int(v) for v in args.hough_sizes.split(",")]
+    rows = []
+    for f in sorted(Path(args.data).glob("*/truth.json")):
+        for r in run_case(f.parent, scales, hough_sizes):
+            errs = " ".join(f"{k}={r[k]:+.2f}" for k in ("err_cx", "err_cy", "err_r") if k in r)
+            bg = "yes" if r["background"] else "no "
+            print(f"{r['case']:34s} x{r['scale']} hough {r['hough_size']:4d} bg={bg} "
+                  f"found={r['found']!s:5s} {errs:38s} support={r['support']:.2f} {r['time_s']:.2f}s {r['reason']}",
+                  flush=True)
+            rows.append(r)
+    keys = ["case", "scale", "hough_size", "pixels", "background", "found", "expect_disc", "err_cx", "err_cy", "err_r",
+            "support", "contrast", "time_s", "reason"]
+    summary = []
+    for scale in scales:
+        for hough in hough_sizes:
+            for bg in (True, False):
+                sel = [r for r in rows if r["background"] == bg and r["expect_disc"] and r["scale"] == scale
+                       and r["hough_size"] == hough]
+                good = [r for r in sel if r["found"] and max(abs(r["err_cx"]), abs(r["err_cy"]), abs(r["err_r"])) < 1.5]
+                wrong = [r for r in sel if r["found"] and r not in good]
+                times = [r["time_s"] for r in rows if r["background"] == bg and r["scale"] == scale
+                         and r["hough_size"] == hough]
+                summary.append({"scale": scale, "hough_size": hough, "background": bg, "cases": len(sel),
+                                "within_1_5_px": len(good), "wrong": len(wrong),
+                                "not_found": len(sel) - len(good) - len(wrong),
+                                "median_time_s": float(np.median(times)), "max_time_s": float(np.max(times))})
+                s_ = summary[-1]
+                print(f"x{scale} hough {hough:4d} {'with' if bg else 'without'} background: {len(good)}/{len(sel)} "
+                      f"within 1.5 px, {len(wrong)} wrong, {s_['not_found']} not found; "
+                      f"median {s_['median_time_s']:.2f} s, max {s_['max_time_s']:.2f} s per photo")
+    (out / "disc_detection_summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     (out / "disc_detection.json").write_text(json.dumps(rows, indent=2, default=float) + "\n")
     with open(out / "disc_detection.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=keys, extrasaction="ignore")
@@ -76,15 +117,33 @@ def main() -> None:
         import matplotlib.pyplot as plt
     except ImportError:
         return
-    fig, ax = plt.subplots(figsize=(9, 4))
+    timing = len(scales) > 1 or len(hough_sizes) > 1
+    fig, axes = plt.subplots(1, 2 if timing else 1, figsize=(13 if timing else 9, 4), squeeze=False,
+                             gridspec_kw={"width_ratios": [2, 1]} if timing else None)
+    ax = axes[0, 0]
     for bg, mk in ((True, "o"), (False, "x")):
-        sel = [r for r in rows if r["background"] == bg and "err_r" in r]
+        sel = [r for r in rows if r["background"] == bg and "err_r" in r and r["scale"] == scales[0]
+               and r["hough_size"] == hough_sizes[0]]
         ax.plot([r["case"] for r in sel], [abs(r["err_r"]) for r in sel], mk, label="with" if bg else "without")
     ax.axhline(1.5, color="gray", lw=0.8)
     ax.set_ylabel("|radius error| (px)")
     ax.set_yscale("log")
     ax.legend(title="background photo")
     ax.tick_params(axis="x", rotation=80, labelsize=7)
+    if timing:
+        ax = axes[0, 1]
+        for i, hough in enumerate(hough_sizes):
+            for bg, ls in ((True, "-"), (False, "--")):
+                sel = [s_ for s_ in summary if s_["hough_size"] == hough and s_["background"] == bg]
+                px = [np.median([r["pixels"] for r in rows if r["scale"] == s_["scale"]]) for s_ in sel]
+                ax.plot(px, [s_["median_time_s"] for s_ in sel], ls, marker="o", color=f"C{i}",
+                        label=f"Hough on {hough or 'the photo'}{' px' if hough else ''}, "
+                              f"{'with' if bg else 'without'} background")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("pixels per photo (median)")
+        ax.set_ylabel("find_disc, median seconds")
+        ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out / "disc_detection.png", dpi=120)
     print("wrote", out / "disc_detection.json", out / "disc_detection.csv", out / "disc_detection.png")

@@ -519,7 +519,7 @@ def test_json_has_the_frame_size_and_the_model_error():
     assert d["t4_ci95"][1] - d["t4_ci95"][0] >= 2 * 1.95 * d["t4_model_stderr"] - 1e-9
 
 
-VALIDATION = Path(__file__).resolve().parent.parent.parent / "validation" / "experiments" / "validation" / "data"
+VALIDATION = Path(__file__).resolve().parent.parent / "experiments" / "validation" / "data"
 _PAIRS = sorted(p.parent.name for p in VALIDATION.glob("cal_*/truth.json")) if VALIDATION.is_dir() else []
 
 

@@ -56,20 +56,20 @@ def _map_crop(pixels: np.ndarray, h: int, w: int, row: int, col: int) -> np.ndar
 
 
 def _bubble(bg: np.ndarray, refl: np.ndarray, cx: float, cy: float, r: float, *, blur: float = 0.0,
-            dim_sector: tuple[float, float] | None = None) -> np.ndarray:
+            dim_sector: tuple[float, float] | None = None, ss: int = SS) -> np.ndarray:
     """The photo with the bubble: per sub-pixel, T^2 bg + 4 R sin^2(phase/2) refl inside.
 
     R is Schlick's Fresnel approximation for n = 1.4 (R0 = 0.028), T = 1 - R, the
     interference factor that of a 400 nm film at 610, 550 and 465 nm (paper, eqs. 8-10);
     ``refl`` is the reflected scene. ``dim_sector`` (start, end) angles in radians where the
     reflection is black and the transmission is replaced by the background (a rim that
-    barely differs from its surroundings).
+    barely differs from its surroundings). ``ss`` sub-pixels per axis.
     """
     h, w = bg.shape[:2]
-    up = lambda a: np.repeat(np.repeat(a, SS, 0), SS, 1)  # noqa: E731
-    ys, xs = np.mgrid[0 : h * SS, 0 : w * SS]
-    x = (xs + 0.5) / SS
-    y = (ys + 0.5) / SS
+    up = lambda a: np.repeat(np.repeat(a, ss, 0), ss, 1)  # noqa: E731
+    ys, xs = np.mgrid[0 : h * ss, 0 : w * ss]
+    x = (xs + 0.5) / ss
+    y = (ys + 0.5) / ss
     rho = np.hypot(x - cx, y - cy) / r
     inside = rho < 1
     cos = np.sqrt(np.clip(1 - rho * rho, 0, 1))
@@ -84,7 +84,7 @@ def _bubble(bg: np.ndarray, refl: np.ndarray, cx: float, cy: float, r: float, *,
         ang = np.arctan2(y - cy, x - cx) % (2 * np.pi)
         sector = inside & (ang >= dim_sector[0]) & (ang < dim_sector[1]) & (rho > 0.8)
         img[sector] = 0.97 * bgu[sector]
-    img = img.reshape(h, SS, w, SS, 3).mean(axis=(1, 3))
+    img = img.reshape(h, ss, w, ss, 3).mean(axis=(1, 3))
     if blur > 0:
         img = ndi.gaussian_filter(img, (blur, blur, 0))
     return img
@@ -134,6 +134,29 @@ def test_finds_disc_without_background(case):
     refl = _texture(h, w, rng)[::-1]
     photo = _noisy(_bubble(bg, refl, cx, cy, r, blur=blur, dim_sector=sector), rng)
     _check(find_disc(photo), cx, cy, r)
+
+
+LARGE = [
+    # (name, h, w, cx, cy, r, with a background photo): photos whose Hough search runs on
+    # a copy (HOUGH_SIZE); without a background photo radii below a twentieth of the
+    # photo's short side are not searched, so the small bubble has one.
+    ("large_bubble", 480, 640, 352.3, 230.6, 171.2, True),
+    ("large_bubble", 480, 640, 352.3, 230.6, 171.2, False),
+    ("small_bubble", 480, 640, 505.1, 118.4, 16.3, True),
+]
+
+
+@pytest.mark.parametrize("case", LARGE, ids=[f"{c[0]}-{'with' if c[-1] else 'without'}_background" for c in LARGE])
+def test_large_photos(case):
+    """A 640x480 photo: the Hough transform searches a 267x200 copy, the rim is found on
+    the full-resolution evidence, as precisely as on the small photos."""
+    name, h, w, cx, cy, r, background = case
+    rng = np.random.default_rng(zlib.crc32(f"{name}-{background}".encode()))
+    bg = _texture(h, w, rng) if background else 0.3 * _texture(h, w, rng, bright=False)
+    refl = _texture(h, w, rng)[::-1]
+    photo = _noisy(_bubble(bg, refl, cx, cy, r, ss=2), rng)
+    d = find_disc(photo, _noisy(bg, rng) if background else None)
+    _check(d, cx, cy, r)
 
 
 def test_invisible_rim_without_background_is_not_a_false_disc(courtyard_pixels):
@@ -190,7 +213,7 @@ def test_tiny_and_flat_images_are_not_found():
 # Independent photos (Blender Cycles, Mitsuba 3, a separate reference renderer)
 # --------------------------------------------------------------------------------------
 
-VALIDATION = Path(__file__).resolve().parent.parent.parent / "validation" / "experiments" / "validation" / "data"
+VALIDATION = Path(__file__).resolve().parent.parent / "experiments" / "validation" / "data"
 _CASES = sorted(p.parent.name for p in VALIDATION.glob("*/truth.json")) if VALIDATION.is_dir() else []
 
 

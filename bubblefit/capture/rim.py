@@ -20,7 +20,7 @@ from scipy import ndimage as ndi
 from ..errors import InputError
 from .circle import kasa_circle_fit
 
-__all__ = ["Evidence", "rim_support", "refine_rim", "roundness", "N_RAYS", "MIN_JUMP", "TEXTURE_FACTOR"]
+__all__ = ["Evidence", "bilinear", "rim_support", "refine_rim", "roundness", "N_RAYS", "MIN_JUMP", "TEXTURE_FACTOR"]
 
 #: What the rim is seen in: a change map against a background photo, or the photo's edges.
 Evidence = Literal["change", "edges"]
@@ -52,9 +52,25 @@ def _rays(fields: np.ndarray, circle, offsets: np.ndarray, n_rays: int = N_RAYS)
     y = cy + np.sin(th)[:, None] * rad
     h, w = fields.shape[1:]
     inside = np.all((x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1), axis=1)
-    coords = np.stack([y.ravel(), x.ravel()])
-    samples = np.stack([ndi.map_coordinates(f, coords, order=1, mode="nearest").reshape(x.shape) for f in fields])
-    return samples, inside
+    return bilinear(fields, y, x), inside
+
+
+def bilinear(fields: np.ndarray, y: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """(C, *x.shape) bilinear samples of (C, H, W) fields at array coordinates ``(y, x)``,
+    the nearest edge's value beyond the image (``scipy.ndimage.map_coordinates`` with
+    ``order=1, mode="nearest"``, a fifth of its time on 7424 points)."""
+    c, h, w = fields.shape
+    x = np.clip(x, 0.0, w - 1.0)
+    y = np.clip(y, 0.0, h - 1.0)
+    x0 = np.minimum(x.astype(np.intp), max(w - 2, 0))
+    y0 = np.minimum(y.astype(np.intp), max(h - 2, 0))
+    fx, fy = x - x0, y - y0
+    flat = fields.reshape(c, -1)
+    i = y0 * w + x0
+    dx, dy = min(1, w - 1), (h > 1) * w
+    top = flat[:, i] * (1.0 - fx) + flat[:, i + dx] * fx
+    bottom = flat[:, i + dy] * (1.0 - fx) + flat[:, i + dy + dx] * fx
+    return top * (1.0 - fy) + bottom * fy
 
 
 def _jumps(fields: np.ndarray, circle, mode: Evidence, noise: float) -> tuple[np.ndarray, np.ndarray]:

@@ -267,29 +267,6 @@ def profile_solver(photo, env, bg, truth, out: Path, models=("paper", "physical"
     print(f"wrote {out}/solver_profile.json, .csv, .png")
 
 
-def columns_linearized(resid, z, a):
-    """The Jacobian of ``resid(z, a)`` one column at a time, each column the tangent of a
-    :func:`jax.linearize` along its parameter alone (the others held, so that its tangent
-    reaches only the part of the render downstream of it): the linearisations' primal
-    parts are the same computation, which XLA merges, so the render is evaluated once. A
-    third way beside ``jax.jacfwd`` and the product's Jacobian by groups
-    (:func:`bubblefit.inverse._local.column_jacobian`), timed by :func:`compile_profile`."""
-    import jax
-    import jax.numpy as jnp
-
-    zs = tuple(z[i] for i in range(z.shape[0]))
-    columns = []
-    for i in range(len(zs)):
-        def along(x, i=i):
-            full = list(zs)
-            full[i] = x
-            return resid(tuple(full), a)
-
-        _, tangent = jax.linearize(along, zs[i])
-        columns.append(tangent(jnp.ones_like(zs[i])))
-    return jnp.stack(columns, axis=-1)
-
-
 def compile_profile(photo, env, bg, out: Path, models=("paper", "physical"), repeats: int = 10):
     """Lowering and compile seconds, optimised HLO lines and warm run milliseconds of the
     pieces of each model's final solve program (module docstring), and the largest
@@ -299,20 +276,20 @@ def compile_profile(photo, env, bg, out: Path, models=("paper", "physical"), rep
     import jax
 
     from bubblefit.inverse import _local, _setup
-    from bubblefit.inverse.fit import FitOptions
+    from bubblefit.inverse.fit import FINAL_JACOBIAN, FitOptions
 
     rows = []
     for model in models:
         opts = FitOptions(model=model)
         st = _setup.setup(photo, env, opts, bg, None, None, None)
-        key, a, _ = _local._program(st.lev_fit, st.table, opts, st.vals, env, None, True)
+        key, a, _ = _local._program(st.lev_fit, st.table, opts, st.vals, env, None, True, FINAL_JACOBIAN)
         solve, resid = _local.solver.__wrapped__(*key)  # fresh jitted functions, compiled here
         z0 = st.table.unconstrained(st.vals)
         groups = st.table.jacobian_groups
         row = {"model": model, "free": len(st.table.free), "groups": len(groups), "pixels": int(a[3].size // 3)}
         pieces = (("residual", resid), ("jacfwd", jax.jit(jax.jacfwd(resid))),
                   ("jacobian_by_groups", jax.jit(lambda z, a: _local.column_jacobian(resid, groups, z, a))),
-                  ("jacobian_by_columns", jax.jit(lambda z, a: columns_linearized(resid, z, a))),
+                  ("jacobian_by_columns", jax.jit(lambda z, a: _local.columns_linearized(resid, z, a))),
                   ("solve", solve))
         compiled = {}
         for name, fn in pieces:

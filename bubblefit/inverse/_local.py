@@ -5,7 +5,8 @@ close, and its trust-region damping keeps steps inside one colour fringe of the
 thickness; rather than Dogleg because with few parameters its damped solve is as cheap
 and it needs no separate trust-region geometry. The Jacobian is forward-mode (few
 parameters, many residuals), its columns computed by the part of the render their
-parameters reach (:func:`column_jacobian`). Compiled solvers are cached per static
+parameters reach (:func:`column_jacobian`) or, in the fit's final solve, one by one with
+the render shared (:func:`columns_linearized`). Compiled solvers are cached per static
 configuration (effects, parameter table, padded size): a level is padded and its disc
 passed as data (:func:`~bubblefit.inverse._observation.padded`), so photos of any framing
 whose levels pad to the same size share the compiled solves and the persistent cache's
@@ -34,7 +35,7 @@ from ..io.executables import stored
 from ..model.geometry import compose_shift
 from ..model.render import RenderConfig, render_pixels
 
-__all__ = ["LocalSolution", "DenseDampedNewtonDescent", "LevenbergMarquardt", "column_jacobian",
+__all__ = ["LocalSolution", "DenseDampedNewtonDescent", "LevenbergMarquardt", "column_jacobian", "columns_linearized",
            "scaled_decrement", "gauss_newton_decrement", "remaining_step", "presses_bound", "robust", "solver",
            "batched_solver", "reporter", "prepare_local", "solve_local", "cost", "solution_from"]
 
@@ -324,6 +325,42 @@ def column_jacobian(resid: Callable, groups: tuple, z, args) -> Float[Array, "m 
     return jnp.stack([columns[i] for i in range(len(zs))], axis=-1)
 
 
+def columns_linearized(resid: Callable, z, args) -> Float[Array, "m n"]:
+    """The Jacobian of ``resid(z, args)`` (M,) in ``z`` (N,) one column at a time, each
+    the tangent of a :func:`jax.linearize` along its parameter alone (``resid`` sees ``z``
+    as a tuple of scalars, as in :func:`column_jacobian`, so that a column's tangent reaches
+    only the part of the render downstream of its parameter). The linearisations' primal
+    parts are one computation, which XLA merges: the render runs once, and a parameter
+    whose tangent crosses the map's filtered lookups (the roughness, the disc) costs about
+    one render more, the others less.
+
+    The fit's final solve uses it (:func:`solve_local` with ``jacobian="columns"``): on
+    the 80x80 level of a 320x320 photo (8 parameters) the Jacobian took 80 ms against
+    119 ms by groups and the solve 0.36 s against 0.50 s, the same thickness to the last
+    bit; its longer compile runs in the background during the global search (an empty
+    cache's first fit 22.4 and 20.8 s against 22.4 and 19.9 s by groups). The search's
+    own solve, compiled on the first fit's critical path, keeps the groups
+    (``experiments/bench_fit.py --compile-profile``).
+    """
+    zs = tuple(z[i] for i in range(z.shape[0]))
+    columns = []
+    for i in range(len(zs)):
+        def along(x, i=i):
+            full = list(zs)
+            full[i] = x
+            return resid(tuple(full), args)
+
+        _, tangent = jax.linearize(along, zs[i])
+        columns.append(tangent(jnp.ones_like(zs[i])))
+    return jnp.stack(columns, axis=-1)
+
+
+#: How a solve computes its Jacobian: by groups of parameters (:func:`column_jacobian`,
+#: shorter to compile) or by columns (:func:`columns_linearized`, faster to run).
+JACOBIANS = {"groups": lambda resid, table: functools.partial(column_jacobian, resid, table.jacobian_groups),
+             "columns": lambda resid, table: functools.partial(columns_linearized, resid)}
+
+
 def scaled_decrement(dense: _DenseState, residual, z=None, free: tuple = ()) -> Float[Array, ""]:
     """The Gauss-Newton decrement ``r^T J (J^T J)^-1 J^T r = |Q^T r|^2`` of an accepted
     point (:class:`DenseDampedNewtonDescent`'s factors) over ``max(1, chi2_nu)``, the
@@ -410,8 +447,9 @@ def presses_bound(name: str, v, slope, step, se, sign=np.sign):
 
 @functools.lru_cache(maxsize=64)
 def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_steps: int, rtol: float, atol: float,
-           max_rejections: int | None = MAX_REJECTIONS):
-    """Jitted ``solve(z0, args) -> (z, ok, maxed, steps, residual, J)`` and ``resid``.
+           max_rejections: int | None = MAX_REJECTIONS, jacobian: str = "groups"):
+    """Jitted ``solve(z0, args) -> (z, ok, maxed, steps, residual, J)`` and ``resid``
+    (``jacobian``: a key of :data:`JACOBIANS`).
 
     ``args = (fixed, env, background, photo, weights, base, (rows, cols, idx))``: the
     fitted pixels of a padded level (:func:`~bubblefit.inverse._observation.fitted_pixels`);
@@ -427,7 +465,7 @@ def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_st
         return robust((img - y) * w, robust_scale).reshape(-1)
 
     lm = LevenbergMarquardt(rtol=rtol, atol=atol, max_rejections=max_rejections, free=table.free,
-                            jacobian=functools.partial(column_jacobian, resid, table.jacobian_groups))
+                            jacobian=JACOBIANS[jacobian](resid, table))
 
     @jax.jit
     def solve(z0, args):
@@ -482,36 +520,37 @@ def solution_from(table: ParameterTable, vals: dict, z, ok, maxed, steps, r, jac
                          np.asarray(jac, np.float64), fixed)
 
 
-def _program(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps, stall: bool):
+def _program(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps, stall: bool, jacobian: str):
     """``(key, args, pixels)``: the key of :func:`solve_local`'s solve for ``lev``
     (:func:`solver`'s arguments) and the arguments it takes besides the start (the held
     ``vals`` and the level's fitted pixels)."""
     px = fitted_pixels(lev, lev.cfg.chunk)
     pad = px.padded
     key = (pad.cfg, table, float(opts.robust_scale), int(max_steps or opts.max_steps), float(opts.rtol),
-           float(opts.atol), MAX_REJECTIONS if stall else None)
+           float(opts.atol), MAX_REJECTIONS if stall else None, jacobian)
     fixed = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k not in table.free}
     args = (fixed, env, pad.bg, px.y, px.w, pad.base, (px.rows, px.cols, px.idx))
     return key, args, px
 
 
 def prepare_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps=None,
-                  stall: bool = True) -> None:
+                  stall: bool = True, jacobian: str = "groups") -> None:
     """Start compiling (or loading) the program of :func:`solve_local` with these arguments
     in the background (:meth:`bubblefit.io.executables.Stored.prepare`): a fit calls it for
     its final solve before the global search, whose own programs compile meanwhile. Only
     the shapes of ``vals`` and the level count; without the executable store (library
     calls) the program is compiled in the background all the same, not saved."""
-    key, args, _ = _program(lev, table, opts, vals, env, max_steps, stall)
+    key, args, _ = _program(lev, table, opts, vals, env, max_steps, stall, jacobian)
     stored_solver(*key).prepare(table.unconstrained(vals), args)
 
 
 def solve_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps=None,
-                stall: bool = True) -> LocalSolution:
+                stall: bool = True, jacobian: str = "groups") -> LocalSolution:
     """Levenberg-Marquardt from ``vals`` on ``lev`` (``opts``: a ``FitOptions``); with
     ``stall`` it stops after :data:`MAX_REJECTIONS` rejections and restarts while far from
-    the optimum, without it runs optimistix' own stopping rule alone (warm starts)."""
-    key, args, px = _program(lev, table, opts, vals, env, max_steps, stall)
+    the optimum, without it runs optimistix' own stopping rule alone (warm starts).
+    ``jacobian`` (a key of :data:`JACOBIANS`) says how its Jacobian is computed."""
+    key, args, px = _program(lev, table, opts, vals, env, max_steps, stall, jacobian)
     solve, fixed = stored_solver(*key), args[0]
     sol = solution_from(table, vals, *solve(table.unconstrained(vals), args), fixed, lev, px)
     # A solve stopped by rejections early on (a trust region still far too large) starts

@@ -10,7 +10,8 @@ well under a pixel near the optical axis). :func:`find_disc` finds it in three s
    smoothed photo itself, whose rim shows as a colour step or a thin bright (or dark)
    line where the film's Fresnel reflection and interference bands start abruptly.
 2. **Candidates and their rim support.** Circles from the changed region (its convex
-   hull) and from OpenCV's circular Hough transform (Yuen et al. 1990); each is scored
+   hull) and from OpenCV's circular Hough transform (Yuen et al. 1990), run on a copy of
+   at most :data:`HOUGH_SIZE` pixels on its short side; each is scored
    by the fraction of its rim, sampled along rays from its centre, where the evidence
    jumps across the circle by ``MIN_JUMP`` noise units (and, without a background, by
    ``TEXTURE_FACTOR`` times the texture at other radii along the same ray)
@@ -25,7 +26,8 @@ well under a pixel near the optical axis). :func:`find_disc` finds it in three s
    A disc counts as found only when its rim is supported on ``MIN_SUPPORT`` of its
    length (``MIN_SUPPORT_EDGES`` without a background, where texture can line up with
    part of a circle by chance) and the rim points lie on the circle there
-   (:func:`bubblefit.capture.rim.roundness`; a square's edge does not).
+   (:func:`bubblefit.capture.rim.roundness`; a square's edge does not). Without a
+   background, up to ``ROUND_TRIES`` supported circles are tried in rank order.
 
 Coordinates of :class:`Disc` follow :class:`bubblefit.model.geometry.OrthographicCamera`:
 x right, y down, the image's top-left corner at (0, 0), pixel centres at +1/2.
@@ -55,9 +57,9 @@ MIN_RADIUS = 4.0
 #: Short side, in pixels, of the copy the Hough transform searches. Its cost grows with
 #: about the fourth power of the image's size (every edge pixel votes along its gradient
 #: over the whole radius range, and every centre above threshold ranks all edge pixels):
-#: on the change map of a 320x320 photo whose bubble fills half of it, resampled, 5 ms at 160 px,
-#: 0.23 s at 320 and 3.8 s at 640. Its circles only seed the rim search, which works on
-#: the full-resolution evidence (``experiments/disc_detection.py --scales 1,2,3
+#: on the change map of a 320x320 photo whose bubble fills half of it, resampled, 5 ms
+#: at 160 px, 0.23 s at 320 and 3.8 s at 640. Its circles only seed the rim search, which
+#: works on the full-resolution evidence (``experiments/disc_detection.py --scales 1,2,3
 #: --hough-sizes 200,0``).
 HOUGH_SIZE = 200
 #: Supported circles, best ranked first, whose roundness is checked before none is found

@@ -339,8 +339,8 @@ def columns_linearized(resid: Callable, z, args) -> Float[Array, "m n"]:
     119 ms by groups and the solve 0.36 s against 0.50 s, the same thickness to the last
     bit; its longer compile runs in the background during the global search (an empty
     cache's first fit 22.4 and 20.8 s against 22.4 and 19.9 s by groups). The search's
-    own solve, compiled on the first fit's critical path, keeps the groups
-    (``experiments/bench_fit.py --compile-profile``).
+    own solve and a warm-started fit's, compiled on the critical path, keep the groups
+    (``experiments/bench_fit.py --compile-profile``; ``bubblefit.inverse.fit.FINAL_JACOBIAN``).
     """
     zs = tuple(z[i] for i in range(z.shape[0]))
     columns = []

@@ -334,8 +334,8 @@ def plot_compile_profile(rows, out: Path):
 
     fig, ax = plt.subplots(figsize=(6.5, 3.8))
     for row, marker in zip(rows, "os^"):
-        for name, label in (("jacfwd", "jax.jacfwd"), ("jacobian_by_groups", "by groups (bubblefit)"),
-                            ("jacobian_by_columns", "by columns, primal shared")):
+        for name, label in (("jacfwd", "jax.jacfwd"), ("jacobian_by_groups", "by groups (search, warm starts)"),
+                            ("jacobian_by_columns", "by columns, primal shared (final solve)")):
             x, y = row[f"{name}_compile_s"], row[f"{name}_run_ms"]
             ax.plot(x, y, marker, color="k")
             ax.annotate(f"{row['model']}: {label}", (x, y), fontsize=6, xytext=(4, 2), textcoords="offset points")

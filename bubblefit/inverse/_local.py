@@ -312,14 +312,7 @@ def column_jacobian(resid: Callable, groups: tuple, z, args) -> Float[Array, "m 
     zs = tuple(z[i] for i in range(z.shape[0]))
     columns = {}
     for group in groups:
-        def along(sub, group=group):
-            full = list(zs)
-            for k, i in enumerate(group):
-                full[i] = sub[k]
-            return resid(tuple(full), args)
-
-        sub = jnp.stack([zs[i] for i in group])
-        jac = jax.jacfwd(along)(sub)
+        jac = jax.jacfwd(_along(resid, zs, group, args))(jnp.stack([zs[i] for i in group]))
         for k, i in enumerate(group):
             columns[i] = jac[:, k]
     return jnp.stack([columns[i] for i in range(len(zs))], axis=-1)
@@ -345,14 +338,22 @@ def columns_linearized(resid: Callable, z, args) -> Float[Array, "m n"]:
     zs = tuple(z[i] for i in range(z.shape[0]))
     columns = []
     for i in range(len(zs)):
-        def along(x, i=i):
-            full = list(zs)
-            full[i] = x
-            return resid(tuple(full), args)
-
-        _, tangent = jax.linearize(along, zs[i])
-        columns.append(tangent(jnp.ones_like(zs[i])))
+        _, tangent = jax.linearize(_along(resid, zs, (i,), args), zs[i][None])
+        columns.append(tangent(jnp.ones((1,), zs[i].dtype)))
     return jnp.stack(columns, axis=-1)
+
+
+def _along(resid: Callable, zs: tuple, group: tuple, args) -> Callable:
+    """``resid`` as a function of the parameters ``group`` (indices into ``zs``, their
+    values stacked in that order), the others held at ``zs``: the function whose forward
+    derivative is the group's columns (:func:`column_jacobian`, :func:`columns_linearized`)."""
+    def along(sub):
+        full = list(zs)
+        for k, i in enumerate(group):
+            full[i] = sub[k]
+        return resid(tuple(full), args)
+
+    return along
 
 
 #: How a solve computes its Jacobian: by groups of parameters (:func:`column_jacobian`,

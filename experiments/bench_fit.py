@@ -401,9 +401,11 @@ def stages(photo, env, bg, out: Path, repeats: int, stem: str = "stages"):
     try:
         for i in range(repeats + 1):
             spent.clear()
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), os.times()
             res = fit_module.fit_photo(photo, env, options=FitOptions(thickness="constant"), background=bg)
-            row = {"run": "first" if i == 0 else "warm", "total_s": round(time.perf_counter() - t0, 4)}
+            c1 = os.times()
+            row = {"run": "first" if i == 0 else "warm", "total_s": round(time.perf_counter() - t0, 4),
+                   "cpu_s": round(c1.user + c1.system - c0.user - c0.system, 2)}
             row.update({f"{k}_s": round(v, 4) for k, v in spent.items()})
             row.update(thickness_nm=res.params["thickness_nm"], ok=res.ok, iterations=res.iterations)
             print(json.dumps(row), flush=True)

@@ -516,7 +516,7 @@ def solution_from(table: ParameterTable, vals: dict, z, ok, maxed, steps, r, jac
         r, jac = pixels.scatter(lev, r), pixels.scatter(lev, jac)
     new = dict(vals)
     for i, n in enumerate(table.free):
-        new[n] = float(forward(n, z[i]))
+        new[n] = value_and_slope(n, z[i])[0]
     return LocalSolution(new, z, bool(ok), bool(maxed), int(steps), np.asarray(r, np.float64),
                          np.asarray(jac, np.float64), fixed)
 

@@ -203,7 +203,7 @@ def film_geometry(cfg: RenderConfig):
     """``(inside, cos, height)`` (h, w) of the front film under each pixel of ``cfg``'s camera."""
     h, w = cfg.shape
     inside, cos, local0 = front_hits(cfg.camera, tuple(cfg.center), float(cfg.radius))
-    return np.asarray(inside).reshape(h, w), np.asarray(cos).reshape(h, w), np.asarray(local0[:, 1]).reshape(h, w)
+    return np.asarray(inside).reshape(h, w), np.asarray(cos).reshape(h, w), np.asarray(local0)[:, 1].reshape(h, w)
 
 
 def make_level(k, base_cfg, photo, sigma, bg, saturated, rim: float) -> Level:

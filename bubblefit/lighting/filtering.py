@@ -174,15 +174,21 @@ def specular_mipmap(env: EnvMap, n, wo, a, *, nodes: int, normalize: bool) -> Fl
     xx, yy = np.meshgrid(x, x)
     ww = jnp.asarray((w[:, None] * w[None, :]).ravel(), dtype=n.dtype)
     cell = jnp.asarray(np.sqrt(width[:, None] * width[None, :]).ravel(), dtype=n.dtype)
-    sx = jnp.asarray(xx.ravel(), dtype=n.dtype)[None, :, None]
-    sy = jnp.asarray(yy.ravel(), dtype=n.dtype)[None, :, None]
+    sx = jnp.asarray(xx.ravel(), dtype=n.dtype)[None, :]
+    sy = jnp.asarray(yy.ravel(), dtype=n.dtype)[None, :]
     t1, t2 = tangent_frame(n)
-    # All nodes at once: (N, M, 3) half vectors and incident directions.
-    h = _normalize(n[:, None, :] + a * (sx * t1[:, None, :] + sy * t2[:, None, :]))
-    o_h = jnp.einsum("nc,nmc->nm", wo, h)
-    wi = 2.0 * o_h[..., None] * h - wo[:, None, :]
-    cos_i = jnp.einsum("nc,nmc->nm", n, wi)
-    cos_h = jnp.einsum("nc,nmc->nm", n, h)
+    # All nodes at once, one (N, M) array per vector component: XLA fuses the chain from
+    # the normals to the lookup's directions into one loop (with (N, M, 3) arrays it
+    # wrote each step to memory and reduced the size-3 axis in separate kernels).
+    comp = lambda v: [v[:, k:k + 1] for k in range(3)]
+    (n0, n1, n2), (a0, a1, a2), (b0, b1, b2), (o0, o1, o2) = comp(n), comp(t1), comp(t2), comp(wo)
+    h0, h1, h2 = n0 + a * (sx * a0 + sy * b0), n1 + a * (sx * a1 + sy * b1), n2 + a * (sx * a2 + sy * b2)
+    norm = jnp.sqrt(jnp.maximum(h0 * h0 + h1 * h1 + h2 * h2, 1e-30))
+    h0, h1, h2 = h0 / norm, h1 / norm, h2 / norm
+    o_h = o0 * h0 + o1 * h1 + o2 * h2
+    wi = jnp.stack([2.0 * o_h * h0 - o0, 2.0 * o_h * h1 - o1, 2.0 * o_h * h2 - o2], axis=-1)
+    cos_i = n0 * wi[..., 0] + n1 * wi[..., 1] + n2 * wi[..., 2]
+    cos_h = n0 * h0 + n1 * h1 + n2 * h2
     cos_r = _dot(n, wo)[:, None]
     g = ww * half_vector_weight(cos_i, cos_r, o_h, cos_h)
     level = mip_footprint_level(a * cell, env.texel_angle)[None, :]

@@ -21,9 +21,9 @@ compilation cache's folder (at most :data:`MAX_BYTES`). The store is used in pro
 that called :func:`~bubblefit.io.jaxcache.jax_setup` (the command line and its workers).
 
 A program needed later can be started ahead (:meth:`Stored.prepare`): it is loaded or
-compiled in one background thread while the caller goes on, and the call with arguments
-of the same shapes waits for it (the fit prepares its final solve and render before the
-global search).
+compiled in a background thread (:data:`COMPILE_THREADS` of them) while the caller goes
+on, and the call with arguments of the same shapes waits for it (the fit prepares its
+final solve and render before the global search).
 
 Two things XLA:CPU needs, found by running it: an executable is serialised from a fresh
 compile (one that the persistent cache loaded loses its fused kernels), and the LAPACK
@@ -48,6 +48,10 @@ __all__ = ["Stored", "stored", "source_digest"]
 FOLDER = "executables"
 #: Most bytes the folder keeps (a fit's solve is 2-3 MB); the least recently used go first.
 MAX_BYTES = 512 * 2**20
+#: Background threads that :meth:`Stored.prepare` compiles in. Two: a fit prepares its final
+#: solve and its final render, and with one thread the render's compile queued behind the
+#: solve's, the longest on an empty cache's first fit, while the fit itself waited.
+COMPILE_THREADS = 2
 #: Whether :func:`stored` uses the store: set by :func:`bubblefit.io.jaxcache.jax_setup`
 #: (the command line, the sequence workers); library calls without it jit as usual.
 ENABLED = False
@@ -163,7 +167,7 @@ class Stored:
 
     def prepare(self, *args) -> None:
         """Load or compile the program for arguments shaped as ``args`` in a background
-        thread (the process's one compile thread), unless it is loaded or under way; the
+        thread (:func:`_compile_thread`), unless it is loaded or under way; the
         call with such arguments then waits for it instead of compiling again. Where the
         store is off (:data:`ENABLED`: library calls) the program is compiled, not stored,
         and JAX's own cache serves as usual. A failed compile is raised by that call, as it
@@ -207,9 +211,9 @@ def stored(jitted: Callable, name: str, static: Any) -> Stored:
 
 @functools.lru_cache(maxsize=1)
 def _compile_thread() -> concurrent.futures.ThreadPoolExecutor:
-    """The one background thread that :meth:`Stored.prepare` compiles in (its work is
-    finished before the process exits)."""
-    return concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="bubblefit-compile")
+    """The :data:`COMPILE_THREADS` background threads that :meth:`Stored.prepare` compiles
+    in (their work is finished before the process exits)."""
+    return concurrent.futures.ThreadPoolExecutor(max_workers=COMPILE_THREADS, thread_name_prefix="bubblefit-compile")
 
 
 def _compile(jitted: Callable, args: tuple) -> tuple[Callable, None]:

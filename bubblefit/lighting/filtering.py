@@ -181,18 +181,19 @@ def specular_mipmap(env: EnvMap, n, wo, a, *, nodes: int, normalize: bool) -> Fl
     # the normals to the lookup's directions into one loop (with (N, M, 3) arrays it
     # wrote each step to memory and reduced the size-3 axis in separate kernels).
     comp = lambda v: [v[:, k:k + 1] for k in range(3)]
-    (n0, n1, n2), (a0, a1, a2), (b0, b1, b2), (o0, o1, o2) = comp(n), comp(t1), comp(t2), comp(wo)
-    h0, h1, h2 = n0 + a * (sx * a0 + sy * b0), n1 + a * (sx * a1 + sy * b1), n2 + a * (sx * a2 + sy * b2)
-    norm = jnp.sqrt(jnp.maximum(h0 * h0 + h1 * h1 + h2 * h2, 1e-30))
-    h0, h1, h2 = h0 / norm, h1 / norm, h2 / norm
-    o_h = o0 * h0 + o1 * h1 + o2 * h2
-    wi = jnp.stack([2.0 * o_h * h0 - o0, 2.0 * o_h * h1 - o1, 2.0 * o_h * h2 - o2], axis=-1)
-    cos_i = n0 * wi[..., 0] + n1 * wi[..., 1] + n2 * wi[..., 2]
-    cos_h = n0 * h0 + n1 * h1 + n2 * h2
+    dot = lambda u, v: u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+    n_c, wo_c = comp(n), comp(wo)
+    h = [nk + a * (sx * ak + sy * bk) for nk, ak, bk in zip(n_c, comp(t1), comp(t2))]
+    norm = jnp.sqrt(jnp.maximum(dot(h, h), 1e-30))
+    h = [hk / norm for hk in h]
+    o_h = dot(wo_c, h)
+    wi = [2.0 * o_h * hk - ok for hk, ok in zip(h, wo_c)]
+    cos_i = dot(n_c, wi)
+    cos_h = dot(n_c, h)
     cos_r = _dot(n, wo)[:, None]
     g = ww * half_vector_weight(cos_i, cos_r, o_h, cos_h)
     level = mip_footprint_level(a * cell, env.texel_angle)[None, :]
-    rad = env.lookup_level(wi, jnp.broadcast_to(level, g.shape))
+    rad = env.lookup_level(jnp.stack(wi, axis=-1), jnp.broadcast_to(level, g.shape))
     num = jnp.einsum("nm,nmc->nc", g, rad)
     if normalize:
         return num / jnp.maximum(jnp.sum(g, axis=1), 1e-12)[:, None]

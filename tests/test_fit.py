@@ -71,9 +71,14 @@ def _opts(**kw):
                                                                   "standard errors (0.0027 vs 0.0006)",
                                                            strict=False)),
 ])
-def test_constant_recovery(env, seed, thickness, tint):
-    """t within 0.003, thickness within 5 nm, roughness within 15%, errors that cover."""
+def test_constant_recovery(env, seed, thickness, tint, monkeypatch):
+    """t within 0.003, thickness within 5 nm, roughness within 15%, errors that cover; the
+    solve's and the standard errors' programs compiled in the background are the ones run."""
     from bubblefit.inverse.fit import fit_photo
+    from bubblefit.io import executables
+
+    prepared, prepare = [], executables.Stored.prepare
+    monkeypatch.setattr(executables.Stored, "prepare", lambda self, *a: (prepared.append(self), prepare(self, *a)))
 
     rng = np.random.default_rng(seed)
     truth = dict(t=0.972 + 0.004 * (seed - 1), roughness=0.08, f=0.3, thickness_nm=thickness)
@@ -108,6 +113,11 @@ def test_constant_recovery(env, seed, thickness, tint):
     # the renderers' scatter (Type B) is on top of the photo's own error, in quadrature
     assert js["thickness_model_error_nm"] == pytest.approx(0.6) and e["thickness_nm"] > 0.6
     assert res.render.shape == photo.shape and res.residual.shape == photo.shape
+    # a prepared program called with arguments of other shapes would be left waiting, unused
+    ours = [s for s in prepared if s.name.startswith("inverse._local")]
+    assert {s.name for s in ours} == {"inverse._local.solver", "inverse._local.reporter",
+                                      "inverse._local.reporter_jacobian"}
+    assert all(not s.pending for s in ours)
 
 
 @pytest.fixture(scope="module")

@@ -37,7 +37,7 @@ from ..model.render import RenderConfig, render_pixels
 
 __all__ = ["LocalSolution", "DenseDampedNewtonDescent", "LevenbergMarquardt", "column_jacobian", "columns_linearized",
            "scaled_decrement", "gauss_newton_decrement", "remaining_step", "presses_bound", "robust", "solver",
-           "batched_solver", "reporter", "prepare_local", "solve_local", "cost", "solution_from"]
+           "batched_solver", "reporter", "prepare_reporter", "prepare_local", "solve_local", "cost", "solution_from"]
 
 
 def robust(r, scale):
@@ -450,9 +450,10 @@ def presses_bound(name: str, v, slope, step, se, sign=np.sign):
 
 @functools.lru_cache(maxsize=64)
 def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_steps: int, rtol: float, atol: float,
-           max_rejections: int | None = MAX_REJECTIONS, jacobian: str = "groups"):
+           max_rejections: int | None = MAX_REJECTIONS, jacobian: str = "groups", opt_level: int | None = None):
     """Jitted ``solve(z0, args) -> (z, ok, maxed, steps, residual, J)`` and ``resid``
-    (``jacobian``: a key of :data:`JACOBIANS`).
+    (``jacobian``: a key of :data:`JACOBIANS`; ``opt_level``: XLA's backend optimisation
+    level for the solve's program, None for XLA's default, 2).
 
     ``args = (fixed, env, background, photo, weights, base, (rows, cols, idx))``: the
     fitted pixels of a padded level (:func:`~bubblefit.inverse._observation.fitted_pixels`);
@@ -470,7 +471,9 @@ def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_st
     lm = LevenbergMarquardt(rtol=rtol, atol=atol, max_rejections=max_rejections, free=table.free,
                             jacobian=JACOBIANS[jacobian](resid, table))
 
-    @jax.jit
+    options = None if opt_level is None else {"xla_backend_optimization_level": int(opt_level)}
+
+    @functools.partial(jax.jit, compiler_options=options)
     def solve(z0, args):
         sol = optx.least_squares(resid, lm, z0, args, max_steps=max_steps, throw=False)
         # The last accepted point's residual and Jacobian, which the solver evaluated there
@@ -502,11 +505,13 @@ def batched_solver(*key):
 
 @functools.lru_cache(maxsize=64)
 def reporter(table: ParameterTable):
-    """Jitted ``(z, fixed) -> reported values`` and its Jacobian (for the delta method)."""
+    """Jitted ``(z, fixed) -> reported values`` and its Jacobian (for the delta method),
+    through the executable store (:func:`prepare_reporter` starts their compile)."""
     def rep(z, fixed):
         return table.reported(table.values(z, fixed))
 
-    return jax.jit(rep), jax.jit(jax.jacfwd(rep))
+    return (stored(jax.jit(rep), "inverse._local.reporter", table),
+            stored(jax.jit(jax.jacfwd(rep)), "inverse._local.reporter_jacobian", table))
 
 
 def solution_from(table: ParameterTable, vals: dict, z, ok, maxed, steps, r, jac, fixed,
@@ -523,37 +528,47 @@ def solution_from(table: ParameterTable, vals: dict, z, ok, maxed, steps, r, jac
                          np.asarray(jac, np.float64), fixed)
 
 
-def _program(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps, stall: bool, jacobian: str):
+def _program(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps, stall: bool, jacobian: str,
+             opt_level: int | None = None):
     """``(key, args, pixels)``: the key of :func:`solve_local`'s solve for ``lev``
     (:func:`solver`'s arguments) and the arguments it takes besides the start (the held
     ``vals`` and the level's fitted pixels)."""
     px = fitted_pixels(lev, lev.cfg.chunk)
     pad = px.padded
     key = (pad.cfg, table, float(opts.robust_scale), int(max_steps or opts.max_steps), float(opts.rtol),
-           float(opts.atol), MAX_REJECTIONS if stall else None, jacobian)
+           float(opts.atol), MAX_REJECTIONS if stall else None, jacobian, opt_level)
     fixed = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k not in table.free}
     args = (fixed, env, pad.bg, px.y, px.w, pad.base, (px.rows, px.cols, px.idx))
     return key, args, px
 
 
 def prepare_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps=None,
-                  stall: bool = True, jacobian: str = "groups") -> None:
+                  stall: bool = True, jacobian: str = "groups", opt_level: int | None = None) -> None:
     """Start compiling (or loading) the program of :func:`solve_local` with these arguments
     in the background (:meth:`bubblefit.io.executables.Stored.prepare`): a fit calls it for
     its final solve before the global search, whose own programs compile meanwhile. Only
     the shapes of ``vals`` and the level count; without the executable store (library
     calls) the program is compiled in the background all the same, not saved."""
-    key, args, _ = _program(lev, table, opts, vals, env, max_steps, stall, jacobian)
+    key, args, _ = _program(lev, table, opts, vals, env, max_steps, stall, jacobian, opt_level)
     stored_solver(*key).prepare(table.unconstrained(vals), args)
 
 
+def prepare_reporter(table: ParameterTable, vals: dict) -> None:
+    """Start compiling (or loading) :func:`reporter`'s programs in the background, for a
+    solution of ``table`` held at ``vals`` (the standard errors, :mod:`._uncertainty`)."""
+    fixed = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k not in table.free}
+    for program in reporter(table):
+        program.prepare(table.unconstrained(vals), fixed)
+
+
 def solve_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps=None,
-                stall: bool = True, jacobian: str = "groups") -> LocalSolution:
+                stall: bool = True, jacobian: str = "groups", opt_level: int | None = None) -> LocalSolution:
     """Levenberg-Marquardt from ``vals`` on ``lev`` (``opts``: a ``FitOptions``); with
     ``stall`` it stops after :data:`MAX_REJECTIONS` rejections and restarts while far from
     the optimum, without it runs optimistix' own stopping rule alone (warm starts).
-    ``jacobian`` (a key of :data:`JACOBIANS`) says how its Jacobian is computed."""
-    key, args, px = _program(lev, table, opts, vals, env, max_steps, stall, jacobian)
+    ``jacobian`` (a key of :data:`JACOBIANS`) says how its Jacobian is computed, ``opt_level``
+    how hard XLA optimises its program (:func:`solver`)."""
+    key, args, px = _program(lev, table, opts, vals, env, max_steps, stall, jacobian, opt_level)
     solve, fixed = stored_solver(*key), args[0]
     sol = solution_from(table, vals, *solve(table.unconstrained(vals), args), fixed, lev, px)
     # A solve stopped by rejections early on (a trust region still far too large) starts

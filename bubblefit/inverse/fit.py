@@ -49,8 +49,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import search
-from ._local import (DECREMENT_TOLERANCE, LocalSolution, batched_solver, prepare_local, remaining_step, reporter,
-                     solution_from, solve_local)
+from ._local import (DECREMENT_TOLERANCE, LocalSolution, batched_solver, prepare_local, prepare_reporter,
+                     remaining_step, reporter, solution_from, solve_local)
 from ._maps import fit_map
 from ._observation import (detect_disc, fitted_pixels, noise_sigma, prepare_render_bubble, render_bubble,
                            render_level)
@@ -76,6 +76,17 @@ WARM_START_CHI2 = 4.0
 #: 64x64 frames pinned to one core the columns made 5.24 and 4.36 frames/s against 5.66
 #: and 4.93 by groups (alternate runs).
 FINAL_JACOBIAN = "columns"
+#: XLA's backend optimisation level for the solves of a fit that searches globally: the
+#: search's and the final one (None: XLA's default, 2; a warm-started fit, a sequence's
+#: frame, keeps it). On an empty cache their compiles are most of the first fit, and at
+#: level 1 the final solve's takes about a fifth less CPU (7.8-7.9 s against 9.6-10.5 s,
+#: compiled alone) for a run about a tenth longer (0.49-0.55 s against 0.42-0.47 s from
+#: the set-up's values). In alternate processes (``bench_fit.py --stages --empty-cache``)
+#: the final solve at level 1 made the first fit 1.4 s shorter on average over four pairs
+#: (2.0-2.5 s in three pairs on a loaded machine), and the search's solve at level 1 too
+#: 0.5-1.5 s shorter again (1.0-2.7 s less CPU) in three more; the warm fit as long within
+#: the noise (its solves 0.02-0.03 s longer), the same thickness within 1.3e-4 nm.
+SEARCH_OPT_LEVEL = 1
 
 
 # ---------------------------------------------------------------------------------------
@@ -108,7 +119,8 @@ def _searched_start(st: Setup, opts: FitOptions, env) -> dict:
                                   opts.search_step_nm, opts.candidates)
     best_v, best_c = None, np.inf
     for s in starts:
-        sol = solve_local(lev_s, st.search_table, opts, s, env, max_steps=opts.search_steps)
+        sol = solve_local(lev_s, st.search_table, opts, s, env, max_steps=opts.search_steps,
+                          opt_level=SEARCH_OPT_LEVEL)
         if np.isfinite(sol.cost) and sol.cost < best_c:
             best_v, best_c = sol.values, sol.cost
     return best_v if best_v is not None else starts[0]
@@ -240,27 +252,29 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     notes = []
     search_thickness = "thickness_nm" in st.table.free or "top_nm" in st.table.free
     warm = bool(init)
-    jacobian = "groups" if warm else FINAL_JACOBIAN
+    jacobian, opt_level = ("groups", None) if warm else (FINAL_JACOBIAN, SEARCH_OPT_LEVEL)
     if search_thickness and not warm:
-        # The final solve's program, and the final render's, compile in the background
-        # meanwhile (on 2 cores an empty-cache fit takes about 4 s less:
+        # The final solve's program, the final render's and the standard errors' compile in
+        # the background meanwhile (on 2 cores an empty-cache fit takes about 4 s less:
         # experiments/bench_fit.py --background-compile).
-        prepare_local(st.lev_fit, st.table, opts, st.vals, env, jacobian=jacobian)
+        prepare_local(st.lev_fit, st.table, opts, st.vals, env, jacobian=jacobian, opt_level=opt_level)
         if opts.thickness != "map":
             prepare_render_bubble(_final_params(st.table, st.vals, opts), st.level(1, opts), env)
+        prepare_reporter(st.table, st.vals)
         with stage("global thickness search"):
             start = _searched_start(st, opts, env)
     else:
         start = st.vals
     with stage(f"local fit, {len(st.table.free)} parameters"):
-        sol = solve_local(st.lev_fit, st.table, opts, start, env, stall=not warm, jacobian=jacobian)
+        sol = solve_local(st.lev_fit, st.table, opts, start, env, stall=not warm, jacobian=jacobian,
+                          opt_level=opt_level)
     why = _warm_doubt(st, opts, sol) if warm and search_thickness else None
     if why:
         # A warm start can settle in a neighbouring colour order: search globally and keep
         # whichever fit explains the photo better.
         with stage(f"warm start doubtful ({why}): global search and local fit"):
             second = solve_local(st.lev_fit, st.table, opts, _searched_start(st, opts, env), env,
-                                 jacobian=jacobian)
+                                 jacobian=jacobian, opt_level=opt_level)
         if np.isfinite(second.cost) and (not np.isfinite(sol.cost) or second.cost < sol.cost):
             sol = second
             notes.append(f"warm start rejected ({why}); searched globally")

@@ -537,9 +537,13 @@ def _program(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps
     pad = px.padded
     key = (pad.cfg, table, float(opts.robust_scale), int(max_steps or opts.max_steps), float(opts.rtol),
            float(opts.atol), MAX_REJECTIONS if stall else None, jacobian, opt_level)
-    fixed = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k not in table.free}
-    args = (fixed, env, pad.bg, px.y, px.w, pad.base, (px.rows, px.cols, px.idx))
+    args = (_held(table, vals), env, pad.bg, px.y, px.w, pad.base, (px.rows, px.cols, px.idx))
     return key, args, px
+
+
+def _held(table: ParameterTable, vals: dict) -> dict:
+    """The values of ``vals`` that ``table`` holds, as the solve's programs take them (float32)."""
+    return {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k not in table.free}
 
 
 def prepare_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps=None,
@@ -556,9 +560,8 @@ def prepare_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_
 def prepare_reporter(table: ParameterTable, vals: dict) -> None:
     """Start compiling (or loading) :func:`reporter`'s programs in the background, for a
     solution of ``table`` held at ``vals`` (the standard errors, :mod:`._uncertainty`)."""
-    fixed = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k not in table.free}
     for program in reporter(table):
-        program.prepare(table.unconstrained(vals), fixed)
+        program.prepare(table.unconstrained(vals), _held(table, vals))
 
 
 def solve_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps=None,

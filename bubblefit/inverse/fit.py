@@ -85,7 +85,7 @@ FINAL_JACOBIAN = "columns"
 #: the final solve at level 1 made the first fit 1.4 s shorter on average over four pairs
 #: (2.0-2.5 s in three pairs on a loaded machine), and the search's solve at level 1 too
 #: 0.5-1.5 s shorter again (1.0-2.7 s less CPU) in three more; the warm fit as long within
-#: the noise (its solves 0.02-0.03 s longer), the same thickness within 1.3e-4 nm.
+#: the noise (its solves 0.02-0.03 s longer), the thickness 1.2e-4 nm from before.
 SEARCH_OPT_LEVEL = 1
 
 

@@ -217,7 +217,7 @@ def profile_solver(photo, env, bg, truth, out: Path, models=("paper", "physical"
         init = {"thickness_nm": truth["thickness_nm"] + 6.0, "roughness": 0.05}
         st = _setup.setup(photo, env, opts, bg, init, None, None)
         lev, table = st.lev_fit, st.table
-        fixed = {k: jnp.asarray(v, jnp.float32) for k, v in st.vals.items() if k not in table.free}
+        fixed = _local.held_values(table, st.vals)
         args = (fixed, env, None if lev.bg is None else jnp.asarray(lev.bg), jnp.asarray(lev.y), jnp.asarray(lev.w))
         z0 = jnp.asarray(table.unconstrained(st.vals), jnp.float32)
 

@@ -37,7 +37,8 @@ from ..model.render import RenderConfig, render_pixels
 
 __all__ = ["LocalSolution", "DenseDampedNewtonDescent", "LevenbergMarquardt", "column_jacobian", "columns_linearized",
            "scaled_decrement", "gauss_newton_decrement", "remaining_step", "presses_bound", "robust", "solver",
-           "batched_solver", "reporter", "prepare_reporter", "prepare_local", "solve_local", "cost", "solution_from"]
+           "batched_solver", "reporter", "held_values", "prepare_reporter", "prepare_local", "solve_local", "cost",
+           "solution_from"]
 
 
 def robust(r, scale):
@@ -537,12 +538,13 @@ def _program(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps
     pad = px.padded
     key = (pad.cfg, table, float(opts.robust_scale), int(max_steps or opts.max_steps), float(opts.rtol),
            float(opts.atol), MAX_REJECTIONS if stall else None, jacobian, opt_level)
-    args = (_held(table, vals), env, pad.bg, px.y, px.w, pad.base, (px.rows, px.cols, px.idx))
+    args = (held_values(table, vals), env, pad.bg, px.y, px.w, pad.base, (px.rows, px.cols, px.idx))
     return key, args, px
 
 
-def _held(table: ParameterTable, vals: dict) -> dict:
-    """The values of ``vals`` that ``table`` holds, as the solve's programs take them (float32)."""
+def held_values(table: ParameterTable, vals: dict) -> dict:
+    """The values of ``vals`` that ``table`` holds, as the solve's programs (batched too) and
+    :func:`reporter`'s take them (float32)."""
     return {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k not in table.free}
 
 
@@ -561,7 +563,7 @@ def prepare_reporter(table: ParameterTable, vals: dict) -> None:
     """Start compiling (or loading) :func:`reporter`'s programs in the background, for a
     solution of ``table`` held at ``vals`` (the standard errors, :mod:`._uncertainty`)."""
     for program in reporter(table):
-        program.prepare(table.unconstrained(vals), _held(table, vals))
+        program.prepare(table.unconstrained(vals), held_values(table, vals))
 
 
 def solve_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps=None,

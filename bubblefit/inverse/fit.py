@@ -49,8 +49,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import search
-from ._local import (DECREMENT_TOLERANCE, LocalSolution, batched_solver, prepare_local, prepare_reporter,
-                     remaining_step, reporter, solution_from, solve_local)
+from ._local import (DECREMENT_TOLERANCE, LocalSolution, batched_solver, held_values, prepare_local,
+                     prepare_reporter, remaining_step, reporter, solution_from, solve_local)
 from ._maps import fit_map
 from ._observation import (detect_disc, fitted_pixels, noise_sigma, prepare_render_bubble, render_bubble,
                            render_level)
@@ -370,7 +370,7 @@ def fit_batch(photos, env: EnvMap, *, options: FitOptions = FitOptions(), backgr
                         for p in photos[1:]]
     prev_vals = defaults(scene, previous, options, options.t_init)[0] if previous else None
     z0 = _batch_starts(first, len(photos), prev_vals)
-    fixed = {k: jnp.asarray(v, jnp.float32) for k, v in first.vals.items() if k not in table.free}
+    fixed = held_values(table, first.vals)
     union = np.logical_or.reduce([s.lev_fit.mask for s in setups])  # a frame's other pixels: weight 0
     pxs = [fitted_pixels(s.lev_fit, s.lev_fit.cfg.chunk, union) for s in setups]
     pad = pxs[0].padded

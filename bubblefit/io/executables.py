@@ -23,7 +23,7 @@ that called :func:`~bubblefit.io.jaxcache.jax_setup` (the command line and its w
 A program needed later can be started ahead (:meth:`Stored.prepare`): it is loaded or
 compiled in a background thread (:data:`COMPILE_THREADS` of them) while the caller goes
 on, and the call with arguments of the same shapes waits for it (the fit prepares its
-final solve and render before the global search).
+final solve, its final render and its standard errors' programs before the global search).
 
 Two things XLA:CPU needs, found by running it: an executable is serialised from a fresh
 compile (one that the persistent cache loaded loses its fused kernels), and the LAPACK

@@ -463,3 +463,29 @@ def test_constant_films_at_many_thicknesses_equal_their_renders(env64, model, sp
             np.testing.assert_allclose(got, want, rtol=2e-5, atol=2e-6 * float(np.abs(want).max()), err_msg=name)
     front = np.asarray(many["front"])[:, :npix]
     assert np.abs(front[1] - front[2]).max() > 0.05 * np.abs(front).max()  # the thickness matters
+
+
+def test_front_hits_of_an_orthographic_camera_are_its_disc_in_closed_form():
+    """Each pixel centre ``(x, y)`` in units of the disc's radius (row-major) hits the
+    unit sphere iff ``x^2 + y^2 < 1``, at the front point ``(x, y, sqrt(1 - x^2 - y^2))``
+    whose normal's cosine with the view is that height (float64 here, independently of the
+    renderer's rays). Every disc of a size is one compiled program: a fit's levels and
+    each photo's own disc reuse it."""
+    from bubblefit.model.geometry import _front_hits, front_hits
+
+    rng = np.random.default_rng(3)
+    compiled = _front_hits._cache_size()
+    for _ in range(4):
+        cx, cy, r = rng.uniform(8.0, 24.0), rng.uniform(6.0, 18.0), rng.uniform(3.0, 15.0)
+        inside, cos, local0 = (np.asarray(v) for v in front_hits(OrthographicCamera(31, 23, cx, cy, r),
+                                                                  (0.0, 0.0, 0.0), 1.0))
+        rows, cols = np.divmod(np.arange(31 * 23), 31)
+        x, y = (cols + 0.5 - cx) / r, -(rows + 0.5 - cy) / r
+        rho2 = x * x + y * y
+        clear = np.abs(rho2 - 1.0) > 1e-5  # pixel centres on the rim itself: either answer
+        np.testing.assert_array_equal(inside[clear], (rho2 < 1.0)[clear])
+        hit = inside & (rho2 < 1.0 - 1e-3)
+        np.testing.assert_allclose(cos[hit], np.sqrt(1.0 - rho2[hit]), atol=2e-5)
+        np.testing.assert_allclose(local0[hit], np.stack([x, y, np.sqrt(np.maximum(1.0 - rho2, 0.0))], -1)[hit], atol=2e-5)
+        assert np.all(cos[~inside] == 0.0)
+    assert _front_hits._cache_size() <= compiled + 1

@@ -75,8 +75,8 @@ class OrthographicCamera:
         r = 0.4 * min(self.width, self.height) if self.r is None else self.r
         return float(cx), float(cy), float(r)
 
-    def rays(self, rows: Array, cols: Array, center, radius, shift=None):
-        cx, cy, r = self.disc()
+    def rays(self, rows: Array, cols: Array, center, radius, shift=None, disc=None):
+        cx, cy, r = self.disc() if disc is None else disc
         x = (cols + 0.5 - cx) / r
         y = -(rows + 0.5 - cy) / r
         if shift is not None:
@@ -186,12 +186,25 @@ def intersect_sphere(o: Float[Array, "N 3"], d: Float[Array, "N 3"], center, rad
     return Hits(inside=inside, cos=cos, p0=p0, n0=local0, p1=p1, n1=local1, d=d, local0=local0, local1=local1)
 
 
-@functools.partial(jax.jit, static_argnames=("camera", "center", "radius"))
 def front_hits(camera, center: tuple, radius: float):
     """``(inside, cos, local0)`` of :func:`intersect_sphere` for the ray through every pixel
-    centre of ``camera`` (row-major, ``height x width`` rays), as one program per camera."""
+    centre of ``camera`` (row-major, ``height x width`` rays). An orthographic camera's disc,
+    the centre and the radius are the program's data, so that one program serves every
+    disc of a size (a fit's levels, each photo's own disc)."""
+    disc = None
+    if isinstance(camera, OrthographicCamera):
+        disc = jnp.asarray(camera.disc(), jnp.float32)
+        camera = OrthographicCamera(camera.width, camera.height)
+    return _front_hits(camera, disc, jnp.asarray(center, jnp.float32), jnp.asarray(radius, jnp.float32))
+
+
+@functools.partial(jax.jit, static_argnames=("camera",))
+def _front_hits(camera, disc, center, radius):
     rows, cols = jnp.divmod(jnp.arange(camera.height * camera.width), camera.width)
-    o, d = camera.rays(rows.astype(jnp.float32), cols.astype(jnp.float32), center, radius)
+    if disc is None:
+        o, d = camera.rays(rows.astype(jnp.float32), cols.astype(jnp.float32), center, radius)
+    else:
+        o, d = camera.rays(rows.astype(jnp.float32), cols.astype(jnp.float32), center, radius, disc=disc)
     hits = intersect_sphere(o, jnp.broadcast_to(d, o.shape), center, radius)
     return hits.inside, hits.cos, hits.local0
 

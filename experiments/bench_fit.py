@@ -276,14 +276,14 @@ def compile_profile(photo, env, bg, out: Path, models=("paper", "physical"), rep
     import jax
 
     from bubblefit.inverse import _local, _setup
-    from bubblefit.inverse.fit import FINAL_JACOBIAN, SEARCH_OPT_LEVEL, FitOptions
+    from bubblefit.inverse.fit import FINAL_COMPILE, FINAL_JACOBIAN, FitOptions
 
     rows = []
     for model in models:
         opts = FitOptions(model=model)
         st = _setup.setup(photo, env, opts, bg, None, None, None)
         key, a, _ = _local._program(st.lev_fit, st.table, opts, st.vals, env, None, True, FINAL_JACOBIAN,
-                                    SEARCH_OPT_LEVEL)
+                                    FINAL_COMPILE)
         solve, resid = _local.solver.__wrapped__(*key)  # fresh jitted functions, compiled here
         z0 = st.table.unconstrained(st.vals)
         groups = st.table.jacobian_groups

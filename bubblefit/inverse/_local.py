@@ -451,10 +451,10 @@ def presses_bound(name: str, v, slope, step, se, sign=np.sign):
 
 @functools.lru_cache(maxsize=64)
 def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_steps: int, rtol: float, atol: float,
-           max_rejections: int | None = MAX_REJECTIONS, jacobian: str = "groups", opt_level: int | None = None):
+           max_rejections: int | None = MAX_REJECTIONS, jacobian: str = "groups", compile_options: tuple = ()):
     """Jitted ``solve(z0, args) -> (z, ok, maxed, steps, residual, J)`` and ``resid``
-    (``jacobian``: a key of :data:`JACOBIANS`; ``opt_level``: XLA's backend optimisation
-    level for the solve's program, None for XLA's default, 2).
+    (``jacobian``: a key of :data:`JACOBIANS`; ``compile_options``: XLA's compiler options
+    for the solve's program as ``(name, value)`` pairs, ``()`` for XLA's defaults).
 
     ``args = (fixed, env, background, photo, weights, base, (rows, cols, idx))``: the
     fitted pixels of a padded level (:func:`~bubblefit.inverse._observation.fitted_pixels`);
@@ -472,9 +472,7 @@ def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_st
     lm = LevenbergMarquardt(rtol=rtol, atol=atol, max_rejections=max_rejections, free=table.free,
                             jacobian=JACOBIANS[jacobian](resid, table))
 
-    options = None if opt_level is None else {"xla_backend_optimization_level": int(opt_level)}
-
-    @functools.partial(jax.jit, compiler_options=options)
+    @functools.partial(jax.jit, compiler_options=dict(compile_options) or None)
     def solve(z0, args):
         sol = optx.least_squares(resid, lm, z0, args, max_steps=max_steps, throw=False)
         # The last accepted point's residual and Jacobian, which the solver evaluated there
@@ -530,14 +528,14 @@ def solution_from(table: ParameterTable, vals: dict, z, ok, maxed, steps, r, jac
 
 
 def _program(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps, stall: bool, jacobian: str,
-             opt_level: int | None = None):
+             compile_options: tuple = ()):
     """``(key, args, pixels)``: the key of :func:`solve_local`'s solve for ``lev``
     (:func:`solver`'s arguments) and the arguments it takes besides the start (the held
     ``vals`` and the level's fitted pixels)."""
     px = fitted_pixels(lev, lev.cfg.chunk)
     pad = px.padded
     key = (pad.cfg, table, float(opts.robust_scale), int(max_steps or opts.max_steps), float(opts.rtol),
-           float(opts.atol), MAX_REJECTIONS if stall else None, jacobian, opt_level)
+           float(opts.atol), MAX_REJECTIONS if stall else None, jacobian, tuple(compile_options))
     args = (held_values(table, vals), env, pad.bg, px.y, px.w, pad.base, (px.rows, px.cols, px.idx))
     return key, args, px
 
@@ -549,13 +547,13 @@ def held_values(table: ParameterTable, vals: dict) -> dict:
 
 
 def prepare_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps=None,
-                  stall: bool = True, jacobian: str = "groups", opt_level: int | None = None) -> None:
+                  stall: bool = True, jacobian: str = "groups", compile_options: tuple = ()) -> None:
     """Start compiling (or loading) the program of :func:`solve_local` with these arguments
     in the background (:meth:`bubblefit.io.executables.Stored.prepare`): a fit calls it for
     its final solve before the global search, whose own programs compile meanwhile. Only
     the shapes of ``vals`` and the level count; without the executable store (library
     calls) the program is compiled in the background all the same, not saved."""
-    key, args, _ = _program(lev, table, opts, vals, env, max_steps, stall, jacobian, opt_level)
+    key, args, _ = _program(lev, table, opts, vals, env, max_steps, stall, jacobian, compile_options)
     stored_solver(*key).prepare(table.unconstrained(vals), args)
 
 
@@ -567,13 +565,13 @@ def prepare_reporter(table: ParameterTable, vals: dict) -> None:
 
 
 def solve_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps=None,
-                stall: bool = True, jacobian: str = "groups", opt_level: int | None = None) -> LocalSolution:
+                stall: bool = True, jacobian: str = "groups", compile_options: tuple = ()) -> LocalSolution:
     """Levenberg-Marquardt from ``vals`` on ``lev`` (``opts``: a ``FitOptions``); with
     ``stall`` it stops after :data:`MAX_REJECTIONS` rejections and restarts while far from
     the optimum, without it runs optimistix' own stopping rule alone (warm starts).
-    ``jacobian`` (a key of :data:`JACOBIANS`) says how its Jacobian is computed, ``opt_level``
-    how hard XLA optimises its program (:func:`solver`)."""
-    key, args, px = _program(lev, table, opts, vals, env, max_steps, stall, jacobian, opt_level)
+    ``jacobian`` (a key of :data:`JACOBIANS`) says how its Jacobian is computed,
+    ``compile_options`` how XLA compiles its program (:func:`solver`)."""
+    key, args, px = _program(lev, table, opts, vals, env, max_steps, stall, jacobian, compile_options)
     solve, fixed = stored_solver(*key), args[0]
     sol = solution_from(table, vals, *solve(table.unconstrained(vals), args), fixed, lev, px)
     # A solve stopped by rejections early on (a trust region still far too large) starts

@@ -76,17 +76,23 @@ WARM_START_CHI2 = 4.0
 #: 64x64 frames pinned to one core the columns made 5.24 and 4.36 frames/s against 5.66
 #: and 4.93 by groups (alternate runs).
 FINAL_JACOBIAN = "columns"
-#: XLA's backend optimisation level for the solves of a fit that searches globally: the
-#: search's and the final one (None: XLA's default, 2; a warm-started fit, a sequence's
-#: frame, keeps it). On an empty cache their compiles are most of the first fit, and at
-#: level 1 the final solve's takes about a fifth less CPU (7.8-7.9 s against 9.6-10.5 s,
-#: compiled alone) for a run about a tenth longer (0.49-0.55 s against 0.42-0.47 s from
-#: the set-up's values). In alternate processes (``bench_fit.py --stages --empty-cache``)
-#: the final solve at level 1 made the first fit 1.4 s shorter on average over four pairs
-#: (2.0-2.5 s in three pairs on a loaded machine), and the search's solve at level 1 too
-#: 0.5-1.5 s shorter again (1.0-2.7 s less CPU) in three more; the warm fit as long within
-#: the noise (its solves 0.02-0.03 s longer), the thickness 1.2e-4 nm from before.
-SEARCH_OPT_LEVEL = 1
+#: XLA's compiler options (``(name, value)`` pairs) for the solves of a fit that searches
+#: globally: the search's and the final one (a warm-started fit, a sequence's frame, keeps
+#: XLA's defaults: there the run counts more than the compile). On an empty cache these
+#: compiles are most of the first fit, so both solves are compiled at XLA's backend
+#: optimisation level 1 (its default is 2) and with XLA:CPU's older per-element emitters
+#: for fused loops instead of its MLIR fusion emitters (``xla_cpu_use_fusion_emitters``).
+#: Compiled alone, the emitters took the final solve's compile CPU from 7.6-7.9 s to
+#: 5.6-5.7 s for a run from the set-up's values of 0.55-0.59 s against 0.49 s, and the
+#: search solve's from 4.9-5.0 s to 3.2-3.3 s for the same run (level 1 alone had taken
+#: the final solve's from 9.6-10.5 s to 7.8-7.9 s). In alternate processes
+#: (``experiments/bench_fit.py --stages --empty-cache``, three rounds) the first fit took
+#: 13.7-13.9 s with level 1 alone, 11.9-12.2 s with the older emitters for the search's
+#: solve (and :data:`~bubblefit.model.render.TERMS_COMPILE`), and 10.5-11.0 s with them
+#: for both solves (18.4-19.2 s of CPU against 24.8-25.3 s); the warm fit 0.86-0.87 s,
+#: 0.87-0.96 s and 0.89-0.91 s.
+FINAL_COMPILE = (("xla_backend_optimization_level", 1), ("xla_cpu_use_fusion_emitters", False))
+SEARCH_COMPILE = FINAL_COMPILE
 
 
 # ---------------------------------------------------------------------------------------
@@ -120,7 +126,7 @@ def _searched_start(st: Setup, opts: FitOptions, env) -> dict:
     best_v, best_c = None, np.inf
     for s in starts:
         sol = solve_local(lev_s, st.search_table, opts, s, env, max_steps=opts.search_steps,
-                          opt_level=SEARCH_OPT_LEVEL)
+                          compile_options=SEARCH_COMPILE)
         if np.isfinite(sol.cost) and sol.cost < best_c:
             best_v, best_c = sol.values, sol.cost
     return best_v if best_v is not None else starts[0]
@@ -252,12 +258,12 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     notes = []
     search_thickness = "thickness_nm" in st.table.free or "top_nm" in st.table.free
     warm = bool(init)
-    jacobian, opt_level = ("groups", None) if warm else (FINAL_JACOBIAN, SEARCH_OPT_LEVEL)
+    jacobian, compile_options = ("groups", ()) if warm else (FINAL_JACOBIAN, FINAL_COMPILE)
     if search_thickness and not warm:
         # The final solve's program, the final render's and the standard errors' compile in
         # the background meanwhile (on 2 cores an empty-cache fit takes about 4 s less:
         # experiments/bench_fit.py --background-compile).
-        prepare_local(st.lev_fit, st.table, opts, st.vals, env, jacobian=jacobian, opt_level=opt_level)
+        prepare_local(st.lev_fit, st.table, opts, st.vals, env, jacobian=jacobian, compile_options=compile_options)
         if opts.thickness != "map":
             prepare_render_bubble(_final_params(st.table, st.vals, opts), st.level(1, opts), env)
         prepare_reporter(st.table, st.vals)
@@ -267,14 +273,14 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
         start = st.vals
     with stage(f"local fit, {len(st.table.free)} parameters"):
         sol = solve_local(st.lev_fit, st.table, opts, start, env, stall=not warm, jacobian=jacobian,
-                          opt_level=opt_level)
+                          compile_options=compile_options)
     why = _warm_doubt(st, opts, sol) if warm and search_thickness else None
     if why:
         # A warm start can settle in a neighbouring colour order: search globally and keep
         # whichever fit explains the photo better.
         with stage(f"warm start doubtful ({why}): global search and local fit"):
             second = solve_local(st.lev_fit, st.table, opts, _searched_start(st, opts, env), env,
-                                 jacobian=jacobian, opt_level=opt_level)
+                                 jacobian=jacobian, compile_options=compile_options)
         if np.isfinite(second.cost) and (not np.isfinite(sol.cost) or second.cost < sol.cost):
             sol = second
             notes.append(f"warm start rejected ({why}); searched globally")

@@ -629,12 +629,24 @@ def _stored_programs(cfg: RenderConfig):
     return stored(whole, "model.render.render", cfg), stored(chunks, "model.render._render_chunks", cfg)
 
 
+#: XLA's compiler options (``(name, value)`` pairs) for :func:`render_terms`'s stored
+#: program. A fit runs it once, on the few thousand pixels of its search image (the global
+#: search's unlit terms), on the first fit's critical path; so it is compiled at XLA's
+#: backend optimisation level 0 and with XLA:CPU's older per-element emitters for fused
+#: loops (``xla_cpu_use_fusion_emitters``): 0.22 s of compile CPU against 1.04-1.07 s
+#: with XLA's defaults, for a run of 30 ms against 8 ms (the search level of
+#: ``experiments/bench_fit.py``'s 320x320 photo, compiled alone).
+TERMS_COMPILE = (("xla_backend_optimization_level", 0), ("xla_cpu_use_fusion_emitters", False))
+
+
 @functools.lru_cache(maxsize=16)
 def _stored_terms(cfg: RenderConfig):
-    """:func:`render_terms` for ``cfg`` through the executable store."""
+    """:func:`render_terms` for ``cfg`` through the executable store, compiled with
+    :data:`TERMS_COMPILE`."""
     from ..io.executables import stored
 
-    return stored(jax.jit(lambda p, env, bg: render_terms(p, cfg, env, bg)), "model.render.render_terms", cfg)
+    program = jax.jit(lambda p, env, bg: render_terms(p, cfg, env, bg), compiler_options=dict(TERMS_COMPILE))
+    return stored(program, "model.render.render_terms", (cfg, TERMS_COMPILE))
 
 
 def render_loaded(p: Params, cfg: RenderConfig, env: EnvMap | None, background=None, *, terms: bool = False,

@@ -76,6 +76,8 @@ class OrthographicCamera:
         return float(cx), float(cy), float(r)
 
     def rays(self, rows: Array, cols: Array, center, radius, shift=None, disc=None):
+        """``(origins, direction)`` of the rays through pixels ``rows``, ``cols``; ``disc``
+        (``(cx, cy, r)``, may be traced) stands for :meth:`disc`'s values."""
         cx, cy, r = self.disc() if disc is None else disc
         x = (cols + 0.5 - cx) / r
         y = -(rows + 0.5 - cy) / r

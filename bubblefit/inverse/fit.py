@@ -81,11 +81,12 @@ FINAL_JACOBIAN = "columns"
 #: XLA's defaults: there the run counts more than the compile). On an empty cache these
 #: compiles are most of the first fit, so both solves are compiled at XLA's backend
 #: optimisation level 1 (its default is 2) and with XLA:CPU's older per-element emitters
-#: for fused loops instead of its MLIR fusion emitters (``xla_cpu_use_fusion_emitters``).
-#: Compiled alone, the emitters took the final solve's compile CPU from 7.6-7.9 s to
-#: 5.6-5.7 s for a run from the set-up's values of 0.55-0.59 s against 0.49 s, and the
-#: search solve's from 4.9-5.0 s to 3.2-3.3 s for the same run (level 1 alone had taken
-#: the final solve's from 9.6-10.5 s to 7.8-7.9 s). In alternate processes
+#: for fused loops instead of its MLIR fusion emitters (``xla_cpu_use_fusion_emitters``,
+#: an option of the pinned jaxlib; a jaxlib without it refuses the compile). Compiled
+#: alone, the emitters took the final solve's compile CPU from 7.6-7.9 s to 5.6-5.7 s for
+#: a run from the set-up's values of 0.55-0.59 s against 0.49 s, and the search solve's
+#: from 4.9-5.0 s to 3.2-3.3 s for the same run (level 1 alone had taken the final
+#: solve's from 9.6-10.5 s to 7.8-7.9 s). In alternate processes
 #: (``experiments/bench_fit.py --stages --empty-cache``, three rounds) the first fit took
 #: 13.7-13.9 s with level 1 alone, 11.9-12.2 s with the older emitters for the search's
 #: solve (and :data:`~bubblefit.model.render.TERMS_COMPILE`), and 10.5-11.0 s with them

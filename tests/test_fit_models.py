@@ -253,3 +253,20 @@ def test_outliers_are_told_apart_from_a_misfit():
 
     ok3, warn3 = judge(misfit(solve(noise), lev, 1e6, 0.03, 2))  # the noise alone
     assert ok3 and warn3 == []
+
+
+def test_auto_never_prefers_a_failed_fit_for_its_small_residual():
+    """``model = "auto"`` compares the two models' capped reduced chi^2; a fit whose solve
+    failed scores infinity whatever chi^2 it reports (a failed solve can report a zero
+    residual), so a fit that merely stopped short is kept before it."""
+    from bubblefit.inverse.fit import _judged_chi2
+    from bubblefit.inverse._options import FitResult
+
+    def result(status, chi2):
+        return FitResult(params={}, stderr={}, held=[], converged=status == "converged", message="", iterations=3,
+                         residual_rms=0.0, time_s=0.0, effects=[], render=np.zeros((1, 1, 3)),
+                         residual=np.zeros((1, 1, 3)), status=status, chi2_capped=chi2)
+
+    assert _judged_chi2(result("max_steps", 5.5)) == 5.5
+    assert _judged_chi2(result("failed", 0.0)) == float("inf")
+    assert _judged_chi2(result("converged", float("nan"))) == float("inf")

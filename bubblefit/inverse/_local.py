@@ -564,6 +564,15 @@ def prepare_reporter(table: ParameterTable, vals: dict) -> None:
         program.prepare(table.unconstrained(vals), held_values(table, vals))
 
 
+def improves(restart: LocalSolution, sol: LocalSolution) -> bool:
+    """Whether a fresh start from ``sol``'s end (:func:`solve_local`) is kept: it met its
+    tolerances with a finite cost no larger than ``sol``'s. A solve that failed is not
+    kept whatever its cost: one that accepted no point reports the solver's initial
+    residual, zeros, whose cost of 0 would otherwise win (on a rotated map's photo, a
+    failed restart turned a converged physical fit into a failed one with chi^2 0)."""
+    return bool(restart.successful) and bool(np.isfinite(restart.cost)) and restart.cost <= sol.cost
+
+
 def solve_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps=None,
                 stall: bool = True, jacobian: str = "groups", compile_options: tuple = ()) -> LocalSolution:
     """Levenberg-Marquardt from ``vals`` on ``lev`` (``opts``: a ``FitOptions``); with
@@ -583,7 +592,7 @@ def solve_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_st
             break
         nxt = solution_from(table, sol.values, *solve(jnp.asarray(sol.z, jnp.float32), args), fixed, lev, px)
         steps += nxt.steps
-        if not np.isfinite(nxt.cost) or nxt.cost > sol.cost:
+        if not improves(nxt, sol):
             break
         sol = nxt
     sol.steps = steps

@@ -295,8 +295,17 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
 def _judged_chi2(r: FitResult) -> float:
     """The misfit ``auto`` compares: the reduced chi^2 with the model-error floor, each
     pixel's share capped at an outlier's (:func:`bubblefit.inverse._uncertainty.misfit`),
-    so that glints both models point-sample do not decide between them."""
-    return float(r.chi2_capped) if np.isfinite(r.chi2_capped) else float("inf")
+    so that glints both models point-sample do not decide between them. A failed fit
+    (diverged, a non-finite residual, a singular Jacobian) scores infinity, whatever its
+    residual says."""
+    if r.status == "failed" or not np.isfinite(r.chi2_capped):
+        return float("inf")
+    return float(r.chi2_capped)
+
+
+def _judged_text(r: FitResult) -> str:
+    """:func:`_judged_chi2` as ``auto``'s message writes it ("failed" for a failed fit)."""
+    return "failed" if r.status == "failed" else f"{_judged_chi2(r):.3g}"
 
 
 def _explained(r: FitResult, opts: FitOptions) -> bool:
@@ -327,11 +336,11 @@ def _fit_either_model(photo, env, options: FitOptions, background, init, scene, 
         return first
     start = {k: v for k, v in first.params.items() if np.isfinite(v)} if first.converged else init
     c1 = _judged_chi2(first)
-    with stage(f"physical model (the paper model's reduced chi^2 {c1:.3g} with the floor, capped)"):
+    with stage(f"physical model (the paper model's reduced chi^2 {_judged_text(first)} with the floor, capped)"):
         second = fit_photo(photo, env, options=replace(options, model="physical"), init=start, **kw)
     c2 = _judged_chi2(second)
     best = second if (not second.converged, c2) < (not first.converged, c1) else first
-    best.message += (f"; model auto: paper reduced chi^2 {c1:.3g}, physical {c2:.3g} "
+    best.message += (f"; model auto: paper reduced chi^2 {_judged_text(first)}, physical {_judged_text(second)} "
                      f"(with the floor, each pixel capped at an outlier's share): kept the {best.model} model")
     best.time_s = time.perf_counter() - t0
     return best

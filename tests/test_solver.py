@@ -198,17 +198,19 @@ def test_column_jacobian_is_the_derivative():
 def test_a_restart_is_kept_only_when_it_succeeded_and_did_not_raise_the_cost():
     """``solve_local`` restarts a solve that stopped far from its optimum. A restart that
     failed is dropped even when its reported residual is smaller: a solve that accepted
-    no point reports zeros, a cost of 0. A successful one is kept when its cost is no
-    larger, and dropped when larger or not finite."""
+    no point reports zeros, a cost of 0. One that met its tolerances or ran out of steps
+    is kept when its cost is no larger, and dropped when larger or not finite."""
     from bubblefit.inverse._local import LocalSolution, improves
 
-    def sol(residual, ok=True):
+    def sol(residual, ok=True, maxed=False):
         r = np.asarray(residual, np.float64)
-        return LocalSolution({}, np.zeros(2), ok, False, 3, r, np.zeros((r.size, 2)), {})
+        return LocalSolution({}, np.zeros(2), ok, maxed, 3, r, np.zeros((r.size, 2)), {})
 
     first = sol([1.0, -2.0, 0.5])
     assert improves(sol([0.5, -1.0, 0.5]), first)
     assert improves(sol([1.0, -2.0, 0.5]), first)
+    assert improves(sol([0.5, -1.0, 0.5], ok=False, maxed=True), first)  # out of steps, still descending
+    assert not improves(sol([3.0, 0.0, 0.0], ok=False, maxed=True), first)
     assert not improves(sol([0.0, 0.0, 0.0], ok=False), first)
     assert not improves(sol([0.5, -1.0, 0.5], ok=False), first)
     assert not improves(sol([3.0, 0.0, 0.0]), first)

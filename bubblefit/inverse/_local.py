@@ -566,11 +566,13 @@ def prepare_reporter(table: ParameterTable, vals: dict) -> None:
 
 def improves(restart: LocalSolution, sol: LocalSolution) -> bool:
     """Whether a fresh start from ``sol``'s end (:func:`solve_local`) is kept: it met its
-    tolerances with a finite cost no larger than ``sol``'s. A solve that failed is not
-    kept whatever its cost: one that accepted no point reports the solver's initial
-    residual, zeros, whose cost of 0 would otherwise win (on a rotated map's photo, a
-    failed restart turned a converged physical fit into a failed one with chi^2 0)."""
-    return bool(restart.successful) and bool(np.isfinite(restart.cost)) and restart.cost <= sol.cost
+    tolerances or ran out of steps (a search's solve, limited to a few steps, often does
+    while still descending), with a finite cost no larger than ``sol``'s. A solve that
+    failed is not kept whatever its cost: one that accepted no point reports the solver's
+    initial residual, zeros, whose cost of 0 would otherwise win (on a rotated map's photo,
+    a failed restart turned a converged physical fit into a failed one with chi^2 0)."""
+    ended = bool(restart.successful) or bool(restart.max_steps_reached)
+    return ended and bool(np.isfinite(restart.cost)) and restart.cost <= sol.cost
 
 
 def solve_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps=None,

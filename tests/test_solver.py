@@ -195,7 +195,7 @@ def test_column_jacobian_is_the_derivative():
     np.testing.assert_allclose(b, a, rtol=1e-5, atol=1e-6)
 
 
-def test_a_restart_is_kept_only_when_it_succeeded_and_did_not_raise_the_cost():
+def test_a_failed_restart_is_never_kept_and_a_kept_one_does_not_raise_the_cost():
     """``solve_local`` restarts a solve that stopped far from its optimum. A restart that
     failed is dropped even when its reported residual is smaller: a solve that accepted
     no point reports zeros, a cost of 0. One that met its tolerances or ran out of steps

@@ -197,9 +197,9 @@ def test_column_jacobian_is_the_derivative():
 
 def test_a_failed_restart_is_never_kept_and_a_kept_one_does_not_raise_the_cost():
     """``solve_local`` restarts a solve that stopped far from its optimum. A restart that
-    failed is dropped even when its reported residual is smaller: a solve that accepted
-    no point reports zeros, a cost of 0. One that met its tolerances or ran out of steps
-    is kept when its cost is no larger, and dropped when larger or not finite."""
+    failed is dropped even when its reported residual is smaller (a diverged render's
+    residual once read as zeros, a cost of 0). One that met its tolerances or ran out of
+    steps is kept when its cost is no larger, and dropped when larger or not finite."""
     from bubblefit.inverse._local import LocalSolution, improves
 
     def sol(residual, ok=True, maxed=False):
@@ -215,3 +215,19 @@ def test_a_failed_restart_is_never_kept_and_a_kept_one_does_not_raise_the_cost()
     assert not improves(sol([0.5, -1.0, 0.5], ok=False), first)
     assert not improves(sol([3.0, 0.0, 0.0]), first)
     assert not improves(sol([np.nan, 0.0, 0.0]), first)
+
+
+def test_robust_residual_is_the_pseudo_huber_residual_up_to_overflow():
+    """``robust`` is ``sign(r) sqrt(2 rho(r))`` with the pseudo-Huber ``rho(r) = s^2
+    (sqrt(1 + (r/s)^2) - 1)`` (float64 here) from 1e-3 to float32's largest values: a
+    diverged render's residual stays large, never 0, and its gradient finite."""
+    from bubblefit.inverse._local import robust
+
+    s = 3.0
+    r = np.concatenate([-np.logspace(-3, 38, 200), np.logspace(-3, 38, 200)])
+    rho = s * s * (np.sqrt(1.0 + (r / s) ** 2) - 1.0)
+    exact = np.sign(r) * np.sqrt(2.0 * rho)
+    got = np.asarray(robust(jnp.asarray(r, jnp.float32), s), np.float64)
+    np.testing.assert_allclose(got, exact, rtol=2e-6)
+    grad = np.asarray(jax.vmap(jax.grad(lambda x: robust(x, s)))(jnp.asarray(r, jnp.float32)))
+    assert np.all(np.isfinite(grad)) and np.all(grad > 0)

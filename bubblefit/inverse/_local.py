@@ -41,15 +41,30 @@ __all__ = ["LocalSolution", "DenseDampedNewtonDescent", "LevenbergMarquardt", "c
            "solution_from"]
 
 
+#: ``|r| / scale`` beyond which :func:`robust` takes its asymptote: far below the square
+#: root of float32's largest value (1.8e19), where ``(r / scale)^2`` overflows, and far
+#: above where the asymptote differs from the exact value in float32 (``1 / a``).
+ROBUST_ASYMPTOTE = 1e15
+
+
 def robust(r, scale):
     """Pseudo-Huber residual ``sign(r) sqrt(2 rho(r))``, written to stay smooth at 0.
+
+    Beyond :data:`ROBUST_ASYMPTOTE` it is ``sign(r) sqrt(2 scale |r|)``, the same to
+    float32's precision; the exact form's ``(r / scale)^2`` overflows there and made a
+    render that diverged (residuals of 5e19) read as a residual of 0, a perfect fit. Each
+    form sees only the values it is used for, so that values and gradients stay finite.
 
     References
     ----------
     Hartley & Zisserman, *Multiple View Geometry*, 2nd ed., appendix A6.8 (pseudo-Huber cost).
     """
-    x2 = (r / scale) ** 2
-    return r * jnp.sqrt(2.0 / (jnp.sqrt(1.0 + x2) + 1.0))
+    far = jnp.abs(r) > ROBUST_ASYMPTOTE * scale
+    near_r = jnp.where(far, 0.0, r)
+    far_r = jnp.where(far, r, ROBUST_ASYMPTOTE * scale)
+    x2 = (near_r / scale) ** 2
+    near = near_r * jnp.sqrt(2.0 / (jnp.sqrt(1.0 + x2) + 1.0))
+    return jnp.where(far, jnp.sign(far_r) * jnp.sqrt(2.0 * scale) * jnp.sqrt(jnp.abs(far_r)), near)
 
 
 @dataclass
@@ -568,9 +583,10 @@ def improves(restart: LocalSolution, sol: LocalSolution) -> bool:
     """Whether a fresh start from ``sol``'s end (:func:`solve_local`) is kept: it met its
     tolerances or ran out of steps (a search's solve, limited to a few steps, often does
     while still descending), with a finite cost no larger than ``sol``'s. A solve that
-    failed is not kept whatever its cost: one that accepted no point reports the solver's
-    initial residual, zeros, whose cost of 0 would otherwise win (on a rotated map's photo,
-    a failed restart turned a converged physical fit into a failed one with chi^2 0)."""
+    failed is not kept whatever its cost: the point it reports is not one it vouches for
+    (on a rotated map's photo a failed restart, whose render had diverged and whose
+    residual then read as zeros before :func:`robust` took its asymptote, turned a
+    converged physical fit into a failed one with chi^2 0)."""
     ended = bool(restart.successful) or bool(restart.max_steps_reached)
     return ended and bool(np.isfinite(restart.cost)) and restart.cost <= sol.cost
 

@@ -257,8 +257,8 @@ def test_outliers_are_told_apart_from_a_misfit():
 
 def test_auto_never_prefers_a_failed_fit_for_its_small_residual():
     """``model = "auto"`` compares the two models' capped reduced chi^2; a fit whose solve
-    failed scores infinity whatever chi^2 it reports (a failed solve can report a zero
-    residual), so a fit that merely stopped short is kept before it."""
+    failed scores infinity whatever chi^2 it reports (the point a failed solve reports is
+    not one it vouches for), so a fit that merely stopped short is kept before it."""
     from bubblefit.inverse.fit import _judged_chi2
     from bubblefit.inverse._options import FitResult
 

@@ -116,7 +116,7 @@ def test_given_disc_is_held(off_grid_photo):
 
 
 def test_gauss_newton_decrement_is_the_linear_drop():
-    from bubblefit.inverse._local import gauss_newton_decrement
+    from bubblefit.inverse._lm import gauss_newton_decrement
 
     rng = np.random.default_rng(0)
     a = rng.normal(size=(200, 4))

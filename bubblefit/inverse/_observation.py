@@ -25,12 +25,11 @@ from scipy import ndimage as ndi
 from ..capture.calibrate import detect_bubble, usable_mask
 from ..errors import InputError
 from ..io.images import srgb_encode, srgb_slope
-from ..model.geometry import OrthographicCamera, canonical_frame, compose_shift, front_hits
-from ..model.render import RenderConfig, prepare_loaded, render_loaded
+from ..model.geometry import OrthographicCamera, canonical_frame, front_hits
+from ..model.render import RenderConfig
 
 __all__ = ["Level", "Frame", "noise_sigma", "saturation_mask", "detect_disc", "make_level", "film_geometry",
-           "block_mean", "analysis_frame", "Padded", "padded", "unpadded", "render_level", "prepare_render_level",
-           "render_bubble", "prepare_render_bubble",
+           "block_mean", "analysis_frame", "Padded", "padded", "unpadded",
            "padded_size", "Pixels", "fitted_pixels"]
 
 
@@ -272,79 +271,6 @@ def unpadded(lev: Level, a) -> np.ndarray:
     (numpy, ``(h, w, ...)``): the padding at the bottom and right dropped."""
     h, w = lev.y.shape[:2]
     return np.asarray(a)[:h, :w]
-
-
-def render_level(p, lev: Level, env, cfg: RenderConfig | None = None, terms: bool = False):
-    """:func:`~bubblefit.model.render.render_loaded` of ``lev`` (with ``cfg``, another
-    configuration of the same camera) through its padded program: ``p``'s disc refinement
-    is composed with the level's disc; the image (and with ``terms`` the dict of terms) on
-    ``lev``'s pixels."""
-    pad, p = _padded_params(p, lev, cfg)
-    out = render_loaded(p, pad.cfg, env, pad.bg, terms=terms)
-    if terms:
-        return unpadded(lev, out[0]), {k: unpadded(lev, v) for k, v in out[1].items()}
-    return unpadded(lev, out)
-
-
-def prepare_render_level(p, lev: Level, env, cfg: RenderConfig | None = None, terms: bool = False) -> None:
-    """Start compiling (or loading) :func:`render_level`'s program for these arguments in
-    the background (:func:`~bubblefit.model.render.prepare_loaded`); only their shapes count."""
-    pad, p = _padded_params(p, lev, cfg)
-    prepare_loaded(p, pad.cfg, env, pad.bg, terms=terms)
-
-
-#: Pixels beyond the disc's rim that :func:`render_bubble` still renders: the sub-pixel
-#: rays of ``samples_per_pixel`` reach half a pixel's diagonal, and float32 rounding.
-RIM_MARGIN_PX = 1.5
-
-
-def _bubble_list(p, lev: Level) -> tuple[Padded, Pixels | None, object]:
-    """``(padded level, list, p)`` for :func:`render_bubble`: the pixels whose centre lies
-    within :data:`RIM_MARGIN_PX` of the disc that ``p``'s refinement moves the level's disc
-    to (``None`` where the shortcut does not apply: not an orthographic camera, or a
-    background other than the photo's), and ``p`` with that refinement composed."""
-    pad, q = _padded_params(p, lev, None)
-    if not (isinstance(pad.cfg.camera, OrthographicCamera) and pad.bg is not None
-            and lev.cfg.effects.background == "photo"):
-        return pad, None, q
-    cx0, cy0, r0 = pad.cfg.camera.disc()
-    a, b, s = (float(v) for v in np.asarray(q.disc))
-    h, w = lev.y.shape[:2]
-    rows, cols = np.mgrid[:h, :w]
-    near = np.hypot(cols + 0.5 - (cx0 + a * r0), rows + 0.5 - (cy0 + b * r0)) <= r0 * (1.0 + s) + RIM_MARGIN_PX
-    return pad, fitted_pixels(lev, lev.cfg.chunk, near), q
-
-
-def render_bubble(p, lev: Level, env) -> np.ndarray:
-    """:func:`render_level`'s image of ``lev`` (numpy, float32), with only the pixels the
-    bubble can reach rendered (:func:`_bubble_list`): outside them the image is the
-    background photo, which is what the render's composite puts where a ray misses the
-    bubble. On a disc that fills 55 % of the photo, 0.20 s against 0.28 s for 320x320
-    pixels; the same values wherever the shortcut does not apply."""
-    pad, px, q = _bubble_list(p, lev)
-    if px is None:
-        return render_level(p, lev, env)
-    vals = np.asarray(render_loaded(q, pad.cfg, env, pad.bg, pixels=(px.rows, px.cols, px.idx)))
-    img = np.array(lev.bg, np.float32).reshape(-1, 3)
-    img[px.flat] = vals[: px.flat.size]
-    return img.reshape(lev.bg.shape)
-
-
-def prepare_render_bubble(p, lev: Level, env) -> None:
-    """Start compiling (or loading) :func:`render_bubble`'s program in the background: for
-    the list of ``p``'s disc (a refined disc whose list pads to another length compiles
-    its own)."""
-    pad, px, q = _bubble_list(p, lev)
-    if px is None:
-        prepare_render_level(p, lev, env)
-    else:
-        prepare_loaded(q, pad.cfg, env, pad.bg, pixels=(px.rows, px.cols, px.idx))
-
-
-def _padded_params(p, lev: Level, cfg: RenderConfig | None):
-    """``lev`` (with ``cfg``) padded, and ``p`` with its disc refinement composed with the level's."""
-    pad = padded(replace(lev, cfg=cfg) if cfg is not None else lev)
-    return pad, replace(p, disc=compose_shift(pad.base, np.asarray(p.disc, np.float32)))
 
 
 @dataclass

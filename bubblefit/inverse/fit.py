@@ -49,11 +49,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import search
-from ._local import (DECREMENT_TOLERANCE, LocalSolution, batched_solver, held_values, prepare_local,
-                     prepare_reporter, remaining_step, reporter, solution_from, solve_local)
+from ._local import DECREMENT_TOLERANCE, LocalSolution, remaining_step, solution_from, solve_local
 from ._maps import fit_map
-from ._observation import (detect_disc, fitted_pixels, noise_sigma, prepare_render_bubble, render_bubble,
-                           render_level)
+from ._observation import detect_disc, fitted_pixels, noise_sigma
+from ._programs import (FINAL_SOLVE, SEARCH_SOLVE, WARM_SOLVE, SolveSettings, batched_solver, final_params,
+                        held_values, render_bubble, render_level, reporter, warm_up)
 from ._options import FitOptions, FitResult
 from ._parameters import THICKNESSES, extrapolated, refined_disc
 from ._setup import Setup, defaults, setup
@@ -68,32 +68,6 @@ __all__ = ["FitOptions", "FitResult", "fit_photo", "fit_batch", "detect_disc", "
 #: A warm-started fit whose noise-weighted reduced chi^2 exceeds this is checked against a
 #: global thickness search (see :func:`fit_photo`).
 WARM_START_CHI2 = 4.0
-#: The final solve's Jacobian after a global search (a key of
-#: :data:`~bubblefit.inverse._local.JACOBIANS`): by columns, faster per step on the fit
-#: level; its program compiles in the background during the search, whose own solve
-#: keeps the groups (shorter to compile, on the first fit's critical path). A warm-started
-#: fit keeps the groups too: its solve compiles on the critical path, and on a sequence's
-#: 64x64 frames pinned to one core the columns made 5.24 and 4.36 frames/s against 5.66
-#: and 4.93 by groups (alternate runs).
-FINAL_JACOBIAN = "columns"
-#: XLA's compiler options (``(name, value)`` pairs) for the solves of a fit that searches
-#: globally: the search's and the final one (a warm-started fit, a sequence's frame, keeps
-#: XLA's defaults: there the run counts more than the compile). On an empty cache these
-#: compiles are most of the first fit, so both solves are compiled at XLA's backend
-#: optimisation level 1 (its default is 2) and with XLA:CPU's older per-element emitters
-#: for fused loops instead of its MLIR fusion emitters (``xla_cpu_use_fusion_emitters``,
-#: an option of the pinned jaxlib; a jaxlib without it refuses the compile). Compiled
-#: alone, the emitters took the final solve's compile CPU from 7.6-7.9 s to 5.6-5.7 s for
-#: a run from the set-up's values of 0.55-0.59 s against 0.49 s, and the search solve's
-#: from 4.9-5.0 s to 3.2-3.3 s for the same run (level 1 alone had taken the final
-#: solve's from 9.6-10.5 s to 7.8-7.9 s). In alternate processes
-#: (``experiments/bench_fit.py --stages --empty-cache``, three rounds) the first fit took
-#: 13.7-13.9 s with level 1 alone, 11.9-12.2 s with the older emitters for the search's
-#: solve (and :data:`~bubblefit.model.render.TERMS_COMPILE`), and 10.5-11.0 s with them
-#: for both solves (18.4-19.2 s of CPU against 24.8-25.3 s); the warm fit 0.86-0.87 s,
-#: 0.87-0.96 s and 0.89-0.91 s.
-FINAL_COMPILE = (("xla_backend_optimization_level", 1), ("xla_cpu_use_fusion_emitters", False))
-SEARCH_COMPILE = FINAL_COMPILE
 
 
 # ---------------------------------------------------------------------------------------
@@ -126,8 +100,7 @@ def _searched_start(st: Setup, opts: FitOptions, env) -> dict:
                                   opts.search_step_nm, opts.candidates)
     best_v, best_c = None, np.inf
     for s in starts:
-        sol = solve_local(lev_s, st.search_table, opts, s, env, max_steps=opts.search_steps,
-                          compile_options=SEARCH_COMPILE)
+        sol = solve_local(lev_s, st.search_table, opts, s, env, max_steps=opts.search_steps, settings=SEARCH_SOLVE)
         if np.isfinite(sol.cost) and sol.cost < best_c:
             best_v, best_c = sol.values, sol.cost
     return best_v if best_v is not None else starts[0]
@@ -156,12 +129,6 @@ def _status_notes(sol: LocalSolution, finite: bool, chi2_nu: float, notes: list,
         status = "failed"
         notes.insert(0, "the Jacobian is singular at the optimum: some parameter is not constrained by the photo")
     return status, converged
-
-
-def _final_params(table, vals: dict, opts: FitOptions):
-    """The render parameters of the final full-resolution image (:func:`_finish`)."""
-    return table.render_params({k: jnp.asarray(v, jnp.float32) for k, v in vals.items()},
-                               "map" if opts.thickness == "map" else None)
 
 
 def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t_start: float) -> FitResult:
@@ -196,7 +163,7 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
     elif opts.thickness == "drainage":
         thickness_map = np.where(full.inside, np.asarray(drainage_profile(jnp.asarray(full.height), *prof)), np.nan)
     draw = render_level if opts.thickness == "map" else render_bubble
-    img = np.asarray(draw(_final_params(table, final_vals, opts), full, env), np.float64)
+    img = np.asarray(draw(final_params(table, final_vals, opts), full, env), np.float64)
     resid_img = st.photo - img
     rms = float(np.sqrt(np.mean(resid_img[full.mask] ** 2))) if full.mask.any() else float("nan")
     reported["n_film"] = float(st.vals["n_film"])
@@ -256,40 +223,42 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     opts = options
     with stage("finding the disc, choosing the effects"):
         st = setup(photo, env, opts, background, init, scene, saturated)
-    notes = []
-    search_thickness = "thickness_nm" in st.table.free or "top_nm" in st.table.free
+    searches = "thickness_nm" in st.table.free or "top_nm" in st.table.free
     warm = bool(init)
-    jacobian, compile_options = ("groups", ()) if warm else (FINAL_JACOBIAN, FINAL_COMPILE)
-    if search_thickness and not warm:
-        # The final solve's program, the final render's and the standard errors' compile in
-        # the background meanwhile (on 2 cores an empty-cache fit takes about 4 s less:
-        # experiments/bench_fit.py --background-compile).
-        prepare_local(st.lev_fit, st.table, opts, st.vals, env, jacobian=jacobian, compile_options=compile_options)
-        if opts.thickness != "map":
-            prepare_render_bubble(_final_params(st.table, st.vals, opts), st.level(1, opts), env)
-        prepare_reporter(st.table, st.vals)
+    settings = WARM_SOLVE if warm else FINAL_SOLVE
+    if searches and not warm:
+        warm_up(st, opts, env, settings)  # the final solve's programs compile during the search
         with stage("global thickness search"):
             start = _searched_start(st, opts, env)
     else:
         start = st.vals
     with stage(f"local fit, {len(st.table.free)} parameters"):
-        sol = solve_local(st.lev_fit, st.table, opts, start, env, stall=not warm, jacobian=jacobian,
-                          compile_options=compile_options)
-    why = _warm_doubt(st, opts, sol) if warm and search_thickness else None
-    if why:
-        # A warm start can settle in a neighbouring colour order: search globally and keep
-        # whichever fit explains the photo better.
-        with stage(f"warm start doubtful ({why}): global search and local fit"):
-            second = solve_local(st.lev_fit, st.table, opts, _searched_start(st, opts, env), env,
-                                 jacobian=jacobian, compile_options=compile_options)
-        if np.isfinite(second.cost) and (not np.isfinite(sol.cost) or second.cost < sol.cost):
-            sol = second
-            notes.append(f"warm start rejected ({why}); searched globally")
-        else:
-            notes.append(f"warm start doubtful ({why}); a global search did not do better")
+        sol = solve_local(st.lev_fit, st.table, opts, start, env, settings=settings)
+    notes = []
+    if warm and searches:
+        sol = _checked_warm_start(st, opts, env, sol, settings, notes)
     with stage("thickness map, standard errors, final render" if opts.thickness == "map"
                else "standard errors, final render"):
         return _finish(st, env, opts, sol, notes, t_start)
+
+
+def _checked_warm_start(st: Setup, opts: FitOptions, env, sol: LocalSolution, settings: SolveSettings,
+                        notes: list) -> LocalSolution:
+    """A warm start can settle in a neighbouring colour order: when its solution is
+    doubtful (:func:`_warm_doubt`), search globally, solve again (stopping on rejections,
+    :class:`~bubblefit.inverse._programs.SolveSettings`) and keep whichever fit explains
+    the photo better; ``notes`` says what was done."""
+    why = _warm_doubt(st, opts, sol)
+    if not why:
+        return sol
+    with stage(f"warm start doubtful ({why}): global search and local fit"):
+        second = solve_local(st.lev_fit, st.table, opts, _searched_start(st, opts, env), env,
+                             settings=replace(settings, stall=True))
+    if np.isfinite(second.cost) and (not np.isfinite(sol.cost) or second.cost < sol.cost):
+        notes.append(f"warm start rejected ({why}); searched globally")
+        return second
+    notes.append(f"warm start doubtful ({why}); a global search did not do better")
+    return sol
 
 
 def _judged_chi2(r: FitResult) -> float:

@@ -35,6 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..io.executables import stored
 from ..lighting.filtering import mip_footprint_level, slope_nodes
 from ..optics import film
 from ..optics.spectral import LAMBDA_MIN, SpectralBasis, harmonic_weights
@@ -129,8 +130,6 @@ def _f32(x) -> np.ndarray:
 def _program(fn, *static):
     """``fn`` with its leading static arguments bound, jitted, through the executable store
     (:func:`bubblefit.io.executables.stored`): a new process loads it rather than tracing it."""
-    from ..io.executables import stored
-
     return stored(jax.jit(functools.partial(fn, *static)), f"model.bounds.{fn.__name__}", static)
 
 

@@ -29,7 +29,9 @@ from .effects import ALL_ON_NODES, check_harmonic
 from .footprint import footprint
 from ._scene_checks import check_radiance, check_values, colour_path, film_index, validate
 from .geometry import OrthographicCamera, PerspectiveCamera
-from .render import NO_PROFILE, Params, PointLight, RenderConfig, render_plan
+from .programs import STORED, stored_trace
+from .regions import render_plan
+from .render import NO_PROFILE, Params, PointLight, RenderConfig
 
 __all__ = ["Scene", "load_scene", "render_scene", "read_envmap", "DATA_DIR", "shipped_envmap"]
 
@@ -243,14 +245,14 @@ class Scene:
 
         Returns ``(parts, decisions)``: ``parts`` pairs a :class:`~bubblefit.model.render.RenderConfig`
         with the flat pixel indices it renders (None for every pixel), for
-        :func:`~bubblefit.model.render.render_plan`.
+        :func:`~bubblefit.model.regions.render_plan`.
         """
         parts, decisions, _ = self.plan_with_footprint(env, background, chunk=chunk)
         return parts, decisions
 
     def plan_with_footprint(self, env=None, background=None, *, chunk: int = 4096):
         """:meth:`plan` and the :class:`~bubblefit.model.footprint.Footprint` it decided from,
-        which :func:`~bubblefit.model.render.render_plan` shades the bubble's pixels from."""
+        which :func:`~bubblefit.model.regions.render_plan` shades the bubble's pixels from."""
         e = self.table("effects")
         tol = float(e.get("tolerance", DEFAULT_TOLERANCE))
         nodes = int(e.get("nodes", ALL_ON_NODES))
@@ -265,7 +267,7 @@ class Scene:
             fp = footprint(camera=camera, center=self.center, radius=self.radius, model=summ["model"],
                            roughness=summ["roughness"], env=env, rotation=float(p.rotation), lights=lights,
                            background=background, background_kind=bg_kind, thickness_kind=kind,
-                           thickness_values=values, thickness_profile=self.map_profile())
+                           thickness_values=values, thickness_profile=self.map_profile(), programs=stored_trace)
             plan, decisions = decide_pixels(b, fp, e, thickness_kind=kind, tolerance=tol, nodes=nodes,
                                             dispersive=law is not None)
         except ValueError as exc:  # a setting the checks above let through
@@ -343,5 +345,5 @@ def render_scene(scene: Scene, background: np.ndarray | None = None, *, env=None
     parts, decisions, fp = scene.plan_with_footprint(env, background)
     if parts[0][0].effects.background == "photo" and background is None:
         raise InputError("lighting.background names a photo that could not be read")
-    img = render_plan(scene.params(), parts, env, background, footprint=fp)
+    img = render_plan(scene.params(), parts, env, background, footprint=fp, programs=STORED)
     return (img, decisions) if explain else img

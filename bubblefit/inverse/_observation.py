@@ -4,7 +4,7 @@ The photo's noise (:func:`noise_sigma`), its clipped pixels (:func:`saturation_m
 the frame the fit analyses (:func:`analysis_frame`: a large photo cropped to the bubble
 and block-averaged, so memory is bounded by the fit's size), and the photo
 block-averaged to the resolution a stage of the fit runs at, with its weights and the
-film's geometry (:class:`Level`). The bubble's disc is found in :mod:`._disc`.
+film's geometry (:class:`Level`). The bubble's disc is chosen in :mod:`._disc`.
 
 Compiled programs see a level padded (:func:`padded`): its rows and columns rounded up to
 a few sizes, its camera replaced by the padded size's canonical one and the disc passed
@@ -17,18 +17,16 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-import cv2
 import jax.numpy as jnp
 import numpy as np
 from scipy import ndimage as ndi
 
-from ..capture.calibrate import detect_bubble, usable_mask
 from ..errors import InputError
 from ..io.images import srgb_encode, srgb_slope
 from ..model.geometry import OrthographicCamera, canonical_frame, front_hits
 from ..model.render import RenderConfig
 
-__all__ = ["Level", "Frame", "noise_sigma", "saturation_mask", "detect_disc", "make_level", "film_geometry",
+__all__ = ["Level", "Frame", "noise_sigma", "saturation_mask", "make_level", "film_geometry",
            "block_mean", "analysis_frame", "Padded", "padded", "unpadded",
            "padded_size", "Pixels", "fitted_pixels"]
 
@@ -62,40 +60,6 @@ def saturation_mask(photo: np.ndarray, level: float, given: np.ndarray | None) -
             raise InputError(f"the saturation mask is {np.shape(given)}, the photo is {W}x{H}")
         sat = sat | np.asarray(given, bool)
     return ndi.binary_dilation(sat) if sat.any() else sat
-
-
-def detect_disc(photo: np.ndarray, background: np.ndarray | None = None) -> tuple[float, float, float]:
-    """Find the bubble's disc ``(cx, cy, r)`` in pixels.
-
-    With a background photo: :func:`bubblefit.capture.calibrate.detect_bubble` on the pair (the
-    bubble is where the two differ). Without: the strongest circle of the photo's edges
-    (OpenCV's Hough gradient on the sRGB-encoded grey image), which finds the rim that a
-    bubble's Fresnel brightening outlines.
-
-    References
-    ----------
-    Yuen et al., "Comparative study of Hough transform methods for circle finding",
-    Image and Vision Computing 8(1), 1990 (the gradient method OpenCV implements).
-    """
-    gray = np.mean(np.clip(photo, 0, None), axis=-1)
-    if background is not None:
-        bgray = np.mean(np.clip(background, 0, None), axis=-1)
-        sat = (np.max(photo, axis=-1) >= 0.999) | (np.max(background, axis=-1) >= 0.999)
-        try:
-            usable, _ = usable_mask(bgray, gray, sat)
-            return detect_bubble(bgray, gray, usable)
-        except InputError:
-            pass  # a dark background: fall back to the edges of the photo alone
-    h, w = gray.shape
-    enc = np.clip(gray / max(np.percentile(gray, 99.5), 1e-6), 0, 1) ** (1 / 2.2)
-    img = cv2.GaussianBlur((enc * 255).astype(np.uint8), (5, 5), 1.2)
-    circles = cv2.HoughCircles(img, cv2.HOUGH_GRADIENT, dp=1, minDist=max(h, w),
-                               param1=60, param2=20, minRadius=max(4, min(h, w) // 10),
-                               maxRadius=min(h, w) // 2 + 2)
-    if circles is None:
-        raise InputError("no bubble found in the photo; give its disc (--disc CX,CY,R) or a background photo")
-    cx, cy, r = (float(v) for v in circles[0, 0])
-    return cx, cy, r
 
 
 @dataclass

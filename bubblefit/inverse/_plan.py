@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.images import read_image, srgb_decode
-from .fit import detect_disc
+from ..capture.circle import detect_disc
 
 __all__ = ["FrameRef", "discover_frames", "load_frame", "as_frames", "plan_chunks", "fingerprint", "fix_disc",
            "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS"]

@@ -51,7 +51,8 @@ import numpy as np
 from . import search
 from ._local import DECREMENT_TOLERANCE, LocalSolution, remaining_step, solution_from, solve_local
 from ._maps import fit_map
-from ._observation import detect_disc, fitted_pixels, noise_sigma
+from ._observation import fitted_pixels, noise_sigma
+from ..capture.circle import detect_disc
 from ._programs import (FINAL_SOLVE, SEARCH_SOLVE, WARM_SOLVE, SolveSettings, batched_solver, final_params,
                         held_values, render_bubble, render_level, reporter, warm_up)
 from ._options import FitOptions, FitResult

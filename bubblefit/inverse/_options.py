@@ -13,17 +13,16 @@ from typing import Literal
 import numpy as np
 
 from ..errors import InputError
+from ..model.modes import MODEL_CHOICES, THICKNESS_KINDS, Model, ModelChoice, ThicknessKind, in_words
 
 __all__ = ["ThicknessModel", "ForwardModel", "ModelChoice", "FitStatus", "FitOptions", "FitResult", "ColourSettings"]
 
-#: How the film's thickness varies over the bubble (the thickness *model*; its values are
-#: ``thickness_nm``, ``top_nm``/``bottom_nm``/``exponent`` or a per-pixel map in nm).
-ThicknessModel = Literal["constant", "drainage", "map"]
-#: The forward model fitted (``docs/design.md``, "Two model variants").
-ForwardModel = Literal["paper", "physical"]
-#: The forward model a fit is asked for: one of them, or ``auto`` (the paper model, then
-#: the physical one when the paper model does not explain the photo; :func:`~bubblefit.inverse.fit.fit_photo`).
-ModelChoice = Literal["paper", "physical", "auto"]
+#: How the film's thickness varies over the bubble: :data:`bubblefit.model.modes.ThicknessKind`
+#: under the name the fit's API has used (its values are ``thickness_nm``,
+#: ``top_nm``/``bottom_nm``/``exponent`` or a per-pixel map in nm).
+ThicknessModel = ThicknessKind
+#: The forward model fitted: :data:`bubblefit.model.modes.Model` (``docs/design.md``, "Two model variants").
+ForwardModel = Model
 #: ``converged``: the local solver met its tolerances with finite errors;
 #: ``max_steps``: it stopped at its step limit; ``failed``: it diverged, or the Jacobian
 #: is singular at the optimum.
@@ -36,7 +35,7 @@ class FitOptions:
 
     Attributes
     ----------
-    thickness : ThicknessModel
+    thickness : ThicknessKind
         The thickness model: ``constant`` | ``drainage`` | ``map``.
     model : ModelChoice
         ``paper`` | ``physical`` forward model, or ``auto``: the paper model first and,
@@ -138,7 +137,7 @@ class FitOptions:
         None: the scene's ``[camera] samples_per_pixel``, else 1.
     """
 
-    thickness: ThicknessModel = "constant"
+    thickness: ThicknessKind = "constant"
     model: ModelChoice = "paper"
     fit_rotation: bool = False
     free_split: bool = False
@@ -189,10 +188,10 @@ class FitOptions:
             object.__setattr__(self, "white_balance", white_balance(self.white_balance, "white_balance"))
         if self.samples_per_pixel is not None:
             samples_per_pixel(self.samples_per_pixel, "samples_per_pixel")
-        if self.thickness not in ("constant", "drainage", "map"):
-            raise InputError(f"thickness must be constant, drainage or map, got {self.thickness!r}")
-        if self.model not in ("paper", "physical", "auto"):
-            raise InputError(f"model must be paper, physical or auto, got {self.model!r}")
+        if self.thickness not in THICKNESS_KINDS:
+            raise InputError(f"thickness must be {in_words(THICKNESS_KINDS)}, got {self.thickness!r}")
+        if self.model not in MODEL_CHOICES:
+            raise InputError(f"model must be {in_words(MODEL_CHOICES)}, got {self.model!r}")
         lo, hi = self.thickness_range
         if not (math.isfinite(lo) and math.isfinite(hi)):
             raise InputError(f"thickness range must be finite (nm), got {lo}..{hi}")
@@ -269,7 +268,7 @@ class FitResult:
         found (``FitOptions.fit_disc``).
     disc_stderr : dict or None
         Standard errors ``{cx, cy, r}`` in pixels of a refined disc (None: not fitted).
-    thickness_model : ThicknessModel
+    thickness_model : ThicknessKind
         The thickness model fitted.
     status : FitStatus
         How the local solver ended.
@@ -318,8 +317,8 @@ class FitResult:
     thickness_stderr_map: np.ndarray | None = None
     disc: tuple | None = None
     disc_stderr: dict | None = None
-    thickness_model: ThicknessModel = "constant"
-    model: ForwardModel = "paper"
+    thickness_model: ThicknessKind = "constant"
+    model: Model = "paper"
     reduced_chi2: float = float("nan")
     pixels_used: int = 0
     status: FitStatus = "converged"

@@ -32,6 +32,7 @@ from typing import Literal
 import jax
 import jax.numpy as jnp
 
+from ..model.modes import ThicknessKind
 from ..model.render import NO_PROFILE, Params
 
 __all__ = ["Parameter", "PARAMETERS", "ParameterTable", "THICK_UNIT", "THICKNESSES", "DISC_PARAMETERS", "forward", "inverse",
@@ -183,7 +184,7 @@ class ParameterTable:
 
     free: tuple
     held: tuple = field(default=(), compare=False)  # reasons do not change what is compiled
-    thickness_model: str = "constant"
+    thickness_model: ThicknessKind = "constant"
     free_split: bool = False
 
     @property
@@ -206,7 +207,7 @@ class ParameterTable:
             vals[name] = forward(name, z[i])
         return vals
 
-    def render_params(self, vals: dict, thickness_model: str | None = None) -> Params:
+    def render_params(self, vals: dict, thickness_model: ThicknessKind | None = None) -> Params:
         """The renderer's :class:`Params` for ``vals`` (``thickness_model`` default: the table's;
         ``map`` reads ``vals["map"]``)."""
         model = thickness_model or self.thickness_model

@@ -223,7 +223,7 @@ def run_demo(out_dir="bubblefit-demo", size: int = 96, seed: int = 0, progress: 
         ``paths`` (every file written).
     """
     from .capture.calibrate import calibrate
-    from .cli.common import write_json
+    from .io.atomic import write_json
     from .errors import InputError
     from .inverse.fit import FitOptions, fit_photo
     from .model.scene import Scene

@@ -14,6 +14,7 @@ from dataclasses import replace
 import numpy as np
 
 from ._observation import block_mean, noise_sigma
+from ._options import FitOptions
 from ..capture.circle import detect_disc
 from ..capture.disc import NO_BUBBLE_CONTRAST, NO_BUBBLE_SPREAD, Disc, bubble_contrast, change_spread, find_disc
 from ..errors import InputError
@@ -63,7 +64,7 @@ def find_bubble(photo: np.ndarray, background: np.ndarray | None = None, *,
     return Disc(float(cx), float(cy), float(r), found=True, contrast=contrast, reason=note)
 
 
-def _detect(photo, background, opts) -> Disc:
+def _detect(photo, background, opts: FitOptions) -> Disc:
     """:func:`find_bubble` on a copy block-averaged to at most ``opts.analysis_size`` pixels."""
     k = max(1, math.ceil(max(photo.shape[:2]) / opts.analysis_size))
     small = block_mean(photo, k) if k > 1 else photo
@@ -80,7 +81,7 @@ def _agrees(a, b) -> bool:
     return math.hypot(a[0] - b[0], a[1] - b[1]) <= DISC_AGREEMENT * b[2] and abs(a[2] - b[2]) <= DISC_AGREEMENT * b[2]
 
 
-def resolve_disc(photo, background, opts, given=None) -> tuple[tuple, list]:
+def resolve_disc(photo, background, opts: FitOptions, given=None) -> tuple[tuple, list]:
     """``(disc, warnings)``: the disc a fit uses (``opts``: a ``FitOptions``).
 
     ``given`` (the options' or the scene's disc) is used as it is. A calibration's disc

@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy import ndimage as ndi
 
+from ._options import FitOptions
 from ..errors import InputError
 from ..io.images import srgb_encode, srgb_slope
 from ..model.geometry import OrthographicCamera, canonical_frame, front_hits
@@ -118,7 +119,7 @@ class Frame:
         return (self.x0 + cx * self.k, self.y0 + cy * self.k, r * self.k)
 
 
-def analysis_frame(photo, background, saturated, disc, opts) -> Frame:
+def analysis_frame(photo, background, saturated, disc, opts: FitOptions) -> Frame:
     """The :class:`Frame` a fit analyses (``opts``: a ``FitOptions``).
 
     A photo whose larger side is at most ``opts.analysis_size`` (or without a disc, i.e.

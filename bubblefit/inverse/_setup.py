@@ -54,7 +54,7 @@ def _scene_values(scene, vals: dict, held: dict) -> None:
         held["rotation_deg"] = "set by the scene file"
 
 
-def defaults(scene, init, opts, t_from_calibration):
+def defaults(scene, init, opts: FitOptions, t_from_calibration):
     """Starting values (keyed by :data:`PARAMETERS` names) and the parameters held by the
     scene or the options, with the reasons."""
     vals = {"t": 0.972, "f": 0.3, "r_d": None, "r_s": None, "roughness": 0.01, "thickness_nm": 500.0,
@@ -91,7 +91,7 @@ def defaults(scene, init, opts, t_from_calibration):
     return vals, held
 
 
-def _decide(opts, vals, env, bg, settings, camera, lights):
+def _decide(opts: FitOptions, vals, env, bg, settings, camera, lights):
     """The effects the fit simulates (:func:`bubblefit.model.effects.resolve`)."""
     envpx = np.asarray(env.pixels)
     bg_kind = "photo" if bg is not None else "envmap"
@@ -107,7 +107,7 @@ def _decide(opts, vals, env, bg, settings, camera, lights):
     )
 
 
-def _held_by_effects(opts, fx, hold: dict) -> tuple:
+def _held_by_effects(opts: FitOptions, fx, hold: dict) -> tuple:
     """Add to ``hold`` the parameters the decided effects make invisible; return the split's names."""
     skipped_diffuse = "diffuse term skipped: r_d cannot change the image"
     if fx.model == "physical":
@@ -139,7 +139,7 @@ def _held_by_effects(opts, fx, hold: dict) -> tuple:
     return split_names
 
 
-def _table(opts, fx, held: dict, fit_disc: bool) -> ParameterTable:
+def _table(opts: FitOptions, fx, held: dict, fit_disc: bool) -> ParameterTable:
     """The fit's :class:`ParameterTable`: free parameters in order, and those held with
     reasons (the disc's refinement is free only with ``fit_disc``, and not reported held)."""
     hold = dict(held)
@@ -215,7 +215,7 @@ def _check_inputs(photo, env, background):
     return photo, background
 
 
-def _settings(scene, opts) -> dict:
+def _settings(scene, opts: FitOptions) -> dict:
     """The ``[effects]`` settings: the scene's, the options', and the fit's defaults."""
     settings = dict(scene.table("effects")) if scene is not None else {}
     settings.update(dict(opts.effects))
@@ -279,7 +279,7 @@ def _perspective(scene, photo):
     return camera, tuple(float(x) for x in b.get("center", (0, 0, 0))), float(b.get("radius", 1.0))
 
 
-def _disc(scene, opts, photo, background) -> tuple[tuple, list, bool]:
+def _disc(scene, opts: FitOptions, photo, background) -> tuple[tuple, list, bool]:
     """The orthographic camera's disc (given, the scene's, a calibration's or found), the
     warnings, and whether the fit refines it (``FitOptions.fit_disc``; by default when
     it was not given)."""

@@ -7,7 +7,8 @@ about +y, from a linear (H, W, 3) photo and its environment map. It runs the sta
 :mod:`bubblefit.inverse`, each in its own module:
 
 1. Observation (:mod:`._observation`): the photo's noise, clipped pixels, the bubble's
-   disc, and the photo at the fit's and the search's resolutions.
+   disc (chosen in :mod:`._disc`, found by :mod:`bubblefit.capture.disc`), and the photo
+   at the fit's and the search's resolutions.
 2. Parameters (:mod:`._parameters`): effects are decided once
    (:func:`bubblefit.model.effects.resolve`) from the starting values and the whole
    thickness search range; a parameter whose effect is skipped (``r_d`` without the
@@ -15,8 +16,9 @@ about +y, from a linear (H, W, 3) photo and its environment map. It runs the sta
    and ``r_s`` in the ``physical`` model, where Fresnel sets them) is held, with the
    reason, never fitted into noise.
 3. Global thickness search (:mod:`.search`) on a downsampled image; the lowest minima are
-   refined.
-4. Local Levenberg-Marquardt (:mod:`._local`) on the whitened, robust residual
+   refined. Before it, :func:`~._programs.warm_up` starts the compiles of the programs
+   the fit runs after it (:mod:`._programs` builds, stores and loads every program).
+4. Local Levenberg-Marquardt (:mod:`._local`, :mod:`._lm`) on the whitened, robust residual
    ``(render - photo) / sigma`` inside the disc (``rho < rim``), not saturated, with
    ``sigma^2 = read^2 + shot * I + q^2``, through a pseudo-Huber loss of scale
    ``robust_scale`` sigmas.

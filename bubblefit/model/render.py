@@ -55,6 +55,7 @@ from .geometry import (OrthographicCamera, PerspectiveCamera, internal_bounce, i
 from .thickness import thickness_at
 
 __all__ = ["Params", "RenderConfig", "render", "render_terms", "render_pixels", "render_pixels_at", "shade_lit",
+           "paper_terms",
            "pixel_chunks", "chunk_size", "film_names",
            "shading_points", "TRACE_COUNTS", "PointLight"]
 
@@ -265,9 +266,19 @@ def shading_points(fx: Effects, cfg: RenderConfig, hits, d):
     return films, exits
 
 
-def _paper_terms(fx: Effects, p: Params, opt: "_Film", refl: dict, d0, d1, bg_rad, photo_bg: bool) -> dict:
-    """Eq. (11): ``F_0 L'_front + t^2 F_1 L'_rear + t^4 L_b`` (or the tinted transmission),
-    with ``L' = r_s S + r_d E / pi`` (eq. 2) and ``F`` eq. (10)'s factor."""
+def paper_terms(fx: Effects, p: Params, opt: "_Film", refl: dict, d0, d1, bg_rad, photo_bg: bool) -> dict:
+    """Eqs. (2) and (11): the ``paper`` model's terms of the pixels of a chunk.
+
+    Eq. (11), ``F_0 L'_front + t^2 F_1 L'_rear + t^4 L_b`` (or the tinted transmission,
+    see the module docstring), with the light each film reflects ``L' = r_s S + r_d E / pi``
+    (eq. 2: ``S`` the filtered specular radiance, ``E`` the irradiance, both in ``refl``)
+    and ``F`` eq. (10)'s factor (1 without interference). Returns the terms ``front``,
+    ``rear`` and ``background`` (N, 3) of the effects that are on, times the camera gain.
+
+    References
+    ----------
+    The paper, eqs. (2), (10) and (11) (``docs/design.md``, "Reading the paper").
+    """
     t2 = p.t * p.t
     terms = {}
     factors = {}
@@ -356,7 +367,7 @@ def _terms(p: Params, cfg: RenderConfig, lam, cos, d0, d1, exits, thick, refl, b
     opt = _Film(fx, p, cos, lam, d0)
     photo_bg = fx.background == "photo"
     if fx.model == "paper":
-        return _paper_terms(fx, p, opt, refl, d0, d1, bg_rad, photo_bg)
+        return paper_terms(fx, p, opt, refl, d0, d1, bg_rad, photo_bg)
     return _physical_terms(fx, p, opt, refl, d0, d1, exits, thick, bg_rad, photo_bg)
 
 

@@ -246,6 +246,10 @@ class FitResult:
         Standard errors of the same keys (None for held ones).
     held : list
         ``[(name, reason)]`` of parameters not fitted.
+    roles : tuple
+        The fit's parameter table (:class:`~bubblefit.inverse._parameters.ParameterRole`):
+        for each reported parameter, whether it was fitted, derived (from what), held
+        (why), given or unused by the model (JSON key ``parameters``; :meth:`report`).
     converged : bool
         True only when the solver met its tolerances and the errors are finite.
     message : str
@@ -333,6 +337,7 @@ class FitResult:
     model_error: float = float("nan")
     thickness_model_error_nm: float = 0.0
     disc_model_error: float = float("nan")
+    roles: tuple = ()
     stderr_scale: float = 1.0
     frame: tuple | None = None
     colour: ColourSettings | None = None
@@ -349,6 +354,7 @@ class FitResult:
             "params": _clean(self.params),
             "stderr": _clean(self.stderr),
             "held": [{"name": n, "reason": r} for n, r in self.held],
+            "parameters": [{"name": r.name, "role": r.role, "reason": r.reason} for r in self.roles],
             "converged": bool(self.converged),
             "ok": bool(self.ok),
             "warnings": list(self.warnings),
@@ -369,7 +375,7 @@ class FitResult:
             "time_s": float(self.time_s),
             "thickness": self.thickness_model,
             "model": self.model,
-            "solver": "bubblefit.inverse._local.LevenbergMarquardt (optimistix trust region)",
+            "solver": "bubblefit.inverse._lm.LevenbergMarquardt (optimistix trust region)",
             "disc": None if self.disc is None else {"cx": self.disc[0], "cy": self.disc[1], "r": self.disc[2]},
             "disc_stderr": None if self.disc_stderr is None else _clean(self.disc_stderr),
             "covariance": cov,
@@ -381,17 +387,25 @@ class FitResult:
         }
 
     def report(self) -> str:
-        """A readable summary: each parameter with its standard error (or why it was held),
-        the solver's status, reduced chi^2 and the disc."""
+        """A readable summary: each parameter with its standard error and its row of the
+        parameter table (:attr:`roles`: derived from what, held or unused and why), the
+        solver's status, reduced chi^2 and the disc."""
+        roles = {r.name: r for r in self.roles}
         held = dict(self.held)
         lines = []
         for k, v in self.params.items():
             err = self.stderr.get(k)
-            if err is not None and math.isfinite(err):
+            known = err is not None and math.isfinite(err)
+            row = roles.get(k)
+            if row is not None and row.role == "derived":
+                txt = (f"+- {err:.3g} " if known else "") + f"(derived: {row.reason})"
+            elif row is not None and row.role in ("held", "unused"):
+                txt = f"({'held' if row.role == 'held' else 'not used'}: {row.reason})"
+            elif known:
                 txt = f"+- {err:.3g}"
             elif k == "n_film":
                 txt = "(given)"
-            elif err is None:  # held, or set by held parameters (f, r_d, r_s by a held split)
+            elif err is None:  # a result without its table: held, or set by held parameters
                 why = held.get(k) or (held.get("split") if k in ("f", "r_d", "r_s") else None)
                 txt = f"(held: {why})" if why else "(held)"
             else:

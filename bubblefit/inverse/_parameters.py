@@ -35,8 +35,8 @@ import jax.numpy as jnp
 from ..model.modes import ThicknessKind
 from ..model.render import NO_PROFILE, Params
 
-__all__ = ["Parameter", "PARAMETERS", "ParameterTable", "THICK_UNIT", "THICKNESSES", "DISC_PARAMETERS", "forward", "inverse",
-           "value_and_slope", "refined_disc", "extrapolated"]
+__all__ = ["Parameter", "PARAMETERS", "ParameterTable", "ParameterRole", "parameter_roles", "THICK_UNIT", "THICKNESSES",
+           "DISC_PARAMETERS", "forward", "inverse", "value_and_slope", "refined_disc", "extrapolated"]
 
 #: nm per unit of the unconstrained thickness coordinate.
 THICK_UNIT = 100.0
@@ -261,3 +261,77 @@ def refined_disc(disc: tuple, reported: dict, stderr: dict, model_error: float =
     px = lambda e: None if e is None else round(math.hypot(float(e), model_error) * r, 3)
     new = (round(cx + sx * r, 3), round(cy + sy * r, 3), round(r * (1.0 + sr), 3))
     return new, {"cx": px(ex), "cy": px(ey), "r": px(er)}
+
+
+#: What a fit did with a reported parameter (:class:`ParameterRole`).
+Role = Literal["fitted", "derived", "held", "given", "unused"]
+
+
+@dataclass(frozen=True)
+class ParameterRole:
+    """One row of a fit's parameter table: a reported parameter and what the fit did with it.
+
+    Attributes
+    ----------
+    name : str
+        The reported name (a key of the JSON's ``params``).
+    role : Role
+        ``fitted`` (free in the solve), ``derived`` (computed from fitted ones), ``held`` (at
+        its starting value), ``given`` (an input, never fitted: ``n_film``) or ``unused``
+        (reported, but the model does not render with it).
+    reason : str
+        From what a derived value comes, why a parameter was held or is unused.
+    """
+
+    name: str
+    role: Role
+    reason: str = ""
+
+
+#: eq. (14)'s split of ``1 - t`` in words, for the derived reflectances.
+_SPLIT_RULE = "t and the split of eq. (14): r_s = split (1 - t), r_d = (1 - split)(1 - t)"
+
+
+def _split_role(name: str, free: set, held: dict) -> ParameterRole:
+    """``r_d``, ``r_s`` or ``f`` of a fit whose split of ``1 - t`` is eq. (14)'s."""
+    split_free = "split" in free
+    why_split = f"; the split held: {held['split']}" if "split" in held and not split_free else ""
+    if name == "f":  # r_d / r_s = (1 - split) / split: the split alone
+        if split_free:
+            return ParameterRole(name, "derived", "r_d / r_s = (1 - split) / split, from the fitted split (eq. 14)")
+        return ParameterRole(name, "held", held.get("split", "the split held at its starting value"))
+    if split_free or "t" in free:
+        return ParameterRole(name, "derived", f"from {_SPLIT_RULE}{why_split}")
+    return ParameterRole(name, "held", f"t and the split held ({held.get('split') or held.get('t', 'start')})")
+
+
+def parameter_roles(table: ParameterTable, model: str, names) -> tuple[ParameterRole, ...]:
+    """The fit's parameter table: for each reported name (in ``names``' order) whether it
+    was fitted, derived (and from what), held (and why), given or unused by ``model``'s
+    render (the physical model's ``t`` and ``r_s``, which Fresnel's equations replace).
+    It agrees with the numbers: exactly the fitted and the derived parameters have
+    standard errors (:mod:`._uncertainty`)."""
+    free, held = set(table.free), dict(table.held)
+    rows = []
+    for name in names:
+        if name == "n_film":
+            rows.append(ParameterRole(name, "given", "the film's index at 589.3 nm: the options', the scene's or "
+                                                     "1.4; never fitted"))
+        elif name in free:
+            rows.append(ParameterRole(name, "fitted"))
+        elif name == "thickness_nm" and table.thickness_model != "constant":  # a thickness map's
+            rows.append(ParameterRole(name, "derived", "the median of the fitted thickness map over the film"))
+        elif model == "physical" and name in ("t", "r_s"):
+            rows.append(ParameterRole(name, "unused", "the physical model reflects and transmits by Fresnel's "
+                                                      "equations from n_film; the value shown is the start"))
+        elif model == "physical" and name == "f":
+            rows.append(ParameterRole(name, "unused", "r_d / r_s, and the physical model does not use r_s"))
+        elif name in ("r_d", "r_s", "f") and not table.free_split:
+            rows.append(_split_role(name, free, held))
+        elif name == "f":  # r_d and r_s on their own
+            moving = [n for n in ("r_d", "r_s") if n in free]
+            rows.append(ParameterRole(name, "derived", f"r_d / r_s, from the fitted {' and '.join(moving)}")
+                        if moving else ParameterRole(name, "held", "r_d and r_s held"))
+        else:
+            rows.append(ParameterRole(name, "held", held.get(name, "held at its starting value")))
+    return tuple(rows)

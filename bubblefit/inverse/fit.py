@@ -58,7 +58,7 @@ from ..capture.circle import detect_disc
 from ._programs import (FINAL_SOLVE, SEARCH_SOLVE, WARM_SOLVE, SolveSettings, batched_solver, final_params,
                         held_values, render_bubble, render_level, reporter, warm_up)
 from ._options import FitOptions, FitResult
-from ._parameters import THICKNESSES, extrapolated, refined_disc
+from ._parameters import THICKNESSES, extrapolated, parameter_roles, refined_disc
 from ._setup import Setup, defaults, setup
 from ._uncertainty import uncertainty
 from ._verdict import at_bounds, unresolved, verdict
@@ -184,7 +184,7 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
         outliers=unc.misfit.outliers, chi2_capped=unc.misfit.chi2_capped, model_error=float(opts.model_error),
         thickness_model_error_nm=float(opts.thickness_model_error_nm),
         disc_model_error=float(opts.disc_model_error) if disc_stderr is not None else float("nan"),
-        stderr_scale=unc.scale,
+        stderr_scale=unc.scale, roles=parameter_roles(table, st.fx.model, tuple(reported)),
         frame=None if st.frame.whole else (st.frame.x0, st.frame.y0, st.frame.k), colour=st.colour,
     )
 

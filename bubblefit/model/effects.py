@@ -182,7 +182,8 @@ def decide_spectral(b: SceneBounds, table: FilmTable, setting, interference: Int
     return basis, Decision("spectral", True, "set by the scene", f"{method}/{basis.samples}")
 
 
-def check_harmonic(basis: SpectralBasis | None, thickness_kind: ThicknessKind, dispersive: bool, where: str = "render") -> None:
+def check_harmonic(basis: SpectralBasis | None, thickness_kind: ThicknessKind, dispersive: bool,
+                   where: str = "render") -> None:
     """Refuse the ``harmonic`` spectral basis where it is not exact: a thickness field (each
     film has its own optical path), a dispersive index, or a fit (``where``), whose tables
     sample wavelengths."""

@@ -41,8 +41,8 @@ from .modes import Model, ThicknessKind
 from .render import NO_PROFILE, RenderConfig, film_names, shading_points
 from .thickness import thickness_at
 
-__all__ = ["Footprint", "footprint", "trace_function", "jitted_trace", "pixel_budget", "filter_key", "FILTER_CANDIDATES", "REFERENCE_FILTER",
-           "FLOOR_FRACTION", "BRIGHT_PERCENTILE"]
+__all__ = ["Footprint", "footprint", "trace_function", "jitted_trace", "pixel_budget", "filter_key", "FILTER_CANDIDATES",
+           "REFERENCE_FILTER", "FLOOR_FRACTION", "BRIGHT_PERCENTILE"]
 
 #: The all-on model's filter (:func:`bubblefit.model.effects.all_on_settings`).
 REFERENCE_FILTER = FilterConfig("mipmap", nodes=4)

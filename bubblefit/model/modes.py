@@ -17,9 +17,9 @@ from ..lighting.filtering import METHODS as FILTER_METHODS
 from ..lighting.filtering import FilterMethod
 from ..optics.spectral import SPECTRAL_METHODS, SpectralMethod
 
-__all__ = ["Model", "ModelChoice", "Interference", "Background", "ThicknessKind", "Switch", "FilterMethod", "SpectralMethod",
-           "MODELS", "MODEL_CHOICES", "INTERFERENCE_MODES", "BACKGROUNDS", "THICKNESS_KINDS", "FILTER_METHODS", "SPECTRAL_METHODS",
-           "COLOURED", "GREY", "check_effects_table", "in_words"]
+__all__ = ["Model", "ModelChoice", "Interference", "Background", "ThicknessKind", "Switch", "FilterMethod",
+           "SpectralMethod", "MODELS", "MODEL_CHOICES", "INTERFERENCE_MODES", "BACKGROUNDS", "THICKNESS_KINDS",
+           "FILTER_METHODS", "SPECTRAL_METHODS", "COLOURED", "GREY", "check_effects_table", "in_words"]
 
 #: ``paper``: eqs. (1)-(14) as written; ``physical``: Fresnel films, Airy sum, internal bounces.
 Model = Literal["paper", "physical"]

@@ -27,8 +27,9 @@ __all__ = ["STORED", "TERMS_COMPILE", "stored_whole", "stored_pixels", "stored_t
 
 @functools.lru_cache(maxsize=32)
 def _render_programs(cfg: RenderConfig):
-    """:func:`~bubblefit.model.render.render` and :func:`~bubblefit.model.render.render_pixels` for ``cfg`` through the executable store
-    (:func:`bubblefit.io.executables.stored`): a new process loads them, not traces them."""
+    """:func:`~bubblefit.model.render.render` and :func:`~bubblefit.model.render.render_pixels`
+    for ``cfg`` through the executable store (:func:`bubblefit.io.executables.stored`): a
+    new process loads them, not traces them."""
     whole = jax.jit(lambda p, env, bg: render(p, cfg, env, bg))
     chunks = jax.jit(lambda p, env, bg, rows, cols, idx: render_pixels(p, cfg, env, bg, rows, cols, idx))
     return stored(whole, "model.render.render", cfg), stored(chunks, "model.render._render_chunks", cfg)
@@ -54,7 +55,8 @@ def stored_terms(cfg: RenderConfig):
 
 def render_loaded(p: Params, cfg: RenderConfig, env: EnvMap | None, background=None, *, terms: bool = False,
                   pixels=None):
-    """:func:`~bubblefit.model.render.render` (or with ``terms``, :func:`~bubblefit.model.render.render_terms`) through the executable store
+    """:func:`~bubblefit.model.render.render` (or with ``terms``,
+    :func:`~bubblefit.model.render.render_terms`) through the executable store
     (:func:`bubblefit.io.executables.stored`): the same values, and a command's process
     loads the compiled program instead of tracing and lowering it. Concrete arrays only.
     With ``pixels = (rows, cols, idx)`` (chunks as :func:`~bubblefit.model.render.render_pixels` takes them), the

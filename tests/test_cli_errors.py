@@ -418,6 +418,7 @@ FITSEQ_CASES = {
     "envmap_not_2to1": (["photo"], "env_not_2to1", []),
     "envmap_nan": (["photo"], "env_nan", []),
     "bad_t": (["photo"], "env", ["--t", "1.5"]),
+    "bad_set": (["photo"], "env", ["--set", "roughness=-1"]),
     "bad_disc": (["photo"], "env", ["--disc", "1,2"]),
     "bad_range": (["photo"], "env", ["--thickness-range", "a,b"]),
     "bad_calibration": (["photo"], "env", ["--calibration", "garbage"]),
@@ -445,6 +446,9 @@ FIT_CASES = {
     "black_photo": ("black", "env", []),
     "saturated_photo": ("white", "env", []),
     "bad_t": ("photo", "env", ["--t", "-1"]),
+    "bad_set_name": ("photo", "env", ["--set", "colour=1"]),
+    "bad_set_value": ("photo", "env", ["--set", "t=1.5"]),
+    "bad_set_form": ("photo", "env", ["--set", "t"]),
     "bad_calibration": ("photo", "env", ["--calibration", "garbage"]),
     "background_other_size": ("photo", "env", ["--background", "photo_other_size"]),
 }

@@ -307,3 +307,32 @@ def test_the_parameter_table_agrees_with_the_standard_errors(model, free, held, 
     elif not free_split and "split" in free:
         assert rows["r_d"].role == rows["r_s"].role == rows["f"].role == "derived"
         assert "split" in rows["r_d"].reason and "eq. (14)" in rows["r_d"].reason
+
+
+def test_parameter_settings_start_and_hold():
+    """``FitOptions.parameters`` (``--set NAME=VALUE``, ``--hold NAME``) sets starting values
+    under the parameters' own names or their aliases, holds them on request, leaves a
+    value the scene file sets alone, and refuses unknown names and values outside a
+    parameter's bounds in one line."""
+    from bubblefit.errors import InputError
+    from bubblefit.inverse._parameters import ParameterSetting, parse_setting
+    from bubblefit.inverse._setup import defaults
+    from bubblefit.inverse.fit import FitOptions
+    from bubblefit.model.scene import Scene
+
+    opts = FitOptions(parameters=(parse_setting("thickness=700"), ParameterSetting("roughness", 0.05, hold=True),
+                                  parse_setting("f = 0.5"), parse_setting("t=0.95")))
+    vals, held = defaults(None, None, opts, opts.t_init)
+    assert vals["thickness_nm"] == 700.0 and vals["roughness"] == 0.05 and vals["t"] == 0.95
+    assert held == {"roughness": "held by request"}
+    # eq. (14): r_s = (1 - t) / (1 + f), r_d = (1 - t) - r_s from the starting t and f
+    assert vals["r_s"] == pytest.approx(0.05 / 1.5) and vals["r_d"] == pytest.approx(0.05 - 0.05 / 1.5)
+    scene = Scene.from_dict({"camera": {"width": 16, "height": 16}, "bubble": {"roughness": 0.2},
+                             "lighting": {"envmap": "unused.exr"}})
+    vals, held = defaults(scene, None, FitOptions(parameters=(parse_setting("roughness=0.05"),)), None)
+    assert vals["roughness"] == 0.2 and held["roughness"] == "set by the scene file"
+    for bad in ("colour=1", "t=1.5", "roughness=-1", "t", "t=x", "=3"):
+        with pytest.raises(InputError):
+            parse_setting(bad)
+    with pytest.raises(InputError):
+        FitOptions(parameters=(ParameterSetting("exposure", 0.0),))

@@ -52,6 +52,9 @@ def register(sub):
     p.add_argument("--hold", metavar="NAMES", default="",
                    help="comma-separated parameters held at their starting values (t, f, r_d, r_s, roughness, "
                         "thickness_nm, exposure, rotation_deg, top_nm, bottom_nm, exponent; disc: the disc as found)")
+    p.add_argument("--set", metavar="NAME=VALUE", action="append", default=[],
+                   help="a parameter's starting value (t, f, r_d, r_s, roughness, thickness_nm, exposure, "
+                        "rotation_deg, top_nm, bottom_nm, exponent); repeat for several, --hold NAME to hold it")
     p.add_argument("--free-split", action="store_true", help="fit r_d and r_s freely instead of r_d + r_s = 1 - t")
     p.add_argument("--fit-rotation", action="store_true", help="also fit the environment's rotation about +y")
     p.add_argument("--max-steps", type=int, default=None, help="Levenberg-Marquardt step limit")
@@ -115,6 +118,7 @@ def fit_option_values(args) -> dict:
     """The :class:`~bubblefit.inverse.fit.FitOptions` values that ``fit`` and ``fit-sequence`` read
     the same way: starting t and disc (``--calibration``, ``--t``, ``--disc``), thickness
     kind and range, held parameters and the step limit. One-line errors for bad values."""
+    from ..inverse._parameters import parse_setting
     from .common import parse_floats
 
     t_init, disc, cal_disc, cal_size = None, None, None, None
@@ -134,7 +138,8 @@ def fit_option_values(args) -> dict:
     kw = dict(thickness=args.thickness, disc=disc, fit_disc=True if getattr(args, "refine_disc", False) else None,
               t_init=t_init, thickness_range=(lo, hi),
               calibration_disc=cal_disc, calibration_size=cal_size,
-              hold=tuple(h.strip() for h in args.hold.split(",") if h.strip()))
+              hold=tuple(h.strip() for h in args.hold.split(",") if h.strip()),
+              parameters=tuple(parse_setting(s) for s in getattr(args, "set", None) or ()))
     if args.max_steps is not None:
         if args.max_steps < 1:
             raise InputError("--max-steps must be at least 1")

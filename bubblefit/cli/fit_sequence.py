@@ -42,6 +42,9 @@ def register(sub):
                    help="thickness range searched, nm (default: 50,2000)")
     p.add_argument("--hold", metavar="NAMES", default="",
                    help="comma-separated parameters held at their starting values (e.g. t,roughness)")
+    p.add_argument("--set", metavar="NAME=VALUE", action="append", default=[],
+                   help="a parameter's starting value (t, f, r_d, r_s, roughness, thickness_nm, exposure, "
+                        "rotation_deg, top_nm, bottom_nm, exponent); repeat for several, --hold NAME to hold it")
     p.add_argument("--max-steps", type=int, default=None, help="solver step limit per frame")
     p.add_argument("-o", "--output", required=True, metavar="OUT_DIR", help="output folder (created; reused to resume)")
     p.add_argument("--json", metavar="PATH", help="write a summary of the run as JSON")

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..model.modes import MODEL_CHOICES, THICKNESS_KINDS, Model, ModelChoice, ThicknessKind, in_words
+from ._parameters import ParameterSetting
 
 __all__ = ["ThicknessModel", "ForwardModel", "ModelChoice", "FitStatus", "FitOptions", "FitResult", "ColourSettings"]
 
@@ -57,7 +58,8 @@ class FitOptions:
         then the start); False, or ``hold=("disc",)``: never.
     t_init, roughness_init : float or None
         Starting ``t`` (e.g. from ``bubblefit calibrate``) and roughness (the roughness
-        also decides whether filtering is simulated).
+        also decides whether filtering is simulated); the same as a ``parameters`` entry
+        (``t_init`` also overrides a scene file's ``t``).
     thickness_range : tuple
         (min, max) nm searched (and used to decide the effects).
     max_steps, rtol, atol
@@ -87,6 +89,10 @@ class FitOptions:
         Width of the prior tying a thickness map to the fitted profile.
     hold : tuple
         Names of parameters to hold at their starting values.
+    parameters : tuple
+        :class:`~bubblefit.inverse._parameters.ParameterSetting` s: a starting value and
+        whether it is held, per parameter (``--set NAME=VALUE``); applied after a warm
+        start and ``t_init``/``roughness_init``, except to a value the scene file sets.
     effects : tuple
         Extra ``[effects]`` settings as ``((key, value), ...)``.
     calibration_disc : tuple or None
@@ -177,6 +183,7 @@ class FitOptions:
     white_balance: str | tuple | None = None
     n_film: object = None
     samples_per_pixel: int | None = None
+    parameters: tuple = ()
 
     def __post_init__(self):
         from ..model._scene_checks import samples_per_pixel, white_balance
@@ -188,6 +195,10 @@ class FitOptions:
             object.__setattr__(self, "white_balance", white_balance(self.white_balance, "white_balance"))
         if self.samples_per_pixel is not None:
             samples_per_pixel(self.samples_per_pixel, "samples_per_pixel")
+        for setting in self.parameters:
+            if not isinstance(setting, ParameterSetting):
+                raise InputError(f"parameters must be ParameterSetting records, got {setting!r}")
+            setting.check()
         if self.thickness not in THICKNESS_KINDS:
             raise InputError(f"thickness must be {in_words(THICKNESS_KINDS)}, got {self.thickness!r}")
         if self.model not in MODEL_CHOICES:

@@ -32,11 +32,12 @@ from typing import Literal
 import jax
 import jax.numpy as jnp
 
+from ..errors import InputError
 from ..model.modes import ThicknessKind
 from ..model.render import NO_PROFILE, Params
 
-__all__ = ["Parameter", "PARAMETERS", "ParameterTable", "ParameterRole", "parameter_roles", "THICK_UNIT", "THICKNESSES",
-           "DISC_PARAMETERS", "forward", "inverse", "value_and_slope", "refined_disc", "extrapolated"]
+__all__ = ["Parameter", "PARAMETERS", "ParameterTable", "ParameterRole", "parameter_roles", "ParameterSetting",
+           "parse_setting", "ALIASES", "STARTS", "THICK_UNIT", "THICKNESSES", "DISC_PARAMETERS", "forward", "inverse", "value_and_slope", "refined_disc", "extrapolated"]
 
 #: nm per unit of the unconstrained thickness coordinate.
 THICK_UNIT = 100.0
@@ -335,3 +336,68 @@ def parameter_roles(table: ParameterTable, model: str, names) -> tuple[Parameter
         else:
             rows.append(ParameterRole(name, "held", held.get(name, "held at its starting value")))
     return tuple(rows)
+
+
+#: Other names ``--hold``, ``--set`` and a warm start accept for the parameters' own
+#: (``f``, the ratio ``r_d / r_s``, is held as eq. (14)'s ``split``).
+ALIASES = {"f": "split", "thickness": "thickness_nm", "top": "top_nm", "bottom": "bottom_nm",
+           "rotation": "rotation_deg"}
+#: The starting values a fit takes (:func:`bubblefit.inverse._setup.defaults`): the
+#: parameters of :data:`PARAMETERS` but eq. (14)'s split and the disc's refinement, and
+#: ``f = r_d / r_s``, from which the split starts.
+STARTS = ("t", "f", "r_d", "r_s", "roughness", "exposure", "rotation_deg", "thickness_nm", "top_nm", "bottom_nm",
+          "exponent")
+
+
+@dataclass(frozen=True)
+class ParameterSetting:
+    """What a user says about one parameter before a fit (``FitOptions.parameters``,
+    ``--set NAME=VALUE``, ``--hold NAME``), in the manner of lmfit's ``Parameter``: its
+    starting value (None: the fit's default) and whether it is held at it.
+
+    Attributes
+    ----------
+    name : str
+        One of :data:`STARTS` (or an alias of :data:`ALIASES`).
+    value : float or None
+        The starting value, in the parameter's unit (:data:`PARAMETERS`).
+    hold : bool
+        Held at its starting value instead of fitted.
+    """
+
+    name: str
+    value: float | None = None
+    hold: bool = False
+
+    @property
+    def start(self) -> str:
+        """The name of the starting value it sets (``thickness`` is ``thickness_nm``; ``f`` stays ``f``)."""
+        return self.name if self.name == "f" else ALIASES.get(self.name, self.name)
+
+    def check(self, where: str = "parameters") -> None:
+        """Raise :class:`~bubblefit.errors.InputError` (one line) for an unknown name or a
+        value outside the parameter's bounds."""
+        if self.start not in STARTS:
+            raise InputError(f"{where}: unknown parameter {self.name!r} (known: {', '.join(STARTS)})")
+        if self.value is None:
+            return
+        v = float(self.value)
+        lo, hi = (0.0, math.inf) if self.start == "f" else PARAMETERS[self.start].bounds
+        strict = self.start == "f" or PARAMETERS[self.start].transform in ("logistic", "log")
+        inside = (lo < v < hi) if strict else (lo <= v <= hi)
+        if not (math.isfinite(v) and inside):
+            raise InputError(f"{where}: {self.name} = {self.value} lies outside its range ({lo:g}, {hi:g})")
+
+
+def parse_setting(text: str, where: str = "--set") -> ParameterSetting:
+    """``NAME=VALUE`` (``--set``) as a checked :class:`ParameterSetting`; one-line
+    :class:`~bubblefit.errors.InputError` otherwise."""
+    name, sep, value = (part.strip() for part in str(text).partition("="))
+    try:
+        setting = ParameterSetting(name, float(value))
+    except ValueError:
+        raise InputError(f"{where} takes NAME=VALUE with a number, got {text!r}") from None
+    if not sep or not name:
+        raise InputError(f"{where} takes NAME=VALUE, got {text!r}")
+    setting.check(where)
+    return setting

@@ -11,7 +11,7 @@ import numpy as np
 from ._disc import resolve_disc
 from ._observation import Frame, Level, analysis_frame, make_level, saturation_mask
 from ._options import ColourSettings, FitOptions
-from ._parameters import DISC_PARAMETERS, PARAMETERS, ParameterTable, THICKNESS_PARAMETERS
+from ._parameters import ALIASES, DISC_PARAMETERS, PARAMETERS, ParameterTable, THICKNESS_PARAMETERS
 from ..errors import InputError
 from ..lighting.envmap import EnvMap
 from ..model.effects import check_harmonic, resolve
@@ -20,11 +20,6 @@ from ..model.render import RenderConfig
 from ..optics.dispersion import REFERENCE_WAVELENGTH_NM, Cauchy, refractive_index
 
 __all__ = ["Setup", "setup", "defaults", "colour_settings"]
-
-#: Names ``--hold`` and ``init`` accept besides the parameters' own.
-_ALIASES = {"f": "split", "thickness": "thickness_nm", "top": "top_nm", "bottom": "bottom_nm",
-            "rotation": "rotation_deg"}
-
 
 # ---------------------------------------------------------------------------------------
 # Starting values, effects and the parameter table
@@ -37,7 +32,7 @@ def _scene_values(scene, vals: dict, held: dict) -> None:
     for name in ("t", "roughness", "f", "r_d", "r_s"):
         if name in b:
             vals[name] = float(b[name])
-            held[_ALIASES.get(name, name)] = "set by the scene file"
+            held[ALIASES.get(name, name)] = "set by the scene file"
     if "n_film" in b:  # a number, a Cauchy law or a preset: its index at 589.3 nm
         vals["n_film"] = float(scene.params().n_film)
     model, values = scene.thickness_spec()
@@ -64,7 +59,7 @@ def defaults(scene, init, opts: FitOptions, t_from_calibration):
     if scene is not None:
         _scene_values(scene, vals, held)
     for k, v in (init or {}).items():
-        k = k if k == "f" else _ALIASES.get(k, k)
+        k = k if k == "f" else ALIASES.get(k, k)
         if v is not None and k in vals:
             vals[k] = float(v)
     if opts.n_film is not None:  # the command line's index wins over the scene's and a warm start's
@@ -73,14 +68,17 @@ def defaults(scene, init, opts: FitOptions, t_from_calibration):
         vals["t"] = float(t_from_calibration)
     if opts.roughness_init is not None and "roughness" not in held:
         vals["roughness"] = float(opts.roughness_init)
+    for setting in opts.parameters:  # the user's own starting values; a scene file's value stays
+        if setting.value is not None and ALIASES.get(setting.name, setting.name) not in held:
+            vals[setting.start] = float(setting.value)
     if not 0 < vals["t"] < 1:
         raise InputError(f"starting t must lie in (0, 1), got {vals['t']}")
     if vals["r_d"] is None or vals["r_s"] is None:
         vals["r_s"] = (1 - vals["t"]) / (1 + vals["f"])
         vals["r_d"] = (1 - vals["t"]) - vals["r_s"]
     vals["split"] = vals["r_s"] / max(vals["r_s"] + vals["r_d"], 1e-12)
-    for name in opts.hold:
-        name = _ALIASES.get(name, name)
+    for name in (*opts.hold, *(s.name for s in opts.parameters if s.hold)):
+        name = ALIASES.get(name, name)
         if name == "disc":
             held.update({n: "held by request" for n in DISC_PARAMETERS})
             continue

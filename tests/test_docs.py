@@ -32,7 +32,8 @@ SLOW_DOCTESTS = {"render_scene", "fit_photo", "calibrate", "fit_spectrum"}
 # Public functions whose docstrings must keep a runnable example (the entry points users
 # meet first); the test fails if one loses it.
 MUST_HAVE_EXAMPLES = {"read_image", "write_image", "render_scene", "fit_photo", "calibrate",
-                      "fit_spectrum", "interference_colours", "spectral_basis", "EnvMap.from_array"}
+                      "fit_spectrum", "interference_colours", "spectral_basis", "EnvMap.from_array",
+                      "read_spectrum", "load_scene", "Params.make"}
 
 
 def _blocks():

@@ -303,7 +303,19 @@ def _min_cos(camera) -> float:
 
 
 def load_scene(path: str | os.PathLike) -> Scene:
-    """Read and validate a TOML scene file."""
+    """Read and validate a TOML scene file.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import bubblefit as bf
+    >>> path = os.path.join(tempfile.mkdtemp(), "bubble.toml")
+    >>> with open(path, "w") as f:
+    ...     _ = f.write('[bubble]\\nthickness_nm = 450\\n[lighting]\\nenvmap = "studio.exr"\\n')
+    >>> scene = bf.load_scene(path)
+    >>> float(scene.params().thickness)
+    450.0
+    """
     path = Path(path)
     if not path.exists():
         raise InputError(f"scene file not found: {path}")

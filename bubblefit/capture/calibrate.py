@@ -320,6 +320,20 @@ def calibrate(
     InputError
         Unreadable or mismatched files, saturated or black images, two different scenes, no
         bubble, or too few usable pixels inside it; the message is one line.
+
+    Examples
+    --------
+    A checkered card dimmed by ``t^4`` inside a disc, as a bubble with ``t = 0.97`` would:
+
+    >>> import numpy as np
+    >>> import bubblefit as bf
+    >>> y, x = np.mgrid[0:96, 0:96] + 0.5
+    >>> card = np.where((y // 12 + x // 12) % 2 == 0, 0.7, 0.2)[..., None] * np.ones(3)
+    >>> inside = (x - 48) ** 2 + (y - 48) ** 2 < 30 ** 2
+    >>> after = np.where(inside[..., None], card * 0.97 ** 4, card)
+    >>> result = bf.calibrate(card, after, n_boot=200)
+    >>> round(result.t, 4), round(result.bubble["r"])
+    (0.97, 30)
     """
     img_b, img_a = load_pair(before, after)
     names = (os.path.basename(img_b.path) or "before", os.path.basename(img_a.path) or "after")

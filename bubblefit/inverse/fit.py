@@ -267,6 +267,23 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     Returns
     -------
     FitResult
+
+    Examples
+    --------
+    A photo rendered with a known 600 nm film over a black background, fitted back (about a
+    minute on a first call, which compiles; seconds with a warm cache):
+
+    >>> import numpy as np
+    >>> import bubblefit as bf
+    >>> scene = bf.Scene.from_dict({
+    ...     "camera": {"width": 48, "height": 48, "disc": [24, 24, 20]},
+    ...     "bubble": {"thickness_nm": 600.0, "t": 0.972, "f": 0.3, "roughness": 0.02},
+    ...     "lighting": {"envmap": "courtyard.exr", "background": "black"}})
+    >>> photo = np.asarray(bf.render_scene(scene))
+    >>> result = bf.fit_photo(photo, scene.load_envmap(), background=np.zeros_like(photo),
+    ...                       options=bf.FitOptions(disc=(24, 24, 20)))
+    >>> result.ok, round(float(result.params["thickness_nm"]))
+    (True, 600)
     """
     if options.model == "auto":
         return _fit_either_model(photo, env, options, background, init, scene, saturated)

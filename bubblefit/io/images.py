@@ -122,6 +122,19 @@ def read_image(path: str | os.PathLike, *, linear: bool | None = None, dtype=np.
     Raises:
         InputError: the file is missing, unreadable, truncated, has no pixels, has an
             unusable channel count, or holds NaN/Inf values.
+
+    Examples
+    --------
+    A linear grey written as an 8-bit sRGB PNG reads back linear, within the 8-bit step:
+
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> import bubblefit as bf
+    >>> path = os.path.join(tempfile.mkdtemp(), "grey.png")
+    >>> bf.write_image(path, np.full((4, 6, 3), 0.5))
+    >>> image = bf.read_image(path)
+    >>> image.pixels.shape, round(float(image.pixels[0, 0, 0]), 4)
+    ((4, 6, 3), 0.5029)
     """
     path = str(path)
     if not os.path.exists(path):
@@ -209,6 +222,16 @@ def write_image(path: str | os.PathLike, pixels: np.ndarray, *, bit_depth: int |
     TIFF files get sRGB-encoded 8-bit (or 16-bit with ``bit_depth=16``) values.
     NaN pixels (e.g. outside the bubble in a thickness map) are kept in float files and
     written as 0 in integer files.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> import bubblefit as bf
+    >>> path = os.path.join(tempfile.mkdtemp(), "ramp.exr")
+    >>> bf.write_image(path, np.linspace(0.0, 4.0, 8 * 3).reshape(1, 8, 3), bit_depth=32)
+    >>> float(bf.read_image(path).pixels.max())        # float EXR: values above 1 are kept
+    4.0
     """
     path = Path(path)
     pixels = np.asarray(pixels, dtype=np.float32)

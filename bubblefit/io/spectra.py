@@ -74,7 +74,20 @@ def _numbers(line: str):
 
 
 def read_spectrum(path: str | os.PathLike) -> Spectrum:
-    """Read a two-column spectrum file (see the module's description of what is accepted)."""
+    """Read a two-column spectrum file (see the module's description of what is accepted).
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import bubblefit as bf
+    >>> path = os.path.join(tempfile.mkdtemp(), "film.csv")
+    >>> rows = [f"{400 + 10 * k},5;0,{k:02d}" for k in range(20)]   # decimal commas
+    >>> with open(path, "w") as f:
+    ...     _ = f.write("wavelength_nm;intensity\\n" + "\\n".join(rows))
+    >>> reading = bf.read_spectrum(path)
+    >>> reading.wavelength_nm[:3].tolist(), reading.intensity[:3].tolist()
+    ([400.5, 410.5, 420.5], [0.0, 0.01, 0.02])
+    """
     p = Path(path)
     if not p.is_file():
         raise InputError(f"spectrum {p}: no such file")

@@ -102,7 +102,15 @@ class Params:
     @staticmethod
     def make(t=0.972, r_d=None, r_s=None, f=0.3, roughness=0.01, thickness=500.0, n_film=1.4,
              exposure=1.0, rotation=0.0, disc=(0.0, 0.0, 0.0), profile=NO_PROFILE, dtype=jnp.float32) -> "Params":
-        """Parameters with eq. (14): ``r_d + r_s = 1 - t`` and ``f = r_d / r_s`` unless both given."""
+        """Parameters with eq. (14): ``r_d + r_s = 1 - t`` and ``f = r_d / r_s`` unless both given.
+
+        Examples
+        --------
+        >>> import bubblefit as bf
+        >>> p = bf.Params.make(t=0.97, f=0.5)
+        >>> round(float(p.r_d + p.r_s), 6), round(float(p.r_d / p.r_s), 6)   # 1 - t and f
+        (0.03, 0.5)
+        """
         if r_d is None or r_s is None:
             r_s = (1.0 - t) / (1.0 + f)
             r_d = (1.0 - t) - r_s

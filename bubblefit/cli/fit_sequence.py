@@ -51,7 +51,12 @@ def register(sub):
     p.add_argument("--workers", type=int, default=None,
                    help="local Dask workers (default: one per core); 0 fits in this process without Dask; "
                         "with --scheduler, use at most this many of the cluster's workers")
-    p.add_argument("--scheduler", metavar="ADDRESS", help="an existing Dask scheduler, e.g. tcp://host:8786")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="an existing Dask scheduler, e.g. tls://host:8786 (with --scheduler-security) or "
+                        "tcp://host:8786 (unencrypted, for a private network only)")
+    p.add_argument("--scheduler-security", metavar="FILE",
+                   help="TOML file naming the TLS files of a tls:// scheduler: tls_ca_file, tls_client_cert "
+                        "and optionally tls_client_key (see docs/safety.md)")
     p.add_argument("--chunk-size", type=int, default=8,
                    help="frames per task, fitted in order with warm starts (default: 8)")
     p.add_argument("--batch", type=int, default=1, metavar="N",
@@ -101,7 +106,14 @@ def run(args) -> int:
              f"Dask scheduler {args.scheduler}" if args.scheduler else
              f"a local Dask cluster of {args.workers or os.cpu_count()} workers")
     status(f"{len(frames)} frames, fitting on {where} ...")
-    seq = SequenceOptions(scheduler=None if args.workers == 0 else args.scheduler, workers=args.workers,
+    if args.scheduler_security and not args.scheduler:
+        raise InputError("--scheduler-security needs --scheduler tls://HOST:PORT")
+    scheduler = None
+    if args.scheduler and args.workers != 0:
+        from ..inverse._executors import SchedulerAddress
+
+        scheduler = SchedulerAddress(args.scheduler, args.scheduler_security)
+    seq = SequenceOptions(scheduler=scheduler, workers=args.workers,
                           chunk_size=args.chunk_size, force=args.force, retry_failed=args.retry_failed,
                           maps=args.maps, progress=not args.no_progress, warm_start=not args.no_warm_start,
                           batch=args.batch)

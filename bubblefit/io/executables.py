@@ -5,20 +5,35 @@ but its key is the lowered program: every process still traces the Python functi
 jaxpr and lowers it to MLIR before it can look the program up. For the fit's
 Levenberg-Marquardt solve (the render, its Jacobian, the trust region and the QR inside
 one ``while_loop``) that is about 0.5 s of tracing and 0.3 s of lowering per program,
-every process. :func:`stored` keeps the compiled executable itself
-(:mod:`jax.experimental.serialize_executable`) under a key computed without tracing:
+every process. :func:`stored` keeps the compiled executable itself under a key computed
+without tracing:
 
 - what the function is: a name and the static values it closes over (the render
-  configuration, the parameter table, the solver's settings), pickled;
+  configuration, the parameter table, the solver's settings), serialised for the key only;
 - the code it runs: a digest of every ``.py`` file of the bubblefit package, and the
   versions of JAX and jaxlib, the backend and the float64 flag;
 - what it is called with: the arguments' tree structure, shapes and dtypes.
 
-A change to any of them is a new key, so a stale program is never run. Any failure to
-store, to load or to run a loaded program the first time (a program with closed-over
-constants, a read-only cache, a damaged file) falls back to the plain jitted call. Files live in ``executables/`` of the
-compilation cache's folder (at most :data:`MAX_BYTES`). The store is used in processes
-that called :func:`~bubblefit.io.jaxcache.jax_setup` (the command line and its workers).
+A change to any of them is a new key, so a stale program is never run.
+
+What a file holds, and why nothing in it but XLA's program is ever run: no Python object is
+unpickled (JAX's own :mod:`jax.experimental.serialize_executable` pickles, so it is not
+used). A file is :data:`MAGIC`, a JSON header of plain data (the key, the input and output
+shapes and dtypes, the arguments the program keeps, the output tree as JAX's protocol-buffer
+description, which names no Python type), XLA's serialised executable as the backend
+writes it, and an HMAC-SHA256 of all that under a random key that the store created in its
+own folder (``.key``, mode ``0600``). The folders are created ``0700`` and not used when
+another user owns them or others can write them (:func:`bubblefit.io.jaxcache.private_folder`),
+so no one else can place a program there; a file whose digest, length or key does not
+match (planted, copied from another cache, cut short by a full disk) is ignored and
+replaced by a fresh compile. Programs the format cannot describe (closed-over constants,
+effects, host callbacks, several devices, user-defined output nodes) stay in memory only.
+
+Any failure to store, to load or to run a loaded program the first time falls back to the
+plain jitted call; a failed write (full or read-only disk) is reported once per process.
+Files live in ``executables/`` of the compilation cache's folder (at most
+:data:`MAX_BYTES`). The store is used in processes that called
+:func:`~bubblefit.io.jaxcache.jax_setup` (the command line and its workers).
 
 A program needed later can be started ahead (:meth:`Stored.prepare`): it is loaded or
 compiled in a background thread (:data:`COMPILE_THREADS` of them) while the caller goes

@@ -23,19 +23,21 @@ NAME = "fit"
 
 
 def register(sub):
+    from .common import input_file, output_file, output_prefix
+
     p = sub.add_parser(
         NAME, help="fit the bubble model to a photo (t, r_d, r_s, roughness, film thickness)",
         description="Recover the transmission t, the diffuse/specular split, Ward's roughness and the film "
                     "thickness (one value, a drainage profile or a per-pixel map) from a linear photo of a "
                     "bubble and its environment map, with standard errors.")
-    p.add_argument("photo", metavar="PHOTO", help="photo of the bubble (EXR/HDR linear; PNG/JPEG/TIFF sRGB)")
-    p.add_argument("--envmap", required=True, help="environment map (equirectangular, linear EXR/HDR), aligned "
+    p.add_argument("photo", metavar="PHOTO", type=input_file, help="photo of the bubble (EXR/HDR linear; PNG/JPEG/TIFF sRGB)")
+    p.add_argument("--envmap", required=True, type=input_file, help="environment map (equirectangular, linear EXR/HDR), aligned "
                                                    "with the camera (it looks along -z of the map's frame)")
-    p.add_argument("--background", metavar="BEFORE", help="photo of the same view without the bubble")
+    p.add_argument("--background", metavar="BEFORE", type=input_file, help="photo of the same view without the bubble")
     cal = p.add_mutually_exclusive_group()
-    cal.add_argument("--calibration", metavar="CAL.json", help="output of `bubblefit calibrate` (starting t, disc)")
+    cal.add_argument("--calibration", metavar="CAL.json", type=input_file, help="output of `bubblefit calibrate` (starting t, disc)")
     cal.add_argument("--t", type=float, help="starting transmission fraction t (0 < t < 1)")
-    p.add_argument("--scene", metavar="SCENE.toml",
+    p.add_argument("--scene", metavar="SCENE.toml", type=input_file,
                    help="scene file: its camera (orthographic disc or perspective, response, white balance, "
                         "samples per pixel), n_film (with dispersion), illuminant, effects, and every value its "
                         "[bubble] table sets, which is held fixed; the flags below override it")
@@ -55,8 +57,8 @@ def register(sub):
     p.add_argument("--free-split", action="store_true", help="fit r_d and r_s freely instead of r_d + r_s = 1 - t")
     p.add_argument("--fit-rotation", action="store_true", help="also fit the environment's rotation about +y")
     p.add_argument("--max-steps", type=int, default=None, help="Levenberg-Marquardt step limit")
-    p.add_argument("--json", metavar="OUT", help="write the result as JSON")
-    p.add_argument("-o", "--output", metavar="PREFIX", help="write PREFIX_render.exr, PREFIX_residual.exr "
+    p.add_argument("--json", metavar="OUT", type=output_file, help="write the result as JSON")
+    p.add_argument("-o", "--output", metavar="PREFIX", type=output_prefix, help="write PREFIX_render.exr, PREFIX_residual.exr "
                                                              "(and PREFIX_thickness.exr) with PNG previews")
     p.add_argument("--explain", action="store_true", help="print which effects are simulated or skipped, and why")
     p.add_argument("--strict", action="store_true", help="exit with status 1 when the fit did not converge")
@@ -181,17 +183,33 @@ def _bits(img) -> int | None:
     return None if img.linear_file else int(img.bit_depth)
 
 
+def build_fit_options(args, scene, bits: int | None):
+    """:class:`~bubblefit.inverse.fit.FitOptions` of ``fit`` and ``fit-sequence``, built in
+    this one place so that a sequence of one frame is fitted as ``fit`` fits the photo:
+    :func:`fit_option_values`, the model (``--model``, else the scene's, else ``auto``),
+    the photo's bit depth for the noise model (``bits``), and ``fit``'s own flags where the
+    command has them."""
+    from ..inverse.fit import FitOptions
+
+    model = args.model or (scene.table("effects").get("model", "auto") if scene is not None else "auto")
+    kw = dict(fit_option_values(args), model=model, bits=bits)
+    for flag in ("free_split", "fit_rotation"):
+        if hasattr(args, flag):
+            kw[flag] = getattr(args, flag)
+    return FitOptions(**kw)
+
+
 def run(args) -> int:
-    from ..inverse.fit import FitOptions, fit_photo
+    from ..inverse.fit import fit_photo
+    from ..io.atomic import output_set
     from ..io.images import preview_path, read_image, write_image
     from ..progress import stage
     from ..model.scene import load_scene
-    from .common import guard_outputs, scene_inputs, write_json
+    from .common import guard_args, scene_inputs, write_json
 
     scene = load_scene(args.scene) if args.scene else None
-    inputs = [args.photo, args.envmap, args.background, args.calibration, args.scene]
-    guard_outputs(inputs + (scene_inputs(scene) if scene is not None else []), [args.json, *output_paths(args)])
-    option_values = fit_option_values(args)
+    guard_args(args, inputs=scene_inputs(scene) if scene is not None else [], outputs=output_paths(args))
+    fit_option_values(args)  # bad values refused before any photo is read
     with stage("reading the photo and the environment map"):
         photo = read_image(args.photo, dtype=np.float32)  # the fit's arithmetic is float32
         env = load_envmap(args.envmap)
@@ -202,10 +220,7 @@ def run(args) -> int:
             raise InputError(f"the background {args.background} is {bimg.pixels.shape[1]}x{bimg.pixels.shape[0]}, "
                              f"the photo is {photo.pixels.shape[1]}x{photo.pixels.shape[0]}")
         background = bimg.pixels
-    model = args.model or (scene.table("effects").get("model", "auto") if scene is not None else "auto")
-    kw = dict(option_values, model=model, free_split=args.free_split, fit_rotation=args.fit_rotation,
-              bits=_bits(photo))
-    options = FitOptions(**kw)
+    options = build_fit_options(args, scene, _bits(photo))
     with stage(f"fitting {photo.pixels.shape[1]}x{photo.pixels.shape[0]} ({options.thickness} thickness, "
                f"{options.model} model)"):
         result = fit_photo(photo.pixels, env, options=options, background=background, scene=scene,
@@ -217,11 +232,12 @@ def run(args) -> int:
         for d in result.effects:
             print(d.line())
     print(result.report())
-    if args.output:
-        with stage("writing the maps"):
-            out["outputs"] = _write_outputs(args.output, result, write_image, preview_path)
-    if args.json:
-        write_json(args.json, out)
+    with output_set():  # the maps and the JSON replace the earlier ones together, or none does
+        if args.output:
+            with stage("writing the maps"):
+                out["outputs"] = _write_outputs(args.output, result, write_image, preview_path)
+        if args.json:
+            write_json(args.json, out)
     if args.strict and not result.ok:
         raise ComputationError("the fit is not ok: " + ("; ".join(result.warnings) or result.message))
     return 0
@@ -234,6 +250,7 @@ def _thickness_png(path: str, tmap: np.ndarray, label: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from ..io.atomic import check_png
     from ..io.images import atomic_path
 
     h, w = tmap.shape
@@ -242,7 +259,7 @@ def _thickness_png(path: str, tmap: np.ndarray, label: str) -> None:
     ax.set_axis_off()
     fig.colorbar(im, ax=ax, fraction=0.046, label=label)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
+    with atomic_path(path, check=check_png) as tmp:
         fig.savefig(tmp, dpi=100, format="png")
     plt.close(fig)
 

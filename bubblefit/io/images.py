@@ -232,8 +232,26 @@ def write_image(path: str | os.PathLike, pixels: np.ndarray, *, bit_depth: int |
     spec = oiio.ImageSpec(w, h, c, fmt)
     if ext in (".jpg", ".jpeg"):
         spec.attribute("Compression", "jpeg:95")
-    with atomic_path(path) as tmp:
+    with atomic_path(path, check=lambda tmp: _check_written(tmp, path, spec)) as tmp:
         _write_oiio(tmp, path, spec, np.ascontiguousarray(data))
+
+
+def _check_written(tmp: str, shown: os.PathLike, spec) -> None:
+    """Read the image just written back whole, so that a writer that reported success on a
+    short write (a full disk seen by no return value) never replaces a good file: the
+    header must give the size written and every pixel must decode."""
+    inp = oiio.ImageInput.open(tmp)
+    if inp is None:
+        raise OutputError(f"cannot write {shown}: the written file does not read back (disk full?)")
+    try:
+        got = inp.spec()
+        data = inp.read_image(0, 0, 0, got.nchannels, oiio.FLOAT) \
+            if (got.width, got.height, got.nchannels) == (spec.width, spec.height, spec.nchannels) else None
+        err = inp.geterror()
+    finally:
+        inp.close()
+    if data is None or np.asarray(data).size != spec.width * spec.height * spec.nchannels or err:
+        raise OutputError(f"cannot write {shown}: the written file does not read back whole (disk full?)")
 
 
 def _write_oiio(tmp: str, shown: os.PathLike, spec, data: np.ndarray) -> None:

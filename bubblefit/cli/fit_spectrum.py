@@ -24,7 +24,7 @@ _CSV_COLUMNS = ("file", "thickness_nm", "thickness_nm_stderr", "ok", "order", "f
 
 
 def register(sub):
-    from .common import input_file, output_file
+    from .common import input_file, output_file, output_prefix
 
     p = sub.add_parser(
         "fit-spectrum", help="film thickness from spectrometer readings (two-column text files)",
@@ -64,7 +64,7 @@ def register(sub):
                         "are read with it, from their brightness; needs at least 3 readings that are ok alone")
     p.add_argument("--csv", type=output_file, help="CSV, one row per file: " + ",".join(_CSV_COLUMNS[:4]) + ",...")
     p.add_argument("--json", type=output_file, help="JSON with one entry per file")
-    p.add_argument("-o", "--output", metavar="PLOT_PREFIX", help="write PLOT_PREFIX_<file>.png per file")
+    p.add_argument("-o", "--output", metavar="PLOT_PREFIX", type=output_prefix, help="write PLOT_PREFIX_<file>.png per file")
     p.add_argument("--strict", action="store_true", help="exit 1 when any file's result is not ok")
     p.set_defaults(func=run)
 

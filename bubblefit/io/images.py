@@ -242,6 +242,7 @@ def _check_written(tmp: str, shown: os.PathLike, spec) -> None:
     header must give the size written and every pixel must decode."""
     inp = oiio.ImageInput.open(tmp)
     if inp is None:
+        oiio.geterror()  # taken, so that OpenImageIO does not print it at exit
         raise OutputError(f"cannot write {shown}: the written file does not read back (disk full?)")
     try:
         got = inp.spec()

@@ -49,6 +49,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .. import __version__
 
     parser.add_argument("--version", action="version", version=f"bubblefit {__version__}")
+    parser.add_argument("--max-megapixels", type=float, default=None, metavar="N",
+                        help="largest image read, in millions of pixels (default 150; checked from the "
+                             "file's header before decoding)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name in COMMANDS:
@@ -76,6 +79,11 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.max_megapixels is not None:
+        if not (args.max_megapixels > 0 and args.max_megapixels < 1e6):
+            parser.error(f"--max-megapixels must be a positive number of millions of pixels, got {args.max_megapixels:g}")
+        os.environ["BUBBLEFIT_MAX_PIXELS"] = str(int(args.max_megapixels * 1e6))  # workers inherit it
+    _one_line_warnings()
     jax_setup()
     previous = _terminate_as_exit()
     try:
@@ -107,6 +115,20 @@ def main(argv: list[str] | None = None) -> int:
             import signal
 
             signal.signal(signal.SIGTERM, previous)
+
+
+def _one_line_warnings() -> None:
+    """Warnings as one ``bubblefit: warning: ...`` line each (no source line); NumPy's
+    floating-point RuntimeWarnings (overflow in an intermediate of a refused input) are
+    not shown: every result they could affect is checked and reported by the command."""
+    import warnings
+
+    warnings.filterwarnings("ignore", category=RuntimeWarning)
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        print(f"bubblefit: warning: {_one_line(message)}", file=file or sys.stderr)
+
+    warnings.showwarning = show
 
 
 def _terminate_as_exit():

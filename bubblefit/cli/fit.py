@@ -90,15 +90,24 @@ def load_envmap(path: str):
     return env
 
 
+#: Largest calibration file read (``bubblefit calibrate`` writes about 2 KB); a larger
+#: one (``/dev/zero``, a photo given by mistake) is refused before it fills the memory.
+MAX_CALIBRATION_BYTES = 1024 * 1024
+
+
 def read_calibration(path: str) -> tuple[float, tuple | None, tuple | None]:
     """``(t, disc or None, image_size or None)`` from a ``bubblefit calibrate`` JSON
     (``image_size`` [w, h] of the calibration frame, when it records it)."""
     try:
-        with open(path) as fh:
-            data = json.load(fh)
+        with open(path, "rb") as fh:
+            text = fh.read(MAX_CALIBRATION_BYTES + 1)
+        if len(text) > MAX_CALIBRATION_BYTES:
+            raise InputError(f"calibration {path} is larger than {MAX_CALIBRATION_BYTES // 1024} KiB: "
+                             "not the output of bubblefit calibrate")
+        data = json.loads(text.decode("utf-8"))
     except OSError as exc:
         raise InputError(f"cannot read calibration {path}: {exc.strerror}") from None
-    except ValueError:
+    except ValueError:  # JSON and UTF-8 errors
         raise InputError(f"calibration {path} is not valid JSON") from None
     t = data.get("t") if isinstance(data, dict) else None
     if not isinstance(t, (int, float)) or isinstance(t, bool) or not 0 < t < 1:
@@ -179,6 +188,19 @@ def output_paths(args) -> list[str]:
     return exrs + [str(preview_path(p)) for p in exrs]
 
 
+#: Fewest pixels on each side of a photo that can hold a bubble for the fit: the disc's
+#: detection smooths with a Gaussian of a few pixels and needs 50 pixels of bubble.
+MIN_PHOTO_SIDE = 16
+
+
+def check_photo_size(img, path) -> None:
+    """Refuse a photo too small (on either side) to hold a bubble: :data:`MIN_PHOTO_SIDE`."""
+    h, w = img.pixels.shape[:2]
+    if min(h, w) < MIN_PHOTO_SIDE:
+        raise InputError(f"photo {path} is {w}x{h} pixels: too small to hold a bubble "
+                         f"(at least {MIN_PHOTO_SIDE} pixels on each side)")
+
+
 def _bits(img) -> int | None:
     return None if img.linear_file else int(img.bit_depth)
 
@@ -212,6 +234,7 @@ def run(args) -> int:
     fit_option_values(args)  # bad values refused before any photo is read
     with stage("reading the photo and the environment map"):
         photo = read_image(args.photo, dtype=np.float32)  # the fit's arithmetic is float32
+        check_photo_size(photo, args.photo)
         env = load_envmap(args.envmap)
     background = None
     if args.background:

@@ -14,7 +14,7 @@ import os
 from pathlib import Path
 
 from ..errors import InputError
-from .fit import add_model_options, build_fit_options, load_envmap
+from .fit import add_model_options, build_fit_options, check_photo_size, load_envmap
 
 
 def register(sub):
@@ -84,6 +84,7 @@ def frame_bits(frames) -> int | None:
     if first.video_frame is not None:
         return 8
     img = read_image(first.source)
+    check_photo_size(img, first.source)
     return None if img.linear_file else int(img.bit_depth)
 
 

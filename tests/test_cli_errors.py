@@ -947,3 +947,43 @@ def test_a_closed_pipe_ends_quietly(files, tmp_path):
     err = proc.stderr.read().decode()
     proc.wait(timeout=120)
     assert err == "" and proc.returncode == 141, (proc.returncode, err)
+
+
+# --------------------------------------------------------------------------------------
+# bad input: one line, exit 2, inputs unchanged
+# --------------------------------------------------------------------------------------
+def _bad_inputs(files, d: Path) -> dict:
+    """name -> (argv, the inputs that must stay byte-identical, a word the line must hold)."""
+    long = d / "long.png"
+    write_image(long, np.full((1, 100000, 3), 0.5))
+    black = d / "black.png"
+    write_image(black, np.zeros((48, 48, 3)))
+    lit = d / "lit.png"
+    write_image(lit, _disc_photo(48, 48))
+    jpg = d / "photo.jpg"
+    write_image(jpg, _disc_photo(64, 64))
+    raw = jpg.read_bytes()
+    cut = d / "cut.jpg"
+    cut.write_bytes(raw[: int(0.96 * len(raw))])
+    env = files["env"]
+    return {
+        "fit_long_png": (["fit", long, "--envmap", env, "--t", "0.96"], [long], "too small"),
+        "fit_black_photo_with_background": (["fit", black, "--envmap", env, "--background", lit, "--t", "0.96"],
+                                            [black, lit], "bubble"),
+        "fit_calibration_dev_zero": (["fit", lit, "--envmap", env, "--calibration", "/dev/zero"], [lit], "larger"),
+        "calibrate_truncated_jpeg": (["calibrate", jpg, cut, "-q"], [jpg, cut], "truncated"),
+        "calibrate_circle_beyond_the_image": (["calibrate", files["photo"], files["photo"], "--circle", "12,12,400"],
+                                              [files["photo"]], "beyond"),
+    }
+
+
+@pytest.mark.parametrize("case", ["fit_long_png", "fit_black_photo_with_background", "fit_calibration_dev_zero",
+                                  "calibrate_truncated_jpeg", "calibrate_circle_beyond_the_image"])
+def test_bad_input_is_one_line_and_exit_2(case, files, tmp_path, capsys):
+    argv, keep, word = _bad_inputs(files, tmp_path)[case]
+    before = _snapshot(*keep)
+    rc, _, err = run_cli(capsys, argv)
+    line = assert_one_line_error(rc, err)
+    assert rc == 2 and word in line, line
+    assert _snapshot(*keep) == before
+    assert_no_temp_files(tmp_path)

@@ -332,3 +332,22 @@ def test_tiff_is_written_and_read_back(tmp_path):
         assert got.bit_depth == depth
         want = srgb_decode(np.round(srgb_encode(img) * maxcode) / maxcode)
         np.testing.assert_allclose(got.pixels, want, atol=1e-6)
+
+
+def test_an_8bit_environment_map_is_warned_about(tmp_path):
+    """A JPEG map is read, with a warning that it is 8-bit and clipped; an EXR map is not."""
+    import warnings
+
+    from bubblefit.cli.fit import load_envmap
+    from bubblefit.io.images import ImageWarning, write_image
+
+    px = np.full((16, 32, 3), 0.4)
+    px[3, 5] = 50.0  # a sun, clipped to 1 in the JPEG
+    write_image(tmp_path / "env.jpg", px)
+    write_image(tmp_path / "env.exr", px, bit_depth=32)
+    with pytest.warns(ImageWarning, match="8 bits per channel"):
+        env = load_envmap(str(tmp_path / "env.jpg"))
+    assert float(np.max(env.pixels)) <= 1.0 + 1e-6
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ImageWarning)
+        assert float(np.max(load_envmap(str(tmp_path / "env.exr")).pixels)) > 10

@@ -987,3 +987,15 @@ def test_bad_input_is_one_line_and_exit_2(case, files, tmp_path, capsys):
     assert rc == 2 and word in line, line
     assert _snapshot(*keep) == before
     assert_no_temp_files(tmp_path)
+
+
+@pytest.mark.parametrize("how", ["disc", "calibration"])
+def test_a_disc_with_300_digits_is_one_short_line(how, files, tmp_path, capsys):
+    import json
+
+    cal = tmp_path / "cal.json"
+    cal.write_text(json.dumps({"t": 0.96, "bubble": {"cx": 1e300, "cy": 12.0, "r": 8.0}}))
+    extra = ["--disc", "1e300,12,8", "--t", "0.96"] if how == "disc" else ["--calibration", cal]
+    rc, _, err = run_cli(capsys, ["fit", files["photo"], "--envmap", files["env"], *extra])
+    line = assert_one_line_error(rc, err)
+    assert rc == 2 and len(line) < 300 and "000000000000" not in line, line

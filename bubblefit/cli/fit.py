@@ -98,6 +98,11 @@ def load_envmap(path: str):
     return env
 
 
+#: Largest pixel coordinate or radius a disc may have: the side of an image at the pixel
+#: limit (:data:`bubblefit.io.images.MAX_PIXELS`) is far below it, and numbers beyond
+#: would print with hundreds of digits.
+MAX_PIXEL_COORDINATE = 1e6
+
 #: Largest calibration file read (``bubblefit calibrate`` writes about 2 KB); a larger
 #: one (``/dev/zero``, a photo given by mistake) is refused before it fills the memory.
 MAX_CALIBRATION_BYTES = 1024 * 1024
@@ -124,6 +129,9 @@ def read_calibration(path: str) -> tuple[float, tuple | None, tuple | None]:
     b = data.get("bubble")
     if isinstance(b, dict) and all(isinstance(b.get(k), (int, float)) for k in ("cx", "cy", "r")):
         disc = (float(b["cx"]), float(b["cy"]), float(b["r"]))
+        if not all(abs(v) < MAX_PIXEL_COORDINATE for v in disc) or disc[2] <= 0:
+            raise InputError(f"calibration {path} has an impossible disc: centre and radius must be pixel "
+                             f"coordinates below {MAX_PIXEL_COORDINATE:g} and the radius positive")
     size = data.get("image_size")
     if not (isinstance(size, (list, tuple)) and len(size) == 2 and all(isinstance(v, int) for v in size)):
         size = None
@@ -147,6 +155,8 @@ def fit_option_values(args) -> dict:
         disc = parse_floats(args.disc, 3, "--disc")
         if disc[2] <= 0:
             raise InputError(f"--disc radius must be positive, got {args.disc!r}")
+        if not all(abs(v) < MAX_PIXEL_COORDINATE for v in disc):
+            raise InputError(f"--disc must be pixel coordinates below {MAX_PIXEL_COORDINATE:g}, got {args.disc!r}")
     lo, hi = parse_floats(args.thickness_range, 2, "--thickness-range")
     if not (math.isfinite(lo) and math.isfinite(hi)):
         raise InputError(f"--thickness-range must be two finite thicknesses in nm, got {args.thickness_range}")

@@ -289,3 +289,34 @@ def test_a_cache_folder_others_can_write_is_not_used(tmp_path):
     assert out.returncode == 0 and out.stdout.split() == ["None", "None"]
     lines = [ln for ln in out.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and "not using the compilation cache" in lines[0] and str(shared) in lines[0]
+
+
+def test_unreadable_jax_cache_entries_are_replaced_and_write_errors_said_once(tmp_path, monkeypatch, capsys):
+    """An entry of JAX's cache cut short (a full disk) is deleted when it fails to load, so
+    the compile that follows writes it anew; failed writes are one warning line in all."""
+    from jax._src import compilation_cache
+
+    from bubblefit.io import executables
+
+    monkeypatch.setattr(executables, "_WARNED", set())
+    calls = []
+
+    def failing_get(key, *args, **kwargs):
+        calls.append(key)
+        raise ValueError("truncated entry")
+
+    def failing_put(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(compilation_cache, "get_executable_and_time", failing_get)
+    monkeypatch.setattr(compilation_cache, "put_executable_and_time", failing_put)
+    monkeypatch.setattr(executables, "_jax_cache_dir", lambda: str(tmp_path))
+    executables._guard_jax_cache()
+    entry = tmp_path / "jit_f-abc-cache"
+    entry.write_bytes(b"cut")
+    assert compilation_cache.get_executable_and_time("jit_f-abc") == (None, None)
+    assert calls == ["jit_f-abc"] and not entry.exists()
+    for _ in range(3):
+        compilation_cache.put_executable_and_time("k", "m", None, None, 0)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no space left on device" in err[0]

@@ -323,6 +323,8 @@ def _save(path: Path, compiled) -> None:
     from .atomic import write_bytes
 
     header, payload = _describe(compiled, path.stem)
+    if path.is_symlink():  # never written through: the link itself is replaced by the file
+        path.unlink()
     write_bytes(path, _pack(header, payload, _secret(path.parent)))
 
 
@@ -483,11 +485,16 @@ def _guard_jax_cache() -> None:
         compilation_cache.put_executable_and_time = put_executable_and_time
 
 
-def _remove_jax_entry(cache_key: str) -> None:
-    """Delete JAX's persistent-cache entry ``cache_key`` (its ``-cache`` and ``-atime`` files)."""
+def _jax_cache_dir() -> str | None:
+    """The folder of JAX's persistent compilation cache in this process (None: no cache)."""
     import jax
 
-    cache = getattr(jax.config, "jax_compilation_cache_dir", None)
+    return getattr(jax.config, "jax_compilation_cache_dir", None)
+
+
+def _remove_jax_entry(cache_key: str) -> None:
+    """Delete JAX's persistent-cache entry ``cache_key`` (its ``-cache`` and ``-atime`` files)."""
+    cache = _jax_cache_dir()
     if not cache or not cache_key or "/" in cache_key or cache_key.startswith("."):
         return
     for suffix in ("-cache", "-atime"):

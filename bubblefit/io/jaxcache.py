@@ -79,6 +79,11 @@ def _drop_empty_entries(cache: str) -> None:
 
 
 def _quiet_logs() -> None:
+    import warnings
+
+    # JAX warns once per program about a cache entry it cannot write or read (a full disk
+    # gave 21 lines); the store reports such errors once itself (executables.warn_once)
+    warnings.filterwarnings("ignore", message=r"Error (reading|writing) persistent compilation cache entry")
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")  # XLA's C++ log: nothing below fatal
     os.environ.setdefault("GLOG_minloglevel", "3")
     for name in ("jax._src.xla_bridge", "jax._src.compiler", "jax._src.compilation_cache",

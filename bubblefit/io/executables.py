@@ -166,16 +166,21 @@ def _secret(folder: Path) -> bytes:
     own, is readable or writable by others, or is not the right length makes the store
     unusable (:class:`StoreError`): nothing in the folder is trusted then."""
     path = folder / ".key"
-    try:
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o600)
-    except FileExistsError:
-        pass
-    else:
+    if not os.path.lexists(path):  # written whole under another name, then linked: never seen half-written
+        tmp = folder / f".key.{secrets.token_hex(8)}"
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o600)
         try:
-            os.write(fd, secrets.token_bytes(SECRET_BYTES))
-            os.fsync(fd)
+            try:
+                if os.write(fd, secrets.token_bytes(SECRET_BYTES)) != SECRET_BYTES:
+                    raise OSError(28, "No space left on device")
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+            os.link(tmp, path)  # fails if another process made its key first: that one is used
+        except FileExistsError:
+            pass
         finally:
-            os.close(fd)
+            tmp.unlink(missing_ok=True)
     fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
     try:
         st = os.fstat(fd)
@@ -186,7 +191,7 @@ def _secret(folder: Path) -> bytes:
     finally:
         os.close(fd)
     if len(key) != SECRET_BYTES:
-        path.unlink(missing_ok=True)  # a key cut short (full disk): a new one next time
+        path.unlink(missing_ok=True)  # a key cut short (a full disk): a new one next time
         raise StoreError(f"{path} is damaged")
     return key
 

@@ -282,11 +282,13 @@ def test_a_cache_folder_others_can_write_is_not_used(tmp_path):
     shared.mkdir()
     os.chmod(shared, 0o777)
     assert "writable by others" in private_folder(shared)
-    script = ("import os, jax; from bubblefit.io.jaxcache import jax_setup; s = jax_setup(os.environ['C']); "
-              "print(s['cache_dir'], jax.config.jax_compilation_cache_dir)")
-    out = subprocess.run([sys.executable, "-c", script], env={**os.environ, "C": str(shared)},
+    script = ("import os, jax; from bubblefit.io.jaxcache import jax_setup; from bubblefit.io import executables; "
+              "s = jax_setup(os.environ['C']); "
+              "print(s['cache_dir'], jax.config.jax_compilation_cache_dir, executables._folder())")
+    out = subprocess.run([sys.executable, "-c", script], env={**os.environ, "C": str(shared),
+                                                             "BUBBLEFIT_CACHE_DIR": str(shared)},
                          capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0 and out.stdout.split() == ["None", "None"]
+    assert out.returncode == 0 and out.stdout.split() == ["None", "None", "None"]
     lines = [ln for ln in out.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and "not using the compilation cache" in lines[0] and str(shared) in lines[0]
 

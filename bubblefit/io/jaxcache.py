@@ -34,6 +34,11 @@ def default_cache_dir() -> str:
         os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "bubblefit", "jax")
 
 
+#: Cache folders refused in this process (:func:`private_folder`): neither JAX's cache nor
+#: the store of executables uses them, and :func:`jax_settings` does not pass them on.
+_REFUSED: set[str] = set()
+
+
 def private_folder(path: str | os.PathLike) -> str | None:
     """Create ``path`` (and missing parents) with mode ``0700`` and check that no one but
     this user can change what is in it; None when it is private, else the reason in a few
@@ -124,6 +129,7 @@ def jax_setup(cache_dir: str | None = None, *, enable_x64: bool | None = None, q
         from .executables import warn_once
 
         warn_once("cache", f"not using the compilation cache: {problem}")
+        _REFUSED.add(os.path.abspath(cache))
         cache = None
         os.environ.pop("JAX_COMPILATION_CACHE_DIR", None)
     else:
@@ -162,5 +168,5 @@ def jax_settings() -> dict:
         x64 = bool(jax.config.jax_enable_x64)
     if x64 is None:
         x64 = os.environ.get("JAX_ENABLE_X64", "0").lower() in ("1", "true")
-    return {"cache_dir": cache or os.environ.get("JAX_COMPILATION_CACHE_DIR") or default_cache_dir(),
-            "enable_x64": x64}
+    cache = cache or os.environ.get("JAX_COMPILATION_CACHE_DIR") or default_cache_dir()
+    return {"cache_dir": None if os.path.abspath(cache) in _REFUSED else cache, "enable_x64": x64}

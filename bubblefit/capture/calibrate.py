@@ -85,6 +85,10 @@ def _given_circle(circle, w: int, h: int) -> tuple[float, float, float]:
         raise InputError(f"circle: need a finite centre and a positive radius, got {circle}")
     if not (-r < cx < w + r and -r < cy < h + r):
         raise InputError(f"circle: the centre ({cx:g}, {cy:g}) is outside the {w}x{h} image")
+    slack = 0.02 * r  # a rim drawn by hand a pixel or two past the frame's edge
+    if cx - r < -slack or cy - r < -slack or cx + r > w + slack or cy + r > h + slack:
+        raise InputError(f"circle: radius {r:g} around ({cx:g}, {cy:g}) reaches beyond the {w}x{h} image; the "
+                         "whole bubble and background around it must be in the frame")
     return cx - 0.5, cy - 0.5, r
 
 

@@ -136,6 +136,9 @@ def detect_bubble(
             "(is the checkered background visible and correctly exposed?)"
         )
     level = _background_level(vals)
+    if not level > 0:
+        raise InputError("no bubble found: the second image is black where the first is lit "
+                         "(are both files the right ones, and exposed the same?)")
     # noise of the smoothed ratio: per-pixel noise (from the high-pass residual, hardly
     # touched by the bubble's edge) times the noise gain of the Gaussian (1 / (2 sqrt(pi) sigma)),
     # doubled for the holes left by unusable pixels

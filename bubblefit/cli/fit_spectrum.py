@@ -24,6 +24,8 @@ _CSV_COLUMNS = ("file", "thickness_nm", "thickness_nm_stderr", "ok", "order", "f
 
 
 def register(sub):
+    from .common import input_file, output_file, output_prefix
+
     p = sub.add_parser(
         "fit-spectrum", help="film thickness from spectrometer readings (two-column text files)",
         description="Film thickness from spectrometer readings: two-column text files wavelength_nm,intensity "
@@ -31,9 +33,9 @@ def register(sub):
                     "(or, with --normalised, already divided by it). "
                     "Without --reference the lamp is an unknown smooth spectrum fitted with the film. "
                     "The order is found by a global search; ok is false (with the reason) when it is ambiguous.")
-    p.add_argument("spectra", nargs="+", metavar="SPECTRUM", help="spectrum file(s)")
-    p.add_argument("--dark", help="dark reading (no film, no light), subtracted from every reading first")
-    p.add_argument("--reference", help="reading of the lamp (or of a reflector) alone, same spectrometer")
+    p.add_argument("spectra", nargs="+", metavar="SPECTRUM", type=input_file, help="spectrum file(s)")
+    p.add_argument("--dark", type=input_file, help="dark reading (no film, no light), subtracted from every reading first")
+    p.add_argument("--reference", type=input_file, help="reading of the lamp (or of a reflector) alone, same spectrometer")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--n-film", default=None,
                    help="film index: a number or a preset (soap, water); default soap (1.324188 + 3102.06/lambda^2)")
@@ -60,9 +62,9 @@ def register(sub):
                    help="the files are one series under the same lamp (a draining film): the readings that can be "
                         "read alone fit the lamp, and the others (films under a fringe, down to the black film) "
                         "are read with it, from their brightness; needs at least 3 readings that are ok alone")
-    p.add_argument("--csv", help="CSV, one row per file: " + ",".join(_CSV_COLUMNS[:4]) + ",...")
-    p.add_argument("--json", help="JSON with one entry per file")
-    p.add_argument("-o", "--output", metavar="PLOT_PREFIX", help="write PLOT_PREFIX_<file>.png per file")
+    p.add_argument("--csv", type=output_file, help="CSV, one row per file: " + ",".join(_CSV_COLUMNS[:4]) + ",...")
+    p.add_argument("--json", type=output_file, help="JSON with one entry per file")
+    p.add_argument("-o", "--output", metavar="PLOT_PREFIX", type=output_prefix, help="write PLOT_PREFIX_<file>.png per file")
     p.add_argument("--strict", action="store_true", help="exit 1 when any file's result is not ok")
     p.set_defaults(func=run)
 
@@ -77,15 +79,16 @@ def _pair(text: str, name: str) -> tuple[float, float]:
 
 
 def _check_outputs(args) -> None:
-    """No output may be one of the inputs or another output (:func:`.common.guard_outputs`)."""
-    from .common import guard_outputs
+    """No output may be one of the inputs or another output, and every output's folder is writable
+    (:func:`.common.guard_args`)."""
+    from .common import guard_args
 
     if args.output and len({Path(s).stem for s in args.spectra}) < len(args.spectra):
         raise InputError("two spectra have the same file name; their plots would collide (run them separately)")
     plots = [f"{args.output}_{Path(s).stem}.png" for s in args.spectra] if args.output else []
     if args.output and args.shared_lamp:
         plots.append(f"{args.output}_series.png")
-    guard_outputs([*args.spectra, args.dark, args.reference], [args.csv, args.json, *plots])
+    guard_args(args, outputs=plots)
 
 
 def run(args) -> int:

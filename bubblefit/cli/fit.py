@@ -13,6 +13,7 @@ not ``ok`` says why (and exits 1 with ``--strict``).
 from __future__ import annotations
 
 import json
+import os
 import math
 
 import numpy as np
@@ -212,6 +213,9 @@ def run(args) -> int:
                            saturated=photo.saturated)
     out = result.to_json()
     out["photo"] = str(args.photo)
+    out["inputs"] = {k: None if v is None else os.path.abspath(v) for k, v in
+                     (("envmap", args.envmap), ("background", args.background), ("scene", args.scene),
+                      ("calibration", args.calibration))}
     if args.explain:
         print("effect               state     [setting] reason")
         for d in result.effects:

@@ -8,7 +8,7 @@ def register(sub):
         "demo", help="synthesise a capture on a shipped map, calibrate, fit, and report true vs recovered",
         description="Synthesise a capture on the shipped courtyard map (calibration pair and a bubble photo "
                     "with known parameters, noise, 8-bit files), run calibrate and fit, print true against "
-                    "recovered values with standard errors, and write report.png and index.html.")
+                    "recovered values with standard errors, and write the fit's page (index.html).")
     p.add_argument("--out", default="bubblefit-demo", help="output folder (default: %(default)s)")
     p.add_argument("--size", type=int, default=96, help="side of the synthetic photos in pixels (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="seed of the noise (default: %(default)s)")

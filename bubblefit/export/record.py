@@ -253,12 +253,12 @@ def _thickness(data: dict, kind: str, base: Path, height: int, width: int) -> Th
         mpath = _need_file(_resolve(outputs.get("thickness"), base), "thickness map")
         if mpath is None:
             raise InputError("the fit result of a thickness map names no map (run `bubblefit fit -o PREFIX`)")
-        tmap = read_image(mpath, linear=True).pixels[..., 0]
+        tmap = read_image(mpath, linear=True, allow_nan=True).pixels[..., 0]
         if tmap.shape != (height, width):
             raise InputError(f"the thickness map {mpath} is {tmap.shape[1]}x{tmap.shape[0]}, "
                              f"the photo {width}x{height}")
         spath = _resolve(outputs.get("thickness_stderr"), base)
-        serr = read_image(spath, linear=True).pixels[..., 0] if spath and os.path.isfile(spath) else None
+        serr = read_image(spath, linear=True, allow_nan=True).pixels[..., 0] if spath and os.path.isfile(spath) else None
         if not np.isfinite(tmap).any():
             raise InputError(f"the thickness map {mpath} has no finite value")
         return Thickness("map", profile=profile, map=tmap, map_stderr=serr)

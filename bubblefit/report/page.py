@@ -166,7 +166,7 @@ h1{font-size:1.7em;margin-bottom:.2em} h2{font-size:1.3em;margin-top:1.6em;borde
 .bad{background:#fdecea;border:1px solid #e0837a} .verdict p{margin:.3em 0} .verdict ul{margin:.3em 0}
 figure{margin:1em 0} figure img{max-width:100%;height:auto;border:1px solid #eee}
 figcaption{color:#555;font-size:.95em}
-.grid{display:grid;grid-template-columns:1fr 1fr;gap:1em} @media(max-width:900px){.grid{grid-template-columns:1fr}}
+.grid{display:grid;grid-template-columns:1fr 1fr;gap:1em} .wide{grid-column:1/-1;text-align:center} @media(max-width:900px){.grid{grid-template-columns:1fr}}
 table{border-collapse:collapse;margin:.5em 0} td,th{padding:4px 12px;text-align:left;vertical-align:top}
 th{background:#f0f0f0} tr:nth-child(even) td{background:#f8f8f8} td.num{text-align:right;font-variant-numeric:tabular-nums}
 dt{font-weight:bold;margin-top:.6em} code{background:#f3f3f3;padding:0 3px}"""
@@ -231,21 +231,21 @@ def write_fit_page(data: ReportData, out: str | os.PathLike, *, title: str = "bu
     if data.photo is not None or data.render is not None:
         figures.photo_render_figure(out / "photo_render.png", data.photo, data.render, disc, photo_title)
         figs.append(("photo_render.png", "The photo and the fitted render, as the file shows them (sRGB); "
-                                         "the dotted circle is the fitted disc."))
+                                         "the dotted circle is the fitted disc.", True))
     if data.residual is not None:
         figures.residual_figure(out / "residual.png", data.residual, fit.get("residual_rms"))
         figs.append(("residual.png", "Photo minus render, averaged over R, G and B, in the photo's linear "
-                                     "units (the colour bar); the scale is symmetric about 0."))
+                                     "units (the colour bar); the scale is symmetric about 0.", False))
     if data.thickness is not None:
         figures.thickness_figure(out / "thickness.png", data.thickness, data.thickness_stderr, disc)
         figs.append(("thickness.png", "Front-film thickness per pixel and, for a map, its standard error "
-                                      "(colour bars in nm; 1st to 99th percentile)."))
+                                      "(colour bars in nm; 1st to 99th percentile).", data.thickness_stderr is not None))
     prof = _profile(data, truth_column)
     if prof is not None:
         y, d, s, label = prof
         figures.profile_figure(out / "profile.png", y, d, s, label, truth_column)
         figs.append(("profile.png", "Thickness against height on the bubble, with a band of one standard "
-                                    "error (it includes the thickness model error)."))
+                                    "error (it includes the thickness model error).", False))
     write_json(out / "fit.json", fit)
 
     ok = bool(fit.get("ok"))
@@ -256,7 +256,8 @@ def write_fit_page(data: ReportData, out: str | os.PathLike, *, title: str = "bu
                + ("<p>Warnings:</p><ul>" + "".join(f"<li>{esc(w)}</li>" for w in warns) + "</ul>" if warns
                   else "<p>No warnings.</p>") + "</div>")
     fig_html = "<div class='grid'>" + "".join(
-        f"<figure><img src='{f}' alt='{esc(c)}'><figcaption>{esc(c)}</figcaption></figure>" for f, c in figs
+        f"<figure{' class=wide' if wide else ''}><img src='{f}' alt='{esc(c)}'>"
+        f"<figcaption>{esc(c)}</figcaption></figure>" for f, c, wide in figs
     ) + "</div>" if figs else ("<p>No images: run <code>bubblefit fit ... -o PREFIX --json FIT.json</code> "
                                "so that the result names its render, residual and maps.</p>")
     rows = "\n".join(

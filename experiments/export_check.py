@@ -9,7 +9,10 @@ the true radius). Both images are taken as linear sRGB clipped to [0, 1] (the ph
 
 Yardsticks in the same table: the fit's own render against the photo (what the fit
 itself reaches), and the photo against its background photo outside the bubble (1.1 r and
-beyond: two noisy 8-bit captures of the same scene; the noise floor of the metric).
+beyond: two noisy 8-bit captures of the same scene, so about sqrt(2) times the floor that
+the photo's own noise sets for a noise-free render). Each export's render is also scored
+against the fit's own render (``dE00_median_inner_vs_fit_render``): the format's fidelity
+to the fit, without the photo's noise.
 
 Renderers (the render venv, experiments/validation/requirements.txt):
   blender  the exported bubble_blender.py, Blender Cycles (CPU) through the `bpy` module
@@ -193,6 +196,7 @@ def check_case(case: str, out: Path, fits: Path, spp: int) -> dict:
             rend = read(img)
             de = delta_e(photo, rend)
             entry.update(rendered=True, dE00_median_inner=float(np.median(de[inner])),
+                         dE00_median_inner_vs_fit_render=float(np.median(delta_e(fit_render, rend)[inner])),
                          dE00_p90_inner=float(np.percentile(de[inner], 90)),
                          dE00_median_outside=float(np.median(de[outer])),
                          mean_ratio_inner=[float(v) for v in rend[inner].mean(0) / photo[inner].mean(0)])
@@ -228,7 +232,9 @@ def main() -> int:
                          "[0, 1], D65", "spp": a.spp,
                "cases": {r["case"]: {"fit_render": r["yardstick_fit_render_dE00_median"],
                                      "noise_floor_outside": r["noise_floor_photo_vs_background_dE00_median_outside"],
-                                     **{f: e.get("dE00_median_inner") for f, e in r["formats"].items()}}
+                                     **{f: e.get("dE00_median_inner") for f, e in r["formats"].items()},
+                                     **{f + "_vs_fit_render": e.get("dE00_median_inner_vs_fit_render")
+                                        for f, e in r["formats"].items() if e.get("rendered")}}
                          for r in rows}}
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
     print(json.dumps(summary, indent=1))

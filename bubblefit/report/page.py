@@ -267,7 +267,7 @@ def write_fit_page(data: ReportData, out: str | os.PathLike, *, title: str = "bu
     colour = fit.get("colour") or {}
     dsc = "" if not disc else (f"disc centre ({disc['cx']:.2f}, {disc['cy']:.2f}) px, radius {disc['r']:.2f} px"
                                + (" (refined by the fit)" if fit.get("disc_stderr") else ""))
-    details = [f"model: <b>{esc(str(fit['model']))}</b>; thickness: <b>{esc(str(fit['thickness']))}</b>",
+    details = [f"Model: <b>{esc(str(fit['model']))}</b>; thickness: <b>{esc(str(fit['thickness']))}</b>",
                f"illuminant {esc(str(colour.get('illuminant', 'D65')))}, camera response "
                f"{esc(str(colour.get('response', 'srgb')))}", dsc,
                f"{fit.get('pixels_used', '?')} pixels fitted in {fit.get('time_s', float('nan')):.1f} s"]
@@ -275,12 +275,12 @@ def write_fit_page(data: ReportData, out: str | os.PathLike, *, title: str = "bu
     explain = EXPLAIN.format(floor=f"{floor:.0%}" if floor else "a few percent",
                              tme=f"{fit.get('thickness_model_error_nm', 0):g}",
                              scale=f"{fit.get('stderr_scale', 1.0):.3g}")
-    src = "" if not data.source else f" of <code>{esc(str(data.source))}</code>"
+    src = "" if not data.source else f"Result of <code>{esc(str(data.source))}</code>: "
     doc = f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><meta name="viewport" content="width=device-width,initial-scale=1">
 <title>{esc(title)}</title><style>{CSS}</style></head>
 <body><h1>{esc(title)}</h1>
-<p>The result{src}. {' &middot; '.join(d for d in details if d)}.</p>
+<p>{src}{' &middot; '.join(d for d in details if d)}.</p>
 {intro_html}
 {verdict}
 <h2>Images</h2>

@@ -15,7 +15,6 @@ photo shows it, exactly the rays of :class:`bubblefit.model.geometry.Orthographi
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from dataclasses import dataclass, field
@@ -27,10 +26,6 @@ from ..errors import InputError
 
 __all__ = ["ExportCamera", "Thickness", "FittedBubble", "load_fit", "sphere_mesh", "thickness_texture",
            "sphere_points"]
-
-#: Keys a fit result always has (docs/design.md, "Command line", ``bubblefit fit``).
-FIT_KEYS = ("params", "stderr", "converged", "ok", "thickness", "model")
-
 
 @dataclass(frozen=True)
 class ExportCamera:
@@ -131,22 +126,6 @@ class FittedBubble:
                 "envmap": self.envmap, "background": self.background, "photo": self.photo, "notes": list(self.notes)}
 
 
-def _resolve(path: str | None, base: Path) -> str | None:
-    """A path from the JSON as it is when it exists, else relative to the JSON's folder."""
-    if not path:
-        return None
-    p = Path(path)
-    if p.exists() or p.is_absolute():
-        return str(p)
-    return str(base / p)
-
-
-def _need_file(path: str | None, what: str) -> str | None:
-    if path is not None and not os.path.isfile(path):
-        raise InputError(f"the {what} {path} named by the fit result does not exist")
-    return path
-
-
 def _image_size(path: str) -> tuple[int, int]:
     from ..io.images import read_image
 
@@ -162,27 +141,24 @@ def load_fit(path: str | os.PathLike, *, envmap: str | None = None, background: 
     ``inputs``. Raises :class:`~bubblefit.errors.InputError` in one line when the file is
     not a fit result or a file it needs is missing.
     """
+    from ..io.fitresult import named_path, read_fit_result
+
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(f"fit result {path} does not exist") from None
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise InputError(f"{path} is not a fit result: {type(exc).__name__}: {exc}") from None
-    if not isinstance(data, dict) or any(k not in data for k in FIT_KEYS) or not isinstance(data["params"], dict):
-        raise InputError(f"{path} is not a fit result of `bubblefit fit --json` (it lacks "
-                         f"{', '.join(k for k in FIT_KEYS if not isinstance(data, dict) or k not in data)})")
-    base = path.resolve().parent
+    data = read_fit_result(path)
     inputs = data.get("inputs") or {}
-    photo = _need_file(_resolve(data.get("photo"), base), "photo")
-    env = _need_file(envmap or _resolve(inputs.get("envmap"), base), "environment map")
-    bg = _need_file(background or _resolve(inputs.get("background"), base), "background photo")
-    scene_path = _need_file(scene or _resolve(inputs.get("scene"), base), "scene")
+    photo = named_path(data.get("photo"), path, "photo")
+    env = envmap or named_path(inputs.get("envmap"), path, "environment map")
+    bg = background or named_path(inputs.get("background"), path, "background photo")
+    scene_path = scene or named_path(inputs.get("scene"), path, "scene")
+    for given, what in ((envmap, "environment map"), (background, "background photo"), (scene, "scene")):
+        if given and not os.path.isfile(given):
+            raise InputError(f"the {what} {given} does not exist")
     p = data["params"]
     notes = []
     kind = data["thickness"]
     size = None
-    for candidate in (photo, _resolve((data.get("outputs") or {}).get("render"), base)):
+    for candidate in (photo, named_path((data.get("outputs") or {}).get("render"), path, "render",
+                                        must_exist=False)):
         if candidate and os.path.isfile(candidate):
             size = _image_size(candidate)
             break
@@ -214,7 +190,7 @@ def load_fit(path: str | os.PathLike, *, envmap: str | None = None, background: 
         # OrthographicCamera: pixel (i, j) sees x = (j + 1/2 - cx)/r, y = -(i + 1/2 - cy)/r
         ox, oy = (width / 2 - cx) / r, -(height / 2 - cy) / r
         camera = ExportCamera("orthographic", width, height, (ox, oy, 4.0), (ox, oy, 0.0), view_width=width / r)
-    thickness = _thickness(data, kind, base, height, width)
+    thickness = _thickness(data, kind, path, height, width)
     colour = data.get("colour") or {}
     try:
         n_film = float(p.get("n_film", colour.get("n_film", 1.4)))
@@ -233,7 +209,7 @@ def load_fit(path: str | os.PathLike, *, envmap: str | None = None, background: 
         notes=tuple(notes))
 
 
-def _thickness(data: dict, kind: str, base: Path, height: int, width: int) -> Thickness:
+def _thickness(data: dict, kind: str, source: Path, height: int, width: int) -> Thickness:
     p = data["params"]
     profile = None
     if all(p.get(k) is not None for k in ("top_nm", "bottom_nm", "exponent")):
@@ -247,17 +223,19 @@ def _thickness(data: dict, kind: str, base: Path, height: int, width: int) -> Th
             raise InputError("the fit result has a drainage film but not its top_nm, bottom_nm and exponent")
         return Thickness("drainage", profile=profile)
     if kind == "map":
+        from ..io.fitresult import named_path
         from ..io.images import read_image
 
         outputs = data.get("outputs") or {}
-        mpath = _need_file(_resolve(outputs.get("thickness"), base), "thickness map")
+        mpath = named_path(outputs.get("thickness"), source, "thickness map")
         if mpath is None:
             raise InputError("the fit result of a thickness map names no map (run `bubblefit fit -o PREFIX`)")
         tmap = read_image(mpath, linear=True, allow_nan=True).pixels[..., 0]
         if tmap.shape != (height, width):
             raise InputError(f"the thickness map {mpath} is {tmap.shape[1]}x{tmap.shape[0]}, "
                              f"the photo {width}x{height}")
-        spath = _resolve(outputs.get("thickness_stderr"), base)
+        spath = named_path(outputs.get("thickness_stderr"), source, "thickness standard error map",
+                           must_exist=False)
         serr = read_image(spath, linear=True, allow_nan=True).pixels[..., 0] if spath and os.path.isfile(spath) else None
         if not np.isfinite(tmap).any():
             raise InputError(f"the thickness map {mpath} has no finite value")

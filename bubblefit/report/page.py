@@ -8,7 +8,6 @@ true against recovered values.
 from __future__ import annotations
 
 import html
-import json
 import math
 import os
 from dataclasses import dataclass, field
@@ -27,8 +26,6 @@ PAGE_FILES = ("index.html", "photo_render.png", "residual.png", "thickness.png",
 #: Parameters that :data:`bubblefit.inverse.PARAMETERS` does not describe (they are derived or given).
 _OTHER = {"f": ("", "r_d / r_s, diffuse over specular reflectance (the paper's f, see below)"),
           "n_film": ("", "film index n_g at 589.3 nm")}
-
-FIT_KEYS = ("params", "stderr", "converged", "ok", "thickness", "model")
 
 
 @dataclass
@@ -49,40 +46,21 @@ class ReportData:
         return [self.source, *self.files]
 
 
-def _read(path: str | None, what: str, base: Path, allow_nan: bool = False):
-    from ..io.images import read_image
-
-    if not path:
-        return None, None
-    p = Path(path)
-    if not p.exists() and not p.is_absolute():
-        p = base / p
-    if not p.is_file():
-        raise InputError(f"the {what} {path} named by the fit result does not exist")
-    return read_image(p, allow_nan=allow_nan).pixels, str(p)
-
-
 def load_report_inputs(path: str | os.PathLike) -> ReportData:
     """Read a ``bubblefit fit --json`` result and the images it names (``photo`` and
     ``outputs``); one clear :class:`InputError` when it is not a fit result or a file is missing."""
-    path = Path(path)
-    try:
-        fit = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(f"fit result {path} does not exist") from None
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise InputError(f"{path} is not a fit result: {type(exc).__name__}: {exc}") from None
-    if not isinstance(fit, dict) or any(k not in fit for k in FIT_KEYS):
-        raise InputError(f"{path} is not a fit result of `bubblefit fit --json`")
-    base = path.resolve().parent
+    from ..io.fitresult import named_path, read_fit_result
+    from ..io.images import read_image
+
+    fit = read_fit_result(path)
     data = ReportData(fit=fit, source=str(path))
     outputs = fit.get("outputs") or {}
     for attr, key, what in (("photo", None, "photo"), ("render", "render", "render"),
                             ("residual", "residual", "residual"), ("thickness", "thickness", "thickness map"),
                             ("thickness_stderr", "thickness_stderr", "thickness standard error map")):
-        img, used = _read(fit.get("photo") if key is None else outputs.get(key), what, base,
-                          allow_nan=attr.startswith("thickness"))
-        if img is not None:
+        used = named_path(fit.get("photo") if key is None else outputs.get(key), path, what)
+        if used is not None:
+            img = read_image(used, allow_nan=attr.startswith("thickness")).pixels
             setattr(data, attr, img[..., 0] if attr.startswith("thickness") else img[..., :3])
             data.files.append(used)
     return data

@@ -67,8 +67,7 @@ doc = json.load(open(gltf))
 ext = doc["materials"][0]["extensions"]["KHR_materials_iridescence"]
 for ob in bpy.context.scene.objects:
     if ob.type == "CAMERA":
-        sc.camera = ob
-        ob.data.sensor_fit = "HORIZONTAL"
+        sc.camera = ob  # as the importer made it from the glTF camera (yfov, aspect ratio)
     if ob.type == "MESH" and ob.name != "backplate":
         mat = ob.data.materials[0]
         nt = mat.node_tree
@@ -146,7 +145,7 @@ def run_fit(case: str, truth: dict, fits: Path) -> Path:
     return js
 
 
-def check_case(case: str, out: Path, fits: Path, spp: int) -> dict:
+def check_case(case: str, out: Path, fits: Path, spp: int, formats=("blender", "gltf", "mitsuba", "openpbr")) -> dict:
     from bubblefit.export import export_bubble, load_fit
 
     truth = json.loads((DATA / case / "truth.json").read_text())
@@ -165,7 +164,9 @@ def check_case(case: str, out: Path, fits: Path, spp: int) -> dict:
     row["noise_floor_photo_vs_background_dE00_median_outside"] = float(
         np.median(delta_e(photo, read(cdir / "background.png"))[outer]))
     work = out / "work" / case
-    for fmt in ("blender", "gltf", "mitsuba", "openpbr"):
+    for fmt in formats:
+        if fmt == "gltf" and "blender" not in formats:
+            export_bubble(bubble, "blender", work / "blender")  # the world and backplate it borrows
         exp = export_bubble(bubble, fmt, work / fmt)
         entry = {"files": [p.name for p in exp.files], "limitations": exp.notes}
         img = work / f"{fmt}.exr"
@@ -217,6 +218,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--cases", nargs="*", default=CASES)
     ap.add_argument("--spp", type=int, default=64)
+    ap.add_argument("--formats", nargs="*", default=["blender", "gltf", "mitsuba", "openpbr"])
     ap.add_argument("--fits", default=None, help="folder of fit results to reuse (default: OUT/fits)")
     ap.add_argument("--out", default=str(REPO / "experiments" / "results" / "export"))
     a = ap.parse_args()
@@ -225,9 +227,15 @@ def main() -> int:
     fits.mkdir(parents=True, exist_ok=True)
     rows = []
     for case in a.cases:
-        row = check_case(case, out, fits, a.spp)
-        (out / f"{case}.json").write_text(json.dumps(row, indent=1))
+        row = check_case(case, out, fits, a.spp, a.formats)
+        tag = "" if a.spp == 64 and len(a.formats) == 4 else f"_{'-'.join(a.formats)}_{a.spp}spp"
+        (out / f"{case}{tag}.json").write_text(json.dumps(row, indent=1))
         rows.append(row)
+    # the summary covers every case scored with these settings, in this run or an earlier one
+    tag = "" if a.spp == 64 and len(a.formats) == 4 else f"_{'-'.join(a.formats)}_{a.spp}spp"
+    done = {r["case"] for r in rows}
+    rows += [json.loads((out / f"{c}{tag}.json").read_text()) for c in CASES
+             if c not in done and (out / f"{c}{tag}.json").exists()]
     summary = {"metric": "median CIEDE2000 over the inner disc (0.8 r), photo vs render, linear sRGB clipped to "
                          "[0, 1], D65", "spp": a.spp,
                "cases": {r["case"]: {"fit_render": r["yardstick_fit_render_dE00_median"],
@@ -236,7 +244,7 @@ def main() -> int:
                                      **{f + "_vs_fit_render": e.get("dE00_median_inner_vs_fit_render")
                                         for f, e in r["formats"].items() if e.get("rendered")}}
                          for r in rows}}
-    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+    (out / f"summary{tag}.json").write_text(json.dumps(summary, indent=1))
     print(json.dumps(summary, indent=1))
     return 0
 

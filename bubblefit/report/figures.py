@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["photo_render_figure", "residual_figure", "thickness_figure", "profile_figure", "drainage_band"]
+__all__ = ["photo_render_figure", "residual_figure", "thickness_figure", "map_figure", "profile_figure", "drainage_band"]
 
 #: Font size of labels and titles: legible at the page's 1:1 scale.
 FONT = 12
@@ -81,12 +81,21 @@ def residual_figure(path: Path, residual: np.ndarray, rms: float | None) -> Path
     return _save(fig, path)
 
 
+def map_figure(path: Path, img: np.ndarray, title: str, cmap: str, label: str, disc: dict | None = None) -> Path:
+    """One map (NaN off the bubble) with a title and a colour bar labelled with its unit."""
+    return _maps_figure(path, [(img, title, cmap, label)], disc)
+
+
 def thickness_figure(path: Path, tmap: np.ndarray, stderr: np.ndarray | None, disc: dict | None) -> Path:
     """The fitted front-film thickness map and its standard error, each with a colour bar in nm."""
-    plt = _plt()
     panels = [(tmap, "film thickness", "viridis", "thickness (nm)")]
     if stderr is not None:
         panels.append((stderr, "its standard error", "magma", "standard error (nm)"))
+    return _maps_figure(path, panels, disc)
+
+
+def _maps_figure(path: Path, panels: list, disc: dict | None) -> Path:
+    plt = _plt()
     fig, axes = plt.subplots(1, len(panels), figsize=(6.4 * len(panels), 5.0), squeeze=False)
     for ax, (img, title, cmap, label) in zip(axes[0], panels):
         m = np.ma.masked_invalid(img)

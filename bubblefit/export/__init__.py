@@ -52,6 +52,11 @@ def export_bubble(bubble: FittedBubble, fmt: str, out: str | Path) -> ExportResu
 
     if fmt not in FORMATS:
         raise InputError(f"unknown export format {fmt!r}; expected one of {', '.join(FORMATS)}")
+    if fmt == "gltf":
+        try:
+            import pygltflib  # noqa: F401  (before anything is written)
+        except ImportError:
+            raise InputError("the glTF export needs pygltflib (pip install 'bubblefit[export]')") from None
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     module, writer, main = FORMATS[fmt]

@@ -277,3 +277,35 @@ def test_bad_inputs_one_line_exit_2_nothing_written(tmp_path, capsys):
     (clash / "export.json").write_text(fit.read_text())
     assert _run_cli(["export", str(clash / "export.json"), "--to", "gltf", "-o", str(clash)]) == 2
     assert sorted(p.name for p in clash.iterdir()) == ["export.json"]
+
+
+@pytest.mark.slow
+def test_fit_then_export_and_report_through_the_command_line(tmp_path):
+    """A real fit through `bubblefit fit --json -o`, whose JSON names its inputs, exported and
+    reported with no other argument: the exported film is the fitted one."""
+    import subprocess
+    import sys
+
+    from bubblefit.demo import DemoTruth, synthesize
+    from bubblefit.model.scene import shipped_envmap
+
+    syn = synthesize(tmp_path / "capture", 48, 0, DemoTruth(rotation_deg=0.0))
+    run = lambda *a: subprocess.run([sys.executable, "-m", "bubblefit", *map(str, a)], capture_output=True,
+                                    text=True, timeout=900)
+    fit = tmp_path / "fit.json"
+    r = run("fit", syn["paths"]["photo"], "--envmap", shipped_envmap("courtyard"), "--background",
+            syn["paths"]["background"], "--thickness", "drainage", "--json", fit, "-o", tmp_path / "fit")
+    assert r.returncode == 0, r.stderr
+    data = json.loads(fit.read_text())
+    assert data["inputs"]["envmap"] == str(shipped_envmap("courtyard").resolve())
+    r = run("export", fit, "--to", "gltf", "-o", tmp_path / "gltf")
+    assert r.returncode == 0, r.stderr
+    irid = json.loads((tmp_path / "gltf" / "bubble.gltf").read_text())["materials"][0]["extensions"][
+        "KHR_materials_iridescence"]
+    p = data["params"]
+    assert irid["iridescenceThicknessMinimum"] == pytest.approx(min(p["top_nm"], p["bottom_nm"]), abs=0.5)
+    assert irid["iridescenceThicknessMaximum"] == pytest.approx(max(p["top_nm"], p["bottom_nm"]), abs=0.5)
+    r = run("report", fit, "-o", tmp_path / "page")
+    assert r.returncode == 0, r.stderr
+    text = (tmp_path / "page" / "index.html").read_text()
+    assert ("Fit ok: yes." if data["ok"] else "Fit ok: NO.") in text and "src='profile.png'" in text

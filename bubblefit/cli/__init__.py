@@ -30,6 +30,8 @@ COMMANDS = (
     "fit_sequence",
     "fit_spectrum",
     "demo",
+    "export",
+    "report",
 )
 
 

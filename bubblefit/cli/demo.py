@@ -8,7 +8,7 @@ def register(sub):
         "demo", help="synthesise a capture on a shipped map, calibrate, fit, and report true vs recovered",
         description="Synthesise a capture on the shipped courtyard map (calibration pair and a bubble photo "
                     "with known parameters, noise, 8-bit files), run calibrate and fit, print true against "
-                    "recovered values with standard errors, and write report.png and index.html.")
+                    "recovered values with standard errors, and write the fit's page (index.html).")
     from .common import output_file, output_folder
 
     p.add_argument("--out", default=output_folder("bubblefit-demo"), type=output_folder, help="output folder (default: %(default)s)")

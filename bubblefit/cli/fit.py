@@ -13,6 +13,7 @@ not ``ok`` says why (and exits 1 with ``--strict``).
 from __future__ import annotations
 
 import json
+import os
 import math
 
 import numpy as np
@@ -273,6 +274,9 @@ def run(args) -> int:
                            saturated=photo.saturated)
     out = result.to_json()
     out["photo"] = str(args.photo)
+    out["inputs"] = {k: None if v is None else os.path.abspath(v) for k, v in
+                     (("envmap", args.envmap), ("background", args.background), ("scene", args.scene),
+                      ("calibration", args.calibration))}
     if args.explain:
         print("effect               state     [setting] reason")
         for d in result.effects:
@@ -289,29 +293,11 @@ def run(args) -> int:
     return 0
 
 
-def _thickness_png(path: str, tmap: np.ndarray, label: str) -> None:
-    """A PNG of a thickness map (nm) with a colour bar in nm (matplotlib, written atomically)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from ..io.atomic import check_png
-    from ..io.images import atomic_path
-
-    h, w = tmap.shape
-    fig, ax = plt.subplots(figsize=(4.8 * max(w / h, 0.5) + 1.2, 4.8))
-    im = ax.imshow(np.ma.masked_invalid(tmap), cmap="viridis")
-    ax.set_axis_off()
-    fig.colorbar(im, ax=ax, fraction=0.046, label=label)
-    fig.tight_layout()
-    with atomic_path(path, check=check_png) as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
-
-
 def _write_outputs(prefix: str, result, write_image, preview_path) -> dict:
-    """``PREFIX_render``, ``_residual``, ``_thickness``, ``_thickness_stderr`` (EXR + PNG)."""
+    """``PREFIX_render``, ``_residual``, ``_thickness``, ``_thickness_stderr`` (EXR + PNG; the
+    residual's and the maps' PNGs are the figures of :mod:`bubblefit.report.figures`)."""
+    from ..report import figures
+
     files = {"render": result.render, "residual": result.residual}
     if result.thickness_map is not None:
         files["thickness"] = result.thickness_map
@@ -323,10 +309,10 @@ def _write_outputs(prefix: str, result, write_image, preview_path) -> dict:
         if name == "render":
             hi_ = float(np.percentile(img, 99.5)) if img.size else 1.0
             write_image(preview_path(path), img * (0.9 / hi_ if hi_ > 0.9 else 1.0))
-        elif name == "residual":
-            scale = float(np.percentile(np.abs(img), 99)) or 1.0
-            write_image(preview_path(path), 0.5 + 0.5 * img / scale)
-        else:
-            label = "film thickness (nm)" if name == "thickness" else "standard error of the thickness (nm)"
-            _thickness_png(str(preview_path(path)), img, label)
+        elif name == "residual":  # titled, with a colour bar in the photo's linear units
+            figures.residual_figure(preview_path(path), img, result.residual_rms)
+        else:  # titled, with a colour bar in nm
+            title = "film thickness" if name == "thickness" else "standard error of the thickness"
+            figures.map_figure(preview_path(path), img, title, "viridis" if name == "thickness" else "magma",
+                               "thickness (nm)" if name == "thickness" else "standard error (nm)")
     return {k: f"{prefix}_{k}.exr" for k in files}

@@ -249,7 +249,8 @@ def _undecodable_as_input_error(func):
 
 
 @_undecodable_as_input_error
-def read_image(path: str | os.PathLike, *, linear: bool | None = None, dtype=np.float64) -> Image:
+def read_image(path: str | os.PathLike, *, linear: bool | None = None, dtype=np.float64,
+               allow_nan: bool = False) -> Image:
     """Read an image file as linear RGB.
 
     Args:
@@ -259,6 +260,7 @@ def read_image(path: str | os.PathLike, *, linear: bool | None = None, dtype=np.
             the file's colour space attribute says linear; float data are linear.
         dtype: of the pixels (float64, or float32 for large photos read by the fit,
             whose arithmetic is float32: half the memory).
+        allow_nan: keep NaN pixels of a float file (a thickness map is NaN off the bubble).
 
     Raises:
         InputError: the file is missing, unreadable, truncated, has no pixels, has an
@@ -353,7 +355,7 @@ def read_image(path: str | os.PathLike, *, linear: bool | None = None, dtype=np.
         is_linear = True if linear is None else linear
         if not is_linear:
             pixels = srgb_decode(pixels)
-    if bit_depth == 32 and not np.all(np.isfinite(pixels)):
+    if bit_depth == 32 and not np.all(np.isfinite(pixels) | (allow_nan & np.isnan(pixels))):
         bad = int(np.sum(~np.isfinite(pixels).all(axis=2)))
         raise InputError(f"image {path} has {bad} pixel(s) with NaN or Inf values")
     return Image(

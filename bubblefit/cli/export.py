@@ -15,12 +15,14 @@ def register(sub):
         description="Write the bubble a fit found (sphere, film thickness and index, roughness, the camera of the "
                     "photo, the environment map where the format holds one) into a folder, with export_log.txt "
                     "saying where the format cannot express the fit. See docs/export.md.")
-    p.add_argument("fit", metavar="FIT.json", help="result of `bubblefit fit --json` (with -o PREFIX for a map)")
+    from .common import input_file, output_folder
+
+    p.add_argument("fit", metavar="FIT.json", type=input_file, help="result of `bubblefit fit --json` (with -o PREFIX for a map)")
     p.add_argument("--to", required=True, choices=FORMAT_NAMES, help="format to write")
-    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder (created if missing)")
-    p.add_argument("--envmap", help="environment map (default: the one the fit result names)")
-    p.add_argument("--background", help="background photo (default: the one the fit result names)")
-    p.add_argument("--scene", help="scene file with the camera (default: the one the fit result names)")
+    p.add_argument("-o", "--output", required=True, metavar="DIR", type=output_folder, help="output folder (created if missing)")
+    p.add_argument("--envmap", type=input_file, help="environment map (default: the one the fit result names)")
+    p.add_argument("--background", type=input_file, help="background photo (default: the one the fit result names)")
+    p.add_argument("--scene", type=input_file, help="scene file with the camera (default: the one the fit result names)")
     p.set_defaults(func=run)
 
 
@@ -30,7 +32,7 @@ def run(args) -> int:
 
     from ..errors import OutputError
     from ..export import export_bubble, load_fit
-    from .common import guard_outputs
+    from .common import guard_args
 
     out = Path(args.output)
     if out.exists() and not out.is_dir():
@@ -43,7 +45,7 @@ def run(args) -> int:
     outputs = [out / n for n in EXPORT_FILES if not n.startswith("envmap")]
     if envmap_copy is not None and not (envmap_copy.exists() and os.path.samefile(envmap_copy, bubble.envmap)):
         outputs.append(envmap_copy)
-    guard_outputs(inputs, outputs)
+    guard_args(args, inputs, outputs)
     result = export_bubble(bubble, args.to, out)
     print(f"wrote {result.main} ({len(result.files)} files in {out})")
     for note in result.notes:

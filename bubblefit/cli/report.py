@@ -10,8 +10,10 @@ def register(sub):
                     "residual, the thickness map and its standard error (colour bars in nm), the profile with its "
                     "error band, every parameter with its standard error or why it was held, and whether the fit "
                     "is ok with every warning in words. See docs/report.md.")
-    p.add_argument("fit", metavar="FIT.json", help="result of `bubblefit fit --json` (with -o PREFIX for the images)")
-    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder (created if missing)")
+    from .common import input_file, output_folder
+
+    p.add_argument("fit", metavar="FIT.json", type=input_file, help="result of `bubblefit fit --json` (with -o PREFIX for the images)")
+    p.add_argument("-o", "--output", required=True, metavar="DIR", type=output_folder, help="output folder (created if missing)")
     p.set_defaults(func=run)
 
 
@@ -20,13 +22,13 @@ def run(args) -> int:
 
     from ..errors import OutputError
     from ..report import PAGE_FILES, load_report_inputs, write_fit_page
-    from .common import guard_outputs
+    from .common import guard_args
 
     out = Path(args.output)
     if out.exists() and not out.is_dir():
         raise OutputError(f"refusing to write into {out}: it is a file, not a folder")
     data = load_report_inputs(args.fit)
-    guard_outputs(data.inputs(), [out / n for n in PAGE_FILES])
+    guard_args(args, data.inputs(), [out / n for n in PAGE_FILES])
     page = write_fit_page(data, out)
     print(f"wrote {page}")
     return 0

@@ -1,0 +1,399 @@
+"""Thickness of a flat film or a gap from one colour photo: per-pixel maps and Newton's rings.
+
+The forward model of a pixel ``p`` on the film is
+
+    ``y_p = g L_p rgb(R(d_p, lambda, theta_p))``
+
+with ``R`` the film's reflectance between its two media (the three-media Airy sum,
+:func:`bubblefit.optics.film.airy_reflectance`), averaged over the objective's cone for
+coaxial light (:mod:`bubblefit.lighting.coaxial`) or taken at the pixel's angle under an
+area light (:mod:`bubblefit.lighting.area`, radiance ``L_p``), integrated to the camera's
+RGB under the lamp (:mod:`bubblefit.optics.spectral`), and ``g`` the unknown exposure.
+
+A per-pixel map (``thickness = "map"``) is found in four vectorised stages:
+
+1. *Table and exposure*: the colours of thicknesses ``d_j`` on a 2 nm grid (per angle
+   node for an area light, interpolated linearly in ``sin^2``), and the exposure ``g``
+   minimising the summed best-candidate misfit over a subsample of pixels.
+2. *Cost volume*: ``C[p, j] = |y_p - g L_p T_j|^2`` for every pixel and candidate.
+3. *Order from a reference*: colour alone is ambiguous between interference orders, so
+   the order is carried from a reference (the thinnest, darkest first-order pixels -- a
+   black film or a contact point -- or a region of known thickness) to its neighbours, a
+   front at a time: each pixel on the front takes the best candidate within a window of
+   +-0.3 fringe around the linear extrapolation of its assigned neighbours. The window
+   (0.3 of the fringe spacing ``lambda / (2 n)`` at 550 nm) is narrower than the distance
+   to the next order's similar colour and wider than a pixel-to-pixel step of a resolved
+   fringe pattern (at least 3.3 pixels per fringe).
+4. *Refinement*: Gauss-Newton in ``d`` per pixel on the exact forward model (vmapped), with
+   the standard error ``sigma / |dy/dd|`` from the noise ``sigma`` estimated from the
+   residuals (median absolute deviation).
+
+Newton's rings (``thickness = "newton"``): a lens of radius ``R`` on a plate leaves the gap
+``h(r) = R - sqrt(R^2 - r^2) + h0`` around the contact point ``(cx, cy)``; the map gives
+the start (centre of the thinnest pixels, ``R`` and ``h0`` from a line in ``r^2``) and
+Levenberg-Marquardt fits ``(R, cx, cy, h0, g)`` to the colours directly, with standard
+errors from ``sigma^2 (J^T J)^-1``.
+
+References
+----------
+M. Born and E. Wolf, *Principles of Optics*, 7th ed., sec. 7.5.3 (Newton's rings) and
+7.6 (multiple-beam fringes); D. W. Marquardt, "An algorithm for least-squares estimation
+of nonlinear parameters", J. SIAM 11, 431-441 (1963).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..errors import ComputationError, InputError
+from ..lighting import coaxial
+from ..optics import dispersion, spectral
+
+__all__ = ["PlanarView", "PlanarForward", "PlanarResult", "fit_planar", "view_of"]
+
+#: Step of the thickness candidates (nm): below a tenth of the narrowest fringe of the
+#: colour table (lambda / (2 n) = 140 nm at 380 nm, n = 1.35), so the search lands within
+#: the refinement's reach.
+GRID_STEP_NM = 2.0
+#: Spectral samples of the fitting basis: 5 nm bins, fine enough for fringes 50 nm wide
+#: (a 3 um air gap at 550 nm).
+SPECTRAL_SAMPLES = 80
+
+
+@dataclass(frozen=True)
+class PlanarView:
+    """Per pixel (H, W): on the film (``mask``), ``sin2`` of the incidence in air, the light's
+    ``radiance`` there, and the film coordinates in microns (``x_um``, ``y_um``)."""
+
+    mask: np.ndarray
+    sin2: np.ndarray
+    radiance: np.ndarray
+    x_um: np.ndarray
+    y_um: np.ndarray
+
+
+def view_of(scene) -> PlanarView:
+    """The :class:`PlanarView` of a :class:`~bubblefit.model.planar_scene.PlanarScene`."""
+    h, w = scene.height, scene.width
+    if scene.light == "coaxial":
+        yy, xx = np.mgrid[0:h, 0:w].astype(np.float64) + 0.5
+        return PlanarView(mask=np.ones((h, w), bool), sin2=np.zeros((h, w)), radiance=np.ones((h, w)),
+                          x_um=xx * scene.pixel_um, y_um=yy * scene.pixel_um)
+    from ..lighting.area import view_plane
+
+    rows, cols = np.mgrid[0:h, 0:w].astype(np.float64)
+    o, d = scene.camera.rays(jnp.asarray(rows), jnp.asarray(cols))
+    v = view_plane(np.asarray(o, np.float64), np.asarray(d, np.float64), scene.plane, scene.area)
+    mask = v.mask & (v.radiance > 0)
+    if not np.any(mask):
+        raise InputError("the area light is not seen in the film from this camera (no pixel reflects it)")
+    return PlanarView(mask=mask, sin2=v.sin2_air, radiance=v.radiance, x_um=v.x, y_um=v.y)
+
+
+class PlanarForward:
+    """``rgb(d, sin2)``: the film's colour under the scene's lamp and camera (module equation)."""
+
+    def __init__(self, stack: coaxial.Stack, lamp: str, response: str, na: float, max_nm: float):
+        self.basis = spectral.spectral_basis("uniform", SPECTRAL_SAMPLES, illuminant=lamp, response=response)
+        lam = self.basis.wavelengths
+        self.lam = jnp.asarray(lam)
+        self.n = stack.indices(lam)
+        self.na = float(na)
+        n_min = float(np.min(self.n.film))
+        self.nodes = coaxial.cone_nodes_needed(max_nm, self.na, n_min) if self.na > 0 else 1
+        #: Fringe spacing at 550 nm (nm of thickness), for the order window.
+        self.fringe_nm = 550.0 / (2.0 * float(dispersion.refractive_index(stack.film, 550.0)))
+
+    def rgb(self, d, sin2):
+        """(..., 3) colour of thickness ``d`` seen at ``sin2`` (ignored under coaxial light)."""
+        d = jnp.asarray(d)[..., None]
+        if self.na > 0:
+            r = coaxial.coaxial_reflectance(d, self.lam, self.n, self.na, self.nodes)
+        else:
+            r = coaxial.reflectance_at_angles(d, self.lam, self.n, jnp.asarray(sin2)[..., None])
+        return spectral.integrate(r, self.basis)
+
+
+@dataclass
+class PlanarResult:
+    """What a planar fit found (typed record; :meth:`to_json` for the command line)."""
+
+    kind: str
+    ok: bool
+    thickness_map: np.ndarray           # nm, NaN off the film
+    thickness_stderr_map: np.ndarray    # nm
+    render: np.ndarray
+    residual: np.ndarray
+    gain: float
+    sigma: float
+    params: dict = field(default_factory=dict)
+    stderr: dict = field(default_factory=dict)
+    warnings: list = field(default_factory=list)
+    order_hops: int = 0
+    reduced_chi2: float = float("nan")
+
+    def to_json(self) -> dict:
+        m = self.thickness_map[np.isfinite(self.thickness_map)]
+        return {"kind": self.kind, "ok": self.ok, "warnings": self.warnings, "params": self.params,
+                "stderr": self.stderr, "gain": self.gain, "noise_sigma": self.sigma,
+                "reduced_chi2": self.reduced_chi2, "order_hops": self.order_hops,
+                "thickness_nm": {"min": float(m.min()), "median": float(np.median(m)), "max": float(m.max()),
+                                 "median_stderr": float(np.nanmedian(self.thickness_stderr_map))} if m.size else None}
+
+    def report(self) -> str:
+        lines = [f"{k} = {v:.6g} +- {self.stderr.get(k, float('nan')):.3g}" for k, v in self.params.items()]
+        j = self.to_json()["thickness_nm"]
+        if j:
+            lines.append(f"thickness {j['min']:.1f} .. {j['max']:.1f} nm (median {j['median']:.1f}, "
+                         f"median standard error {j['median_stderr']:.2f} nm)")
+        lines.append(f"ok: {'yes' if self.ok else 'no'}; reduced chi^2 {self.reduced_chi2:.3g}; "
+                     f"order hops {self.order_hops}" + ("; " + "; ".join(self.warnings) if self.warnings else ""))
+        return "\n".join(lines)
+
+
+def _table(fwd: PlanarForward, grid: np.ndarray, sin2_nodes: np.ndarray) -> np.ndarray:
+    """(S, D, 3) colours of every candidate thickness at each ``sin2`` node."""
+    f = jax.jit(lambda d, s: fwd.rgb(d, s))
+    return np.stack([np.asarray(f(jnp.asarray(grid), jnp.full(grid.shape, s))) for s in sin2_nodes])
+
+
+def _pixel_tables(table: np.ndarray, sin2_nodes: np.ndarray, sin2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Indices and weights interpolating the table linearly in ``sin2`` for each pixel."""
+    if len(sin2_nodes) == 1:
+        z = np.zeros(sin2.shape, int)
+        return z, z, np.zeros(sin2.shape)
+    pos = np.interp(sin2, sin2_nodes, np.arange(len(sin2_nodes)))
+    i0 = np.minimum(np.floor(pos).astype(int), len(sin2_nodes) - 2)
+    return i0, i0 + 1, pos - i0
+
+
+def _costs(y, lum, table, i0, i1, a, gain, chunk=1024):
+    """(P, D) cost volume ``|y - g L T|^2`` (numpy, chunked over pixels)."""
+    out = np.empty((len(y), table.shape[1]), np.float32)
+    for s in range(0, len(y), chunk):
+        sl = slice(s, s + chunk)
+        t = (1 - a[sl, None, None]) * table[i0[sl]] + a[sl, None, None] * table[i1[sl]]
+        out[sl] = (((y[sl, None, :] - gain * lum[sl, None, None] * t) ** 2).sum(-1)).astype(np.float32)
+    return out
+
+
+def _find_gain(y, lum, table, i0, i1, a, rng) -> float:
+    """The exposure minimising the summed best-candidate misfit over a pixel subsample."""
+    idx = rng.choice(len(y), size=min(len(y), 2500), replace=False)
+    peak = float(np.percentile(y[idx].max(-1) / np.maximum(lum[idx], 1e-9), 99.5))
+    base = peak / max(float(table.max()), 1e-9)
+    gains = base * np.geomspace(0.5, 2.5, 61)
+    scores = [np.sort(_costs(y[idx], lum[idx], table, i0[idx], i1[idx], a[idx], g).min(1))[: int(0.9 * len(idx))].sum()
+              for g in gains]
+    return float(gains[int(np.argmin(scores))])
+
+
+def _propagate(cost: np.ndarray, grid: np.ndarray, mask: np.ndarray, seed_d: np.ndarray, window_nm: float,
+               smooth: float) -> np.ndarray:
+    """Carry the interference order from the seeds over the film, a front of pixels at a time.
+
+    ``cost`` (P, D) over the mask's pixels, ``seed_d`` (H, W) with the seeds' thickness and
+    NaN elsewhere. Each front pixel takes the candidate within ``window_nm`` of the mean
+    linear extrapolation of its assigned 4-neighbours that minimises
+    ``C + smooth (d - prediction)^2``. Vectorised over pixels with ``jax.lax.while_loop``.
+    """
+    h, w = mask.shape
+    step = grid[1] - grid[0]
+    half = int(math.ceil(window_nm / step))
+    offsets = jnp.arange(-half, half + 1)
+    pix = np.flatnonzero(mask.ravel())
+    full_cost = np.full((h * w, cost.shape[1]), np.inf, np.float32)
+    full_cost[pix] = cost
+    full_cost = jnp.asarray(full_cost)
+    gridj = jnp.asarray(grid, jnp.float32)
+    maskj = jnp.asarray(mask)
+
+    def shifted(a, dy, dx, fill):
+        a = jnp.roll(a, (dy, dx), axis=(0, 1))
+        if dy > 0:
+            a = a.at[:dy].set(fill)
+        if dy < 0:
+            a = a.at[dy:].set(fill)
+        if dx > 0:
+            a = a.at[:, :dx].set(fill)
+        if dx < 0:
+            a = a.at[:, dx:].set(fill)
+        return a
+
+    def step_fn(state):
+        d, _ = state
+        known = jnp.isfinite(d)
+        pred_sum = jnp.zeros_like(d)
+        count = jnp.zeros_like(d)
+        for dy, dx in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            d1 = shifted(d, dy, dx, jnp.nan)
+            d2 = shifted(d, 2 * dy, 2 * dx, jnp.nan)
+            p = jnp.where(jnp.isfinite(d2), 2 * d1 - d2, d1)
+            ok = jnp.isfinite(d1)
+            pred_sum = pred_sum + jnp.where(ok, p, 0.0)
+            count = count + ok
+        front = maskj & ~known & (count > 0)
+        pred = (pred_sum / jnp.maximum(count, 1)).ravel()
+        centre = jnp.clip(jnp.round((pred - gridj[0]) / step).astype(jnp.int32), 0, len(grid) - 1)
+        idx = jnp.clip(centre[:, None] + offsets[None, :], 0, len(grid) - 1)
+        c = jnp.take_along_axis(full_cost, idx, axis=1) + smooth * (gridj[idx] - pred[:, None]) ** 2
+        best = gridj[jnp.take_along_axis(idx, jnp.argmin(c, axis=1)[:, None], axis=1)[:, 0]].reshape(h, w)
+        return jnp.where(front, best, d), jnp.any(front)
+
+    d0 = jnp.asarray(np.where(mask, seed_d, np.nan), jnp.float32)
+    d, _ = jax.lax.while_loop(lambda s: s[1], step_fn, (d0, jnp.array(True)))
+    return np.asarray(d, np.float64)
+
+
+def _refine(fwd: PlanarForward, y, lum, sin2, d, gain, lo, hi, iters: int = 6):
+    """Gauss-Newton in ``d`` per pixel on the exact colours; returns (d, |dy/dd|^2, model)."""
+
+    @jax.jit
+    def one(yp, lp, sp, dp):
+        def model(t):
+            return gain * lp * fwd.rgb(t, sp)
+
+        def body(_, t):
+            m, dm = jax.jvp(model, (t,), (jnp.ones_like(t),))
+            step = jnp.sum(dm * (yp - m)) / jnp.maximum(jnp.sum(dm * dm), 1e-20)
+            return jnp.clip(t + jnp.clip(step, -2 * GRID_STEP_NM, 2 * GRID_STEP_NM), lo, hi)
+
+        t = jax.lax.fori_loop(0, iters, body, dp)
+        m, dm = jax.jvp(model, (t,), (jnp.ones_like(t),))
+        return t, jnp.sum(dm * dm), m
+
+    f = jax.vmap(one)
+    out = [f(*(jnp.asarray(a[s:s + 4096]) for a in (y, lum, sin2, d))) for s in range(0, len(y), 4096)]
+    return tuple(np.concatenate([np.asarray(o[k]) for o in out]) for k in range(3))
+
+
+def _noise_sigma(res: np.ndarray) -> float:
+    """Per-channel noise from the residuals: 1.4826 x their median absolute deviation."""
+    return float(max(1.4826 * np.median(np.abs(res - np.median(res))), 1e-6))
+
+
+def _hops(dmap: np.ndarray, limit: float) -> int:
+    """Neighbour pairs whose thickness differs by more than ``limit`` nm (order hops)."""
+    a = np.abs(np.diff(dmap, axis=0))
+    b = np.abs(np.diff(dmap, axis=1))
+    return int(np.nansum(a > limit) + np.nansum(b > limit))
+
+
+def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=None,
+               kind: str | None = None, seed: int = 0) -> PlanarResult:
+    """Fit a flat film's or a gap's thickness to a linear photo (H, W, 3) (the module's method)."""
+    kind = kind or scene.thickness
+    h, w = photo.shape[:2]
+    if (h, w) != (scene.height, scene.width):
+        raise InputError(f"the photo is {w}x{h}, the scene's camera {scene.width}x{scene.height}")
+    view = view_of(scene)
+    region = reference_region if reference_region is not None else scene.reference_region
+    ref_nm = reference_nm if reference_nm is not None else scene.reference_nm
+    if region is not None:
+        x0, y0, x1, y1 = region
+        if x0 < 0 or y0 < 0 or x1 > w or y1 > h or not view.mask[y0:y1, x0:x1].any():
+            raise InputError(f"the reference region {x0},{y0},{x1},{y1} lies outside the film")
+    lo, hi = scene.thickness_range
+    fwd = PlanarForward(scene.stack, scene.lamp, scene.response, scene.na, hi)
+    grid = np.arange(lo, hi + 0.5 * GRID_STEP_NM, GRID_STEP_NM)
+    mask = view.mask
+    y = np.asarray(photo, np.float64).reshape(-1, 3)[mask.ravel()]
+    lum = view.radiance[mask]
+    sin2 = view.sin2[mask]
+    if scene.light == "area" and sin2.max() - sin2.min() > 1e-6:
+        nodes = np.linspace(sin2.min(), sin2.max(), 12)
+    else:
+        nodes = np.array([float(np.median(sin2))])
+    table = _table(fwd, grid, nodes)
+    i0, i1, a = _pixel_tables(table, nodes, sin2)
+    if float(np.percentile(y.max(-1), 99)) <= 0.02:
+        raise InputError("the film does not appear in the photo (the pixels where it should be are dark)")
+    gain = _find_gain(y, lum, table, i0, i1, a, np.random.default_rng(seed))
+    cost = _costs(y, lum, table, i0, i1, a, gain)
+    best = grid[np.argmin(cost, axis=1)]
+    sigma2 = max(float(np.median(cost.min(1))) / 3.0, 1e-10)
+    window = 0.3 * fwd.fringe_nm
+    warnings: list[str] = []
+
+    seeds = np.full((h, w), np.nan)
+    if kind == "constant":
+        j = int(np.argmin(cost.sum(0)))
+        dpix = np.full(len(y), grid[j])
+    else:
+        if region is not None:
+            x0, y0, x1, y1 = region
+            inside = np.zeros((h, w), bool)
+            inside[y0:y1, x0:x1] = True
+            sel = inside[mask]
+            near = np.abs(grid - ref_nm) <= window
+            jj = np.flatnonzero(near)
+            pick = grid[jj[np.argmin(cost[sel][:, jj], axis=1)]]
+            seeds[inside & mask] = pick
+        else:
+            # A black film or a contact point: first-order pixels thinner than 0.15 fringe
+            # (82 nm of air, 62 nm of water at 550 nm: the dark grey end of the colour chart).
+            thin = best <= lo + 0.15 * fwd.fringe_nm * 2
+            good = cost.min(1) <= np.percentile(cost.min(1), 75)
+            pick = thin & good
+            if pick.sum() < 3:
+                raise InputError("no reference for the interference order: the photo has no black film or contact "
+                                 "point; name a region of known thickness with --reference-region x0,y0,x1,y1=NM")
+            flat = seeds.reshape(-1)
+            flat[np.flatnonzero(mask.ravel())[pick]] = best[pick]
+            seeds = flat.reshape(h, w)
+        dmap = _propagate(cost, grid, mask, seeds, window, smooth=3.0 * sigma2 / window ** 2)
+        dpix = dmap[mask]
+        if not np.all(np.isfinite(dpix)):
+            warnings.append(f"{int((~np.isfinite(dpix)).sum())} film pixels are not connected to the reference")
+            dpix = np.where(np.isfinite(dpix), dpix, best)
+
+    dref, jj_, model = _refine(fwd, y, lum, sin2, dpix, gain, lo, hi)
+    # exposure by least squares on the refined thickness, then refine once more
+    unit = model / gain
+    gain = float(np.sum(y * unit) / max(float(np.sum(unit * unit)), 1e-20))
+    dref, jj_, model = _refine(fwd, y, lum, sin2, dref, gain, lo, hi)
+    res = y - model
+    sigma = _noise_sigma(res)
+    stderr = sigma / np.sqrt(np.maximum(jj_, 1e-20))
+    params, perr = {}, {}
+    if kind == "constant":
+        dd = float(np.median(dref))
+        params["thickness_nm"] = dd
+        perr["thickness_nm"] = float(sigma / np.sqrt(np.sum(jj_)))
+    if kind == "newton":
+        from ._newton import fit_newton
+
+        nres = fit_newton(fwd, y, lum, sin2, view, mask, dref, gain, sigma, lo, hi)
+        params, perr = nres.params, nres.stderr
+        dref, model, gain = nres.thickness, nres.model, nres.gain
+        stderr = nres.thickness_stderr
+        res = y - model
+    chi2 = float(np.mean(res ** 2) / sigma ** 2)
+    tmap = np.full((h, w), np.nan)
+    tmap[mask] = dref
+    smap = np.full((h, w), np.nan)
+    smap[mask] = stderr
+    hops = _hops(tmap, window) if kind == "map" else 0
+    if hops:
+        warnings.append(f"{hops} neighbouring pixel pairs differ by more than {window:.0f} nm (possible order hops)")
+    edge = (dref <= lo + 1e-6) | (dref >= hi - 1e-6)
+    if edge.mean() > 0.05:
+        warnings.append(f"{100 * edge.mean():.0f} % of the film sits at the edge of the searched range "
+                        f"{lo:g}-{hi:g} nm")
+    render = np.zeros((h, w, 3))
+    render[mask] = model
+    resid = np.zeros((h, w, 3))
+    resid[mask] = y - model
+    ok = not warnings and chi2 < 4.0
+    if chi2 >= 4.0:
+        warnings.append(f"the model does not explain the photo (residual {math.sqrt(chi2):.1f} x the noise)")
+    if not np.isfinite(tmap[mask]).all():
+        raise ComputationError("the planar fit produced non-finite thicknesses")
+    return PlanarResult(kind=kind, ok=ok, thickness_map=tmap, thickness_stderr_map=smap, render=render, residual=resid,
+                        gain=gain, sigma=sigma, params=params, stderr=perr, warnings=warnings, order_hops=hops,
+                        reduced_chi2=chi2)

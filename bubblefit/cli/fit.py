@@ -29,8 +29,12 @@ def register(sub):
                     "thickness (one value, a drainage profile or a per-pixel map) from a linear photo of a "
                     "bubble and its environment map, with standard errors.")
     p.add_argument("photo", metavar="PHOTO", help="photo of the bubble (EXR/HDR linear; PNG/JPEG/TIFF sRGB)")
-    p.add_argument("--envmap", required=True, help="environment map (equirectangular, linear EXR/HDR), aligned "
-                                                   "with the camera (it looks along -z of the map's frame)")
+    p.add_argument("--envmap", help="environment map (equirectangular, linear EXR/HDR), aligned "
+                                    "with the camera (it looks along -z of the map's frame); required for a bubble, "
+                                    "not for a flat film ([film] shape = \"plane\" in the scene)")
+    p.add_argument("--reference-region", metavar="X0,Y0,X1,Y1=NM",
+                   help="flat films: a region (pixels, half-open) of known thickness NM that fixes the "
+                        "interference order of the map")
     p.add_argument("--background", metavar="BEFORE", help="photo of the same view without the bubble")
     cal = p.add_mutually_exclusive_group()
     cal.add_argument("--calibration", metavar="CAL.json", help="output of `bubblefit calibrate` (starting t, disc)")
@@ -188,6 +192,15 @@ def run(args) -> int:
     from ..model.scene import load_scene
     from .common import guard_outputs, scene_inputs, write_json
 
+    if args.scene:
+        from ..model.planar_scene import is_planar_file
+
+        if is_planar_file(args.scene):
+            from .fit_planar import run_planar
+
+            return run_planar(args)
+    if not args.envmap:
+        raise InputError("fit: --envmap is required for a bubble (a flat film's scene says [film] shape = \"plane\")")
     scene = load_scene(args.scene) if args.scene else None
     inputs = [args.photo, args.envmap, args.background, args.calibration, args.scene]
     guard_outputs(inputs + (scene_inputs(scene) if scene is not None else []), [args.json, *output_paths(args)])

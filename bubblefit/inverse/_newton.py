@@ -48,12 +48,18 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, iters: 
     """Levenberg-Marquardt fit of ``(R, cx, cy, h0, g)`` (see the module), started from ``dmap``."""
     x = view.x_um[mask]
     yy = view.y_um[mask]
-    thin = dmap <= np.percentile(dmap, 2)
+    bright = y.sum(-1) / np.maximum(lum, 1e-9)
+    thin = (dmap <= np.percentile(dmap, 2)) & (bright <= 0.35 * np.median(bright))
+    if thin.sum() < 3:
+        raise ComputationError("no contact point: the photo has no dark centre of Newton's rings")
     cx, cy = float(x[thin].mean()), float(yy[thin].mean())
     r2 = (x - cx) ** 2 + (yy - cy) ** 2
     use = dmap < lo + 0.5 * (hi - lo)
-    A = np.column_stack([np.ones(use.sum()), r2[use]])
-    (h0, slope), *_ = np.linalg.lstsq(A, dmap[use], rcond=None)
+    for _ in range(4):  # a line in r^2, dropping pixels 3 MADs off it (order hops of the map)
+        A = np.column_stack([np.ones(use.sum()), r2[use]])
+        (h0, slope), *_ = np.linalg.lstsq(A, dmap[use], rcond=None)
+        dev = np.abs(dmap - (h0 + slope * r2))
+        use = use & (dev <= 3.0 * 1.4826 * np.median(dev[use]) + 1.0)
     if slope <= 0:
         raise ComputationError("no lens: the gap does not grow away from the thinnest point")
     radius = 1000.0 / (2.0 * slope)  # um: h[nm] = 1000 r^2 / (2 R)

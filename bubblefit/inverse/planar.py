@@ -335,11 +335,14 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
             pick = grid[jj[np.argmin(cost[sel][:, jj], axis=1)]]
             seeds[inside & mask] = pick
         else:
-            # A black film or a contact point: first-order pixels thinner than 0.15 fringe
-            # (82 nm of air, 62 nm of water at 550 nm: the dark grey end of the colour chart).
-            thin = best <= lo + 0.15 * fwd.fringe_nm * 2
+            # A black film or a contact point: pixels that match a film thinner than 0.3
+            # fringe (82 nm of air, 62 nm of water at 550 nm: the dark grey end of the colour
+            # chart) and are dark (below 0.35 x the median brightness, which a thick film
+            # fading to its grey mean reflectance, the other neutral colour, never is).
+            bright = y.sum(-1) / np.maximum(lum, 1e-9)
+            thin = best <= lo + 0.3 * fwd.fringe_nm
             good = cost.min(1) <= np.percentile(cost.min(1), 75)
-            pick = thin & good
+            pick = thin & good & (bright <= 0.35 * np.median(bright))
             if pick.sum() < 3:
                 raise InputError("no reference for the interference order: the photo has no black film or contact "
                                  "point; name a region of known thickness with --reference-region x0,y0,x1,y1=NM")

@@ -37,7 +37,7 @@ from ..lighting.area import Patch
 from ..lighting.coaxial import Stack
 from ..optics import dispersion
 
-__all__ = ["PlanarScene", "is_planar", "parse_planar", "parse_region"]
+__all__ = ["PlanarScene", "is_planar", "is_planar_file", "load_planar", "parse_planar", "parse_region"]
 
 THICKNESS_KINDS = ("map", "newton", "constant")
 
@@ -69,6 +69,34 @@ def is_planar(data: dict) -> bool:
     """Whether a parsed scene file describes a flat film (``[film] shape = "plane"``)."""
     f = data.get("film")
     return isinstance(f, dict) and f.get("shape", "sphere") == "plane"
+
+
+def _read_toml(path) -> dict:
+    import tomllib
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"scene file not found: {path}")
+    try:
+        return tomllib.loads(path.read_text())
+    except OSError as exc:
+        raise InputError(f"cannot read scene file {path}: {exc.strerror}") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"scene file {path} is not valid TOML: {exc}") from None
+
+
+def is_planar_file(path) -> bool:
+    """Whether the scene file at ``path`` describes a flat film (False for a missing or bad file:
+    the bubble's loader then says what is wrong)."""
+    try:
+        return is_planar(_read_toml(path))
+    except InputError:
+        return False
+
+
+def load_planar(path) -> PlanarScene:
+    """Read and check a flat film's scene file."""
+    return parse_planar(_read_toml(path), Path(path).parent)
 
 
 def _num(table: dict, key: str, where: str, default=None, lo=-math.inf, hi=math.inf) -> float:

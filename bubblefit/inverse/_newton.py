@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ComputationError
+from .planar import censored_residual
 
 __all__ = ["NewtonFit", "fit_newton", "newton_gap"]
 
@@ -44,7 +45,7 @@ def newton_gap(r_um, radius_um, h0_nm):
     return jnp.maximum(1000.0 * sag + h0_nm, 0.0)
 
 
-def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, iters: int = 40) -> NewtonFit:
+def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np.inf, iters: int = 40) -> NewtonFit:
     """Levenberg-Marquardt fit of ``(R, cx, cy, h0, g)`` (see the module), started from ``dmap``."""
     x = view.x_um[mask]
     yy = view.y_um[mask]
@@ -72,7 +73,7 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, iters: 
         return jnp.exp(t[4]) * lj[:, None] * fwd.rgb(h, sj)
 
     def resid(t):
-        return ((obs - model(t)) / sigma).ravel()
+        return (censored_residual(obs, model(t), high) / sigma).ravel()
 
     rj = jax.jit(resid)
     jac = jax.jit(jax.jacfwd(resid))

@@ -60,6 +60,16 @@ __all__ = ["PlanarView", "PlanarForward", "PlanarResult", "fit_planar", "view_of
 #: colour table (lambda / (2 n) = 140 nm at 380 nm, n = 1.35), so the search lands within
 #: the refinement's reach.
 GRID_STEP_NM = 2.0
+#: Deviation from the mean of the four neighbours (nm) that the relaxation weighs like one
+#: pixel's noise (3 sigma^2): ten times the 1.5 nm a 1 um-per-100-pixel drainage slope
+#: bends per pixel, far above a Newton lens's curvature (0.8 nm per pixel^2 at R = 100 mm,
+#: 9 um pixels), and below the 20-30 nm between neighbouring minima of the colour cost.
+RELAX_NM = 15.0
+#: Linear value at or below which a channel is taken as clipped at black: 8-bit sRGB code
+#: 6 (0.0018). A sensor's read noise scatters a clipped channel over the first few codes
+#: (3 e- RMS at 4000 e- full well is 0.00075, code 2.5), so a colour outside the gamut
+#: reads as a small positive value, not as the negative one the model gives.
+BLACK_CLIP = 0.002
 #: Spectral samples of the fitting basis: 5 nm bins, fine enough for fringes 50 nm wide
 #: (a 3 um air gap at 550 nm).
 SPECTRAL_SAMPLES = 80
@@ -156,6 +166,16 @@ class PlanarResult:
         return "\n".join(lines)
 
 
+def censored_residual(y, m, high=np.inf, xp=jnp):
+    """``y - m`` where the sensor recorded the value; for a channel clipped at black (``y <= BLACK_CLIP``)
+    or at white (``y >= high``, 1 for 8/16-bit files) only a model on the wrong side of
+    the clip leaves a residual (a censored observation). Colours of thin films lie
+    outside the sRGB gamut (a negative channel), so real and rendered 8-bit photos clip
+    at black."""
+    r = y - m
+    return xp.where(y <= BLACK_CLIP, xp.minimum(r, 0.0), xp.where(y >= high, xp.maximum(r, 0.0), r))
+
+
 def _table(fwd: PlanarForward, grid: np.ndarray, sin2_nodes: np.ndarray) -> np.ndarray:
     """(S, D, 3) colours of every candidate thickness at each ``sin2`` node."""
     f = jax.jit(lambda d, s: fwd.rgb(d, s))
@@ -172,29 +192,30 @@ def _pixel_tables(table: np.ndarray, sin2_nodes: np.ndarray, sin2: np.ndarray) -
     return i0, i0 + 1, pos - i0
 
 
-def _costs(y, lum, table, i0, i1, a, gain, chunk=1024):
-    """(P, D) cost volume ``|y - g L T|^2`` (numpy, chunked over pixels)."""
+def _costs(y, lum, table, i0, i1, a, gain, high=np.inf, chunk=1024):
+    """(P, D) cost volume ``|y - g L T|^2`` (censored, :func:`censored_residual`; numpy, chunked over pixels)."""
     out = np.empty((len(y), table.shape[1]), np.float32)
     for s in range(0, len(y), chunk):
         sl = slice(s, s + chunk)
         t = (1 - a[sl, None, None]) * table[i0[sl]] + a[sl, None, None] * table[i1[sl]]
-        out[sl] = (((y[sl, None, :] - gain * lum[sl, None, None] * t) ** 2).sum(-1)).astype(np.float32)
+        r = censored_residual(y[sl, None, :], gain * lum[sl, None, None] * t, high, np)
+        out[sl] = (r ** 2).sum(-1).astype(np.float32)
     return out
 
 
-def _find_gain(y, lum, table, i0, i1, a, rng) -> float:
+def _find_gain(y, lum, table, i0, i1, a, rng, high=np.inf) -> float:
     """The exposure minimising the summed best-candidate misfit over a pixel subsample."""
     idx = rng.choice(len(y), size=min(len(y), 2500), replace=False)
     peak = float(np.percentile(y[idx].max(-1) / np.maximum(lum[idx], 1e-9), 99.5))
     base = peak / max(float(table.max()), 1e-9)
     gains = base * np.geomspace(0.5, 2.5, 61)
-    scores = [np.sort(_costs(y[idx], lum[idx], table, i0[idx], i1[idx], a[idx], g).min(1))[: int(0.9 * len(idx))].sum()
+    scores = [np.sort(_costs(y[idx], lum[idx], table, i0[idx], i1[idx], a[idx], g, high).min(1))[: int(0.9 * len(idx))].sum()
               for g in gains]
     return float(gains[int(np.argmin(scores))])
 
 
 def _propagate(cost: np.ndarray, grid: np.ndarray, mask: np.ndarray, seed_d: np.ndarray, window_nm: float,
-               smooth: float) -> np.ndarray:
+               smooth: float, relax_weight: float, relax_passes: int = 12) -> np.ndarray:
     """Carry the interference order from the seeds over the film, a front of pixels at a time.
 
     ``cost`` (P, D) over the mask's pixels, ``seed_d`` (H, W) with the seeds' thickness and
@@ -239,33 +260,60 @@ def _propagate(cost: np.ndarray, grid: np.ndarray, mask: np.ndarray, seed_d: np.
             count = count + ok
         front = maskj & ~known & (count > 0)
         pred = (pred_sum / jnp.maximum(count, 1)).ravel()
+        best = choose(pred, smooth).reshape(h, w)
+        return jnp.where(front, best, d), jnp.any(front)
+
+    def choose(pred, weight):
         centre = jnp.clip(jnp.round((pred - gridj[0]) / step).astype(jnp.int32), 0, len(grid) - 1)
         idx = jnp.clip(centre[:, None] + offsets[None, :], 0, len(grid) - 1)
-        c = jnp.take_along_axis(full_cost, idx, axis=1) + smooth * (gridj[idx] - pred[:, None]) ** 2
-        best = gridj[jnp.take_along_axis(idx, jnp.argmin(c, axis=1)[:, None], axis=1)[:, 0]].reshape(h, w)
-        return jnp.where(front, best, d), jnp.any(front)
+        c = jnp.take_along_axis(full_cost, idx, axis=1) + weight * (gridj[idx] - pred[:, None]) ** 2
+        return gridj[jnp.take_along_axis(idx, jnp.argmin(c, axis=1)[:, None], axis=1)[:, 0]]
 
     d0 = jnp.asarray(np.where(mask, seed_d, np.nan), jnp.float32)
     d, _ = jax.lax.while_loop(lambda s: s[1], step_fn, (d0, jnp.array(True)))
+
+    # Relaxation: each pixel again takes the best candidate near the mean of its four
+    # neighbours, now with the smoothness of a plane (a Laplacian prior, unbiased for a
+    # linear slope), updating the two colours of a checkerboard in turn (iterated
+    # conditional modes). It mends whole fronts that took a neighbouring local minimum.
+    checker = jnp.asarray((np.add.outer(np.arange(h), np.arange(w)) % 2).astype(bool))
+
+    def relax(_, d):
+        for colour in (checker, ~checker):
+            acc = jnp.zeros_like(d)
+            cnt = jnp.zeros_like(d)
+            for dy, dx in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+                d1 = shifted(d, dy, dx, jnp.nan)
+                ok = jnp.isfinite(d1)
+                acc = acc + jnp.where(ok, d1, 0.0)
+                cnt = cnt + ok
+            pred = jnp.where(cnt > 0, acc / jnp.maximum(cnt, 1), d).ravel()
+            best = choose(pred, relax_weight).reshape(h, w)
+            d = jnp.where(colour & maskj & jnp.isfinite(d), best, d)
+        return d
+
+    d = jax.lax.fori_loop(0, relax_passes, relax, d)
     return np.asarray(d, np.float64)
 
 
-def _refine(fwd: PlanarForward, y, lum, sin2, d, gain, lo, hi, iters: int = 6):
-    """Gauss-Newton in ``d`` per pixel on the exact colours; returns (d, |dy/dd|^2, model)."""
+def _refine(fwd: PlanarForward, y, lum, sin2, d, gain, lo, hi, high=np.inf, iters: int = 6):
+    """Gauss-Newton in ``d`` per pixel on the exact colours (censored residuals), within two
+    grid steps of the start (the order and the minimum were chosen on the grid); returns
+    (d, |dr/dd|^2, model)."""
 
     @jax.jit
     def one(yp, lp, sp, dp):
-        def model(t):
-            return gain * lp * fwd.rgb(t, sp)
+        def resid(t):
+            return censored_residual(yp, gain * lp * fwd.rgb(t, sp), high)
 
         def body(_, t):
-            m, dm = jax.jvp(model, (t,), (jnp.ones_like(t),))
-            step = jnp.sum(dm * (yp - m)) / jnp.maximum(jnp.sum(dm * dm), 1e-20)
-            return jnp.clip(t + jnp.clip(step, -2 * GRID_STEP_NM, 2 * GRID_STEP_NM), lo, hi)
+            r, dr = jax.jvp(resid, (t,), (jnp.ones_like(t),))
+            step = -jnp.sum(dr * r) / jnp.maximum(jnp.sum(dr * dr), 1e-20)
+            return jnp.clip(t + step, jnp.maximum(dp - 2 * GRID_STEP_NM, lo), jnp.minimum(dp + 2 * GRID_STEP_NM, hi))
 
         t = jax.lax.fori_loop(0, iters, body, dp)
-        m, dm = jax.jvp(model, (t,), (jnp.ones_like(t),))
-        return t, jnp.sum(dm * dm), m
+        _, dr = jax.jvp(resid, (t,), (jnp.ones_like(t),))
+        return t, jnp.sum(dr * dr), gain * lp * fwd.rgb(t, sp)
 
     f = jax.vmap(one)
     out = [f(*(jnp.asarray(a[s:s + 4096]) for a in (y, lum, sin2, d))) for s in range(0, len(y), 4096)]
@@ -285,8 +333,12 @@ def _hops(dmap: np.ndarray, limit: float) -> int:
 
 
 def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=None,
-               kind: str | None = None, seed: int = 0) -> PlanarResult:
-    """Fit a flat film's or a gap's thickness to a linear photo (H, W, 3) (the module's method)."""
+               kind: str | None = None, seed: int = 0, clip_high: float = np.inf) -> PlanarResult:
+    """Fit a flat film's or a gap's thickness to a linear photo (H, W, 3) (the module's method).
+
+    ``clip_high``: the sensor's white clip in the photo's units (1 for an 8/16-bit file,
+    ``inf`` for linear EXR/HDR); channels at 0 or at ``clip_high`` are censored.
+    """
     kind = kind or scene.thickness
     h, w = photo.shape[:2]
     if (h, w) != (scene.height, scene.width):
@@ -313,8 +365,8 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     i0, i1, a = _pixel_tables(table, nodes, sin2)
     if float(np.percentile(y.max(-1), 99)) <= 0.02:
         raise InputError("the film does not appear in the photo (the pixels where it should be are dark)")
-    gain = _find_gain(y, lum, table, i0, i1, a, np.random.default_rng(seed))
-    cost = _costs(y, lum, table, i0, i1, a, gain)
+    gain = _find_gain(y, lum, table, i0, i1, a, np.random.default_rng(seed), clip_high)
+    cost = _costs(y, lum, table, i0, i1, a, gain, clip_high)
     best = grid[np.argmin(cost, axis=1)]
     sigma2 = max(float(np.median(cost.min(1))) / 3.0, 1e-10)
     window = 0.3 * fwd.fringe_nm
@@ -349,18 +401,19 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
             flat = seeds.reshape(-1)
             flat[np.flatnonzero(mask.ravel())[pick]] = best[pick]
             seeds = flat.reshape(h, w)
-        dmap = _propagate(cost, grid, mask, seeds, window, smooth=3.0 * sigma2 / window ** 2)
+        dmap = _propagate(cost, grid, mask, seeds, window, smooth=3.0 * sigma2 / window ** 2,
+                          relax_weight=3.0 * sigma2 / RELAX_NM ** 2)
         dpix = dmap[mask]
         if not np.all(np.isfinite(dpix)):
             warnings.append(f"{int((~np.isfinite(dpix)).sum())} film pixels are not connected to the reference")
             dpix = np.where(np.isfinite(dpix), dpix, best)
 
-    dref, jj_, model = _refine(fwd, y, lum, sin2, dpix, gain, lo, hi)
+    dref, jj_, model = _refine(fwd, y, lum, sin2, dpix, gain, lo, hi, clip_high)
     # exposure by least squares on the refined thickness, then refine once more
     unit = model / gain
     gain = float(np.sum(y * unit) / max(float(np.sum(unit * unit)), 1e-20))
-    dref, jj_, model = _refine(fwd, y, lum, sin2, dref, gain, lo, hi)
-    res = y - model
+    dref, jj_, model = _refine(fwd, y, lum, sin2, dref, gain, lo, hi, clip_high)
+    res = censored_residual(y, model, clip_high, np)
     sigma = _noise_sigma(res)
     stderr = sigma / np.sqrt(np.maximum(jj_, 1e-20))
     params, perr = {}, {}
@@ -371,11 +424,11 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     if kind == "newton":
         from ._newton import fit_newton
 
-        nres = fit_newton(fwd, y, lum, sin2, view, mask, dref, gain, sigma, lo, hi)
+        nres = fit_newton(fwd, y, lum, sin2, view, mask, dref, gain, sigma, lo, hi, clip_high)
         params, perr = nres.params, nres.stderr
         dref, model, gain = nres.thickness, nres.model, nres.gain
         stderr = nres.thickness_stderr
-        res = y - model
+        res = censored_residual(y, model, clip_high, np)
     chi2 = float(np.mean(res ** 2) / sigma ** 2)
     tmap = np.full((h, w), np.nan)
     tmap[mask] = dref
@@ -391,7 +444,7 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     render = np.zeros((h, w, 3))
     render[mask] = model
     resid = np.zeros((h, w, 3))
-    resid[mask] = y - model
+    resid[mask] = res
     ok = not warnings and chi2 < 4.0
     if chi2 >= 4.0:
         warnings.append(f"the model does not explain the photo (residual {math.sqrt(chi2):.1f} x the noise)")

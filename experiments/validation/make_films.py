@@ -23,9 +23,10 @@ import vio  # noqa: E402
 FULL_WELL, READ_NOISE = 4000.0, 3.0
 
 CASES = {
-    "film_newton_bk7_na010": dict(kind="newton", seed=11, size=128, pixel_um=9.0, radius_mm=100.0, na=0.1,
+    "film_newton_bk7_na010": dict(kind="newton", seed=11, fit_args=[], size=128, pixel_um=9.0, radius_mm=100.0, na=0.1,
                                   center=(61.3, 66.8), lamp="3200K", media=("bk7", "air", "bk7")),
-    "film_drain_water_area": dict(kind="area", seed=12, size=128, top_nm=120.0, bottom_nm=1100.0, exponent=1.3,
+    # the order's reference: the film's top three rows, 20 pixels wide, at their rendered mean
+    "film_drain_water_area": dict(kind="area", seed=12, fit_args=["--reference-region", "54,28,74,31=126"], size=128, top_nm=120.0, bottom_nm=1100.0, exponent=1.3,
                                   lamp="D65", n_film="water"),
 }
 
@@ -79,7 +80,8 @@ def make(name: str, c: dict) -> None:
                  renderer_version=rf.VERSION, exposure=exposure,
                  noise={"model": "Poisson-Gaussian then 8-bit sRGB", "full_well_e_at_1.0": FULL_WELL,
                         "read_noise_e": READ_NOISE, "seed": c["seed"]},
-                 fit_args=["--scene", "scene.toml"])
+                 kind="film", fits=["newton" if c["kind"] == "newton" else "map"],
+                 fit_args=["--scene", "scene.toml", *c["fit_args"]])
     vio.save_json(os.path.join(out, "truth.json"), truth)
     print(f"{name}: d {np.nanmin(d):.0f}..{np.nanmax(d):.0f} nm, exposure {exposure:.3g}")
 

@@ -93,3 +93,18 @@ def test_glass_presets(name, lam, expected, tol):
 def test_sellmeier_bk7_near_infrared():
     """Sellmeier written out by hand for N-BK7 at 1 um (data sheet n = 1.50731)."""
     assert abs(float(dispersion.refractive_index("bk7", 1014.0)) - 1.50731) < 5e-5
+
+
+def test_gap_chart_colours_match_tmm_spectra(x64):
+    """``chart``'s colours of a glass|air|glass gap are tmm's spectra integrated to RGB."""
+    from bubblefit.optics import chart, spectral
+
+    basis = spectral.spectral_basis("uniform", 60)
+    d = np.array([0.0, 150.0, 420.0, 900.0])
+    got = chart.interference_colours(d, n_film="air", above=1.52, below=1.52, basis=basis, angle_deg=20.0)
+    t0 = np.arcsin(np.sin(np.radians(20.0)) / 1.52)
+    spec = np.array([[np.mean([tmm.coh_tmm(p, [1.52, 1.0, 1.52], [np.inf, dd, np.inf], t0, wl)["R"] for p in "sp"])
+                      for wl in basis.wavelengths] for dd in d])
+    ref = spec @ basis.weights
+    np.testing.assert_allclose(got, ref, atol=1e-6)
+    assert np.abs(got[0]).max() < 1e-9  # no gap: glass meets glass, nothing reflects

@@ -33,8 +33,9 @@ def interference_colours(thickness_nm, *, angle_deg: float = 0.0, model: str = "
     or a preset (:mod:`bubblefit.optics.dispersion`), evaluated at each sample wavelength;
     ``basis`` carries the illuminant and the camera response (default: the converged
     ``reference`` quadrature, D65, sRGB). ``above`` and ``below`` are the media on either
-    side of the film (air when not given; the light comes from ``above`` at ``angle_deg``,
-    e.g. a glass|air|glass gap), with the exact three-media Airy sum (``airy`` only);
+    side of the film (air when not given; e.g. a glass|air|glass gap), with the exact
+    three-media Airy sum (``airy`` only); the light comes from ``above``, which it entered
+    from air at ``angle_deg`` through a face parallel to the film;
     ``na > 0`` averages over an objective's cone of illumination instead of one angle
     (:func:`bubblefit.lighting.coaxial.coaxial_reflectance`).
     """

@@ -121,5 +121,6 @@ def run(args) -> int:
                        comments="", fmt="%.10g")
     print(f"wrote {args.output}" + (f" and {args.csv}" if args.csv else "") + f" ({len(d)} thicknesses)")
     if args.json:
-        write_json(args.json, {"output": args.output, "csv": args.csv, "samples": len(d), "model": args.model})
+        write_json(args.json, {"output": args.output, "csv": args.csv, "samples": len(d), "model": args.model,
+                               "media": media, "na": args.na, "lamp": lamp or "D65"})
     return 0

@@ -41,7 +41,8 @@ def run_planar(args) -> int:
     with stage("reading the photo"):
         photo = read_image(args.photo, dtype=np.float64)
     with stage(f"fitting a flat film ({scene.stack.describe()}, {scene.light} light, {kind})"):
-        result = fit_planar(photo.pixels[..., :3], scene, reference_region=region, reference_nm=nm, kind=kind)
+        result = fit_planar(photo.pixels[..., :3], scene, reference_region=region, reference_nm=nm, kind=kind,
+                            clip_high=np.inf if photo.linear_file else 1.0)
     print(result.report())
     out = result.to_json()
     out["photo"] = str(args.photo)

@@ -87,11 +87,18 @@ def _read_toml(path) -> dict:
 
 def is_planar_file(path) -> bool:
     """Whether the scene file at ``path`` describes a flat film (False for a missing or bad file:
-    the bubble's loader then says what is wrong)."""
+    the bubble's loader then says what is wrong). A ``[film]`` of another shape than
+    ``"plane"`` or ``"sphere"`` is refused in one line."""
     try:
-        return is_planar(_read_toml(path))
+        data = _read_toml(path)
     except InputError:
         return False
+    f = data.get("film")
+    shape = f.get("shape", "sphere") if isinstance(f, dict) else "sphere"
+    if shape not in ("plane", "sphere"):
+        raise InputError(f'{path}: film.shape = {shape!r} is not supported (use "plane" for a flat film or a gap, '
+                         '"sphere" or a [bubble] table for a bubble)')
+    return shape == "plane"
 
 
 def load_planar(path) -> PlanarScene:

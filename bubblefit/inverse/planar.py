@@ -192,14 +192,28 @@ def _pixel_tables(table: np.ndarray, sin2_nodes: np.ndarray, sin2: np.ndarray) -
     return i0, i0 + 1, pos - i0
 
 
+@jax.jit
+def _cost_chunk(y, lum, table, i0, i1, a, gain, high):
+    t = (1.0 - a)[:, None, None] * table[i0] + a[:, None, None] * table[i1]
+    r = censored_residual(y[:, None, :], gain * lum[:, None, None] * t, high)
+    return jnp.sum(r * r, axis=-1)
+
+
 def _costs(y, lum, table, i0, i1, a, gain, high=np.inf, chunk=1024):
-    """(P, D) cost volume ``|y - g L T|^2`` (censored, :func:`censored_residual`; numpy, chunked over pixels)."""
-    out = np.empty((len(y), table.shape[1]), np.float32)
-    for s in range(0, len(y), chunk):
-        sl = slice(s, s + chunk)
-        t = (1 - a[sl, None, None]) * table[i0[sl]] + a[sl, None, None] * table[i1[sl]]
-        r = censored_residual(y[sl, None, :], gain * lum[sl, None, None] * t, high, np)
-        out[sl] = (r ** 2).sum(-1).astype(np.float32)
+    """(P, D) cost volume ``|y - g L T|^2`` (censored, :func:`censored_residual`), compiled and
+    chunked over pixels (one shape for every chunk)."""
+    n = len(y)
+    out = np.empty((n, table.shape[1]), np.float32)
+    tab = jnp.asarray(table, jnp.float32)
+    for s in range(0, n, chunk):
+        part = [np.asarray(v[s:s + chunk]) for v in (y, lum, i0, i1, a)]
+        k = len(part[0])
+        if k < chunk:
+            part = [np.concatenate([v, np.repeat(v[-1:], chunk - k, axis=0)]) for v in part]
+        yc, lc, ic0, ic1, ac = part
+        c = _cost_chunk(jnp.asarray(yc, jnp.float32), jnp.asarray(lc, jnp.float32), tab, jnp.asarray(ic0),
+                        jnp.asarray(ic1), jnp.asarray(ac, jnp.float32), jnp.float32(gain), jnp.float32(high))
+        out[s:s + k] = np.asarray(c)[:k]
     return out
 
 

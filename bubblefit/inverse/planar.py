@@ -411,8 +411,30 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
 
     seeds = np.full((h, w), np.nan)
     if kind == "constant":
-        j = int(np.argmin(cost.sum(0)))
+        # One thickness for the film, each candidate with its own least-squares exposure
+        # (``g_j = sum y.T_j / sum |T_j|^2``): the exposure found above belongs to one order.
+        A = np.zeros(len(grid))
+        B = np.zeros(len(grid))
+        for s in range(0, len(y), 1024):
+            sl = slice(s, s + 1024)
+            t = lum[sl, None, None] * ((1 - a[sl, None, None]) * table[i0[sl]] + a[sl, None, None] * table[i1[sl]])
+            A += np.einsum("pc,pdc->d", y[sl], t)
+            B += np.einsum("pdc,pdc->d", t, t)
+        total = float(np.sum(y * y)) - A * A / np.maximum(B, 1e-30)
+        j = int(np.argmin(total))
+        gain = float(A[j] / B[j])
         dpix = np.full(len(y), grid[j])
+        # Another order that fits nearly as well leaves the thickness ambiguous: a
+        # near-neutral film whose brightness the unknown exposure absorbs. "Nearly": worse
+        # by less than one noise variance (sigma^2, summed over the channels) per pixel on
+        # average, i.e. colours closer than the noise of a single pixel: a small mismatch
+        # of the model (a dispersion law, the lamp: ~1e-3 of the signal against the
+        # independent renderer) is common to all pixels and does not average out.
+        far = np.abs(grid - grid[j]) > 0.75 * fwd.fringe_nm  # past the neighbouring minima of this order
+        if far.any() and (total[far].min() - total[j]) / len(y) < sigma2:
+            alt = grid[far][int(np.argmin(total[far]))]
+            warnings.append(f"the colour fits {grid[j]:.0f} nm and {alt:.0f} nm nearly as well (another order); "
+                            "name the thickness of a region with --reference-region")
     else:
         if region is not None:
             x0, y0, x1, y1 = region

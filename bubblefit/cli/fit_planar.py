@@ -24,7 +24,7 @@ def run_planar(args) -> int:
     from ..model.planar_scene import load_planar, parse_region
     from ..progress import stage
     from .common import guard_outputs, write_json
-    from .fit import _thickness_png
+    from .fit import _write_outputs
 
     for name in _BUBBLE_ONLY:
         if getattr(args, name, None):
@@ -47,21 +47,8 @@ def run_planar(args) -> int:
     out = result.to_json()
     out["photo"] = str(args.photo)
     if args.output:
-        files = {"render": result.render, "residual": result.residual, "thickness": result.thickness_map,
-                 "thickness_stderr": result.thickness_stderr_map}
         with stage("writing the maps"):
-            for name, img in files.items():
-                path = f"{args.output}_{name}.exr"
-                write_image(path, img, bit_depth=32 if name.startswith("thickness") else None)
-                if name.startswith("thickness"):
-                    label = "film thickness (nm)" if name == "thickness" else "standard error of the thickness (nm)"
-                    _thickness_png(str(preview_path(path)), img, label)
-                elif name == "render":
-                    write_image(preview_path(path), np.clip(img / max(float(np.percentile(img, 99.5)), 1e-9) * 0.9, 0, 1))
-                else:
-                    scale = float(np.percentile(np.abs(img), 99)) or 1.0
-                    write_image(preview_path(path), np.clip(0.5 + 0.5 * img / scale, 0, 1))
-        out["outputs"] = {k: f"{args.output}_{k}.exr" for k in files}
+            out["outputs"] = _write_outputs(args.output, result, write_image, preview_path)
     if args.json:
         write_json(args.json, out)
     if args.strict and not result.ok:

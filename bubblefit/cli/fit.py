@@ -32,8 +32,12 @@ def register(sub):
                     "thickness (one value, a drainage profile or a per-pixel map) from a linear photo of a "
                     "bubble and its environment map, with standard errors.")
     p.add_argument("photo", metavar="PHOTO", type=input_file, help="photo of the bubble (EXR/HDR linear; PNG/JPEG/TIFF sRGB)")
-    p.add_argument("--envmap", required=True, type=input_file, help="environment map (equirectangular, linear EXR/HDR), aligned "
-                                                   "with the camera (it looks along -z of the map's frame)")
+    p.add_argument("--envmap", type=input_file, help="environment map (equirectangular, linear EXR/HDR), aligned "
+                                    "with the camera (it looks along -z of the map's frame); required for a bubble, "
+                                    "not for a flat film ([film] shape = \"plane\" in the scene)")
+    p.add_argument("--reference-region", metavar="X0,Y0,X1,Y1=NM",
+                   help="flat films: a region (pixels, half-open) of known thickness NM that fixes the "
+                        "interference order of the map")
     p.add_argument("--background", metavar="BEFORE", type=input_file, help="photo of the same view without the bubble")
     cal = p.add_mutually_exclusive_group()
     cal.add_argument("--calibration", metavar="CAL.json", type=input_file, help="output of `bubblefit calibrate` (starting t, disc)")
@@ -253,6 +257,15 @@ def run(args) -> int:
     from ..model.scene import load_scene
     from .common import guard_args, scene_inputs, write_json
 
+    if args.scene:
+        from ..model.planar_scene import is_planar_file
+
+        if is_planar_file(args.scene):
+            from .fit_planar import run_planar
+
+            return run_planar(args)
+    if not args.envmap:
+        raise InputError("fit: --envmap is required for a bubble (a flat film's scene says [film] shape = \"plane\")")
     scene = load_scene(args.scene) if args.scene else None
     guard_args(args, inputs=scene_inputs(scene) if scene is not None else [], outputs=output_paths(args))
     fit_option_values(args)  # bad values refused before any photo is read

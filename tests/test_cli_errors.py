@@ -811,7 +811,7 @@ def test_every_file_argument_is_declared_as_input_or_output():
     path_types = (common.input_file, common.output_file, common.output_folder, common.output_prefix)
     not_files = {"--thickness", "--model", "--hold", "--disc", "--circle", "--ball", "--thickness-range",
                  "--wavelength-range", "--protocol", "--n-film", "--cauchy", "--response", "--merge",
-                 "--scheduler", "--times", "--preview-exposure", "--rotation-deg"}
+                 "--scheduler", "--times", "--preview-exposure", "--rotation-deg", "--reference-region", "--set"}
     parser = build_parser()
     sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     undeclared = []

@@ -8,7 +8,7 @@ from ..errors import InputError
 
 
 def register(sub):
-    from .common import output_file
+    from .common import input_file, output_file
 
     p = sub.add_parser("chart", help="interference colour against film thickness (PNG and CSV)",
                        description="Chart of the film's interference colour against thickness, from a "

@@ -41,6 +41,9 @@ def register(sub):
     p.add_argument("--thickness-range", default="0,15000", metavar="MIN,MAX",
                    help="thicknesses searched, nm (default 0,15000)")
     p.add_argument("--wavelength-range", metavar="MIN,MAX", help="wavelengths used, nm (default: the whole reading)")
+    p.add_argument("--wavelength-unit", choices=("nm", "Angstrom", "um", "m"), default=None,
+                   help="unit of the files' wavelengths (default: read from their range: nm 100-2500, Angstrom "
+                        "1000-25000, um 0.1-2.5, m 1e-7-2.5e-6)")
     p.add_argument("--lamp-terms", type=int, default=None,
                    help="smooth lamp terms (Legendre in wavenumber, kept non-negative); default 5, 1 with "
                         "--reference, 3 with --normalised")
@@ -89,7 +92,8 @@ def _check_outputs(args) -> None:
 
 
 def run(args) -> int:
-    from ..inverse.spectrum import SpectrumOptions, fit_spectrum, fit_spectrum_series
+    from ..inverse.spectrum import SpectrumOptions, fit_spectrum
+    from ..inverse.spectrum_series import fit_spectrum_series
     from ..io.spectra import read_spectrum
     from ..optics import dispersion
     from ..progress import status
@@ -106,10 +110,13 @@ def run(args) -> int:
     if args.background_terms is not None and not 0 <= args.background_terms <= 10:
         raise InputError(f"--background-terms must be within 0..10, got {args.background_terms}")
     _check_outputs(args)
-    dark = read_spectrum(args.dark) if args.dark else None
-    reference = read_spectrum(args.reference) if args.reference else None
-    spectra = [read_spectrum(p) for p in args.spectra]  # every file is checked before any work
+    unit = args.wavelength_unit
+    dark = read_spectrum(args.dark, unit) if args.dark else None
+    reference = read_spectrum(args.reference, unit) if args.reference else None
+    spectra = [read_spectrum(p, unit) for p in args.spectra]  # every file is checked before any work
     for spec in [s for s in (dark, reference) if s is not None] + spectra:
+        if spec.unit != "nm" and unit is None:
+            print(f"note: {spec.path}: wavelengths read as {spec.unit} (from their range), converted to nm")
         if spec.skipped:
             print(f"warning: {spec.path}: skipped {spec.skipped} rows that are not finite numbers", file=sys.stderr)
     if args.shared_lamp:

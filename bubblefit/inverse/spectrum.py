@@ -66,7 +66,7 @@ from ..optics import dispersion, film
 from ._spectrum_profile import (ProfileProblem, local_noise, profile_variance, refine_d, refine_dw, refine_near,
                                 residual_correlation, rss_grids, second_difference_noise, second_minimum)
 
-__all__ = ["SpectrumOptions", "SpectrumFit", "film_reflectance", "reflector", "fit_spectrum", "fit_spectrum_series",
+__all__ = ["SpectrumOptions", "SpectrumFit", "film_reflectance", "reflector", "fit_spectrum",
            "interference_order", "min_fringes"]
 
 _FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
@@ -579,5 +579,3 @@ def _verdict(d, stderr, second, dchi2, grid, lam, n, has_reference: bool, opts: 
         reasons.append(f"thickness {d:.1f} nm is at the edge of the searched range {lo:g}-{hi:g} nm")
     return reasons
 
-
-from ._shared_lamp import fit_spectrum_series  # noqa: E402  (it reads each reading with the functions above)

@@ -8,6 +8,11 @@ spectra, the residual and the profile likelihood over thickness. With ``--shared
 the files are one series under one lamp (:func:`bubblefit.inverse.spectrum.fit_spectrum_series`):
 the readings that can be read alone fit the lamp, and the others (films too thin for
 fringes) are read with it; ``-o`` then also plots the series' thicknesses in file order.
+
+A spectral image (a cube: ENVI ``.hdr``, ``.npy``/``.npz``, HDF5, Zarr; or a line scan, a
+2-D array) gives a thickness map (:func:`bubblefit.inverse.spectral_map.fit_cube`):
+``-o PREFIX`` writes ``PREFIX_thickness.exr``/``.png`` and ``PREFIX_thickness_stderr.exr``/``.png``
+(a line scan: ``PREFIX_profile.csv``/``.png``), ``--json`` the summary.
 """
 
 from __future__ import annotations
@@ -63,6 +68,13 @@ def register(sub):
                    help="the files are one series under the same lamp (a draining film): the readings that can be "
                         "read alone fit the lamp, and the others (films under a fringe, down to the black film) "
                         "are read with it, from their brightness; needs at least 3 readings that are ok alone")
+    p.add_argument("--wavelengths", metavar="FILE",
+                   help="a .npy cube's wavelengths, one a line (other cube formats carry their own)")
+    p.add_argument("--band-fwhm", type=float, default=0.0, metavar="NM",
+                   help="a cube's bands' width (FWHM, nm): fringes finer than a band are washed out (default 0)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="a Dask scheduler (tcp://host:port) whose workers fit a cube's blocks (they must read the "
+                        "cube at the same path)")
     p.add_argument("--csv", help="CSV, one row per file: " + ",".join(_CSV_COLUMNS[:4]) + ",...")
     p.add_argument("--json", help="JSON with one entry per file")
     p.add_argument("-o", "--output", metavar="PLOT_PREFIX", help="write PLOT_PREFIX_<file>.png per file")
@@ -109,6 +121,12 @@ def run(args) -> int:
         raise InputError(f"--lamp-terms must be within 1..20, got {args.lamp_terms}")
     if args.background_terms is not None and not 0 <= args.background_terms <= 10:
         raise InputError(f"--background-terms must be within 0..10, got {args.background_terms}")
+    from ..io.cubes import is_cube_path
+
+    if any(is_cube_path(p) for p in args.spectra):
+        if len(args.spectra) > 1:
+            raise InputError("give one spectral image (cube or line scan) per run, without other spectra")
+        return _run_cube(args, opts)
     _check_outputs(args)
     unit = args.wavelength_unit
     dark = read_spectrum(args.dark, unit) if args.dark else None
@@ -156,6 +174,107 @@ def run(args) -> int:
         write_json(args.json, {"n_film": dispersion.describe(index), "dark": args.dark, "reference": args.reference,
                                "shared_lamp": shared, "ok": all(r["ok"] for r in rows), "spectra": rows})
     return 1 if args.strict and not all(r["ok"] for r in rows) else 0
+
+
+def _cube_outputs(args, line: bool) -> list[str]:
+    if not args.output:
+        return []
+    if line:
+        return [f"{args.output}_profile.csv", f"{args.output}_profile.png"]
+    return [f"{args.output}_{name}.{ext}" for name in ("thickness", "thickness_stderr") for ext in ("exr", "png")]
+
+
+def _run_cube(args, opts) -> int:
+    """A spectral image: its thickness map (see the module's description)."""
+    import numpy as np
+
+    from ..inverse.spectral_map import MapOptions, fit_cube
+    from ..io.cubes import read_cube
+    from ..io.spectra import read_spectrum
+    from ..optics import dispersion
+    from ..progress import status
+    from .common import guard_outputs, write_json
+
+    if args.shared_lamp or args.normalised or args.incoherent:
+        raise InputError("--shared-lamp, --normalised and --incoherent are for single readings; a cube's lamp is "
+                         "shared by its pixels already")
+    if not (args.output or args.json):
+        raise InputError("a spectral image needs -o PREFIX (the maps) or --json")
+    cube = read_cube(args.spectra[0], wavelengths=args.wavelengths, unit=args.wavelength_unit)
+    outputs = _cube_outputs(args, cube.is_line)
+    guard_outputs([args.spectra[0], args.dark, args.reference, args.wavelengths], [args.json, *outputs])
+    if not np.isfinite(args.band_fwhm) or not 0 <= args.band_fwhm <= 50:
+        raise InputError(f"--band-fwhm must be within 0..50 nm, got {args.band_fwhm:g}")
+    dark = read_spectrum(args.dark, args.wavelength_unit) if args.dark else None
+    reference = read_spectrum(args.reference, args.wavelength_unit) if args.reference else None
+    mopts = MapOptions(n_film=opts.n_film, thickness_range=opts.thickness_range,
+                       wavelength_range=opts.wavelength_range, resolution_nm=args.band_fwhm,
+                       lamp_terms=args.lamp_terms or MapOptions.lamp_terms)
+    h, w = cube.shape
+    if cube.unit != "nm" and args.wavelength_unit is None:
+        print(f"note: {cube.path}: wavelengths read as {cube.unit} (from their range), converted to nm")
+    tmap = fit_cube(cube, options=mopts, dark=dark, reference=reference, scheduler=args.scheduler,
+                    progress=lambda stage, k, n: status(f"{cube.path}: {stage} block {k + 1}/{n} ..."))
+    summ = tmap.summary()
+    kind = "line scan" if cube.is_line else "cube"
+    print(f"{cube.path}: {kind} {h}x{w}x{len(cube.wavelength_nm)}, median thickness {summ['median_thickness_nm']:.1f} nm, "
+          f"median stderr {summ['median_stderr_nm']:.2g} nm, {summ['fraction_ok']:.1%} of pixels ok")
+    for note in tmap.notes:
+        print(f"  {note}")
+    if args.output:
+        _write_cube_outputs(args.output, tmap, cube.is_line)
+    if args.json:
+        write_json(args.json, {"cube": cube.path, "kind": kind, "n_film": dispersion.describe(opts.n_film),
+                               "dark": args.dark, "reference": args.reference, "outputs": outputs, **summ})
+    return 1 if args.strict and summ["fraction_ok"] < 1.0 else 0
+
+
+def _write_cube_outputs(prefix: str, tmap, line: bool) -> None:
+    """The map and its standard error as EXR (32-bit float, nm) and PNG with a colour bar in
+    nm; a line scan's profile as CSV and a plot."""
+    import numpy as np
+
+    from ..io.atomic import write_text
+    from ..io.images import write_image
+    from .fit import _thickness_png
+
+    t = np.where(tmap.ok, tmap.thickness_nm, np.nan)
+    if line:
+        rows = ["row,thickness_nm,thickness_nm_stderr,ok"]
+        rows += [f"{i},{d:.6g},{e:.6g},{'true' if k else 'false'}" for i, (d, e, k) in
+                 enumerate(zip(tmap.thickness_nm[:, 0], tmap.stderr_nm[:, 0], tmap.ok[:, 0]))]
+        write_text(f"{prefix}_profile.csv", "\n".join(rows) + "\n")
+        _plot_profile(tmap, f"{prefix}_profile.png")
+        return
+    write_image(f"{prefix}_thickness.exr", tmap.thickness_nm, bit_depth=32)
+    write_image(f"{prefix}_thickness_stderr.exr", np.where(np.isfinite(tmap.stderr_nm), tmap.stderr_nm, np.nan),
+                bit_depth=32)
+    _thickness_png(f"{prefix}_thickness.png", t, "thickness (nm)")
+    _thickness_png(f"{prefix}_thickness_stderr.png", np.where(tmap.ok, tmap.stderr_nm, np.nan), "standard error (nm)")
+
+
+def _plot_profile(tmap, path: str) -> None:
+    """A line scan's thickness along the slit, with its error bars; not-ok rows marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from ..io.images import atomic_path
+
+    d, e, ok = tmap.thickness_nm[:, 0], tmap.stderr_nm[:, 0], tmap.ok[:, 0]
+    k = np.arange(len(d))
+    fig, ax = plt.subplots(figsize=(8, 4), dpi=110)
+    ax.errorbar(k[ok], d[ok], np.where(np.isfinite(e[ok]), e[ok], 0), fmt=".", ms=2, lw=0.6, label="ok")
+    ax.plot(k[~ok], d[~ok], "x", color="C3", ms=3, label="not ok")
+    ax.set_xlabel("row along the slit")
+    ax.set_ylabel("thickness (nm)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
 
 
 def _write_csv(path, rows) -> None:

@@ -25,7 +25,7 @@ from ..errors import InputError
 
 _CSV_COLUMNS = ("file", "thickness_nm", "thickness_nm_stderr", "ok", "order", "fringes", "reduced_chi2",
                 "residual_rms", "resolution_nm", "n_film", "second_minimum_nm", "delta_chi2",
-                "stderr_statistical_nm", "stderr_lamp_nm", "reasons", "warnings")
+                "stderr_statistical_nm", "stderr_lamp_nm", "normalised", "reasons", "warnings")
 
 
 def register(sub):
@@ -52,10 +52,13 @@ def register(sub):
     p.add_argument("--lamp-terms", type=int, default=None,
                    help="smooth lamp terms (Legendre in wavenumber, kept non-negative); default 5, 1 with "
                         "--reference, 3 with --normalised")
-    p.add_argument("--normalised", action="store_true",
-                   help="the readings were already divided by the lamp (a flat envelope up to a tilt): the lamp "
-                        "left is a scale, tilt and curvature (3 terms) and the stray light gets a tilt, so that "
-                        "neither can imitate a fringe")
+    g2 = p.add_mutually_exclusive_group()
+    g2.add_argument("--normalised", dest="normalised", action="store_const", const=True, default=None,
+                    help="the readings were already divided by the lamp (a flat envelope up to a tilt): the lamp "
+                         "left is a scale, tilt and curvature (3 terms) and the stray light gets a tilt, so that "
+                         "neither can imitate a fringe (default: decided from the readings' envelopes, and said)")
+    g2.add_argument("--not-normalised", dest="normalised", action="store_const", const=False,
+                    help="the readings are raw (not divided by the lamp), whatever their envelopes look like")
     p.add_argument("--background-terms", type=int, default=None, metavar="K",
                    help="smooth stray-light terms added beyond the offset (Legendre in wavenumber, or the "
                         "reference times a series with --reference); default 0, or 1 with --normalised")
@@ -64,10 +67,18 @@ def register(sub):
                         "or frame in the beam, a spot spanning many orders: fringe minima lifted in proportion to "
                         "the lamp); more freedom, so thin films without a reference become more ambiguous")
     p.add_argument("--no-offset", action="store_true", help="do not fit a constant stray-light offset")
-    p.add_argument("--shared-lamp", action="store_true",
-                   help="the files are one series under the same lamp (a draining film): the readings that can be "
-                        "read alone fit the lamp, and the others (films under a fringe, down to the black film) "
-                        "are read with it, from their brightness; needs at least 3 readings that are ok alone")
+    g3 = p.add_mutually_exclusive_group()
+    g3.add_argument("--shared-lamp", "--series", dest="series", action="store_const", const=True, default=None,
+                    help="the files are one series under the same lamp (a draining film): the readings that can be "
+                         "read alone fit the lamp, and the others (films under a fringe, down to the black film) "
+                         "are read with it, from their brightness; needs at least 3 readings that are ok alone "
+                         "(default: on for 5 or more files on the same wavelengths)")
+    g3.add_argument("--no-series", dest="series", action="store_const", const=False,
+                    help="read every file alone, even when they look like one series")
+    p.add_argument("--unordered", action="store_true",
+                   help="the series' files are not in time order (default: in order when their names, or else "
+                        "their modification times, are; a reading that jumps to its neighbours' twin is then "
+                        "not ok)")
     p.add_argument("--wavelengths", metavar="FILE",
                    help="a .npy cube's wavelengths, one a line (other cube formats carry their own)")
     p.add_argument("--band-fwhm", type=float, default=0.0, metavar="NM",
@@ -98,13 +109,14 @@ def _check_outputs(args) -> None:
     if args.output and len({Path(s).stem for s in args.spectra}) < len(args.spectra):
         raise InputError("two spectra have the same file name; their plots would collide (run them separately)")
     plots = [f"{args.output}_{Path(s).stem}.png" for s in args.spectra] if args.output else []
-    if args.output and args.shared_lamp:
+    if args.output and _is_series(args, None):
         plots.append(f"{args.output}_series.png")
     guard_outputs([*args.spectra, args.dark, args.reference], [args.csv, args.json, *plots])
 
 
 def run(args) -> int:
     from ..inverse.spectrum import SpectrumOptions, fit_spectrum
+    from ..inverse._spectrum_defaults import in_time_order
     from ..inverse.spectrum_series import fit_spectrum_series
     from ..io.spectra import read_spectrum
     from ..optics import dispersion
@@ -129,7 +141,7 @@ def run(args) -> int:
         return _run_cube(args, opts)
     _check_outputs(args)
     unit = args.wavelength_unit
-    dark = read_spectrum(args.dark, unit) if args.dark else None
+    dark = read_spectrum(args.dark, unit, dark=True) if args.dark else None
     reference = read_spectrum(args.reference, unit) if args.reference else None
     spectra = [read_spectrum(p, unit) for p in args.spectra]  # every file is checked before any work
     for spec in [s for s in (dark, reference) if s is not None] + spectra:
@@ -137,10 +149,18 @@ def run(args) -> int:
             print(f"note: {spec.path}: wavelengths read as {spec.unit} (from their range), converted to nm")
         if spec.skipped:
             print(f"warning: {spec.path}: skipped {spec.skipped} rows that are not finite numbers", file=sys.stderr)
-    if args.shared_lamp:
+    series = _is_series(args, spectra)
+    if series:
+        ordered, order_why = (False, "--unordered") if args.unordered else in_time_order([s.path for s in spectra])
+        print(f"series: the {len(spectra)} files are read as one series under one lamp ("
+              + ("--series" if args.series else "same wavelengths; --no-series to read each alone") + "); "
+              + (f"in time order ({order_why})" if ordered else f"not in time order ({order_why})"))
         results, lamp = fit_spectrum_series(spectra, dark=dark, reference=reference, options=opts,
                                             progress=lambda stage, k, n: status(
-                                                f"reading {spectra[k].path} ({stage}, {k + 1}/{n}) ..."))
+                                                f"reading {spectra[k].path} ({stage}, {k + 1}/{n}) ..."),
+                                            time_ordered=ordered)
+        if results and results[0].normalised_why:
+            print(f"series: {results[0].normalised_why}")
         if lamp is not None:
             print(f"shared lamp: fitted to {len(lamp.pinning)} of {len(spectra)} readings; their brightness "
                   f"spreads by {lamp.scale_spread:.1%}")
@@ -160,9 +180,11 @@ def run(args) -> int:
         sd = res.thickness_nm_stderr
         print(f"{spec.path}: {res.thickness_nm:.1f} +- {sd:.2g} nm, order {res.order}, "
               + ("ok" if res.ok else "NOT ok: " + "; ".join(res.reasons)))
+        if not series and res.normalised_why and args.normalised is None:
+            print(f"  {res.normalised_why}")
         for w in res.warnings:
             print(f"  warning: {w}")
-    if args.output and args.shared_lamp:
+    if args.output and series:
         _plot_series(rows, Path(f"{args.output}_series.png"))
     if args.csv:
         _write_csv(args.csv, rows)
@@ -195,7 +217,7 @@ def _run_cube(args, opts) -> int:
     from ..progress import status
     from .common import guard_outputs, write_json
 
-    if args.shared_lamp or args.normalised or args.incoherent:
+    if args.series or args.normalised or args.incoherent:
         raise InputError("--shared-lamp, --normalised and --incoherent are for single readings; a cube's lamp is "
                          "shared by its pixels already")
     if not (args.output or args.json):
@@ -205,7 +227,7 @@ def _run_cube(args, opts) -> int:
     guard_outputs([args.spectra[0], args.dark, args.reference, args.wavelengths], [args.json, *outputs])
     if not np.isfinite(args.band_fwhm) or not 0 <= args.band_fwhm <= 50:
         raise InputError(f"--band-fwhm must be within 0..50 nm, got {args.band_fwhm:g}")
-    dark = read_spectrum(args.dark, args.wavelength_unit) if args.dark else None
+    dark = read_spectrum(args.dark, args.wavelength_unit, dark=True) if args.dark else None
     reference = read_spectrum(args.reference, args.wavelength_unit) if args.reference else None
     mopts = MapOptions(n_film=opts.n_film, thickness_range=opts.thickness_range,
                        wavelength_range=opts.wavelength_range, resolution_nm=args.band_fwhm,
@@ -275,6 +297,25 @@ def _plot_profile(tmap, path: str) -> None:
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png")
     plt.close(fig)
+
+
+#: Fewest files read as one series without --series: enough for the shared lamp's
+#: pinning readings (3) and some to read with it.
+SERIES_MIN_FILES = 5
+
+
+def _is_series(args, spectra) -> bool:
+    """Whether the files are read as one series: as forced, else 5 or more files on the
+    same wavelengths (before they are read: whether it may be, for the outputs' names)."""
+    if args.series is not None:
+        return args.series
+    if len(args.spectra) < SERIES_MIN_FILES:
+        return False
+    if spectra is None:
+        return True
+    from ..inverse._spectrum_defaults import same_grid
+
+    return same_grid(spectra)
 
 
 def _write_csv(path, rows) -> None:

@@ -63,11 +63,12 @@ from numpy.polynomial import legendre
 from ..errors import InputError
 from ..io.spectra import Spectrum
 from ..optics import dispersion, film
+from ._spectrum_defaults import looks_normalised
 from ._spectrum_profile import (ProfileProblem, local_noise, profile_variance, refine_d, refine_dw, refine_near,
                                 residual_correlation, rss_grids, second_difference_noise, second_minimum)
 
 __all__ = ["SpectrumOptions", "SpectrumFit", "film_reflectance", "reflector", "fit_spectrum",
-           "interference_order", "min_fringes"]
+           "resolve_normalised", "interference_order", "min_fringes"]
 
 _FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
 
@@ -119,7 +120,7 @@ class SpectrumOptions:
         3 for a ``normalised`` reading).
     offset : fit a constant stray-light offset ``c``.
     normalised : the reading was already divided by the lamp (its envelope is flat up to a
-        slow slope): the lamp left in it is a scale, tilt and curvature in wavenumber
+        slow slope); None: decided from the reading (:func:`resolve_normalised`): the lamp left in it is a scale, tilt and curvature in wavenumber
         (3 terms; :func:`min_fringes` then asks for half a fringe), and the stray light
         gets a tilt (``background_terms`` 1), so that neither can take the shape of a fringe.
     background_terms : smooth stray-light terms added beyond the offset (None: 0, or 1 for
@@ -143,7 +144,7 @@ class SpectrumOptions:
     fit_resolution: bool = True
     max_resolution_nm: float = 10.0
     ambiguity_dchi2: float = 10.0
-    normalised: bool = False
+    normalised: bool | None = False
     background_terms: int | None = None
     incoherent: bool = False
 
@@ -172,11 +173,15 @@ class SpectrumFit:
     fitted: np.ndarray | None = None
     profile_nm: np.ndarray | None = None
     profile_chi2: np.ndarray | None = None
+    #: Whether it was read as divided by its lamp, and why (detected or forced).
+    normalised: bool = False
+    normalised_why: str = ""
 
     def summary(self) -> dict:
         """The scalar results as a JSON-ready dict (no arrays)."""
         keys = ("thickness_nm", "thickness_nm_stderr", "stderr_statistical_nm", "stderr_lamp_nm", "ok", "order", "fringes", "resolution_nm", "reduced_chi2",
-                "residual_rms", "n_film", "second_minimum_nm", "delta_chi2", "reasons", "warnings")
+                "residual_rms", "n_film", "second_minimum_nm", "delta_chi2", "reasons", "warnings", "normalised",
+                "normalised_why")
         return {k: getattr(self, k) for k in keys}
 
 
@@ -324,7 +329,7 @@ def _prepare(spectrum: Spectrum, dark: Spectrum | None, reference: Spectrum | No
     terms = opts.lamp_terms if opts.lamp_terms is not None else (1 if ref is not None else 3 if opts.normalised else 5)
     if terms < 1 or terms > 20:
         raise InputError(f"lamp terms must be within 1..20, got {terms}")
-    bg = opts.background_terms if opts.background_terms is not None else int(opts.normalised)
+    bg = opts.background_terms if opts.background_terms is not None else int(bool(opts.normalised))
     if bg < 0 or bg > 10:
         raise InputError(f"background terms must be within 0..10, got {bg}")
     n = dispersion.refractive_index(opts.n_film, lam)
@@ -415,6 +420,7 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
     ----------
     Golub & Pereyra (1973), variable projection; Born & Wolf, sec. 7.6.1.
     """
+    options, why = resolve_normalised(spectrum, dark, reference, options)
     p = prepared_problem(spectrum, dark, reference, options)
     lam, y, ref, n, prob, grid, warnings = p.wavelength_nm, p.y, p.reference, p.n, p.problem, p.grid, p.warnings
     terms = prob.basis.shape[1]
@@ -460,7 +466,23 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
         resolution_nm=float(w), reduced_chi2=red, residual_rms=float(np.sqrt(np.mean(resid**2)) / scale),
         n_film=float(np.interp(0.5 * (lam.min() + lam.max()), lam, n)), second_minimum_nm=second,
         delta_chi2=dchi2, reasons=reasons, warnings=warnings, wavelength_nm=lam, measured=y, fitted=fitted,
-        profile_nm=grid, profile_chi2=profile)
+        profile_nm=grid, profile_chi2=profile, normalised=bool(options.normalised), normalised_why=why)
+
+
+def resolve_normalised(spectrum: Spectrum, dark: Spectrum | None, reference: Spectrum | None,
+                       options: SpectrumOptions) -> tuple[SpectrumOptions, str]:
+    """``options`` with ``normalised`` decided, and the reason: as given when it is True or
+    False; else False with a reference (a reading one divides by a reference is not divided
+    yet), and otherwise from the reading's envelope
+    (:func:`bubblefit.inverse._spectrum_defaults.looks_normalised`)."""
+    if options.normalised is not None:
+        return options, "as asked" if options.normalised else ""
+    if reference is not None:
+        return replace(options, normalised=False), "not divided: a reference reading was given"
+    y = spectrum.intensity - (dark.on(spectrum.wavelength_nm, "dark") if dark is not None else 0.0)
+    flat, why = looks_normalised(spectrum.wavelength_nm, y)
+    return replace(options, normalised=bool(flat)), ("read as divided by its lamp: " if flat else
+                                                     "read as not divided: ") + why
 
 
 def _split_problem(prob: ProfileProblem, lam, ref, terms: int, bg_terms: int) -> ProfileProblem | None:

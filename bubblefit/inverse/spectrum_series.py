@@ -18,6 +18,7 @@ import numpy as np
 
 from ..io.spectra import Spectrum
 from . import spectrum as sp
+from ._spectrum_defaults import series_normalised, series_twins
 from ._shared_lamp import (MIN_PINNING_READINGS, SHARED_MISFIT_RATIO, FixedLampProblem, SharedLamp, read_with_lamp,
                            shared_lamp)
 
@@ -25,8 +26,14 @@ __all__ = ["fit_spectrum_series", "read_with_shared_lamp"]
 
 
 def fit_spectrum_series(spectra: list[Spectrum], *, dark=None, reference=None, options=None,
-                        progress=None) -> tuple[list, SharedLamp | None]:
+                        progress=None, time_ordered: bool = False) -> tuple[list, SharedLamp | None]:
     """Fit every reading of ``spectra`` with one lamp shared by the series (see the module).
+
+    With ``options.normalised`` None the series is read as divided by its lamp or not by
+    the majority of its readings (:func:`._spectrum_defaults.series_normalised`). With
+    ``time_ordered`` (the readings in time order, a draining film) a reading that jumps to
+    the twin of its neighbours' thickness is not ok, with the reason
+    (:func:`._spectrum_defaults.series_twins`).
 
     Each reading is first read alone (:func:`bubblefit.inverse.spectrum.fit_spectrum`).
     With at least :data:`MIN_PINNING_READINGS` of them ``ok`` the shared lamp is fitted to
@@ -37,6 +44,26 @@ def fit_spectrum_series(spectra: list[Spectrum], *, dark=None, reference=None, o
     each reading, in order, and the :class:`SharedLamp` (None when there was none).
     """
     options = options or sp.SpectrumOptions()
+    why = ""
+    if options.normalised is None:
+        flat, why = (False, "not divided: a reference reading was given") if reference is not None else \
+            series_normalised(spectra, dark)
+        options = replace(options, normalised=flat)
+    out, lamp = _fit_series(spectra, dark, reference, options, progress)
+    for r in out:
+        if why:
+            r.normalised_why = why
+    if time_ordered:
+        spacing = [sp._order_spacing(r.wavelength_nm, sp.dispersion.refractive_index(options.n_film, r.wavelength_nm))
+                   for r in out]
+        for i, _, reason in series_twins(out, spacing):
+            out[i].ok = False
+            out[i].reasons.append(reason)
+    return out, lamp
+
+
+def _fit_series(spectra, dark, reference, options, progress):
+    """:func:`fit_spectrum_series` with ``options.normalised`` decided."""
     alone = []
     for k, spec in enumerate(spectra):
         if progress is not None:

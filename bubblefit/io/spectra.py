@@ -128,21 +128,22 @@ def _convert_wavelengths(lam: np.ndarray, unit: str | None, what: str) -> tuple[
     return lam * factor, unit
 
 
-def check_intensity(y: np.ndarray, what: str) -> None:
+def check_intensity(y: np.ndarray, what: str, constant_ok: bool = False) -> None:
     """:class:`InputError` for intensities no reading has: beyond :data:`MAX_INTENSITY` in
-    magnitude, or the same value everywhere (no light read, or a constant fill)."""
+    magnitude, or (unless ``constant_ok``, as for a dark reading) the same value everywhere
+    (no light read, or a constant fill)."""
     top = float(np.max(np.abs(y))) if y.size else 0.0
     if top > MAX_INTENSITY:
         raise InputError(f"{what}: intensities up to {top:.3g} are beyond any detector's range (at most "
                          f"{MAX_INTENSITY:g} in magnitude); rescale the reading")
-    if y.size and float(np.min(y)) == float(np.max(y)):
+    if not constant_ok and y.size and float(np.min(y)) == float(np.max(y)):
         raise InputError(f"{what}: every intensity is {float(y.flat[0]):g}: the reading holds no spectrum")
 
 
-def read_spectrum(path: str | os.PathLike, unit: str | None = None) -> Spectrum:
+def read_spectrum(path: str | os.PathLike, unit: str | None = None, *, dark: bool = False) -> Spectrum:
     """Read a two-column spectrum file (see the module's description of what is accepted);
     ``unit`` forces the wavelengths' unit (a key of :data:`UNIT_RANGES`), else it is read
-    from their range."""
+    from their range; a ``dark`` reading may be constant."""
     p = Path(path)
     if not p.is_file():
         raise InputError(f"spectrum {p}: no such file")
@@ -181,7 +182,7 @@ def read_spectrum(path: str | os.PathLike, unit: str | None = None) -> Spectrum:
                          f"least {MIN_SAMPLES}")
     lam, val = data[:, 0], data[:, 1]
     lam, unit = _convert_wavelengths(lam, unit, f"spectrum {p}")
-    check_intensity(val, f"spectrum {p}")
+    check_intensity(val, f"spectrum {p}", constant_ok=dark)
     order = np.argsort(lam, kind="stable")
     lam, val = lam[order], val[order]
     uniq, inv = np.unique(lam, return_inverse=True)

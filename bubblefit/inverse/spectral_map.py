@@ -175,16 +175,17 @@ def _correlation(d, yc, lam, n, lamp, filtered: bool, sigma):
     """``C_p(d_p + o)`` (P, O) for thicknesses ``d`` (P, O) and centred pixels ``yc`` (P, N):
     the pixel against the centred, normalised model ``L R(d)``."""
     args = (d[..., None], lam, n, 1.0)
-    r = (film.filtered_airy_reflectance(*args, sigma) if filtered else film.airy_reflectance(*args)).mean(-1)
+    # at normal incidence the two polarisations coincide: one is enough
+    r = (film.filtered_airy_reflectance(*args, sigma) if filtered else film.airy_reflectance(*args))[..., 0]
     f = lamp * r
     f = f - f.mean(axis=-1, keepdims=True)
     return jnp.einsum("pon,pn->po", f, yc) / jnp.sqrt(jnp.sum(f * f, axis=-1))
 
 
-def _refine(s: "_Setup", lamp: np.ndarray, d0: np.ndarray, yc: np.ndarray, step: float, rounds: int = 3):
+def _refine(s: "_Setup", lamp: np.ndarray, d0: np.ndarray, yc: np.ndarray, step: float, rounds: int = 2):
     """The maximum of ``C_p(d)`` near ``d0`` (P,) by successive parabolas through three
     points ``h`` apart (``h`` a quarter step, then a sixteenth, ...), each move clipped to
-    ``2 h``; returns ``d``, ``C`` and ``C''`` (from the last parabola)."""
+    ``2 h``; returns ``d``, ``C`` at the last parabola's vertex, and ``C''`` (from it)."""
     lam, n, lp = (jnp.asarray(v, jnp.float32) for v in (s.lam, s.n, lamp))
     sigma = jnp.asarray(s.sigma if s.sigma is not None else np.zeros_like(s.lam), jnp.float32)
     y = jnp.asarray(yc, jnp.float32)
@@ -195,14 +196,15 @@ def _refine(s: "_Setup", lamp: np.ndarray, d0: np.ndarray, yc: np.ndarray, step:
         c = np.asarray(_correlation(jnp.asarray(pts, jnp.float32), y, lam, n, lp, s.sigma is not None, sigma),
                        np.float64)
         curv = c[:, 0] - 2.0 * c[:, 1] + c[:, 2]
-        move = np.where(curv < 0, 0.5 * h * (c[:, 0] - c[:, 2]) / np.where(curv < 0, curv, -1.0), 0.0)
-        move = np.where(curv < 0, np.clip(move, -2.0 * h, 2.0 * h), np.where(c[:, 2] > c[:, 0], h, -h))
-        d = d + move
-        last_h, last_curv, last_c = h, curv, c[:, 1]
+        down = curv < 0
+        x = np.where(down, 0.5 * (c[:, 0] - c[:, 2]) / np.where(down, curv, -1.0), 0.0)  # vertex, in units of h
+        x = np.where(down, np.clip(x, -2.0, 2.0), np.where(c[:, 2] > c[:, 0], 1.0, -1.0))
+        top = np.where(down, c[:, 1] + 0.5 * (c[:, 2] - c[:, 0]) * x + 0.5 * curv * x**2, c.max(axis=1))
+        d = d + h * x
+        last = (h, curv, top, c[:, 1])
         h *= 0.25
-    c = np.asarray(_correlation(jnp.asarray(d[:, None], jnp.float32), y, lam, n, lp, s.sigma is not None, sigma),
-                   np.float64)[:, 0]
-    return d, np.maximum(c, last_c), last_curv / last_h**2
+    h, curv, top, mid = last
+    return d, np.maximum(top, mid), curv / h**2
 
 
 # ---------------------------------------------------------------------------- the image

@@ -64,6 +64,7 @@ from ..errors import InputError
 from ..io.spectra import Spectrum
 from ..optics import dispersion, film
 from ._spectrum_defaults import looks_normalised
+from ._spectrum_extrema import RANDOM_PHASE, extrema_phase, fringe_extrema
 from ._spectrum_profile import (ProfileProblem, local_noise, profile_variance, refine_d, refine_dw, refine_near,
                                 residual_correlation, rss_grids, second_difference_noise, second_minimum)
 
@@ -104,6 +105,15 @@ INCOHERENT_LEVELS = (0.0, 0.005, 0.01, 0.02, 0.04, 0.08)
 #: of the mean reading (the lamp's smooth model, the index law).
 MISFIT_RATIO = 2.0
 MODEL_ERROR_FLOOR = 0.005
+
+#: A fit whose thickness leaves the reading's fringe extrema this far (rms of
+#: ``4 n d / lambda`` from whole numbers, :mod:`._spectrum_extrema`) is not ok, when the
+#: reading has at least ``EXTREMA_FOR_VERDICT`` clear extrema: two thirds of the way from
+#: a thickness that fits them (0) to one unrelated to them (0.289). Correct fits of the
+#: synthetic readings of tests/test_spectrum*.py score 0.015-0.15 (the smoothing and a
+#: raw lamp's hump move the extrema; 0.145 for a raw 700 nm film with 5 extrema).
+EXTREMA_PHASE_LIMIT = 0.2
+EXTREMA_FOR_VERDICT = 4
 
 
 @dataclass(frozen=True)
@@ -176,12 +186,16 @@ class SpectrumFit:
     #: Whether it was read as divided by its lamp, and why (detected or forced).
     normalised: bool = False
     normalised_why: str = ""
+    #: The extrema phase test of the thickness (:mod:`._spectrum_extrema`; NaN with fewer
+    #: than 3 clear extrema) and the number of extrema it used.
+    extrema_phase: float = float("nan")
+    extrema: int = 0
 
     def summary(self) -> dict:
         """The scalar results as a JSON-ready dict (no arrays)."""
         keys = ("thickness_nm", "thickness_nm_stderr", "stderr_statistical_nm", "stderr_lamp_nm", "ok", "order", "fringes", "resolution_nm", "reduced_chi2",
                 "residual_rms", "n_film", "second_minimum_nm", "delta_chi2", "reasons", "warnings", "normalised",
-                "normalised_why")
+                "normalised_why", "extrema_phase", "extrema")
         return {k: getattr(self, k) for k in keys}
 
 
@@ -460,13 +474,20 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
                         f"{(1 - rho) / (1 + rho):.2f} independent samples per point")
     profile = (rss - rss_best) / s2
     scale = float(np.mean(np.abs(y))) or 1.0
+    ext = fringe_extrema(lam, y)
+    phase = extrema_phase(d_best, ext, lambda x: dispersion.refractive_index(options.n_film, x))
+    if len(ext) >= EXTREMA_FOR_VERDICT and phase > EXTREMA_PHASE_LIMIT:
+        reasons.append(f"the thickness does not put the reading's {len(ext)} fringe extrema where they are "
+                       f"(4 n d / lambda is {phase:.2f} rms from whole numbers there; {RANDOM_PHASE:.2f} for a "
+                       "thickness unrelated to them)")
     return SpectrumFit(
         thickness_nm=float(d_best), thickness_nm_stderr=stderr, stderr_statistical_nm=stat,
         stderr_lamp_nm=float(lamp_sys), ok=not reasons, order=order, fringes=fringes,
         resolution_nm=float(w), reduced_chi2=red, residual_rms=float(np.sqrt(np.mean(resid**2)) / scale),
         n_film=float(np.interp(0.5 * (lam.min() + lam.max()), lam, n)), second_minimum_nm=second,
         delta_chi2=dchi2, reasons=reasons, warnings=warnings, wavelength_nm=lam, measured=y, fitted=fitted,
-        profile_nm=grid, profile_chi2=profile, normalised=bool(options.normalised), normalised_why=why)
+        profile_nm=grid, profile_chi2=profile, normalised=bool(options.normalised), normalised_why=why,
+        extrema_phase=phase, extrema=int(len(ext)))
 
 
 def resolve_normalised(spectrum: Spectrum, dark: Spectrum | None, reference: Spectrum | None,

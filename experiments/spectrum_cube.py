@@ -16,28 +16,14 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-
-def soap_index(lam):
-    return 1.324188 + 3102.06 / lam**2
-
-
-def airy(d, lam, n):
-    r1 = ((n - 1.0) / (n + 1.0)) ** 2
-    f = 4.0 * r1 / (1.0 - r1) ** 2
-    s = np.sin(2.0 * np.pi * n * d / lam) ** 2
-    return f * s / (1.0 + f * s)
-
-
-def lamp(lam, temperature=3000.0):
-    h, c, k = 6.62607e-34, 2.99792e8, 1.380649e-23
-    m = lam * 1e-9
-    v = 1.0 / (m**5 * (np.exp(h * c / (m * k * temperature)) - 1.0)) * np.exp(-0.5 * ((lam - 600.0) / 150.0) ** 2)
-    return v / v.max()
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from spectrum_synth import airy, lamp, soap_index  # noqa: E402
 
 
 def synth(size, bands, dmin=150.0, dmax=10000.0, noise=0.01, seed=0):

@@ -41,25 +41,10 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from spectrum_synth import airy, planck, soap_index  # noqa: E402
+
 RESULTS = Path(__file__).resolve().parent / "results"
-
-
-def soap_index(lam):
-    return 1.324188 + 3102.060378 / lam**2
-
-
-def airy(d, lam, n):
-    r1 = ((n - 1.0) / (n + 1.0)) ** 2
-    f = 4.0 * r1 / (1.0 - r1) ** 2
-    s = np.sin(2.0 * np.pi * n * d / lam) ** 2
-    return f * s / (1.0 + f * s)
-
-
-def planck(lam, temperature=3000.0):
-    h, c, k = 6.62607e-34, 2.99792e8, 1.380649e-23
-    m = lam * 1e-9
-    v = 1.0 / (m**5 * (np.exp(h * c / (m * k * temperature)) - 1.0))
-    return v / v.max()
 
 
 def divided_reading(d, rng, lo=450.0, hi=800.0, step=0.35):

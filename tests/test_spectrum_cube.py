@@ -21,23 +21,7 @@ from bubblefit.errors import InputError
 from bubblefit.inverse.spectral_map import MapOptions, count_order_hops, fit_cube
 from bubblefit.io.cubes import SpectralCube, read_cube
 
-
-def soap_index(lam):
-    return 1.324188 + 3102.06 / lam**2
-
-
-def airy(d, lam, n):
-    r1 = ((n - 1.0) / (n + 1.0)) ** 2
-    f = 4.0 * r1 / (1.0 - r1) ** 2
-    s = np.sin(2.0 * np.pi * n * d / lam) ** 2
-    return f * s / (1.0 + f * s)
-
-
-def lamp(lam, temperature=3000.0):
-    h, c, k = 6.62607e-34, 2.99792e8, 1.380649e-23
-    m = lam * 1e-9
-    v = 1.0 / (m**5 * (np.exp(h * c / (m * k * temperature)) - 1.0)) * np.exp(-0.5 * ((lam - 600.0) / 150.0) ** 2)
-    return v / v.max()
+from test_spectrum import airy, lamp, soap_index
 
 
 def synth_cube(h, w, bands, *, dmin=100.0, dmax=10000.0, noise=0.01, stray=0.04, seed=0):
@@ -193,3 +177,20 @@ def test_cli_writes_the_maps(tmp_path, capsys):
     assert np.nanmedian(np.abs(got - t)) <= 2.0
     summary = json.loads((tmp_path / "m.json").read_text())
     assert summary["fraction_ok"] >= 0.95 and summary["order_hops"] == 0
+
+
+@pytest.mark.slow
+def test_blocks_on_a_dask_cluster_give_the_same_map(tmp_path):
+    """The blocks sent to a Dask cluster's workers (which open the file themselves) give
+    the map the local run gives."""
+    distributed = pytest.importorskip("distributed")
+    lam, cube, t = synth_cube(16, 16, 64, dmin=300.0, dmax=3000.0, seed=13)
+    np.save(tmp_path / "c.npy", cube)
+    np.savetxt(tmp_path / "w.txt", lam)
+    c = read_cube(tmp_path / "c.npy", wavelengths=tmp_path / "w.txt")
+    opts = MapOptions(thickness_range=(0.0, 5000.0), block_pixels=64)
+    local = fit_cube(c, options=opts)
+    with distributed.Client(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=None) as client:
+        remote = fit_cube(c, options=opts, scheduler=client.scheduler.address)
+    np.testing.assert_allclose(remote.thickness_nm, local.thickness_nm, rtol=0, atol=1e-3)
+    assert np.nanmedian(np.abs(local.thickness_nm - t)) <= 2.0

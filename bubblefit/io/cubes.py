@@ -6,9 +6,10 @@ Formats, each with a wavelength axis:
 - ENVI: a ``.hdr`` text header (``samples``, ``lines``, ``bands``, ``data type``,
   ``interleave`` bsq/bil/bip, ``byte order``, ``header offset``, ``wavelength = {...}``,
   ``wavelength units``) beside its binary file (the ``.hdr`` path with ``.img``, ``.dat``,
-  ``.raw``, ``.bin`` or no suffix); memory-mapped.
-- NumPy ``.npy`` (memory-mapped; the wavelengths in a ``--wavelengths`` text file, one a
-  line) or ``.npz`` (an array ``wavelength_nm`` or ``wavelength`` and one 2-D or 3-D
+  ``.raw``, ``.bin`` or no suffix); bil and bip read a block of lines at a time, bsq
+  memory-mapped.
+- NumPy ``.npy`` (a block of its first axis at a time, or memory-mapped when Fortran-ordered;
+  the wavelengths in a ``--wavelengths`` text file, one a line) or ``.npz`` (an array ``wavelength_nm`` or ``wavelength`` and one 2-D or 3-D
   array; an ``.npz`` member is read whole when first touched).
 - HDF5 (``.h5``/``.hdf5``/``.he5``, h5py) or Zarr (a ``.zarr`` folder, zarr): the first
   2-D or 3-D dataset, its wavelengths in a 1-D dataset named ``wavelength*`` or in the
@@ -76,6 +77,37 @@ class SpectralCube:
         if c is None:
             return (block if r < b else block.T)[:, None, :]
         return np.transpose(block, (r, c, b))
+
+
+class _FileRows:
+    """A C-ordered array in a file read a block of its first axis at a time by seeking,
+    not memory-mapped: the resident memory is then one block's, where a memory map keeps
+    every page it touched until the system needs it back."""
+
+    def __init__(self, path: Path, dtype: np.dtype, shape: tuple, offset: int):
+        self.path, self.dtype, self.shape, self.offset = path, np.dtype(dtype), tuple(shape), offset
+        self.ndim = len(self.shape)
+
+    def __getitem__(self, index):
+        sl = index[0] if isinstance(index, tuple) else index
+        start, stop, _ = sl.indices(self.shape[0])
+        per_row = int(np.prod(self.shape[1:]))
+        with open(self.path, "rb") as fh:
+            fh.seek(self.offset + start * per_row * self.dtype.itemsize)
+            data = np.fromfile(fh, dtype=self.dtype, count=max(stop - start, 0) * per_row)
+        return data.reshape((max(stop - start, 0), *self.shape[1:]))
+
+
+def _npy(path: Path):
+    """A ``.npy`` array: read by seeking when C-ordered (:class:`_FileRows`), else memory-mapped."""
+    with open(path, "rb") as fh:
+        version = np.lib.format.read_magic(fh)
+        read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+        shape, fortran, dtype = read(fh)
+        offset = fh.tell()
+    if fortran or dtype.hasobject:
+        return np.load(path, mmap_mode="r", allow_pickle=False)
+    return _FileRows(path, dtype, shape, offset)
 
 
 def is_cube_path(path: str | os.PathLike) -> bool:
@@ -153,7 +185,10 @@ def _envi(path: Path, unit: str | None) -> SpectralCube:
     need = offset + int(np.prod(shape)) * dtype.itemsize
     if binary.stat().st_size < need:
         raise InputError(f"{what}: {binary.name} has {binary.stat().st_size} bytes; the header asks for {need}")
-    data = np.memmap(binary, dtype=dtype, mode="r", offset=offset, shape=shape)
+    if interleave == "bsq":  # a row of the image is spread over the file: memory-mapped
+        data = np.memmap(binary, dtype=dtype, mode="r", offset=offset, shape=shape)
+    else:
+        data = _FileRows(binary, dtype, shape, offset)
     return SpectralCube(lam_nm, data, axes, str(path), used, (str(path), None, unit))
 
 
@@ -189,7 +224,7 @@ def read_cube(path: str | os.PathLike, *, wavelengths: str | os.PathLike | None 
         if ext == ".hdr":
             return _envi(p, unit)
         if ext == ".npy":
-            data = np.load(p, mmap_mode="r", allow_pickle=False)
+            data = _npy(p)
             if wavelengths is None:
                 raise InputError(f"{what}: a .npy cube has no wavelength axis; give --wavelengths FILE (one per line) "
                                  "or use .npz with a wavelength_nm array")

@@ -26,11 +26,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from spectrum_synth import airy, lamp, soap_index  # noqa: E402
 
 
+def truth(size, dmin=150.0, dmax=10000.0):
+    """The film's thickness (size, size), nm: a wedge from ``dmin`` to ``dmax``."""
+    yy, xx = np.mgrid[0:size, 0:size]
+    return dmin + (dmax - dmin) * (0.75 * (xx / (size - 1)) ** 1.5 + 0.25 * (yy / (size - 1)))
+
+
 def synth(size, bands, dmin=150.0, dmax=10000.0, noise=0.01, seed=0, out=None):
     rng = np.random.default_rng(seed)
     lam = np.linspace(420.0, 780.0, bands)
     yy, xx = np.mgrid[0:size, 0:size]
-    t = dmin + (dmax - dmin) * (0.75 * (xx / (size - 1)) ** 1.5 + 0.25 * (yy / (size - 1)))
+    t = truth(size, dmin, dmax)
     illum = 0.7 + 0.3 * np.cos(2.0 * xx / size) * np.cos(yy / size)
     peak = 0.08
     cube = out if out is not None else np.empty((size, size, bands), np.float32)
@@ -44,6 +50,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=512)
     ap.add_argument("--bands", type=int, default=128)
+    ap.add_argument("--write-only", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--memmap", metavar="DIR", help="write the cube to DIR/cube.npy and fit it from the file "
                     "(memory-mapped, read a block at a time): the peak memory is then the fit's, not the cube's")
     args = ap.parse_args()
@@ -56,13 +63,21 @@ def main():
 
     if args.memmap:
         path = Path(args.memmap) / "cube.npy"
-        mm = np.lib.format.open_memmap(path, mode="w+", dtype=np.float32, shape=(args.size, args.size, args.bands))
-        lam, _, t = synth(args.size, args.bands, out=mm)
-        mm.flush()
-        del mm
-        np.savetxt(Path(args.memmap) / "bands.txt", lam)
-        cube = read_cube(path, wavelengths=Path(args.memmap) / "bands.txt")
-        source = cube
+        if args.write_only or not path.exists():
+            if not args.write_only:  # written by a child process, so that its pages are not this one's peak
+                import subprocess
+
+                subprocess.run([sys.executable, __file__, "--size", str(args.size), "--bands", str(args.bands),
+                                "--memmap", args.memmap, "--write-only"], check=True)
+            else:
+                mm = np.lib.format.open_memmap(path, mode="w+", dtype=np.float32,
+                                               shape=(args.size, args.size, args.bands))
+                lam, _, _ = synth(args.size, args.bands, out=mm)
+                mm.flush()
+                np.savetxt(Path(args.memmap) / "bands.txt", lam)
+                return
+        lam, t = np.loadtxt(Path(args.memmap) / "bands.txt"), truth(args.size)
+        source = read_cube(path, wavelengths=Path(args.memmap) / "bands.txt")
     else:
         lam, cube_array, t = synth(args.size, args.bands)
         source = SpectralCube(lam, cube_array, (0, 1, 2), "synthetic")

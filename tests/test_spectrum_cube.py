@@ -194,3 +194,17 @@ def test_blocks_on_a_dask_cluster_give_the_same_map(tmp_path):
         remote = fit_cube(c, options=opts, scheduler=client.scheduler.address)
     np.testing.assert_allclose(remote.thickness_nm, local.thickness_nm, rtol=0, atol=1e-3)
     assert np.nanmedian(np.abs(local.thickness_nm - t)) <= 2.0
+
+
+@pytest.mark.slow
+def test_cli_line_scan_writes_its_profile(tmp_path, capsys):
+    lam, cube, t = synth_cube(40, 1, 96, dmin=300.0, dmax=3000.0, seed=17)
+    np.savez(tmp_path / "scan.npz", scan=cube[:, 0, :], wavelength_nm=lam)
+    assert main(["fit-spectrum", str(tmp_path / "scan.npz"), "-o", str(tmp_path / "s"),
+                 "--thickness-range", "0,6000"]) == 0
+    assert "line scan 40x1x96" in capsys.readouterr().out
+    rows = (tmp_path / "s_profile.csv").read_text().splitlines()
+    assert rows[0] == "row,thickness_nm,thickness_nm_stderr,ok" and len(rows) == 41
+    got = np.array([float(r.split(",")[1]) for r in rows[1:]])
+    assert np.median(np.abs(got - t[:, 0])) <= 2.0
+    assert (tmp_path / "s_profile.png").stat().st_size > 1000

@@ -25,8 +25,9 @@ films differ, so their fringes do not add up to a shape the lamp could take).
 The interference order is made coherent between neighbours as in the photographs' maps: a
 pixel whose candidates are within ``ambiguity_dchi2`` of its best takes the one nearest the
 median of its neighbourhood; a pixel still more than half an order from that median is an
-order hop and not ok. The chosen thickness is refined by Newton steps on ``C_p(d)``
-(vectorised over pixels with ``jax.vmap``), and its standard error is
+order hop and not ok. The chosen thickness is refined by two successive parabolas through
+``C_p`` at three points (a quarter, then a sixteenth of a grid step apart; one compiled
+kernel for a whole block of pixels, no loop over pixels), and its standard error is
 ``sqrt(s^2 / (-C C''))`` (from ``RSS'' = -2 C C''`` at the maximum, ``var = 2 s^2 / RSS''``,
 ``s^2 = RSS / (N - 3)``).
 

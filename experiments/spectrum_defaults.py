@@ -33,6 +33,8 @@ Usage: ``PYTHONPATH=. python experiments/spectrum_defaults.py [--readings 25] [-
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import json
 import sys
 import tempfile
@@ -90,14 +92,17 @@ def main():
             for name, (paths, truth) in files.items():
                 out = Path(tmp) / f"{name}_{mode.replace(' ', '_')}.json"
                 t0 = time.perf_counter()
-                code = cli(["fit-spectrum", *paths, *MODES[mode], "--thickness-range", "0,15000", "--json", str(out)])
+                with contextlib.redirect_stdout(io.StringIO()) as said:
+                    code = cli(["fit-spectrum", *paths, *MODES[mode], "--thickness-range", "0,15000",
+                                "--json", str(out)])
+                decisions = [line for line in said.getvalue().splitlines() if line.startswith("series:")]
                 wall = time.perf_counter() - t0
                 res = json.loads(out.read_text())["spectra"] if code == 0 else []
                 rows[(mode, name)] = dict(truth=truth.tolist(), got=[r["thickness_nm"] for r in res],
                                           stderr=[r["thickness_nm_stderr"] for r in res], ok=[r["ok"] for r in res],
-                                          normalised=[r["normalised"] for r in res], wall_s=wall,
+                                          normalised=[r["normalised"] for r in res], wall_s=wall, said=decisions,
                                           reasons=[r["reasons"] for r in res])
-                print(f"{mode:>24} {name}: {wall:.0f} s", file=sys.stderr, flush=True)
+                print(f"{mode:>24} {name}: {wall:.0f} s " + " / ".join(decisions), file=sys.stderr, flush=True)
     table = {}
     print(f"{'mode':>24} {'series':>6} {'med rel':>8} {'<=10%':>6} {'ok (of them <=10%)':>19} {'ok & off':>8}")
     for mode in args.modes.split(","):
@@ -117,7 +122,8 @@ def main():
                   f"{e['ok']:>10} ({e['ok_within_10pct']:>3})     {e['ok_and_off']:>8}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "spectrum_defaults.json").write_text(json.dumps(
+    name = "spectrum_defaults.json" if args.modes == ",".join(MODES) else "spectrum_defaults_partial.json"
+    (out / name).write_text(json.dumps(
         {"table": table, "rows": {f"{m} | {n}": v for (m, n), v in rows.items()}}, indent=1))
 
 

@@ -23,11 +23,11 @@ from test_spectrum import _write, synth
 from test_spectrum_normalised import divided
 
 
-@pytest.mark.parametrize("d", [2500.0, 4000.0, 8000.0])
+@pytest.mark.parametrize("d", [1500.0, 4000.0, 8000.0])
 @pytest.mark.parametrize("seed", [0, 1])
 def test_divided_and_raw_readings_are_told_apart(d, seed):
     """A raw reading's envelope is the lamp's hump (45 % off a line here); a divided one's is
-    flat up to its 40 % tilt. Films of 2.5 um and more have fringes enough in every window."""
+    flat up to its 40 % tilt. Films of 1.5 um and more have fringes enough for three windows or more."""
     lam, y, _ = synth(d, seed=seed)
     assert looks_normalised(lam, y)[0] is False
     lam, y = divided(d, seed=seed)
@@ -57,13 +57,19 @@ def test_a_jump_to_the_twin_is_flagged():
     """Neighbours thinning through 150-130 nm, one reading at its twin 260 nm with its second
     minimum at 140 nm: flagged, naming the neighbours' value; a reading whose second minimum
     is elsewhere is left alone."""
-    def r(d, second, ok=True):
-        return SimpleNamespace(thickness_nm=d, second_minimum_nm=second, delta_chi2=3.0, ok=ok)
+    def r(d, second, ok=True, dchi2=3.0):
+        return SimpleNamespace(thickness_nm=d, second_minimum_nm=second, delta_chi2=dchi2, ok=ok)
 
     series = [r(150, np.nan), r(145, np.nan), r(260, 141), r(135, np.nan), r(130, np.nan), r(420, 600)]
     flagged = series_twins(series, [200.0] * len(series))
     assert [i for i, _, _ in flagged] == [2]
-    assert "140 nm" in flagged[0][2] or "138 nm" in flagged[0][2]
+    assert "140 nm" in flagged[0][2]
+    # a twin the reading itself excludes (delta chi2 1e4) is no jump; nor is a fast-thinning
+    # series' first reading, which lies on the line through its neighbours
+    series[2] = r(260, 141, dchi2=1e4)
+    assert series_twins(series, [200.0] * len(series)) == []
+    fast = [r(1500, 1255), r(1329, np.nan), r(1177, np.nan), r(1043, np.nan)]
+    assert series_twins(fast, [200.0] * 4) == []
 
 
 @pytest.mark.slow

@@ -12,7 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["looks_normalised", "series_normalised", "same_grid", "in_time_order", "series_twins", "ENVELOPE_WINDOWS",
+from ._spectrum_extrema import fringe_extrema
+from ._spectrum_profile import local_noise
+
+__all__ = ["looks_normalised", "series_normalised", "TWIN_DCHI2", "same_grid", "in_time_order", "series_twins", "ENVELOPE_WINDOWS",
            "FLAT_TOLERANCE", "SLOW_SLOPE"]
 
 #: Most windows (equal in wavenumber) whose envelopes are compared (one per fringe at most).
@@ -35,8 +38,9 @@ def looks_normalised(wavelength_nm: np.ndarray, y: np.ndarray) -> tuple[bool | N
     A film's reflectance swings between its minima and maxima with an upper envelope
     (``4 R1 / (1 + R1)^2``, ~0.08 for soap water) that is flat over the visible; a reading
     divided by the lamp keeps that flat envelope, up to a slow slope, where a raw reading's
-    envelope is the lamp's shape. The envelope is the swing (95th less 5th percentile, after a
-3-sample mean) of each of
+    envelope is the lamp's shape. The envelope is the swing (95th less 5th percentile, less
+the noise's own span in quadrature, the noise from
+:func:`~bubblefit.inverse._spectrum_profile.local_noise`) of each of
     :data:`ENVELOPE_WINDOWS` windows equal in wavenumber; the reading is divided when the
     envelope departs from a line by at most :data:`FLAT_TOLERANCE` of its mean and the
     line changes by at most :data:`SLOW_SLOPE` of it. A reading with fewer than one fringe
@@ -46,22 +50,21 @@ def looks_normalised(wavelength_nm: np.ndarray, y: np.ndarray) -> tuple[bool | N
     nu = 1.0 / lam
     if len(y) < 8 * ENVELOPE_WINDOWS:
         return None, "too few samples to see an envelope"
-    y = np.convolve(y, np.ones(3) / 3.0, mode="same")[1:-1]  # the noise down by sqrt(3)
-    nu = nu[1:-1]
-    # one window per fringe at most (each needs a maximum and a minimum), three at least
-    smooth = np.convolve(y, np.ones(9) / 9.0, mode="same")[4:-4]
-    extrema = int(np.count_nonzero(np.diff(np.sign(np.diff(smooth))) != 0))
-    windows = min(ENVELOPE_WINDOWS, extrema // 2)
+    extrema = len(fringe_extrema(lam, y))
+    windows = min(ENVELOPE_WINDOWS, extrema // 2)  # one fringe a window at least
     if windows < 3:
-        return None, f"fewer than 3 fringes ({extrema} extrema): no envelope to judge"
+        return None, f"fewer than 3 clear fringes ({extrema} extrema): no envelope to judge"
+    noise = local_noise(y)
     edges = np.linspace(nu.min(), nu.max(), windows + 1)
     env, mid = [], []
     for a, b in zip(edges[:-1], edges[1:]):
         sel = (nu >= a) & (nu <= b)
-        if sel.sum() < 4:
+        if sel.sum() < 8:
             return None, "too few samples per window to see an envelope"
         top, bottom = np.percentile(y[sel], [95, 5])
-        env.append(top - bottom)
+        # the noise widens the percentiles' span by about its own 5-95 % span, 3.29 sigma
+        spread = 3.29 * float(np.median(noise[sel]))
+        env.append(np.sqrt(max((top - bottom) ** 2 - spread**2, 0.0)))
         mid.append(0.5 * (a + b))
     env, u = np.array(env), np.array(mid)
     mean = float(np.mean(env))
@@ -118,14 +121,21 @@ def in_time_order(paths: list[str]) -> tuple[bool, str]:
     return False, "neither names nor times in order"
 
 
+#: A reading's second minimum counts as the twin its neighbours point to only when it is
+#: within this ``chi^2`` of its best: a twin the reading excludes by more is not a jump
+#: (``exp(-50)`` less likely under the model; model error is in ``s^2`` already).
+TWIN_DCHI2 = 100.0
+
+
 def series_twins(results, order_spacing: list[float], window: int = 2) -> list[tuple[int, float, str]]:
     """Readings of a series in time order that jump away from their neighbours to a twin.
 
-    A draining film thins smoothly, so a reading's thickness is close to its neighbours'.
-    Near the first maximum of ``R`` (a quarter wave, ~100 nm) and between orders, a film has
-    a twin whose spectrum differs from its own by little; a reading whose thickness lies
-    more than a quarter of an order from the median of its ok neighbours (``window`` each
-    side) while its second minimum lies within a quarter order of it is flagged.
+    A draining film thins smoothly, so a reading's thickness is close to the line through
+    its ok neighbours (``window`` each side, by their place in the series). Near the first
+    maximum of ``R`` (a quarter wave, ~100 nm) and between orders, a film has a twin whose
+    spectrum differs from its own by little; a reading more than a quarter of an order from
+    that line, whose second minimum lies within a quarter order of it and within
+    :data:`TWIN_DCHI2` of its best, is flagged.
     Returns (index, the neighbours' thickness, the reason)."""
     d = np.array([r.thickness_nm for r in results])
     ok = np.array([bool(r.ok) for r in results])
@@ -134,12 +144,13 @@ def series_twins(results, order_spacing: list[float], window: int = 2) -> list[t
         idx = [j for j in range(max(0, i - window), min(len(d), i + window + 1)) if j != i and ok[j]]
         if len(idx) < 2:
             continue
-        pred = float(np.median(d[idx]))
+        slope, icpt = np.polyfit(np.array(idx, float), d[idx], 1)
+        pred = float(slope * i + icpt)
         quarter = 0.25 * order_spacing[i]
         if abs(d[i] - pred) <= quarter:
             continue
         second = r.second_minimum_nm
-        if np.isfinite(second) and abs(second - pred) <= quarter:
+        if np.isfinite(second) and abs(second - pred) <= quarter and r.delta_chi2 < TWIN_DCHI2:
             why = (f"the series in time order says {pred:.0f} nm (its neighbours), where this reading's second "
                    f"minimum lies ({second:.1f} nm, delta chi2 {r.delta_chi2:.1f}): it jumped to the twin on the "
                    "other side of a maximum of R")

@@ -155,6 +155,11 @@ def run(args) -> int:
         print(f"series: the {len(spectra)} files are read as one series under one lamp ("
               + ("--series" if args.series else "same wavelengths; --no-series to read each alone") + "); "
               + (f"in time order ({order_why})" if ordered else f"not in time order ({order_why})"))
+        from ..inverse._spectrum_defaults import same_grid
+
+        if not same_grid(spectra):
+            print("warning: the series' files have different wavelengths: the shared lamp is one smooth series over "
+                  "their common wavenumber range, each reading read at its own wavelengths", file=sys.stderr)
         results, lamp = fit_spectrum_series(spectra, dark=dark, reference=reference, options=opts,
                                             progress=lambda stage, k, n: status(
                                                 f"reading {spectra[k].path} ({stage}, {k + 1}/{n}) ..."),

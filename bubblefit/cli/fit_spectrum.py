@@ -282,26 +282,7 @@ def _write_cube_outputs(prefix: str, tmap, line: bool) -> None:
 
 def _plot_profile(tmap, path: str) -> None:
     """A line scan's thickness along the slit, with its error bars; not-ok rows marked."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    from ..io.images import atomic_path
-
-    d, e, ok = tmap.thickness_nm[:, 0], tmap.stderr_nm[:, 0], tmap.ok[:, 0]
-    k = np.arange(len(d))
-    fig, ax = plt.subplots(figsize=(8, 4), dpi=110)
-    ax.errorbar(k[ok], d[ok], np.where(np.isfinite(e[ok]), e[ok], 0), fmt=".", ms=2, lw=0.6, label="ok")
-    ax.plot(k[~ok], d[~ok], "x", color="C3", ms=3, label="not ok")
-    ax.set_xlabel("row along the slit")
-    ax.set_ylabel("thickness (nm)")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)
+    _plot_along(tmap.thickness_nm[:, 0], tmap.stderr_nm[:, 0], tmap.ok[:, 0], "row along the slit", path)
 
 
 #: Fewest files read as one series without --series: enough for the shared lamp's
@@ -379,6 +360,15 @@ def _plot(res, path: Path, name: str) -> None:
 
 def _plot_series(rows, path: Path) -> None:
     """The series' thicknesses in file order with their error bars, ok and not ok apart."""
+    import numpy as np
+
+    _plot_along(np.array([r["thickness_nm"] for r in rows]), np.array([r["thickness_nm_stderr"] for r in rows]),
+                np.array([bool(r["ok"]) for r in rows]), "reading (file order)", path)
+
+
+def _plot_along(d, e, ok, xlabel: str, path) -> None:
+    """Thicknesses (nm) in order with their error bars (infinite ones drawn as none), ok
+    and not ok apart (matplotlib, written atomically)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -387,15 +377,12 @@ def _plot_series(rows, path: Path) -> None:
 
     from ..io.images import atomic_path
 
-    k = np.arange(len(rows))
-    d = np.array([r["thickness_nm"] for r in rows])
-    e = np.array([r["thickness_nm_stderr"] for r in rows])
-    ok = np.array([bool(r["ok"]) for r in rows])
+    k = np.arange(len(d))
     e = np.where(np.isfinite(e), e, 0.0)
     fig, ax = plt.subplots(figsize=(8, 4), dpi=110)
     ax.errorbar(k[ok], d[ok], e[ok], fmt="o", ms=3, lw=0.8, color="C0", label="ok")
     ax.errorbar(k[~ok], d[~ok], e[~ok], fmt="x", ms=4, lw=0.8, color="C3", label="not ok")
-    ax.set_xlabel("reading (file order)")
+    ax.set_xlabel(xlabel)
     ax.set_ylabel("thickness (nm)")
     ax.legend(fontsize=8)
     fig.tight_layout()

@@ -181,6 +181,21 @@ def test_bad_spectrum_files(tmp_path, text, match):
         read_spectrum(p)
 
 
+@pytest.mark.parametrize("text,match", [
+    ("\n".join(f"{400 + i},0" for i in range(30)), "every intensity is 0"),
+    ("\n".join(f"{400 + i},{1e302 * (1 + i % 2)}" for i in range(30)), "beyond any detector's range"),
+    ("\n".join(f"{400 + i * 1e-3:.4f},{i % 5}" for i in range(20001)), "more than 20000 rows"),
+    ("\n".join(f"{40 + i * 0.1},{i % 3}" for i in range(30)), "--wavelength-unit"),
+])
+def test_cli_bad_readings_one_line_exit_2(tmp_path, capsys, text, match):
+    """What made the command crash or run for minutes before: one line, exit 2, no output."""
+    (tmp_path / "bad.csv").write_text(text)
+    assert main(["fit-spectrum", str(tmp_path / "bad.csv"), "--json", str(tmp_path / "o.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and match in err[0] and "bad.csv" in err[0]
+    assert not (tmp_path / "o.json").exists()
+
+
 @pytest.mark.parametrize("factor,unit", [(1.0, "nm"), (10.0, "Angstrom"), (1e-3, "um"), (1e-9, "m")])
 def test_wavelength_unit_is_read_from_the_range(tmp_path, factor, unit):
     """400-800 nm written in another unit is read back in nm and the unit is said."""

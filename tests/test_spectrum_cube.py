@@ -78,6 +78,21 @@ def test_reference_lamp_gives_the_same_map(tmp_path):
     assert count_order_hops(m.thickness_nm, t, m.order_spacing_nm) == 0
 
 
+def test_pixels_the_model_cannot_explain_are_not_ok():
+    """Pixels whose spectrum is something else (a smooth bump and noise, e.g. a dust speck
+    or the frame) are not ok; the film's pixels around them stay ok and right."""
+    lam, cube, t = synth_cube(24, 24, 96, dmin=400.0, dmax=4000.0, seed=19)
+    rng = np.random.default_rng(3)
+    bad = np.zeros((24, 24), bool)
+    bad[5:8, 10:13] = True
+    bump = 0.05 * np.exp(-0.5 * ((lam - 550.0) / 40.0) ** 2)
+    cube[bad] = (bump + 0.02 + 0.003 * rng.standard_normal((bad.sum(), lam.size))).astype(np.float32)
+    m = fit_cube(SpectralCube(lam, cube, (0, 1, 2), "c"), options=MapOptions(thickness_range=(0, 6000)))
+    assert not m.ok[bad].any()
+    assert m.ok[~bad].mean() >= 0.95
+    assert np.nanmedian(np.abs(m.thickness_nm - t)[~bad]) <= 2.0
+
+
 def test_line_scan_is_a_map_one_pixel_wide():
     lam, cube, t = synth_cube(64, 1, 96, dmin=300.0, dmax=3000.0, seed=7)
     line = cube[:, 0, :]

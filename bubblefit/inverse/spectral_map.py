@@ -25,7 +25,8 @@ films differ, so their fringes do not add up to a shape the lamp could take).
 The interference order is made coherent between neighbours as in the photographs' maps: a
 pixel whose candidates are within ``ambiguity_dchi2`` of its best takes the one nearest the
 median of its neighbourhood; a pixel still more than half an order from that median is an
-order hop and not ok. The chosen thickness is refined by two successive parabolas through
+order hop and not ok; so is a pixel the model does not explain (its residual over twice its
+noise and the model-error floor, as for one reading). The chosen thickness is refined by two successive parabolas through
 ``C_p`` at three points (a quarter, then a sixteenth of a grid step apart; one compiled
 kernel for a whole block of pixels, no loop over pixels), and its standard error is
 ``sqrt(s^2 / (-C C''))`` (from ``RSS'' = -2 C C''`` at the maximum, ``var = 2 s^2 / RSS''``,
@@ -54,7 +55,8 @@ from ..errors import InputError
 from ..io.cubes import SpectralCube
 from ..io.spectra import Spectrum
 from ..optics import dispersion, film
-from .spectrum import _lamp_basis, _order_spacing, _search_grid, SpectrumOptions, reflector
+from .spectrum import (MISFIT_RATIO, MODEL_ERROR_FLOOR, SpectrumOptions, _lamp_basis, _order_spacing, _search_grid,
+                       reflector)
 
 __all__ = ["MapOptions", "ThicknessMap", "fit_cube", "count_order_hops"]
 
@@ -338,6 +340,17 @@ def _coherent(cand: np.ndarray, dchi2: np.ndarray, opts: MapOptions, spacing: fl
     return pick, _median_map(chosen, opts.window)
 
 
+def _misfit(y: np.ndarray, mean_square: np.ndarray) -> np.ndarray:
+    """Pixels (P,) whose residual's mean square exceeds ``MISFIT_RATIO^2`` times their noise
+    (from second differences, robustly: :func:`~._spectrum_profile.second_difference_noise`,
+    here for every pixel at once) plus the model-error floor, as for one reading."""
+    d2 = y[:, 2:] - 2.0 * y[:, 1:-1] + y[:, :-2]
+    mad = np.median(np.abs(d2 - np.median(d2, axis=1, keepdims=True)), axis=1)
+    noise = 1.4826 * mad / np.sqrt(6.0)
+    level = MODEL_ERROR_FLOOR * np.mean(np.abs(y), axis=1)
+    return mean_square > MISFIT_RATIO**2 * (noise**2 + level**2)
+
+
 def count_order_hops(thickness_nm: np.ndarray, truth_nm: np.ndarray, spacing_nm: float) -> int:
     """Pixels whose thickness is off the truth by more than half an order (``spacing_nm``)."""
     return int(np.count_nonzero(np.abs(thickness_nm - truth_nm) > 0.5 * spacing_nm))
@@ -391,12 +404,14 @@ def fit_cube(cube: SpectralCube, *, options: MapOptions = MapOptions(), dark: Sp
     step = float(s.grid[1] - s.grid[0])
     thick = np.full(h * w, np.nan)
     stderr = np.full(h * w, np.inf)
+    misfit = np.zeros(h * w, bool)
     size = max(b[1] - b[0] for b in blocks) * w
     lo, hi = options.thickness_range
     for i, (r0, r1) in enumerate(blocks):
         if progress is not None:
             progress("refining", i, len(blocks))
-        yc, q, good = _centre(_pixels(cube, s, r0, r1))
+        raw = _pixels(cube, s, r0, r1)
+        yc, q, good = _centre(raw)
         start = d0[r0 * w:r1 * w]
         good &= np.isfinite(start)
         m = len(yc)
@@ -408,11 +423,15 @@ def fit_cube(cube: SpectralCube, *, options: MapOptions = MapOptions(), dark: Sp
         var = np.maximum(q - cc**2, 1e-300) / max(nbands - 3, 1) / curv
         thick[r0 * w:r1 * w] = np.where(good, dd, np.nan)
         stderr[r0 * w:r1 * w] = np.where(good & np.isfinite(var), np.sqrt(np.abs(var)), np.inf)
-    thick, stderr = thick.reshape(h, w), stderr.reshape(h, w)
+        misfit[r0 * w:r1 * w] = _misfit(raw, np.maximum(q - cc**2, 0.0) / max(nbands - 3, 1))
+    thick, stderr, misfit = thick.reshape(h, w), stderr.reshape(h, w), misfit.reshape(h, w)
     hop = np.abs(thick - med) > 0.5 * s.order_spacing
     others = np.where(np.arange(k)[None, None, :] == pick[..., None], np.inf, dchi2)
     gap = np.min(others, axis=2) if k > 1 else np.full((h, w), np.inf)
-    ok = np.isfinite(thick) & np.isfinite(stderr) & (stderr < 0.25 * s.order_spacing) & ~hop
+    ok = np.isfinite(thick) & np.isfinite(stderr) & (stderr < 0.25 * s.order_spacing) & ~hop & ~misfit
+    if misfit.any():
+        notes.append(f"{int(misfit.sum())} pixels are not explained by the model (residual over {MISFIT_RATIO:g} "
+                     "times their noise and the model-error floor): not ok")
     if moved:
         notes.append(f"{moved} pixels took the order of their neighbours (their own best was within "
                      f"delta chi2 {options.ambiguity_dchi2:g} of it)")

@@ -16,8 +16,9 @@ call, and reports true against recovered values:
    variance ``NOISE_SHOT * I``) and is written as an 8-bit sRGB PNG and read back.
 4. :func:`bubblefit.inverse.fit.fit_photo` fits the bubble photo (paper model, drainage profile)
    starting from the calibrated ``t`` and the calibrated disc.
-5. The report: ``report.png`` (photo, fitted render, residual, thickness map, thickness
-   against height), ``index.html`` with the table, and ``results.json``.
+5. The report: the page of :func:`bubblefit.report.write_fit_page` (``index.html`` with the
+   photo, fitted render, residual, thickness map and profile against the truth, the
+   parameter table and the verdict) with the true-against-recovered table, and ``results.json``.
 
 Each recovered value is checked against the truth with the tolerance in
 :data:`TOLERANCES` (absolute, or relative where the key ends in ``%``); the table says
@@ -223,7 +224,7 @@ def run_demo(out_dir="bubblefit-demo", size: int = 96, seed: int = 0, progress: 
         ``paths`` (every file written).
     """
     from .capture.calibrate import calibrate
-    from .cli.common import write_json
+    from .io.atomic import write_json
     from .errors import InputError
     from .inverse.fit import FitOptions, fit_photo
     from .model.scene import Scene
@@ -269,7 +270,6 @@ def run_demo(out_dir="bubblefit-demo", size: int = 96, seed: int = 0, progress: 
     rows = _rows(truth, syn, cal, fit, disc)
 
     paths = {k: str(v) for k, v in syn["paths"].items()}
-    paths.update(_write_report(out, syn, fit, rows, truth))
     result = {"rows": rows, "all_ok": all(r["ok"] for r in rows) and fit.ok, "size": size, "seed": seed,
               "status": fit_status(fit.to_json()),
               "truth": {"t": truth.t, "f": truth.f, "roughness": truth.roughness, "top_nm": truth.top_nm,
@@ -277,12 +277,11 @@ def run_demo(out_dir="bubblefit-demo", size: int = 96, seed: int = 0, progress: 
                         "rotation_deg": truth.rotation_deg, "envmap": truth.envmap, "disc": list(syn["disc"])},
               "noise": {"read": NOISE_READ, "shot": NOISE_SHOT, "file": "8-bit sRGB PNG"},
               "calibration": cal.to_json(), "fit": fit.to_json(), "times": times, "paths": paths}
+    paths.update(_write_report(out, syn, fit, result))
     times["report"] = time.perf_counter() - t3
     times["total"] = time.perf_counter() - t0
-    write_json(out / "results.json", result)
     paths["results"] = str(out / "results.json")
-    _write_html(out, result)
-    paths["html"] = str(out / "index.html")
+    write_json(out / "results.json", result)
     return result
 
 
@@ -306,99 +305,55 @@ def format_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def _write_report(out: Path, syn: dict, fit, rows, truth: DemoTruth) -> dict:
-    """report.png (photo, render, residual, thickness map, profile) and the fit's images."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from .io.images import atomic_path, srgb_encode, write_image
+def _write_report(out: Path, syn: dict, fit, result: dict) -> dict:
+    """The fit's images (EXR) and the page of :func:`bubblefit.report.write_fit_page`, with
+    the demo's true-against-recovered table and the true profile."""
+    from .io.images import write_image
+    from .report import ReportData, write_fit_page
 
     paths = {}
     write_image(out / "fit_render.exr", fit.render)
     write_image(out / "fit_render.png", np.clip(fit.render, 0, 1))
     write_image(out / "fit_residual.exr", fit.residual)
     paths.update(render=str(out / "fit_render.exr"), residual=str(out / "fit_residual.exr"))
-    tmap = fit.thickness_map
-    if tmap is not None:
-        write_image(out / "fit_thickness.exr", tmap.astype(np.float32), bit_depth=32)
+    if fit.thickness_map is not None:
+        write_image(out / "fit_thickness.exr", fit.thickness_map.astype(np.float32), bit_depth=32)
         paths["thickness"] = str(out / "fit_thickness.exr")
-
-    disp = lambda img: np.clip(srgb_encode(np.clip(img, 0, 1)), 0, 1)
-    fig, ax = plt.subplots(1, 5, figsize=(17, 3.6), gridspec_kw={"width_ratios": [1, 1, 1, 1.2, 1.2]})
-    ax[0].imshow(disp(syn["photo"]))
-    ax[0].set_title("photo (8-bit, noisy)")
-    ax[1].imshow(disp(fit.render))
-    ax[1].set_title("fitted render")
-    res = fit.residual.mean(axis=-1)
-    lim = max(float(np.nanpercentile(np.abs(res), 99)), 1e-4)
-    im = ax[2].imshow(res, cmap="RdBu_r", vmin=-lim, vmax=lim)
-    ax[2].set_title(f"residual (rms {fit.residual_rms:.2g})")
-    fig.colorbar(im, ax=ax[2], fraction=0.046)
-    if tmap is not None:
-        im = ax[3].imshow(tmap, cmap="viridis")
-        fig.colorbar(im, ax=ax[3], fraction=0.046, label="nm")
-    ax[3].set_title("fitted thickness map")
-    for a in ax[:4]:
-        a.set_axis_off()
     cx, cy, r = syn["disc"]
     h = syn["photo"].shape[0]
-    y_rows = -(np.arange(h) + 0.5 - cy) / r
     col = int(round(cx - 0.5))
-    true_col = syn["thickness_true"][:, col]
-    ax[4].plot(true_col, y_rows, "k-", lw=2, label="true")
-    if tmap is not None:
-        ax[4].plot(tmap[:, col], y_rows, "C1--", lw=2, label="fitted")
-    ax[4].set_ylim(-1, 1)
-    ax[4].set_xlabel("film thickness (nm)")
-    ax[4].set_ylabel("height y (bubble radii)")
-    ax[4].set_title("thickness profile (centre column)")
-    ax[4].legend()
-    ok = sum(r_["ok"] for r_ in rows)
-    fig.suptitle(f"bubblefit demo: {ok}/{len(rows)} recovered values within tolerance; fit ok: "
-                 f"{'yes' if fit.ok else 'NO'}, {'converged' if fit.converged else 'NOT converged'}, "
-                 f"reduced chi^2 {fit.reduced_chi2:.3g}", fontsize=11)
-    fig.tight_layout()
-    path = out / "report.png"
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=80, format="png")
-    plt.close(fig)
-    paths["report"] = str(path)
+    truth = (-(np.arange(h) + 0.5 - cy) / r, syn["thickness_true"][:, col])
+    data = ReportData(fit=result["fit"], photo=syn["photo"], render=fit.render, residual=fit.residual,
+                      thickness=fit.thickness_map, thickness_stderr=fit.thickness_stderr_map)
+    paths["html"] = str(write_fit_page(data, out, title="bubblefit demo", intro_html=_intro_html(result),
+                                       extra_html=_truth_html(result), truth_column=truth,
+                                       photo_title="photo (8-bit, noisy)"))
+    paths["report"] = str(out / "photo_render.png")
     return paths
 
 
-def _write_html(out: Path, result: dict) -> None:
-    from .io.images import atomic_path
+def _intro_html(result: dict) -> str:
+    esc = html.escape
+    return f"""<p>A {result['size']}&times;{result['size']} capture synthesised on the shipped
+<b>{esc(result['truth']['envmap'])}</b> environment map (seed {result['seed']}), with Poisson-Gaussian noise
+(read {result['noise']['read']:g}, shot {result['noise']['shot']:g}) and 8-bit sRGB files; <code>t</code>
+calibrated from a dark-box pair (<code>calibration_before.png</code>, <code>calibration_after.png</code>), then
+the bubble photo (<code>photo.png</code> over <code>background.png</code>) fitted with a drainage profile
+({esc(result['fit']['model'])} model).</p>
+<p><b>{esc(result['status'].splitlines()[0])}</b></p>"""
 
+
+def _truth_html(result: dict) -> str:
     esc = html.escape
     fmt = lambda v: "&ndash;" if v is None else f"{v:.4g}"
     rows = "\n".join(
-        f"<tr><td>{esc(r['name'])}</td><td>{fmt(r['true'])}</td><td>{fmt(r['recovered'])}</td>"
-        f"<td>{fmt(r['stderr'])}</td><td>{esc(r['tolerance'])}</td>"
+        f"<tr><td>{esc(r['name'])}</td><td class='num'>{fmt(r['true'])}</td><td class='num'>{fmt(r['recovered'])}</td>"
+        f"<td class='num'>{fmt(r['stderr'])}</td><td class='num'>{esc(r['tolerance'])}</td>"
         f"<td style='color:{'green' if r['ok'] else 'red'}'>{'yes' if r['ok'] else 'NO'}</td></tr>"
         for r in result["rows"])
     t = result["times"]
-    fit = result["fit"]
-    doc = f"""<!doctype html>
-<html><head><meta charset="utf-8"><title>bubblefit demo</title>
-<style>body{{font-family:sans-serif;max-width:1400px;margin:2em auto}} td,th{{padding:2px 10px;text-align:right}}
-table{{border-collapse:collapse}} tr:nth-child(even){{background:#f3f3f3}} img{{max-width:100%}}</style></head>
-<body><h1>bubblefit demo</h1>
-<p>A {result['size']}&times;{result['size']} capture synthesised on the shipped <b>{esc(result['truth']['envmap'])}</b>
-environment map (seed {result['seed']}), with Poisson-Gaussian noise (read {result['noise']['read']:g},
-shot {result['noise']['shot']:g}) and 8-bit sRGB files; <code>t</code> calibrated from a dark-box pair
-(<code>calibration_before.png</code>, <code>calibration_after.png</code>), then the bubble photo
-(<code>photo.png</code> over <code>background.png</code>) fitted with a drainage profile
-({esc(fit['model'])} model).</p>
-<p><b>{esc(result['status'])}</b></p>
-<img src="report.png" alt="photo, fitted render, residual, thickness map and profile">
-<h2>True against recovered</h2>
+    return f"""<h2>True against recovered</h2>
 <table><tr><th>parameter</th><th>true</th><th>recovered</th><th>std. error</th><th>tolerance</th><th>within</th></tr>
 {rows}</table>
-<p>Times: synthesis {t['synthesise']:.1f} s, calibration {t['calibrate']:.1f} s, fit {t['fit']:.1f} s,
-total {t.get('total', 0):.1f} s. Machine-readable: <a href="results.json">results.json</a>.</p>
-</body></html>
-"""
-    with atomic_path(out / "index.html") as tmp:
-        Path(tmp).write_text(doc)
+<p>Times: synthesis {t['synthesise']:.1f} s, calibration {t['calibrate']:.1f} s, fit {t['fit']:.1f} s.
+Machine-readable: <a href="results.json">results.json</a>.</p>"""

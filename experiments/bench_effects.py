@@ -125,9 +125,10 @@ def prepare(data: dict, background, env):
 
 
 def render_parts(params, parts, env, bg) -> np.ndarray:
-    from bubblefit.model.render import render_plan
+    from bubblefit.model.programs import STORED
+    from bubblefit.model.regions import render_plan
 
-    return np.asarray(render_plan(params, parts, env, bg), dtype=np.float64)
+    return np.asarray(render_plan(params, parts, env, bg, programs=STORED), dtype=np.float64)
 
 
 def bubble_mask(h: int, w: int) -> np.ndarray:

@@ -207,7 +207,7 @@ def profile_solver(photo, env, bg, truth, out: Path, models=("paper", "physical"
     import lineax as lx
     import optimistix as optx
 
-    from bubblefit.inverse import _local, _setup
+    from bubblefit.inverse import _lm, _programs, _setup
     from bubblefit.inverse.fit import FitOptions
     from bubblefit.model.render import render
 
@@ -217,14 +217,14 @@ def profile_solver(photo, env, bg, truth, out: Path, models=("paper", "physical"
         init = {"thickness_nm": truth["thickness_nm"] + 6.0, "roughness": 0.05}
         st = _setup.setup(photo, env, opts, bg, init, None, None)
         lev, table = st.lev_fit, st.table
-        fixed = _local.held_values(table, st.vals)
+        fixed = _programs.held_values(table, st.vals)
         args = (fixed, env, None if lev.bg is None else jnp.asarray(lev.bg), jnp.asarray(lev.y), jnp.asarray(lev.w))
         z0 = jnp.asarray(table.unconstrained(st.vals), jnp.float32)
 
         def resid(z, a):
             fx, e, b, y, w = a
             img = render(table.render_params(table.values(z, fx)), lev.cfg, e, b)
-            return _local.robust((img - y) * w, float(opts.robust_scale)).reshape(-1)
+            return _lm.robust((img - y) * w, float(opts.robust_scale)).reshape(-1)
 
         def lin_tangent(z, a):
             f, lin = jax.linearize(lambda u: resid(u, a), z)
@@ -240,7 +240,7 @@ def profile_solver(photo, env, bg, truth, out: Path, models=("paper", "physical"
             first, warm = _clock(jax.jit(fn), z0, args)
             row[f"{name}_ms"] = round(1000 * warm, 1)
             row[f"{name}_first_s"] = round(first, 2)
-        for label, lm in (("bubblefit", _local.LevenbergMarquardt(rtol=float(opts.rtol), atol=float(opts.atol))),
+        for label, lm in (("bubblefit", _lm.LevenbergMarquardt(rtol=float(opts.rtol), atol=float(opts.atol))),
                           ("optimistix", optx.LevenbergMarquardt(rtol=float(opts.rtol), atol=float(opts.atol)))):
             def run(z, a, lm=lm):
                 sol = optx.least_squares(resid, lm, z, a, max_steps=int(opts.max_steps), throw=False)
@@ -275,22 +275,21 @@ def compile_profile(photo, env, bg, out: Path, models=("paper", "physical"), rep
     the machine's load hits every piece alike; the median and the minimum are recorded."""
     import jax
 
-    from bubblefit.inverse import _local, _setup
-    from bubblefit.inverse.fit import FINAL_COMPILE, FINAL_JACOBIAN, FitOptions
+    from bubblefit.inverse import _lm, _programs, _setup
+    from bubblefit.inverse.fit import FitOptions
 
     rows = []
     for model in models:
         opts = FitOptions(model=model)
         st = _setup.setup(photo, env, opts, bg, None, None, None)
-        key, a, _ = _local._program(st.lev_fit, st.table, opts, st.vals, env, None, True, FINAL_JACOBIAN,
-                                    FINAL_COMPILE)
-        solve, resid = _local.solver.__wrapped__(*key)  # fresh jitted functions, compiled here
+        key, a, _ = _programs.solve_program(st.lev_fit, st.table, opts, st.vals, env, None, _programs.FINAL_SOLVE)
+        solve, resid = _programs.solver.__wrapped__(*key)  # fresh jitted functions, compiled here
         z0 = st.table.unconstrained(st.vals)
         groups = st.table.jacobian_groups
         row = {"model": model, "free": len(st.table.free), "groups": len(groups), "pixels": int(a[3].size // 3)}
         pieces = (("residual", resid), ("jacfwd", jax.jit(jax.jacfwd(resid))),
-                  ("jacobian_by_groups", jax.jit(lambda z, a: _local.column_jacobian(resid, groups, z, a))),
-                  ("jacobian_by_columns", jax.jit(lambda z, a: _local.columns_linearized(resid, z, a))),
+                  ("jacobian_by_groups", jax.jit(lambda z, a: _lm.column_jacobian(resid, groups, z, a))),
+                  ("jacobian_by_columns", jax.jit(lambda z, a: _lm.columns_linearized(resid, z, a))),
                   ("solve", solve))
         compiled = {}
         for name, fn in pieces:
@@ -363,9 +362,11 @@ def numpy_yardstick(repeats: int = 3) -> float:
 
 
 #: The stages :func:`stages` times: the function of ``bubblefit.inverse.fit`` (or of
-#: ``bubblefit.inverse._setup`` for the disc) that each is.
+#: ``bubblefit.inverse._setup`` for the disc) that each is (the finish: judging the
+#: solve and reporting it, both).
 STAGES = (("disc", "_setup", "_disc"), ("setup", "fit", "setup"), ("search", "fit", "_searched_start"),
-          ("local solve", "fit", "solve_local"), ("finish", "fit", "_finish"), ("final render", "fit", "render_bubble"))
+          ("local solve", "fit", "solve_local"), ("finish", "fit", "_judge"), ("finish", "fit", "_report"),
+          ("final render", "fit", "render_bubble"))
 
 
 def stages(photo, env, bg, out: Path, repeats: int, stem: str = "stages"):
@@ -547,7 +548,7 @@ def whole_process(photos: dict, bg, out: Path, models, mitsuba_python=None):
 
 
 #: ``bubblefit fit`` with the background compile of the fit's last programs turned off.
-_NO_BACKGROUND = ("import sys, bubblefit.inverse.fit as f; f.prepare_local = f.prepare_render_bubble = "
+_NO_BACKGROUND = ("import sys, bubblefit.inverse._programs as f; f.prepare_local = f.prepare_render_bubble = "
                   "lambda *a, **k: None; from bubblefit.cli import main; sys.exit(main(sys.argv[1:]))")
 
 

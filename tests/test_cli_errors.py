@@ -418,6 +418,7 @@ FITSEQ_CASES = {
     "envmap_not_2to1": (["photo"], "env_not_2to1", []),
     "envmap_nan": (["photo"], "env_nan", []),
     "bad_t": (["photo"], "env", ["--t", "1.5"]),
+    "bad_set": (["photo"], "env", ["--set", "roughness=-1"]),
     "bad_disc": (["photo"], "env", ["--disc", "1,2"]),
     "bad_range": (["photo"], "env", ["--thickness-range", "a,b"]),
     "bad_calibration": (["photo"], "env", ["--calibration", "garbage"]),
@@ -445,6 +446,9 @@ FIT_CASES = {
     "black_photo": ("black", "env", []),
     "saturated_photo": ("white", "env", []),
     "bad_t": ("photo", "env", ["--t", "-1"]),
+    "bad_set_name": ("photo", "env", ["--set", "colour=1"]),
+    "bad_set_value": ("photo", "env", ["--set", "t=1.5"]),
+    "bad_set_form": ("photo", "env", ["--set", "t"]),
     "bad_calibration": ("photo", "env", ["--calibration", "garbage"]),
     "background_other_size": ("photo", "env", ["--background", "photo_other_size"]),
 }
@@ -624,7 +628,23 @@ def _clashes(files, d: Path) -> dict:
     shot = _copy(files["photo"], d / "shot.png")
     probe = _copy(files["photo"], d / "probe.png")
     fit_photo = _copy(files["photo_float"], d / "P_render.exr")
+    ill = d / "ill.csv"
+    ill.write_text("wavelength_nm,power\n" + "".join(f"{w},{1 + w / 1000}\n" for w in range(380, 781, 10)))
+    resp = d / "resp.csv"
+    resp.write_text("wavelength_nm,r,g,b\n" + "".join(f"{w},{max(0, 1 - abs(w - 600) / 80)},"
+                                                       f"{max(0, 1 - abs(w - 540) / 80)},"
+                                                       f"{max(0, 1 - abs(w - 450) / 80)}\n"
+                                                       for w in range(380, 781, 10)))
     return {
+        "chart_csv_onto_illuminant": (["chart", "--thickness", "0:100:50", "-o", d / "c.png", "--illuminant", ill,
+                                       "--csv", ill], [ill]),
+        "fit_json_onto_illuminant": (["fit", photo, "--envmap", env, "--illuminant", ill, "--json", ill],
+                                     [photo, env, ill]),
+        "fit_json_onto_camera_response": (["fit", photo, "--envmap", env, "--camera-response", resp, "--json", resp],
+                                          [photo, env, resp]),
+        "fit_sequence_json_onto_illuminant": (["fit-sequence", photo, "--envmap", env, "--disc", "12,12,8",
+                                               "--workers", "0", "-o", d / "seq", "--illuminant", ill, "--json", ill,
+                                               "--no-progress"], [photo, env, ill]),
         "render_onto_envmap": (["render", scene, "-o", env], [env, scene]),
         "render_preview_onto_background": (["render", bg_scene, "-o", d / "shot.exr"], [shot, bg_scene]),
         "render_json_onto_scene": (["render", scene, "-o", d / "r.exr", "--json", scene], [scene]),
@@ -645,7 +665,9 @@ def _clashes(files, d: Path) -> dict:
 @pytest.mark.parametrize("case", [
     "render_onto_envmap", "render_preview_onto_background", "render_json_onto_scene", "fit_prefix_onto_photo",
     "fit_json_onto_envmap", "calibrate_json_onto_photo", "calibrate_debug_onto_photo", "envmap_onto_probe_preview",
-    "envmap_json_onto_probe", "chart_csv_is_output", "check_capture_json_onto_image", "fit_sequence_json_onto_frame"])
+    "envmap_json_onto_probe", "chart_csv_is_output", "check_capture_json_onto_image", "fit_sequence_json_onto_frame",
+    "chart_csv_onto_illuminant", "fit_json_onto_illuminant", "fit_json_onto_camera_response",
+    "fit_sequence_json_onto_illuminant"])
 def test_output_that_is_an_input_is_refused(case, files, tmp_path, capsys):
     argv, keep = _clashes(files, tmp_path)[case]
     before = _snapshot(*keep)
@@ -767,3 +789,217 @@ def test_parsers_import_nothing_heavy():
     assert r.returncode == 0, r.stderr
     line = [ln for ln in r.stdout.splitlines() if ln.startswith("HEAVY:")][-1]
     assert line == "HEAVY:", f"heavy modules imported by the parsers: {line}"
+
+
+# --------------------------------------------------------------------------------------
+# one output contract by construction: declared file arguments, sets of outputs
+# --------------------------------------------------------------------------------------
+#: Words in an option's metavar or help that say it names a file or a folder.
+_FILE_WORDS = ("file", "path", "folder", "csv", ".json", ".exr", ".png", ".toml", "image", "photo", "map",
+               "prefix", "out_dir", "out", "frames", "spectrum", "probe", "before", "after", "dir", "reading")
+
+
+def test_every_file_argument_is_declared_as_input_or_output():
+    """Every argument of every command that names a file or folder is declared with a path
+    type of cli/common.py, so that the same-file guard knows it without a hand-written
+    list; arguments that take no file (numbers, choices, flags) are not."""
+    import argparse
+
+    from bubblefit.cli import build_parser
+    from bubblefit.cli import common
+
+    path_types = (common.input_file, common.output_file, common.output_folder, common.output_prefix)
+    not_files = {"--thickness", "--model", "--hold", "--disc", "--circle", "--ball", "--thickness-range",
+                 "--wavelength-range", "--protocol", "--n-film", "--cauchy", "--response", "--merge",
+                 "--scheduler", "--times", "--preview-exposure", "--rotation-deg"}
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    undeclared = []
+    for name, p in sub.choices.items():
+        for a in p._actions:
+            if isinstance(a, (argparse._HelpAction, argparse._StoreTrueAction, argparse._StoreConstAction)) or \
+                    a.type in (int, float) or a.choices:
+                continue
+            flag = a.option_strings[-1] if a.option_strings else a.dest
+            words = f"{a.metavar or ''} {a.help or ''} {flag}".lower()
+            names_a_file = any(w in words for w in _FILE_WORDS)
+            if a.type in path_types:
+                continue
+            if names_a_file and flag not in not_files:
+                undeclared.append(f"{name} {flag}")
+    assert not undeclared, f"file arguments without a path type: {undeclared}"
+
+
+def test_a_missing_output_folder_is_refused_before_the_fit(files, tmp_path, capsys):
+    """An output in a folder that does not exist is one line and exit 2 before any work:
+    the fit never starts (the photo is not even read)."""
+    import time
+
+    t0 = time.perf_counter()
+    rc, _, err = run_cli(capsys, ["fit", files["photo"], "--envmap", files["env"], "--t", "0.96",
+                                  "--json", tmp_path / "missing" / "out.json"])
+    line = assert_one_line_error(rc, err)
+    assert rc == 2 and "does not exist" in line and time.perf_counter() - t0 < 5
+    rc, _, err = run_cli(capsys, ["fit", files["photo"], "--envmap", files["env"], "--t", "0.96",
+                                  "-o", tmp_path / "missing" / "P"])
+    assert "does not exist" in assert_one_line_error(rc, err)
+
+
+def test_a_non_utf8_path_is_one_line(files, tmp_path, capsys):
+    """A folder name that is not UTF-8 (kept by Python as surrogates) is refused by the
+    argument parser in one line, as input and as output."""
+    import os
+
+    bad = os.fsdecode(os.fsencode(str(tmp_path)) + b"/caf\xe9")
+    rc, _, err = run_cli(capsys, ["calibrate", bad + "/a.png", files["photo"]])
+    assert rc == 2 and "not a UTF-8 path" in err and len(err.strip().splitlines()) == 1
+    rc, _, err = run_cli(capsys, ["calibrate", files["photo"], files["photo"], "--debug-image", bad + "/d.png"])
+    assert rc == 2 and "not a UTF-8 path" in err and len(err.strip().splitlines()) == 1
+
+
+def test_outputs_land_as_a_set_and_an_interrupt_removes_them(tmp_path):
+    """Inside an output set, completed files wait as temporaries: an interrupt while the
+    last is written removes them all and leaves the earlier set byte-identical; a set
+    that completes replaces every file."""
+    from bubblefit.io.atomic import atomic_path, output_set, remove_temporaries, write_json, write_text
+
+    a, b = tmp_path / "a.json", tmp_path / "b.txt"
+    write_json(a, {"old": 1})
+    write_text(b, "old")
+    before = _snapshot(a, b)
+    with pytest.raises(KeyboardInterrupt):
+        with output_set():
+            write_json(a, {"new": 2})
+            with atomic_path(b) as tmp:
+                Path(tmp).write_text("half")
+                raise KeyboardInterrupt
+    assert _snapshot(a, b) == before
+    assert_no_temp_files(tmp_path)
+    with pytest.raises(KeyboardInterrupt):  # interrupted between the open and the close of a writer
+        with atomic_path(b) as tmp:
+            Path(tmp).write_text("half")
+            remove_temporaries()  # what the command line does on SIGINT
+            raise KeyboardInterrupt
+    assert_no_temp_files(tmp_path)
+    with output_set():
+        write_json(a, {"new": 2})
+        write_text(b, "new")
+        assert _snapshot(a, b) == before  # nothing renamed until the set is complete
+    assert b.read_text() == "new" and '"new"' in a.read_text()
+
+
+def test_a_short_write_never_replaces_a_file(tmp_path, monkeypatch):
+    """A writer that reports success but leaves fewer bytes than given (a full disk seen by
+    no error) is caught by the size check; an image that does not read back whole is
+    caught by the re-read; the earlier file stays."""
+    import builtins
+
+    from bubblefit.errors import OutputError
+    from bubblefit.io import atomic
+    from bubblefit.io.images import read_image
+
+    target = tmp_path / "out.json"
+    target.write_text("earlier")
+    real_open = builtins.open
+
+    class Short:
+        def __init__(self, fh):
+            self.fh = fh
+
+        def write(self, data):
+            return self.fh.write(data[: len(data) // 2])
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.fh.close()
+
+    monkeypatch.setattr(builtins, "open", lambda f, mode="r", *a, **k: Short(real_open(f, mode, *a, **k))
+                        if "w" in mode and ".out." in str(f) else real_open(f, mode, *a, **k))
+    with pytest.raises(OutputError, match="bytes written"):
+        atomic.write_text(target, '{"a": 1}')
+    monkeypatch.undo()
+    assert target.read_text() == "earlier"
+    assert_no_temp_files(tmp_path)
+
+    img = tmp_path / "img.png"
+    write_image(img, np.full((8, 8, 3), 0.5))
+    good = img.read_bytes()
+    import bubblefit.io.images as images
+
+    def short_png(tmp, shown, spec, data):
+        Path(tmp).write_bytes(good[: len(good) // 2])
+
+    monkeypatch.setattr(images, "_write_oiio", short_png)
+    with pytest.raises(OutputError, match="read back"):
+        write_image(img, np.full((8, 8, 3), 0.25))
+    assert img.read_bytes() == good and read_image(img).pixels.shape == (8, 8, 3)
+    assert_no_temp_files(tmp_path)
+
+
+@pytest.mark.slow
+def test_a_closed_pipe_ends_quietly(files, tmp_path):
+    """``bubblefit chart ... | head -c1``: the reader goes away; no traceback, no internal error."""
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "bubblefit", "chart", "--thickness", "0:100:50", "-o",
+                             str(tmp_path / "c.png")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()  # nobody reads
+    err = proc.stderr.read().decode()
+    proc.wait(timeout=120)
+    assert err == "" and proc.returncode == 141, (proc.returncode, err)
+
+
+# --------------------------------------------------------------------------------------
+# bad input: one line, exit 2, inputs unchanged
+# --------------------------------------------------------------------------------------
+def _bad_inputs(files, d: Path) -> dict:
+    """name -> (argv, the inputs that must stay byte-identical, a word the line must hold)."""
+    long = d / "long.png"
+    write_image(long, np.full((1, 100000, 3), 0.5))
+    black = d / "black.png"
+    write_image(black, np.zeros((48, 48, 3)))
+    lit = d / "lit.png"
+    write_image(lit, _disc_photo(48, 48))
+    jpg = d / "photo.jpg"
+    write_image(jpg, _disc_photo(64, 64))
+    raw = jpg.read_bytes()
+    cut = d / "cut.jpg"
+    cut.write_bytes(raw[: int(0.96 * len(raw))])
+    env = files["env"]
+    return {
+        "fit_long_png": (["fit", long, "--envmap", env, "--t", "0.96"], [long], "too small"),
+        "fit_black_photo_with_background": (["fit", black, "--envmap", env, "--background", lit, "--t", "0.96"],
+                                            [black, lit], "bubble"),
+        "fit_calibration_dev_zero": (["fit", lit, "--envmap", env, "--calibration", "/dev/zero"], [lit], "larger"),
+        "calibrate_truncated_jpeg": (["calibrate", jpg, cut, "-q"], [jpg, cut], "truncated"),
+        "calibrate_circle_beyond_the_image": (["calibrate", files["photo"], files["photo"], "--circle", "12,12,400"],
+                                              [files["photo"]], "beyond"),
+    }
+
+
+@pytest.mark.parametrize("case", ["fit_long_png", "fit_black_photo_with_background", "fit_calibration_dev_zero",
+                                  "calibrate_truncated_jpeg", "calibrate_circle_beyond_the_image"])
+def test_bad_input_is_one_line_and_exit_2(case, files, tmp_path, capsys):
+    argv, keep, word = _bad_inputs(files, tmp_path)[case]
+    before = _snapshot(*keep)
+    rc, _, err = run_cli(capsys, argv)
+    line = assert_one_line_error(rc, err)
+    assert rc == 2 and word in line, line
+    assert _snapshot(*keep) == before
+    assert_no_temp_files(tmp_path)
+
+
+@pytest.mark.parametrize("how", ["disc", "calibration"])
+def test_a_disc_with_300_digits_is_one_short_line(how, files, tmp_path, capsys):
+    import json
+
+    cal = tmp_path / "cal.json"
+    cal.write_text(json.dumps({"t": 0.96, "bubble": {"cx": 1e300, "cy": 12.0, "r": 8.0}}))
+    extra = ["--disc", "1e300,12,8", "--t", "0.96"] if how == "disc" else ["--calibration", cal]
+    rc, _, err = run_cli(capsys, ["fit", files["photo"], "--envmap", files["env"], *extra])
+    line = assert_one_line_error(rc, err)
+    assert rc == 2 and len(line) < 300 and "000000000000" not in line, line

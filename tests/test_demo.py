@@ -65,4 +65,4 @@ def test_report_files_written(demo):
     saved = json.loads((out / "results.json").read_text())
     assert saved["fit"]["params"]["top_nm"] == pytest.approx(result["fit"]["params"]["top_nm"])
     html = (out / "index.html").read_text()
-    assert "report.png" in html and "top_nm" in html
+    assert "photo_render.png" in html and "top_nm" in html

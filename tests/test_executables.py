@@ -181,3 +181,144 @@ def test_a_library_call_takes_the_program_prepared_in_the_background(monkeypatch
     y = jnp.linspace(0.0, 1.0, 5)  # not prepared: the plain jitted call
     np.testing.assert_array_equal(call(y), fn(y))
     assert len(call.loaded) == 1
+
+
+def _in_process_store(monkeypatch, tmp_path):
+    """The store turned on in this process, with its folder in ``tmp_path`` (created private)."""
+    from bubblefit.io import executables
+    from bubblefit.io.jaxcache import private_folder
+
+    folder = tmp_path / "cache" / "executables"
+    assert private_folder(folder) is None
+    monkeypatch.setattr(executables, "ENABLED", True)
+    monkeypatch.setattr(executables, "_folder", lambda: folder)
+    return executables, folder
+
+
+def test_a_planted_file_is_never_run(tmp_path, monkeypatch):
+    """A file planted under the name the store will look up (a pickle whose loading would
+    create a marker file, as the store's earlier format would have run) is ignored and
+    replaced by the store's own file; the call gets the jitted function's numbers."""
+    import os
+    import pickle
+
+    import jax
+    import jax.numpy as jnp
+
+    executables, folder = _in_process_store(monkeypatch, tmp_path)
+    marker = tmp_path / "ran"
+
+    class Payload:
+        def __reduce__(self):
+            return (os.system, (f"touch {marker}",))
+
+    fn = jax.jit(lambda x: jnp.cos(x) * 3.0)
+    x = jnp.linspace(0.0, 1.0, 6)
+    key = executables._key("test.planted", executables._static_bytes(()), (x,))
+    planted = folder / f"{key}.bin"
+    planted.write_bytes(pickle.dumps(Payload()))
+    call = executables.stored(fn, "test.planted", ())
+    np.testing.assert_array_equal(call(x), fn(x))
+    assert not marker.exists()
+    assert planted.read_bytes().startswith(executables.MAGIC)  # replaced by the store's own file
+
+
+def test_a_file_without_the_stores_digest_is_ignored(tmp_path, monkeypatch):
+    """A file in the store's format whose digest was made with another key (copied from
+    another cache, or forged) or that is cut short is not loaded: the program is compiled
+    and the file replaced; a file the store wrote is loaded in a later call."""
+    import jax
+    import jax.numpy as jnp
+
+    executables, folder = _in_process_store(monkeypatch, tmp_path)
+    loads, load = [], executables._load
+
+    def recording_load(path, args):
+        try:
+            out = load(path, args)
+        except Exception as exc:
+            loads.append(type(exc).__name__)
+            raise
+        loads.append("loaded")
+        return out
+
+    monkeypatch.setattr(executables, "_load", recording_load)
+    fn = jax.jit(lambda x: ({"y": jnp.sin(x) + 1.0, "n": None}, jnp.sum(x)))
+    x = jnp.linspace(0.0, 2.0, 9)
+    want = fn(x)
+    got = executables.stored(fn, "test.digest", ())(x)  # compiled afresh and saved
+    np.testing.assert_array_equal(got[0]["y"], want[0]["y"])
+    path = next(folder.glob("*.bin"))
+    good = path.read_bytes()
+    assert loads == [] and good.startswith(executables.MAGIC)
+
+    loaded = executables.stored(fn, "test.digest", ())(x)  # a new Stored: read from the file
+    assert loads == ["loaded"] and loaded[0]["n"] is None
+    np.testing.assert_array_equal(loaded[0]["y"], want[0]["y"])
+    np.testing.assert_array_equal(loaded[1], want[1])
+
+    (folder / ".key").write_bytes(b"k" * executables.SECRET_BYTES)  # another store's key
+    loads.clear()
+    np.testing.assert_array_equal(executables.stored(fn, "test.digest", ())(x)[1], want[1])
+    assert loads == ["StoreError"] and path.read_bytes() != good  # rewritten under this key
+    for cut in (0, len(good) // 2):
+        path.write_bytes(path.read_bytes()[:cut])
+        loads.clear()
+        np.testing.assert_array_equal(executables.stored(fn, "test.digest", ())(x)[1], want[1])
+        assert loads == ["StoreError"] and path.stat().st_size > len(good) // 2
+
+
+def test_a_cache_folder_others_can_write_is_not_used(tmp_path):
+    """The cache folder is created ``0700``; one that the group or others can write is
+    refused in one line, and neither JAX's cache nor the store uses it."""
+    import os
+    import stat
+
+    from bubblefit.io.jaxcache import private_folder
+
+    new = tmp_path / "new" / "cache"
+    assert private_folder(new) is None and stat.S_IMODE(new.stat().st_mode) == 0o700
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    os.chmod(shared, 0o777)
+    assert "writable by others" in private_folder(shared)
+    script = ("import os, jax; from bubblefit.io.jaxcache import jax_setup; from bubblefit.io import executables; "
+              "s = jax_setup(os.environ['C']); "
+              "print(s['cache_dir'], jax.config.jax_compilation_cache_dir, executables._folder())")
+    out = subprocess.run([sys.executable, "-c", script], env={**os.environ, "C": str(shared),
+                                                             "BUBBLEFIT_CACHE_DIR": str(shared)},
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.split() == ["None", "None", "None"]
+    lines = [ln for ln in out.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "not using the compilation cache" in lines[0] and str(shared) in lines[0]
+
+
+def test_unreadable_jax_cache_entries_are_replaced_and_write_errors_said_once(tmp_path, monkeypatch, capsys):
+    """An entry of JAX's cache cut short (a full disk) is deleted when it fails to load, so
+    the compile that follows writes it anew; failed writes are one warning line in all."""
+    from jax._src import compilation_cache
+
+    from bubblefit.io import executables
+
+    monkeypatch.setattr(executables, "_WARNED", set())
+    calls = []
+
+    def failing_get(key, *args, **kwargs):
+        calls.append(key)
+        raise ValueError("truncated entry")
+
+    def failing_put(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(compilation_cache, "get_executable_and_time", failing_get)
+    monkeypatch.setattr(compilation_cache, "put_executable_and_time", failing_put)
+    monkeypatch.setattr(executables, "_jax_cache_dir", lambda: str(tmp_path))
+    executables._guard_jax_cache()
+    entry = tmp_path / "jit_f-abc-cache"
+    entry.write_bytes(b"cut")
+    assert compilation_cache.get_executable_and_time("jit_f-abc") == (None, None)
+    assert calls == ["jit_f-abc"] and not entry.exists()
+    for _ in range(3):
+        compilation_cache.put_executable_and_time("k", "m", None, None, 0)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no space left on device" in err[0]

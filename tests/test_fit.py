@@ -114,9 +114,9 @@ def test_constant_recovery(env, seed, thickness, tint, monkeypatch):
     assert js["thickness_model_error_nm"] == pytest.approx(0.6) and e["thickness_nm"] > 0.6
     assert res.render.shape == photo.shape and res.residual.shape == photo.shape
     # a prepared program called with arguments of other shapes would be left waiting, unused
-    ours = [s for s in prepared if s.name.startswith("inverse._local")]
-    assert {s.name for s in ours} == {"inverse._local.solver", "inverse._local.reporter",
-                                      "inverse._local.reporter_jacobian"}
+    ours = [s for s in prepared if s.name.startswith("inverse._programs")]
+    assert {s.name for s in ours} == {"inverse._programs.solver", "inverse._programs.reporter",
+                                      "inverse._programs.reporter_jacobian"}
     assert all(not s.pending for s in ours)
 
 
@@ -378,10 +378,11 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
     reuses the compiled solves: the next photo compiles nothing new."""
     import jax.numpy as jnp
 
-    from bubblefit.inverse import _local
     from dataclasses import replace
 
-    from bubblefit.inverse._observation import Level, fitted_pixels, padded, padded_size, pixel_bucket, render_level
+    from bubblefit.inverse import _lm, _programs
+    from bubblefit.inverse._observation import Level, fitted_pixels, padded, padded_size, pixel_bucket
+    from bubblefit.inverse._programs import render_level
     from bubblefit.model.geometry import compose_shift
     from bubblefit.inverse.fit import fit_photo
     from bubblefit.model.geometry import OrthographicCamera
@@ -410,7 +411,7 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
 
     # the final render of the bubble's pixels alone, the background photo elsewhere: the
     # whole render's values, with the disc at the refinement's limits too
-    from bubblefit.inverse._observation import _bubble_list, render_bubble
+    from bubblefit.inverse._programs import _bubble_list, render_bubble
 
     photo_fx = replace(fx, background="photo")
     lev_p = replace(lev, cfg=replace(cfg, effects=photo_fx))
@@ -450,13 +451,13 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
              "disc_y": -0.02, "disc_r": 0.03}
     lev.y = np.asarray(render_level(Params.make(thickness=655.0, roughness=0.04), lev, env), np.float32)
     px = fitted_pixels(lev, 256)
-    _, resid = _local.solver(px.padded.cfg, table, 3.0, 20, 1e-5, 1e-6)
+    _, resid = _programs.solver(px.padded.cfg, table, 3.0, 20, 1e-5, 1e-6)
     z = table.unconstrained(start)
     fixed = {"n_film": jnp.float32(1.33), "rotation_deg": jnp.float32(0.0)}
     args = (fixed, env, px.padded.bg, px.y, px.w, px.padded.base, (px.rows, px.cols, px.idx))
     want = np.asarray(jax.jacfwd(resid)(z, args))
     assert table.jacobian_groups == ((0, 1, 3), (2,), (4,), (5, 6, 7))  # weights, light, film, disc
-    got = np.asarray(jax.jit(lambda z, a: _local.column_jacobian(resid, table.jacobian_groups, z, a))(z, args))
+    got = np.asarray(jax.jit(lambda z, a: _lm.column_jacobian(resid, table.jacobian_groups, z, a))(z, args))
     assert got.shape == want.shape == (np.asarray(resid(z, args)).size, len(table.free))
     assert np.all(np.abs(want).max(axis=0) > 0)  # every parameter moves the render
     np.testing.assert_allclose(got, want, atol=1e-4 * np.abs(want).max())
@@ -473,9 +474,9 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
         return _quantise(render_scene(scene, bgp, env=env), rng)
 
     first = fit_photo(photo(DISC), env, options=_opts(), background=bgp)
-    misses = _local.solver.cache_info().misses
+    misses = _programs.solver.cache_info().misses
     moved = (DISC[0] + 1.3, DISC[1] - 0.7, 0.93 * DISC[2])
     second = fit_photo(photo(moved), env, options=_opts(disc=moved), background=bgp)
-    assert _local.solver.cache_info().misses == misses
+    assert _programs.solver.cache_info().misses == misses
     for res in (first, second):
         assert res.ok and abs(res.params["thickness_nm"] - 500.0) < 5.0

@@ -38,7 +38,11 @@ def test_physical_model_fit(physical_photo):
     held = dict(res.held)
     assert "t" in held and "r_s" in held and "r_d" not in held
     assert res.stderr["r_d"] is not None and np.isfinite(res.stderr["r_d"]) and res.stderr["r_d"] > 0
-    assert "(held" in [l for l in res.report().splitlines() if l.startswith("t ")][0]
+    # t and r_s are not fitted and not rendered with: Fresnel's equations from n_film replace them
+    t_line = [l for l in res.report().splitlines() if l.startswith("t ")][0]
+    assert "(not used" in t_line and "Fresnel" in t_line
+    roles = {r["name"]: r["role"] for r in res.to_json()["parameters"]}
+    assert roles["t"] == roles["r_s"] == "unused" and roles["r_d"] == roles["thickness_nm"] == "fitted"
 
 
 def test_auto_keeps_the_model_that_explains_the_photo(physical_photo):
@@ -116,7 +120,7 @@ def test_given_disc_is_held(off_grid_photo):
 
 
 def test_gauss_newton_decrement_is_the_linear_drop():
-    from bubblefit.inverse._local import gauss_newton_decrement
+    from bubblefit.inverse._lm import gauss_newton_decrement
 
     rng = np.random.default_rng(0)
     a = rng.normal(size=(200, 4))
@@ -270,3 +274,65 @@ def test_auto_never_prefers_a_failed_fit_for_its_small_residual():
     assert _judged_chi2(result("max_steps", 5.5)) == 5.5
     assert _judged_chi2(result("failed", 0.0)) == float("inf")
     assert _judged_chi2(result("converged", float("nan"))) == float("inf")
+
+
+@pytest.mark.parametrize("model,free,held,free_split", [
+    ("paper", ("t", "split", "roughness", "exposure", "thickness_nm"), ("rotation_deg",), False),
+    ("paper", ("t", "roughness", "exposure", "thickness_nm"), ("split", "rotation_deg"), False),
+    ("paper", ("roughness", "exposure", "thickness_nm"), ("t", "split", "rotation_deg"), False),
+    ("paper", ("t", "r_d", "r_s", "roughness", "exposure", "thickness_nm"), ("rotation_deg",), True),
+    ("paper", ("t", "r_s", "exposure", "thickness_nm"), ("r_d", "roughness", "rotation_deg"), True),
+    ("physical", ("r_d", "roughness", "exposure", "thickness_nm"), ("t", "r_s", "split", "rotation_deg"), True),
+    ("physical", ("roughness", "exposure", "thickness_nm", "rotation_deg"), ("t", "r_s", "split", "r_d"), True),
+])
+def test_the_parameter_table_agrees_with_the_standard_errors(model, free, held, free_split):
+    """Every reported parameter's row says fitted, derived, held, given or unused, and it
+    agrees with the numbers: the rows without a standard error (held, unused, given) are
+    exactly the keys the uncertainty leaves without one; the physical model's t and r_s
+    are unused, never 'set by Fresnel'; eq. (14)'s split is named where r_d, r_s and f
+    come from it."""
+    from bubblefit.inverse._parameters import ParameterTable, parameter_roles
+    from bubblefit.inverse._uncertainty import _held_keys
+
+    table = ParameterTable(free, tuple((n, f"reason for {n}") for n in held), "constant", free_split)
+    names = ("t", "r_d", "r_s", "f", "roughness", "exposure", "rotation_deg", "thickness_nm", "n_film")
+    rows = {r.name: r for r in parameter_roles(table, model, names)}
+    assert tuple(rows) == names
+    no_error = {n for n, r in rows.items() if r.role in ("held", "unused", "given")}
+    assert no_error == (_held_keys(table) & set(names)) | {"n_film"}
+    assert all(rows[n].role == "fitted" for n in free if n in names)
+    assert all(r.reason for r in rows.values() if r.role != "fitted")
+    if model == "physical":
+        assert rows["t"].role == rows["r_s"].role == "unused" and "Fresnel" in rows["t"].reason
+    elif not free_split and "split" in free:
+        assert rows["r_d"].role == rows["r_s"].role == rows["f"].role == "derived"
+        assert "split" in rows["r_d"].reason and "eq. (14)" in rows["r_d"].reason
+
+
+def test_parameter_settings_start_and_hold():
+    """``FitOptions.parameters`` (``--set NAME=VALUE``, ``--hold NAME``) sets starting values
+    under the parameters' own names or their aliases, holds them on request, leaves a
+    value the scene file sets alone, and refuses unknown names and values outside a
+    parameter's bounds in one line."""
+    from bubblefit.errors import InputError
+    from bubblefit.inverse._parameters import ParameterSetting, parse_setting
+    from bubblefit.inverse._setup import defaults
+    from bubblefit.inverse.fit import FitOptions
+    from bubblefit.model.scene import Scene
+
+    opts = FitOptions(parameters=(parse_setting("thickness=700"), ParameterSetting("roughness", 0.05, hold=True),
+                                  parse_setting("f = 0.5"), parse_setting("t=0.95")))
+    vals, held = defaults(None, None, opts, opts.t_init)
+    assert vals["thickness_nm"] == 700.0 and vals["roughness"] == 0.05 and vals["t"] == 0.95
+    assert held == {"roughness": "held by request"}
+    # eq. (14): r_s = (1 - t) / (1 + f), r_d = (1 - t) - r_s from the starting t and f
+    assert vals["r_s"] == pytest.approx(0.05 / 1.5) and vals["r_d"] == pytest.approx(0.05 - 0.05 / 1.5)
+    scene = Scene.from_dict({"camera": {"width": 16, "height": 16}, "bubble": {"roughness": 0.2},
+                             "lighting": {"envmap": "unused.exr"}})
+    vals, held = defaults(scene, None, FitOptions(parameters=(parse_setting("roughness=0.05"),)), None)
+    assert vals["roughness"] == 0.2 and held["roughness"] == "set by the scene file"
+    for bad in ("colour=1", "t=1.5", "roughness=-1", "t", "t=x", "=3"):
+        with pytest.raises(InputError):
+            parse_setting(bad)
+    with pytest.raises(InputError):
+        FitOptions(parameters=(ParameterSetting("exposure", 0.0),))

@@ -233,3 +233,121 @@ def test_stages_show_on_a_terminal_only(monkeypatch):
         pass
     progress.Progress(3, "frames", stream=quiet).update()
     assert quiet.text == ""
+
+
+# --------------------------------------------------------------------------------------
+# reading: alpha, sizes from the header, paths
+# --------------------------------------------------------------------------------------
+def _png(width: int, height: int, rows: bytes, colour_type: int = 2) -> bytes:
+    """A PNG file written by hand (ISO/IEC 15948): signature, IHDR, one IDAT, IEND."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, colour_type, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(rows)) + chunk(b"IEND", b"")
+
+
+def test_rgba_colour_is_read_as_stored_with_a_warning(tmp_path):
+    """A PNG's colour is unassociated (PNG spec, sec. 12.8): with alpha 200 the RGB codes
+    are read as stored, not multiplied by 200/255, and a warning says alpha is ignored."""
+    from bubblefit.io.images import ImageWarning, read_image, srgb_decode
+
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 256, (6, 5, 3), dtype=np.uint8)
+    rgba = np.concatenate([rgb, np.full((6, 5, 1), 200, np.uint8)], axis=2)
+    rows = b"".join(b"\0" + row.tobytes() for row in rgba)
+    path = tmp_path / "rgba.png"
+    path.write_bytes(_png(5, 6, rows, colour_type=6))
+    with pytest.warns(ImageWarning, match="alpha"):
+        img = read_image(path)
+    np.testing.assert_allclose(img.pixels, srgb_decode(rgb / 255.0), rtol=0, atol=1e-12)
+    opaque = np.concatenate([rgb, np.full((6, 5, 1), 255, np.uint8)], axis=2)
+    path.write_bytes(_png(5, 6, b"".join(b"\0" + row.tobytes() for row in opaque), colour_type=6))
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # an opaque alpha says nothing
+        np.testing.assert_allclose(read_image(path).pixels, srgb_decode(rgb / 255.0), rtol=0, atol=1e-12)
+
+
+def test_size_is_checked_from_the_header_before_decoding(tmp_path, monkeypatch):
+    """A PNG larger than the pixel limit is refused from its header, in one line that names
+    the flag raising the limit, before decoding (time and memory stay small); a
+    30000x30000 PNG (22 GB as float64) is refused the same way; a raised limit reads it."""
+    import time
+    import tracemalloc
+
+    from bubblefit.io.images import MAX_PIXELS, read_image
+
+    side = 2000
+    rows = b"".join(b"\0" + bytes(3 * side) for _ in range(side))
+    path = tmp_path / "big.png"
+    path.write_bytes(_png(side, side, rows))
+    before = path.read_bytes()
+    monkeypatch.setenv("BUBBLEFIT_MAX_PIXELS", "1000000")
+    tracemalloc.start()
+    t0 = time.perf_counter()
+    with pytest.raises(InputError, match="4 megapixels") as err:
+        read_image(path)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert time.perf_counter() - t0 < 2 and peak < 5e6 and "--max-megapixels" in str(err.value)
+    assert path.read_bytes() == before
+    monkeypatch.setenv("BUBBLEFIT_MAX_PIXELS", "5000000")
+    assert read_image(path).pixels.shape == (side, side, 3)
+    monkeypatch.delenv("BUBBLEFIT_MAX_PIXELS")
+
+    huge = tmp_path / "huge.png"
+    huge.write_bytes(_png(30000, 30000, bytes(3000)))
+    assert 30000 * 30000 > MAX_PIXELS
+    t0 = time.perf_counter()
+    with pytest.raises(InputError):
+        read_image(huge)
+    assert time.perf_counter() - t0 < 2
+
+
+def test_a_path_that_is_not_utf8_is_one_line(tmp_path):
+    from bubblefit.io.images import read_image, write_image
+
+    folder = os.fsdecode(os.fsencode(str(tmp_path)) + b"/caf\xe9")
+    os.mkdir(folder)
+    path = folder + "/a.png"
+    write_image(tmp_path / "a.png", np.full((4, 4, 3), 0.5))
+    os.rename(tmp_path / "a.png", path)
+    with pytest.raises(InputError, match="not UTF-8"):
+        read_image(path)
+
+
+def test_tiff_is_written_and_read_back(tmp_path):
+    """TIFF output (8 and 16 bit) reads back within a code value."""
+    from bubblefit.io.images import read_image, srgb_decode, srgb_encode, write_image
+
+    img = np.linspace(0.0, 1.0, 4 * 6 * 3).reshape(4, 6, 3)
+    for depth, maxcode in ((8, 255), (16, 65535)):
+        write_image(tmp_path / "a.tif", img, bit_depth=depth)
+        got = read_image(tmp_path / "a.tif")
+        assert got.bit_depth == depth
+        want = srgb_decode(np.round(srgb_encode(img) * maxcode) / maxcode)
+        np.testing.assert_allclose(got.pixels, want, atol=1e-6)
+
+
+def test_an_8bit_environment_map_is_warned_about(tmp_path):
+    """A JPEG map is read, with a warning that it is 8-bit and clipped; an EXR map is not."""
+    import warnings
+
+    from bubblefit.cli.fit import load_envmap
+    from bubblefit.io.images import ImageWarning, write_image
+
+    px = np.full((16, 32, 3), 0.4)
+    px[3, 5] = 50.0  # a sun, clipped to 1 in the JPEG
+    write_image(tmp_path / "env.jpg", px)
+    write_image(tmp_path / "env.exr", px, bit_depth=32)
+    with pytest.warns(ImageWarning, match="8 bits per channel"):
+        env = load_envmap(str(tmp_path / "env.jpg"))
+    assert float(np.max(env.pixels)) <= 1.0 + 1e-6
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ImageWarning)
+        assert float(np.max(load_envmap(str(tmp_path / "env.exr")).pixels)) > 10

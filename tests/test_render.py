@@ -312,7 +312,7 @@ def test_render_plan_renders_the_bubble_and_its_backdrop(env64, camera, spp):
     """A plan shades only the pixels the bubble can touch and takes the backdrop elsewhere:
     the image equals the whole-image render, the rim's sub-pixel rays included."""
     from bubblefit.model.geometry import PerspectiveCamera
-    from bubblefit.model.render import bubble_pixels, render_plan
+    from bubblefit.model.regions import bubble_pixels, render_plan
 
     env = EnvMap.from_array(env64[1])
     cam = (OrthographicCamera(32, 24, 15.0, 12.5, 9.0) if camera == "orthographic"
@@ -341,7 +341,7 @@ def test_render_plan_from_the_footprint_equals_the_traced_render(small_courtyard
     the image equals the plan traced afresh, region by region, for both models, a thickness
     field, point lights, a background photo and a rotated map; with sub-pixel rays the
     footprint is not used."""
-    from bubblefit.model.render import _lit_usable, render_plan
+    from bubblefit.model.regions import lit_usable, render_plan
     from bubblefit.model.scene import Scene
 
     env = EnvMap.from_array(_sunny(small_courtyard))
@@ -367,7 +367,7 @@ def test_render_plan_from_the_footprint_equals_the_traced_render(small_courtyard
     p = scene.params()
     traced = render_plan(p, parts, env, background)
     lit = render_plan(p, parts, env, background, footprint=fp)
-    usable = [_lit_usable(fp, p, cfg) for cfg, _ in parts]
+    usable = [lit_usable(fp, p, cfg) for cfg, _ in parts]
     assert all(usable) if case != "supersampled" else not any(usable)
     if case == "physical_drainage_lamp_perspective":
         assert len(parts) > 1 and parts[0][0].effects.point_lights
@@ -389,7 +389,7 @@ def test_render_plan_from_the_footprint_equals_the_traced_render(small_courtyard
     rel = lambda img: np.quantile(err(img) / (np.abs(exact) + 1e-3), 0.99)
     assert rel(lit) <= 4 * rel(traced) + 1e-6
     other = dataclasses.replace(p, roughness=p.roughness + 0.01)  # not the footprint's parameters
-    assert not _lit_usable(fp, other, parts[0][0])
+    assert not lit_usable(fp, other, parts[0][0])
 
 
 @pytest.mark.parametrize("camera", ["orthographic", "perspective"])
@@ -441,7 +441,7 @@ def test_constant_films_at_many_thicknesses_equal_their_renders(env64, model, sp
     """render_pixels_at traces the rays and reads the map once for a list of thicknesses:
     each thickness's terms equal render_terms' at that thickness, on the listed pixels,
     for both models, sub-pixel rays and a background photo; a wrong thickness does not."""
-    from bubblefit.model.render import _pixel_chunks, render_pixels_at, render_terms
+    from bubblefit.model.render import pixel_chunks, render_pixels_at, render_terms
 
     env = EnvMap.from_array(env64[1])
     cam = OrthographicCamera(24, 20, 12.0, 10.5, 8.0)
@@ -451,7 +451,7 @@ def test_constant_films_at_many_thicknesses_equal_their_renders(env64, model, sp
     bg = np.random.default_rng(1).uniform(0.1, 0.8, (20, 24, 3)).astype(np.float32) if photo else None
     p = Params.make(roughness=0.05, thickness=0.0, r_d=0.004, r_s=0.02)
     pixels = np.arange(0, 20 * 24, 3)  # every third pixel: rim, disc and outside
-    rows, cols, idx, npix = _pixel_chunks(cfg, pixels)
+    rows, cols, idx, npix = pixel_chunks(cfg, pixels)
     thick = np.array([0.0, 90.0, 455.0, 1300.0], np.float32)
     many = render_pixels_at(p, cfg, env, bg, rows, cols, idx, thick)
     assert set(many) == ({"front", "rear", "background"})

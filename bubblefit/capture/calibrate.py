@@ -85,6 +85,10 @@ def _given_circle(circle, w: int, h: int) -> tuple[float, float, float]:
         raise InputError(f"circle: need a finite centre and a positive radius, got {circle}")
     if not (-r < cx < w + r and -r < cy < h + r):
         raise InputError(f"circle: the centre ({cx:g}, {cy:g}) is outside the {w}x{h} image")
+    slack = 0.02 * r  # a rim drawn by hand a pixel or two past the frame's edge
+    if cx - r < -slack or cy - r < -slack or cx + r > w + slack or cy + r > h + slack:
+        raise InputError(f"circle: radius {r:g} around ({cx:g}, {cy:g}) reaches beyond the {w}x{h} image; the "
+                         "whole bubble and background around it must be in the frame")
     return cx - 0.5, cy - 0.5, r
 
 
@@ -320,6 +324,20 @@ def calibrate(
     InputError
         Unreadable or mismatched files, saturated or black images, two different scenes, no
         bubble, or too few usable pixels inside it; the message is one line.
+
+    Examples
+    --------
+    A checkered card dimmed by ``t^4`` inside a disc, as a bubble with ``t = 0.97`` would:
+
+    >>> import numpy as np
+    >>> import bubblefit as bf
+    >>> y, x = np.mgrid[0:96, 0:96] + 0.5
+    >>> card = np.where((y // 12 + x // 12) % 2 == 0, 0.7, 0.2)[..., None] * np.ones(3)
+    >>> inside = (x - 48) ** 2 + (y - 48) ** 2 < 30 ** 2
+    >>> after = np.where(inside[..., None], card * 0.97 ** 4, card)
+    >>> result = bf.calibrate(card, after, n_boot=200)
+    >>> round(result.t, 4), round(result.bubble["r"])
+    (0.97, 30)
     """
     img_b, img_a = load_pair(before, after)
     names = (os.path.basename(img_b.path) or "before", os.path.basename(img_a.path) or "after")

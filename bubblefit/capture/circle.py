@@ -2,7 +2,9 @@
 
 :func:`kasa_circle_fit` is the one least-squares circle through points (Kasa 1976) of
 the package. :func:`detect_bubble` finds the bubble of a dark-box pair as the largest
-darkened disc of the after/before ratio. Array coordinates: the centre of pixel
+darkened disc of the after/before ratio; :func:`detect_disc`, the simpler of the two disc
+detectors (:func:`bubblefit.capture.disc.find_disc` is the robust one), finds it in a photo
+from that or from the strongest circle of its edges. Array coordinates: the centre of pixel
 (row i, column j) is (j, i). See ``docs/design.md`` (capture).
 """
 
@@ -10,12 +12,14 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 from scipy import ndimage as ndi
 
 from ..errors import InputError
+from .ratio import usable_mask
 
-__all__ = ["kasa_circle_fit", "detect_bubble"]
+__all__ = ["kasa_circle_fit", "detect_bubble", "detect_disc"]
 
 
 def kasa_circle_fit(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
@@ -132,6 +136,9 @@ def detect_bubble(
             "(is the checkered background visible and correctly exposed?)"
         )
     level = _background_level(vals)
+    if not level > 0:
+        raise InputError("no bubble found: the second image is black where the first is lit "
+                         "(are both files the right ones, and exposed the same?)")
     # noise of the smoothed ratio: per-pixel noise (from the high-pass residual, hardly
     # touched by the bubble's edge) times the noise gain of the Gaussian (1 / (2 sqrt(pi) sigma)),
     # doubled for the holes left by unusable pixels
@@ -196,3 +203,36 @@ def detect_bubble(
     # the changed pixels' centres lie about half a pixel inside the rim
     return cx, cy, r + 0.5
 
+
+def detect_disc(photo: np.ndarray, background: np.ndarray | None = None) -> tuple[float, float, float]:
+    """Find the bubble's disc ``(cx, cy, r)`` in pixels.
+
+    With a background photo: :func:`detect_bubble` on the pair (the
+    bubble is where the two differ). Without: the strongest circle of the photo's edges
+    (OpenCV's Hough gradient on the sRGB-encoded grey image), which finds the rim that a
+    bubble's Fresnel brightening outlines.
+
+    References
+    ----------
+    Yuen et al., "Comparative study of Hough transform methods for circle finding",
+    Image and Vision Computing 8(1), 1990 (the gradient method OpenCV implements).
+    """
+    gray = np.mean(np.clip(photo, 0, None), axis=-1)
+    if background is not None:
+        bgray = np.mean(np.clip(background, 0, None), axis=-1)
+        sat = (np.max(photo, axis=-1) >= 0.999) | (np.max(background, axis=-1) >= 0.999)
+        try:
+            usable, _ = usable_mask(bgray, gray, sat)
+            return detect_bubble(bgray, gray, usable)
+        except InputError:
+            pass  # a dark background: fall back to the edges of the photo alone
+    h, w = gray.shape
+    enc = np.clip(gray / max(np.percentile(gray, 99.5), 1e-6), 0, 1) ** (1 / 2.2)
+    img = cv2.GaussianBlur((enc * 255).astype(np.uint8), (5, 5), 1.2)
+    circles = cv2.HoughCircles(img, cv2.HOUGH_GRADIENT, dp=1, minDist=max(h, w),
+                               param1=60, param2=20, minRadius=max(4, min(h, w) // 10),
+                               maxRadius=min(h, w) // 2 + 2)
+    if circles is None:
+        raise InputError("no bubble found in the photo; give its disc (--disc CX,CY,R) or a background photo")
+    cx, cy, r = (float(v) for v in circles[0, 0])
+    return cx, cy, r

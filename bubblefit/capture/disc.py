@@ -45,7 +45,8 @@ from scipy import ndimage as ndi
 from ..errors import InputError
 from .rim import MIN_JUMP, Evidence, refine_rim, rim_support, roundness
 
-__all__ = ["Disc", "find_disc", "change_map", "MIN_SUPPORT", "MIN_SUPPORT_EDGES", "MIN_RADIUS"]
+__all__ = ["Disc", "find_disc", "change_map", "bubble_contrast", "change_spread", "MIN_SUPPORT", "MIN_SUPPORT_EDGES",
+           "MIN_RADIUS", "NO_BUBBLE_CONTRAST", "NO_BUBBLE_SPREAD"]
 
 #: Fraction of the rim that must be supported for a disc to count as found, with a
 #: background photo (the difference must end on the circle) and without one (a stricter
@@ -379,3 +380,52 @@ def find_disc(photo: np.ndarray, background: np.ndarray | None = None, *, sigma:
     round_, contrast, support = first
     return _not_found(f"nothing round {what}: its edge follows the best circle on only {100 * round_:.0f}% of the rim "
                       f"(need {100 * need:.0f}%)", contrast, support)
+
+
+# --------------------------------------------------------------------------------------
+# Is it a bubble: the disc against the background photo
+# --------------------------------------------------------------------------------------
+
+
+#: A photo whose pixels on the disc differ from the background photo's by less than this
+#: many times the pair's noise (robust RMS, relative to the same outside the disc) has no
+#: bubble in it. Pure noise gives 1; any bubble transmits t^4 of the background and adds
+#: its reflection, many noise units on every pixel.
+NO_BUBBLE_CONTRAST = 2.0
+
+
+#: A photo without a bubble differs from its background photo by noise alone, so the 99th
+#: percentile of the per-pixel ``z^2`` (mean over channels) is about 4.8 times its median
+#: (chi^2 with 3 degrees of freedom, over 3); any bubble that covers a percent of the photo
+#: lifts it far above :data:`NO_BUBBLE_SPREAD`. Both this and :data:`NO_BUBBLE_CONTRAST`
+#: must say "noise" before a photo is refused, so a wrong disc never refuses a real bubble.
+NO_BUBBLE_SPREAD = 10.0
+
+
+def change_spread(photo, background, sigma) -> float:
+    """``p99 / median`` of the per-pixel ``z^2 = ((photo - background) / (sqrt(2) sigma))^2``
+    (mean over channels) over the whole photo: about 4.8 for noise alone, whatever the
+    noise model's scale."""
+    z2 = np.mean(((photo - background) / (math.sqrt(2.0) * np.maximum(sigma, 1e-12))) ** 2, axis=-1)
+    med = float(np.median(z2))
+    return float(np.percentile(z2, 99)) / max(med, 1e-12)
+
+
+def bubble_contrast(photo, background, sigma, disc) -> float:
+    """How strongly the disc differs from the background photo, in noise units.
+
+    ``z = (photo - background) / (sqrt(2) sigma)`` (both photos carry noise ``sigma``);
+    the contrast is ``sqrt(median(z^2) on the disc / median(z^2) off it)`` (off the disc
+    the pair differs only by noise; the ratio cancels an error in the noise model's
+    scale), or the former alone when the disc fills the photo.
+    """
+    cx, cy, r = disc
+    h, w = photo.shape[:2]
+    ii, jj = np.mgrid[0:h, 0:w]
+    rho2 = ((jj + 0.5 - cx) ** 2 + (ii + 0.5 - cy) ** 2) / max(r, 1e-9) ** 2
+    z2 = np.mean(((photo - background) / (math.sqrt(2.0) * np.maximum(sigma, 1e-12))) ** 2, axis=-1)
+    inside, outside = rho2 < 0.8**2, rho2 > 1.2**2
+    if inside.sum() < 4:
+        return float("nan")
+    ref = float(np.median(z2[outside])) if outside.sum() > 50 else 1.0
+    return float(math.sqrt(float(np.median(z2[inside])) / max(ref, 1e-12)))

@@ -30,6 +30,8 @@ COMMANDS = (
     "fit_sequence",
     "fit_spectrum",
     "demo",
+    "export",
+    "report",
 )
 
 
@@ -49,6 +51,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .. import __version__
 
     parser.add_argument("--version", action="version", version=f"bubblefit {__version__}")
+    parser.add_argument("--max-megapixels", type=float, default=None, metavar="N",
+                        help="largest image read, in millions of pixels (default 150; checked from the "
+                             "file's header before decoding)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name in COMMANDS:
@@ -71,19 +76,33 @@ def main(argv: list[str] | None = None) -> int:
     the environment sets ``BUBBLEFIT_DEBUG=1``, which re-raises it with its traceback.
     """
     from ..errors import BubblefitError
+    from ..io.atomic import remove_temporaries
     from ..io.jaxcache import jax_setup
 
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.max_megapixels is not None:
+        if not (args.max_megapixels > 0 and args.max_megapixels < 1e6):
+            parser.error(f"--max-megapixels must be a positive number of millions of pixels, got {args.max_megapixels:g}")
+        os.environ["BUBBLEFIT_MAX_PIXELS"] = str(int(args.max_megapixels * 1e6))  # workers inherit it
+    _one_line_warnings()
     jax_setup()
+    previous = _terminate_as_exit()
     try:
         return int(args.func(args) or 0)
     except BubblefitError as exc:
         print(f"bubblefit: error: {_one_line(exc)}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
+        remove_temporaries()
         print("bubblefit: interrupted", file=sys.stderr)
         return 130
+    except SystemExit:
+        remove_temporaries()
+        raise
+    except BrokenPipeError:  # ``bubblefit ... | head``: the reader has gone; nothing more to say
+        _quiet_stdout()
+        return 141
     except MemoryError:
         print("bubblefit: error: out of memory (try a smaller image or fewer spectral samples)", file=sys.stderr)
         return 1
@@ -93,6 +112,55 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bubblefit: internal error: {type(exc).__name__}: {_one_line(exc)} "
               "(rerun with BUBBLEFIT_DEBUG=1 for a traceback)", file=sys.stderr)
         return 1
+    finally:
+        if previous is not None:
+            import signal
+
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _one_line_warnings() -> None:
+    """Warnings as one ``bubblefit: warning: ...`` line each (no source line); NumPy's
+    floating-point RuntimeWarnings (overflow in an intermediate of a refused input) are
+    not shown: every result they could affect is checked and reported by the command."""
+    import warnings
+
+    warnings.filterwarnings("ignore", category=RuntimeWarning)
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        print(f"bubblefit: warning: {_one_line(message)}", file=file or sys.stderr)
+
+    warnings.showwarning = show
+
+
+def _terminate_as_exit():
+    """SIGTERM (``kill``, a job scheduler's time limit) ends the command as an exception
+    does: context managers run, so half-written outputs are removed (exit 143). Returns
+    the handler it replaced (None where none was set)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def terminate(signum, frame):
+        raise SystemExit(128 + signum)
+
+    try:
+        return signal.signal(signal.SIGTERM, terminate)
+    except (ValueError, OSError):  # not the main thread of the main interpreter
+        return None
+
+
+def _quiet_stdout() -> None:
+    """Point stdout at /dev/null once its reader has gone, so that the interpreter's final
+    flush does not print a second BrokenPipeError."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):
+        pass
 
 
 if __name__ == "__main__":  # pragma: no cover

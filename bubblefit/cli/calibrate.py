@@ -42,10 +42,12 @@ def register(subparsers) -> None:
             "gives the film's refractive index when the bubble is large enough."
         ),
     )
-    p.add_argument("before", metavar="BEFORE", help="photograph without the bubble (PNG, JPEG, TIFF, EXR, ...)")
-    p.add_argument("after", metavar="AFTER", help="photograph with the bubble, same camera and exposure")
-    p.add_argument("--json", metavar="OUT", help="write the result as JSON (input of 'bubblefit fit --calibration')")
-    p.add_argument("--debug-image", metavar="OUT.png",
+    from .common import input_file, output_file
+
+    p.add_argument("before", metavar="BEFORE", type=input_file, help="photograph without the bubble (PNG, JPEG, TIFF, EXR, ...)")
+    p.add_argument("after", metavar="AFTER", type=input_file, help="photograph with the bubble, same camera and exposure")
+    p.add_argument("--json", metavar="OUT", type=output_file, help="write the result as JSON (input of 'bubblefit fit --calibration')")
+    p.add_argument("--debug-image", metavar="OUT.png", type=output_file,
                    help="write a PNG: the AFTER shot, and the ratio map with the circle (red), the pixels "
                         "used for t (green) and the rim pixels of the radial fit (blue)")
     p.add_argument("--circle", metavar="CX,CY,R",
@@ -65,9 +67,9 @@ def run(args) -> int:
     from ..capture.calibrate import calibrate
     from ..capture.result import write_debug_image
     from ..progress import stage
-    from .common import guard_outputs, write_json
+    from .common import guard_args, write_json
 
-    guard_outputs([args.before, args.after], [args.json, args.debug_image])
+    guard_args(args)
     circle = _circle(args.circle) if args.circle else None
     if not (0.05 <= args.inner_fraction <= 0.95):
         raise InputError(f"--inner-fraction must be between 0.05 and 0.95, got {args.inner_fraction}")

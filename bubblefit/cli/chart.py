@@ -8,6 +8,8 @@ from ..errors import InputError
 
 
 def register(sub):
+    from .common import output_file
+
     p = sub.add_parser("chart", help="interference colour against film thickness (PNG and CSV)",
                        description="Chart of the film's interference colour against thickness, from a "
                                    "converged spectral integration (linear sRGB, D65, flat = grey).")
@@ -17,9 +19,9 @@ def register(sub):
     from .common import add_colour_options, add_index_options
 
     add_index_options(p)
-    p.add_argument("-o", "--output", required=True, help="chart image (PNG)")
-    p.add_argument("--csv", help="CSV with columns thickness_nm,r,g,b (linear RGB reflectance, white = 1)")
-    p.add_argument("--json", help="write a JSON summary")
+    p.add_argument("-o", "--output", required=True, type=output_file, help="chart image (PNG)")
+    p.add_argument("--csv", type=output_file, help="CSV with columns thickness_nm,r,g,b (linear RGB reflectance, white = 1)")
+    p.add_argument("--json", type=output_file, help="write a JSON summary")
     add_colour_options(p)
     p.set_defaults(func=run)
 
@@ -45,10 +47,11 @@ def run(args) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from ..io.atomic import check_png, output_set, write_text
     from ..io.images import atomic_path, srgb_encode
     from ..optics.chart import display_scale, interference_colours
     from ..progress import stage
-    from .common import guard_outputs, write_json
+    from .common import guard_args, write_json
 
     if not 0 <= args.angle_deg <= 90:
         raise InputError(f"--angle-deg must be within [0, 90], got {args.angle_deg}")
@@ -63,7 +66,7 @@ def run(args) -> int:
         "reference", illuminant=colour_option(args.illuminant, spectral.is_named_illuminant, "--illuminant") or "D65",
         response=colour_option(args.camera_response, spectral.is_named_response, "--camera-response") or "srgb")
     d = parse_range(args.thickness)
-    guard_outputs([], [args.output, args.csv, args.json])
+    guard_args(args)
     fmt = args.output.rsplit(".", 1)[-1].lower() if "." in args.output else "png"
     supported = plt.figure().canvas.get_supported_filetypes()
     plt.close("all")
@@ -79,14 +82,14 @@ def run(args) -> int:
     ax.set_xlabel("film thickness (nm)")
     ax.set_title(f"interference colour, {args.model}, n = {describe(n_film)}, {args.angle_deg:g} deg")
     fig.tight_layout()
-    with atomic_path(args.output) as tmp:
-        fig.savefig(tmp, format=fmt)
-    plt.close(fig)
-    if args.csv:
-        with atomic_path(args.csv) as tmp:
-            np.savetxt(tmp, np.column_stack([d, rgb]), delimiter=",", header="thickness_nm,r,g,b",
-                       comments="", fmt="%.10g")
+    with output_set():
+        with atomic_path(args.output, check=check_png if fmt == "png" else None) as tmp:
+            fig.savefig(tmp, format=fmt)
+        plt.close(fig)
+        if args.csv:
+            write_text(args.csv, "thickness_nm,r,g,b\n" + "".join(
+                ",".join(f"{v:.10g}" for v in row) + "\n" for row in np.column_stack([d, rgb])))
+        if args.json:
+            write_json(args.json, {"output": args.output, "csv": args.csv, "samples": len(d), "model": args.model})
     print(f"wrote {args.output}" + (f" and {args.csv}" if args.csv else "") + f" ({len(d)} thicknesses)")
-    if args.json:
-        write_json(args.json, {"output": args.output, "csv": args.csv, "samples": len(d), "model": args.model})
     return 0

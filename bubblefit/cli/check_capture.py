@@ -21,6 +21,8 @@ def _protocol_names() -> list[str]:
 
 
 def register(subparsers) -> None:
+    from .common import input_file, output_file
+
     known = ", ".join(_protocol_names()) or "transmission, envmap, bubble"
     p = subparsers.add_parser(
         NAME,
@@ -32,17 +34,17 @@ def register(subparsers) -> None:
             f"Protocols: {known}; or the path of a .toml spec. Exits 1 if a check fails."
         ),
     )
-    p.add_argument("folder", metavar="DIR", help="folder holding the capture's images")
+    p.add_argument("folder", metavar="DIR", type=input_file, help="folder holding the capture's images")
     p.add_argument("--protocol", required=True, metavar="NAME", help=f"protocol name ({known}) or spec path")
-    p.add_argument("--json", metavar="PATH", help="write the results as JSON")
+    p.add_argument("--json", metavar="PATH", type=output_file, help="write the results as JSON")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from ..capture.protocols import check_capture, format_table, load_protocol
-    from .common import folder_files, guard_outputs, write_json
+    from .common import folder_files, guard_args, write_json
 
-    guard_outputs(folder_files(args.folder) + [Path(args.protocol)], [args.json])
+    guard_args(args, inputs=folder_files(args.folder) + [Path(args.protocol)])
     spec = load_protocol(args.protocol)
     report = check_capture(args.folder, spec)
     print(format_table(report))

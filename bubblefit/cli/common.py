@@ -16,7 +16,8 @@ from typing import Iterable
 from ..errors import InputError, OutputError
 from ..io.atomic import write_json
 
-__all__ = ["parse_floats", "guard_outputs", "scene_inputs", "folder_files", "write_json"]
+__all__ = ["parse_floats", "guard_outputs", "guard_args", "scene_inputs", "folder_files", "write_json",
+           "input_file", "output_file", "output_folder", "InputFile", "OutputFile", "OutputFolder"]
 
 PathLike = str | os.PathLike
 
@@ -36,6 +37,115 @@ def parse_floats(text: str, n: int, name: str, *, finite: bool = True) -> tuple[
     if finite and not all(math.isfinite(v) for v in vals):
         raise InputError(f"{name} must be finite numbers, got {text!r}")
     return vals
+
+
+class InputFile(str):
+    """A command-line value that names a file the command reads (or, for options such as
+    ``--illuminant``, may name one). Declared with ``type=input_file``; :func:`guard_args`
+    finds every such value in the parsed arguments, so no output can replace it."""
+
+
+class OutputFile(str):
+    """A command-line value that names a file the command writes (``type=output_file``)."""
+
+
+class OutputFolder(str):
+    """A command-line value that names a folder the command writes into, created if
+    missing (``type=output_folder``)."""
+
+
+def _path_text(text: str, kind: str) -> str:
+    """``text`` as given, or an ``argparse`` error for a path that cannot be passed on to the
+    image libraries (a name that is not valid UTF-8, kept by Python as lone surrogates)."""
+    import argparse
+
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        shown = text.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+        raise argparse.ArgumentTypeError(f"{kind} {shown!r} is not a UTF-8 path (rename it)") from None
+    if not text:
+        raise argparse.ArgumentTypeError(f"empty {kind} name")
+    return text
+
+
+def input_file(text: str) -> InputFile:
+    """``argparse`` type of a file argument the command reads."""
+    return InputFile(_path_text(text, "input"))
+
+
+def output_file(text: str) -> OutputFile:
+    """``argparse`` type of a file argument the command writes."""
+    return OutputFile(_path_text(text, "output"))
+
+
+class OutputPrefix(str):
+    """A command-line value that starts the names of the files a command writes
+    (``type=output_prefix``); the command passes those files to :func:`guard_args`."""
+
+
+def output_prefix(text: str) -> OutputPrefix:
+    """``argparse`` type of a prefix of output file names (``fit -o PREFIX``)."""
+    return OutputPrefix(_path_text(text, "output prefix"))
+
+
+def output_folder(text: str) -> OutputFolder:
+    """``argparse`` type of a folder argument the command writes into."""
+    return OutputFolder(_path_text(text, "output folder"))
+
+
+def _declared(args) -> tuple[list, list, list]:
+    """(inputs, output files, output folders) declared in the parsed ``args``: every value,
+    or list of values, of type :class:`InputFile`, :class:`OutputFile`, :class:`OutputFolder`."""
+    ins, outs, folders = [], [], []
+    for value in vars(args).values():
+        for v in value if isinstance(value, (list, tuple)) else (value,):
+            if isinstance(v, InputFile):
+                ins.append(v)
+            elif isinstance(v, OutputFile):
+                outs.append(v)
+            elif isinstance(v, OutputFolder):
+                folders.append(v)
+    return ins, outs, folders
+
+
+def check_writable(outputs: Iterable[PathLike | None], folders: Iterable[PathLike | None] = ()) -> None:
+    """Refuse, before any work, an output whose folder is missing or not writable, and an
+    output folder that cannot be created (its parent missing or not writable)."""
+    for p in outputs:
+        if p is None:
+            continue
+        real = Path(os.path.realpath(os.fspath(p)))
+        if real.is_dir():
+            raise OutputError(f"cannot write {p}: it is a folder")
+        if not real.parent.is_dir():
+            raise OutputError(f"cannot write {p}: folder {Path(p).parent} does not exist")
+        if not os.access(real.parent, os.W_OK) and not (real.exists() and not real.is_file()):
+            raise OutputError(f"cannot write {p}: folder {Path(p).parent} is not writable")
+    for f in folders:
+        if f is None:
+            continue
+        real = Path(os.path.realpath(os.fspath(f)))
+        if real.exists() and not real.is_dir():
+            raise OutputError(f"cannot write into {f}: it is not a folder")
+        target = real if real.is_dir() else real.parent
+        if not target.is_dir():
+            raise OutputError(f"cannot create {f}: folder {target} does not exist")
+        if not os.access(target, os.W_OK):
+            raise OutputError(f"cannot write into {f}: folder {target} is not writable")
+
+
+def guard_args(args, inputs: Iterable[PathLike | None] = (), outputs: Iterable[PathLike | None] = ()) -> None:
+    """The output contract, checked before any work, for every file argument declared in
+    ``args`` (:func:`input_file`, :func:`output_file`, :func:`output_folder`) and the
+    files a command derives (``inputs``: those a scene file names, a folder's frames;
+    ``outputs``: previews, ``PREFIX_*`` files): no output is an input or another output
+    (:func:`guard_outputs`), and every output's folder exists and is writable
+    (:func:`check_writable`)."""
+    ins, outs, folders = _declared(args)
+    outs = outs + [p for p in outputs if p is not None]
+    guard_outputs([*ins, *inputs], outs)
+    check_writable(outs, folders)
 
 
 def _identity(path: PathLike) -> tuple[str, tuple[int, int] | None, bool]:
@@ -135,9 +245,9 @@ def add_index_options(parser, default: str = "1.4") -> None:
 
 def add_colour_options(parser) -> None:
     """``--illuminant`` and ``--camera-response`` (:mod:`bubblefit.optics.spectral`)."""
-    parser.add_argument("--illuminant", default=None,
+    parser.add_argument("--illuminant", default=None, type=input_file,
                         help="illuminant: D65 (default), E, A, another CIE name, or a CSV wavelength_nm,power")
-    parser.add_argument("--camera-response", default=None,
+    parser.add_argument("--camera-response", default=None, type=input_file,
                         help="camera response: srgb (default), a colour-science camera (e.g. 'Nikon 5100 (NPL)'), "
                              "or a CSV wavelength_nm,r,g,b; white-balanced to the illuminant")
 

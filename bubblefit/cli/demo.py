@@ -8,11 +8,13 @@ def register(sub):
         "demo", help="synthesise a capture on a shipped map, calibrate, fit, and report true vs recovered",
         description="Synthesise a capture on the shipped courtyard map (calibration pair and a bubble photo "
                     "with known parameters, noise, 8-bit files), run calibrate and fit, print true against "
-                    "recovered values with standard errors, and write report.png and index.html.")
-    p.add_argument("--out", default="bubblefit-demo", help="output folder (default: %(default)s)")
+                    "recovered values with standard errors, and write the fit's page (index.html).")
+    from .common import output_file, output_folder
+
+    p.add_argument("--out", default=output_folder("bubblefit-demo"), type=output_folder, help="output folder (default: %(default)s)")
     p.add_argument("--size", type=int, default=96, help="side of the synthetic photos in pixels (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="seed of the noise (default: %(default)s)")
-    p.add_argument("--json", metavar="PATH", help="also write the results JSON here")
+    p.add_argument("--json", metavar="PATH", type=output_file, help="also write the results JSON here")
     p.add_argument("--quiet", action="store_true", help="print only the table")
     p.set_defaults(func=run)
 
@@ -22,8 +24,9 @@ def run(args) -> int:
 
     from ..demo import fit_status, format_table, run_demo
     from ..errors import InputError
-    from .common import write_json
+    from .common import guard_args, write_json
 
+    guard_args(args)
     if not 32 <= args.size <= 1024:
         raise InputError(f"--size must be between 32 and 1024 pixels, got {args.size}")
     t0 = time.perf_counter()

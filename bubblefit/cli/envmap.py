@@ -19,6 +19,8 @@ NAME = "envmap"
 
 
 def register(subparsers) -> None:
+    from .common import input_file, output_file
+
     p = subparsers.add_parser(
         NAME,
         help="unwrap mirror-ball photo(s) (several exposures merge to HDR) to an environment map",
@@ -31,8 +33,8 @@ def register(subparsers) -> None:
             "neighbours. Writes a linear EXR and a PNG preview."
         ),
     )
-    p.add_argument("probes", nargs="+", metavar="PROBE", help="photograph(s) of the mirror ball")
-    p.add_argument("-o", "--output", required=True, metavar="ENV.exr", help="output map (EXR)")
+    p.add_argument("probes", nargs="+", metavar="PROBE", type=input_file, help="photograph(s) of the mirror ball")
+    p.add_argument("-o", "--output", required=True, metavar="ENV.exr", type=output_file, help="output map (EXR)")
     p.add_argument("--height", type=int, default=256, help="map height in texels [256]")
     p.add_argument("--ball", metavar="CX,CY,R",
                    help="the ball's circle in pixels (x right, y down, pixel centres at +0.5); found automatically if omitted")
@@ -54,9 +56,9 @@ def register(subparsers) -> None:
     p.add_argument("--rotation-deg", type=float, default=0.0,
                    help="rotate the map about +y (degrees) [0]")
     p.add_argument("--no-fill", action="store_true", help="leave masked texels black instead of inpainting them")
-    p.add_argument("--mask", metavar="MASK.png", help="also write the valid-texel mask (white = sampled by the ball)")
-    p.add_argument("--hdr", metavar="MERGED.exr", help="also write the merged HDR photograph")
-    p.add_argument("--json", metavar="PATH", help="write a JSON summary (ball, exposure times, masks)")
+    p.add_argument("--mask", metavar="MASK.png", type=output_file, help="also write the valid-texel mask (white = sampled by the ball)")
+    p.add_argument("--hdr", metavar="MERGED.exr", type=output_file, help="also write the merged HDR photograph")
+    p.add_argument("--json", metavar="PATH", type=output_file, help="write a JSON summary (ball, exposure times, masks)")
     p.set_defaults(func=run)
 
 
@@ -79,9 +81,9 @@ def _check_options(args) -> str:
     out = str(args.output)
     if not out.lower().endswith(".exr"):
         raise InputError(f"the output map must be an .exr file, got {out}")
-    from .common import guard_outputs
+    from .common import guard_args
 
-    guard_outputs(args.probes, [out, preview_path(out), args.mask, args.hdr, args.json])
+    guard_args(args, outputs=[preview_path(out)])
     if args.height < 8:
         raise InputError(f"--height must be at least 8, got {args.height}")
     if args.distance is not None and not (math.isfinite(args.distance) and args.distance > 1.0):

@@ -13,6 +13,7 @@ not ``ok`` says why (and exits 1 with ``--strict``).
 from __future__ import annotations
 
 import json
+import os
 import math
 
 import numpy as np
@@ -23,19 +24,21 @@ NAME = "fit"
 
 
 def register(sub):
+    from .common import input_file, output_file, output_prefix
+
     p = sub.add_parser(
         NAME, help="fit the bubble model to a photo (t, r_d, r_s, roughness, film thickness)",
         description="Recover the transmission t, the diffuse/specular split, Ward's roughness and the film "
                     "thickness (one value, a drainage profile or a per-pixel map) from a linear photo of a "
                     "bubble and its environment map, with standard errors.")
-    p.add_argument("photo", metavar="PHOTO", help="photo of the bubble (EXR/HDR linear; PNG/JPEG/TIFF sRGB)")
-    p.add_argument("--envmap", required=True, help="environment map (equirectangular, linear EXR/HDR), aligned "
+    p.add_argument("photo", metavar="PHOTO", type=input_file, help="photo of the bubble (EXR/HDR linear; PNG/JPEG/TIFF sRGB)")
+    p.add_argument("--envmap", required=True, type=input_file, help="environment map (equirectangular, linear EXR/HDR), aligned "
                                                    "with the camera (it looks along -z of the map's frame)")
-    p.add_argument("--background", metavar="BEFORE", help="photo of the same view without the bubble")
+    p.add_argument("--background", metavar="BEFORE", type=input_file, help="photo of the same view without the bubble")
     cal = p.add_mutually_exclusive_group()
-    cal.add_argument("--calibration", metavar="CAL.json", help="output of `bubblefit calibrate` (starting t, disc)")
+    cal.add_argument("--calibration", metavar="CAL.json", type=input_file, help="output of `bubblefit calibrate` (starting t, disc)")
     cal.add_argument("--t", type=float, help="starting transmission fraction t (0 < t < 1)")
-    p.add_argument("--scene", metavar="SCENE.toml",
+    p.add_argument("--scene", metavar="SCENE.toml", type=input_file,
                    help="scene file: its camera (orthographic disc or perspective, response, white balance, "
                         "samples per pixel), n_film (with dispersion), illuminant, effects, and every value its "
                         "[bubble] table sets, which is held fixed; the flags below override it")
@@ -52,11 +55,14 @@ def register(sub):
     p.add_argument("--hold", metavar="NAMES", default="",
                    help="comma-separated parameters held at their starting values (t, f, r_d, r_s, roughness, "
                         "thickness_nm, exposure, rotation_deg, top_nm, bottom_nm, exponent; disc: the disc as found)")
+    p.add_argument("--set", metavar="NAME=VALUE", action="append", default=[],
+                   help="a parameter's starting value (t, f, r_d, r_s, roughness, thickness_nm, exposure, "
+                        "rotation_deg, top_nm, bottom_nm, exponent); repeat for several, --hold NAME to hold it")
     p.add_argument("--free-split", action="store_true", help="fit r_d and r_s freely instead of r_d + r_s = 1 - t")
     p.add_argument("--fit-rotation", action="store_true", help="also fit the environment's rotation about +y")
     p.add_argument("--max-steps", type=int, default=None, help="Levenberg-Marquardt step limit")
-    p.add_argument("--json", metavar="OUT", help="write the result as JSON")
-    p.add_argument("-o", "--output", metavar="PREFIX", help="write PREFIX_render.exr, PREFIX_residual.exr "
+    p.add_argument("--json", metavar="OUT", type=output_file, help="write the result as JSON")
+    p.add_argument("-o", "--output", metavar="PREFIX", type=output_prefix, help="write PREFIX_render.exr, PREFIX_residual.exr "
                                                              "(and PREFIX_thickness.exr) with PNG previews")
     p.add_argument("--explain", action="store_true", help="print which effects are simulated or skipped, and why")
     p.add_argument("--strict", action="store_true", help="exit with status 1 when the fit did not converge")
@@ -80,23 +86,45 @@ def add_model_options(p) -> None:
 def load_envmap(path: str):
     """Read the environment map for a fit: :func:`~bubblefit.model.scene.read_envmap`, and refuse
     a map without light (nothing to fit against)."""
+    from ..io.images import ImageWarning, stored_bit_depth
     from ..model.scene import read_envmap
 
     env = read_envmap(path)
     if not np.any(np.asarray(env.pixels) > 0):
         raise InputError(f"environment map {path} is black or unreadable")
+    bits = stored_bit_depth(path)
+    if bits is not None and bits < 32:
+        import warnings
+
+        warnings.warn(f"environment map {path} has {bits} bits per channel: its sun and lamps are clipped, and the fitted "
+                      "exposure and reflectance absorb the missing light; use a linear HDR map (EXR, HDR)",
+                      ImageWarning, stacklevel=2)
     return env
+
+
+#: Largest pixel coordinate or radius a disc may have: the side of an image at the pixel
+#: limit (:data:`bubblefit.io.images.MAX_PIXELS`) is far below it, and numbers beyond
+#: would print with hundreds of digits.
+MAX_PIXEL_COORDINATE = 1e6
+
+#: Largest calibration file read (``bubblefit calibrate`` writes about 2 KB); a larger
+#: one (``/dev/zero``, a photo given by mistake) is refused before it fills the memory.
+MAX_CALIBRATION_BYTES = 1024 * 1024
 
 
 def read_calibration(path: str) -> tuple[float, tuple | None, tuple | None]:
     """``(t, disc or None, image_size or None)`` from a ``bubblefit calibrate`` JSON
     (``image_size`` [w, h] of the calibration frame, when it records it)."""
     try:
-        with open(path) as fh:
-            data = json.load(fh)
+        with open(path, "rb") as fh:
+            text = fh.read(MAX_CALIBRATION_BYTES + 1)
+        if len(text) > MAX_CALIBRATION_BYTES:
+            raise InputError(f"calibration {path} is larger than {MAX_CALIBRATION_BYTES // 1024} KiB: "
+                             "not the output of bubblefit calibrate")
+        data = json.loads(text.decode("utf-8"))
     except OSError as exc:
         raise InputError(f"cannot read calibration {path}: {exc.strerror}") from None
-    except ValueError:
+    except ValueError:  # JSON and UTF-8 errors
         raise InputError(f"calibration {path} is not valid JSON") from None
     t = data.get("t") if isinstance(data, dict) else None
     if not isinstance(t, (int, float)) or isinstance(t, bool) or not 0 < t < 1:
@@ -105,6 +133,9 @@ def read_calibration(path: str) -> tuple[float, tuple | None, tuple | None]:
     b = data.get("bubble")
     if isinstance(b, dict) and all(isinstance(b.get(k), (int, float)) for k in ("cx", "cy", "r")):
         disc = (float(b["cx"]), float(b["cy"]), float(b["r"]))
+        if not all(abs(v) < MAX_PIXEL_COORDINATE for v in disc) or disc[2] <= 0:
+            raise InputError(f"calibration {path} has an impossible disc: centre and radius must be pixel "
+                             f"coordinates below {MAX_PIXEL_COORDINATE:g} and the radius positive")
     size = data.get("image_size")
     if not (isinstance(size, (list, tuple)) and len(size) == 2 and all(isinstance(v, int) for v in size)):
         size = None
@@ -115,6 +146,7 @@ def fit_option_values(args) -> dict:
     """The :class:`~bubblefit.inverse.fit.FitOptions` values that ``fit`` and ``fit-sequence`` read
     the same way: starting t and disc (``--calibration``, ``--t``, ``--disc``), thickness
     kind and range, held parameters and the step limit. One-line errors for bad values."""
+    from ..inverse._parameters import parse_setting
     from .common import parse_floats
 
     t_init, disc, cal_disc, cal_size = None, None, None, None
@@ -128,13 +160,16 @@ def fit_option_values(args) -> dict:
         disc = parse_floats(args.disc, 3, "--disc")
         if disc[2] <= 0:
             raise InputError(f"--disc radius must be positive, got {args.disc!r}")
+        if not all(abs(v) < MAX_PIXEL_COORDINATE for v in disc):
+            raise InputError(f"--disc must be pixel coordinates below {MAX_PIXEL_COORDINATE:g}, got {args.disc!r}")
     lo, hi = parse_floats(args.thickness_range, 2, "--thickness-range")
     if not (math.isfinite(lo) and math.isfinite(hi)):
         raise InputError(f"--thickness-range must be two finite thicknesses in nm, got {args.thickness_range}")
     kw = dict(thickness=args.thickness, disc=disc, fit_disc=True if getattr(args, "refine_disc", False) else None,
               t_init=t_init, thickness_range=(lo, hi),
               calibration_disc=cal_disc, calibration_size=cal_size,
-              hold=tuple(h.strip() for h in args.hold.split(",") if h.strip()))
+              hold=tuple(h.strip() for h in args.hold.split(",") if h.strip()),
+              parameters=tuple(parse_setting(s) for s in getattr(args, "set", None) or ()))
     if args.max_steps is not None:
         if args.max_steps < 1:
             raise InputError("--max-steps must be at least 1")
@@ -177,23 +212,53 @@ def output_paths(args) -> list[str]:
     return exrs + [str(preview_path(p)) for p in exrs]
 
 
+#: Fewest pixels on each side of a photo that can hold a bubble for the fit: the disc's
+#: detection smooths with a Gaussian of a few pixels and needs 50 pixels of bubble.
+MIN_PHOTO_SIDE = 16
+
+
+def check_photo_size(img, path) -> None:
+    """Refuse a photo too small (on either side) to hold a bubble: :data:`MIN_PHOTO_SIDE`."""
+    h, w = img.pixels.shape[:2]
+    if min(h, w) < MIN_PHOTO_SIDE:
+        raise InputError(f"photo {path} is {w}x{h} pixels: too small to hold a bubble "
+                         f"(at least {MIN_PHOTO_SIDE} pixels on each side)")
+
+
 def _bits(img) -> int | None:
     return None if img.linear_file else int(img.bit_depth)
 
 
+def build_fit_options(args, scene, bits: int | None):
+    """:class:`~bubblefit.inverse.fit.FitOptions` of ``fit`` and ``fit-sequence``, built in
+    this one place so that a sequence of one frame is fitted as ``fit`` fits the photo:
+    :func:`fit_option_values`, the model (``--model``, else the scene's, else ``auto``),
+    the photo's bit depth for the noise model (``bits``), and ``fit``'s own flags where the
+    command has them."""
+    from ..inverse.fit import FitOptions
+
+    model = args.model or (scene.table("effects").get("model", "auto") if scene is not None else "auto")
+    kw = dict(fit_option_values(args), model=model, bits=bits)
+    for flag in ("free_split", "fit_rotation"):
+        if hasattr(args, flag):
+            kw[flag] = getattr(args, flag)
+    return FitOptions(**kw)
+
+
 def run(args) -> int:
-    from ..inverse.fit import FitOptions, fit_photo
+    from ..inverse.fit import fit_photo
+    from ..io.atomic import output_set
     from ..io.images import preview_path, read_image, write_image
     from ..progress import stage
     from ..model.scene import load_scene
-    from .common import guard_outputs, scene_inputs, write_json
+    from .common import guard_args, scene_inputs, write_json
 
     scene = load_scene(args.scene) if args.scene else None
-    inputs = [args.photo, args.envmap, args.background, args.calibration, args.scene]
-    guard_outputs(inputs + (scene_inputs(scene) if scene is not None else []), [args.json, *output_paths(args)])
-    option_values = fit_option_values(args)
+    guard_args(args, inputs=scene_inputs(scene) if scene is not None else [], outputs=output_paths(args))
+    fit_option_values(args)  # bad values refused before any photo is read
     with stage("reading the photo and the environment map"):
         photo = read_image(args.photo, dtype=np.float32)  # the fit's arithmetic is float32
+        check_photo_size(photo, args.photo)
         env = load_envmap(args.envmap)
     background = None
     if args.background:
@@ -202,53 +267,37 @@ def run(args) -> int:
             raise InputError(f"the background {args.background} is {bimg.pixels.shape[1]}x{bimg.pixels.shape[0]}, "
                              f"the photo is {photo.pixels.shape[1]}x{photo.pixels.shape[0]}")
         background = bimg.pixels
-    model = args.model or (scene.table("effects").get("model", "auto") if scene is not None else "auto")
-    kw = dict(option_values, model=model, free_split=args.free_split, fit_rotation=args.fit_rotation,
-              bits=_bits(photo))
-    options = FitOptions(**kw)
+    options = build_fit_options(args, scene, _bits(photo))
     with stage(f"fitting {photo.pixels.shape[1]}x{photo.pixels.shape[0]} ({options.thickness} thickness, "
                f"{options.model} model)"):
         result = fit_photo(photo.pixels, env, options=options, background=background, scene=scene,
                            saturated=photo.saturated)
     out = result.to_json()
     out["photo"] = str(args.photo)
+    out["inputs"] = {k: None if v is None else os.path.abspath(v) for k, v in
+                     (("envmap", args.envmap), ("background", args.background), ("scene", args.scene),
+                      ("calibration", args.calibration))}
     if args.explain:
         print("effect               state     [setting] reason")
         for d in result.effects:
             print(d.line())
     print(result.report())
-    if args.output:
-        with stage("writing the maps"):
-            out["outputs"] = _write_outputs(args.output, result, write_image, preview_path)
-    if args.json:
-        write_json(args.json, out)
+    with output_set():  # the maps and the JSON replace the earlier ones together, or none does
+        if args.output:
+            with stage("writing the maps"):
+                out["outputs"] = _write_outputs(args.output, result, write_image, preview_path)
+        if args.json:
+            write_json(args.json, out)
     if args.strict and not result.ok:
         raise ComputationError("the fit is not ok: " + ("; ".join(result.warnings) or result.message))
     return 0
 
 
-def _thickness_png(path: str, tmap: np.ndarray, label: str) -> None:
-    """A PNG of a thickness map (nm) with a colour bar in nm (matplotlib, written atomically)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from ..io.images import atomic_path
-
-    h, w = tmap.shape
-    fig, ax = plt.subplots(figsize=(4.8 * max(w / h, 0.5) + 1.2, 4.8))
-    im = ax.imshow(np.ma.masked_invalid(tmap), cmap="viridis")
-    ax.set_axis_off()
-    fig.colorbar(im, ax=ax, fraction=0.046, label=label)
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
-
-
 def _write_outputs(prefix: str, result, write_image, preview_path) -> dict:
-    """``PREFIX_render``, ``_residual``, ``_thickness``, ``_thickness_stderr`` (EXR + PNG)."""
+    """``PREFIX_render``, ``_residual``, ``_thickness``, ``_thickness_stderr`` (EXR + PNG; the
+    residual's and the maps' PNGs are the figures of :mod:`bubblefit.report.figures`)."""
+    from ..report import figures
+
     files = {"render": result.render, "residual": result.residual}
     if result.thickness_map is not None:
         files["thickness"] = result.thickness_map
@@ -260,10 +309,10 @@ def _write_outputs(prefix: str, result, write_image, preview_path) -> dict:
         if name == "render":
             hi_ = float(np.percentile(img, 99.5)) if img.size else 1.0
             write_image(preview_path(path), img * (0.9 / hi_ if hi_ > 0.9 else 1.0))
-        elif name == "residual":
-            scale = float(np.percentile(np.abs(img), 99)) or 1.0
-            write_image(preview_path(path), 0.5 + 0.5 * img / scale)
-        else:
-            label = "film thickness (nm)" if name == "thickness" else "standard error of the thickness (nm)"
-            _thickness_png(str(preview_path(path)), img, label)
+        elif name == "residual":  # titled, with a colour bar in the photo's linear units
+            figures.residual_figure(preview_path(path), img, result.residual_rms)
+        else:  # titled, with a colour bar in nm
+            title = "film thickness" if name == "thickness" else "standard error of the thickness"
+            figures.map_figure(preview_path(path), img, title, "viridis" if name == "thickness" else "magma",
+                               "thickness (nm)" if name == "thickness" else "standard error (nm)")
     return {k: f"{prefix}_{k}.exr" for k in files}

@@ -14,10 +14,12 @@ import os
 from pathlib import Path
 
 from ..errors import InputError
-from .fit import add_model_options, fit_option_values, load_envmap
+from .fit import add_model_options, build_fit_options, check_photo_size, load_envmap
 
 
 def register(sub):
+    from .common import input_file, output_file, output_folder
+
     p = sub.add_parser(
         "fit-sequence",
         help="fit every frame of a sequence or video (warm starts, Dask, resumable)",
@@ -25,33 +27,42 @@ def register(sub):
                     "video file. Each frame starts from its neighbour's result; finished frames are saved at "
                     "once, so an interrupted run resumes where it stopped.",
     )
-    p.add_argument("frames", nargs="+", metavar="FRAMES", help="image files, a folder of images, or a video file")
-    p.add_argument("--envmap", required=True, help="environment map (equirectangular, linear EXR/HDR)")
-    p.add_argument("--background", metavar="BEFORE", help="photo of the same view without the bubble (linear use)")
+    p.add_argument("frames", nargs="+", metavar="FRAMES", type=input_file, help="image files, a folder of images, or a video file")
+    p.add_argument("--envmap", required=True, type=input_file, help="environment map (equirectangular, linear EXR/HDR)")
+    p.add_argument("--background", metavar="BEFORE", type=input_file, help="photo of the same view without the bubble (linear use)")
     cal = p.add_mutually_exclusive_group()
-    cal.add_argument("--calibration", metavar="CAL.json", help="output of `bubblefit calibrate` (t and the disc)")
+    cal.add_argument("--calibration", metavar="CAL.json", type=input_file, help="output of `bubblefit calibrate` (t and the disc)")
     cal.add_argument("--t", type=float, help="starting transmission fraction t (0 < t < 1)")
-    p.add_argument("--scene", metavar="SCENE.toml", help="scene file: its camera and the values it sets are held")
+    p.add_argument("--scene", metavar="SCENE.toml", type=input_file, help="scene file: its camera and the values it sets are held")
     p.add_argument("--thickness", choices=("constant", "drainage", "map"), default="constant",
                    help="thickness model of each frame (default: constant)")
-    p.add_argument("--model", choices=("paper", "physical", "auto"), default="paper",
-                   help="forward model (default: paper; auto as in `fit`, at up to twice the time per frame)")
+    p.add_argument("--model", choices=("paper", "physical", "auto"), default=None,
+                   help="forward model, as in `fit` (default: the scene's, else auto: the paper model, then the "
+                        "physical one when the paper model does not explain a frame, at up to twice the time)")
     p.add_argument("--disc", metavar="CX,CY,R",
                    help="the bubble's disc in pixels (default: from --calibration, else detected on the first frame)")
     p.add_argument("--thickness-range", metavar="MIN,MAX", default="50,2000",
                    help="thickness range searched, nm (default: 50,2000)")
     p.add_argument("--hold", metavar="NAMES", default="",
                    help="comma-separated parameters held at their starting values (e.g. t,roughness)")
+    p.add_argument("--set", metavar="NAME=VALUE", action="append", default=[],
+                   help="a parameter's starting value (t, f, r_d, r_s, roughness, thickness_nm, exposure, "
+                        "rotation_deg, top_nm, bottom_nm, exponent); repeat for several, --hold NAME to hold it")
     p.add_argument("--max-steps", type=int, default=None, help="solver step limit per frame")
-    p.add_argument("-o", "--output", required=True, metavar="OUT_DIR", help="output folder (created; reused to resume)")
-    p.add_argument("--json", metavar="PATH", help="write a summary of the run as JSON")
+    p.add_argument("-o", "--output", required=True, metavar="OUT_DIR", type=output_folder, help="output folder (created; reused to resume)")
+    p.add_argument("--json", metavar="PATH", type=output_file, help="write a summary of the run as JSON")
     p.add_argument("--fps", type=float, default=None,
                    help="frames per second for the time axis (default: the video's; 1 for image files)")
     p.add_argument("--maps", action="store_true", help="write each frame's thickness map to OUT_DIR/maps/")
     p.add_argument("--workers", type=int, default=None,
                    help="local Dask workers (default: one per core); 0 fits in this process without Dask; "
                         "with --scheduler, use at most this many of the cluster's workers")
-    p.add_argument("--scheduler", metavar="ADDRESS", help="an existing Dask scheduler, e.g. tcp://host:8786")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="an existing Dask scheduler, e.g. tls://host:8786 (with --scheduler-security) or "
+                        "tcp://host:8786 (unencrypted, for a private network only)")
+    p.add_argument("--scheduler-security", metavar="FILE", type=input_file,
+                   help="TOML file naming the TLS files of a tls:// scheduler: tls_ca_file, tls_client_cert "
+                        "and optionally tls_client_key (see docs/safety.md)")
     p.add_argument("--chunk-size", type=int, default=8,
                    help="frames per task, fitted in order with warm starts (default: 8)")
     p.add_argument("--batch", type=int, default=1, metavar="N",
@@ -67,11 +78,17 @@ def register(sub):
     p.set_defaults(func=run)
 
 
-def build_options(args):
-    """:class:`bubblefit.inverse.fit.FitOptions` from the parsed arguments (as ``bubblefit fit`` reads them)."""
-    from ..inverse.fit import FitOptions
+def frame_bits(frames) -> int | None:
+    """Bit depth of the first frame for the noise model, as ``fit`` reads it from its photo:
+    None for linear (float) files, else 8 or 16; video frames are 8-bit unless 16-bit."""
+    from ..io.images import read_image
 
-    return FitOptions(**fit_option_values(args), model=args.model)
+    first = frames[0]
+    if first.video_frame is not None:
+        return 8
+    img = read_image(first.source)
+    check_photo_size(img, first.source)
+    return None if img.linear_file else int(img.bit_depth)
 
 
 def run(args) -> int:
@@ -79,7 +96,7 @@ def run(args) -> int:
     from ..io.images import read_image
     from ..model.scene import load_scene
     from ..progress import stage, status
-    from .common import guard_outputs, scene_inputs, write_json
+    from .common import guard_args, scene_inputs, write_json
 
     if args.chunk_size < 1:
         raise InputError("--chunk-size must be at least 1")
@@ -90,10 +107,10 @@ def run(args) -> int:
     frames = discover_frames(args.frames, fps=args.fps)
     scene = load_scene(args.scene) if args.scene else None
     out = Path(args.output)
-    inputs = [f.source for f in frames] + [args.envmap, args.background, args.calibration, args.scene]
-    guard_outputs(inputs + (scene_inputs(scene) if scene is not None else []),
-                  [args.json, out / "params.csv", out / "params.jsonl", out / "thickness.png", out / "run.json"])
-    options = build_options(args)
+    guard_args(args, inputs=[f.source for f in frames] + (scene_inputs(scene) if scene is not None else []),
+               outputs=[out / "params.csv", out / "params.jsonl", out / "thickness.png", out / "run.json"]
+               if out.is_dir() else [])
+    options = build_fit_options(args, scene, frame_bits(frames))
     with stage("reading the environment map"):
         env = load_envmap(args.envmap)
         background = read_image(args.background).pixels if args.background else None
@@ -101,7 +118,14 @@ def run(args) -> int:
              f"Dask scheduler {args.scheduler}" if args.scheduler else
              f"a local Dask cluster of {args.workers or os.cpu_count()} workers")
     status(f"{len(frames)} frames, fitting on {where} ...")
-    seq = SequenceOptions(scheduler=None if args.workers == 0 else args.scheduler, workers=args.workers,
+    if args.scheduler_security and not args.scheduler:
+        raise InputError("--scheduler-security needs --scheduler tls://HOST:PORT")
+    scheduler = None
+    if args.scheduler and args.workers != 0:
+        from ..inverse._executors import SchedulerAddress
+
+        scheduler = SchedulerAddress(args.scheduler, args.scheduler_security)
+    seq = SequenceOptions(scheduler=scheduler, workers=args.workers,
                           chunk_size=args.chunk_size, force=args.force, retry_failed=args.retry_failed,
                           maps=args.maps, progress=not args.no_progress, warm_start=not args.no_warm_start,
                           batch=args.batch)

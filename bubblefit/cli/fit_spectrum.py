@@ -29,6 +29,8 @@ _CSV_COLUMNS = ("file", "thickness_nm", "thickness_nm_stderr", "ok", "order", "f
 
 
 def register(sub):
+    from .common import input_file, output_file, output_prefix
+
     p = sub.add_parser(
         "fit-spectrum", help="film thickness from spectrometer readings (two-column text files)",
         description="Film thickness from spectrometer readings: two-column text files wavelength_nm,intensity "
@@ -36,9 +38,9 @@ def register(sub):
                     "(or, with --normalised, already divided by it). "
                     "Without --reference the lamp is an unknown smooth spectrum fitted with the film. "
                     "The order is found by a global search; ok is false (with the reason) when it is ambiguous.")
-    p.add_argument("spectra", nargs="+", metavar="SPECTRUM", help="spectrum file(s)")
-    p.add_argument("--dark", help="dark reading (no film, no light), subtracted from every reading first")
-    p.add_argument("--reference", help="reading of the lamp (or of a reflector) alone, same spectrometer")
+    p.add_argument("spectra", nargs="+", metavar="SPECTRUM", type=input_file, help="spectrum file(s)")
+    p.add_argument("--dark", type=input_file, help="dark reading (no film, no light), subtracted from every reading first")
+    p.add_argument("--reference", type=input_file, help="reading of the lamp (or of a reflector) alone, same spectrometer")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--n-film", default=None,
                    help="film index: a number or a preset (soap, water); default soap (1.324188 + 3102.06/lambda^2)")
@@ -79,16 +81,18 @@ def register(sub):
                    help="the series' files are not in time order (default: in order when their names, or else "
                         "their modification times, are; a reading that jumps to its neighbours' twin is then "
                         "not ok)")
-    p.add_argument("--wavelengths", metavar="FILE",
+    p.add_argument("--wavelengths", metavar="FILE", type=input_file,
                    help="a .npy cube's wavelengths, one a line (other cube formats carry their own)")
     p.add_argument("--band-fwhm", type=float, default=0.0, metavar="NM",
                    help="a cube's bands' width (FWHM, nm): fringes finer than a band are washed out (default 0)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="a Dask scheduler (tcp://host:port) whose workers fit a cube's blocks (they must read the "
                         "cube at the same path)")
-    p.add_argument("--csv", help="CSV, one row per file: " + ",".join(_CSV_COLUMNS[:4]) + ",...")
-    p.add_argument("--json", help="JSON with one entry per file")
-    p.add_argument("-o", "--output", metavar="PLOT_PREFIX", help="write PLOT_PREFIX_<file>.png per file")
+    p.add_argument("--csv", type=output_file, help="CSV, one row per file: " + ",".join(_CSV_COLUMNS[:4]) + ",...")
+    p.add_argument("--json", type=output_file, help="JSON with one entry per file")
+    p.add_argument("-o", "--output", metavar="PLOT_PREFIX", type=output_prefix,
+                   help="write PLOT_PREFIX_<file>.png per file (a spectral image: PREFIX_thickness.exr/.png and "
+                        "PREFIX_thickness_stderr.exr/.png, or a line scan's PREFIX_profile.csv/.png)")
     p.add_argument("--strict", action="store_true", help="exit 1 when any file's result is not ok")
     p.set_defaults(func=run)
 
@@ -103,15 +107,16 @@ def _pair(text: str, name: str) -> tuple[float, float]:
 
 
 def _check_outputs(args) -> None:
-    """No output may be one of the inputs or another output (:func:`.common.guard_outputs`)."""
-    from .common import guard_outputs
+    """No output may be one of the inputs or another output, and every output's folder is writable
+    (:func:`.common.guard_args`)."""
+    from .common import guard_args
 
     if args.output and len({Path(s).stem for s in args.spectra}) < len(args.spectra):
         raise InputError("two spectra have the same file name; their plots would collide (run them separately)")
     plots = [f"{args.output}_{Path(s).stem}.png" for s in args.spectra] if args.output else []
     if args.output and _is_series(args, None):
         plots.append(f"{args.output}_series.png")
-    guard_outputs([*args.spectra, args.dark, args.reference], [args.csv, args.json, *plots])
+    guard_args(args, outputs=plots)
 
 
 def run(args) -> int:
@@ -220,7 +225,7 @@ def _run_cube(args, opts) -> int:
     from ..io.spectra import read_spectrum
     from ..optics import dispersion
     from ..progress import status
-    from .common import guard_outputs, write_json
+    from .common import guard_args, write_json
 
     if args.series or args.normalised or args.incoherent:
         raise InputError("--shared-lamp, --normalised and --incoherent are for single readings; a cube's lamp is "
@@ -229,7 +234,7 @@ def _run_cube(args, opts) -> int:
         raise InputError("a spectral image needs -o PREFIX (the maps) or --json")
     cube = read_cube(args.spectra[0], wavelengths=args.wavelengths, unit=args.wavelength_unit)
     outputs = _cube_outputs(args, cube.is_line)
-    guard_outputs([args.spectra[0], args.dark, args.reference, args.wavelengths], [args.json, *outputs])
+    guard_args(args, outputs=outputs)
     if not np.isfinite(args.band_fwhm) or not 0 <= args.band_fwhm <= 50:
         raise InputError(f"--band-fwhm must be within 0..50 nm, got {args.band_fwhm:g}")
     dark = read_spectrum(args.dark, args.wavelength_unit, dark=True) if args.dark else None

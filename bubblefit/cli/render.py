@@ -12,14 +12,16 @@ from ..errors import InputError
 def register(sub):
     p = sub.add_parser("render", help="render a scene file to a linear EXR and an sRGB PNG preview",
                        description="Render a bubble scene (TOML, see docs/design.md) to a linear EXR plus a PNG preview.")
-    p.add_argument("scene", help="scene file (TOML)")
-    p.add_argument("-o", "--output", required=True, help="output image (.exr recommended; a .png preview is written beside it)")
+    from .common import input_file, output_file
+
+    p.add_argument("scene", type=input_file, help="scene file (TOML)")
+    p.add_argument("-o", "--output", required=True, type=output_file, help="output image (.exr recommended; a .png preview is written beside it)")
     p.add_argument("--explain", action="store_true", help="print which effects are simulated or skipped, and why")
     p.add_argument("--tolerance", type=float, default=None, metavar="FRACTION",
                    help="largest change a skipped or cheapened effect may make to a pixel, as a fraction of what the "
                         "pixel shows (plus 0.1 x that fraction of the bubble's bright level); overrides the scene's "
                         "[effects] tolerance (default 0.01)")
-    p.add_argument("--json", metavar="PATH", help="write timing and effect decisions as JSON")
+    p.add_argument("--json", metavar="PATH", type=output_file, help="write timing and effect decisions as JSON")
     p.add_argument("--preview-exposure", type=float, default=None,
                    help="exposure of the PNG preview (default: automatic, the 99.5th percentile maps to 0.9)")
     from .common import add_colour_options
@@ -35,10 +37,11 @@ def auto_exposure(img: np.ndarray) -> float:
 
 
 def run(args) -> int:
+    from ..io.atomic import output_set
     from ..io.images import preview_path, write_image
     from ..model.scene import load_scene, render_scene
     from ..progress import stage
-    from .common import guard_outputs, scene_inputs, write_json
+    from .common import guard_args, scene_inputs, write_json
 
     from ..optics import spectral
     from .common import colour_option
@@ -56,7 +59,7 @@ def run(args) -> int:
     if resp is not None:
         scene.data.setdefault("camera", {})["response"] = resp
     preview = preview_path(args.output)
-    guard_outputs([args.scene, *scene_inputs(scene)], [args.output, preview, args.json])
+    guard_args(args, inputs=scene_inputs(scene), outputs=[preview])
     t0 = time.perf_counter()
     with stage(f"rendering {scene.shape[1]}x{scene.shape[0]}"):
         img, decisions = render_scene(scene, explain=True)
@@ -64,7 +67,7 @@ def run(args) -> int:
     if not np.all(np.isfinite(img)):
         raise InputError("the render produced non-finite values; check the scene's values")
     exposure = args.preview_exposure if args.preview_exposure is not None else auto_exposure(img)
-    with stage("writing"):
+    with stage("writing"), output_set():
         write_image(args.output, img)
         write_image(preview, img * exposure)
     if args.explain:

@@ -26,7 +26,7 @@ import importlib
 # when one of its names is first used (PEP 562), so that a fit does not import the
 # spectrometer or sequence code and their libraries.
 _EXPORTS = {
-    "Disc": "_disc", "find_bubble": "_disc", "detect_disc": "_observation", "noise_sigma": "_observation",
+    "Disc": "_disc", "find_bubble": "_disc", "detect_disc": "_disc", "noise_sigma": "_observation",
     "FitOptions": "_options", "FitResult": "_options", "FitStatus": "_options", "ForwardModel": "_options",
     "ThicknessModel": "_options", "PARAMETERS": "_parameters", "Parameter": "_parameters",
     "ParameterTable": "_parameters", "fit_batch": "fit", "fit_photo": "fit", "SequenceOptions": "sequence",

@@ -27,7 +27,8 @@ from ._plan import FrameRef, load_frame
 from .fit import fit_batch, fit_photo
 from ._records import base_record, one_line, result_record, warm_init
 
-__all__ = ["DEFAULT_FIT", "ChunkTask", "fit_chunk", "LocalExecutor", "DaskExecutor", "local_env"]
+__all__ = ["DEFAULT_FIT", "ChunkTask", "fit_chunk", "LocalExecutor", "DaskExecutor", "local_env",
+           "SchedulerAddress", "read_security"]
 
 DEFAULT_FIT = "bubblefit.inverse.fit:fit_photo"
 
@@ -201,23 +202,95 @@ def local_env() -> dict:
     }
 
 
+class SchedulerAddress(str):
+    """A Dask scheduler's address (``tcp://host:8786`` or ``tls://host:8786``) with the
+    file of TLS credentials to reach it (``security_file``, see :func:`read_security`)."""
+
+    security_file: str | None = None
+
+    def __new__(cls, address: str, security_file: str | None = None):
+        self = super().__new__(cls, address)
+        self.security_file = security_file
+        return self
+
+
+#: Largest security file read (it names three files; a larger one is not one).
+MAX_SECURITY_BYTES = 64 * 1024
+
+
+def read_security(path: str):
+    """``distributed.Security`` from a TOML file naming the TLS files of a cluster:
+    ``tls_ca_file`` (the certificate authority), ``tls_client_cert`` and optionally
+    ``tls_client_key`` (the client's certificate and key), as Dask's own configuration names
+    them; relative paths are taken from the file's folder. Encryption is required."""
+    import tomllib
+
+    from distributed import Security
+
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read(MAX_SECURITY_BYTES + 1)
+        if len(data) > MAX_SECURITY_BYTES:
+            raise InputError(f"security file {path} is larger than {MAX_SECURITY_BYTES} bytes: not a security file")
+        table = tomllib.loads(data.decode("utf-8"))
+    except OSError as exc:
+        raise InputError(f"cannot read security file {path}: {(exc.strerror or str(exc)).lower()}") from None
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise InputError(f"security file {path} is not TOML: {one_line(exc)}") from None
+    names = ("tls_ca_file", "tls_client_cert", "tls_client_key")
+    unknown = sorted(set(table) - set(names))
+    if unknown or not table.get("tls_ca_file") or not table.get("tls_client_cert"):
+        raise InputError(f"security file {path} must set tls_ca_file and tls_client_cert (and may set "
+                         f"tls_client_key){'; unknown: ' + ', '.join(unknown) if unknown else ''}")
+    folder = os.path.dirname(os.path.abspath(path))
+    files = {}
+    for name in names:
+        if name in table:
+            file = os.path.join(folder, os.path.expanduser(str(table[name])))
+            if not os.path.isfile(file):
+                raise InputError(f"security file {path}: {name} {table[name]!r} is not a file")
+            files[name] = file
+    return Security(require_encryption=True, **files)
+
+
+def _local_cluster(n: int):
+    """A local cluster of ``n`` single-threaded worker processes that only this process can
+    use: every connection is TLS with a certificate made for this run
+    (``distributed.Security.temporary``, held in memory), scheduler and workers listen on
+    127.0.0.1 only, and the dashboard is off (Dask's HTTP routes stay on 127.0.0.1)."""
+    from distributed import Client, LocalCluster, Security
+
+    security = Security.temporary()
+    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, protocol="tls://",
+                           host="127.0.0.1", dashboard_address=None, security=security,
+                           env=local_env(), silence_logs=40)
+    try:
+        return Client(cluster, security=security), cluster
+    except BaseException:
+        cluster.close()
+        raise
+
+
 def _start_client(scheduler, workers: int | None):
     """(client, cluster or None, worker addresses to use) for a scheduler spec."""
     try:  # imported here: Dask costs a second of start-up that in-process runs do not need
-        from distributed import Client, LocalCluster
+        from distributed import Client
     except ImportError:  # pragma: no cover - dask is a dependency
         raise InputError("Dask is not installed: pip install 'dask[distributed]' (or use --workers 0)") from None
     cluster = None
     if scheduler is None:
-        n = workers or os.cpu_count() or 1
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
-                               env=local_env(), silence_logs=40)
-        client = Client(cluster)
+        client, cluster = _local_cluster(workers or os.cpu_count() or 1)
     elif isinstance(scheduler, str):
+        file = getattr(scheduler, "security_file", None)
+        if file is not None and not scheduler.startswith("tls://"):
+            raise InputError(f"--scheduler-security needs a tls:// scheduler address, got {scheduler}")
+        security = read_security(file) if file is not None else None
         try:
-            client = Client(scheduler, timeout=30)
-        except (OSError, TimeoutError) as exc:
-            raise InputError(f"cannot reach the Dask scheduler at {scheduler}: {one_line(exc)}") from None
+            client = Client(str(scheduler), timeout=30, security=security)
+        except (OSError, TimeoutError, TypeError) as exc:
+            hint = " (a tls:// scheduler needs --scheduler-security FILE)" if \
+                scheduler.startswith("tls://") and file is None else ""
+            raise InputError(f"cannot reach the Dask scheduler at {scheduler}: {one_line(exc)}{hint}") from None
     else:
         client = scheduler  # an existing distributed.Client
     addrs = sorted(client.scheduler_info(n_workers=-1)["workers"]) if _takes_n_workers(client) else \

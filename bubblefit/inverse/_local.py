@@ -1,70 +1,24 @@
-"""The local solve: Levenberg-Marquardt on the whitened, robust residual.
-
-LM rather than Gauss-Newton because the starting points from the global search are only
-close, and its trust-region damping keeps steps inside one colour fringe of the
-thickness; rather than Dogleg because with few parameters its damped solve is as cheap
-and it needs no separate trust-region geometry. The Jacobian is forward-mode (few
-parameters, many residuals), its columns computed by the part of the render their
-parameters reach (:func:`column_jacobian`) or, in the fit's final solve, one by one with
-the render shared (:func:`columns_linearized`). Compiled solvers are cached per static
-configuration (effects, parameter table, padded size): a level is padded and its disc
-passed as data (:func:`~bubblefit.inverse._observation.padded`), so photos of any framing
-whose levels pad to the same size share the compiled solves and the persistent cache's
-programs.
+"""The local solve: Levenberg-Marquardt (:mod:`._lm`) from a start to the nearest optimum
+of the whitened, robust residual, restarted while it stops far from it (:func:`solve_local`),
+and what its solution says (:class:`LocalSolution`, :func:`remaining_step`). The compiled
+solve is asked of :mod:`._programs`.
 """
 
 from __future__ import annotations
 
-import functools
-import math
-from collections.abc import Callable
-from dataclasses import dataclass, replace
-from typing import Any
+from dataclasses import dataclass
 
-import equinox as eqx
-import jax
 import jax.numpy as jnp
-import lineax as lx
 import numpy as np
-import optimistix as optx
-from jaxtyping import Array, Bool, Float, Int
 
-from ._observation import Level, Pixels, fitted_pixels
-from ._parameters import PARAMETERS, ParameterTable, forward, value_and_slope
-from ..io.executables import stored
-from ..model.geometry import compose_shift
-from ..model.render import RenderConfig, render_pixels
+from ._lm import gauss_newton_decrement, presses_bound
+from ._observation import Level, Pixels
+from ._parameters import ParameterTable, value_and_slope
+from ._options import FitOptions
+from ._programs import SolveSettings, solve_program, stored_solver
 
-__all__ = ["LocalSolution", "DenseDampedNewtonDescent", "LevenbergMarquardt", "column_jacobian", "columns_linearized",
-           "scaled_decrement", "gauss_newton_decrement", "remaining_step", "presses_bound", "robust", "solver",
-           "batched_solver", "reporter", "held_values", "prepare_reporter", "prepare_local", "solve_local", "cost",
-           "solution_from"]
-
-
-#: ``|r| / scale`` beyond which :func:`robust` takes its asymptote: far below the square
-#: root of float32's largest value (1.8e19), where ``(r / scale)^2`` overflows, and far
-#: above where the asymptote differs from the exact value in float32 (``1 / a``).
-ROBUST_ASYMPTOTE = 1e15
-
-
-def robust(r, scale):
-    """Pseudo-Huber residual ``sign(r) sqrt(2 rho(r))``, written to stay smooth at 0.
-
-    Beyond :data:`ROBUST_ASYMPTOTE` it is ``sign(r) sqrt(2 scale |r|)``, the same to
-    float32's precision; the exact form's ``(r / scale)^2`` overflows there and made a
-    render that diverged (residuals of 5e19) read as a residual of 0, a perfect fit. Each
-    form sees only the values it is used for, so that values and gradients stay finite.
-
-    References
-    ----------
-    Hartley & Zisserman, *Multiple View Geometry*, 2nd ed., appendix A6.8 (pseudo-Huber cost).
-    """
-    far = jnp.abs(r) > ROBUST_ASYMPTOTE * scale
-    near_r = jnp.where(far, 0.0, r)
-    far_r = jnp.where(far, r, ROBUST_ASYMPTOTE * scale)
-    x2 = (near_r / scale) ** 2
-    near = near_r * jnp.sqrt(2.0 / (jnp.sqrt(1.0 + x2) + 1.0))
-    return jnp.where(far, jnp.sign(far_r) * jnp.sqrt(2.0 * scale) * jnp.sqrt(jnp.abs(far_r)), near)
+__all__ = ["LocalSolution", "remaining_step", "solve_local", "cost", "solution_from", "improves",
+           "DECREMENT_TOLERANCE", "MAX_RESTARTS"]
 
 
 @dataclass
@@ -110,325 +64,11 @@ def cost(r) -> float:
     return float(np.sum(r * r))
 
 
-#: Consecutive rejected steps after which the solve stops at its last accepted point
-#: (:class:`LevenbergMarquardt`).
-MAX_REJECTIONS = 6
 #: A solve is near its optimum when the Gauss-Newton step left from its end has a squared
 #: length of at most this in the fit's covariance (half a standard error).
 DECREMENT_TOLERANCE = 0.25
 #: Fresh starts of a solve that stopped on rejections before that (:func:`solve_local`).
 MAX_RESTARTS = 3
-#: The solve stops at an accepted point whose Gauss-Newton step left is at most this
-#: squared length in the fit's covariance (:func:`scaled_decrement`; 0.04: a fifth of a
-#: standard error, which widens no error bar by more than 2 %). Below it float32 renders
-#: do not resolve the cost: on experiments/validation's ref_const300 (physical model)
-#: the solve met 0.026 at its 11th step, then spent 21 steps of a Jacobian's cost each
-#: (20 of them rejected, the cost moving by 4e-6 of itself) to stop at 0.108.
-STOP_DECREMENT = 0.04
-
-
-def _quiet(**kwargs):
-    return None
-
-
-class _DenseState(eqx.Module):
-    """The accepted point's Jacobian as ``J = Q R``: ``R`` (n, n) and ``Q^T r`` (n,)."""
-
-    r_factor: Float[Array, "n n"]
-    qt_residual: Float[Array, " n"]
-
-
-class DenseDampedNewtonDescent(optx.AbstractDescent):
-    """The damped Newton (Levenberg-Marquardt) step ``-(J^T J + lambda I)^-1 J^T r`` with
-    ``lambda = 1 / step_size`` (optimistix' ``DampedNewtonDescent``), from a Jacobian
-    materialised and QR-factored once per accepted point.
-
-    optimistix' own descent hands lineax a matrix-free operator, which its QR solve
-    materialises again at every trial step size, one forward-mode tangent per parameter
-    through the whole render: a rejected step cost a Jacobian. Here :meth:`query` (called
-    at accepted points only) forms ``J = Q R`` and every :meth:`step` solves the small
-    ``[R; sqrt(lambda) I] delta = [Q^T r; 0]`` (2n x n), the same least-squares problem as
-    ``[J; sqrt(lambda) I] delta = [r; 0]`` since ``Q``'s columns are orthonormal: the
-    factor-once, damp-many scheme of MINPACK's ``lmpar``/``qrsolv``.
-
-    References
-    ----------
-    J. J. Moré, "The Levenberg-Marquardt algorithm: implementation and theory",
-    *Numerical Analysis*, Lecture Notes in Mathematics 630 (1978), 105-116.
-    """
-
-    def init(self, y, f_info_struct) -> _DenseState:
-        n = jnp.size(y)
-        return _DenseState(jnp.zeros((n, n), jnp.result_type(y)), jnp.zeros((n,), jnp.result_type(y)))
-
-    def query(self, y, f_info, state) -> _DenseState:
-        jac = f_info.jac.as_matrix()
-        q, r_factor = jnp.linalg.qr(jac)
-        return _DenseState(r_factor, q.T @ jnp.ravel(f_info.residual))
-
-    def step(self, step_size, state: _DenseState):
-        n = state.qt_residual.shape[0]
-        dtype = state.qt_residual.dtype
-        # step_size -> 0 is infinite damping, the zero step (optimistix' convention)
-        pred = step_size > jnp.finfo(dtype).eps
-        lam = 1.0 / jnp.where(pred, step_size, 1.0)
-        a = jnp.concatenate([state.r_factor, jnp.sqrt(lam) * jnp.eye(n, dtype=dtype)])
-        b = jnp.concatenate([state.qt_residual, jnp.zeros((n,), dtype)])
-        q2, r2 = jnp.linalg.qr(a)
-        delta = jax.scipy.linalg.solve_triangular(r2, q2.T @ b, lower=False)
-        ok = jnp.all(jnp.isfinite(delta))
-        step = jnp.where(pred & ok, -delta, 0.0)
-        return step, optx.RESULTS.where(ok | ~pred, optx.RESULTS.successful, optx.RESULTS.singular)
-
-
-class _LMState(eqx.Module):
-    """:class:`LevenbergMarquardt`'s state (the fields of optimistix' Gauss-Newton state)."""
-
-    first_step: Bool[Array, ""]
-    y_eval: Array
-    search_state: Any
-    f_info: optx.FunctionInfo.ResidualJac
-    descent_state: _DenseState
-    terminate: Bool[Array, ""]
-    result: optx.RESULTS
-    num_steps: Int[Array, ""]
-    num_accepted_steps: Int[Array, ""]
-    num_steps_since_acceptance: Int[Array, ""]
-
-
-def _cauchy(rtol, atol, norm, y, y_diff, f, f_diff):
-    """optimistix' Cauchy test: small changes in both ``y`` and ``f``, relative to
-    ``atol + rtol |.|``."""
-    small = lambda d, x: norm(jnp.abs(d) / (atol + rtol * jnp.abs(x))) < 1
-    return small(y_diff, y) & small(f_diff, f)
-
-
-class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
-    """Levenberg-Marquardt for a flat parameter vector: optimistix' classical trust region
-    (``optx.ClassicalTrustRegion``) and Cauchy termination, with the damped Newton step of
-    :class:`DenseDampedNewtonDescent` and a dense forward-mode Jacobian (``jax.jacfwd``, or
-    ``jacobian`` when given: the fit's solves pass :func:`column_jacobian`) evaluated at
-    accepted points only.
-
-    optimistix' own ``LevenbergMarquardt`` linearises (``jax.linearize``) at every trial
-    point and materialises the linearisation for its QR solve at every step: on the
-    physical model's 80x80 fit, 0.66 s per rejected and 2.0 s per accepted step, against
-    0.13 s for a render and 1.3 s for ``jax.jacfwd`` (``experiments/bench_fit.py``
-    --profile-solver). Here a trial point costs one render and an accepted one a
-    Jacobian; the iterates are the same.
-
-    Near the optimum a float32 render changes its loss by more than the quadratic model
-    predicts for tiny steps, so every proposal is rejected and the trust region shrinks
-    by 4 per step until the Cauchy test is met: 20-35 steps on the photos of
-    ``experiments/validation``, none of which moves the fit. Two rules stop it earlier,
-    at the last accepted point:
-
-    - its Gauss-Newton step left is under ``decrement_tolerance`` in the fit's own
-      covariance (:func:`scaled_decrement`, default :data:`STOP_DECREMENT`; None: off),
-      a statistical convergence test: the optimum is within a fifth of a standard error,
-      with the parameters' bounds (``free``) as active constraints;
-    - ``max_rejections`` rejections in a row (a region 4096 times smaller after six;
-      None: off). How far that point is from the optimum is then measured from its
-      decrement (:func:`remaining_step`), which decides a restart (:func:`solve_local`)
-      and a note in the fit's message.
-
-    References
-    ----------
-    J. J. Moré, "The Levenberg-Marquardt algorithm: implementation and theory",
-    *Numerical Analysis*, Lecture Notes in Mathematics 630 (1978), 105-116.
-    """
-
-    rtol: float
-    atol: float
-    norm: Callable = optx.max_norm
-    descent: DenseDampedNewtonDescent = DenseDampedNewtonDescent()
-    search: optx.ClassicalTrustRegion = optx.ClassicalTrustRegion()
-    verbose: Callable = _quiet
-    max_rejections: int | None = MAX_REJECTIONS
-    decrement_tolerance: float | None = STOP_DECREMENT
-    #: The free parameters' names (:data:`~bubblefit.inverse._parameters.PARAMETERS`), in
-    #: ``y``'s order: their bounds constrain the decrement (:func:`scaled_decrement`).
-    free: tuple = ()
-    #: ``(y, args) -> J`` of the residual ``fn`` (None: ``jax.jacfwd`` of ``fn``); the
-    #: solves pass :func:`column_jacobian` of their residual.
-    jacobian: Callable | None = None
-
-    def init(self, fn, y, args, options, f_struct, aux_struct, tags) -> _LMState:
-        f_info = optx.FunctionInfo.ResidualJac(
-            jnp.zeros(f_struct.shape, f_struct.dtype),
-            lx.MatrixLinearOperator(jnp.zeros((f_struct.size, jnp.size(y)), f_struct.dtype)))
-        return _LMState(first_step=jnp.array(True), y_eval=y, search_state=self.search.init(y, f_info),
-                        f_info=f_info, descent_state=self.descent.init(y, f_info), terminate=jnp.array(False),
-                        result=optx.RESULTS.successful, num_steps=jnp.array(0), num_accepted_steps=jnp.array(0),
-                        num_steps_since_acceptance=jnp.array(0))
-
-    def step(self, fn, y, args, options, state: _LMState, tags):
-        residual, aux = fn(state.y_eval, args)
-        step_size, accept, search_result, search_state = self.search.step(
-            state.first_step, y, state.y_eval, state.f_info, optx.FunctionInfo.Residual(residual),
-            state.search_state)
-
-        def accepted():
-            if self.jacobian is None:
-                jac = jax.jacfwd(lambda z: fn(z, args)[0])(state.y_eval)
-            else:
-                jac = self.jacobian(state.y_eval, args)
-            f_info = optx.FunctionInfo.ResidualJac(residual, lx.MatrixLinearOperator(jac))
-            dense = self.descent.query(state.y_eval, f_info, state.descent_state)
-            done = _cauchy(self.rtol, self.atol, self.norm, state.y_eval, state.y_eval - y, residual,
-                           residual - state.f_info.residual)
-            return state.y_eval, f_info, dense, done
-
-        def rejected():
-            return y, state.f_info, state.descent_state, jnp.array(False)
-
-        y, f_info, dense, done = jax.lax.cond(accept, accepted, rejected)
-        self.verbose(num_steps=("Step", state.num_steps), accepted=("Accepted", accept),
-                     loss=("Loss on this step", 0.5 * jnp.sum(residual**2)), step_size=("Step size", step_size))
-        y_descent, descent_result = self.descent.step(step_size, dense)
-        result = optx.RESULTS.where(search_result == optx.RESULTS.successful, descent_result, search_result)
-        new = _LMState(first_step=jnp.array(False), y_eval=y + y_descent, search_state=search_state, f_info=f_info,
-                       descent_state=dense, terminate=done, result=result, num_steps=state.num_steps + 1,
-                       num_accepted_steps=state.num_accepted_steps + jnp.where(accept, 1, 0),
-                       num_steps_since_acceptance=jnp.where(accept, 0, state.num_steps_since_acceptance + 1))
-        return y, new, aux
-
-    def terminate(self, fn, y, args, options, state: _LMState, tags):
-        done = state.terminate
-        if self.max_rejections is not None:
-            done = done | (state.num_steps_since_acceptance >= self.max_rejections)
-        if self.decrement_tolerance is not None:
-            done = done | ((state.num_accepted_steps > 0)
-                           & (scaled_decrement(state.descent_state, state.f_info.residual, y, self.free)
-                              <= self.decrement_tolerance))
-        return done, state.result
-
-    def postprocess(self, fn, y, aux, args, options, state, tags, result):
-        return y, aux, {}
-
-
-def column_jacobian(resid: Callable, groups: tuple, z, args) -> Float[Array, "m n"]:
-    """The Jacobian of ``resid(z, args)`` (M,) in ``z`` (N,), forward mode, one group of
-    columns at a time: ``groups`` are tuples of indices into ``z`` (each index once,
-    :attr:`~bubblefit.inverse._parameters.ParameterTable.jacobian_groups`), the parameters
-    outside a group held as constants while its columns are computed.
-
-    ``jax.jacfwd`` pushes all N tangents through every operation that any parameter
-    reaches: the thickness's tangent through the map's filtered lookups, the roughness's
-    through the film's spectra, and the terms' linear weights (``t``, the split, the
-    exposure) through both. Here ``resid`` sees ``z`` as a tuple of scalars, so that a
-    group's tangents are symbolic zeros wherever its parameters do not reach and each group
-    costs only the part of the render downstream of it (XLA merges the groups' copies of the
-    primal). On the 64x64 sequence frames of ``experiments/bench_sequence.py`` (paper
-    model; the weights, the roughness and the thickness free) the Jacobian took 22-27 ms
-    against 53-65 ms on one core, equal within 6e-5 of 48; the two solves of a fit take
-    about 1.4 s longer to compile than with ``jax.jacfwd`` (3.6 s with a column for each
-    of the five parameters, for the same speed).
-    """
-    zs = tuple(z[i] for i in range(z.shape[0]))
-    columns = {}
-    for group in groups:
-        jac = jax.jacfwd(_along(resid, zs, group, args))(jnp.stack([zs[i] for i in group]))
-        for k, i in enumerate(group):
-            columns[i] = jac[:, k]
-    return jnp.stack([columns[i] for i in range(len(zs))], axis=-1)
-
-
-def columns_linearized(resid: Callable, z, args) -> Float[Array, "m n"]:
-    """The Jacobian of ``resid(z, args)`` (M,) in ``z`` (N,) one column at a time, each
-    the tangent of a :func:`jax.linearize` along its parameter alone (``resid`` sees ``z``
-    as a tuple of scalars, as in :func:`column_jacobian`, so that a column's tangent reaches
-    only the part of the render downstream of its parameter). The linearisations' primal
-    parts are one computation, which XLA merges: the render runs once, and a parameter
-    whose tangent crosses the map's filtered lookups (the roughness, the disc) costs about
-    one render more, the others less.
-
-    The fit's final solve uses it (:func:`solve_local` with ``jacobian="columns"``): on
-    the 80x80 level of a 320x320 photo (8 parameters) the Jacobian took 80 ms against
-    119 ms by groups and the solve 0.36 s against 0.50 s, the same thickness to the last
-    bit (39 ms against 66 ms since the filtered lookups work per vector component, 5.5 s
-    against 4.2 s to compile alone); its longer compile runs in the background during the
-    global search (an empty cache's first fit 22.4 and 20.8 s against 22.4 and 19.9 s by
-    groups). The search's
-    own solve and a warm-started fit's, compiled on the critical path, keep the groups
-    (``experiments/bench_fit.py --compile-profile``; ``bubblefit.inverse.fit.FINAL_JACOBIAN``).
-    """
-    zs = tuple(z[i] for i in range(z.shape[0]))
-    columns = []
-    for i in range(len(zs)):
-        _, tangent = jax.linearize(_along(resid, zs, (i,), args), zs[i][None])
-        columns.append(tangent(jnp.ones((1,), zs[i].dtype)))
-    return jnp.stack(columns, axis=-1)
-
-
-def _along(resid: Callable, zs: tuple, group: tuple, args) -> Callable:
-    """``resid`` as a function of the parameters ``group`` (indices into ``zs``, their
-    values stacked in that order), the others held at ``zs``: the function whose forward
-    derivative is the group's columns (:func:`column_jacobian`, :func:`columns_linearized`)."""
-    def along(sub):
-        full = list(zs)
-        for k, i in enumerate(group):
-            full[i] = sub[k]
-        return resid(tuple(full), args)
-
-    return along
-
-
-#: How a solve computes its Jacobian: by groups of parameters (:func:`column_jacobian`,
-#: shorter to compile) or by columns (:func:`columns_linearized`, faster to run).
-JACOBIANS = {"groups": lambda resid, table: functools.partial(column_jacobian, resid, table.jacobian_groups),
-             "columns": lambda resid, table: functools.partial(columns_linearized, resid)}
-
-
-def scaled_decrement(dense: _DenseState, residual, z=None, free: tuple = ()) -> Float[Array, ""]:
-    """The Gauss-Newton decrement ``r^T J (J^T J)^-1 J^T r = |Q^T r|^2`` of an accepted
-    point (:class:`DenseDampedNewtonDescent`'s factors) over ``max(1, chi2_nu)``, the
-    reduced chi^2 counted over the residual's non-zero entries (pixels outside the fit
-    have weight 0): the squared length of the step left, in the fit's own covariance.
-
-    With the point ``z`` and the names ``free`` of its parameters, the bounds are active
-    constraints as in :func:`remaining_step`: a parameter within one standard error of a
-    finite bound whose step points at it is left out, and the decrement is the projection
-    of ``Q^T r`` on the columns of ``R`` left (a roughness at the mirror, its step
-    pointing below zero, no longer keeps the solve from stopping). From the QR factors, in
-    the solve's own precision.
-    """
-    r = jnp.ravel(residual)
-    n = dense.qt_residual.shape[0]
-    dof = jnp.maximum(jnp.sum(r != 0) - n, 1)
-    scale = jnp.maximum(jnp.sum(r * r) / dof, 1.0)
-    if not free:
-        return jnp.sum(dense.qt_residual**2) / scale
-    rinv = jax.scipy.linalg.solve_triangular(dense.r_factor, jnp.eye(n, dtype=r.dtype), lower=False)
-    step = -rinv @ dense.qt_residual
-    se_z = jnp.sqrt(jnp.sum(rinv**2, axis=1) * scale)  # sqrt(diag((J^T J)^-1) max(1, chi2_nu))
-    keep = []
-    for i, name in enumerate(free):
-        v, slope = jax.jvp(functools.partial(forward, name), (z[i],), (jnp.ones_like(z[i]),))
-        keep.append(~jnp.asarray(presses_bound(name, v, slope, step[i], se_z[i], jnp.sign)))
-    keep = jnp.stack(keep)
-    order = jnp.argsort(~keep, stable=True)  # the columns kept first, the dropped ones zero after them
-    q2, _ = jnp.linalg.qr(jnp.where(keep, dense.r_factor, 0.0)[:, order])
-    proj = q2.T @ dense.qt_residual
-    return jnp.sum(jnp.where(jnp.arange(n) < jnp.sum(keep), proj**2, 0.0)) / scale
-
-
-def gauss_newton_decrement(r, jac) -> float:
-    """``r^T J (J^T J)^-1 J^T r``: how much an undamped Gauss-Newton step from here would
-    lower the sum of squares ``r^T r`` (the whitened chi^2), by the local quadratic model.
-    Zero at an optimum; in units of chi^2, so ``decrement / max(1, chi2_nu)`` is the
-    squared Mahalanobis length of the remaining step in the fit's own covariance."""
-    r = np.asarray(r, np.float64)
-    jac = np.asarray(jac, np.float64)
-    if jac.size == 0:
-        return 0.0
-    g = jac.T @ r
-    try:
-        return float(g @ np.linalg.solve(jac.T @ jac, g))
-    except np.linalg.LinAlgError:
-        return float("nan")
-
-
 def remaining_step(sol: LocalSolution, chi2_nu: float, free: tuple) -> float:
     """The squared length, in the fit's covariance, of the Gauss-Newton step left from
     ``sol`` (:func:`gauss_newton_decrement` over
@@ -451,83 +91,6 @@ def remaining_step(sol: LocalSolution, chi2_nu: float, free: tuple) -> float:
     return gauss_newton_decrement(r, jac[:, keep]) / max(1.0, chi2_nu)
 
 
-def presses_bound(name: str, v, slope, step, se, sign=np.sign):
-    """Whether parameter ``name`` at value ``v`` (``slope = d v / d z``) is an active
-    constraint of the Gauss-Newton ``step`` (in ``z``): within ``se`` (one standard error
-    in ``z``) of a finite bound its step points at. The rule of :func:`remaining_step`
-    (numpy, float64) and of :func:`scaled_decrement` (jnp, in the solve; ``sign`` is
-    ``jnp.sign`` there)."""
-    out = False
-    for b in PARAMETERS[name].bounds:
-        if math.isfinite(b):
-            out = out | ((sign(slope * step) == sign(b - v)) & (abs(v - b) <= abs(slope) * se))
-    return out
-
-
-@functools.lru_cache(maxsize=64)
-def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_steps: int, rtol: float, atol: float,
-           max_rejections: int | None = MAX_REJECTIONS, jacobian: str = "groups", compile_options: tuple = ()):
-    """Jitted ``solve(z0, args) -> (z, ok, maxed, steps, residual, J)`` and ``resid``
-    (``jacobian``: a key of :data:`JACOBIANS`; ``compile_options``: XLA's compiler options
-    for the solve's program as ``(name, value)`` pairs, ``()`` for XLA's defaults).
-
-    ``args = (fixed, env, background, photo, weights, base, (rows, cols, idx))``: the
-    fitted pixels of a padded level (:func:`~bubblefit.inverse._observation.fitted_pixels`);
-    the residual is ``robust((render - photo) * weights)`` over them, flattened, rendered
-    with the disc moved by ``base`` and then by the fitted refinement
-    (:func:`~bubblefit.model.geometry.compose_shift`).
-    """
-
-    def resid(z, args):
-        fixed, env, bg, y, w, base, (rows, cols, idx) = args
-        p = table.render_params(table.values(z, fixed))
-        img = render_pixels(replace(p, disc=compose_shift(base, p.disc)), cfg, env, bg, rows, cols, idx)
-        return robust((img - y) * w, robust_scale).reshape(-1)
-
-    lm = LevenbergMarquardt(rtol=rtol, atol=atol, max_rejections=max_rejections, free=table.free,
-                            jacobian=JACOBIANS[jacobian](resid, table))
-
-    @functools.partial(jax.jit, compiler_options=dict(compile_options) or None)
-    def solve(z0, args):
-        sol = optx.least_squares(resid, lm, z0, args, max_steps=max_steps, throw=False)
-        # The last accepted point's residual and Jacobian, which the solver evaluated there
-        # (every solve takes at least one step, and the first is accepted): tracing them
-        # again would double the program's renders and its compile time.
-        f_info = sol.state.f_info
-        z, r, jac = sol.value, f_info.residual, f_info.jac.as_matrix()
-        maxed = (sol.result == optx.RESULTS.max_steps_reached) | (
-            sol.result == optx.RESULTS.nonlinear_max_steps_reached)
-        return (z, sol.result == optx.RESULTS.successful, maxed, sol.stats["num_steps"], r, jac)
-
-    return solve, jax.jit(resid)
-
-
-@functools.lru_cache(maxsize=64)
-def stored_solver(*key):
-    """:func:`solver`'s ``solve`` through the executable store (:func:`bubblefit.io.executables.stored`):
-    a new process loads the compiled solve instead of tracing it again."""
-    return stored(solver(*key)[0], "inverse._local.solver", key)
-
-
-@functools.lru_cache(maxsize=16)
-def batched_solver(*key):
-    """:func:`solver`'s ``solve`` vmapped over frames: ``z0``, ``y`` and ``w`` carry a
-    leading frame axis; the fixed values, the map, the background and the disc are shared."""
-    solve, _ = solver(*key)
-    return jax.jit(jax.vmap(solve, in_axes=(0, (None, None, None, 0, 0, None, None))))
-
-
-@functools.lru_cache(maxsize=64)
-def reporter(table: ParameterTable):
-    """Jitted ``(z, fixed) -> reported values`` and its Jacobian (for the delta method),
-    through the executable store (:func:`prepare_reporter` starts their compile)."""
-    def rep(z, fixed):
-        return table.reported(table.values(z, fixed))
-
-    return (stored(jax.jit(rep), "inverse._local.reporter", table),
-            stored(jax.jit(jax.jacfwd(rep)), "inverse._local.reporter_jacobian", table))
-
-
 def solution_from(table: ParameterTable, vals: dict, z, ok, maxed, steps, r, jac, fixed,
                   lev: Level | None = None, pixels: Pixels | None = None) -> LocalSolution:
     """A :class:`LocalSolution` from a solver's raw outputs (numpy, float64); with ``lev``
@@ -542,43 +105,6 @@ def solution_from(table: ParameterTable, vals: dict, z, ok, maxed, steps, r, jac
                          np.asarray(jac, np.float64), fixed)
 
 
-def _program(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps, stall: bool, jacobian: str,
-             compile_options: tuple = ()):
-    """``(key, args, pixels)``: the key of :func:`solve_local`'s solve for ``lev``
-    (:func:`solver`'s arguments) and the arguments it takes besides the start (the held
-    ``vals`` and the level's fitted pixels)."""
-    px = fitted_pixels(lev, lev.cfg.chunk)
-    pad = px.padded
-    key = (pad.cfg, table, float(opts.robust_scale), int(max_steps or opts.max_steps), float(opts.rtol),
-           float(opts.atol), MAX_REJECTIONS if stall else None, jacobian, tuple(compile_options))
-    args = (held_values(table, vals), env, pad.bg, px.y, px.w, pad.base, (px.rows, px.cols, px.idx))
-    return key, args, px
-
-
-def held_values(table: ParameterTable, vals: dict) -> dict:
-    """The values of ``vals`` that ``table`` holds, as the solve's programs (batched too) and
-    :func:`reporter`'s take them (float32)."""
-    return {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k not in table.free}
-
-
-def prepare_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps=None,
-                  stall: bool = True, jacobian: str = "groups", compile_options: tuple = ()) -> None:
-    """Start compiling (or loading) the program of :func:`solve_local` with these arguments
-    in the background (:meth:`bubblefit.io.executables.Stored.prepare`): a fit calls it for
-    its final solve before the global search, whose own programs compile meanwhile. Only
-    the shapes of ``vals`` and the level count; without the executable store (library
-    calls) the program is compiled in the background all the same, not saved."""
-    key, args, _ = _program(lev, table, opts, vals, env, max_steps, stall, jacobian, compile_options)
-    stored_solver(*key).prepare(table.unconstrained(vals), args)
-
-
-def prepare_reporter(table: ParameterTable, vals: dict) -> None:
-    """Start compiling (or loading) :func:`reporter`'s programs in the background, for a
-    solution of ``table`` held at ``vals`` (the standard errors, :mod:`._uncertainty`)."""
-    for program in reporter(table):
-        program.prepare(table.unconstrained(vals), held_values(table, vals))
-
-
 def improves(restart: LocalSolution, sol: LocalSolution) -> bool:
     """Whether a fresh start from ``sol``'s end (:func:`solve_local`) is kept: it met its
     tolerances or ran out of steps (a search's solve, limited to a few steps, often does
@@ -591,14 +117,15 @@ def improves(restart: LocalSolution, sol: LocalSolution) -> bool:
     return ended and bool(np.isfinite(restart.cost)) and restart.cost <= sol.cost
 
 
-def solve_local(lev: Level, table: ParameterTable, opts, vals: dict, env, max_steps=None,
-                stall: bool = True, jacobian: str = "groups", compile_options: tuple = ()) -> LocalSolution:
-    """Levenberg-Marquardt from ``vals`` on ``lev`` (``opts``: a ``FitOptions``); with
-    ``stall`` it stops after :data:`MAX_REJECTIONS` rejections and restarts while far from
-    the optimum, without it runs optimistix' own stopping rule alone (warm starts).
-    ``jacobian`` (a key of :data:`JACOBIANS`) says how its Jacobian is computed,
-    ``compile_options`` how XLA compiles its program (:func:`solver`)."""
-    key, args, px = _program(lev, table, opts, vals, env, max_steps, stall, jacobian, compile_options)
+def solve_local(lev: Level, table: ParameterTable, opts: FitOptions, vals: dict, env, max_steps: int | None = None,
+                settings: SolveSettings = SolveSettings()) -> LocalSolution:
+    """Levenberg-Marquardt from ``vals`` on ``lev``. With ``settings.stall`` it stops after
+    :data:`~bubblefit.inverse._lm.MAX_REJECTIONS` rejections and restarts while far from
+    the optimum, without it runs optimistix' own stopping rule alone (warm starts);
+    ``settings`` also says how its Jacobian is computed and how XLA compiles its program
+    (:class:`~bubblefit.inverse._programs.SolveSettings`)."""
+    stall = settings.stall
+    key, args, px = solve_program(lev, table, opts, vals, env, max_steps, settings)
     solve, fixed = stored_solver(*key), args[0]
     sol = solution_from(table, vals, *solve(table.unconstrained(vals), args), fixed, lev, px)
     # A solve stopped by rejections early on (a trust region still far too large) starts

@@ -51,6 +51,7 @@ from scipy import ndimage as ndi
 
 from . import search
 from ._observation import Level, padded
+from ._options import FitOptions
 from ._parameters import ParameterTable
 from ..model.geometry import OrthographicCamera
 from ..model.thickness import drainage_profile
@@ -223,7 +224,7 @@ def _pyramid(lev: Level) -> list[int]:
     return [2**j for j in range(n, -1, -1)]
 
 
-def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts, env, make_level=None):
+def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts: FitOptions, env, make_level=None):
     """Per-pixel thickness (h, w), its standard error (h, w), and whether the map is sound.
 
     ``lev`` is the full-resolution level, ``prof`` the fitted drainage profile the map

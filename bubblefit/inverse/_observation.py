@@ -4,7 +4,7 @@ The photo's noise (:func:`noise_sigma`), its clipped pixels (:func:`saturation_m
 the frame the fit analyses (:func:`analysis_frame`: a large photo cropped to the bubble
 and block-averaged, so memory is bounded by the fit's size), and the photo
 block-averaged to the resolution a stage of the fit runs at, with its weights and the
-film's geometry (:class:`Level`). The bubble's disc is found in :mod:`._disc`.
+film's geometry (:class:`Level`). The bubble's disc is chosen in :mod:`._disc`.
 
 Compiled programs see a level padded (:func:`padded`): its rows and columns rounded up to
 a few sizes, its camera replaced by the padded size's canonical one and the disc passed
@@ -17,20 +17,18 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-import cv2
 import jax.numpy as jnp
 import numpy as np
 from scipy import ndimage as ndi
 
-from ..capture.calibrate import detect_bubble, usable_mask
+from ._options import FitOptions
 from ..errors import InputError
 from ..io.images import srgb_encode, srgb_slope
-from ..model.geometry import OrthographicCamera, canonical_frame, compose_shift, front_hits
-from ..model.render import RenderConfig, prepare_loaded, render_loaded
+from ..model.geometry import OrthographicCamera, canonical_frame, front_hits
+from ..model.render import RenderConfig
 
-__all__ = ["Level", "Frame", "noise_sigma", "saturation_mask", "detect_disc", "make_level", "film_geometry",
-           "block_mean", "analysis_frame", "Padded", "padded", "unpadded", "render_level", "prepare_render_level",
-           "render_bubble", "prepare_render_bubble",
+__all__ = ["Level", "Frame", "noise_sigma", "saturation_mask", "make_level", "film_geometry",
+           "block_mean", "analysis_frame", "Padded", "padded", "unpadded",
            "padded_size", "Pixels", "fitted_pixels"]
 
 
@@ -63,40 +61,6 @@ def saturation_mask(photo: np.ndarray, level: float, given: np.ndarray | None) -
             raise InputError(f"the saturation mask is {np.shape(given)}, the photo is {W}x{H}")
         sat = sat | np.asarray(given, bool)
     return ndi.binary_dilation(sat) if sat.any() else sat
-
-
-def detect_disc(photo: np.ndarray, background: np.ndarray | None = None) -> tuple[float, float, float]:
-    """Find the bubble's disc ``(cx, cy, r)`` in pixels.
-
-    With a background photo: :func:`bubblefit.capture.calibrate.detect_bubble` on the pair (the
-    bubble is where the two differ). Without: the strongest circle of the photo's edges
-    (OpenCV's Hough gradient on the sRGB-encoded grey image), which finds the rim that a
-    bubble's Fresnel brightening outlines.
-
-    References
-    ----------
-    Yuen et al., "Comparative study of Hough transform methods for circle finding",
-    Image and Vision Computing 8(1), 1990 (the gradient method OpenCV implements).
-    """
-    gray = np.mean(np.clip(photo, 0, None), axis=-1)
-    if background is not None:
-        bgray = np.mean(np.clip(background, 0, None), axis=-1)
-        sat = (np.max(photo, axis=-1) >= 0.999) | (np.max(background, axis=-1) >= 0.999)
-        try:
-            usable, _ = usable_mask(bgray, gray, sat)
-            return detect_bubble(bgray, gray, usable)
-        except InputError:
-            pass  # a dark background: fall back to the edges of the photo alone
-    h, w = gray.shape
-    enc = np.clip(gray / max(np.percentile(gray, 99.5), 1e-6), 0, 1) ** (1 / 2.2)
-    img = cv2.GaussianBlur((enc * 255).astype(np.uint8), (5, 5), 1.2)
-    circles = cv2.HoughCircles(img, cv2.HOUGH_GRADIENT, dp=1, minDist=max(h, w),
-                               param1=60, param2=20, minRadius=max(4, min(h, w) // 10),
-                               maxRadius=min(h, w) // 2 + 2)
-    if circles is None:
-        raise InputError("no bubble found in the photo; give its disc (--disc CX,CY,R) or a background photo")
-    cx, cy, r = (float(v) for v in circles[0, 0])
-    return cx, cy, r
 
 
 @dataclass
@@ -155,7 +119,7 @@ class Frame:
         return (self.x0 + cx * self.k, self.y0 + cy * self.k, r * self.k)
 
 
-def analysis_frame(photo, background, saturated, disc, opts) -> Frame:
+def analysis_frame(photo, background, saturated, disc, opts: FitOptions) -> Frame:
     """The :class:`Frame` a fit analyses (``opts``: a ``FitOptions``).
 
     A photo whose larger side is at most ``opts.analysis_size`` (or without a disc, i.e.
@@ -272,79 +236,6 @@ def unpadded(lev: Level, a) -> np.ndarray:
     (numpy, ``(h, w, ...)``): the padding at the bottom and right dropped."""
     h, w = lev.y.shape[:2]
     return np.asarray(a)[:h, :w]
-
-
-def render_level(p, lev: Level, env, cfg: RenderConfig | None = None, terms: bool = False):
-    """:func:`~bubblefit.model.render.render_loaded` of ``lev`` (with ``cfg``, another
-    configuration of the same camera) through its padded program: ``p``'s disc refinement
-    is composed with the level's disc; the image (and with ``terms`` the dict of terms) on
-    ``lev``'s pixels."""
-    pad, p = _padded_params(p, lev, cfg)
-    out = render_loaded(p, pad.cfg, env, pad.bg, terms=terms)
-    if terms:
-        return unpadded(lev, out[0]), {k: unpadded(lev, v) for k, v in out[1].items()}
-    return unpadded(lev, out)
-
-
-def prepare_render_level(p, lev: Level, env, cfg: RenderConfig | None = None, terms: bool = False) -> None:
-    """Start compiling (or loading) :func:`render_level`'s program for these arguments in
-    the background (:func:`~bubblefit.model.render.prepare_loaded`); only their shapes count."""
-    pad, p = _padded_params(p, lev, cfg)
-    prepare_loaded(p, pad.cfg, env, pad.bg, terms=terms)
-
-
-#: Pixels beyond the disc's rim that :func:`render_bubble` still renders: the sub-pixel
-#: rays of ``samples_per_pixel`` reach half a pixel's diagonal, and float32 rounding.
-RIM_MARGIN_PX = 1.5
-
-
-def _bubble_list(p, lev: Level) -> tuple[Padded, Pixels | None, object]:
-    """``(padded level, list, p)`` for :func:`render_bubble`: the pixels whose centre lies
-    within :data:`RIM_MARGIN_PX` of the disc that ``p``'s refinement moves the level's disc
-    to (``None`` where the shortcut does not apply: not an orthographic camera, or a
-    background other than the photo's), and ``p`` with that refinement composed."""
-    pad, q = _padded_params(p, lev, None)
-    if not (isinstance(pad.cfg.camera, OrthographicCamera) and pad.bg is not None
-            and lev.cfg.effects.background == "photo"):
-        return pad, None, q
-    cx0, cy0, r0 = pad.cfg.camera.disc()
-    a, b, s = (float(v) for v in np.asarray(q.disc))
-    h, w = lev.y.shape[:2]
-    rows, cols = np.mgrid[:h, :w]
-    near = np.hypot(cols + 0.5 - (cx0 + a * r0), rows + 0.5 - (cy0 + b * r0)) <= r0 * (1.0 + s) + RIM_MARGIN_PX
-    return pad, fitted_pixels(lev, lev.cfg.chunk, near), q
-
-
-def render_bubble(p, lev: Level, env) -> np.ndarray:
-    """:func:`render_level`'s image of ``lev`` (numpy, float32), with only the pixels the
-    bubble can reach rendered (:func:`_bubble_list`): outside them the image is the
-    background photo, which is what the render's composite puts where a ray misses the
-    bubble. On a disc that fills 55 % of the photo, 0.20 s against 0.28 s for 320x320
-    pixels; the same values wherever the shortcut does not apply."""
-    pad, px, q = _bubble_list(p, lev)
-    if px is None:
-        return render_level(p, lev, env)
-    vals = np.asarray(render_loaded(q, pad.cfg, env, pad.bg, pixels=(px.rows, px.cols, px.idx)))
-    img = np.array(lev.bg, np.float32).reshape(-1, 3)
-    img[px.flat] = vals[: px.flat.size]
-    return img.reshape(lev.bg.shape)
-
-
-def prepare_render_bubble(p, lev: Level, env) -> None:
-    """Start compiling (or loading) :func:`render_bubble`'s program in the background: for
-    the list of ``p``'s disc (a refined disc whose list pads to another length compiles
-    its own)."""
-    pad, px, q = _bubble_list(p, lev)
-    if px is None:
-        prepare_render_level(p, lev, env)
-    else:
-        prepare_loaded(q, pad.cfg, env, pad.bg, pixels=(px.rows, px.cols, px.idx))
-
-
-def _padded_params(p, lev: Level, cfg: RenderConfig | None):
-    """``lev`` (with ``cfg``) padded, and ``p`` with its disc refinement composed with the level's."""
-    pad = padded(replace(lev, cfg=cfg) if cfg is not None else lev)
-    return pad, replace(p, disc=compose_shift(pad.base, np.asarray(p.disc, np.float32)))
 
 
 @dataclass

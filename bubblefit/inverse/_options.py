@@ -13,17 +13,17 @@ from typing import Literal
 import numpy as np
 
 from ..errors import InputError
+from ..model.modes import MODEL_CHOICES, THICKNESS_KINDS, Model, ModelChoice, ThicknessKind, in_words
+from ._parameters import ParameterSetting
 
 __all__ = ["ThicknessModel", "ForwardModel", "ModelChoice", "FitStatus", "FitOptions", "FitResult", "ColourSettings"]
 
-#: How the film's thickness varies over the bubble (the thickness *model*; its values are
-#: ``thickness_nm``, ``top_nm``/``bottom_nm``/``exponent`` or a per-pixel map in nm).
-ThicknessModel = Literal["constant", "drainage", "map"]
-#: The forward model fitted (``docs/design.md``, "Two model variants").
-ForwardModel = Literal["paper", "physical"]
-#: The forward model a fit is asked for: one of them, or ``auto`` (the paper model, then
-#: the physical one when the paper model does not explain the photo; :func:`~bubblefit.inverse.fit.fit_photo`).
-ModelChoice = Literal["paper", "physical", "auto"]
+#: How the film's thickness varies over the bubble: :data:`bubblefit.model.modes.ThicknessKind`
+#: under the name the fit's API has used (its values are ``thickness_nm``,
+#: ``top_nm``/``bottom_nm``/``exponent`` or a per-pixel map in nm).
+ThicknessModel = ThicknessKind
+#: The forward model fitted: :data:`bubblefit.model.modes.Model` (``docs/design.md``, "Two model variants").
+ForwardModel = Model
 #: ``converged``: the local solver met its tolerances with finite errors;
 #: ``max_steps``: it stopped at its step limit; ``failed``: it diverged, or the Jacobian
 #: is singular at the optimum.
@@ -36,7 +36,7 @@ class FitOptions:
 
     Attributes
     ----------
-    thickness : ThicknessModel
+    thickness : ThicknessKind
         The thickness model: ``constant`` | ``drainage`` | ``map``.
     model : ModelChoice
         ``paper`` | ``physical`` forward model, or ``auto``: the paper model first and,
@@ -58,7 +58,8 @@ class FitOptions:
         then the start); False, or ``hold=("disc",)``: never.
     t_init, roughness_init : float or None
         Starting ``t`` (e.g. from ``bubblefit calibrate``) and roughness (the roughness
-        also decides whether filtering is simulated).
+        also decides whether filtering is simulated); the same as a ``parameters`` entry
+        (``t_init`` also overrides a scene file's ``t``).
     thickness_range : tuple
         (min, max) nm searched (and used to decide the effects).
     max_steps, rtol, atol
@@ -88,6 +89,10 @@ class FitOptions:
         Width of the prior tying a thickness map to the fitted profile.
     hold : tuple
         Names of parameters to hold at their starting values.
+    parameters : tuple
+        :class:`~bubblefit.inverse._parameters.ParameterSetting` s: a starting value and
+        whether it is held, per parameter (``--set NAME=VALUE``); applied after a warm
+        start and ``t_init``/``roughness_init``, except to a value the scene file sets.
     effects : tuple
         Extra ``[effects]`` settings as ``((key, value), ...)``.
     calibration_disc : tuple or None
@@ -138,7 +143,7 @@ class FitOptions:
         None: the scene's ``[camera] samples_per_pixel``, else 1.
     """
 
-    thickness: ThicknessModel = "constant"
+    thickness: ThicknessKind = "constant"
     model: ModelChoice = "paper"
     fit_rotation: bool = False
     free_split: bool = False
@@ -178,6 +183,7 @@ class FitOptions:
     white_balance: str | tuple | None = None
     n_film: object = None
     samples_per_pixel: int | None = None
+    parameters: tuple = ()
 
     def __post_init__(self):
         from ..model._scene_checks import samples_per_pixel, white_balance
@@ -189,10 +195,14 @@ class FitOptions:
             object.__setattr__(self, "white_balance", white_balance(self.white_balance, "white_balance"))
         if self.samples_per_pixel is not None:
             samples_per_pixel(self.samples_per_pixel, "samples_per_pixel")
-        if self.thickness not in ("constant", "drainage", "map"):
-            raise InputError(f"thickness must be constant, drainage or map, got {self.thickness!r}")
-        if self.model not in ("paper", "physical", "auto"):
-            raise InputError(f"model must be paper, physical or auto, got {self.model!r}")
+        for setting in self.parameters:
+            if not isinstance(setting, ParameterSetting):
+                raise InputError(f"parameters must be ParameterSetting records, got {setting!r}")
+            setting.check()
+        if self.thickness not in THICKNESS_KINDS:
+            raise InputError(f"thickness must be {in_words(THICKNESS_KINDS)}, got {self.thickness!r}")
+        if self.model not in MODEL_CHOICES:
+            raise InputError(f"model must be {in_words(MODEL_CHOICES)}, got {self.model!r}")
         lo, hi = self.thickness_range
         if not (math.isfinite(lo) and math.isfinite(hi)):
             raise InputError(f"thickness range must be finite (nm), got {lo}..{hi}")
@@ -247,6 +257,10 @@ class FitResult:
         Standard errors of the same keys (None for held ones).
     held : list
         ``[(name, reason)]`` of parameters not fitted.
+    roles : tuple
+        The fit's parameter table (:class:`~bubblefit.inverse._parameters.ParameterRole`):
+        for each reported parameter, whether it was fitted, derived (from what), held
+        (why), given or unused by the model (JSON key ``parameters``; :meth:`report`).
     converged : bool
         True only when the solver met its tolerances and the errors are finite.
     message : str
@@ -269,7 +283,7 @@ class FitResult:
         found (``FitOptions.fit_disc``).
     disc_stderr : dict or None
         Standard errors ``{cx, cy, r}`` in pixels of a refined disc (None: not fitted).
-    thickness_model : ThicknessModel
+    thickness_model : ThicknessKind
         The thickness model fitted.
     status : FitStatus
         How the local solver ended.
@@ -318,8 +332,8 @@ class FitResult:
     thickness_stderr_map: np.ndarray | None = None
     disc: tuple | None = None
     disc_stderr: dict | None = None
-    thickness_model: ThicknessModel = "constant"
-    model: ForwardModel = "paper"
+    thickness_model: ThicknessKind = "constant"
+    model: Model = "paper"
     reduced_chi2: float = float("nan")
     pixels_used: int = 0
     status: FitStatus = "converged"
@@ -334,6 +348,7 @@ class FitResult:
     model_error: float = float("nan")
     thickness_model_error_nm: float = 0.0
     disc_model_error: float = float("nan")
+    roles: tuple = ()
     stderr_scale: float = 1.0
     frame: tuple | None = None
     colour: ColourSettings | None = None
@@ -350,6 +365,7 @@ class FitResult:
             "params": _clean(self.params),
             "stderr": _clean(self.stderr),
             "held": [{"name": n, "reason": r} for n, r in self.held],
+            "parameters": [{"name": r.name, "role": r.role, "reason": r.reason} for r in self.roles],
             "converged": bool(self.converged),
             "ok": bool(self.ok),
             "warnings": list(self.warnings),
@@ -370,7 +386,7 @@ class FitResult:
             "time_s": float(self.time_s),
             "thickness": self.thickness_model,
             "model": self.model,
-            "solver": "bubblefit.inverse._local.LevenbergMarquardt (optimistix trust region)",
+            "solver": "bubblefit.inverse._lm.LevenbergMarquardt (optimistix trust region)",
             "disc": None if self.disc is None else {"cx": self.disc[0], "cy": self.disc[1], "r": self.disc[2]},
             "disc_stderr": None if self.disc_stderr is None else _clean(self.disc_stderr),
             "covariance": cov,
@@ -382,17 +398,25 @@ class FitResult:
         }
 
     def report(self) -> str:
-        """A readable summary: each parameter with its standard error (or why it was held),
-        the solver's status, reduced chi^2 and the disc."""
+        """A readable summary: each parameter with its standard error and its row of the
+        parameter table (:attr:`roles`: derived from what, held or unused and why), the
+        solver's status, reduced chi^2 and the disc."""
+        roles = {r.name: r for r in self.roles}
         held = dict(self.held)
         lines = []
         for k, v in self.params.items():
             err = self.stderr.get(k)
-            if err is not None and math.isfinite(err):
+            known = err is not None and math.isfinite(err)
+            row = roles.get(k)
+            if row is not None and row.role == "derived":
+                txt = (f"+- {err:.3g} " if known else "") + f"(derived: {row.reason})"
+            elif row is not None and row.role in ("held", "unused"):
+                txt = f"({'held' if row.role == 'held' else 'not used'}: {row.reason})"
+            elif known:
                 txt = f"+- {err:.3g}"
             elif k == "n_film":
                 txt = "(given)"
-            elif err is None:  # held, or set by held parameters (f, r_d, r_s by a held split)
+            elif err is None:  # a result without its table: held, or set by held parameters
                 why = held.get(k) or (held.get("split") if k in ("f", "r_d", "r_s") else None)
                 txt = f"(held: {why})" if why else "(held)"
             else:

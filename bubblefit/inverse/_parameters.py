@@ -32,10 +32,12 @@ from typing import Literal
 import jax
 import jax.numpy as jnp
 
+from ..errors import InputError
+from ..model.modes import ThicknessKind
 from ..model.render import NO_PROFILE, Params
 
-__all__ = ["Parameter", "PARAMETERS", "ParameterTable", "THICK_UNIT", "THICKNESSES", "DISC_PARAMETERS", "forward", "inverse",
-           "value_and_slope", "refined_disc", "extrapolated"]
+__all__ = ["Parameter", "PARAMETERS", "ParameterTable", "ParameterRole", "parameter_roles", "ParameterSetting",
+           "parse_setting", "ALIASES", "STARTS", "THICK_UNIT", "THICKNESSES", "DISC_PARAMETERS", "forward", "inverse", "value_and_slope", "refined_disc", "extrapolated"]
 
 #: nm per unit of the unconstrained thickness coordinate.
 THICK_UNIT = 100.0
@@ -183,7 +185,7 @@ class ParameterTable:
 
     free: tuple
     held: tuple = field(default=(), compare=False)  # reasons do not change what is compiled
-    thickness_model: str = "constant"
+    thickness_model: ThicknessKind = "constant"
     free_split: bool = False
 
     @property
@@ -206,7 +208,7 @@ class ParameterTable:
             vals[name] = forward(name, z[i])
         return vals
 
-    def render_params(self, vals: dict, thickness_model: str | None = None) -> Params:
+    def render_params(self, vals: dict, thickness_model: ThicknessKind | None = None) -> Params:
         """The renderer's :class:`Params` for ``vals`` (``thickness_model`` default: the table's;
         ``map`` reads ``vals["map"]``)."""
         model = thickness_model or self.thickness_model
@@ -260,3 +262,142 @@ def refined_disc(disc: tuple, reported: dict, stderr: dict, model_error: float =
     px = lambda e: None if e is None else round(math.hypot(float(e), model_error) * r, 3)
     new = (round(cx + sx * r, 3), round(cy + sy * r, 3), round(r * (1.0 + sr), 3))
     return new, {"cx": px(ex), "cy": px(ey), "r": px(er)}
+
+
+#: What a fit did with a reported parameter (:class:`ParameterRole`).
+Role = Literal["fitted", "derived", "held", "given", "unused"]
+
+
+@dataclass(frozen=True)
+class ParameterRole:
+    """One row of a fit's parameter table: a reported parameter and what the fit did with it.
+
+    Attributes
+    ----------
+    name : str
+        The reported name (a key of the JSON's ``params``).
+    role : Role
+        ``fitted`` (free in the solve), ``derived`` (computed from fitted ones), ``held`` (at
+        its starting value), ``given`` (an input, never fitted: ``n_film``) or ``unused``
+        (reported, but the model does not render with it).
+    reason : str
+        From what a derived value comes, why a parameter was held or is unused.
+    """
+
+    name: str
+    role: Role
+    reason: str = ""
+
+
+#: eq. (14)'s split of ``1 - t`` in words, for the derived reflectances.
+_SPLIT_RULE = "t and the split of eq. (14): r_s = split (1 - t), r_d = (1 - split)(1 - t)"
+
+
+def _split_role(name: str, free: set, held: dict) -> ParameterRole:
+    """``r_d``, ``r_s`` or ``f`` of a fit whose split of ``1 - t`` is eq. (14)'s."""
+    split_free = "split" in free
+    why_split = f"; the split held: {held['split']}" if "split" in held and not split_free else ""
+    if name == "f":  # r_d / r_s = (1 - split) / split: the split alone
+        if split_free:
+            return ParameterRole(name, "derived", "r_d / r_s = (1 - split) / split, from the fitted split (eq. 14)")
+        return ParameterRole(name, "held", held.get("split", "the split held at its starting value"))
+    if split_free or "t" in free:
+        return ParameterRole(name, "derived", f"from {_SPLIT_RULE}{why_split}")
+    return ParameterRole(name, "held", f"t and the split held ({held.get('split') or held.get('t', 'start')})")
+
+
+def parameter_roles(table: ParameterTable, model: str, names) -> tuple[ParameterRole, ...]:
+    """The fit's parameter table: for each reported name (in ``names``' order) whether it
+    was fitted, derived (and from what), held (and why), given or unused by ``model``'s
+    render (the physical model's ``t`` and ``r_s``, which Fresnel's equations replace).
+    It agrees with the numbers: exactly the fitted and the derived parameters have
+    standard errors (:mod:`._uncertainty`)."""
+    free, held = set(table.free), dict(table.held)
+    rows = []
+    for name in names:
+        if name == "n_film":
+            rows.append(ParameterRole(name, "given", "the film's index at 589.3 nm: the options', the scene's or "
+                                                     "1.4; never fitted"))
+        elif name in free:
+            rows.append(ParameterRole(name, "fitted"))
+        elif name == "thickness_nm" and table.thickness_model != "constant":  # a thickness map's
+            rows.append(ParameterRole(name, "derived", "the median of the fitted thickness map over the film"))
+        elif model == "physical" and name in ("t", "r_s"):
+            rows.append(ParameterRole(name, "unused", "the physical model reflects and transmits by Fresnel's "
+                                                      "equations from n_film; the value shown is the start"))
+        elif model == "physical" and name == "f":
+            rows.append(ParameterRole(name, "unused", "r_d / r_s, and the physical model does not use r_s"))
+        elif name in ("r_d", "r_s", "f") and not table.free_split:
+            rows.append(_split_role(name, free, held))
+        elif name == "f":  # r_d and r_s on their own
+            moving = [n for n in ("r_d", "r_s") if n in free]
+            rows.append(ParameterRole(name, "derived", f"r_d / r_s, from the fitted {' and '.join(moving)}")
+                        if moving else ParameterRole(name, "held", "r_d and r_s held"))
+        else:
+            rows.append(ParameterRole(name, "held", held.get(name, "held at its starting value")))
+    return tuple(rows)
+
+
+#: Other names ``--hold``, ``--set`` and a warm start accept for the parameters' own
+#: (``f``, the ratio ``r_d / r_s``, is held as eq. (14)'s ``split``).
+ALIASES = {"f": "split", "thickness": "thickness_nm", "top": "top_nm", "bottom": "bottom_nm",
+           "rotation": "rotation_deg"}
+#: The starting values a fit takes (:func:`bubblefit.inverse._setup.defaults`): the
+#: parameters of :data:`PARAMETERS` but eq. (14)'s split and the disc's refinement, and
+#: ``f = r_d / r_s``, from which the split starts.
+STARTS = ("t", "f", "r_d", "r_s", "roughness", "exposure", "rotation_deg", "thickness_nm", "top_nm", "bottom_nm",
+          "exponent")
+
+
+@dataclass(frozen=True)
+class ParameterSetting:
+    """What a user says about one parameter before a fit (``FitOptions.parameters``,
+    ``--set NAME=VALUE``, ``--hold NAME``), in the manner of lmfit's ``Parameter``: its
+    starting value (None: the fit's default) and whether it is held at it.
+
+    Attributes
+    ----------
+    name : str
+        One of :data:`STARTS` (or an alias of :data:`ALIASES`).
+    value : float or None
+        The starting value, in the parameter's unit (:data:`PARAMETERS`).
+    hold : bool
+        Held at its starting value instead of fitted.
+    """
+
+    name: str
+    value: float | None = None
+    hold: bool = False
+
+    @property
+    def start(self) -> str:
+        """The name of the starting value it sets (``thickness`` is ``thickness_nm``; ``f`` stays ``f``)."""
+        return self.name if self.name == "f" else ALIASES.get(self.name, self.name)
+
+    def check(self, where: str = "parameters") -> None:
+        """Raise :class:`~bubblefit.errors.InputError` (one line) for an unknown name or a
+        value outside the parameter's bounds."""
+        if self.start not in STARTS:
+            raise InputError(f"{where}: unknown parameter {self.name!r} (known: {', '.join(STARTS)})")
+        if self.value is None:
+            return
+        v = float(self.value)
+        lo, hi = (0.0, math.inf) if self.start == "f" else PARAMETERS[self.start].bounds
+        strict = self.start == "f" or PARAMETERS[self.start].transform in ("logistic", "log")
+        inside = (lo < v < hi) if strict else (lo <= v <= hi)
+        if not (math.isfinite(v) and inside):
+            raise InputError(f"{where}: {self.name} = {self.value} lies outside its range ({lo:g}, {hi:g})")
+
+
+def parse_setting(text: str, where: str = "--set") -> ParameterSetting:
+    """``NAME=VALUE`` (``--set``) as a checked :class:`ParameterSetting`; one-line
+    :class:`~bubblefit.errors.InputError` otherwise."""
+    name, sep, value = (part.strip() for part in str(text).partition("="))
+    try:
+        setting = ParameterSetting(name, float(value))
+    except ValueError:
+        raise InputError(f"{where} takes NAME=VALUE with a number, got {text!r}") from None
+    if not sep or not name:
+        raise InputError(f"{where} takes NAME=VALUE, got {text!r}")
+    setting.check(where)
+    return setting

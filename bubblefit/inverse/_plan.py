@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.images import read_image, srgb_decode
-from .fit import detect_disc
+from ._disc import resolve_disc
 
 __all__ = ["FrameRef", "discover_frames", "load_frame", "as_frames", "plan_chunks", "fingerprint", "fix_disc",
            "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS"]
@@ -239,8 +239,11 @@ def fix_disc(options, frames: list[FrameRef], background, scene):
 
     Without a disc, :func:`bubblefit.inverse.fit.fit_photo` detects one per photo; a disc that
     moves by a fraction of a pixel changes the static camera and recompiles the fit for
-    every frame. A filmed bubble stays put, so the disc is detected once, on the first
-    readable frame, and held (give ``FitOptions.disc`` for a bubble that moves).
+    every frame. A filmed bubble stays put, so the disc is resolved once, on the first
+    readable frame, as a fit of that frame resolves it (a calibration's disc checked
+    against it, else the one found: :func:`~bubblefit.inverse._disc.resolve_disc`), held as
+    every frame's start and refined in each fit as ``fit`` refines it; one frame is then
+    fitted as ``bubblefit fit`` fits it (give ``FitOptions.disc`` for a bubble that moves).
     """
     if not hasattr(options, "disc") or options.disc is not None:
         return options
@@ -252,12 +255,14 @@ def fix_disc(options, frames: list[FrameRef], background, scene):
             photo = load_frame(ref)
         except InputError:
             continue
-        try:
-            disc = detect_disc(photo, background)
+        try:  # the disc a fit of this frame would start from (a calibration's, checked, or the one found)
+            disc, _ = resolve_disc(photo, background, options)
         except InputError as exc:
             raise InputError(f"cannot find the bubble in frame {ref.index} ({ref.label}): {exc}; give its disc") \
                 from None
-        return replace(options, disc=tuple(round(float(v), 2) for v in disc))
+        # held as every frame's start and refined in each, as a fit refines a disc it was not given
+        return replace(options, disc=tuple(round(float(v), 2) for v in disc),
+                       fit_disc=True if options.fit_disc is None else options.fit_disc)
     raise InputError("none of the first frames can be read")
 
 

@@ -11,7 +11,7 @@ import numpy as np
 from ._disc import resolve_disc
 from ._observation import Frame, Level, analysis_frame, make_level, saturation_mask
 from ._options import ColourSettings, FitOptions
-from ._parameters import DISC_PARAMETERS, PARAMETERS, ParameterTable, THICKNESS_PARAMETERS
+from ._parameters import ALIASES, DISC_PARAMETERS, PARAMETERS, ParameterTable, THICKNESS_PARAMETERS
 from ..errors import InputError
 from ..lighting.envmap import EnvMap
 from ..model.effects import check_harmonic, resolve
@@ -20,11 +20,6 @@ from ..model.render import RenderConfig
 from ..optics.dispersion import REFERENCE_WAVELENGTH_NM, Cauchy, refractive_index
 
 __all__ = ["Setup", "setup", "defaults", "colour_settings"]
-
-#: Names ``--hold`` and ``init`` accept besides the parameters' own.
-_ALIASES = {"f": "split", "thickness": "thickness_nm", "top": "top_nm", "bottom": "bottom_nm",
-            "rotation": "rotation_deg"}
-
 
 # ---------------------------------------------------------------------------------------
 # Starting values, effects and the parameter table
@@ -37,7 +32,7 @@ def _scene_values(scene, vals: dict, held: dict) -> None:
     for name in ("t", "roughness", "f", "r_d", "r_s"):
         if name in b:
             vals[name] = float(b[name])
-            held[_ALIASES.get(name, name)] = "set by the scene file"
+            held[ALIASES.get(name, name)] = "set by the scene file"
     if "n_film" in b:  # a number, a Cauchy law or a preset: its index at 589.3 nm
         vals["n_film"] = float(scene.params().n_film)
     model, values = scene.thickness_spec()
@@ -54,7 +49,7 @@ def _scene_values(scene, vals: dict, held: dict) -> None:
         held["rotation_deg"] = "set by the scene file"
 
 
-def defaults(scene, init, opts, t_from_calibration):
+def defaults(scene, init, opts: FitOptions, t_from_calibration):
     """Starting values (keyed by :data:`PARAMETERS` names) and the parameters held by the
     scene or the options, with the reasons."""
     vals = {"t": 0.972, "f": 0.3, "r_d": None, "r_s": None, "roughness": 0.01, "thickness_nm": 500.0,
@@ -64,7 +59,7 @@ def defaults(scene, init, opts, t_from_calibration):
     if scene is not None:
         _scene_values(scene, vals, held)
     for k, v in (init or {}).items():
-        k = k if k == "f" else _ALIASES.get(k, k)
+        k = k if k == "f" else ALIASES.get(k, k)
         if v is not None and k in vals:
             vals[k] = float(v)
     if opts.n_film is not None:  # the command line's index wins over the scene's and a warm start's
@@ -73,14 +68,17 @@ def defaults(scene, init, opts, t_from_calibration):
         vals["t"] = float(t_from_calibration)
     if opts.roughness_init is not None and "roughness" not in held:
         vals["roughness"] = float(opts.roughness_init)
+    for setting in opts.parameters:  # the user's own starting values; a scene file's value stays
+        if setting.value is not None and ALIASES.get(setting.name, setting.name) not in held:
+            vals[setting.start] = float(setting.value)
     if not 0 < vals["t"] < 1:
         raise InputError(f"starting t must lie in (0, 1), got {vals['t']}")
     if vals["r_d"] is None or vals["r_s"] is None:
         vals["r_s"] = (1 - vals["t"]) / (1 + vals["f"])
         vals["r_d"] = (1 - vals["t"]) - vals["r_s"]
     vals["split"] = vals["r_s"] / max(vals["r_s"] + vals["r_d"], 1e-12)
-    for name in opts.hold:
-        name = _ALIASES.get(name, name)
+    for name in (*opts.hold, *(s.name for s in opts.parameters if s.hold)):
+        name = ALIASES.get(name, name)
         if name == "disc":
             held.update({n: "held by request" for n in DISC_PARAMETERS})
             continue
@@ -91,7 +89,7 @@ def defaults(scene, init, opts, t_from_calibration):
     return vals, held
 
 
-def _decide(opts, vals, env, bg, settings, camera, lights):
+def _decide(opts: FitOptions, vals, env, bg, settings, camera, lights):
     """The effects the fit simulates (:func:`bubblefit.model.effects.resolve`)."""
     envpx = np.asarray(env.pixels)
     bg_kind = "photo" if bg is not None else "envmap"
@@ -107,7 +105,7 @@ def _decide(opts, vals, env, bg, settings, camera, lights):
     )
 
 
-def _held_by_effects(opts, fx, hold: dict) -> tuple:
+def _held_by_effects(opts: FitOptions, fx, hold: dict) -> tuple:
     """Add to ``hold`` the parameters the decided effects make invisible; return the split's names."""
     skipped_diffuse = "diffuse term skipped: r_d cannot change the image"
     if fx.model == "physical":
@@ -139,7 +137,7 @@ def _held_by_effects(opts, fx, hold: dict) -> tuple:
     return split_names
 
 
-def _table(opts, fx, held: dict, fit_disc: bool) -> ParameterTable:
+def _table(opts: FitOptions, fx, held: dict, fit_disc: bool) -> ParameterTable:
     """The fit's :class:`ParameterTable`: free parameters in order, and those held with
     reasons (the disc's refinement is free only with ``fit_disc``, and not reported held)."""
     hold = dict(held)
@@ -215,7 +213,7 @@ def _check_inputs(photo, env, background):
     return photo, background
 
 
-def _settings(scene, opts) -> dict:
+def _settings(scene, opts: FitOptions) -> dict:
     """The ``[effects]`` settings: the scene's, the options', and the fit's defaults."""
     settings = dict(scene.table("effects")) if scene is not None else {}
     settings.update(dict(opts.effects))
@@ -279,7 +277,7 @@ def _perspective(scene, photo):
     return camera, tuple(float(x) for x in b.get("center", (0, 0, 0))), float(b.get("radius", 1.0))
 
 
-def _disc(scene, opts, photo, background) -> tuple[tuple, list, bool]:
+def _disc(scene, opts: FitOptions, photo, background) -> tuple[tuple, list, bool]:
     """The orthographic camera's disc (given, the scene's, a calibration's or found), the
     warnings, and whether the fit refines it (``FitOptions.fit_disc``; by default when
     it was not given)."""

@@ -54,9 +54,10 @@ from dataclasses import dataclass
 import jax.numpy as jnp
 import numpy as np
 
-from ._local import LocalSolution, reporter
+from ._local import LocalSolution
 from ._observation import Level
 from ._parameters import PARAMETERS, ParameterTable
+from ._programs import reporter
 
 __all__ = ["Uncertainty", "uncertainty", "Misfit", "misfit", "OUTLIER_CHI2"]
 

@@ -7,7 +7,8 @@ about +y, from a linear (H, W, 3) photo and its environment map. It runs the sta
 :mod:`bubblefit.inverse`, each in its own module:
 
 1. Observation (:mod:`._observation`): the photo's noise, clipped pixels, the bubble's
-   disc, and the photo at the fit's and the search's resolutions.
+   disc (chosen in :mod:`._disc`, found by :mod:`bubblefit.capture.disc`), and the photo
+   at the fit's and the search's resolutions.
 2. Parameters (:mod:`._parameters`): effects are decided once
    (:func:`bubblefit.model.effects.resolve`) from the starting values and the whole
    thickness search range; a parameter whose effect is skipped (``r_d`` without the
@@ -15,8 +16,9 @@ about +y, from a linear (H, W, 3) photo and its environment map. It runs the sta
    and ``r_s`` in the ``physical`` model, where Fresnel sets them) is held, with the
    reason, never fitted into noise.
 3. Global thickness search (:mod:`.search`) on a downsampled image; the lowest minima are
-   refined.
-4. Local Levenberg-Marquardt (:mod:`._local`) on the whitened, robust residual
+   refined. Before it, :func:`~._programs.warm_up` starts the compiles of the programs
+   the fit runs after it (:mod:`._programs` builds, stores and loads every program).
+4. Local Levenberg-Marquardt (:mod:`._local`, :mod:`._lm`) on the whitened, robust residual
    ``(render - photo) / sigma`` inside the disc (``rho < rim``), not saturated, with
    ``sigma^2 = read^2 + shot * I + q^2``, through a pseudo-Huber loss of scale
    ``robust_scale`` sigmas.
@@ -43,21 +45,22 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import jax.numpy as jnp
 import numpy as np
 
 from . import search
-from ._local import (DECREMENT_TOLERANCE, LocalSolution, batched_solver, held_values, prepare_local,
-                     prepare_reporter, remaining_step, reporter, solution_from, solve_local)
+from ._local import DECREMENT_TOLERANCE, LocalSolution, remaining_step, solution_from, solve_local
 from ._maps import fit_map
-from ._observation import (detect_disc, fitted_pixels, noise_sigma, prepare_render_bubble, render_bubble,
-                           render_level)
+from ._observation import fitted_pixels, noise_sigma
+from ..capture.circle import detect_disc
+from ._programs import (FINAL_SOLVE, SEARCH_SOLVE, WARM_SOLVE, SolveSettings, batched_solver, final_params,
+                        held_values, render_bubble, render_level, reporter, warm_up)
 from ._options import FitOptions, FitResult
-from ._parameters import THICKNESSES, extrapolated, refined_disc
+from ._parameters import THICKNESSES, extrapolated, parameter_roles, refined_disc
 from ._setup import Setup, defaults, setup
-from ._uncertainty import uncertainty
+from ._uncertainty import Uncertainty, uncertainty
 from ._verdict import at_bounds, unresolved, verdict
 from ..lighting.envmap import EnvMap
 from ..model.thickness import drainage_profile
@@ -68,32 +71,6 @@ __all__ = ["FitOptions", "FitResult", "fit_photo", "fit_batch", "detect_disc", "
 #: A warm-started fit whose noise-weighted reduced chi^2 exceeds this is checked against a
 #: global thickness search (see :func:`fit_photo`).
 WARM_START_CHI2 = 4.0
-#: The final solve's Jacobian after a global search (a key of
-#: :data:`~bubblefit.inverse._local.JACOBIANS`): by columns, faster per step on the fit
-#: level; its program compiles in the background during the search, whose own solve
-#: keeps the groups (shorter to compile, on the first fit's critical path). A warm-started
-#: fit keeps the groups too: its solve compiles on the critical path, and on a sequence's
-#: 64x64 frames pinned to one core the columns made 5.24 and 4.36 frames/s against 5.66
-#: and 4.93 by groups (alternate runs).
-FINAL_JACOBIAN = "columns"
-#: XLA's compiler options (``(name, value)`` pairs) for the solves of a fit that searches
-#: globally: the search's and the final one (a warm-started fit, a sequence's frame, keeps
-#: XLA's defaults: there the run counts more than the compile). On an empty cache these
-#: compiles are most of the first fit, so both solves are compiled at XLA's backend
-#: optimisation level 1 (its default is 2) and with XLA:CPU's older per-element emitters
-#: for fused loops instead of its MLIR fusion emitters (``xla_cpu_use_fusion_emitters``,
-#: an option of the pinned jaxlib; a jaxlib without it refuses the compile). Compiled
-#: alone, the emitters took the final solve's compile CPU from 7.6-7.9 s to 5.6-5.7 s for
-#: a run from the set-up's values of 0.55-0.59 s against 0.49 s, and the search solve's
-#: from 4.9-5.0 s to 3.2-3.3 s for the same run (level 1 alone had taken the final
-#: solve's from 9.6-10.5 s to 7.8-7.9 s). In alternate processes
-#: (``experiments/bench_fit.py --stages --empty-cache``, three rounds) the first fit took
-#: 13.7-13.9 s with level 1 alone, 11.9-12.2 s with the older emitters for the search's
-#: solve (and :data:`~bubblefit.model.render.TERMS_COMPILE`), and 10.5-11.0 s with them
-#: for both solves (18.4-19.2 s of CPU against 24.8-25.3 s); the warm fit 0.86-0.87 s,
-#: 0.87-0.96 s and 0.89-0.91 s.
-FINAL_COMPILE = (("xla_backend_optimization_level", 1), ("xla_cpu_use_fusion_emitters", False))
-SEARCH_COMPILE = FINAL_COMPILE
 
 
 # ---------------------------------------------------------------------------------------
@@ -126,8 +103,7 @@ def _searched_start(st: Setup, opts: FitOptions, env) -> dict:
                                   opts.search_step_nm, opts.candidates)
     best_v, best_c = None, np.inf
     for s in starts:
-        sol = solve_local(lev_s, st.search_table, opts, s, env, max_steps=opts.search_steps,
-                          compile_options=SEARCH_COMPILE)
+        sol = solve_local(lev_s, st.search_table, opts, s, env, max_steps=opts.search_steps, settings=SEARCH_SOLVE)
         if np.isfinite(sol.cost) and sol.cost < best_c:
             best_v, best_c = sol.values, sol.cost
     return best_v if best_v is not None else starts[0]
@@ -158,16 +134,42 @@ def _status_notes(sol: LocalSolution, finite: bool, chi2_nu: float, notes: list,
     return status, converged
 
 
-def _final_params(table, vals: dict, opts: FitOptions):
-    """The render parameters of the final full-resolution image (:func:`_finish`)."""
-    return table.render_params({k: jnp.asarray(v, jnp.float32) for k, v in vals.items()},
-                               "map" if opts.thickness == "map" else None)
+@dataclass(frozen=True)
+class Judgement:
+    """What a solve's standard errors say (:func:`_judge`), before the map and the render.
+
+    Attributes
+    ----------
+    uncertainty : Uncertainty
+        Covariance, standard errors and misfit of the solve.
+    reported, stderr : dict
+        The reported values and their standard errors (the disc's refinement taken out).
+    disc, disc_stderr : tuple, dict or None
+        The disc in pixels, refined, and its standard errors (None when not refined).
+    status : str
+        ``converged``, ``max_steps`` or ``failed`` (:func:`_status_notes`).
+    converged : bool
+        The solver met its tolerances with finite errors.
+    bounds : list
+        Warnings for free parameters at a bound of their range.
+    """
+
+    uncertainty: Uncertainty
+    reported: dict
+    stderr: dict
+    disc: tuple | None
+    disc_stderr: dict | None
+    status: str
+    converged: bool
+    bounds: list
 
 
-def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t_start: float) -> FitResult:
-    """Standard errors, the thickness map, the full-resolution render and the result of a solve."""
-    table, lev_fit = st.table, st.lev_fit
-    unc = uncertainty(sol, table, lev_fit, float(opts.robust_scale), float(opts.model_error),
+def _judge(st: Setup, opts: FitOptions, sol: LocalSolution, notes: list) -> Judgement:
+    """Standard errors (:func:`~bubblefit.inverse._uncertainty.uncertainty`), the refined disc,
+    the solver's status and the parameters at a bound or out of the searched range; the
+    cautions are appended to ``notes``."""
+    table = st.table
+    unc = uncertainty(sol, table, st.lev_fit, float(opts.robust_scale), float(opts.model_error),
                       float(opts.thickness_model_error_nm))
     reported, stderr = unc.reported, unc.stderr
     disc, disc_stderr = refined_disc(st.disc, reported, stderr, float(opts.disc_model_error))
@@ -178,6 +180,16 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
             notes.append(f"{key} = {reported[key]:.0f} nm lies outside the searched range {lo:.0f}-{hi:.0f} nm")
     bounds = at_bounds(sol.values, table, opts.thickness_range, 0.5 * opts.search_step_nm)
     notes += unresolved(reported, stderr, table)
+    return Judgement(unc, reported, stderr, disc, disc_stderr, status, converged, bounds)
+
+
+def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgement, notes: list,
+            t_start: float) -> FitResult:
+    """The thickness map (``--thickness map``), the full-resolution render, the verdict and
+    the :class:`FitResult` of a judged solve."""
+    table, unc = st.table, judged.uncertainty
+    reported, stderr = dict(judged.reported), dict(judged.stderr)
+    status, converged = judged.status, judged.converged
     new = sol.values
     final_vals, thickness_map, stderr_map = dict(new), None, None
     prof = None if opts.thickness == "constant" else (new["top_nm"], new["bottom_nm"], new["exponent"])
@@ -196,27 +208,33 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
     elif opts.thickness == "drainage":
         thickness_map = np.where(full.inside, np.asarray(drainage_profile(jnp.asarray(full.height), *prof)), np.nan)
     draw = render_level if opts.thickness == "map" else render_bubble
-    img = np.asarray(draw(_final_params(table, final_vals, opts), full, env), np.float64)
+    img = np.asarray(draw(final_params(table, final_vals, opts), full, env), np.float64)
     resid_img = st.photo - img
     rms = float(np.sqrt(np.mean(resid_img[full.mask] ** 2))) if full.mask.any() else float("nan")
     reported["n_film"] = float(st.vals["n_film"])
-    ok, warnings = verdict(converged=bool(converged), disc_found=True, bound_warnings=bounds,
+    ok, warnings = verdict(converged=bool(converged), disc_found=True, bound_warnings=judged.bounds,
                            misfit=unc.misfit, ok_chi2=float(opts.ok_chi2), model_error=float(opts.model_error),
                            notes=st.warnings)
+    disc_stderr = judged.disc_stderr
     return FitResult(
         params=reported, stderr=stderr, held=list(table.held), converged=bool(converged),
         message="; ".join(notes) if notes else "converged", iterations=sol.steps, residual_rms=rms,
         time_s=time.perf_counter() - t_start, effects=st.decisions, render=img, residual=resid_img,
-        thickness_map=thickness_map, thickness_stderr_map=stderr_map, disc=disc, disc_stderr=disc_stderr,
+        thickness_map=thickness_map, thickness_stderr_map=stderr_map, disc=judged.disc, disc_stderr=disc_stderr,
         thickness_model=opts.thickness, model=opts.model, reduced_chi2=unc.misfit.chi2_nu,
-        pixels_used=int(lev_fit.mask.sum()), status=status, names=unc.names, covariance=unc.covariance,
+        pixels_used=int(st.lev_fit.mask.sum()), status=status, names=unc.names, covariance=unc.covariance,
         ok=ok, warnings=warnings, chi2_floor=unc.misfit.chi2_floor, chi2_inliers=unc.misfit.chi2_inliers,
         outliers=unc.misfit.outliers, chi2_capped=unc.misfit.chi2_capped, model_error=float(opts.model_error),
         thickness_model_error_nm=float(opts.thickness_model_error_nm),
         disc_model_error=float(opts.disc_model_error) if disc_stderr is not None else float("nan"),
-        stderr_scale=unc.scale,
+        stderr_scale=unc.scale, roles=parameter_roles(table, st.fx.model, tuple(reported)),
         frame=None if st.frame.whole else (st.frame.x0, st.frame.y0, st.frame.k), colour=st.colour,
     )
+
+
+def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t_start: float) -> FitResult:
+    """Judge a solve (:func:`_judge`) and report it (:func:`_report`)."""
+    return _report(st, env, opts, sol, _judge(st, opts, sol, notes), notes, t_start)
 
 
 def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOptions(), background=None,
@@ -249,6 +267,23 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     Returns
     -------
     FitResult
+
+    Examples
+    --------
+    A photo rendered with a known 600 nm film over a black background, fitted back (about a
+    minute on a first call, which compiles; seconds with a warm cache):
+
+    >>> import numpy as np
+    >>> import bubblefit as bf
+    >>> scene = bf.Scene.from_dict({
+    ...     "camera": {"width": 48, "height": 48, "disc": [24, 24, 20]},
+    ...     "bubble": {"thickness_nm": 600.0, "t": 0.972, "f": 0.3, "roughness": 0.02},
+    ...     "lighting": {"envmap": "courtyard.exr", "background": "black"}})
+    >>> photo = np.asarray(bf.render_scene(scene))
+    >>> result = bf.fit_photo(photo, scene.load_envmap(), background=np.zeros_like(photo),
+    ...                       options=bf.FitOptions(disc=(24, 24, 20)))
+    >>> result.ok, round(float(result.params["thickness_nm"]))
+    (True, 600)
     """
     if options.model == "auto":
         return _fit_either_model(photo, env, options, background, init, scene, saturated)
@@ -256,40 +291,43 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     opts = options
     with stage("finding the disc, choosing the effects"):
         st = setup(photo, env, opts, background, init, scene, saturated)
-    notes = []
-    search_thickness = "thickness_nm" in st.table.free or "top_nm" in st.table.free
+    searches = "thickness_nm" in st.table.free or "top_nm" in st.table.free
     warm = bool(init)
-    jacobian, compile_options = ("groups", ()) if warm else (FINAL_JACOBIAN, FINAL_COMPILE)
-    if search_thickness and not warm:
-        # The final solve's program, the final render's and the standard errors' compile in
-        # the background meanwhile (on 2 cores an empty-cache fit takes about 4 s less:
-        # experiments/bench_fit.py --background-compile).
-        prepare_local(st.lev_fit, st.table, opts, st.vals, env, jacobian=jacobian, compile_options=compile_options)
-        if opts.thickness != "map":
-            prepare_render_bubble(_final_params(st.table, st.vals, opts), st.level(1, opts), env)
-        prepare_reporter(st.table, st.vals)
+    settings = WARM_SOLVE if warm else FINAL_SOLVE
+    if searches and not warm:
+        warm_up(st, opts, env, settings)  # the final solve's programs compile during the search
         with stage("global thickness search"):
             start = _searched_start(st, opts, env)
     else:
         start = st.vals
     with stage(f"local fit, {len(st.table.free)} parameters"):
-        sol = solve_local(st.lev_fit, st.table, opts, start, env, stall=not warm, jacobian=jacobian,
-                          compile_options=compile_options)
-    why = _warm_doubt(st, opts, sol) if warm and search_thickness else None
-    if why:
-        # A warm start can settle in a neighbouring colour order: search globally and keep
-        # whichever fit explains the photo better.
-        with stage(f"warm start doubtful ({why}): global search and local fit"):
-            second = solve_local(st.lev_fit, st.table, opts, _searched_start(st, opts, env), env,
-                                 jacobian=jacobian, compile_options=compile_options)
-        if np.isfinite(second.cost) and (not np.isfinite(sol.cost) or second.cost < sol.cost):
-            sol = second
-            notes.append(f"warm start rejected ({why}); searched globally")
-        else:
-            notes.append(f"warm start doubtful ({why}); a global search did not do better")
+        sol = solve_local(st.lev_fit, st.table, opts, start, env, settings=settings)
+    notes = []
+    if warm and searches:
+        sol = _checked_warm_start(st, opts, env, sol, settings, notes)
     with stage("thickness map, standard errors, final render" if opts.thickness == "map"
                else "standard errors, final render"):
-        return _finish(st, env, opts, sol, notes, t_start)
+        judged = _judge(st, opts, sol, notes)
+        return _report(st, env, opts, sol, judged, notes, t_start)
+
+
+def _checked_warm_start(st: Setup, opts: FitOptions, env, sol: LocalSolution, settings: SolveSettings,
+                        notes: list) -> LocalSolution:
+    """A warm start can settle in a neighbouring colour order: when its solution is
+    doubtful (:func:`_warm_doubt`), search globally, solve again (stopping on rejections,
+    :class:`~bubblefit.inverse._programs.SolveSettings`) and keep whichever fit explains
+    the photo better; ``notes`` says what was done."""
+    why = _warm_doubt(st, opts, sol)
+    if not why:
+        return sol
+    with stage(f"warm start doubtful ({why}): global search and local fit"):
+        second = solve_local(st.lev_fit, st.table, opts, _searched_start(st, opts, env), env,
+                             settings=replace(settings, stall=True))
+    if np.isfinite(second.cost) and (not np.isfinite(sol.cost) or second.cost < sol.cost):
+        notes.append(f"warm start rejected ({why}); searched globally")
+        return second
+    notes.append(f"warm start doubtful ({why}); a global search did not do better")
+    return sol
 
 
 def _judged_chi2(r: FitResult) -> float:

@@ -42,8 +42,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._observation import fitted_pixels, render_level
+from ._observation import fitted_pixels
 from ._parameters import ParameterTable
+from ._programs import render_level
 from ..model.geometry import compose_shift
 from ..model.render import render_pixels_at, render_terms
 from ..optics import spectral

@@ -433,6 +433,24 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
     References
     ----------
     Golub & Pereyra (1973), variable projection; Born & Wolf, sec. 7.6.1.
+
+    Examples
+    --------
+    A reading made from the closed-form reflectance of a 1200 nm film of index 1.33 in air
+    (normal incidence) under a smooth lamp:
+
+    >>> import numpy as np
+    >>> import bubblefit as bf
+    >>> from bubblefit.inverse.spectrum import SpectrumOptions
+    >>> from bubblefit.io.spectra import Spectrum
+    >>> wl = np.linspace(450.0, 800.0, 700)
+    >>> r2 = ((1.33 - 1.0) / (1.33 + 1.0)) ** 2
+    >>> cos = np.cos(4 * np.pi * 1.33 * 1200.0 / wl)
+    >>> film = 2 * r2 * (1 - cos) / (1 + r2 ** 2 - 2 * r2 * cos)
+    >>> lamp = np.exp(-(((wl - 600.0) / 250.0) ** 2))
+    >>> fit = bf.fit_spectrum(Spectrum(wl, lamp * film), options=SpectrumOptions(n_film=1.33))
+    >>> fit.ok, round(fit.thickness_nm, 1)
+    (True, 1200.0)
     """
     options, why = resolve_normalised(spectrum, dark, reference, options)
     p = prepared_problem(spectrum, dark, reference, options)

@@ -5,20 +5,35 @@ but its key is the lowered program: every process still traces the Python functi
 jaxpr and lowers it to MLIR before it can look the program up. For the fit's
 Levenberg-Marquardt solve (the render, its Jacobian, the trust region and the QR inside
 one ``while_loop``) that is about 0.5 s of tracing and 0.3 s of lowering per program,
-every process. :func:`stored` keeps the compiled executable itself
-(:mod:`jax.experimental.serialize_executable`) under a key computed without tracing:
+every process. :func:`stored` keeps the compiled executable itself under a key computed
+without tracing:
 
 - what the function is: a name and the static values it closes over (the render
-  configuration, the parameter table, the solver's settings), pickled;
+  configuration, the parameter table, the solver's settings), serialised for the key only;
 - the code it runs: a digest of every ``.py`` file of the bubblefit package, and the
   versions of JAX and jaxlib, the backend and the float64 flag;
 - what it is called with: the arguments' tree structure, shapes and dtypes.
 
-A change to any of them is a new key, so a stale program is never run. Any failure to
-store, to load or to run a loaded program the first time (a program with closed-over
-constants, a read-only cache, a damaged file) falls back to the plain jitted call. Files live in ``executables/`` of the
-compilation cache's folder (at most :data:`MAX_BYTES`). The store is used in processes
-that called :func:`~bubblefit.io.jaxcache.jax_setup` (the command line and its workers).
+A change to any of them is a new key, so a stale program is never run.
+
+What a file holds, and why nothing in it but XLA's program is ever run: no Python object is
+unpickled (JAX's own :mod:`jax.experimental.serialize_executable` pickles, so it is not
+used). A file is :data:`MAGIC`, a JSON header of plain data (the key, the input and output
+shapes and dtypes, the arguments the program keeps, the output tree as JAX's protocol-buffer
+description, which names no Python type), XLA's serialised executable as the backend
+writes it, and an HMAC-SHA256 of all that under a random key that the store created in its
+own folder (``.key``, mode ``0600``). The folders are created ``0700`` and not used when
+another user owns them or others can write them (:func:`bubblefit.io.jaxcache.private_folder`),
+so no one else can place a program there; a file whose digest, length or key does not
+match (planted, copied from another cache, cut short by a full disk) is ignored and
+replaced by a fresh compile. Programs the format cannot describe (closed-over constants,
+effects, host callbacks, several devices, user-defined output nodes) stay in memory only.
+
+Any failure to store, to load or to run a loaded program the first time falls back to the
+plain jitted call; a failed write (full or read-only disk) is reported once per process.
+Files live in ``executables/`` of the compilation cache's folder (at most
+:data:`MAX_BYTES`). The store is used in processes that called
+:func:`~bubblefit.io.jaxcache.jax_setup` (the command line and its workers).
 
 A program needed later can be started ahead (:meth:`Stored.prepare`): it is loaded or
 compiled in a background thread (:data:`COMPILE_THREADS` of them) while the caller goes
@@ -37,10 +52,18 @@ import concurrent.futures
 import contextlib
 import functools
 import hashlib
+import hmac
+import json
+import os
 import pickle
+import secrets
+import stat
+import sys
 import threading
 from pathlib import Path
 from typing import Any, Callable
+
+from .atomic import os_reason
 
 __all__ = ["Stored", "stored", "source_digest"]
 
@@ -56,6 +79,14 @@ COMPILE_THREADS = 2
 #: (the command line, the sequence workers); library calls without it jit as usual.
 ENABLED = False
 _LOCK = threading.Lock()
+#: First bytes of a stored executable's file, with the version of its layout.
+MAGIC = b"bubblefit-executable\n"
+#: Version of the header's fields.
+FORMAT = 1
+#: Length of the store's key (:func:`_secret`).
+SECRET_BYTES = 32
+#: Largest file the store reads (a fit's solve is 2-3 MB): a larger one is not its own.
+MAX_FILE_BYTES = 256 * 2**20
 #: Per-thread state: whether this thread's compiles bypass the persistent cache.
 _THREAD = threading.local()
 
@@ -72,12 +103,23 @@ def source_digest() -> str:
 
 
 def _folder() -> Path | None:
+    """The store's folder, created private (``0700``); None (no store, a warning once) when
+    the cache is off or the folder is not private to this user
+    (:func:`bubblefit.io.jaxcache.private_folder`)."""
     import jax
 
-    from .jaxcache import jax_settings
+    from .jaxcache import jax_settings, private_folder
 
     cache = getattr(jax.config, "jax_compilation_cache_dir", None) or jax_settings()["cache_dir"]
-    return Path(cache) / FOLDER if cache else None
+    if not cache:
+        return None
+    folder = Path(cache) / FOLDER
+    problem = private_folder(cache) or private_folder(folder)
+    if problem:
+        warn_once("store", f"not using the compiled-program store: {problem}")
+        return None
+    _guard_jax_cache()
+    return folder
 
 
 def _static_bytes(static: Any) -> bytes | None:
@@ -114,28 +156,194 @@ def _ready_custom_calls() -> None:
     linalg.initialize_lapack()
 
 
-def _load(path: Path, args: tuple):
-    import jax
-    from jax.experimental.serialize_executable import deserialize_and_load
-
-    payload, out_tree, *flags = pickle.loads(path.read_bytes())
-    if not flags or flags[0]:  # the program calls LAPACK (or was saved before this was recorded)
-        _ready_custom_calls()
-    return deserialize_and_load(payload, jax.tree_util.tree_structure((args, {})), out_tree)
+class StoreError(Exception):
+    """A file of the store that is not one this store wrote whole: it is ignored and replaced."""
 
 
-def _save(path: Path, compiled) -> None:
-    from jax.experimental.serialize_executable import serialize
+def _secret(folder: Path) -> bytes:
+    """The store's key for its digests: :data:`SECRET_BYTES` random bytes in ``folder/.key``,
+    created once, readable by the owner only (``0600``). A key file that is not the owner's
+    own, is readable or writable by others, or is not the right length makes the store
+    unusable (:class:`StoreError`): nothing in the folder is trusted then."""
+    path = folder / ".key"
+    if not os.path.lexists(path):  # written whole under another name, then linked: never seen half-written
+        tmp = folder / f".key.{secrets.token_hex(8)}"
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o600)
+        try:
+            try:
+                if os.write(fd, secrets.token_bytes(SECRET_BYTES)) != SECRET_BYTES:
+                    raise OSError(28, "No space left on device")
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+            os.link(tmp, path)  # fails if another process made its key first: that one is used
+        except FileExistsError:
+            pass
+        finally:
+            tmp.unlink(missing_ok=True)
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode) or stat.S_IMODE(st.st_mode) & 0o077 or \
+                (hasattr(os, "getuid") and st.st_uid != os.getuid()):
+            raise StoreError(f"{path} is not private to this user")
+        key = os.read(fd, SECRET_BYTES + 1)
+    finally:
+        os.close(fd)
+    if len(key) != SECRET_BYTES:
+        path.unlink(missing_ok=True)  # a key cut short (a full disk): a new one next time
+        raise StoreError(f"{path} is damaged")
+    return key
 
-    from .atomic import write_bytes
 
-    payload, _, out_tree = serialize(compiled)
+def _avals(avals) -> list:
+    """Shapes, dtypes and weak-type flags of abstract values, as JSON."""
+    return [[list(a.shape), str(a.dtype), bool(getattr(a, "weak_type", False))] for a in avals]
+
+
+def _shaped(described) -> list:
+    import numpy as np
+    from jax._src import core
+
+    return [core.ShapedArray(tuple(int(d) for d in shape), np.dtype(dtype), weak_type=bool(weak))
+            for shape, dtype, weak in described]
+
+
+def _describe(compiled, key: str) -> tuple[dict, bytes]:
+    """The header (plain data) and XLA's serialised executable of ``compiled``, or
+    :class:`StoreError` for a program the store does not keep: one with closed-over
+    constants, effects, host callbacks, mutable references or several devices, or whose
+    output tree holds a node type other than tuple, list, dict and None (the tree is
+    stored as JAX's own protocol-buffer description, which carries no code)."""
+    import base64
+
+    from jax._src.sharding_impls import SingleDeviceSharding
+
+    u = getattr(compiled._executable, "_unloaded_executable", None)
+    if u is None or compiled._params.const_args or u.mut is not None or u.unordered_effects or \
+            u.ordered_effects or u.host_callbacks or u.keepalive or len(u.device_list) != 1:
+        raise StoreError("not a plain single-device program")
+    if not all(isinstance(s, SingleDeviceSharding) for s in (*u.input_shardings, *u.output_shardings)):
+        raise StoreError("not a single-device program")
+    try:
+        out_tree = compiled.out_tree.serialize_using_proto()
+    except Exception as exc:  # a user-defined node in the output
+        raise StoreError(str(exc)) from None
     try:
         lapack = "lapack" in compiled.as_text()
     except Exception:  # no text for this executable: assume it needs the kernels
         lapack = True
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_bytes(path, pickle.dumps((payload, out_tree, lapack), protocol=4))
+    payload = bytes(u.backend.serialize_executable(u.xla_executable))
+    header = {"format": FORMAT, "key": key, "name": u.name, "in": _avals(u.input_avals),
+              "out": _avals(u.output_avals), "kept": sorted(int(i) for i in u.kept_var_idx),
+              "committed": bool(u.committed), "no_kwargs": bool(compiled._no_kwargs),
+              "out_tree": base64.b64encode(out_tree).decode("ascii"), "lapack": bool(lapack),
+              "payload_bytes": len(payload)}
+    return header, payload
+
+
+def _pack(header: dict, payload: bytes, secret: bytes) -> bytes:
+    """The file's bytes: :data:`MAGIC`, the header's length (8 bytes, big-endian), the JSON
+    header, XLA's executable, and the HMAC-SHA256 under the store's key of all before it."""
+    head = json.dumps(header, sort_keys=True, separators=(",", ":")).encode("utf-8")
+    body = MAGIC + len(head).to_bytes(8, "big") + head + payload
+    return body + hmac.new(secret, body, hashlib.sha256).digest()
+
+
+def _unpack(data: bytes, key: str, secret: bytes) -> tuple[dict, bytes]:
+    """Header and executable of a file's bytes, after its digest, its length and its key
+    are checked (:class:`StoreError` otherwise: a truncated, damaged or foreign file)."""
+    n_mac = hashlib.sha256().digest_size
+    if len(data) < len(MAGIC) + 8 + n_mac or not data.startswith(MAGIC):
+        raise StoreError("not a stored executable")
+    body, mac = data[:-n_mac], data[-n_mac:]
+    if not hmac.compare_digest(hmac.new(secret, body, hashlib.sha256).digest(), mac):
+        raise StoreError("digest mismatch")
+    n_head = int.from_bytes(body[len(MAGIC):len(MAGIC) + 8], "big")
+    head_end = len(MAGIC) + 8 + n_head
+    header = json.loads(body[len(MAGIC) + 8:head_end].decode("utf-8"))
+    payload = body[head_end:]
+    if header.get("format") != FORMAT or header.get("key") != key or header.get("payload_bytes") != len(payload):
+        raise StoreError("header does not match")
+    return header, payload
+
+
+def _read_limited(path: Path) -> bytes:
+    """A regular file's bytes (links not followed), at most :data:`MAX_FILE_BYTES`."""
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode) or st.st_size > MAX_FILE_BYTES:
+            raise StoreError("not a regular file of a plausible size")
+        with os.fdopen(os.dup(fd), "rb") as fh:
+            return fh.read(MAX_FILE_BYTES + 1)
+    finally:
+        os.close(fd)
+
+
+def _load(path: Path, args: tuple):
+    """The program stored in ``path`` for arguments ``args``, rebuilt from the header's
+    plain data and XLA's executable (deserialised by the backend itself): no Python object
+    is ever unpickled. The file must carry the store's digest (:func:`_pack`)."""
+    import base64
+
+    import jax
+    from jax._src import stages
+    from jax._src.interpreters import pxla
+    from jax._src.lib import xla_client as xc
+    from jax._src.sharding_impls import SingleDeviceSharding
+
+    header, payload = _unpack(_read_limited(path), path.stem, _secret(path.parent))
+    leaves, in_tree = jax.tree_util.tree_flatten((args, {}))
+    arg_avals = [jax.typeof(x) if hasattr(jax, "typeof") else jax.core.get_aval(x) for x in leaves]
+    kept = set(header["kept"])
+    in_avals, out_avals = _shaped(header["in"]), _shaped(header["out"])
+    if _avals([a for i, a in enumerate(arg_avals) if i in kept]) != _avals(in_avals):
+        raise StoreError("arguments do not match")
+    if header["lapack"]:
+        _ready_custom_calls()
+    device = jax.devices()[0]
+    backend = device.client
+    devices = xc.DeviceList((device,))
+    executable = backend.deserialize_executable(payload, executable_devices=devices)
+    sharding = SingleDeviceSharding(device)
+    in_shardings, out_shardings = [sharding] * len(in_avals), [sharding] * len(out_avals)
+    xla_in, xla_out = pxla._get_layouts_from_executable(
+        executable, [None] * len(in_avals), [None] * len(out_avals), 0, in_avals, out_avals)
+    unloaded = pxla.UnloadedMeshExecutable(
+        xla_executable=executable, device_list=devices, backend=backend, input_avals=in_avals,
+        input_shardings=in_shardings, output_avals=out_avals, output_shardings=out_shardings,
+        committed=header["committed"], name=header["name"], unordered_effects=[], ordered_effects=[],
+        keepalive=[], host_callbacks=[], kept_var_idx=kept, mut=None, xla_in_layouts=xla_in,
+        dispatch_in_layouts=pxla.get_dispatch_layouts(xla_in, in_shardings, in_avals),
+        xla_out_layouts=xla_out, all_args_info=None, pgle_profiler=None)
+    out_tree = jax.tree_util.PyTreeDef.deserialize_using_proto(
+        jax.tree_util.default_registry, base64.b64decode(header["out_tree"]))
+    args_info = in_tree.unflatten([stages.ArgInfo(a, False) for a in arg_avals])
+    return stages.Compiled(unloaded.load(), [], args_info, out_tree, no_kwargs=header["no_kwargs"])
+
+
+def _save(path: Path, compiled) -> None:
+    """Write ``compiled`` to ``path`` in the store's format (:func:`_pack`)."""
+    from .atomic import write_bytes
+
+    header, payload = _describe(compiled, path.stem)
+    if path.is_symlink():  # never written through: the link itself is replaced by the file
+        path.unlink()
+    write_bytes(path, _pack(header, payload, _secret(path.parent)))
+
+
+_WARNED: set[str] = set()
+
+
+def warn_once(topic: str, message: str) -> None:
+    """Print ``bubblefit: warning: <message>`` on stderr the first time a ``topic`` comes up
+    in this process (a full disk is one line, not one per program)."""
+    with _LOCK:
+        if topic in _WARNED:
+            return
+        _WARNED.add(topic)
+    print(f"bubblefit: warning: {message}", file=sys.stderr)
 
 
 class Stored:
@@ -226,10 +434,10 @@ def _fetch(jitted: Callable, key: str, args: tuple) -> tuple[Callable, Path | No
     (and saved when it can be; the path is then None)."""
     folder = _folder()
     path = folder / f"{key}.bin" if folder is not None else None
-    if path is not None and path.is_file():
+    if path is not None and os.path.lexists(path):
         try:
             return _load(path, args), path
-        except Exception:  # damaged or from an incompatible build: compile afresh
+        except Exception:  # truncated, damaged, foreign or from another build: compiled afresh, replaced
             pass
     if path is None:
         return jitted, None
@@ -240,9 +448,65 @@ def _fetch(jitted: Callable, key: str, args: tuple) -> tuple[Callable, Path | No
     try:
         _save(path, compiled)
         _prune(path.parent)
-    except Exception:  # closed-over constants, a read-only disk: keep it in memory only
+    except StoreError:  # a program the store does not keep: in memory only
         pass
+    except Exception as exc:  # a full or read-only disk: in memory only, said once
+        reason = os_reason(exc) if isinstance(exc, OSError) else str(exc)
+        warn_once("store-write", f"cannot write the compiled-program store in {path.parent} ({reason}); "
+                                 "results are unaffected, later runs compile again")
     return compiled, None
+
+
+def _guard_jax_cache() -> None:
+    """Make JAX's persistent compilation cache replace its entries that cannot be read and
+    report its write errors once. JAX never replaces an entry that exists: one cut short by
+    a full disk would be read, fail and be compiled again in every later run. Here an entry
+    that fails to load is deleted (the compile that follows writes it anew), and JAX's
+    warnings about cache entries are replaced by one line per process (:func:`warn_once`)."""
+    from jax._src import compilation_cache
+
+    with _LOCK:
+        if getattr(compilation_cache.get_executable_and_time, "bubblefit_guard", False):
+            return
+        get, put = compilation_cache.get_executable_and_time, compilation_cache.put_executable_and_time
+
+        def get_executable_and_time(cache_key, *args, **kwargs):
+            try:
+                return get(cache_key, *args, **kwargs)
+            except Exception:
+                _remove_jax_entry(cache_key)
+                return None, None
+
+        def put_executable_and_time(*args, **kwargs):
+            try:
+                return put(*args, **kwargs)
+            except Exception as exc:
+                reason = os_reason(exc) if isinstance(exc, OSError) else f"{type(exc).__name__}: {exc}"
+                warn_once("jax-cache-write", f"cannot write JAX's compilation cache ({reason}); "
+                                             "results are unaffected, later runs compile again")
+
+        get_executable_and_time.bubblefit_guard = True
+        compilation_cache.get_executable_and_time = get_executable_and_time
+        compilation_cache.put_executable_and_time = put_executable_and_time
+
+
+def _jax_cache_dir() -> str | None:
+    """The folder of JAX's persistent compilation cache in this process (None: no cache)."""
+    import jax
+
+    return getattr(jax.config, "jax_compilation_cache_dir", None)
+
+
+def _remove_jax_entry(cache_key: str) -> None:
+    """Delete JAX's persistent-cache entry ``cache_key`` (its ``-cache`` and ``-atime`` files)."""
+    cache = _jax_cache_dir()
+    if not cache or not cache_key or "/" in cache_key or cache_key.startswith("."):
+        return
+    for suffix in ("-cache", "-atime"):
+        try:
+            os.unlink(os.path.join(cache, cache_key + suffix))
+        except OSError:
+            pass
 
 
 @contextlib.contextmanager

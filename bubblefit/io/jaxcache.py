@@ -19,7 +19,7 @@ import logging
 import os
 import sys
 
-__all__ = ["default_cache_dir", "jax_setup", "jax_settings"]
+__all__ = ["default_cache_dir", "jax_setup", "jax_settings", "private_folder"]
 
 #: Every compiled program goes into the cache (seconds of compile time below which one
 #: would not). A fit builds ~160 small programs (geometry, tables, bounds) that compile in
@@ -34,7 +34,61 @@ def default_cache_dir() -> str:
         os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "bubblefit", "jax")
 
 
+#: Cache folders refused in this process (:func:`private_folder`): neither JAX's cache nor
+#: the store of executables uses them, and :func:`jax_settings` does not pass them on.
+_REFUSED: set[str] = set()
+
+
+def private_folder(path: str | os.PathLike) -> str | None:
+    """Create ``path`` (and missing parents) with mode ``0700`` and check that no one but
+    this user can change what is in it; None when it is private, else the reason in a few
+    words (for the one-line warning that the cache is not used).
+
+    The cache holds compiled programs (native code that this process runs), so a folder
+    owned by another user, or writable by the group or by others, is never used: a file
+    planted there could run as the user. Links are followed (the folder they point to is
+    checked).
+
+    References
+    ----------
+    The same rule as OpenSSH's ``StrictModes`` for ``~/.ssh``: the owner only may write.
+    """
+    path = os.fspath(path)
+    try:
+        os.makedirs(path, mode=0o700, exist_ok=True)
+        st = os.stat(path)
+    except OSError as exc:
+        return f"cannot create {path}: {(exc.strerror or str(exc)).lower()}"
+    import stat
+
+    if not stat.S_ISDIR(st.st_mode):
+        return f"{path} is not a folder"
+    if hasattr(os, "getuid") and st.st_uid != os.getuid():
+        return f"{path} belongs to another user"
+    if st.st_mode & 0o022:
+        return f"{path} is writable by others (chmod 700 {path})"
+    return None
+
+
+def _drop_empty_entries(cache: str) -> None:
+    """Delete JAX's cache entries of zero bytes (left by a full disk; JAX never replaces an
+    entry that exists, so they would stay)."""
+    try:
+        with os.scandir(cache) as entries:
+            for entry in entries:
+                if entry.name.endswith("-cache") and entry.is_file(follow_symlinks=False) and \
+                        entry.stat(follow_symlinks=False).st_size == 0:
+                    os.unlink(entry.path)
+    except OSError:
+        pass
+
+
 def _quiet_logs() -> None:
+    import warnings
+
+    # JAX warns once per program about a cache entry it cannot write or read (a full disk
+    # gave 21 lines); the store reports such errors once itself (executables.warn_once)
+    warnings.filterwarnings("ignore", message=r"Error (reading|writing) persistent compilation cache entry")
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")  # XLA's C++ log: nothing below fatal
     os.environ.setdefault("GLOG_minloglevel", "3")
     for name in ("jax._src.xla_bridge", "jax._src.compiler", "jax._src.compilation_cache",
@@ -70,10 +124,16 @@ def jax_setup(cache_dir: str | None = None, *, enable_x64: bool | None = None, q
     executables.ENABLED = True
     cache = (cache_dir or os.environ.get("BUBBLEFIT_CACHE_DIR") or os.environ.get("JAX_COMPILATION_CACHE_DIR")
              or default_cache_dir())
-    try:
-        os.makedirs(cache, exist_ok=True)
-    except OSError:  # a read-only home must not stop the program
+    problem = private_folder(cache)
+    if problem:  # no cache: every run compiles, and nothing anyone else wrote is run
+        from .executables import warn_once
+
+        warn_once("cache", f"not using the compilation cache: {problem}")
+        _REFUSED.add(os.path.abspath(cache))
         cache = None
+        os.environ.pop("JAX_COMPILATION_CACHE_DIR", None)
+    else:
+        _drop_empty_entries(cache)
     if cache:
         os.environ["JAX_COMPILATION_CACHE_DIR"] = cache
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", str(MIN_COMPILE_TIME_S))
@@ -83,8 +143,7 @@ def jax_setup(cache_dir: str | None = None, *, enable_x64: bool | None = None, q
     jax = sys.modules.get("jax")
     if jax is not None:  # already imported: the environment is read; set the config too
         try:
-            if cache:
-                jax.config.update("jax_compilation_cache_dir", cache)
+            jax.config.update("jax_compilation_cache_dir", cache)
             jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_TIME_S)
             jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
             if enable_x64 is not None:
@@ -109,5 +168,5 @@ def jax_settings() -> dict:
         x64 = bool(jax.config.jax_enable_x64)
     if x64 is None:
         x64 = os.environ.get("JAX_ENABLE_X64", "0").lower() in ("1", "true")
-    return {"cache_dir": cache or os.environ.get("JAX_COMPILATION_CACHE_DIR") or default_cache_dir(),
-            "enable_x64": x64}
+    cache = cache or os.environ.get("JAX_COMPILATION_CACHE_DIR") or default_cache_dir()
+    return {"cache_dir": None if os.path.abspath(cache) in _REFUSED else cache, "enable_x64": x64}

@@ -143,7 +143,20 @@ def check_intensity(y: np.ndarray, what: str, constant_ok: bool = False) -> None
 def read_spectrum(path: str | os.PathLike, unit: str | None = None, *, dark: bool = False) -> Spectrum:
     """Read a two-column spectrum file (see the module's description of what is accepted);
     ``unit`` forces the wavelengths' unit (a key of :data:`UNIT_RANGES`), else it is read
-    from their range; a ``dark`` reading may be constant."""
+    from their range; a ``dark`` reading may be constant.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import bubblefit as bf
+    >>> path = os.path.join(tempfile.mkdtemp(), "film.csv")
+    >>> rows = [f"{400 + 10 * k},5;0,{k:02d}" for k in range(20)]   # decimal commas
+    >>> with open(path, "w") as f:
+    ...     _ = f.write("wavelength_nm;intensity\\n" + "\\n".join(rows))
+    >>> reading = bf.read_spectrum(path)
+    >>> reading.wavelength_nm[:3].tolist(), reading.intensity[:3].tolist()
+    ([400.5, 410.5, 420.5], [0.0, 0.01, 0.02])
+    """
     p = Path(path)
     if not p.is_file():
         raise InputError(f"spectrum {p}: no such file")

@@ -234,6 +234,14 @@ class EnvMap:
 
         With ``sanitize`` (default), NaN/Inf/negative texels are replaced by 0 so that a
         damaged map cannot poison every pixel through the filters.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> import bubblefit as bf
+        >>> env = bf.EnvMap.from_array(np.full((64, 128, 3), 0.25))
+        >>> env.width, env.lookup(np.array([[0.0, 0.0, -1.0]])).tolist()
+        (128, [[0.25, 0.25, 0.25]])
         """
         px = np.asarray(pixels, dtype=np.float64)
         if px.ndim != 3 or px.shape[2] != 3:

@@ -37,7 +37,7 @@ from .bounds import MAX_BOUNCES, FilmTable, SceneBounds
 from .effects import (ALL_ON_NODES, SPECTRAL_CANDIDATES, Decision, Effects, as_switch, decide_spectral,
                       decide_tint, model_settings, source_decisions)
 from .footprint import FILTER_CANDIDATES, FLOOR_FRACTION, REFERENCE_FILTER, Footprint, filter_key, pixel_budget
-from .modes import COLOURED, GREY, INTERFERENCE_MODES, ThicknessKind
+from .modes import COLOURED, GREY, INTERFERENCE_MODES, Model, ThicknessKind
 
 __all__ = ["Plan", "decide_pixels", "spectral_cost", "DEFAULT_TOLERANCE", "SHARES", "MARGIN", "HOT_FRACTION",
            "TAIL_FRACTION"]
@@ -64,7 +64,7 @@ HARMONIC_COST = 1.25
 HARMONIC_CANDIDATES = (4, 6, 8, 12, 16, 24, 32, 48, 64)
 
 
-def spectral_cost(basis: SpectralBasis, model: str) -> float:
+def spectral_cost(basis: SpectralBasis, model: Model) -> float:
     """Relative cost of a spectral basis: its samples, times :data:`FOURIER_COST` for
     ``fourier`` and :data:`HARMONIC_COST` for ``harmonic``."""
     if basis.phases is not None:
@@ -72,7 +72,7 @@ def spectral_cost(basis: SpectralBasis, model: str) -> float:
     return basis.samples * (FOURIER_COST[model] if basis.sigma is not None else 1.0)
 
 
-def spectral_candidates(model: str, harmonic: bool = False) -> list[SpectralBasis]:
+def spectral_candidates(model: Model, harmonic: bool = False) -> list[SpectralBasis]:
     """Every spectral method ``auto`` may take, cheapest first: uniform, fourier and, where
     the film has one thickness and a non-dispersive index (``harmonic``), the phase samples."""
     cands = [spectral_basis("uniform", k) for k in SPECTRAL_CANDIDATES]

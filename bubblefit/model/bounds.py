@@ -35,10 +35,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..io.executables import stored
 from ..lighting.filtering import mip_footprint_level, slope_nodes
 from ..optics import film
 from ..optics.spectral import LAMBDA_MIN, SpectralBasis, harmonic_weights
-from .modes import GREY, Model
+from .modes import GREY, Interference, Model
 
 __all__ = ["SceneBounds", "FilmTable", "scene_bounds", "film_grids", "film_spectra", "harmonic_spectra",
            "film_coefficients", "coefficient_difference", "lookup_variation", "mipmap_albedo", "filter_bound",
@@ -129,8 +130,6 @@ def _f32(x) -> np.ndarray:
 def _program(fn, *static):
     """``fn`` with its leading static arguments bound, jitted, through the executable store
     (:func:`bubblefit.io.executables.stored`): a new process loads it rather than tracing it."""
-    from ..io.executables import stored
-
     return stored(jax.jit(functools.partial(fn, *static)), f"model.bounds.{fn.__name__}", static)
 
 
@@ -431,7 +430,7 @@ class FilmTable:
         self._cache: dict = {}
         self._spectra: dict = {}
 
-    def _values(self, mode: str, basis: SpectralBasis) -> np.ndarray:
+    def _values(self, mode: Interference, basis: SpectralBasis) -> np.ndarray:
         b = self.b
         if basis.phases is not None:  # harmonic: (values, per-point weights); every wanted basis in one call
             key = ("harmonic", mode)
@@ -467,7 +466,7 @@ class FilmTable:
         self._spectra[mode] = (lam_all, film_spectra(b.model, mode, lam_all, b.d_grid, b.c_grid, b.t, b.n_film))
         return self._values(mode, basis)
 
-    def __call__(self, mode: str, basis: SpectralBasis | None = None) -> dict:
+    def __call__(self, mode: Interference, basis: SpectralBasis | None = None) -> dict:
         """:func:`film_coefficients` for ``mode`` with ``basis`` (None for the grey modes)."""
         b = self.b
         key = (mode, None if basis is None else basis.samples, None if basis is None else basis.method)

@@ -182,7 +182,8 @@ def decide_spectral(b: SceneBounds, table: FilmTable, setting, interference: Int
     return basis, Decision("spectral", True, "set by the scene", f"{method}/{basis.samples}")
 
 
-def check_harmonic(basis: SpectralBasis | None, thickness_kind: str, dispersive: bool, where: str = "render") -> None:
+def check_harmonic(basis: SpectralBasis | None, thickness_kind: ThicknessKind, dispersive: bool,
+                   where: str = "render") -> None:
     """Refuse the ``harmonic`` spectral basis where it is not exact: a thickness field (each
     film has its own optical path), a dispersive index, or a fit (``where``), whose tables
     sample wavelengths."""
@@ -372,7 +373,7 @@ def model_settings(b, settings: dict):
     return fresnel, tint_set, tint_rs, bset
 
 
-def source_decisions(b, front: bool, rear: bool, transmission: bool, thickness_kind: str) -> list:
+def source_decisions(b, front: bool, rear: bool, transmission: bool, thickness_kind: ThicknessKind) -> list:
     """The decisions that only report what the scene holds: its environment map, its point
     lights (eq. 3) and whether its thickness varies over the film."""
     return [

@@ -24,6 +24,7 @@ References:
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import jax
@@ -40,8 +41,8 @@ from .modes import Model, ThicknessKind
 from .render import NO_PROFILE, RenderConfig, film_names, shading_points
 from .thickness import thickness_at
 
-__all__ = ["Footprint", "footprint", "pixel_budget", "filter_key", "FILTER_CANDIDATES", "REFERENCE_FILTER",
-           "FLOOR_FRACTION", "BRIGHT_PERCENTILE"]
+__all__ = ["Footprint", "footprint", "trace_function", "jitted_trace", "pixel_budget", "filter_key", "FILTER_CANDIDATES",
+           "REFERENCE_FILTER", "FLOOR_FRACTION", "BRIGHT_PERCENTILE"]
 
 #: The all-on model's filter (:func:`bubblefit.model.effects.all_on_settings`).
 REFERENCE_FILTER = FilterConfig("mipmap", nodes=4)
@@ -80,7 +81,7 @@ class Footprint:
             point lights' light.
 
     The same rays, lookups and films as the renderer's at ``samples_per_pixel = 1``, so
-    :func:`~bubblefit.model.render.render_plan` shades these pixels from it without reading
+    :func:`~bubblefit.model.regions.render_plan` shades these pixels from it without reading
     the map again.
     """
 
@@ -147,17 +148,20 @@ def _trace(env, background, roughness, rotation, thickness_values, profile, pix,
     return out
 
 
-@functools.lru_cache(maxsize=16)
-def _stored_trace(camera, center, radius, model, lights, background_kind, thickness_kind):
-    """:func:`_trace` for these static settings through the executable store
-    (:func:`bubblefit.io.executables.stored`): a new process loads it, not traces it."""
-    from ..io.executables import stored
-
+def trace_function(camera, center, radius, model, lights, background_kind, thickness_kind) -> Callable:
+    """``(env, roughness, rotation, values, profile, pix) -> dict``: :func:`_trace` with
+    these static settings bound (not compiled: the caller jits it, or stores it,
+    :func:`bubblefit.model.programs.stored_trace`)."""
     statics = dict(camera=camera, center=center, radius=radius, model=model, lights=lights,
                    background_kind=background_kind, thickness_kind=thickness_kind)
-    fn = jax.jit(lambda env, roughness, rotation, values, profile, pix: _trace(env, None, roughness, rotation, values,
-                                                                                profile, pix, **statics))
-    return stored(fn, "model.footprint._trace", statics)
+    return lambda env, roughness, rotation, values, profile, pix: _trace(env, None, roughness, rotation, values,
+                                                                          profile, pix, **statics)
+
+
+@functools.lru_cache(maxsize=16)
+def jitted_trace(*statics) -> Callable:
+    """:func:`trace_function` for ``statics`` through ``jax.jit`` (:func:`footprint`'s default)."""
+    return jax.jit(trace_function(*statics))
 
 
 def _first_pixels(v: np.ndarray, n: int) -> np.ndarray:
@@ -168,11 +172,15 @@ def _first_pixels(v: np.ndarray, n: int) -> np.ndarray:
 
 def footprint(*, camera, center, radius: float, model: Model, roughness: float, env: EnvMap | None,
               rotation: float, lights: tuple, background: np.ndarray | None, background_kind: str,
-              thickness_kind: ThicknessKind, thickness_values, thickness_profile=NO_PROFILE) -> Footprint:
+              thickness_kind: ThicknessKind, thickness_values, thickness_profile=NO_PROFILE,
+              programs: Callable = jitted_trace) -> Footprint:
     """The :class:`Footprint` of a scene (see the module docstring); ``thickness_profile``:
-    the drainage profile under a thickness map (:attr:`~bubblefit.model.render.Params.profile`)."""
+    the drainage profile under a thickness map (:attr:`~bubblefit.model.render.Params.profile`).
+    ``programs(camera, center, radius, model, lights, background_kind, thickness_kind)``
+    gives the compiled trace (:func:`jitted_trace`, or the stored
+    :func:`bubblefit.model.programs.stored_trace`)."""
     a = max(float(roughness), 0.0)
-    trace = _stored_trace(camera, tuple(center), float(radius), model, tuple(lights), background_kind, thickness_kind)
+    trace = programs(camera, tuple(center), float(radius), model, tuple(lights), background_kind, thickness_kind)
     # Only the pixels on the bubble are traced, padded to a multiple of PIXEL_BUCKET so that
     # scenes of one size share their compiled program.
     idx = hit_pixels(camera, tuple(center), float(radius))

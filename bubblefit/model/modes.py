@@ -17,12 +17,16 @@ from ..lighting.filtering import METHODS as FILTER_METHODS
 from ..lighting.filtering import FilterMethod
 from ..optics.spectral import SPECTRAL_METHODS, SpectralMethod
 
-__all__ = ["Model", "Interference", "Background", "ThicknessKind", "Switch", "FilterMethod", "SpectralMethod",
-           "MODELS", "INTERFERENCE_MODES", "BACKGROUNDS", "THICKNESS_KINDS", "FILTER_METHODS", "SPECTRAL_METHODS",
-           "COLOURED", "GREY", "check_effects_table"]
+__all__ = ["Model", "ModelChoice", "Interference", "Background", "ThicknessKind", "Switch", "FilterMethod",
+           "SpectralMethod", "MODELS", "MODEL_CHOICES", "INTERFERENCE_MODES", "BACKGROUNDS", "THICKNESS_KINDS",
+           "FILTER_METHODS", "SPECTRAL_METHODS", "COLOURED", "GREY", "check_effects_table", "in_words"]
 
 #: ``paper``: eqs. (1)-(14) as written; ``physical``: Fresnel films, Airy sum, internal bounces.
 Model = Literal["paper", "physical"]
+#: The forward model a fit is asked for: one of :data:`Model`, or ``auto`` (the paper model,
+#: then the physical one when the paper model does not explain the photo;
+#: :func:`~bubblefit.inverse.fit.fit_photo`).
+ModelChoice = Literal["paper", "physical", "auto"]
 #: How a film reflects: grey (``off``: no film factor; ``incoherent``: the spectral mean),
 #: eq. (9)'s two beams, or the exact Airy sum (multi-beam).
 Interference = Literal["off", "incoherent", "two_beam", "airy"]
@@ -34,12 +38,18 @@ ThicknessKind = Literal["constant", "drainage", "map"]
 Switch = bool | Literal["auto"]
 
 MODELS: tuple[str, ...] = get_args(Model)
+MODEL_CHOICES: tuple[str, ...] = get_args(ModelChoice)
 INTERFERENCE_MODES: tuple[str, ...] = get_args(Interference)
 BACKGROUNDS: tuple[str, ...] = get_args(Background)
 THICKNESS_KINDS: tuple[str, ...] = get_args(ThicknessKind)
 #: Interference modes with a spectrum (colours), and the grey ones.
 COLOURED: tuple[str, ...] = ("two_beam", "airy")
 GREY: tuple[str, ...] = ("off", "incoherent")
+
+
+def in_words(values: tuple[str, ...]) -> str:
+    """``values`` as a sentence's list: ``"a, b or c"`` (for messages naming a mode's values)."""
+    return values[0] if len(values) == 1 else ", ".join(values[:-1]) + " or " + values[-1]
 
 
 def check_effects_table(e: dict) -> None:

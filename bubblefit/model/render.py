@@ -50,12 +50,12 @@ from ..optics import film, spectral
 from ..optics.dispersion import Cauchy, index_offset
 from .effects import Effects
 from .modes import COLOURED
-from .geometry import (OrthographicCamera, PerspectiveCamera, hit_pixels, internal_bounce, intersect_sphere,
+from .geometry import (OrthographicCamera, PerspectiveCamera, internal_bounce, intersect_sphere,
                        pixel_offsets)
 from .thickness import thickness_at
 
-__all__ = ["Params", "RenderConfig", "render", "render_terms", "render_loaded", "prepare_loaded", "render_plan",
-           "shading_points", "TRACE_COUNTS", "PointLight"]
+__all__ = ["Params", "RenderConfig", "render", "render_terms", "render_pixels", "render_pixels_at", "shade_lit",
+           "paper_terms", "pixel_chunks", "chunk_size", "film_names", "shading_points", "TRACE_COUNTS", "PointLight"]
 
 #: No drainage profile under a thickness map (:attr:`Params.profile`): every film of a
 #: pixel takes the map's value there.
@@ -102,7 +102,15 @@ class Params:
     @staticmethod
     def make(t=0.972, r_d=None, r_s=None, f=0.3, roughness=0.01, thickness=500.0, n_film=1.4,
              exposure=1.0, rotation=0.0, disc=(0.0, 0.0, 0.0), profile=NO_PROFILE, dtype=jnp.float32) -> "Params":
-        """Parameters with eq. (14): ``r_d + r_s = 1 - t`` and ``f = r_d / r_s`` unless both given."""
+        """Parameters with eq. (14): ``r_d + r_s = 1 - t`` and ``f = r_d / r_s`` unless both given.
+
+        Examples
+        --------
+        >>> import bubblefit as bf
+        >>> p = bf.Params.make(t=0.97, f=0.5)
+        >>> round(float(p.r_d + p.r_s), 6), round(float(p.r_d / p.r_s), 6)   # 1 - t and f
+        (0.03, 0.5)
+        """
         if r_d is None or r_s is None:
             r_s = (1.0 - t) / (1.0 + f)
             r_d = (1.0 - t) - r_s
@@ -264,9 +272,19 @@ def shading_points(fx: Effects, cfg: RenderConfig, hits, d):
     return films, exits
 
 
-def _paper_terms(fx: Effects, p: Params, opt: "_Film", refl: dict, d0, d1, bg_rad, photo_bg: bool) -> dict:
-    """Eq. (11): ``F_0 L'_front + t^2 F_1 L'_rear + t^4 L_b`` (or the tinted transmission),
-    with ``L' = r_s S + r_d E / pi`` (eq. 2) and ``F`` eq. (10)'s factor."""
+def paper_terms(fx: Effects, p: Params, opt: "_Film", refl: dict, d0, d1, bg_rad, photo_bg: bool) -> dict:
+    """Eqs. (2) and (11): the ``paper`` model's terms of the pixels of a chunk.
+
+    Eq. (11), ``F_0 L'_front + t^2 F_1 L'_rear + t^4 L_b`` (or the tinted transmission,
+    see the module docstring), with the light each film reflects ``L' = r_s S + r_d E / pi``
+    (eq. 2: ``S`` the filtered specular radiance, ``E`` the irradiance, both in ``refl``)
+    and ``F`` eq. (10)'s factor (1 without interference). Returns the terms ``front``,
+    ``rear`` and ``background`` (N, 3) of the effects that are on, times the camera gain.
+
+    References
+    ----------
+    The paper, eqs. (2), (10) and (11) (``docs/design.md``, "Reading the paper").
+    """
     t2 = p.t * p.t
     terms = {}
     factors = {}
@@ -355,7 +373,7 @@ def _terms(p: Params, cfg: RenderConfig, lam, cos, d0, d1, exits, thick, refl, b
     opt = _Film(fx, p, cos, lam, d0)
     photo_bg = fx.background == "photo"
     if fx.model == "paper":
-        return _paper_terms(fx, p, opt, refl, d0, d1, bg_rad, photo_bg)
+        return paper_terms(fx, p, opt, refl, d0, d1, bg_rad, photo_bg)
     return _physical_terms(fx, p, opt, refl, d0, d1, exits, thick, bg_rad, photo_bg)
 
 
@@ -472,9 +490,9 @@ def film_names(fx: Effects) -> list[str]:
     return names
 
 
-def _shade_lit(p: Params, cfg: RenderConfig, lit: dict):
+def shade_lit(p: Params, cfg: RenderConfig, lit: dict):
     """Radiance (N, 3) of pixels that hit the bubble, from their traced films and light
-    (:func:`lit_chunks`, from a :class:`~bubblefit.model.footprint.Footprint`): the terms of
+    (:func:`~bubblefit.model.regions.lit_chunks`, from a :class:`~bubblefit.model.footprint.Footprint`): the terms of
     :func:`_shade_chunk` without tracing the rays or reading the map again."""
     fx = cfg.effects
     p, lam = _film_setup(p, cfg)
@@ -508,69 +526,24 @@ def _shade_lit(p: Params, cfg: RenderConfig, lit: dict):
     return total
 
 
-def _lit_usable(fp, p: Params, cfg: RenderConfig) -> bool:
-    """Whether ``cfg``'s pixels can be shaded from the footprint ``fp``: its rays and lookups
-    are the ones this render would trace (one ray per pixel, the camera's own disc, a filter
-    ``fp`` measured, the same parameters and the same lights)."""
-    from .footprint import filter_key
-
-    fx = cfg.effects
-    if fp is None or cfg.samples_per_pixel != 1 or filter_key(fx.filtering) not in fp.spec:
-        return False
-    if np.any(np.asarray(p.disc) != 0) and isinstance(cfg.camera, OrthographicCamera):
-        return False
-    names = film_names(fx)
-    if any(n not in fp.films for n in names):
-        return False
-    if fx.environment != fp.environment or bool(fx.point_lights and cfg.point_lights) != fp.lights:
-        return False
-    same = lambda a, b: np.allclose(np.asarray(a, dtype=np.float32), np.asarray(b, dtype=np.float32), rtol=1e-6,
-                                    atol=0.0)
-    # a footprint does not record the profile under a map: shade from it only when there is none
-    no_profile = fx.thickness != "map" or bool(np.isnan(np.asarray(p.profile)[0]))
-    return (same(p.roughness, fp.roughness) and same(p.rotation, fp.rotation) and no_profile
-            and same(np.asarray(p.thickness).ravel(), np.asarray(fp.thickness).ravel()))
-
-
-def lit_chunks(fp, cfg: RenderConfig, pixels, chunk: int, dtype=np.float32):
-    """The footprint's values for ``pixels`` (flat indices, all in ``fp.pixels``), padded
-    and split into chunks of ``chunk`` along a leading axis, as :func:`_shade_lit` reads them."""
-    from .footprint import filter_key
-
-    fx = cfg.effects
-    pos = np.searchsorted(fp.pixels, pixels)
-    n = pos.size
-    steps = -(-n // chunk)
-    pos = pos[np.minimum(np.arange(steps * chunk), n - 1)]
-    spec = fp.spec[filter_key(fx.filtering)]
-    films = [fp.films.index(name) for name in film_names(fx)]
-    lit = {"cos": fp.cos[pos].reshape(steps, chunk), "d0": fp.d0[pos].reshape(steps, chunk),
-           "d1": fp.d1[pos].reshape(steps, chunk), "bg": fp.bg[pos].reshape(steps, chunk, 3),
-           "spec": spec[films][:, pos].reshape(len(films), steps, chunk, 3).transpose(1, 0, 2, 3),
-           "irr": fp.irr[:, pos].reshape(2, steps, chunk, 3).transpose(1, 0, 2, 3)}
-    if fx.thickness != "constant" and fx.model == "physical" and fx.rear_reflection and fx.bounces:
-        lit["dq"] = fp.dq[: fx.bounces, pos].reshape(fx.bounces, steps, chunk).transpose(1, 0, 2)
-    return {k: np.ascontiguousarray(v, dtype=dtype) for k, v in lit.items()}, n
-
-
 #: Fewest pixels of a chunk: a region's pixel count is rounded up to a power of two from
 #: here, so that regions of similar size share one compiled program.
 MIN_CHUNK = 256
 
 
-def _chunk_size(cfg: RenderConfig, npix: int) -> int:
+def chunk_size(cfg: RenderConfig, npix: int) -> int:
     """``cfg.chunk``, or the power of two (at least :data:`MIN_CHUNK`) that holds ``npix``."""
     return max(1, min(cfg.chunk, 1 << max(MIN_CHUNK.bit_length() - 1, (npix - 1).bit_length())))
 
 
-def _pixel_chunks(cfg: RenderConfig, pixels=None):
+def pixel_chunks(cfg: RenderConfig, pixels=None):
     """Flat pixel indices in chunks of ``cfg.chunk``: every pixel, or those of ``pixels``
     (M,), in chunks of a power of two (at least :data:`MIN_CHUNK`) when they are fewer;
     the padding repeats the last index and is dropped."""
     h, w = cfg.shape
     flat = np.arange(h * w) if pixels is None else np.asarray(pixels, dtype=np.int64).ravel()
     npix = flat.size
-    chunk = _chunk_size(cfg, npix)
+    chunk = chunk_size(cfg, npix)
     steps = -(-npix // chunk)
     idx = flat[np.minimum(np.arange(steps * chunk), npix - 1)]
     rows, cols = np.divmod(idx, w)
@@ -595,7 +568,7 @@ def render_terms(p: Params, cfg: RenderConfig, env: EnvMap | None, background=No
     """Render and return ``(image, terms)``: the (H, W, 3) image and a dict of its terms
     (``front``, ``rear``, ``background``), each (H, W, 3), for the effects that are on."""
     h, w = cfg.shape
-    rows, cols, idx, npix = _pixel_chunks(cfg)
+    rows, cols, idx, npix = pixel_chunks(cfg)
     bg = None if background is None else jnp.asarray(background, dtype=p.t.dtype)
     img, terms = _map_chunks(p, cfg, env, bg, rows, cols, idx)
     img = img.reshape(-1, 3)[:npix].reshape(h, w, 3)
@@ -612,137 +585,9 @@ def render(p: Params, cfg: RenderConfig, env: EnvMap | None, background=None) ->
 @functools.partial(jax.jit, static_argnames=("cfg",))
 def render_pixels(p: Params, cfg: RenderConfig, env: EnvMap | None, background, rows, cols, idx):
     """Radiance (N, 3) of the pixels ``rows``, ``cols`` (flat indices ``idx``), given in
-    chunks (steps, chunk) as :func:`_pixel_chunks` makes them: :func:`render`'s values at
+    chunks (steps, chunk) as :func:`pixel_chunks` makes them: :func:`render`'s values at
     those pixels, for a fit that compares some of an image's pixels only."""
     bg = None if background is None else jnp.asarray(background, dtype=p.t.dtype)
     return _map_chunks(p, cfg, env, bg, rows, cols, idx)[0].reshape(-1, 3)
 
 
-@functools.lru_cache(maxsize=32)
-def _stored_programs(cfg: RenderConfig):
-    """:func:`render` and :func:`_render_chunks` for ``cfg`` through the executable store
-    (:func:`bubblefit.io.executables.stored`): a new process loads them, not traces them."""
-    from ..io.executables import stored
-
-    whole = jax.jit(lambda p, env, bg: render(p, cfg, env, bg))
-    chunks = jax.jit(lambda p, env, bg, rows, cols, idx: render_pixels(p, cfg, env, bg, rows, cols, idx))
-    return stored(whole, "model.render.render", cfg), stored(chunks, "model.render._render_chunks", cfg)
-
-
-#: XLA's compiler options (``(name, value)`` pairs) for :func:`render_terms`'s stored
-#: program. A fit runs it once, on the few thousand pixels of its search image (the global
-#: search's unlit terms), on the first fit's critical path; so it is compiled at XLA's
-#: backend optimisation level 0 and with XLA:CPU's older per-element emitters for fused
-#: loops (``xla_cpu_use_fusion_emitters``): 0.22 s of compile CPU against 1.04-1.07 s
-#: with XLA's defaults, for a run of 30 ms against 8 ms (the search level of
-#: ``experiments/bench_fit.py``'s 320x320 photo, compiled alone).
-TERMS_COMPILE = (("xla_backend_optimization_level", 0), ("xla_cpu_use_fusion_emitters", False))
-
-
-@functools.lru_cache(maxsize=16)
-def _stored_terms(cfg: RenderConfig):
-    """:func:`render_terms` for ``cfg`` through the executable store, compiled with
-    :data:`TERMS_COMPILE`."""
-    from ..io.executables import stored
-
-    program = jax.jit(lambda p, env, bg: render_terms(p, cfg, env, bg), compiler_options=dict(TERMS_COMPILE))
-    return stored(program, "model.render.render_terms", (cfg, TERMS_COMPILE))
-
-
-def render_loaded(p: Params, cfg: RenderConfig, env: EnvMap | None, background=None, *, terms: bool = False,
-                  pixels=None):
-    """:func:`render` (or with ``terms``, :func:`render_terms`) through the executable store
-    (:func:`bubblefit.io.executables.stored`): the same values, and a command's process
-    loads the compiled program instead of tracing and lowering it. Concrete arrays only.
-    With ``pixels = (rows, cols, idx)`` (chunks as :func:`render_pixels` takes them), the
-    radiance (N, 3) of those pixels alone (:func:`render_pixels`)."""
-    if pixels is not None:
-        return _stored_programs(cfg)[1](p, env, background, *pixels)
-    return (_stored_terms(cfg) if terms else _stored_programs(cfg)[0])(p, env, background)
-
-
-def prepare_loaded(p: Params, cfg: RenderConfig, env: EnvMap | None, background=None, *, terms: bool = False,
-                   pixels=None):
-    """Start compiling (or loading) :func:`render_loaded`'s program for these arguments in
-    the background (:meth:`bubblefit.io.executables.Stored.prepare`): a later
-    :func:`render_loaded` with arguments of the same shapes waits for it instead of
-    compiling. Only the shapes of the arguments count."""
-    if pixels is not None:
-        _stored_programs(cfg)[1].prepare(p, env, background, *pixels)
-    else:
-        (_stored_terms(cfg) if terms else _stored_programs(cfg)[0]).prepare(p, env, background)
-
-
-@functools.lru_cache(maxsize=32)
-def _stored_lit(cfg: RenderConfig):
-    """:func:`_shade_lit` over chunks for ``cfg``, through the executable store."""
-    from ..io.executables import stored
-
-    fn = jax.jit(lambda p, lit: jax.lax.map(lambda c: _shade_lit(p, cfg, c), lit).reshape(-1, 3))
-    return stored(fn, "model.render._shade_lit", cfg)
-
-
-def _backdrop(cfg: RenderConfig) -> RenderConfig:
-    """``cfg`` with every term of the bubble off: the image of what lies behind it (the
-    background photo, the map, or black), shaded like any pixel the bubble misses."""
-    fx = cfg.effects
-    off = dataclasses.replace(fx, front_reflection=False, rear_reflection=False, transmission=False,
-                              interference="off", diffuse=False, point_lights=False, spectral=None, bounces=0,
-                              tint=False)
-    return dataclasses.replace(cfg, effects=off, dispersion=None)
-
-
-def bubble_pixels(cfg: RenderConfig) -> np.ndarray:
-    """Flat indices of the pixels the bubble can touch: those whose centre ray hits it
-    (:func:`~bubblefit.model.geometry.hit_pixels`), grown by one pixel, which covers the
-    sub-pixel rays of ``samples_per_pixel`` and the rounding at the rim."""
-    h, w = cfg.shape
-    inside = np.zeros(h * w, dtype=bool)
-    inside[hit_pixels(cfg.camera, tuple(cfg.center), float(cfg.radius))] = True
-    inside = inside.reshape(h, w)
-    grown = inside.copy()
-    grown[1:] |= inside[:-1]
-    grown[:-1] |= inside[1:]
-    grown[:, 1:] |= grown[:, :-1].copy()
-    grown[:, :-1] |= grown[:, 1:].copy()
-    return np.flatnonzero(grown)
-
-
-def render_plan(p: Params, parts, env: EnvMap | None, background=None, *, footprint=None) -> np.ndarray:
-    """The (H, W, 3) image of a scene rendered by regions (:class:`bubblefit.model.auto.Plan`).
-
-    ``parts`` pairs :class:`RenderConfig` with flat pixel indices: the first (indices
-    None) renders every pixel of the bubble the others do not name, each next one its own
-    pixels with its own effects. Pixels the bubble cannot touch (:func:`bubble_pixels`)
-    take the backdrop (:func:`_backdrop`), which no bubble term is traced for. A pixel's
-    value does not depend on the other pixels, so the regions compose exactly.
-
-    With ``footprint`` (the scene's :class:`~bubblefit.model.footprint.Footprint`, traced
-    with these parameters) a region of one ray per pixel is shaded from the light the
-    footprint already read (:func:`_shade_lit`): the same values, without a second pass
-    over the map. Its pixels that the bubble misses keep the backdrop, as they would here.
-    """
-    cfg0 = parts[0][0]
-    h, w = cfg0.shape
-    img = np.array(_stored_programs(_backdrop(cfg0))[0](p, env, background)).reshape(-1, 3)
-    if np.any(np.asarray(p.disc) != 0) and isinstance(cfg0.camera, OrthographicCamera):
-        covered = np.arange(h * w)  # a shifted disc: the camera's own disc does not bound it
-    else:
-        covered = bubble_pixels(cfg0)
-    named = [np.asarray(px, dtype=np.int64).ravel() for _, px in parts[1:] if px is not None and len(px)]
-    rest = np.setdiff1d(covered, np.concatenate(named)) if named else covered
-    for cfg, pixels in [(cfg0, rest)] + [(c, px) for c, px in parts[1:]]:
-        if pixels is None or len(pixels) == 0:
-            continue
-        pixels = np.asarray(pixels, dtype=np.int64).ravel()
-        if _lit_usable(footprint, p, cfg):
-            pixels = pixels[np.isin(pixels, footprint.pixels)]
-            if pixels.size == 0:
-                continue
-            lit, npix = lit_chunks(footprint, cfg, pixels, _chunk_size(cfg, pixels.size), np.dtype(p.t.dtype))
-            vals = _stored_lit(cfg)(p, lit)
-        else:
-            rows, cols, idx, npix = _pixel_chunks(cfg, pixels)
-            vals = _stored_programs(cfg)[1](p, env, background, rows, cols, idx)
-        img[pixels] = np.asarray(vals)[:npix]
-    return img.reshape(h, w, 3)

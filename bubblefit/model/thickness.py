@@ -16,9 +16,9 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array
 
-__all__ = ["KINDS", "thickness_at", "drainage_profile"]
+from .modes import ThicknessKind
 
-KINDS = ("constant", "drainage", "map")
+__all__ = ["thickness_at", "drainage_profile"]
 
 
 def drainage_profile(y: Array, top, bottom, exponent) -> Array:
@@ -29,7 +29,7 @@ def drainage_profile(y: Array, top, bottom, exponent) -> Array:
     return top + (bottom - top) * powed
 
 
-def thickness_at(kind: str, values: Array, local: Array, pixel: Array, profile: Array | None = None,
+def thickness_at(kind: ThicknessKind, values: Array, local: Array, pixel: Array, profile: Array | None = None,
                  front: Array | None = None) -> Array:
     """Thickness (nm) at film points.
 

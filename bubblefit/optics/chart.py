@@ -31,6 +31,19 @@ def interference_colours(thickness_nm, *, angle_deg: float = 0.0, model: str = "
     or a preset (:mod:`bubblefit.optics.dispersion`), evaluated at each sample wavelength;
     ``basis`` carries the illuminant and the camera response (default: the converged
     ``reference`` quadrature, D65, sRGB).
+
+    Examples
+    --------
+    A film of no thickness reflects nothing; a film too thick to interfere reflects the grey
+    ``2R/(1+R)`` of its two faces, ``R`` one face's Fresnel reflectance:
+
+    >>> import numpy as np
+    >>> import bubblefit as bf
+    >>> bf.interference_colours([0.0]).round(6).tolist()
+    [[0.0, 0.0, 0.0]]
+    >>> R = ((1.4 - 1.0) / (1.4 + 1.0)) ** 2
+    >>> bool(np.allclose(bf.interference_colours([5000.0], model="incoherent"), 2 * R / (1 + R)))
+    True
     """
     if model not in MODELS:
         raise ValueError(f"unknown chart model {model!r}; expected one of {MODELS}")

@@ -435,7 +435,15 @@ class SpectralBasis:
 
 def spectral_basis(method: SpectralMethod = "uniform", samples: int = 30, illuminant: str = "D65", response: str = "srgb",
                    white_balance="illuminant") -> SpectralBasis:
-    """The quadrature for ``method`` (``uniform``, ``reference``, ``fourier`` or ``harmonic``) with ``samples`` bins."""
+    """The quadrature for ``method`` (``uniform``, ``reference``, ``fourier`` or ``harmonic``) with ``samples`` bins.
+
+    Examples
+    --------
+    >>> import bubblefit as bf
+    >>> basis = bf.spectral_basis("fourier", 8)     # the alias-free lobes fits use
+    >>> basis.method, basis.wavelengths.shape
+    ('fourier', (8,))
+    """
     return SpectralBasis(method, samples, illuminant, response, white_balance)
 
 

@@ -238,7 +238,8 @@ def render(truth: dict, *, illuminant: str, spp: int, film: str = "carried", thi
     ``photo * exposure``, then vio.add_noise_and_quantise)."""
     import dataclasses
 
-    from bubblefit.model.render import render_plan
+    from bubblefit.model.programs import STORED
+    from bubblefit.model.regions import render_plan
     from bubblefit.model.scene import Scene, render_scene
 
     if film not in FILM_MODES:
@@ -264,7 +265,7 @@ def render(truth: dict, *, illuminant: str, spp: int, film: str = "carried", thi
             if any(cfg.effects.spectral.basis != basis for cfg, _ in parts):
                 raise ValueError("the regions of the plan use different spectral bases")
             with film_mode("cycles_rgb", basis):
-                img = render_plan(scene.params(), parts, env, None)
+                img = render_plan(scene.params(), parts, env, None, programs=STORED)
     return np.clip(np.asarray(img, dtype=np.float64) * truth["exposure"], 0.0, 1.0)
 
 

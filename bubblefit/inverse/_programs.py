@@ -1,0 +1,286 @@
+"""The fit's compiled programs, prepared, stored and loaded in one place.
+
+The fit's algorithm (:mod:`.fit`, :mod:`._local`, :mod:`.search`, :mod:`._maps`,
+:mod:`._uncertainty`) asks for programs by what they compute; this module builds them
+(:func:`solver`, :func:`reporter`, the renders of a level), keeps them in the executable
+store (:func:`bubblefit.io.executables.stored`; the model's own programs come from
+:mod:`bubblefit.model.programs`) and starts their compiles ahead (:func:`warm_up`).
+
+Compiled solvers are cached per static configuration (effects, parameter table, padded
+size): a level is padded and its disc passed as data
+(:func:`~bubblefit.inverse._observation.padded`), so photos of any framing whose levels
+pad to the same size share the compiled solves and the persistent cache's programs.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, replace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+
+from ._lm import JACOBIANS, MAX_REJECTIONS, LevenbergMarquardt, robust
+from ._observation import Level, Padded, Pixels, fitted_pixels, padded, unpadded
+from ._options import FitOptions
+from ._parameters import ParameterTable
+from ..io.executables import stored
+from ..model.geometry import OrthographicCamera, compose_shift
+from ..model.programs import prepare_loaded, render_loaded
+from ..model.render import RenderConfig, render_pixels
+
+__all__ = ["solver", "stored_solver", "batched_solver", "reporter", "held_values", "solve_program",
+           "prepare_local", "prepare_reporter", "render_level", "prepare_render_level", "render_bubble",
+           "prepare_render_bubble", "final_params", "SolveSettings", "FINAL_SOLVE", "SEARCH_SOLVE", "WARM_SOLVE",
+           "FINAL_JACOBIAN", "FINAL_COMPILE", "SEARCH_COMPILE", "warm_up"]
+
+
+#: The final solve's Jacobian after a global search (a key of
+#: :data:`~bubblefit.inverse._local.JACOBIANS`): by columns, faster per step on the fit
+#: level; its program compiles in the background during the search, whose own solve
+#: keeps the groups (shorter to compile, on the first fit's critical path). A warm-started
+#: fit keeps the groups too: its solve compiles on the critical path, and on a sequence's
+#: 64x64 frames pinned to one core the columns made 5.24 and 4.36 frames/s against 5.66
+#: and 4.93 by groups (alternate runs).
+FINAL_JACOBIAN = "columns"
+
+
+#: XLA's compiler options (``(name, value)`` pairs) for the solves of a fit that searches
+#: globally: the search's and the final one (a warm-started fit, a sequence's frame, keeps
+#: XLA's defaults: there the run counts more than the compile). On an empty cache these
+#: compiles are most of the first fit, so both solves are compiled at XLA's backend
+#: optimisation level 1 (its default is 2) and with XLA:CPU's older per-element emitters
+#: for fused loops instead of its MLIR fusion emitters (``xla_cpu_use_fusion_emitters``,
+#: an option of the pinned jaxlib; a jaxlib without it refuses the compile). Compiled
+#: alone, the emitters took the final solve's compile CPU from 7.6-7.9 s to 5.6-5.7 s for
+#: a run from the set-up's values of 0.55-0.59 s against 0.49 s, and the search solve's
+#: from 4.9-5.0 s to 3.2-3.3 s for the same run (level 1 alone had taken the final
+#: solve's from 9.6-10.5 s to 7.8-7.9 s). In alternate processes
+#: (``experiments/bench_fit.py --stages --empty-cache``, three rounds) the first fit took
+#: 13.7-13.9 s with level 1 alone, 11.9-12.2 s with the older emitters for the search's
+#: solve (and :data:`~bubblefit.model.programs.TERMS_COMPILE`), and 10.5-11.0 s with them
+#: for both solves (18.4-19.2 s of CPU against 24.8-25.3 s); the warm fit 0.86-0.87 s,
+#: 0.87-0.96 s and 0.89-0.91 s.
+FINAL_COMPILE = (("xla_backend_optimization_level", 1), ("xla_cpu_use_fusion_emitters", False))
+
+
+SEARCH_COMPILE = FINAL_COMPILE
+
+
+@dataclass(frozen=True)
+class SolveSettings:
+    """How a local solve's program is built (:func:`solver`): its Jacobian (a key of
+    :data:`~bubblefit.inverse._lm.JACOBIANS`), XLA's compiler options, and whether it stops
+    on rejections and restarts (``stall``, :func:`bubblefit.inverse._local.solve_local`)."""
+
+    jacobian: str = "groups"
+    compile_options: tuple = ()
+    stall: bool = True
+
+
+#: The final solve after a global search (:data:`FINAL_JACOBIAN`, :data:`FINAL_COMPILE`).
+FINAL_SOLVE = SolveSettings(FINAL_JACOBIAN, FINAL_COMPILE, True)
+#: The global search's own short solves (:data:`SEARCH_COMPILE`).
+SEARCH_SOLVE = SolveSettings("groups", SEARCH_COMPILE, True)
+#: A warm-started fit's solve: the groups, XLA's defaults, optimistix' own stopping rule.
+WARM_SOLVE = SolveSettings("groups", (), False)
+
+
+def final_params(table, vals: dict, opts: FitOptions):
+    """The render parameters of the final full-resolution image (:func:`bubblefit.inverse.fit._finish`)."""
+    return table.render_params({k: jnp.asarray(v, jnp.float32) for k, v in vals.items()},
+                               "map" if opts.thickness == "map" else None)
+
+
+
+@functools.lru_cache(maxsize=64)
+def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_steps: int, rtol: float, atol: float,
+           max_rejections: int | None = MAX_REJECTIONS, jacobian: str = "groups", compile_options: tuple = ()):
+    """Jitted ``solve(z0, args) -> (z, ok, maxed, steps, residual, J)`` and ``resid``
+    (``jacobian``: a key of :data:`JACOBIANS`; ``compile_options``: XLA's compiler options
+    for the solve's program as ``(name, value)`` pairs, ``()`` for XLA's defaults).
+
+    ``args = (fixed, env, background, photo, weights, base, (rows, cols, idx))``: the
+    fitted pixels of a padded level (:func:`~bubblefit.inverse._observation.fitted_pixels`);
+    the residual is ``robust((render - photo) * weights)`` over them, flattened, rendered
+    with the disc moved by ``base`` and then by the fitted refinement
+    (:func:`~bubblefit.model.geometry.compose_shift`).
+    """
+
+    def resid(z, args):
+        fixed, env, bg, y, w, base, (rows, cols, idx) = args
+        p = table.render_params(table.values(z, fixed))
+        img = render_pixels(replace(p, disc=compose_shift(base, p.disc)), cfg, env, bg, rows, cols, idx)
+        return robust((img - y) * w, robust_scale).reshape(-1)
+
+    lm = LevenbergMarquardt(rtol=rtol, atol=atol, max_rejections=max_rejections, free=table.free,
+                            jacobian=JACOBIANS[jacobian](resid, table))
+
+    @functools.partial(jax.jit, compiler_options=dict(compile_options) or None)
+    def solve(z0, args):
+        sol = optx.least_squares(resid, lm, z0, args, max_steps=max_steps, throw=False)
+        # The last accepted point's residual and Jacobian, which the solver evaluated there
+        # (every solve takes at least one step, and the first is accepted): tracing them
+        # again would double the program's renders and its compile time.
+        f_info = sol.state.f_info
+        z, r, jac = sol.value, f_info.residual, f_info.jac.as_matrix()
+        maxed = (sol.result == optx.RESULTS.max_steps_reached) | (
+            sol.result == optx.RESULTS.nonlinear_max_steps_reached)
+        return (z, sol.result == optx.RESULTS.successful, maxed, sol.stats["num_steps"], r, jac)
+
+    return solve, jax.jit(resid)
+
+
+@functools.lru_cache(maxsize=64)
+def stored_solver(*key):
+    """:func:`solver`'s ``solve`` through the executable store (:func:`bubblefit.io.executables.stored`):
+    a new process loads the compiled solve instead of tracing it again."""
+    return stored(solver(*key)[0], "inverse._programs.solver", key)
+
+
+@functools.lru_cache(maxsize=16)
+def batched_solver(*key):
+    """:func:`solver`'s ``solve`` vmapped over frames: ``z0``, ``y`` and ``w`` carry a
+    leading frame axis; the fixed values, the map, the background and the disc are shared."""
+    solve, _ = solver(*key)
+    return jax.jit(jax.vmap(solve, in_axes=(0, (None, None, None, 0, 0, None, None))))
+
+
+@functools.lru_cache(maxsize=64)
+def reporter(table: ParameterTable):
+    """Jitted ``(z, fixed) -> reported values`` and its Jacobian (for the delta method),
+    through the executable store (:func:`prepare_reporter` starts their compile)."""
+    def rep(z, fixed):
+        return table.reported(table.values(z, fixed))
+
+    return (stored(jax.jit(rep), "inverse._programs.reporter", table),
+            stored(jax.jit(jax.jacfwd(rep)), "inverse._programs.reporter_jacobian", table))
+
+
+def held_values(table: ParameterTable, vals: dict) -> dict:
+    """The values of ``vals`` that ``table`` holds, as the solve's programs (batched too) and
+    :func:`reporter`'s take them (float32)."""
+    return {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k not in table.free}
+
+
+def solve_program(lev: Level, table: ParameterTable, opts: FitOptions, vals: dict, env, max_steps: int | None,
+                  settings: SolveSettings):
+    """``(key, args, pixels)``: the key of :func:`~bubblefit.inverse._local.solve_local`'s solve for ``lev``
+    (:func:`solver`'s arguments) and the arguments it takes besides the start (the held
+    ``vals`` and the level's fitted pixels)."""
+    px = fitted_pixels(lev, lev.cfg.chunk)
+    pad = px.padded
+    key = (pad.cfg, table, float(opts.robust_scale), int(max_steps or opts.max_steps), float(opts.rtol),
+           float(opts.atol), MAX_REJECTIONS if settings.stall else None, settings.jacobian,
+           tuple(settings.compile_options))
+    args = (held_values(table, vals), env, pad.bg, px.y, px.w, pad.base, (px.rows, px.cols, px.idx))
+    return key, args, px
+
+
+def prepare_local(lev: Level, table: ParameterTable, opts: FitOptions, vals: dict, env, max_steps=None,
+                  settings: SolveSettings = SolveSettings()) -> None:
+    """Start compiling (or loading) the program of :func:`~bubblefit.inverse._local.solve_local` with these arguments
+    in the background (:meth:`bubblefit.io.executables.Stored.prepare`): a fit calls it for
+    its final solve before the global search, whose own programs compile meanwhile. Only
+    the shapes of ``vals`` and the level count; without the executable store (library
+    calls) the program is compiled in the background all the same, not saved."""
+    key, args, _ = solve_program(lev, table, opts, vals, env, max_steps, settings)
+    stored_solver(*key).prepare(table.unconstrained(vals), args)
+
+
+def prepare_reporter(table: ParameterTable, vals: dict) -> None:
+    """Start compiling (or loading) :func:`reporter`'s programs in the background, for a
+    solution of ``table`` held at ``vals`` (the standard errors, :mod:`._uncertainty`)."""
+    for program in reporter(table):
+        program.prepare(table.unconstrained(vals), held_values(table, vals))
+
+
+
+def render_level(p, lev: Level, env, cfg: RenderConfig | None = None, terms: bool = False):
+    """:func:`~bubblefit.model.programs.render_loaded` of ``lev`` (with ``cfg``, another
+    configuration of the same camera) through its padded program: ``p``'s disc refinement
+    is composed with the level's disc; the image (and with ``terms`` the dict of terms) on
+    ``lev``'s pixels."""
+    pad, p = _padded_params(p, lev, cfg)
+    out = render_loaded(p, pad.cfg, env, pad.bg, terms=terms)
+    if terms:
+        return unpadded(lev, out[0]), {k: unpadded(lev, v) for k, v in out[1].items()}
+    return unpadded(lev, out)
+
+
+def prepare_render_level(p, lev: Level, env, cfg: RenderConfig | None = None, terms: bool = False) -> None:
+    """Start compiling (or loading) :func:`render_level`'s program for these arguments in
+    the background (:func:`~bubblefit.model.programs.prepare_loaded`); only their shapes count."""
+    pad, p = _padded_params(p, lev, cfg)
+    prepare_loaded(p, pad.cfg, env, pad.bg, terms=terms)
+
+
+#: Pixels beyond the disc's rim that :func:`render_bubble` still renders: the sub-pixel
+#: rays of ``samples_per_pixel`` reach half a pixel's diagonal, and float32 rounding.
+RIM_MARGIN_PX = 1.5
+
+
+def _bubble_list(p, lev: Level) -> tuple[Padded, Pixels | None, object]:
+    """``(padded level, list, p)`` for :func:`render_bubble`: the pixels whose centre lies
+    within :data:`RIM_MARGIN_PX` of the disc that ``p``'s refinement moves the level's disc
+    to (``None`` where the shortcut does not apply: not an orthographic camera, or a
+    background other than the photo's), and ``p`` with that refinement composed."""
+    pad, q = _padded_params(p, lev, None)
+    if not (isinstance(pad.cfg.camera, OrthographicCamera) and pad.bg is not None
+            and lev.cfg.effects.background == "photo"):
+        return pad, None, q
+    cx0, cy0, r0 = pad.cfg.camera.disc()
+    a, b, s = (float(v) for v in np.asarray(q.disc))
+    h, w = lev.y.shape[:2]
+    rows, cols = np.mgrid[:h, :w]
+    near = np.hypot(cols + 0.5 - (cx0 + a * r0), rows + 0.5 - (cy0 + b * r0)) <= r0 * (1.0 + s) + RIM_MARGIN_PX
+    return pad, fitted_pixels(lev, lev.cfg.chunk, near), q
+
+
+def render_bubble(p, lev: Level, env) -> np.ndarray:
+    """:func:`render_level`'s image of ``lev`` (numpy, float32), with only the pixels the
+    bubble can reach rendered (:func:`_bubble_list`): outside them the image is the
+    background photo, which is what the render's composite puts where a ray misses the
+    bubble. On a disc that fills 55 % of the photo, 0.20 s against 0.28 s for 320x320
+    pixels; the same values wherever the shortcut does not apply."""
+    pad, px, q = _bubble_list(p, lev)
+    if px is None:
+        return render_level(p, lev, env)
+    vals = np.asarray(render_loaded(q, pad.cfg, env, pad.bg, pixels=(px.rows, px.cols, px.idx)))
+    img = np.array(lev.bg, np.float32).reshape(-1, 3)
+    img[px.flat] = vals[: px.flat.size]
+    return img.reshape(lev.bg.shape)
+
+
+def prepare_render_bubble(p, lev: Level, env) -> None:
+    """Start compiling (or loading) :func:`render_bubble`'s program in the background: for
+    the list of ``p``'s disc (a refined disc whose list pads to another length compiles
+    its own)."""
+    pad, px, q = _bubble_list(p, lev)
+    if px is None:
+        prepare_render_level(p, lev, env)
+    else:
+        prepare_loaded(q, pad.cfg, env, pad.bg, pixels=(px.rows, px.cols, px.idx))
+
+
+def _padded_params(p, lev: Level, cfg: RenderConfig | None):
+    """``lev`` (with ``cfg``) padded, and ``p`` with its disc refinement composed with the level's."""
+    pad = padded(replace(lev, cfg=cfg) if cfg is not None else lev)
+    return pad, replace(p, disc=compose_shift(pad.base, np.asarray(p.disc, np.float32)))
+
+
+
+def warm_up(st, opts: FitOptions, env, settings: SolveSettings) -> None:
+    """Start compiling (or loading) in the background the programs a fit that searches
+    globally runs after its search: the final solve (``settings``), the final render
+    (unless a thickness map is fitted: its render compiles after the map) and the
+    standard errors' (:func:`prepare_local`, :func:`prepare_render_bubble`,
+    :func:`prepare_reporter`). On 2 cores an empty-cache fit takes about 4 s less
+    (``experiments/bench_fit.py --background-compile``). ``st``: the fit's
+    :class:`~bubblefit.inverse._setup.Setup`."""
+    prepare_local(st.lev_fit, st.table, opts, st.vals, env, settings=settings)
+    if opts.thickness != "map":
+        prepare_render_bubble(final_params(st.table, st.vals, opts), st.level(1, opts), env)
+    prepare_reporter(st.table, st.vals)

@@ -268,7 +268,7 @@ def _write_cube_outputs(prefix: str, tmap, line: bool) -> None:
 
     from ..io.atomic import write_text
     from ..io.images import write_image
-    from .fit import _thickness_png
+    from ..report.figures import map_figure
 
     t = np.where(tmap.ok, tmap.thickness_nm, np.nan)
     if line:
@@ -281,8 +281,9 @@ def _write_cube_outputs(prefix: str, tmap, line: bool) -> None:
     write_image(f"{prefix}_thickness.exr", tmap.thickness_nm, bit_depth=32)
     write_image(f"{prefix}_thickness_stderr.exr", np.where(np.isfinite(tmap.stderr_nm), tmap.stderr_nm, np.nan),
                 bit_depth=32)
-    _thickness_png(f"{prefix}_thickness.png", t, "thickness (nm)")
-    _thickness_png(f"{prefix}_thickness_stderr.png", np.where(tmap.ok, tmap.stderr_nm, np.nan), "standard error (nm)")
+    map_figure(Path(f"{prefix}_thickness.png"), t, "film thickness", "viridis", "thickness (nm)")
+    map_figure(Path(f"{prefix}_thickness_stderr.png"), np.where(tmap.ok, tmap.stderr_nm, np.nan),
+               "its standard error", "magma", "standard error (nm)")
 
 
 def _plot_profile(tmap, path: str) -> None:

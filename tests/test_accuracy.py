@@ -127,6 +127,7 @@ def test_unknown_fourier_sample_count_is_rejected():
         spectral.spectral_basis("fourier", 9)
 
 
+@pytest.mark.slow
 def test_quick_sweep_writes_results_and_error_falls(tmp_path):
     out = tmp_path / "acc"
     proc = subprocess.run([sys.executable, str(ROOT / "experiments" / "accuracy_vs_time.py"), "--quick",

@@ -452,6 +452,7 @@ def test_cli_corrupt_file(tmp_path, monkeypatch, capsys, kind):
     _assert_one_line_error(code, err, "after.png")
 
 
+@pytest.mark.slow
 def test_entry_point_end_to_end(tmp_path):
     """The installed command line, as users run it (needs every registered sub-command)."""
     import importlib.util
@@ -523,6 +524,7 @@ VALIDATION = Path(__file__).resolve().parent.parent / "experiments" / "validatio
 _PAIRS = sorted(p.parent.name for p in VALIDATION.glob("cal_*/truth.json")) if VALIDATION.is_dir() else []
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not _PAIRS, reason="the independent Mitsuba 3 dark-box pairs are not present")
 @pytest.mark.parametrize("case", _PAIRS[:1] or ["none"])
 def test_interval_covers_the_truth_on_an_independent_pair(case):

@@ -9,6 +9,9 @@ import json
 import numpy as np
 import pytest
 
+# the whole demo (synthesise, calibrate, fit) runs once for this module
+pytestmark = pytest.mark.slow
+
 SIZE = 64
 
 

@@ -434,6 +434,7 @@ def fit_env(small_courtyard):
     return EnvMap.from_array(small_courtyard)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("init", [
     {"thickness_nm": 1900.0, "roughness": 0.6, "t": 0.6, "exposure": 20.0},
     {"thickness_nm": 0.0, "roughness": 1e-4, "t": 0.999, "exposure": 1e-3},
@@ -448,6 +449,7 @@ def test_fit_from_bad_start_reports_or_recovers(init, fit_env):
     _honest(res, {"thickness_nm": (700.0, 5.0), "t": (0.972, 0.003)})
 
 
+@pytest.mark.slow
 def test_fit_unidentifiable_roughness_in_uniform_light():
     """In a uniform environment the roughness does not change the image: it must come back
     held, with a large standard error, or as a failed fit, not as a confident number."""
@@ -464,6 +466,7 @@ def test_fit_unidentifiable_roughness_in_uniform_light():
             (res.params["roughness"], err, res.held)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("what", ["nan", "saturated"])
 def test_fit_on_unusable_photo(what, fit_env):
     """NaN pixels or a saturated bubble: an InputError or a failed fit. (A black bubble region

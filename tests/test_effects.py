@@ -78,9 +78,12 @@ def test_auto_within_budget_of_all_on(name, maps):
     img = B.render_parts(p, parts, env, bgr)
     ref = B.render_parts(p_on, parts_on, env, bgr_on)
     assert np.all(np.isfinite(img)) and ref.max() > 0.02
-    share = B.budget_share(img, ref, DEFAULT_TOLERANCE)
-    if share > 1.0:  # the float32 rounding of another compilation, measured on all-on itself
-        share = B.budget_share(img, ref, DEFAULT_TOLERANCE, B.reproducibility(p_on, parts_on, env, bgr_on, ref))
+    # The all-on reference is a float32 render too: where a mirror sees the sun's edge two
+    # compilations of it differ by a few percent. That rounding, measured on all-on itself
+    # (rendered again in other chunks), is taken off every pixel's difference: one check,
+    # the same for every scene.
+    noise = B.reproducibility(p_on, parts_on, env, bgr_on, ref)
+    share = B.budget_share(img, ref, DEFAULT_TOLERANCE, noise)
     assert share <= 1.0, f"{name}: auto uses {share:.2f} of its budget: {[d.line() for d in decisions]}"
 
 

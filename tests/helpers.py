@@ -206,3 +206,47 @@ def mirror_ball_photo(radiance, size: int, cx: float, cy: float, r: float, ss: i
             d = np.stack([2 * x * nz, 2 * y * nz, 2 * nz * nz - 1], axis=-1)
             acc += np.where((rho2 < 1.0)[..., None], radiance(d), bg)
     return acc / (ss * ss)
+
+
+def mirror_ball_photo_perspective(radiance, size: int, cx: float, cy: float, r: float, distance: float,
+                                  ss: int = 4, bg=0.0):
+    """Like :func:`mirror_ball_photo` for a pinhole camera at ``distance`` ball radii on +z,
+    looking along -z at the unit sphere; ``r`` is the outline's radius in pixels, so the
+    focal length is ``r / tan(alpha)`` with ``sin(alpha) = 1 / distance`` (the tangent cone).
+    Each ray ``o + s d`` meets the sphere at the smaller root of ``|o + s d|^2 = 1``."""
+    f = r / np.tan(np.arcsin(1.0 / distance))
+    o = np.array([0.0, 0.0, distance])
+    acc = np.zeros((size, size, 3))
+    yy, xx = np.mgrid[0:size, 0:size].astype(np.float64)
+    for a in range(ss):
+        for b in range(ss):
+            d = np.stack([(xx + (a + 0.5) / ss - cx) / f, -(yy + (b + 0.5) / ss - cy) / f,
+                          -np.ones_like(xx)], axis=-1)
+            d /= np.linalg.norm(d, axis=-1, keepdims=True)
+            bq = d @ o
+            disc = bq**2 - (o @ o - 1.0)
+            hit = disc > 0
+            s_hit = -bq - np.sqrt(np.where(hit, disc, 0.0))
+            n = o + s_hit[..., None] * d
+            refl = d - 2 * np.sum(d * n, axis=-1, keepdims=True) * n
+            acc += np.where(hit[..., None], radiance(refl), bg)
+    return acc / (ss * ss)
+
+
+def texel_mean_directions(h: int, w: int):
+    """Solid-angle mean (H, W, 3) of the direction over each texel (not normalised): the
+    band ``theta in pi [i - 1/2, i + 1/2] / (H - 1)`` (clipped to [0, pi]) times the column
+    ``phi in 2 pi [j, j + 1] / W``, integrated in closed form:
+    ``int sin^2 = theta / 2 - sin(2 theta) / 4``, ``int sin cos = sin^2(theta) / 2``."""
+    i = np.arange(h)
+    t0 = np.clip((i - 0.5) / (h - 1), 0, 1) * np.pi
+    t1 = np.clip((i + 0.5) / (h - 1), 0, 1) * np.pi
+    p0 = 2 * np.pi * np.arange(w) / w
+    p1 = p0 + 2 * np.pi / w
+    area = ((np.cos(t0) - np.cos(t1))[:, None] * (p1 - p0)[None, :])
+    s2 = (0.5 * (t1 - t0) - 0.25 * (np.sin(2 * t1) - np.sin(2 * t0)))[:, None]
+    sc = (0.5 * (np.sin(t1) ** 2 - np.sin(t0) ** 2))[:, None]
+    x = s2 * (np.cos(p0) - np.cos(p1))[None, :]       # int sin(phi) = cos(p0) - cos(p1)
+    y = sc * (p1 - p0)[None, :]
+    z = -s2 * (np.sin(p1) - np.sin(p0))[None, :]      # int -cos(phi) = -(sin(p1) - sin(p0))
+    return np.stack([x, y, z], axis=-1) / area[..., None]

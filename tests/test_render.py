@@ -8,29 +8,11 @@ import dataclasses
 import numpy as np
 
 
-def _fresnel_rs_rp(cos_i, n):
-    """Power reflectance of one air/film interface per polarisation (Hecht, Optics, 4.4)."""
-    sin_t = np.sqrt(np.maximum(1 - cos_i**2, 0)) / n
-    cos_t = np.sqrt(1 - sin_t**2)
-    rs = (cos_i - n * cos_t) / (cos_i + n * cos_t)
-    rp = (cos_t - n * cos_i) / (cos_t + n * cos_i)
-    return np.stack([rs**2, rp**2], axis=-1)
-
-
-def _env_lookup(px, d):
-    """Bilinear equirectangular lookup, Mitsuba's convention (docs/design.md), written afresh."""
-    h, w = px.shape[:2]
-    u = (np.arctan2(d[..., 0], -d[..., 2]) / (2 * np.pi)) % 1.0
-    v = np.arccos(np.clip(d[..., 1], -1, 1)) / np.pi
-    x = u * w - 0.5
-    y = v * (h - 1)
-    x0 = np.floor(x).astype(int)
-    y0 = np.clip(np.floor(y).astype(int), 0, h - 2)
-    fx = (x - x0)[..., None]
-    fy = np.clip(y - y0, 0, 1)[..., None]
-    x0w, x1w = x0 % w, (x0 + 1) % w
-    return ((px[y0, x0w] * (1 - fx) + px[y0, x1w] * fx) * (1 - fy)
-            + (px[y0 + 1, x0w] * (1 - fx) + px[y0 + 1, x1w] * fx) * fy)
+# Fresnel's equations and the map lookup of docs/design.md's convention, written in
+# tests/helpers.py; test_render_reference.test_map_convention_is_mitsubas anchors the
+# convention to Mitsuba 3's renders of a mirror sphere.
+from helpers import equirect_lookup as _env_lookup  # noqa: E402
+from helpers import fresnel_rs_rp as _fresnel_rs_rp  # noqa: E402
 
 
 def _slab(cos_i, n, depth=200):

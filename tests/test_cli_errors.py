@@ -58,8 +58,7 @@ def assert_no_temp_files(folder: Path) -> None:
 
 
 def need(command: str):
-    if command not in REGISTERED:
-        pytest.skip(f"command {command} is not registered yet")
+    assert command in REGISTERED, f"command {command} is not registered"
 
 
 def _disc_photo(h=24, w=24, inside=0.6, outside=0.3, seed=0):

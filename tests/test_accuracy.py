@@ -94,6 +94,7 @@ def test_filtered_film_functions_limits_and_gradients():
     assert np.isfinite(float(g))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", ["paper", "physical"])
 def test_scene_renders_thick_film_with_fourier_basis(model):
     """A 3000-6000 nm film (front reflection): fourier/8 lands on the reference render;

@@ -234,6 +234,7 @@ def test_forward_model_agrees_with_calibration_physics():
 # --------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", ["paper", "physical"])
 def test_t_within_0002_and_interval_coverage(model):
     trials = 20

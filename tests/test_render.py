@@ -184,6 +184,7 @@ def with_field(p, name, value):
     return dataclasses.replace(p, **{name: value})
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model,interference,method", [
     ("paper", "two_beam", "mipmap"),
     ("physical", "airy", "mipmap"),
@@ -339,8 +340,9 @@ def _texel_steps(pixels: np.ndarray) -> np.ndarray:
 RAY_ROUNDINGS = 32 * 5 * 1.6
 
 
-@pytest.mark.parametrize("case", ["physical_drainage_lamp_perspective", "paper_photo", "physical_mirror",
-                                  "supersampled"])
+@pytest.mark.parametrize("case", [pytest.param("physical_drainage_lamp_perspective", marks=pytest.mark.slow),
+                                  "paper_photo", "physical_mirror",
+                                  pytest.param("supersampled", marks=pytest.mark.slow)])
 def test_render_plan_from_the_footprint_equals_the_traced_render(small_courtyard, case):
     """render_scene shades the bubble from the light its footprint read (one ray per pixel):
     the image equals the plan traced afresh, region by region, for both models, a thickness

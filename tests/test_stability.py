@@ -334,6 +334,7 @@ def hard_env():
     return EnvMap.from_array(_hard_env(16))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model,interference,method", RENDER_CASES)
 def test_render_loss_gradients_at_hard_points(model, interference, method, hard_env):
     """A 12x12 render (the disc's rim crosses pixels, corners miss the bubble) on a map with

@@ -63,6 +63,7 @@ def _opts(**kw):
     return FitOptions(**base)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed,thickness,tint", [
     (0, 150.0, True), (1, 720.0, False),
     # Known: t comes out 0.0027 off (4.5 of its stated standard errors) on this 8-bit photo;
@@ -145,6 +146,7 @@ def map_fit(env, tmp_path_factory):
     return res, true, y, (top, bottom, expo)
 
 
+@pytest.mark.slow
 def test_drainage_and_map(map_fit):
     """The profile's parameters and the map (< 10 nm median), with per-pixel errors."""
     res, true, _, (top, bottom, _) = map_fit
@@ -161,6 +163,7 @@ def test_drainage_and_map(map_fit):
     assert np.all(res.thickness_stderr_map[used] > 0)
 
 
+@pytest.mark.slow
 @pytest.mark.xfail(reason="not met yet on this 48 px photo: 84% of pixels within 15 nm, a neighbour jump of "
                           "128 nm, the bump recovered as 21 nm over the fitted profile (issue 14's map targets)",
                    strict=False)
@@ -184,6 +187,7 @@ def test_map_meets_order_targets(map_fit):
     assert abs((m - prof)[ic - 1:ic + 2, jc - 1:jc + 2].mean() - 40.0) < 15.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rim", [0.75, 0.5])
 def test_model_mismatch(env, rim):
     """Paper-model fit of a physical-model photo (Fresnel, Airy, bounces), cold start:
@@ -209,6 +213,7 @@ def test_model_mismatch(env, rim):
         assert abs(grey.params["thickness_nm"] - 560.0) > 50.0
 
 
+@pytest.mark.slow
 def test_failed_fit_is_reported_and_skipped_effects_held(env):
     """A fit stopped after 2 steps says it did not converge (and why); with the diffuse
     term off, the split is held and reported without an error bar."""
@@ -235,6 +240,7 @@ def test_failed_fit_is_reported_and_skipped_effects_held(env):
     assert any(d.effect == "diffuse" and not d.simulated for d in res.effects)
 
 
+@pytest.mark.slow
 def test_cli_fit(env, small_courtyard, tmp_path, capsys):
     from bubblefit.cli import main
     from bubblefit.io.images import read_image, write_image
@@ -281,6 +287,7 @@ def test_cli_fit(env, small_courtyard, tmp_path, capsys):
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_wrong_map_is_not_ok(env, small_courtyard):
     """The right photo fitted with another environment (the map turned by 90 degrees):
     the fit may converge, but it is not ok, and a warning says the model does not explain
@@ -372,6 +379,7 @@ def test_cli_thickness_range_must_be_finite(tmp_path, capsys):
     assert code == 2 and len(err) == 1 and "thickness-range" in err[0]
 
 
+@pytest.mark.slow
 def test_padded_level_renders_the_level_and_serves_every_framing(env):
     """A level's padded program (canonical camera, disc passed as data) renders the
     level's own image, with and without a disc refinement, and a photo framed otherwise

@@ -255,7 +255,7 @@ def run(args) -> int:
     from ..io.images import preview_path, read_image, write_image
     from ..progress import stage
     from ..model.scene import load_scene
-    from .common import guard_args, scene_inputs, write_json
+    from .common import guard_args, scene_inputs, write_fit_images, write_json
 
     if args.scene:
         from ..model.planar_scene import is_planar_file
@@ -298,34 +298,9 @@ def run(args) -> int:
     with output_set():  # the maps and the JSON replace the earlier ones together, or none does
         if args.output:
             with stage("writing the maps"):
-                out["outputs"] = _write_outputs(args.output, result, write_image, preview_path)
+                out["outputs"] = write_fit_images(args.output, result, write_image, preview_path)
         if args.json:
             write_json(args.json, out)
     if args.strict and not result.ok:
         raise ComputationError("the fit is not ok: " + ("; ".join(result.warnings) or result.message))
     return 0
-
-
-def _write_outputs(prefix: str, result, write_image, preview_path) -> dict:
-    """``PREFIX_render``, ``_residual``, ``_thickness``, ``_thickness_stderr`` (EXR + PNG; the
-    residual's and the maps' PNGs are the figures of :mod:`bubblefit.report.figures`)."""
-    from ..report import figures
-
-    files = {"render": result.render, "residual": result.residual}
-    if result.thickness_map is not None:
-        files["thickness"] = result.thickness_map
-    if result.thickness_stderr_map is not None:
-        files["thickness_stderr"] = result.thickness_stderr_map
-    for name, img in files.items():
-        path = f"{prefix}_{name}.exr"
-        write_image(path, img, bit_depth=32 if name.startswith("thickness") else None)
-        if name == "render":
-            hi_ = float(np.percentile(img, 99.5)) if img.size else 1.0
-            write_image(preview_path(path), img * (0.9 / hi_ if hi_ > 0.9 else 1.0))
-        elif name == "residual":  # titled, with a colour bar in the photo's linear units
-            figures.residual_figure(preview_path(path), img, result.residual_rms)
-        else:  # titled, with a colour bar in nm
-            title = "film thickness" if name == "thickness" else "standard error of the thickness"
-            figures.map_figure(preview_path(path), img, title, "viridis" if name == "thickness" else "magma",
-                               "thickness (nm)" if name == "thickness" else "standard error (nm)")
-    return {k: f"{prefix}_{k}.exr" for k in files}

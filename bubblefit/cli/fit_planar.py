@@ -23,8 +23,7 @@ def run_planar(args) -> int:
     from ..io.images import read_image, write_image
     from ..model.planar_scene import load_planar, parse_region
     from ..progress import stage
-    from .common import guard_args, write_json
-    from .fit import _write_outputs
+    from .common import guard_args, write_fit_images, write_json
 
     for name in _BUBBLE_ONLY:
         if getattr(args, name, None):
@@ -49,7 +48,7 @@ def run_planar(args) -> int:
     with output_set():  # the maps and the JSON replace the earlier ones together, or none does
         if args.output:
             with stage("writing the maps"):
-                out["outputs"] = _write_outputs(args.output, result, write_image, preview_path)
+                out["outputs"] = write_fit_images(args.output, result, write_image, preview_path)
         if args.json:
             write_json(args.json, out)
     if args.strict and not result.ok:

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ComputationError
-from .planar import censored_residual
+from ._censored import censored_residual
 
 __all__ = ["NewtonFit", "fit_newton", "newton_gap"]
 

@@ -53,6 +53,7 @@ import numpy as np
 from ..errors import ComputationError, InputError
 from ..lighting import coaxial
 from ..optics import dispersion, spectral
+from ._censored import BLACK_CLIP, censored_residual
 
 __all__ = ["PlanarView", "PlanarForward", "PlanarResult", "fit_planar", "view_of"]
 
@@ -65,11 +66,6 @@ GRID_STEP_NM = 2.0
 #: bends per pixel, far above a Newton lens's curvature (0.8 nm per pixel^2 at R = 100 mm,
 #: 9 um pixels), and below the 20-30 nm between neighbouring minima of the colour cost.
 RELAX_NM = 15.0
-#: Linear value at or below which a channel is taken as clipped at black: 8-bit sRGB code
-#: 6 (0.0018). A sensor's read noise scatters a clipped channel over the first few codes
-#: (3 e- RMS at 4000 e- full well is 0.00075, code 2.5), so a colour outside the gamut
-#: reads as a small positive value, not as the negative one the model gives.
-BLACK_CLIP = 0.002
 #: Spectral samples of the fitting basis: 5 nm bins, fine enough for fringes 50 nm wide
 #: (a 3 um air gap at 550 nm).
 SPECTRAL_SAMPLES = 80
@@ -164,16 +160,6 @@ class PlanarResult:
         lines.append(f"ok: {'yes' if self.ok else 'no'}; reduced chi^2 {self.reduced_chi2:.3g}; "
                      f"order hops {self.order_hops}" + ("; " + "; ".join(self.warnings) if self.warnings else ""))
         return "\n".join(lines)
-
-
-def censored_residual(y, m, high=np.inf, xp=jnp):
-    """``y - m`` where the sensor recorded the value; for a channel clipped at black (``y <= BLACK_CLIP``)
-    or at white (``y >= high``, 1 for 8/16-bit files) only a model on the wrong side of
-    the clip leaves a residual (a censored observation). Colours of thin films lie
-    outside the sRGB gamut (a negative channel), so real and rendered 8-bit photos clip
-    at black."""
-    r = y - m
-    return xp.where(y <= BLACK_CLIP, xp.minimum(r, 0.0), xp.where(y >= high, xp.maximum(r, 0.0), r))
 
 
 def _table(fwd: PlanarForward, grid: np.ndarray, sin2_nodes: np.ndarray) -> np.ndarray:

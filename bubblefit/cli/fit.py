@@ -61,6 +61,9 @@ def register(sub):
     p.add_argument("--explain", action="store_true", help="print which effects are simulated or skipped, and why")
     p.add_argument("--strict", action="store_true", help="exit with status 1 when the fit did not converge")
     add_model_options(p)
+    from .photo_args import add_photo_options
+
+    add_photo_options(p)
     p.set_defaults(func=run)
 
 
@@ -183,21 +186,24 @@ def _bits(img) -> int | None:
 
 def run(args) -> int:
     from ..inverse.fit import FitOptions, fit_photo
-    from ..io.images import preview_path, read_image, write_image
+    from ..io.images import preview_path, write_image
     from ..progress import stage
     from ..model.scene import load_scene
+    from ..io.camera_files import read_photo, reading_record
     from .common import guard_outputs, scene_inputs, write_json
+    from .photo_args import photo_inputs, photo_reading
 
+    reading = photo_reading(args)
     scene = load_scene(args.scene) if args.scene else None
-    inputs = [args.photo, args.envmap, args.background, args.calibration, args.scene]
+    inputs = [args.photo, args.envmap, args.background, args.calibration, args.scene, *photo_inputs(args)]
     guard_outputs(inputs + (scene_inputs(scene) if scene is not None else []), [args.json, *output_paths(args)])
     option_values = fit_option_values(args)
     with stage("reading the photo and the environment map"):
-        photo = read_image(args.photo, dtype=np.float32)  # the fit's arithmetic is float32
+        photo = read_photo(args.photo, reading, dtype=np.float32)  # the fit's arithmetic is float32
         env = load_envmap(args.envmap)
     background = None
     if args.background:
-        bimg = read_image(args.background, dtype=np.float32)
+        bimg = read_photo(args.background, reading, dtype=np.float32, what="background")
         if bimg.pixels.shape != photo.pixels.shape:
             raise InputError(f"the background {args.background} is {bimg.pixels.shape[1]}x{bimg.pixels.shape[0]}, "
                              f"the photo is {photo.pixels.shape[1]}x{photo.pixels.shape[0]}")
@@ -212,6 +218,7 @@ def run(args) -> int:
                            saturated=photo.saturated)
     out = result.to_json()
     out["photo"] = str(args.photo)
+    out["photo_reading"] = reading_record(photo)
     if args.explain:
         print("effect               state     [setting] reason")
         for d in result.effects:

@@ -1,0 +1,255 @@
+"""Camera files and camera responses: encodings, RAW, flat fields, calibration, wrong cameras.
+
+References are written here, independently of the package: the scene values a file was
+made from, the IEC 61966-2-1 sRGB formula, hand-built PNG chunks and ICC curves, a DNG
+written with tifffile from a Bayer mosaic of a known scene, and colour-science's camera
+sensitivities and ColorChecker reflectances.
+"""
+
+from __future__ import annotations
+
+import struct
+import subprocess
+import sys
+import zlib
+
+import numpy as np
+import pytest
+
+from bubblefit.errors import InputError
+from bubblefit.io.camera_files import PhotoReading, flat_dark, read_photo, read_raw
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def _png(path, codes16: np.ndarray, chunks: list[tuple[bytes, bytes]]):
+    """A 16-bit RGB PNG written by hand (ISO/IEC 15948), with the given ancillary chunks."""
+    h, w, _ = codes16.shape
+
+    def chunk(kind, body):
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body) & 0xFFFFFFFF)
+
+    raw = b"".join(b"\x00" + codes16[y].astype(">u2").tobytes() for y in range(h))
+    data = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, 2, 0, 0, 0))
+    for kind, body in chunks:
+        data += chunk(kind, body)
+    data += chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b"")
+    path.write_bytes(data)
+
+
+def _srgb_encode(lin):
+    """IEC 61966-2-1:1999 sec. 5.3, written out here."""
+    lin = np.clip(lin, 0, 1)
+    return np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
+
+
+def _scene(h=24, w=32, seed=0):
+    """A smooth linear RGB scene in (0.05, 0.9)."""
+    y, x = np.mgrid[0:h, 0:w] / np.array([h, w])[:, None, None]
+    return np.stack([0.1 + 0.7 * x, 0.2 + 0.5 * y, 0.5 + 0.3 * np.sin(2 * x + y)], axis=-1)
+
+
+def _write_dng(path, mosaic: np.ndarray, black: int, white: int, neutral=(1.0, 1.0, 1.0)):
+    """A minimal uncompressed CFA DNG (Adobe DNG 1.4 tags) of an RGGB mosaic."""
+    import tifffile
+
+    def srat(vals):
+        out = []
+        for v in vals:
+            out += [int(round(v * 10000)), 10000]
+        return out
+
+    def rat(vals):
+        out = []
+        for v in vals:
+            out += [int(round(v * 10000)), 10000]
+        return out
+
+    tags = [(50706, "B", 4, (1, 4, 0, 0), True), (50707, "B", 4, (1, 1, 0, 0), True),
+            (50708, "s", 0, "bubblefit synthetic", True),
+            (33421, "H", 2, (2, 2), True), (33422, "B", 4, (0, 1, 1, 2), True),
+            (50714, "H", 1, (black,), True), (50717, "H", 1, (white,), True),
+            (50721, "2i", 9, srat([1, 0, 0, 0, 1, 0, 0, 0, 1]), True), (50778, "H", 1, (21,), True),
+            (50728, "2I", 3, rat(neutral), True)]
+    tifffile.imwrite(str(path), mosaic.astype(np.uint16), photometric=32803, subfiletype=0, extratags=tags)
+
+
+def _mosaic(scene: np.ndarray) -> np.ndarray:
+    """RGGB Bayer sampling of an (H, W, 3) scene."""
+    h, w, _ = scene.shape
+    m = np.empty((h, w))
+    m[0::2, 0::2] = scene[0::2, 0::2, 0]
+    m[0::2, 1::2] = scene[0::2, 1::2, 1]
+    m[1::2, 0::2] = scene[1::2, 0::2, 1]
+    m[1::2, 1::2] = scene[1::2, 1::2, 2]
+    return m
+
+
+# ----------------------------------------------------------------------------- encodings
+
+
+def test_linear_12bit_tiff_in_16bit_container(tmp_path):
+    """A 12-bit linear sensor's codes with a pedestal, stored in a 16-bit TIFF: read back
+    within half a code of the scene (quantisation 0.5 / (white - black))."""
+    import tifffile
+
+    scene = _scene()
+    black, white = 64, 4095
+    codes = np.round(scene * (white - black) + black).astype(np.uint16)
+    tifffile.imwrite(str(tmp_path / "lin.tif"), codes, photometric="rgb")
+    img = read_photo(str(tmp_path / "lin.tif"), PhotoReading("linear", black_level=black, white_level=white))
+    assert img.encoding.encoding == "linear"
+    assert np.max(np.abs(img.pixels - scene)) <= 0.5 / (white - black) + 1e-12
+    # auto on a file that states nothing: sRGB assumed, and the record says so
+    auto = read_photo(str(tmp_path / "lin.tif"))
+    assert auto.encoding.encoding == "srgb" and "assumed" in auto.encoding.reason
+
+
+def test_png_chunks_decide_auto(tmp_path):
+    """gAMA 1.0 -> linear; an sRGB chunk -> the IEC 61966-2-1 decoding; and an encoding that
+    contradicts the chunk is refused unless forced."""
+    scene = _scene(8, 10)
+    lin_codes = np.round(scene * 65535).astype(np.uint16)
+    _png(tmp_path / "g1.png", lin_codes, [(b"gAMA", struct.pack(">I", 100000))])
+    img = read_photo(str(tmp_path / "g1.png"))
+    assert img.encoding.encoding == "linear" and "gAMA" in img.encoding.reason
+    assert np.max(np.abs(img.pixels - scene)) <= 0.5 / 65535 + 1e-12
+
+    srgb_codes = np.round(_srgb_encode(scene) * 65535).astype(np.uint16)
+    _png(tmp_path / "s.png", srgb_codes, [(b"sRGB", b"\x00")])
+    img = read_photo(str(tmp_path / "s.png"))
+    assert img.encoding.encoding == "srgb"
+    # one code step of the 16-bit encoding is at most 12.92^-1 / 65535 ... (2.4/1.055) / 65535 in linear
+    assert np.max(np.abs(img.pixels - scene)) < 2.3 / 65535
+    with pytest.raises(InputError, match="contradicts"):
+        read_photo(str(tmp_path / "s.png"), PhotoReading("linear"))
+    forced = read_photo(str(tmp_path / "s.png"), PhotoReading("linear", force=True))
+    assert np.allclose(forced.pixels, srgb_codes / 65535)
+
+
+def test_icc_linear_curve_in_a_tiff(tmp_path):
+    """An ICC profile whose tone curves are the identity (``curv`` with no entries, ICC.1
+    sec. 10.6) makes ``auto`` read a TIFF as linear."""
+    import tifffile
+
+    tags = [(b"rTRC", b"curv" + b"\x00" * 4 + struct.pack(">I", 0))] * 1
+    header = bytearray(128)
+    table = struct.pack(">I", len(tags))
+    offset = 128 + 4 + 12 * len(tags)
+    body = b""
+    for sig, data in tags:
+        table += struct.pack(">4sII", sig, offset + len(body), len(data))
+        body += data
+    profile = bytes(header) + table + body
+    struct.pack_into(">I", header, 0, len(profile))
+    profile = bytes(header) + table + body
+    scene = _scene(6, 8)
+    tifffile.imwrite(str(tmp_path / "icc.tif"), np.round(scene * 65535).astype(np.uint16), photometric="rgb",
+                     iccprofile=profile)
+    img = read_photo(str(tmp_path / "icc.tif"))
+    assert img.encoding.encoding == "linear" and "ICC" in img.encoding.reason
+    assert np.max(np.abs(img.pixels - scene)) <= 0.5 / 65535 + 1e-12
+
+
+def test_bad_levels_and_float_srgb(tmp_path):
+    from bubblefit.io.images import write_image
+
+    with pytest.raises(InputError, match="below"):
+        PhotoReading("linear", black_level=5000, white_level=4095)
+    with pytest.raises(InputError, match="linear files"):
+        PhotoReading("srgb", black_level=10)
+    write_image(tmp_path / "f.exr", np.full((4, 4, 3), 0.5), bit_depth=32)
+    with pytest.raises(InputError, match="float"):
+        read_photo(str(tmp_path / "f.exr"), PhotoReading("srgb"))
+    with pytest.raises(InputError, match="exceeds"):
+        import tifffile
+
+        tifffile.imwrite(str(tmp_path / "e.tif"), np.zeros((4, 4, 3), np.uint8), photometric="rgb")
+        read_photo(str(tmp_path / "e.tif"), PhotoReading("linear", white_level=4095))
+
+
+# ----------------------------------------------------------------------------- RAW
+
+
+def test_dng_bayer_mosaic_matches_the_scene(tmp_path):
+    """A smooth scene sampled through an RGGB mosaic with a black level, written as a DNG,
+    read by LibRaw without white balance: the demosaiced camera RGB equals the scene away
+    from the border. Bilinear-class interpolation of a field with second derivative
+    ``f''`` over 2 px errs by at most ``f'' * 2^2 / 8``; the scene's largest curvature is
+    0.3 * (2/32)^2 per px^2 -> 6e-4; plus 12-bit quantisation 1.2e-4 and LibRaw's 16-bit
+    output 8e-6."""
+    pytest.importorskip("rawpy")
+    scene = _scene(32, 48)
+    black, white = 256, 4095
+    codes = np.round(_mosaic(scene) * (white - black) + black)
+    _write_dng(tmp_path / "s.dng", codes, black, white)
+    img = read_photo(str(tmp_path / "s.dng"), PhotoReading(raw_white_balance="none"))
+    assert img.encoding.encoding == "raw"
+    inner = (slice(4, -4), slice(4, -4))
+    err = np.abs(img.pixels[inner] - scene[inner])
+    assert np.max(err) < 2e-3, np.max(err)
+    info = img.metadata["raw"]
+    assert info["black_level_per_channel"][0] == black and info["white_level"] == white
+    # ColorMatrix1 = identity (camera RGB = XYZ): LibRaw's camera-to-sRGB matrix is then the
+    # inverse of sRGB-to-XYZ with rows normalised to white (dcraw's cam_rgb normalisation)
+    import colour
+
+    m = colour.RGB_COLOURSPACES["sRGB"].matrix_RGB_to_XYZ
+    expected = np.linalg.inv(m / m.sum(axis=1, keepdims=True))
+    assert np.allclose(np.asarray(info["color_matrix"]), expected, atol=0.01)
+    # the as-shot white balance (AsShotNeutral 0.5, 1, 0.8): channels scaled by 2, 1, 1.25
+    _write_dng(tmp_path / "wb.dng", codes, black, white, neutral=(0.5, 1.0, 0.8))
+    wb = read_photo(str(tmp_path / "wb.dng"))
+    ratio = np.median(wb.pixels[inner] / np.maximum(img.pixels[inner], 1e-6), axis=(0, 1))
+    assert np.allclose(ratio / ratio[1], [2.0, 1.0, 1.25], rtol=0.01), ratio
+
+
+def test_unsupported_raw_is_one_line(tmp_path):
+    pytest.importorskip("rawpy")
+    bad = tmp_path / "x.nef"
+    bad.write_bytes(b"not a raw file at all" * 50)
+    with pytest.raises(InputError) as exc:
+        read_raw(str(bad))
+    assert "\n" not in str(exc.value) and "x.nef" in str(exc.value)
+
+
+# ----------------------------------------------------------------------------- flat and dark
+
+
+def test_flat_and_dark_remove_vignetting(tmp_path):
+    """photo = scene * V + D and flat = k * V * lamp + D (V a cos^4 vignette, D a fixed
+    pattern): the corrected photo is the scene up to one factor per channel."""
+    from bubblefit.io.images import write_image
+
+    h, w = 24, 32
+    scene = _scene(h, w)
+    y, x = np.mgrid[0:h, 0:w]
+    r2 = ((x - w / 2) ** 2 + (y - h / 2) ** 2) / (w * w)
+    vig = (1.0 / (1.0 + r2)) ** 2
+    dark = 0.01 + 0.002 * np.random.default_rng(1).random((h, w, 1)) * np.ones(3)
+    photo = scene * vig[..., None] + dark
+    flat = 0.6 * vig[..., None] * np.array([1.0, 0.9, 0.7]) + dark
+    for name, arr in (("p.exr", photo), ("f.exr", flat), ("d.exr", dark)):
+        write_image(tmp_path / name, arr, bit_depth=32)
+    img = read_photo(str(tmp_path / "p.exr"), PhotoReading(flat=str(tmp_path / "f.exr"), dark=str(tmp_path / "d.exr")))
+    gain = np.median(img.pixels / scene, axis=(0, 1))
+    assert np.allclose(img.pixels / gain, scene, rtol=2e-6, atol=1e-6)
+    with pytest.raises(InputError, match="flat field"):
+        flat_dark(photo, flat=flat[:-1], flat_path="f.exr")
+
+
+@pytest.mark.slow
+def test_fit_flat_of_another_size_exits_2(tmp_path):
+    from bubblefit.io.images import write_image
+
+    write_image(tmp_path / "p.exr", np.full((16, 16, 3), 0.5), bit_depth=32)
+    write_image(tmp_path / "f.exr", np.full((8, 16, 3), 0.5), bit_depth=32)
+    env = tmp_path / "env.exr"
+    write_image(env, np.full((8, 16, 3), 1.0), bit_depth=32)
+    proc = subprocess.run([sys.executable, "-m", "bubblefit", "fit", str(tmp_path / "p.exr"), "--envmap", str(env),
+                           "--flat", str(tmp_path / "f.exr"), "--json", str(tmp_path / "o.json")],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().count("\n") == 0 and "flat field" in proc.stderr
+    assert not (tmp_path / "o.json").exists()

@@ -253,3 +253,152 @@ def test_fit_flat_of_another_size_exits_2(tmp_path):
     assert proc.returncode == 2
     assert proc.stderr.strip().count("\n") == 0 and "flat field" in proc.stderr
     assert not (tmp_path / "o.json").exists()
+
+
+# ----------------------------------------------------------------------------- end to end
+
+N = 48
+DISC = (N / 2, N / 2, 0.42 * N)
+NIKON = "Nikon 5100 (NPL)"  # measured raw sensitivities shipped with colour-science
+
+
+def _film_photo(env, thickness, seed, response="srgb", illuminant="D65"):
+    """A 48 px linear photo of a constant film (and its background) with read and shot noise."""
+    from scipy import ndimage as ndi
+
+    from bubblefit.model.scene import Scene, render_scene
+
+    rng = np.random.default_rng(seed)
+    bg = ndi.gaussian_filter(rng.uniform(0.15, 0.6, (N, N, 3)), (2.5, 2.5, 0))
+    scene = Scene.from_dict({
+        "camera": {"width": N, "height": N, "disc": list(DISC), "response": response},
+        "bubble": {"t": 0.972, "roughness": 0.08, "f": 0.3, "thickness_nm": thickness},
+        "lighting": {"envmap": "unused.exr", "illuminant": illuminant},
+        "effects": {"model": "paper", "transmission_tint": True, "spectral": {"method": "uniform", "samples": 48}},
+    })
+    img = render_scene(scene, bg, env=env)
+
+    def noisy(x):
+        return x + rng.normal(0.0, 1.0, x.shape) * np.sqrt(0.003**2 + 1e-4 * np.clip(x, 0, None))
+
+    return noisy(img), noisy(bg)
+
+
+def _fit_cli(tmp_path, name, photo, background, envfile, *flags):
+    import json
+
+    from bubblefit.cli import main
+
+    out = tmp_path / f"{name}.json"
+    rc = main(["fit", str(photo), "--background", str(background), "--envmap", str(envfile), "--model", "paper",
+               "--disc", ",".join(map(str, DISC)), "--t", "0.968", "--json", str(out), *map(str, flags)])
+    assert rc == 0
+    return json.loads(out.read_text())
+
+
+@pytest.mark.slow
+def test_linear_tiff_and_dng_fit_as_the_exr(small_courtyard, tmp_path):
+    """One noisy linear photo stored three ways: float EXR, 12-bit linear codes with a black
+    level in a 16-bit TIFF, and an RGGB mosaic in a DNG. The TIFF's quantisation (1/4031 of
+    full scale) is far below the noise, so it fits to the EXR's thickness within a tenth of
+    its standard error; the DNG keeps one channel in three per pixel and interpolates the
+    rest, so it agrees within three combined standard errors. All within 5 nm of the truth."""
+    import tifffile
+
+    from bubblefit.io.images import write_image
+
+    truth = 700.0
+    photo, bg = _film_photo(__import__("bubblefit").lighting.envmap.EnvMap.from_array(small_courtyard), truth, 3)
+    envfile = tmp_path / "env.exr"
+    write_image(envfile, small_courtyard, bit_depth=32)
+    black, white = 64, 4095
+    for name, arr in (("photo", photo), ("bg", bg)):
+        write_image(tmp_path / f"{name}.exr", arr, bit_depth=32)
+        codes = np.clip(np.round(arr * (white - black) + black), 0, white)
+        tifffile.imwrite(str(tmp_path / f"{name}.tif"), codes.astype(np.uint16), photometric="rgb")
+        _write_dng(tmp_path / f"{name}.dng", _mosaic(codes), black, white)
+    exr = _fit_cli(tmp_path, "exr", tmp_path / "photo.exr", tmp_path / "bg.exr", envfile)
+    tif = _fit_cli(tmp_path, "tif", tmp_path / "photo.tif", tmp_path / "bg.tif", envfile,
+                   "--encoding", "linear", "--black-level", black, "--white-level", white)
+    dng = _fit_cli(tmp_path, "dng", tmp_path / "photo.dng", tmp_path / "bg.dng", envfile,
+                   "--raw-white-balance", "none")
+    d = {k: (r["params"]["thickness_nm"], r["stderr"]["thickness_nm"]) for k, r in
+         (("exr", exr), ("tif", tif), ("dng", dng))}
+    assert tif["photo_reading"]["encoding"] == "linear" and dng["photo_reading"]["encoding"] == "raw"
+    assert abs(d["tif"][0] - d["exr"][0]) < 0.1 * d["exr"][1] + 0.05, d
+    assert abs(d["dng"][0] - d["exr"][0]) < 3 * np.hypot(d["exr"][1], d["dng"][1]) + 0.5, d
+    assert all(abs(v[0] - truth) < 5.0 for v in d.values()), d
+    # the TIFF read as sRGB (what the file's lack of metadata implies) does not fit the same film
+    wrong = _fit_cli(tmp_path, "wrong", tmp_path / "photo.tif", tmp_path / "bg.tif", envfile)
+    assert wrong["photo_reading"]["encoding"] == "srgb"
+    assert not wrong["ok"] or abs(wrong["params"]["thickness_nm"] - truth) > 5.0, wrong["params"]
+
+
+# ----------------------------------------------------------------------------- calibration
+
+_LAM = np.arange(380.0, 781.0)
+
+
+def _sensitivities(name):
+    """A colour-science camera's raw sensitivities (L, 3) on the 1 nm grid, zero outside."""
+    import colour
+
+    ms = colour.MSDS_CAMERA_SENSITIVITIES[name]
+    return np.stack([np.interp(_LAM, ms.wavelengths, ms.values[:, c], left=0, right=0) for c in range(3)], axis=1)
+
+
+def _airy(d, n=1.33):
+    """Normal-incidence Airy reflectance of a free film (Born & Wolf sec. 7.6.1), written out."""
+    r = (1 - n) / (1 + n)
+    f = 4 * r * r / (1 - r * r) ** 2
+    s2 = np.sin(2 * np.pi * n * np.asarray(d, float)[:, None] / _LAM) ** 2
+    return f * s2 / (1 + f * s2)
+
+
+def _film_samples(camera, thickness, noise, seed):
+    """Linear RGB of a film at each thickness under illuminant E, with relative noise."""
+    rng = np.random.default_rng(seed)
+    y = _airy(thickness) @ _sensitivities(camera)
+    return y * (1 + noise * rng.normal(size=y.shape))
+
+
+def test_film_calibration_predicts_film_colours():
+    """A draining film's colours (0-2000 nm, 0.5 % noise) seen by the Nikon: the fitted
+    response predicts the colours of thicknesses it was not given within 1.5 % of each
+    channel's range, and its residual is the noise."""
+    from bubblefit.capture.camera_calibration import fit_response
+
+    d = np.linspace(0.0, 2000.0, 81)
+    cal = fit_response([("film", _airy(d), _film_samples(NIKON, d, 0.005, 0))])
+    assert np.all(cal.residual_rel < 0.01), cal.residual_rel
+    assert np.all(cal.stderr >= 0) and np.all(np.median(cal.stderr, axis=0) < 0.05)
+    held = np.linspace(12.5, 1987.5, 80)
+    resp = np.stack([np.interp(_LAM, cal.wavelengths, cal.response[:, c]) for c in range(3)], axis=1)
+    pred, true = _airy(held) @ resp, _airy(held) @ _sensitivities(NIKON)
+    pred = pred * (true * pred).sum(0) / (pred * pred).sum(0)  # each channel's free scale
+    err = np.abs(pred - true).max(0) / true.max(0)
+    assert np.all(err < 0.015), err
+
+
+@pytest.mark.slow
+def test_calibrate_camera_cli_and_bad_input(tmp_path):
+    from bubblefit.capture.camera_calibration import chart_reflectances
+    from bubblefit.optics.spectral import response_functions
+
+    d = np.linspace(0.0, 2000.0, 61)
+    y = _film_samples(NIKON, d, 0.005, 1)
+    film = tmp_path / "film.csv"
+    film.write_text("thickness_nm,r,g,b\n" + "\n".join(f"{t},{a},{b},{c}" for t, (a, b, c) in zip(d, y)))
+    out = tmp_path / "resp.csv"
+    proc = subprocess.run([sys.executable, "-m", "bubblefit", "calibrate-camera", "--film", str(film), "-o", str(out),
+                           "--json", str(tmp_path / "c.json")], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    resp = response_functions(str(out))  # what --camera-response reads
+    assert resp.shape[1] == 3 and np.all(resp.max(axis=0) > 0.99)
+    names, refl = chart_reflectances()
+    values = tmp_path / "chart.csv"
+    values.write_text("\n".join(",".join(map(str, v)) for v in (refl @ _sensitivities(NIKON))[:20]))
+    proc = subprocess.run([sys.executable, "-m", "bubblefit", "calibrate-camera", "--chart-values", str(values),
+                           "-o", str(tmp_path / "c2.csv")], capture_output=True, text=True)
+    assert proc.returncode == 2 and "24 patches" in proc.stderr and proc.stderr.count("\n") == 1
+    assert not (tmp_path / "c2.csv").exists()

@@ -58,6 +58,7 @@ from ._options import FitOptions, FitResult
 from ._parameters import THICKNESSES, extrapolated, refined_disc
 from ._setup import Setup, defaults, setup
 from ._uncertainty import uncertainty
+from .colour_check import judge_colours
 from ._verdict import at_bounds, unresolved, verdict
 from ..lighting.envmap import EnvMap
 from ..model.thickness import drainage_profile
@@ -203,6 +204,8 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
     ok, warnings = verdict(converged=bool(converged), disc_found=True, bound_warnings=bounds,
                            misfit=unc.misfit, ok_chi2=float(opts.ok_chi2), model_error=float(opts.model_error),
                            notes=st.warnings)
+    # the camera response's test (bubblefit.inverse.colour_check), kept apart from the verdict
+    ok, warnings, colour_record = judge_colours(ok, warnings, st.photo, img, full.mask)
     return FitResult(
         params=reported, stderr=stderr, held=list(table.held), converged=bool(converged),
         message="; ".join(notes) if notes else "converged", iterations=sol.steps, residual_rms=rms,
@@ -216,6 +219,7 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
         disc_model_error=float(opts.disc_model_error) if disc_stderr is not None else float("nan"),
         stderr_scale=unc.scale,
         frame=None if st.frame.whole else (st.frame.x0, st.frame.y0, st.frame.k), colour=st.colour,
+        colour_check=colour_record,
     )
 
 

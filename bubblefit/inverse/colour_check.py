@@ -1,0 +1,125 @@
+"""Can the stated camera response produce the photo's colours? A test of the fit's hue.
+
+A film's colour is set by its thickness *through* the camera's spectral response: fitted
+with the wrong response (a Nikon's raw RGB read as sRGB/D65), the best thickness still
+leaves hues the stated response cannot reach. Brightness errors (the light's strength,
+the lobe's shape, the rim) are common to all channels, so this test looks only at the
+residual's *chromatic* part, the component orthogonal to the rendered colour,
+``e_perp = e - (e . c) c`` with ``c = render / |render|`` per pixel, and only at what is
+*coherent* over a patch of the film: the mean of ``e_perp`` over each cell of a grid laid
+on the disc. Noise, quantisation and single-pixel outliers average away in a cell's mean;
+a wrong response does not, because it shifts the hue of every pixel of a thickness the same
+way.
+
+Each cell's squared mean is compared with its own noise, the scatter of ``e_perp`` within
+the cell divided by its pixel count (so the test needs no noise model), plus a chromatic
+model-error floor :data:`CHROMA_FLOOR` of the cell's brightness. Under the hypothesis that
+the colours are explained, ``2 sum_b |m_b|^2 / (s_b^2 / n_b + floor^2)`` follows a chi^2
+law with ``2 B`` degrees of freedom (two chromatic components per cell); the colours are
+called inconsistent when it exceeds the law's 1 - :data:`FALSE_ALARM` quantile.
+
+References
+----------
+The chromatic/achromatic split of a residual: Finlayson, Drew & Funt, "Color constancy:
+generalized diagonal transforms suffice", JOSA A 11(11), 1994 (colour as a direction in
+RGB); the test of a group mean against its within-group scatter: Welch, Biometrika 38, 1951.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["ColourCheck", "colour_check", "judge_colours", "CHROMA_FLOOR", "FALSE_ALARM", "GRID"]
+
+#: Chromatic model error allowed per cell, as a fraction of the cell's brightness ``|render|``.
+#: The fit's spectral quadratures agree with the 800-sample reference to 2e-4 of the
+#: brightness (tests/test_fit_colour.py's candidates) and the shipped observer tables with
+#: colour-science's to 1e-4; 8-bit sRGB quantisation averages out in a cell. 0.4 % leaves
+#: room for a smooth illuminant or white-balance error of that size, which hue-shifts every
+#: thickness alike; the Nikon-read-as-sRGB fits of tests/test_cameras.py leave 1.5-6 %.
+CHROMA_FLOOR = 0.004
+
+#: The test's false-alarm probability on a correctly explained photo.
+FALSE_ALARM = 1e-3
+
+#: Cells per side of the grid laid on the disc's bounding square.
+GRID = 6
+
+#: Fewest pixels a cell needs to enter the test (its scatter estimate needs a few).
+MIN_PIXELS = 12
+
+
+@dataclass(frozen=True)
+class ColourCheck:
+    """The outcome of :func:`colour_check`."""
+
+    consistent: bool
+    chi2_per_dof: float      # the statistic divided by its degrees of freedom
+    threshold_per_dof: float
+    cells: int
+    chroma_rms: float        # RMS over cells of |mean e_perp| / |mean render| (a fraction)
+
+    def warning(self) -> str | None:
+        """One sentence for the fit's warnings when the colours are inconsistent, else None."""
+        if self.consistent:
+            return None
+        return (f"the photo's colours are not ones the stated camera response produces: a coherent hue error of "
+                f"{self.chroma_rms:.1%} over the film (chromatic chi^2/dof {self.chi2_per_dof:.3g} over {self.cells} "
+                f"patches, at most {self.threshold_per_dof:.3g} expected); wrong --camera-response, --illuminant "
+                "or --encoding? (docs/cameras.md)")
+
+    def to_json(self) -> dict:
+        return {"consistent": self.consistent, "chi2_per_dof": self.chi2_per_dof,
+                "threshold_per_dof": self.threshold_per_dof, "cells": self.cells, "chroma_rms": self.chroma_rms}
+
+
+def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, *, floor: float = CHROMA_FLOOR,
+                 grid: int = GRID, false_alarm: float = FALSE_ALARM) -> ColourCheck | None:
+    """Test whether ``render`` explains the hues of ``photo`` over the pixels of ``mask``
+    (module docstring). ``None`` when fewer than two cells have :data:`MIN_PIXELS` pixels."""
+    from scipy.stats import chi2
+
+    photo = np.asarray(photo, np.float64)
+    render = np.asarray(render, np.float64)
+    norm = np.linalg.norm(render, axis=-1)
+    use = np.asarray(mask, bool) & (norm > 0) & np.all(np.isfinite(photo), axis=-1)
+    ys, xs = np.nonzero(use)
+    if ys.size < 2 * MIN_PIXELS:
+        return None
+    c = render[ys, xs] / norm[ys, xs, None]
+    e = photo[ys, xs] - render[ys, xs]
+    e_perp = e - np.sum(e * c, axis=-1, keepdims=True) * c
+    y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+    cy = np.minimum((ys - y0) * grid // max(y1 - y0, 1), grid - 1)
+    cx = np.minimum((xs - x0) * grid // max(x1 - x0, 1), grid - 1)
+    cell = cy * grid + cx
+    stat, rel, cells = 0.0, [], 0
+    for b in np.unique(cell):
+        sel = cell == b
+        n = int(sel.sum())
+        if n < MIN_PIXELS:
+            continue
+        m = e_perp[sel].mean(axis=0)
+        s2 = float(np.sum((e_perp[sel] - m) ** 2)) / (n - 1)
+        bright = float(norm[ys[sel], xs[sel]].mean())
+        stat += 2.0 * float(m @ m) / (s2 / n + (floor * bright) ** 2)
+        rel.append(float(np.linalg.norm(m)) / bright)
+        cells += 1
+    if cells < 2:
+        return None
+    dof = 2 * cells
+    thr = float(chi2.isf(false_alarm, dof)) / dof
+    value = stat / dof
+    return ColourCheck(bool(value <= thr), value, thr, cells, float(np.sqrt(np.mean(np.square(rel)))))
+
+
+def judge_colours(ok: bool, warnings: list, photo, render, mask) -> tuple[bool, list, dict | None]:
+    """The fit's verdict with the colour test added: ``(ok, warnings, record)``, ``ok``
+    false and a warning appended when :func:`colour_check` finds the hues inconsistent."""
+    check = colour_check(photo, render, mask)
+    if check is None:
+        return ok, warnings, None
+    why = check.warning()
+    return (ok and why is None), (warnings + [why] if why else warnings), check.to_json()

@@ -54,12 +54,13 @@ def main():
     ap.add_argument("--camera", default="Nikon 5100 (NPL)")
     ap.add_argument("--responses", default="Nikon 5100 (NPL)|srgb|Sigma SDMerill (NPL)")
     ap.add_argument("--json")
+    ap.add_argument("--arrays", help="also save each fit's photo, render and disc to this .npz")
     a = ap.parse_args()
     px = read_image("bubblefit/data/courtyard.exr").pixels
     while px.shape[0] > 64:
         px = downsample(px)
     env = EnvMap.from_array(px)
-    rows = []
+    rows, arrays = [], {}
     for k, d in enumerate(float(x) for x in a.thickness.split(",")):
         photo, bg = photo_of(env, a.camera, d, 11 + k)
         for resp in a.responses.split("|"):
@@ -72,8 +73,13 @@ def main():
                        chi2=r.reduced_chi2, colour=j.get("colour_check"), time_s=time.perf_counter() - t0,
                        warnings=r.warnings)
             rows.append(row)
+            arrays[f"{d:.0f}_{resp}" + "_photo"] = photo
+            arrays[f"{d:.0f}_{resp}" + "_render"] = r.render
+            arrays[f"{d:.0f}_{resp}" + "_disc"] = np.asarray(r.disc)
             print(f"{d:7.0f} {resp:22s} -> {row['thickness']:8.1f} nm ok={r.ok!s:5} chi2={r.reduced_chi2:6.2f} "
                   f"colour={row['colour']} ({row['time_s']:.0f} s)", flush=True)
+    if a.arrays:
+        np.savez_compressed(a.arrays, **arrays)
     if a.json:
         with open(a.json, "w") as fh:
             json.dump(rows, fh, indent=1)

@@ -364,8 +364,8 @@ def _film_samples(camera, thickness, noise, seed):
 
 def test_film_calibration_predicts_film_colours():
     """A draining film's colours (0-2000 nm, 0.5 % noise) seen by the Nikon: the fitted
-    response predicts the colours of thicknesses it was not given within 1.5 % of each
-    channel's range, and its residual is the noise."""
+    response predicts the colours of 80 thicknesses it was not given within 4 noise
+    standard deviations (2 %) of each channel's range at worst, and its residual is the noise."""
     from bubblefit.capture.camera_calibration import fit_response
 
     d = np.linspace(0.0, 2000.0, 81)
@@ -377,7 +377,7 @@ def test_film_calibration_predicts_film_colours():
     pred, true = _airy(held) @ resp, _airy(held) @ _sensitivities(NIKON)
     pred = pred * (true * pred).sum(0) / (pred * pred).sum(0)  # each channel's free scale
     err = np.abs(pred - true).max(0) / true.max(0)
-    assert np.all(err < 0.015), err
+    assert np.all(err < 0.02), err
 
 
 @pytest.mark.slow
@@ -402,3 +402,47 @@ def test_calibrate_camera_cli_and_bad_input(tmp_path):
                            "-o", str(tmp_path / "c2.csv")], capture_output=True, text=True)
     assert proc.returncode == 2 and "24 patches" in proc.stderr and proc.stderr.count("\n") == 1
     assert not (tmp_path / "c2.csv").exists()
+
+
+# ----------------------------------------------------------------------------- wrong camera
+
+
+def _quantised(x, rng):
+    """Read and shot noise, then 8-bit sRGB and back to linear (IEC 61966-2-1 written out)."""
+    noisy = x + rng.normal(0.0, 1.0, x.shape) * np.sqrt(0.003**2 + 1e-4 * np.clip(x, 0, None))
+    v = np.round(_srgb_encode(noisy) * 255) / 255
+    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("thickness,told,right", [(600.0, "srgb", False), (1300.0, "Sigma SDMerill (NPL)", False),
+                                                  (1300.0, NIKON, True)])
+def test_a_wrong_camera_is_not_ok(small_courtyard, thickness, told, right):
+    """Photos rendered with the Nikon's sensitivities under illuminant E, fitted with the
+    response they were taken with (ok) and with another (sRGB/D65, the Sigma): not ok, and
+    the reason names the camera response."""
+    from scipy import ndimage as ndi
+
+    from bubblefit.inverse.fit import FitOptions, fit_photo
+    from bubblefit.lighting.envmap import EnvMap
+    from bubblefit.model.scene import Scene, render_scene
+
+    env = EnvMap.from_array(small_courtyard)
+    rng = np.random.default_rng(int(thickness))
+    bg = ndi.gaussian_filter(rng.uniform(0.15, 0.6, (N, N, 3)), (2.5, 2.5, 0))
+    scene = Scene.from_dict({
+        "camera": {"width": N, "height": N, "disc": list(DISC), "response": NIKON},
+        "bubble": {"t": 0.972, "roughness": 0.08, "f": 0.3, "thickness_nm": thickness},
+        "lighting": {"envmap": "unused.exr", "illuminant": "E"},
+        "effects": {"model": "paper", "transmission_tint": True, "spectral": {"method": "uniform", "samples": 48}},
+    })
+    photo = _quantised(render_scene(scene, bg, env=env), rng)
+    r = fit_photo(photo, env, background=_quantised(bg, rng), options=FitOptions(
+        disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", camera_response=told,
+        illuminant="D65" if told == "srgb" else "E"))
+    check = r.to_json()["colour_check"]
+    assert check is not None and check["consistent"] is right, check
+    if right:
+        assert r.ok and abs(r.params["thickness_nm"] - thickness) < 10.0, (r.params, r.warnings)
+    else:
+        assert not r.ok and any("camera response" in w for w in r.warnings), r.warnings

@@ -43,8 +43,9 @@ __all__ = ["KNOT_STEP_NM", "CHART", "CameraCalibration", "chart_reflectances", "
            "fit_response", "patch_means"]
 
 #: Spacing of the response's knots (nm). A film's fringes at 1.5 um (optical path 4.2 um)
-#: have a period of 72 nm at 550 nm: knots every 10 nm sample it 7 times.
-KNOT_STEP_NM = 10.0
+#: have a period of 72 nm at 550 nm: knots every 5 nm sample it 14 times (on noise-free Nikon
+#: film colours, 10 nm knots left 3-30 % errors in predicted colours, 5 nm knots 0.4 %).
+KNOT_STEP_NM = 5.0
 
 #: The chart whose reflectances are used (colour-science's name).
 CHART = "ColorChecker N Ohta"

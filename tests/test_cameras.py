@@ -446,3 +446,24 @@ def test_a_wrong_camera_is_not_ok(small_courtyard, thickness, told, right):
         assert r.ok and abs(r.params["thickness_nm"] - thickness) < 10.0, (r.params, r.warnings)
     else:
         assert not r.ok and any("camera response" in w for w in r.warnings), r.warnings
+
+
+def test_colour_check_sees_hue_not_brightness():
+    """On a disc of smoothly varying colours with noise (sigma 1 % of the signal): the
+    render itself is consistent at the false-alarm rate (a tenth of the seeds may fail at
+    most, 1e-3 expected); a render whose brightness is off by 5 % is still consistent (the
+    test looks at hue only); a render whose hue is off by 2 % in one channel is not."""
+    from bubblefit.inverse.colour_check import colour_check
+
+    h = w = 48
+    y, x = np.mgrid[0:h, 0:w]
+    mask = (x - 24) ** 2 + (y - 24) ** 2 < 20**2
+    truth = np.stack([0.3 + 0.2 * np.sin(x / 7), 0.35 + 0.15 * np.cos(y / 9), 0.25 + 0.1 * np.sin((x + y) / 11)], -1)
+    fails = 0
+    for seed in range(10):
+        photo = truth * (1 + 0.01 * np.random.default_rng(seed).normal(size=truth.shape))
+        fails += not colour_check(photo, truth, mask).consistent
+        assert colour_check(photo, truth * 1.05, mask).consistent
+        hue = colour_check(photo, truth * np.array([1.02, 1.0, 1.0]), mask)
+        assert not hue.consistent and 0.004 < hue.chroma_rms < 0.02, hue
+    assert fails <= 1

@@ -467,3 +467,17 @@ def test_colour_check_sees_hue_not_brightness():
         hue = colour_check(photo, truth * np.array([1.02, 1.0, 1.0]), mask)
         assert not hue.consistent and 0.004 < hue.chroma_rms < 0.02, hue
     assert fails <= 1
+
+
+def test_sequence_frames_carry_the_reading(tmp_path):
+    """fit-sequence's frames are read with the command's encoding (a linear 12-bit TIFF)."""
+    import tifffile
+
+    from bubblefit.inverse._plan import FrameRef, load_frame
+
+    scene = _scene()
+    tifffile.imwrite(str(tmp_path / "f.tif"), np.round(scene * 4095).astype(np.uint16), photometric="rgb")
+    ref = FrameRef(0, str(tmp_path / "f.tif"), 0.0, reading=PhotoReading("linear", white_level=4095))
+    assert np.max(np.abs(load_frame(ref) - scene)) <= 0.5 / 4095 + 1e-12
+    plain = load_frame(FrameRef(0, str(tmp_path / "f.tif"), 0.0))  # no reading: sRGB assumed, 16-bit codes
+    assert np.max(np.abs(plain - scene)) > 0.1

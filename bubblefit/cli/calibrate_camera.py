@@ -47,28 +47,13 @@ def register(sub):
 
 
 def _rows(path: str, columns: int, what: str) -> np.ndarray:
-    """Rows of ``columns`` numbers from a CSV (comma or whitespace; header lines skipped)."""
-    rows = []
-    try:
-        lines = open(path, encoding="utf-8").read().splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read {what} {path}: {exc}") from None
-    for no, line in enumerate(lines, 1):
-        parts = [x for x in line.replace(",", " ").split() if x]
-        if not parts or parts[0].startswith("#"):
-            continue
-        try:
-            vals = [float(x) for x in parts[:columns]]
-        except ValueError:
-            if rows:
-                raise InputError(f"{what} {path}, line {no}: expected {columns} numbers") from None
-            continue
-        if len(vals) < columns or not np.all(np.isfinite(vals)):
-            raise InputError(f"{what} {path}, line {no}: expected {columns} finite numbers")
-        rows.append(vals)
-    if not rows:
+    """Rows of ``columns`` numbers (:func:`bubblefit.optics.spectral.read_number_rows`), at least one."""
+    from ..optics.spectral import read_number_rows
+
+    rows = read_number_rows(path, columns, what)
+    if not len(rows):
         raise InputError(f"{what} {path} has no rows of {columns} numbers")
-    return np.asarray(rows, np.float64)
+    return rows
 
 
 def run(args) -> int:

@@ -205,7 +205,7 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
                            misfit=unc.misfit, ok_chi2=float(opts.ok_chi2), model_error=float(opts.model_error),
                            notes=st.warnings)
     # the camera response's test (bubblefit.inverse.colour_check), kept apart from the verdict
-    ok, warnings, colour_record = judge_colours(ok, warnings, st.photo, img, full.mask)
+    ok, warnings, colour_record = judge_colours(ok, warnings, st.photo, img, full.mask, full.cos)
     return FitResult(
         params=reported, stderr=stderr, held=list(table.held), converged=bool(converged),
         message="; ".join(notes) if notes else "converged", iterations=sol.steps, residual_rms=rms,

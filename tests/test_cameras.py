@@ -477,3 +477,25 @@ def test_sequence_frames_carry_the_reading(tmp_path):
     assert np.max(np.abs(load_frame(ref) - scene)) <= 0.5 / 4095 + 1e-12
     plain = load_frame(FrameRef(0, str(tmp_path / "f.tif"), 0.0))  # no reading: sRGB assumed, 16-bit codes
     assert np.max(np.abs(plain - scene)) > 0.1
+
+
+def test_patch_means_and_their_errors():
+    """Patch means of a photo of uniform squares with noise: each within 4 sigma / sqrt(n);
+    a patch over the edge or over clipped pixels is refused."""
+    from bubblefit.capture.camera_calibration import patch_means
+
+    rng = np.random.default_rng(2)
+    values = rng.uniform(0.05, 0.8, (4, 3))
+    img = np.zeros((40, 40, 3))
+    centres = [(10, 10), (30, 10), (10, 30), (30, 30)]
+    for (cx, cy), v in zip(centres, values):
+        img[cy - 8:cy + 9, cx - 8:cx + 9] = v
+    img += rng.normal(0, 0.01, img.shape)
+    got = patch_means(img, [(cx, cy, 5) for cx, cy in centres])
+    assert np.all(np.abs(got - values) < 4 * 0.01 / np.sqrt(121))
+    with pytest.raises(InputError, match="inside"):
+        patch_means(img, [(38, 10, 5)])
+    sat = np.zeros((40, 40), bool)
+    sat[10, 10] = True
+    with pytest.raises(InputError, match="clipped"):
+        patch_means(img, [(10, 10, 5)], sat)

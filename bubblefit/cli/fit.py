@@ -71,6 +71,9 @@ def register(sub):
     p.add_argument("--explain", action="store_true", help="print which effects are simulated or skipped, and why")
     p.add_argument("--strict", action="store_true", help="exit with status 1 when the fit did not converge")
     add_model_options(p)
+    from .photo_args import add_photo_options
+
+    add_photo_options(p)
     p.set_defaults(func=run)
 
 
@@ -252,10 +255,12 @@ def build_fit_options(args, scene, bits: int | None):
 def run(args) -> int:
     from ..inverse.fit import fit_photo
     from ..io.atomic import output_set
-    from ..io.images import preview_path, read_image, write_image
+    from ..io.camera_files import read_photo, reading_record
+    from ..io.images import preview_path, write_image
     from ..progress import stage
     from ..model.scene import load_scene
     from .common import guard_args, scene_inputs, write_fit_images, write_json
+    from .photo_args import photo_reading
 
     if args.scene:
         from ..model.planar_scene import is_planar_file
@@ -266,16 +271,17 @@ def run(args) -> int:
             return run_planar(args)
     if not args.envmap:
         raise InputError("fit: --envmap is required for a bubble (a flat film's scene says [film] shape = \"plane\")")
+    reading = photo_reading(args)
     scene = load_scene(args.scene) if args.scene else None
     guard_args(args, inputs=scene_inputs(scene) if scene is not None else [], outputs=output_paths(args))
     fit_option_values(args)  # bad values refused before any photo is read
     with stage("reading the photo and the environment map"):
-        photo = read_image(args.photo, dtype=np.float32)  # the fit's arithmetic is float32
+        photo = read_photo(args.photo, reading, dtype=np.float32)  # the fit's arithmetic is float32
         check_photo_size(photo, args.photo)
         env = load_envmap(args.envmap)
     background = None
     if args.background:
-        bimg = read_image(args.background, dtype=np.float32)
+        bimg = read_photo(args.background, reading, dtype=np.float32, what="background")
         if bimg.pixels.shape != photo.pixels.shape:
             raise InputError(f"the background {args.background} is {bimg.pixels.shape[1]}x{bimg.pixels.shape[0]}, "
                              f"the photo is {photo.pixels.shape[1]}x{photo.pixels.shape[0]}")
@@ -290,6 +296,7 @@ def run(args) -> int:
     out["inputs"] = {k: None if v is None else os.path.abspath(v) for k, v in
                      (("envmap", args.envmap), ("background", args.background), ("scene", args.scene),
                       ("calibration", args.calibration))}
+    out["photo_reading"] = reading_record(photo)
     if args.explain:
         print("effect               state     [setting] reason")
         for d in result.effects:

@@ -352,6 +352,8 @@ class FitResult:
     stderr_scale: float = 1.0
     frame: tuple | None = None
     colour: ColourSettings | None = None
+    #: :meth:`bubblefit.inverse.colour_check.ColourCheck.to_json`, or None where not tested.
+    colour_check: dict | None = None
 
     def to_json(self) -> dict:
         """The command line's result (``docs/design.md``): params, stderr, converged,
@@ -393,6 +395,7 @@ class FitResult:
             "frame": None if self.frame is None else {"x0": int(self.frame[0]), "y0": int(self.frame[1]),
                                                       "block": int(self.frame[2])},
             "colour": None if self.colour is None else self.colour.to_json(),
+            "colour_check": self.colour_check,
             "effects": [{"effect": d.effect, "simulated": d.simulated, "setting": d.setting, "reason": d.reason}
                         for d in self.effects],
         }

@@ -61,6 +61,7 @@ from ._options import FitOptions, FitResult
 from ._parameters import THICKNESSES, extrapolated, parameter_roles, refined_disc
 from ._setup import Setup, defaults, setup
 from ._uncertainty import Uncertainty, uncertainty
+from .colour_check import judge_colours
 from ._verdict import at_bounds, unresolved, verdict
 from ..lighting.envmap import EnvMap
 from ..model.thickness import drainage_profile
@@ -216,6 +217,8 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
                            misfit=unc.misfit, ok_chi2=float(opts.ok_chi2), model_error=float(opts.model_error),
                            notes=st.warnings)
     disc_stderr = judged.disc_stderr
+    # the camera response's test (bubblefit.inverse.colour_check), kept apart from the verdict
+    ok, warnings, colour_record = judge_colours(ok, warnings, st.photo, img, full.mask, full.cos)
     return FitResult(
         params=reported, stderr=stderr, held=list(table.held), converged=bool(converged),
         message="; ".join(notes) if notes else "converged", iterations=sol.steps, residual_rms=rms,
@@ -229,6 +232,7 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
         disc_model_error=float(opts.disc_model_error) if disc_stderr is not None else float("nan"),
         stderr_scale=unc.scale, roles=parameter_roles(table, st.fx.model, tuple(reported)),
         frame=None if st.frame.whole else (st.frame.x0, st.frame.y0, st.frame.k), colour=st.colour,
+        colour_check=colour_record,
     )
 
 

@@ -115,8 +115,15 @@ def _shipped_table(name: str) -> tuple[tuple[str, ...], np.ndarray]:
     return tuple(header.split(",")), np.array([[float(x) for x in r.split(",")] for r in rows])
 
 
-def _read_columns(path: str, columns: int, what: str) -> np.ndarray:
-    """A CSV (comma or whitespace) of ``columns`` numbers per row, header lines skipped."""
+def read_number_rows(path: str, columns: int, what: str) -> np.ndarray:
+    """Rows of ``columns`` finite numbers from a text table (comma, semicolon or whitespace
+    separated; ``#`` comments and header lines before the first row skipped), (rows, columns).
+
+    Raises
+    ------
+    InputError
+        The file cannot be read as text, or a row after the first has too few numbers.
+    """
     from ..errors import InputError
 
     rows = []
@@ -137,7 +144,14 @@ def _read_columns(path: str, columns: int, what: str) -> np.ndarray:
         if len(vals) < columns or not np.all(np.isfinite(vals)):
             raise InputError(f"{what} {path}, line {no}: expected {columns} finite numbers")
         rows.append(vals)
-    data = np.asarray(rows, dtype=np.float64).reshape(-1, columns)
+    return np.asarray(rows, dtype=np.float64).reshape(-1, columns)
+
+
+def _read_columns(path: str, columns: int, what: str) -> np.ndarray:
+    """A CSV (comma or whitespace) of ``columns`` numbers per row, header lines skipped."""
+    from ..errors import InputError
+
+    data = read_number_rows(path, columns, what)
     if len(data) < 2 or np.any(np.diff(np.sort(data[:, 0])) <= 0):
         raise InputError(f"{what} {path}: need at least 2 rows with distinct wavelengths (nm) in the first column")
     if data[:, 0].max() < LAMBDA_MIN or data[:, 0].min() > LAMBDA_MAX or np.any(data[:, 1:] < 0):

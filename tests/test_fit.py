@@ -63,14 +63,7 @@ def _opts(**kw):
     return FitOptions(**base)
 
 
-@pytest.mark.parametrize("seed,thickness,tint", [
-    (0, 150.0, True), (1, 720.0, False),
-    # Known: t comes out 0.0027 off (4.5 of its stated standard errors) on this 8-bit photo;
-    # the bias of t on quantised photos is larger than the noise-based error bar allows.
-    pytest.param(2, 1400.0, True, marks=pytest.mark.xfail(reason="t bias on 8-bit photos exceeds 4 stated "
-                                                                  "standard errors (0.0027 vs 0.0006)",
-                                                           strict=False)),
-])
+@pytest.mark.parametrize("seed,thickness,tint", [(0, 150.0, True), (1, 720.0, False), (2, 1400.0, True)])
 def test_constant_recovery(env, seed, thickness, tint, monkeypatch):
     """t within 0.003, thickness within 5 nm, roughness within 15%, errors that cover; the
     solve's and the standard errors' programs compiled in the background are the ones run."""
@@ -93,9 +86,10 @@ def test_constant_recovery(env, seed, thickness, tint, monkeypatch):
     assert abs(p["thickness_nm"] - thickness) < 5.0
     assert abs(p["t"] - truth["t"]) < 0.003
     assert abs(p["roughness"] / truth["roughness"] - 1) < 0.15
-    # the standard errors are honest: the truth within 4 sigma for t and thickness
+    # the standard errors are honest: the truth within 4 sigma for the thickness, and within
+    # 3 for t, whose error bar carries the background photo's noise (errors in variables)
     assert abs(p["thickness_nm"] - thickness) < 4 * e["thickness_nm"] + 0.5
-    assert abs(p["t"] - truth["t"]) < 4 * e["t"] + 2e-4
+    assert abs(p["t"] - truth["t"]) < 3 * e["t"]
     names = [h[0] for h in res.held]
     assert "rotation_deg" in names and "thickness_nm" not in names
     js = res.to_json()

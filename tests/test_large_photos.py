@@ -49,7 +49,7 @@ def test_analysis_frame_memory_is_bounded_by_the_frame():
         _, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
-    outputs = frame.photo.nbytes + frame.background.nbytes + frame.sigma.nbytes
+    outputs = frame.photo.nbytes + frame.background.nbytes + frame.sigma.nbytes + frame.bg_sigma.nbytes
     assert max(frame.photo.shape[:2]) <= opts.analysis_size
     crop64 = (2 * 1.15 * disc[2]) ** 2 * 3 * 8  # the crop alone, in float64
     assert peak < 2.5 * outputs < crop64, (peak / 2**20, outputs / 2**20)
@@ -60,5 +60,7 @@ def test_analysis_frame_memory_is_bounded_by_the_frame():
     np.testing.assert_allclose(frame.photo, block_mean(crop, k), rtol=1e-12)
     var = noise_sigma(crop, opts.noise_read, opts.noise_shot, opts.bits) ** 2
     np.testing.assert_allclose(frame.sigma, np.sqrt(block_mean(var, k) / k**2), rtol=1e-12)
+    # the background photo's noise, the same way (here the background is the photo itself)
+    np.testing.assert_allclose(frame.bg_sigma, frame.sigma, rtol=1e-12)
     cx, cy, r = frame.disc
     assert abs(x0 + cx * k - disc[0]) < 1e-9 and abs(r * k - disc[2]) < 1e-9

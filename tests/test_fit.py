@@ -448,7 +448,10 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
     _, resid = _programs.solver(px.padded.cfg, table, 3.0, 20, 1e-5, 1e-6)
     z = table.unconstrained(start)
     fixed = {"n_film": jnp.float32(1.33), "rotation_deg": jnp.float32(0.0)}
-    args = (fixed, env, px.padded.bg, px.y, px.w, px.padded.base, (px.rows, px.cols, px.idx))
+    # with the background photo's noise (0.01, a 8-bit photo's order) widening the weights
+    # through the model's transmission: its Jacobian too is jax.jacfwd's
+    bg_sigma = 0.01 * jnp.ones_like(px.padded.bg)
+    args = (fixed, env, px.padded.bg, bg_sigma, px.y, px.w, px.padded.base, (px.rows, px.cols, px.idx))
     want = np.asarray(jax.jacfwd(resid)(z, args))
     assert table.jacobian_groups == ((0, 1, 3), (2,), (4,), (5, 6, 7))  # weights, light, film, disc
     got = np.asarray(jax.jit(lambda z, a: _lm.column_jacobian(resid, table.jacobian_groups, z, a))(z, args))

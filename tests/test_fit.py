@@ -64,14 +64,7 @@ def _opts(**kw):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed,thickness,tint", [
-    (0, 150.0, True), (1, 720.0, False),
-    # Known: t comes out 0.0027 off (4.5 of its stated standard errors) on this 8-bit photo;
-    # the bias of t on quantised photos is larger than the noise-based error bar allows.
-    pytest.param(2, 1400.0, True, marks=pytest.mark.xfail(reason="t bias on 8-bit photos exceeds 4 stated "
-                                                                  "standard errors (0.0027 vs 0.0006)",
-                                                           strict=False)),
-])
+@pytest.mark.parametrize("seed,thickness,tint", [(0, 150.0, True), (1, 720.0, False), (2, 1400.0, True)])
 def test_constant_recovery(env, seed, thickness, tint, monkeypatch):
     """t within 0.003, thickness within 5 nm, roughness within 15%, errors that cover; the
     solve's and the standard errors' programs compiled in the background are the ones run."""
@@ -94,9 +87,10 @@ def test_constant_recovery(env, seed, thickness, tint, monkeypatch):
     assert abs(p["thickness_nm"] - thickness) < 5.0
     assert abs(p["t"] - truth["t"]) < 0.003
     assert abs(p["roughness"] / truth["roughness"] - 1) < 0.15
-    # the standard errors are honest: the truth within 4 sigma for t and thickness
+    # the standard errors are honest: the truth within 4 sigma for the thickness, and within
+    # 3 for t, whose error bar carries the background photo's noise (errors in variables)
     assert abs(p["thickness_nm"] - thickness) < 4 * e["thickness_nm"] + 0.5
-    assert abs(p["t"] - truth["t"]) < 4 * e["t"] + 2e-4
+    assert abs(p["t"] - truth["t"]) < 3 * e["t"]
     names = [h[0] for h in res.held]
     assert "rotation_deg" in names and "thickness_nm" not in names
     js = res.to_json()
@@ -462,7 +456,10 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
     _, resid = _programs.solver(px.padded.cfg, table, 3.0, 20, 1e-5, 1e-6)
     z = table.unconstrained(start)
     fixed = {"n_film": jnp.float32(1.33), "rotation_deg": jnp.float32(0.0)}
-    args = (fixed, env, px.padded.bg, px.y, px.w, px.padded.base, (px.rows, px.cols, px.idx))
+    # with the background photo's noise (0.01, a 8-bit photo's order) widening the weights
+    # through the model's transmission: its Jacobian too is jax.jacfwd's
+    bg_sigma = 0.01 * jnp.ones_like(px.padded.bg)
+    args = (fixed, env, px.padded.bg, bg_sigma, px.y, px.w, px.padded.base, (px.rows, px.cols, px.idx))
     want = np.asarray(jax.jacfwd(resid)(z, args))
     assert table.jacobian_groups == ((0, 1, 3), (2,), (4,), (5, 6, 7))  # weights, light, film, disc
     got = np.asarray(jax.jit(lambda z, a: _lm.column_jacobian(resid, table.jacobian_groups, z, a))(z, args))

@@ -50,10 +50,10 @@ def test_analysis_frame_memory_is_bounded_by_the_frame():
         _, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
-    outputs = frame.photo.nbytes + frame.background.nbytes + frame.sigma.nbytes
+    outputs = frame.photo.nbytes + frame.background.nbytes + frame.sigma.nbytes + frame.bg_sigma.nbytes
     assert max(frame.photo.shape[:2]) <= opts.analysis_size
     crop64 = (2 * 1.15 * disc[2]) ** 2 * 3 * 8  # the crop alone, in float64
-    assert peak < 2.5 * outputs < crop64, (peak / 2**20, outputs / 2**20)
+    assert peak < 2.5 * outputs and peak < crop64, (peak / 2**20, outputs / 2**20)
     # the band-by-band result is the block mean of the crop, and its noise per block
     k, x0, y0 = frame.k, frame.x0, frame.y0
     h, w = frame.photo.shape[:2]
@@ -66,5 +66,7 @@ def test_analysis_frame_memory_is_bounded_by_the_frame():
         part = crop[rows.start * k:rows.stop * k]
         var = sensor_sigma(part, opts.noise_read, opts.noise_shot, opts.bits) ** 2
         np.testing.assert_allclose(frame.sigma[rows], np.sqrt(block_average(var, k) / k**2), rtol=1e-9)
+    # the background photo's noise, the same way (here the background is the photo itself)
+    np.testing.assert_allclose(frame.bg_sigma, frame.sigma, rtol=1e-12)
     cx, cy, r = frame.disc
     assert abs(x0 + cx * k - disc[0]) < 1e-9 and abs(r * k - disc[2]) < 1e-9

@@ -214,7 +214,9 @@ def test_tiny_and_flat_images_are_not_found():
 # --------------------------------------------------------------------------------------
 
 VALIDATION = Path(__file__).resolve().parent.parent / "experiments" / "validation" / "data"
-_CASES = sorted(p.parent.name for p in VALIDATION.glob("*/truth.json")) if VALIDATION.is_dir() else []
+# the bubbles of the validation set (its flat films and gaps have no disc)
+_CASES = sorted(p.parent.name for p in VALIDATION.glob("*/truth.json")
+                if not p.parent.name.startswith("film_")) if VALIDATION.is_dir() else []
 
 
 def _truth(case: str) -> dict:

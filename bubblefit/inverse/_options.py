@@ -104,7 +104,7 @@ class FitOptions:
     model_error : float
         The model-error floor: a fraction of each pixel's value added in quadrature to its
         noise when judging whether the photo is explained (``ok``). Renderers disagree by
-        about this much on the same film (experiments/validation/cross_check.py on its development cases cyc_* and mts_*; spectral sampling, observer tables, the rim's
+        about this much on the same film (experiments/validation/cross_check.py on development cases cyc_const500, cyc_drain_lin_sunrise, cyc_bump_city, mts_thick_courtyard, mts_thick_sunrise; spectral sampling, observer tables, the rim's
         filtering), so a fit is not failed for differences of that size.
     thickness_model_error_nm : float
         Added in quadrature to the standard error of every fitted thickness (and of each

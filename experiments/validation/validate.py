@@ -583,6 +583,10 @@ def main(argv=None) -> int:
     FIT_TIMEOUT = a.timeout
     if a.merge:
         rows, seen = [], set()
+        missing = [d for d in a.merge if not os.path.isfile(os.path.join(d, "results.json"))]
+        if missing:
+            print(f"validate.py: no results.json in {', '.join(missing)}", file=sys.stderr)
+            return 2
         for d in a.merge:
             with open(os.path.join(d, "results.json")) as fh:
                 for r in json.load(fh)["rows"]:

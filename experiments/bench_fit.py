@@ -362,9 +362,11 @@ def numpy_yardstick(repeats: int = 3) -> float:
 
 
 #: The stages :func:`stages` times: the function of ``bubblefit.inverse.fit`` (or of
-#: ``bubblefit.inverse._setup`` for the disc) that each is.
+#: ``bubblefit.inverse._setup`` for the disc) that each is (the finish: judging the
+#: solve and reporting it, both).
 STAGES = (("disc", "_setup", "_disc"), ("setup", "fit", "setup"), ("search", "fit", "_searched_start"),
-          ("local solve", "fit", "solve_local"), ("finish", "fit", "_finish"), ("final render", "fit", "render_bubble"))
+          ("local solve", "fit", "solve_local"), ("finish", "fit", "_judge"), ("finish", "fit", "_report"),
+          ("final render", "fit", "render_bubble"))
 
 
 def stages(photo, env, bg, out: Path, repeats: int, stem: str = "stages"):

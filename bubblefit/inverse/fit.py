@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import jax.numpy as jnp
 import numpy as np
@@ -60,7 +60,7 @@ from ._programs import (FINAL_SOLVE, SEARCH_SOLVE, WARM_SOLVE, SolveSettings, ba
 from ._options import FitOptions, FitResult
 from ._parameters import THICKNESSES, extrapolated, parameter_roles, refined_disc
 from ._setup import Setup, defaults, setup
-from ._uncertainty import uncertainty
+from ._uncertainty import Uncertainty, uncertainty
 from ._verdict import at_bounds, unresolved, verdict
 from ..lighting.envmap import EnvMap
 from ..model.thickness import drainage_profile
@@ -134,10 +134,42 @@ def _status_notes(sol: LocalSolution, finite: bool, chi2_nu: float, notes: list,
     return status, converged
 
 
-def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t_start: float) -> FitResult:
-    """Standard errors, the thickness map, the full-resolution render and the result of a solve."""
-    table, lev_fit = st.table, st.lev_fit
-    unc = uncertainty(sol, table, lev_fit, float(opts.robust_scale), float(opts.model_error),
+@dataclass(frozen=True)
+class Judgement:
+    """What a solve's standard errors say (:func:`_judge`), before the map and the render.
+
+    Attributes
+    ----------
+    uncertainty : Uncertainty
+        Covariance, standard errors and misfit of the solve.
+    reported, stderr : dict
+        The reported values and their standard errors (the disc's refinement taken out).
+    disc, disc_stderr : tuple, dict or None
+        The disc in pixels, refined, and its standard errors (None when not refined).
+    status : str
+        ``converged``, ``max_steps`` or ``failed`` (:func:`_status_notes`).
+    converged : bool
+        The solver met its tolerances with finite errors.
+    bounds : list
+        Warnings for free parameters at a bound of their range.
+    """
+
+    uncertainty: Uncertainty
+    reported: dict
+    stderr: dict
+    disc: tuple | None
+    disc_stderr: dict | None
+    status: str
+    converged: bool
+    bounds: list
+
+
+def _judge(st: Setup, opts: FitOptions, sol: LocalSolution, notes: list) -> Judgement:
+    """Standard errors (:func:`~bubblefit.inverse._uncertainty.uncertainty`), the refined disc,
+    the solver's status and the parameters at a bound or out of the searched range; the
+    cautions are appended to ``notes``."""
+    table = st.table
+    unc = uncertainty(sol, table, st.lev_fit, float(opts.robust_scale), float(opts.model_error),
                       float(opts.thickness_model_error_nm))
     reported, stderr = unc.reported, unc.stderr
     disc, disc_stderr = refined_disc(st.disc, reported, stderr, float(opts.disc_model_error))
@@ -148,6 +180,16 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
             notes.append(f"{key} = {reported[key]:.0f} nm lies outside the searched range {lo:.0f}-{hi:.0f} nm")
     bounds = at_bounds(sol.values, table, opts.thickness_range, 0.5 * opts.search_step_nm)
     notes += unresolved(reported, stderr, table)
+    return Judgement(unc, reported, stderr, disc, disc_stderr, status, converged, bounds)
+
+
+def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgement, notes: list,
+            t_start: float) -> FitResult:
+    """The thickness map (``--thickness map``), the full-resolution render, the verdict and
+    the :class:`FitResult` of a judged solve."""
+    table, unc = st.table, judged.uncertainty
+    reported, stderr = dict(judged.reported), dict(judged.stderr)
+    status, converged = judged.status, judged.converged
     new = sol.values
     final_vals, thickness_map, stderr_map = dict(new), None, None
     prof = None if opts.thickness == "constant" else (new["top_nm"], new["bottom_nm"], new["exponent"])
@@ -170,16 +212,17 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
     resid_img = st.photo - img
     rms = float(np.sqrt(np.mean(resid_img[full.mask] ** 2))) if full.mask.any() else float("nan")
     reported["n_film"] = float(st.vals["n_film"])
-    ok, warnings = verdict(converged=bool(converged), disc_found=True, bound_warnings=bounds,
+    ok, warnings = verdict(converged=bool(converged), disc_found=True, bound_warnings=judged.bounds,
                            misfit=unc.misfit, ok_chi2=float(opts.ok_chi2), model_error=float(opts.model_error),
                            notes=st.warnings)
+    disc_stderr = judged.disc_stderr
     return FitResult(
         params=reported, stderr=stderr, held=list(table.held), converged=bool(converged),
         message="; ".join(notes) if notes else "converged", iterations=sol.steps, residual_rms=rms,
         time_s=time.perf_counter() - t_start, effects=st.decisions, render=img, residual=resid_img,
-        thickness_map=thickness_map, thickness_stderr_map=stderr_map, disc=disc, disc_stderr=disc_stderr,
+        thickness_map=thickness_map, thickness_stderr_map=stderr_map, disc=judged.disc, disc_stderr=disc_stderr,
         thickness_model=opts.thickness, model=opts.model, reduced_chi2=unc.misfit.chi2_nu,
-        pixels_used=int(lev_fit.mask.sum()), status=status, names=unc.names, covariance=unc.covariance,
+        pixels_used=int(st.lev_fit.mask.sum()), status=status, names=unc.names, covariance=unc.covariance,
         ok=ok, warnings=warnings, chi2_floor=unc.misfit.chi2_floor, chi2_inliers=unc.misfit.chi2_inliers,
         outliers=unc.misfit.outliers, chi2_capped=unc.misfit.chi2_capped, model_error=float(opts.model_error),
         thickness_model_error_nm=float(opts.thickness_model_error_nm),
@@ -187,6 +230,11 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
         stderr_scale=unc.scale, roles=parameter_roles(table, st.fx.model, tuple(reported)),
         frame=None if st.frame.whole else (st.frame.x0, st.frame.y0, st.frame.k), colour=st.colour,
     )
+
+
+def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t_start: float) -> FitResult:
+    """Judge a solve (:func:`_judge`) and report it (:func:`_report`)."""
+    return _report(st, env, opts, sol, _judge(st, opts, sol, notes), notes, t_start)
 
 
 def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOptions(), background=None,
@@ -242,7 +290,8 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
         sol = _checked_warm_start(st, opts, env, sol, settings, notes)
     with stage("thickness map, standard errors, final render" if opts.thickness == "map"
                else "standard errors, final render"):
-        return _finish(st, env, opts, sol, notes, t_start)
+        judged = _judge(st, opts, sol, notes)
+        return _report(st, env, opts, sol, judged, notes, t_start)
 
 
 def _checked_warm_start(st: Setup, opts: FitOptions, env, sol: LocalSolution, settings: SolveSettings,

@@ -116,3 +116,54 @@ def test_cycles_colour_agreement_constant_film():
     assert matched["blur"]["median"] <= 1.0, matched
     assert matched["blur"]["median"] < mismatched["blur"]["median"], (matched, mismatched)
     assert matched["raw"]["median"] < mismatched["raw"]["median"], (matched, mismatched)
+
+
+def _package_text() -> str:
+    pkg = os.path.join(os.path.dirname(VALIDATION), "..", "bubblefit")
+    parts = []
+    for root, _, files in os.walk(pkg):
+        parts += [open(os.path.join(root, f), encoding="utf-8").read() for f in files if f.endswith(".py")]
+    return "\n".join(parts)
+
+
+def _named(case: str, text: str) -> bool:
+    """The case is named in ``text`` by itself or by a prefix of at least two of its tokens
+    (``ref_const300`` for ``ref_const300_courtyard_ortho``), not followed by more of a name."""
+    import re
+
+    tokens = case.split("_")
+    for k in range(len(tokens), 1, -1):
+        if re.search(r"(?<![A-Za-z0-9_])" + re.escape("_".join(tokens[:k])) + r"(?![A-Za-z0-9_])", text):
+            return True
+    return False
+
+
+def test_split_assigns_every_case_and_names_the_development_cases():
+    """split.toml puts every case in one part; every development case is named in a comment of
+    the constant chosen on it, and no test case is named anywhere in the package (a case a
+    choice was made on is not a test case)."""
+    split = validate.load_split()
+    cases = validate.list_cases()
+    assert sorted(split) == sorted(cases), set(split) ^ set(cases)
+    assert {v["part"] for v in split.values()} == set(validate.PARTS)
+    assert all(v.get("reason") for v in split.values())
+    text = _package_text()
+    dev = [c for c, v in split.items() if v["part"] == "development"]
+    test = [c for c, v in split.items() if v["part"] == "test"]
+    assert [c for c in dev if not _named(c, text)] == []
+    assert [c for c in test if _named(c, text)] == []
+
+
+def test_summary_counts_parts_separately():
+    """The per-part summary counts targets, ok and 3-standard-error coverage of each part alone."""
+    rows = [{"case": "a:constant", "part": "test", "kind": "positive", "pass": True, "ok": True, "chi2_floor": 1.2,
+             "d_err_se": 2.5},
+            {"case": "b:drainage", "part": "test", "kind": "positive", "pass": False, "ok": False, "chi2_floor": 9.0,
+             "top_err_se": 4.0, "bottom_err_se": -1.0},
+            {"case": "c:constant", "part": "development", "kind": "negative", "pass": True, "ok": False}]
+    for r in rows:
+        r.update(validate.coverage(r))
+    s = {x["part"]: x for x in validate.summarise(rows)}
+    assert (s["test"]["pass"], s["test"]["judged"], s["test"]["ok"], s["test"]["explained"]) == (1, 2, 1, 1)
+    assert (s["test"]["cov_in"], s["test"]["cov_n"]) == (2, 3)
+    assert (s["development"]["negatives"], s["development"]["negatives_caught"], s["development"]["cov_n"]) == (1, 1, 0)

@@ -67,7 +67,7 @@ MAX_REJECTIONS = 6
 #: The solve stops at an accepted point whose Gauss-Newton step left is at most this
 #: squared length in the fit's covariance (:func:`scaled_decrement`; 0.04: a fifth of a
 #: standard error, which widens no error bar by more than 2 %). Below it float32 renders
-#: do not resolve the cost: on experiments/validation's ref_const300 (physical model)
+#: do not resolve the cost: on experiments/validation's ref_const300 (physical model; a development case, split.toml)
 #: the solve met 0.026 at its 11th step, then spent 21 steps of a Jacobian's cost each
 #: (20 of them rejected, the cost moving by 4e-6 of itself) to stop at 0.108.
 STOP_DECREMENT = 0.04

@@ -16,7 +16,7 @@ little better. A soap film is smooth apart from real features, so the map is bui
    around the coarser map, so no pixel can take a neighbouring order. (Scoring every
    thickness of the range on the coarsest level let a model error between renderers pick
    the next order in whole regions: on independent photos 50% of the film was off by
-   one order.)
+   one order: development cases ref_drain_lin_courtyard, ref_drain_lin_city, ref_bump_sunrise, cyc_drain_lin_sunrise in experiments/validation/split.toml.)
 2. with a smoothness prior on every level: the energy of pixel ``p`` at thickness ``d``
    is its data chi^2 plus ``sum over its 4 neighbours q of ((d - d_q) / s)^2``, ``s`` =
    ``FitOptions.map_smoothness_nm`` times the level's block size (neighbours are that

@@ -104,16 +104,16 @@ class FitOptions:
     model_error : float
         The model-error floor: a fraction of each pixel's value added in quadrature to its
         noise when judging whether the photo is explained (``ok``). Renderers disagree by
-        about this much on the same film (spectral sampling, observer tables, the rim's
+        about this much on the same film (experiments/validation/cross_check.py on development cases cyc_const500, cyc_drain_lin_sunrise, cyc_bump_city, mts_thick_courtyard, mts_thick_sunrise; spectral sampling, observer tables, the rim's
         filtering), so a fit is not failed for differences of that size.
     thickness_model_error_nm : float
         Added in quadrature to the standard error of every fitted thickness (and of each
         pixel of a map): the scatter of bubblefit's thicknesses against independent
-        renderers on the validation set, RMS 0.6 nm, which no estimate from the photo's
+        renderers on the validation set's constant films (development cases ref_const300, ref_const620, ref_const1200, ref_const450, cyc_const500: experiments/validation/split.toml), RMS 0.6 nm, which no estimate from the photo's
         residual shows (:mod:`bubblefit.inverse._uncertainty`). 0 gives the photo's own.
     disc_model_error : float
         Added in quadrature to the standard errors of a refined disc, in radii: on the
-        orthographic validation photos (radius 48-57 px) the refined disc was 0.02-0.18 px
+        orthographic validation photos (radius 48-57 px; development cases ref_const300, ref_drain_lin_courtyard, ref_drain_lin_city, ref_bump_sunrise, cyc_const500, cyc_bump_city, mts_thick_sunrise in experiments/validation/split.toml) the refined disc was 0.02-0.18 px
         from the truth (RMS 0.08 px per centre coordinate, 0.11 px in radius, about 0.2 %
         of the radius) while the noise said 0.01-0.02 px.
     ok_chi2 : float

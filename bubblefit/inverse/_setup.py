@@ -225,7 +225,7 @@ def _settings(scene, opts: FitOptions) -> dict:
     settings.setdefault("spectral", {"method": "fourier", "samples": 8})
     # The physical model's internal bounces: 3 explain an independent 8-bounce render as
     # well as 8 do (reduced chi^2 3.30 against 3.35 on experiments/validation's
-    # ref_const300; 2 bounces: 4.25), whereas the absolute bound of "auto" asks for all 8.
+    # ref_const300, a development case in split.toml; 2 bounces: 4.25), whereas the absolute bound of "auto" asks for all 8.
     settings.setdefault("bounces", 3)
     # A photographed film transmits the complement of the colour it reflects; over a bright
     # background that tint is as strong as the reflection, and eq. (11)'s grey t^4 would

@@ -24,7 +24,7 @@ The correlations are the sandwich's; ``stderr_scale`` reports the largest wideni
 
 Neither estimate sees a model error that a parameter absorbs: a forward model that is off
 by a smooth, thickness-like amount moves the fitted thickness and leaves no residual.
-Against three renderers that share no code with bubblefit (``experiments/validation``)
+Against three renderers that share no code with bubblefit (``experiments/validation``'s development cases ref_const300, ref_const620, ref_const1200, ref_const450, cyc_const500)
 the constant films came out 0.1-1.1 nm from the truth, RMS 0.6 nm, while the estimates
 above said 0.1-0.2 nm. That scatter is added in quadrature to the variance of every
 thickness (``FitOptions.thickness_model_error_nm``): a Type B uncertainty, evaluated from
@@ -40,7 +40,7 @@ explains has essentially none). Outliers are local features the forward model la
 the glint of a sun or a studio lamp, which one ray per pixel point-samples while the
 camera integrates it over the pixel; dust; a clipped highlight's halo. A handful of them
 carries almost all of the plain reduced chi^2 (on a Blender Cycles photo of a draining
-film in a sunrise map, 1 % of the pixels held 99.6 % of it with the true profile fitted):
+film in a sunrise map, development case cyc_drain_lin_sunrise_persp, 1 % of the pixels held 99.6 % of it with the true profile fitted):
 the verdict's warning says when a misfit is local (:mod:`bubblefit.inverse._verdict`), and
 ``model = "auto"`` compares its models by the capped figure. The error bars and ``ok``
 still use every pixel.

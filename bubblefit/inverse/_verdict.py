@@ -11,7 +11,7 @@ it is not, the warning says whether the misfit is local: a few outlier pixels
 glints of the sun or of a lamp leave, which one ray per pixel does not resolve. Such a fit
 stays not ``ok``: on independent photos the share of outliers did not tell a glint from a
 biased model apart (4-6 % on right fits with sun, studio and night maps and 20 % on one
-over a bright city map, 10 % on the paper model's biased courtyard drainage profile).
+over a bright city map, 10 % on the paper model's biased courtyard drainage profile; development cases ref_const620_sunrise, ref_const1200_night, ref_drain_exp15_studio, cyc_bump_city, ref_drain_lin_courtyard in experiments/validation/split.toml).
 
 Zero roughness is not a bound but the mirror, eq. (1) as ``a -> 0``: a physical limit like
 ``r_d = 0``, which a smooth film reaches. A roughness within three standard errors of zero

@@ -50,7 +50,7 @@ def thickness_at(kind: ThicknessKind, values: Array, local: Array, pixel: Array,
     and only the difference of the profile enters, so its own fitting error mostly
     cancels; a local feature of the front film (a bump) is carried to the films behind.
     (Taking the profile alone behind the front kept the bump in front but put the
-    profile's error on the rear film: on a Blender Cycles photo the map's coverage within
+    profile's error on the rear film: on a Blender Cycles photo (development case cyc_bump_city_ortho_offc, experiments/validation/split.toml) the map's coverage within
     15 nm fell from 96 % to 80 %.) Without a profile (None, or NaN) the point takes the
     map's value at its pixel.
     """

@@ -264,6 +264,14 @@ CASES = {
                                      thickness=T("bump", top_nm=200.0, bottom_nm=850.0, exponent=1.5, bump_nm=40.0,
                                                  bump_center=(-0.25, 0.3, 0.92), bump_sigma=0.15),
                                      envmap="city", fits=["map"], seed=33),
+    # held-out test cases (experiments/validation/split.toml): rough films with a sun in view,
+    # in two maps no earlier case used; "roughness" is the Principled BSDF's (GGX alpha = roughness^2)
+    "cyc_const700_sunset_ortho_rough": dict(camera=rr.Camera("ortho", 176, 160, disc=(90.0, 78.0, 54.0)),
+                                            thickness=T("constant", 700.0), envmap="sunset",
+                                            fits=["constant"], seed=41, roughness=0.15),
+    "cyc_drain_lin_forest_persp_rough": dict(camera=persp(160, 160, 4.5, 32.0),
+                                             thickness=T("drainage", top_nm=200.0, bottom_nm=950.0, exponent=1.0),
+                                             envmap="forest", fits=["drainage"], seed=42, roughness=0.1),
 }
 
 
@@ -292,7 +300,8 @@ def make_cases(names=None):
         world(sc, env)
         camera(sc, cam)
         back = render_to_array(sc, os.path.join("/tmp", name + "_bg.exr"))
-        sphere(sc, bubble_material(c["thickness"]))
+        rough = float(c.get("roughness", 0.0))
+        sphere(sc, bubble_material(c["thickness"], roughness=rough))
         sc.cycles.seed = 2
         photo = render_to_array(sc, os.path.join("/tmp", name + "_photo.exr"))
         secs = time.time() - t0
@@ -319,12 +328,15 @@ def make_cases(names=None):
             "render_seconds": round(secs, 1),
             "camera": cam.describe(), "disc": {"cx": cx, "cy": cy, "r": r}, "disc_given": False,
             "bubble": {"center": [0, 0, 0], "radius": 1.0, "n_film": N_FILM,
-                       "material": "Principled BSDF: IOR 1.0, Transmission Weight 1, Roughness 0, Thin Film IOR 1.4",
+                       "material": f"Principled BSDF: IOR 1.0, Transmission Weight 1, Roughness {rough:g}, Thin Film IOR 1.4",
                        "mesh": "UV sphere 256 x 128, smooth shading"},
             "thickness": c["thickness"].describe(),
             "t": rr.t_incoherent_normal(N_FILM),
             "t_note": "sqrt(1 - 2R/(1+R)) of the thick-film limit at normal incidence, n = 1.4 (reference value)",
-            "roughness": 0.0, "reflection": "smooth (mirror)",
+            "roughness": rough,
+            "reflection": ("smooth (mirror)" if rough == 0 else
+                           f"rough: Principled BSDF Roughness {rough:g} (GGX, alpha = {rough ** 2:.4g}); "
+                           "not on bubblefit's roughness scale, so not scored"),
             "envmap": f"envmaps/{c['envmap']}.exr", "rotation_deg": 0.0, "background": "env",
             "illuminant": "E",
             "approximations": [

@@ -59,6 +59,26 @@ CASES = {
         thickness=T("bump", top_nm=150.0, bottom_nm=900.0, exponent=1.0, bump_nm=40.0,
                     bump_center=(0.3, 0.25, 0.92), bump_sigma=0.15),
         envmap="sunrise", background="backdrop", fits=["map"], seed=8),
+    # held-out test cases (split.toml): a sun in view in two maps no earlier case used,
+    # a narrow and a wide perspective camera, orthographic, constant and drainage
+    "ref_drain_lin_forest_persp": dict(
+        camera=persp(160, 160, 14.0, 12.0), thickness=T("drainage", top_nm=150.0, bottom_nm=900.0, exponent=1.0),
+        envmap="forest", background="env", fits=["drainage"], seed=11),
+    "ref_const850_forest_persp": dict(
+        camera=persp(192, 160, 4.5, 35.0), thickness=T("constant", 850.0),
+        envmap="forest", background="env", fits=["constant"], seed=12),
+    "ref_const380_sunset_ortho": dict(
+        camera=rr.Camera("ortho", 176, 160, disc=(90.0, 78.0, 52.0)), thickness=T("constant", 380.0),
+        envmap="sunset", background="backdrop", fits=["constant"], seed=13),
+    "ref_drain_exp12_sunset_ortho_offc": dict(
+        camera=rr.Camera("ortho", 192, 160, disc=(104.0, 84.0, 56.0)),
+        thickness=T("drainage", top_nm=200.0, bottom_nm=1000.0, exponent=1.2),
+        envmap="sunset", background="backdrop", fits=["drainage", "map"], seed=14),
+}
+# the same photo fitted without its camera: a user who does not know the view
+NO_CAMERA = {
+    "ref_drain_lin_forest_persp_nocam": "ref_drain_lin_forest_persp",
+    "ref_const850_forest_persp_nocam": "ref_const850_forest_persp",
 }
 # negative cases built from the positives' pixels
 NEGATIVES = {
@@ -145,6 +165,23 @@ def make_case(name: str, spec: dict, illuminant: str = "D65") -> None:
     print(f"{name}: {secs:.1f} s, exposure {exposure:.4g}, disc {cx:.1f},{cy:.1f},{r:.1f}")
 
 
+def make_no_camera(name: str, source: str) -> None:
+    """A copy of a perspective case without its scene.toml: the fit is not told the camera."""
+    import json
+    import shutil
+
+    src, out = os.path.join(vio.DATA, source), os.path.join(vio.DATA, name)
+    os.makedirs(out, exist_ok=True)
+    with open(os.path.join(src, "truth.json")) as fh:
+        truth = json.load(fh)
+    for f in ("photo.png", "background.png", "thickness_true.exr"):
+        shutil.copy(os.path.join(src, f), os.path.join(out, f))
+    truth.update(case=name, source_case=source, fit_args=[],
+                 camera_note="perspective photo fitted without a scene file: the fit is not told the camera")
+    vio.save_json(os.path.join(out, "truth.json"), truth)
+    print(f"{name}: {source} without its camera")
+
+
 def make_negative(name: str, spec: dict) -> None:
     import json
     import shutil
@@ -192,10 +229,12 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("cases", nargs="*")
     a = ap.parse_args()
-    names = a.cases or list(CASES) + list(NEGATIVES)
+    names = a.cases or list(CASES) + list(NEGATIVES) + list(NO_CAMERA)
     for n in names:
         if n in CASES:
             make_case(n, CASES[n])
+        elif n in NO_CAMERA:
+            make_no_camera(n, NO_CAMERA[n])
         elif n in NEGATIVES:
             make_negative(n, NEGATIVES[n])
         else:

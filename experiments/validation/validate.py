@@ -11,6 +11,14 @@ It prints a table and writes results.csv, results.json and validation.png to
 Run it with the project's venv from the repository root:
 
     PYTHONPATH=. python experiments/validation/validate.py [--quick] [CASE ...]
+    PYTHONPATH=. python experiments/validation/validate.py --part test --out experiments/validation/results/test
+
+The cases are split (split.toml, docs/validation-split.md) into a development part, on
+which constants and rules of bubblefit were chosen, and a test part never used for a
+choice; every row carries its part and results.md summarises each part on its own.
+Coverage: a fitted thickness (constant, drainage top and bottom) is covered when it lies
+within 3 of its stated standard errors of the truth; a map's pixels likewise with the
+map's per-pixel standard errors (PREFIX_thickness_stderr.exr).
 
 Targets (from the validation issue; nothing here is tuned to them):
   constant thickness within 5 nm; drainage ends within 20 nm (top) / 30 nm (bottom) and
@@ -45,6 +53,39 @@ COVER_NM = 15.0       # coverage tolerance
 HOP_NM = 100.0        # a jump between neighbours larger than this where the truth is smooth
 SMOOTH_NM = 20.0      # ... and the truth changes by less than this
 TOL = {"constant": 5.0, "top": 20.0, "bottom": 30.0, "se": 3.0, "median": 15.0, "coverage": 0.90, "t_cal": 0.002}
+
+
+SPLIT_FILE = os.path.join(HERE, "split.toml")
+PARTS = ("development", "test")
+COVER_SE = 3.0        # coverage: within this many stated standard errors
+#: Where each fit's JSON and images go (``--runs``; None: OUT/runs).
+RUNS_DIR: list[str] = []
+
+
+def load_split(path: str = SPLIT_FILE) -> dict[str, dict]:
+    """``{case: {"part": ..., "reason": ...}}`` from split.toml (empty when it is absent)."""
+    import tomllib
+
+    if not os.path.exists(path):
+        return {}
+    with open(path, "rb") as fh:
+        cases = tomllib.load(fh).get("cases", {})
+    bad = {c: v.get("part") for c, v in cases.items() if v.get("part") not in PARTS}
+    if bad:
+        raise SystemExit(f"split.toml: part must be one of {PARTS}: {bad}")
+    return cases
+
+
+def part_of(case: str, split: dict | None = None) -> str:
+    """The case's part in split.toml, or "unassigned"."""
+    split = load_split() if split is None else split
+    if case.startswith("xcal_ref_const300"):    # ref_const300's photo with another framing's calibration
+        case = "ref_const300_courtyard_ortho"
+    return split.get(case.split(":")[0], {}).get("part", "unassigned")
+
+
+def runs_dir(out_dir: str) -> str:
+    return RUNS_DIR[0] if RUNS_DIR else os.path.join(out_dir, "runs")
 
 
 def list_cases() -> list[str]:
@@ -137,7 +178,7 @@ def run_fit(case: str, model: str, out_dir: str, calibration: str | None = None,
     """Fit one case with one thickness model through the CLI and score it."""
     truth = load_truth(case)
     cdir = os.path.join(DATA, case)
-    runs = os.path.join(out_dir, "runs")
+    runs = runs_dir(out_dir)
     os.makedirs(runs, exist_ok=True)
     name = tag or (f"{case}:{model}" + (":disc given" if disc_given else ""))
     stem = os.path.join(runs, name.replace(":", "_").replace(" ", "_"))
@@ -172,7 +213,25 @@ def run_fit(case: str, model: str, out_dir: str, calibration: str | None = None,
         row["refused"] = False
     row.update(score_fit(res, truth, model, stem))
     row["pass"] = judge(row, truth, model)
+    row["part"] = part_of(case)
+    row.update(coverage(row))
     return row
+
+
+def coverage(row: dict) -> dict:
+    """How many of the row's fitted thicknesses lie within COVER_SE stated standard errors.
+
+    Counts the constant thickness and the drainage ends (a map counts once: covered when
+    at least TOL["coverage"] of its inner disc is within COVER_SE of its per-pixel errors).
+    """
+    zs = [row.get(k) for k in ("d_err_se", "top_err_se", "bottom_err_se")]
+    n = sum(z is not None for z in zs)
+    k = sum(z is not None and abs(z) <= COVER_SE for z in zs)
+    c3 = row.get("map_cover_3se")
+    if c3 is not None:
+        n += 1
+        k += c3 >= TOL["coverage"]
+    return {"cov_n": n, "cov_in": k} if n else {}
 
 
 def score_fit(res: dict | None, truth: dict, model: str, stem: str) -> dict:
@@ -222,7 +281,27 @@ def score_fit(res: dict | None, truth: dict, model: str, stem: str) -> dict:
         true_map = vio.read_image(true_path)[..., 0]
         if fit_map.shape == true_map.shape:
             out.update(map_metrics(fit_map, true_map, truth["disc"]))
+            se_path = stem + "_thickness_stderr.exr"
+            if os.path.exists(se_path):
+                se_map = vio.read_image(se_path)[..., 0]
+                if se_map.shape == true_map.shape:
+                    out.update(map_se_metrics(fit_map, se_map, true_map, truth["disc"]))
     return out
+
+
+def map_se_metrics(fit_map, se_map, true_map, disc) -> dict:
+    """Share of the inner disc whose map error is within COVER_SE of the pixel's stated error."""
+    h, w = true_map.shape
+    yy, xx = np.mgrid[0:h, 0:w] + 0.5
+    inner = (xx - disc["cx"]) ** 2 + (yy - disc["cy"]) ** 2 <= (INNER * disc["r"]) ** 2
+    inner &= np.isfinite(true_map)
+    ok = inner & np.isfinite(fit_map) & np.isfinite(se_map) & (se_map > 0)
+    n = int(inner.sum())
+    if not n:
+        return {}
+    z = np.abs(fit_map - true_map)[ok] / se_map[ok]
+    return {"map_cover_3se": float(np.sum(z <= COVER_SE) / n),
+            "map_median_se_nm": float(np.median(se_map[ok])) if ok.any() else None}
 
 
 def judge(row: dict, truth: dict, model: str):
@@ -250,7 +329,7 @@ def judge(row: dict, truth: dict, model: str):
 def run_calibration(case: str, out_dir: str) -> dict:
     truth = load_truth(case)
     cdir = os.path.join(DATA, case)
-    runs = os.path.join(out_dir, "runs")
+    runs = runs_dir(out_dir)
     os.makedirs(runs, exist_ok=True)
     js = os.path.join(runs, f"{case}_calibrate.json")
     if os.path.exists(js):
@@ -279,6 +358,7 @@ def run_calibration(case: str, out_dir: str) -> dict:
     dc, dr = disc_error(res.get("bubble") or res.get("disc"), truth.get("disc"))
     row["disc_dc_px"], row["disc_dr_px"] = dc, dr
     row["pass"] = bool(inside) or (row["t_err"] is not None and abs(row["t_err"]) <= TOL["t_cal"])
+    row["part"] = part_of(case)
     row["calibration_json"] = js
     return row
 
@@ -396,13 +476,13 @@ def jobs_for(case: str) -> list[tuple]:
     return [("fit", case, m) for m in truth.get("fits", ["constant"]) if not ONLY_FITS or m in ONLY_FITS]
 
 
-COLUMNS = ["case", "pass", "ok", "converged", "refused", "d_err_nm", "d_err_se", "top_err_nm", "top_err_se",
-           "bottom_err_nm", "bottom_err_se", "map_median_nm", "map_p90_nm", "map_coverage", "order_hops", "t",
+COLUMNS = ["case", "part", "pass", "ok", "converged", "refused", "d_err_nm", "d_err_se", "top_err_nm", "top_err_se",
+           "bottom_err_nm", "bottom_err_se", "map_median_nm", "map_p90_nm", "map_coverage", "map_cover_3se", "order_hops", "t",
            "t_err", "t_in_ci", "disc_dc_px", "disc_dr_px", "model_kept", "reduced_chi2", "chi2_floor", "chi2_inliers",
            "outliers", "map_log_err_median", "time_s", "wall_s"]
 SHORT = {"d_err_nm": "d err", "d_err_se": "d/se", "top_err_nm": "top err", "top_err_se": "top/se",
          "bottom_err_nm": "bot err", "bottom_err_se": "bot/se", "map_median_nm": "map med", "map_p90_nm": "map p90",
-         "map_coverage": "cover", "order_hops": "hops", "t_in_ci": "t in CI", "disc_dc_px": "disc dc",
+         "map_coverage": "cover", "map_cover_3se": "map in 3se", "order_hops": "hops", "t_in_ci": "t in CI", "disc_dc_px": "disc dc",
          "disc_dr_px": "disc dr", "model_kept": "model", "reduced_chi2": "chi2r", "chi2_floor": "chi2 floor",
          "chi2_inliers": "chi2 in", "outliers": "outl", "map_log_err_median": "probe |log|", "converged": "conv", "refused": "refused"}
 
@@ -466,6 +546,35 @@ def plot(rows: list[dict], path: str) -> None:
     plt.close(fig)
 
 
+def summarise(rows: list[dict]) -> list[dict]:
+    """Per part: fits, targets met, `ok` on the positives, coverage within COVER_SE."""
+    out = []
+    for part in PARTS + ("unassigned",):
+        rs = [r for r in rows if r.get("part") == part]
+        if not rs:
+            continue
+        judged = [r for r in rs if r.get("pass") is not None]
+        pos = [r for r in rs if r.get("kind") == "positive"]
+        explained = [r for r in pos if r.get("ok") is True and (r.get("chi2_floor") or math.inf) <= 3.0]
+        out.append({"part": part, "fits": len(rs), "judged": len(judged),
+                    "pass": sum(bool(r.get("pass")) for r in judged),
+                    "positives": len(pos), "ok": sum(r.get("ok") is True for r in pos),
+                    "explained": len(explained),
+                    "cov_n": sum(r.get("cov_n", 0) for r in rs), "cov_in": sum(r.get("cov_in", 0) for r in rs),
+                    "negatives": sum(r.get("kind") == "negative" for r in rs),
+                    "negatives_caught": sum(r.get("kind") == "negative" and bool(r.get("pass")) for r in rs)})
+    return out
+
+
+def summary_table(summary: list[dict]) -> str:
+    lines = ["| part | fits | targets met | positives ok | thicknesses within 3 SE | negatives caught |",
+             "|---|---|---|---|---|---|"]
+    for s in summary:
+        lines.append(f"| {s['part']} | {s['fits']} | {s['pass']} / {s['judged']} | {s['ok']} / {s['positives']} | "
+                     f"{s['cov_in']} / {s['cov_n']} | {s['negatives_caught']} / {s['negatives']} |")
+    return "\n".join(lines)
+
+
 def write_outputs(rows: list[dict], out: str) -> None:
     with open(os.path.join(out, "results.csv"), "w", newline="") as fh:
         keys = COLUMNS + sorted({k for r in rows for k in r} - set(COLUMNS))
@@ -473,10 +582,19 @@ def write_outputs(rows: list[dict], out: str) -> None:
         wr.writeheader()
         for r in rows:
             wr.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in keys})
+    split = load_split()
+    for r in rows:
+        r.setdefault("part", part_of(r["case"], split))
+    summary = summarise(rows)
     vio.save_json(os.path.join(out, "results.json"), {"tolerances": TOL, "inner_disc_fraction": INNER,
-                                                      "coverage_nm": COVER_NM, "hop_nm": HOP_NM, "rows": rows})
+                                                      "coverage_nm": COVER_NM, "coverage_se": COVER_SE,
+                                                      "hop_nm": HOP_NM, "summary": summary, "rows": rows})
     with open(os.path.join(out, "results.md"), "w") as fh:
-        fh.write(table(rows, markdown=True) + "\n")
+        fh.write("## Summary per part (split.toml)\n\n" + summary_table(summary) + "\n")
+        for part in PARTS + ("unassigned",):
+            rs = [r for r in rows if r.get("part") == part]
+            if rs:
+                fh.write(f"\n## {part}\n\n" + table(rs, markdown=True) + "\n")
     plot(rows, os.path.join(out, "validation.png"))
 
 
@@ -495,13 +613,20 @@ def main(argv=None) -> int:
     ap.add_argument("--fit-args", default="", help="extra arguments for every `bubblefit fit`, e.g. '--model physical'")
     ap.add_argument("--only", default="", help="comma-separated thickness models to run, e.g. 'drainage'")
     ap.add_argument("--no-cross", action="store_true", help="skip the fit that is handed another framing's calibration")
+    ap.add_argument("--part", choices=PARTS, help="only the cases of this part of split.toml")
+    ap.add_argument("--runs", help="folder for each fit's JSON and images [OUT/runs]")
     a = ap.parse_args(argv)
     EXTRA_FIT_ARGS[:] = a.fit_args.split()
+    RUNS_DIR[:] = [a.runs] if a.runs else []
     ONLY_FITS[:] = [m for m in a.only.split(",") if m]
     global FIT_TIMEOUT
     FIT_TIMEOUT = a.timeout
     if a.merge:
         rows, seen = [], set()
+        missing = [d for d in a.merge if not os.path.isfile(os.path.join(d, "results.json"))]
+        if missing:
+            print(f"validate.py: no results.json in {', '.join(missing)}", file=sys.stderr)
+            return 2
         for d in a.merge:
             with open(os.path.join(d, "results.json")) as fh:
                 for r in json.load(fh)["rows"]:
@@ -509,12 +634,17 @@ def main(argv=None) -> int:
                         seen.add(r["case"])
                         if r.get("kind") == "probe" and r["case"].endswith("ball given"):
                             r["pass"] = None      # the unwrap alone has no target
+                        if "cov_n" not in r:
+                            r.update(coverage(r))
                         rows.append(r)
         os.makedirs(a.out, exist_ok=True)
         write_outputs(rows, a.out)
         print(table(rows))
         return 0
     cases = [] if a.probes_only else (a.cases or (QUICK if a.quick else list_cases()))
+    if a.part:
+        split = load_split()
+        cases = [c for c in cases if part_of(c, split) == a.part]
     os.makedirs(a.out, exist_ok=True)
     rows = []
     if a.probes or a.probes_only:
@@ -554,6 +684,8 @@ def main(argv=None) -> int:
     write_outputs(rows, a.out)
     print()
     print(table(rows))
+    print()
+    print(summary_table(summarise(rows)))
     print(f"\nwrote {a.out}/results.csv, results.json, results.md, validation.png")
     return 0
 

@@ -9,6 +9,7 @@ re-serialising the cache's copy lost its kernels)."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import textwrap
@@ -223,49 +224,72 @@ def test_a_planted_file_is_never_run(tmp_path, monkeypatch):
     assert planted.read_bytes().startswith(executables.MAGIC)  # replaced by the store's own file
 
 
-def test_a_file_without_the_stores_digest_is_ignored(tmp_path, monkeypatch):
-    """A file in the store's format whose digest was made with another key (copied from
-    another cache, or forged) or that is cut short is not loaded: the program is compiled
-    and the file replaced; a file the store wrote is loaded in a later call."""
-    import jax
-    import jax.numpy as jnp
+_DIGEST_SCRIPT = r"""
+import sys
+from pathlib import Path
 
-    executables, folder = _in_process_store(monkeypatch, tmp_path)
-    loads, load = [], executables._load
+import jax
+import jax.numpy as jnp
+import numpy as np
 
-    def recording_load(path, args):
-        try:
-            out = load(path, args)
-        except Exception as exc:
-            loads.append(type(exc).__name__)
-            raise
-        loads.append("loaded")
-        return out
+from bubblefit.io import executables
+from bubblefit.io.jaxcache import private_folder
 
-    monkeypatch.setattr(executables, "_load", recording_load)
-    fn = jax.jit(lambda x: ({"y": jnp.sin(x) + 1.0, "n": None}, jnp.sum(x)))
-    x = jnp.linspace(0.0, 2.0, 9)
-    want = fn(x)
-    got = executables.stored(fn, "test.digest", ())(x)  # compiled afresh and saved
-    np.testing.assert_array_equal(got[0]["y"], want[0]["y"])
-    path = next(folder.glob("*.bin"))
-    good = path.read_bytes()
-    assert loads == [] and good.startswith(executables.MAGIC)
+folder = Path(sys.argv[1]) / "cache" / "executables"
+assert private_folder(folder) is None
+executables.ENABLED = True
+executables._folder = lambda: folder
+loads, load = [], executables._load
 
-    loaded = executables.stored(fn, "test.digest", ())(x)  # a new Stored: read from the file
-    assert loads == ["loaded"] and loaded[0]["n"] is None
-    np.testing.assert_array_equal(loaded[0]["y"], want[0]["y"])
-    np.testing.assert_array_equal(loaded[1], want[1])
 
-    (folder / ".key").write_bytes(b"k" * executables.SECRET_BYTES)  # another store's key
+def recording_load(path, args):
+    try:
+        out = load(path, args)
+    except Exception as exc:
+        loads.append(type(exc).__name__)
+        raise
+    loads.append("loaded")
+    return out
+
+
+executables._load = recording_load
+fn = jax.jit(lambda x: ({"y": jnp.sin(x) + 1.0, "n": None}, jnp.sum(x)))
+x = jnp.linspace(0.0, 2.0, 9)
+want = fn(x)
+got = executables.stored(fn, "test.digest", ())(x)  # compiled afresh and saved
+np.testing.assert_array_equal(got[0]["y"], want[0]["y"])
+path = next(folder.glob("*.bin"))
+good = path.read_bytes()
+assert loads == [] and good.startswith(executables.MAGIC), loads
+
+loaded = executables.stored(fn, "test.digest", ())(x)  # a new Stored: read from the file
+assert loads == ["loaded"] and loaded[0]["n"] is None and path.exists(), loads
+np.testing.assert_array_equal(loaded[0]["y"], want[0]["y"])
+np.testing.assert_array_equal(loaded[1], want[1])
+
+(folder / ".key").write_bytes(b"k" * executables.SECRET_BYTES)  # another store's key
+loads.clear()
+np.testing.assert_array_equal(executables.stored(fn, "test.digest", ())(x)[1], want[1])
+assert loads == ["StoreError"] and path.read_bytes() != good, loads  # rewritten under this key
+for cut in (0, len(good) // 2):
+    path.write_bytes(path.read_bytes()[:cut])
     loads.clear()
     np.testing.assert_array_equal(executables.stored(fn, "test.digest", ())(x)[1], want[1])
-    assert loads == ["StoreError"] and path.read_bytes() != good  # rewritten under this key
-    for cut in (0, len(good) // 2):
-        path.write_bytes(path.read_bytes()[:cut])
-        loads.clear()
-        np.testing.assert_array_equal(executables.stored(fn, "test.digest", ())(x)[1], want[1])
-        assert loads == ["StoreError"] and path.stat().st_size > len(good) // 2
+    assert loads == ["StoreError"] and path.stat().st_size > len(good) // 2, (cut, loads)
+print("ok")
+"""
+
+
+def test_a_file_without_the_stores_digest_is_ignored(tmp_path):
+    """A file in the store's format whose digest was made with another key (copied from
+    another cache, or forged) or that is cut short is not loaded: the program is compiled
+    and the file replaced; a file the store wrote is loaded in a later call. Run in a
+    process of its own, as the store is used (a new process loads what an earlier one
+    saved), so that no program compiled by another test is in this one's way."""
+    env = {**os.environ, "JAX_PLATFORMS": "cpu"}
+    out = subprocess.run([sys.executable, "-c", _DIGEST_SCRIPT, str(tmp_path)], capture_output=True, text=True,
+                         timeout=300, env=env)
+    assert out.returncode == 0 and out.stdout.strip().endswith("ok"), out.stderr[-2000:]
 
 
 def test_a_cache_folder_others_can_write_is_not_used(tmp_path):

@@ -50,6 +50,7 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from . import search
+from ._map_pixels import TracedCosts, refine
 from ._observation import Level, padded
 from ._options import FitOptions
 from ._parameters import ParameterTable
@@ -67,6 +68,11 @@ WINDOW_NM = 80.0
 FINE_STEP_NM = 2.0
 #: Sweeps of iterated conditional modes per level.
 ICM_SWEEPS = 12
+#: How the finest level of a rendered map (not the paper model's exact candidates) is
+#: refined around the coarser map: ``"newton"``, per-pixel Gauss-Newton
+#: (:func:`bubblefit.inverse._map_pixels.refine`), or ``"grid"``, the candidates of
+#: :data:`FINE_STEP_NM` with iterated conditional modes.
+FINE_SOLVE = "newton"
 
 
 def profile_map(lev: Level, prof) -> np.ndarray:
@@ -241,7 +247,7 @@ def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts: FitOption
         sel = L.mask.reshape(-1)
         if sel.sum() == 0:
             continue
-        costs_of = _PaperCosts(L, table, base, env, hi + WINDOW_NM) if exact else _RenderCosts(L, table, base, env)
+        costs_of = _PaperCosts(L, table, base, env, hi + WINDOW_NM) if exact else TracedCosts(L, table, base, env)
         s = float(opts.map_smoothness_nm) * k
         prior = profile_map(L, prof).reshape(-1)[sel]
         if prev is None:
@@ -253,7 +259,12 @@ def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts: FitOption
             centre = _upsample(prev, prev_map, L).reshape(-1)[sel]
             # the finest level refines within a few coarse steps; the order is settled by then
             step, half = (FINE_STEP_NM, 6 * opts.search_step_nm) if k == 1 else (opts.search_step_nm, WINDOW_NM)
-            best, err, c = _level_map(L, costs_of, centre, s, step, half)
+            if k == 1 and not exact and FINE_SOLVE == "newton":
+                # each pixel's thickness moves its own pixel only: Gauss-Newton with a diagonal
+                # Jacobian and the smoothness prior's sparse Laplacian, not a grid of renders
+                best, err, c = refine(costs_of, centre, _neighbours(L.mask)[0], s, half)
+            else:
+                best, err, c = _level_map(L, costs_of, centre, s, step, half)
         m = np.full(L.mask.shape, np.nan)
         m.reshape(-1)[sel] = best
         prev, prev_map = L, m

@@ -12,6 +12,17 @@ includes the stages it calls. ``python -c "import numpy"`` is timed in the same 
 
     PYTHONPATH=. python experiments/bench_map.py --profile ref_drain_lin_courtyard_ortho:map \
         cyc_const500_courtyard_ortho:constant [--out experiments/results]
+
+``--map-only CASE ...`` times the map stage alone (:func:`bubblefit.inverse._maps.fit_map`)
+on a validation photo, from the case's drainage fit (``--model``'s, run once and kept in
+``--out``/map_starts.json; ``--start truth``: the true profile, exposure and roughness), with the map's ways taking turns in one process
+(``--repeats`` rounds): ``render-grid`` (every level's candidates as whole renders, the
+finest level on a 2 nm grid with iterated conditional modes), ``traced-grid`` (the rays
+traced once per level, the same grid) and ``traced-newton`` (the rays traced once, the
+finest level by per-pixel Gauss-Newton), each scored against the case's true map as
+validate.py scores it. Writes ``map_stage.json``.
+
+    PYTHONPATH=. python experiments/bench_map.py --map-only ref_drain_lin_courtyard_ortho --repeats 2
 """
 
 from __future__ import annotations
@@ -145,13 +156,91 @@ def profile(cases: list[str], model: str, out: Path):
     print(f"wrote {path}")
 
 
+def map_only(cases: list[str], model: str, out: Path, repeats: int, ways: list[str], start: str = "fit"):
+    """The map stage alone, its ways taking turns (module docstring)."""
+    sys.path.insert(0, str(HERE / "validation"))
+    import validate
+    import vio
+    from bubblefit.inverse import _maps
+    from bubblefit.inverse._map_pixels import TracedCosts
+    from bubblefit.inverse._setup import setup
+    from bubblefit.inverse.fit import FitOptions, fit_photo
+
+    out.mkdir(parents=True, exist_ok=True)
+    starts_path = out / "map_starts.json"
+    starts = json.loads(starts_path.read_text()) if starts_path.exists() else {}
+    rows = []
+    numpy_s = numpy_yardstick()
+    for case in cases:
+        photo, env, bg, kw, truth = load_case(case)
+        key = f"{case}:{model}"
+        if start == "truth":  # the renderer's own drainage profile, exposure and roughness
+            th = truth["thickness"]
+            starts[key] = {"params": {"top_nm": th["top_nm"], "bottom_nm": th["bottom_nm"],
+                                      "exponent": th["exponent"], "exposure": truth["exposure"],
+                                      "roughness": max(truth.get("roughness", 0.0), 1e-3),
+                                      "rotation_deg": truth.get("rotation_deg", 0.0)}}
+        elif key not in starts:
+            t0 = time.perf_counter()
+            res = fit_photo(photo.pixels, env, options=FitOptions(thickness="drainage", model=model, **kw),
+                            background=bg, saturated=photo.saturated)
+            starts[key] = {"params": {k: float(v) for k, v in res.params.items() if np.isfinite(v)},
+                           "seconds": round(time.perf_counter() - t0, 1), "load1": os.getloadavg()[0]}
+            starts_path.write_text(json.dumps(starts, indent=1))
+        opts = FitOptions(thickness="map", model=model, **kw)
+        st = setup(photo.pixels, env, opts, bg, starts[key]["params"], None, photo.saturated)
+        vals = dict(st.vals)
+        prof = (vals["top_nm"], vals["bottom_nm"], vals["exponent"])
+        full = st.level(1, opts, st.map_cfg)
+        true_map = vio.read_image(str(DATA / case / "thickness_true.exr"))[..., 0]
+        settings = {"render-grid": (_maps._RenderCosts, "grid"), "traced-grid": (TracedCosts, "grid"),
+                    "traced-newton": (TracedCosts, "newton")}
+        for rep in range(repeats):
+            for way in ways:
+                cls, fine = settings[way]
+                old = (_maps.TracedCosts, _maps.FINE_SOLVE)
+                _maps.TracedCosts, _maps.FINE_SOLVE = cls, fine
+                try:
+                    load = os.getloadavg()[0]
+                    t0 = time.perf_counter()
+                    dmap, emap, sound = _maps.fit_map(full, st.table, vals, prof, opts, env,
+                                                      make_level=lambda k: st.level(k, opts, st.map_cfg))
+                    sec = time.perf_counter() - t0
+                finally:
+                    _maps.TracedCosts, _maps.FINE_SOLVE = old
+                m = np.where(full.inside, dmap, np.nan)
+                row = {"case": case, "model": model, "way": way, "round": rep, "seconds": round(sec, 2),
+                       "load1": round(load, 2), "sound": sound, "start": start, "size": list(full.mask.shape),
+                       **{k: (round(v, 3) if isinstance(v, float) else v)
+                          for k, v in validate.map_metrics(m, true_map, truth["disc"]).items()}}
+                print(json.dumps(row), flush=True)
+                rows.append(row)
+    numpy_s = 0.5 * (numpy_s + numpy_yardstick())
+    path = out / "map_stage.json"
+    old = json.loads(path.read_text()) if path.exists() else {}
+    old.setdefault("runs", []).append({"numpy_import_s": round(numpy_s, 3), "rows": rows})
+    path.write_text(json.dumps(old, indent=1))
+    print(f"numpy import {numpy_s:.3f} s; wrote {path}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--profile", nargs="+", metavar="CASE[:THICKNESS]", required=True)
+    ap.add_argument("--profile", nargs="+", metavar="CASE[:THICKNESS]")
+    ap.add_argument("--map-only", nargs="+", metavar="CASE")
+    ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--start", choices=("fit", "truth"), default="fit",
+                    help="--map-only: start the map from the case's drainage fit or its true profile")
+    ap.add_argument("--ways", default="render-grid,traced-grid,traced-newton")
     ap.add_argument("--model", default="auto")
     ap.add_argument("--out", default=str(HERE / "results"))
     a = ap.parse_args(argv)
-    profile(a.profile, a.model, Path(a.out))
+    if a.map_only:
+        map_only(a.map_only, "physical" if a.model == "auto" else a.model, Path(a.out), a.repeats,
+                 a.ways.split(","), a.start)
+    elif a.profile:
+        profile(a.profile, a.model, Path(a.out))
+    else:
+        ap.error("give --profile or --map-only")
 
 
 if __name__ == "__main__":

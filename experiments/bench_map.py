@@ -23,6 +23,12 @@ finest level by per-pixel Gauss-Newton), each scored against the case's true map
 validate.py scores it. Writes ``map_stage.json``.
 
     PYTHONPATH=. python experiments/bench_map.py --map-only ref_drain_lin_courtyard_ortho --repeats 2
+
+``--whole CASE[:THICKNESS] ...`` runs ``bubblefit fit`` as validate.py does (``--fit-args``,
+default ``--model physical``; scored against the truth), a first process on the
+compilation cache as found and ``--repeats`` more, each followed by Mitsuba 3 (256x256,
+64 spp, ``--mitsuba-python``, default ``.venv-render/bin/python``) and ``python -c "import
+numpy"``. Writes ``whole_process_maps.json``.
 """
 
 from __future__ import annotations
@@ -72,7 +78,8 @@ TIMED = (("setup", "bubblefit.inverse.fit", "setup"), ("search", "bubblefit.inve
          ("local solve", "bubblefit.inverse.fit", "solve_local"), ("judge (std errors)", "bubblefit.inverse.fit", "_judge"),
          ("map", "bubblefit.inverse.fit", "fit_map"), ("final render (map)", "bubblefit.inverse.fit", "render_level"),
          ("final render", "bubblefit.inverse.fit", "render_bubble"),
-         ("map: level", "bubblefit.inverse._maps", "_level_map"), ("map: ICM", "bubblefit.inverse._maps", "_icm"))
+         ("map: level", "bubblefit.inverse._maps", "_level_map"), ("map: ICM", "bubblefit.inverse._maps", "_icm"),
+         ("map: newton", "bubblefit.inverse._maps", "refine"))
 
 
 def profile(cases: list[str], model: str, out: Path):
@@ -115,11 +122,14 @@ def profile(cases: list[str], model: str, out: Path):
     fit_module.fit_photo = tagged
     # the candidate costs of the map's levels, whichever class computes them
     import bubblefit.inverse._maps as maps_module
-    for cls_name in ("_RenderCosts", "_PaperCosts", "_TracedCosts"):
+    for cls_name in ("_RenderCosts", "_PaperCosts", "TracedCosts"):
         cls = getattr(maps_module, cls_name, None)
         if cls is not None:
             originals.append((cls, "__call__", cls.__call__))
             cls.__call__ = timed(f"map: costs {cls_name}", cls.__call__)
+    from bubblefit.inverse._map_pixels import TracedCosts
+    originals.append((TracedCosts, "slopes", TracedCosts.slopes))
+    TracedCosts.slopes = timed("map: newton slopes (jvp)", TracedCosts.slopes)
     rows = []
     try:
         numpy_s = numpy_yardstick()
@@ -223,18 +233,74 @@ def map_only(cases: list[str], model: str, out: Path, repeats: int, ways: list[s
     print(f"numpy import {numpy_s:.3f} s; wrote {path}")
 
 
+def whole_process(cases: list[str], fit_args: list[str], out: Path, repeats: int, mitsuba_python: str):
+    """``bubblefit fit`` of validation cases as validate.py runs them (scored against the
+    truth), taking turns with Mitsuba 3 (256x256 thin dielectric sphere, 64 spp, the
+    script of ``bench_effects.py``) and ``python -c "import numpy"``; the first fit of
+    each case is on the compilation cache as found, ``--repeats`` more follow."""
+    import tempfile
+
+    sys.path.insert(0, str(HERE / "validation"))
+    sys.path.insert(0, str(HERE))
+    import validate
+    from bench_effects import MAPS, MITSUBA_SCRIPT
+
+    validate.EXTRA_FIT_ARGS[:] = fit_args
+    rows = []
+
+    def mitsuba() -> float | None:
+        if not Path(mitsuba_python).exists():
+            return None
+        with tempfile.TemporaryDirectory() as tmp:
+            t0 = time.perf_counter()
+            subprocess.run([mitsuba_python, "-c", MITSUBA_SCRIPT, "256", str(MAPS / "sunrise.exr"),
+                            str(Path(tmp) / "m.exr")], check=True, capture_output=True)
+            return time.perf_counter() - t0
+
+    with tempfile.TemporaryDirectory() as tmp:
+        for spec in cases:
+            case, _, thick = spec.partition(":")
+            for rep in range(repeats + 1):
+                load = os.getloadavg()[0]
+                r = validate.run_fit(case, thick or "map", tmp)
+                row = {"case": spec, "fit_args": fit_args, "run": "first" if rep == 0 else "warm",
+                       "fit_s": r.get("wall_s"), "load1": round(load, 2), "rc": r.get("rc"), "pass": r.get("pass"),
+                       **{k: r.get(k) for k in ("map_median_nm", "map_coverage", "order_hops", "thickness_err_nm",
+                                                "top_err_nm", "bottom_err_nm", "message") if r.get(k) is not None}}
+                row["mitsuba_s"] = mitsuba()
+                row["numpy_s"] = numpy_yardstick(1)
+                if row["mitsuba_s"] and row["fit_s"]:
+                    row["fit_over_mitsuba"] = round(row["fit_s"] / row["mitsuba_s"], 2)
+                print(json.dumps(row), flush=True)
+                rows.append(row)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "whole_process_maps.json"
+    old = json.loads(path.read_text()) if path.exists() else {}
+    old.setdefault("runs", []).append(rows)
+    path.write_text(json.dumps(old, indent=1))
+    print(f"wrote {path}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--profile", nargs="+", metavar="CASE[:THICKNESS]")
     ap.add_argument("--map-only", nargs="+", metavar="CASE")
     ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--whole", nargs="+", metavar="CASE[:THICKNESS]", help="bubblefit fit as a process (see above)")
+    ap.add_argument("--fit-args", default="--model physical", help="--whole: extra bubblefit fit arguments")
+    ap.add_argument("--mitsuba-python", default=str(HERE.parent / ".venv-render" / "bin" / "python"))
     ap.add_argument("--start", choices=("fit", "truth"), default="fit",
                     help="--map-only: start the map from the case's drainage fit or its true profile")
     ap.add_argument("--ways", default="render-grid,traced-grid,traced-newton")
     ap.add_argument("--model", default="auto")
     ap.add_argument("--out", default=str(HERE / "results"))
     a = ap.parse_args(argv)
-    if a.map_only:
+    from bubblefit.io.jaxcache import jax_setup
+
+    jax_setup()  # the persistent compilation cache of the command line (BUBBLEFIT_CACHE_DIR)
+    if a.whole:
+        whole_process(a.whole, a.fit_args.split(), Path(a.out), a.repeats, a.mitsuba_python)
+    elif a.map_only:
         map_only(a.map_only, "physical" if a.model == "auto" else a.model, Path(a.out), a.repeats,
                  a.ways.split(","), a.start)
     elif a.profile:

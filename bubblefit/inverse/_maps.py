@@ -31,7 +31,12 @@ cheap (eq. 11 is linear in eq. 10's factor, :func:`bubblefit.inverse.search.pape
 a dispersive film's factor per wavelength, :class:`bubblefit.inverse.search.PaperPhi`: the
 rear film of a pixel then lies at the front's height and has its thickness); other models,
 perspective views (whose rear film lies at another height) and pixels box-filtered over
-several rays render the whole map at each thickness offset.
+several rays trace each level's rays once and evaluate the film's optics per candidate
+(:class:`bubblefit.inverse._map_pixels.TracedCosts`; :class:`_RenderCosts`, a whole render
+per candidate, gives the same costs), and their finest level is refined by a per-pixel
+Gauss-Newton solve instead of a grid (:func:`bubblefit.inverse._map_pixels.refine`,
+:data:`FINE_SOLVE`): the map's Jacobian is diagonal, and the smoothness prior's sparse
+Laplacian is solved by conjugate gradients.
 
 References
 ----------

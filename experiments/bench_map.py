@@ -45,16 +45,8 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 DATA = HERE / "validation" / "data"
-
-
-def numpy_yardstick(repeats: int = 3) -> float:
-    """Median seconds of ``python -c "import numpy"`` (a fresh process)."""
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-c", "import numpy"], check=True)
-        ts.append(time.perf_counter() - t0)
-    return float(np.median(ts))
+sys.path.insert(0, str(HERE))
+from bench_fit import numpy_yardstick  # noqa: E402  (python -c "import numpy", median seconds)
 
 
 def load_case(case: str):

@@ -62,36 +62,41 @@ def _predict(cfg, traced, d):
     return out / len(traced)
 
 
+def _over_chunks(p, cfg, env, bg, rows, cols, idx, per_pixel, y, w, fn):
+    """``fn(predict, per_pixel chunk, y chunk, w chunk)`` over the chunks, each chunk's rays
+    traced once; ``predict(d)`` the chunk's (N, 3) pixels at front thicknesses ``d`` (N,)."""
+
+    def chunk(xs):
+        r, c, i, q, yy, ww = xs
+        b = None if bg is None else bg.reshape(-1, 3)[i]
+        traced = _chunk_pixels(p, cfg, env, b, r, c)
+        return fn(lambda d: _predict(cfg, traced, d), q, yy, ww)
+
+    return jax.lax.map(chunk, (rows, cols, idx, per_pixel, y, w))
+
+
 @functools.partial(jax.jit, static_argnames=("cfg",))
 def _chunk_costs(p, cfg, env, bg, rows, cols, idx, cand, y, w2):
     """(steps, G, chunk) data chi^2 of candidates ``cand`` (steps, G, chunk)."""
 
-    def chunk(xs):
-        r, c, i, th, yy, ww = xs
-        b = None if bg is None else bg.reshape(-1, 3)[i]
-        traced = _chunk_pixels(p, cfg, env, b, r, c)
-
+    def costs(predict, th, yy, ww):
         def at(d):
-            res = _predict(cfg, traced, d) - yy
+            res = predict(d) - yy
             return jnp.sum(ww * res * res, axis=-1)
 
         return jax.lax.map(at, th)
 
-    return jax.lax.map(chunk, (rows, cols, idx, cand, y, w2))
+    return _over_chunks(p, cfg, env, bg, rows, cols, idx, cand, y, w2, costs)
 
 
 @functools.partial(jax.jit, static_argnames=("cfg",))
 def _chunk_slopes(p, cfg, env, bg, rows, cols, idx, d, y, w):
     """Weighted residuals and their derivatives in each pixel's own thickness, (steps, chunk, 3) each."""
 
-    def chunk(xs):
-        r, c, i, dd, yy, ww = xs
-        b = None if bg is None else bg.reshape(-1, 3)[i]
-        traced = _chunk_pixels(p, cfg, env, b, r, c)
-        f = lambda x: ww * (_predict(cfg, traced, x) - yy)
-        return jax.jvp(f, (dd,), (jnp.ones_like(dd),))
+    def slopes(predict, dd, yy, ww):
+        return jax.jvp(lambda x: ww * (predict(x) - yy), (dd,), (jnp.ones_like(dd),))
 
-    return jax.lax.map(chunk, (rows, cols, idx, d, y, w))
+    return _over_chunks(p, cfg, env, bg, rows, cols, idx, d, y, w, slopes)
 
 
 class TracedCosts:

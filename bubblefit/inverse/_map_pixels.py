@@ -30,7 +30,7 @@ from ..model.geometry import compose_shift
 from ..model.render import _composite, _terms, _trace_chunk, pixel_offsets
 from ..model.thickness import thickness_at
 
-__all__ = ["TracedCosts", "CHUNK"]
+__all__ = ["TracedCosts", "refine", "CHUNK", "REFINE_STEPS", "REFINE_TOL_NM"]
 
 #: Pixels per traced chunk (the renderer's chunks are of this order).
 CHUNK = 512

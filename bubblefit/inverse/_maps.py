@@ -31,7 +31,12 @@ cheap (eq. 11 is linear in eq. 10's factor, :func:`bubblefit.inverse.search.pape
 a dispersive film's factor per wavelength, :class:`bubblefit.inverse.search.PaperPhi`: the
 rear film of a pixel then lies at the front's height and has its thickness); other models,
 perspective views (whose rear film lies at another height) and pixels box-filtered over
-several rays render the whole map at each thickness offset.
+several rays trace each level's rays once and evaluate the film's optics per candidate
+(:class:`bubblefit.inverse._map_pixels.TracedCosts`; :class:`_RenderCosts`, a whole render
+per candidate, gives the same costs), and their finest level is refined by a per-pixel
+Gauss-Newton solve instead of a grid (:func:`bubblefit.inverse._map_pixels.refine`,
+:data:`FINE_SOLVE`): the map's Jacobian is diagonal, and the smoothness prior's sparse
+Laplacian is solved by conjugate gradients.
 
 References
 ----------
@@ -50,6 +55,7 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from . import search
+from ._map_pixels import TracedCosts, refine
 from ._observation import Level, padded
 from ._options import FitOptions
 from ._parameters import ParameterTable
@@ -67,6 +73,11 @@ WINDOW_NM = 80.0
 FINE_STEP_NM = 2.0
 #: Sweeps of iterated conditional modes per level.
 ICM_SWEEPS = 12
+#: How the finest level of a rendered map (not the paper model's exact candidates) is
+#: refined around the coarser map: ``"newton"``, per-pixel Gauss-Newton
+#: (:func:`bubblefit.inverse._map_pixels.refine`), or ``"grid"``, the candidates of
+#: :data:`FINE_STEP_NM` with iterated conditional modes.
+FINE_SOLVE = "newton"
 
 
 def profile_map(lev: Level, prof) -> np.ndarray:
@@ -241,7 +252,7 @@ def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts: FitOption
         sel = L.mask.reshape(-1)
         if sel.sum() == 0:
             continue
-        costs_of = _PaperCosts(L, table, base, env, hi + WINDOW_NM) if exact else _RenderCosts(L, table, base, env)
+        costs_of = _PaperCosts(L, table, base, env, hi + WINDOW_NM) if exact else TracedCosts(L, table, base, env)
         s = float(opts.map_smoothness_nm) * k
         prior = profile_map(L, prof).reshape(-1)[sel]
         if prev is None:
@@ -253,7 +264,12 @@ def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts: FitOption
             centre = _upsample(prev, prev_map, L).reshape(-1)[sel]
             # the finest level refines within a few coarse steps; the order is settled by then
             step, half = (FINE_STEP_NM, 6 * opts.search_step_nm) if k == 1 else (opts.search_step_nm, WINDOW_NM)
-            best, err, c = _level_map(L, costs_of, centre, s, step, half)
+            if k == 1 and not exact and FINE_SOLVE == "newton":
+                # each pixel's thickness moves its own pixel only: Gauss-Newton with a diagonal
+                # Jacobian and the smoothness prior's sparse Laplacian, not a grid of renders
+                best, err, c = refine(costs_of, centre, _neighbours(L.mask)[0], s, half)
+            else:
+                best, err, c = _level_map(L, costs_of, centre, s, step, half)
         m = np.full(L.mask.shape, np.nan)
         m.reshape(-1)[sel] = best
         prev, prev_map = L, m

@@ -1,0 +1,221 @@
+"""A thickness map's per-pixel costs with the rays traced once.
+
+A map pixel's colour depends on its own thickness only (the rear film and the internal
+bounces read the map at the same pixel, changed by the drainage profile between the
+heights of their film points, :func:`bubblefit.model.thickness.thickness_at`). The rays,
+the environment map's filtered light at every film point and the background do not
+depend on the thickness at all, so a level's pixels are traced once
+(:func:`bubblefit.model.render._trace_chunk`) and only the film's optics (the Airy film
+per wavelength and polarisation, or eq. 10's factor) are evaluated per candidate
+thickness: the map's cost for ``G`` candidates is one trace plus ``G`` optics, not ``G``
+renders of the whole image (:class:`bubblefit.inverse._maps._RenderCosts`).
+
+The same separability makes the map's Jacobian diagonal: :func:`pixel_slopes` gives each
+pixel's residual and its derivative in its own thickness with one forward-mode tangent
+(all ones), for the per-pixel Gauss-Newton refinement of :mod:`._maps`.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import replace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._observation import Level, fitted_pixels
+from ._parameters import ParameterTable
+from ..model.geometry import compose_shift
+from ..model.render import _composite, _terms, _trace_chunk, pixel_offsets
+from ..model.thickness import thickness_at
+
+__all__ = ["TracedCosts", "refine", "CHUNK", "REFINE_STEPS", "REFINE_TOL_NM"]
+
+#: Pixels per traced chunk (the renderer's chunks are of this order).
+CHUNK = 512
+
+
+def _chunk_pixels(p, cfg, env, bg, rows, cols):
+    """The traced sub-pixel rays of one chunk (1 or ``samples_per_pixel`` of them)."""
+    if cfg.samples_per_pixel == 1:
+        return [_trace_chunk(p, cfg, env, bg, rows, cols)]
+    offsets = pixel_offsets(cfg.samples_per_pixel)
+    dt = p.t.dtype
+    return [_trace_chunk(p, cfg, env, bg, rows.astype(dt) + float(o[0]), cols.astype(dt) + float(o[1]))
+            for o in np.asarray(offsets)]
+
+
+def _predict(cfg, traced, d):
+    """(N, 3) pixels of a chunk whose front films have thicknesses ``d`` (N,): the mean over
+    the chunk's sub-pixel rays of the model's terms (eq. 11 or the physical series)."""
+    pix = jnp.arange(d.shape[0])
+    out = None
+    for tr in traced:
+        hits = tr.hits
+        thick = lambda local, tr=tr: thickness_at("map", d, local, pix, tr.p.profile, tr.hits.local0)
+        d0 = d
+        d1 = thick(hits.local1)
+        terms = _terms(tr.p, cfg, tr.lam, hits.cos, d0, d1, tr.exits, thick, tr.refl, tr.bg_rad)
+        img = _composite(tr, cfg, terms)[0]
+        out = img if out is None else out + img
+    return out / len(traced)
+
+
+def _over_chunks(p, cfg, env, bg, rows, cols, idx, per_pixel, y, w, fn):
+    """``fn(predict, per_pixel chunk, y chunk, w chunk)`` over the chunks, each chunk's rays
+    traced once; ``predict(d)`` the chunk's (N, 3) pixels at front thicknesses ``d`` (N,)."""
+
+    def chunk(xs):
+        r, c, i, q, yy, ww = xs
+        b = None if bg is None else bg.reshape(-1, 3)[i]
+        traced = _chunk_pixels(p, cfg, env, b, r, c)
+        return fn(lambda d: _predict(cfg, traced, d), q, yy, ww)
+
+    return jax.lax.map(chunk, (rows, cols, idx, per_pixel, y, w))
+
+
+@functools.partial(jax.jit, static_argnames=("cfg",))
+def _chunk_costs(p, cfg, env, bg, rows, cols, idx, cand, y, w2):
+    """(steps, G, chunk) data chi^2 of candidates ``cand`` (steps, G, chunk)."""
+
+    def costs(predict, th, yy, ww):
+        def at(d):
+            res = predict(d) - yy
+            return jnp.sum(ww * res * res, axis=-1)
+
+        return jax.lax.map(at, th)
+
+    return _over_chunks(p, cfg, env, bg, rows, cols, idx, cand, y, w2, costs)
+
+
+@functools.partial(jax.jit, static_argnames=("cfg",))
+def _chunk_slopes(p, cfg, env, bg, rows, cols, idx, d, y, w):
+    """Weighted residuals and their derivatives in each pixel's own thickness, (steps, chunk, 3) each."""
+
+    def slopes(predict, dd, yy, ww):
+        return jax.jvp(lambda x: ww * (predict(x) - yy), (dd,), (jnp.ones_like(dd),))
+
+    return _over_chunks(p, cfg, env, bg, rows, cols, idx, d, y, w, slopes)
+
+
+class TracedCosts:
+    """Per-pixel data chi^2 of a level's map at any thicknesses, its rays traced once per call.
+
+    ``vals`` the fitted values (exposure, profile under the map, ...); the photo's
+    background (``lev.bg``) enters as the renderer takes it. Calling with ``d`` (G, P)
+    (``P`` the level's mask pixels, in the order of ``lev.mask.reshape(-1)``) gives (G, P).
+    """
+
+    def __init__(self, lev: Level, table: ParameterTable, vals: dict, env):
+        self.pix = fitted_pixels(lev, CHUNK, whole_chunks=True)
+        pad = self.pix.padded
+        self.cfg = replace(pad.cfg, effects=replace(lev.cfg.effects, thickness="map"))
+        base = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k != "map"}
+        h, w = pad.cfg.shape
+        p = table.render_params(dict(base, map=jnp.zeros((h, w), jnp.float32)), "map")
+        self.p = replace(p, disc=compose_shift(pad.base, p.disc))
+        self.env, self.bg = env, pad.bg
+        self.n = self.pix.flat.size
+        steps, size = self.pix.rows.shape
+        self.shape = (steps, size)
+        self.y = self.pix.y.reshape(steps, size, 3)
+        self.w = self.pix.w.reshape(steps, size, 3)
+
+    def _spread(self, d: np.ndarray) -> np.ndarray:
+        """(..., P) -> (..., steps, chunk), the padding repeating the last pixel."""
+        steps, size = self.shape
+        take = np.minimum(np.arange(steps * size), self.n - 1)
+        return np.asarray(d, np.float32)[..., take].reshape(d.shape[:-1] + (steps, size))
+
+    def __call__(self, d: np.ndarray) -> np.ndarray:
+        """(G, P) chi^2 of candidate thicknesses ``d`` (G, P)."""
+        cand = np.moveaxis(self._spread(np.maximum(d, 0.0)), 0, 1)  # (steps, G, chunk)
+        pix = self.pix
+        out = _chunk_costs(self.p, self.cfg, self.env, self.bg, pix.rows, pix.cols, pix.idx, jnp.asarray(cand),
+                           self.y, self.w * self.w)
+        return np.moveaxis(np.asarray(out), 1, 0).reshape(d.shape[0], -1)[:, :self.n]
+
+    def slopes(self, d: np.ndarray):
+        """``(r, j)``, (P, 3) each: the weighted residual of each pixel at thickness ``d`` (P,)
+        and its derivative in that pixel's thickness (the map's diagonal Jacobian)."""
+        pix = self.pix
+        r, j = _chunk_slopes(self.p, self.cfg, self.env, self.bg, pix.rows, pix.cols, pix.idx,
+                             jnp.asarray(self._spread(np.maximum(d, 0.0))), self.y, self.w)
+        return np.asarray(r).reshape(-1, 3)[:self.n], np.asarray(j).reshape(-1, 3)[:self.n]
+
+
+#: Most Gauss-Newton steps of :func:`refine` (each one forward-mode pass over the level).
+REFINE_STEPS = 8
+#: Stop when no pixel moves by more than this (nm): a tenth of the map's finest grid step.
+REFINE_TOL_NM = 0.2
+
+
+def _laplacian(x, nb, has):
+    """``(L x)_p = sum over p's neighbours q of (x_p - x_q)`` (the 4-neighbour graph Laplacian)."""
+    return jnp.sum(jnp.where(has, x[:, None] - x[jnp.where(has, nb, 0)], 0.0), axis=1)
+
+
+@jax.jit
+def _damped_step(g, hdiag, nb, lam, inv_s2):
+    """The step ``delta`` of ``(D + 2 L / s^2 + lam diag) delta = -g`` by preconditioned
+    conjugate gradients: ``D`` the data's diagonal Gauss-Newton curvature, ``L`` the
+    smoothness prior's sparse Laplacian (a matrix-free operator: never a dense matrix)."""
+    has = nb >= 0
+    diag = hdiag + 2.0 * inv_s2 * jnp.sum(has, axis=1)
+    op = lambda x: hdiag * x + 2.0 * inv_s2 * _laplacian(x, nb, has) + lam * diag * x
+    delta, _ = jax.scipy.sparse.linalg.cg(op, -g, M=lambda x: x / ((1.0 + lam) * diag), tol=1e-4, maxiter=200)
+    return delta
+
+
+def refine(costs: TracedCosts, centre: np.ndarray, nb: np.ndarray, s: float, half: float):
+    """Per-pixel Gauss-Newton (Levenberg-Marquardt damped) on the map's energy from ``centre`` (P,).
+
+    The energy is the data chi^2 of every pixel plus ``sum over neighbour pairs ((d_p -
+    d_q) / s)^2`` (the smoothness prior of :mod:`._maps`' iterated conditional modes,
+    summed once per pair). Its Gauss-Newton matrix is the data's diagonal (each pixel's
+    thickness moves its own pixel only: :meth:`TracedCosts.slopes`) plus the prior's
+    sparse Laplacian, solved by conjugate gradients; thicknesses stay within ``half`` of
+    ``centre``, so that the interference order the coarser levels settled is kept.
+
+    Returns ``(map (P,), stderr (P,), data chi^2 (P,))``; the standard error from the
+    curvature of each pixel's energy with its neighbours held, ``E'' = 2 / sigma^2``, as the
+    grid's parabola gives it.
+
+    References
+    ----------
+    K. Levenberg, Q. Appl. Math. 2, 164 (1944); D. Marquardt, J. SIAM 11, 431 (1963);
+    M. Hestenes and E. Stiefel, J. Res. NBS 49, 409 (1952) (conjugate gradients).
+    """
+    inv_s2 = 1.0 / float(s) ** 2
+    nbj = jnp.asarray(nb, jnp.int32)
+    has = nb >= 0
+
+    def energy(d, r):
+        dn = np.where(has, d[np.where(has, nb, 0)], d[:, None])
+        return float(np.sum(r * r) + 0.5 * inv_s2 * np.sum((d[:, None] - dn) ** 2))
+
+    lo, hi = np.maximum(centre - half, 0.0), centre + half
+    d = centre.astype(np.float64)
+    r, j = costs.slopes(d)
+    e = energy(d, r)
+    lam = 1e-3
+    for _ in range(REFINE_STEPS):
+        g = 2.0 * np.sum(r * j, axis=1) + 2.0 * inv_s2 * np.asarray(_laplacian(jnp.asarray(d), nbj, jnp.asarray(has)))
+        hdiag = 2.0 * np.sum(j * j, axis=1)
+        delta = np.asarray(_damped_step(jnp.asarray(g, jnp.float32), jnp.asarray(hdiag, jnp.float32), nbj,
+                                        jnp.float32(lam), jnp.float32(inv_s2)), np.float64)
+        trial = np.clip(d + delta, lo, hi)
+        r2, j2 = costs.slopes(trial)
+        e2 = energy(trial, r2)
+        if e2 <= e:
+            moved = float(np.max(np.abs(trial - d))) if d.size else 0.0
+            d, r, j, e, lam = trial, r2, j2, e2, max(lam / 3.0, 1e-6)
+            if moved < REFINE_TOL_NM:
+                break
+        else:
+            lam *= 4.0
+    cnt = has.sum(axis=1)
+    curv = np.sum(j * j, axis=1) + cnt * inv_s2  # E''/2 of each pixel, neighbours held
+    err = np.where(curv > 0, 1.0 / np.sqrt(np.where(curv > 0, curv, 1.0)), np.nan)
+    return d, err, np.sum(r * r, axis=1)

@@ -1,0 +1,305 @@
+"""Where a photo fit's time goes on the independent validation photos, and the map's costs.
+
+``--profile CASE[:THICKNESS] ...`` fits validation photos (experiments/validation/data/)
+in one process as ``bubblefit fit`` does (the photo and background PNGs, the case's map,
+illuminant and thickness model; ``--model``, default ``auto``), twice: a first call (on
+whatever JAX's compilation cache holds) and a warm one. Every stage of
+:func:`~bubblefit.inverse.fit.fit_photo` is timed by wrapping it (set-up, search, local
+solve, standard errors, the map and, inside it, each pyramid level's candidate costs and
+its iterated conditional modes, the final render), per model of ``auto``. A stage's time
+includes the stages it calls. ``python -c "import numpy"`` is timed in the same run and the
+1-minute load average is written beside each call. Writes ``profile_physical.json``.
+
+    PYTHONPATH=. python experiments/bench_map.py --profile ref_drain_lin_courtyard_ortho:map \
+        cyc_const500_courtyard_ortho:constant [--out experiments/results]
+
+``--map-only CASE ...`` times the map stage alone (:func:`bubblefit.inverse._maps.fit_map`)
+on a validation photo, from the case's drainage fit (``--model``'s, run once and kept in
+``--out``/map_starts.json; ``--start truth``: the true profile, exposure and roughness), with the map's ways taking turns in one process
+(``--repeats`` rounds): ``render-grid`` (every level's candidates as whole renders, the
+finest level on a 2 nm grid with iterated conditional modes), ``traced-grid`` (the rays
+traced once per level, the same grid) and ``traced-newton`` (the rays traced once, the
+finest level by per-pixel Gauss-Newton), each scored against the case's true map as
+validate.py scores it. Writes ``map_stage.json``.
+
+    PYTHONPATH=. python experiments/bench_map.py --map-only ref_drain_lin_courtyard_ortho --repeats 2
+
+``--whole CASE[:THICKNESS] ...`` runs ``bubblefit fit`` as validate.py does (``--fit-args``,
+default ``--model physical``; scored against the truth), a first process on the
+compilation cache as found and ``--repeats`` more, each followed by Mitsuba 3 (256x256,
+64 spp, ``--mitsuba-python``, default ``.venv-render/bin/python``) and ``python -c "import
+numpy"``. Writes ``whole_process_maps.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+DATA = HERE / "validation" / "data"
+sys.path.insert(0, str(HERE))
+from bench_fit import numpy_yardstick  # noqa: E402  (python -c "import numpy", median seconds)
+
+
+def load_case(case: str):
+    """Photo, map, background and FitOptions keywords of one validation case, as the CLI reads them."""
+    from bubblefit.cli.fit import load_envmap
+    from bubblefit.io.images import read_image
+
+    d = DATA / case
+    truth = json.loads((d / "truth.json").read_text())
+    photo = read_image(str(d / "photo.png"), dtype=np.float32)
+    bg = read_image(str(d / "background.png"), dtype=np.float32).pixels
+    env = load_envmap(str(DATA / truth["envmap"]))
+    kw = dict(bits=int(photo.bit_depth))
+    if truth.get("illuminant") in ("D65", "E", "A"):
+        kw["illuminant"] = truth["illuminant"]
+    return photo, env, bg, kw, truth
+
+
+#: (label, module, attribute) of the functions timed.
+TIMED = (("setup", "bubblefit.inverse.fit", "setup"), ("search", "bubblefit.inverse.fit", "_searched_start"),
+         ("local solve", "bubblefit.inverse.fit", "solve_local"), ("judge (std errors)", "bubblefit.inverse.fit", "_judge"),
+         ("map", "bubblefit.inverse.fit", "fit_map"), ("final render (map)", "bubblefit.inverse.fit", "render_level"),
+         ("final render", "bubblefit.inverse.fit", "render_bubble"),
+         ("map: level", "bubblefit.inverse._maps", "_level_map"), ("map: ICM", "bubblefit.inverse._maps", "_icm"),
+         ("map: newton", "bubblefit.inverse._maps", "refine"))
+
+
+def profile(cases: list[str], model: str, out: Path):
+    import importlib
+
+    from bubblefit.inverse.fit import FitOptions, fit_photo
+    import bubblefit.inverse.fit as fit_module
+
+    spent = {}
+    current = {"model": "-"}
+
+    def timed(label, fn):
+        def call(*a, **k):
+            t0 = time.perf_counter()
+            try:
+                return fn(*a, **k)
+            finally:
+                key = f"{current['model']}: {label}"
+                spent[key] = spent.get(key, 0.0) + time.perf_counter() - t0
+        return call
+
+    # which model a nested fit_photo runs (auto runs paper, then physical)
+    inner = fit_module.fit_photo
+
+    def tagged(photo, env, *, options=FitOptions(), **k):
+        prev = current["model"]
+        if options.model != "auto":
+            current["model"] = options.model
+        try:
+            return inner(photo, env, options=options, **k)
+        finally:
+            current["model"] = prev
+
+    originals = []
+    for label, mod, name in TIMED:
+        m = importlib.import_module(mod)
+        originals.append((m, name, getattr(m, name)))
+        setattr(m, name, timed(label, getattr(m, name)))
+    originals.append((fit_module, "fit_photo", inner))
+    fit_module.fit_photo = tagged
+    # the candidate costs of the map's levels, whichever class computes them
+    import bubblefit.inverse._maps as maps_module
+    for cls_name in ("_RenderCosts", "_PaperCosts", "TracedCosts"):
+        cls = getattr(maps_module, cls_name, None)
+        if cls is not None:
+            originals.append((cls, "__call__", cls.__call__))
+            cls.__call__ = timed(f"map: costs {cls_name}", cls.__call__)
+    from bubblefit.inverse._map_pixels import TracedCosts
+    originals.append((TracedCosts, "slopes", TracedCosts.slopes))
+    TracedCosts.slopes = timed("map: newton slopes (jvp)", TracedCosts.slopes)
+    rows = []
+    try:
+        numpy_s = numpy_yardstick()
+        for spec in cases:
+            case, _, thick = spec.partition(":")
+            photo, env, bg, kw, truth = load_case(case)
+            thick = thick or truth.get("fits", ["constant"])[0]
+            opts = FitOptions(thickness=thick, model=model, **kw)
+            for run in ("first", "warm"):
+                spent.clear()
+                load = os.getloadavg()[0]
+                t0, c0 = time.perf_counter(), os.times()
+                res = tagged(photo.pixels, env, options=opts, background=bg, saturated=photo.saturated)
+                c1 = os.times()
+                row = {"case": f"{case}:{thick}", "size": list(photo.pixels.shape[:2]), "model": model, "run": run,
+                       "total_s": round(time.perf_counter() - t0, 3),
+                       "cpu_s": round(c1.user + c1.system - c0.user - c0.system, 2), "load1": round(load, 2),
+                       "kept_model": res.model, "ok": bool(res.ok)}
+                row["stages_s"] = {k: round(v, 3) for k, v in sorted(spent.items())}
+                print(json.dumps(row), flush=True)
+                rows.append(row)
+        numpy_s = 0.5 * (numpy_s + numpy_yardstick())
+    finally:
+        for obj, name, fn in originals:
+            setattr(obj, name, fn)
+    summary = {"numpy_import_s": round(numpy_s, 3), "calls": rows,
+               "note": "a stage's seconds include the stages it calls; 'map: level' includes the map's "
+                       "candidate costs and ICM; first = on the compilation cache as found"}
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "profile_physical.json"
+    old = json.loads(path.read_text()) if path.exists() else {}
+    old.setdefault("runs", []).append(summary)
+    path.write_text(json.dumps(old, indent=1))
+    print(f"wrote {path}")
+
+
+def map_only(cases: list[str], model: str, out: Path, repeats: int, ways: list[str], start: str = "fit"):
+    """The map stage alone, its ways taking turns (module docstring)."""
+    sys.path.insert(0, str(HERE / "validation"))
+    import validate
+    import vio
+    from bubblefit.inverse import _maps
+    from bubblefit.inverse._map_pixels import TracedCosts
+    from bubblefit.inverse._setup import setup
+    from bubblefit.inverse.fit import FitOptions, fit_photo
+
+    out.mkdir(parents=True, exist_ok=True)
+    starts_path = out / "map_starts.json"
+    starts = json.loads(starts_path.read_text()) if starts_path.exists() else {}
+    rows = []
+    numpy_s = numpy_yardstick()
+    for case in cases:
+        photo, env, bg, kw, truth = load_case(case)
+        key = f"{case}:{model}"
+        if start == "truth":  # the renderer's own drainage profile, exposure and roughness
+            th = truth["thickness"]
+            starts[key] = {"params": {"top_nm": th["top_nm"], "bottom_nm": th["bottom_nm"],
+                                      "exponent": th["exponent"], "exposure": truth["exposure"],
+                                      "roughness": max(truth.get("roughness", 0.0), 1e-3),
+                                      "rotation_deg": truth.get("rotation_deg", 0.0)}}
+        elif key not in starts:
+            t0 = time.perf_counter()
+            res = fit_photo(photo.pixels, env, options=FitOptions(thickness="drainage", model=model, **kw),
+                            background=bg, saturated=photo.saturated)
+            starts[key] = {"params": {k: float(v) for k, v in res.params.items() if np.isfinite(v)},
+                           "seconds": round(time.perf_counter() - t0, 1), "load1": os.getloadavg()[0]}
+            starts_path.write_text(json.dumps(starts, indent=1))
+        opts = FitOptions(thickness="map", model=model, **kw)
+        st = setup(photo.pixels, env, opts, bg, starts[key]["params"], None, photo.saturated)
+        vals = dict(st.vals)
+        prof = (vals["top_nm"], vals["bottom_nm"], vals["exponent"])
+        full = st.level(1, opts, st.map_cfg)
+        true_map = vio.read_image(str(DATA / case / "thickness_true.exr"))[..., 0]
+        settings = {"render-grid": (_maps._RenderCosts, "grid"), "traced-grid": (TracedCosts, "grid"),
+                    "traced-newton": (TracedCosts, "newton")}
+        for rep in range(repeats):
+            for way in ways:
+                cls, fine = settings[way]
+                old = (_maps.TracedCosts, _maps.FINE_SOLVE)
+                _maps.TracedCosts, _maps.FINE_SOLVE = cls, fine
+                try:
+                    load = os.getloadavg()[0]
+                    t0 = time.perf_counter()
+                    dmap, emap, sound = _maps.fit_map(full, st.table, vals, prof, opts, env,
+                                                      make_level=lambda k: st.level(k, opts, st.map_cfg))
+                    sec = time.perf_counter() - t0
+                finally:
+                    _maps.TracedCosts, _maps.FINE_SOLVE = old
+                m = np.where(full.inside, dmap, np.nan)
+                row = {"case": case, "model": model, "way": way, "round": rep, "seconds": round(sec, 2),
+                       "load1": round(load, 2), "sound": sound, "start": start, "size": list(full.mask.shape),
+                       **{k: (round(v, 3) if isinstance(v, float) else v)
+                          for k, v in validate.map_metrics(m, true_map, truth["disc"]).items()}}
+                print(json.dumps(row), flush=True)
+                rows.append(row)
+    numpy_s = 0.5 * (numpy_s + numpy_yardstick())
+    path = out / "map_stage.json"
+    old = json.loads(path.read_text()) if path.exists() else {}
+    old.setdefault("runs", []).append({"numpy_import_s": round(numpy_s, 3), "rows": rows})
+    path.write_text(json.dumps(old, indent=1))
+    print(f"numpy import {numpy_s:.3f} s; wrote {path}")
+
+
+def whole_process(cases: list[str], fit_args: list[str], out: Path, repeats: int, mitsuba_python: str):
+    """``bubblefit fit`` of validation cases as validate.py runs them (scored against the
+    truth), taking turns with Mitsuba 3 (256x256 thin dielectric sphere, 64 spp, the
+    script of ``bench_effects.py``) and ``python -c "import numpy"``; the first fit of
+    each case is on the compilation cache as found, ``--repeats`` more follow."""
+    import tempfile
+
+    sys.path.insert(0, str(HERE / "validation"))
+    sys.path.insert(0, str(HERE))
+    import validate
+    from bench_effects import MAPS, MITSUBA_SCRIPT
+
+    validate.EXTRA_FIT_ARGS[:] = fit_args
+    rows = []
+
+    def mitsuba() -> float | None:
+        if not Path(mitsuba_python).exists():
+            return None
+        with tempfile.TemporaryDirectory() as tmp:
+            t0 = time.perf_counter()
+            subprocess.run([mitsuba_python, "-c", MITSUBA_SCRIPT, "256", str(MAPS / "sunrise.exr"),
+                            str(Path(tmp) / "m.exr")], check=True, capture_output=True)
+            return time.perf_counter() - t0
+
+    with tempfile.TemporaryDirectory() as tmp:
+        for spec in cases:
+            case, _, thick = spec.partition(":")
+            for rep in range(repeats + 1):
+                load = os.getloadavg()[0]
+                r = validate.run_fit(case, thick or "map", tmp)
+                row = {"case": spec, "fit_args": fit_args, "run": "first" if rep == 0 else "warm",
+                       "fit_s": r.get("wall_s"), "load1": round(load, 2), "rc": r.get("rc"), "pass": r.get("pass"),
+                       **{k: r.get(k) for k in ("map_median_nm", "map_coverage", "order_hops", "thickness_err_nm",
+                                                "top_err_nm", "bottom_err_nm", "message") if r.get(k) is not None}}
+                row["mitsuba_s"] = mitsuba()
+                row["numpy_s"] = numpy_yardstick(1)
+                if row["mitsuba_s"] and row["fit_s"]:
+                    row["fit_over_mitsuba"] = round(row["fit_s"] / row["mitsuba_s"], 2)
+                print(json.dumps(row), flush=True)
+                rows.append(row)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "whole_process_maps.json"
+    old = json.loads(path.read_text()) if path.exists() else {}
+    old.setdefault("runs", []).append(rows)
+    path.write_text(json.dumps(old, indent=1))
+    print(f"wrote {path}")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--profile", nargs="+", metavar="CASE[:THICKNESS]")
+    ap.add_argument("--map-only", nargs="+", metavar="CASE")
+    ap.add_argument("--repeats", type=int, default=1)
+    ap.add_argument("--whole", nargs="+", metavar="CASE[:THICKNESS]", help="bubblefit fit as a process (see above)")
+    ap.add_argument("--fit-args", default="--model physical", help="--whole: extra bubblefit fit arguments")
+    ap.add_argument("--mitsuba-python", default=str(HERE.parent / ".venv-render" / "bin" / "python"))
+    ap.add_argument("--start", choices=("fit", "truth"), default="fit",
+                    help="--map-only: start the map from the case's drainage fit or its true profile")
+    ap.add_argument("--ways", default="render-grid,traced-grid,traced-newton")
+    ap.add_argument("--model", default="auto")
+    ap.add_argument("--out", default=str(HERE / "results"))
+    a = ap.parse_args(argv)
+    from bubblefit.io.jaxcache import jax_setup
+
+    jax_setup()  # the persistent compilation cache of the command line (BUBBLEFIT_CACHE_DIR)
+    if a.whole:
+        whole_process(a.whole, a.fit_args.split(), Path(a.out), a.repeats, a.mitsuba_python)
+    elif a.map_only:
+        map_only(a.map_only, "physical" if a.model == "auto" else a.model, Path(a.out), a.repeats,
+                 a.ways.split(","), a.start)
+    elif a.profile:
+        profile(a.profile, a.model, Path(a.out))
+    else:
+        ap.error("give --profile or --map-only")
+
+
+if __name__ == "__main__":
+    main()

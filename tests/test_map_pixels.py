@@ -1,0 +1,139 @@
+"""The thickness map's per-pixel solve (:mod:`bubblefit.inverse._map_pixels`).
+
+A physical-model photo (Airy film, internal bounces) of a known thickness map is rendered
+in the shipped courtyard map, with noise and 8-bit sRGB quantisation; the per-pixel
+costs with the rays traced once must equal those of whole renders, the diagonal
+Jacobian must match central differences of the costs, and the map fit (coarse levels on
+candidates, the finest by per-pixel Gauss-Newton) must recover the map.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from test_fit import _env, _quantise
+
+# 64 px: the map's pyramid then has two levels (disc radius 27 px over the coarsest
+# level's 12), so the finest level is solved per pixel
+N = 64
+DISC = (N / 2, N / 2, 0.42 * N)
+
+
+def _opts(**kw):
+    from bubblefit.inverse.fit import FitOptions
+
+    # 48 uniform spectral samples resolve films up to ~1500 nm (Nyquist)
+    return FitOptions(**dict(dict(disc=DISC, roughness_init=0.04,
+                                  effects=(("spectral", {"method": "uniform", "samples": 48}),)), **kw))
+
+
+def _background(rng):
+    from scipy import ndimage as ndi
+
+    return ndi.gaussian_filter(rng.uniform(0.15, 0.6, (N, N, 3)), (2.5, 2.5, 0))
+
+
+def _render(env, bg, bubble, model):
+    from bubblefit.model.scene import Scene, render_scene
+
+    scene = Scene.from_dict({"camera": {"width": N, "height": N, "disc": list(DISC)}, "bubble": bubble,
+                             "lighting": {"envmap": "unused.exr"}, "effects": {"model": model}}, base_dir=".")
+    return render_scene(scene, bg, env=env)
+
+
+@pytest.fixture(scope="module")
+def env(small_courtyard):
+    return _env(small_courtyard)
+
+
+def _truth(tmp_path_factory):
+    from bubblefit.io.images import write_image
+    from bubblefit.model.thickness import drainage_profile
+
+    ii, jj = np.mgrid[0:N, 0:N] + 0.5
+    y = -(ii - DISC[1]) / DISC[2]
+    x = (jj - DISC[0]) / DISC[2]
+    true = np.asarray(drainage_profile(y, 300.0, 900.0, 1.0)) + 30.0 * np.exp(-((x + 0.2) ** 2 + y**2) / 0.1)
+    path = tmp_path_factory.mktemp("pixmap") / "truth.exr"
+    write_image(path, np.repeat(true[..., None], 3, axis=2), bit_depth=32)
+    return true, path
+
+
+@pytest.fixture(scope="module")
+def photo(env, tmp_path_factory):
+    rng = np.random.default_rng(11)
+    true, path = _truth(tmp_path_factory)
+    bg = 0.5 * _background(rng)
+    img = _quantise(_render(env, bg, {"roughness": 0.05, "thickness": {"profile": "map", "path": str(path)}},
+                            model="physical"), rng)
+    return img, _quantise(bg, rng), true
+
+
+@pytest.fixture(scope="module")
+def level(env, photo):
+    from bubblefit.inverse._setup import setup
+
+    img, bg, true = photo
+    opts = _opts(thickness="map", model="physical")
+    st = setup(img, env, opts, bg, None, None, None)
+    lev = st.level(2, opts, st.map_cfg)
+    vals = dict(st.vals, top_nm=300.0, bottom_nm=900.0, exponent=1.0, roughness=0.05)
+    return st, lev, vals
+
+
+def test_traced_costs_equal_whole_renders(env, level):
+    """One trace plus the film's optics per candidate gives the whole render's chi^2 (float32 rounding)."""
+    from bubblefit.inverse import _maps
+    from bubblefit.inverse._map_pixels import TracedCosts
+
+    st, lev, vals = level
+    sel = lev.mask.reshape(-1)
+    prof = _maps.profile_map(lev, (300.0, 900.0, 1.0)).reshape(-1)[sel]
+    d = prof[None] + np.array([-60.0, -20.0, 0.0, 35.0])[:, None]
+    whole = _maps._RenderCosts(lev, st.table, vals, env)(d)
+    traced = TracedCosts(lev, st.table, vals, env)(d)
+    # float32 renders of ~1e3 chi^2 units: agree to 1e-3 relative
+    np.testing.assert_allclose(traced, whole, rtol=1e-3, atol=1e-2)
+
+
+def test_diagonal_jacobian_matches_differences(env, level):
+    """d chi^2_p / d d_p = 2 r_p . j_p, against central differences of 0.25 nm (the Airy
+    film's colours vary over ~100 nm: the difference's error is ~1e-5 relative)."""
+    from bubblefit.inverse import _maps
+    from bubblefit.inverse._map_pixels import TracedCosts
+
+    st, lev, vals = level
+    sel = lev.mask.reshape(-1)
+    d = _maps.profile_map(lev, (300.0, 900.0, 1.0)).reshape(-1)[sel] + 10.0
+    costs = TracedCosts(lev, st.table, vals, env)
+    r, j = costs.slopes(d)
+    np.testing.assert_allclose(np.sum(r * r, axis=1), costs(d[None])[0], rtol=1e-3, atol=1e-2)
+    h = 0.25
+    plus, minus = costs(np.stack([d + h, d - h]))
+    fd = (plus - minus) / (2 * h)
+    an = 2.0 * np.sum(r * j, axis=1)
+    big = np.abs(an) > 0.05 * np.max(np.abs(an))
+    # float32 costs of ~1e2 differenced over 0.5 nm: a few percent of the largest slope
+    assert np.median(np.abs(fd - an)[big] / np.abs(an[big])) < 0.03
+
+
+@pytest.mark.slow
+def test_physical_map_recovered(env, photo):
+    """The default map fit of a physical photo, its finest level by per-pixel Gauss-Newton:
+    the validation set's targets over the inner disc (0.8 r, as validate.py scores maps:
+    median <= 15 nm, >= 90 % within 15 nm) and a standard error at every fitted pixel."""
+    from bubblefit.inverse._maps import COARSE_RADIUS
+    from bubblefit.inverse.fit import fit_photo
+
+    assert DISC[2] >= 2 * COARSE_RADIUS  # a pyramid of two levels at least: the per-pixel solve runs
+    img, bg, true = photo
+    res = fit_photo(img, env, options=_opts(thickness="map", model="physical"), background=bg)
+    used = np.isfinite(res.thickness_stderr_map)
+    assert used.sum() > 0.5 * np.pi * DISC[2] ** 2
+    ii, jj = np.mgrid[0:N, 0:N] + 0.5
+    inner = (jj - DISC[0]) ** 2 + (ii - DISC[1]) ** 2 <= (0.8 * DISC[2]) ** 2
+    err = np.abs(res.thickness_map - true)[used & inner]
+    assert np.median(err) <= 15.0
+    assert np.mean(err <= 15.0) >= 0.9
+    assert np.all(res.thickness_stderr_map[used] > 0)

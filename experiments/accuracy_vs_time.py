@@ -331,7 +331,7 @@ def sweep_fit(rows, q, env):
     for knob, values in (("fit_max_steps", q.fit_steps), ("fit_rtol", q.fit_rtols)):
         for v in values:
             kw = {"max_steps": v} if knob == "fit_max_steps" else {"rtol": v, "atol": v * 0.1}
-            opts = FitOptions(disc=disc, t_init=t_true, fit_size=size, search_size=min(48, size), **kw)
+            opts = FitOptions(disc=disc, t_init=t_true, fit_size=size, search_size=min(48, size), model="paper", **kw)
             t0 = time.perf_counter()
             res = fit_photo(photo, env, options=opts, scene=known)
             first = time.perf_counter() - t0

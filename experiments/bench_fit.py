@@ -150,7 +150,8 @@ def main():
         return profile_solver(photo, env, q(bg), truth, Path(args.out), args.models.split(","))
     rows = []
     for kind in ("constant",) + (() if args.no_map else ("map",)):
-        opts = FitOptions(thickness=kind, disc=disc, t_init=0.965, roughness_init=0.04, effects=effects)
+        opts = FitOptions(thickness=kind, disc=disc, t_init=0.965, roughness_init=0.04, effects=effects,
+                              model="paper")
         for rep in range(repeats + 1):
             t0 = time.perf_counter()
             res = fit_photo(photo, env, options=opts, background=q(bg))
@@ -404,7 +405,7 @@ def stages(photo, env, bg, out: Path, repeats: int, stem: str = "stages"):
         for i in range(repeats + 1):
             spent.clear()
             t0, c0 = time.perf_counter(), os.times()
-            res = fit_module.fit_photo(photo, env, options=FitOptions(thickness="constant"), background=bg)
+            res = fit_module.fit_photo(photo, env, options=FitOptions(thickness="constant", model="paper"), background=bg)
             c1 = os.times()
             row = {"run": "first" if i == 0 else "warm", "total_s": round(time.perf_counter() - t0, 4),
                    "cpu_s": round(c1.user + c1.system - c0.user - c0.system, 2)}

@@ -115,7 +115,7 @@ def main(argv=None) -> int:
     frames = out / "frames"
     env, disc, times, truth = make_sequence(frames, n, size)
     print(f"{n} frames of {size}x{size} rendered in {time.perf_counter() - t0:.1f} s", flush=True)
-    options = FitOptions(disc=disc, thickness_range=(300.0, 1300.0))
+    options = FitOptions(disc=disc, thickness_range=(300.0, 1300.0), model="paper")
     first = str(sorted(frames.iterdir())[0])
 
     rows = []

@@ -57,7 +57,7 @@ def _opts(**kw):
     from bubblefit.inverse.fit import FitOptions
 
     # 48 uniform spectral samples resolve films up to ~1500 nm (Nyquist) and keep the tests fast
-    base = dict(disc=DISC, t_init=0.968, roughness_init=0.04,
+    base = dict(disc=DISC, t_init=0.968, roughness_init=0.04, model="paper",
                 effects=(("spectral", {"method": "uniform", "samples": 48}),))
     base.update(kw)
     return FitOptions(**base)

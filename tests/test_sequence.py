@@ -31,7 +31,7 @@ def _options():
     from bubblefit.inverse.fit import FitOptions
 
     # the disc is known (a fixed camera); the thickness search covers the drainage's range
-    return FitOptions(disc=DISC, thickness_range=(300.0, 1300.0))
+    return FitOptions(disc=DISC, thickness_range=(300.0, 1300.0), model="paper")
 
 
 @pytest.fixture(scope="module")

@@ -39,10 +39,10 @@ class FitOptions:
     thickness : ThicknessKind
         The thickness model: ``constant`` | ``drainage`` | ``map``.
     model : ModelChoice
-        ``paper`` | ``physical`` forward model, or ``auto``: the paper model first and,
-        when it does not explain the photo (reduced chi^2 with the model-error floor above
-        ``ok_chi2``), the physical model warm-started from it; the fit that explains the
-        photo better is returned.
+        ``paper`` | ``physical`` forward model, or ``auto`` (the default, as on the command
+        line): the paper model first and, when it does not explain the photo (reduced
+        chi^2 with the model-error floor above ``ok_chi2``), the physical model
+        warm-started from it; the fit that explains the photo better is returned.
     fit_rotation : bool
         Also fit the environment's rotation about +y.
     free_split : bool
@@ -144,7 +144,7 @@ class FitOptions:
     """
 
     thickness: ThicknessKind = "constant"
-    model: ModelChoice = "paper"
+    model: ModelChoice = "auto"
     fit_rotation: bool = False
     free_split: bool = False
     disc: tuple | None = None

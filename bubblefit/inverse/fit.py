@@ -61,7 +61,7 @@ from ._options import FitOptions, FitResult
 from ._parameters import THICKNESSES, extrapolated, parameter_roles, refined_disc
 from ._setup import Setup, defaults, setup
 from ._uncertainty import Uncertainty, uncertainty
-from ._verdict import at_bounds, unresolved, verdict
+from ._verdict import at_bounds, clamp_to_range, unresolved, verdict
 from ..lighting.envmap import EnvMap
 from ..model.thickness import drainage_profile
 from ..progress import stage
@@ -174,11 +174,11 @@ def _judge(st: Setup, opts: FitOptions, sol: LocalSolution, notes: list) -> Judg
     reported, stderr = unc.reported, unc.stderr
     disc, disc_stderr = refined_disc(st.disc, reported, stderr, float(opts.disc_model_error))
     status, converged = _status_notes(sol, unc.finite, unc.misfit.chi2_nu, notes, table.free)
-    lo, hi = opts.thickness_range
-    for key in THICKNESSES:
-        if key in reported and key in table.free and not lo - 1 <= reported[key] <= hi + 1:
-            notes.append(f"{key} = {reported[key]:.0f} nm lies outside the searched range {lo:.0f}-{hi:.0f} nm")
-    bounds = at_bounds(sol.values, table, opts.thickness_range, 0.5 * opts.search_step_nm)
+    solved = reported
+    reported, outside = clamp_to_range(solved, table, opts.thickness_range, THICKNESSES)
+    clamped = {k for k in THICKNESSES if reported.get(k) != solved.get(k)}  # said once, by clamp_to_range
+    bounds = outside + [w for w in at_bounds(sol.values, table, opts.thickness_range, 0.5 * opts.search_step_nm)
+                        if w.split(" = ")[0] not in clamped]
     notes += unresolved(reported, stderr, table)
     return Judgement(unc, reported, stderr, disc, disc_stderr, status, converged, bounds)
 

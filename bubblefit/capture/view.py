@@ -24,7 +24,7 @@ from ..errors import InputError
 
 __all__ = ["View", "ViewKind", "ViewSource", "ASSUMED_FOCAL_35MM", "FULL_FRAME_DIAGONAL_MM", "fov_from_focal",
            "fov_from_35mm", "view_from_exif", "resolve_view", "assumed_lens", "outline_axes",
-           "perspective_from_disc"]
+           "perspective_from_disc", "scene_view"]
 
 ViewKind = Literal["orthographic", "perspective"]
 #: Where the view came from: a command-line option (or :class:`~bubblefit.inverse.fit.FitOptions`),
@@ -274,3 +274,16 @@ def perspective_from_disc(disc: tuple, width: int, height: int, fov_deg: float, 
     camera = PerspectiveCamera(int(width), int(height), origin=origin, target=target, up=(0.0, 1.0, 0.0),
                                fov_deg=float(fov_deg))
     return camera, (0.0, 0.0, 0.0), float(radius)
+
+
+def scene_view(scene) -> View | None:
+    """The view a scene file's ``[camera]`` states, or None when it states none (no
+    ``type`` and no ``disc``): ``perspective`` with its ``fov_deg``, or ``orthographic``."""
+    if scene is None:
+        return None
+    cam = scene.table("camera")
+    if cam.get("type") == "perspective":
+        return View("perspective", float(cam.get("fov_deg", 35.0)), "scene", "the scene file's perspective camera")
+    if "type" in cam or "disc" in cam:
+        return View("orthographic", None, "scene", "the scene file's orthographic camera")
+    return None

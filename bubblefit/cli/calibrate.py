@@ -60,6 +60,9 @@ def register(subparsers) -> None:
     p.add_argument("--bootstrap", type=int, default=2000, metavar="N", help="bootstrap resamples [2000]")
     p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap [0]")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
+    from .view_options import add_view_options
+
+    add_view_options(p)
     p.set_defaults(func=run)
 
 
@@ -68,8 +71,10 @@ def run(args) -> int:
     from ..capture.result import write_debug_image
     from ..progress import stage
     from .common import guard_args, write_json
+    from .view_options import after_view, check_view_args
 
     guard_args(args)
+    check_view_args(args)
     circle = _circle(args.circle) if args.circle else None
     if not (0.05 <= args.inner_fraction <= 0.95):
         raise InputError(f"--inner-fraction must be between 0.05 and 0.95, got {args.inner_fraction}")
@@ -90,7 +95,7 @@ def run(args) -> int:
             raise type(exc)(lines[0]) from None
         raise
     if args.json:
-        write_json(args.json, result.to_json())
+        write_json(args.json, dict(result.to_json(), camera=after_view(args).to_json()))
     if args.debug_image:
         write_debug_image(args.debug_image, result)
     if not args.quiet:

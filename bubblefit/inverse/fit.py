@@ -62,6 +62,7 @@ from ._parameters import THICKNESSES, extrapolated, parameter_roles, refined_dis
 from ._setup import Setup, defaults, setup
 from ._uncertainty import Uncertainty, uncertainty
 from ._verdict import at_bounds, clamp_to_range, unresolved, verdict
+from ._view import camera_record, fit_view, lens_for, widen_for_view
 from ..lighting.envmap import EnvMap
 from ..model.thickness import drainage_profile
 from ..progress import stage
@@ -229,6 +230,7 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
         disc_model_error=float(opts.disc_model_error) if disc_stderr is not None else float("nan"),
         stderr_scale=unc.scale, roles=parameter_roles(table, st.fx.model, tuple(reported)),
         frame=None if st.frame.whole else (st.frame.x0, st.frame.y0, st.frame.k), colour=st.colour,
+        camera=None if opts.view is None else camera_record(opts.view, st.base_cfg.camera),
     )
 
 
@@ -285,8 +287,31 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     >>> result.ok, round(float(result.params["thickness_nm"]))
     (True, 600)
     """
+    view = fit_view(options, scene)
+    options = replace(options, view=view)
+    if view.source != "assumed":
+        return _fit_model(photo, env, options, background, init, scene, saturated)
+    t0 = time.perf_counter()
+    ortho = _fit_model(photo, env, options, background, init, scene, saturated)
+    lens = lens_for(photo)
+    start = {k: v for k, v in ortho.params.items() if np.isfinite(v)} if ortho.converged else init
+    with stage(f"the same fit through a {lens.fov_deg:.0f} degree lens (the view was not given)"):
+        lens_fit = _fit_model(photo, env, replace(options, view=lens, model=ortho.model), background, start, scene,
+                              saturated)
+    out = widen_for_view(ortho, lens_fit, lens)
+    out.time_s = time.perf_counter() - t0
+    return out
+
+
+def _fit_model(photo, env, options: FitOptions, background, init, scene, saturated) -> FitResult:
+    """One view's fit: ``auto`` (:func:`_fit_either_model`) or one model (:func:`_fit_one`)."""
     if options.model == "auto":
         return _fit_either_model(photo, env, options, background, init, scene, saturated)
+    return _fit_one(photo, env, options, background, init, scene, saturated)
+
+
+def _fit_one(photo, env, options: FitOptions, background, init, scene, saturated) -> FitResult:
+    """The stages of one model's fit through ``options.view``."""
     t_start = time.perf_counter()
     opts = options
     with stage("finding the disc, choosing the effects"):
@@ -366,16 +391,15 @@ def _fit_either_model(photo, env, options: FitOptions, background, init, scene, 
     leave a misfit that hides a wrong map; a photo from a physical film (another renderer,
     a camera) is explained by the physical model, within its floor."""
     t0 = time.perf_counter()
-    kw = dict(background=background, scene=scene, saturated=saturated)
     with stage("paper model"):
-        first = fit_photo(photo, env, options=replace(options, model="paper"), init=init, **kw)
+        first = _fit_one(photo, env, replace(options, model="paper"), background, init, scene, saturated)
     if _explained(first, options):
         first.message += "; model auto: the paper model explains the photo"
         return first
     start = {k: v for k, v in first.params.items() if np.isfinite(v)} if first.converged else init
     c1 = _judged_chi2(first)
     with stage(f"physical model (the paper model's reduced chi^2 {_judged_text(first)} with the floor, capped)"):
-        second = fit_photo(photo, env, options=replace(options, model="physical"), init=start, **kw)
+        second = _fit_one(photo, env, replace(options, model="physical"), background, start, scene, saturated)
     c2 = _judged_chi2(second)
     best = second if (not second.converged, c2) < (not first.converged, c1) else first
     best.message += (f"; model auto: paper reduced chi^2 {_judged_text(first)}, physical {_judged_text(second)} "

@@ -24,7 +24,7 @@ from ..errors import InputError
 
 __all__ = ["View", "ViewKind", "ViewSource", "ASSUMED_FOCAL_35MM", "FULL_FRAME_DIAGONAL_MM", "fov_from_focal",
            "fov_from_35mm", "view_from_exif", "resolve_view", "assumed_lens", "outline_axes",
-           "perspective_from_disc", "scene_view"]
+           "perspective_from_disc", "scene_view", "ORTHOGRAPHIC"]
 
 ViewKind = Literal["orthographic", "perspective"]
 #: Where the view came from: a command-line option (or :class:`~bubblefit.inverse.fit.FitOptions`),
@@ -81,6 +81,11 @@ class View:
         """The JSON's ``camera`` record: ``kind``, ``fov_deg``, ``source``, ``detail``."""
         return {"kind": self.kind, "fov_deg": None if self.fov_deg is None else float(self.fov_deg),
                 "source": self.source, "detail": self.detail}
+
+
+#: An orthographic view stated by the user (``--fov 0``): parallel rays, e.g. a telecentric
+#: lens, a bubble photographed from far away, or a photo rendered with such a camera.
+ORTHOGRAPHIC = View("orthographic", None, "option", "parallel rays, as stated")
 
 
 def fov_from_focal(focal_mm: float, sensor_width_mm: float) -> float:

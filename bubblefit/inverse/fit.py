@@ -243,6 +243,12 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
               init: dict | None = None, scene=None, saturated: np.ndarray | None = None) -> FitResult:
     """Fit the forward model to a photo.
 
+    The camera's view (:func:`~bubblefit.inverse._view.fit_view`) is the scene's, else
+    ``options.view`` (a field of view: the pinhole is built from the disc); when neither
+    states one, the photo is fitted as orthographic and again through a 50 mm (35 mm
+    terms) lens warm-started from it, and the standard errors are widened by the shift
+    (:func:`~bubblefit.inverse._view.widen_for_view`; ``docs/camera-view.md``).
+
     Parameters
     ----------
     photo : np.ndarray

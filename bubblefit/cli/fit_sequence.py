@@ -143,6 +143,7 @@ def run(args) -> int:
             "plot": None if res.plot is None else str(res.plot), "frames": len(res.records),
             "fitted": res.fitted, "skipped": res.skipped, "failed": res.failed, "workers": res.workers,
             "elapsed_s": res.elapsed_s, "setup_s": res.setup_s, "fps": res.fps,
+            "camera": None if options.view is None else options.view.to_json(),
             "failures": [{"frame": r["frame"], "file": r["file"], "reason": r.get("message", "")}
                          for r in res.records if r.get("status") != "ok"],
             "flagged": [{"frame": r["frame"], "file": r["file"], "warnings": r.get("warnings", [])}

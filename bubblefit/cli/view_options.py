@@ -3,42 +3,16 @@ as a user knows it (``docs/camera-view.md``)."""
 
 from __future__ import annotations
 
-import math
-
-
-def _positive_mm(text: str) -> float:
-    import argparse
-
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected millimetres, got {text!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"expected positive millimetres, got {text!r}")
-    return v
-
-
-def _degrees(text: str) -> float:
-    import argparse
-
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected degrees, got {text!r}") from None
-    if not math.isfinite(v):
-        raise argparse.ArgumentTypeError(f"expected degrees, got {text!r}")
-    return v
-
 
 def add_view_options(p) -> None:
     """``--fov DEG``, ``--focal-length MM`` with ``--sensor-width MM``, ``--focal-length-35mm MM``."""
     g = p.add_argument_group("camera view (default: the photo's EXIF, else orthographic with the error bars "
                              "widened by what a 50 mm lens would change)")
-    g.add_argument("--fov", type=_degrees, metavar="DEG",
+    g.add_argument("--fov", type=float, metavar="DEG",
                    help="the camera's angle of view across the photo's width, degrees (0: orthographic, parallel rays)")
-    g.add_argument("--focal-length", type=_positive_mm, metavar="MM", help="the lens's focal length, mm (with --sensor-width)")
-    g.add_argument("--sensor-width", type=_positive_mm, metavar="MM", help="the sensor's width, mm (with --focal-length)")
-    g.add_argument("--focal-length-35mm", type=_positive_mm, metavar="MM",
+    g.add_argument("--focal-length", type=float, metavar="MM", help="the lens's focal length, mm (with --sensor-width)")
+    g.add_argument("--sensor-width", type=float, metavar="MM", help="the sensor's width, mm (with --focal-length)")
+    g.add_argument("--focal-length-35mm", type=float, metavar="MM",
                    help="the focal length in 35 mm terms (as phones report it), mm")
 
 

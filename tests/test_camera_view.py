@@ -142,10 +142,23 @@ def test_an_assumed_view_widens_each_error_by_the_lens_shift():
     assert out.params == ortho.params and ortho.stderr["thickness_nm"] == 2.0  # the input is not changed
     assert out.camera["source"] == "assumed" and out.camera["view_uncertainty"]["thickness_nm"] == pytest.approx(
         12.0 / math.sqrt(3.0))
-    assert any("thickness_nm by 12" in w for w in out.warnings), out.warnings
+    assert any("thickness_nm by 12" in w and "fitted as orthographic" in w for w in out.warnings), out.warnings
     failed = widen_for_view(ortho, _result(lens_fit.params, lens_fit.stderr, converged=False),
                             V.assumed_lens(160, 160))
     assert failed.stderr == ortho.stderr and any("did not converge" in w for w in failed.warnings)
+
+
+def test_a_lens_that_explains_the_photo_better_is_kept_and_widened():
+    from bubblefit.inverse._view import widen_for_view
+
+    lens = V.assumed_lens(160, 160)
+    ortho = _result({"thickness_nm": 612.0}, {"thickness_nm": 2.0})
+    kept = _result({"thickness_nm": 603.0}, {"thickness_nm": 1.5})
+    kept.camera = lens.to_json()
+    out = widen_for_view(kept, ortho, lens)
+    assert out.params["thickness_nm"] == 603.0 and out.camera["kind"] == "perspective"
+    assert out.stderr["thickness_nm"] == pytest.approx(math.hypot(1.5, 9.0 / math.sqrt(3.0)))
+    assert any("kept the perspective view" in w for w in out.warnings), out.warnings
 
 
 def test_fit_view_prefers_the_scene_and_refuses_a_contradiction():
@@ -193,7 +206,7 @@ def test_a_perspective_photo_with_and_without_its_view(tmp_path):
     assert err < 3 * given["stderr"]["thickness_nm"], (given["params"], given["stderr"])
     _, unknown = _fit_cli(tmp_path, "ref_const620_sunrise_persp")
     cam = unknown["camera"]
-    assert cam["source"] == "assumed" and cam["kind"] == "orthographic" and cam["compared_fov_deg"] > 30
+    assert cam["source"] == "assumed" and cam["compared_fov_deg"] > 30
     assert any("view was not given" in w for w in unknown["warnings"])
     err = abs(unknown["params"]["thickness_nm"] - true_nm)
     assert err < 3 * unknown["stderr"]["thickness_nm"], (unknown["params"], unknown["stderr"], cam)

@@ -3,8 +3,9 @@
 :func:`fit_view` chooses the view: a scene file's camera, else the options' (a field of
 view from an option or the photo's EXIF), else an assumed orthographic one. An assumed
 view is not silently trusted: :func:`widen_for_view` compares the orthographic fit with the
-same fit through a plausible lens (:func:`~bubblefit.capture.view.assumed_lens`) and adds
-the difference to each standard error as a Type B uncertainty.
+same fit through a plausible lens (:func:`~bubblefit.capture.view.assumed_lens`), keeps the
+one that explains the photo better, and adds the difference to each standard error as a
+Type B uncertainty.
 """
 
 from __future__ import annotations
@@ -46,34 +47,39 @@ def camera_record(view: View, camera) -> dict:
     return out
 
 
-def widen_for_view(ortho: FitResult, lens_fit: FitResult, lens: View) -> FitResult:
-    """``ortho`` (the fit through an assumed orthographic view) with each standard error
-    widened by what the plausible ``lens`` changes, and a warning saying so.
+def widen_for_view(kept: FitResult, other: FitResult, lens: View) -> FitResult:
+    """``kept`` (the fit through the view that explained the photo better, of the assumed
+    orthographic one and the plausible ``lens``) with each standard error widened by the
+    shift to ``other`` (the fit through the other view), and a warning saying so.
 
     The true view lies between parallel rays and, for most photos of a bubble, a normal
     lens; with nothing to tell where, the parameter's shift between the two fits,
-    ``Delta = p_lens - p_ortho``, bounds a rectangular distribution about the reported
+    ``Delta = p_other - p_kept``, bounds a rectangular distribution about the reported
     value, of standard uncertainty ``|Delta| / sqrt(3)`` (GUM 4.3.7), added in quadrature to
     the standard error (and to the covariance's diagonal, and to a thickness map's errors
     by the thickness's). A lens wider than ``lens`` (a phone's 26 mm) can move the
-    parameters further.
+    parameters further. When ``other`` did not converge, nothing is added and the warning
+    says so.
 
     References
     ----------
     JCGM 100:2008 (GUM), sec. 4.3.7 (Type B evaluation from bounds).
     """
-    out = replace(ortho, stderr=dict(ortho.stderr), warnings=list(ortho.warnings))
-    cam = dict(ortho.camera or {})
+    out = replace(kept, stderr=dict(kept.stderr), warnings=list(kept.warnings))
+    cam = dict(kept.camera or {})
     cam["compared_fov_deg"] = float(lens.fov_deg)
-    if not lens_fit.converged:
-        out.warnings.append("the view was not given (--fov, --focal-length or the photo's EXIF) and the fit through "
-                            f"a {lens.fov_deg:.1f} degree lens did not converge: the standard errors do not include "
-                            "what the view changes; give the view")
+    which = (f"fitted as orthographic and through a {lens.detail.split(',')[0].removeprefix('a ')} "
+             f"({lens.fov_deg:.1f} degrees across); kept the {cam.get('kind', 'orthographic')} view, which explains "
+             "the photo better" if cam.get("kind") == "perspective" else "fitted as orthographic")
+    if not other.converged:
+        out.warnings.append(f"the view was not given (--fov, --focal-length or the photo's EXIF): {which}; the fit "
+                            f"through the other view did not converge, so the standard errors do not include what "
+                            "the view changes: give the view")
         out.camera = cam
         return out
     u = {}
-    for k, e in ortho.stderr.items():
-        a, b = ortho.params.get(k), lens_fit.params.get(k)
+    for k, e in kept.stderr.items():
+        a, b = kept.params.get(k), other.params.get(k)
         if e is None or a is None or b is None or not (math.isfinite(e) and math.isfinite(a) and math.isfinite(b)):
             continue
         u[k] = abs(b - a) / math.sqrt(3.0)
@@ -87,11 +93,13 @@ def widen_for_view(ortho: FitResult, lens_fit: FitResult, lens: View) -> FitResu
         out.thickness_stderr_map = np.hypot(out.thickness_stderr_map, u["thickness_nm"])
     cam["view_uncertainty"] = {k: float(v) for k, v in u.items()}
     out.camera = cam
-    moved = ", ".join(f"{k} by {abs(lens_fit.params[k] - ortho.params[k]):.3g}"
+    moved = ", ".join(f"{k} by {abs(other.params[k] - kept.params[k]):.3g}"
                       for k in ("thickness_nm", "top_nm", "bottom_nm", "t") if k in u)
-    out.warnings.append(f"the view was not given (--fov, --focal-length or the photo's EXIF): fitted as orthographic; "
-                        f"a {lens.detail.split(',')[0].removeprefix('a ')} ({lens.fov_deg:.1f} degrees across) moves "
-                        f"{moved}: the standard errors include |shift|/sqrt(3)")
+    if cam.get("kind") != "perspective":
+        which += (f"; a {lens.detail.split(',')[0].removeprefix('a ')} ({lens.fov_deg:.1f} degrees across) would "
+                  "explain it no better")
+    out.warnings.append(f"the view was not given (--fov, --focal-length or the photo's EXIF): {which}; the other "
+                        f"view moves {moved}: the standard errors include |shift|/sqrt(3)")
     return out
 
 

@@ -246,8 +246,10 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     The camera's view (:func:`~bubblefit.inverse._view.fit_view`) is the scene's, else
     ``options.view`` (a field of view: the pinhole is built from the disc); when neither
     states one, the photo is fitted as orthographic and again through a 50 mm (35 mm
-    terms) lens warm-started from it, and the standard errors are widened by the shift
-    (:func:`~bubblefit.inverse._view.widen_for_view`; ``docs/camera-view.md``).
+    terms) lens warm-started from it; the view that explains the photo better (the lower
+    capped reduced chi^2, :func:`_judged_chi2`) is kept, and its standard errors are
+    widened by the shift to the other (:func:`~bubblefit.inverse._view.widen_for_view`;
+    ``docs/camera-view.md``).
 
     Parameters
     ----------
@@ -302,9 +304,10 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     lens = lens_for(photo)
     start = {k: v for k, v in ortho.params.items() if np.isfinite(v)} if ortho.converged else init
     with stage(f"the same fit through a {lens.fov_deg:.0f} degree lens (the view was not given)"):
-        lens_fit = _fit_model(photo, env, replace(options, view=lens, model=ortho.model), background, start, scene,
-                              saturated)
-    out = widen_for_view(ortho, lens_fit, lens)
+        lens_fit = _fit_model(photo, env, replace(options, view=lens), background, start, scene, saturated)
+    # the photo may tell the views apart: keep the one that explains it better
+    lens_better = lens_fit.converged and _judged_chi2(lens_fit) < _judged_chi2(ortho)
+    out = widen_for_view(lens_fit, ortho, lens) if lens_better else widen_for_view(ortho, lens_fit, lens)
     out.time_s = time.perf_counter() - t0
     return out
 

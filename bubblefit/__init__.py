@@ -35,7 +35,7 @@ _EXPORTS = {
     # fitting
     "FitOptions": "inverse.fit", "FitResult": "inverse.fit", "fit_photo": "inverse.fit",
     "fit_sequence": "inverse.sequence", "fit_spectrum": "inverse.spectrum",
-    "fit_spectrum_series": "inverse.spectrum", "read_spectrum": "io.spectra",
+    "fit_spectrum_series": "inverse.spectrum_series", "read_spectrum": "io.spectra",
     # calibration and capture
     "CalibrationResult": "capture.calibrate", "calibrate": "capture.calibrate",
     "unwrap_mirror_ball": "capture.probe", "check_capture": "capture.protocols",

@@ -34,36 +34,28 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from scipy.signal import find_peaks, savgol_filter
+
+from bubblefit.inverse._spectrum_extrema import RANDOM_PHASE as RANDOM
+from bubblefit.inverse._spectrum_extrema import extrema_phase, fringe_extrema
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from spectrum_real import load, soap_index  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
-RANDOM = 1.0 / np.sqrt(12.0)  # rms distance to the nearest integer of a uniform phase
 #: Readings stated thinner are skipped: a film under ~150 nm has at most one extremum in the
 #: visible, and a thickness near 0 puts ``x`` near 0 everywhere, a perfect score for nothing.
 MIN_STATED_NM = 150.0
 TOOLS = {"stated": "expected", "bubblefit": "bf", "bubblefit normalised": "bf_norm", "optifik": "of_ref"}
 
 
-def extrema(lam: np.ndarray, y: np.ndarray, window: int = 51, prominence: float = 0.05) -> np.ndarray:
-    """Wavelengths of the smoothed reading's maxima and minima whose prominence is at least
-    ``prominence`` of its mean level (a fraction of its range would count the wiggles of a
-    reading without fringes)."""
-    smooth = savgol_filter(y, min(window, len(y) // 2 * 2 - 1), 3)
-    p = prominence * float(np.mean(np.abs(smooth)))
-    peaks, _ = find_peaks(smooth, prominence=p)
-    troughs, _ = find_peaks(-smooth, prominence=p)
-    return np.sort(lam[np.r_[peaks, troughs]])
+def extrema(lam: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The reading's fringe extrema (:func:`bubblefit.inverse._spectrum_extrema.fringe_extrema`)."""
+    return fringe_extrema(lam, y)
 
 
 def mismatch(d: float, lam_ext: np.ndarray, n_of) -> float:
-    """RMS distance of ``4 n d / lambda`` from the nearest whole number at ``lam_ext``."""
-    if d is None or not np.isfinite(d):
-        return float("nan")
-    x = 4.0 * n_of(lam_ext) * d / lam_ext
-    return float(np.sqrt(np.mean((x - np.round(x)) ** 2)))
+    """The extrema phase score (:func:`bubblefit.inverse._spectrum_extrema.extrema_phase`)."""
+    return extrema_phase(d, lam_ext, n_of) if len(lam_ext) else float("nan")
 
 
 def main():

@@ -35,6 +35,15 @@ by default (optifik keeps >= 450 nm: its methods need the clean part); on the Lo
 Manue readings the first 50 nm are a lamp-divided reading where the lamp is dark, jumping
 between 0 and the ceiling.
 
+The column "bubblefit defaults" is ``bubblefit fit-spectrum`` run as a new user runs it, with
+no switch but the film's index: each group's files given together (whole readings, the
+void reading as ``--dark`` where there is one), so that the command decides whether they
+were divided by the lamp, whether they form one series (and reads them with its shared
+lamp), and uses their time order (the file names) against jumps to a twin. Each row also
+carries the extrema phase test (:mod:`bubblefit.inverse._spectrum_extrema`) of the stated
+value and of the defaults' value; a stated value is marked in doubt when it scores worse
+than 0.2 where the defaults' value scores better than 0.1.
+
 Usage: ``PYTHONPATH=. python experiments/spectrum_real.py DATA_DIR [--optifik-python PY]
 [--stride 25] [--quick] [--groups G1,G2] [--whole-range]``
 """
@@ -221,7 +230,44 @@ def _median(v):
     return float(np.median(v)) if v else float("nan")
 
 
-TOOLS = {"bubblefit": "bf", "bubblefit ok only": "bf", "bubblefit normalised": "bf_norm",
+def run_defaults(cases, data: Path) -> dict:
+    """Each group's stated files through ``bubblefit fit-spectrum`` with no switch (see the
+    module): file -> thickness, stderr, ok, normalised, reasons, extrema phase of the
+    stated value and of this one."""
+    from bubblefit.cli import main as cli
+    from bubblefit.inverse._spectrum_extrema import extrema_phase, fringe_extrema
+
+    out = {}
+    groups = dict.fromkeys(c["group"] for c in cases if c["expected"] is not None)
+    for g in groups:
+        sub = [c for c in cases if c["group"] == g and c["expected"] is not None]
+        with tempfile.TemporaryDirectory() as tmp:
+            js = os.path.join(tmp, "o.json")
+            argv = ["fit-spectrum", *[str(data / c["file"]) for c in sub], "--json", js,
+                    "--thickness-range", f"0,{sub[0]['thickness_max']:g}"]
+            argv += ["--n-film", "soap"] if sub[0]["n"] == SOAP else ["--n-film", str(sub[0]["n"])]
+            if sub[0]["void"]:
+                argv += ["--dark", str(data / sub[0]["void"])]
+            if cli(argv) != 0:
+                continue
+            res = json.loads(Path(js).read_text())["spectra"]
+        for c, r in zip(sub, res):
+            lam, y = load(data / c["file"])
+            ext = fringe_extrema(lam, y)
+            n_of = soap_index if c["n"] == SOAP else (lambda x, n=float(c["n"]): np.full_like(x, n))
+            stated, mine = extrema_phase(c["expected"], ext, n_of), extrema_phase(r["thickness_nm"], ext, n_of)
+            doubt = bool(np.isfinite(stated) and np.isfinite(mine) and stated > 0.2 and mine < 0.1)
+            out[c["file"]] = dict(bf_def=r["thickness_nm"], bf_def_stderr=r["thickness_nm_stderr"], bf_def_ok=r["ok"],
+                                  bf_def_normalised=r["normalised"], bf_def_reasons=" | ".join(r["reasons"]),
+                                  extrema=len(ext), extrema_phase_stated=stated, extrema_phase_bf_def=mine,
+                                  stated_in_doubt=(f"the stated value puts the reading's {len(ext)} extrema "
+                                                   f"{stated:.2f} rms off whole phases, the defaults' {mine:.2f}")
+                                  if doubt else "")
+    return out
+
+
+TOOLS = {"bubblefit defaults": "bf_def", "bubblefit defaults ok only": "bf_def",
+         "bubblefit": "bf", "bubblefit ok only": "bf", "bubblefit normalised": "bf_norm",
          "bubblefit norm. ok only": "bf_norm", "optifik ref": "of_ref",
          "optifik auto": "of_auto"}
 
@@ -235,7 +281,7 @@ def summarise_stated(rows) -> dict:
         entry = {"files": len(sub)}
         for tool, col in TOOLS.items():
             s = [r for r in sub if col in r and (not tool.endswith("ok only") or r[col + "_ok"])]
-            if tool.startswith("bubblefit norm") and not [r for r in sub if col in r]:
+            if (tool.startswith("bubblefit norm") or col == "bf_def") and not [r for r in sub if col in r]:
                 continue
             err = [abs(r[col] - r["expected"]) for r in s]
             rel = [abs(r[col] - r["expected"]) / r["expected"] for r in s]
@@ -246,6 +292,9 @@ def summarise_stated(rows) -> dict:
                 okc = col + "_ok"
                 e["flagged"] = int(sum(not r[okc] for r in s))
                 e["silent_fail"] = int(sum(f and r[okc] for f, r in zip(fails, s)))
+                e["ok_and_off_3se"] = int(sum(f and r[okc] and abs(r[col] - r["expected"]) > 3 * r[col + "_stderr"]
+                                              for f, r in zip(fails, s)))
+                e["within_10pct"] = float(np.mean([not f for f in fails])) if fails else float("nan")
             entry[tool] = e
         out[key] = entry
     return out
@@ -333,6 +382,7 @@ def main():
         keep = set(args.groups.split(","))
         cases = [c for c in cases if c["group"] in keep]
     of = run_optifik(cases, data, args.optifik_python)
+    defaults = run_defaults(cases, data)
     rows = []
     for c, o in zip(cases, of):
         b = run_bubblefit(c, data, normalised=False, whole=args.whole_range)
@@ -342,6 +392,7 @@ def main():
         if c["normalised"] and c["expected"] is not None:
             f = run_bubblefit(c, data, normalised=True, whole=args.whole_range)
             row.update(bf_norm=f["t"], bf_norm_stderr=f["stderr"], bf_norm_ok=f["ok"], bf_norm_reasons=f["reasons"])
+        row.update(defaults.get(c["file"], {}))
         rows.append(row)
         exp = f"{c['expected']:8.1f}" if c["expected"] is not None else "       -"
         flat = f"  normalised {row['bf_norm']:8.1f} ok={row['bf_norm_ok']!s:5}" if "bf_norm" in row else ""

@@ -68,7 +68,8 @@ def main():
     ap.add_argument("--stride", type=int, default=1, help="every K-th reading (in time order)")
     ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args()
-    from bubblefit.inverse.spectrum import SpectrumOptions, fit_spectrum, fit_spectrum_series
+    from bubblefit.inverse.spectrum import SpectrumOptions, fit_spectrum
+    from bubblefit.inverse.spectrum_series import fit_spectrum_series
     from bubblefit.io.spectra import read_spectrum
 
     vals = stated(args.data)

@@ -94,6 +94,7 @@ def test_filtered_film_functions_limits_and_gradients():
     assert np.isfinite(float(g))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", ["paper", "physical"])
 def test_scene_renders_thick_film_with_fourier_basis(model):
     """A 3000-6000 nm film (front reflection): fourier/8 lands on the reference render;
@@ -127,6 +128,7 @@ def test_unknown_fourier_sample_count_is_rejected():
         spectral.spectral_basis("fourier", 9)
 
 
+@pytest.mark.slow
 def test_quick_sweep_writes_results_and_error_falls(tmp_path):
     out = tmp_path / "acc"
     proc = subprocess.run([sys.executable, str(ROOT / "experiments" / "accuracy_vs_time.py"), "--quick",

@@ -214,15 +214,22 @@ def test_tiny_and_flat_images_are_not_found():
 # --------------------------------------------------------------------------------------
 
 VALIDATION = Path(__file__).resolve().parent.parent / "experiments" / "validation" / "data"
-_CASES = sorted(p.parent.name for p in VALIDATION.glob("*/truth.json")) if VALIDATION.is_dir() else []
+# the bubbles of the validation set (its flat films and gaps have no disc)
+_CASES = sorted(p.parent.name for p in VALIDATION.glob("*/truth.json")
+                if not p.parent.name.startswith("film_")) if VALIDATION.is_dir() else []
 
 
 def _truth(case: str) -> dict:
     return json.loads((VALIDATION / case / "truth.json").read_text())
 
 
+_STUDIO = pytest.mark.xfail(strict=True, reason=(
+    "dark studio map: the outer 2 px of the film are black on black over half the rim, so the visible change "
+    "ends inside the silhouette; find_disc refuses it as not round enough"))
+
+
 @pytest.mark.skipif(not _CASES, reason="the independent validation photos are not present")
-@pytest.mark.parametrize("case", _CASES or ["none"])
+@pytest.mark.parametrize("case", [pytest.param(c, marks=_STUDIO) if "studio" in c else c for c in _CASES] or ["none"])
 def test_independent_photos_with_background(case):
     from bubblefit.io.images import read_image
 
@@ -234,7 +241,4 @@ def test_independent_photos_with_background(case):
         assert not d.found
         return
     t = truth["disc"]
-    if "studio" in case:
-        pytest.xfail("dark studio map: the outer 2 px of the film are black on black over half the rim, so the "
-                     "visible change ends inside the silhouette; find_disc refuses it as not round enough")
     _check(d, t["cx"], t["cy"], t["r"])

@@ -63,6 +63,7 @@ def _scene(name, maps, size=SIZE):
     return data, bg, env
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(EXPECTED))
 def test_auto_within_budget_of_all_on(name, maps):
     """Every bubble pixel of auto is within its budget of all-on, and auto skipped what the scene does not need."""
@@ -78,9 +79,12 @@ def test_auto_within_budget_of_all_on(name, maps):
     img = B.render_parts(p, parts, env, bgr)
     ref = B.render_parts(p_on, parts_on, env, bgr_on)
     assert np.all(np.isfinite(img)) and ref.max() > 0.02
-    share = B.budget_share(img, ref, DEFAULT_TOLERANCE)
-    if share > 1.0:  # the float32 rounding of another compilation, measured on all-on itself
-        share = B.budget_share(img, ref, DEFAULT_TOLERANCE, B.reproducibility(p_on, parts_on, env, bgr_on, ref))
+    # The all-on reference is a float32 render too: where a mirror sees the sun's edge two
+    # compilations of it differ by a few percent. That rounding, measured on all-on itself
+    # (rendered again in other chunks), is taken off every pixel's difference: one check,
+    # the same for every scene.
+    noise = B.reproducibility(p_on, parts_on, env, bgr_on, ref)
+    share = B.budget_share(img, ref, DEFAULT_TOLERANCE, noise)
     assert share <= 1.0, f"{name}: auto uses {share:.2f} of its budget: {[d.line() for d in decisions]}"
 
 
@@ -243,6 +247,7 @@ def test_transmission_tint_decisions():
         decide(model="paper", transmission_tint="sometimes")
 
 
+@pytest.mark.slow
 def test_window_below_a_texel_is_the_bilinear_lookup():
     """Eq. (13)'s window at a = 5e-4 on a 2k-wide map (a lobe inside one texel) returns the
     bilinear mirror lookup, not a nearest-texel sum; a wide lobe still sums its window."""
@@ -266,6 +271,7 @@ def test_window_below_a_texel_is_the_bilinear_lookup():
         assert np.max(np.abs(wide - mirror)) > 1e-3  # a real window sum averages the noise
 
 
+@pytest.mark.slow
 def test_perfect_mirror_and_messages():
     """roughness = 0 is a perfect mirror (mirror lookup, finite gradients); r_d alone is
     fine in the physical model; radius 0 says what is wrong."""
@@ -319,6 +325,7 @@ def test_render_tolerance_flag(tmp_path, capsys):
     assert rc == 2 and len(err) == 1 and "--tolerance" in err[0]
 
 
+@pytest.mark.slow
 def test_harmonic_basis_only_where_it_is_exact(maps):
     """``harmonic`` needs one thickness and a non-dispersive index: a drainage film or a
     Cauchy index asked for it is one clear error; ``auto`` does not offer it there."""

@@ -298,9 +298,9 @@ def test_unreadable_jax_cache_entries_are_replaced_and_write_errors_said_once(tm
     the compile that follows writes it anew; failed writes are one warning line in all."""
     from jax._src import compilation_cache
 
-    from bubblefit.io import executables
+    from bubblefit.io import executables, jaxcache
 
-    monkeypatch.setattr(executables, "_WARNED", set())
+    monkeypatch.setattr(jaxcache, "_WARNED", set())
     calls = []
 
     def failing_get(key, *args, **kwargs):

@@ -64,14 +64,8 @@ def _opts(**kw):
     return FitOptions(**base)
 
 
-@pytest.mark.parametrize("seed,thickness,tint", [
-    (0, 150.0, True), (1, 720.0, False),
-    # Known: t comes out 0.0027 off (4.5 of its stated standard errors) on this 8-bit photo;
-    # the bias of t on quantised photos is larger than the noise-based error bar allows.
-    pytest.param(2, 1400.0, True, marks=pytest.mark.xfail(reason="t bias on 8-bit photos exceeds 4 stated "
-                                                                  "standard errors (0.0027 vs 0.0006)",
-                                                           strict=False)),
-])
+@pytest.mark.slow
+@pytest.mark.parametrize("seed,thickness,tint", [(0, 150.0, True), (1, 720.0, False), (2, 1400.0, True)])
 def test_constant_recovery(env, seed, thickness, tint, monkeypatch):
     """t within 0.003, thickness within 5 nm, roughness within 15%, errors that cover; the
     solve's and the standard errors' programs compiled in the background are the ones run."""
@@ -94,9 +88,10 @@ def test_constant_recovery(env, seed, thickness, tint, monkeypatch):
     assert abs(p["thickness_nm"] - thickness) < 5.0
     assert abs(p["t"] - truth["t"]) < 0.003
     assert abs(p["roughness"] / truth["roughness"] - 1) < 0.15
-    # the standard errors are honest: the truth within 4 sigma for t and thickness
+    # the standard errors are honest: the truth within 4 sigma for the thickness, and within
+    # 3 for t, whose error bar carries the background photo's noise (errors in variables)
     assert abs(p["thickness_nm"] - thickness) < 4 * e["thickness_nm"] + 0.5
-    assert abs(p["t"] - truth["t"]) < 4 * e["t"] + 2e-4
+    assert abs(p["t"] - truth["t"]) < 3 * e["t"]
     names = [h[0] for h in res.held]
     assert "rotation_deg" in names and "thickness_nm" not in names
     js = res.to_json()
@@ -146,6 +141,7 @@ def map_fit(env, tmp_path_factory):
     return res, true, y, (top, bottom, expo)
 
 
+@pytest.mark.slow
 def test_drainage_and_map(map_fit):
     """The profile's parameters and the map (< 10 nm median), with per-pixel errors."""
     res, true, _, (top, bottom, _) = map_fit
@@ -162,6 +158,7 @@ def test_drainage_and_map(map_fit):
     assert np.all(res.thickness_stderr_map[used] > 0)
 
 
+@pytest.mark.slow
 @pytest.mark.xfail(reason="not met yet on this 48 px photo: 84% of pixels within 15 nm, a neighbour jump of "
                           "128 nm, the bump recovered as 21 nm over the fitted profile (issue 14's map targets)",
                    strict=False)
@@ -185,6 +182,7 @@ def test_map_meets_order_targets(map_fit):
     assert abs((m - prof)[ic - 1:ic + 2, jc - 1:jc + 2].mean() - 40.0) < 15.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rim", [0.75, 0.5])
 def test_model_mismatch(env, rim):
     """Paper-model fit of a physical-model photo (Fresnel, Airy, bounces), cold start:
@@ -210,6 +208,7 @@ def test_model_mismatch(env, rim):
         assert abs(grey.params["thickness_nm"] - 560.0) > 50.0
 
 
+@pytest.mark.slow
 def test_failed_fit_is_reported_and_skipped_effects_held(env):
     """A fit stopped after 2 steps says it did not converge (and why); with the diffuse
     term off, the split is held and reported without an error bar."""
@@ -236,6 +235,7 @@ def test_failed_fit_is_reported_and_skipped_effects_held(env):
     assert any(d.effect == "diffuse" and not d.simulated for d in res.effects)
 
 
+@pytest.mark.slow
 def test_cli_fit(env, small_courtyard, tmp_path, capsys):
     from bubblefit.cli import main
     from bubblefit.io.images import read_image, write_image
@@ -282,6 +282,7 @@ def test_cli_fit(env, small_courtyard, tmp_path, capsys):
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_wrong_map_is_not_ok(env, small_courtyard):
     """The right photo fitted with another environment (the map turned by 90 degrees):
     the fit may converge, but it is not ok, and a warning says the model does not explain
@@ -373,6 +374,7 @@ def test_cli_thickness_range_must_be_finite(tmp_path, capsys):
     assert code == 2 and len(err) == 1 and "thickness-range" in err[0]
 
 
+@pytest.mark.slow
 def test_padded_level_renders_the_level_and_serves_every_framing(env):
     """A level's padded program (canonical camera, disc passed as data) renders the
     level's own image, with and without a disc refinement, and a photo framed otherwise
@@ -455,7 +457,10 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
     _, resid = _programs.solver(px.padded.cfg, table, 3.0, 20, 1e-5, 1e-6)
     z = table.unconstrained(start)
     fixed = {"n_film": jnp.float32(1.33), "rotation_deg": jnp.float32(0.0)}
-    args = (fixed, env, px.padded.bg, px.y, px.w, px.padded.base, (px.rows, px.cols, px.idx))
+    # with the background photo's noise (0.01, a 8-bit photo's order) widening the weights
+    # through the model's transmission: its Jacobian too is jax.jacfwd's
+    bg_sigma = 0.01 * jnp.ones_like(px.padded.bg)
+    args = (fixed, env, px.padded.bg, bg_sigma, px.y, px.w, px.padded.base, (px.rows, px.cols, px.idx))
     want = np.asarray(jax.jacfwd(resid)(z, args))
     assert table.jacobian_groups == ((0, 1, 3), (2,), (4,), (5, 6, 7))  # weights, light, film, disc
     got = np.asarray(jax.jit(lambda z, a: _lm.column_jacobian(resid, table.jacobian_groups, z, a))(z, args))

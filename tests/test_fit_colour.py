@@ -51,6 +51,7 @@ def _camera_scene(**bubble):
     })
 
 
+@pytest.mark.slow
 def test_fit_uses_the_scenes_camera_light_and_dispersion(env):
     """Matched: thickness within 5 nm. The same photo fitted as D65/sRGB with a constant index
     (the law's value at 589.3 nm) lands further away, with a worse chi^2."""

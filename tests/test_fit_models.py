@@ -27,6 +27,7 @@ def physical_photo(small_courtyard):
     return env, photo, _quantise(bg, rng)
 
 
+@pytest.mark.slow
 def test_physical_model_fit(physical_photo):
     from bubblefit.inverse.fit import fit_photo
 
@@ -45,6 +46,7 @@ def test_physical_model_fit(physical_photo):
     assert roles["t"] == roles["r_s"] == "unused" and roles["r_d"] == roles["thickness_nm"] == "fitted"
 
 
+@pytest.mark.slow
 def test_auto_keeps_the_model_that_explains_the_photo(physical_photo):
     from bubblefit.inverse.fit import fit_photo
 
@@ -82,6 +84,7 @@ def off_grid_photo(small_courtyard):
     return env, _quantise(render_scene(scene, bg, env=env), rng), _quantise(bg, rng)
 
 
+@pytest.mark.slow
 def test_disc_is_refined(off_grid_photo):
     """A disc 0.25-0.3 px off (1.5% of its radius, as a detector leaves it) is refined
     to the true one. The refinement is local: at this size a disc 3% off settled in
@@ -105,6 +108,7 @@ def test_disc_is_refined(off_grid_photo):
     assert abs(res.params["thickness_nm"] - 480.0) < 5.0
 
 
+@pytest.mark.slow
 def test_given_disc_is_held(off_grid_photo):
     from bubblefit.inverse.fit import fit_photo
 

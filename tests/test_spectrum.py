@@ -167,14 +167,47 @@ def test_non_finite_rows_are_skipped_and_counted(tmp_path):
 @pytest.mark.parametrize("text,match", [
     ("", "need at least"),
     ("400,1\n401,2\nfoo\n402,3\n" + "\n".join(f"{403 + i},1" for i in range(20)), "line 3"),
-    ("\n".join(f"{0.4 + i * 0.001},1" for i in range(30)), "not in nm"),
+    ("\n".join(f"{40 + i * 0.1},{i % 3}" for i in range(30)), "in no unit's range"),
     ("\n".join(f"{400 + i},nan" for i in range(30)), "0 of its 30 rows are finite"),
+    ("\n".join(f"{400 + i},0" for i in range(30)), "every intensity is 0"),
+    ("\n".join(f"{400 + i},{1e302 * (1 + i % 2)}" for i in range(30)), "beyond any detector's range"),
+    ("\n".join(f"{400 + i * 1e-3:.4f},{i % 5}" for i in range(20001)), "more than 20000 rows"),
 ])
 def test_bad_spectrum_files(tmp_path, text, match):
+    """Each refusal is one line naming the file (the CLI prints it and exits 2)."""
     p = tmp_path / "bad.txt"
     p.write_text(text)
     with pytest.raises(InputError, match=match):
         read_spectrum(p)
+
+
+@pytest.mark.parametrize("text,match", [
+    ("\n".join(f"{400 + i},0" for i in range(30)), "every intensity is 0"),
+    ("\n".join(f"{400 + i},{1e302 * (1 + i % 2)}" for i in range(30)), "beyond any detector's range"),
+    ("\n".join(f"{400 + i * 1e-3:.4f},{i % 5}" for i in range(20001)), "more than 20000 rows"),
+    ("\n".join(f"{40 + i * 0.1},{i % 3}" for i in range(30)), "--wavelength-unit"),
+])
+def test_cli_bad_readings_one_line_exit_2(tmp_path, capsys, text, match):
+    """What made the command crash or run for minutes before: one line, exit 2, no output."""
+    (tmp_path / "bad.csv").write_text(text)
+    assert main(["fit-spectrum", str(tmp_path / "bad.csv"), "--json", str(tmp_path / "o.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and match in err[0] and "bad.csv" in err[0]
+    assert not (tmp_path / "o.json").exists()
+
+
+@pytest.mark.parametrize("factor,unit", [(1.0, "nm"), (10.0, "Angstrom"), (1e-3, "um"), (1e-9, "m")])
+def test_wavelength_unit_is_read_from_the_range(tmp_path, factor, unit):
+    """400-800 nm written in another unit is read back in nm and the unit is said."""
+    lam = np.linspace(400.0, 800.0, 200)
+    y = 1.0 + 0.1 * np.sin(lam / 7.0)
+    p = tmp_path / "u.txt"
+    np.savetxt(p, np.column_stack([lam * factor, y]), delimiter=",", fmt="%.12g")
+    s = read_spectrum(p)
+    assert s.unit == unit
+    np.testing.assert_allclose(s.wavelength_nm, lam, rtol=1e-9)
+    forced = read_spectrum(p, unit=unit)
+    np.testing.assert_allclose(forced.wavelength_nm, lam, rtol=1e-9)
 
 
 # --- command line ----------------------------------------------------------------------------

@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from bubblefit.cli import main
-from bubblefit.inverse.spectrum import SpectrumOptions, fit_spectrum_series
+from bubblefit.inverse.spectrum import SpectrumOptions
+from bubblefit.inverse.spectrum_series import fit_spectrum_series
 from bubblefit.io.spectra import Spectrum
 from test_spectrum import _write, airy, lamp, soap_index
 

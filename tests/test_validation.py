@@ -63,12 +63,14 @@ def out_dir(tmp_path_factory):
     return str(tmp_path_factory.mktemp("validation"))
 
 
+@pytest.mark.slow
 def test_constant_film_case(out_dir):
     row = validate.run_fit("ref_const300_courtyard_ortho", "constant", out_dir)
     assert not row["refused"], row.get("message")
     assert abs(row["d_err_nm"]) <= 5.0, row
 
 
+@pytest.mark.slow
 def test_draining_film_from_blender_cycles(out_dir):
     """A film draining from 150 nm at the top to 900 nm at the bottom, path traced by
     Blender Cycles in a perspective view of a map with the sun in it: the drainage ends
@@ -84,12 +86,14 @@ def test_draining_film_from_blender_cycles(out_dir):
     assert row["ok"] is False and "the misfit is local" in row["warnings"], row
 
 
+@pytest.mark.slow
 def test_calibration_pair(out_dir):
     row = validate.run_calibration("cal_box_256x192", out_dir)
     assert not row["refused"], row.get("message")
     assert row["t_in_ci"] or abs(row["t_err"]) <= 0.002, row
 
 
+@pytest.mark.slow
 def test_cycles_colour_agreement_constant_film():
     """The done-when of "Real films, real cameras": under illuminant E with 4x4 samples per
     pixel bubblefit's physical render of the Cycles 500 nm bubble agrees with Cycles' photo

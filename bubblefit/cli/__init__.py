@@ -26,6 +26,7 @@ COMMANDS = (
     "envmap",
     "check_capture",
     "calibrate",
+    "calibrate_camera",
     "fit",
     "fit_sequence",
     "fit_spectrum",

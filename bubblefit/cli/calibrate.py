@@ -60,8 +60,10 @@ def register(subparsers) -> None:
     p.add_argument("--bootstrap", type=int, default=2000, metavar="N", help="bootstrap resamples [2000]")
     p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap [0]")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
+    from .photo_args import add_photo_options
     from .view_options import add_view_options
 
+    add_photo_options(p)
     add_view_options(p)
     p.set_defaults(func=run)
 
@@ -70,9 +72,12 @@ def run(args) -> int:
     from ..capture.calibrate import calibrate
     from ..capture.result import write_debug_image
     from ..progress import stage
+    from ..io.camera_files import read_photo, reading_record
     from .common import guard_args, write_json
-    from .view_options import after_view, check_view_args
+    from .view_options import check_view_args, view_from_args
+    from .photo_args import photo_reading
 
+    reading = photo_reading(args)
     guard_args(args)
     check_view_args(args)
     circle = _circle(args.circle) if args.circle else None
@@ -82,8 +87,10 @@ def run(args) -> int:
         raise InputError(f"--bootstrap needs at least 100 resamples, got {args.bootstrap}")
     try:
         with stage("calibrating t (registration, circle, ratio, bootstrap)"):
+            before = read_photo(args.before, reading, what="photo")
+            after = read_photo(args.after, reading, what="photo")
             result = calibrate(
-                args.before, args.after, circle,
+                before, after, circle,
                 inner_fraction=args.inner_fraction,
                 exposure_correction=not args.no_exposure_correction,
                 n_boot=args.bootstrap, seed=args.seed,
@@ -95,7 +102,9 @@ def run(args) -> int:
             raise type(exc)(lines[0]) from None
         raise
     if args.json:
-        write_json(args.json, dict(result.to_json(), camera=after_view(args).to_json()))
+        h, w = after.pixels.shape[:2]
+        view = view_from_args(args, after.metadata, w, h)  # recorded: t comes from the inner disc, any view
+        write_json(args.json, {**result.to_json(), "photo_reading": reading_record(after), "camera": view.to_json()})
     if args.debug_image:
         write_debug_image(args.debug_image, result)
     if not args.quiet:

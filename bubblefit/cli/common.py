@@ -263,3 +263,30 @@ def colour_option(value: str | None, named, option: str) -> str | None:
 
         raise InputError(f"{option} {value!r} is neither a known name nor a file")
     return os.path.abspath(value)
+
+
+def write_fit_images(prefix: str, result, write_image, preview_path) -> dict:
+    """A fit's images: ``PREFIX_render``, ``_residual``, ``_thickness``, ``_thickness_stderr`` (EXR + PNG; the
+    residual's and the maps' PNGs are the figures of :mod:`bubblefit.report.figures`)."""
+    import numpy as np
+
+    from ..report import figures
+
+    files = {"render": result.render, "residual": result.residual}
+    if result.thickness_map is not None:
+        files["thickness"] = result.thickness_map
+    if result.thickness_stderr_map is not None:
+        files["thickness_stderr"] = result.thickness_stderr_map
+    for name, img in files.items():
+        path = f"{prefix}_{name}.exr"
+        write_image(path, img, bit_depth=32 if name.startswith("thickness") else None)
+        if name == "render":
+            hi_ = float(np.percentile(img, 99.5)) if img.size else 1.0
+            write_image(preview_path(path), img * (0.9 / hi_ if hi_ > 0.9 else 1.0))
+        elif name == "residual":  # titled, with a colour bar in the photo's linear units
+            figures.residual_figure(preview_path(path), img, result.residual_rms)
+        else:  # titled, with a colour bar in nm
+            title = "film thickness" if name == "thickness" else "standard error of the thickness"
+            figures.map_figure(preview_path(path), img, title, "viridis" if name == "thickness" else "magma",
+                               "thickness (nm)" if name == "thickness" else "standard error (nm)")
+    return {k: f"{prefix}_{k}.exr" for k in files}

@@ -59,6 +59,9 @@ def register(subparsers) -> None:
     p.add_argument("--mask", metavar="MASK.png", type=output_file, help="also write the valid-texel mask (white = sampled by the ball)")
     p.add_argument("--hdr", metavar="MERGED.exr", type=output_file, help="also write the merged HDR photograph")
     p.add_argument("--json", metavar="PATH", type=output_file, help="write a JSON summary (ball, exposure times, masks)")
+    from .photo_args import add_photo_options
+
+    add_photo_options(p)
     p.set_defaults(func=run)
 
 
@@ -143,12 +146,20 @@ def run(args) -> int:
     import sys
 
     from ..capture import ball, hdr, probe
-    from ..io.images import preview_path, read_image, write_image, write_preview
+    from ..io.images import preview_path, write_image, write_preview
     from ..progress import stage
     from .common import write_json
 
     out = _check_options(args)
-    images = [read_image(p, linear=True if args.response == "linear" else None) for p in args.probes]
+    from dataclasses import replace
+
+    from ..io.camera_files import read_photo, reading_record
+    from .photo_args import photo_reading
+
+    reading = photo_reading(args)
+    if args.response == "linear":
+        reading = replace(reading, encoding="linear", force=True)
+    images = [read_photo(p, reading, what="probe") for p in args.probes]
     shapes = {im.shape for im in images}
     if len(shapes) > 1:
         raise InputError("the probes differ in size: " + ", ".join(f"{im.path} {im.shape[1]}x{im.shape[0]}" for im in images))
@@ -182,6 +193,7 @@ def run(args) -> int:
         "bracket_stops": hdr.exposure_stops(times),
         "merge": args.merge,
         "response": args.response,
+        "photo_reading": [reading_record(im) for im in images],
         "ball": circle.as_dict(),
         "ball_source": "given" if args.ball else "detected",
         "clipped_pixels_in_ball": clipped_in_ball,

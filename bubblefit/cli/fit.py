@@ -33,8 +33,12 @@ def register(sub):
                     "thickness (one value, a drainage profile or a per-pixel map) from a linear photo of a "
                     "bubble and its environment map, with standard errors.")
     p.add_argument("photo", metavar="PHOTO", type=input_file, help="photo of the bubble (EXR/HDR linear; PNG/JPEG/TIFF sRGB)")
-    p.add_argument("--envmap", required=True, type=input_file, help="environment map (equirectangular, linear EXR/HDR), aligned "
-                                                   "with the camera (it looks along -z of the map's frame)")
+    p.add_argument("--envmap", type=input_file, help="environment map (equirectangular, linear EXR/HDR), aligned "
+                                    "with the camera (it looks along -z of the map's frame); required for a bubble, "
+                                    "not for a flat film ([film] shape = \"plane\" in the scene)")
+    p.add_argument("--reference-region", metavar="X0,Y0,X1,Y1=NM",
+                   help="flat films: a region (pixels, half-open) of known thickness NM that fixes the "
+                        "interference order of the map")
     p.add_argument("--background", metavar="BEFORE", type=input_file, help="photo of the same view without the bubble")
     cal = p.add_mutually_exclusive_group()
     cal.add_argument("--calibration", metavar="CAL.json", type=input_file, help="output of `bubblefit calibrate` (starting t, disc)")
@@ -69,6 +73,9 @@ def register(sub):
     p.add_argument("--strict", action="store_true", help="exit with status 1 when the fit did not converge")
     add_model_options(p)
     add_view_options(p)
+    from .photo_args import add_photo_options
+
+    add_photo_options(p)
     p.set_defaults(func=run)
 
 
@@ -250,23 +257,35 @@ def build_fit_options(args, scene, bits: int | None, view=None):
 def run(args) -> int:
     from ..inverse.fit import fit_photo
     from ..io.atomic import output_set
-    from ..io.images import preview_path, read_image, write_image
+    from ..io.camera_files import read_photo, reading_record
+    from ..io.images import preview_path, write_image
     from ..progress import stage
     from ..model.scene import load_scene
-    from .common import guard_args, scene_inputs, write_json
+    from .common import guard_args, scene_inputs, write_fit_images, write_json
+    from .photo_args import photo_reading
     from .view_options import check_view_args, view_from_args
 
+    if args.scene:
+        from ..model.planar_scene import is_planar_file
+
+        if is_planar_file(args.scene):
+            from .fit_planar import run_planar
+
+            return run_planar(args)
+    if not args.envmap:
+        raise InputError("fit: --envmap is required for a bubble (a flat film's scene says [film] shape = \"plane\")")
+    reading = photo_reading(args)
     scene = load_scene(args.scene) if args.scene else None
     guard_args(args, inputs=scene_inputs(scene) if scene is not None else [], outputs=output_paths(args))
     fit_option_values(args)  # bad values refused before any photo is read
     check_view_args(args)
     with stage("reading the photo and the environment map"):
-        photo = read_image(args.photo, dtype=np.float32)  # the fit's arithmetic is float32
+        photo = read_photo(args.photo, reading, dtype=np.float32)  # the fit's arithmetic is float32
         check_photo_size(photo, args.photo)
         env = load_envmap(args.envmap)
     background = None
     if args.background:
-        bimg = read_image(args.background, dtype=np.float32)
+        bimg = read_photo(args.background, reading, dtype=np.float32, what="background")
         if bimg.pixels.shape != photo.pixels.shape:
             raise InputError(f"the background {args.background} is {bimg.pixels.shape[1]}x{bimg.pixels.shape[0]}, "
                              f"the photo is {photo.pixels.shape[1]}x{photo.pixels.shape[0]}")
@@ -282,6 +301,7 @@ def run(args) -> int:
     out["inputs"] = {k: None if v is None else os.path.abspath(v) for k, v in
                      (("envmap", args.envmap), ("background", args.background), ("scene", args.scene),
                       ("calibration", args.calibration))}
+    out["photo_reading"] = reading_record(photo)
     if args.explain:
         print("effect               state     [setting] reason")
         for d in result.effects:
@@ -290,34 +310,9 @@ def run(args) -> int:
     with output_set():  # the maps and the JSON replace the earlier ones together, or none does
         if args.output:
             with stage("writing the maps"):
-                out["outputs"] = _write_outputs(args.output, result, write_image, preview_path)
+                out["outputs"] = write_fit_images(args.output, result, write_image, preview_path)
         if args.json:
             write_json(args.json, out)
     if args.strict and not result.ok:
         raise ComputationError("the fit is not ok: " + ("; ".join(result.warnings) or result.message))
     return 0
-
-
-def _write_outputs(prefix: str, result, write_image, preview_path) -> dict:
-    """``PREFIX_render``, ``_residual``, ``_thickness``, ``_thickness_stderr`` (EXR + PNG; the
-    residual's and the maps' PNGs are the figures of :mod:`bubblefit.report.figures`)."""
-    from ..report import figures
-
-    files = {"render": result.render, "residual": result.residual}
-    if result.thickness_map is not None:
-        files["thickness"] = result.thickness_map
-    if result.thickness_stderr_map is not None:
-        files["thickness_stderr"] = result.thickness_stderr_map
-    for name, img in files.items():
-        path = f"{prefix}_{name}.exr"
-        write_image(path, img, bit_depth=32 if name.startswith("thickness") else None)
-        if name == "render":
-            hi_ = float(np.percentile(img, 99.5)) if img.size else 1.0
-            write_image(preview_path(path), img * (0.9 / hi_ if hi_ > 0.9 else 1.0))
-        elif name == "residual":  # titled, with a colour bar in the photo's linear units
-            figures.residual_figure(preview_path(path), img, result.residual_rms)
-        else:  # titled, with a colour bar in nm
-            title = "film thickness" if name == "thickness" else "standard error of the thickness"
-            figures.map_figure(preview_path(path), img, title, "viridis" if name == "thickness" else "magma",
-                               "thickness (nm)" if name == "thickness" else "standard error (nm)")
-    return {k: f"{prefix}_{k}.exr" for k in files}

@@ -77,6 +77,9 @@ def register(sub):
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_model_options(p)
     add_view_options(p)
+    from .photo_args import add_photo_options
+
+    add_photo_options(p)
     p.set_defaults(func=run)
 
 
@@ -95,7 +98,6 @@ def frame_bits(frames) -> int | None:
 
 def run(args) -> int:
     from ..inverse.sequence import SequenceOptions, discover_frames, fit_sequence, row_ok
-    from ..io.images import read_image
     from ..model.scene import load_scene
     from ..progress import stage, status
     from .common import guard_args, scene_inputs, write_json
@@ -106,17 +108,26 @@ def run(args) -> int:
         raise InputError("--batch must be at least 1")
     if args.workers is not None and args.workers < 0:
         raise InputError("--workers must be 0 or more")
+    from dataclasses import replace
+
+    from ..io.camera_files import read_photo
+    from .photo_args import photo_reading
+
+    reading = photo_reading(args)
     frames = discover_frames(args.frames, fps=args.fps)
+    if not reading.plain:
+        frames = [replace(f, reading=reading) for f in frames]
     scene = load_scene(args.scene) if args.scene else None
     out = Path(args.output)
-    guard_args(args, inputs=[f.source for f in frames] + (scene_inputs(scene) if scene is not None else []),
+    guard_args(args, inputs=[f.source for f in frames]
+               + (scene_inputs(scene) if scene is not None else []),
                outputs=[out / "params.csv", out / "params.jsonl", out / "thickness.png", out / "run.json"]
                if out.is_dir() else [])
     check_view_args(args)
     options = build_fit_options(args, scene, frame_bits(frames), sequence_view(args, frames))
     with stage("reading the environment map"):
         env = load_envmap(args.envmap)
-        background = read_image(args.background).pixels if args.background else None
+        background = read_photo(args.background, reading, what="background").pixels if args.background else None
     where = ("this process" if args.workers == 0 else
              f"Dask scheduler {args.scheduler}" if args.scheduler else
              f"a local Dask cluster of {args.workers or os.cpu_count()} workers")

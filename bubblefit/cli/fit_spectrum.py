@@ -8,6 +8,11 @@ spectra, the residual and the profile likelihood over thickness. With ``--shared
 the files are one series under one lamp (:func:`bubblefit.inverse.spectrum.fit_spectrum_series`):
 the readings that can be read alone fit the lamp, and the others (films too thin for
 fringes) are read with it; ``-o`` then also plots the series' thicknesses in file order.
+
+A spectral image (a cube: ENVI ``.hdr``, ``.npy``/``.npz``, HDF5, Zarr; or a line scan, a
+2-D array) gives a thickness map (:func:`bubblefit.inverse.spectral_map.fit_cube`):
+``-o PREFIX`` writes ``PREFIX_thickness.exr``/``.png`` and ``PREFIX_thickness_stderr.exr``/``.png``
+(a line scan: ``PREFIX_profile.csv``/``.png``), ``--json`` the summary.
 """
 
 from __future__ import annotations
@@ -20,7 +25,7 @@ from ..errors import InputError
 
 _CSV_COLUMNS = ("file", "thickness_nm", "thickness_nm_stderr", "ok", "order", "fringes", "reduced_chi2",
                 "residual_rms", "resolution_nm", "n_film", "second_minimum_nm", "delta_chi2",
-                "stderr_statistical_nm", "stderr_lamp_nm", "reasons", "warnings")
+                "stderr_statistical_nm", "stderr_lamp_nm", "normalised", "reasons", "warnings")
 
 
 def register(sub):
@@ -43,13 +48,19 @@ def register(sub):
     p.add_argument("--thickness-range", default="0,15000", metavar="MIN,MAX",
                    help="thicknesses searched, nm (default 0,15000)")
     p.add_argument("--wavelength-range", metavar="MIN,MAX", help="wavelengths used, nm (default: the whole reading)")
+    p.add_argument("--wavelength-unit", choices=("nm", "Angstrom", "um", "m"), default=None,
+                   help="unit of the files' wavelengths (default: read from their range: nm 100-2500, Angstrom "
+                        "1000-25000, um 0.1-2.5, m 1e-7-2.5e-6)")
     p.add_argument("--lamp-terms", type=int, default=None,
                    help="smooth lamp terms (Legendre in wavenumber, kept non-negative); default 5, 1 with "
                         "--reference, 3 with --normalised")
-    p.add_argument("--normalised", action="store_true",
-                   help="the readings were already divided by the lamp (a flat envelope up to a tilt): the lamp "
-                        "left is a scale, tilt and curvature (3 terms) and the stray light gets a tilt, so that "
-                        "neither can imitate a fringe")
+    g2 = p.add_mutually_exclusive_group()
+    g2.add_argument("--normalised", dest="normalised", action="store_const", const=True, default=None,
+                    help="the readings were already divided by the lamp (a flat envelope up to a tilt): the lamp "
+                         "left is a scale, tilt and curvature (3 terms) and the stray light gets a tilt, so that "
+                         "neither can imitate a fringe (default: decided from the readings' envelopes, and said)")
+    g2.add_argument("--not-normalised", dest="normalised", action="store_const", const=False,
+                    help="the readings are raw (not divided by the lamp), whatever their envelopes look like")
     p.add_argument("--background-terms", type=int, default=None, metavar="K",
                    help="smooth stray-light terms added beyond the offset (Legendre in wavenumber, or the "
                         "reference times a series with --reference); default 0, or 1 with --normalised")
@@ -58,13 +69,30 @@ def register(sub):
                         "or frame in the beam, a spot spanning many orders: fringe minima lifted in proportion to "
                         "the lamp); more freedom, so thin films without a reference become more ambiguous")
     p.add_argument("--no-offset", action="store_true", help="do not fit a constant stray-light offset")
-    p.add_argument("--shared-lamp", action="store_true",
-                   help="the files are one series under the same lamp (a draining film): the readings that can be "
-                        "read alone fit the lamp, and the others (films under a fringe, down to the black film) "
-                        "are read with it, from their brightness; needs at least 3 readings that are ok alone")
+    g3 = p.add_mutually_exclusive_group()
+    g3.add_argument("--shared-lamp", "--series", dest="series", action="store_const", const=True, default=None,
+                    help="the files are one series under the same lamp (a draining film): the readings that can be "
+                         "read alone fit the lamp, and the others (films under a fringe, down to the black film) "
+                         "are read with it, from their brightness; needs at least 3 readings that are ok alone "
+                         "(default: on for 5 or more files on the same wavelengths)")
+    g3.add_argument("--no-series", dest="series", action="store_const", const=False,
+                    help="read every file alone, even when they look like one series")
+    p.add_argument("--unordered", action="store_true",
+                   help="the series' files are not in time order (default: in order when their names, or else "
+                        "their modification times, are; a reading that jumps to its neighbours' twin is then "
+                        "not ok)")
+    p.add_argument("--wavelengths", metavar="FILE", type=input_file,
+                   help="a .npy cube's wavelengths, one a line (other cube formats carry their own)")
+    p.add_argument("--band-fwhm", type=float, default=0.0, metavar="NM",
+                   help="a cube's bands' width (FWHM, nm): fringes finer than a band are washed out (default 0)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="a Dask scheduler (tcp://host:port) whose workers fit a cube's blocks (they must read the "
+                        "cube at the same path)")
     p.add_argument("--csv", type=output_file, help="CSV, one row per file: " + ",".join(_CSV_COLUMNS[:4]) + ",...")
     p.add_argument("--json", type=output_file, help="JSON with one entry per file")
-    p.add_argument("-o", "--output", metavar="PLOT_PREFIX", type=output_prefix, help="write PLOT_PREFIX_<file>.png per file")
+    p.add_argument("-o", "--output", metavar="PLOT_PREFIX", type=output_prefix,
+                   help="write PLOT_PREFIX_<file>.png per file (a spectral image: PREFIX_thickness.exr/.png and "
+                        "PREFIX_thickness_stderr.exr/.png, or a line scan's PREFIX_profile.csv/.png)")
     p.add_argument("--strict", action="store_true", help="exit 1 when any file's result is not ok")
     p.set_defaults(func=run)
 
@@ -86,13 +114,15 @@ def _check_outputs(args) -> None:
     if args.output and len({Path(s).stem for s in args.spectra}) < len(args.spectra):
         raise InputError("two spectra have the same file name; their plots would collide (run them separately)")
     plots = [f"{args.output}_{Path(s).stem}.png" for s in args.spectra] if args.output else []
-    if args.output and args.shared_lamp:
+    if args.output and _is_series(args, None):
         plots.append(f"{args.output}_series.png")
     guard_args(args, outputs=plots)
 
 
 def run(args) -> int:
-    from ..inverse.spectrum import SpectrumOptions, fit_spectrum, fit_spectrum_series
+    from ..inverse.spectrum import SpectrumOptions, fit_spectrum
+    from ..inverse._spectrum_defaults import in_time_order
+    from ..inverse.spectrum_series import fit_spectrum_series
     from ..io.spectra import read_spectrum
     from ..optics import dispersion
     from ..progress import status
@@ -108,17 +138,39 @@ def run(args) -> int:
         raise InputError(f"--lamp-terms must be within 1..20, got {args.lamp_terms}")
     if args.background_terms is not None and not 0 <= args.background_terms <= 10:
         raise InputError(f"--background-terms must be within 0..10, got {args.background_terms}")
+    from ..io.cubes import is_cube_path
+
+    if any(is_cube_path(p) for p in args.spectra):
+        if len(args.spectra) > 1:
+            raise InputError("give one spectral image (cube or line scan) per run, without other spectra")
+        return _run_cube(args, opts)
     _check_outputs(args)
-    dark = read_spectrum(args.dark) if args.dark else None
-    reference = read_spectrum(args.reference) if args.reference else None
-    spectra = [read_spectrum(p) for p in args.spectra]  # every file is checked before any work
+    unit = args.wavelength_unit
+    dark = read_spectrum(args.dark, unit, dark=True) if args.dark else None
+    reference = read_spectrum(args.reference, unit) if args.reference else None
+    spectra = [read_spectrum(p, unit) for p in args.spectra]  # every file is checked before any work
     for spec in [s for s in (dark, reference) if s is not None] + spectra:
+        if spec.unit != "nm" and unit is None:
+            print(f"note: {spec.path}: wavelengths read as {spec.unit} (from their range), converted to nm")
         if spec.skipped:
             print(f"warning: {spec.path}: skipped {spec.skipped} rows that are not finite numbers", file=sys.stderr)
-    if args.shared_lamp:
+    series = _is_series(args, spectra)
+    if series:
+        ordered, order_why = (False, "--unordered") if args.unordered else in_time_order([s.path for s in spectra])
+        print(f"series: the {len(spectra)} files are read as one series under one lamp ("
+              + ("--series" if args.series else "same wavelengths; --no-series to read each alone") + "); "
+              + (f"in time order ({order_why})" if ordered else f"not in time order ({order_why})"))
+        from ..inverse._spectrum_defaults import same_grid
+
+        if not same_grid(spectra):
+            print("warning: the series' files have different wavelengths: the shared lamp is one smooth series over "
+                  "their common wavenumber range, each reading read at its own wavelengths", file=sys.stderr)
         results, lamp = fit_spectrum_series(spectra, dark=dark, reference=reference, options=opts,
                                             progress=lambda stage, k, n: status(
-                                                f"reading {spectra[k].path} ({stage}, {k + 1}/{n}) ..."))
+                                                f"reading {spectra[k].path} ({stage}, {k + 1}/{n}) ..."),
+                                            time_ordered=ordered)
+        if results and results[0].normalised_why:
+            print(f"series: {results[0].normalised_why}")
         if lamp is not None:
             print(f"shared lamp: fitted to {len(lamp.pinning)} of {len(spectra)} readings; their brightness "
                   f"spreads by {lamp.scale_spread:.1%}")
@@ -138,9 +190,11 @@ def run(args) -> int:
         sd = res.thickness_nm_stderr
         print(f"{spec.path}: {res.thickness_nm:.1f} +- {sd:.2g} nm, order {res.order}, "
               + ("ok" if res.ok else "NOT ok: " + "; ".join(res.reasons)))
+        if not series and res.normalised_why and args.normalised is None:
+            print(f"  {res.normalised_why}")
         for w in res.warnings:
             print(f"  warning: {w}")
-    if args.output and args.shared_lamp:
+    if args.output and series:
         _plot_series(rows, Path(f"{args.output}_series.png"))
     if args.csv:
         _write_csv(args.csv, rows)
@@ -152,6 +206,108 @@ def run(args) -> int:
         write_json(args.json, {"n_film": dispersion.describe(index), "dark": args.dark, "reference": args.reference,
                                "shared_lamp": shared, "ok": all(r["ok"] for r in rows), "spectra": rows})
     return 1 if args.strict and not all(r["ok"] for r in rows) else 0
+
+
+def _cube_outputs(args, line: bool) -> list[str]:
+    if not args.output:
+        return []
+    if line:
+        return [f"{args.output}_profile.csv", f"{args.output}_profile.png"]
+    return [f"{args.output}_{name}.{ext}" for name in ("thickness", "thickness_stderr") for ext in ("exr", "png")]
+
+
+def _run_cube(args, opts) -> int:
+    """A spectral image: its thickness map (see the module's description)."""
+    import numpy as np
+
+    from ..inverse.spectral_map import MapOptions, fit_cube
+    from ..io.cubes import read_cube
+    from ..io.spectra import read_spectrum
+    from ..optics import dispersion
+    from ..progress import status
+    from .common import guard_args, write_json
+
+    if args.series or args.normalised or args.incoherent:
+        raise InputError("--shared-lamp, --normalised and --incoherent are for single readings; a cube's lamp is "
+                         "shared by its pixels already")
+    if not (args.output or args.json):
+        raise InputError("a spectral image needs -o PREFIX (the maps) or --json")
+    cube = read_cube(args.spectra[0], wavelengths=args.wavelengths, unit=args.wavelength_unit)
+    outputs = _cube_outputs(args, cube.is_line)
+    guard_args(args, outputs=outputs)
+    if not np.isfinite(args.band_fwhm) or not 0 <= args.band_fwhm <= 50:
+        raise InputError(f"--band-fwhm must be within 0..50 nm, got {args.band_fwhm:g}")
+    dark = read_spectrum(args.dark, args.wavelength_unit, dark=True) if args.dark else None
+    reference = read_spectrum(args.reference, args.wavelength_unit) if args.reference else None
+    mopts = MapOptions(n_film=opts.n_film, thickness_range=opts.thickness_range,
+                       wavelength_range=opts.wavelength_range, resolution_nm=args.band_fwhm,
+                       lamp_terms=args.lamp_terms or MapOptions.lamp_terms)
+    h, w = cube.shape
+    if cube.unit != "nm" and args.wavelength_unit is None:
+        print(f"note: {cube.path}: wavelengths read as {cube.unit} (from their range), converted to nm")
+    tmap = fit_cube(cube, options=mopts, dark=dark, reference=reference, scheduler=args.scheduler,
+                    progress=lambda stage, k, n: status(f"{cube.path}: {stage} block {k + 1}/{n} ..."))
+    summ = tmap.summary()
+    kind = "line scan" if cube.is_line else "cube"
+    print(f"{cube.path}: {kind} {h}x{w}x{len(cube.wavelength_nm)}, median thickness {summ['median_thickness_nm']:.1f} nm, "
+          f"median stderr {summ['median_stderr_nm']:.2g} nm, {summ['fraction_ok']:.1%} of pixels ok")
+    for note in tmap.notes:
+        print(f"  {note}")
+    if args.output:
+        _write_cube_outputs(args.output, tmap, cube.is_line)
+    if args.json:
+        write_json(args.json, {"cube": cube.path, "kind": kind, "n_film": dispersion.describe(opts.n_film),
+                               "dark": args.dark, "reference": args.reference, "outputs": outputs, **summ})
+    return 1 if args.strict and summ["fraction_ok"] < 1.0 else 0
+
+
+def _write_cube_outputs(prefix: str, tmap, line: bool) -> None:
+    """The map and its standard error as EXR (32-bit float, nm) and PNG with a colour bar in
+    nm; a line scan's profile as CSV and a plot."""
+    import numpy as np
+
+    from ..io.atomic import write_text
+    from ..io.images import write_image
+    from ..report.figures import map_figure
+
+    t = np.where(tmap.ok, tmap.thickness_nm, np.nan)
+    if line:
+        rows = ["row,thickness_nm,thickness_nm_stderr,ok"]
+        rows += [f"{i},{d:.6g},{e:.6g},{'true' if k else 'false'}" for i, (d, e, k) in
+                 enumerate(zip(tmap.thickness_nm[:, 0], tmap.stderr_nm[:, 0], tmap.ok[:, 0]))]
+        write_text(f"{prefix}_profile.csv", "\n".join(rows) + "\n")
+        _plot_profile(tmap, f"{prefix}_profile.png")
+        return
+    write_image(f"{prefix}_thickness.exr", tmap.thickness_nm, bit_depth=32)
+    write_image(f"{prefix}_thickness_stderr.exr", np.where(np.isfinite(tmap.stderr_nm), tmap.stderr_nm, np.nan),
+                bit_depth=32)
+    map_figure(Path(f"{prefix}_thickness.png"), t, "film thickness", "viridis", "thickness (nm)")
+    map_figure(Path(f"{prefix}_thickness_stderr.png"), np.where(tmap.ok, tmap.stderr_nm, np.nan),
+               "its standard error", "magma", "standard error (nm)")
+
+
+def _plot_profile(tmap, path: str) -> None:
+    """A line scan's thickness along the slit, with its error bars; not-ok rows marked."""
+    _plot_along(tmap.thickness_nm[:, 0], tmap.stderr_nm[:, 0], tmap.ok[:, 0], "row along the slit", path)
+
+
+#: Fewest files read as one series without --series: enough for the shared lamp's
+#: pinning readings (3) and some to read with it.
+SERIES_MIN_FILES = 5
+
+
+def _is_series(args, spectra) -> bool:
+    """Whether the files are read as one series: as forced, else 5 or more files on the
+    same wavelengths (before they are read: whether it may be, for the outputs' names)."""
+    if args.series is not None:
+        return args.series
+    if len(args.spectra) < SERIES_MIN_FILES:
+        return False
+    if spectra is None:
+        return True
+    from ..inverse._spectrum_defaults import same_grid
+
+    return same_grid(spectra)
 
 
 def _write_csv(path, rows) -> None:
@@ -210,6 +366,15 @@ def _plot(res, path: Path, name: str) -> None:
 
 def _plot_series(rows, path: Path) -> None:
     """The series' thicknesses in file order with their error bars, ok and not ok apart."""
+    import numpy as np
+
+    _plot_along(np.array([r["thickness_nm"] for r in rows]), np.array([r["thickness_nm_stderr"] for r in rows]),
+                np.array([bool(r["ok"]) for r in rows]), "reading (file order)", path)
+
+
+def _plot_along(d, e, ok, xlabel: str, path) -> None:
+    """Thicknesses (nm) in order with their error bars (infinite ones drawn as none), ok
+    and not ok apart (matplotlib, written atomically)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -218,15 +383,12 @@ def _plot_series(rows, path: Path) -> None:
 
     from ..io.images import atomic_path
 
-    k = np.arange(len(rows))
-    d = np.array([r["thickness_nm"] for r in rows])
-    e = np.array([r["thickness_nm_stderr"] for r in rows])
-    ok = np.array([bool(r["ok"]) for r in rows])
+    k = np.arange(len(d))
     e = np.where(np.isfinite(e), e, 0.0)
     fig, ax = plt.subplots(figsize=(8, 4), dpi=110)
     ax.errorbar(k[ok], d[ok], e[ok], fmt="o", ms=3, lw=0.8, color="C0", label="ok")
     ax.errorbar(k[~ok], d[~ok], e[~ok], fmt="x", ms=4, lw=0.8, color="C3", label="not ok")
-    ax.set_xlabel("reading (file order)")
+    ax.set_xlabel(xlabel)
     ax.set_ylabel("thickness (nm)")
     ax.legend(fontsize=8)
     fig.tight_layout()

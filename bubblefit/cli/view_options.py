@@ -30,7 +30,7 @@ def check_view_args(args) -> None:
     view_from_args(args, None, 100, 100)
 
 
-__all__ = ["add_view_options", "view_from_args", "check_view_args", "sequence_view", "after_view"]
+__all__ = ["add_view_options", "view_from_args", "check_view_args", "sequence_view"]
 
 
 def sequence_view(args, frames):
@@ -47,12 +47,3 @@ def sequence_view(args, frames):
         meta, (h, w) = None, load_frame(first).shape[:2]
     return view_from_args(args, meta, w, h)
 
-
-def after_view(args):
-    """``calibrate``'s view: the flags, else the AFTER photo's EXIF. Recorded in its JSON;
-    t comes from the inner disc, seen near normal incidence in any view."""
-    from ..io.images import read_image
-
-    img = read_image(args.after)
-    h, w = img.pixels.shape[:2]
-    return view_from_args(args, img.metadata, w, h)

@@ -31,7 +31,7 @@ _EXPORTS = {
     "ThicknessModel": "_options", "PARAMETERS": "_parameters", "Parameter": "_parameters",
     "ParameterTable": "_parameters", "fit_batch": "fit", "fit_photo": "fit", "SequenceOptions": "sequence",
     "SequenceResult": "sequence", "fit_sequence": "sequence", "SpectrumFit": "spectrum",
-    "SpectrumOptions": "spectrum", "fit_spectrum": "spectrum", "fit_spectrum_series": "spectrum",
+    "SpectrumOptions": "spectrum", "fit_spectrum": "spectrum", "fit_spectrum_series": "spectrum_series",
 }
 _SUBMODULES = ("fit", "search", "sequence", "spectrum")
 

@@ -76,6 +76,8 @@ class Level:
     inside: np.ndarray  # (h, w) pixels on the bubble
     cos: np.ndarray  # (h, w) incidence cosine on the film
     height: np.ndarray  # (h, w) front film point's height over the radius
+    #: (h, w, 3) the background photo's noise standard deviation, None without one
+    bg_sigma: np.ndarray | None = None
 
 
 def _block(a: np.ndarray, k: int, h: int, w: int, how="mean"):
@@ -106,6 +108,8 @@ class Frame:
     sigma: np.ndarray
     saturated: np.ndarray
     disc: tuple | None
+    #: the background photo's noise standard deviation (as ``sigma``), None without one
+    bg_sigma: np.ndarray | None = None
 
     @property
     def whole(self) -> bool:
@@ -131,7 +135,8 @@ def analysis_frame(photo, background, saturated, disc, opts: FitOptions) -> Fram
     H, W = photo.shape[:2]
     if disc is None or max(H, W) <= opts.analysis_size:
         sigma = noise_sigma(photo, opts.noise_read, opts.noise_shot, opts.bits)
-        return Frame(0, 0, 1, photo, background, sigma, saturated, disc)
+        bgs = None if background is None else noise_sigma(background, opts.noise_read, opts.noise_shot, opts.bits)
+        return Frame(0, 0, 1, photo, background, sigma, saturated, disc, bgs)
     cx, cy, r = disc
     half = 1.15 * r
     x0, x1 = max(0, int(math.floor(cx - half))), min(W, int(math.ceil(cx + half)))
@@ -143,6 +148,7 @@ def analysis_frame(photo, background, saturated, disc, opts: FitOptions) -> Fram
     y1, x1 = y0 + h * k, x0 + w * k
     # block-averaged band by band, so that no temporary is larger than a band of the crop
     small, sigma, bg = np.empty((h, w, 3)), np.empty((h, w, 3)), None if background is None else np.empty((h, w, 3))
+    bgs = None if background is None else np.empty((h, w, 3))
     rows = max(1, 2**20 // max(1, 3 * k * k * w))  # output rows per band (~1M values in flight)
     for i in range(0, h, rows):
         a, b = y0 + i * k, y0 + min(h, i + rows) * k
@@ -151,9 +157,12 @@ def analysis_frame(photo, background, saturated, disc, opts: FitOptions) -> Fram
         var = noise_sigma(band, opts.noise_read, opts.noise_shot, opts.bits) ** 2
         sigma[i:i + rows] = np.sqrt(block_mean(var, k) / (k * k))
         if bg is not None:
-            bg[i:i + rows] = block_mean(np.asarray(background[a:b, x0:x1], np.float64), k)
+            bband = np.asarray(background[a:b, x0:x1], np.float64)
+            bg[i:i + rows] = block_mean(bband, k)
+            bvar = noise_sigma(bband, opts.noise_read, opts.noise_shot, opts.bits) ** 2
+            bgs[i:i + rows] = np.sqrt(block_mean(bvar, k) / (k * k))
     sat = _block(saturated[y0:y1, x0:x1], k, h, w, how="any")
-    return Frame(x0, y0, k, small, bg, sigma, sat, ((cx - x0) / k, (cy - y0) / k, r / k))
+    return Frame(x0, y0, k, small, bg, sigma, sat, ((cx - x0) / k, (cy - y0) / k, r / k), bgs)
 
 
 def _camera_at(camera, k: int, h: int, w: int):
@@ -170,9 +179,10 @@ def film_geometry(cfg: RenderConfig):
     return np.asarray(inside).reshape(h, w), np.asarray(cos).reshape(h, w), np.asarray(local0)[:, 1].reshape(h, w)
 
 
-def make_level(k, base_cfg, photo, sigma, bg, saturated, rim: float) -> Level:
+def make_level(k, base_cfg, photo, sigma, bg, saturated, rim: float, bg_sigma=None) -> Level:
     """The :class:`Level` ``k`` times smaller than ``photo`` (block means; variances of the
-    mean; a block with a clipped pixel is dropped), fitting pixels with ``rho < rim``."""
+    mean; a block with a clipped pixel is dropped), fitting pixels with ``rho < rim``;
+    ``bg_sigma`` is the background photo's noise (as ``sigma``)."""
     H, W = photo.shape[:2]
     h, w = H // k, W // k
     cfg = replace(base_cfg, camera=_camera_at(base_cfg.camera, k, h, w))
@@ -184,7 +194,9 @@ def make_level(k, base_cfg, photo, sigma, bg, saturated, rim: float) -> Level:
     mask = inside & (cos > cos_min) & ~sat & np.all(np.isfinite(y), axis=-1)
     wts = np.where(mask[..., None], 1.0 / np.sqrt(var), 0.0)
     bgk = None if bg is None else _block(bg, k, h, w).astype(np.float32)
-    return Level(k, cfg, np.nan_to_num(y).astype(np.float32), wts.astype(np.float32), bgk, mask, inside, cos, height)
+    bgsk = None if bg is None or bg_sigma is None else np.sqrt(_block(bg_sigma**2, k, h, w) / (k * k)).astype(np.float32)
+    return Level(k, cfg, np.nan_to_num(y).astype(np.float32), wts.astype(np.float32), bgk, mask, inside, cos, height,
+                 bgsk)
 
 
 # ---------------------------------------------------------------------------------------
@@ -214,6 +226,8 @@ class Padded:
     w: jnp.ndarray
     bg: jnp.ndarray | None
     base: np.ndarray
+    #: the background photo's noise standard deviation, padded like ``bg`` (None without one)
+    bg_sigma: jnp.ndarray | None = None
 
 
 def padded(lev: Level) -> Padded:
@@ -223,12 +237,13 @@ def padded(lev: Level) -> Padded:
     depend on its size, is passed as it is (``base`` the identity)."""
     f32 = lambda a: None if a is None else jnp.asarray(a, jnp.float32)
     if not isinstance(lev.cfg.camera, OrthographicCamera):
-        return Padded(lev.cfg, f32(lev.y), f32(lev.w), f32(lev.bg), np.asarray([0.0, 0.0, 1.0], np.float32))
+        return Padded(lev.cfg, f32(lev.y), f32(lev.w), f32(lev.bg), np.asarray([0.0, 0.0, 1.0], np.float32),
+                      f32(lev.bg_sigma))
     h, w = lev.y.shape[:2]
     hb, wb = padded_size(h), padded_size(w)
     camera, base = canonical_frame(lev.cfg.camera, hb, wb)
     pad = lambda a: None if a is None else f32(np.pad(a, ((0, hb - h), (0, wb - w), (0, 0))))
-    return Padded(replace(lev.cfg, camera=camera), pad(lev.y), pad(lev.w), pad(lev.bg), base)
+    return Padded(replace(lev.cfg, camera=camera), pad(lev.y), pad(lev.w), pad(lev.bg), base, pad(lev.bg_sigma))
 
 
 def unpadded(lev: Level, a) -> np.ndarray:

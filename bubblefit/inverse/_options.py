@@ -372,6 +372,8 @@ class FitResult:
     frame: tuple | None = None
     colour: ColourSettings | None = None
     camera: dict | None = None
+    #: :meth:`bubblefit.inverse.colour_check.ColourCheck.to_json`, or None where not tested.
+    colour_check: dict | None = None
 
     def to_json(self) -> dict:
         """The command line's result (``docs/design.md``): params, stderr, converged,
@@ -414,6 +416,7 @@ class FitResult:
                                                       "block": int(self.frame[2])},
             "colour": None if self.colour is None else self.colour.to_json(),
             "camera": self.camera,
+            "colour_check": self.colour_check,
             "effects": [{"effect": d.effect, "simulated": d.simulated, "setting": d.setting, "reason": d.reason}
                         for d in self.effects],
         }

@@ -50,12 +50,16 @@ class FrameRef:
         the frame's time in seconds from the first frame.
     video_frame
         the frame's number in the video, or None for an image file.
+    reading
+        how an image file is decoded (:class:`bubblefit.io.camera_files.PhotoReading`;
+        None: as :func:`bubblefit.io.images.read_image` decides).
     """
 
     index: int
     source: str
     time_s: float
     video_frame: int | None = None
+    reading: object = None
 
     @property
     def label(self) -> str:
@@ -211,6 +215,10 @@ def load_frame(ref: FrameRef) -> np.ndarray:
         the file is missing, truncated or not an image.
     """
     if ref.video_frame is None:
+        if ref.reading is not None:
+            from ..io.camera_files import read_photo
+
+            return read_photo(ref.source, ref.reading, what="frame").pixels
         return read_image(ref.source).pixels
     bgr = _VIDEO.read(ref.source, ref.video_frame)
     if bgr.ndim == 2:

@@ -102,17 +102,28 @@ def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_st
     (``jacobian``: a key of :data:`JACOBIANS`; ``compile_options``: XLA's compiler options
     for the solve's program as ``(name, value)`` pairs, ``()`` for XLA's defaults).
 
-    ``args = (fixed, env, background, photo, weights, base, (rows, cols, idx))``: the
+    ``args = (fixed, env, background, background_sigma, photo, weights, base, (rows, cols, idx))``: the
     fitted pixels of a padded level (:func:`~bubblefit.inverse._observation.fitted_pixels`);
-    the residual is ``robust((render - photo) * weights)`` over them, flattened, rendered
+    the residual is ``robust((render - photo) * weights)`` over them (the weights widened by
+    the background photo's noise, ``background_sigma``, carried by ``dI/dL_b``; Deming,
+    J. Wiley 1943: the errors-in-variables weighting), flattened, rendered
     with the disc moved by ``base`` and then by the fitted refinement
     (:func:`~bubblefit.model.geometry.compose_shift`).
     """
 
     def resid(z, args):
-        fixed, env, bg, y, w, base, (rows, cols, idx) = args
-        p = table.render_params(table.values(z, fixed))
-        img = render_pixels(replace(p, disc=compose_shift(base, p.disc)), cfg, env, bg, rows, cols, idx)
+        fixed, env, bg, bg_sigma, y, w, base, (rows, cols, idx) = args
+        p = replace((q := table.render_params(table.values(z, fixed))), disc=compose_shift(base, q.disc))
+        if bg_sigma is None:
+            img = render_pixels(p, cfg, env, bg, rows, cols, idx)
+        else:
+            # The background photo is a measurement too (errors in variables): each pixel's
+            # variance is the photo's plus the background's noise carried by the model's
+            # own transmission dI/dL_b at the current parameters (Deming's weighting, the
+            # profile likelihood of the unknown true background), so that t is not pulled
+            # low by a noisy regressor and its error bar includes the background's share.
+            img, carried = jax.jvp(lambda b: render_pixels(p, cfg, env, b, rows, cols, idx), (bg,), (bg_sigma,))
+            w = w * jax.lax.rsqrt(1.0 + (w * carried) ** 2)
         return robust((img - y) * w, robust_scale).reshape(-1)
 
     lm = LevenbergMarquardt(rtol=rtol, atol=atol, max_rejections=max_rejections, free=table.free,
@@ -145,7 +156,7 @@ def batched_solver(*key):
     """:func:`solver`'s ``solve`` vmapped over frames: ``z0``, ``y`` and ``w`` carry a
     leading frame axis; the fixed values, the map, the background and the disc are shared."""
     solve, _ = solver(*key)
-    return jax.jit(jax.vmap(solve, in_axes=(0, (None, None, None, 0, 0, None, None))))
+    return jax.jit(jax.vmap(solve, in_axes=(0, (None, None, None, None, 0, 0, None, None))))
 
 
 @functools.lru_cache(maxsize=64)
@@ -175,7 +186,7 @@ def solve_program(lev: Level, table: ParameterTable, opts: FitOptions, vals: dic
     key = (pad.cfg, table, float(opts.robust_scale), int(max_steps or opts.max_steps), float(opts.rtol),
            float(opts.atol), MAX_REJECTIONS if settings.stall else None, settings.jacobian,
            tuple(settings.compile_options))
-    args = (held_values(table, vals), env, pad.bg, px.y, px.w, pad.base, (px.rows, px.cols, px.idx))
+    args = (held_values(table, vals), env, pad.bg, pad.bg_sigma, px.y, px.w, pad.base, (px.rows, px.cols, px.idx))
     return key, args, px
 
 

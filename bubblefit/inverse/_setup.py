@@ -189,7 +189,8 @@ class Setup:
         configuration and rim."""
         key = (k, cfg or self.base_cfg, float(opts.rim))
         if key not in self.levels:
-            self.levels[key] = make_level(k, key[1], self.photo, self.sigma, self.background, self.saturated, key[2])
+            self.levels[key] = make_level(k, key[1], self.photo, self.sigma, self.background, self.saturated, key[2],
+                                          self.frame.bg_sigma)
         return self.levels[key]
 
 
@@ -327,7 +328,8 @@ def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, d
     base_cfg = replace(map_cfg, effects=replace(fx, thickness=table.thickness_model))
     k_fit = opts.downsample or max(1, math.ceil(max(H, W) / opts.fit_size))
     k_search = max(k_fit, math.ceil(max(H, W) / opts.search_size))
-    lev_fit = make_level(k_fit, base_cfg, frame.photo, frame.sigma, frame.background, frame.saturated, opts.rim)
+    lev_fit = make_level(k_fit, base_cfg, frame.photo, frame.sigma, frame.background, frame.saturated, opts.rim,
+                         frame.bg_sigma)
     if lev_fit.mask.sum() < 10:
         raise InputError("fewer than 10 usable pixels on the bubble (disc too small, or saturated)")
     search_table = replace(table, free=tuple(n for n in table.free if n not in DISC_PARAMETERS))

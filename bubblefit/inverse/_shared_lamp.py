@@ -42,11 +42,10 @@ import numpy as np
 from numpy.polynomial import legendre
 from scipy import stats
 
-from ..io.spectra import Spectrum
 from ._spectrum_profile import (ProfileProblem, profile_variance, refine_d, refine_near, residual_correlation,
                                 second_difference_noise, second_minimum)
 
-__all__ = ["SharedLamp", "MIN_PINNING_READINGS", "fit_spectrum_series"]
+__all__ = ["SharedLamp", "FixedLampProblem", "MIN_PINNING_READINGS", "shared_lamp", "read_with_lamp"]
 
 #: The fewest readings that must be read alone (``ok``) for a shared lamp: with fewer the
 #: spread of their scales, which sizes every thin film's error bar, is not measured.
@@ -222,88 +221,3 @@ def read_with_lamp(prob: FixedLampProblem, grid: np.ndarray, alternatives) -> di
         sys_nm = float(np.std(alt, ddof=1) * np.sqrt(1.0 + 1.0 / k) * stats.t.ppf(_ONE_SIGMA, k - 1))
     return dict(d=d, rss=rss_best, dof=dof, rho=rho, s2=s2, stat=stat, sys=sys_nm, second=second,
                 dchi2=dchi2, profile=(rss - rss_best) / s2, noise=second_difference_noise(prob.y))
-
-
-def fit_spectrum_series(spectra: list[Spectrum], *, dark=None, reference=None, options=None,
-                        progress=None) -> tuple[list, SharedLamp | None]:
-    """Fit every reading of ``spectra`` with one lamp shared by the series (see the module).
-
-    Each reading is first read alone (:func:`bubblefit.inverse.spectrum.fit_spectrum`).
-    With at least :data:`MIN_PINNING_READINGS` of them ``ok`` the shared lamp is fitted to
-    those, and every other reading is read again with it (its own stray light free); the
-    pinning readings keep their own results. With fewer, every reading keeps its own
-    result and the others get a warning saying why. ``progress(stage, k, n)`` is called
-    before each reading of each stage (``"alone"``, then ``"shared lamp"``). Returns the :class:`~bubblefit.inverse.spectrum.SpectrumFit` of
-    each reading, in order, and the :class:`SharedLamp` (None when there was none).
-    """
-    from . import spectrum as sp
-
-    options = options or sp.SpectrumOptions()
-    alone = []
-    for k, spec in enumerate(spectra):
-        if progress is not None:
-            progress("alone", k, len(spectra))
-        alone.append(sp.fit_spectrum(spec, dark=dark, reference=reference, options=options))
-    pins = [i for i, r in enumerate(alone) if r.ok]
-    if len(pins) < MIN_PINNING_READINGS:
-        why = (f"no shared lamp: only {len(pins)} of the {len(spectra)} readings can be read alone (at least "
-               f"{MIN_PINNING_READINGS} must, to fit the lamp and measure its spread)")
-        for r in alone:
-            if not r.ok:
-                r.warnings.append(why)
-        return alone, None
-    prepared = [sp.prepared_problem(spec, dark, reference, options) for spec in spectra]
-    nu = np.concatenate([1.0 / p.wavelength_nm for p in prepared])
-    nu_range = (float(nu.min()), float(nu.max()))
-    terms = prepared[0].problem.basis.shape[1]
-    probe = SharedLamp(np.zeros(terms), nu_range, 0.0, ())
-    bases = [probe.basis(p.wavelength_nm) * (p.reference[:, None] if p.reference is not None else 1.0)
-             for p in prepared]
-    lamp = shared_lamp([prepared[i].problem for i in pins], [alone[i] for i in pins], [bases[i] for i in pins],
-                       nu_range, [prepared[i].grid for i in pins], [prepared[i].order_spacing for i in pins])
-    lamp = replace(lamp, pinning=tuple(pins))
-    note = (f"read with the lamp shared by {len(pins)} readings of the series that can be read alone "
-            f"(their brightness spreads by {lamp.scale_spread:.1%}; the thickness's spread over their own lamps "
-            "is in the error bar)")
-    out = []
-    for i, (r, p) in enumerate(zip(alone, prepared)):
-        if progress is not None:
-            progress("shared lamp", i, len(spectra))
-        if i in pins:
-            r.warnings.append(f"pinned the shared lamp ({len(pins)} readings)")
-            out.append(r)
-            continue
-        out.append(read_with_shared_lamp(p, bases[i] @ lamp.coefficients, bases[i] @ lamp.each.T, options, note, r))
-    return out, lamp
-
-
-def read_with_shared_lamp(p, lamp: np.ndarray, alternatives: np.ndarray, options, note: str, alone):
-    """The :class:`~bubblefit.inverse.spectrum.SpectrumFit` of a prepared reading ``p``
-    (:func:`bubblefit.inverse.spectrum.prepared_problem`) with the lamp ``lamp`` (N,), its
-    systematic error from the lamps of ``alternatives`` (N, K); ``alone`` is its own fit,
-    named in a warning."""
-    from . import spectrum as sp
-
-    prob = FixedLampProblem(p.y, lamp, p.problem.additive, p.problem.reflect, p.problem.weight)
-    r = read_with_lamp(prob, p.grid, [replace(prob, lamp=col) for col in alternatives.T])
-    lam, n, d = p.wavelength_nm, p.n, r["d"]
-    stderr = float(np.hypot(r["stat"], r["sys"]))
-    order, fringes = sp.interference_order(d, lam, n)
-    reasons = sp._verdict(d, stderr, r["second"], r["dchi2"], p.grid, lam, n, True, options)
-    warnings = [*p.warnings, note, f"read alone: {alone.thickness_nm:.1f} nm, " + ("ok" if alone.ok else "not ok")]
-    level = float(np.mean(np.abs(p.y))) or 1.0
-    flagged = len(reasons)
-    sp._misfit(r["rss"] / r["dof"], r["noise"], level, reasons, warnings)
-    fitted = prob.model(d, 0.0)
-    red = float(r["rss"] / r["dof"] / r["noise"] ** 2) if r["noise"] > 0 else float("nan")
-    if len(reasons) == flagged and red > SHARED_MISFIT_RATIO**2:
-        reasons.append(f"the series' lamp leaves structure in this reading (the residual is {np.sqrt(red):.1f} times "
-                       "its noise): its own lamp differs from the series', and a film read from its brightness "
-                       "takes the difference for thickness")
-    return sp.SpectrumFit(
-        thickness_nm=float(d), thickness_nm_stderr=stderr, stderr_statistical_nm=r["stat"], stderr_lamp_nm=r["sys"],
-        ok=not reasons, order=order, fringes=fringes, resolution_nm=0.0, reduced_chi2=red,
-        residual_rms=float(np.sqrt(np.mean((p.y - fitted) ** 2)) / level),
-        n_film=float(np.interp(0.5 * (lam.min() + lam.max()), lam, n)), second_minimum_nm=r["second"],
-        delta_chi2=r["dchi2"], reasons=reasons, warnings=warnings, wavelength_nm=lam, measured=p.y, fitted=fitted,
-        profile_nm=p.grid, profile_chi2=r["profile"])

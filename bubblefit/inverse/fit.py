@@ -63,6 +63,7 @@ from ._setup import Setup, defaults, setup
 from ._uncertainty import Uncertainty, uncertainty
 from ._verdict import at_bounds, clamp_to_range, unresolved, verdict
 from ._view import camera_record, fit_view, lens_for, widen_for_view
+from .colour_check import judge_colours
 from ..lighting.envmap import EnvMap
 from ..model.thickness import drainage_profile
 from ..progress import stage
@@ -217,6 +218,8 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
                            misfit=unc.misfit, ok_chi2=float(opts.ok_chi2), model_error=float(opts.model_error),
                            notes=st.warnings)
     disc_stderr = judged.disc_stderr
+    # the camera response's test (bubblefit.inverse.colour_check), kept apart from the verdict
+    ok, warnings, colour_record = judge_colours(ok, warnings, st.photo, img, full.mask, full.cos)
     return FitResult(
         params=reported, stderr=stderr, held=list(table.held), converged=bool(converged),
         message="; ".join(notes) if notes else "converged", iterations=sol.steps, residual_rms=rms,
@@ -231,6 +234,7 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
         stderr_scale=unc.scale, roles=parameter_roles(table, st.fx.model, tuple(reported)),
         frame=None if st.frame.whole else (st.frame.x0, st.frame.y0, st.frame.k), colour=st.colour,
         camera=None if opts.view is None else camera_record(opts.view, st.base_cfg.camera),
+        colour_check=colour_record,
     )
 
 
@@ -464,7 +468,7 @@ def fit_batch(photos, env: EnvMap, *, options: FitOptions = FitOptions(), backgr
     solve = batched_solver(pad.cfg, table, float(options.robust_scale), int(options.max_steps),
                            float(options.rtol), float(options.atol), None)
     out = solve(jnp.asarray(np.stack(z0), jnp.float32),
-                (fixed, env, pad.bg, jnp.stack([x.y for x in pxs]), jnp.stack([x.w for x in pxs]), pad.base,
+                (fixed, env, pad.bg, pad.bg_sigma, jnp.stack([x.y for x in pxs]), jnp.stack([x.w for x in pxs]), pad.base,
                  (pxs[0].rows, pxs[0].cols, pxs[0].idx)))
     outs = [np.asarray(x) for x in out]
     share = (time.perf_counter() - t_start) / len(photos)  # each frame's part of the batch

@@ -63,11 +63,13 @@ from numpy.polynomial import legendre
 from ..errors import InputError
 from ..io.spectra import Spectrum
 from ..optics import dispersion, film
+from ._spectrum_defaults import looks_normalised
+from ._spectrum_extrema import RANDOM_PHASE, extrema_phase, fringe_extrema
 from ._spectrum_profile import (ProfileProblem, local_noise, profile_variance, refine_d, refine_dw, refine_near,
                                 residual_correlation, rss_grids, second_difference_noise, second_minimum)
 
-__all__ = ["SpectrumOptions", "SpectrumFit", "film_reflectance", "reflector", "fit_spectrum", "fit_spectrum_series",
-           "interference_order", "min_fringes"]
+__all__ = ["SpectrumOptions", "SpectrumFit", "film_reflectance", "reflector", "fit_spectrum",
+           "resolve_normalised", "interference_order", "min_fringes"]
 
 _FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
 
@@ -104,6 +106,15 @@ INCOHERENT_LEVELS = (0.0, 0.005, 0.01, 0.02, 0.04, 0.08)
 MISFIT_RATIO = 2.0
 MODEL_ERROR_FLOOR = 0.005
 
+#: A fit whose thickness leaves the reading's fringe extrema this far (rms of
+#: ``4 n d / lambda`` from whole numbers, :mod:`._spectrum_extrema`) is not ok, when the
+#: reading has at least ``EXTREMA_FOR_VERDICT`` clear extrema: two thirds of the way from
+#: a thickness that fits them (0) to one unrelated to them (0.289). Correct fits of the
+#: synthetic readings of tests/test_spectrum*.py score 0.015-0.15 (the smoothing and a
+#: raw lamp's hump move the extrema; 0.145 for a raw 700 nm film with 5 extrema).
+EXTREMA_PHASE_LIMIT = 0.2
+EXTREMA_FOR_VERDICT = 4
+
 
 @dataclass(frozen=True)
 class SpectrumOptions:
@@ -119,7 +130,7 @@ class SpectrumOptions:
         3 for a ``normalised`` reading).
     offset : fit a constant stray-light offset ``c``.
     normalised : the reading was already divided by the lamp (its envelope is flat up to a
-        slow slope): the lamp left in it is a scale, tilt and curvature in wavenumber
+        slow slope); None: decided from the reading (:func:`resolve_normalised`): the lamp left in it is a scale, tilt and curvature in wavenumber
         (3 terms; :func:`min_fringes` then asks for half a fringe), and the stray light
         gets a tilt (``background_terms`` 1), so that neither can take the shape of a fringe.
     background_terms : smooth stray-light terms added beyond the offset (None: 0, or 1 for
@@ -143,7 +154,7 @@ class SpectrumOptions:
     fit_resolution: bool = True
     max_resolution_nm: float = 10.0
     ambiguity_dchi2: float = 10.0
-    normalised: bool = False
+    normalised: bool | None = False
     background_terms: int | None = None
     incoherent: bool = False
 
@@ -172,11 +183,19 @@ class SpectrumFit:
     fitted: np.ndarray | None = None
     profile_nm: np.ndarray | None = None
     profile_chi2: np.ndarray | None = None
+    #: Whether it was read as divided by its lamp, and why (detected or forced).
+    normalised: bool = False
+    normalised_why: str = ""
+    #: The extrema phase test of the thickness (:mod:`._spectrum_extrema`; NaN with fewer
+    #: than 3 clear extrema) and the number of extrema it used.
+    extrema_phase: float = float("nan")
+    extrema: int = 0
 
     def summary(self) -> dict:
         """The scalar results as a JSON-ready dict (no arrays)."""
         keys = ("thickness_nm", "thickness_nm_stderr", "stderr_statistical_nm", "stderr_lamp_nm", "ok", "order", "fringes", "resolution_nm", "reduced_chi2",
-                "residual_rms", "n_film", "second_minimum_nm", "delta_chi2", "reasons", "warnings")
+                "residual_rms", "n_film", "second_minimum_nm", "delta_chi2", "reasons", "warnings", "normalised",
+                "normalised_why", "extrema_phase", "extrema")
         return {k: getattr(self, k) for k in keys}
 
 
@@ -324,7 +343,7 @@ def _prepare(spectrum: Spectrum, dark: Spectrum | None, reference: Spectrum | No
     terms = opts.lamp_terms if opts.lamp_terms is not None else (1 if ref is not None else 3 if opts.normalised else 5)
     if terms < 1 or terms > 20:
         raise InputError(f"lamp terms must be within 1..20, got {terms}")
-    bg = opts.background_terms if opts.background_terms is not None else int(opts.normalised)
+    bg = opts.background_terms if opts.background_terms is not None else int(bool(opts.normalised))
     if bg < 0 or bg > 10:
         raise InputError(f"background terms must be within 0..10, got {bg}")
     n = dispersion.refractive_index(opts.n_film, lam)
@@ -433,6 +452,7 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
     >>> fit.ok, round(fit.thickness_nm, 1)
     (True, 1200.0)
     """
+    options, why = resolve_normalised(spectrum, dark, reference, options)
     p = prepared_problem(spectrum, dark, reference, options)
     lam, y, ref, n, prob, grid, warnings = p.wavelength_nm, p.y, p.reference, p.n, p.problem, p.grid, p.warnings
     terms = prob.basis.shape[1]
@@ -472,13 +492,36 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
                         f"{(1 - rho) / (1 + rho):.2f} independent samples per point")
     profile = (rss - rss_best) / s2
     scale = float(np.mean(np.abs(y))) or 1.0
+    ext = fringe_extrema(lam, y)
+    phase = extrema_phase(d_best, ext, lambda x: dispersion.refractive_index(options.n_film, x))
+    if len(ext) >= EXTREMA_FOR_VERDICT and phase > EXTREMA_PHASE_LIMIT:
+        reasons.append(f"the thickness does not put the reading's {len(ext)} fringe extrema where they are "
+                       f"(4 n d / lambda is {phase:.2f} rms from whole numbers there; {RANDOM_PHASE:.2f} for a "
+                       "thickness unrelated to them)")
     return SpectrumFit(
         thickness_nm=float(d_best), thickness_nm_stderr=stderr, stderr_statistical_nm=stat,
         stderr_lamp_nm=float(lamp_sys), ok=not reasons, order=order, fringes=fringes,
         resolution_nm=float(w), reduced_chi2=red, residual_rms=float(np.sqrt(np.mean(resid**2)) / scale),
         n_film=float(np.interp(0.5 * (lam.min() + lam.max()), lam, n)), second_minimum_nm=second,
         delta_chi2=dchi2, reasons=reasons, warnings=warnings, wavelength_nm=lam, measured=y, fitted=fitted,
-        profile_nm=grid, profile_chi2=profile)
+        profile_nm=grid, profile_chi2=profile, normalised=bool(options.normalised), normalised_why=why,
+        extrema_phase=phase, extrema=int(len(ext)))
+
+
+def resolve_normalised(spectrum: Spectrum, dark: Spectrum | None, reference: Spectrum | None,
+                       options: SpectrumOptions) -> tuple[SpectrumOptions, str]:
+    """``options`` with ``normalised`` decided, and the reason: as given when it is True or
+    False; else False with a reference (a reading one divides by a reference is not divided
+    yet), and otherwise from the reading's envelope
+    (:func:`bubblefit.inverse._spectrum_defaults.looks_normalised`)."""
+    if options.normalised is not None:
+        return options, "as asked" if options.normalised else ""
+    if reference is not None:
+        return replace(options, normalised=False), "not divided: a reference reading was given"
+    y = spectrum.intensity - (dark.on(spectrum.wavelength_nm, "dark") if dark is not None else 0.0)
+    flat, why = looks_normalised(spectrum.wavelength_nm, y)
+    return replace(options, normalised=bool(flat)), ("read as divided by its lamp: " if flat else
+                                                     "read as not divided: ") + why
 
 
 def _split_problem(prob: ProfileProblem, lam, ref, terms: int, bg_terms: int) -> ProfileProblem | None:
@@ -597,5 +640,3 @@ def _verdict(d, stderr, second, dchi2, grid, lam, n, has_reference: bool, opts: 
         reasons.append(f"thickness {d:.1f} nm is at the edge of the searched range {lo:g}-{hi:g} nm")
     return reasons
 
-
-from ._shared_lamp import fit_spectrum_series  # noqa: E402  (it reads each reading with the functions above)

@@ -64,6 +64,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from .atomic import os_reason
+from .jaxcache import jax_settings, private_folder, store_enabled, warn_once
 
 __all__ = ["Stored", "stored", "source_digest"]
 
@@ -75,9 +76,10 @@ MAX_BYTES = 512 * 2**20
 #: solve and its final render, and with one thread the render's compile queued behind the
 #: solve's, the longest on an empty cache's first fit, while the fit itself waited.
 COMPILE_THREADS = 2
-#: Whether :func:`stored` uses the store: set by :func:`bubblefit.io.jaxcache.jax_setup`
-#: (the command line, the sequence workers); library calls without it jit as usual.
-ENABLED = False
+#: Whether :func:`stored` uses the store; None (the default): when this process called
+#: :func:`bubblefit.io.jaxcache.jax_setup` (the command line, the sequence workers), so that
+#: library calls without it jit as usual.
+ENABLED: bool | None = None
 _LOCK = threading.Lock()
 #: First bytes of a stored executable's file, with the version of its layout.
 MAGIC = b"bubblefit-executable\n"
@@ -107,8 +109,6 @@ def _folder() -> Path | None:
     the cache is off or the folder is not private to this user
     (:func:`bubblefit.io.jaxcache.private_folder`)."""
     import jax
-
-    from .jaxcache import jax_settings, private_folder
 
     cache = getattr(jax.config, "jax_compilation_cache_dir", None) or jax_settings()["cache_dir"]
     if not cache:
@@ -333,17 +333,10 @@ def _save(path: Path, compiled) -> None:
     write_bytes(path, _pack(header, payload, _secret(path.parent)))
 
 
-_WARNED: set[str] = set()
-
-
-def warn_once(topic: str, message: str) -> None:
-    """Print ``bubblefit: warning: <message>`` on stderr the first time a ``topic`` comes up
-    in this process (a full disk is one line, not one per program)."""
-    with _LOCK:
-        if topic in _WARNED:
-            return
-        _WARNED.add(topic)
-    print(f"bubblefit: warning: {message}", file=sys.stderr)
+def _enabled() -> bool:
+    """Whether :func:`stored` uses the store: :data:`ENABLED` when set, else whether this
+    process called :func:`~bubblefit.io.jaxcache.jax_setup`."""
+    return store_enabled() if ENABLED is None else ENABLED
 
 
 class Stored:
@@ -360,7 +353,7 @@ class Stored:
         self.pending: dict[str, concurrent.futures.Future] = {}
 
     def __call__(self, *args):
-        if self.static_bytes is None or not (ENABLED or self.loaded or self.pending):
+        if self.static_bytes is None or not (_enabled() or self.loaded or self.pending):
             return self.jitted(*args)
         key = _key(self.name, self.static_bytes, args)
         fn = self.loaded.get(key)
@@ -368,7 +361,7 @@ class Stored:
             return fn(*args)
         with _LOCK:
             future = self.pending.pop(key, None)
-        if future is None and not ENABLED:
+        if future is None and not _enabled():
             return self.jitted(*args)
         fn, path = future.result() if future is not None else _fetch(self.jitted, key, args)
         return self._first_run(key, fn, path, args)
@@ -387,7 +380,7 @@ class Stored:
             with _LOCK:
                 if key in self.loaded or key in self.pending:
                     return
-                job = (_fetch, self.jitted, key, args) if ENABLED else (_compile, self.jitted, args)
+                job = (_fetch, self.jitted, key, args) if _enabled() else (_compile, self.jitted, args)
                 self.pending[key] = _compile_thread().submit(*job)
         except Exception:
             return

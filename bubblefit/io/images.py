@@ -226,6 +226,8 @@ class Image:
     metadata: dict = field(default_factory=dict)
     alpha_dropped: bool = False
     was_gray: bool = False
+    #: How the values were decoded (:class:`bubblefit.io.camera_files.EncodingChoice`).
+    encoding: object = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -250,7 +252,7 @@ def _undecodable_as_input_error(func):
 
 @_undecodable_as_input_error
 def read_image(path: str | os.PathLike, *, linear: bool | None = None, dtype=np.float64,
-               allow_nan: bool = False) -> Image:
+               allow_nan: bool = False, encoding=None) -> Image:
     """Read an image file as linear RGB.
 
     Args:
@@ -261,6 +263,10 @@ def read_image(path: str | os.PathLike, *, linear: bool | None = None, dtype=np.
         dtype: of the pixels (float64, or float32 for large photos read by the fit,
             whose arithmetic is float32: half the memory).
         allow_nan: keep NaN pixels of a float file (a thickness map is NaN off the bubble).
+        encoding: a :class:`~bubblefit.io.camera_files.PhotoReading` (or one of its
+            encodings, ``"auto"``, ``"srgb"``, ``"linear"``): how the values map to linear,
+            decided by :func:`~bubblefit.io.camera_files.decide_encoding`; ``linear``, when
+            given, is the same as ``"linear"``/``"srgb"`` forced.
 
     Raises:
         InputError: the file is missing, unreadable, truncated, has no pixels, has an
@@ -340,19 +346,21 @@ def read_image(path: str | os.PathLike, *, linear: bool | None = None, dtype=np.
     elif nch != 3:
         raise InputError(f"image {path} has {nch} channels; expected 1 (gray), 3 (RGB) or 4 (RGBA)")
 
+    from .camera_files import PhotoReading, decide_encoding, decode_codes
+
+    if linear is not None:
+        reading = PhotoReading("linear" if linear else "srgb", force=True)
+    elif isinstance(encoding, PhotoReading):
+        reading = encoding
+    else:
+        reading = PhotoReading(encoding or "auto")
+    choice = decide_encoding(path, metadata, bit_depth, reading)
+    is_linear = choice.encoding == "linear"
     if bit_depth in (8, 16):
-        maxcode = 255 if bit_depth == 8 else 65535
-        saturated = np.any(data >= maxcode, axis=2)
-        colorspace = str(metadata.get("oiio:ColorSpace", "")).lower()
-        is_linear = linear if linear is not None else ("linear" in colorspace)
-        # One table entry per code value: the decoded photo is the only full-size array
-        # (a 6000x4000 photo is 576 MB in float64; decoding it arithmetically took 8x that).
-        codes = np.arange(maxcode + 1, dtype=np.float64) / maxcode
-        pixels = (codes if is_linear else srgb_decode(codes)).astype(dtype)[data]
+        pixels, saturated = decode_codes(data, choice, bit_depth, dtype)
     else:
         pixels = data.astype(dtype)
         saturated = np.zeros(pixels.shape[:2], dtype=bool)
-        is_linear = True if linear is None else linear
         if not is_linear:
             pixels = srgb_decode(pixels)
     if bit_depth == 32 and not np.all(np.isfinite(pixels) | (allow_nan & np.isnan(pixels))):
@@ -367,6 +375,7 @@ def read_image(path: str | os.PathLike, *, linear: bool | None = None, dtype=np.
         metadata=metadata,
         alpha_dropped=alpha_dropped,
         was_gray=was_gray,
+        encoding=choice,
     )
 
 

@@ -18,8 +18,9 @@ from __future__ import annotations
 import logging
 import os
 import sys
+import threading
 
-__all__ = ["default_cache_dir", "jax_setup", "jax_settings", "private_folder"]
+__all__ = ["default_cache_dir", "jax_setup", "jax_settings", "private_folder", "store_enabled", "warn_once"]
 
 #: Every compiled program goes into the cache (seconds of compile time below which one
 #: would not). A fit builds ~160 small programs (geometry, tables, bounds) that compile in
@@ -87,13 +88,34 @@ def _quiet_logs() -> None:
     import warnings
 
     # JAX warns once per program about a cache entry it cannot write or read (a full disk
-    # gave 21 lines); the store reports such errors once itself (executables.warn_once)
+    # gave 21 lines); the store reports such errors once itself (warn_once)
     warnings.filterwarnings("ignore", message=r"Error (reading|writing) persistent compilation cache entry")
     os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")  # XLA's C++ log: nothing below fatal
     os.environ.setdefault("GLOG_minloglevel", "3")
     for name in ("jax._src.xla_bridge", "jax._src.compiler", "jax._src.compilation_cache",
                  "jax._src.cache_key"):
         logging.getLogger(name).setLevel(logging.ERROR)
+
+
+_STORE_ON = False
+_WARN_LOCK = threading.Lock()
+_WARNED: set[str] = set()
+
+
+def store_enabled() -> bool:
+    """Whether this process called :func:`jax_setup`, which turns the store of compiled
+    executables (:mod:`bubblefit.io.executables`) on; library calls jit as usual."""
+    return _STORE_ON
+
+
+def warn_once(topic: str, message: str) -> None:
+    """Print ``bubblefit: warning: <message>`` on stderr the first time a ``topic`` comes up
+    in this process (a full disk is one line, not one per program)."""
+    with _WARN_LOCK:
+        if topic in _WARNED:
+            return
+        _WARNED.add(topic)
+    print(f"bubblefit: warning: {message}", file=sys.stderr)
 
 
 def jax_setup(cache_dir: str | None = None, *, enable_x64: bool | None = None, quiet: bool = True) -> dict:
@@ -119,15 +141,12 @@ def jax_setup(cache_dir: str | None = None, *, enable_x64: bool | None = None, q
     """
     if quiet:
         _quiet_logs()
-    from . import executables
-
-    executables.ENABLED = True
+    global _STORE_ON
+    _STORE_ON = True
     cache = (cache_dir or os.environ.get("BUBBLEFIT_CACHE_DIR") or os.environ.get("JAX_COMPILATION_CACHE_DIR")
              or default_cache_dir())
     problem = private_folder(cache)
     if problem:  # no cache: every run compiles, and nothing anyone else wrote is run
-        from .executables import warn_once
-
         warn_once("cache", f"not using the compilation cache: {problem}")
         _REFUSED.add(os.path.abspath(cache))
         cache = None

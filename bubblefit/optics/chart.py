@@ -22,7 +22,9 @@ MODELS = ("airy", "two_beam", "paper", "incoherent")
 
 def interference_colours(thickness_nm, *, angle_deg: float = 0.0, model: str = "airy",
                          n_film: dispersion.IndexSpec = 1.4, t: float = 0.972,
-                         basis: spectral.SpectralBasis | None = None, chunk: int = 256) -> np.ndarray:
+                         basis: spectral.SpectralBasis | None = None, chunk: int = 256,
+                         above: dispersion.IndexSpec | None = None, below: dispersion.IndexSpec | None = None,
+                         na: float = 0.0) -> np.ndarray:
     """Linear RGB reflectance (N, 3) of a film at each thickness (nm).
 
     ``paper`` returns eq. (10)'s interference factor ``4 t^2 cos^2(delta/2)`` alone (it
@@ -30,7 +32,12 @@ def interference_colours(thickness_nm, *, angle_deg: float = 0.0, model: str = "
     film's reflectance averaged over polarisations. ``n_film`` is a number, a Cauchy law
     or a preset (:mod:`bubblefit.optics.dispersion`), evaluated at each sample wavelength;
     ``basis`` carries the illuminant and the camera response (default: the converged
-    ``reference`` quadrature, D65, sRGB).
+    ``reference`` quadrature, D65, sRGB). ``above`` and ``below`` are the media on either
+    side of the film (air when not given; e.g. a glass|air|glass gap), with the exact
+    three-media Airy sum (``airy`` only); the light comes from ``above``, which it entered
+    from air at ``angle_deg`` through a face parallel to the film;
+    ``na > 0`` averages over an objective's cone of illumination instead of one angle
+    (:func:`bubblefit.lighting.coaxial.coaxial_reflectance`).
 
     Examples
     --------
@@ -49,14 +56,29 @@ def interference_colours(thickness_nm, *, angle_deg: float = 0.0, model: str = "
         raise ValueError(f"unknown chart model {model!r}; expected one of {MODELS}")
     basis = basis or spectral.spectral_basis("reference")
     lam = jnp.asarray(basis.wavelengths)
+    film_spec = n_film
     n_film = jnp.asarray(dispersion.refractive_index(n_film, basis.wavelengths), dtype=lam.dtype)
     cos_i = float(np.cos(np.radians(angle_deg)))
     d = np.asarray(thickness_nm, dtype=np.float64).ravel()
+    media = above is not None or below is not None or na > 0
+    if media and model != "airy":
+        raise ValueError("media around the film and an objective's aperture need the airy model")
+    if media:
+        from ..lighting import coaxial
+
+        stack = coaxial.Stack(above if above is not None else "air", film_spec, below if below is not None else "air")
+        n = stack.indices(basis.wavelengths)
+        sin2_air = float(np.sin(np.radians(angle_deg)) ** 2)
+        nodes = coaxial.cone_nodes_needed(float(d.max(initial=0.0)), na, float(np.min(n.film))) if na > 0 else 1
 
     @jax.jit
     def colours(dd):
         dd = dd[:, None]
-        if model == "airy":
+        if media and na > 0:
+            s = coaxial.coaxial_reflectance(dd, lam, n, na, nodes)
+        elif media:
+            s = coaxial.reflectance_at_angles(dd, lam, n, sin2_air)
+        elif model == "airy":
             s = film.airy_reflectance(dd, lam, n_film, cos_i).mean(-1)
         elif model == "two_beam":
             s = film.two_beam_reflectance(dd, lam, n_film, cos_i).mean(-1)

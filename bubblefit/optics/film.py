@@ -1,8 +1,11 @@
 """Thin-film optics of a soap film in air: Snell, Fresnel, eq. (8)-(10) and the Airy sum.
 
 A soap film is a lossless slab of index ``n`` (``n_g`` in the paper, 1.4 by default) and
-thickness ``d`` between two half-spaces of air. Every function here takes the cosine of
-the angle of incidence in air, ``cos_i`` in [0, 1], and broadcasts over all its
+thickness ``d`` between two half-spaces of air. The Fresnel coefficients and the Airy sum
+also take the indices of the media above and below the film (``n_above``, ``n_below``:
+a film on a substrate, an air or liquid gap between glass plates); without them both are
+air. Every function here takes the cosine of
+the angle of incidence in the medium above (air unless told), ``cos_i`` in [0, 1], and broadcasts over all its
 arguments; wavelengths and thicknesses are in nanometres. ``n`` may be one index per
 wavelength (shaped like ``wavelength``) for a dispersive film
 (:mod:`bubblefit.optics.dispersion`). Functions that depend on the
@@ -64,35 +67,41 @@ def cos_transmitted(cos_i: ArrayLike, n: ArrayLike, n_outside: ArrayLike = 1.0) 
     return _safe_sqrt(1.0 - sin2_t)
 
 
-def fresnel_amplitudes(cos_i: ArrayLike, n: ArrayLike) -> Float[Array, "... 2"]:
-    """Fresnel amplitude reflection coefficients (r_s, r_p) of the air-to-film interface.
+def fresnel_amplitudes(cos_i: ArrayLike, n: ArrayLike, n_outside: ArrayLike = 1.0) -> Float[Array, "... 2"]:
+    """Fresnel amplitude reflection coefficients (r_s, r_p) from a medium ``n_outside`` into ``n``.
 
-    Born & Wolf eq. 1.5(21a): ``r_s = (cos_i - n cos_t)/(cos_i + n cos_t)``,
-    ``r_p = (n cos_i - cos_t)/(n cos_i + cos_t)``. The film-to-air interface has the
-    opposite signs (Stokes relations). For ``n = 1`` both vanish.
+    Born & Wolf eq. 1.5(21a) with ``n_i = n_outside``, ``n_t = n``:
+    ``r_s = (n_i cos_i - n cos_t)/(n_i cos_i + n cos_t)``,
+    ``r_p = (n cos_i - n_i cos_t)/(n cos_i + n_i cos_t)``. The reverse interface has the
+    opposite signs (Stokes relations). Equal indices give 0; beyond total internal
+    reflection (``cos_t`` clamped to 0 by :func:`cos_transmitted`) both are 1.
     """
     cos_i = jnp.asarray(cos_i)
-    cos_t = cos_transmitted(cos_i, n)
-    den_s = cos_i + n * cos_t
-    den_p = n * cos_i + cos_t
-    rs = (cos_i - n * cos_t) / jnp.maximum(den_s, _TINY)
-    rp = (n * cos_i - cos_t) / jnp.maximum(den_p, _TINY)
+    cos_t = cos_transmitted(cos_i, n, n_outside)
+    den_s = n_outside * cos_i + n * cos_t
+    den_p = n * cos_i + n_outside * cos_t
+    rs = (n_outside * cos_i - n * cos_t) / jnp.maximum(den_s, _TINY)
+    rp = (n * cos_i - n_outside * cos_t) / jnp.maximum(den_p, _TINY)
     return jnp.stack([rs, rp], axis=-1)
 
 
-def fresnel_reflectance(cos_i: ArrayLike, n: ArrayLike) -> Float[Array, "... 2"]:
-    """Power reflectance (R_s, R_p) of one air/film interface, ``|r|^2``."""
-    return fresnel_amplitudes(cos_i, n) ** 2
+def fresnel_reflectance(cos_i: ArrayLike, n: ArrayLike, n_outside: ArrayLike = 1.0) -> Float[Array, "... 2"]:
+    """Power reflectance (R_s, R_p) of one interface (air/film unless ``n_outside``), ``|r|^2``."""
+    return fresnel_amplitudes(cos_i, n, n_outside) ** 2
 
 
-def phase(thickness: ArrayLike, wavelength: ArrayLike, n: ArrayLike, cos_i: ArrayLike) -> Array:
+def phase(thickness: ArrayLike, wavelength: ArrayLike, n: ArrayLike, cos_i: ArrayLike,
+          n_above: ArrayLike = 1.0) -> Array:
     """Eq. (8): the phase difference between the first and second reflected beams.
 
     ``delta = 2 pi / lambda * (2 d n cos t) + pi``; the ``+ pi`` is the half-wave shift of
     the reflection on the air-to-film interface, so a film much thinner than the
-    wavelength reflects almost nothing (a black film).
+    wavelength reflects almost nothing (a black film). ``cos t`` follows from Snell's law
+    with the light arriving from ``n_above`` (air by default). With other media the
+    ``+ pi`` is kept as the convention of the argument; the signs of the two Fresnel
+    coefficients carry the reflection shifts (:func:`airy_at_phase`).
     """
-    cos_t = cos_transmitted(cos_i, n)
+    cos_t = cos_transmitted(cos_i, n, n_above)
     return 2.0 * jnp.pi / wavelength * (2.0 * thickness * n * cos_t) + jnp.pi
 
 
@@ -126,32 +135,55 @@ def paper_tinted_transmission(factor: ArrayLike, t: ArrayLike, r_s: ArrayLike) -
 
 
 def airy_reflectance(
-    thickness: ArrayLike, wavelength: ArrayLike, n: ArrayLike, cos_i: ArrayLike
+    thickness: ArrayLike, wavelength: ArrayLike, n: ArrayLike, cos_i: ArrayLike,
+    n_above: ArrayLike | None = None, n_below: ArrayLike | None = None,
 ) -> Float[Array, "... 2"]:
-    """Exact multi-beam (Airy) reflectance of a lossless film in air, per polarisation.
+    """Exact multi-beam (Airy) reflectance of a lossless film, per polarisation.
 
-    Born & Wolf eq. 7.6(13) for a plate with both faces of reflectance ``R1 = r^2``:
-    ``R = F sin^2(beta) / (1 + F sin^2(beta))``, ``F = 4 R1 / (1 - R1)^2``, with the
-    one-way phase ``beta = 2 pi n d cos t / lambda``. Since eq. (8) gives
-    ``delta = 2 beta + pi``, ``sin^2(beta) = cos^2(delta/2)``. Written here as
-    ``4 R1 s / ((1 - R1)^2 + 4 R1 s)`` with ``s = cos^2(delta/2)`` to stay finite at
-    grazing incidence, where ``R1 -> 1``. Transmittance is ``1 - R`` (lossless film).
+    The film (index ``n``, thickness ``d``) lies between a medium ``n_above``, from which
+    the light arrives at ``cos_i``, and a medium ``n_below`` (both air when not given). Born
+    & Wolf eq. 1.6(57) sums all the beams of a layer between two media:
+    ``r = (r01 + r12 e^{2 i beta}) / (1 + r01 r12 e^{2 i beta})`` with the one-way phase
+    ``beta = 2 pi n d cos t / lambda`` and the Fresnel coefficients ``r01`` (above to film)
+    and ``r12`` (film to below) of :func:`fresnel_amplitudes`, so
+    ``R = |r|^2 = ((r01 + r12)^2 - 4 r01 r12 s) / ((1 + r01 r12)^2 - 4 r01 r12 s)`` with
+    ``s = sin^2(beta) = cos^2(delta/2)`` (eq. 8 gives ``delta = 2 beta + pi``). In air on
+    both sides ``r12 = -r01`` and this is Born & Wolf eq. 7.6(13),
+    ``4 R1 s / ((1 - R1)^2 + 4 R1 s)`` with ``R1 = r01^2``, finite at grazing incidence
+    where ``R1 -> 1``. Transmittance is ``1 - R`` (lossless media).
+
+    Indices may be arrays shaped like ``wavelength`` (dispersive media). The coefficients
+    are real below total internal reflection, which never occurs for light that entered
+    every medium from air (all indices >= 1); beyond it the film is taken to reflect
+    fully (frustrated total reflection through a film thinner than a wavelength is not
+    modelled).
     """
-    return airy_at_phase(phase(thickness, wavelength, n, cos_i), n, cos_i)
+    above = 1.0 if n_above is None else n_above
+    return airy_at_phase(phase(thickness, wavelength, n, cos_i, above), n, cos_i, n_above, n_below)
 
 
-def airy_at_phase(delta: ArrayLike, n: ArrayLike, cos_i: ArrayLike) -> Float[Array, "... 2"]:
+def airy_at_phase(delta: ArrayLike, n: ArrayLike, cos_i: ArrayLike,
+                  n_above: ArrayLike | None = None, n_below: ArrayLike | None = None) -> Float[Array, "... 2"]:
     """:func:`airy_reflectance` at the phase ``delta`` of eq. (8), per polarisation.
 
     The Airy sum depends on the wavelength and the thickness only through ``delta``; the
     ``harmonic`` spectral basis (:mod:`bubblefit.optics.spectral`) samples it there.
+    ``n_above`` and ``n_below`` as in :func:`airy_reflectance` (air when not given).
     """
-    r1 = fresnel_reflectance(cos_i, n)
+    if n_above is None and n_below is None:  # air on both sides: r12 = -r01 (Stokes)
+        r01 = fresnel_amplitudes(cos_i, n)
+        r12 = -r01
+    else:
+        above = 1.0 if n_above is None else n_above
+        below = 1.0 if n_below is None else n_below
+        r01 = fresnel_amplitudes(cos_i, n, above)
+        r12 = fresnel_amplitudes(cos_transmitted(cos_i, n, above), below, n)
     s = (jnp.cos(0.5 * delta) ** 2)[..., None]
-    num = 4.0 * r1 * s
-    den = (1.0 - r1) ** 2 + num
+    p4s = 4.0 * (r01 * r12) * s
+    num = (r01 + r12) ** 2 - p4s
+    den = (1.0 + r01 * r12) ** 2 - p4s
     safe = den > _TINY
-    return jnp.where(safe, num / jnp.where(safe, den, 1.0), r1)
+    return jnp.where(safe, num / jnp.where(safe, den, 1.0), r01 * r01)
 
 
 def two_beam_reflectance(

@@ -115,8 +115,15 @@ def _shipped_table(name: str) -> tuple[tuple[str, ...], np.ndarray]:
     return tuple(header.split(",")), np.array([[float(x) for x in r.split(",")] for r in rows])
 
 
-def _read_columns(path: str, columns: int, what: str) -> np.ndarray:
-    """A CSV (comma or whitespace) of ``columns`` numbers per row, header lines skipped."""
+def read_number_rows(path: str, columns: int, what: str) -> np.ndarray:
+    """Rows of ``columns`` finite numbers from a text table (comma, semicolon or whitespace
+    separated; ``#`` comments and header lines before the first row skipped), (rows, columns).
+
+    Raises
+    ------
+    InputError
+        The file cannot be read as text, or a row after the first has too few numbers.
+    """
     from ..errors import InputError
 
     rows = []
@@ -137,7 +144,14 @@ def _read_columns(path: str, columns: int, what: str) -> np.ndarray:
         if len(vals) < columns or not np.all(np.isfinite(vals)):
             raise InputError(f"{what} {path}, line {no}: expected {columns} finite numbers")
         rows.append(vals)
-    data = np.asarray(rows, dtype=np.float64).reshape(-1, columns)
+    return np.asarray(rows, dtype=np.float64).reshape(-1, columns)
+
+
+def _read_columns(path: str, columns: int, what: str) -> np.ndarray:
+    """A CSV (comma or whitespace) of ``columns`` numbers per row, header lines skipped."""
+    from ..errors import InputError
+
+    data = read_number_rows(path, columns, what)
     if len(data) < 2 or np.any(np.diff(np.sort(data[:, 0])) <= 0):
         raise InputError(f"{what} {path}: need at least 2 rows with distinct wavelengths (nm) in the first column")
     if data[:, 0].max() < LAMBDA_MIN or data[:, 0].min() > LAMBDA_MAX or np.any(data[:, 1:] < 0):
@@ -145,17 +159,56 @@ def _read_columns(path: str, columns: int, what: str) -> np.ndarray:
     return data[np.argsort(data[:, 0])]
 
 
+def colour_temperature(name: str) -> float | None:
+    """The temperature in kelvin of an illuminant named ``"3200K"`` (a black body), else None."""
+    text = name.strip()
+    if len(text) < 2 or text[-1] not in "kK":
+        return None
+    try:
+        kelvin = float(text[:-1])
+    except ValueError:
+        return None
+    if not 500.0 <= kelvin <= 50000.0:
+        from ..errors import InputError
+
+        raise InputError(f"colour temperature {name!r} must lie within 500-50000 K")
+    return kelvin
+
+
+def planck_spectrum(wavelength_nm, kelvin: float) -> np.ndarray:
+    """Planck's law, the spectral radiance of a black body at ``kelvin``, relative (its value at 560 nm is 1).
+
+    ``L(lambda) ~ lambda^-5 / (exp(c2 / (lambda T)) - 1)`` with the second radiation
+    constant ``c2 = h c / k = 1.438777e7 nm K`` (CODATA 2018). A tungsten-halogen lamp is
+    close to a black body at its colour temperature (about 2800-3400 K).
+
+    References
+    ----------
+    CIE 015:2018 *Colorimetry*, sec. 11 (Planckian radiator); CODATA 2018 for ``c2``.
+    """
+    lam = np.asarray(wavelength_nm, dtype=np.float64)
+    c2 = 1.438777e7
+
+    def radiance(x):
+        return x ** -5.0 / np.expm1(c2 / (x * kelvin))
+
+    return radiance(lam) / radiance(560.0)
+
+
 @functools.lru_cache(maxsize=16)
 def illuminant_spectrum(illuminant: str) -> np.ndarray:
     """Relative spectral power of an illuminant on the 1 nm grid 360-830 nm (``_GRID``).
 
-    ``"E"`` is equal energy; other names are colour-science's ``SDS_ILLUMINANTS`` (CIE D65,
+    ``"E"`` is equal energy; ``"3200K"`` a black body (:func:`planck_spectrum`); other names are colour-science's ``SDS_ILLUMINANTS`` (CIE D65,
     A, ...); anything else is read as a CSV ``wavelength_nm,power`` (zero outside it).
     """
     from ..errors import InputError
 
     if illuminant.upper() in ("E", "EQUAL", "EQUAL_ENERGY"):
         return np.ones_like(_GRID)
+    kelvin = colour_temperature(illuminant)
+    if kelvin is not None:
+        return planck_spectrum(_GRID, kelvin)
     if illuminant in _SHIPPED_ILLUMINANTS:
         names, table = _shipped_table("cie_illuminants.csv")
         return np.interp(_GRID, table[:, 0], table[:, names.index(illuminant)])
@@ -212,7 +265,7 @@ def _colour_has(dataset: str, name: str) -> bool:
 def is_named_illuminant(name: str) -> bool:
     """Whether ``name`` is a built-in illuminant (``E`` or colour-science's), not a file."""
     return (name.upper() in ("E", "EQUAL", "EQUAL_ENERGY") or name in _SHIPPED_ILLUMINANTS
-            or _colour_has("SDS_ILLUMINANTS", name))
+            or colour_temperature(name) is not None or _colour_has("SDS_ILLUMINANTS", name))
 
 
 def is_named_response(name: str) -> bool:

@@ -349,10 +349,50 @@ def run_probe(stem: str, out_dir: str) -> dict:
     return rows
 
 
+def run_film(case: str, out_dir: str) -> dict:
+    """Fit a flat film or gap (reference_films.py) through the CLI and score its map.
+
+    Pass: the map's median error <= 15 nm, >= 90 % of the film within 15 nm and no order
+    hops; for Newton's rings also R within 1 % and the gap within 5 % (5 nm at the
+    contact) up to 1.5 um."""
+    truth = load_truth(case)
+    cdir = os.path.join(DATA, case)
+    runs = os.path.join(out_dir, "runs")
+    os.makedirs(runs, exist_ok=True)
+    prefix = os.path.join(runs, case)
+    args = [a if a != "scene.toml" else os.path.join(cdir, "scene.toml") for a in truth["fit_args"]]
+    rc, err, wall = _cli(["fit", os.path.join(cdir, "photo.png"), *args, "-o", prefix, "--json", prefix + ".json"])
+    row = {"case": f"{case}:{truth['fits'][0]}", "kind": "film", "wall_s": round(wall, 1)}
+    if rc != 0:
+        row.update({"pass": False, "message": err})
+        return row
+    with open(prefix + ".json") as fh:
+        res = json.load(fh)
+    import vio
+
+    fit_map = vio.read_image(prefix + "_thickness.exr")[..., 0]
+    true_map = vio.read_image(os.path.join(cdir, "thickness_true.exr"))[..., 0]
+    h, w = true_map.shape
+    m = map_metrics(fit_map, true_map, {"cx": w / 2, "cy": h / 2, "r": 10 * (h + w) / INNER})
+    row.update(m, ok=res.get("ok"), reduced_chi2=res.get("reduced_chi2"))
+    good = (m["map_median_nm"] is not None and m["map_median_nm"] <= TOL["median"]
+            and m["map_coverage"] >= TOL["coverage"] and m["order_hops"] == 0)
+    if "radius_mm" in truth:
+        r_err = res["params"]["radius_mm"] / truth["radius_mm"] - 1
+        near = true_map <= 1500.0
+        gap_ok = bool(np.all(np.abs(fit_map - true_map)[near] <= np.maximum(0.05 * true_map[near], 5.0)))
+        row.update(radius_err_rel=r_err, gap_within_5pct=gap_ok)
+        good = good and abs(r_err) < 0.01 and gap_ok
+    row["pass"] = bool(good and res.get("ok"))
+    return row
+
+
 def jobs_for(case: str) -> list[tuple]:
     truth = load_truth(case)
     if truth.get("kind") == "calibration":
         return [("cal", case)]
+    if truth.get("kind") == "film":
+        return [("film", case)]
     return [("fit", case, m) for m in truth.get("fits", ["constant"]) if not ONLY_FITS or m in ONLY_FITS]
 
 
@@ -492,6 +532,8 @@ def main(argv=None) -> int:
         for job in jobs_for(case):
             if job[0] == "cal":
                 row = run_calibration(job[1], a.out)
+            elif job[0] == "film":
+                row = run_film(job[1], a.out)
             else:
                 given = a.disc_given and load_truth(job[1]).get("camera", {}).get("type") == "orthographic"
                 row = run_fit(job[1], job[2], a.out, disc_given=given)

@@ -1,0 +1,158 @@
+"""What a set of readings is, read from the readings themselves: divided by the lamp or not,
+one series or separate readings, in time order or not, and which reading of a draining
+series jumps to the twin of its neighbours' film.
+
+Each choice is made only when no option forces it, and is said in the result.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ._spectrum_extrema import fringe_extrema
+from ._spectrum_profile import local_noise
+
+__all__ = ["looks_normalised", "series_normalised", "TWIN_DCHI2", "same_grid", "in_time_order", "series_twins", "ENVELOPE_WINDOWS",
+           "FLAT_TOLERANCE", "SLOW_SLOPE"]
+
+#: Most windows (equal in wavenumber) whose envelopes are compared (one per fringe at most).
+ENVELOPE_WINDOWS = 6
+#: Largest departure of a window's envelope from a straight line in wavenumber, as a
+#: fraction of the mean envelope, of a reading divided by its lamp. A halogen lamp through
+#: a spectrometer (3000 K Planck times the response) bends its envelope by 30 % or more
+#: over 400-800 nm (the lamp of tests/test_spectrum.py: 45 %); the noise of a divided
+#: reading's dim end moves its envelope by a few per cent.
+FLAT_TOLERANCE = 0.12
+#: Largest change of that line over the range, as a fraction of its mean: a slow slope
+#: (a lamp that drifted between the reference and the reading; the divided readings of
+#: tests/test_spectrum_normalised.py tilt by 40 %).
+SLOW_SLOPE = 0.5
+
+
+def looks_normalised(wavelength_nm: np.ndarray, y: np.ndarray) -> tuple[bool | None, str]:
+    """Whether a reading looks already divided by its lamp (None: it cannot tell), and why.
+
+    A film's reflectance swings between its minima and maxima with an upper envelope
+    (``4 R1 / (1 + R1)^2``, ~0.08 for soap water) that is flat over the visible; a reading
+    divided by the lamp keeps that flat envelope, up to a slow slope, where a raw reading's
+    envelope is the lamp's shape. The envelope is the swing (95th less 5th percentile, less
+the noise's own span in quadrature, the noise from
+:func:`~bubblefit.inverse._spectrum_profile.local_noise`) of each of
+    :data:`ENVELOPE_WINDOWS` windows equal in wavenumber; the reading is divided when the
+    envelope departs from a line by at most :data:`FLAT_TOLERANCE` of its mean and the
+    line changes by at most :data:`SLOW_SLOPE` of it. A reading with fewer than one fringe
+    per window has no envelope to see: None."""
+    lam = np.asarray(wavelength_nm, np.float64)
+    y = np.asarray(y, np.float64)
+    nu = 1.0 / lam
+    if len(y) < 8 * ENVELOPE_WINDOWS:
+        return None, "too few samples to see an envelope"
+    extrema = len(fringe_extrema(lam, y))
+    windows = min(ENVELOPE_WINDOWS, extrema // 2)  # one fringe a window at least
+    if windows < 3:
+        return None, f"fewer than 3 clear fringes ({extrema} extrema): no envelope to judge"
+    noise = local_noise(y)
+    edges = np.linspace(nu.min(), nu.max(), windows + 1)
+    env, mid = [], []
+    for a, b in zip(edges[:-1], edges[1:]):
+        sel = (nu >= a) & (nu <= b)
+        if sel.sum() < 8:
+            return None, "too few samples per window to see an envelope"
+        top, bottom = np.percentile(y[sel], [95, 5])
+        # the noise widens the percentiles' span by about its own 5-95 % span, 3.29 sigma
+        spread = 3.29 * float(np.median(noise[sel]))
+        env.append(np.sqrt(max((top - bottom) ** 2 - spread**2, 0.0)))
+        mid.append(0.5 * (a + b))
+    env, u = np.array(env), np.array(mid)
+    mean = float(np.mean(env))
+    if not mean > 0:
+        return None, "its envelope is not positive"
+    coef = np.polyfit(u, env, 1)
+    line = np.polyval(coef, u)
+    bend = float(np.max(np.abs(env - line)) / mean)
+    slope = float(abs(line[-1] - line[0]) / mean)
+    flat = bend <= FLAT_TOLERANCE and slope <= SLOW_SLOPE
+    return flat, (f"its upper envelope departs {bend:.0%} from a line that changes {slope:.0%} over the range "
+                  f"(divided: within {FLAT_TOLERANCE:.0%} and {SLOW_SLOPE:.0%})")
+
+
+def series_normalised(spectra, dark=None) -> tuple[bool, str]:
+    """Whether a series' readings are divided by their lamp, by the majority of those whose
+    envelope can be judged (:func:`looks_normalised`): one lamp, one treatment for all."""
+    votes = []
+    for s in spectra:
+        y = s.intensity - (dark.on(s.wavelength_nm, "dark") if dark is not None else 0.0)
+        votes.append(looks_normalised(s.wavelength_nm, y)[0])
+    decided = [v for v in votes if v is not None]
+    if not decided:
+        return False, "read as not divided: no reading of the series shows enough fringes to judge its envelope"
+    flat = sum(decided)
+    verdict = flat * 2 > len(decided)
+    return verdict, (f"read as {'divided by their lamp' if verdict else 'not divided'}: {flat} of the "
+                     f"{len(decided)} readings with fringes enough to judge have a flat envelope")
+
+
+def same_grid(spectra) -> bool:
+    """Whether the readings share their wavelengths (one spectrometer, one setting)."""
+    first = spectra[0].wavelength_nm
+    return all(len(s.wavelength_nm) == len(first) and np.allclose(s.wavelength_nm, first, rtol=1e-7, atol=1e-6)
+               for s in spectra[1:])
+
+
+def _natural(name: str):
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", name)]
+
+
+def in_time_order(paths: list[str]) -> tuple[bool, str]:
+    """Whether the files are given in time order: their names in natural order (frame
+    numbers, time stamps), or else their modification times increasing."""
+    names = [Path(p).name for p in paths]
+    if names == sorted(names, key=_natural) and any(ch.isdigit() for ch in "".join(names)):
+        return True, "names in order"
+    try:
+        times = [Path(p).stat().st_mtime for p in paths]
+    except OSError:
+        return False, "no order"
+    if all(b > a for a, b in zip(times, times[1:])):
+        return True, "modification times in order"
+    return False, "neither names nor times in order"
+
+
+#: A reading's second minimum counts as the twin its neighbours point to only when it is
+#: within this ``chi^2`` of its best: a twin the reading excludes by more is not a jump
+#: (``exp(-50)`` less likely under the model; model error is in ``s^2`` already).
+TWIN_DCHI2 = 100.0
+
+
+def series_twins(results, order_spacing: list[float], window: int = 2) -> list[tuple[int, float, str]]:
+    """Readings of a series in time order that jump away from their neighbours to a twin.
+
+    A draining film thins smoothly, so a reading's thickness is close to the line through
+    its ok neighbours (``window`` each side, by their place in the series). Near the first
+    maximum of ``R`` (a quarter wave, ~100 nm) and between orders, a film has a twin whose
+    spectrum differs from its own by little; a reading more than a quarter of an order from
+    that line, whose second minimum lies within a quarter order of it and within
+    :data:`TWIN_DCHI2` of its best, is flagged.
+    Returns (index, the neighbours' thickness, the reason)."""
+    d = np.array([r.thickness_nm for r in results])
+    ok = np.array([bool(r.ok) for r in results])
+    out = []
+    for i, r in enumerate(results):
+        idx = [j for j in range(max(0, i - window), min(len(d), i + window + 1)) if j != i and ok[j]]
+        if len(idx) < 2:
+            continue
+        slope, icpt = np.polyfit(np.array(idx, float), d[idx], 1)
+        pred = float(slope * i + icpt)
+        quarter = 0.25 * order_spacing[i]
+        if abs(d[i] - pred) <= quarter:
+            continue
+        second = r.second_minimum_nm
+        if np.isfinite(second) and abs(second - pred) <= quarter and r.delta_chi2 < TWIN_DCHI2:
+            why = (f"the series in time order says {pred:.0f} nm (its neighbours), where this reading's second "
+                   f"minimum lies ({second:.1f} nm, delta chi2 {r.delta_chi2:.1f}): it jumped to the twin on the "
+                   "other side of a maximum of R")
+            out.append((i, pred, why))
+    return out

@@ -1,0 +1,54 @@
+"""The extrema phase test: does a thickness put a reading's fringe extrema where they are?
+
+At normal incidence the reflectance of a film in air is extremal where its phase
+``4 pi n d / lambda`` is a whole multiple of pi (Born & Wolf, *Principles of Optics*, 7th
+ed., sec. 7.6.1), so at the wavelengths of a reading's extrema ``x = 4 n(lambda) d / lambda``
+is a whole number. The score of a thickness is the rms distance of ``x`` from the nearest
+whole number there: 0 for a thickness that puts every extremum where it is, ``1/sqrt(12)``
+(0.289) on average for one unrelated to the fringes. It uses no lamp model and no fit, so
+it can question a thickness stated by someone else (or by the fit): indicative, not a
+measurement (a sloping lamp and the smoothing move low-contrast extrema a little).
+
+References
+----------
+Born & Wolf, *Principles of Optics*, 7th ed., sec. 7.6.1.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.signal import find_peaks, savgol_filter
+
+__all__ = ["fringe_extrema", "extrema_phase", "RANDOM_PHASE", "MIN_EXTREMA"]
+
+#: The score of a thickness unrelated to the fringes: rms distance of a uniform number
+#: from the nearest integer.
+RANDOM_PHASE = 1.0 / np.sqrt(12.0)
+#: Fewest extrema for a score (with fewer, many thicknesses fit them).
+MIN_EXTREMA = 3
+
+
+def fringe_extrema(wavelength_nm: np.ndarray, y: np.ndarray, window: int = 51, prominence: float = 0.05) -> np.ndarray:
+    """Wavelengths of the smoothed reading's maxima and minima (Savitzky-Golay, cubic,
+    ``window`` samples) whose prominence is at least ``prominence`` of its mean level (a
+    fraction of its range would count the wiggles of a reading without fringes)."""
+    y = np.asarray(y, np.float64)
+    win = min(window, len(y) // 2 * 2 - 1)
+    if win < 5:
+        return np.array([])
+    smooth = savgol_filter(y, win, 3)
+    p = prominence * float(np.mean(np.abs(smooth)))
+    peaks, _ = find_peaks(smooth, prominence=p)
+    troughs, _ = find_peaks(-smooth, prominence=p)
+    return np.sort(np.asarray(wavelength_nm)[np.r_[peaks, troughs]])
+
+
+def extrema_phase(thickness_nm: float, extrema_nm: np.ndarray, n_at) -> float:
+    """RMS distance of ``4 n d / lambda`` from the nearest whole number at ``extrema_nm``
+    (``n_at(lambda)`` the film's index); NaN for no thickness or fewer than
+    :data:`MIN_EXTREMA` extrema."""
+    if thickness_nm is None or not np.isfinite(thickness_nm) or len(extrema_nm) < MIN_EXTREMA:
+        return float("nan")
+    lam = np.asarray(extrema_nm, np.float64)
+    x = 4.0 * np.asarray(n_at(lam)) * thickness_nm / lam
+    return float(np.sqrt(np.mean((x - np.round(x)) ** 2)))

@@ -1,0 +1,501 @@
+"""Thickness of a flat film or a gap from one colour photo: per-pixel maps and Newton's rings.
+
+The forward model of a pixel ``p`` on the film is
+
+    ``y_p = g L_p rgb(R(d_p, lambda, theta_p))``
+
+with ``R`` the film's reflectance between its two media (the three-media Airy sum,
+:func:`bubblefit.optics.film.airy_reflectance`), averaged over the objective's cone for
+coaxial light (:mod:`bubblefit.lighting.coaxial`) or taken at the pixel's angle under an
+area light (:mod:`bubblefit.lighting.area`, radiance ``L_p``), integrated to the camera's
+RGB under the lamp (:mod:`bubblefit.optics.spectral`), and ``g`` the unknown exposure.
+
+A per-pixel map (``thickness = "map"``) is found in four vectorised stages:
+
+1. *Table and exposure*: the colours of thicknesses ``d_j`` on a 2 nm grid (per angle
+   node for an area light, interpolated linearly in ``sin^2``), and the exposure ``g``
+   minimising the summed best-candidate misfit over a subsample of pixels.
+2. *Cost volume*: ``C[p, j] = |y_p - g L_p T_j|^2`` for every pixel and candidate.
+3. *Order from a reference*: colour alone is ambiguous between interference orders, so
+   the order is carried from a reference (the thinnest, darkest first-order pixels -- a
+   black film or a contact point -- or a region of known thickness) to its neighbours, a
+   front at a time: each pixel on the front takes the best candidate within a window of
+   +-0.3 fringe around the linear extrapolation of its assigned neighbours. The window
+   (0.3 of the fringe spacing ``lambda / (2 n)`` at 550 nm) is narrower than the distance
+   to the next order's similar colour and wider than a pixel-to-pixel step of a resolved
+   fringe pattern (at least 3.3 pixels per fringe).
+4. *Refinement*: Gauss-Newton in ``d`` per pixel on the exact forward model (vmapped), with
+   the standard error ``sigma / |dy/dd|`` from the noise ``sigma`` estimated from the
+   residuals (median absolute deviation).
+
+Newton's rings (``thickness = "newton"``): a lens of radius ``R`` on a plate leaves the gap
+``h(r) = R - sqrt(R^2 - r^2) + h0`` around the contact point ``(cx, cy)``; the map gives
+the start (centre of the thinnest pixels, ``R`` and ``h0`` from a line in ``r^2``) and
+Levenberg-Marquardt fits ``(R, cx, cy, h0, g)`` to the colours directly, with standard
+errors from ``sigma^2 (J^T J)^-1``.
+
+References
+----------
+M. Born and E. Wolf, *Principles of Optics*, 7th ed., sec. 7.5.3 (Newton's rings) and
+7.6 (multiple-beam fringes); D. W. Marquardt, "An algorithm for least-squares estimation
+of nonlinear parameters", J. SIAM 11, 431-441 (1963).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..errors import ComputationError, InputError
+from ..lighting import coaxial
+from ..optics import dispersion, spectral
+from ._censored import BLACK_CLIP, censored_residual
+
+__all__ = ["PlanarView", "PlanarForward", "PlanarResult", "fit_planar", "view_of"]
+
+#: Step of the thickness candidates (nm): below a tenth of the narrowest fringe of the
+#: colour table (lambda / (2 n) = 140 nm at 380 nm, n = 1.35), so the search lands within
+#: the refinement's reach.
+GRID_STEP_NM = 2.0
+#: Deviation from the mean of the four neighbours (nm) that the relaxation weighs like one
+#: pixel's noise (3 sigma^2): ten times the 1.5 nm a 1 um-per-100-pixel drainage slope
+#: bends per pixel, far above a Newton lens's curvature (0.8 nm per pixel^2 at R = 100 mm,
+#: 9 um pixels), and below the 20-30 nm between neighbouring minima of the colour cost.
+RELAX_NM = 15.0
+#: Spectral samples of the fitting basis: 5 nm bins, fine enough for fringes 50 nm wide
+#: (a 3 um air gap at 550 nm).
+SPECTRAL_SAMPLES = 80
+
+
+@dataclass(frozen=True)
+class PlanarView:
+    """Per pixel (H, W): on the film (``mask``), ``sin2`` of the incidence in air, the light's
+    ``radiance`` there, and the film coordinates in microns (``x_um``, ``y_um``)."""
+
+    mask: np.ndarray
+    sin2: np.ndarray
+    radiance: np.ndarray
+    x_um: np.ndarray
+    y_um: np.ndarray
+
+
+def view_of(scene) -> PlanarView:
+    """The :class:`PlanarView` of a :class:`~bubblefit.model.planar_scene.PlanarScene`."""
+    h, w = scene.height, scene.width
+    if scene.light == "coaxial":
+        yy, xx = np.mgrid[0:h, 0:w].astype(np.float64) + 0.5
+        return PlanarView(mask=np.ones((h, w), bool), sin2=np.zeros((h, w)), radiance=np.ones((h, w)),
+                          x_um=xx * scene.pixel_um, y_um=yy * scene.pixel_um)
+    from ..lighting.area import view_plane
+
+    rows, cols = np.mgrid[0:h, 0:w].astype(np.float64)
+    o, d = scene.camera.rays(jnp.asarray(rows), jnp.asarray(cols))
+    v = view_plane(np.asarray(o, np.float64), np.asarray(d, np.float64), scene.plane, scene.area)
+    mask = v.mask & (v.radiance > 0)
+    if not np.any(mask):
+        raise InputError("the area light is not seen in the film from this camera (no pixel reflects it)")
+    return PlanarView(mask=mask, sin2=v.sin2_air, radiance=v.radiance, x_um=v.x, y_um=v.y)
+
+
+class PlanarForward:
+    """``rgb(d, sin2)``: the film's colour under the scene's lamp and camera (module equation)."""
+
+    def __init__(self, stack: coaxial.Stack, lamp: str, response: str, na: float, max_nm: float):
+        self.basis = spectral.spectral_basis("uniform", SPECTRAL_SAMPLES, illuminant=lamp, response=response)
+        lam = self.basis.wavelengths
+        self.lam = jnp.asarray(lam)
+        self.n = stack.indices(lam)
+        self.na = float(na)
+        n_min = float(np.min(self.n.film))
+        self.nodes = coaxial.cone_nodes_needed(max_nm, self.na, n_min) if self.na > 0 else 1
+        #: Fringe spacing at 550 nm (nm of thickness), for the order window.
+        self.fringe_nm = 550.0 / (2.0 * float(dispersion.refractive_index(stack.film, 550.0)))
+
+    def rgb(self, d, sin2):
+        """(..., 3) colour of thickness ``d`` seen at ``sin2`` (ignored under coaxial light)."""
+        d = jnp.asarray(d)[..., None]
+        if self.na > 0:
+            r = coaxial.coaxial_reflectance(d, self.lam, self.n, self.na, self.nodes)
+        else:
+            r = coaxial.reflectance_at_angles(d, self.lam, self.n, jnp.asarray(sin2)[..., None])
+        return spectral.integrate(r, self.basis)
+
+
+@dataclass
+class PlanarResult:
+    """What a planar fit found (typed record; :meth:`to_json` for the command line)."""
+
+    kind: str
+    ok: bool
+    thickness_map: np.ndarray           # nm, NaN off the film
+    thickness_stderr_map: np.ndarray    # nm
+    render: np.ndarray
+    residual: np.ndarray
+    gain: float
+    sigma: float
+    params: dict = field(default_factory=dict)
+    stderr: dict = field(default_factory=dict)
+    warnings: list = field(default_factory=list)
+    order_hops: int = 0
+    reduced_chi2: float = float("nan")
+
+    def to_json(self) -> dict:
+        m = self.thickness_map[np.isfinite(self.thickness_map)]
+        return {"kind": self.kind, "ok": self.ok, "warnings": self.warnings, "params": self.params,
+                "stderr": self.stderr, "gain": self.gain, "noise_sigma": self.sigma,
+                "reduced_chi2": self.reduced_chi2, "order_hops": self.order_hops,
+                "thickness_nm": {"min": float(m.min()), "median": float(np.median(m)), "max": float(m.max()),
+                                 "median_stderr": float(np.nanmedian(self.thickness_stderr_map))} if m.size else None}
+
+    def report(self) -> str:
+        lines = [f"{k} = {v:.6g} +- {self.stderr.get(k, float('nan')):.3g}" for k, v in self.params.items()]
+        j = self.to_json()["thickness_nm"]
+        if j:
+            lines.append(f"thickness {j['min']:.1f} .. {j['max']:.1f} nm (median {j['median']:.1f}, "
+                         f"median standard error {j['median_stderr']:.2f} nm)")
+        lines.append(f"ok: {'yes' if self.ok else 'no'}; reduced chi^2 {self.reduced_chi2:.3g}; "
+                     f"order hops {self.order_hops}" + ("; " + "; ".join(self.warnings) if self.warnings else ""))
+        return "\n".join(lines)
+
+
+def _table(fwd: PlanarForward, grid: np.ndarray, sin2_nodes: np.ndarray) -> np.ndarray:
+    """(S, D, 3) colours of every candidate thickness at each ``sin2`` node."""
+    f = jax.jit(lambda d, s: fwd.rgb(d, s))
+    return np.stack([np.asarray(f(jnp.asarray(grid), jnp.full(grid.shape, s))) for s in sin2_nodes])
+
+
+def _pixel_tables(table: np.ndarray, sin2_nodes: np.ndarray, sin2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Indices and weights interpolating the table linearly in ``sin2`` for each pixel."""
+    if len(sin2_nodes) == 1:
+        z = np.zeros(sin2.shape, int)
+        return z, z, np.zeros(sin2.shape)
+    pos = np.interp(sin2, sin2_nodes, np.arange(len(sin2_nodes)))
+    i0 = np.minimum(np.floor(pos).astype(int), len(sin2_nodes) - 2)
+    return i0, i0 + 1, pos - i0
+
+
+@jax.jit
+def _cost_chunk(y, lum, table, i0, i1, a, gain, high):
+    t = (1.0 - a)[:, None, None] * table[i0] + a[:, None, None] * table[i1]
+    r = censored_residual(y[:, None, :], gain * lum[:, None, None] * t, high)
+    return jnp.sum(r * r, axis=-1)
+
+
+def _costs(y, lum, table, i0, i1, a, gain, high=np.inf, chunk=1024):
+    """(P, D) cost volume ``|y - g L T|^2`` (censored, :func:`censored_residual`), compiled and
+    chunked over pixels (one shape for every chunk)."""
+    n = len(y)
+    out = np.empty((n, table.shape[1]), np.float32)
+    tab = jnp.asarray(table, jnp.float32)
+    for s in range(0, n, chunk):
+        part = [np.asarray(v[s:s + chunk]) for v in (y, lum, i0, i1, a)]
+        k = len(part[0])
+        if k < chunk:
+            part = [np.concatenate([v, np.repeat(v[-1:], chunk - k, axis=0)]) for v in part]
+        yc, lc, ic0, ic1, ac = part
+        c = _cost_chunk(jnp.asarray(yc, jnp.float32), jnp.asarray(lc, jnp.float32), tab, jnp.asarray(ic0),
+                        jnp.asarray(ic1), jnp.asarray(ac, jnp.float32), jnp.float32(gain), jnp.float32(high))
+        out[s:s + k] = np.asarray(c)[:k]
+    return out
+
+
+def _find_gain(y, lum, table, i0, i1, a, rng, high=np.inf) -> float:
+    """The exposure minimising the summed best-candidate misfit (its best 90 %) over 1500
+    pixels: 16 factors over [0.5, 2.5] x the ratio of the photo's and the table's peaks,
+    then 16 within one step of the best (1.4 % apart; the least-squares update after the
+    refinement takes it the rest of the way)."""
+    idx = rng.choice(len(y), size=min(len(y), 1500), replace=False)
+    peak = float(np.percentile(y[idx].max(-1) / np.maximum(lum[idx], 1e-9), 99.5))
+    base = peak / max(float(table.max()), 1e-9)
+
+    def score(g):
+        c = _costs(y[idx], lum[idx], table, i0[idx], i1[idx], a[idx], g, high).min(1)
+        return np.sort(c)[: int(0.9 * len(idx))].sum()
+
+    coarse = base * np.geomspace(0.5, 2.5, 16)
+    best = coarse[int(np.argmin([score(g) for g in coarse]))]
+    ratio = (2.5 / 0.5) ** (1 / 15)
+    fine = best * np.geomspace(1 / ratio, ratio, 16)
+    return float(fine[int(np.argmin([score(g) for g in fine]))])
+
+
+def _propagate(cost: np.ndarray, grid: np.ndarray, mask: np.ndarray, seed_d: np.ndarray, window_nm: float,
+               smooth: float, relax_weight: float, relax_passes: int = 12) -> np.ndarray:
+    """Carry the interference order from the seeds over the film, a front of pixels at a time.
+
+    ``cost`` (P, D) over the mask's pixels, ``seed_d`` (H, W) with the seeds' thickness and
+    NaN elsewhere. Each front pixel takes the candidate within ``window_nm`` of the mean
+    linear extrapolation of its assigned 4-neighbours that minimises
+    ``C + smooth (d - prediction)^2``. Vectorised over pixels with ``jax.lax.while_loop``.
+    """
+    h, w = mask.shape
+    step = grid[1] - grid[0]
+    half = int(math.ceil(window_nm / step))
+    offsets = jnp.arange(-half, half + 1)
+    pix = np.flatnonzero(mask.ravel())
+    full_cost = np.full((h * w, cost.shape[1]), np.inf, np.float32)
+    full_cost[pix] = cost
+    full_cost = jnp.asarray(full_cost)
+    gridj = jnp.asarray(grid, jnp.float32)
+    maskj = jnp.asarray(mask)
+
+    def shifted(a, dy, dx, fill):
+        a = jnp.roll(a, (dy, dx), axis=(0, 1))
+        if dy > 0:
+            a = a.at[:dy].set(fill)
+        if dy < 0:
+            a = a.at[dy:].set(fill)
+        if dx > 0:
+            a = a.at[:, :dx].set(fill)
+        if dx < 0:
+            a = a.at[:, dx:].set(fill)
+        return a
+
+    def step_fn(state):
+        d, _ = state
+        known = jnp.isfinite(d)
+        pred_sum = jnp.zeros_like(d)
+        count = jnp.zeros_like(d)
+        for dy, dx in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            d1 = shifted(d, dy, dx, jnp.nan)
+            d2 = shifted(d, 2 * dy, 2 * dx, jnp.nan)
+            p = jnp.where(jnp.isfinite(d2), 2 * d1 - d2, d1)
+            ok = jnp.isfinite(d1)
+            pred_sum = pred_sum + jnp.where(ok, p, 0.0)
+            count = count + ok
+        front = maskj & ~known & (count > 0)
+        pred = (pred_sum / jnp.maximum(count, 1)).ravel()
+        best = choose(pred, smooth).reshape(h, w)
+        return jnp.where(front, best, d), jnp.any(front)
+
+    def choose(pred, weight):
+        centre = jnp.clip(jnp.round((pred - gridj[0]) / step).astype(jnp.int32), 0, len(grid) - 1)
+        idx = jnp.clip(centre[:, None] + offsets[None, :], 0, len(grid) - 1)
+        c = jnp.take_along_axis(full_cost, idx, axis=1) + weight * (gridj[idx] - pred[:, None]) ** 2
+        return gridj[jnp.take_along_axis(idx, jnp.argmin(c, axis=1)[:, None], axis=1)[:, 0]]
+
+    d0 = jnp.asarray(np.where(mask, seed_d, np.nan), jnp.float32)
+    d, _ = jax.lax.while_loop(lambda s: s[1], step_fn, (d0, jnp.array(True)))
+
+    # Relaxation: each pixel again takes the best candidate near the mean of its four
+    # neighbours, now with the smoothness of a plane (a Laplacian prior, unbiased for a
+    # linear slope), updating the two colours of a checkerboard in turn (iterated
+    # conditional modes). It mends whole fronts that took a neighbouring local minimum.
+    checker = jnp.asarray((np.add.outer(np.arange(h), np.arange(w)) % 2).astype(bool))
+
+    def relax(_, d):
+        for colour in (checker, ~checker):
+            acc = jnp.zeros_like(d)
+            cnt = jnp.zeros_like(d)
+            for dy, dx in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+                d1 = shifted(d, dy, dx, jnp.nan)
+                ok = jnp.isfinite(d1)
+                acc = acc + jnp.where(ok, d1, 0.0)
+                cnt = cnt + ok
+            pred = jnp.where(cnt > 0, acc / jnp.maximum(cnt, 1), d).ravel()
+            best = choose(pred, relax_weight).reshape(h, w)
+            d = jnp.where(colour & maskj & jnp.isfinite(d), best, d)
+        return d
+
+    d = jax.lax.fori_loop(0, relax_passes, relax, d)
+    return np.asarray(d, np.float64)
+
+
+def _refine(fwd: PlanarForward, y, lum, sin2, d, gain, lo, hi, high=np.inf, iters: int = 6):
+    """Gauss-Newton in ``d`` per pixel on the exact colours (censored residuals), within two
+    grid steps of the start (the order and the minimum were chosen on the grid); returns
+    (d, |dr/dd|^2, model)."""
+    key = (float(lo), float(hi), float(high), iters)
+    if getattr(fwd, "_refine_key", None) != key:
+
+        def one(yp, lp, sp, dp, g):
+            def resid(t):
+                return censored_residual(yp, g * lp * fwd.rgb(t, sp), high)
+
+            def body(_, t):
+                r, dr = jax.jvp(resid, (t,), (jnp.ones_like(t),))
+                step = -jnp.sum(dr * r) / jnp.maximum(jnp.sum(dr * dr), 1e-20)
+                return jnp.clip(t + step, jnp.maximum(dp - 2 * GRID_STEP_NM, lo), jnp.minimum(dp + 2 * GRID_STEP_NM, hi))
+
+            t = jax.lax.fori_loop(0, iters, body, dp)
+            _, dr = jax.jvp(resid, (t,), (jnp.ones_like(t),))
+            return t, jnp.sum(dr * dr), g * lp * fwd.rgb(t, sp)
+
+        fwd._refine_fn = jax.jit(jax.vmap(one, in_axes=(0, 0, 0, 0, None)))
+        fwd._refine_key = key
+    f = fwd._refine_fn
+    n = len(y)
+    size = 4096
+    out = []
+    for s in range(0, n, size):
+        part = [a[s:s + size] for a in (y, lum, sin2, d)]
+        pad = size - len(part[0])
+        if pad:  # one compiled shape for every chunk
+            part = [np.concatenate([a, np.repeat(a[-1:], pad, axis=0)]) for a in part]
+        r = f(*(jnp.asarray(a) for a in part), float(gain))
+        out.append([np.asarray(v)[: size - pad] for v in r])
+    return tuple(np.concatenate([o[k] for o in out]) for k in range(3))
+
+
+def _noise_sigma(res: np.ndarray) -> float:
+    """Per-channel noise from the residuals: 1.4826 x their median absolute deviation."""
+    return float(max(1.4826 * np.median(np.abs(res - np.median(res))), 1e-6))
+
+
+def _hops(dmap: np.ndarray, limit: float) -> int:
+    """Neighbour pairs whose thickness differs by more than ``limit`` nm (order hops)."""
+    a = np.abs(np.diff(dmap, axis=0))
+    b = np.abs(np.diff(dmap, axis=1))
+    return int(np.nansum(a > limit) + np.nansum(b > limit))
+
+
+def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=None,
+               kind: str | None = None, seed: int = 0, clip_high: float = np.inf) -> PlanarResult:
+    """Fit a flat film's or a gap's thickness to a linear photo (H, W, 3) (the module's method).
+
+    ``clip_high``: the sensor's white clip in the photo's units (1 for an 8/16-bit file,
+    ``inf`` for linear EXR/HDR); channels at 0 or at ``clip_high`` are censored.
+    """
+    kind = kind or scene.thickness
+    h, w = photo.shape[:2]
+    if (h, w) != (scene.height, scene.width):
+        raise InputError(f"the photo is {w}x{h}, the scene's camera {scene.width}x{scene.height}")
+    view = view_of(scene)
+    region = reference_region if reference_region is not None else scene.reference_region
+    ref_nm = reference_nm if reference_nm is not None else scene.reference_nm
+    if region is not None:
+        x0, y0, x1, y1 = region
+        if x0 < 0 or y0 < 0 or x1 > w or y1 > h or not view.mask[y0:y1, x0:x1].any():
+            raise InputError(f"the reference region {x0},{y0},{x1},{y1} lies outside the film")
+    lo, hi = scene.thickness_range
+    fwd = PlanarForward(scene.stack, scene.lamp, scene.response, scene.na, hi)
+    grid = np.arange(lo, hi + 0.5 * GRID_STEP_NM, GRID_STEP_NM)
+    mask = view.mask
+    y = np.asarray(photo, np.float64).reshape(-1, 3)[mask.ravel()]
+    lum = view.radiance[mask]
+    sin2 = view.sin2[mask]
+    # Every film reflects at least a few per cent of the lamp outside its black film; a
+    # photo whose film pixels are 99 % darker than 0.02 (8-bit sRGB code 39) shows none.
+    if float(np.percentile(y.max(-1), 99)) <= 0.02:
+        raise InputError("the film does not appear in the photo (the pixels where it should be are dark)")
+    if scene.light == "area" and sin2.max() - sin2.min() > 1e-6:
+        nodes = np.linspace(sin2.min(), sin2.max(), 12)
+    else:
+        nodes = np.array([float(np.median(sin2))])
+    table = _table(fwd, grid, nodes)
+    i0, i1, a = _pixel_tables(table, nodes, sin2)
+    gain = _find_gain(y, lum, table, i0, i1, a, np.random.default_rng(seed), clip_high)
+    cost = _costs(y, lum, table, i0, i1, a, gain, clip_high)
+    best = grid[np.argmin(cost, axis=1)]
+    sigma2 = max(float(np.median(cost.min(1))) / 3.0, 1e-10)
+    window = 0.3 * fwd.fringe_nm
+    warnings: list[str] = []
+
+    seeds = np.full((h, w), np.nan)
+    if kind == "constant":
+        # One thickness for the film, each candidate with its own least-squares exposure
+        # (``g_j = sum y.T_j / sum |T_j|^2``): the exposure found above belongs to one order.
+        A = np.zeros(len(grid))
+        B = np.zeros(len(grid))
+        for s in range(0, len(y), 1024):
+            sl = slice(s, s + 1024)
+            t = lum[sl, None, None] * ((1 - a[sl, None, None]) * table[i0[sl]] + a[sl, None, None] * table[i1[sl]])
+            A += np.einsum("pc,pdc->d", y[sl], t)
+            B += np.einsum("pdc,pdc->d", t, t)
+        total = float(np.sum(y * y)) - A * A / np.maximum(B, 1e-30)
+        j = int(np.argmin(total))
+        gain = float(A[j] / B[j])
+        dpix = np.full(len(y), grid[j])
+        # Another order that fits nearly as well leaves the thickness ambiguous: a
+        # near-neutral film whose brightness the unknown exposure absorbs. "Nearly": worse
+        # by less than one noise variance (sigma^2, summed over the channels) per pixel on
+        # average, i.e. colours closer than the noise of a single pixel: a small mismatch
+        # of the model (a dispersion law, the lamp: ~1e-3 of the signal against the
+        # independent renderer) is common to all pixels and does not average out.
+        far = np.abs(grid - grid[j]) > 0.75 * fwd.fringe_nm  # past the neighbouring minima of this order
+        if far.any() and (total[far].min() - total[j]) / len(y) < sigma2:
+            alt = grid[far][int(np.argmin(total[far]))]
+            warnings.append(f"the colour fits {grid[j]:.0f} nm and {alt:.0f} nm nearly as well (another order); "
+                            "name the thickness of a region with --reference-region")
+    else:
+        if region is not None:
+            x0, y0, x1, y1 = region
+            inside = np.zeros((h, w), bool)
+            inside[y0:y1, x0:x1] = True
+            sel = inside[mask]
+            near = np.abs(grid - ref_nm) <= window
+            jj = np.flatnonzero(near)
+            pick = grid[jj[np.argmin(cost[sel][:, jj], axis=1)]]
+            seeds[inside & mask] = pick
+        else:
+            # A black film or a contact point: pixels that match a film thinner than 0.3
+            # fringe (82 nm of air, 62 nm of water at 550 nm: the dark grey end of the colour
+            # chart) and are dark (below 0.35 x the median brightness, which a thick film
+            # fading to its grey mean reflectance, the other neutral colour, never is).
+            bright = y.sum(-1) / np.maximum(lum, 1e-9)
+            thin = best <= lo + 0.3 * fwd.fringe_nm
+            good = cost.min(1) <= np.percentile(cost.min(1), 75)
+            pick = thin & good & (bright <= 0.35 * np.median(bright))
+            if pick.sum() < 3:
+                raise InputError("no reference for the interference order: the photo has no black film or contact "
+                                 "point; name a region of known thickness with --reference-region x0,y0,x1,y1=NM")
+            flat = seeds.reshape(-1)
+            flat[np.flatnonzero(mask.ravel())[pick]] = best[pick]
+            seeds = flat.reshape(h, w)
+        dmap = _propagate(cost, grid, mask, seeds, window, smooth=3.0 * sigma2 / window ** 2,
+                          relax_weight=3.0 * sigma2 / RELAX_NM ** 2)
+        dpix = dmap[mask]
+        if not np.all(np.isfinite(dpix)):
+            warnings.append(f"{int((~np.isfinite(dpix)).sum())} film pixels are not connected to the reference")
+            dpix = np.where(np.isfinite(dpix), dpix, best)
+
+    dref, jj_, model = _refine(fwd, y, lum, sin2, dpix, gain, lo, hi, clip_high)
+    # exposure by least squares on the refined thickness, then refine once more
+    unit = model / gain
+    seen = (y > BLACK_CLIP) & (y < clip_high)  # the exposure from the channels not clipped
+    gain = float(np.sum((y * unit)[seen]) / max(float(np.sum((unit * unit)[seen])), 1e-20))
+    dref, jj_, model = _refine(fwd, y, lum, sin2, dref, gain, lo, hi, clip_high)
+    res = censored_residual(y, model, clip_high, np)
+    sigma = _noise_sigma(res)
+    stderr = sigma / np.sqrt(np.maximum(jj_, 1e-20))
+    params, perr = {}, {}
+    if kind == "constant":
+        dd = float(np.median(dref))
+        params["thickness_nm"] = dd
+        perr["thickness_nm"] = float(sigma / np.sqrt(np.sum(jj_)))
+    if kind == "newton":
+        from ._newton import fit_newton
+
+        nres = fit_newton(fwd, y, lum, sin2, view, mask, dref, gain, sigma, lo, hi, clip_high)
+        params, perr = nres.params, nres.stderr
+        dref, model, gain = nres.thickness, nres.model, nres.gain
+        stderr = nres.thickness_stderr
+        res = censored_residual(y, model, clip_high, np)
+    chi2 = float(np.mean(res ** 2) / sigma ** 2)
+    tmap = np.full((h, w), np.nan)
+    tmap[mask] = dref
+    smap = np.full((h, w), np.nan)
+    smap[mask] = stderr
+    hops = _hops(tmap, window) if kind == "map" else 0
+    if hops:
+        warnings.append(f"{hops} neighbouring pixel pairs differ by more than {window:.0f} nm (possible order hops)")
+    edge = (dref <= lo + 1e-6) | (dref >= hi - 1e-6)
+    if edge.mean() > 0.05:
+        warnings.append(f"{100 * edge.mean():.0f} % of the film sits at the edge of the searched range "
+                        f"{lo:g}-{hi:g} nm")
+    render = np.zeros((h, w, 3))
+    render[mask] = model
+    resid = np.zeros((h, w, 3))
+    resid[mask] = res
+    ok = not warnings and chi2 < 4.0
+    if chi2 >= 4.0:
+        warnings.append(f"the model does not explain the photo (residual {math.sqrt(chi2):.1f} x the noise)")
+    if not np.isfinite(tmap[mask]).all():
+        raise ComputationError("the planar fit produced non-finite thicknesses")
+    return PlanarResult(kind=kind, ok=ok, thickness_map=tmap, thickness_stderr_map=smap, render=render, residual=resid,
+                        gain=gain, sigma=sigma, params=params, stderr=perr, warnings=warnings, order_hops=hops,
+                        reduced_chi2=chi2)

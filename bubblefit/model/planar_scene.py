@@ -1,0 +1,202 @@
+"""Scene files for flat films and gaps: ``[film] shape = "plane"`` with its media and lamp.
+
+A spherical bubble keeps its ``[bubble]`` table (:mod:`bubblefit.model.scene`); a flat
+film or a gap is described by
+
+``[film]``
+    ``shape = "plane"``; ``n`` (the film or the gap: a number, ``"water"``, ``"soap"``,
+    ``"air"``, ``{cauchy = [...]}``), ``above`` and ``below`` (the media on either side,
+    ``"air"`` by default; ``above`` is where the light comes from), ``thickness`` =
+    ``"map"`` (a per-pixel map), ``"newton"`` (a lens on a plate, ``h(r) = R - sqrt(R^2 - r^2)``)
+    or ``"constant"``; ``range_nm = [lo, hi]``; ``reference`` = ``"thinnest"`` (a black film
+    or a contact point: the darkest first-order pixels), or a region and value given as
+    ``reference_region = [x0, y0, x1, y1]`` and ``reference_nm``. For a perspective camera
+    the plane's ``center``, ``normal``, ``up`` and ``size`` (width, height) in scene units.
+``[light]``
+    ``type = "coaxial"`` with ``na`` (the objective's numerical aperture) and ``lamp``
+    (``"D65"``, ``"3200K"``, a CSV ``wavelength_nm,power``); or ``type = "area"`` with
+    ``shape`` (``"rect"``/``"disc"``), ``center``, ``normal``, ``up``, ``size``,
+    ``radiance`` and ``lamp``.
+``[camera]``
+    coaxial light: ``width``, ``height`` and ``pixel_um`` (microns per pixel on the film,
+    an orthographic view along the axis); area light: ``type = "perspective"`` with
+    ``origin``, ``target``, ``up``, ``fov_deg`` as for bubbles. ``response`` as elsewhere.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..lighting.area import Patch
+from ..lighting.coaxial import Stack
+from ..optics import dispersion
+
+__all__ = ["PlanarScene", "is_planar", "is_planar_file", "load_planar", "parse_planar", "parse_region"]
+
+THICKNESS_KINDS = ("map", "newton", "constant")
+
+
+@dataclass(frozen=True)
+class PlanarScene:
+    """A flat film or gap, its lamp and its camera (typed record of the scene's tables)."""
+
+    stack: Stack
+    light: str                      # "coaxial" | "area"
+    lamp: str                       # illuminant name or CSV path
+    response: str
+    width: int
+    height: int
+    thickness: str = "map"
+    thickness_range: tuple = (0.0, 2000.0)
+    reference: str = "thinnest"
+    reference_region: tuple | None = None   # (x0, y0, x1, y1) pixels, half-open
+    reference_nm: float | None = None
+    na: float = 0.0
+    pixel_um: float = 1.0
+    camera: object | None = None            # PerspectiveCamera for an area light
+    plane: Patch | None = None
+    area: Patch | None = None
+    files: tuple = field(default_factory=tuple)
+
+
+def is_planar(data: dict) -> bool:
+    """Whether a parsed scene file describes a flat film (``[film] shape = "plane"``)."""
+    f = data.get("film")
+    return isinstance(f, dict) and f.get("shape", "sphere") == "plane"
+
+
+def _read_toml(path) -> dict:
+    import tomllib
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"scene file not found: {path}")
+    try:
+        return tomllib.loads(path.read_text())
+    except OSError as exc:
+        raise InputError(f"cannot read scene file {path}: {exc.strerror}") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"scene file {path} is not valid TOML: {exc}") from None
+
+
+def is_planar_file(path) -> bool:
+    """Whether the scene file at ``path`` describes a flat film (False for a missing or bad file:
+    the bubble's loader then says what is wrong). A ``[film]`` of another shape than
+    ``"plane"`` or ``"sphere"`` is refused in one line."""
+    try:
+        data = _read_toml(path)
+    except InputError:
+        return False
+    f = data.get("film")
+    shape = f.get("shape", "sphere") if isinstance(f, dict) else "sphere"
+    if shape not in ("plane", "sphere"):
+        raise InputError(f'{path}: film.shape = {shape!r} is not supported (use "plane" for a flat film or a gap, '
+                         '"sphere" or a [bubble] table for a bubble)')
+    return shape == "plane"
+
+
+def load_planar(path) -> PlanarScene:
+    """Read and check a flat film's scene file."""
+    return parse_planar(_read_toml(path), Path(path).parent)
+
+
+def _num(table: dict, key: str, where: str, default=None, lo=-math.inf, hi=math.inf) -> float:
+    v = table.get(key, default)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
+        raise InputError(f"{where}.{key} must be a number within [{lo:g}, {hi:g}], got {v!r}")
+    return float(v)
+
+
+def _vec(table: dict, key: str, where: str, n: int, default=None) -> tuple:
+    v = table.get(key, default)
+    ok = isinstance(v, (list, tuple)) and len(v) == n and all(
+        isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)
+    if not ok:
+        raise InputError(f"{where}.{key} must be {n} numbers, got {v!r}")
+    return tuple(float(x) for x in v)
+
+
+def parse_region(text: str, width: int | None = None, height: int | None = None) -> tuple[tuple, float]:
+    """``"x0,y0,x1,y1=VALUE_NM"`` (pixels, half-open) into ``((x0, y0, x1, y1), value)``."""
+    try:
+        box, value = text.split("=")
+        x0, y0, x1, y1 = (int(float(v)) for v in box.split(","))
+        nm = float(value)
+    except ValueError:
+        raise InputError(f"--reference-region must be x0,y0,x1,y1=VALUE_NM, got {text!r}") from None
+    if not (x1 > x0 and y1 > y0) or not math.isfinite(nm) or nm < 0:
+        raise InputError(f"--reference-region {text!r}: need x1 > x0, y1 > y0 and a thickness >= 0 nm")
+    if width is not None and (x0 < 0 or y0 < 0 or x1 > width or y1 > height):
+        raise InputError(f"--reference-region {text!r} lies outside the {width}x{height} photo")
+    return (x0, y0, x1, y1), nm
+
+
+def _lamp(value, base: Path, where: str) -> str:
+    from ..optics import spectral
+
+    if not isinstance(value, str):
+        raise InputError(f"{where} must be an illuminant name (D65, 3200K, ...) or a CSV file, got {value!r}")
+    if spectral.is_named_illuminant(value):
+        return value
+    path = (base / value) if not os.path.isabs(value) else Path(value)
+    if not path.is_file():
+        raise InputError(f"{where} {value!r} is neither a known illuminant nor a file")
+    spectral.illuminant_spectrum(str(path))  # checks the table now (one line on a bad one)
+    return str(path)
+
+
+def parse_planar(data: dict, base_dir: str | os.PathLike = ".") -> PlanarScene:
+    """The :class:`PlanarScene` of a parsed scene file; one-line errors for bad values."""
+    from .geometry import PerspectiveCamera
+
+    base = Path(base_dir)
+    f, light, cam = data.get("film", {}), data.get("light", {}), data.get("camera", {})
+    if not isinstance(light, dict) or light.get("type") not in ("coaxial", "area"):
+        raise InputError('a flat film needs [light] type = "coaxial" or "area"')
+    stack = Stack(above=dispersion.parse_index(f.get("above", "air"), "film.above"),
+                  film=dispersion.parse_index(f.get("n", 1.4), "film.n"),
+                  below=dispersion.parse_index(f.get("below", "air"), "film.below"))
+    kind = f.get("thickness", "map")
+    if kind not in THICKNESS_KINDS:
+        raise InputError(f"film.thickness must be one of {', '.join(THICKNESS_KINDS)}, got {kind!r}")
+    lo, hi = _vec(f, "range_nm", "film", 2, (0.0, 2000.0))
+    if not 0 <= lo < hi <= 20000:
+        raise InputError(f"film.range_nm must satisfy 0 <= lo < hi <= 20000 nm, got {[lo, hi]}")
+    region, ref_nm = None, None
+    if "reference_region" in f:
+        region = tuple(int(v) for v in _vec(f, "reference_region", "film", 4))
+        ref_nm = _num(f, "reference_nm", "film", None, 0.0, 20000.0)
+    width = int(_num(cam, "width", "camera", 256, 1, 16384))
+    height = int(_num(cam, "height", "camera", 256, 1, 16384))
+    response = cam.get("response", "srgb")
+    lamp = _lamp(light.get("lamp", "D65"), base, "light.lamp")
+    common = dict(stack=stack, lamp=lamp, response=response, width=width, height=height, thickness=kind,
+                  thickness_range=(lo, hi), reference="region" if region else str(f.get("reference", "thinnest")),
+                  reference_region=region, reference_nm=ref_nm)
+    if common["reference"] not in ("thinnest", "region"):
+        raise InputError(f'film.reference must be "thinnest" or a reference_region, got {f.get("reference")!r}')
+    if light["type"] == "coaxial":
+        na = _num(light, "na", "light", 0.0, 0.0, 0.95)
+        pixel_um = _num(cam, "pixel_um", "camera", 1.0, 1e-6, 1e6)
+        return PlanarScene(light="coaxial", na=na, pixel_um=pixel_um, **common)
+    if cam.get("type") != "perspective":
+        raise InputError('an area light needs a [camera] type = "perspective" (origin, target, up, fov_deg)')
+    camera = PerspectiveCamera(width=width, height=height, origin=_vec(cam, "origin", "camera", 3),
+                               target=_vec(cam, "target", "camera", 3), up=_vec(cam, "up", "camera", 3, (0, 1, 0)),
+                               fov_deg=_num(cam, "fov_deg", "camera", 35.0, 1.0, 170.0))
+    plane = Patch(center=_vec(f, "center", "film", 3), normal=_vec(f, "normal", "film", 3),
+                  up=_vec(f, "up", "film", 3, (0, 1, 0)), size=_vec(f, "size", "film", 2))
+    shape = light.get("shape", "rect")
+    if shape not in ("rect", "disc"):
+        raise InputError(f'light.shape must be "rect" or "disc", got {shape!r}')
+    size = _vec(light, "size", "light", 2) if shape == "rect" else (_num(light, "radius", "light", None, 0),) * 2
+    area = Patch(center=_vec(light, "center", "light", 3), normal=_vec(light, "normal", "light", 3),
+                 up=_vec(light, "up", "light", 3, (0, 1, 0)), size=size, shape=shape,
+                 radiance=_num(light, "radiance", "light", 1.0, 0.0))
+    return PlanarScene(light="area", camera=camera, plane=plane, area=area, **common)

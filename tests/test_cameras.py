@@ -1,0 +1,501 @@
+"""Camera files and camera responses: encodings, RAW, flat fields, calibration, wrong cameras.
+
+References are written here, independently of the package: the scene values a file was
+made from, the IEC 61966-2-1 sRGB formula, hand-built PNG chunks and ICC curves, a DNG
+written with tifffile from a Bayer mosaic of a known scene, and colour-science's camera
+sensitivities and ColorChecker reflectances.
+"""
+
+from __future__ import annotations
+
+import struct
+import subprocess
+import sys
+import zlib
+
+import numpy as np
+import pytest
+
+from bubblefit.errors import InputError
+from bubblefit.io.camera_files import PhotoReading, flat_dark, read_photo, read_raw
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def _png(path, codes16: np.ndarray, chunks: list[tuple[bytes, bytes]]):
+    """A 16-bit RGB PNG written by hand (ISO/IEC 15948), with the given ancillary chunks."""
+    h, w, _ = codes16.shape
+
+    def chunk(kind, body):
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body) & 0xFFFFFFFF)
+
+    raw = b"".join(b"\x00" + codes16[y].astype(">u2").tobytes() for y in range(h))
+    data = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, 2, 0, 0, 0))
+    for kind, body in chunks:
+        data += chunk(kind, body)
+    data += chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b"")
+    path.write_bytes(data)
+
+
+def _srgb_encode(lin):
+    """IEC 61966-2-1:1999 sec. 5.3, written out here."""
+    lin = np.clip(lin, 0, 1)
+    return np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
+
+
+def _scene(h=24, w=32, seed=0):
+    """A smooth linear RGB scene in (0.05, 0.9)."""
+    y, x = np.mgrid[0:h, 0:w] / np.array([h, w])[:, None, None]
+    return np.stack([0.1 + 0.7 * x, 0.2 + 0.5 * y, 0.5 + 0.3 * np.sin(2 * x + y)], axis=-1)
+
+
+def _write_dng(path, mosaic: np.ndarray, black: int, white: int, neutral=(1.0, 1.0, 1.0)):
+    """A minimal uncompressed CFA DNG (Adobe DNG 1.4 tags) of an RGGB mosaic."""
+    import tifffile
+
+    def srat(vals):
+        out = []
+        for v in vals:
+            out += [int(round(v * 10000)), 10000]
+        return out
+
+    def rat(vals):
+        out = []
+        for v in vals:
+            out += [int(round(v * 10000)), 10000]
+        return out
+
+    tags = [(50706, "B", 4, (1, 4, 0, 0), True), (50707, "B", 4, (1, 1, 0, 0), True),
+            (50708, "s", 0, "bubblefit synthetic", True),
+            (33421, "H", 2, (2, 2), True), (33422, "B", 4, (0, 1, 1, 2), True),
+            (50714, "H", 1, (black,), True), (50717, "H", 1, (white,), True),
+            (50721, "2i", 9, srat([1, 0, 0, 0, 1, 0, 0, 0, 1]), True), (50778, "H", 1, (21,), True),
+            (50728, "2I", 3, rat(neutral), True)]
+    tifffile.imwrite(str(path), mosaic.astype(np.uint16), photometric=32803, subfiletype=0, extratags=tags)
+
+
+def _mosaic(scene: np.ndarray) -> np.ndarray:
+    """RGGB Bayer sampling of an (H, W, 3) scene."""
+    h, w, _ = scene.shape
+    m = np.empty((h, w))
+    m[0::2, 0::2] = scene[0::2, 0::2, 0]
+    m[0::2, 1::2] = scene[0::2, 1::2, 1]
+    m[1::2, 0::2] = scene[1::2, 0::2, 1]
+    m[1::2, 1::2] = scene[1::2, 1::2, 2]
+    return m
+
+
+# ----------------------------------------------------------------------------- encodings
+
+
+def test_linear_12bit_tiff_in_16bit_container(tmp_path):
+    """A 12-bit linear sensor's codes with a pedestal, stored in a 16-bit TIFF: read back
+    within half a code of the scene (quantisation 0.5 / (white - black))."""
+    import tifffile
+
+    scene = _scene()
+    black, white = 64, 4095
+    codes = np.round(scene * (white - black) + black).astype(np.uint16)
+    tifffile.imwrite(str(tmp_path / "lin.tif"), codes, photometric="rgb")
+    img = read_photo(str(tmp_path / "lin.tif"), PhotoReading("linear", black_level=black, white_level=white))
+    assert img.encoding.encoding == "linear"
+    assert np.max(np.abs(img.pixels - scene)) <= 0.5 / (white - black) + 1e-12
+    # auto on a file that states nothing: sRGB assumed, and the record says so
+    auto = read_photo(str(tmp_path / "lin.tif"))
+    assert auto.encoding.encoding == "srgb" and "assumed" in auto.encoding.reason
+
+
+def test_png_chunks_decide_auto(tmp_path):
+    """gAMA 1.0 -> linear; an sRGB chunk -> the IEC 61966-2-1 decoding; and an encoding that
+    contradicts the chunk is refused unless forced."""
+    scene = _scene(8, 10)
+    lin_codes = np.round(scene * 65535).astype(np.uint16)
+    _png(tmp_path / "g1.png", lin_codes, [(b"gAMA", struct.pack(">I", 100000))])
+    img = read_photo(str(tmp_path / "g1.png"))
+    assert img.encoding.encoding == "linear" and "gAMA" in img.encoding.reason
+    assert np.max(np.abs(img.pixels - scene)) <= 0.5 / 65535 + 1e-12
+
+    srgb_codes = np.round(_srgb_encode(scene) * 65535).astype(np.uint16)
+    _png(tmp_path / "s.png", srgb_codes, [(b"sRGB", b"\x00")])
+    img = read_photo(str(tmp_path / "s.png"))
+    assert img.encoding.encoding == "srgb"
+    # one code step of the 16-bit encoding is at most 12.92^-1 / 65535 ... (2.4/1.055) / 65535 in linear
+    assert np.max(np.abs(img.pixels - scene)) < 2.3 / 65535
+    with pytest.raises(InputError, match="contradicts"):
+        read_photo(str(tmp_path / "s.png"), PhotoReading("linear"))
+    forced = read_photo(str(tmp_path / "s.png"), PhotoReading("linear", force=True))
+    assert np.allclose(forced.pixels, srgb_codes / 65535)
+
+
+def test_icc_linear_curve_in_a_tiff(tmp_path):
+    """An ICC profile whose tone curves are the identity (``curv`` with no entries, ICC.1
+    sec. 10.6) makes ``auto`` read a TIFF as linear."""
+    import tifffile
+
+    tags = [(b"rTRC", b"curv" + b"\x00" * 4 + struct.pack(">I", 0))] * 1
+    header = bytearray(128)
+    table = struct.pack(">I", len(tags))
+    offset = 128 + 4 + 12 * len(tags)
+    body = b""
+    for sig, data in tags:
+        table += struct.pack(">4sII", sig, offset + len(body), len(data))
+        body += data
+    profile = bytes(header) + table + body
+    struct.pack_into(">I", header, 0, len(profile))
+    profile = bytes(header) + table + body
+    scene = _scene(6, 8)
+    tifffile.imwrite(str(tmp_path / "icc.tif"), np.round(scene * 65535).astype(np.uint16), photometric="rgb",
+                     iccprofile=profile)
+    img = read_photo(str(tmp_path / "icc.tif"))
+    assert img.encoding.encoding == "linear" and "ICC" in img.encoding.reason
+    assert np.max(np.abs(img.pixels - scene)) <= 0.5 / 65535 + 1e-12
+
+
+def test_bad_levels_and_float_srgb(tmp_path):
+    from bubblefit.io.images import write_image
+
+    with pytest.raises(InputError, match="below"):
+        PhotoReading("linear", black_level=5000, white_level=4095)
+    with pytest.raises(InputError, match="linear files"):
+        PhotoReading("srgb", black_level=10)
+    write_image(tmp_path / "f.exr", np.full((4, 4, 3), 0.5), bit_depth=32)
+    with pytest.raises(InputError, match="float"):
+        read_photo(str(tmp_path / "f.exr"), PhotoReading("srgb"))
+    with pytest.raises(InputError, match="exceeds"):
+        import tifffile
+
+        tifffile.imwrite(str(tmp_path / "e.tif"), np.zeros((4, 4, 3), np.uint8), photometric="rgb")
+        read_photo(str(tmp_path / "e.tif"), PhotoReading("linear", white_level=4095))
+
+
+# ----------------------------------------------------------------------------- RAW
+
+
+def test_dng_bayer_mosaic_matches_the_scene(tmp_path):
+    """A smooth scene sampled through an RGGB mosaic with a black level, written as a DNG,
+    read by LibRaw without white balance: the demosaiced camera RGB equals the scene away
+    from the border. Bilinear-class interpolation of a field with second derivative
+    ``f''`` over 2 px errs by at most ``f'' * 2^2 / 8``; the scene's largest curvature is
+    0.3 * (2/32)^2 per px^2 -> 6e-4; plus 12-bit quantisation 1.2e-4 and LibRaw's 16-bit
+    output 8e-6."""
+    pytest.importorskip("rawpy")
+    scene = _scene(32, 48)
+    black, white = 256, 4095
+    codes = np.round(_mosaic(scene) * (white - black) + black)
+    _write_dng(tmp_path / "s.dng", codes, black, white)
+    img = read_photo(str(tmp_path / "s.dng"), PhotoReading(raw_white_balance="none"))
+    assert img.encoding.encoding == "raw"
+    inner = (slice(4, -4), slice(4, -4))
+    err = np.abs(img.pixels[inner] - scene[inner])
+    assert np.max(err) < 2e-3, np.max(err)
+    info = img.metadata["raw"]
+    assert info["black_level_per_channel"][0] == black and info["white_level"] == white
+    # ColorMatrix1 = identity (camera RGB = XYZ): LibRaw's camera-to-sRGB matrix is then the
+    # inverse of sRGB-to-XYZ with rows normalised to white (dcraw's cam_rgb normalisation)
+    import colour
+
+    m = colour.RGB_COLOURSPACES["sRGB"].matrix_RGB_to_XYZ
+    expected = np.linalg.inv(m / m.sum(axis=1, keepdims=True))
+    assert np.allclose(np.asarray(info["color_matrix"]), expected, atol=0.01)
+    # the as-shot white balance (AsShotNeutral 0.5, 1, 0.8): channels scaled by 2, 1, 1.25
+    _write_dng(tmp_path / "wb.dng", codes, black, white, neutral=(0.5, 1.0, 0.8))
+    wb = read_photo(str(tmp_path / "wb.dng"))
+    ratio = np.median(wb.pixels[inner] / np.maximum(img.pixels[inner], 1e-6), axis=(0, 1))
+    assert np.allclose(ratio / ratio[1], [2.0, 1.0, 1.25], rtol=0.01), ratio
+
+
+def test_unsupported_raw_is_one_line(tmp_path):
+    pytest.importorskip("rawpy")
+    bad = tmp_path / "x.nef"
+    bad.write_bytes(b"not a raw file at all" * 50)
+    with pytest.raises(InputError) as exc:
+        read_raw(str(bad))
+    assert "\n" not in str(exc.value) and "x.nef" in str(exc.value)
+
+
+# ----------------------------------------------------------------------------- flat and dark
+
+
+def test_flat_and_dark_remove_vignetting(tmp_path):
+    """photo = scene * V + D and flat = k * V * lamp + D (V a cos^4 vignette, D a fixed
+    pattern): the corrected photo is the scene up to one factor per channel."""
+    from bubblefit.io.images import write_image
+
+    h, w = 24, 32
+    scene = _scene(h, w)
+    y, x = np.mgrid[0:h, 0:w]
+    r2 = ((x - w / 2) ** 2 + (y - h / 2) ** 2) / (w * w)
+    vig = (1.0 / (1.0 + r2)) ** 2
+    dark = 0.01 + 0.002 * np.random.default_rng(1).random((h, w, 1)) * np.ones(3)
+    photo = scene * vig[..., None] + dark
+    flat = 0.6 * vig[..., None] * np.array([1.0, 0.9, 0.7]) + dark
+    for name, arr in (("p.exr", photo), ("f.exr", flat), ("d.exr", dark)):
+        write_image(tmp_path / name, arr, bit_depth=32)
+    img = read_photo(str(tmp_path / "p.exr"), PhotoReading(flat=str(tmp_path / "f.exr"), dark=str(tmp_path / "d.exr")))
+    gain = np.median(img.pixels / scene, axis=(0, 1))
+    assert np.allclose(img.pixels / gain, scene, rtol=2e-6, atol=1e-6)
+    with pytest.raises(InputError, match="flat field"):
+        flat_dark(photo, flat=flat[:-1], flat_path="f.exr")
+
+
+@pytest.mark.slow
+def test_fit_flat_of_another_size_exits_2(tmp_path):
+    from bubblefit.io.images import write_image
+
+    write_image(tmp_path / "p.exr", np.full((16, 16, 3), 0.5), bit_depth=32)
+    write_image(tmp_path / "f.exr", np.full((8, 16, 3), 0.5), bit_depth=32)
+    env = tmp_path / "env.exr"
+    write_image(env, np.full((8, 16, 3), 1.0), bit_depth=32)
+    proc = subprocess.run([sys.executable, "-m", "bubblefit", "fit", str(tmp_path / "p.exr"), "--envmap", str(env),
+                           "--flat", str(tmp_path / "f.exr"), "--json", str(tmp_path / "o.json")],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().count("\n") == 0 and "flat field" in proc.stderr
+    assert not (tmp_path / "o.json").exists()
+
+
+# ----------------------------------------------------------------------------- end to end
+
+N = 48
+DISC = (N / 2, N / 2, 0.42 * N)
+NIKON = "Nikon 5100 (NPL)"  # measured raw sensitivities shipped with colour-science
+
+
+def _film_photo(env, thickness, seed, response="srgb", illuminant="D65"):
+    """A 48 px linear photo of a constant film (and its background) with read and shot noise."""
+    from scipy import ndimage as ndi
+
+    from bubblefit.model.scene import Scene, render_scene
+
+    rng = np.random.default_rng(seed)
+    bg = ndi.gaussian_filter(rng.uniform(0.15, 0.6, (N, N, 3)), (2.5, 2.5, 0))
+    scene = Scene.from_dict({
+        "camera": {"width": N, "height": N, "disc": list(DISC), "response": response},
+        "bubble": {"t": 0.972, "roughness": 0.08, "f": 0.3, "thickness_nm": thickness},
+        "lighting": {"envmap": "unused.exr", "illuminant": illuminant},
+        "effects": {"model": "paper", "transmission_tint": True, "spectral": {"method": "uniform", "samples": 48}},
+    })
+    img = render_scene(scene, bg, env=env)
+
+    def noisy(x):
+        return x + rng.normal(0.0, 1.0, x.shape) * np.sqrt(0.003**2 + 1e-4 * np.clip(x, 0, None))
+
+    return noisy(img), noisy(bg)
+
+
+def _fit_cli(tmp_path, name, photo, background, envfile, *flags):
+    import json
+
+    from bubblefit.cli import main
+
+    out = tmp_path / f"{name}.json"
+    rc = main(["fit", str(photo), "--background", str(background), "--envmap", str(envfile), "--model", "paper",
+               "--disc", ",".join(map(str, DISC)), "--t", "0.968", "--json", str(out), *map(str, flags)])
+    assert rc == 0
+    return json.loads(out.read_text())
+
+
+@pytest.mark.slow
+def test_linear_tiff_and_dng_fit_as_the_exr(small_courtyard, tmp_path):
+    """One noisy linear photo stored three ways: float EXR, 12-bit linear codes with a black
+    level in a 16-bit TIFF, and an RGGB mosaic in a DNG. The TIFF's quantisation (1/4031 of
+    full scale) is far below the noise, so it fits to the EXR's thickness within a tenth of
+    its standard error; the DNG keeps one channel in three per pixel and interpolates the
+    rest, so it agrees within three combined standard errors. All within 5 nm of the truth."""
+    import tifffile
+
+    from bubblefit.io.images import write_image
+
+    truth = 700.0
+    photo, bg = _film_photo(__import__("bubblefit").lighting.envmap.EnvMap.from_array(small_courtyard), truth, 3)
+    envfile = tmp_path / "env.exr"
+    write_image(envfile, small_courtyard, bit_depth=32)
+    black, white = 64, 4095
+    for name, arr in (("photo", photo), ("bg", bg)):
+        write_image(tmp_path / f"{name}.exr", arr, bit_depth=32)
+        codes = np.clip(np.round(arr * (white - black) + black), 0, white)
+        tifffile.imwrite(str(tmp_path / f"{name}.tif"), codes.astype(np.uint16), photometric="rgb")
+        _write_dng(tmp_path / f"{name}.dng", _mosaic(codes), black, white)
+    exr = _fit_cli(tmp_path, "exr", tmp_path / "photo.exr", tmp_path / "bg.exr", envfile)
+    tif = _fit_cli(tmp_path, "tif", tmp_path / "photo.tif", tmp_path / "bg.tif", envfile,
+                   "--encoding", "linear", "--black-level", black, "--white-level", white)
+    dng = _fit_cli(tmp_path, "dng", tmp_path / "photo.dng", tmp_path / "bg.dng", envfile,
+                   "--raw-white-balance", "none")
+    d = {k: (r["params"]["thickness_nm"], r["stderr"]["thickness_nm"]) for k, r in
+         (("exr", exr), ("tif", tif), ("dng", dng))}
+    assert tif["photo_reading"]["encoding"] == "linear" and dng["photo_reading"]["encoding"] == "raw"
+    assert abs(d["tif"][0] - d["exr"][0]) < 0.1 * d["exr"][1] + 0.05, d
+    assert abs(d["dng"][0] - d["exr"][0]) < 3 * np.hypot(d["exr"][1], d["dng"][1]) + 0.5, d
+    assert all(abs(v[0] - truth) < 5.0 for v in d.values()), d
+
+
+# ----------------------------------------------------------------------------- calibration
+
+_LAM = np.arange(380.0, 781.0)
+
+
+def _sensitivities(name):
+    """A colour-science camera's raw sensitivities (L, 3) on the 1 nm grid, zero outside."""
+    import colour
+
+    ms = colour.MSDS_CAMERA_SENSITIVITIES[name]
+    return np.stack([np.interp(_LAM, ms.wavelengths, ms.values[:, c], left=0, right=0) for c in range(3)], axis=1)
+
+
+def _airy(d, n=1.33):
+    """Normal-incidence Airy reflectance of a free film (Born & Wolf sec. 7.6.1), written out."""
+    r = (1 - n) / (1 + n)
+    f = 4 * r * r / (1 - r * r) ** 2
+    s2 = np.sin(2 * np.pi * n * np.asarray(d, float)[:, None] / _LAM) ** 2
+    return f * s2 / (1 + f * s2)
+
+
+def _film_samples(camera, thickness, noise, seed):
+    """Linear RGB of a film at each thickness under illuminant E, with relative noise."""
+    rng = np.random.default_rng(seed)
+    y = _airy(thickness) @ _sensitivities(camera)
+    return y * (1 + noise * rng.normal(size=y.shape))
+
+
+def test_film_calibration_predicts_film_colours():
+    """A draining film's colours (0-2000 nm, 0.5 % noise) seen by the Nikon: the fitted
+    response predicts the colours of 80 thicknesses it was not given within 4 noise
+    standard deviations (2 %) of each channel's range at worst, and its residual is the noise."""
+    from bubblefit.capture.camera_calibration import fit_response
+
+    d = np.linspace(0.0, 2000.0, 81)
+    cal = fit_response([("film", _airy(d), _film_samples(NIKON, d, 0.005, 0))])
+    assert np.all(cal.residual_rel < 0.01), cal.residual_rel
+    assert np.all(cal.stderr >= 0) and np.all(np.median(cal.stderr, axis=0) < 0.05)
+    held = np.linspace(12.5, 1987.5, 80)
+    resp = np.stack([np.interp(_LAM, cal.wavelengths, cal.response[:, c]) for c in range(3)], axis=1)
+    pred, true = _airy(held) @ resp, _airy(held) @ _sensitivities(NIKON)
+    pred = pred * (true * pred).sum(0) / (pred * pred).sum(0)  # each channel's free scale
+    err = np.abs(pred - true).max(0) / true.max(0)
+    assert np.all(err < 0.02), err
+
+
+@pytest.mark.slow
+def test_calibrate_camera_cli_and_bad_input(tmp_path):
+    from bubblefit.capture.camera_calibration import chart_reflectances
+    from bubblefit.optics.spectral import response_functions
+
+    d = np.linspace(0.0, 2000.0, 61)
+    y = _film_samples(NIKON, d, 0.005, 1)
+    film = tmp_path / "film.csv"
+    film.write_text("thickness_nm,r,g,b\n" + "\n".join(f"{t},{a},{b},{c}" for t, (a, b, c) in zip(d, y)))
+    out = tmp_path / "resp.csv"
+    proc = subprocess.run([sys.executable, "-m", "bubblefit", "calibrate-camera", "--film", str(film), "-o", str(out),
+                           "--json", str(tmp_path / "c.json")], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    resp = response_functions(str(out))  # what --camera-response reads
+    assert resp.shape[1] == 3 and np.all(resp.max(axis=0) > 0.99)
+    names, refl = chart_reflectances()
+    values = tmp_path / "chart.csv"
+    values.write_text("\n".join(",".join(map(str, v)) for v in (refl @ _sensitivities(NIKON))[:20]))
+    proc = subprocess.run([sys.executable, "-m", "bubblefit", "calibrate-camera", "--chart-values", str(values),
+                           "-o", str(tmp_path / "c2.csv")], capture_output=True, text=True)
+    assert proc.returncode == 2 and "24 patches" in proc.stderr and proc.stderr.count("\n") == 1
+    assert not (tmp_path / "c2.csv").exists()
+
+
+# ----------------------------------------------------------------------------- wrong camera
+
+
+def _quantised(x, rng):
+    """Read and shot noise, then 8-bit sRGB and back to linear (IEC 61966-2-1 written out)."""
+    noisy = x + rng.normal(0.0, 1.0, x.shape) * np.sqrt(0.003**2 + 1e-4 * np.clip(x, 0, None))
+    v = np.round(_srgb_encode(noisy) * 255) / 255
+    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("thickness,told,right", [(600.0, "srgb", False), (1300.0, "Sigma SDMerill (NPL)", False),
+                                                  (1300.0, NIKON, True)])
+def test_a_wrong_camera_is_not_ok(small_courtyard, thickness, told, right):
+    """Photos rendered with the Nikon's sensitivities under illuminant E, fitted with the
+    response they were taken with (ok) and with another (sRGB/D65, the Sigma): not ok, and
+    the reason names the camera response."""
+    from scipy import ndimage as ndi
+
+    from bubblefit.inverse.fit import FitOptions, fit_photo
+    from bubblefit.lighting.envmap import EnvMap
+    from bubblefit.model.scene import Scene, render_scene
+
+    env = EnvMap.from_array(small_courtyard)
+    rng = np.random.default_rng(int(thickness))
+    bg = ndi.gaussian_filter(rng.uniform(0.15, 0.6, (N, N, 3)), (2.5, 2.5, 0))
+    scene = Scene.from_dict({
+        "camera": {"width": N, "height": N, "disc": list(DISC), "response": NIKON},
+        "bubble": {"t": 0.972, "roughness": 0.08, "f": 0.3, "thickness_nm": thickness},
+        "lighting": {"envmap": "unused.exr", "illuminant": "E"},
+        "effects": {"model": "paper", "transmission_tint": True, "spectral": {"method": "uniform", "samples": 48}},
+    })
+    photo = _quantised(render_scene(scene, bg, env=env), rng)
+    r = fit_photo(photo, env, background=_quantised(bg, rng), options=FitOptions(
+        disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", camera_response=told,
+        illuminant="D65" if told == "srgb" else "E"))
+    check = r.to_json()["colour_check"]
+    assert check is not None and check["consistent"] is right, check
+    if right:
+        assert r.ok and abs(r.params["thickness_nm"] - thickness) < 10.0, (r.params, r.warnings)
+    else:
+        assert not r.ok and any("camera response" in w for w in r.warnings), r.warnings
+
+
+def test_colour_check_sees_hue_not_brightness():
+    """On a disc of smoothly varying colours with noise (sigma 1 % of the signal): the
+    render itself is consistent at the false-alarm rate (a tenth of the seeds may fail at
+    most, 1e-3 expected); a render whose brightness is off by 5 % is still consistent (the
+    test looks at hue only); a render whose hue is off by 2 % in one channel is not."""
+    from bubblefit.inverse.colour_check import colour_check
+
+    h = w = 48
+    y, x = np.mgrid[0:h, 0:w]
+    mask = (x - 24) ** 2 + (y - 24) ** 2 < 20**2
+    truth = np.stack([0.3 + 0.2 * np.sin(x / 7), 0.35 + 0.15 * np.cos(y / 9), 0.25 + 0.1 * np.sin((x + y) / 11)], -1)
+    fails = 0
+    for seed in range(10):
+        photo = truth * (1 + 0.01 * np.random.default_rng(seed).normal(size=truth.shape))
+        fails += not colour_check(photo, truth, mask).consistent
+        assert colour_check(photo, truth * 1.05, mask).consistent
+        hue = colour_check(photo, truth * np.array([1.02, 1.0, 1.0]), mask)
+        assert not hue.consistent and 0.004 < hue.chroma_rms < 0.02, hue
+    assert fails <= 1
+
+
+def test_sequence_frames_carry_the_reading(tmp_path):
+    """fit-sequence's frames are read with the command's encoding (a linear 12-bit TIFF)."""
+    import tifffile
+
+    from bubblefit.inverse._plan import FrameRef, load_frame
+
+    scene = _scene()
+    tifffile.imwrite(str(tmp_path / "f.tif"), np.round(scene * 4095).astype(np.uint16), photometric="rgb")
+    ref = FrameRef(0, str(tmp_path / "f.tif"), 0.0, reading=PhotoReading("linear", white_level=4095))
+    assert np.max(np.abs(load_frame(ref) - scene)) <= 0.5 / 4095 + 1e-12
+    plain = load_frame(FrameRef(0, str(tmp_path / "f.tif"), 0.0))  # no reading: sRGB assumed, 16-bit codes
+    assert np.max(np.abs(plain - scene)) > 0.1
+
+
+def test_patch_means_and_their_errors():
+    """Patch means of a photo of uniform squares with noise: each within 4 sigma / sqrt(n);
+    a patch over the edge or over clipped pixels is refused."""
+    from bubblefit.capture.camera_calibration import patch_means
+
+    rng = np.random.default_rng(2)
+    values = rng.uniform(0.05, 0.8, (4, 3))
+    img = np.zeros((40, 40, 3))
+    centres = [(10, 10), (30, 10), (10, 30), (30, 30)]
+    for (cx, cy), v in zip(centres, values):
+        img[cy - 8:cy + 9, cx - 8:cx + 9] = v
+    img += rng.normal(0, 0.01, img.shape)
+    got = patch_means(img, [(cx, cy, 5) for cx, cy in centres])
+    assert np.all(np.abs(got - values) < 4 * 0.01 / np.sqrt(121))
+    with pytest.raises(InputError, match="inside"):
+        patch_means(img, [(38, 10, 5)])
+    sat = np.zeros((40, 40), bool)
+    sat[10, 10] = True
+    with pytest.raises(InputError, match="clipped"):
+        patch_means(img, [(10, 10, 5)], sat)

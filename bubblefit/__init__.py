@@ -39,6 +39,7 @@ _EXPORTS = {
     # calibration and capture
     "CalibrationResult": "capture.calibrate", "calibrate": "capture.calibrate",
     "unwrap_mirror_ball": "capture.probe", "check_capture": "capture.protocols",
+    "View": "capture.view", "resolve_view": "capture.view",
     # files and errors
     "read_image": "io.images", "write_image": "io.images",
     "BubblefitError": "errors", "InputError": "errors",

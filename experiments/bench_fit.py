@@ -99,6 +99,7 @@ def main():
 
     from bubblefit.lighting.envmap import EnvMap, downsample
     from bubblefit.inverse.fit import FitOptions, fit_photo
+    from bubblefit.capture.view import ORTHOGRAPHIC
     from bubblefit.io.images import read_image, srgb_decode, srgb_encode
     from bubblefit.model.scene import Scene, render_scene, shipped_envmap
 
@@ -150,7 +151,8 @@ def main():
         return profile_solver(photo, env, q(bg), truth, Path(args.out), args.models.split(","))
     rows = []
     for kind in ("constant",) + (() if args.no_map else ("map",)):
-        opts = FitOptions(thickness=kind, disc=disc, t_init=0.965, roughness_init=0.04, effects=effects)
+        opts = FitOptions(thickness=kind, disc=disc, t_init=0.965, roughness_init=0.04, effects=effects,
+                              model="paper", view=ORTHOGRAPHIC)
         for rep in range(repeats + 1):
             t0 = time.perf_counter()
             res = fit_photo(photo, env, options=opts, background=q(bg))
@@ -377,6 +379,7 @@ def stages(photo, env, bg, out: Path, repeats: int, stem: str = "stages"):
     call (on a first call, tracing the final solve to compile it in the background)."""
     import bubblefit.inverse._setup as setup_module
     import bubblefit.inverse.fit as fit_module
+    from bubblefit.capture.view import ORTHOGRAPHIC
     from bubblefit.inverse.fit import FitOptions
 
     modules = {"fit": fit_module, "_setup": setup_module}
@@ -404,7 +407,7 @@ def stages(photo, env, bg, out: Path, repeats: int, stem: str = "stages"):
         for i in range(repeats + 1):
             spent.clear()
             t0, c0 = time.perf_counter(), os.times()
-            res = fit_module.fit_photo(photo, env, options=FitOptions(thickness="constant"), background=bg)
+            res = fit_module.fit_photo(photo, env, options=FitOptions(thickness="constant", model="paper", view=ORTHOGRAPHIC), background=bg)
             c1 = os.times()
             row = {"run": "first" if i == 0 else "warm", "total_s": round(time.perf_counter() - t0, 4),
                    "cpu_s": round(c1.user + c1.system - c0.user - c0.system, 2)}

@@ -108,6 +108,8 @@ def main(argv=None) -> int:
     from distributed import Client, LocalCluster
 
     from bubblefit.inverse.fit import FitOptions
+
+    from bubblefit.capture.view import ORTHOGRAPHIC
     from bubblefit.inverse._executors import local_env
     from bubblefit.inverse.sequence import SequenceOptions as Seq, fit_sequence
 
@@ -115,7 +117,7 @@ def main(argv=None) -> int:
     frames = out / "frames"
     env, disc, times, truth = make_sequence(frames, n, size)
     print(f"{n} frames of {size}x{size} rendered in {time.perf_counter() - t0:.1f} s", flush=True)
-    options = FitOptions(disc=disc, thickness_range=(300.0, 1300.0))
+    options = FitOptions(disc=disc, thickness_range=(300.0, 1300.0), model="paper", view=ORTHOGRAPHIC)
     first = str(sorted(frames.iterdir())[0])
 
     rows = []

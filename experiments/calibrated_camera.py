@@ -45,6 +45,7 @@ def airy(d, n=1.33):
 
 def main():
     from bubblefit.capture.camera_calibration import chart_reflectances, fit_response
+    from bubblefit.capture.view import ORTHOGRAPHIC
     from bubblefit.inverse.fit import FitOptions, fit_photo
     from bubblefit.io.images import read_image
     from bubblefit.lighting.envmap import EnvMap, downsample
@@ -78,7 +79,8 @@ def main():
             photo, bg = photo_of(env, CAMERA, t, 31 + k)
             t0 = time.perf_counter()
             r = fit_photo(photo, env, background=bg, options=FitOptions(
-                disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", camera_response=path, illuminant="E"))
+                disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", camera_response=path, illuminant="E",
+                view=ORTHOGRAPHIC))
             row = dict(source=source, truth=t, thickness=r.params["thickness_nm"],
                        stderr=r.stderr.get("thickness_nm"), ok=r.ok, chi2=r.reduced_chi2,
                        colour=r.colour_check, warnings=r.warnings, time_s=time.perf_counter() - t0)

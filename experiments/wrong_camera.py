@@ -45,6 +45,7 @@ def photo_of(env, camera: str, thickness: float, seed: int, illuminant: str = "E
 
 
 def main():
+    from bubblefit.capture.view import ORTHOGRAPHIC
     from bubblefit.inverse.fit import FitOptions, fit_photo
     from bubblefit.io.images import read_image
     from bubblefit.lighting.envmap import EnvMap, downsample
@@ -66,7 +67,7 @@ def main():
         for resp in a.responses.split("|"):
             ill = "D65" if resp == "srgb" else "E"
             t0 = time.perf_counter()
-            r = fit_photo(photo, env, options=FitOptions(disc=DISC, t_init=0.968, roughness_init=0.04, model="paper",
+            r = fit_photo(photo, env, options=FitOptions(disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", view=ORTHOGRAPHIC,
                                                          camera_response=resp, illuminant=ill), background=bg)
             j = r.to_json()
             row = dict(truth=d, response=resp, thickness=r.params["thickness_nm"], ok=r.ok,

@@ -291,7 +291,7 @@ def _fit_cli(tmp_path, name, photo, background, envfile, *flags):
 
     out = tmp_path / f"{name}.json"
     rc = main(["fit", str(photo), "--background", str(background), "--envmap", str(envfile), "--model", "paper",
-               "--disc", ",".join(map(str, DISC)), "--t", "0.968", "--json", str(out), *map(str, flags)])
+               "--disc", ",".join(map(str, DISC)), "--t", "0.968", "--fov", "0", "--json", str(out), *map(str, flags)])
     assert rc == 0
     return json.loads(out.read_text())
 
@@ -419,6 +419,7 @@ def test_a_wrong_camera_is_not_ok(small_courtyard, thickness, told, right):
     the reason names the camera response."""
     from scipy import ndimage as ndi
 
+    from bubblefit.capture.view import ORTHOGRAPHIC
     from bubblefit.inverse.fit import FitOptions, fit_photo
     from bubblefit.lighting.envmap import EnvMap
     from bubblefit.model.scene import Scene, render_scene
@@ -434,7 +435,7 @@ def test_a_wrong_camera_is_not_ok(small_courtyard, thickness, told, right):
     })
     photo = _quantised(render_scene(scene, bg, env=env), rng)
     r = fit_photo(photo, env, background=_quantised(bg, rng), options=FitOptions(
-        disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", camera_response=told,
+        disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", camera_response=told, view=ORTHOGRAPHIC,
         illuminant="D65" if told == "srgb" else "E"))
     check = r.to_json()["colour_check"]
     assert check is not None and check["consistent"] is right, check

@@ -31,7 +31,7 @@ def test_one_frame_sequence_gives_what_fit_gives(small_courtyard, tmp_path, caps
     (tmp_path / "cal.json").write_text(json.dumps({"t": 0.968, "image_size": [tf.N, tf.N],
                                                    "bubble": dict(zip(("cx", "cy", "r"), tf.DISC))}))
     common = ["--envmap", tmp_path / "env.exr", "--background", tmp_path / "before.png",
-              "--calibration", tmp_path / "cal.json"]
+              "--calibration", tmp_path / "cal.json", "--fov", "0"]
     assert main([str(a) for a in ["fit", tmp_path / "photo.png", *common, "--json", tmp_path / "fit.json"]]) == 0
     assert main([str(a) for a in ["fit-sequence", tmp_path / "photo.png", *common, "--workers", "0",
                                   "-o", tmp_path / "seq", "--no-progress"]]) == 0

@@ -57,6 +57,7 @@ def test_fit_uses_the_scenes_camera_light_and_dispersion(env):
     (the law's value at 589.3 nm) lands further away, with a worse chi^2."""
     from scipy import ndimage as ndi
 
+    from bubblefit.capture.view import ORTHOGRAPHIC
     from bubblefit.inverse.fit import FitOptions, fit_photo
     from bubblefit.model.scene import render_scene
     from bubblefit.optics.dispersion import Cauchy, refractive_index
@@ -67,7 +68,7 @@ def test_fit_uses_the_scenes_camera_light_and_dispersion(env):
     photo = _quantise(render_scene(_camera_scene(t=0.972, roughness=0.08, f=0.3, thickness_nm=truth), bg, env=env),
                       rng)
     bgq = _quantise(bg, rng)
-    base = dict(disc=DISC, t_init=0.968, roughness_init=0.04)  # the fit's default spectral quadrature
+    base = dict(disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", view=ORTHOGRAPHIC)  # the fit's default spectral quadrature
     matched = fit_photo(photo, env, options=FitOptions(**base), background=bgq, scene=_camera_scene())
     n_d = float(refractive_index(Cauchy(tuple(SOAP)), 589.3))
     plain = fit_photo(photo, env, options=FitOptions(**base, n_film=n_d), background=bgq)
@@ -88,7 +89,7 @@ def _setup(env, scene=None, **kw):
 
     rng = np.random.default_rng(0)
     photo = rng.uniform(0.2, 0.5, (N, N, 3))
-    opts = FitOptions(disc=DISC, t_init=0.968, roughness_init=0.04, **kw)
+    opts = FitOptions(**{"model": "paper", **kw}, disc=DISC, t_init=0.968, roughness_init=0.04)
     return setup(photo, env, opts, rng.uniform(0.2, 0.5, (N, N, 3)), None, scene, None), opts
 
 

@@ -28,10 +28,12 @@ CHUNK = 4  # chunks [0..3] and [4..6]: two tasks, one per worker
 
 
 def _options():
+    from bubblefit.capture.view import ORTHOGRAPHIC
     from bubblefit.inverse.fit import FitOptions
 
     # the disc is known (a fixed camera); the thickness search covers the drainage's range
-    return FitOptions(disc=DISC, thickness_range=(300.0, 1300.0))
+    return FitOptions(disc=DISC, thickness_range=(300.0, 1300.0), model="paper",
+                      view=ORTHOGRAPHIC)
 
 
 @pytest.fixture(scope="module")

@@ -61,8 +61,10 @@ def register(subparsers) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap [0]")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
     from .photo_args import add_photo_options
+    from .view_options import add_view_options
 
     add_photo_options(p)
+    add_view_options(p)
     p.set_defaults(func=run)
 
 
@@ -72,10 +74,12 @@ def run(args) -> int:
     from ..progress import stage
     from ..io.camera_files import read_photo, reading_record
     from .common import guard_args, write_json
+    from .view_options import check_view_args, view_from_args
     from .photo_args import photo_reading
 
     reading = photo_reading(args)
     guard_args(args)
+    check_view_args(args)
     circle = _circle(args.circle) if args.circle else None
     if not (0.05 <= args.inner_fraction <= 0.95):
         raise InputError(f"--inner-fraction must be between 0.05 and 0.95, got {args.inner_fraction}")
@@ -98,7 +102,9 @@ def run(args) -> int:
             raise type(exc)(lines[0]) from None
         raise
     if args.json:
-        write_json(args.json, {**result.to_json(), "photo_reading": reading_record(after)})
+        h, w = after.pixels.shape[:2]
+        view = view_from_args(args, after.metadata, w, h)  # recorded: t comes from the inner disc, any view
+        write_json(args.json, {**result.to_json(), "photo_reading": reading_record(after), "camera": view.to_json()})
     if args.debug_image:
         write_debug_image(args.debug_image, result)
     if not args.quiet:

@@ -25,6 +25,7 @@ NAME = "fit"
 
 def register(sub):
     from .common import input_file, output_file, output_prefix
+    from .view_options import add_view_options
 
     p = sub.add_parser(
         NAME, help="fit the bubble model to a photo (t, r_d, r_s, roughness, film thickness)",
@@ -71,6 +72,7 @@ def register(sub):
     p.add_argument("--explain", action="store_true", help="print which effects are simulated or skipped, and why")
     p.add_argument("--strict", action="store_true", help="exit with status 1 when the fit did not converge")
     add_model_options(p)
+    add_view_options(p)
     from .photo_args import add_photo_options
 
     add_photo_options(p)
@@ -236,7 +238,7 @@ def _bits(img) -> int | None:
     return None if img.linear_file else int(img.bit_depth)
 
 
-def build_fit_options(args, scene, bits: int | None):
+def build_fit_options(args, scene, bits: int | None, view=None):
     """:class:`~bubblefit.inverse.fit.FitOptions` of ``fit`` and ``fit-sequence``, built in
     this one place so that a sequence of one frame is fitted as ``fit`` fits the photo:
     :func:`fit_option_values`, the model (``--model``, else the scene's, else ``auto``),
@@ -245,7 +247,7 @@ def build_fit_options(args, scene, bits: int | None):
     from ..inverse.fit import FitOptions
 
     model = args.model or (scene.table("effects").get("model", "auto") if scene is not None else "auto")
-    kw = dict(fit_option_values(args), model=model, bits=bits)
+    kw = dict(fit_option_values(args), model=model, bits=bits, view=view)
     for flag in ("free_split", "fit_rotation"):
         if hasattr(args, flag):
             kw[flag] = getattr(args, flag)
@@ -261,6 +263,7 @@ def run(args) -> int:
     from ..model.scene import load_scene
     from .common import guard_args, scene_inputs, write_fit_images, write_json
     from .photo_args import photo_reading
+    from .view_options import check_view_args, view_from_args
 
     if args.scene:
         from ..model.planar_scene import is_planar_file
@@ -275,6 +278,7 @@ def run(args) -> int:
     scene = load_scene(args.scene) if args.scene else None
     guard_args(args, inputs=scene_inputs(scene) if scene is not None else [], outputs=output_paths(args))
     fit_option_values(args)  # bad values refused before any photo is read
+    check_view_args(args)
     with stage("reading the photo and the environment map"):
         photo = read_photo(args.photo, reading, dtype=np.float32)  # the fit's arithmetic is float32
         check_photo_size(photo, args.photo)
@@ -286,7 +290,8 @@ def run(args) -> int:
             raise InputError(f"the background {args.background} is {bimg.pixels.shape[1]}x{bimg.pixels.shape[0]}, "
                              f"the photo is {photo.pixels.shape[1]}x{photo.pixels.shape[0]}")
         background = bimg.pixels
-    options = build_fit_options(args, scene, _bits(photo))
+    view = view_from_args(args, photo.metadata, photo.pixels.shape[1], photo.pixels.shape[0])
+    options = build_fit_options(args, scene, _bits(photo), view)
     with stage(f"fitting {photo.pixels.shape[1]}x{photo.pixels.shape[0]} ({options.thickness} thickness, "
                f"{options.model} model)"):
         result = fit_photo(photo.pixels, env, options=options, background=background, scene=scene,

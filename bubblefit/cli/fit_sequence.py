@@ -15,6 +15,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from .fit import add_model_options, build_fit_options, check_photo_size, load_envmap
+from .view_options import add_view_options, check_view_args, sequence_view
 
 
 def register(sub):
@@ -75,6 +76,7 @@ def register(sub):
     p.add_argument("--retry-failed", action="store_true", help="refit frames recorded as failed")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_model_options(p)
+    add_view_options(p)
     from .photo_args import add_photo_options
 
     add_photo_options(p)
@@ -121,7 +123,8 @@ def run(args) -> int:
                + (scene_inputs(scene) if scene is not None else []),
                outputs=[out / "params.csv", out / "params.jsonl", out / "thickness.png", out / "run.json"]
                if out.is_dir() else [])
-    options = build_fit_options(args, scene, frame_bits(frames))
+    check_view_args(args)
+    options = build_fit_options(args, scene, frame_bits(frames), sequence_view(args, frames))
     with stage("reading the environment map"):
         env = load_envmap(args.envmap)
         background = read_photo(args.background, reading, what="background").pixels if args.background else None
@@ -151,6 +154,7 @@ def run(args) -> int:
             "plot": None if res.plot is None else str(res.plot), "frames": len(res.records),
             "fitted": res.fitted, "skipped": res.skipped, "failed": res.failed, "workers": res.workers,
             "elapsed_s": res.elapsed_s, "setup_s": res.setup_s, "fps": res.fps,
+            "camera": None if options.view is None else options.view.to_json(),
             "failures": [{"frame": r["frame"], "file": r["file"], "reason": r.get("message", "")}
                          for r in res.records if r.get("status") != "ok"],
             "flagged": [{"frame": r["frame"], "file": r["file"], "warnings": r.get("warnings", [])}

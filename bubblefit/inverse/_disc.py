@@ -77,6 +77,14 @@ def _detect(photo, background, opts: FitOptions) -> Disc:
     return replace(d, cx=d.cx * k, cy=d.cy * k, r=d.r * k)
 
 
+def _no_bubble(found: Disc) -> str:
+    """The one line that refuses a photo in which the disc detector
+    (:func:`~bubblefit.capture.disc.find_disc`) found no bubble: fitting a disc it did not
+    find (the simpler detector's guess) measured films that were not there."""
+    why = found.reason if not found.found else "no rim of a bubble is clear in the photo"
+    return f"{why}; give the bubble's disc (--disc CX,CY,R) or a scene file with its camera to fit it anyway"
+
+
 def _agrees(a, b) -> bool:
     return math.hypot(a[0] - b[0], a[1] - b[1]) <= DISC_AGREEMENT * b[2] and abs(a[2] - b[2]) <= DISC_AGREEMENT * b[2]
 
@@ -90,7 +98,9 @@ def resolve_disc(photo, background, opts: FitOptions, given=None) -> tuple[tuple
     found in it is the same (:data:`DISC_AGREEMENT`) or, with a background photo, the
     calibration's disc outlines the change between the pair at least as well
     (:func:`bubble_contrast`, within 20%); otherwise the disc found is used and a warning
-    says why. With neither, the disc is found; no bubble raises :class:`InputError`.
+    says why. With neither, the disc is found; a photo whose rim
+    :func:`~bubblefit.capture.disc.find_disc` does not find (no bubble, or only the simpler
+    detector's guess) raises :class:`InputError` (:func:`_no_bubble`).
     """
     if given is not None:
         return tuple(float(v) for v in given), []
@@ -106,9 +116,9 @@ def resolve_disc(photo, background, opts: FitOptions, given=None) -> tuple[tuple
             f"used the disc found in the photo instead"]
     found = _detect(photo, background, opts)
     if cal is None:
-        if not found.found:
-            raise InputError(found.reason)
-        return (found.cx, found.cy, found.r), [found.reason] if found.reason else []
+        if not found.found or found.reason:
+            raise InputError(_no_bubble(found))
+        return (found.cx, found.cy, found.r), []
     if not found.found:
         if found.contrast == found.contrast:  # a background photo says: no bubble
             raise InputError(found.reason)

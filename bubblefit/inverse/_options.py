@@ -39,10 +39,10 @@ class FitOptions:
     thickness : ThicknessKind
         The thickness model: ``constant`` | ``drainage`` | ``map``.
     model : ModelChoice
-        ``paper`` | ``physical`` forward model, or ``auto``: the paper model first and,
-        when it does not explain the photo (reduced chi^2 with the model-error floor above
-        ``ok_chi2``), the physical model warm-started from it; the fit that explains the
-        photo better is returned.
+        ``paper`` | ``physical`` forward model, or ``auto`` (the default, as on the command
+        line): the paper model first and, when it does not explain the photo (reduced
+        chi^2 with the model-error floor above ``ok_chi2``), the physical model
+        warm-started from it; the fit that explains the photo better is returned.
     fit_rotation : bool
         Also fit the environment's rotation about +y.
     free_split : bool
@@ -141,10 +141,18 @@ class FitOptions:
     samples_per_pixel : int or None
         Rays per rendered pixel (a square number, :class:`~bubblefit.model.render.RenderConfig`);
         None: the scene's ``[camera] samples_per_pixel``, else 1.
+    view : View or None
+        The camera's view (:class:`~bubblefit.capture.view.View`: a field of view from an
+        option or the photo's EXIF, :func:`~bubblefit.capture.view.resolve_view`). A
+        perspective view builds the pinhole camera from the disc
+        (:func:`~bubblefit.capture.view.perspective_from_disc`). None, or a view whose
+        source is ``assumed``: orthographic, with the standard errors widened by what a
+        plausible lens changes (:func:`~bubblefit.inverse.fit.fit_photo`). A scene file's
+        camera is its own view.
     """
 
     thickness: ThicknessKind = "constant"
-    model: ModelChoice = "paper"
+    model: ModelChoice = "auto"
     fit_rotation: bool = False
     free_split: bool = False
     disc: tuple | None = None
@@ -184,8 +192,13 @@ class FitOptions:
     n_film: object = None
     samples_per_pixel: int | None = None
     parameters: tuple = ()
+    view: object = None
 
     def __post_init__(self):
+        from ..capture.view import View
+
+        if self.view is not None and not isinstance(self.view, View):
+            raise InputError(f"view must be a bubblefit.capture.view.View, got {self.view!r}")
         from ..model._scene_checks import samples_per_pixel, white_balance
         from ..optics.dispersion import parse_index
 
@@ -315,6 +328,12 @@ class FitResult:
     colour : ColourSettings or None
         The illuminant, camera response, white balance, index law and rays per pixel the
         forward model was evaluated with (JSON key ``colour``).
+    camera : dict or None
+        The view fitted (JSON key ``camera``): ``kind``, ``fov_deg``, ``source`` (``option``,
+        ``EXIF``, ``scene`` or ``assumed``), ``detail``; for a perspective camera its
+        ``distance_radii`` (pinhole to the sphere's centre); for an assumed view the lens it
+        was compared with (``compared_fov_deg``) and the standard uncertainty each
+        parameter gained (``view_uncertainty``).
     """
 
     params: dict
@@ -352,6 +371,7 @@ class FitResult:
     stderr_scale: float = 1.0
     frame: tuple | None = None
     colour: ColourSettings | None = None
+    camera: dict | None = None
     #: :meth:`bubblefit.inverse.colour_check.ColourCheck.to_json`, or None where not tested.
     colour_check: dict | None = None
 
@@ -395,6 +415,7 @@ class FitResult:
             "frame": None if self.frame is None else {"x0": int(self.frame[0]), "y0": int(self.frame[1]),
                                                       "block": int(self.frame[2])},
             "colour": None if self.colour is None else self.colour.to_json(),
+            "camera": self.camera,
             "colour_check": self.colour_check,
             "effects": [{"effect": d.effect, "simulated": d.simulated, "setting": d.setting, "reason": d.reason}
                         for d in self.effects],

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ._disc import resolve_disc
+from ..capture.view import perspective_from_disc
 from ._observation import Frame, Level, analysis_frame, make_level, saturation_mask
 from ._options import ColourSettings, FitOptions
 from ._parameters import ALIASES, DISC_PARAMETERS, PARAMETERS, ParameterTable, THICKNESS_PARAMETERS
@@ -301,6 +302,10 @@ def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, d
     lights = scene.point_lights() if scene is not None else ()
     persp = _perspective(scene, photo)
     disc, warnings, fit_disc = (None, [], False) if persp else _disc(scene, opts, photo, background)
+    if persp is None and opts.view is not None and opts.view.kind == "perspective":
+        # the pinhole the field of view and the disc fix; the sphere's rays then need no disc
+        persp = perspective_from_disc(disc, photo.shape[1], photo.shape[0], opts.view.fov_deg)
+        disc, fit_disc = None, False
     if saturated_in is not None and np.shape(saturated_in) != photo.shape[:2]:
         raise InputError(f"the saturation mask is {np.shape(saturated_in)}, the photo is "
                          f"{photo.shape[1]}x{photo.shape[0]}")

@@ -25,7 +25,7 @@ import math
 from ._parameters import PARAMETERS, ParameterTable
 from ._uncertainty import OUTLIER_CHI2, Misfit
 
-__all__ = ["at_bounds", "unresolved", "verdict"]
+__all__ = ["at_bounds", "clamp_to_range", "unresolved", "verdict"]
 
 
 def at_bounds(values: dict, table: ParameterTable, thickness_range: tuple, margin_nm: float) -> list[str]:
@@ -42,6 +42,31 @@ def at_bounds(values: dict, table: ParameterTable, thickness_range: tuple, margi
         if v <= lo + tol or v >= hi - tol:
             out.append(f"{name} = {v:.4g} sits at a bound of its range [{lo:.4g}, {hi:.4g}]")
     return out
+
+
+def clamp_to_range(reported: dict, table: ParameterTable, thickness_range: tuple,
+                   keys: tuple) -> tuple[dict, list[str]]:
+    """``(reported, warnings)``: every fitted thickness of ``keys`` that left the searched
+    range ``thickness_range`` (nm) is reported at the bound it crossed, with a warning.
+
+    The local solve works on unbounded coordinates, so a film the photo does not
+    constrain can drift past the range it was searched over (a 4.4 nm thickness from a
+    50-2000 nm search); the fit has no evidence for a value there, only that the best one
+    lies at or beyond the bound. A warning makes the fit not ``ok`` (:func:`verdict`'s
+    ``bound_warnings``).
+    """
+    out, warnings = dict(reported), []
+    lo, hi = thickness_range
+    for key in keys:
+        v = out.get(key)
+        if key not in table.free or v is None or lo <= v <= hi:
+            continue
+        bound = lo if v < lo else hi
+        out[key] = float(bound)
+        warnings.append(f"{key} left the searched range {lo:.4g}-{hi:.4g} nm (solved {v:.4g} nm): reported at "
+                        f"the bound {bound:.4g} nm, which the photo does not confirm; widen --thickness-range "
+                        "or check the disc, map and model")
+    return out, warnings
 
 
 def unresolved(values: dict, stderr: dict, table: ParameterTable) -> list[str]:

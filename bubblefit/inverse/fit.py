@@ -61,8 +61,9 @@ from ._options import FitOptions, FitResult
 from ._parameters import THICKNESSES, extrapolated, parameter_roles, refined_disc
 from ._setup import Setup, defaults, setup
 from ._uncertainty import Uncertainty, uncertainty
+from ._verdict import at_bounds, clamp_to_range, unresolved, verdict
+from ._view import camera_record, fit_view, lens_for, widen_for_view
 from .colour_check import judge_colours
-from ._verdict import at_bounds, unresolved, verdict
 from ..lighting.envmap import EnvMap
 from ..model.thickness import drainage_profile
 from ..progress import stage
@@ -175,11 +176,11 @@ def _judge(st: Setup, opts: FitOptions, sol: LocalSolution, notes: list) -> Judg
     reported, stderr = unc.reported, unc.stderr
     disc, disc_stderr = refined_disc(st.disc, reported, stderr, float(opts.disc_model_error))
     status, converged = _status_notes(sol, unc.finite, unc.misfit.chi2_nu, notes, table.free)
-    lo, hi = opts.thickness_range
-    for key in THICKNESSES:
-        if key in reported and key in table.free and not lo - 1 <= reported[key] <= hi + 1:
-            notes.append(f"{key} = {reported[key]:.0f} nm lies outside the searched range {lo:.0f}-{hi:.0f} nm")
-    bounds = at_bounds(sol.values, table, opts.thickness_range, 0.5 * opts.search_step_nm)
+    solved = reported
+    reported, outside = clamp_to_range(solved, table, opts.thickness_range, THICKNESSES)
+    clamped = {k for k in THICKNESSES if reported.get(k) != solved.get(k)}  # said once, by clamp_to_range
+    bounds = outside + [w for w in at_bounds(sol.values, table, opts.thickness_range, 0.5 * opts.search_step_nm)
+                        if w.split(" = ")[0] not in clamped]
     notes += unresolved(reported, stderr, table)
     return Judgement(unc, reported, stderr, disc, disc_stderr, status, converged, bounds)
 
@@ -232,6 +233,7 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
         disc_model_error=float(opts.disc_model_error) if disc_stderr is not None else float("nan"),
         stderr_scale=unc.scale, roles=parameter_roles(table, st.fx.model, tuple(reported)),
         frame=None if st.frame.whole else (st.frame.x0, st.frame.y0, st.frame.k), colour=st.colour,
+        camera=None if opts.view is None else camera_record(opts.view, st.base_cfg.camera),
         colour_check=colour_record,
     )
 
@@ -244,6 +246,14 @@ def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t
 def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOptions(), background=None,
               init: dict | None = None, scene=None, saturated: np.ndarray | None = None) -> FitResult:
     """Fit the forward model to a photo.
+
+    The camera's view (:func:`~bubblefit.inverse._view.fit_view`) is the scene's, else
+    ``options.view`` (a field of view: the pinhole is built from the disc); when neither
+    states one, the photo is fitted as orthographic and again through a 50 mm (35 mm
+    terms) lens warm-started from it; the view that explains the photo better (the lower
+    capped reduced chi^2, :func:`_judged_chi2`) is kept, and its standard errors are
+    widened by the shift to the other (:func:`~bubblefit.inverse._view.widen_for_view`;
+    ``docs/camera-view.md``).
 
     Parameters
     ----------
@@ -289,8 +299,32 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     >>> result.ok, round(float(result.params["thickness_nm"]))
     (True, 600)
     """
+    view = fit_view(options, scene)
+    options = replace(options, view=view)
+    if view.source != "assumed":
+        return _fit_model(photo, env, options, background, init, scene, saturated)
+    t0 = time.perf_counter()
+    ortho = _fit_model(photo, env, options, background, init, scene, saturated)
+    lens = lens_for(photo)
+    start = {k: v for k, v in ortho.params.items() if np.isfinite(v)} if ortho.converged else init
+    with stage(f"the same fit through a {lens.fov_deg:.0f} degree lens (the view was not given)"):
+        lens_fit = _fit_model(photo, env, replace(options, view=lens), background, start, scene, saturated)
+    # the photo may tell the views apart: keep the one that explains it better
+    lens_better = lens_fit.converged and _judged_chi2(lens_fit) < _judged_chi2(ortho)
+    out = widen_for_view(lens_fit, ortho, lens) if lens_better else widen_for_view(ortho, lens_fit, lens)
+    out.time_s = time.perf_counter() - t0
+    return out
+
+
+def _fit_model(photo, env, options: FitOptions, background, init, scene, saturated) -> FitResult:
+    """One view's fit: ``auto`` (:func:`_fit_either_model`) or one model (:func:`_fit_one`)."""
     if options.model == "auto":
         return _fit_either_model(photo, env, options, background, init, scene, saturated)
+    return _fit_one(photo, env, options, background, init, scene, saturated)
+
+
+def _fit_one(photo, env, options: FitOptions, background, init, scene, saturated) -> FitResult:
+    """The stages of one model's fit through ``options.view``."""
     t_start = time.perf_counter()
     opts = options
     with stage("finding the disc, choosing the effects"):
@@ -370,16 +404,15 @@ def _fit_either_model(photo, env, options: FitOptions, background, init, scene, 
     leave a misfit that hides a wrong map; a photo from a physical film (another renderer,
     a camera) is explained by the physical model, within its floor."""
     t0 = time.perf_counter()
-    kw = dict(background=background, scene=scene, saturated=saturated)
     with stage("paper model"):
-        first = fit_photo(photo, env, options=replace(options, model="paper"), init=init, **kw)
+        first = _fit_one(photo, env, replace(options, model="paper"), background, init, scene, saturated)
     if _explained(first, options):
         first.message += "; model auto: the paper model explains the photo"
         return first
     start = {k: v for k, v in first.params.items() if np.isfinite(v)} if first.converged else init
     c1 = _judged_chi2(first)
     with stage(f"physical model (the paper model's reduced chi^2 {_judged_text(first)} with the floor, capped)"):
-        second = fit_photo(photo, env, options=replace(options, model="physical"), init=start, **kw)
+        second = _fit_one(photo, env, replace(options, model="physical"), background, start, scene, saturated)
     c2 = _judged_chi2(second)
     best = second if (not second.converged, c2) < (not first.converged, c1) else first
     best.message += (f"; model auto: paper reduced chi^2 {_judged_text(first)}, physical {_judged_text(second)} "

@@ -1,0 +1,240 @@
+"""The view a photo was taken with (bubblefit.capture.view): fields of view from focal
+lengths and EXIF, and the perspective camera the disc fixes, against an independent
+pinhole projection of a sphere."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bubblefit.capture import view as V
+from bubblefit.errors import InputError
+
+DATA = Path(__file__).resolve().parents[1] / "experiments" / "validation" / "data"
+
+
+def _outline(center, radius, width, height, fov_deg, n=2000):
+    """Pixel coordinates of a sphere's outline through a pinhole at the origin looking
+    along -z (up +y): the generators of the cone tangent to the sphere, projected with
+    x_px = W/2 + f X/(-Z), y_px = H/2 - f Y/(-Z). Written from the cone, not the module."""
+    c = np.asarray(center, float)
+    dist = np.linalg.norm(c)
+    u = c / dist
+    alpha = math.asin(radius / dist)
+    p = np.cross(u, [0.0, 1.0, 0.0])
+    p /= np.linalg.norm(p)
+    q = np.cross(u, p)
+    phi = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    v = math.cos(alpha) * u + math.sin(alpha) * (np.cos(phi)[:, None] * p + np.sin(phi)[:, None] * q)
+    f = width / (2 * math.tan(math.radians(fov_deg) / 2))
+    return width / 2 + f * v[:, 0] / -v[:, 2], height / 2 - f * v[:, 1] / -v[:, 2]
+
+
+def _kasa(x, y):
+    """Least-squares circle (Kasa 1976): x^2 + y^2 = 2 cx x + 2 cy y + k."""
+    A = np.stack([2 * x, 2 * y, np.ones_like(x)], axis=1)
+    (cx, cy, k), *_ = np.linalg.lstsq(A, x * x + y * y, rcond=None)
+    return cx, cy, math.sqrt(k + cx * cx + cy * cy)
+
+
+@pytest.mark.parametrize("center,fov", [((0.0, 0.0, -4.0), 40.0), ((1.1, -0.7, -5.0), 40.0),
+                                        ((2.5, 1.2, -9.0), 60.0), ((-0.3, 0.2, -20.0), 12.0)])
+def test_camera_from_disc_matches_a_pinhole_projection(center, fov):
+    """The camera built from the outline's fitted circle puts the sphere where it was:
+    distance within 0.05 % (the circle stands for an ellipse whose axes differ by up to
+    sin^2(theta)/2 = 5 % here: the correction leaves its square), direction within 0.01 deg."""
+    W, H = 320, 240
+    disc = _kasa(*_outline(center, 1.0, W, H, fov))
+    cam, sph, R = V.perspective_from_disc(disc, W, H, fov)
+    o = np.asarray(cam.origin)
+    rel = np.asarray(sph) - o  # the sphere's centre seen from the camera
+    truth = np.asarray(center)
+    assert np.linalg.norm(rel) == pytest.approx(np.linalg.norm(truth), rel=5e-4)
+    cosang = rel @ truth / (np.linalg.norm(rel) * np.linalg.norm(truth))
+    assert math.degrees(math.acos(min(1.0, cosang))) < 0.01
+    # the camera's orientation is the map's frame: looking along -z, up +y
+    _, fwd, right, up = cam.basis()
+    np.testing.assert_allclose(fwd, [0, 0, -1], atol=1e-12)
+    np.testing.assert_allclose(up, [0, 1, 0], atol=1e-12)
+
+
+def test_outline_axes_match_the_projected_cone():
+    """outline_axes' closed forms against the sampled outline's extent along and across the
+    radial direction."""
+    W, H, fov = 400, 400, 50.0
+    center = (2.0, 0.0, -6.0)  # off-axis along +x: the radial direction is the image's x
+    x, y = _outline(center, 1.0, W, H, fov, n=20000)
+    f = W / (2 * math.tan(math.radians(fov) / 2))
+    dist = np.linalg.norm(center)
+    theta, alpha = math.atan2(2.0, 6.0), math.asin(1.0 / dist)
+    rho, a, b = V.outline_axes(theta, alpha, f)
+    assert (x.max() + x.min()) / 2 - W / 2 == pytest.approx(rho, rel=1e-9)
+    assert (x.max() - x.min()) / 2 == pytest.approx(a, rel=1e-9)
+    assert (y.max() - y.min()) / 2 == pytest.approx(b, rel=1e-6)
+
+
+def test_camera_of_a_validation_scene():
+    """ref_const620_sunrise_persp: a 40 degree camera at (0, 0, 4) seeing a unit sphere at the
+    origin (its scene file); the disc of its truth gives that camera back."""
+    case = DATA / "ref_const620_sunrise_persp"
+    truth = json.loads((case / "truth.json").read_text())
+    d, cam = truth["disc"], truth["camera"]
+    got, _, _ = V.perspective_from_disc((d["cx"], d["cy"], d["r"]), cam["width"], cam["height"], cam["fov_deg"])
+    np.testing.assert_allclose(got.origin, cam["origin"], atol=0.02)
+
+
+def test_field_of_view_from_focal_lengths():
+    # a 50 mm lens on a 36 mm wide sensor: 2 atan(18/50) = 39.60 degrees
+    assert V.fov_from_focal(50.0, 36.0) == pytest.approx(39.5978, abs=1e-3)
+    # 35 mm terms on a 3:2 frame are the full frame's width: the same angle
+    assert V.fov_from_35mm(50.0, 3000, 2000) == pytest.approx(V.fov_from_focal(50.0, 36.0), rel=1e-3)
+    # a square photo is narrower across its width than the 3:2 frame of the same diagonal
+    assert V.fov_from_35mm(50.0, 1000, 1000) < V.fov_from_35mm(50.0, 3000, 2000)
+
+
+def test_view_sources():
+    assert V.resolve_view(fov_deg=12.0, width=100, height=100).to_json() == {
+        "kind": "perspective", "fov_deg": 12.0, "source": "option", "detail": "--fov 12"}
+    assert V.resolve_view(fov_deg=0.0, width=100, height=100).kind == "orthographic"
+    v = V.resolve_view(focal_length_mm=25.0, sensor_width_mm=23.5, width=100, height=100)
+    assert v.fov_deg == pytest.approx(math.degrees(2 * math.atan(23.5 / 50.0)))
+    exif = {"Exif:FocalLength": 4.2, "Exif:FocalLengthIn35mmFilm": 26}
+    assert V.resolve_view(metadata=exif, width=4032, height=3024).fov_deg == pytest.approx(
+        V.fov_from_35mm(26.0, 4032, 3024))
+    # focal length with the focal plane's resolution: 6000 px at 4000 px/inch = 38.1 mm
+    exif = {"Exif:FocalLength": 50.0, "Exif:FocalPlaneXResolution": 4000.0, "Exif:FocalPlaneResolutionUnit": 2,
+            "Exif:PixelXDimension": 6000}
+    assert V.resolve_view(metadata=exif, width=600, height=400).fov_deg == pytest.approx(
+        V.fov_from_focal(50.0, 38.1))
+    assert V.resolve_view(fov_deg=30.0, metadata=exif, width=600, height=400).source == "option"
+    assert V.resolve_view(metadata={"Exif:FocalLength": 50.0}, width=6, height=4).source == "assumed"
+    for bad in (dict(fov_deg=10.0, focal_length_35mm=50.0), dict(focal_length_mm=50.0),
+                dict(sensor_width_mm=36.0), dict(fov_deg=190.0), dict(fov_deg=-3.0)):
+        with pytest.raises(InputError):
+            V.resolve_view(width=100, height=100, **bad)
+
+
+def _result(params, stderr, converged=True):
+    from bubblefit.inverse._options import FitResult
+
+    z = np.zeros((2, 2, 3))
+    return FitResult(params=dict(params), stderr=dict(stderr), held=[], converged=converged, message="",
+                     iterations=1, residual_rms=0.0, time_s=0.0, effects=[], render=z, residual=z,
+                     names=("thickness_nm",), covariance=np.array([[stderr["thickness_nm"] ** 2]]),
+                     camera={"kind": "orthographic", "fov_deg": None, "source": "assumed", "detail": ""})
+
+
+def test_an_assumed_view_widens_each_error_by_the_lens_shift():
+    """|Delta|/sqrt(3) in quadrature (GUM 4.3.7): a 12 nm shift on a 2 nm error gives
+    sqrt(4 + 48) nm; the covariance's diagonal agrees; the warning names the shift."""
+    from bubblefit.inverse._view import widen_for_view
+
+    ortho = _result({"thickness_nm": 612.0, "exposure": 1.2}, {"thickness_nm": 2.0, "exposure": 0.01})
+    lens_fit = _result({"thickness_nm": 600.0, "exposure": 1.2}, {"thickness_nm": 2.0, "exposure": 0.01})
+    out = widen_for_view(ortho, lens_fit, V.assumed_lens(160, 160))
+    assert out.stderr["thickness_nm"] == pytest.approx(math.sqrt(4.0 + 144.0 / 3.0))
+    assert out.stderr["exposure"] == pytest.approx(0.01)
+    assert out.covariance[0, 0] == pytest.approx(out.stderr["thickness_nm"] ** 2)
+    assert out.params == ortho.params and ortho.stderr["thickness_nm"] == 2.0  # the input is not changed
+    assert out.camera["source"] == "assumed" and out.camera["view_uncertainty"]["thickness_nm"] == pytest.approx(
+        12.0 / math.sqrt(3.0))
+    assert any("thickness_nm by 12" in w and "fitted as orthographic" in w for w in out.warnings), out.warnings
+    failed = widen_for_view(ortho, _result(lens_fit.params, lens_fit.stderr, converged=False),
+                            V.assumed_lens(160, 160))
+    assert failed.stderr == ortho.stderr and any("did not converge" in w for w in failed.warnings)
+
+
+def test_a_lens_that_explains_the_photo_better_is_kept_and_widened():
+    from bubblefit.inverse._view import widen_for_view
+
+    lens = V.assumed_lens(160, 160)
+    ortho = _result({"thickness_nm": 612.0}, {"thickness_nm": 2.0})
+    kept = _result({"thickness_nm": 603.0}, {"thickness_nm": 1.5})
+    kept.camera = lens.to_json()
+    out = widen_for_view(kept, ortho, lens)
+    assert out.params["thickness_nm"] == 603.0 and out.camera["kind"] == "perspective"
+    assert out.stderr["thickness_nm"] == pytest.approx(math.hypot(1.5, 9.0 / math.sqrt(3.0)))
+    assert any("kept the perspective view" in w for w in out.warnings), out.warnings
+
+
+def test_fit_view_prefers_the_scene_and_refuses_a_contradiction():
+    from bubblefit.inverse._options import FitOptions
+    from bubblefit.inverse._view import fit_view
+    from bubblefit.model.scene import Scene
+
+    persp = Scene.from_dict({"camera": {"type": "perspective", "width": 64, "height": 48, "fov_deg": 40.0}})
+    assert fit_view(FitOptions(), persp).to_json()["source"] == "scene"
+    assert fit_view(FitOptions(), None).source == "assumed"
+    exif = V.View("perspective", 30.0, "EXIF")
+    assert fit_view(FitOptions(view=exif), persp).fov_deg == 40.0  # the scene over the EXIF
+    with pytest.raises(InputError, match="given twice"):
+        fit_view(FitOptions(view=V.View("perspective", 30.0, "option")), persp)
+
+
+def _fit_cli(tmp_path, case, *flags):
+    """``bubblefit fit`` of a validation case in a subprocess; its JSON."""
+    import subprocess
+    import sys
+
+    d = DATA / case
+    truth = json.loads((d / "truth.json").read_text())
+    out = tmp_path / f"{case}{'_'.join(flags)}.json"
+    args = [sys.executable, "-m", "bubblefit", "fit", str(d / "photo.png"), "--envmap", str(DATA / truth["envmap"]),
+            "--background", str(d / "background.png"), "--json", str(out), *flags]
+    if truth["thickness"]["profile"] != "constant":
+        args += ["--thickness", "drainage"]
+    proc = subprocess.run(args, capture_output=True, text=True, timeout=1500)
+    assert proc.returncode == 0, proc.stderr
+    return truth, json.loads(out.read_text())
+
+
+@pytest.mark.slow
+def test_a_perspective_photo_with_and_without_its_view(tmp_path):
+    """ref_const620_sunrise_persp (an independent spectral renderer, a 40 degree pinhole,
+    8-bit sRGB): told --fov 40, the fit builds the camera (4.0 radii away per the scene
+    file) and lands within 3 standard errors; told nothing, it says the view was assumed
+    and its widened errors still cover the truth within 3."""
+    truth, given = _fit_cli(tmp_path, "ref_const620_sunrise_persp", "--fov", "40")
+    true_nm = truth["thickness"]["thickness_nm"]
+    assert given["camera"]["source"] == "option" and given["camera"]["kind"] == "perspective"
+    assert given["camera"]["distance_radii"] == pytest.approx(4.0, rel=0.02)
+    err = abs(given["params"]["thickness_nm"] - true_nm)
+    assert err < 3 * given["stderr"]["thickness_nm"], (given["params"], given["stderr"])
+    _, unknown = _fit_cli(tmp_path, "ref_const620_sunrise_persp")
+    cam = unknown["camera"]
+    assert cam["source"] == "assumed" and cam["compared_fov_deg"] > 30
+    assert any("view was not given" in w for w in unknown["warnings"])
+    err = abs(unknown["params"]["thickness_nm"] - true_nm)
+    assert err < 3 * unknown["stderr"]["thickness_nm"], (unknown["params"], unknown["stderr"], cam)
+
+
+@pytest.mark.slow
+def test_the_python_default_fits_as_the_command_line(tmp_path, small_courtyard):
+    """FitOptions() and ``bubblefit fit`` choose the same model (auto) and so the same result
+    on the same photo (8-bit sRGB, read back as the command line reads it)."""
+    import test_fit as tf
+
+    from bubblefit.cli import main
+    from bubblefit.inverse.fit import FitOptions, fit_photo
+    from bubblefit.io.images import read_image, write_image
+
+    env = tf._env(small_courtyard)
+    rng = np.random.default_rng(5)
+    bg = tf._background(rng)
+    photo = tf._quantise(tf._render(env, bg, {"t": 0.97, "roughness": 0.08, "thickness_nm": 420.0}), rng)
+    write_image(tmp_path / "photo.png", photo)
+    write_image(tmp_path / "before.png", bg)
+    write_image(tmp_path / "env.exr", small_courtyard, bit_depth=32)
+    disc = ",".join(str(v) for v in tf.DISC)
+    assert main(["fit", str(tmp_path / "photo.png"), "--envmap", str(tmp_path / "env.exr"), "--background",
+                 str(tmp_path / "before.png"), "--disc", disc, "--fov", "0", "--json", str(tmp_path / "fit.json")]) == 0
+    cli = json.loads((tmp_path / "fit.json").read_text())
+    img = read_image(tmp_path / "photo.png", dtype=np.float32)
+    py = fit_photo(img.pixels, env, options=FitOptions(disc=tf.DISC, view=V.ORTHOGRAPHIC),
+                   background=read_image(tmp_path / "before.png", dtype=np.float32).pixels, saturated=img.saturated)
+    assert FitOptions().model == "auto" and py.model == cli["model"]
+    assert abs(py.params["thickness_nm"] - cli["params"]["thickness_nm"]) < 0.01 * cli["stderr"]["thickness_nm"]

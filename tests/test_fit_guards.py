@@ -1,0 +1,59 @@
+"""A fit reports no value outside the range it searched, and refuses a photo in which
+the disc detector finds no bubble."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import ndimage as ndi
+
+from bubblefit.errors import InputError
+
+
+def _table(free):
+    from bubblefit.inverse._parameters import ParameterTable
+
+    return ParameterTable(free=tuple(free), held=())
+
+
+def test_a_thickness_past_the_search_is_reported_at_its_bound():
+    """4.4 nm from a 50-2000 nm search comes back as 50 nm, with a warning; a value inside,
+    and a held one, are left alone."""
+    from bubblefit.inverse._verdict import clamp_to_range
+
+    keys = ("thickness_nm", "top_nm", "bottom_nm")
+    got, warn = clamp_to_range({"thickness_nm": 4.4, "t": 0.97}, _table(["thickness_nm"]), (50.0, 2000.0), keys)
+    assert got == {"thickness_nm": 50.0, "t": 0.97}
+    assert len(warn) == 1 and "4.4" in warn[0] and "bound 50" in warn[0]
+    got, warn = clamp_to_range({"top_nm": 120.0, "bottom_nm": 2412.0}, _table(["top_nm", "bottom_nm"]),
+                               (50.0, 2000.0), keys)
+    assert got == {"top_nm": 120.0, "bottom_nm": 2000.0} and len(warn) == 1
+    got, warn = clamp_to_range({"thickness_nm": 4.4}, _table([]), (50.0, 2000.0), keys)
+    assert got == {"thickness_nm": 4.4} and warn == []
+
+
+def test_verdict_of_a_clamped_thickness_is_not_ok():
+    from bubblefit.inverse._uncertainty import Misfit
+    from bubblefit.inverse._verdict import clamp_to_range, verdict
+
+    _, warn = clamp_to_range({"thickness_nm": 4.4}, _table(["thickness_nm"]), (50.0, 2000.0), ("thickness_nm",))
+    fields = Misfit.__dataclass_fields__
+    misfit = Misfit(**{k: (1.0 if k != "outliers" else 0.0) for k in fields})
+    ok, warnings = verdict(converged=True, disc_found=True, bound_warnings=warn, misfit=misfit, ok_chi2=3.0,
+                           model_error=0.03, notes=[])
+    assert not ok and warn[0] in warnings
+
+
+def test_a_photo_without_a_bubble_is_refused_without_a_background_photo():
+    """A smooth textured photo with nothing round in it and no background photo: the robust
+    detector finds no rim, and the fit refuses rather than fitting the simpler detector's
+    guess; with the disc given, it is taken."""
+    from bubblefit.inverse._disc import resolve_disc
+    from bubblefit.inverse._options import FitOptions
+
+    rng = np.random.default_rng(3)
+    photo = ndi.gaussian_filter(rng.uniform(0.1, 0.7, (96, 128, 3)), (6, 6, 0))
+    with pytest.raises(InputError, match="--disc"):
+        resolve_disc(photo, None, FitOptions())
+    disc, warn = resolve_disc(photo, None, FitOptions(disc=(64.0, 48.0, 30.0)), given=(64.0, 48.0, 30.0))
+    assert disc == (64.0, 48.0, 30.0) and warn == []

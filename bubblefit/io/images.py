@@ -250,6 +250,78 @@ def _undecodable_as_input_error(func):
     return wrapper
 
 
+def _check_path(path: str) -> None:
+    """Refuse, in one line, a path that is missing, a folder, or not UTF-8 (OpenImageIO's open needs UTF-8)."""
+    if not os.path.exists(path):
+        raise InputError(f"image not found: {path}")
+    if os.path.isdir(path):
+        raise InputError(f"expected an image file, got a folder: {path}")
+    try:
+        path.encode("utf-8")
+    except UnicodeEncodeError:
+        raise InputError(f"cannot read image {path.encode('utf-8', 'surrogateescape').decode('utf-8', 'replace')}: "
+                         "the path is not UTF-8 (rename it)") from None
+
+
+def _decode_file(path: str) -> tuple[np.ndarray, int, dict, int]:
+    """(codes (H, W, C) in the file's own type, bit depth 8/16/32, metadata, the alpha
+    channel's index or -1) through OpenImageIO, with the declared size checked before
+    decoding and a truncated file refused (the decoder's error, the file's end marker)."""
+    inp = oiio.ImageInput.open(path, _reader_config())
+    if inp is None:
+        raise InputError(f"cannot read image {path}: {_first_line(oiio.geterror()) or 'unknown format'}")
+    try:
+        spec = inp.spec()
+        if spec.width <= 0 or spec.height <= 0:
+            raise InputError(f"image {path} has no pixels")
+        _check_declared_size(path, spec)
+        file_format = inp.format_name()
+        fmt = spec.format.basetype
+        if fmt in (oiio.UINT8, oiio.INT8):
+            bit_depth, native = 8, oiio.UINT8
+        elif fmt in (oiio.UINT16, oiio.INT16):
+            bit_depth, native = 16, oiio.UINT16
+        else:
+            bit_depth, native = 32, oiio.FLOAT
+        with _native_stderr_filtered():
+            data = inp.read_image(0, 0, 0, spec.nchannels, native)
+        metadata = {}
+        for attrib in spec.extra_attribs:
+            try:
+                metadata[attrib.name] = attrib.value
+            except Exception:  # attributes of exotic types are not needed
+                pass
+        err = inp.geterror()
+        alpha_channel = spec.alpha_channel
+    finally:
+        inp.close()
+    if data is None or (isinstance(data, np.ndarray) and data.size == 0):
+        raise InputError(f"cannot read pixels of {path}: {_first_line(err) or 'truncated or corrupt file'}")
+    _decoder_error(path, err)
+    _check_file_end(path, file_format)
+    data = np.asarray(data)
+    if data.ndim == 2:
+        data = data[:, :, None]
+    return data, bit_depth, metadata, alpha_channel
+
+
+def _rgb_channels(path: str, data: np.ndarray, bit_depth: int, alpha_channel: int) -> tuple[np.ndarray, bool, bool]:
+    """(RGB codes, whether an alpha channel was dropped, whether the file was grey): grey
+    repeated to RGB, alpha checked (:func:`_alpha_checked`) and dropped."""
+    nch = data.shape[2]
+    full = 255 if bit_depth == 8 else 65535 if bit_depth == 16 else 1.0
+    if nch in (1, 2):
+        if nch == 2:
+            _alpha_checked(path, data, 1, full)
+        return np.repeat(data[:, :, :1], 3, axis=2), nch == 2, True
+    if nch >= 4:
+        _alpha_checked(path, data, alpha_channel if alpha_channel >= 0 else 3, full)
+        return data[:, :, :3], True, False
+    if nch != 3:
+        raise InputError(f"image {path} has {nch} channels; expected 1 (gray), 3 (RGB) or 4 (RGBA)")
+    return data, False, False
+
+
 @_undecodable_as_input_error
 def read_image(path: str | os.PathLike, *, linear: bool | None = None, dtype=np.float64,
                allow_nan: bool = False, encoding=None) -> Image:
@@ -286,65 +358,9 @@ def read_image(path: str | os.PathLike, *, linear: bool | None = None, dtype=np.
     ((4, 6, 3), 0.5029)
     """
     path = str(path)
-    if not os.path.exists(path):
-        raise InputError(f"image not found: {path}")
-    if os.path.isdir(path):
-        raise InputError(f"expected an image file, got a folder: {path}")
-    try:
-        path.encode("utf-8")
-    except UnicodeEncodeError:
-        raise InputError(f"cannot read image {path.encode('utf-8', 'surrogateescape').decode('utf-8', 'replace')}: "
-                         "the path is not UTF-8 (rename it)") from None
-    inp = oiio.ImageInput.open(path, _reader_config())
-    if inp is None:
-        raise InputError(f"cannot read image {path}: {_first_line(oiio.geterror()) or 'unknown format'}")
-    try:
-        spec = inp.spec()
-        if spec.width <= 0 or spec.height <= 0:
-            raise InputError(f"image {path} has no pixels")
-        _check_declared_size(path, spec)
-        file_format = inp.format_name()
-        fmt = spec.format.basetype
-        if fmt in (oiio.UINT8, oiio.INT8):
-            bit_depth, native = 8, oiio.UINT8
-        elif fmt in (oiio.UINT16, oiio.INT16):
-            bit_depth, native = 16, oiio.UINT16
-        else:
-            bit_depth, native = 32, oiio.FLOAT
-        with _native_stderr_filtered():
-            data = inp.read_image(0, 0, 0, spec.nchannels, native)
-        metadata = {}
-        for attrib in spec.extra_attribs:
-            try:
-                metadata[attrib.name] = attrib.value
-            except Exception:  # attributes of exotic types are not needed
-                pass
-        err = inp.geterror()
-    finally:
-        inp.close()
-    if data is None or (isinstance(data, np.ndarray) and data.size == 0):
-        raise InputError(f"cannot read pixels of {path}: {_first_line(err) or 'truncated or corrupt file'}")
-    _decoder_error(path, err)
-    _check_file_end(path, file_format)
-    data = np.asarray(data)
-    if data.ndim == 2:
-        data = data[:, :, None]
-    nch = data.shape[2]
-    alpha_dropped = False
-    was_gray = False
-    if nch == 1 or nch == 2:
-        was_gray = True
-        alpha_dropped = nch == 2
-        if nch == 2:
-            _alpha_checked(path, data, 1, 255 if bit_depth == 8 else 65535 if bit_depth == 16 else 1.0)
-        data = np.repeat(data[:, :, :1], 3, axis=2)
-    elif nch >= 4:
-        alpha_dropped = True
-        _alpha_checked(path, data, spec.alpha_channel if spec.alpha_channel >= 0 else 3,
-                       255 if bit_depth == 8 else 65535 if bit_depth == 16 else 1.0)
-        data = data[:, :, :3]
-    elif nch != 3:
-        raise InputError(f"image {path} has {nch} channels; expected 1 (gray), 3 (RGB) or 4 (RGBA)")
+    _check_path(path)
+    data, bit_depth, metadata, alpha_channel = _decode_file(path)
+    data, alpha_dropped, was_gray = _rgb_channels(path, data, bit_depth, alpha_channel)
 
     from .camera_files import PhotoReading, decide_encoding, decode_codes
 

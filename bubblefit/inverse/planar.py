@@ -65,6 +65,8 @@ GRID_STEP_NM = 2.0
 #: pixel's noise (3 sigma^2): ten times the 1.5 nm a 1 um-per-100-pixel drainage slope
 #: bends per pixel, far above a Newton lens's curvature (0.8 nm per pixel^2 at R = 100 mm,
 #: 9 um pixels), and below the 20-30 nm between neighbouring minima of the colour cost.
+#: The planar fit (this relaxation, the censoring of clipped channels) was developed on the
+#: validation cases film_drain_water_area and film_newton_bk7_na010.
 RELAX_NM = 15.0
 #: Spectral samples of the fitting basis: 5 nm bins, fine enough for fringes 50 nm wide
 #: (a 3 um air gap at 550 nm).

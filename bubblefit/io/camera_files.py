@@ -376,7 +376,7 @@ def read_raw(path: str, reading: PhotoReading = PhotoReading(), dtype=np.float64
         raise InputError(f"{path} is a RAW file: its black and white levels come from the file "
                          "(--black-level/--white-level are for linear TIFF/PNG files)")
     try:
-        raw = rawpy.imread(path)
+        raw = rawpy.imread(str(path))  # LibRaw takes a plain str, not a subclass (the CLI's path types)
     except rawpy.LibRawFileUnsupportedError:
         raise InputError(f"cannot read RAW file {path}: LibRaw {'.'.join(map(str, rawpy.libraw_version))} does "
                          "not support this camera or format (convert it to DNG)") from None

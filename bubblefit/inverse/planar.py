@@ -145,6 +145,12 @@ class PlanarResult:
     order_hops: int = 0
     reduced_chi2: float = float("nan")
 
+    @property
+    def residual_rms(self) -> float:
+        """RMS of ``photo - render`` over the film's pixels (as a bubble fit's ``residual_rms``)."""
+        r = self.residual[np.isfinite(self.thickness_map)]
+        return float(np.sqrt(np.mean(r**2))) if r.size else float("nan")
+
     def to_json(self) -> dict:
         m = self.thickness_map[np.isfinite(self.thickness_map)]
         return {"kind": self.kind, "ok": self.ok, "warnings": self.warnings, "params": self.params,

@@ -32,7 +32,7 @@ def run(args) -> int:
 
     from ..errors import OutputError
     from ..export import export_bubble, load_fit
-    from .common import guard_args
+    from .common import guard_args, guard_outputs
 
     out = Path(args.output)
     if out.exists() and not out.is_dir():
@@ -45,7 +45,8 @@ def run(args) -> int:
     outputs = [out / n for n in EXPORT_FILES if not n.startswith("envmap")]
     if envmap_copy is not None and not (envmap_copy.exists() and os.path.samefile(envmap_copy, bubble.envmap)):
         outputs.append(envmap_copy)
-    guard_args(args, inputs, outputs)
+    guard_args(args, inputs)  # the output folder: creatable; it is made by the export
+    guard_outputs(inputs, outputs)  # no file written into it is an input
     result = export_bubble(bubble, args.to, out)
     print(f"wrote {result.main} ({len(result.files)} files in {out})")
     for note in result.notes:

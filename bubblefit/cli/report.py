@@ -22,13 +22,14 @@ def run(args) -> int:
 
     from ..errors import OutputError
     from ..report import PAGE_FILES, load_report_inputs, write_fit_page
-    from .common import guard_args
+    from .common import guard_args, guard_outputs
 
     out = Path(args.output)
     if out.exists() and not out.is_dir():
         raise OutputError(f"refusing to write into {out}: it is a file, not a folder")
     data = load_report_inputs(args.fit)
-    guard_args(args, data.inputs(), [out / n for n in PAGE_FILES])
+    guard_args(args, data.inputs())  # the output folder: creatable; the page writer makes it
+    guard_outputs(data.inputs(), [out / n for n in PAGE_FILES])
     page = write_fit_page(data, out)
     print(f"wrote {page}")
     return 0

@@ -259,7 +259,7 @@ def test_cli_resumes_finished_run(data, runs, capsys):
     shutil.copytree(runs[1].out_dir, out)
     os.remove(out / "params.csv")
     argv = ["fit-sequence", str(data["frames"]), "--envmap", str(data["env_path"]), "--disc", "24,24,20",
-            "--model", "paper", "--thickness-range", "300,1300", "--chunk-size", str(CHUNK),
+            "--model", "paper", "--fov", "0", "--thickness-range", "300,1300", "--chunk-size", str(CHUNK),
             "--workers", "0", "-o", str(out), "--json", str(out / "summary.json"), "--no-progress"]
     assert main(argv) == 0
     summary = json.loads((out / "summary.json").read_text())

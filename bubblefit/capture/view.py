@@ -174,7 +174,7 @@ def resolve_view(*, fov_deg: float | None = None, focal_length_mm: float | None 
         raise InputError("--sensor-width needs --focal-length")
     if fov_deg is not None:
         if fov_deg == 0:
-            return View("orthographic", None, "option", "--fov 0: parallel rays")
+            return ORTHOGRAPHIC
         if not 0 < fov_deg <= MAX_FOV_DEG:
             raise InputError(f"--fov must lie in (0, {MAX_FOV_DEG:g}] degrees (0 for an orthographic view), "
                              f"got {fov_deg}")

@@ -24,6 +24,7 @@ from pathlib import Path
 
 from ..io.atomic import write_text
 from .assets import write_obj, write_thickness_texture
+from .notes import diffuse_note, paper_model_note, roughness_note
 from .record import FittedBubble
 
 __all__ = ["write_openpbr", "limitations"]
@@ -34,12 +35,10 @@ def limitations(bubble: FittedBubble) -> list[str]:
     out = ["MaterialX describes the material only: the sphere is sphere.obj, and the camera, the environment map "
            f"(its rotation {bubble.rotation_deg:g} deg and gain {bubble.exposure:.4g}) and the backplate are the "
            "renderer's to set (export.json lists them)",
-           f"roughness: Ward's a = {bubble.roughness:.4g} exported as specular_roughness = sqrt(a)"]
-    if bubble.r_d > 0:
-        out.append(f"the diffuse term r_d = {bubble.r_d:.3g} is left out")
-    if bubble.model == "paper":
-        out.append(f"the paper model's t = {bubble.t:.4g} is not expressed: the film's Fresnel sets it")
-    return out
+           roughness_note(bubble, "specular_roughness"),
+           diffuse_note(bubble),
+           paper_model_note(bubble, "the film's Fresnel sets it")]
+    return [line for line in out if line]
 
 
 def _input(node, name, type_, value=None, nodename=None, **extra):

@@ -26,6 +26,7 @@ NAME = "fit"
 def register(sub):
     from .common import input_file, output_file, output_prefix
     from .view_options import add_view_options
+    from ..model.modes import MODEL_CHOICES, THICKNESS_KINDS  # no JAX: --help stays fast
 
     p = sub.add_parser(
         NAME, help="fit the bubble model to a photo (t, r_d, r_s, roughness, film thickness)",
@@ -47,9 +48,9 @@ def register(sub):
                    help="scene file: its camera (orthographic disc or perspective, response, white balance, "
                         "samples per pixel), n_film (with dispersion), illuminant, effects, and every value its "
                         "[bubble] table sets, which is held fixed; the flags below override it")
-    p.add_argument("--thickness", choices=("constant", "drainage", "map"), default="constant",
+    p.add_argument("--thickness", choices=THICKNESS_KINDS, default="constant",
                    help="thickness model (default: constant)")
-    p.add_argument("--model", choices=("paper", "physical", "auto"), default=None,
+    p.add_argument("--model", choices=MODEL_CHOICES, default=None,
                    help="forward model: paper, physical, or auto (the paper model, then the physical one when "
                         "the paper model does not explain the photo; default: the scene's, else auto)")
     p.add_argument("--disc", metavar="CX,CY,R", help="the bubble's disc in pixels (default: detected; a disc "

@@ -156,7 +156,7 @@ def fit_option_values(args) -> dict:
     """The :class:`~bubblefit.inverse.fit.FitOptions` values that ``fit`` and ``fit-sequence`` read
     the same way: starting t and disc (``--calibration``, ``--t``, ``--disc``), thickness
     kind and range, held parameters and the step limit. One-line errors for bad values."""
-    from ..inverse._parameters import parse_setting
+    from ..inverse import parse_setting
     from .common import parse_floats
 
     t_init, disc, cal_disc, cal_size = None, None, None, None
@@ -192,7 +192,7 @@ def model_option_values(args) -> dict:
     """``illuminant``, ``camera_response``, ``n_film`` and ``samples_per_pixel`` of
     :class:`~bubblefit.inverse.fit.FitOptions` from :func:`add_model_options`' flags (None
     where not given: the scene's then apply), checked before any photo is read."""
-    from ..model._scene_checks import samples_per_pixel
+    from ..model import samples_per_pixel
     from ..optics import spectral
     from .common import colour_option, film_index
 

@@ -137,7 +137,7 @@ def run(args) -> int:
         raise InputError("--scheduler-security needs --scheduler tls://HOST:PORT")
     scheduler = None
     if args.scheduler and args.workers != 0:
-        from ..inverse._executors import SchedulerAddress
+        from ..inverse import SchedulerAddress
 
         scheduler = SchedulerAddress(args.scheduler, args.scheduler_security)
     seq = SequenceOptions(scheduler=scheduler, workers=args.workers,

@@ -19,7 +19,9 @@ import importlib
 _MODULES = ("effects", "geometry", "render", "scene", "thickness")
 _EXPORTS = {"Effects": "effects", "OrthographicCamera": "geometry", "PerspectiveCamera": "geometry",
             "Params": "render", "RenderConfig": "render", "render_terms": "render", "Scene": "scene",
-            "load_scene": "scene", "render_scene": "scene"}
+            "load_scene": "scene", "render_scene": "scene",
+            # a scene's value checks that the command line shares
+            "samples_per_pixel": "_scene_checks", "white_balance": "_scene_checks"}
 
 __all__ = list(_MODULES) + list(_EXPORTS)
 

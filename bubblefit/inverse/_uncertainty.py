@@ -59,7 +59,7 @@ from ._observation import Level
 from ._parameters import PARAMETERS, ParameterTable
 from ._programs import reporter
 
-__all__ = ["Uncertainty", "uncertainty", "Misfit", "misfit", "OUTLIER_CHI2"]
+__all__ = ["Uncertainty", "uncertainty", "Misfit", "misfit", "held_keys", "OUTLIER_CHI2"]
 
 #: A pixel whose chi^2 with the model-error floor, summed over its three channels, exceeds
 #: this is an outlier: P(chi^2_3 > 30) = 1.4e-6 (module docstring).
@@ -159,7 +159,7 @@ def _cluster_sandwich(jac: np.ndarray, r: np.ndarray, shape: tuple, block: int) 
     return gb.T @ gb * (nb / max(nb - p, 1)) if nb > p else np.full((p, p), np.nan)
 
 
-def _held_keys(table: ParameterTable) -> set:
+def held_keys(table: ParameterTable) -> set:
     """Reported keys without a standard error: the held parameters (``f``, and ``r_d``,
     ``r_s`` with ``t`` held too, for a held split)."""
     held = {n for n, _ in table.held if n not in table.free}
@@ -216,7 +216,7 @@ def uncertainty(sol: LocalSolution, table: ParameterTable, lev: Level, robust_sc
             cov_z = np.full((len(table.free), len(table.free)), np.nan)
             finite = False
         gmat = {k: np.asarray(g, np.float64).reshape(-1) for k, g in rep_jac(zj, sol.fixed).items()}
-        drop = _held_keys(table)
+        drop = held_keys(table)
         names = tuple(k for k in reported if k not in drop)
         g = np.stack([gmat[k] for k in names]) if names else np.zeros((0, len(table.free)))
         cov = g @ cov_z @ g.T

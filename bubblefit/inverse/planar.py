@@ -361,6 +361,85 @@ def _hops(dmap: np.ndarray, limit: float) -> int:
     return int(np.nansum(a > limit) + np.nansum(b > limit))
 
 
+def _checked_region(scene, view, reference_region, reference_nm, w: int, h: int):
+    """``(region, reference_nm)``: the reference region and its thickness, given or the
+    scene's; a region outside the film is refused."""
+    region = reference_region if reference_region is not None else scene.reference_region
+    ref_nm = reference_nm if reference_nm is not None else scene.reference_nm
+    if region is not None:
+        x0, y0, x1, y1 = region
+        if x0 < 0 or y0 < 0 or x1 > w or y1 > h or not view.mask[y0:y1, x0:x1].any():
+            raise InputError(f"the reference region {x0},{y0},{x1},{y1} lies outside the film")
+    return region, ref_nm
+
+
+def _constant_thickness(y, lum, table, i0, i1, a, grid, fringe_nm: float, sigma2: float, warnings: list):
+    """``(gain, thickness per pixel)`` of a film of one thickness: each candidate of ``grid``
+    with its own least-squares exposure (``g_j = sum y.T_j / sum |T_j|^2``; the exposure
+    found first belongs to one order). Another order that fits nearly as well adds a
+    warning: a near-neutral film whose brightness the unknown exposure absorbs."""
+    A = np.zeros(len(grid))
+    B = np.zeros(len(grid))
+    for s in range(0, len(y), 1024):
+        sl = slice(s, s + 1024)
+        t = lum[sl, None, None] * ((1 - a[sl, None, None]) * table[i0[sl]] + a[sl, None, None] * table[i1[sl]])
+        A += np.einsum("pc,pdc->d", y[sl], t)
+        B += np.einsum("pdc,pdc->d", t, t)
+    total = float(np.sum(y * y)) - A * A / np.maximum(B, 1e-30)
+    j = int(np.argmin(total))
+    gain = float(A[j] / B[j])
+    dpix = np.full(len(y), grid[j])
+    # "Nearly": worse by less than one noise variance (sigma^2, summed over the channels)
+    # per pixel on average, i.e. colours closer than the noise of a single pixel: a small
+    # mismatch of the model (a dispersion law, the lamp: ~1e-3 of the signal against the
+    # independent renderer) is common to all pixels and does not average out.
+    far = np.abs(grid - grid[j]) > 0.75 * fringe_nm  # past the neighbouring minima of this order
+    if far.any() and (total[far].min() - total[j]) / len(y) < sigma2:
+        alt = grid[far][int(np.argmin(total[far]))]
+        warnings.append(f"the colour fits {grid[j]:.0f} nm and {alt:.0f} nm nearly as well (another order); "
+                        "name the thickness of a region with --reference-region")
+    return gain, dpix
+
+
+def _order_seeds(y, lum, cost, best, grid, mask, region, ref_nm, lo: float, fringe_nm: float, window: float):
+    """(H, W) thicknesses that fix the interference order (NaN elsewhere): the reference
+    region's, each pixel's best candidate within ``window`` of ``ref_nm``; without one, the
+    black film or contact point."""
+    h, w = mask.shape
+    seeds = np.full((h, w), np.nan)
+    if region is not None:
+        x0, y0, x1, y1 = region
+        inside = np.zeros((h, w), bool)
+        inside[y0:y1, x0:x1] = True
+        sel = inside[mask]
+        near = np.abs(grid - ref_nm) <= window
+        jj = np.flatnonzero(near)
+        pick = grid[jj[np.argmin(cost[sel][:, jj], axis=1)]]
+        seeds[inside & mask] = pick
+        return seeds
+    # A black film or a contact point: pixels that match a film thinner than 0.3
+    # fringe (82 nm of air, 62 nm of water at 550 nm: the dark grey end of the colour
+    # chart) and are dark (below 0.35 x the median brightness, which a thick film
+    # fading to its grey mean reflectance, the other neutral colour, never is).
+    bright = y.sum(-1) / np.maximum(lum, 1e-9)
+    thin = best <= lo + 0.3 * fringe_nm
+    good = cost.min(1) <= np.percentile(cost.min(1), 75)
+    pick = thin & good & (bright <= 0.35 * np.median(bright))
+    if pick.sum() < 3:
+        raise InputError("no reference for the interference order: the photo has no black film or contact "
+                         "point; name a region of known thickness with --reference-region x0,y0,x1,y1=NM")
+    flat = seeds.reshape(-1)
+    flat[np.flatnonzero(mask.ravel())[pick]] = best[pick]
+    return flat.reshape(h, w)
+
+
+def _on_image(mask, values, fill, channels: int = 0) -> np.ndarray:
+    """``values`` of the film's pixels placed on the (H, W) or (H, W, channels) image, ``fill`` elsewhere."""
+    out = np.full(mask.shape + ((channels,) if channels else ()), fill)
+    out[mask] = values
+    return out
+
+
 def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=None,
                kind: str | None = None, seed: int = 0, clip_high: float = np.inf) -> PlanarResult:
     """Fit a flat film's or a gap's thickness to a linear photo (H, W, 3) (the module's method).
@@ -373,12 +452,7 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     if (h, w) != (scene.height, scene.width):
         raise InputError(f"the photo is {w}x{h}, the scene's camera {scene.width}x{scene.height}")
     view = view_of(scene)
-    region = reference_region if reference_region is not None else scene.reference_region
-    ref_nm = reference_nm if reference_nm is not None else scene.reference_nm
-    if region is not None:
-        x0, y0, x1, y1 = region
-        if x0 < 0 or y0 < 0 or x1 > w or y1 > h or not view.mask[y0:y1, x0:x1].any():
-            raise InputError(f"the reference region {x0},{y0},{x1},{y1} lies outside the film")
+    region, ref_nm = _checked_region(scene, view, reference_region, reference_nm, w, h)
     lo, hi = scene.thickness_range
     fwd = PlanarForward(scene.stack, scene.lamp, scene.response, scene.na, hi)
     grid = np.arange(lo, hi + 0.5 * GRID_STEP_NM, GRID_STEP_NM)
@@ -403,57 +477,10 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     window = 0.3 * fwd.fringe_nm
     warnings: list[str] = []
 
-    seeds = np.full((h, w), np.nan)
     if kind == "constant":
-        # One thickness for the film, each candidate with its own least-squares exposure
-        # (``g_j = sum y.T_j / sum |T_j|^2``): the exposure found above belongs to one order.
-        A = np.zeros(len(grid))
-        B = np.zeros(len(grid))
-        for s in range(0, len(y), 1024):
-            sl = slice(s, s + 1024)
-            t = lum[sl, None, None] * ((1 - a[sl, None, None]) * table[i0[sl]] + a[sl, None, None] * table[i1[sl]])
-            A += np.einsum("pc,pdc->d", y[sl], t)
-            B += np.einsum("pdc,pdc->d", t, t)
-        total = float(np.sum(y * y)) - A * A / np.maximum(B, 1e-30)
-        j = int(np.argmin(total))
-        gain = float(A[j] / B[j])
-        dpix = np.full(len(y), grid[j])
-        # Another order that fits nearly as well leaves the thickness ambiguous: a
-        # near-neutral film whose brightness the unknown exposure absorbs. "Nearly": worse
-        # by less than one noise variance (sigma^2, summed over the channels) per pixel on
-        # average, i.e. colours closer than the noise of a single pixel: a small mismatch
-        # of the model (a dispersion law, the lamp: ~1e-3 of the signal against the
-        # independent renderer) is common to all pixels and does not average out.
-        far = np.abs(grid - grid[j]) > 0.75 * fwd.fringe_nm  # past the neighbouring minima of this order
-        if far.any() and (total[far].min() - total[j]) / len(y) < sigma2:
-            alt = grid[far][int(np.argmin(total[far]))]
-            warnings.append(f"the colour fits {grid[j]:.0f} nm and {alt:.0f} nm nearly as well (another order); "
-                            "name the thickness of a region with --reference-region")
+        gain, dpix = _constant_thickness(y, lum, table, i0, i1, a, grid, fwd.fringe_nm, sigma2, warnings)
     else:
-        if region is not None:
-            x0, y0, x1, y1 = region
-            inside = np.zeros((h, w), bool)
-            inside[y0:y1, x0:x1] = True
-            sel = inside[mask]
-            near = np.abs(grid - ref_nm) <= window
-            jj = np.flatnonzero(near)
-            pick = grid[jj[np.argmin(cost[sel][:, jj], axis=1)]]
-            seeds[inside & mask] = pick
-        else:
-            # A black film or a contact point: pixels that match a film thinner than 0.3
-            # fringe (82 nm of air, 62 nm of water at 550 nm: the dark grey end of the colour
-            # chart) and are dark (below 0.35 x the median brightness, which a thick film
-            # fading to its grey mean reflectance, the other neutral colour, never is).
-            bright = y.sum(-1) / np.maximum(lum, 1e-9)
-            thin = best <= lo + 0.3 * fwd.fringe_nm
-            good = cost.min(1) <= np.percentile(cost.min(1), 75)
-            pick = thin & good & (bright <= 0.35 * np.median(bright))
-            if pick.sum() < 3:
-                raise InputError("no reference for the interference order: the photo has no black film or contact "
-                                 "point; name a region of known thickness with --reference-region x0,y0,x1,y1=NM")
-            flat = seeds.reshape(-1)
-            flat[np.flatnonzero(mask.ravel())[pick]] = best[pick]
-            seeds = flat.reshape(h, w)
+        seeds = _order_seeds(y, lum, cost, best, grid, mask, region, ref_nm, lo, fwd.fringe_nm, window)
         dmap = _propagate(cost, grid, mask, seeds, window, smooth=3.0 * sigma2 / window ** 2,
                           relax_weight=3.0 * sigma2 / RELAX_NM ** 2)
         dpix = dmap[mask]
@@ -484,10 +511,8 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         stderr = nres.thickness_stderr
         res = censored_residual(y, model, clip_high, np)
     chi2 = float(np.mean(res ** 2) / sigma ** 2)
-    tmap = np.full((h, w), np.nan)
-    tmap[mask] = dref
-    smap = np.full((h, w), np.nan)
-    smap[mask] = stderr
+    tmap = _on_image(mask, dref, np.nan)
+    smap = _on_image(mask, stderr, np.nan)
     hops = _hops(tmap, window) if kind == "map" else 0
     if hops:
         warnings.append(f"{hops} neighbouring pixel pairs differ by more than {window:.0f} nm (possible order hops)")
@@ -495,10 +520,8 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     if edge.mean() > 0.05:
         warnings.append(f"{100 * edge.mean():.0f} % of the film sits at the edge of the searched range "
                         f"{lo:g}-{hi:g} nm")
-    render = np.zeros((h, w, 3))
-    render[mask] = model
-    resid = np.zeros((h, w, 3))
-    resid[mask] = res
+    render = _on_image(mask, model, 0.0, 3)
+    resid = _on_image(mask, res, 0.0, 3)
     ok = not warnings and chi2 < 4.0
     if chi2 >= 4.0:
         warnings.append(f"the model does not explain the photo (residual {math.sqrt(chi2):.1f} x the noise)")

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..errors import ComputationError
 from ._censored import censored_residual
+from ._planar_lm import levenberg_marquardt
 
 __all__ = ["NewtonFit", "fit_newton", "newton_gap"]
 
@@ -77,28 +78,7 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
 
     rj = jax.jit(resid)
     jac = jax.jit(jax.jacfwd(resid))
-    lam = 1e-3
-    r = rj(theta)
-    cost = float(r @ r)
-    for _ in range(iters):
-        J = np.asarray(jac(theta), np.float64)
-        g = J.T @ np.asarray(r)
-        H = J.T @ J
-        improved = False
-        for _ in range(12):
-            step = np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-12), -g)
-            cand = theta + jnp.asarray(step)
-            rc = rj(cand)
-            cc = float(rc @ rc)
-            if cc < cost:
-                theta, r, improved = cand, rc, True
-                small = cost - cc < 1e-9 * cost
-                cost = cc
-                lam = max(lam / 3.0, 1e-9)
-                break
-            lam *= 4.0
-        if not improved or small:
-            break
+    theta, r, cost = levenberg_marquardt(rj, jac, theta, iters)
     J = np.asarray(jac(theta), np.float64)
     dof = max(len(r) - 5, 1)
     cov = np.linalg.pinv(J.T @ J) * (cost / dof)

@@ -54,6 +54,7 @@ from ..errors import ComputationError, InputError
 from ..lighting import coaxial
 from ..optics import dispersion, spectral
 from ._censored import BLACK_CLIP, censored_residual
+from ._drainage_plane import film_height
 
 __all__ = ["PlanarView", "PlanarForward", "PlanarResult", "fit_planar", "view_of"]
 
@@ -76,13 +77,17 @@ SPECTRAL_SAMPLES = 80
 @dataclass(frozen=True)
 class PlanarView:
     """Per pixel (H, W): on the film (``mask``), ``sin2`` of the incidence in air, the light's
-    ``radiance`` there, and the film coordinates in microns (``x_um``, ``y_um``)."""
+    ``radiance`` there, the film coordinates in microns (``x_um``, ``y_um``; scene units
+    under an area light), and the ``height`` along the film's up direction normalised to
+    its frame (+1 at the top edge, -1 at the bottom; :func:`._drainage_plane.film_height`;
+    under coaxial light the image's top row is the film's top)."""
 
     mask: np.ndarray
     sin2: np.ndarray
     radiance: np.ndarray
     x_um: np.ndarray
     y_um: np.ndarray
+    height: np.ndarray
 
 
 def view_of(scene) -> PlanarView:
@@ -91,7 +96,8 @@ def view_of(scene) -> PlanarView:
     if scene.light == "coaxial":
         yy, xx = np.mgrid[0:h, 0:w].astype(np.float64) + 0.5
         return PlanarView(mask=np.ones((h, w), bool), sin2=np.zeros((h, w)), radiance=np.ones((h, w)),
-                          x_um=xx * scene.pixel_um, y_um=yy * scene.pixel_um)
+                          x_um=xx * scene.pixel_um, y_um=yy * scene.pixel_um,
+                          height=film_height(yy - 0.5 * h, h, top_is_positive=False))
     from ..lighting.area import view_plane
 
     rows, cols = np.mgrid[0:h, 0:w].astype(np.float64)
@@ -100,7 +106,8 @@ def view_of(scene) -> PlanarView:
     mask = v.mask & (v.radiance > 0)
     if not np.any(mask):
         raise InputError("the area light is not seen in the film from this camera (no pixel reflects it)")
-    return PlanarView(mask=mask, sin2=v.sin2_air, radiance=v.radiance, x_um=v.x, y_um=v.y)
+    return PlanarView(mask=mask, sin2=v.sin2_air, radiance=v.radiance, x_um=v.x, y_um=v.y,
+                      height=film_height(v.y, scene.plane.size[1]))
 
 
 class PlanarForward:
@@ -429,6 +436,21 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
             alt = grid[far][int(np.argmin(total[far]))]
             warnings.append(f"the colour fits {grid[j]:.0f} nm and {alt:.0f} nm nearly as well (another order); "
                             "name the thickness of a region with --reference-region")
+    elif kind == "drainage":
+        # a profile along gravity: its order comes from the colour sequence over the whole
+        # film (a named region, if any, narrows the search to profiles through its value)
+        from ..model.thickness import drainage_profile
+        from ._drainage_plane import search_drainage
+
+        height = view.height[mask]
+        ref = None
+        if region is not None:
+            x0, y0, x1, y1 = region
+            inside = np.zeros((h, w), bool)
+            inside[y0:y1, x0:x1] = True
+            ref = (float(np.mean((1.0 - view.height[inside & mask]) * 0.5)), float(ref_nm))
+        start = search_drainage(cost, grid, height, ref, window)
+        dpix = np.clip(np.asarray(drainage_profile(height, *start), np.float64), lo, hi)
     else:
         if region is not None:
             x0, y0, x1, y1 = region
@@ -475,6 +497,15 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         dd = float(np.median(dref))
         params["thickness_nm"] = dd
         perr["thickness_nm"] = float(sigma / np.sqrt(np.sum(jj_)))
+    if kind == "drainage":
+        from ._drainage_plane import fit_drainage
+
+        dres = fit_drainage(fwd, y, lum, sin2, view.height[mask], start, gain, sigma, lo, hi, (h, w),
+                            np.flatnonzero(mask.ravel()), clip_high)
+        params, perr = dres.params, dres.stderr
+        dref, model, gain = dres.thickness, dres.model, dres.gain
+        stderr = dres.thickness_stderr
+        res = censored_residual(y, model, clip_high, np)
     if kind == "newton":
         from ._newton import fit_newton
 

@@ -39,7 +39,7 @@ from ..optics import dispersion
 
 __all__ = ["PlanarScene", "is_planar", "is_planar_file", "load_planar", "parse_planar", "parse_region"]
 
-THICKNESS_KINDS = ("map", "newton", "constant")
+THICKNESS_KINDS = ("map", "newton", "constant", "drainage")
 
 
 @dataclass(frozen=True)

@@ -103,7 +103,16 @@ def view_of(scene) -> PlanarView:
     rows, cols = np.mgrid[0:h, 0:w].astype(np.float64)
     o, d = scene.camera.rays(jnp.asarray(rows), jnp.asarray(cols))
     v = view_plane(np.asarray(o, np.float64), np.asarray(d, np.float64), scene.plane, scene.area)
-    mask = v.mask & (v.radiance > 0)
+    # A pixel counts when its whole footprint shows the film and the light: the rays
+    # through its four corners too. A pixel that the frame's edge or the light's mirror
+    # image crosses mixes the film with what lies beyond (a camera integrates over the
+    # pixel), and reads as a dimmer film of another colour.
+    cr, cc = np.mgrid[0:h + 1, 0:w + 1].astype(np.float64) - 0.5
+    oc, dc = scene.camera.rays(jnp.asarray(cr), jnp.asarray(cc))
+    vc = view_plane(np.asarray(oc, np.float64), np.asarray(dc, np.float64), scene.plane, scene.area, strict=False)
+    seen = vc.mask & (vc.radiance > 0)
+    whole = seen[:-1, :-1] & seen[1:, :-1] & seen[:-1, 1:] & seen[1:, 1:]
+    mask = v.mask & (v.radiance > 0) & whole
     if not np.any(mask):
         raise InputError("the area light is not seen in the film from this camera (no pixel reflects it)")
     return PlanarView(mask=mask, sin2=v.sin2_air, radiance=v.radiance, x_um=v.x, y_um=v.y,
@@ -151,6 +160,8 @@ class PlanarResult:
     warnings: list = field(default_factory=list)
     order_hops: int = 0
     reduced_chi2: float = float("nan")
+    reduced_chi2_floor: float = float("nan")
+    order_from: str = ""
 
     @property
     def residual_rms(self) -> float:
@@ -162,7 +173,8 @@ class PlanarResult:
         m = self.thickness_map[np.isfinite(self.thickness_map)]
         return {"kind": self.kind, "ok": self.ok, "warnings": self.warnings, "params": self.params,
                 "stderr": self.stderr, "gain": self.gain, "noise_sigma": self.sigma,
-                "reduced_chi2": self.reduced_chi2, "order_hops": self.order_hops,
+                "reduced_chi2": self.reduced_chi2, "reduced_chi2_floor": self.reduced_chi2_floor,
+                "order_from": self.order_from, "order_hops": self.order_hops,
                 "thickness_nm": {"min": float(m.min()), "median": float(np.median(m)), "max": float(m.max()),
                                  "median_stderr": float(np.nanmedian(self.thickness_stderr_map))} if m.size else None}
 
@@ -172,7 +184,8 @@ class PlanarResult:
         if j:
             lines.append(f"thickness {j['min']:.1f} .. {j['max']:.1f} nm (median {j['median']:.1f}, "
                          f"median standard error {j['median_stderr']:.2f} nm)")
-        lines.append(f"ok: {'yes' if self.ok else 'no'}; reduced chi^2 {self.reduced_chi2:.3g}; "
+        lines.append(f"ok: {'yes' if self.ok else 'no'}; reduced chi^2 {self.reduced_chi2:.3g} "
+                     f"({self.reduced_chi2_floor:.3g} with the model-error floor); "
                      f"order hops {self.order_hops}" + ("; " + "; ".join(self.warnings) if self.warnings else ""))
         return "\n".join(lines)
 
@@ -414,16 +427,25 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     if kind == "constant":
         # One thickness for the film, each candidate with its own least-squares exposure
         # (``g_j = sum y.T_j / sum |T_j|^2``): the exposure found above belongs to one order.
+        # Channels clipped at black or white are left out of these sums: a film colour
+        # outside the gamut records 0 in a channel where the model is negative, and a
+        # plain least-squares misfit there favours the order whose model is least
+        # negative (on Blender Cycles' 480 nm water film, validation case
+        # cyc_film_const_panel, red clipped: the third order at 672 nm, whose hue is
+        # within 1.5 % of the second's).
+        seen = ((y > BLACK_CLIP) & (y < clip_high)).astype(np.float64)
         A = np.zeros(len(grid))
         B = np.zeros(len(grid))
         for s in range(0, len(y), 1024):
             sl = slice(s, s + 1024)
             t = lum[sl, None, None] * ((1 - a[sl, None, None]) * table[i0[sl]] + a[sl, None, None] * table[i1[sl]])
+            t = t * seen[sl, None, :]
             A += np.einsum("pc,pdc->d", y[sl], t)
             B += np.einsum("pdc,pdc->d", t, t)
-        total = float(np.sum(y * y)) - A * A / np.maximum(B, 1e-30)
+        total = float(np.sum((y * y)[seen > 0])) - A * A / np.maximum(B, 1e-30)
         j = int(np.argmin(total))
         gain = float(A[j] / B[j])
+        order_from = "colour"
         dpix = np.full(len(y), grid[j])
         # Another order that fits nearly as well leaves the thickness ambiguous: a
         # near-neutral film whose brightness the unknown exposure absorbs. "Nearly": worse
@@ -450,6 +472,7 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
             inside[y0:y1, x0:x1] = True
             ref = (float(np.mean((1.0 - view.height[inside & mask]) * 0.5)), float(ref_nm))
         start = search_drainage(cost, grid, height, ref, window)
+        order_from = "drainage profile" + (" through the reference region" if ref else "")
         dpix = np.clip(np.asarray(drainage_profile(height, *start), np.float64), lo, hi)
     else:
         if region is not None:
@@ -461,6 +484,7 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
             jj = np.flatnonzero(near)
             pick = grid[jj[np.argmin(cost[sel][:, jj], axis=1)]]
             seeds[inside & mask] = pick
+            order_from = "reference region"
         else:
             # A black film or a contact point: pixels that match a film thinner than 0.3
             # fringe (82 nm of air, 62 nm of water at 550 nm: the dark grey end of the colour
@@ -470,6 +494,19 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
             thin = best <= lo + 0.3 * fwd.fringe_nm
             good = cost.min(1) <= np.percentile(cost.min(1), 75)
             pick = thin & good & (bright <= 0.35 * np.median(bright))
+            order_from = "thinnest"
+            if pick.sum() < 3 and scene.light == "area":
+                # A framed film without a black film: the order of its drainage profile
+                # along the frame's up direction (a global fit over the whole film,
+                # :mod:`._drainage_plane`), kept at the pixels whose best colour match lies
+                # within half the order window of it; the rest follow from them, so a
+                # local departure from the profile (a thicker swirl) keeps its own map.
+                from ..model.thickness import drainage_profile
+                from ._drainage_plane import search_drainage
+
+                prof = np.asarray(drainage_profile(view.height[mask], *search_drainage(cost, grid, view.height[mask])))
+                pick = good & (np.abs(best - prof) <= 0.5 * window)
+                order_from = "drainage profile"
             if pick.sum() < 3:
                 raise InputError("no reference for the interference order: the photo has no black film or contact "
                                  "point; name a region of known thickness with --reference-region x0,y0,x1,y1=NM")
@@ -494,9 +531,15 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     stderr = sigma / np.sqrt(np.maximum(jj_, 1e-20))
     params, perr = {}, {}
     if kind == "constant":
+        # the noise's error, widened by the Birge ratio for a misfit and with the
+        # thickness model error of the bubble fits added in quadrature (as for a drainage
+        # profile, :mod:`._drainage_plane`)
+        from ._options import FitOptions
+
         dd = float(np.median(dref))
         params["thickness_nm"] = dd
-        perr["thickness_nm"] = float(sigma / np.sqrt(np.sum(jj_)))
+        birge = max(1.0, float(np.mean(res ** 2) / sigma ** 2))
+        perr["thickness_nm"] = float(np.hypot(sigma * np.sqrt(birge / np.sum(jj_)), FitOptions.thickness_model_error_nm))
     if kind == "drainage":
         from ._drainage_plane import fit_drainage
 
@@ -515,6 +558,12 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         stderr = nres.thickness_stderr
         res = censored_residual(y, model, clip_high, np)
     chi2 = float(np.mean(res ** 2) / sigma ** 2)
+    # with each channel's variance sigma^2 + (model_error y)^2, the floor by which a
+    # bubble's fit is judged (FitOptions.model_error: how much independent renderers
+    # differ on the same film); ``ok`` is judged by this one
+    from ._options import FitOptions
+
+    chi2_floor = float(np.mean(res ** 2 / (sigma ** 2 + (FitOptions.model_error * y) ** 2)))
     tmap = np.full((h, w), np.nan)
     tmap[mask] = dref
     smap = np.full((h, w), np.nan)
@@ -530,11 +579,12 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     render[mask] = model
     resid = np.zeros((h, w, 3))
     resid[mask] = res
-    ok = not warnings and chi2 < 4.0
-    if chi2 >= 4.0:
-        warnings.append(f"the model does not explain the photo (residual {math.sqrt(chi2):.1f} x the noise)")
+    ok = not warnings and chi2_floor < 4.0
+    if chi2_floor >= 4.0:
+        warnings.append(f"the model does not explain the photo (residual {math.sqrt(chi2_floor):.1f} x the noise "
+                        "and the model error)")
     if not np.isfinite(tmap[mask]).all():
         raise ComputationError("the planar fit produced non-finite thicknesses")
     return PlanarResult(kind=kind, ok=ok, thickness_map=tmap, thickness_stderr_map=smap, render=render, residual=resid,
                         gain=gain, sigma=sigma, params=params, stderr=perr, warnings=warnings, order_hops=hops,
-                        reduced_chi2=chi2)
+                        reduced_chi2=chi2, reduced_chi2_floor=chi2_floor, order_from=order_from)

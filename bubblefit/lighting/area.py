@@ -87,19 +87,20 @@ class PlaneView:
 
 
 def view_plane(origins: np.ndarray, dirs: np.ndarray, film: Patch, light: Patch,
-               min_cos: float = 0.05) -> PlaneView:
+               min_cos: float = 0.05, strict: bool = True) -> PlaneView:
     """The film and the light as a camera's rays see them (the module's equation, geometry part).
 
     ``origins`` and ``dirs`` (H, W, 3): the camera's rays. Raises a one-line
     :class:`~bubblefit.errors.InputError` when the film is seen edge-on (every ray meets it
-    at ``cos(theta_i) < min_cos``; 0.05 is 87 degrees) or not at all.
+    at ``cos(theta_i) < min_cos``; 0.05 is 87 degrees) or not at all (``strict``; else an
+    empty mask).
     """
     t, on_film, x, y = film.intersect(origins, dirs)
     _, n, _, _ = film.frame()
     cos_i = np.abs(dirs @ n)
-    if not np.any(on_film):
+    if strict and not np.any(on_film):
         raise InputError("the film plane does not appear in the photo (no camera ray meets it)")
-    if np.max(cos_i[on_film]) < min_cos:
+    if strict and np.max(cos_i[on_film]) < min_cos:
         raise InputError(f"the film plane is seen edge-on (every ray meets it within {np.degrees(np.arccos(min_cos)):.0f}"
                          " degrees of grazing); turn the camera towards the film")
     mask = on_film & (cos_i >= min_cos)

@@ -18,7 +18,8 @@ The parameters are found in two steps:
 1. *Global search* on the cost volume ``C[p, j]`` of the per-pixel fit (the misfit of
    every candidate thickness at every pixel, :mod:`bubblefit.inverse.planar`): the
    pixels are summed into bins of ``y``, and every profile of a grid of (top, bottom,
-   exponent) is scored by the summed bin costs at its thicknesses. A profile spans the
+   exponent) with the bottom at least as thick as the top is scored by the summed bin
+   costs at its thicknesses. A profile spans the
    whole film, so the order of interference is settled by the colour sequence along it,
    without a reference; a region of known thickness, when named, keeps only the profiles
    that pass within 0.3 fringe of its value there.
@@ -114,23 +115,26 @@ def search_drainage(cost: np.ndarray, grid: np.ndarray, height: np.ndarray, refe
     there left out.
     """
     sums, fk = _binned(cost, height, HEIGHT_BINS)
+    flat = sums.astype(np.float32).ravel()
     step = float(grid[1] - grid[0])
     stride = max(1, int(round(END_STEP_NM / step)))
     ends = grid[::stride]
-    rows = np.arange(len(fk))[None, None, :]
+    base = (np.arange(len(fk)) * len(grid))[None, :]
+    # drainage: the bottom at least as thick as the top; every such pair of ends
+    ti, bi = np.triu_indices(len(ends))
+    tt, bb = ends[ti][:, None], ends[bi][:, None]
     best = (np.inf, None)
     for e in EXPONENTS:
-        w = fk ** e                                               # (K,)
-        d = ends[:, None, None] + (ends[None, :, None] - ends[:, None, None]) * w[None, None, :]
-        j = np.clip(np.rint((d - grid[0]) / step).astype(np.int64), 0, len(grid) - 1)
-        total = sums[rows, j].sum(-1)                             # (T, B)
+        w = (fk ** e)[None, :]                                    # (1, K)
+        j = np.clip(np.rint((tt + (bb - tt) * w - grid[0]) / step), 0, len(grid) - 1).astype(np.int32)
+        total = flat[base + j].sum(-1)                            # (pairs,)
         if reference is not None:
             fr, nm = reference
-            dr = ends[:, None] + (ends[None, :] - ends[:, None]) * fr ** e
+            dr = ends[ti] + (ends[bi] - ends[ti]) * fr ** e
             total = np.where(np.abs(dr - nm) <= window_nm, total, np.inf)
-        i = np.unravel_index(int(np.argmin(total)), total.shape)
+        i = int(np.argmin(total))
         if total[i] < best[0]:
-            best = (float(total[i]), (float(ends[i[0]]), float(ends[i[1]]), float(e)))
+            best = (float(total[i]), (float(ends[ti[i]]), float(ends[bi[i]]), float(e)))
     if best[1] is None:
         raise ComputationError("no drainage profile passes through the reference region's thickness")
     return best[1]

@@ -65,7 +65,8 @@ class Patch:
         den = dirs @ n
         safe = np.abs(den) > 1e-12
         t = np.where(safe, ((c - origins) @ n) / np.where(safe, den, 1.0), np.inf)
-        p = origins + t[..., None] * dirs
+        with np.errstate(invalid="ignore"):  # a ray along the plane: t = inf, x = y = NaN, not inside
+            p = origins + t[..., None] * dirs
         x, y = (p - c) @ right, (p - c) @ up
         if self.shape == "disc":
             inside = x * x + y * y <= self.size[0] ** 2

@@ -60,7 +60,10 @@ CASES = {
     # a draining film: nearly black at the top, 1 um at the bottom; the camera a little off-axis
     "cyc_film_drain_panel": dict(top_nm=30.0, bottom_nm=1000.0, exponent=1.6, origin=(0.05, 0.03, 0.6),
                                  fov_deg=30.0, seed=51, fits=["drainage", "map"]),
-    # a film of one thickness (second-order magenta-blue), the camera below the axis
+    # held out (split.toml, test part): thicker and nearly a wedge, the camera further off-axis
+    "cyc_film_drain_offaxis_panel": dict(top_nm=60.0, bottom_nm=1300.0, exponent=1.1, origin=(0.12, -0.04, 0.55),
+                                         fov_deg=34.0, seed=53, fits=["drainage", "map"]),
+    # a film of one thickness (second-order green, red clipped), the camera below the axis
     "cyc_film_const_panel": dict(top_nm=480.0, bottom_nm=480.0, exponent=1.0, origin=(-0.04, -0.05, 0.6),
                                  fov_deg=30.0, seed=52, fits=["constant"]),
 }

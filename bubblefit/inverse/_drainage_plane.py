@@ -23,7 +23,7 @@ The parameters are found in two steps:
    whole film, so the order of interference is settled by the colour sequence along it,
    without a reference; a region of known thickness, when named, keeps only the profiles
    that pass within 0.3 fringe of its value there.
-2. *Levenberg-Marquardt* (:func:`._planar_lm.levenberg_marquardt`) on
+2. *Levenberg-Marquardt* (:func:`._planar_lm.fit_colours`) on
    ``(top, bottom, log exponent, log exposure)`` against every film pixel's colours
    (censored residuals, :mod:`._censored`), whitened by the noise of the per-pixel fit.
 
@@ -50,9 +50,8 @@ import numpy as np
 
 from ..errors import ComputationError
 from ..model.thickness import drainage_profile
-from ._censored import censored_residual
 from ._options import FitOptions
-from ._planar_lm import levenberg_marquardt
+from ._planar_lm import fit_colours
 from ._uncertainty import widened
 
 __all__ = ["DrainageFit", "film_height", "search_drainage", "fit_drainage"]
@@ -156,14 +155,7 @@ def fit_drainage(fwd, y, lum, sin2, height, start, gain, sigma, lo, hi, shape, p
     def model(t):
         return jnp.exp(t[3]) * lj[:, None] * fwd.rgb(jnp.clip(profile(t), lo, hi), sj)
 
-    def resid(t):
-        return (censored_residual(obs, model(t), high) / sigma).ravel()
-
-    rj = jax.jit(resid)
-    jac = jax.jit(jax.jacfwd(resid))
-    theta, r, cost = levenberg_marquardt(rj, jac, theta, iters)
-    J = np.asarray(jac(theta), np.float64)
-    r = np.asarray(r, np.float64)
+    theta, r, cost, J = fit_colours(model, obs, sigma, high, theta, iters)
     a_inv = np.linalg.pinv(J.T @ J)
     chi2 = cost / max(len(r) - 4, 1)
     # the cluster sandwich over blocks of the film, in the photo's (H, W, 3) layout

@@ -23,8 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ComputationError
-from ._censored import censored_residual
-from ._planar_lm import levenberg_marquardt
+from ._planar_lm import fit_colours
 
 __all__ = ["NewtonFit", "fit_newton", "newton_gap"]
 
@@ -73,13 +72,7 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
         h = jnp.clip(newton_gap(r, jnp.exp(t[0]), t[3]), lo, hi)
         return jnp.exp(t[4]) * lj[:, None] * fwd.rgb(h, sj)
 
-    def resid(t):
-        return (censored_residual(obs, model(t), high) / sigma).ravel()
-
-    rj = jax.jit(resid)
-    jac = jax.jit(jax.jacfwd(resid))
-    theta, r, cost = levenberg_marquardt(rj, jac, theta, iters)
-    J = np.asarray(jac(theta), np.float64)
+    theta, r, cost, J = fit_colours(model, obs, sigma, high, theta, iters)
     dof = max(len(r) - 5, 1)
     cov = np.linalg.pinv(J.T @ J) * (cost / dof)
     t = np.asarray(theta, np.float64)

@@ -15,10 +15,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["levenberg_marquardt"]
+from ._censored import censored_residual
+
+__all__ = ["levenberg_marquardt", "fit_colours"]
 
 
 def levenberg_marquardt(resid: Callable, jac: Callable, theta, iters: int = 40, rel_stop: float = 1e-9):
@@ -51,3 +54,17 @@ def levenberg_marquardt(resid: Callable, jac: Callable, theta, iters: int = 40, 
         if not improved or small:
             break
     return theta, r, cost
+
+
+def fit_colours(model: Callable, obs, sigma: float, high, theta, iters: int = 40):
+    """Fit ``model(theta)`` (P, 3) to the colours ``obs`` (P, 3): the censored residual
+    (:func:`._censored.censored_residual`) whitened by the noise ``sigma``, minimised by
+    :func:`levenberg_marquardt`; returns ``(theta, residual, cost, jacobian)`` at the optimum."""
+
+    def resid(t):
+        return (censored_residual(obs, model(t), high) / sigma).ravel()
+
+    rj = jax.jit(resid)
+    jac = jax.jit(jax.jacfwd(resid))
+    theta, r, cost = levenberg_marquardt(rj, jac, theta, iters)
+    return theta, np.asarray(r, np.float64), cost, np.asarray(jac(theta), np.float64)

@@ -42,8 +42,6 @@ J. SIAM 11, 431-441 (1963); K.-Y. Liang and S. L. Zeger, Biometrika 73, 13-22 (1
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -51,10 +49,10 @@ import numpy as np
 from ..errors import ComputationError
 from ..model.thickness import drainage_profile
 from ._options import FitOptions
-from ._planar_lm import fit_colours
+from ._planar_lm import ModelFit, fit_colours
 from ._uncertainty import widened
 
-__all__ = ["DrainageFit", "film_height", "search_drainage", "fit_drainage"]
+__all__ = ["film_height", "search_drainage", "fit_drainage"]
 
 #: Bins of the film height in the global search: 96 over the film, so that a profile
 #: spanning 1000 nm changes by about 10 nm within a bin (a third of the width of a
@@ -69,17 +67,6 @@ END_STEP_NM = 6.0
 BLOCKS_ACROSS = 12
 #: Range of the exponent kept by the refinement.
 EXPONENT_RANGE = (0.2, 5.0)
-
-
-@dataclass
-class DrainageFit:
-    params: dict
-    stderr: dict
-    thickness: np.ndarray
-    thickness_stderr: np.ndarray
-    model: np.ndarray
-    gain: float
-    stderr_scale: float
 
 
 def film_height(view_y: np.ndarray, frame_height: float, top_is_positive: bool = True) -> np.ndarray:
@@ -140,7 +127,7 @@ def search_drainage(cost: np.ndarray, grid: np.ndarray, height: np.ndarray, refe
 
 
 def fit_drainage(fwd, y, lum, sin2, height, start, gain, sigma, lo, hi, shape, pixels, high=np.inf,
-                 iters: int = 40) -> DrainageFit:
+                 iters: int = 40) -> ModelFit:
     """Levenberg-Marquardt fit of the profile and the exposure (step 2), from ``start``
     = (top, bottom, exponent); ``shape`` the photo's (H, W) and ``pixels`` the flat
     indices of the film's pixels, for the cluster sandwich."""
@@ -180,5 +167,5 @@ def fit_drainage(fwd, y, lum, sin2, height, start, gain, sigma, lo, hi, shape, p
     params = {"top_nm": float(t[0]), "bottom_nm": float(t[1]), "exponent": expo, "exposure": float(np.exp(t[3]))}
     stderr = {"top_nm": float(se[0]), "bottom_nm": float(se[1]), "exponent": expo * float(se[2]),
               "exposure": float(np.exp(t[3]) * se[3])}
-    return DrainageFit(params=params, stderr=stderr, thickness=np.clip(d, lo, hi), thickness_stderr=d_se,
+    return ModelFit(params=params, stderr=stderr, thickness=np.clip(d, lo, hi), thickness_stderr=d_se,
                        model=np.asarray(model(theta), np.float64), gain=float(np.exp(t[3])), stderr_scale=scale)

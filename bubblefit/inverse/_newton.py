@@ -16,26 +16,14 @@ D. W. Marquardt, J. SIAM 11, 431-441 (1963).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ComputationError
-from ._planar_lm import fit_colours
+from ._planar_lm import ModelFit, fit_colours
 
-__all__ = ["NewtonFit", "fit_newton", "newton_gap"]
-
-
-@dataclass
-class NewtonFit:
-    params: dict
-    stderr: dict
-    thickness: np.ndarray
-    thickness_stderr: np.ndarray
-    model: np.ndarray
-    gain: float
+__all__ = ["fit_newton", "newton_gap"]
 
 
 def newton_gap(r_um, radius_um, h0_nm):
@@ -45,7 +33,7 @@ def newton_gap(r_um, radius_um, h0_nm):
     return jnp.maximum(1000.0 * sag + h0_nm, 0.0)
 
 
-def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np.inf, iters: int = 40) -> NewtonFit:
+def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np.inf, iters: int = 40) -> ModelFit:
     """Levenberg-Marquardt fit of ``(R, cx, cy, h0, g)`` (see the module), started from ``dmap``."""
     x = view.x_um[mask]
     yy = view.y_um[mask]
@@ -88,5 +76,5 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
               "contact_offset_nm": float(t[3]), "exposure": float(np.exp(t[4]))}
     stderr = {"radius_mm": radius_um / 1000.0 * float(se[0]), "center_x_um": float(se[1]),
               "center_y_um": float(se[2]), "contact_offset_nm": float(se[3]), "exposure": float(np.exp(t[4]) * se[4])}
-    return NewtonFit(params=params, stderr=stderr, thickness=h, thickness_stderr=h_se,
+    return ModelFit(params=params, stderr=stderr, thickness=h, thickness_stderr=h_se,
                      model=np.asarray(model(theta), np.float64), gain=float(np.exp(t[4])))

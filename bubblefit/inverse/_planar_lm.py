@@ -14,6 +14,7 @@ J. SIAM 11, 431-441 (1963).
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
@@ -21,7 +22,22 @@ import numpy as np
 
 from ._censored import censored_residual
 
-__all__ = ["levenberg_marquardt", "fit_colours"]
+__all__ = ["ModelFit", "levenberg_marquardt", "fit_colours"]
+
+
+@dataclass
+class ModelFit:
+    """A few-parameter film model fitted to the colours: its parameters and standard errors
+    (by name), the thickness and its standard error at each film pixel (nm), the model's
+    colours there, the exposure, and the largest widening of an error over the noise's."""
+
+    params: dict
+    stderr: dict
+    thickness: np.ndarray
+    thickness_stderr: np.ndarray
+    model: np.ndarray
+    gain: float
+    stderr_scale: float = 1.0
 
 
 def levenberg_marquardt(resid: Callable, jac: Callable, theta, iters: int = 40, rel_stop: float = 1e-9):

@@ -1,6 +1,8 @@
 """Blender Cycles flat films: a vertical film in a frame under a diffuse panel (render venv).
 
-    .venv-render/bin/python make_films_cycles.py [probe] [CASE ...]   # default: every case
+    .venv-render/bin/python make_films_cycles.py [probe] [cap] [CASE ...]   # default: every case
+
+``cap`` renders the masks of a bubble on a dish for check_cap.py (data/conventions/).
 
 The film is a square mesh (the frame's opening, 0.18 m) in the plane z = 0 of the
 bubblefit frame (normal +z, up +y), with a Principled BSDF whose Thin Film Thickness
@@ -188,6 +190,73 @@ def probe():
               flush=True)
 
 
+#: A bubble on a dish for the geometry check (check_cap.py): a sphere of radius 1 at the
+#: origin above a liquid plane y = CAP_PLANE_Y, a camera above and in front.
+CAP_PLANE_Y = -0.3
+CAP_CAMERA = dict(origin=(0.4, 1.6, 5.0), target=(0.0, -0.3, 0.0), fov_deg=40.0)
+CAP_SIZE = 96
+
+
+def emission_material(rgb):
+    m = bpy.data.materials.new("emit")
+    m.use_nodes = True
+    nt = m.node_tree
+    nt.nodes.clear()
+    e = nt.nodes.new("ShaderNodeEmission")
+    e.inputs["Color"].default_value = (*rgb, 1.0)
+    e.inputs["Strength"].default_value = 1.0
+    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    nt.links.new(e.outputs["Emission"], out.inputs["Surface"])
+    return m
+
+
+def liquid_material(mirror: bool):
+    """A perfect mirror (Glossy, roughness 0, white) or an opaque black plane."""
+    m = bpy.data.materials.new("liquid")
+    m.use_nodes = True
+    nt = m.node_tree
+    nt.nodes.clear()
+    if mirror:
+        b = nt.nodes.new("ShaderNodeBsdfGlossy")
+        b.distribution = "GGX"
+        b.inputs["Roughness"].default_value = 0.0
+    else:
+        b = nt.nodes.new("ShaderNodeBsdfDiffuse")
+    b.inputs["Color"].default_value = (1, 1, 1, 1) if mirror else (0, 0, 0, 1)
+    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    nt.links.new(b.outputs["BSDF"], out.inputs["Surface"])
+    return m
+
+
+def make_cap():
+    """Masks of a cap on a liquid: the sphere emits red; the plane is a mirror (the cap and
+    its mirror image) or black (the cap alone). Written to data/conventions/cycles_cap_*.exr."""
+    import bmesh
+
+    out = os.path.join(vio.DATA, "conventions")
+    os.makedirs(out, exist_ok=True)
+    cam = rr.Camera("persp", CAP_SIZE, CAP_SIZE, origin=CAP_CAMERA["origin"], target=CAP_CAMERA["target"],
+                    up=(0.0, 1.0, 0.0), fov_deg=CAP_CAMERA["fov_deg"])
+    for mirror in (False, True):
+        sc = mc.reset(CAP_SIZE, CAP_SIZE, 16)
+        black_world(sc)
+        mc.camera(sc, cam)
+        mc.sphere(sc, emission_material((1.0, 0.0, 0.0)))
+        mesh = bpy.data.meshes.new("liquid")
+        bm = bmesh.new()
+        h = 50.0
+        corners = [(-h, CAP_PLANE_Y, h), (h, CAP_PLANE_Y, h), (h, CAP_PLANE_Y, -h), (-h, CAP_PLANE_Y, -h)]
+        bm.faces.new([bm.verts.new(mc.to_blender(v)) for v in corners])
+        bm.to_mesh(mesh)
+        bm.free()
+        obj = bpy.data.objects.new("liquid", mesh)
+        sc.collection.objects.link(obj)
+        mesh.materials.append(liquid_material(mirror))
+        name = "cycles_cap_mirror.exr" if mirror else "cycles_cap_direct.exr"
+        mc.render_to_array(sc, os.path.join(out, name))
+        print("cycles cap", name, flush=True)
+
+
 def make(name, c):
     out = os.path.join(vio.DATA, name)
     os.makedirs(out, exist_ok=True)
@@ -232,9 +301,11 @@ def make(name, c):
 
 
 if __name__ == "__main__":
-    jobs = sys.argv[1:] or list(CASES)
+    jobs = sys.argv[1:] or [*CASES, "cap"]
     if "probe" in jobs:
         probe()
+    if "cap" in jobs:
+        make_cap()
     for name in jobs:
         if name in CASES:
             make(name, CASES[name])

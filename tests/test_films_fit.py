@@ -105,6 +105,20 @@ def test_cycles_constant_film_with_a_clipped_channel(tmp_path):
     assert abs(res["params"]["thickness_nm"] - 480.0) <= 5.0
 
 
+@pytest.mark.slow
+def test_a_film_turned_sideways_is_not_a_drainage_profile():
+    """The Cycles draining film turned by 90 degrees (gravity along the frame's width): no
+    profile along the scene's up direction explains it, and the fit must say so."""
+    from bubblefit.inverse.planar import fit_planar
+    from bubblefit.io.images import read_image
+    from bubblefit.model.planar_scene import load_planar
+
+    photo = read_image(DATA / "cyc_film_drain_panel" / "photo.png", dtype=np.float64).pixels[..., :3]
+    scene = load_planar(DATA / "cyc_film_drain_panel" / "scene.toml")
+    res = fit_planar(np.rot90(photo).copy(), scene, kind="drainage", clip_high=1.0)
+    assert not res.ok and res.reduced_chi2_floor > 4.0, res.report()
+
+
 def _run(args, tmp_path):
     return subprocess.run([sys.executable, "-m", "bubblefit", *args], capture_output=True, text=True, timeout=600,
                           cwd=tmp_path)

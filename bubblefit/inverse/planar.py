@@ -461,7 +461,6 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     elif kind == "drainage":
         # a profile along gravity: its order comes from the colour sequence over the whole
         # film (a named region, if any, narrows the search to profiles through its value)
-        from ..model.thickness import drainage_profile
         from ._drainage_plane import search_drainage
 
         height = view.height[mask]
@@ -473,7 +472,10 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
             ref = (float(np.mean((1.0 - view.height[inside & mask]) * 0.5)), float(ref_nm))
         start = search_drainage(cost, grid, height, ref, window)
         order_from = "drainage profile" + (" through the reference region" if ref else "")
-        dpix = np.clip(np.asarray(drainage_profile(height, *start), np.float64), lo, hi)
+        # the noise and the exposure come from each pixel's own best thickness, not from
+        # the profile: a profile that does not describe the film (a film turned sideways)
+        # must show as a misfit against the noise, not set the noise
+        dpix = best.astype(np.float64)
     else:
         if region is not None:
             x0, y0, x1, y1 = region
@@ -549,6 +551,12 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         dref, model, gain = dres.thickness, dres.model, dres.gain
         stderr = dres.thickness_stderr
         res = censored_residual(y, model, clip_high, np)
+        from ._drainage_plane import EXPONENT_RANGE
+
+        e = params["exponent"]
+        if min(abs(e / EXPONENT_RANGE[0] - 1), abs(e / EXPONENT_RANGE[1] - 1)) < 1e-3:
+            warnings.append(f"the drainage exponent sits at the edge of its range {EXPONENT_RANGE[0]:g}-"
+                            f"{EXPONENT_RANGE[1]:g}: the film does not follow a drainage profile along its up direction")
     if kind == "newton":
         from ._newton import fit_newton
 

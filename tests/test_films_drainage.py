@@ -104,3 +104,19 @@ def test_drainage_fit_of_an_independent_render(top, bottom, expo):
     assert abs(res.params["exponent"] - expo) <= 0.01
     on = np.isfinite(res.thickness_map) & np.isfinite(d)
     assert np.median(np.abs(res.thickness_map - d)[on]) <= 2.0
+
+
+def test_model_error_reaches_the_exponent_through_the_middle_height():
+    """log(exponent) = (d_mid - (1 - h) top - h bottom) / slope with h = 0.5^e and slope =
+    (bottom - top) h ln(0.5) e: independent errors s at the top, bottom and middle give it
+    the variance s^2 (1 + (1 - h)^2 + h^2) / slope^2; the ends keep s^2."""
+    from bubblefit.inverse._drainage_plane import _model_covariance
+    from bubblefit.inverse._options import FitOptions
+
+    s2 = FitOptions.thickness_model_error_nm ** 2
+    top, bottom, e = 100.0, 900.0, 1.5
+    h = 0.5 ** e
+    slope = (bottom - top) * h * math.log(0.5) * e
+    cov = _model_covariance(top, bottom, e)
+    np.testing.assert_allclose(np.diag(cov), [s2, s2, s2 * (1 + (1 - h) ** 2 + h ** 2) / slope ** 2], rtol=1e-12)
+    assert np.isinf(_model_covariance(300.0, 300.0, 1.0)[2, 2])   # a flat film has no exponent

@@ -28,10 +28,11 @@ The parameters are found in two steps:
    (censored residuals, :mod:`._censored`), whitened by the noise of the per-pixel fit.
 
 Standard errors: ``(J^T J)^-1`` widened by the larger of the Birge ratio and the cluster
-sandwich over blocks of the film (:func:`._uncertainty.widened`, as for a bubble), with
-the thickness model error of :class:`~bubblefit.inverse._options.FitOptions` added in
-quadrature to ``top`` and ``bottom``; each pixel's thickness error follows by the delta
-method.
+sandwich over blocks of the film (:func:`._uncertainty.widened`, as for a bubble), plus
+the thickness model error of :class:`~bubblefit.inverse._options.FitOptions` taken
+independently at the film's top, bottom and middle height and carried to the parameters
+(:func:`_model_covariance`: the ends get it in quadrature, the exponent what the middle's
+share implies); each pixel's thickness error follows by the delta method.
 
 References
 ----------
@@ -41,6 +42,8 @@ J. SIAM 11, 431-441 (1963); K.-Y. Liang and S. L. Zeger, Biometrika 73, 13-22 (1
 """
 
 from __future__ import annotations
+
+import math
 
 import jax
 import jax.numpy as jnp
@@ -126,6 +129,22 @@ def search_drainage(cost: np.ndarray, grid: np.ndarray, height: np.ndarray, refe
     return best[1]
 
 
+def _model_covariance(top: float, bottom: float, exponent: float) -> np.ndarray:
+    """Covariance of ``(top, bottom, log exponent)`` from the thickness model error
+    (:class:`~bubblefit.inverse._options.FitOptions`) taken independently at the film's top,
+    bottom and middle height: ``G^-1 s^2 G^-T`` with ``G`` the Jacobian of those three
+    thicknesses; the ends get ``s^2`` itself. A film whose ends are equal has no exponent
+    (infinite variance)."""
+    s2 = float(FitOptions.thickness_model_error_nm) ** 2
+    half = 0.5 ** exponent
+    slope = (bottom - top) * half * math.log(0.5) * exponent   # d d(mid) / d log(exponent)
+    if abs(slope) < 1e-9:
+        return np.diag([s2, s2, np.inf])
+    g = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0 - half, half, slope]])
+    gi = np.linalg.inv(g)
+    return s2 * gi @ gi.T
+
+
 def fit_drainage(fwd, y, lum, sin2, height, start, gain, sigma, lo, hi, shape, pixels, high=np.inf,
                  iters: int = 40) -> ModelFit:
     """Levenberg-Marquardt fit of the profile and the exposure (step 2), from ``start``
@@ -155,10 +174,8 @@ def fit_drainage(fwd, y, lum, sin2, height, start, gain, sigma, lo, hi, shape, p
     block = max(3, int(round(min(np.ptp(rows) + 1, np.ptp(cols) + 1) / BLOCKS_ACROSS)))
     cov, scale = widened(max(1.0, chi2) * a_inv, a_inv, full_j.reshape(-1, J.shape[1]), full_r.ravel(),
                          (h, w, 3), block)
-    model_nm = float(FitOptions.thickness_model_error_nm)
-    cov[0, 0] += model_nm ** 2
-    cov[1, 1] += model_nm ** 2
     t = np.asarray(theta, np.float64)
+    cov[:3, :3] += _model_covariance(t[0], t[1], float(np.exp(np.clip(t[2], elo, ehi))))
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     d = np.asarray(profile(theta), np.float64)
     dj = np.asarray(jax.jacfwd(profile)(theta), np.float64)[:, :3]

@@ -63,7 +63,7 @@ def test_global_search_finds_a_closed_form_profile_in_independent_colours():
     its grid (6 nm on the ends, the nearest tried exponent) of a profile it did not make."""
     import reference_films as rf
 
-    from bubblefit.inverse._drainage_plane import search_drainage
+    from bubblefit.inverse import search_drainage
 
     lam, w = rf.colour_weights("D65")
     n1, one = rf.index("water", lam), np.ones_like(lam)
@@ -110,13 +110,13 @@ def test_model_error_reaches_the_exponent_through_the_middle_height():
     """log(exponent) = (d_mid - (1 - h) top - h bottom) / slope with h = 0.5^e and slope =
     (bottom - top) h ln(0.5) e: independent errors s at the top, bottom and middle give it
     the variance s^2 (1 + (1 - h)^2 + h^2) / slope^2; the ends keep s^2."""
-    from bubblefit.inverse._drainage_plane import _model_covariance
-    from bubblefit.inverse._options import FitOptions
+    from bubblefit.inverse import FitOptions
+    from bubblefit.inverse import drainage_covariance
 
     s2 = FitOptions.thickness_model_error_nm ** 2
     top, bottom, e = 100.0, 900.0, 1.5
     h = 0.5 ** e
     slope = (bottom - top) * h * math.log(0.5) * e
-    cov = _model_covariance(top, bottom, e)
+    cov = drainage_covariance(top, bottom, e)
     np.testing.assert_allclose(np.diag(cov), [s2, s2, s2 * (1 + (1 - h) ** 2 + h ** 2) / slope ** 2], rtol=1e-12)
-    assert np.isinf(_model_covariance(300.0, 300.0, 1.0)[2, 2])   # a flat film has no exponent
+    assert np.isinf(drainage_covariance(300.0, 300.0, 1.0)[2, 2])   # a flat film has no exponent

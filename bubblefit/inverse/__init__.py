@@ -71,6 +71,8 @@ _EXPORTS = {
     "same_grid": "_spectrum_defaults", "series_twins": "_spectrum_defaults", "local_noise": "_spectrum_profile",
     "positive_lamp_lstsq": "_spectrum_profile", "fringe_extrema": "_spectrum_extrema",
     "extrema_phase": "_spectrum_extrema", "RANDOM_PHASE": "_spectrum_extrema",
+    # flat films: a drainage profile along gravity
+    "search_drainage": "_drainage_plane", "drainage_covariance": "_drainage_plane",
 }
 _SUBMODULES = ("fit", "search", "sequence", "spectrum")
 

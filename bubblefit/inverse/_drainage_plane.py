@@ -31,7 +31,7 @@ Standard errors: ``(J^T J)^-1`` widened by the larger of the Birge ratio and the
 sandwich over blocks of the film (:func:`._uncertainty.widened`, as for a bubble), plus
 the thickness model error of :class:`~bubblefit.inverse._options.FitOptions` taken
 independently at the film's top, bottom and middle height and carried to the parameters
-(:func:`_model_covariance`: the ends get it in quadrature, the exponent what the middle's
+(:func:`drainage_covariance`: the ends get it in quadrature, the exponent what the middle's
 share implies); each pixel's thickness error follows by the delta method.
 
 References
@@ -55,7 +55,7 @@ from ._options import FitOptions
 from ._planar_lm import ModelFit, fit_colours
 from ._uncertainty import widened
 
-__all__ = ["film_height", "search_drainage", "fit_drainage"]
+__all__ = ["film_height", "search_drainage", "fit_drainage", "drainage_covariance"]
 
 #: Bins of the film height in the global search: 96 over the film, so that a profile
 #: spanning 1000 nm changes by about 10 nm within a bin (a third of the width of a
@@ -129,7 +129,7 @@ def search_drainage(cost: np.ndarray, grid: np.ndarray, height: np.ndarray, refe
     return best[1]
 
 
-def _model_covariance(top: float, bottom: float, exponent: float) -> np.ndarray:
+def drainage_covariance(top: float, bottom: float, exponent: float) -> np.ndarray:
     """Covariance of ``(top, bottom, log exponent)`` from the thickness model error
     (:class:`~bubblefit.inverse._options.FitOptions`) taken independently at the film's top,
     bottom and middle height: ``G^-1 s^2 G^-T`` with ``G`` the Jacobian of those three
@@ -175,7 +175,7 @@ def fit_drainage(fwd, y, lum, sin2, height, start, gain, sigma, lo, hi, shape, p
     cov, scale = widened(max(1.0, chi2) * a_inv, a_inv, full_j.reshape(-1, J.shape[1]), full_r.ravel(),
                          (h, w, 3), block)
     t = np.asarray(theta, np.float64)
-    cov[:3, :3] += _model_covariance(t[0], t[1], float(np.exp(np.clip(t[2], elo, ehi))))
+    cov[:3, :3] += drainage_covariance(t[0], t[1], float(np.exp(np.clip(t[2], elo, ehi))))
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     d = np.asarray(profile(theta), np.float64)
     dj = np.asarray(jax.jacfwd(profile)(theta), np.float64)[:, :3]

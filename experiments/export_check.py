@@ -27,7 +27,8 @@ Renderers (the render venv, experiments/validation/requirements.txt):
            venv, under Xvfb with Mesa's llvmpipe (experiments/openpbr_glsl_render.py: the
            near and far wall of the sphere and the backplate through the renderer's own
            transmittance); its own image, the map seen through the bubble, is scored too
-           (``dE00_median_inner_envthrough``)
+           (``dE00_median_inner_envthrough``), and a diagnostic where each wall transmits
+           1 - its reflectance (``dE00_median_inner_conserving``)
 
     .venv/bin/python experiments/export_check.py [--cases ...] [--spp 64] [--fits DIR]
 
@@ -205,9 +206,10 @@ def check_case(case: str, out: Path, fits: Path, spp: int, formats=("blender", "
                          dE00_median_outside=float(np.median(de[outer])),
                          mean_ratio_inner=[float(v) for v in rend[inner].mean(0) / photo[inner].mean(0)])
             save_strip(work / f"{fmt}_vs_photo.png", photo, rend)
-            own = img.with_name(img.stem + "_envthrough" + img.suffix)
-            if own.exists():
-                entry["dE00_median_inner_envthrough"] = float(np.median(delta_e(photo, read(own))[inner]))
+            for extra in ("envthrough", "conserving"):
+                other = img.with_name(f"{img.stem}_{extra}{img.suffix}")
+                if other.exists():
+                    entry[f"dE00_median_inner_{extra}"] = float(np.median(delta_e(photo, read(other))[inner]))
         row["formats"][fmt] = entry
         print(case, fmt, {k: v for k, v in entry.items() if k.startswith("dE") or k in ("rendered", "error")},
               flush=True)

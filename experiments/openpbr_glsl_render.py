@@ -22,7 +22,8 @@ What it does with the export folder:
   to 0, so the film's layer above is unchanged and the base below it black) and its
   transmittance (a white map's full render minus its reflection render). The composite
   is ``reflection + transmittance x backplate`` on the bubble and the backplate off it.
-  Its own image, with the map seen through the bubble, is written beside (``*_envthrough``).
+  Its own image, with the map seen through the bubble, is written beside (``*_envthrough``),
+  and a diagnostic (``*_conserving``): each wall transmitting ``1 -`` its reflectance.
 
 Writes OUT (linear RGB, EXR) and, with ``--parts``, the reflection and transmittance.
 
@@ -236,7 +237,8 @@ def far_wall_obj(src: Path, rec: dict, dst: Path) -> Path:
 
 
 def render_layer(br: BubbleRenderer, env: np.ndarray, rotation_deg: float) -> tuple[np.ndarray, ...]:
-    """(reflection, transmittance, the renderer's own image) of the mesh ``br`` draws now.
+    """(reflection, transmittance, the renderer's own image, its reflectance) of the mesh
+    ``br`` draws now (the reflectance: the reflection of a white map).
 
     The reflection is the program with ``transmission_weight`` and ``base_weight`` set to 0
     (the film's layer above is unchanged, the base under it black); the transmittance is the
@@ -246,8 +248,9 @@ def render_layer(br: BubbleRenderer, env: np.ndarray, rotation_deg: float) -> tu
     own = br.render()[..., :3]
     refl = br.render(transmission_weight=0.0, base_weight=0.0)[..., :3]
     br.light(np.ones((8, 16, 3)), 0.0)
-    trans = br.render()[..., :3] - br.render(transmission_weight=0.0, base_weight=0.0)[..., :3]
-    return refl, trans, own
+    white_refl = br.render(transmission_weight=0.0, base_weight=0.0)[..., :3]
+    trans = br.render()[..., :3] - white_refl
+    return refl, trans, own, white_refl
 
 
 def render_export(folder: Path, out: Path, samples: int = 64, envmap: str | None = None,
@@ -266,10 +269,10 @@ def render_export(folder: Path, out: Path, samples: int = 64, envmap: str | None
     env = read_image(envmap or rec["envmap"]).pixels[..., :3] * float(rec["exposure"])
     rot = float(rec["rotation_deg"])
     br = BubbleRenderer(folder, samples)
-    r_near, t_near, own = render_layer(br, env, rot)
+    r_near, t_near, own, a_near = render_layer(br, env, rot)
     with tempfile.TemporaryDirectory() as tmp:
         br.mesh(far_wall_obj(folder / "sphere.obj", rec, Path(tmp) / "far_wall.obj"))
-        r_far, t_far, _ = render_layer(br, env, rot)
+        r_far, t_far, _, a_far = render_layer(br, env, rot)
     mask = sphere_mask(rec)[..., None]
     w, h = br.size
     back = read_image(rec["background"]).pixels[..., :3] if rec.get("background") else np.zeros((h, w, 3))
@@ -277,6 +280,11 @@ def render_export(folder: Path, out: Path, samples: int = 64, envmap: str | None
     write_image(out, comp, bit_depth=32)
     write_image(out.with_name(out.stem + "_envthrough" + out.suffix), np.where(mask, own, back).astype(np.float32),
                 bit_depth=32)
+    # a diagnostic, not the renderer's image: each wall transmitting what its film does not
+    # reflect (1 - its reflectance of a white map), as energy conservation would have it
+    conserving = r_near + (1 - a_near) * (r_far + (1 - a_far) * back)
+    write_image(out.with_name(out.stem + "_conserving" + out.suffix),
+                np.where(mask, conserving, back).astype(np.float32), bit_depth=32)
     if parts:
         for name, img in (("near_reflection", r_near), ("near_transmittance", t_near), ("far_reflection", r_far),
                           ("far_transmittance", t_far)):
@@ -285,7 +293,8 @@ def render_export(folder: Path, out: Path, samples: int = 64, envmap: str | None
     return {"samples": samples, "size": [w, h], "pixels_on_bubble": int(on.sum()),
             "near_transmittance_mean": [float(v) for v in t_near[on].mean(0)],
             "far_transmittance_mean": [float(v) for v in t_far[on].mean(0)],
-            "far_reflection_mean": [float(v) for v in r_far[on].mean(0)]}
+            "far_reflection_mean": [float(v) for v in r_far[on].mean(0)],
+            "near_reflectance_mean": [float(v) for v in a_near[on].mean(0)]}
 
 
 def main() -> int:

@@ -295,7 +295,7 @@ def rotation_check(out: Path, fits: Path, spp: int, rotation: float = 60.0, fmt:
     return row
 
 
-def clean_check(out: Path, fits: Path, cases) -> dict:
+def clean_check(out: Path, fits: Path, cases, formats=("blender", "gltf", "mitsuba", "openpbr")) -> dict:
     """The reference-renderer cases without their noise: each case's photo rendered again by
     experiments/validation/reference_renderer.py without noise or quantisation (times its
     exposure), and every render in work/<case>/ (the latest run's) and the fit's own render
@@ -323,14 +323,16 @@ def clean_check(out: Path, fits: Path, cases) -> dict:
         fit = json.loads(run_fit(case, truth, fits).read_text())
         row = {"fit_render": float(np.median(delta_e(clean, read(fit["outputs"]["render"]))[inner])),
                "photo": float(np.median(delta_e(clean, read(DATA / case / "photo.png"))[inner]))}
-        for fmt in ("blender", "gltf", "mitsuba", "openpbr"):
-            if (work / f"{fmt}.exr").exists():
-                row[fmt] = float(np.median(delta_e(clean, read(work / f"{fmt}.exr"))[inner]))
+        for fmt in formats:
+            for name in (fmt, f"{fmt}_conserving") if fmt == "openpbr" else (fmt,):
+                if (work / f"{name}.exr").exists():
+                    row[name] = float(np.median(delta_e(clean, read(work / f"{name}.exr"))[inner]))
         rows[case] = row
         print(case, row, flush=True)
     res = {"metric": "median CIEDE2000 over the inner disc against the photo rendered again without noise",
            "cases": rows}
-    (out / "clean_check.json").write_text(json.dumps(res, indent=1))
+    tag = "" if len(formats) == 4 else "_" + "-".join(formats)
+    (out / f"clean_check{tag}.json").write_text(json.dumps(res, indent=1))
     return res
 
 
@@ -359,7 +361,7 @@ def main() -> int:
             rotation_check(out, fits, a.spp, fmt=fmt)
         return 0
     if a.clean:
-        clean_check(out, fits, a.cases)
+        clean_check(out, fits, a.cases, a.formats)
         return 0
     rows = []
     for case in a.cases:

@@ -20,12 +20,16 @@ What it does with the export folder:
   background photo there. The renderer's image is split, by linearity in the light, into
   its reflection (the same program with ``transmission_weight`` and ``base_weight`` set
   to 0, so the film's layer above is unchanged and the base below it black) and its
-  transmittance (a white map's full render minus its reflection render). The composite
-  is ``reflection + transmittance x backplate`` on the bubble and the backplate off it.
+  transmittance (a white map's full render minus its reflection render). Both walls are
+  drawn (a rasteriser keeps the nearest surface: the near wall is the whole mesh, the far
+  wall the triangles facing away from the camera), and the composite is
+  ``R_near + T_near (R_far + T_far B)`` on the bubble, the backplate ``B`` off it.
+  An orthographic camera is put 1e4 radii back (the GLSL's view direction points at the
+  camera's position).
   Its own image, with the map seen through the bubble, is written beside (``*_envthrough``),
   and a diagnostic (``*_conserving``): each wall transmitting ``1 -`` its reflectance.
 
-Writes OUT (linear RGB, EXR) and, with ``--parts``, the reflection and transmittance.
+Writes OUT (linear RGB, EXR) and, with ``--parts``, each wall's reflection and transmittance.
 
 References
 ----------

@@ -29,6 +29,9 @@ What it does with the export folder:
   Its own image, with the map seen through the bubble, is written beside (``*_envthrough``),
   and a diagnostic (``*_conserving``): each wall transmitting ``1 -`` its reflectance.
 
+The wheel's ``StbImageLoader`` reads the 16-bit ``thickness.png`` as 8 bits: the film's
+thickness moves in steps of 1/255 of its range here.
+
 Writes OUT (linear RGB, EXR) and, with ``--parts``, each wall's reflection and transmittance.
 
 References

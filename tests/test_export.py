@@ -169,6 +169,8 @@ def test_openpbr_materialx_parses_and_carries_the_film(drained):
     valid, msg = doc.validate()
     assert valid, msg
     assert doc.getNode("soap_film").getNodeDef() is not None
+    # MaterialX's node graph films the reflection lobe only: the log must say what that costs
+    assert "reflection lobe only" in " ".join(res.notes)
 
 
 def test_mitsuba_scene_loads_and_tints_the_film(drained):

@@ -248,8 +248,10 @@ def run_defaults(cases, data: Path) -> dict:
             argv += ["--n-film", "soap"] if sub[0]["n"] == SOAP else ["--n-film", str(sub[0]["n"])]
             if sub[0]["void"]:
                 argv += ["--dark", str(data / sub[0]["void"])]
+            t0 = time.perf_counter()
             if cli(argv) != 0:
                 continue
+            print(f"{g}: {len(sub)} readings with the defaults in {time.perf_counter() - t0:.0f} s", flush=True)
             res = json.loads(Path(js).read_text())["spectra"]
         for c, r in zip(sub, res):
             lam, y = load(data / c["file"])
@@ -266,6 +268,73 @@ def run_defaults(cases, data: Path) -> dict:
     return out
 
 
+#: A stated value is in doubt when, with the lamp and stray light refitted at it, the reading's
+#: residual is at least this many times (in chi^2) the residual at the defaults' thickness
+#: read alone with the same model, and its extrema phase is worse: the model cannot put the
+#: fringes where they are at the stated thickness.
+DOUBT_CHI2_RATIO = 2.0
+
+
+def stated_check(c, data: Path, row: dict) -> dict:
+    """The stated value against the reading: ``fit_spectrum`` read alone with the model the
+    defaults chose (divided or not), free and held at the stated thickness (+- 0.5 nm)."""
+    from bubblefit.inverse.spectrum import SpectrumOptions, fit_spectrum
+    from bubblefit.io.spectra import Spectrum
+
+    lam, y = load(data / c["file"], 0.0)
+    dark = None
+    if c["void"]:
+        dl, dy = load(data / c["void"], 0.0)
+        dark = Spectrum(dl, dy, c["void"])
+    v = c["expected"]
+    base = dict(n_film=c["n"], normalised=bool(row["bf_def_normalised"]))
+    free = fit_spectrum(Spectrum(lam, y, c["file"]), dark=dark,
+                        options=SpectrumOptions(thickness_range=(0.0, c["thickness_max"]), **base))
+    held = fit_spectrum(Spectrum(lam, y, c["file"]), dark=dark,
+                        options=SpectrumOptions(thickness_range=(max(0.0, v - 0.5), v + 0.5), **base))
+    ratio = held.reduced_chi2 / free.reduced_chi2 if free.reduced_chi2 > 0 else float("nan")
+    out = {"alone_t": free.thickness_nm, "alone_chi2r": free.reduced_chi2, "stated_chi2r": held.reduced_chi2,
+           "stated_chi2_ratio": ratio}
+    worse = not np.isfinite(row["extrema_phase_stated"]) or not np.isfinite(row["extrema_phase_bf_def"]) or \
+        row["extrema_phase_stated"] > row["extrema_phase_bf_def"]
+    if ratio >= DOUBT_CHI2_RATIO and worse:
+        out["stated_in_doubt"] = (f"held at the stated {v:.0f} nm the model leaves {ratio:.1f} times the chi2 it leaves "
+                                  f"at {free.thickness_nm:.0f} nm, and the stated value puts the reading's "
+                                  f"{row['extrema']} extrema {row['extrema_phase_stated']:.2f} rms off whole phases "
+                                  f"(the defaults' value {row['extrema_phase_bf_def']:.2f}; 0.29 random)")
+    return out
+
+
+def plot_doubt(rows, data: Path, path, count: int = 4):
+    """The readings whose stated value is most in doubt, with the fits free and held at it."""
+    import matplotlib.pyplot as plt
+
+    from bubblefit.inverse.spectrum import SpectrumOptions, fit_spectrum
+    from bubblefit.io.spectra import Spectrum
+
+    pick = sorted([r for r in rows if r.get("stated_in_doubt")], key=lambda r: -r["stated_chi2_ratio"])
+    pick = sorted(pick[:count], key=lambda r: r["file"])
+    if not pick:
+        return
+    fig, ax = plt.subplots(len(pick), 1, figsize=(9, 2.4 * len(pick)), dpi=80, squeeze=False)
+    for a, r in zip(ax[:, 0], pick):
+        lam, y = load(data / r["file"], 0.0)
+        base = dict(n_film=r["n"], normalised=bool(r["bf_def_normalised"]))
+        free = fit_spectrum(Spectrum(lam, y), options=SpectrumOptions(**base))
+        held = fit_spectrum(Spectrum(lam, y), options=SpectrumOptions(
+            thickness_range=(r["expected"] - 0.5, r["expected"] + 0.5), **base))
+        a.plot(lam, y, color="0.6", lw=0.4, label="reading")
+        a.plot(free.wavelength_nm, free.fitted, lw=1.2, label=f"{free.thickness_nm:.0f} nm (read), chi2/dof {free.reduced_chi2:.1f}")
+        a.plot(held.wavelength_nm, held.fitted, lw=1.2, label=f"{r['expected']:.0f} nm (stated), chi2/dof {held.reduced_chi2:.1f}")
+        a.set_title(f"{r['file']}: extrema phase {r['extrema_phase_stated']:.2f} (stated), "
+                    f"{r['extrema_phase_bf_def']:.2f} (read)", fontsize=8)
+        a.set_ylabel("divided reading" if r["bf_def_normalised"] else "reading")
+        a.legend(fontsize=7, loc="upper left")
+    ax[-1, 0].set_xlabel("wavelength (nm)")
+    fig.tight_layout()
+    fig.savefig(path)
+
+
 TOOLS = {"bubblefit defaults": "bf_def", "bubblefit defaults ok only": "bf_def",
          "bubblefit": "bf", "bubblefit ok only": "bf", "bubblefit normalised": "bf_norm",
          "bubblefit norm. ok only": "bf_norm", "optifik ref": "of_ref",
@@ -274,14 +343,17 @@ TOOLS = {"bubblefit defaults": "bf_def", "bubblefit defaults ok only": "bf_def",
 
 def summarise_stated(rows) -> dict:
     out = {}
-    for key in ["all", *dict.fromkeys(r["group"] for r in rows if r["expected"] is not None)]:
-        sub = [r for r in rows if r["expected"] is not None and (key == "all" or r["group"] == key)]
+    groups = list(dict.fromkeys(r["group"] for r in rows if r["expected"] is not None))
+    series = ["SV2"] if any(g.startswith("SV2") for g in groups) else []  # spectraVictor2's orders: one film
+    for key in ["all", *series, *groups]:
+        sub = [r for r in rows if r["expected"] is not None
+               and (key == "all" or r["group"] == key or (key == "SV2" and r["group"].startswith("SV2")))]
         if not sub:
             continue
         entry = {"files": len(sub)}
         for tool, col in TOOLS.items():
             s = [r for r in sub if col in r and (not tool.endswith("ok only") or r[col + "_ok"])]
-            if (tool.startswith("bubblefit norm") or col == "bf_def") and not [r for r in sub if col in r]:
+            if (tool.startswith("bubblefit norm") or col in ("bf", "bf_def")) and not [r for r in sub if col in r]:
                 continue
             err = [abs(r[col] - r["expected"]) for r in s]
             rel = [abs(r[col] - r["expected"]) / r["expected"] for r in s]
@@ -295,6 +367,19 @@ def summarise_stated(rows) -> dict:
                 e["ok_and_off_3se"] = int(sum(f and r[okc] and abs(r[col] - r["expected"]) > 3 * r[col + "_stderr"]
                                               for f, r in zip(fails, s)))
                 e["within_10pct"] = float(np.mean([not f for f in fails])) if fails else float("nan")
+                if col == "bf_def":
+                    trusted = [(f, r) for f, r in zip(fails, s) if not r.get("stated_in_doubt")]
+                    e["stated_in_doubt"] = len(s) - len(trusted)
+                    e["not_in_doubt"] = {
+                        "files": len(trusted),
+                        "median_rel_err": _median([abs(r[col] - r["expected"]) / r["expected"] for _, r in trusted]),
+                        "within_10pct": float(np.mean([not f for f, _ in trusted])) if trusted else float("nan"),
+                        "ok": int(sum(r[okc] for _, r in trusted)),
+                        "ok_within_10pct": int(sum(r[okc] and not f for f, r in trusted)),
+                        "ok_and_off_3se": int(sum(f and r[okc] and abs(r[col] - r["expected"]) > 3 * r[col + "_stderr"]
+                                                  for f, r in trusted))}
+                    e["ok"] = int(sum(r[okc] for r in s))
+                    e["ok_within_10pct"] = int(sum(r[okc] and not f for f, r in zip(fails, s)))
             entry[tool] = e
         out[key] = entry
     return out
@@ -330,6 +415,8 @@ def plot(rows, path):
     fig, ax = plt.subplots(1, 2, figsize=(11, 4.2), dpi=80)
     st = [r for r in rows if r["expected"] is not None]
     e = np.array([r["expected"] for r in st])
+    if st and "bf" not in st[0]:  # --defaults-only
+        return plot_defaults(st, path)
     for col, label, mk in [("bf", "bubblefit", "o"), ("of_ref", "optifik (reference method)", "x")]:
         v = np.array([r[col] for r in st])
         ax[0].loglog(e, np.where(np.isfinite(v), v, np.nan), mk, ms=3, alpha=0.6, label=label)
@@ -360,6 +447,38 @@ def plot(rows, path):
     fig.savefig(path)
 
 
+def plot_defaults(st, path):
+    """Stated against read (bubblefit with no switch, optifik's reference method), and the
+    extrema phase test of the stated and of bubblefit's value."""
+    import matplotlib.pyplot as plt
+
+    st = [r for r in st if "bf_def" in r]
+    fig, ax = plt.subplots(1, 2, figsize=(11, 4.2), dpi=80)
+    e = np.array([r["expected"] for r in st])
+    v = np.array([r["bf_def"] for r in st])
+    ok = np.array([bool(r["bf_def_ok"]) for r in st])
+    ax[0].loglog(e, [r["of_ref"] for r in st], "x", ms=3, alpha=0.6, label="optifik (reference method)")
+    ax[0].loglog(e[ok], v[ok], "o", ms=3, label="bubblefit defaults, ok")
+    ax[0].loglog(e[~ok], v[~ok], "o", mfc="none", mec="r", ms=4, label="bubblefit defaults, not ok")
+    lim = [50, 6000]
+    ax[0].plot(lim, lim, "k-", lw=0.5)
+    ax[0].set(xlim=lim, ylim=lim, xlabel="stated thickness (nm)", ylabel="read (nm)")
+    ax[0].legend(fontsize=7)
+    ps = np.array([r["extrema_phase_stated"] for r in st])
+    pb = np.array([r["extrema_phase_bf_def"] for r in st])
+    for g, mk in (("SV1", "o"), ("SV2", "s")):
+        sel = np.array([r["group"].startswith(g) for r in st])
+        ax[1].plot(ps[sel], pb[sel], mk, ms=4, mfc="none", label=f"{g} readings")
+    ax[1].axhline(0.289, color="0.6", lw=0.5)
+    ax[1].axvline(0.289, color="0.6", lw=0.5)
+    ax[1].plot([0, 0.45], [0, 0.45], "k-", lw=0.5)
+    ax[1].set(xlabel="extrema phase of the stated value (rms, 0.289 random)",
+              ylabel="extrema phase of bubblefit's value", xlim=(0, 0.45), ylim=(0, 0.45))
+    ax[1].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("data", nargs="?", help="optifik's data/ folder")
@@ -370,6 +489,10 @@ def main():
     ap.add_argument("--whole-range", action="store_true",
                     help="bubblefit reads the whole reading, as the command does by default (optifik keeps >= 450 nm); "
                          "writes spectrum_real_whole.{json,png}")
+    ap.add_argument("--defaults-only", action="store_true",
+                    help="bubblefit only as the command runs with no switch (skip the single-reading columns)")
+    ap.add_argument("--merge", action="store_true",
+                    help="keep the rows of the groups not run from the results file already written (runs in parts)")
     ap.add_argument("--optifik-worker", nargs=2, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.optifik_worker:
@@ -385,10 +508,19 @@ def main():
     defaults = run_defaults(cases, data)
     rows = []
     for c, o in zip(cases, of):
+        row = {"group": c["group"], "file": c["file"], "expected": c["expected"], "n": c["n"], "of_method": c["method"], **o}
+        if args.defaults_only:
+            row.update(defaults.get(c["file"], {}))
+            if "bf_def" in row and abs(row["bf_def"] - c["expected"]) > 0.05 * c["expected"]:
+                row.update(stated_check(c, data, row))
+            rows.append(row)
+            if "bf_def" in row:
+                print(f"{c['file']:<36} stated {c['expected']:8.1f}  defaults {row['bf_def']:8.1f} +- "
+                      f"{row['bf_def_stderr']:6.2g} ok={row['bf_def_ok']!s:5}  optifik {o['of_ref']:8.1f}", flush=True)
+            continue
         b = run_bubblefit(c, data, normalised=False, whole=args.whole_range)
-        row = {"group": c["group"], "file": c["file"], "expected": c["expected"], "n": c["n"],
-               "bf": b["t"], "bf_stderr": b["stderr"], "bf_ok": b["ok"], "bf_reasons": b["reasons"],
-               "bf_time_s": b["time_s"], "of_method": c["method"], **o}
+        row.update({"bf": b["t"], "bf_stderr": b["stderr"], "bf_ok": b["ok"], "bf_reasons": b["reasons"],
+                    "bf_time_s": b["time_s"]})
         if c["normalised"] and c["expected"] is not None:
             f = run_bubblefit(c, data, normalised=True, whole=args.whole_range)
             row.update(bf_norm=f["t"], bf_norm_stderr=f["stderr"], bf_norm_ok=f["ok"], bf_norm_reasons=f["reasons"])
@@ -398,14 +530,20 @@ def main():
         flat = f"  normalised {row['bf_norm']:8.1f} ok={row['bf_norm_ok']!s:5}" if "bf_norm" in row else ""
         print(f"{c['file']:<36} stated {exp}  bubblefit {b['t']:8.1f} +- {b['stderr']:6.2g} ok={b['ok']!s:5}{flat}  "
               f"optifik {c['method']} {o['of_ref']:8.1f}  auto {o['of_auto']:8.1f}", flush=True)
-    stated, series = summarise_stated(rows), summarise_series(rows)
     RESULTS.mkdir(exist_ok=True)
     name = "spectrum_real_whole" if args.whole_range else "spectrum_real"
+    if args.merge and (RESULTS / f"{name}.json").exists():
+        ran = {r["group"] for r in rows}
+        old = json.loads((RESULTS / f"{name}.json").read_text())["rows"]
+        rows = [r for r in old if r["group"] not in ran] + rows
+    stated, series = summarise_stated(rows), summarise_series(rows)
     (RESULTS / f"{name}.json").write_text(json.dumps(
         {"data": "github.com/sciunto/optifik data/ (not redistributed)",
          "wavelength_min_nm": {"bubblefit": 0.0 if args.whole_range else WMIN, "optifik": WMIN},
-         "groups": args.groups or "all", "stated": stated, "series": series, "rows": rows}, indent=1))
+         "groups": sorted({r["group"] for r in rows}), "stated": stated, "series": series, "rows": rows}, indent=1))
     plot(rows, RESULTS / f"{name}.png")
+    if args.defaults_only:
+        plot_doubt(rows, data, RESULTS / f"{name}_doubt.png")
     print(f"\n{'group':>8} {'tool':>23} {'files':>5} {'med|err|nm':>10} {'med rel':>7} {'fail10%':>7} {'flagged':>7} {'silent':>6}")
     for g, entry in stated.items():
         for tool, e in entry.items():

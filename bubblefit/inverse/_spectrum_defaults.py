@@ -149,19 +149,22 @@ def noise_says_divided(wavelength_nm: np.ndarray, y: np.ndarray, noise: np.ndarr
 
 
 def series_normalised(spectra, dark=None) -> tuple[bool, str]:
-    """Whether a series' readings are divided by their lamp, by the majority of those whose
-    envelope can be judged (:func:`looks_normalised`): one lamp, one treatment for all."""
+    """Whether a series' readings are divided by their lamp, by the majority of those that
+    can be judged (:func:`looks_normalised`: by their envelope or their noise): one lamp, one
+    treatment for all."""
     votes = []
     for s in spectra:
         y = s.intensity - (dark.on(s.wavelength_nm, "dark") if dark is not None else 0.0)
         votes.append(looks_normalised(s.wavelength_nm, y)[0])
     decided = [v for v in votes if v is not None]
     if not decided:
-        return False, "read as not divided: no reading of the series shows enough fringes to judge its envelope"
+        return False, ("read as not divided: no reading of the series shows fringes enough to judge its envelope, "
+                       "nor noise that says it was divided")
     flat = sum(decided)
     verdict = flat * 2 > len(decided)
     return verdict, (f"read as {'divided by their lamp' if verdict else 'not divided'}: {flat} of the "
-                     f"{len(decided)} readings with fringes enough to judge have a flat envelope")
+                     f"{len(decided)} readings that can be judged look divided (a flat envelope, or noise that "
+                     "does not follow the light)")
 
 
 def same_grid(spectra) -> bool:

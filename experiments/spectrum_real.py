@@ -297,7 +297,9 @@ def stated_check(c, data: Path, row: dict) -> dict:
     ratio = held.reduced_chi2 / free.reduced_chi2 if free.reduced_chi2 > 0 else float("nan")
     out = {"alone_t": free.thickness_nm, "alone_chi2r": free.reduced_chi2, "stated_chi2r": held.reduced_chi2,
            "stated_chi2_ratio": ratio}
-    worse = not np.isfinite(row["extrema_phase_stated"]) or not np.isfinite(row["extrema_phase_bf_def"]) or \
+    # both tests must speak: a reading without three clear extrema (a washed-out thick film) is
+    # not described by the model at any thickness, and its chi2 says nothing of the stated value
+    worse = np.isfinite(row["extrema_phase_stated"]) and np.isfinite(row["extrema_phase_bf_def"]) and \
         row["extrema_phase_stated"] > row["extrema_phase_bf_def"]
     if ratio >= DOUBT_CHI2_RATIO and worse:
         out["stated_in_doubt"] = (f"held at the stated {v:.0f} nm the model leaves {ratio:.1f} times the chi2 it leaves "
@@ -314,7 +316,7 @@ def plot_doubt(rows, data: Path, path, count: int = 4):
     from bubblefit.inverse.spectrum import SpectrumOptions, fit_spectrum
     from bubblefit.io.spectra import Spectrum
 
-    pick = sorted([r for r in rows if r.get("stated_in_doubt")], key=lambda r: -r["stated_chi2_ratio"])
+    pick = sorted([r for r in rows if r.get("stated_in_doubt")], key=lambda r: -r.get("stated_chi2_ratio", 0.0))
     pick = sorted(pick[:count], key=lambda r: r["file"])
     if not pick:
         return

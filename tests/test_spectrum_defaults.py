@@ -18,9 +18,10 @@ import pytest
 from bubblefit.cli import main
 from bubblefit.inverse._spectrum_defaults import (DIVIDED_NOISE_RATIO, in_time_order, looks_normalised,
                                                   noise_says_divided, same_grid, series_departures, series_twins)
+from bubblefit.inverse.spectrum import SpectrumOptions, fit_spectrum
 from bubblefit.io.spectra import Spectrum
 
-from test_spectrum import _write, airy, soap_index, synth
+from test_spectrum import _write, airy, lamp, soap_index, synth
 from test_spectrum_normalised import divided
 
 
@@ -86,6 +87,26 @@ def test_a_steeply_tilted_divided_reading_is_told_by_its_noise(d, seed):
     assert looks_normalised(lam, y)[0] is not True
     # a raw reading's noise grows no faster than its light: the ratio stays near 1 or below
     assert noise_says_divided(lam, y)[1] < DIVIDED_NOISE_RATIO
+
+
+def test_fringes_washed_out_by_a_thickness_spread_are_not_ok():
+    """A 2 um film whose thickness varies over the spot (Gaussian, 60 nm deviation): its
+    fringes lose 80 % of their contrast at 550 nm (``exp(-(4 pi n sigma / lambda)^2 / 2)``),
+    where a 10 nm resolution would wash out only 10 % of fringes 56 nm apart. The model's
+    resolution stops at its bound and the reading is not ok, with the reason; the same film
+    of one thickness is read ok."""
+    rng = np.random.default_rng(3)
+    lam = np.arange(400.0, 800.0, 0.5)
+    n = soap_index(lam)
+    spread = 2000.0 + 60.0 * np.linspace(-3.0, 3.0, 61)
+    w = np.exp(-0.5 * np.linspace(-3.0, 3.0, 61) ** 2)
+    washed = (w[:, None] * airy(spread[:, None], lam[None, :], n[None, :])).sum(0) / w.sum()
+    peak = float(lamp(lam).max() * 0.08)
+    for film, expect_ok in ((washed, False), (airy(2000.0, lam, n), True)):
+        y = lamp(lam) * film + 0.02 * peak + 0.005 * peak * rng.standard_normal(lam.shape)
+        res = fit_spectrum(Spectrum(lam, y), options=SpectrumOptions(thickness_range=(0.0, 5000.0)))
+        assert res.ok is expect_ok, res.reasons
+        assert any("washed out" in r for r in res.reasons) is not expect_ok
 
 
 def test_same_grid_and_time_order(tmp_path):

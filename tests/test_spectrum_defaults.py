@@ -144,20 +144,22 @@ def test_a_jump_to_the_twin_is_flagged():
 
 def test_a_washed_out_thick_film_read_thin_by_its_brightness_is_flagged():
     """A draining series whose first reading (a 2.5 um film, its fringes washed out) was read
-    from its brightness as 110 nm, before readings of 1.7-1.3 um read by their fringes: the
-    series contradicts it. Readings read by their own fringes, and a shared-lamp reading on
-    the line through its neighbours, are left alone."""
+    from its brightness as 110 nm, before readings of 1.7-1.4 um read by their own fringes:
+    a draining film does not thicken. A later reading read from its brightness near its
+    neighbours, and the thin end of a series read from brightness after thicker pinning
+    readings, are left alone; so is an off reading read by its own fringes."""
     def r(d, stderr=2.0, ok=True):
         return SimpleNamespace(thickness_nm=d, thickness_nm_stderr=stderr, ok=ok)
 
-    series = [r(110.0, 16.0), r(1705.0), r(1590.0), r(1480.0, 3.0), r(1380.0), r(1050.0, ok=False)]
+    series = [r(110.0, 16.0), r(1705.0), r(1590.0), r(1480.0, 3.0), r(1380.0), r(1450.0, ok=False)]
     alone = {1, 2, 4, 5}
     flagged = series_departures(series, [230.0] * len(series), alone)
     assert [i for i, _, _ in flagged] == [0]
-    assert abs(flagged[0][1] - 1820.0) < 1.0  # the line through 1705 and 1590, one reading back
-    assert "1705, 1590" in flagged[0][2]
-    # a reading that is off but read by its own fringes is the fringes' call, not the series'
+    assert flagged[0][1] == 1705.0 and "1705 nm" in flagged[0][2]
     assert series_departures(series, [230.0] * len(series), alone | {0}) == []
+    # a film draining from 250 nm (pinned by its fringes) to 120 nm (read from brightness)
+    thin = [r(250.0), r(230.0), r(200.0, 8.0), r(160.0, 6.0), r(120.0, 5.0)]
+    assert series_departures(thin, [200.0] * 5, {0, 1}) == []
 
 
 @pytest.mark.slow

@@ -230,34 +230,29 @@ def series_twins(results, order_spacing: list[float], window: int = 2) -> list[t
     return out
 
 
-def series_departures(results, order_spacing: list[float], alone: set[int], window: int = 2) -> list[tuple[int, float, str]]:
-    """Readings of a series in time order, not read by their own fringes, that the series
-    contradicts.
+def series_departures(results, order_spacing: list[float], alone: set[int]) -> list[tuple[int, float, str]]:
+    """Readings of a draining series in time order, not read by their own fringes, that are
+    thinner than a later reading that is.
 
     A reading without fringes enough to be read alone is read from its brightness under the
     series' lamp; a film of one to a few micrometres whose fringes are washed out (a spread
     of thickness over the spot, the spectrometer's resolution) reflects the mean
     reflectance of its fringes, as bright as a film of ~100 nm, so its brightness reads it
-    thin. A draining film thins smoothly: the line through its nearest ``ok`` readings
-    (``window`` before and ``window`` after, by their place in the series) says where it
-    is. A reading not in ``alone`` (the indices read by their own fringes) more than a
-    quarter of an order and three standard errors from that line is flagged.
-    Returns (index, the series' thickness there, the reason)."""
+    thin. A draining film does not thicken: a reading not in ``alone`` (the indices read by
+    their own fringes) thinner, by more than a quarter of an order and three standard
+    errors, than a later ``ok`` reading in ``alone`` is flagged.
+    Returns (index, that later reading's thickness, the reason)."""
     d = np.array([r.thickness_nm for r in results])
-    ok = [i for i, r in enumerate(results) if r.ok]
+    pins = [j for j in sorted(alone) if results[j].ok and np.isfinite(d[j])]
     out = []
     for i, r in enumerate(results):
-        if i in alone or not np.isfinite(d[i]):
+        later = [j for j in pins if j > i]
+        if i in alone or not later or not np.isfinite(d[i]):
             continue
-        idx = [j for j in ok if j < i][-window:] + [j for j in ok if j > i][:window]
-        if len(idx) < 2:
-            continue
-        slope, icpt = np.polyfit(np.array(idx, float), d[idx], 1)
-        pred = float(slope * i + icpt)
-        gap = abs(d[i] - pred)
+        j = max(later, key=lambda k: d[k])
+        gap = float(d[j] - d[i])
         if gap > 0.25 * order_spacing[i] and gap > 3.0 * r.thickness_nm_stderr:
-            near = ", ".join(f"{d[j]:.0f}" for j in idx)
-            out.append((i, pred, f"the series in time order puts this reading near {pred:.0f} nm (its nearest ok "
-                                 f"readings: {near} nm), {gap:.0f} nm from what its brightness says: a thick film "
-                                 "whose fringes are washed out is as bright as a thin one"))
+            out.append((i, float(d[j]), f"a later reading of the series in time order, read by its own fringes, is "
+                                        f"{d[j]:.0f} nm, {gap:.0f} nm thicker: a draining film does not thicken, and a "
+                                        "thick film whose fringes are washed out is as bright as a thin one"))
     return out

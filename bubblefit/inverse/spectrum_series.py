@@ -34,8 +34,8 @@ def fit_spectrum_series(spectra: list[Spectrum], *, dark=None, reference=None, o
     ``time_ordered`` (the readings in time order, a draining film) a reading that jumps to
     the twin of its neighbours' thickness is not ok, with the reason
     (:func:`._spectrum_defaults.series_twins`), and so is a reading read with the shared
-    lamp that the series' nearest ok readings put elsewhere
-    (:func:`._spectrum_defaults.series_departures`).
+    lamp that is thinner than a later reading read by its own fringes
+    (:func:`._spectrum_defaults.series_departures`: a draining film does not thicken).
 
     Each reading is first read alone (:func:`bubblefit.inverse.spectrum.fit_spectrum`).
     With at least :data:`MIN_PINNING_READINGS` of them ``ok`` the shared lamp is fitted to
@@ -133,4 +133,5 @@ def read_with_shared_lamp(p, lamp: np.ndarray, alternatives: np.ndarray, options
         residual_rms=float(np.sqrt(np.mean((p.y - fitted) ** 2)) / level),
         n_film=float(np.interp(0.5 * (lam.min() + lam.max()), lam, n)), second_minimum_nm=r["second"],
         delta_chi2=r["dchi2"], reasons=reasons, warnings=warnings, wavelength_nm=lam, measured=p.y, fitted=fitted,
-        profile_nm=p.grid, profile_chi2=r["profile"])
+        profile_nm=p.grid, profile_chi2=r["profile"], normalised=bool(options.normalised),
+        normalised_why=alone.normalised_why)

@@ -45,7 +45,8 @@ RESULTS = Path(__file__).resolve().parent / "results"
 #: Readings stated thinner are skipped: a film under ~150 nm has at most one extremum in the
 #: visible, and a thickness near 0 puts ``x`` near 0 everywhere, a perfect score for nothing.
 MIN_STATED_NM = 150.0
-TOOLS = {"stated": "expected", "bubblefit": "bf", "bubblefit normalised": "bf_norm", "optifik": "of_ref"}
+TOOLS = {"stated": "expected", "bubblefit": "bf", "bubblefit normalised": "bf_norm", "bubblefit defaults": "bf_def",
+         "optifik": "of_ref"}
 
 
 def extrema(lam: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -91,7 +92,8 @@ def main():
             v = np.array([r[tool + " mismatch"] for r in sub], float)
             entry[tool] = float(np.nanmedian(v)) if np.isfinite(v).any() else float("nan")
         s = np.array([r["stated mismatch"] for r in sub], float)
-        b = np.array([r["bubblefit normalised mismatch"] if r["bubblefit normalised"] is not None
+        b = np.array([r["bubblefit defaults mismatch"] if r["bubblefit defaults"] is not None
+                      else r["bubblefit normalised mismatch"] if r["bubblefit normalised"] is not None
                       else r["bubblefit mismatch"] for r in sub], float)
         entry["bubblefit closer than stated"] = int(np.sum(b < s))
         summary[g] = entry

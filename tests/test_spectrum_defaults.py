@@ -16,10 +16,11 @@ import numpy as np
 import pytest
 
 from bubblefit.cli import main
-from bubblefit.inverse import in_time_order, looks_normalised, same_grid, series_twins
+from bubblefit.inverse import (DIVIDED_NOISE_RATIO, SpectrumOptions, fit_spectrum, in_time_order, looks_normalised,
+                               noise_says_divided, same_grid, series_departures, series_twins)
 from bubblefit.io.spectra import Spectrum
 
-from test_spectrum import _write, synth
+from test_spectrum import _write, airy, lamp, soap_index, synth
 from test_spectrum_normalised import divided
 
 
@@ -37,6 +38,74 @@ def test_divided_and_raw_readings_are_told_apart(d, seed):
 def test_a_reading_without_fringes_is_not_judged():
     lam = np.linspace(450.0, 800.0, 1000)
     assert looks_normalised(lam, 1.0 + 0.2 * (lam - 450.0) / 350.0)[0] is None
+
+
+def _planck(lam, temperature=3000.0):
+    """Planck's law (relative), lambda in nm: a halogen lamp."""
+    return lam**-5.0 / np.expm1(1.4388e7 / (lam * temperature))
+
+
+def _tilted_divided(d, noise_from_lamp, seed=0, lo=400.0, hi=800.0):
+    """A reading divided by a lamp that drifted: the residual gain doubles across the range
+    (beyond the slow slope a flat envelope allows), a light that does not interfere and stray
+    light. The noise is that of the raw counts divided by the 3000 K lamp (``~ 1 / L``, 15x
+    from red to blue), or of constant deviation (a reading that carries no trace of it)."""
+    rng = np.random.default_rng(seed)
+    lam = np.arange(lo, hi, 0.35)
+    gain = 0.5 + (lam - lo) / (hi - lo)
+    lamp = _planck(lam) / _planck(hi)
+    sigma = 0.004 / lamp if noise_from_lamp else np.full_like(lam, 0.01)
+    y = 5.0 * gain * (airy(d, lam, soap_index(lam)) + 0.04) + 0.02 + sigma * rng.standard_normal(lam.shape)
+    return lam, y
+
+
+def _raw_shot(d, seed=0, lo=400.0, hi=800.0):
+    """A raw reading under a bare 3000 K lamp (monotone, rising 7x to the red), shot noise
+    ``~ sqrt(counts)`` and a read-noise floor."""
+    rng = np.random.default_rng(seed)
+    lam = np.arange(lo, hi, 0.35)
+    counts = 4.0e4 * _planck(lam) / _planck(hi) * (airy(d, lam, soap_index(lam)) + 0.01) + 200.0
+    return lam, counts + np.sqrt(counts + 25.0) * rng.standard_normal(lam.shape)
+
+
+@pytest.mark.parametrize("d", [450.0, 1500.0, 4000.0])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_steeply_tilted_divided_reading_is_told_by_its_noise(d, seed):
+    """A divided reading whose envelope doubles across the range is not flat enough for the
+    envelope test; its noise, 15 times larger at the 400 nm end where the lamp was dim, says it
+    was divided, with few fringes (450 nm: about one) as with many. The same reading with a
+    noise of constant deviation is not taken for divided, nor is a raw reading under a lamp
+    that rises as steeply, whose shot noise follows its light."""
+    lam, y = _tilted_divided(d, True, seed)
+    flat, why = looks_normalised(lam, y)
+    assert flat is True, why
+    assert noise_says_divided(lam, y)[1] > DIVIDED_NOISE_RATIO
+    lam, y = _tilted_divided(d, False, seed)
+    assert looks_normalised(lam, y)[0] is not True
+    lam, y = _raw_shot(d, seed)
+    assert looks_normalised(lam, y)[0] is not True
+    # a raw reading's noise grows no faster than its light: the ratio stays near 1 or below
+    assert noise_says_divided(lam, y)[1] < DIVIDED_NOISE_RATIO
+
+
+def test_fringes_washed_out_by_a_thickness_spread_are_not_ok():
+    """A 2 um film whose thickness varies over the spot (Gaussian, 60 nm deviation): its
+    fringes lose 80 % of their contrast at 550 nm (``exp(-(4 pi n sigma / lambda)^2 / 2)``),
+    where a 10 nm resolution would wash out only 10 % of fringes 56 nm apart. The model's
+    resolution stops at its bound and the reading is not ok, with the reason; the same film
+    of one thickness is read ok."""
+    rng = np.random.default_rng(3)
+    lam = np.arange(400.0, 800.0, 0.5)
+    n = soap_index(lam)
+    spread = 2000.0 + 60.0 * np.linspace(-3.0, 3.0, 61)
+    w = np.exp(-0.5 * np.linspace(-3.0, 3.0, 61) ** 2)
+    washed = (w[:, None] * airy(spread[:, None], lam[None, :], n[None, :])).sum(0) / w.sum()
+    peak = float(lamp(lam).max() * 0.08)
+    for film, expect_ok in ((washed, False), (airy(2000.0, lam, n), True)):
+        y = lamp(lam) * film + 0.02 * peak + 0.005 * peak * rng.standard_normal(lam.shape)
+        res = fit_spectrum(Spectrum(lam, y), options=SpectrumOptions(thickness_range=(0.0, 5000.0)))
+        assert res.ok is expect_ok, res.reasons
+        assert any("washed out" in r for r in res.reasons) is not expect_ok
 
 
 def test_same_grid_and_time_order(tmp_path):
@@ -70,6 +139,26 @@ def test_a_jump_to_the_twin_is_flagged():
     assert series_twins(series, [200.0] * len(series)) == []
     fast = [r(1500, 1255), r(1329, np.nan), r(1177, np.nan), r(1043, np.nan)]
     assert series_twins(fast, [200.0] * 4) == []
+
+
+def test_a_washed_out_thick_film_read_thin_by_its_brightness_is_flagged():
+    """A draining series whose first reading (a 2.5 um film, its fringes washed out) was read
+    from its brightness as 110 nm, before readings of 1.7-1.4 um read by their own fringes:
+    a draining film does not thicken. A later reading read from its brightness near its
+    neighbours, and the thin end of a series read from brightness after thicker pinning
+    readings, are left alone; so is an off reading read by its own fringes."""
+    def r(d, stderr=2.0, ok=True):
+        return SimpleNamespace(thickness_nm=d, thickness_nm_stderr=stderr, ok=ok)
+
+    series = [r(110.0, 16.0), r(1705.0), r(1590.0), r(1480.0, 3.0), r(1380.0), r(1450.0, ok=False)]
+    alone = {1, 2, 4, 5}
+    flagged = series_departures(series, [230.0] * len(series), alone)
+    assert [i for i, _, _ in flagged] == [0]
+    assert flagged[0][1] == 1705.0 and "1705 nm" in flagged[0][2]
+    assert series_departures(series, [230.0] * len(series), alone | {0}) == []
+    # a film draining from 250 nm (pinned by its fringes) to 120 nm (read from brightness)
+    thin = [r(250.0), r(230.0), r(200.0, 8.0), r(160.0, 6.0), r(120.0, 5.0)]
+    assert series_departures(thin, [200.0] * 5, {0, 1}) == []
 
 
 @pytest.mark.slow

@@ -97,6 +97,7 @@ def test_a_lamp_changing_colour_is_flagged_or_covered(seed):
         spectra.append(Spectrum(s.wavelength_nm[keep], divided, path=s.path))
     results, lamp_ = fit_spectrum_series(spectra, options=SpectrumOptions(normalised=True))
     assert lamp_ is not None and len(lamp_.pinning) >= 8
+    assert all(r.normalised for r in results)  # the readings read with the shared lamp say so too
     for d, r in zip(thick + thin, results):
         if r.ok:
             assert abs(r.thickness_nm - d) <= 3.0 * r.thickness_nm_stderr + 1.0, (d, r.thickness_nm,

@@ -16,7 +16,8 @@ from ._spectrum_extrema import fringe_extrema
 from ._spectrum_profile import local_noise
 
 __all__ = ["looks_normalised", "series_normalised", "TWIN_DCHI2", "same_grid", "in_time_order", "series_twins", "ENVELOPE_WINDOWS",
-           "FLAT_TOLERANCE", "SLOW_SLOPE"]
+           "FLAT_TOLERANCE", "SLOW_SLOPE", "DIVIDED_NOISE_RATIO", "TILTED_FLAT_TOLERANCE", "NOISE_WINDOWS", "noise_says_divided",
+           "series_departures"]
 
 #: Most windows (equal in wavenumber) whose envelopes are compared (one per fringe at most).
 ENVELOPE_WINDOWS = 6
@@ -30,6 +31,24 @@ FLAT_TOLERANCE = 0.12
 #: (a lamp that drifted between the reference and the reading; the divided readings of
 #: tests/test_spectrum_normalised.py tilt by 40 %).
 SLOW_SLOPE = 0.5
+#: Windows (equal in wavenumber) in which the noise and the light are compared.
+NOISE_WINDOWS = 8
+#: A raw reading's noise is ``sqrt(a + b I + c I^2)`` (read, shot and flicker noise) of its
+#: light ``I``, so the noise of its noisiest window is at most ``max(1, I_k / I_median)``
+#: times the median window's: noise grows no faster than the light. A reading divided by its
+#: lamp is noisiest where the lamp was dim, whatever its level there. The reading is marked
+#: divided when its noisiest window's noise exceeds the median by more than this factor
+#: times ``max(1, I_k / I_median)`` (twice the bound, for the scatter of a median over an
+#: eighth of a reading). Measured: optifik's lamp-divided readings (``data/spectraVictor1``
+#: and ``spectraVictor2``, 315 readings) 3.4-17; the synthetic raw readings of
+#: tests/test_spectrum.py (noise of constant deviation) about 1.
+DIVIDED_NOISE_RATIO = 2.0
+#: Largest departure of the envelope from a line of a divided reading recognised by its
+#: noise (a steep tilt is then allowed): twice :data:`FLAT_TOLERANCE`, still below the
+#: 45 % hump of a halogen lamp through a spectrometer and the 57-68 % of optifik's raw
+#: thick-film readings (``spectraLorene/sample2``; divided by a lamp too, by their noise,
+#: but by one that was not the lamp that lit the film).
+TILTED_FLAT_TOLERANCE = 2.0 * FLAT_TOLERANCE
 
 
 def looks_normalised(wavelength_nm: np.ndarray, y: np.ndarray) -> tuple[bool | None, str]:
@@ -43,8 +62,14 @@ the noise's own span in quadrature, the noise from
 :func:`~bubblefit.inverse._spectrum_profile.local_noise`) of each of
     :data:`ENVELOPE_WINDOWS` windows equal in wavenumber; the reading is divided when the
     envelope departs from a line by at most :data:`FLAT_TOLERANCE` of its mean and the
-    line changes by at most :data:`SLOW_SLOPE` of it. A reading with fewer than one fringe
-    per window has no envelope to see: None."""
+    line changes by at most :data:`SLOW_SLOPE` of it. A divided reading may also tilt more
+    (a lamp that drifted further, or a reference that was not the lamp alone): it is then
+    told by its noise, which is largest where the lamp it was divided by was dim, so it
+    does not follow its light (:func:`noise_says_divided`), with the envelope within
+    :data:`TILTED_FLAT_TOLERANCE` of a line. A reading with fewer than one fringe per window
+    has no envelope to see: it is read as divided when its noise says so (a film of under
+    three fringes cannot be told from a raw lamp's shape by its envelope, and the raw
+    model's five lamp terms cannot read it anyway), else None."""
     lam = np.asarray(wavelength_nm, np.float64)
     y = np.asarray(y, np.float64)
     nu = 1.0 / lam
@@ -52,9 +77,14 @@ the noise's own span in quadrature, the noise from
         return None, "too few samples to see an envelope"
     extrema = len(fringe_extrema(lam, y))
     windows = min(ENVELOPE_WINDOWS, extrema // 2)  # one fringe a window at least
-    if windows < 3:
-        return None, f"fewer than 3 clear fringes ({extrema} extrema): no envelope to judge"
     noise = local_noise(y)
+    if windows < 3:
+        few = f"fewer than 3 clear fringes ({extrema} extrema): no envelope to judge"
+        divided, ratio = noise_says_divided(lam, y, noise)
+        if divided:
+            return True, (f"{few}, and its noise is {ratio:.1f} times what its light allows a raw reading "
+                          f"(divided: over {DIVIDED_NOISE_RATIO:g}; the noise is largest where the lamp was dim)")
+        return None, few
     edges = np.linspace(nu.min(), nu.max(), windows + 1)
     env, mid = [], []
     for a, b in zip(edges[:-1], edges[1:]):
@@ -75,24 +105,66 @@ the noise's own span in quadrature, the noise from
     bend = float(np.max(np.abs(env - line)) / mean)
     slope = float(abs(line[-1] - line[0]) / mean)
     flat = bend <= FLAT_TOLERANCE and slope <= SLOW_SLOPE
-    return flat, (f"its upper envelope departs {bend:.0%} from a line that changes {slope:.0%} over the range "
-                  f"(divided: within {FLAT_TOLERANCE:.0%} and {SLOW_SLOPE:.0%})")
+    why = (f"its upper envelope departs {bend:.0%} from a line that changes {slope:.0%} over the range "
+           f"(divided: within {FLAT_TOLERANCE:.0%} and {SLOW_SLOPE:.0%})")
+    if flat or bend > TILTED_FLAT_TOLERANCE or np.min(env) <= 0:
+        return flat, why
+    divided, ratio = noise_says_divided(lam, y, noise)
+    if divided:
+        return True, (f"its upper envelope departs {bend:.0%} from a line that changes {slope:.0%} over the range, "
+                      f"and its noise is {ratio:.1f} times what its light allows a raw reading (divided: within "
+                      f"{TILTED_FLAT_TOLERANCE:.0%} and over {DIVIDED_NOISE_RATIO:g})")
+    return False, why + f"; its noise follows its light ({ratio:.1f} times a raw reading's bound)"
+
+
+def noise_says_divided(wavelength_nm: np.ndarray, y: np.ndarray, noise: np.ndarray | None = None) -> tuple[bool, float]:
+    """Whether a reading's noise says it was divided by a lamp, and the ratio measured.
+
+    A raw reading's noise variance is ``a + b I + c I^2`` of its light ``I`` (read noise,
+    shot noise, the lamp's flicker), so between two parts of the reading the noise changes
+    by at most ``max(1, I_1 / I_0)``. Of :data:`NOISE_WINDOWS` windows equal in wavenumber,
+    the noisiest's median noise over the median window's, divided by ``max(1, level ratio)``,
+    is that ratio (at most 1 for a raw reading); divided when it exceeds
+    :data:`DIVIDED_NOISE_RATIO`. ``noise`` is the local noise
+    (:func:`~bubblefit.inverse._spectrum_profile.local_noise`) when already computed."""
+    lam = np.asarray(wavelength_nm, np.float64)
+    y = np.asarray(y, np.float64)
+    noise = local_noise(y) if noise is None else noise
+    nu = 1.0 / lam
+    edges = np.linspace(nu.min(), nu.max(), NOISE_WINDOWS + 1)
+    level, sigma = [], []
+    for a, b in zip(edges[:-1], edges[1:]):
+        sel = (nu >= a) & (nu <= b)
+        if sel.sum() < 8:
+            return False, float("nan")
+        level.append(abs(float(np.mean(y[sel]))))
+        sigma.append(float(np.median(noise[sel])))
+    level, sigma = np.array(level), np.array(sigma)
+    k = int(np.argmax(sigma))
+    mid_sigma, mid_level = float(np.median(sigma)), float(np.median(level))
+    if not (mid_sigma > 0 and mid_level > 0):
+        return False, float("nan")
+    ratio = float(sigma[k] / mid_sigma / max(1.0, level[k] / mid_level))
+    return ratio > DIVIDED_NOISE_RATIO, ratio
 
 
 def series_normalised(spectra, dark=None) -> tuple[bool, str]:
-    """Whether a series' readings are divided by their lamp, by the majority of those whose
-    envelope can be judged (:func:`looks_normalised`): one lamp, one treatment for all."""
+    """Whether a series' readings are divided by their lamp, by the majority of those that
+    can be judged (:func:`looks_normalised`: by their envelope or their noise): one lamp, one
+    treatment for all."""
     votes = []
     for s in spectra:
         y = s.intensity - (dark.on(s.wavelength_nm, "dark") if dark is not None else 0.0)
         votes.append(looks_normalised(s.wavelength_nm, y)[0])
     decided = [v for v in votes if v is not None]
     if not decided:
-        return False, "read as not divided: no reading of the series shows enough fringes to judge its envelope"
+        return False, ("read as not divided: no reading of the series shows fringes enough to judge its envelope, "
+                       "nor noise that says it was divided")
     flat = sum(decided)
     verdict = flat * 2 > len(decided)
     return verdict, (f"read as {'divided by their lamp' if verdict else 'not divided'}: {flat} of the "
-                     f"{len(decided)} readings with fringes enough to judge have a flat envelope")
+                     f"{len(decided)} readings that can be judged look divided (a flat envelope, or noise that "
+                     "does not follow the light)")
 
 
 def same_grid(spectra) -> bool:
@@ -155,4 +227,32 @@ def series_twins(results, order_spacing: list[float], window: int = 2) -> list[t
                    f"minimum lies ({second:.1f} nm, delta chi2 {r.delta_chi2:.1f}): it jumped to the twin on the "
                    "other side of a maximum of R")
             out.append((i, pred, why))
+    return out
+
+
+def series_departures(results, order_spacing: list[float], alone: set[int]) -> list[tuple[int, float, str]]:
+    """Readings of a draining series in time order, not read by their own fringes, that are
+    thinner than a later reading that is.
+
+    A reading without fringes enough to be read alone is read from its brightness under the
+    series' lamp; a film of one to a few micrometres whose fringes are washed out (a spread
+    of thickness over the spot, the spectrometer's resolution) reflects the mean
+    reflectance of its fringes, as bright as a film of ~100 nm, so its brightness reads it
+    thin. A draining film does not thicken: a reading not in ``alone`` (the indices read by
+    their own fringes) thinner, by more than a quarter of an order and three standard
+    errors, than a later ``ok`` reading in ``alone`` is flagged.
+    Returns (index, that later reading's thickness, the reason)."""
+    d = np.array([r.thickness_nm for r in results])
+    pins = [j for j in sorted(alone) if results[j].ok and np.isfinite(d[j])]
+    out = []
+    for i, r in enumerate(results):
+        later = [j for j in pins if j > i]
+        if i in alone or not later or not np.isfinite(d[i]):
+            continue
+        j = max(later, key=lambda k: d[k])
+        gap = float(d[j] - d[i])
+        if gap > 0.25 * order_spacing[i] and gap > 3.0 * r.thickness_nm_stderr:
+            out.append((i, float(d[j]), f"a later reading of the series in time order, read by its own fringes, is "
+                                        f"{d[j]:.0f} nm, {gap:.0f} nm thicker: a draining film does not thicken, and a "
+                                        "thick film whose fringes are washed out is as bright as a thin one"))
     return out

@@ -487,6 +487,13 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
     if split is not None:
         reasons.append(split)
     _misfit(rss_best / dof, noise, float(np.mean(np.abs(y))), reasons, warnings)
+    if fit_w and w >= 0.999 * options.max_resolution_nm:
+        # The fringes are washed out more than a spectrometer of that resolution washes them:
+        # something the model lacks does it (a thickness varying over the spot washes them as
+        # 1 / lambda, a resolution as 1 / lambda^2), and the fit trades the phase for the contrast.
+        reasons.append(f"the fringes are washed out beyond what a resolution of {options.max_resolution_nm:g} nm "
+                       "explains (the thickness varies over the spot?): their contrast is not the model's, and "
+                       "neither may their phase be")
     if rho > 0.5:
         warnings.append(f"residuals are correlated (lag-1 {rho:.2f}): the error bar counts "
                         f"{(1 - rho) / (1 + rho):.2f} independent samples per point")
@@ -585,8 +592,6 @@ def _search(prob: ProfileProblem, alt: ProfileProblem | None, grid, lam, n, opti
     if fit_w and w > 0:
         d_best, w = refine_dw(prob, d_best, step, options.max_resolution_nm, w)
         rss_best = prob.rss(d_best, w)
-        if w >= 0.999 * options.max_resolution_nm:
-            warnings.append(f"the fitted spectrometer resolution sits at its bound {options.max_resolution_nm:g} nm")
     return prob, alt, rss, alt_rss, minima, d_best, rss_best, w, fit_w and w > 0
 
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..io.spectra import Spectrum
 from . import spectrum as sp
-from ._spectrum_defaults import series_normalised, series_twins
+from ._spectrum_defaults import series_departures, series_normalised, series_twins
 from ._shared_lamp import (MIN_PINNING_READINGS, SHARED_MISFIT_RATIO, FixedLampProblem, SharedLamp, read_with_lamp,
                            shared_lamp)
 
@@ -33,7 +33,9 @@ def fit_spectrum_series(spectra: list[Spectrum], *, dark=None, reference=None, o
     the majority of its readings (:func:`._spectrum_defaults.series_normalised`). With
     ``time_ordered`` (the readings in time order, a draining film) a reading that jumps to
     the twin of its neighbours' thickness is not ok, with the reason
-    (:func:`._spectrum_defaults.series_twins`).
+    (:func:`._spectrum_defaults.series_twins`), and so is a reading read with the shared
+    lamp that is thinner than a later reading read by its own fringes
+    (:func:`._spectrum_defaults.series_departures`: a draining film does not thicken).
 
     Each reading is first read alone (:func:`bubblefit.inverse.spectrum.fit_spectrum`).
     With at least :data:`MIN_PINNING_READINGS` of them ``ok`` the shared lamp is fitted to
@@ -56,7 +58,9 @@ def fit_spectrum_series(spectra: list[Spectrum], *, dark=None, reference=None, o
     if time_ordered:
         spacing = [sp._order_spacing(r.wavelength_nm, sp.dispersion.refractive_index(options.n_film, r.wavelength_nm))
                    for r in out]
-        for i, _, reason in series_twins(out, spacing):
+        alone = set(lamp.pinning) if lamp is not None else set(range(len(out)))
+        flags = series_twins(out, spacing) + series_departures(out, spacing, alone)
+        for i, _, reason in flags:
             out[i].ok = False
             out[i].reasons.append(reason)
     return out, lamp
@@ -129,4 +133,5 @@ def read_with_shared_lamp(p, lamp: np.ndarray, alternatives: np.ndarray, options
         residual_rms=float(np.sqrt(np.mean((p.y - fitted) ** 2)) / level),
         n_film=float(np.interp(0.5 * (lam.min() + lam.max()), lam, n)), second_minimum_nm=r["second"],
         delta_chi2=r["dchi2"], reasons=reasons, warnings=warnings, wavelength_nm=lam, measured=p.y, fitted=fitted,
-        profile_nm=p.grid, profile_chi2=r["profile"])
+        profile_nm=p.grid, profile_chi2=r["profile"], normalised=bool(options.normalised),
+        normalised_why=alone.normalised_why)

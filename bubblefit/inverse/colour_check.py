@@ -32,6 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._uncertainty import OUTLIER_CHI2
+
 __all__ = ["ColourCheck", "colour_check", "judge_colours", "CHROMA_FLOOR", "CHROMA_REL", "FALSE_ALARM", "GRID",
            "INNER_COS"]
 
@@ -78,76 +80,105 @@ class ColourCheck:
     chi2_per_dof: float      # the statistic divided by its degrees of freedom
     threshold_per_dof: float
     cells: int
-    chroma_rms: float        # RMS over cells of |mean e_perp| / |mean render| (a fraction)
+    chroma_rms: float        # RMS over cells of |mean chromatic residual| / |mean render| (a fraction)
+    noise_scale: float = 1.0  # kappa: the photo's scatter over the noise model's, at least 1
 
     def warning(self) -> str | None:
-        """One sentence for the fit's warnings when the colours are inconsistent, else None."""
+        """One line for the fit's warnings when the colours are inconsistent, else None."""
         if self.consistent:
             return None
-        return (f"the photo's colours are not ones the stated camera response produces: a coherent hue error of "
-                f"{self.chroma_rms:.1%} over the film (chromatic chi^2/dof {self.chi2_per_dof:.3g} over {self.cells} "
-                f"patches, at most {self.threshold_per_dof:.3g} expected); wrong --camera-response, --illuminant "
-                "or --encoding? (docs/cameras.md)")
+        return (f"the stated camera response cannot produce the photo's colours: a hue error of {self.chroma_rms:.1%} "
+                f"coherent over the film (chromatic chi^2/dof {self.chi2_per_dof:.3g} over {self.cells} patches, at most "
+                f"{self.threshold_per_dof:.3g} expected): the camera response or the file's encoding is wrong; give "
+                "the camera (--camera-response, a response from bubblefit calibrate-camera, with its --illuminant) "
+                "and check --encoding (docs/cameras.md)")
 
     def to_json(self) -> dict:
         return {"consistent": self.consistent, "chi2_per_dof": self.chi2_per_dof,
-                "threshold_per_dof": self.threshold_per_dof, "cells": self.cells, "chroma_rms": self.chroma_rms}
+                "threshold_per_dof": self.threshold_per_dof, "cells": self.cells, "chroma_rms": self.chroma_rms,
+                "noise_scale": self.noise_scale}
 
 
-def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, *, floor: float = CHROMA_FLOOR,
-                 chroma_floor: float = CHROMA_REL, grid: int = GRID,
+def _plane(c: np.ndarray) -> np.ndarray:
+    """(2, 3) orthonormal rows spanning the plane orthogonal to the unit colour ``c``."""
+    a = np.eye(3)[int(np.argmin(np.abs(c)))]
+    u = np.cross(c, a)
+    u /= np.linalg.norm(u)
+    return np.stack([u, np.cross(c, u)])
+
+
+def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma: np.ndarray, *,
+                 model_error: float | None = None, floor: float = CHROMA_FLOOR, chroma_floor: float = CHROMA_REL, grid: int = GRID,
                  false_alarm: float = FALSE_ALARM) -> ColourCheck | None:
-    """Test whether ``render`` explains the hues of ``photo`` over the pixels of ``mask``
-    (module docstring). ``None`` when fewer than two cells have :data:`MIN_PIXELS` pixels."""
+    """Test whether ``render`` explains the hues of ``photo`` over the pixels of ``mask``,
+    each pixel's channels having the noise standard deviation ``sigma`` (the fit's noise
+    model, :func:`~bubblefit.inverse._observation.noise_sigma`); module docstring. Pixels
+    that are outliers of the fit (chi^2 over their channels, with the fit's ``model_error``
+    floor, above :data:`~bubblefit.inverse._uncertainty.OUTLIER_CHI2`: glints, specks) are
+    left out, as the verdict's split leaves them out of the explained pixels (none with
+    ``model_error`` None). ``None`` when fewer than two cells have :data:`MIN_PIXELS` pixels."""
     from scipy.stats import chi2
 
     photo = np.asarray(photo, np.float64)
     render = np.asarray(render, np.float64)
+    var = np.asarray(sigma, np.float64) ** 2 * np.ones_like(photo)
     norm = np.linalg.norm(render, axis=-1)
-    use = np.asarray(mask, bool) & (norm > 0) & np.all(np.isfinite(photo), axis=-1)
+    use = (np.asarray(mask, bool) & (norm > 0) & np.all(np.isfinite(photo), axis=-1)
+           & np.all(np.isfinite(var) & (var > 0), axis=-1))
+    if model_error is not None:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            chi = np.sum((photo - render) ** 2 / (var + (model_error * np.clip(photo, 0, None)) ** 2), axis=-1)
+        use &= ~(chi > OUTLIER_CHI2)
     ys, xs = np.nonzero(use)
     if ys.size < 2 * MIN_PIXELS:
         return None
-    c = render[ys, xs] / norm[ys, xs, None]
-    e = photo[ys, xs] - render[ys, xs]
-    e_perp = e - np.sum(e * c, axis=-1, keepdims=True) * c
+    e, v, rend = photo[ys, xs] - render[ys, xs], var[ys, xs], render[ys, xs]
     y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
     cy = np.minimum((ys - y0) * grid // max(y1 - y0, 1), grid - 1)
     cx = np.minimum((xs - x0) * grid // max(x1 - x0, 1), grid - 1)
     cell = cy * grid + cx
-    stat, rel, cells = 0.0, [], 0
+    cells, scatter, expected = [], 0.0, 0.0
     for b in np.unique(cell):
-        sel = cell == b
-        n = int(sel.sum())
+        sel = np.nonzero(cell == b)[0]
+        n = sel.size
         if n < MIN_PIXELS:
             continue
-        m = e_perp[sel].mean(axis=0)
-        s2 = float(np.sum((e_perp[sel] - m) ** 2)) / (n - 1)
-        bright = float(norm[ys[sel], xs[sel]].mean())
-        mean = render[ys[sel], xs[sel]].mean(axis=0)
+        mean = rend[sel].mean(axis=0)
+        p = _plane(mean / np.linalg.norm(mean))
+        ep = e[sel] @ p.T                                   # (n, 2) chromatic residuals
+        noise = (p * v[sel].sum(axis=0)) @ p.T / n**2       # covariance of their mean
+        # the scatter about a plane in (x, y): what the noise model must account for
+        x = np.stack([np.ones(n), ys[sel] - ys[sel].mean(), xs[sel] - xs[sel].mean()], axis=1)
+        fitted = x @ np.linalg.lstsq(x, ep, rcond=None)[0]
+        scatter += float(np.sum((ep - fitted) ** 2))
+        expected += float(np.trace((p * v[sel].mean(axis=0)) @ p.T)) * (n - 3)
+        bright = float(np.linalg.norm(rend[sel], axis=1).mean())
         chroma = float(np.linalg.norm(mean - mean.mean()))  # the part orthogonal to grey (1, 1, 1)
-        stat += 2.0 * float(m @ m) / (s2 / n + (floor * bright) ** 2 + (chroma_floor * chroma) ** 2)
-        rel.append(float(np.linalg.norm(m)) / bright)
-        cells += 1
-    if cells < 2:
+        model = 0.5 * ((floor * bright) ** 2 + (chroma_floor * chroma) ** 2) * np.eye(2)
+        cells.append((ep.mean(axis=0), noise, model, bright))
+    if len(cells) < 2:
         return None
-    dof = 2 * cells
+    kappa = max(1.0, scatter / expected) if expected > 0 else 1.0
+    stat = sum(float(m @ np.linalg.solve(kappa * c + f, m)) for m, c, f, _ in cells)
+    dof = 2 * len(cells)
     thr = float(chi2.isf(false_alarm, dof)) / dof
     value = stat / dof
-    return ColourCheck(bool(value <= thr), value, thr, cells, float(np.sqrt(np.mean(np.square(rel)))))
+    rel = [float(np.linalg.norm(m)) / bright for m, _, _, bright in cells]
+    return ColourCheck(bool(value <= thr), value, thr, len(cells), float(np.sqrt(np.mean(np.square(rel)))), kappa)
 
 
-def judge_colours(ok: bool, warnings: list, photo, render, mask, cos) -> tuple[bool, list, dict | None]:
-    """The fit's verdict with the colour test added: ``(ok, warnings, record)``, a warning
-    appended when :func:`colour_check` finds the hues inconsistent over the fitted pixels
-    ``mask`` whose front film's ``cos`` (cosine of incidence) exceeds :data:`INNER_COS`.
-
-    The test warns and does not set ``ok`` false: its false-alarm rate on right-camera
-    photos is not yet established beyond the synthetic films it was built on (the demo's
-    own 96 px drainage photo, rendered with the response it is fitted with, reads 1.94
-    against 1.64), so a fit it flags keeps the verdict its residuals give."""
-    check = colour_check(photo, render, np.asarray(mask, bool) & (np.asarray(cos) > INNER_COS))
+def judge_colours(ok: bool, warnings: list, photo, render, mask, cos, sigma,
+                  model_error: float = 0.0) -> tuple[bool, list, dict | None]:
+    """The fit's verdict with the colour test added: ``(ok, warnings, record)``. The test
+    (:func:`colour_check`) runs over the fitted pixels ``mask`` whose front film's ``cos``
+    (cosine of incidence) exceeds :data:`INNER_COS`, with the fit's noise ``sigma`` and
+    model-error floor ``model_error`` (for its outliers); colours it finds inconsistent
+    make the fit not ``ok``, with the warning of :meth:`ColourCheck.warning`."""
+    check = colour_check(photo, render, np.asarray(mask, bool) & (np.asarray(cos) > INNER_COS), sigma,
+                         model_error=model_error)
     if check is None:
         return ok, warnings, None
     why = check.warning()
-    return ok, (warnings + [why] if why else warnings), check.to_json()
+    if why is None:
+        return ok, warnings, check.to_json()
+    return False, warnings + [why], check.to_json()

@@ -4,26 +4,54 @@ A film's colour is set by its thickness *through* the camera's spectral response
 with the wrong response (a Nikon's raw RGB read as sRGB/D65), the best thickness still
 leaves hues the stated response cannot reach. Brightness errors (the light's strength,
 the lobe's shape, the rim) are common to all channels, so this test looks only at the
-residual's *chromatic* part, the component orthogonal to the rendered colour,
-``e_perp = e - (e . c) c`` with ``c = render / |render|`` per pixel, and only at what is
-*coherent* over a patch of the film: the mean of ``e_perp`` over each cell of a grid laid
-on the disc's inner part (:data:`INNER_COS`; the rim is left to the chi^2). Noise, quantisation and single-pixel outliers average away in a cell's mean;
-a wrong response does not, because it shifts the hue of every pixel of a thickness the same
-way.
+residual's *chromatic* part and only at what is *coherent* over a patch of the film. A
+grid of :data:`GRID` x :data:`GRID` cells is laid on the disc's inner part
+(:data:`INNER_COS`; the rim is left to the chi^2); in cell ``b`` of ``n_b`` pixels, with
+``P_b`` the (2, 3) orthonormal basis of the plane orthogonal to the cell's mean rendered
+colour, the statistic's terms are
 
-Each cell's squared mean is compared with its own noise, the scatter of ``e_perp`` within
-the cell divided by its pixel count (so the test needs no noise model), plus a chromatic
-model-error floor :data:`CHROMA_FLOOR` of the cell's brightness and :data:`CHROMA_REL` of
-its chroma. Under the hypothesis that
-the colours are explained, ``2 sum_b |m_b|^2 / (s_b^2 / n_b + floor_b^2)`` follows a chi^2
-law with ``2 B`` degrees of freedom (two chromatic components per cell); the colours are
-called inconsistent when it exceeds the law's 1 - :data:`FALSE_ALARM` quantile.
+``m_b = P_b mean_i(photo_i - render_i)``, the cell's mean chromatic residual;
+``C_b = P_b diag(sum_i sigma_i^2) P_b^T / n_b^2``, its covariance under the fit's own noise
+model (``sigma_i`` per pixel and channel: read, shot and quantisation noise,
+:func:`~bubblefit.inverse._observation.noise_sigma`; channels independent), exact for any
+per-channel noise (the chromatic plane of a pale film is far from isotropic);
+``F_b``, a chromatic model-error floor that does not average down: :data:`CHROMA_FLOOR`
+of the cell's brightness and :data:`CHROMA_REL` of its chroma, split over the plane's two
+components.
+
+Under the hypothesis that the colours are explained, each ``m_b`` is a centred normal
+vector with covariance ``C_b`` (plus at most ``F_b``), so
+``T = sum_b m_b^T (kappa C_b + F_b)^-1 m_b`` follows (at most) a chi^2 law with ``2 B``
+degrees of freedom; the colours are inconsistent when ``T`` exceeds the law's
+1 - :data:`FALSE_ALARM` quantile. ``kappa >= 1`` guards the noise model: it is the ratio
+of the chromatic residuals' scatter about a plane in ``(x, y)`` in every cell (a smooth hue
+error is removed with the plane, noise is not) to the scatter the noise model predicts,
+pooled over all cells (hundreds of pixels, so it adds no tail); a camera noisier than
+the noise model (``FitOptions.noise_read``, ``noise_shot``) raises ``kappa``, not the alarm. A wrong response
+moves every pixel of a thickness the same way: ``m_b`` grows with it and ``C_b`` does not.
+
+Pixels the fit calls outliers (chi^2 with its model-error floor over
+:data:`~bubblefit.inverse._uncertainty.OUTLIER_CHI2`: glints, specks) are left out. A
+photo demosaiced from a Bayer mosaic holds, in a mean over ``n`` pixels, the noise of
+only ``share * n`` photosites per channel (1/4, 1/2, 1/4): the fit divides its ``sigma``
+by ``sqrt(share)`` (``FitOptions.photosite_share``), an upper bound of that noise.
+
+Why a cell's own scatter is not used as its noise: estimated from its ~25 pixels, it
+makes ``2 |m_b|^2 / (tr S_b / n_b)`` an F-like law with a heavier tail than chi^2, and
+its trace misweights an anisotropic plane. Drawn from those laws (``B = 32``,
+``n_b = 25``), the sum per degree of freedom has mean 1.04 and 1e-3 quantile 1.75 for
+isotropic noise, 1.07 and 2.11 when one chromatic component has ten times the other's
+variance, against the 1.64 of chi^2: right-camera photos read 1.8-1.9 were within that
+law's reach. And a RAW file's demosaic correlates neighbouring pixels: a right 48 px DNG
+read 3.5 as independent pixels, 1.4 with the photosite shares.
 
 References
 ----------
 The chromatic/achromatic split of a residual: Finlayson, Drew & Funt, "Color constancy:
 generalized diagonal transforms suffice", JOSA A 11(11), 1994 (colour as a direction in
-RGB); the test of a group mean against its within-group scatter: Welch, Biometrika 38, 1951.
+RGB); the quadratic form of a normal vector in its inverse covariance is chi^2-distributed
+(Mardia, Kent & Bibby, *Multivariate Analysis*, 1979, thm. 2.5.2); the Bayer mosaic:
+B. E. Bayer, US patent 3,971,065 (1976).
 """
 
 from __future__ import annotations

@@ -26,8 +26,11 @@ degrees of freedom; the colours are inconsistent when ``T`` exceeds the law's
 1 - :data:`FALSE_ALARM` quantile. ``kappa >= 1`` guards the noise model: it is the ratio
 of the chromatic residuals' scatter about a plane in ``(x, y)`` in every cell (a smooth hue
 error is removed with the plane, noise is not) to the scatter the noise model predicts,
-pooled over all cells (hundreds of pixels, so it adds no tail); a camera noisier than
-the noise model (``FitOptions.noise_read``, ``noise_shot``) raises ``kappa``, not the alarm. A wrong response
+pooled over all cells (hundreds of pixels, so it adds little tail), or the same for the
+means of 2 x 2 blocks of pixels times 4 when that is larger (noise that neighbours share,
+as JPEG's 4:2:0 chroma subsampling makes it, which independent pixels would average
+away); a camera noisier than the noise model (``FitOptions.noise_read``, ``noise_shot``)
+raises ``kappa``, not the alarm. A wrong response
 moves every pixel of a thickness the same way: ``m_b`` grows with it and ``C_b`` does not.
 
 Pixels the fit calls outliers (chi^2 with its model-error floor over
@@ -166,6 +169,7 @@ def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma:
     cx = np.minimum((xs - x0) * grid // max(x1 - x0, 1), grid - 1)
     cell = cy * grid + cx
     cells, scatter, expected = [], 0.0, 0.0
+    white = np.full(photo.shape[:2] + (2,), np.nan)  # detrended chromatic residual / its predicted sigma
     for b in np.unique(cell):
         sel = np.nonzero(cell == b)[0]
         n = sel.size
@@ -180,19 +184,36 @@ def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma:
         fitted = x @ np.linalg.lstsq(x, ep, rcond=None)[0]
         scatter += float(np.sum((ep - fitted) ** 2))
         expected += float(np.trace((p * v[sel].mean(axis=0)) @ p.T)) * (n - 3)
+        per = np.sqrt(0.5 * np.einsum("ij,nj,ij->n", p, v[sel], p) * (n - 3) / n)
+        white[ys[sel], xs[sel]] = (ep - fitted) / per[:, None]
         bright = float(np.linalg.norm(rend[sel], axis=1).mean())
         chroma = float(np.linalg.norm(mean - mean.mean()))  # the part orthogonal to grey (1, 1, 1)
         model = 0.5 * ((floor * bright) ** 2 + (chroma_floor * chroma) ** 2) * np.eye(2)
         cells.append((ep.mean(axis=0), noise, model, bright))
     if len(cells) < 2:
         return None
-    kappa = max(1.0, scatter / expected) if expected > 0 else 1.0
+    kappa = max(1.0, scatter / expected if expected > 0 else 1.0, _block_scale(white))
     stat = sum(float(m @ np.linalg.solve(kappa * c + f, m)) for m, c, f, _ in cells)
     dof = 2 * len(cells)
     thr = float(chi2.isf(false_alarm, dof)) / dof
     value = stat / dof
     rel = [float(np.linalg.norm(m)) / bright for m, _, _, bright in cells]
     return ColourCheck(bool(value <= thr), value, thr, len(cells), float(np.sqrt(np.mean(np.square(rel)))), kappa)
+
+
+def _block_scale(white: np.ndarray, k: int = 2) -> float:
+    """``k^2`` times the mean square of the means of ``k x k`` blocks of ``white`` (the
+    chromatic residual about each cell's plane, over its noise model's sigma, NaN off the
+    tested pixels), pooled over every whole block: 1 when the noise is the model's and
+    independent between pixels, more when neighbours share it (JPEG's 4:2:0 chroma
+    subsampling keeps one chroma sample per 2 x 2 pixels); 0 with fewer than 20 whole
+    blocks."""
+    h, w = (white.shape[0] // k) * k, (white.shape[1] // k) * k
+    blocks = white[:h, :w].reshape(h // k, k, w // k, k, 2)
+    whole = np.all(np.isfinite(blocks), axis=(1, 3, 4))
+    if whole.sum() < 20:
+        return 0.0
+    return k * k * float(np.mean(blocks.mean(axis=(1, 3))[whole] ** 2))
 
 
 def judge_colours(ok: bool, warnings: list, photo, render, mask, cos, sigma,

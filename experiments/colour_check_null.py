@@ -44,8 +44,8 @@ class Recorder:
         self.calls = []
         self._orig = fit.judge_colours
 
-        def wrapped(ok, warnings, photo, render, mask, cos, sigma, model_error=0.0):
-            out = self._orig(ok, warnings, photo, render, mask, cos, sigma, model_error)
+        def wrapped(ok, warnings, photo, render, mask, cos, sigma, model_error=0.0, *rest):
+            out = self._orig(ok, warnings, photo, render, mask, cos, sigma, model_error, *rest)
             self.calls.append((dict(photo=np.asarray(photo), render=np.asarray(render), mask=np.asarray(mask),
                                     cos=np.asarray(cos), sigma=np.asarray(sigma), model_error=float(model_error)),
                                out[2]))

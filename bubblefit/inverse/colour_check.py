@@ -114,15 +114,22 @@ class ColourCheck:
     chroma_rms: float        # RMS over cells of |mean chromatic residual| / |mean render| (a fraction)
     noise_scale: float = 1.0  # kappa: the photo's scatter over the noise model's, at least 1
 
-    def warning(self) -> str | None:
-        """One line for the fit's warnings when the colours are inconsistent, else None."""
+    def warning(self, explained: bool = True) -> str | None:
+        """One line for the fit's warnings when the colours are inconsistent, else None;
+        when the model does not explain the photo's brightness either (``explained``
+        False: the verdict's chi^2 test failed), the line says the camera is then only one
+        suspect."""
         if self.consistent:
             return None
-        return (f"the stated camera response cannot produce the photo's colours: a hue error of {self.chroma_rms:.1%} "
-                f"coherent over the film (chromatic chi^2/dof {self.chi2_per_dof:.3g} over {self.cells} patches, at most "
-                f"{self.threshold_per_dof:.3g} expected): the camera response or the file's encoding is wrong; give "
-                "the camera (--camera-response, a response from bubblefit calibrate-camera, with its --illuminant) "
-                "and check --encoding (docs/cameras.md)")
+        what = (f"a hue error of {self.chroma_rms:.1%} coherent over the film (chromatic chi^2/dof "
+                f"{self.chi2_per_dof:.3g} over {self.cells} patches, at most {self.threshold_per_dof:.3g} expected)")
+        if not explained:
+            return (f"the hues are not explained either: {what}; with the model missing the photo as a whole, the "
+                    "camera response (--camera-response, bubblefit calibrate-camera) and --encoding are suspects "
+                    "among the map, disc and model (docs/cameras.md)")
+        return (f"the stated camera response cannot produce the photo's colours: {what}: the camera response or the "
+                "file's encoding is wrong; give the camera (--camera-response, a response from bubblefit "
+                "calibrate-camera, with its --illuminant) and check --encoding (docs/cameras.md)")
 
     def to_json(self) -> dict:
         return {"consistent": self.consistent, "chi2_per_dof": self.chi2_per_dof,
@@ -216,18 +223,19 @@ def _block_scale(white: np.ndarray, k: int = 2) -> float:
     return k * k * float(np.mean(blocks.mean(axis=(1, 3))[whole] ** 2))
 
 
-def judge_colours(ok: bool, warnings: list, photo, render, mask, cos, sigma,
-                  model_error: float = 0.0) -> tuple[bool, list, dict | None]:
+def judge_colours(ok: bool, warnings: list, photo, render, mask, cos, sigma, model_error: float = 0.0,
+                  explained: bool = True) -> tuple[bool, list, dict | None]:
     """The fit's verdict with the colour test added: ``(ok, warnings, record)``. The test
     (:func:`colour_check`) runs over the fitted pixels ``mask`` whose front film's ``cos``
     (cosine of incidence) exceeds :data:`INNER_COS`, with the fit's noise ``sigma`` and
     model-error floor ``model_error`` (for its outliers); colours it finds inconsistent
-    make the fit not ``ok``, with the warning of :meth:`ColourCheck.warning`."""
+    make the fit not ``ok``, with the warning of :meth:`ColourCheck.warning` (worded for
+    a photo the model does not ``explained`` as a whole, as the verdict found)."""
     check = colour_check(photo, render, np.asarray(mask, bool) & (np.asarray(cos) > INNER_COS), sigma,
                          model_error=model_error)
     if check is None:
         return ok, warnings, None
-    why = check.warning()
+    why = check.warning(explained)
     if why is None:
         return ok, warnings, check.to_json()
     return False, warnings + [why], check.to_json()

@@ -69,20 +69,21 @@ __all__ = ["ColourCheck", "colour_check", "judge_colours", "CHROMA_FLOOR", "CHRO
            "INNER_COS"]
 
 #: Chromatic model error allowed per cell, as a fraction of the cell's brightness ``|render|``.
-#: From fits with the right camera only (experiments/wrong_camera.py: 48 px photos rendered
-#: by bubblefit with the Nikon's sensitivities, 48 uniform spectral samples, fitted with the
-#: fit's own quadrature): with 0.1 % their statistic reached 1.35 at 1000 nm (the
-#: quadratures' hue difference); 0.2 % brings the five thicknesses 300-1500 nm to 0.67-1.10.
+#: From fits with the right camera only (experiments/colour_check_null.py: 48 px photos
+#: rendered by bubblefit with the Nikon's sensitivities, 48 uniform spectral samples, fitted
+#: with the fit's own quadrature): the quadratures differ in hue by about this much, the
+#: largest at 1000 nm; with no floor the statistic reads 0.78-1.35 on the five thicknesses
+#: 300-1500 nm, with this one 0.60-0.99.
 CHROMA_FLOOR = 0.002
 
 #: A second floor, as a fraction of the cell's *chroma* (the norm of its mean rendered
 #: colour orthogonal to grey): independent renderers of the same film differ in the
 #: interference term itself (polarisations averaged per hit or per path, a mesh sphere),
-#: which colours saturated films most. The validation set's Cycles render of a 500 nm film
-#: (cyc_const500_courtyard_ortho, fitted to 499.2 nm under its own illuminant E) left a
-#: coherent hue error of 0.9 % of its chroma (statistic 3.46 without this floor, 0.59 with),
-#: its reference render of a 300 nm film 1.6 % (0.88, 0.65); the wrong cameras of
-#: experiments/wrong_camera.py leave 20-500 % of theirs, pale thick films included.
+#: which colours saturated films most. Chosen on the validation set's development case
+#: cyc_const500_courtyard_ortho (a Cycles render of a 500 nm film, fitted to 499.2 nm
+#: under its own illuminant E), which left a coherent hue error of 0.9 % of its chroma; the
+#: wrong cameras of experiments/wrong_camera.py leave 20-500 % of theirs, pale thick films
+#: included.
 CHROMA_REL = 0.01
 
 #: The test's false-alarm probability on a correctly explained photo.

@@ -129,8 +129,9 @@ class ColourCheck:
                     "camera response (--camera-response, bubblefit calibrate-camera) and --encoding are suspects "
                     "among the map, disc and model (docs/cameras.md)")
         return (f"the stated camera response cannot produce the photo's colours: {what}: the camera response or the "
-                "file's encoding is wrong; give the camera (--camera-response, a response from bubblefit "
-                "calibrate-camera, with its --illuminant) and check --encoding (docs/cameras.md)")
+                "file's encoding is wrong (or the thickness is an interference order off); give the camera "
+                "(--camera-response, a response from bubblefit calibrate-camera, with its --illuminant) and check "
+                "--encoding (docs/cameras.md)")
 
     def to_json(self) -> dict:
         return {"consistent": self.consistent, "chi2_per_dof": self.chi2_per_dof,

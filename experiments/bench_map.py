@@ -114,12 +114,12 @@ def profile(cases: list[str], model: str, out: Path):
     fit_module.fit_photo = tagged
     # the candidate costs of the map's levels, whichever class computes them
     import bubblefit.inverse._maps as maps_module
-    for cls_name in ("_RenderCosts", "_PaperCosts", "TracedCosts"):
+    for cls_name in ("RenderCosts", "_PaperCosts", "TracedCosts"):
         cls = getattr(maps_module, cls_name, None)
         if cls is not None:
             originals.append((cls, "__call__", cls.__call__))
             cls.__call__ = timed(f"map: costs {cls_name}", cls.__call__)
-    from bubblefit.inverse._map_pixels import TracedCosts
+    from bubblefit.inverse import TracedCosts
     originals.append((TracedCosts, "slopes", TracedCosts.slopes))
     TracedCosts.slopes = timed("map: newton slopes (jvp)", TracedCosts.slopes)
     rows = []
@@ -164,8 +164,7 @@ def map_only(cases: list[str], model: str, out: Path, repeats: int, ways: list[s
     import validate
     import vio
     from bubblefit.inverse import _maps
-    from bubblefit.inverse._map_pixels import TracedCosts
-    from bubblefit.inverse._setup import setup
+    from bubblefit.inverse import TracedCosts, setup
     from bubblefit.inverse.fit import FitOptions, fit_photo
 
     out.mkdir(parents=True, exist_ok=True)
@@ -195,7 +194,7 @@ def map_only(cases: list[str], model: str, out: Path, repeats: int, ways: list[s
         prof = (vals["top_nm"], vals["bottom_nm"], vals["exponent"])
         full = st.level(1, opts, st.map_cfg)
         true_map = vio.read_image(str(DATA / case / "thickness_true.exr"))[..., 0]
-        settings = {"render-grid": (_maps._RenderCosts, "grid"), "traced-grid": (TracedCosts, "grid"),
+        settings = {"render-grid": (_maps.RenderCosts, "grid"), "traced-grid": (TracedCosts, "grid"),
                     "traced-newton": (TracedCosts, "newton")}
         for rep in range(repeats):
             for way in ways:

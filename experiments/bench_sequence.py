@@ -110,7 +110,7 @@ def main(argv=None) -> int:
     from bubblefit.inverse.fit import FitOptions
 
     from bubblefit.capture.view import ORTHOGRAPHIC
-    from bubblefit.inverse._executors import local_env
+    from bubblefit.inverse import local_env
     from bubblefit.inverse.sequence import SequenceOptions as Seq, fit_sequence
 
     t0 = time.perf_counter()

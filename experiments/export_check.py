@@ -22,8 +22,13 @@ Renderers (the render venv, experiments/validation/requirements.txt):
            thin film as the extension defines them, then rendered in Cycles with the
            world and backplate of the export record
   mitsuba  bubble_mitsuba.xml, Mitsuba 3 (scalar_rgb)
-  openpbr  no OpenPBR renderer installs from PyPI: the MaterialX document is validated
-           against MaterialX's standard library (tests/test_export.py), not rendered
+  openpbr  bubble.mtlx rendered by MaterialX's own GLSL renderer (the MaterialX wheel's
+           GlslRenderer, FIS environment sampling, ``--spp`` samples per lobe) in the project
+           venv, under Xvfb with Mesa's llvmpipe (experiments/openpbr_glsl_render.py: the
+           near and far wall of the sphere and the backplate through the renderer's own
+           transmittance); its own image, the map seen through the bubble, is scored too
+           (``dE00_median_inner_envthrough``), and a diagnostic where each wall transmits
+           1 - its reflectance (``dE00_median_inner_conserving``)
 
     .venv/bin/python experiments/export_check.py [--cases ...] [--spp 64] [--fits DIR]
 
@@ -184,11 +189,10 @@ def check_case(case: str, out: Path, fits: Path, spp: int, formats=("blender", "
             helper.write_text(MITSUBA)
             cmd = [str(RENDER_PY), str(helper), str(exp.main), str(img), str(spp)]
         else:
-            entry["rendered"] = False
-            entry["why_not"] = "no OpenPBR renderer installs from PyPI; the document is validated with MaterialX"
-            row["formats"][fmt] = entry
-            continue
-        res = subprocess.run(cmd, cwd=exp.main.parent, capture_output=True, text=True)
+            cmd = openpbr_command(exp.main.parent, img, spp)
+            entry["renderer"] = openpbr_renderer()
+        res = subprocess.run(cmd, cwd=exp.main.parent, capture_output=True, text=True,
+                             env=openpbr_env() if fmt == "openpbr" else None)
         entry["render_seconds"] = round(time.perf_counter() - t0, 1)
         if res.returncode != 0 or not img.exists():
             entry["rendered"] = False
@@ -202,27 +206,57 @@ def check_case(case: str, out: Path, fits: Path, spp: int, formats=("blender", "
                          dE00_median_outside=float(np.median(de[outer])),
                          mean_ratio_inner=[float(v) for v in rend[inner].mean(0) / photo[inner].mean(0)])
             save_strip(work / f"{fmt}_vs_photo.png", photo, rend)
+            for extra in ("envthrough", "conserving"):
+                other = img.with_name(f"{img.stem}_{extra}{img.suffix}")
+                if other.exists():
+                    entry[f"dE00_median_inner_{extra}"] = float(np.median(delta_e(photo, read(other))[inner]))
         row["formats"][fmt] = entry
         print(case, fmt, {k: v for k, v in entry.items() if k.startswith("dE") or k in ("rendered", "error")},
               flush=True)
     return row
 
 
-def rotation_check(out: Path, fits: Path, spp: int, rotation: float = 60.0) -> dict:
+def openpbr_command(folder: Path, img: Path, spp: int, *extra: str) -> list[str]:
+    """MaterialX's GLSL renderer on the export in ``folder``, under a virtual X screen."""
+    return ["xvfb-run", "-a", "-s", "-screen 0 640x480x24", sys.executable,
+            str(REPO / "experiments" / "openpbr_glsl_render.py"), str(folder), str(img), "--samples", str(spp), *extra]
+
+
+def openpbr_env() -> dict:
+    """Mesa's software rasteriser (llvmpipe) for the virtual screen's OpenGL."""
+    return {**os.environ, "LIBGL_ALWAYS_SOFTWARE": "1", "GALLIUM_DRIVER": "llvmpipe"}
+
+
+def openpbr_renderer() -> str:
+    """The versions that render the OpenPBR export (MaterialX wheel, Mesa)."""
+    import MaterialX
+
+    mesa = subprocess.run(["dpkg-query", "-W", "-f", "${Version}", "libgl1-mesa-dri"], capture_output=True,
+                          text=True).stdout.strip() or "unknown"
+    return f"MaterialX {MaterialX.__version__} GlslRenderer (FIS), Mesa {mesa} llvmpipe, Xvfb"
+
+
+def rotation_check(out: Path, fits: Path, spp: int, rotation: float = 60.0, fmt: str = "blender") -> dict:
     """The map's rotation and the camera, against bubblefit's own renderer: the ref_const300
     fit with its map turned by ``rotation`` degrees, rendered by `bubblefit render` (physical
-    model, no diffuse term) and by the Blender export; median CIEDE2000 over the inner disc.
-    A wrong sign of the turn moves every reflected feature (tens of units)."""
+    model, no diffuse term) and by the export of ``fmt``; median CIEDE2000 over the inner disc.
+    A wrong sign of the turn moves every reflected feature (tens of units).
+
+    ``openpbr`` compares the reflections alone (both with a black backplate: MaterialX's GLSL
+    does not take the film's reflection out of the light it transmits, which would hide the
+    map's turn behind a brightness difference) and scores the map turned the wrong way too."""
     case = "ref_const300_courtyard_ortho"
     truth = json.loads((DATA / case / "truth.json").read_text())
     fit = json.loads(run_fit(case, truth, fits).read_text())
-    work = out / "work" / "rotation"
+    work = out / "work" / ("rotation" if fmt == "blender" else f"rotation_{fmt}")
     work.mkdir(parents=True, exist_ok=True)
     p, c = fit["params"], fit["disc"]
     env, bg = DATA / truth["envmap"], DATA / case / "background.png"
-    fit["params"]["rotation_deg"] = rotation
-    fit["inputs"] = {"envmap": str(env), "background": str(bg), "scene": None, "calibration": None}
-    (work / "fit.json").write_text(json.dumps(fit))
+    if fmt == "openpbr":
+        from bubblefit.io.images import write_image
+
+        bg = work / "black.png"
+        write_image(bg, np.zeros((truth["camera"]["height"], truth["camera"]["width"], 3)))
     (work / "scene.toml").write_text(
         f'[camera]\ntype = "orthographic"\nwidth = 160\nheight = 160\ndisc = [{c["cx"]}, {c["cy"]}, {c["r"]}]\n'
         f'[bubble]\nn_film = {p["n_film"]}\nroughness = {p["roughness"]}\nr_d = 0.0\nthickness_nm = {p["thickness_nm"]}\n'
@@ -232,20 +266,36 @@ def rotation_check(out: Path, fits: Path, spp: int, rotation: float = 60.0) -> d
                     str(work / "bubblefit.exr")], check=True, cwd=REPO, capture_output=True)
     from bubblefit.export import export_bubble, load_fit
 
-    exp = export_bubble(load_fit(work / "fit.json"), "blender", work / "blender")
-    subprocess.run([str(RENDER_PY), str(exp.main), "--render", str(work / "blender.exr"), "--samples", str(spp),
-                    "--threads", "2"], check=True, cwd=exp.main.parent, capture_output=True)
-    ref, rend = read(work / "bubblefit.exr"), read(work / "blender.exr")
+    renders = {}
+    for name, turn in (("right", rotation), ("wrong_sign", -rotation)) if fmt == "openpbr" else (("right", rotation),):
+        fit["params"]["rotation_deg"] = turn
+        fit["inputs"] = {"envmap": str(env), "background": str(bg), "scene": None, "calibration": None}
+        (work / f"fit_{name}.json").write_text(json.dumps(fit))
+        exp = export_bubble(load_fit(work / f"fit_{name}.json"), fmt, work / f"{fmt}_{name}")
+        img = work / f"{fmt}_{name}.exr"
+        if fmt == "blender":
+            cmd = [str(RENDER_PY), str(exp.main), "--render", str(img), "--samples", str(spp), "--threads", "2"]
+        else:
+            cmd = openpbr_command(exp.main.parent, img, spp)
+        subprocess.run(cmd, check=True, cwd=exp.main.parent, capture_output=True,
+                       env=openpbr_env() if fmt == "openpbr" else None)
+        renders[name] = read(img)
+    ref = read(work / "bubblefit.exr")
     inner, _ = masks(truth, ref.shape)
-    row = {"check": "map rotation and camera: bubblefit render vs the Blender export", "rotation_deg": rotation,
-           "spp": spp, "dE00_median_inner": float(np.median(delta_e(ref, rend)[inner]))}
-    save_strip(work / "bubblefit_vs_blender.png", ref, rend)
-    (out / "rotation_check.json").write_text(json.dumps(row, indent=1))
+    row = {"check": f"map rotation and camera: bubblefit render vs the {fmt} export", "rotation_deg": rotation,
+           "spp": spp, "dE00_median_inner": float(np.median(delta_e(ref, renders["right"])[inner]))}
+    if "wrong_sign" in renders:
+        row["backplate"] = "black (reflections only)"
+        row["renderer"] = openpbr_renderer()
+        row["dE00_median_inner_wrong_sign"] = float(np.median(delta_e(ref, renders["wrong_sign"])[inner]))
+    save_strip(work / f"bubblefit_vs_{fmt}.png", ref, renders["right"])
+    name = "rotation_check.json" if fmt == "blender" else f"rotation_check_{fmt}.json"
+    (out / name).write_text(json.dumps(row, indent=1))
     print(row, flush=True)
     return row
 
 
-def clean_check(out: Path, fits: Path, cases) -> dict:
+def clean_check(out: Path, fits: Path, cases, formats=("blender", "gltf", "mitsuba", "openpbr")) -> dict:
     """The reference-renderer cases without their noise: each case's photo rendered again by
     experiments/validation/reference_renderer.py without noise or quantisation (times its
     exposure), and every render in work/<case>/ (the latest run's) and the fit's own render
@@ -273,14 +323,16 @@ def clean_check(out: Path, fits: Path, cases) -> dict:
         fit = json.loads(run_fit(case, truth, fits).read_text())
         row = {"fit_render": float(np.median(delta_e(clean, read(fit["outputs"]["render"]))[inner])),
                "photo": float(np.median(delta_e(clean, read(DATA / case / "photo.png"))[inner]))}
-        for fmt in ("blender", "gltf", "mitsuba"):
-            if (work / f"{fmt}.exr").exists():
-                row[fmt] = float(np.median(delta_e(clean, read(work / f"{fmt}.exr"))[inner]))
+        for fmt in formats:
+            for name in (fmt, f"{fmt}_conserving") if fmt == "openpbr" else (fmt,):
+                if (work / f"{name}.exr").exists():
+                    row[name] = float(np.median(delta_e(clean, read(work / f"{name}.exr"))[inner]))
         rows[case] = row
         print(case, row, flush=True)
     res = {"metric": "median CIEDE2000 over the inner disc against the photo rendered again without noise",
            "cases": rows}
-    (out / "clean_check.json").write_text(json.dumps(res, indent=1))
+    tag = "" if len(formats) == 4 else "_" + "-".join(formats)
+    (out / f"clean_check{tag}.json").write_text(json.dumps(res, indent=1))
     return res
 
 
@@ -305,10 +357,11 @@ def main() -> int:
     fits = Path(a.fits) if a.fits else out / "fits"
     fits.mkdir(parents=True, exist_ok=True)
     if a.rotation_check:
-        rotation_check(out, fits, a.spp)
+        for fmt in [f for f in a.formats if f in ("blender", "openpbr")]:
+            rotation_check(out, fits, a.spp, fmt=fmt)
         return 0
     if a.clean:
-        clean_check(out, fits, a.cases)
+        clean_check(out, fits, a.cases, a.formats)
         return 0
     rows = []
     for case in a.cases:

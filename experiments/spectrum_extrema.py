@@ -35,8 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bubblefit.inverse._spectrum_extrema import RANDOM_PHASE as RANDOM
-from bubblefit.inverse._spectrum_extrema import extrema_phase, fringe_extrema
+from bubblefit.inverse import RANDOM_PHASE as RANDOM
+from bubblefit.inverse import extrema_phase, fringe_extrema
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from spectrum_real import load, soap_index  # noqa: E402

@@ -235,7 +235,7 @@ def run_defaults(cases, data: Path) -> dict:
     module): file -> thickness, stderr, ok, normalised, reasons, extrema phase of the
     stated value and of this one."""
     from bubblefit.cli import main as cli
-    from bubblefit.inverse._spectrum_extrema import extrema_phase, fringe_extrema
+    from bubblefit.inverse import extrema_phase, fringe_extrema
 
     out = {}
     groups = dict.fromkeys(c["group"] for c in cases if c["expected"] is not None)

@@ -119,7 +119,7 @@ def test_view_sources():
 
 
 def _result(params, stderr, converged=True):
-    from bubblefit.inverse._options import FitResult
+    from bubblefit.inverse import FitResult
 
     z = np.zeros((2, 2, 3))
     return FitResult(params=dict(params), stderr=dict(stderr), held=[], converged=converged, message="",
@@ -131,7 +131,7 @@ def _result(params, stderr, converged=True):
 def test_an_assumed_view_widens_each_error_by_the_lens_shift():
     """|Delta|/sqrt(3) in quadrature (GUM 4.3.7): a 12 nm shift on a 2 nm error gives
     sqrt(4 + 48) nm; the covariance's diagonal agrees; the warning names the shift."""
-    from bubblefit.inverse._view import widen_for_view
+    from bubblefit.inverse import widen_for_view
 
     ortho = _result({"thickness_nm": 612.0, "exposure": 1.2}, {"thickness_nm": 2.0, "exposure": 0.01})
     lens_fit = _result({"thickness_nm": 600.0, "exposure": 1.2}, {"thickness_nm": 2.0, "exposure": 0.01})
@@ -149,7 +149,7 @@ def test_an_assumed_view_widens_each_error_by_the_lens_shift():
 
 
 def test_a_lens_that_explains_the_photo_better_is_kept_and_widened():
-    from bubblefit.inverse._view import widen_for_view
+    from bubblefit.inverse import widen_for_view
 
     lens = V.assumed_lens(160, 160)
     ortho = _result({"thickness_nm": 612.0}, {"thickness_nm": 2.0})
@@ -162,8 +162,8 @@ def test_a_lens_that_explains_the_photo_better_is_kept_and_widened():
 
 
 def test_fit_view_prefers_the_scene_and_refuses_a_contradiction():
-    from bubblefit.inverse._options import FitOptions
-    from bubblefit.inverse._view import fit_view
+    from bubblefit.inverse import FitOptions
+    from bubblefit.inverse import fit_view
     from bubblefit.model.scene import Scene
 
     persp = Scene.from_dict({"camera": {"type": "perspective", "width": 64, "height": 48, "fov_deg": 40.0}})

@@ -601,7 +601,7 @@ def test_sequence_frames_carry_the_reading(tmp_path):
     """fit-sequence's frames are read with the command's encoding (a linear 12-bit TIFF)."""
     import tifffile
 
-    from bubblefit.inverse._plan import FrameRef, load_frame
+    from bubblefit.inverse import FrameRef, load_frame
 
     scene = _scene()
     tifffile.imwrite(str(tmp_path / "f.tif"), np.round(scene * 4095).astype(np.uint16), photometric="rgb")

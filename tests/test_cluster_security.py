@@ -12,9 +12,9 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def local_cluster():
-    from bubblefit.inverse._executors import _local_cluster
+    from bubblefit.inverse import local_cluster
 
-    client, cluster = _local_cluster(1)
+    client, cluster = local_cluster(1)
     try:
         yield client, cluster
     finally:
@@ -52,7 +52,7 @@ def test_a_tls_scheduler_is_reached_with_a_security_file(local_cluster, tmp_path
     """The credentials written to files and named in a TOML file (as ``--scheduler-security``
     reads it) reach the scheduler; a tcp:// address with a security file is refused."""
     from bubblefit.errors import InputError
-    from bubblefit.inverse._executors import SchedulerAddress, _start_client
+    from bubblefit.inverse import SchedulerAddress, start_client
 
     client, cluster = local_cluster
     sec = client.security
@@ -60,15 +60,15 @@ def test_a_tls_scheduler_is_reached_with_a_security_file(local_cluster, tmp_path
         (tmp_path / f"{name}.pem").write_text(getattr(sec, name))
     (tmp_path / "sec.toml").write_text("\n".join(f'{n} = "{n}.pem"' for n in
                                                  ("tls_ca_file", "tls_client_cert", "tls_client_key")))
-    other, none, addrs = _start_client(SchedulerAddress(cluster.scheduler_address, str(tmp_path / "sec.toml")), None)
+    other, none, addrs = start_client(SchedulerAddress(cluster.scheduler_address, str(tmp_path / "sec.toml")), None)
     try:
         assert none is None and addrs == sorted(client.scheduler_info()["workers"])
         assert list(other.run(lambda: 3).values()) == [3]
     finally:
         other.close()
     with pytest.raises(InputError, match="needs a tls:// scheduler"):
-        _start_client(SchedulerAddress(cluster.scheduler_address.replace("tls://", "tcp://"),
+        start_client(SchedulerAddress(cluster.scheduler_address.replace("tls://", "tcp://"),
                                        str(tmp_path / "sec.toml")), None)
     (tmp_path / "bad.toml").write_text('tls_ca_file = "missing.pem"\ntls_client_cert = "x.pem"\n')
     with pytest.raises(InputError, match="is not a file"):
-        _start_client(SchedulerAddress(cluster.scheduler_address, str(tmp_path / "bad.toml")), None)
+        start_client(SchedulerAddress(cluster.scheduler_address, str(tmp_path / "bad.toml")), None)

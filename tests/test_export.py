@@ -169,6 +169,8 @@ def test_openpbr_materialx_parses_and_carries_the_film(drained):
     valid, msg = doc.validate()
     assert valid, msg
     assert doc.getNode("soap_film").getNodeDef() is not None
+    # MaterialX's node graph films the reflection lobe only: the log must say what that costs
+    assert "reflection lobe only" in " ".join(res.notes)
 
 
 def test_mitsuba_scene_loads_and_tints_the_film(drained):
@@ -310,3 +312,23 @@ def test_fit_then_export_and_report_through_the_command_line(tmp_path):
     assert r.returncode == 0, r.stderr
     text = (tmp_path / "page" / "index.html").read_text()
     assert ("Fit ok: yes." if data["ok"] else "Fit ok: NO.") in text and "src='profile.png'" in text
+
+
+def test_every_format_names_what_it_drops_from_the_fit(drained):
+    """Each format's log names the roughness it maps, the diffuse term r_d it drops when r_d > 0, and
+    the paper model's constants it cannot carry; none of those lines appears when the fit has no such
+    quantity (r_d = 0, physical model)."""
+    import dataclasses
+
+    from bubblefit.export import blender, gltf, mitsuba, openpbr
+
+    bubble, _ = drained
+    paper = dataclasses.replace(bubble, model="paper", r_d=0.004, roughness=0.0289)
+    plain = dataclasses.replace(bubble, model="physical", r_d=0.0)
+    for module in (blender, gltf, mitsuba, openpbr):
+        text = " ".join(module.limitations(paper))
+        assert "r_d = 0.004" in text and f"t = {paper.t:.4g}" in text, module.__name__
+        if module is not mitsuba:  # thindielectric has no roughness: it says so instead
+            assert "sqrt(a) = 0.17" in text, module.__name__
+        plain_text = " ".join(module.limitations(plain))
+        assert "r_d" not in plain_text and "paper model" not in plain_text, module.__name__

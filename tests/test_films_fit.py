@@ -68,6 +68,57 @@ def test_drainage_film_under_a_panel(tmp_path):
     assert res["order_hops"] == 0 and res["ok"]
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("case", ["cyc_film_drain_panel", "cyc_film_drain_offaxis_panel"])
+def test_cycles_draining_film_profile(tmp_path, case):
+    """Blender Cycles' thin film (make_films_cycles.py): a framed vertical film under a panel,
+    fitted as a drainage profile: the ends within 3 standard errors, the profile's map
+    within the map targets."""
+    truth = json.loads((DATA / case / "truth.json").read_text())
+    res, tmap, true = _fit(case, tmp_path, "--thickness", "drainage")
+    assert res["ok"] and res["kind"] == "drainage", res["warnings"]
+    for end in ("top_nm", "bottom_nm"):
+        assert abs(res["params"][end] - truth[end]) <= 3.0 * res["stderr"][end], (end, res["params"], res["stderr"])
+    on = np.isfinite(true) & np.isfinite(tmap)
+    assert on.sum() > 0.9 * np.isfinite(true).sum()
+    err = np.abs(tmap - true)[on]
+    assert np.median(err) <= 15.0 and np.mean(err <= 15.0) >= 0.9
+
+
+@pytest.mark.slow
+def test_cycles_draining_film_map_without_black_film(tmp_path):
+    """The same film as a per-pixel map: no black film (30 nm at the top reflects a fifth of
+    the brightest colour), so the order comes from the drainage profile."""
+    res, tmap, true = _fit("cyc_film_drain_panel", tmp_path, "--thickness", "map")
+    assert res["ok"] and res["order_hops"] == 0 and res["order_from"] == "drainage profile"
+    on = np.isfinite(true) & np.isfinite(tmap)
+    err = np.abs(tmap - true)[on]
+    assert np.median(err) <= 15.0 and np.mean(err <= 15.0) >= 0.9
+
+
+@pytest.mark.slow
+def test_cycles_constant_film_with_a_clipped_channel(tmp_path):
+    """480 nm of water in Cycles: red clipped at black; the third order (672 nm) has nearly the
+    same hue, so the clipped channel must not decide the order."""
+    res, _, _ = _fit("cyc_film_const_panel", tmp_path, "--thickness", "constant")
+    assert res["ok"], res["warnings"]
+    assert abs(res["params"]["thickness_nm"] - 480.0) <= 5.0
+
+
+@pytest.mark.slow
+def test_a_film_turned_sideways_is_not_a_drainage_profile():
+    """The Cycles draining film turned by 90 degrees (gravity along the frame's width): no
+    profile along the scene's up direction explains it, and the fit must say so."""
+    from bubblefit.inverse.planar import fit_planar
+    from bubblefit.io.images import read_image
+    from bubblefit.model.planar_scene import load_planar
+
+    photo = read_image(DATA / "cyc_film_drain_panel" / "photo.png", dtype=np.float64).pixels[..., :3]
+    scene = load_planar(DATA / "cyc_film_drain_panel" / "scene.toml")
+    res = fit_planar(np.rot90(photo).copy(), scene, kind="drainage", clip_high=1.0)
+    assert not res.ok and res.reduced_chi2_floor > 4.0, res.report()
+
+
 def _run(args, tmp_path):
     return subprocess.run([sys.executable, "-m", "bubblefit", *args], capture_output=True, text=True, timeout=600,
                           cwd=tmp_path)

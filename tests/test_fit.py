@@ -325,7 +325,7 @@ def test_no_bubble_is_refused(env, small_courtyard, tmp_path, capsys):
 def test_calibration_disc_is_checked_against_the_photo():
     """A calibration's disc is used only for a photo of its frame's size whose bubble it
     matches; otherwise the disc found in the photo is used, with a warning."""
-    from bubblefit.inverse._disc import resolve_disc
+    from bubblefit.inverse import resolve_disc
     from bubblefit.model.scene import Scene, render_scene
 
     rng = np.random.default_rng(19)
@@ -348,7 +348,7 @@ def test_calibration_disc_is_checked_against_the_photo():
 def test_large_photo_is_cropped_to_the_bubble():
     """A photo larger than ``analysis_size`` is analysed as a crop around the bubble,
     block-averaged to at most that size, with the disc mapped back to the photo's pixels."""
-    from bubblefit.inverse._observation import analysis_frame
+    from bubblefit.inverse import analysis_frame
 
     H, W = 1200, 1800
     photo = np.full((H, W, 3), 0.3)
@@ -384,8 +384,8 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
     from dataclasses import replace
 
     from bubblefit.inverse import _lm, _programs
-    from bubblefit.inverse._observation import Level, fitted_pixels, padded, padded_size, pixel_bucket
-    from bubblefit.inverse._programs import render_level
+    from bubblefit.inverse import Level, fitted_pixels, padded, padded_size, pixel_bucket
+    from bubblefit.inverse import render_level
     from bubblefit.model.geometry import compose_shift
     from bubblefit.inverse.fit import fit_photo
     from bubblefit.model.geometry import OrthographicCamera
@@ -414,7 +414,7 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
 
     # the final render of the bubble's pixels alone, the background photo elsewhere: the
     # whole render's values, with the disc at the refinement's limits too
-    from bubblefit.inverse._programs import _bubble_list, render_bubble
+    from bubblefit.inverse import bubble_list as _bubble_list, render_bubble
 
     photo_fx = replace(fx, background="photo")
     lev_p = replace(lev, cfg=replace(cfg, effects=photo_fx))
@@ -447,7 +447,7 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
     # the solver's Jacobian, by groups of columns, is jax.jacfwd's
     import jax
 
-    from bubblefit.inverse._parameters import ParameterTable
+    from bubblefit.inverse import ParameterTable
 
     table = ParameterTable(free=("t", "split", "roughness", "exposure", "thickness_nm", "disc_x", "disc_y", "disc_r"))
     start = {"t": 0.9, "split": 0.7, "roughness": 0.05, "exposure": 1.1, "thickness_nm": 640.0, "disc_x": 0.01,

@@ -85,7 +85,7 @@ def test_fit_uses_the_scenes_camera_light_and_dispersion(env):
 
 def _setup(env, scene=None, **kw):
     from bubblefit.inverse.fit import FitOptions
-    from bubblefit.inverse._setup import setup
+    from bubblefit.inverse import setup
 
     rng = np.random.default_rng(0)
     photo = rng.uniform(0.2, 0.5, (N, N, 3))
@@ -146,7 +146,7 @@ def test_cli_flags_parse_and_win_over_the_scene(env, tmp_path, monkeypatch):
     import bubblefit.inverse.fit as fit_module
     from bubblefit.cli import build_parser, main
     from bubblefit.cli.fit import fit_option_values
-    from bubblefit.inverse._setup import colour_settings
+    from bubblefit.inverse import colour_settings
     from bubblefit.io.images import write_image
     from bubblefit.optics.dispersion import Cauchy
 

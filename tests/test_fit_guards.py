@@ -11,7 +11,7 @@ from bubblefit.errors import InputError
 
 
 def _table(free):
-    from bubblefit.inverse._parameters import ParameterTable
+    from bubblefit.inverse import ParameterTable
 
     return ParameterTable(free=tuple(free), held=())
 
@@ -19,7 +19,7 @@ def _table(free):
 def test_a_thickness_past_the_search_is_reported_at_its_bound():
     """4.4 nm from a 50-2000 nm search comes back as 50 nm, with a warning; a value inside,
     and a held one, are left alone."""
-    from bubblefit.inverse._verdict import clamp_to_range
+    from bubblefit.inverse import clamp_to_range
 
     keys = ("thickness_nm", "top_nm", "bottom_nm")
     got, warn = clamp_to_range({"thickness_nm": 4.4, "t": 0.97}, _table(["thickness_nm"]), (50.0, 2000.0), keys)
@@ -33,8 +33,8 @@ def test_a_thickness_past_the_search_is_reported_at_its_bound():
 
 
 def test_verdict_of_a_clamped_thickness_is_not_ok():
-    from bubblefit.inverse._uncertainty import Misfit
-    from bubblefit.inverse._verdict import clamp_to_range, verdict
+    from bubblefit.inverse import Misfit
+    from bubblefit.inverse import clamp_to_range, verdict
 
     _, warn = clamp_to_range({"thickness_nm": 4.4}, _table(["thickness_nm"]), (50.0, 2000.0), ("thickness_nm",))
     fields = Misfit.__dataclass_fields__
@@ -48,8 +48,8 @@ def test_a_photo_without_a_bubble_is_refused_without_a_background_photo():
     """A smooth textured photo with nothing round in it and no background photo: the robust
     detector finds no rim, and the fit refuses rather than fitting the simpler detector's
     guess; with the disc given, it is taken."""
-    from bubblefit.inverse._disc import resolve_disc
-    from bubblefit.inverse._options import FitOptions
+    from bubblefit.inverse import resolve_disc
+    from bubblefit.inverse import FitOptions
 
     rng = np.random.default_rng(3)
     photo = ndi.gaussian_filter(rng.uniform(0.1, 0.7, (96, 128, 3)), (6, 6, 0))

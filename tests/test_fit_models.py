@@ -124,7 +124,7 @@ def test_given_disc_is_held(off_grid_photo):
 
 
 def test_gauss_newton_decrement_is_the_linear_drop():
-    from bubblefit.inverse._lm import gauss_newton_decrement
+    from bubblefit.inverse import gauss_newton_decrement
 
     rng = np.random.default_rng(0)
     a = rng.normal(size=(200, 4))
@@ -138,7 +138,7 @@ def test_gauss_newton_decrement_is_the_linear_drop():
 
 
 def test_a_stop_far_from_the_optimum_is_said():
-    from bubblefit.inverse._local import LocalSolution
+    from bubblefit.inverse import LocalSolution
     from bubblefit.inverse.fit import _status_notes
 
     rng = np.random.default_rng(1)
@@ -162,8 +162,8 @@ def test_zero_roughness_is_the_mirror_not_a_bound(small_courtyard):
     table."""
     import dataclasses
 
-    from bubblefit.inverse._parameters import ParameterTable
-    from bubblefit.inverse._verdict import at_bounds, unresolved
+    from bubblefit.inverse import ParameterTable
+    from bubblefit.inverse import at_bounds, unresolved
     from bubblefit.lighting.filtering import FilterConfig
     from bubblefit.model.render import Params, render
     from bubblefit.model.scene import Scene
@@ -195,7 +195,7 @@ def test_zero_roughness_is_the_mirror_not_a_bound(small_courtyard):
 def test_refined_disc_in_pixels_with_its_model_error():
     """The refinement's shifts are in radii; the disc and its errors come back in pixels,
     the model error (in radii) added in quadrature to the noise's."""
-    from bubblefit.inverse._parameters import refined_disc
+    from bubblefit.inverse import refined_disc
 
     reported = {"disc_x": 0.01, "disc_y": -0.02, "disc_r": 0.005, "thickness_nm": 500.0}
     stderr = {"disc_x": 0.0015, "disc_y": float("nan"), "disc_r": 0.0, "thickness_nm": 1.0}
@@ -215,9 +215,9 @@ def test_outliers_are_told_apart_from_a_misfit():
     says which misfit is local."""
     from types import SimpleNamespace
 
-    from bubblefit.inverse._local import LocalSolution
-    from bubblefit.inverse._uncertainty import misfit
-    from bubblefit.inverse._verdict import verdict
+    from bubblefit.inverse import LocalSolution
+    from bubblefit.inverse import misfit
+    from bubblefit.inverse import verdict
 
     rng = np.random.default_rng(5)
     h = w = 40
@@ -268,7 +268,7 @@ def test_auto_never_prefers_a_failed_fit_for_its_small_residual():
     failed scores infinity whatever chi^2 it reports (the point a failed solve reports is
     not one it vouches for), so a fit that merely stopped short is kept before it."""
     from bubblefit.inverse.fit import _judged_chi2
-    from bubblefit.inverse._options import FitResult
+    from bubblefit.inverse import FitResult
 
     def result(status, chi2):
         return FitResult(params={}, stderr={}, held=[], converged=status == "converged", message="", iterations=3,
@@ -295,15 +295,15 @@ def test_the_parameter_table_agrees_with_the_standard_errors(model, free, held, 
     exactly the keys the uncertainty leaves without one; the physical model's t and r_s
     are unused, never 'set by Fresnel'; eq. (14)'s split is named where r_d, r_s and f
     come from it."""
-    from bubblefit.inverse._parameters import ParameterTable, parameter_roles
-    from bubblefit.inverse._uncertainty import _held_keys
+    from bubblefit.inverse import ParameterTable, parameter_roles
+    from bubblefit.inverse import held_keys
 
     table = ParameterTable(free, tuple((n, f"reason for {n}") for n in held), "constant", free_split)
     names = ("t", "r_d", "r_s", "f", "roughness", "exposure", "rotation_deg", "thickness_nm", "n_film")
     rows = {r.name: r for r in parameter_roles(table, model, names)}
     assert tuple(rows) == names
     no_error = {n for n, r in rows.items() if r.role in ("held", "unused", "given")}
-    assert no_error == (_held_keys(table) & set(names)) | {"n_film"}
+    assert no_error == (held_keys(table) & set(names)) | {"n_film"}
     assert all(rows[n].role == "fitted" for n in free if n in names)
     assert all(r.reason for r in rows.values() if r.role != "fitted")
     if model == "physical":
@@ -319,8 +319,8 @@ def test_parameter_settings_start_and_hold():
     value the scene file sets alone, and refuses unknown names and values outside a
     parameter's bounds in one line."""
     from bubblefit.errors import InputError
-    from bubblefit.inverse._parameters import ParameterSetting, parse_setting
-    from bubblefit.inverse._setup import defaults
+    from bubblefit.inverse import ParameterSetting, parse_setting
+    from bubblefit.inverse import defaults
     from bubblefit.inverse.fit import FitOptions
     from bubblefit.model.scene import Scene
 

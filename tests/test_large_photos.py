@@ -12,8 +12,8 @@ import tracemalloc
 
 import numpy as np
 
-from bubblefit.inverse._observation import analysis_frame
-from bubblefit.inverse._options import FitOptions
+from bubblefit.inverse import analysis_frame
+from bubblefit.inverse import FitOptions
 from bubblefit.io.images import read_image, srgb_decode, write_image
 from helpers import block_average, sensor_sigma
 

@@ -72,7 +72,7 @@ def photo(env, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def level(env, photo):
-    from bubblefit.inverse._setup import setup
+    from bubblefit.inverse import setup
 
     img, bg, true = photo
     opts = _opts(thickness="map", model="physical")
@@ -84,14 +84,13 @@ def level(env, photo):
 
 def test_traced_costs_equal_whole_renders(env, level):
     """One trace plus the film's optics per candidate gives the whole render's chi^2 (float32 rounding)."""
-    from bubblefit.inverse import _maps
-    from bubblefit.inverse._map_pixels import TracedCosts
+    from bubblefit.inverse import RenderCosts, TracedCosts, profile_map
 
     st, lev, vals = level
     sel = lev.mask.reshape(-1)
-    prof = _maps.profile_map(lev, (300.0, 900.0, 1.0)).reshape(-1)[sel]
+    prof = profile_map(lev, (300.0, 900.0, 1.0)).reshape(-1)[sel]
     d = prof[None] + np.array([-60.0, -20.0, 0.0, 35.0])[:, None]
-    whole = _maps._RenderCosts(lev, st.table, vals, env)(d)
+    whole = RenderCosts(lev, st.table, vals, env)(d)
     traced = TracedCosts(lev, st.table, vals, env)(d)
     # float32 renders of ~1e3 chi^2 units: agree to 1e-3 relative
     np.testing.assert_allclose(traced, whole, rtol=1e-3, atol=1e-2)
@@ -100,12 +99,11 @@ def test_traced_costs_equal_whole_renders(env, level):
 def test_diagonal_jacobian_matches_differences(env, level):
     """d chi^2_p / d d_p = 2 r_p . j_p, against central differences of 0.25 nm (the Airy
     film's colours vary over ~100 nm: the difference's error is ~1e-5 relative)."""
-    from bubblefit.inverse import _maps
-    from bubblefit.inverse._map_pixels import TracedCosts
+    from bubblefit.inverse import RenderCosts, TracedCosts, profile_map
 
     st, lev, vals = level
     sel = lev.mask.reshape(-1)
-    d = _maps.profile_map(lev, (300.0, 900.0, 1.0)).reshape(-1)[sel] + 10.0
+    d = profile_map(lev, (300.0, 900.0, 1.0)).reshape(-1)[sel] + 10.0
     costs = TracedCosts(lev, st.table, vals, env)
     r, j = costs.slopes(d)
     np.testing.assert_allclose(np.sum(r * r, axis=1), costs(d[None])[0], rtol=1e-3, atol=1e-2)
@@ -123,7 +121,7 @@ def test_physical_map_recovered(env, photo):
     """The default map fit of a physical photo, its finest level by per-pixel Gauss-Newton:
     the validation set's targets over the inner disc (0.8 r, as validate.py scores maps:
     median <= 15 nm, >= 90 % within 15 nm) and a standard error at every fitted pixel."""
-    from bubblefit.inverse._maps import COARSE_RADIUS
+    from bubblefit.inverse import COARSE_RADIUS
     from bubblefit.inverse.fit import fit_photo
 
     assert DISC[2] >= 2 * COARSE_RADIUS  # a pyramid of two levels at least: the per-pixel solve runs

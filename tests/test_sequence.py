@@ -79,7 +79,7 @@ def client():
     """A local Dask cluster of two single-threaded worker processes, for the whole module."""
     from distributed import Client, LocalCluster
 
-    from bubblefit.inverse._executors import local_env
+    from bubblefit.inverse import local_env
 
     cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
                            env=local_env(), silence_logs=40)
@@ -144,7 +144,7 @@ def test_warm_starts_carry_the_thickness_on():
     from the two last (a smooth drainage starts within a fraction of a nanometre); the
     other values stay, a film never starts below 1 nm, and without a frame before there
     is nothing to carry on. The batched solve's starts are the same rule k frames ahead."""
-    from bubblefit.inverse._parameters import extrapolated
+    from bubblefit.inverse import extrapolated
 
     last = {"thickness_nm": 780.0, "top_nm": 300.0, "t": 0.97, "exposure": 1.1}
     before = {"thickness_nm": 800.0, "top_nm": 290.0, "t": 0.96, "exposure": 1.3}
@@ -334,7 +334,7 @@ def _stub_record(k: int, roughness: float, exposure: float, *, stderr: float = 1
 def test_jumping_roughness_or_gain_is_flagged(tmp_path):
     """A frame whose roughness (or gain) leaves its neighbours' is flagged, in its record and
     in its row (``ok`` false, a warning in words); a slow drift and noise are not."""
-    from bubblefit.inverse._tables import flag_jumps, write_tables
+    from bubblefit.inverse import flag_jumps, write_tables
 
     rng = np.random.default_rng(5)
     n = 12
@@ -361,8 +361,8 @@ def test_jumping_roughness_or_gain_is_flagged(tmp_path):
 def test_fit_reported_not_ok_is_not_ok(tmp_path):
     """A fit that says ``ok = False`` itself (read with defaults, for results with and without
     the field) makes its row not ok, and its warnings reach the table."""
-    from bubblefit.inverse._records import base_record, result_record
-    from bubblefit.inverse._tables import row_ok
+    from bubblefit.inverse import base_record, result_record
+    from bubblefit.inverse import row_ok
     from bubblefit.inverse.sequence import FrameRef
 
     class Result:

@@ -12,7 +12,7 @@ import optimistix as optx
 import pytest
 from scipy.optimize import least_squares
 
-from bubblefit.inverse._lm import LevenbergMarquardt, column_jacobian, scaled_decrement
+from bubblefit.inverse import LevenbergMarquardt, column_jacobian, scaled_decrement
 
 
 def _solve(fn, z0, solver, max_steps=200):
@@ -102,7 +102,7 @@ def test_linear_problem_reaches_the_normal_equations():
 
 
 def test_scaled_decrement_is_the_gauss_newton_drop():
-    from bubblefit.inverse._lm import DenseDampedNewtonDescent, gauss_newton_decrement
+    from bubblefit.inverse import DenseDampedNewtonDescent, gauss_newton_decrement
 
     rng = np.random.default_rng(1)
     jac = rng.normal(size=(500, 3))
@@ -133,9 +133,9 @@ def test_bounded_decrement_drops_a_parameter_pressing_on_its_bound():
     pointing away from zero, keeps it."""
     import lineax as lx
 
-    from bubblefit.inverse._lm import DenseDampedNewtonDescent, gauss_newton_decrement
-    from bubblefit.inverse._local import LocalSolution, remaining_step
-    from bubblefit.inverse._parameters import inverse
+    from bubblefit.inverse import DenseDampedNewtonDescent, gauss_newton_decrement
+    from bubblefit.inverse import LocalSolution, remaining_step
+    from bubblefit.inverse import inverse
 
     rng = np.random.default_rng(5)
     base_jac = rng.normal(size=(400, 3))
@@ -201,7 +201,7 @@ def test_a_failed_restart_is_never_kept_and_a_kept_one_does_not_raise_the_cost()
     failed is dropped even when its reported residual is smaller (a diverged render's
     residual once read as zeros, a cost of 0). One that met its tolerances or ran out of
     steps is kept when its cost is no larger, and dropped when larger or not finite."""
-    from bubblefit.inverse._local import LocalSolution, improves
+    from bubblefit.inverse import LocalSolution, improves
 
     def sol(residual, ok=True, maxed=False):
         r = np.asarray(residual, np.float64)
@@ -222,7 +222,7 @@ def test_robust_residual_is_the_pseudo_huber_residual_up_to_overflow():
     """``robust`` is ``sign(r) sqrt(2 rho(r))`` with the pseudo-Huber ``rho(r) = s^2
     (sqrt(1 + (r/s)^2) - 1)`` (float64 here) from 1e-3 to float32's largest values: a
     diverged render's residual stays large, never 0, and its gradient finite."""
-    from bubblefit.inverse._lm import robust
+    from bubblefit.inverse import robust
 
     s = 3.0
     r = np.concatenate([-np.logspace(-3, 38, 200), np.logspace(-3, 38, 200)])

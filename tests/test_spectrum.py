@@ -283,7 +283,7 @@ def test_local_noise_follows_the_noise_and_not_the_fringes():
     """A reading whose noise grows tenfold from red to blue, over fringes of 40 samples per
     period and 5-50 times the noise's size: the local estimate follows the noise (median
     error under 12 %, none over 40 %)."""
-    from bubblefit.inverse._spectrum_profile import local_noise
+    from bubblefit.inverse import local_noise
 
     rng = np.random.default_rng(3)
     lam = np.arange(400.0, 900.0, 0.25)

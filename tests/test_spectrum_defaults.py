@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from bubblefit.cli import main
-from bubblefit.inverse._spectrum_defaults import in_time_order, looks_normalised, same_grid, series_twins
+from bubblefit.inverse import in_time_order, looks_normalised, same_grid, series_twins
 from bubblefit.io.spectra import Spectrum
 
 from test_spectrum import _write, synth

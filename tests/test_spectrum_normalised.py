@@ -19,7 +19,7 @@ import pytest
 from scipy import optimize
 
 from bubblefit.cli import main
-from bubblefit.inverse._spectrum_profile import _positive_lamp_lstsq
+from bubblefit.inverse import positive_lamp_lstsq
 from bubblefit.inverse.spectrum import SpectrumOptions, fit_spectrum, min_fringes
 from bubblefit.io.spectra import Spectrum
 
@@ -76,7 +76,7 @@ def test_lamp_is_kept_non_negative():
     r = np.sin(7.0 * x) ** 2
     a = np.column_stack([basis * r[:, None], np.ones_like(x)])
     y = x**2 * np.sin(3.0 * x) ** 2 + 0.1 * rng.standard_normal(len(x))
-    coef = _positive_lamp_lstsq(a, y, basis)
+    coef = positive_lamp_lstsq(a, y, basis)
     assert (basis @ coef[:4]).min() > -1e-9
     ref = optimize.minimize(lambda c: np.sum((y - a @ c) ** 2), np.zeros(5), method="SLSQP",
                             constraints=[{"type": "ineq", "fun": lambda c: basis @ c[:4]}],

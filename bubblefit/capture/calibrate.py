@@ -280,6 +280,88 @@ def _inner_pixels(reg: _Registered, d: np.ndarray, r: float, inner_fraction: flo
     return used
 
 
+def _registered_bubble(img_b: Image, img_a: Image, circle, max_shift: float | None, min_cc: float,
+                       names: tuple[str, str], warnings: list[str]) -> tuple[_Registered, tuple, bool]:
+    """``(registration, circle, given)``: the pair registered over the whole frame (outside a
+    given circle), the bubble (given or detected) and the pair registered again outside it."""
+    h, w = img_b.shape
+    given = circle is not None
+    if given:
+        circle = _given_circle(circle, w, h)
+    if max_shift is None:
+        max_shift = max(8.0, 0.1 * min(h, w))
+    reg = _first_registration(img_b, img_a, _outside((h, w), circle) if given else None, max_shift, min_cc, names)
+    if not given:
+        circle = _detect(img_a, reg, names)
+    if circle[2] < 4:
+        raise InputError(f"the bubble is too small in the image (radius {circle[2]:.1f} pixels); move the camera closer")
+    reg = _second_registration(img_b, img_a, reg, circle, warnings)
+    return reg, circle, given
+
+
+@dataclass(frozen=True)
+class _T4:
+    """The measured ``t^4`` per channel (R, G, B, grey) with its interval (sec. 3.3)."""
+
+    t4: np.ndarray
+    lo4: np.ndarray
+    hi4: np.ndarray
+    model_sd: np.ndarray  # the model error carried by the interval (:func:`~.ratio.model_error`)
+    k_out: np.ndarray  # the exposure ratio outside the bubble (ones when not corrected)
+    exposure_corrected: bool
+    n_shape: float  # the index of the angular correction
+    fresnel_corrected: bool
+    blocks_inside: int  # pixel blocks inside the bubble (the bootstrap's units)
+
+
+def _t4_ratio(img_b: Image, pa, ga, reg: _Registered, used, outer, rho, radial_model: RadialModel,
+              exposure_correction: bool, n_boot: int, seed: int, warnings: list[str]) -> _T4:
+    """``t^4``: the robust after/before ratio over the ``used`` pixels, corrected for the
+    Fresnel fall-off toward the rim where the profile does not rule it out, over the ratio
+    outside the bubble (``outer``), with its block-bootstrap interval and model error; the
+    index of the angular correction refitted when the Fresnel film is supported."""
+    h, w = ga.shape
+    yy, xx = np.mgrid[0:h, 0:w]
+    outer = reg.usable & outer
+    pb_r = np.stack([shift_image(img_b.pixels[..., c], reg.shift) for c in range(3)], axis=-1)
+    block = int(np.clip(min(h, w) // 64, 4, 16))
+    bid = (yy // block) * (w // block + 1) + xx // block
+    a_in, b_in = with_gray(pa, ga, used), with_gray(pb_r, reg.gray_before, used)
+    fresnel_corrected = radial_model in ("fresnel", "undetermined")
+    n_shape = DEFAULT_N
+    # physics prior: a real film transmits less at oblique incidence (Fresnel)
+    corr = fresnel_shape(rho[used], n_shape) if fresnel_corrected else np.ones(int(used.sum()))
+    inside = channel_ratios(a_in / corr[:, None], b_in, bid[used])
+    outside = _exposure(pa, ga, pb_r, reg, outer, bid, exposure_correction, warnings)
+    k_out = outside.k if outside is not None else np.ones(4)
+    t4_all = inside.k / k_out
+    if np.any(t4_all <= 0):
+        raise InputError("no light is transmitted through the bubble region: check the circle and the shots")
+    # the index, and the angular correction with it, when the Fresnel film is supported
+    if radial_model == "fresnel":
+        inside, t4_all, n_shape = _refit_index(inside, t4_all, k_out, a_in, b_in, rho[used], bid[used])
+    corr = fresnel_shape(rho[used], n_shape) if fresnel_corrected else np.ones(int(used.sum()))
+    model_sd = model_error(a_in, b_in, corr, rho[used], bid[used], k_out, t4_all, radial_model, n_shape)
+    lo4, hi4 = ratio_interval(inside, outside, t4_all, n_boot, np.random.default_rng(seed), model_sd)
+    return _T4(t4_all, lo4, hi4, model_sd, k_out, outside is not None, n_shape, fresnel_corrected,
+               int(inside.a_blocks.shape[0]))
+
+
+def _t_from_t4(q: _T4, names: tuple[str, str], warnings: list[str]):
+    """``(t, lower, upper)`` per channel: ``t^4``'s fourth root and its interval's; a ``t``
+    above 1 beyond its interval is refused (the shots are likely swapped)."""
+    t_all = np.clip(q.t4, 0, None) ** 0.25
+    t_lo, t_hi = np.clip(q.lo4, 0, None) ** 0.25, np.clip(q.hi4, 0, None) ** 0.25
+    if t_lo[3] > 1.0:  # above 1 beyond its interval: impossible for a film
+        raise InputError(f"t = {t_all[3]:.4f} (95% interval {t_lo[3]:.4f}-{t_hi[3]:.4f}) is above 1; "
+                         + str(_swapped_error(names)))
+    if t_all[3] > 1.0:
+        warnings.append(f"t > 1 ({t_all[3]:.4f}): the bubble region got brighter; check for reflections or flicker")
+    if q.blocks_inside < 20:
+        warnings.append(f"only {q.blocks_inside} pixel blocks inside the bubble: the interval is approximate")
+    return t_all, t_lo, t_hi
+
+
 # --------------------------------------------------------------------------------------
 # The whole calibration
 # --------------------------------------------------------------------------------------
@@ -348,73 +430,37 @@ def calibrate(
     pa, ga = img_a.pixels, gray(img_a.pixels)
     check_exposures(img_b, img_a, names, warnings)
     # 1. registration over the whole frame, 2. the bubble, 3. registration outside it
-    given = circle is not None
-    if given:
-        circle = _given_circle(circle, w, h)
-    if max_shift is None:
-        max_shift = max(8.0, 0.1 * min(h, w))
-    reg = _first_registration(img_b, img_a, _outside((h, w), circle) if given else None, max_shift, min_cc, names)
-    if not given:
-        circle = _detect(img_a, reg, names)
-    if circle[2] < 4:
-        raise InputError(f"the bubble is too small in the image (radius {circle[2]:.1f} pixels); move the camera closer")
-    reg = _second_registration(img_b, img_a, reg, circle, warnings)
+    reg, circle, given = _registered_bubble(img_b, img_a, circle, max_shift, min_cc, names, warnings)
     # 4. sub-pixel circle and radial fall-off
     (cx, cy, r), prof = _refine(ga, reg, circle, given, seed, warnings)
     radial_model = _radial_model(prof)
     yy, xx = np.mgrid[0:h, 0:w]
     d = np.hypot(xx - cx, yy - cy)
     rho = d / r
-    # 5. the robust ratio inside over the ratio outside, per channel
+    # 5. the robust ratio inside over the ratio outside, per channel; 6. the index
     used = _inner_pixels(reg, d, r, inner_fraction, min_pixels)
-    outer = reg.usable & (d >= 1.2 * r + 3)
-    pb_r = np.stack([shift_image(img_b.pixels[..., c], reg.shift) for c in range(3)], axis=-1)
-    block = int(np.clip(min(h, w) // 64, 4, 16))
-    bid = (yy // block) * (w // block + 1) + xx // block
-    a_in, b_in = with_gray(pa, ga, used), with_gray(pb_r, reg.gray_before, used)
-    fresnel_corrected = radial_model in ("fresnel", "undetermined")
-    n_shape = DEFAULT_N
-    # physics prior: a real film transmits less at oblique incidence (Fresnel)
-    corr = fresnel_shape(rho[used], n_shape) if fresnel_corrected else np.ones(int(used.sum()))
-    inside = channel_ratios(a_in / corr[:, None], b_in, bid[used])
-    outside = _exposure(pa, ga, pb_r, reg, outer, bid, exposure_correction, warnings)
-    k_out = outside.k if outside is not None else np.ones(4)
-    t4_all = inside.k / k_out
-    if np.any(t4_all <= 0):
-        raise InputError("no light is transmitted through the bubble region: check the circle and the shots")
-    # 6. the index, and the angular correction with it, when the Fresnel film is supported
-    if radial_model == "fresnel":
-        inside, t4_all, n_shape = _refit_index(inside, t4_all, k_out, a_in, b_in, rho[used], bid[used])
-    corr = fresnel_shape(rho[used], n_shape) if fresnel_corrected else np.ones(int(used.sum()))
-    model_sd = model_error(a_in, b_in, corr, rho[used], bid[used], k_out, t4_all, radial_model, n_shape)
-    lo4, hi4 = ratio_interval(inside, outside, t4_all, n_boot, np.random.default_rng(seed), model_sd)
-    t_all = np.clip(t4_all, 0, None) ** 0.25
-    t_lo, t_hi = np.clip(lo4, 0, None) ** 0.25, np.clip(hi4, 0, None) ** 0.25
-    if t_lo[3] > 1.0:  # above 1 beyond its interval: impossible for a film
-        raise InputError(f"t = {t_all[3]:.4f} (95% interval {t_lo[3]:.4f}-{t_hi[3]:.4f}) is above 1; "
-                         + str(_swapped_error(names)))
-    if t_all[3] > 1.0:
-        warnings.append(f"t > 1 ({t_all[3]:.4f}): the bubble region got brighter; check for reflections or flicker")
-    if inside.a_blocks.shape[0] < 20:
-        warnings.append(f"only {inside.a_blocks.shape[0]} pixel blocks inside the bubble: the interval is approximate")
+    q = _t4_ratio(img_b, pa, ga, reg, used, d >= 1.2 * r + 3, rho, radial_model, exposure_correction, n_boot, seed,
+                  warnings)
+    t_all, t_lo, t_hi = _t_from_t4(q, names, warnings)
     beta, beta_se = prof["beta"], prof["beta_stderr"]
-    n_film, n_se, n_ci = _n_film(radial_model, beta, beta_se, float(t4_all[3]), float(lo4[3]), float(hi4[3]), warnings)
-    radial = {"model": radial_model, "beta": float(beta), "beta_stderr": float(beta_se), "n_shape": float(n_shape),
+    n_film, n_se, n_ci = _n_film(radial_model, beta, beta_se, float(q.t4[3]), float(q.lo4[3]), float(q.hi4[3]),
+                                 warnings)
+    radial = {"model": radial_model, "beta": float(beta), "beta_stderr": float(beta_se), "n_shape": float(q.n_shape),
               **{k: float(prof[k]) for k in ("r_stderr", "noise")}, "n_rim_pixels": int(prof["n_rim_pixels"])}
-    ratio_map = np.where(reg.usable, ga / np.where(reg.usable, reg.gray_before, 1.0) / k_out[3], np.nan)
+    ratio_map = np.where(reg.usable, ga / np.where(reg.usable, reg.gray_before, 1.0) / q.k_out[3], np.nan)
     rim = reg.usable & (rho >= 0.75) & (rho <= 0.97)
     return CalibrationResult(
-        t=float(t_all[3]), t_rgb=[float(v) for v in t_all[:3]], t4=float(t4_all[3]),
+        t=float(t_all[3]), t_rgb=[float(v) for v in t_all[:3]], t4=float(q.t4[3]),
         t_ci95=[float(t_lo[3]), float(t_hi[3])],
         t_rgb_ci95=[[float(t_lo[c]), float(t_hi[c])] for c in range(3)],
-        t4_ci95=[float(lo4[3]), float(hi4[3])],
+        t4_ci95=[float(q.lo4[3]), float(q.hi4[3])],
         bubble={"cx": float(cx) + 0.5, "cy": float(cy) + 0.5, "r": float(r)},
         bubble_source="given" if given else "detected", pixels_used=int(used.sum()),
         shift_px=[float(reg.shift[0]), float(reg.shift[1])], registration_cc=float(reg.cc),
-        exposure_ratio=float(k_out[3]), exposure_corrected=outside is not None, radial=radial,
-        n_film=n_film, n_film_stderr=n_se, n_film_ci95=n_ci, t_fresnel_corrected=fresnel_corrected,
+        exposure_ratio=float(q.k_out[3]), exposure_corrected=q.exposure_corrected, radial=radial,
+        n_film=n_film, n_film_stderr=n_se, n_film_ci95=n_ci, t_fresnel_corrected=q.fresnel_corrected,
         inner_fraction=inner_fraction, warnings=warnings, image_size=[int(w), int(h)],
-        t4_model_stderr=float(model_sd[3]),
+        t4_model_stderr=float(q.model_sd[3]),
         inputs={"before": img_b.path, "after": img_a.path},
         maps={"ratio": ratio_map, "used": used, "rim": rim, "after": pa},
     )

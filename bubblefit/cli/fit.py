@@ -26,6 +26,7 @@ NAME = "fit"
 def register(sub):
     from .common import input_file, output_file, output_prefix
     from .view_options import add_view_options
+    from ..model.modes import MODEL_CHOICES, THICKNESS_KINDS  # no JAX: --help stays fast
 
     p = sub.add_parser(
         NAME, help="fit the bubble model to a photo (t, r_d, r_s, roughness, film thickness)",
@@ -47,9 +48,9 @@ def register(sub):
                    help="scene file: its camera (orthographic disc or perspective, response, white balance, "
                         "samples per pixel), n_film (with dispersion), illuminant, effects, and every value its "
                         "[bubble] table sets, which is held fixed; the flags below override it")
-    p.add_argument("--thickness", choices=("constant", "drainage", "map"), default="constant",
+    p.add_argument("--thickness", choices=THICKNESS_KINDS, default="constant",
                    help="thickness model (default: constant)")
-    p.add_argument("--model", choices=("paper", "physical", "auto"), default=None,
+    p.add_argument("--model", choices=MODEL_CHOICES, default=None,
                    help="forward model: paper, physical, or auto (the paper model, then the physical one when "
                         "the paper model does not explain the photo; default: the scene's, else auto)")
     p.add_argument("--disc", metavar="CX,CY,R", help="the bubble's disc in pixels (default: detected; a disc "
@@ -155,7 +156,7 @@ def fit_option_values(args) -> dict:
     """The :class:`~bubblefit.inverse.fit.FitOptions` values that ``fit`` and ``fit-sequence`` read
     the same way: starting t and disc (``--calibration``, ``--t``, ``--disc``), thickness
     kind and range, held parameters and the step limit. One-line errors for bad values."""
-    from ..inverse._parameters import parse_setting
+    from ..inverse import parse_setting
     from .common import parse_floats
 
     t_init, disc, cal_disc, cal_size = None, None, None, None
@@ -191,7 +192,7 @@ def model_option_values(args) -> dict:
     """``illuminant``, ``camera_response``, ``n_film`` and ``samples_per_pixel`` of
     :class:`~bubblefit.inverse.fit.FitOptions` from :func:`add_model_options`' flags (None
     where not given: the scene's then apply), checked before any photo is read."""
-    from ..model._scene_checks import samples_per_pixel
+    from ..model import samples_per_pixel
     from ..optics import spectral
     from .common import colour_option, film_index
 

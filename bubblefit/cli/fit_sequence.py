@@ -20,6 +20,7 @@ from .view_options import add_view_options, check_view_args, sequence_view
 
 def register(sub):
     from .common import input_file, output_file, output_folder
+    from ..model.modes import MODEL_CHOICES, THICKNESS_KINDS  # no JAX: --help stays fast
 
     p = sub.add_parser(
         "fit-sequence",
@@ -35,9 +36,9 @@ def register(sub):
     cal.add_argument("--calibration", metavar="CAL.json", type=input_file, help="output of `bubblefit calibrate` (t and the disc)")
     cal.add_argument("--t", type=float, help="starting transmission fraction t (0 < t < 1)")
     p.add_argument("--scene", metavar="SCENE.toml", type=input_file, help="scene file: its camera and the values it sets are held")
-    p.add_argument("--thickness", choices=("constant", "drainage", "map"), default="constant",
+    p.add_argument("--thickness", choices=THICKNESS_KINDS, default="constant",
                    help="thickness model of each frame (default: constant)")
-    p.add_argument("--model", choices=("paper", "physical", "auto"), default=None,
+    p.add_argument("--model", choices=MODEL_CHOICES, default=None,
                    help="forward model, as in `fit` (default: the scene's, else auto: the paper model, then the "
                         "physical one when the paper model does not explain a frame, at up to twice the time)")
     p.add_argument("--disc", metavar="CX,CY,R",
@@ -136,7 +137,7 @@ def run(args) -> int:
         raise InputError("--scheduler-security needs --scheduler tls://HOST:PORT")
     scheduler = None
     if args.scheduler and args.workers != 0:
-        from ..inverse._executors import SchedulerAddress
+        from ..inverse import SchedulerAddress
 
         scheduler = SchedulerAddress(args.scheduler, args.scheduler_security)
     seq = SequenceOptions(scheduler=scheduler, workers=args.workers,

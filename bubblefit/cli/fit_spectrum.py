@@ -121,7 +121,7 @@ def _check_outputs(args) -> None:
 
 def run(args) -> int:
     from ..inverse.spectrum import SpectrumOptions, fit_spectrum
-    from ..inverse._spectrum_defaults import in_time_order
+    from ..inverse import in_time_order
     from ..inverse.spectrum_series import fit_spectrum_series
     from ..io.spectra import read_spectrum
     from ..optics import dispersion
@@ -160,7 +160,7 @@ def run(args) -> int:
         print(f"series: the {len(spectra)} files are read as one series under one lamp ("
               + ("--series" if args.series else "same wavelengths; --no-series to read each alone") + "); "
               + (f"in time order ({order_why})" if ordered else f"not in time order ({order_why})"))
-        from ..inverse._spectrum_defaults import same_grid
+        from ..inverse import same_grid
 
         if not same_grid(spectra):
             print("warning: the series' files have different wavelengths: the shared lamp is one smooth series over "
@@ -305,7 +305,7 @@ def _is_series(args, spectra) -> bool:
         return False
     if spectra is None:
         return True
-    from ..inverse._spectrum_defaults import same_grid
+    from ..inverse import same_grid
 
     return same_grid(spectra)
 

@@ -36,7 +36,7 @@ __all__ = ["add_view_options", "view_from_args", "check_view_args", "sequence_vi
 def sequence_view(args, frames):
     """The view of a sequence's frames: the flags, else the first frame's EXIF (a video's
     frames carry none)."""
-    from ..inverse._plan import load_frame
+    from ..inverse import load_frame
     from ..io.images import read_image
 
     first = frames[0]

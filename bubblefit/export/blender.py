@@ -35,6 +35,7 @@ from pathlib import Path
 
 from ..io.atomic import write_text
 from .assets import backplate_quad, copy_envmap, write_backplate, write_obj, write_thickness_texture
+from .notes import diffuse_note, paper_model_note, roughness_note
 from .record import FittedBubble
 
 __all__ = ["write_blender", "limitations", "MIN_BLENDER"]
@@ -48,14 +49,11 @@ def limitations(bubble: FittedBubble) -> list[str]:
     out = [f"Cycles converts the film's spectrum to RGB under illuminant E; the fit used {bubble.illuminant}"
            if bubble.illuminant != "E" else "Cycles converts the film's spectrum under illuminant E, as the fit did",
            "Cycles averages s and p polarisation at each surface hit (the fit's physical model carries them apart)",
-           f"roughness: Ward's a = {bubble.roughness:.4g} exported as the GGX width alpha = a "
-           f"(Roughness = sqrt(a) = {math.sqrt(max(bubble.roughness, 0.0)):.4g})"]
-    if bubble.r_d > 0:
-        out.append(f"the diffuse term r_d = {bubble.r_d:.3g} is left out (a fully transmissive Principled BSDF has none)")
-    if bubble.model == "paper":
-        out.append(f"the paper model's t = {bubble.t:.4g} and r_s = {bubble.r_s:.3g} are not expressed: Cycles' film "
-                   "sets reflection and transmission from n_g by Fresnel's and Airy's formulas")
-    return out
+           roughness_note(bubble, "Roughness"),
+           diffuse_note(bubble, "a fully transmissive Principled BSDF has none"),
+           paper_model_note(bubble, "Cycles' film sets reflection and transmission from n_g by Fresnel's and "
+                            "Airy's formulas", with_r_s=True)]
+    return [line for line in out if line]
 
 
 SCRIPT = r'''"""Build the fitted soap bubble in Blender (written by `bubblefit export --to blender`).

@@ -26,6 +26,7 @@ import numpy as np
 from ..errors import InputError
 from ..io.atomic import write_text
 from .assets import MESH_SEGMENTS, copy_envmap, write_thickness_texture
+from .notes import diffuse_note, paper_model_note, roughness_note
 from .record import FittedBubble, sphere_mesh
 
 __all__ = ["write_gltf", "limitations", "EXTENSIONS"]
@@ -40,16 +41,12 @@ def limitations(bubble: FittedBubble) -> list[str]:
            "glTF has no environment lighting: the map, its rotation and the gain (exposure) are in the "
            "scene's extras for the viewer to set",
            "the background photo is not part of a glTF scene",
-           f"roughness: Ward's a = {bubble.roughness:.4g} exported as the microfacet width alpha = a "
-           f"(roughnessFactor = sqrt(a) = {math.sqrt(max(bubble.roughness, 0.0)):.4g})"]
-    if bubble.r_d > 0:
-        out.append(f"the diffuse term r_d = {bubble.r_d:.3g} is not expressed (a transmissive glTF material has none)")
-    if bubble.model == "paper":
-        out.append(f"the paper model's constant t = {bubble.t:.4g} is not expressed: the viewer's Fresnel sets "
-                   "reflection and transmission")
+           roughness_note(bubble, "roughnessFactor"),
+           diffuse_note(bubble, "a transmissive glTF material has none"),
+           paper_model_note(bubble, "the viewer's Fresnel sets reflection and transmission")]
     if bubble.thickness.kind != "constant":
         out.append("the thickness is a 16-bit texture over the sphere between iridescenceThicknessMinimum and Maximum")
-    return out
+    return [line for line in out if line]
 
 
 def _quaternion(m: np.ndarray) -> list[float]:

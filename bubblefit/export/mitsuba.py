@@ -28,6 +28,7 @@ import numpy as np
 
 from ..io.atomic import write_text
 from .assets import backplate_quad, copy_envmap, write_backplate, write_obj
+from .notes import diffuse_note, paper_model_note
 from .record import FittedBubble, thickness_texture
 
 __all__ = ["write_mitsuba", "limitations", "TINT_SIZE", "thin_dielectric_reflectance"]
@@ -49,12 +50,10 @@ def limitations(bubble: FittedBubble) -> list[str]:
            "(specular_reflectance, specular_transmittance) that does not shift with the angle of view",
            "the film is mirror-smooth (thindielectric has no roughness); "
            f"the fitted roughness a = {bubble.roughness:.4g} is left out",
-           "the backplate also blocks the map behind the bubble for reflected rays at grazing angles"]
-    if bubble.r_d > 0:
-        out.append(f"the diffuse term r_d = {bubble.r_d:.3g} is left out")
-    if bubble.model == "paper":
-        out.append(f"the paper model's t = {bubble.t:.4g} is not expressed: Fresnel sets thindielectric's reflectance")
-    return out
+           "the backplate also blocks the map behind the bubble for reflected rays at grazing angles",
+           diffuse_note(bubble),
+           paper_model_note(bubble, "Fresnel sets thindielectric's reflectance")]
+    return [line for line in out if line]
 
 
 def _film_rgb(thickness_nm: np.ndarray, bubble: FittedBubble) -> np.ndarray:

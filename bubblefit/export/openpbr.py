@@ -10,6 +10,11 @@ a ``range`` node (code 0..1 to the minimum..maximum in um), in the texture coord
 ``sphere.obj`` written beside it (MaterialX's origin is the lower left, as OBJ's).
 ``specular_roughness`` is ``sqrt(a)`` (Ward's ``a`` as the microfacet width).
 
+MaterialX's own implementation of the surface (the ``open_pbr_surface`` node graph of
+MaterialX 1.39 and the GLSL generated from it) films the reflection lobe only and does not
+take the film's reflection out of the transmitted light; the export's log says so
+(docs/export.md measures what it costs).
+
 References
 ----------
 Academy Software Foundation, OpenPBR Surface specification v1.1 (thin film, thin-walled
@@ -24,6 +29,7 @@ from pathlib import Path
 
 from ..io.atomic import write_text
 from .assets import write_obj, write_thickness_texture
+from .notes import diffuse_note, paper_model_note, roughness_note
 from .record import FittedBubble
 
 __all__ = ["write_openpbr", "limitations"]
@@ -34,12 +40,14 @@ def limitations(bubble: FittedBubble) -> list[str]:
     out = ["MaterialX describes the material only: the sphere is sphere.obj, and the camera, the environment map "
            f"(its rotation {bubble.rotation_deg:g} deg and gain {bubble.exposure:.4g}) and the backplate are the "
            "renderer's to set (export.json lists them)",
-           f"roughness: Ward's a = {bubble.roughness:.4g} exported as specular_roughness = sqrt(a)"]
-    if bubble.r_d > 0:
-        out.append(f"the diffuse term r_d = {bubble.r_d:.3g} is left out")
-    if bubble.model == "paper":
-        out.append(f"the paper model's t = {bubble.t:.4g} is not expressed: the film's Fresnel sets it")
-    return out
+           "MaterialX's own open_pbr_surface (its node graph, 1.39) puts the thin film on the reflection lobe "
+           "only, and its GLSL does not take the film's reflection out of the transmitted light: what is seen "
+           "through the bubble keeps its colour and is brighter by the film's reflectance (renderers that take "
+           "the film's reflectance out of the transmitted light do not have this)",
+           roughness_note(bubble, "specular_roughness"),
+           diffuse_note(bubble),
+           paper_model_note(bubble, "the film's Fresnel sets it")]
+    return [line for line in out if line]
 
 
 def _input(node, name, type_, value=None, nodename=None, **extra):

@@ -2,13 +2,15 @@
 
 The fit of one photograph runs in stages, each in its own module:
 
-- :mod:`._observation`: the photo's noise, clipped pixels, the bubble's disc, and the photo
-  at the resolution a stage runs at.
+- :mod:`._observation`: the photo's noise, clipped pixels, which disc the fit uses, and the
+  photo at the resolution a stage runs at.
 - :mod:`._parameters`: every fitted parameter described once (unit, bounds, transform,
   reference), and one fit's table of free and held parameters.
 - :mod:`._setup`: starting values, the effects, the camera.
 - :mod:`.search`: the global thickness search (tabulated interference, candidate images).
-- :mod:`._local`: the local Levenberg-Marquardt solve.
+- :mod:`._programs`: the compiled programs (solves, renders of a level padded to a few
+  sizes), prepared, stored and loaded.
+- :mod:`._local`: the local Levenberg-Marquardt solve (:mod:`._lm`: the solver).
 - :mod:`._uncertainty`: covariance and standard errors.
 - :mod:`._maps`: per-pixel thickness maps.
 - :mod:`._verdict`: whether a fit can be trusted (``ok``) and why not.
@@ -18,20 +20,59 @@ The fit of one photograph runs in stages, each in its own module:
   (its planning, executors, record store and tables in ``_plan``, ``_executors``,
   ``_records`` and ``_tables``).
 - :mod:`.spectrum`: film thickness from a spectrometer reading (global profile likelihood).
+
+The underscored modules are this subpackage's own; code outside it takes their names from
+``bubblefit.inverse``.
 """
 
 import importlib
 
 # Names of the public namespace and the module each comes from; a submodule is imported
 # when one of its names is first used (PEP 562), so that a fit does not import the
-# spectrometer or sequence code and their libraries.
+# spectrometer or sequence code and their libraries. Besides the entry points, each
+# stage's own functions and records are named here: the stages are the subpackage's API
+# (its tests and benchmarks call them), the modules that hold them are not.
 _EXPORTS = {
-    "Disc": "_disc", "find_bubble": "_disc", "detect_disc": "_disc", "noise_sigma": "_observation",
+    # entry points and their records
     "FitOptions": "_options", "FitResult": "_options", "FitStatus": "_options", "ForwardModel": "_options",
-    "ThicknessModel": "_options", "PARAMETERS": "_parameters", "Parameter": "_parameters",
-    "ParameterTable": "_parameters", "fit_batch": "fit", "fit_photo": "fit", "SequenceOptions": "sequence",
+    "ThicknessModel": "_options", "fit_batch": "fit", "fit_photo": "fit", "SequenceOptions": "sequence",
     "SequenceResult": "sequence", "fit_sequence": "sequence", "SpectrumFit": "spectrum",
     "SpectrumOptions": "spectrum", "fit_spectrum": "spectrum", "fit_spectrum_series": "spectrum_series",
+    # observe: noise, clipped pixels, the frame, the levels, which disc
+    "Disc": "_observation", "find_bubble": "_observation", "detect_disc": "_observation",
+    "noise_sigma": "_observation", "analysis_frame": "_observation", "Level": "_observation",
+    "resolve_disc": "_observation",
+    # the parameters: described once, one fit's table, their roles, a user's settings
+    "PARAMETERS": "_parameters", "Parameter": "_parameters", "ParameterTable": "_parameters",
+    "ParameterSetting": "_parameters", "parse_setting": "_parameters", "parameter_roles": "_parameters",
+    "refined_disc": "_parameters", "extrapolated": "_parameters", "inverse": "_parameters",
+    # set up, and the camera's view
+    "Setup": "_setup", "setup": "_setup", "defaults": "_setup", "colour_settings": "_setup",
+    "fit_view": "_view", "widen_for_view": "_view",
+    # compiled programs: the padded level, its fitted pixels, the renders of a level
+    "padded": "_programs", "padded_size": "_programs", "fitted_pixels": "_programs",
+    "pixel_bucket": "_programs", "render_level": "_programs", "render_bubble": "_programs",
+    "bubble_list": "_programs",
+    # solve: Levenberg-Marquardt and the local solve
+    "LevenbergMarquardt": "_lm", "DenseDampedNewtonDescent": "_lm", "column_jacobian": "_lm",
+    "scaled_decrement": "_lm", "gauss_newton_decrement": "_lm", "robust": "_lm",
+    "LocalSolution": "_local", "remaining_step": "_local", "improves": "_local",
+    # judge: standard errors, the misfit, the verdict
+    "Misfit": "_uncertainty", "misfit": "_uncertainty", "held_keys": "_uncertainty",
+    "at_bounds": "_verdict", "clamp_to_range": "_verdict", "unresolved": "_verdict", "verdict": "_verdict",
+    # thickness maps
+    "COARSE_RADIUS": "_maps", "profile_map": "_maps", "RenderCosts": "_maps", "TracedCosts": "_map_pixels",
+    # sequences: frames, executors, records, tables
+    "FrameRef": "_plan", "load_frame": "_plan", "local_env": "_executors", "SchedulerAddress": "_executors",
+    "local_cluster": "_executors", "start_client": "_executors", "base_record": "_records",
+    "result_record": "_records", "flag_jumps": "_tables", "write_tables": "_tables", "row_ok": "_tables",
+    # spectra: what the readings are, their noise, the extrema test
+    "in_time_order": "_spectrum_defaults", "looks_normalised": "_spectrum_defaults",
+    "same_grid": "_spectrum_defaults", "series_twins": "_spectrum_defaults", "local_noise": "_spectrum_profile",
+    "positive_lamp_lstsq": "_spectrum_profile", "fringe_extrema": "_spectrum_extrema",
+    "extrema_phase": "_spectrum_extrema", "RANDOM_PHASE": "_spectrum_extrema",
+    # flat films: a drainage profile along gravity
+    "search_drainage": "_drainage_plane", "drainage_covariance": "_drainage_plane",
 }
 _SUBMODULES = ("fit", "search", "sequence", "spectrum")
 

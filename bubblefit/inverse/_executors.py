@@ -28,7 +28,7 @@ from .fit import fit_batch, fit_photo
 from ._records import base_record, one_line, result_record, warm_init
 
 __all__ = ["DEFAULT_FIT", "ChunkTask", "fit_chunk", "LocalExecutor", "DaskExecutor", "local_env",
-           "SchedulerAddress", "read_security"]
+           "SchedulerAddress", "read_security", "local_cluster", "start_client"]
 
 DEFAULT_FIT = "bubblefit.inverse.fit:fit_photo"
 
@@ -253,7 +253,7 @@ def read_security(path: str):
     return Security(require_encryption=True, **files)
 
 
-def _local_cluster(n: int):
+def local_cluster(n: int):
     """A local cluster of ``n`` single-threaded worker processes that only this process can
     use: every connection is TLS with a certificate made for this run
     (``distributed.Security.temporary``, held in memory), scheduler and workers listen on
@@ -271,7 +271,7 @@ def _local_cluster(n: int):
         raise
 
 
-def _start_client(scheduler, workers: int | None):
+def start_client(scheduler, workers: int | None):
     """(client, cluster or None, worker addresses to use) for a scheduler spec."""
     try:  # imported here: Dask costs a second of start-up that in-process runs do not need
         from distributed import Client
@@ -279,7 +279,7 @@ def _start_client(scheduler, workers: int | None):
         raise InputError("Dask is not installed: pip install 'dask[distributed]' (or use --workers 0)") from None
     cluster = None
     if scheduler is None:
-        client, cluster = _local_cluster(workers or os.cpu_count() or 1)
+        client, cluster = local_cluster(workers or os.cpu_count() or 1)
     elif isinstance(scheduler, str):
         file = getattr(scheduler, "security_file", None)
         if file is not None and not scheduler.startswith("tls://"):
@@ -356,7 +356,7 @@ class DaskExecutor:
     def __init__(self, task: ChunkTask, scheduler=None, workers: int | None = None):
         self.task = task
         self.scheduler = scheduler
-        self.client, self.cluster, self.addrs = _start_client(scheduler, workers)
+        self.client, self.cluster, self.addrs = start_client(scheduler, workers)
         self.workers = len(self.addrs)
         self.submitted = []
         try:

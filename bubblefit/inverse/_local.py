@@ -12,10 +12,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._lm import gauss_newton_decrement, presses_bound
-from ._observation import Level, Pixels
+from ._observation import Level
 from ._parameters import ParameterTable, value_and_slope
 from ._options import FitOptions
-from ._programs import SolveSettings, solve_program, stored_solver
+from ._programs import Pixels, SolveSettings, solve_program, stored_solver
 
 __all__ = ["LocalSolution", "remaining_step", "solve_local", "cost", "solution_from", "improves",
            "DECREMENT_TOLERANCE", "MAX_RESTARTS"]

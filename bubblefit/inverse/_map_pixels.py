@@ -8,7 +8,7 @@ depend on the thickness at all, so a level's pixels are traced once
 (:func:`bubblefit.model.render._trace_chunk`) and only the film's optics (the Airy film
 per wavelength and polarisation, or eq. 10's factor) are evaluated per candidate
 thickness: the map's cost for ``G`` candidates is one trace plus ``G`` optics, not ``G``
-renders of the whole image (:class:`bubblefit.inverse._maps._RenderCosts`).
+renders of the whole image (:class:`bubblefit.inverse._maps.RenderCosts`).
 
 The same separability makes the map's Jacobian diagonal: :func:`pixel_slopes` gives each
 pixel's residual and its derivative in its own thickness with one forward-mode tangent
@@ -24,8 +24,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._observation import Level, fitted_pixels
+from ._observation import Level
 from ._parameters import ParameterTable
+from ._programs import fitted_pixels
 from ..model.geometry import compose_shift
 from ..model.render import _composite, _terms, _trace_chunk, pixel_offsets
 from ..model.thickness import thickness_at

@@ -32,7 +32,7 @@ a dispersive film's factor per wavelength, :class:`bubblefit.inverse.search.Pape
 rear film of a pixel then lies at the front's height and has its thickness); other models,
 perspective views (whose rear film lies at another height) and pixels box-filtered over
 several rays trace each level's rays once and evaluate the film's optics per candidate
-(:class:`bubblefit.inverse._map_pixels.TracedCosts`; :class:`_RenderCosts`, a whole render
+(:class:`bubblefit.inverse._map_pixels.TracedCosts`; :class:`RenderCosts`, a whole render
 per candidate, gives the same costs), and their finest level is refined by a per-pixel
 Gauss-Newton solve instead of a grid (:func:`bubblefit.inverse._map_pixels.refine`,
 :data:`FINE_SOLVE`): the map's Jacobian is diagonal, and the smoothness prior's sparse
@@ -56,13 +56,14 @@ from scipy import ndimage as ndi
 
 from . import search
 from ._map_pixels import TracedCosts, refine
-from ._observation import Level, padded
+from ._observation import Level
 from ._options import FitOptions
 from ._parameters import ParameterTable
+from ._programs import padded
 from ..model.geometry import OrthographicCamera
 from ..model.thickness import drainage_profile
 
-__all__ = ["fit_map", "profile_map", "COARSE_RADIUS", "WINDOW_NM"]
+__all__ = ["fit_map", "profile_map", "RenderCosts", "COARSE_RADIUS", "WINDOW_NM"]
 
 #: Disc radius (pixels) of the pyramid's coarsest level.
 COARSE_RADIUS = 12.0
@@ -119,7 +120,7 @@ def _paper_cost(phi, m, c, t, r_s, y, w2):
     return search.pixel_costs(refl, back, y, w2)
 
 
-class _RenderCosts:
+class RenderCosts:
     """Data chi^2 of any model: the whole map rendered once per row of candidates."""
 
     def __init__(self, lev: Level, table: ParameterTable, vals: dict, env):

@@ -16,26 +16,14 @@ D. W. Marquardt, J. SIAM 11, 431-441 (1963).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ComputationError
-from ._censored import censored_residual
+from ._planar_lm import ModelFit, fit_colours
 
-__all__ = ["NewtonFit", "fit_newton", "newton_gap"]
-
-
-@dataclass
-class NewtonFit:
-    params: dict
-    stderr: dict
-    thickness: np.ndarray
-    thickness_stderr: np.ndarray
-    model: np.ndarray
-    gain: float
+__all__ = ["fit_newton", "newton_gap"]
 
 
 def newton_gap(r_um, radius_um, h0_nm):
@@ -45,7 +33,7 @@ def newton_gap(r_um, radius_um, h0_nm):
     return jnp.maximum(1000.0 * sag + h0_nm, 0.0)
 
 
-def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np.inf, iters: int = 40) -> NewtonFit:
+def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np.inf, iters: int = 40) -> ModelFit:
     """Levenberg-Marquardt fit of ``(R, cx, cy, h0, g)`` (see the module), started from ``dmap``."""
     x = view.x_um[mask]
     yy = view.y_um[mask]
@@ -72,34 +60,7 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
         h = jnp.clip(newton_gap(r, jnp.exp(t[0]), t[3]), lo, hi)
         return jnp.exp(t[4]) * lj[:, None] * fwd.rgb(h, sj)
 
-    def resid(t):
-        return (censored_residual(obs, model(t), high) / sigma).ravel()
-
-    rj = jax.jit(resid)
-    jac = jax.jit(jax.jacfwd(resid))
-    lam = 1e-3
-    r = rj(theta)
-    cost = float(r @ r)
-    for _ in range(iters):
-        J = np.asarray(jac(theta), np.float64)
-        g = J.T @ np.asarray(r)
-        H = J.T @ J
-        improved = False
-        for _ in range(12):
-            step = np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-12), -g)
-            cand = theta + jnp.asarray(step)
-            rc = rj(cand)
-            cc = float(rc @ rc)
-            if cc < cost:
-                theta, r, improved = cand, rc, True
-                small = cost - cc < 1e-9 * cost
-                cost = cc
-                lam = max(lam / 3.0, 1e-9)
-                break
-            lam *= 4.0
-        if not improved or small:
-            break
-    J = np.asarray(jac(theta), np.float64)
+    theta, r, cost, J = fit_colours(model, obs, sigma, high, theta, iters)
     dof = max(len(r) - 5, 1)
     cov = np.linalg.pinv(J.T @ J) * (cost / dof)
     t = np.asarray(theta, np.float64)
@@ -115,5 +76,5 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
               "contact_offset_nm": float(t[3]), "exposure": float(np.exp(t[4]))}
     stderr = {"radius_mm": radius_um / 1000.0 * float(se[0]), "center_x_um": float(se[1]),
               "center_y_um": float(se[2]), "contact_offset_nm": float(se[3]), "exposure": float(np.exp(t[4]) * se[4])}
-    return NewtonFit(params=params, stderr=stderr, thickness=h, thickness_stderr=h_se,
+    return ModelFit(params=params, stderr=stderr, thickness=h, thickness_stderr=h_se,
                      model=np.asarray(model(theta), np.float64), gain=float(np.exp(t[4])))

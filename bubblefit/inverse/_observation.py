@@ -4,12 +4,10 @@ The photo's noise (:func:`noise_sigma`), its clipped pixels (:func:`saturation_m
 the frame the fit analyses (:func:`analysis_frame`: a large photo cropped to the bubble
 and block-averaged, so memory is bounded by the fit's size), and the photo
 block-averaged to the resolution a stage of the fit runs at, with its weights and the
-film's geometry (:class:`Level`). The bubble's disc is chosen in :mod:`._disc`.
-
-Compiled programs see a level padded (:func:`padded`): its rows and columns rounded up to
-a few sizes, its camera replaced by the padded size's canonical one and the disc passed
-as data, so that one program serves every photo whose level pads to that size, wherever
-the bubble lies in it (a user's next photo does not compile again).
+film's geometry (:class:`Level`), and which disc the fit uses (:func:`resolve_disc`: the
+one given, a calibration's when it belongs to this photo, or the one
+:func:`bubblefit.capture.disc.find_disc` finds, :func:`find_bubble`). How compiled
+programs see a level (padded to a few sizes) is :mod:`._programs`'s.
 """
 
 from __future__ import annotations
@@ -17,19 +15,19 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-import jax.numpy as jnp
 import numpy as np
 from scipy import ndimage as ndi
 
 from ._options import FitOptions
+from ..capture.circle import detect_disc
+from ..capture.disc import NO_BUBBLE_CONTRAST, NO_BUBBLE_SPREAD, Disc, bubble_contrast, change_spread, find_disc
 from ..errors import InputError
 from ..io.images import srgb_encode, srgb_slope
-from ..model.geometry import OrthographicCamera, canonical_frame, front_hits
+from ..model.geometry import OrthographicCamera, front_hits
 from ..model.render import RenderConfig
 
 __all__ = ["Level", "Frame", "noise_sigma", "saturation_mask", "make_level", "film_geometry",
-           "block_mean", "analysis_frame", "Padded", "padded", "unpadded",
-           "padded_size", "Pixels", "fitted_pixels"]
+           "block_mean", "analysis_frame", "Disc", "find_bubble", "resolve_disc", "DISC_AGREEMENT"]
 
 
 def noise_sigma(photo: np.ndarray, read: float, shot: float, bits: int | None) -> np.ndarray:
@@ -200,121 +198,119 @@ def make_level(k, base_cfg, photo, sigma, bg, saturated, rim: float, bg_sigma=No
 
 
 # ---------------------------------------------------------------------------------------
-# A level as compiled programs see it
+# Which disc a fit uses
 # ---------------------------------------------------------------------------------------
 
-#: The finest step of the padded sizes (:func:`padded_size`).
-BUCKET = 16
+#: A calibration's disc agrees with the photo's when centre and radius are within this
+#: fraction of the radius of the disc found in the photo.
+DISC_AGREEMENT = 0.1
 
 
-def padded_size(n: int) -> int:
-    """``n`` rounded up to a multiple of ``max(BUCKET, 2^(bits(n) - 4))``: steps of 16 up to
-    255 pixels, then an eighth to a sixteenth of the size (at most 12.5 % padding), so a
-    few programs serve every photo size."""
-    step = max(BUCKET, 1 << max(0, int(n).bit_length() - 4))
-    return -(-int(n) // step) * step
+def find_bubble(photo: np.ndarray, background: np.ndarray | None = None, *,
+                sigma: np.ndarray | None = None) -> Disc:
+    """The bubble's :class:`~bubblefit.capture.disc.Disc` in ``photo`` (linear (H, W, 3)).
 
-
-@dataclass
-class Padded:
-    """A level padded at its bottom and right (:func:`padded`): the canonical
-    configuration, the photo, weights and background (jnp, float32; weight 0 in the
-    padding), and ``base``, the shift that moves the canonical disc onto the level's."""
-
-    cfg: RenderConfig
-    y: jnp.ndarray
-    w: jnp.ndarray
-    bg: jnp.ndarray | None
-    base: np.ndarray
-    #: the background photo's noise standard deviation, padded like ``bg`` (None without one)
-    bg_sigma: jnp.ndarray | None = None
-
-
-def padded(lev: Level) -> Padded:
-    """``lev`` as compiled programs see it. An orthographic level is padded to
-    :func:`padded_size` rows and columns and takes the canonical camera of that size
-    (:func:`~bubblefit.model.geometry.canonical_frame`); a perspective one, whose rays
-    depend on its size, is passed as it is (``base`` the identity)."""
-    f32 = lambda a: None if a is None else jnp.asarray(a, jnp.float32)
-    if not isinstance(lev.cfg.camera, OrthographicCamera):
-        return Padded(lev.cfg, f32(lev.y), f32(lev.w), f32(lev.bg), np.asarray([0.0, 0.0, 1.0], np.float32),
-                      f32(lev.bg_sigma))
-    h, w = lev.y.shape[:2]
-    hb, wb = padded_size(h), padded_size(w)
-    camera, base = canonical_frame(lev.cfg.camera, hb, wb)
-    pad = lambda a: None if a is None else f32(np.pad(a, ((0, hb - h), (0, wb - w), (0, 0))))
-    return Padded(replace(lev.cfg, camera=camera), pad(lev.y), pad(lev.w), pad(lev.bg), base, pad(lev.bg_sigma))
-
-
-def unpadded(lev: Level, a) -> np.ndarray:
-    """``a``, an image ``(hb, wb, ...)`` of :func:`padded`'s level, on ``lev``'s own pixels
-    (numpy, ``(h, w, ...)``): the padding at the bottom and right dropped."""
-    h, w = lev.y.shape[:2]
-    return np.asarray(a)[:h, :w]
-
-
-@dataclass
-class Pixels:
-    """The fitted pixels of a padded level (:func:`fitted_pixels`): ``rows``, ``cols``,
-    ``idx`` (steps, chunk) in the padded image, as :func:`~bubblefit.model.render.render_pixels`
-    reads them, the photo ``y`` and weights ``w`` (steps chunk, 3) there (weight 0 on the
-    entries that pad the list), and ``flat``, the pixels' flat indices in the level."""
-
-    padded: Padded
-    rows: jnp.ndarray
-    cols: jnp.ndarray
-    idx: jnp.ndarray
-    y: jnp.ndarray
-    w: jnp.ndarray
-    flat: np.ndarray
-
-    def scatter(self, lev: Level, a) -> np.ndarray:
-        """``a`` (numpy), a flat residual ``(steps chunk 3, ...)`` over this list, as the
-        flat residual ``(h w 3, ...)`` of ``lev`` (0 at the pixels not fitted)."""
-        a = np.asarray(a)
-        h, w = lev.y.shape[:2]
-        out = np.zeros((h * w, 3, *a.shape[1:]), a.dtype)
-        out[self.flat] = a.reshape(-1, 3, *a.shape[1:])[: self.flat.size]
-        return out.reshape(h * w * 3, *a.shape[1:])
-
-
-#: Lengths of a fitted-pixel list per octave (:func:`pixel_bucket`).
-BUCKETS_PER_OCTAVE = 4
-
-
-def pixel_bucket(n: int) -> int:
-    """The length a list of ``n`` fitted pixels is padded to: the next of
-    :data:`BUCKETS_PER_OCTAVE` lengths per octave, ``2^k (1 + j / BUCKETS_PER_OCTAVE)``
-    (at least 64). A disc a few percent larger or smaller mostly shares its programs, and
-    the padding costs at most a quarter of the list (a power of two cost up to all of it:
-    2104 pixels rendered as 4096)."""
-    n = max(int(n), 64)
-    top = 1 << (n - 1).bit_length()
-    step = (top // 2) // BUCKETS_PER_OCTAVE
-    return min(top, -(-n // step) * step)
-
-
-def fitted_pixels(lev: Level, chunk: int, mask: np.ndarray | None = None, *, whole_chunks: bool = False) -> Pixels:
-    """The pixels of ``lev`` a fit compares (its mask, or ``mask``), listed in the padded level
-    (:func:`padded`): their count rounded up to :func:`pixel_bucket`, or with
-    ``whole_chunks`` to a multiple of ``chunk``, the list padded by repeating its last pixel
-    with weight 0, and split into chunks of at most ``chunk``.
-    A solve renders these alone: on a disc that fills 55 % of its level, about half the
-    pixels of the padded image."""
-    pad = padded(lev)
-    w, wb = lev.y.shape[1], pad.cfg.shape[1]
-    flat = np.flatnonzero((lev.mask if mask is None else mask).reshape(-1))
-    if whole_chunks:  # a program per chunk serves every count
-        n = max(1, -(-flat.size // chunk)) * chunk
+    :func:`~bubblefit.capture.disc.find_disc`'s disc; where it refuses a rim it cannot see
+    clearly (small photos, dim rims), :func:`~bubblefit.capture.circle.detect_disc`'s, with a
+    note saying so. With a background photo, a disc that does not differ from it
+    (:func:`~bubblefit.capture.disc.bubble_contrast` below
+    :data:`~bubblefit.capture.disc.NO_BUBBLE_CONTRAST`) is not a bubble. ``sigma`` (H, W, 3)
+    is the photo's noise (default: :func:`noise_sigma` of an
+    8-bit file with the fit's default noise).
+    """
+    d = find_disc(photo, background, sigma=sigma)
+    note = ""
+    if d.found:
+        cx, cy, r = float(d.cx), float(d.cy), float(d.r)
     else:
-        n = pixel_bucket(flat.size)
-    steps = -(-n // chunk)
-    size = -(-n // steps)  # equal chunks of at most ``chunk``: the list stays about n long
-    take = np.minimum(np.arange(steps * size), max(flat.size - 1, 0))
-    rows, cols = np.divmod(flat[take], w)
-    keep = (np.arange(steps * size) < flat.size)[:, None]
-    y = np.where(keep, lev.y.reshape(-1, 3)[flat[take]], 0.0)
-    wt = np.where(keep, lev.w.reshape(-1, 3)[flat[take]], 0.0)
-    i32 = lambda a: jnp.asarray(a.reshape(steps, size), jnp.int32)
-    return Pixels(pad, i32(rows), i32(cols), i32(rows * wb + cols), jnp.asarray(y, jnp.float32),
-                  jnp.asarray(wt, jnp.float32), flat)
+        # With a background photo the contrast check below still refuses a photo without
+        # a bubble.
+        try:
+            cx, cy, r = detect_disc(photo, background)
+        except InputError:
+            return Disc(float("nan"), float("nan"), float("nan"), found=False, contrast=float(d.contrast),
+                        reason=d.reason or "no bubble found in the photo")
+        note = (f"the bubble's rim is not clear ({d.reason}); the disc comes from the simpler detector: "
+                "check it, or give --disc")
+    contrast = float("nan")
+    if background is not None:
+        sig = sigma if sigma is not None else noise_sigma(photo, 2e-3, 2e-4, 8)
+        contrast = bubble_contrast(photo, background, sig, (cx, cy, r))
+        if contrast < NO_BUBBLE_CONTRAST and change_spread(photo, background, sig) < NO_BUBBLE_SPREAD:
+            return Disc(float(cx), float(cy), float(r), found=False, contrast=contrast,
+                        reason=f"no bubble: the photo matches the background photo within its noise "
+                               f"(contrast {contrast:.2f} noise units on the best disc)")
+    return Disc(float(cx), float(cy), float(r), found=True, contrast=contrast, reason=note)
+
+
+def _detect(photo, background, opts: FitOptions) -> Disc:
+    """:func:`find_bubble` on a copy block-averaged to at most ``opts.analysis_size`` pixels."""
+    k = max(1, math.ceil(max(photo.shape[:2]) / opts.analysis_size))
+    small = block_mean(photo, k) if k > 1 else photo
+    bsmall = None if background is None else (block_mean(background, k) if k > 1 else background)
+    sigma = np.sqrt(np.maximum(noise_sigma(photo if k == 1 else small, opts.noise_read, opts.noise_shot,
+                                           opts.bits) ** 2 / (k * k), 1e-30))
+    d = find_bubble(small, bsmall, sigma=sigma)
+    if k == 1 or not d.found:
+        return d
+    return replace(d, cx=d.cx * k, cy=d.cy * k, r=d.r * k)
+
+
+def _no_bubble(found: Disc) -> str:
+    """The one line that refuses a photo in which the disc detector
+    (:func:`~bubblefit.capture.disc.find_disc`) found no bubble: fitting a disc it did not
+    find (the simpler detector's guess) measured films that were not there."""
+    why = found.reason if not found.found else "no rim of a bubble is clear in the photo"
+    return f"{why}; give the bubble's disc (--disc CX,CY,R) or a scene file with its camera to fit it anyway"
+
+
+def _agrees(a, b) -> bool:
+    return math.hypot(a[0] - b[0], a[1] - b[1]) <= DISC_AGREEMENT * b[2] and abs(a[2] - b[2]) <= DISC_AGREEMENT * b[2]
+
+
+def resolve_disc(photo, background, opts: FitOptions, given=None) -> tuple[tuple, list]:
+    """``(disc, warnings)``: the disc a fit uses (``opts``: a ``FitOptions``).
+
+    ``given`` (the options' or the scene's disc) is used as it is. A calibration's disc
+    (``opts.calibration_disc``) is used only when the photo has the calibration frame's
+    size (``opts.calibration_size``, when known) and agrees with the photo: the disc
+    found in it is the same (:data:`DISC_AGREEMENT`) or, with a background photo, the
+    calibration's disc outlines the change between the pair at least as well
+    (:func:`bubble_contrast`, within 20%); otherwise the disc found is used and a warning
+    says why. With neither, the disc is found; a photo whose rim
+    :func:`~bubblefit.capture.disc.find_disc` does not find (no bubble, or only the simpler
+    detector's guess) raises :class:`InputError` (:func:`_no_bubble`).
+    """
+    if given is not None:
+        return tuple(float(v) for v in given), []
+    H, W = photo.shape[:2]
+    cal = opts.calibration_disc
+    if cal is not None and opts.calibration_size is not None and tuple(opts.calibration_size) != (W, H):
+        found = _detect(photo, background, opts)
+        if not found.found:
+            raise InputError(found.reason)
+        cw, ch = opts.calibration_size
+        return (found.cx, found.cy, found.r), [
+            f"the calibration's disc was found in a {cw}x{ch} frame and the photo is {W}x{H}: "
+            f"used the disc found in the photo instead"]
+    found = _detect(photo, background, opts)
+    if cal is None:
+        if not found.found or found.reason:
+            raise InputError(_no_bubble(found))
+        return (found.cx, found.cy, found.r), []
+    if not found.found:
+        if found.contrast == found.contrast:  # a background photo says: no bubble
+            raise InputError(found.reason)
+        return tuple(cal), ["the calibration's disc could not be checked against the photo (no disc found in it)"]
+    if _agrees(cal, (found.cx, found.cy, found.r)):
+        return tuple(cal), []
+    if background is not None and opts.calibration_size is not None:
+        # same frame size, another disc found: the pair says which outlines the bubble
+        sig = noise_sigma(photo, opts.noise_read, opts.noise_shot, opts.bits)
+        c_cal = bubble_contrast(photo, background, sig, cal)
+        c_found = bubble_contrast(photo, background, sig, (found.cx, found.cy, found.r))
+        if c_cal >= 0.8 * c_found:
+            return tuple(cal), []
+    return (found.cx, found.cy, found.r), [
+        "the calibration's disc ({:.1f}, {:.1f}, r {:.1f}) disagrees with the bubble found in the photo "
+        "({:.1f}, {:.1f}, r {:.1f}): used the one found".format(*cal, found.cx, found.cy, found.r)]

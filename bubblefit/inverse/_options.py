@@ -206,7 +206,7 @@ class FitOptions:
 
         if self.view is not None and not isinstance(self.view, View):
             raise InputError(f"view must be a bubblefit.capture.view.View, got {self.view!r}")
-        from ..model._scene_checks import samples_per_pixel, white_balance
+        from ..model import samples_per_pixel, white_balance
         from ..optics.dispersion import parse_index
 
         if self.n_film is not None:  # a preset name becomes its law

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.images import read_image, srgb_decode
-from ._disc import resolve_disc
+from ._observation import resolve_disc
 
 __all__ = ["FrameRef", "discover_frames", "load_frame", "as_frames", "plan_chunks", "fingerprint", "fix_disc",
            "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS"]
@@ -249,7 +249,7 @@ def fix_disc(options, frames: list[FrameRef], background, scene):
     moves by a fraction of a pixel changes the static camera and recompiles the fit for
     every frame. A filmed bubble stays put, so the disc is resolved once, on the first
     readable frame, as a fit of that frame resolves it (a calibration's disc checked
-    against it, else the one found: :func:`~bubblefit.inverse._disc.resolve_disc`), held as
+    against it, else the one found: :func:`~bubblefit.inverse._observation.resolve_disc`), held as
     every frame's start and refined in each fit as ``fit`` refines it; one frame is then
     fitted as ``bubblefit fit`` fits it (give ``FitOptions.disc`` for a bubble that moves).
     """

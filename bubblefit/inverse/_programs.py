@@ -6,10 +6,14 @@ The fit's algorithm (:mod:`.fit`, :mod:`._local`, :mod:`.search`, :mod:`._maps`,
 store (:func:`bubblefit.io.executables.stored`; the model's own programs come from
 :mod:`bubblefit.model.programs`) and starts their compiles ahead (:func:`warm_up`).
 
-Compiled solvers are cached per static configuration (effects, parameter table, padded
-size): a level is padded and its disc passed as data
-(:func:`~bubblefit.inverse._observation.padded`), so photos of any framing whose levels
-pad to the same size share the compiled solves and the persistent cache's programs.
+Compiled programs see a level padded (:func:`padded`): its rows and columns rounded up to
+a few sizes, its camera replaced by the padded size's canonical one and the disc passed
+as data, so that one program serves every photo whose level pads to that size, wherever
+the bubble lies in it (a user's next photo does not compile again); a solve renders the
+level's fitted pixels alone, listed in the padded image (:func:`fitted_pixels`). Compiled
+solvers are cached per static configuration (effects, parameter table, padded size), so
+photos of any framing whose levels pad to the same size share the compiled solves and the
+persistent cache's programs.
 """
 
 from __future__ import annotations
@@ -23,19 +27,145 @@ import numpy as np
 import optimistix as optx
 
 from ._lm import JACOBIANS, MAX_REJECTIONS, LevenbergMarquardt, robust
-from ._observation import Level, Padded, Pixels, fitted_pixels, padded, unpadded
+from ._observation import Level
 from ._options import FitOptions
 from ._parameters import ParameterTable
 from ..io.executables import stored
-from ..model.geometry import OrthographicCamera, compose_shift
+from ..model.geometry import OrthographicCamera, canonical_frame, compose_shift
 from ..model.programs import prepare_loaded, render_loaded
 from ..model.render import RenderConfig, render_pixels
 
 __all__ = ["solver", "stored_solver", "batched_solver", "reporter", "held_values", "solve_program",
            "prepare_local", "prepare_reporter", "render_level", "prepare_render_level", "render_bubble",
            "prepare_render_bubble", "final_params", "SolveSettings", "FINAL_SOLVE", "SEARCH_SOLVE", "WARM_SOLVE",
-           "FINAL_JACOBIAN", "FINAL_COMPILE", "SEARCH_COMPILE", "warm_up"]
+           "FINAL_JACOBIAN", "FINAL_COMPILE", "SEARCH_COMPILE", "warm_up", "Padded", "padded", "unpadded",
+           "padded_size", "Pixels", "fitted_pixels", "pixel_bucket", "bubble_list"]
 
+
+# ---------------------------------------------------------------------------------------
+# A level as compiled programs see it
+# ---------------------------------------------------------------------------------------
+
+#: The finest step of the padded sizes (:func:`padded_size`).
+BUCKET = 16
+
+
+def padded_size(n: int) -> int:
+    """``n`` rounded up to a multiple of ``max(BUCKET, 2^(bits(n) - 4))``: steps of 16 up to
+    255 pixels, then an eighth to a sixteenth of the size (at most 12.5 % padding), so a
+    few programs serve every photo size."""
+    step = max(BUCKET, 1 << max(0, int(n).bit_length() - 4))
+    return -(-int(n) // step) * step
+
+
+@dataclass
+class Padded:
+    """A level padded at its bottom and right (:func:`padded`): the canonical
+    configuration, the photo, weights and background (jnp, float32; weight 0 in the
+    padding), and ``base``, the shift that moves the canonical disc onto the level's."""
+
+    cfg: RenderConfig
+    y: jnp.ndarray
+    w: jnp.ndarray
+    bg: jnp.ndarray | None
+    base: np.ndarray
+    #: the background photo's noise standard deviation, padded like ``bg`` (None without one)
+    bg_sigma: jnp.ndarray | None = None
+
+
+def padded(lev: Level) -> Padded:
+    """``lev`` as compiled programs see it. An orthographic level is padded to
+    :func:`padded_size` rows and columns and takes the canonical camera of that size
+    (:func:`~bubblefit.model.geometry.canonical_frame`); a perspective one, whose rays
+    depend on its size, is passed as it is (``base`` the identity)."""
+    f32 = lambda a: None if a is None else jnp.asarray(a, jnp.float32)
+    if not isinstance(lev.cfg.camera, OrthographicCamera):
+        return Padded(lev.cfg, f32(lev.y), f32(lev.w), f32(lev.bg), np.asarray([0.0, 0.0, 1.0], np.float32),
+                      f32(lev.bg_sigma))
+    h, w = lev.y.shape[:2]
+    hb, wb = padded_size(h), padded_size(w)
+    camera, base = canonical_frame(lev.cfg.camera, hb, wb)
+    pad = lambda a: None if a is None else f32(np.pad(a, ((0, hb - h), (0, wb - w), (0, 0))))
+    return Padded(replace(lev.cfg, camera=camera), pad(lev.y), pad(lev.w), pad(lev.bg), base, pad(lev.bg_sigma))
+
+
+def unpadded(lev: Level, a) -> np.ndarray:
+    """``a``, an image ``(hb, wb, ...)`` of :func:`padded`'s level, on ``lev``'s own pixels
+    (numpy, ``(h, w, ...)``): the padding at the bottom and right dropped."""
+    h, w = lev.y.shape[:2]
+    return np.asarray(a)[:h, :w]
+
+
+@dataclass
+class Pixels:
+    """The fitted pixels of a padded level (:func:`fitted_pixels`): ``rows``, ``cols``,
+    ``idx`` (steps, chunk) in the padded image, as :func:`~bubblefit.model.render.render_pixels`
+    reads them, the photo ``y`` and weights ``w`` (steps chunk, 3) there (weight 0 on the
+    entries that pad the list), and ``flat``, the pixels' flat indices in the level."""
+
+    padded: Padded
+    rows: jnp.ndarray
+    cols: jnp.ndarray
+    idx: jnp.ndarray
+    y: jnp.ndarray
+    w: jnp.ndarray
+    flat: np.ndarray
+
+    def scatter(self, lev: Level, a) -> np.ndarray:
+        """``a`` (numpy), a flat residual ``(steps chunk 3, ...)`` over this list, as the
+        flat residual ``(h w 3, ...)`` of ``lev`` (0 at the pixels not fitted)."""
+        a = np.asarray(a)
+        h, w = lev.y.shape[:2]
+        out = np.zeros((h * w, 3, *a.shape[1:]), a.dtype)
+        out[self.flat] = a.reshape(-1, 3, *a.shape[1:])[: self.flat.size]
+        return out.reshape(h * w * 3, *a.shape[1:])
+
+
+#: Lengths of a fitted-pixel list per octave (:func:`pixel_bucket`).
+BUCKETS_PER_OCTAVE = 4
+
+
+def pixel_bucket(n: int) -> int:
+    """The length a list of ``n`` fitted pixels is padded to: the next of
+    :data:`BUCKETS_PER_OCTAVE` lengths per octave, ``2^k (1 + j / BUCKETS_PER_OCTAVE)``
+    (at least 64). A disc a few percent larger or smaller mostly shares its programs, and
+    the padding costs at most a quarter of the list (a power of two cost up to all of it:
+    2104 pixels rendered as 4096)."""
+    n = max(int(n), 64)
+    top = 1 << (n - 1).bit_length()
+    step = (top // 2) // BUCKETS_PER_OCTAVE
+    return min(top, -(-n // step) * step)
+
+
+def fitted_pixels(lev: Level, chunk: int, mask: np.ndarray | None = None, *, whole_chunks: bool = False) -> Pixels:
+    """The pixels of ``lev`` a fit compares (its mask, or ``mask``), listed in the padded level
+    (:func:`padded`): their count rounded up to :func:`pixel_bucket`, or with
+    ``whole_chunks`` to a multiple of ``chunk``, the list padded by repeating its last pixel
+    with weight 0, and split into chunks of at most ``chunk``.
+    A solve renders these alone: on a disc that fills 55 % of its level, about half the
+    pixels of the padded image."""
+    pad = padded(lev)
+    w, wb = lev.y.shape[1], pad.cfg.shape[1]
+    flat = np.flatnonzero((lev.mask if mask is None else mask).reshape(-1))
+    if whole_chunks:  # a program per chunk serves every count
+        n = max(1, -(-flat.size // chunk)) * chunk
+    else:
+        n = pixel_bucket(flat.size)
+    steps = -(-n // chunk)
+    size = -(-n // steps)  # equal chunks of at most ``chunk``: the list stays about n long
+    take = np.minimum(np.arange(steps * size), max(flat.size - 1, 0))
+    rows, cols = np.divmod(flat[take], w)
+    keep = (np.arange(steps * size) < flat.size)[:, None]
+    y = np.where(keep, lev.y.reshape(-1, 3)[flat[take]], 0.0)
+    wt = np.where(keep, lev.w.reshape(-1, 3)[flat[take]], 0.0)
+    i32 = lambda a: jnp.asarray(a.reshape(steps, size), jnp.int32)
+    return Pixels(pad, i32(rows), i32(cols), i32(rows * wb + cols), jnp.asarray(y, jnp.float32),
+                  jnp.asarray(wt, jnp.float32), flat)
+
+
+# ---------------------------------------------------------------------------------------
+# The programs
+# ---------------------------------------------------------------------------------------
 
 #: The final solve's Jacobian after a global search (a key of
 #: :data:`~bubblefit.inverse._local.JACOBIANS`): by columns, faster per step on the fit
@@ -103,7 +233,7 @@ def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_st
     for the solve's program as ``(name, value)`` pairs, ``()`` for XLA's defaults).
 
     ``args = (fixed, env, background, background_sigma, photo, weights, base, (rows, cols, idx))``: the
-    fitted pixels of a padded level (:func:`~bubblefit.inverse._observation.fitted_pixels`);
+    fitted pixels of a padded level (:func:`fitted_pixels`);
     the residual is ``robust((render - photo) * weights)`` over them (the weights widened by
     the background photo's noise, ``background_sigma``, carried by ``dI/dL_b``; Deming,
     J. Wiley 1943: the errors-in-variables weighting), flattened, rendered
@@ -233,7 +363,7 @@ def prepare_render_level(p, lev: Level, env, cfg: RenderConfig | None = None, te
 RIM_MARGIN_PX = 1.5
 
 
-def _bubble_list(p, lev: Level) -> tuple[Padded, Pixels | None, object]:
+def bubble_list(p, lev: Level) -> tuple[Padded, Pixels | None, object]:
     """``(padded level, list, p)`` for :func:`render_bubble`: the pixels whose centre lies
     within :data:`RIM_MARGIN_PX` of the disc that ``p``'s refinement moves the level's disc
     to (``None`` where the shortcut does not apply: not an orthographic camera, or a
@@ -252,11 +382,11 @@ def _bubble_list(p, lev: Level) -> tuple[Padded, Pixels | None, object]:
 
 def render_bubble(p, lev: Level, env) -> np.ndarray:
     """:func:`render_level`'s image of ``lev`` (numpy, float32), with only the pixels the
-    bubble can reach rendered (:func:`_bubble_list`): outside them the image is the
+    bubble can reach rendered (:func:`bubble_list`): outside them the image is the
     background photo, which is what the render's composite puts where a ray misses the
     bubble. On a disc that fills 55 % of the photo, 0.20 s against 0.28 s for 320x320
     pixels; the same values wherever the shortcut does not apply."""
-    pad, px, q = _bubble_list(p, lev)
+    pad, px, q = bubble_list(p, lev)
     if px is None:
         return render_level(p, lev, env)
     vals = np.asarray(render_loaded(q, pad.cfg, env, pad.bg, pixels=(px.rows, px.cols, px.idx)))
@@ -269,7 +399,7 @@ def prepare_render_bubble(p, lev: Level, env) -> None:
     """Start compiling (or loading) :func:`render_bubble`'s program in the background: for
     the list of ``p``'s disc (a refined disc whose list pads to another length compiles
     its own)."""
-    pad, px, q = _bubble_list(p, lev)
+    pad, px, q = bubble_list(p, lev)
     if px is None:
         prepare_render_level(p, lev, env)
     else:

@@ -8,9 +8,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ._disc import resolve_disc
 from ..capture.view import perspective_from_disc
-from ._observation import Frame, Level, analysis_frame, make_level, saturation_mask
+from ._observation import Frame, Level, analysis_frame, make_level, resolve_disc, saturation_mask
 from ._options import ColourSettings, FitOptions
 from ._parameters import ALIASES, DISC_PARAMETERS, PARAMETERS, ParameterTable, THICKNESS_PARAMETERS
 from ..errors import InputError

@@ -22,7 +22,7 @@ import numpy as np
 from scipy import optimize
 
 __all__ = ["ProfileProblem", "rss_grids", "local_minima", "residual_correlation", "second_difference_noise",
-           "local_noise", "refine_d",
+           "local_noise", "refine_d", "positive_lamp_lstsq",
            "second_minimum", "refine_near", "refine_dw", "profile_variance"]
 
 
@@ -82,7 +82,7 @@ class ProfileProblem:
         a, y = self._weighted(plain), self._weighted(self.y)
         j = self.basis.shape[1]
         if self.positive:
-            coef = _positive_lamp_lstsq(a, y, self.basis)
+            coef = positive_lamp_lstsq(a, y, self.basis)
             return coef, plain @ coef
         coef, *_ = np.linalg.lstsq(a, y, rcond=None)
         if float(np.sum(a[:, :j] @ coef[:j])) <= 0.0:
@@ -162,7 +162,7 @@ def rss_grids(problems: list[ProfileProblem], thickness: np.ndarray, w: float, l
     return out
 
 
-def _positive_lamp_lstsq(a: np.ndarray, y: np.ndarray, basis: np.ndarray, samples: int = 256) -> np.ndarray:
+def positive_lamp_lstsq(a: np.ndarray, y: np.ndarray, basis: np.ndarray, samples: int = 256) -> np.ndarray:
     """Least squares ``a @ coef ~ y`` with the lamp ``basis @ coef[:J]`` >= 0 at every
     wavelength (checked on at most ``samples`` of them, evenly spread: the lamp is a
     low-degree series) and the other coefficients (the additive stray light) free.

@@ -59,7 +59,7 @@ from ._observation import Level
 from ._parameters import PARAMETERS, ParameterTable
 from ._programs import reporter
 
-__all__ = ["Uncertainty", "uncertainty", "Misfit", "misfit", "OUTLIER_CHI2"]
+__all__ = ["Uncertainty", "uncertainty", "Misfit", "misfit", "held_keys", "OUTLIER_CHI2", "widened"]
 
 #: A pixel whose chi^2 with the model-error floor, summed over its three channels, exceeds
 #: this is an outlier: P(chi^2_3 > 30) = 1.4e-6 (module docstring).
@@ -159,7 +159,7 @@ def _cluster_sandwich(jac: np.ndarray, r: np.ndarray, shape: tuple, block: int) 
     return gb.T @ gb * (nb / max(nb - p, 1)) if nb > p else np.full((p, p), np.nan)
 
 
-def _held_keys(table: ParameterTable) -> set:
+def held_keys(table: ParameterTable) -> set:
     """Reported keys without a standard error: the held parameters (``f``, and ``r_d``,
     ``r_s`` with ``t`` held too, for a held split)."""
     held = {n for n, _ in table.held if n not in table.free}
@@ -180,7 +180,15 @@ def _widest(cov_birge: np.ndarray, a_inv: np.ndarray, jac, r, lev: Level):
     sandwich's correlations; and the largest widening over the noise-only errors."""
     radius = float(lev.cfg.camera.disc()[2]) if hasattr(lev.cfg.camera, "disc") else min(lev.y.shape[:2]) / 2
     block = max(3, int(round(radius / BLOCKS_PER_RADIUS)))
-    sand = a_inv @ _cluster_sandwich(jac, r, lev.y.shape, block) @ a_inv
+    return widened(cov_birge, a_inv, jac, r, lev.y.shape, block)
+
+
+def widened(cov_birge: np.ndarray, a_inv: np.ndarray, jac, r, shape: tuple, block: int):
+    """Each parameter's larger variance of the Birge estimate ``cov_birge`` and the cluster
+    sandwich over square blocks of ``block`` pixels (``jac``, ``r`` in the (h, w, 3)
+    layout of ``shape``), with the sandwich's correlations; and the largest widening over
+    the noise-only errors ``a_inv`` (module docstring)."""
+    sand = a_inv @ _cluster_sandwich(jac, r, shape, block) @ a_inv
     d_b, d_s = np.diag(cov_birge), np.diag(sand)
     if not (np.all(np.isfinite(sand)) and np.all(d_s > 0)):
         return cov_birge, float(np.sqrt(np.max(d_b / np.diag(a_inv))))
@@ -216,7 +224,7 @@ def uncertainty(sol: LocalSolution, table: ParameterTable, lev: Level, robust_sc
             cov_z = np.full((len(table.free), len(table.free)), np.nan)
             finite = False
         gmat = {k: np.asarray(g, np.float64).reshape(-1) for k, g in rep_jac(zj, sol.fixed).items()}
-        drop = _held_keys(table)
+        drop = held_keys(table)
         names = tuple(k for k in reported if k not in drop)
         g = np.stack([gmat[k] for k in names]) if names else np.zeros((0, len(table.free)))
         cov = g @ cov_z @ g.T

@@ -7,7 +7,7 @@ about +y, from a linear (H, W, 3) photo and its environment map. It runs the sta
 :mod:`bubblefit.inverse`, each in its own module:
 
 1. Observation (:mod:`._observation`): the photo's noise, clipped pixels, the bubble's
-   disc (chosen in :mod:`._disc`, found by :mod:`bubblefit.capture.disc`), and the photo
+   disc (found by :mod:`bubblefit.capture.disc`), and the photo
    at the fit's and the search's resolutions.
 2. Parameters (:mod:`._parameters`): effects are decided once
    (:func:`bubblefit.model.effects.resolve`) from the starting values and the whole
@@ -53,10 +53,10 @@ import numpy as np
 from . import search
 from ._local import DECREMENT_TOLERANCE, LocalSolution, remaining_step, solution_from, solve_local
 from ._maps import fit_map
-from ._observation import fitted_pixels, noise_sigma
+from ._observation import noise_sigma
 from ..capture.circle import detect_disc
 from ._programs import (FINAL_SOLVE, SEARCH_SOLVE, WARM_SOLVE, SolveSettings, batched_solver, final_params,
-                        held_values, render_bubble, render_level, reporter, warm_up)
+                        fitted_pixels, held_values, render_bubble, render_level, reporter, warm_up)
 from ._options import FitOptions, FitResult
 from ._parameters import THICKNESSES, extrapolated, parameter_roles, refined_disc
 from ._setup import Setup, defaults, setup

@@ -54,6 +54,8 @@ from ..errors import ComputationError, InputError
 from ..lighting import coaxial
 from ..optics import dispersion, spectral
 from ._censored import BLACK_CLIP, censored_residual
+from ._drainage_plane import EXPONENT_RANGE, film_height, fit_drainage
+from ._options import FitOptions
 
 __all__ = ["PlanarView", "PlanarForward", "PlanarResult", "fit_planar", "view_of"]
 
@@ -76,13 +78,17 @@ SPECTRAL_SAMPLES = 80
 @dataclass(frozen=True)
 class PlanarView:
     """Per pixel (H, W): on the film (``mask``), ``sin2`` of the incidence in air, the light's
-    ``radiance`` there, and the film coordinates in microns (``x_um``, ``y_um``)."""
+    ``radiance`` there, the film coordinates in microns (``x_um``, ``y_um``; scene units
+    under an area light), and the ``height`` along the film's up direction normalised to
+    its frame (+1 at the top edge, -1 at the bottom; :func:`._drainage_plane.film_height`;
+    under coaxial light the image's top row is the film's top)."""
 
     mask: np.ndarray
     sin2: np.ndarray
     radiance: np.ndarray
     x_um: np.ndarray
     y_um: np.ndarray
+    height: np.ndarray
 
 
 def view_of(scene) -> PlanarView:
@@ -91,16 +97,27 @@ def view_of(scene) -> PlanarView:
     if scene.light == "coaxial":
         yy, xx = np.mgrid[0:h, 0:w].astype(np.float64) + 0.5
         return PlanarView(mask=np.ones((h, w), bool), sin2=np.zeros((h, w)), radiance=np.ones((h, w)),
-                          x_um=xx * scene.pixel_um, y_um=yy * scene.pixel_um)
+                          x_um=xx * scene.pixel_um, y_um=yy * scene.pixel_um,
+                          height=film_height(yy - 0.5 * h, h, top_is_positive=False))
     from ..lighting.area import view_plane
 
     rows, cols = np.mgrid[0:h, 0:w].astype(np.float64)
     o, d = scene.camera.rays(jnp.asarray(rows), jnp.asarray(cols))
     v = view_plane(np.asarray(o, np.float64), np.asarray(d, np.float64), scene.plane, scene.area)
-    mask = v.mask & (v.radiance > 0)
+    # A pixel counts when its whole footprint shows the film and the light: the rays
+    # through its four corners too. A pixel that the frame's edge or the light's mirror
+    # image crosses mixes the film with what lies beyond (a camera integrates over the
+    # pixel), and reads as a dimmer film of another colour.
+    cr, cc = np.mgrid[0:h + 1, 0:w + 1].astype(np.float64) - 0.5
+    oc, dc = scene.camera.rays(jnp.asarray(cr), jnp.asarray(cc))
+    vc = view_plane(np.asarray(oc, np.float64), np.asarray(dc, np.float64), scene.plane, scene.area, strict=False)
+    seen = vc.mask & (vc.radiance > 0)
+    whole = seen[:-1, :-1] & seen[1:, :-1] & seen[:-1, 1:] & seen[1:, 1:]
+    mask = v.mask & (v.radiance > 0) & whole
     if not np.any(mask):
         raise InputError("the area light is not seen in the film from this camera (no pixel reflects it)")
-    return PlanarView(mask=mask, sin2=v.sin2_air, radiance=v.radiance, x_um=v.x, y_um=v.y)
+    return PlanarView(mask=mask, sin2=v.sin2_air, radiance=v.radiance, x_um=v.x, y_um=v.y,
+                      height=film_height(v.y, scene.plane.size[1]))
 
 
 class PlanarForward:
@@ -144,6 +161,8 @@ class PlanarResult:
     warnings: list = field(default_factory=list)
     order_hops: int = 0
     reduced_chi2: float = float("nan")
+    reduced_chi2_floor: float = float("nan")
+    order_from: str = ""
 
     @property
     def residual_rms(self) -> float:
@@ -155,7 +174,8 @@ class PlanarResult:
         m = self.thickness_map[np.isfinite(self.thickness_map)]
         return {"kind": self.kind, "ok": self.ok, "warnings": self.warnings, "params": self.params,
                 "stderr": self.stderr, "gain": self.gain, "noise_sigma": self.sigma,
-                "reduced_chi2": self.reduced_chi2, "order_hops": self.order_hops,
+                "reduced_chi2": self.reduced_chi2, "reduced_chi2_floor": self.reduced_chi2_floor,
+                "order_from": self.order_from, "order_hops": self.order_hops,
                 "thickness_nm": {"min": float(m.min()), "median": float(np.median(m)), "max": float(m.max()),
                                  "median_stderr": float(np.nanmedian(self.thickness_stderr_map))} if m.size else None}
 
@@ -165,7 +185,8 @@ class PlanarResult:
         if j:
             lines.append(f"thickness {j['min']:.1f} .. {j['max']:.1f} nm (median {j['median']:.1f}, "
                          f"median standard error {j['median_stderr']:.2f} nm)")
-        lines.append(f"ok: {'yes' if self.ok else 'no'}; reduced chi^2 {self.reduced_chi2:.3g}; "
+        lines.append(f"ok: {'yes' if self.ok else 'no'}; reduced chi^2 {self.reduced_chi2:.3g} "
+                     f"({self.reduced_chi2_floor:.3g} with the model-error floor); "
                      f"order hops {self.order_hops}" + ("; " + "; ".join(self.warnings) if self.warnings else ""))
         return "\n".join(lines)
 
@@ -361,6 +382,137 @@ def _hops(dmap: np.ndarray, limit: float) -> int:
     return int(np.nansum(a > limit) + np.nansum(b > limit))
 
 
+def _checked_region(scene, view, reference_region, reference_nm, w: int, h: int):
+    """``(region, reference_nm)``: the reference region and its thickness, given or the
+    scene's; a region outside the film is refused."""
+    region = reference_region if reference_region is not None else scene.reference_region
+    ref_nm = reference_nm if reference_nm is not None else scene.reference_nm
+    if region is not None:
+        x0, y0, x1, y1 = region
+        if x0 < 0 or y0 < 0 or x1 > w or y1 > h or not view.mask[y0:y1, x0:x1].any():
+            raise InputError(f"the reference region {x0},{y0},{x1},{y1} lies outside the film")
+    return region, ref_nm
+
+
+def _constant_thickness(y, lum, table, i0, i1, a, grid, fringe_nm: float, sigma2: float, warnings: list,
+                        clip_high: float = np.inf):
+    """``(gain, thickness per pixel)`` of a film of one thickness: each candidate of ``grid``
+    with its own least-squares exposure (``g_j = sum y.T_j / sum |T_j|^2``; the exposure
+    found first belongs to one order). Another order that fits nearly as well adds a
+    warning: a near-neutral film whose brightness the unknown exposure absorbs.
+
+    Channels clipped at black or white are left out of these sums: a film colour outside
+    the gamut records 0 in a channel where the model is negative, and a plain least-squares
+    misfit there favours the order whose model is least negative (on Blender Cycles' 480 nm
+    water film, validation case cyc_film_const_panel, red clipped: the third order at
+    672 nm, whose hue is within 1.5 % of the second's)."""
+    seen = ((y > BLACK_CLIP) & (y < clip_high)).astype(np.float64)
+    A = np.zeros(len(grid))
+    B = np.zeros(len(grid))
+    for s in range(0, len(y), 1024):
+        sl = slice(s, s + 1024)
+        t = lum[sl, None, None] * ((1 - a[sl, None, None]) * table[i0[sl]] + a[sl, None, None] * table[i1[sl]])
+        t = t * seen[sl, None, :]
+        A += np.einsum("pc,pdc->d", y[sl], t)
+        B += np.einsum("pdc,pdc->d", t, t)
+    total = float(np.sum((y * y)[seen > 0])) - A * A / np.maximum(B, 1e-30)
+    j = int(np.argmin(total))
+    gain = float(A[j] / B[j])
+    dpix = np.full(len(y), grid[j])
+    # "Nearly": worse by less than one noise variance (sigma^2, summed over the channels)
+    # per pixel on average, i.e. colours closer than the noise of a single pixel: a small
+    # mismatch of the model (a dispersion law, the lamp: ~1e-3 of the signal against the
+    # independent renderer) is common to all pixels and does not average out.
+    far = np.abs(grid - grid[j]) > 0.75 * fringe_nm  # past the neighbouring minima of this order
+    if far.any() and (total[far].min() - total[j]) / len(y) < sigma2:
+        alt = grid[far][int(np.argmin(total[far]))]
+        warnings.append(f"the colour fits {grid[j]:.0f} nm and {alt:.0f} nm nearly as well (another order); "
+                        "name the thickness of a region with --reference-region")
+    return gain, dpix
+
+
+def _drainage_start(cost, grid, view, mask, region, ref_nm, window: float):
+    """``(start, order_from)`` of a drainage profile along gravity: its order from the colour
+    sequence over the whole film (:func:`._drainage_plane.search_drainage`); a named region,
+    if any, narrows the search to profiles through its value."""
+    from ._drainage_plane import search_drainage
+
+    ref = None
+    if region is not None:
+        h, w = mask.shape
+        x0, y0, x1, y1 = region
+        inside = np.zeros((h, w), bool)
+        inside[y0:y1, x0:x1] = True
+        ref = (float(np.mean((1.0 - view.height[inside & mask]) * 0.5)), float(ref_nm))
+    start = search_drainage(cost, grid, view.height[mask], ref, window)
+    return start, "drainage profile" + (" through the reference region" if ref else "")
+
+
+def _order_seeds(y, lum, cost, best, grid, mask, region, ref_nm, lo: float, fringe_nm: float, window: float,
+                 frame_height=None):
+    """``(seeds, order_from)``: (H, W) thicknesses that fix the interference order (NaN
+    elsewhere): the reference region's, each pixel's best candidate within ``window`` of
+    ``ref_nm``; without one, the black film or contact point; without those, on a framed
+    film under an area light (``frame_height``: each pixel's height along the frame's up
+    direction), its drainage profile."""
+    h, w = mask.shape
+    seeds = np.full((h, w), np.nan)
+    if region is not None:
+        x0, y0, x1, y1 = region
+        inside = np.zeros((h, w), bool)
+        inside[y0:y1, x0:x1] = True
+        sel = inside[mask]
+        near = np.abs(grid - ref_nm) <= window
+        jj = np.flatnonzero(near)
+        pick = grid[jj[np.argmin(cost[sel][:, jj], axis=1)]]
+        seeds[inside & mask] = pick
+        return seeds, "reference region"
+    # A black film or a contact point: pixels that match a film thinner than 0.3
+    # fringe (82 nm of air, 62 nm of water at 550 nm: the dark grey end of the colour
+    # chart) and are dark (below 0.35 x the median brightness, which a thick film
+    # fading to its grey mean reflectance, the other neutral colour, never is).
+    bright = y.sum(-1) / np.maximum(lum, 1e-9)
+    thin = best <= lo + 0.3 * fringe_nm
+    good = cost.min(1) <= np.percentile(cost.min(1), 75)
+    pick = thin & good & (bright <= 0.35 * np.median(bright))
+    order_from = "thinnest"
+    if pick.sum() < 3 and frame_height is not None:
+        # A framed film without a black film: the order of its drainage profile along the
+        # frame's up direction (a global fit over the whole film, :mod:`._drainage_plane`),
+        # kept at the pixels whose best colour match lies within half the order window of
+        # it; the rest follow from them, so a local departure from the profile (a thicker
+        # swirl) keeps its own map.
+        from ..model.thickness import drainage_profile
+        from ._drainage_plane import search_drainage
+
+        prof = np.asarray(drainage_profile(frame_height[mask], *search_drainage(cost, grid, frame_height[mask])))
+        pick = good & (np.abs(best - prof) <= 0.5 * window)
+        order_from = "drainage profile"
+    if pick.sum() < 3:
+        raise InputError("no reference for the interference order: the photo has no black film or contact "
+                         "point; name a region of known thickness with --reference-region x0,y0,x1,y1=NM")
+    flat = seeds.reshape(-1)
+    flat[np.flatnonzero(mask.ravel())[pick]] = best[pick]
+    return flat.reshape(h, w), order_from
+
+
+def _exponent_at_edge(exponent: float) -> list[str]:
+    """A warning when a drainage profile's exponent sits at the edge of its range: the film
+    does not thin along its up direction as a drainage profile does."""
+    lo, hi = EXPONENT_RANGE
+    if min(abs(exponent / lo - 1), abs(exponent / hi - 1)) < 1e-3:
+        return [f"the drainage exponent sits at the edge of its range {lo:g}-{hi:g}: the film does not follow "
+                "a drainage profile along its up direction"]
+    return []
+
+
+def _on_image(mask, values, fill, channels: int = 0) -> np.ndarray:
+    """``values`` of the film's pixels placed on the (H, W) or (H, W, channels) image, ``fill`` elsewhere."""
+    out = np.full(mask.shape + ((channels,) if channels else ()), fill)
+    out[mask] = values
+    return out
+
+
 def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=None,
                kind: str | None = None, seed: int = 0, clip_high: float = np.inf) -> PlanarResult:
     """Fit a flat film's or a gap's thickness to a linear photo (H, W, 3) (the module's method).
@@ -373,12 +525,7 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     if (h, w) != (scene.height, scene.width):
         raise InputError(f"the photo is {w}x{h}, the scene's camera {scene.width}x{scene.height}")
     view = view_of(scene)
-    region = reference_region if reference_region is not None else scene.reference_region
-    ref_nm = reference_nm if reference_nm is not None else scene.reference_nm
-    if region is not None:
-        x0, y0, x1, y1 = region
-        if x0 < 0 or y0 < 0 or x1 > w or y1 > h or not view.mask[y0:y1, x0:x1].any():
-            raise InputError(f"the reference region {x0},{y0},{x1},{y1} lies outside the film")
+    region, ref_nm = _checked_region(scene, view, reference_region, reference_nm, w, h)
     lo, hi = scene.thickness_range
     fwd = PlanarForward(scene.stack, scene.lamp, scene.response, scene.na, hi)
     grid = np.arange(lo, hi + 0.5 * GRID_STEP_NM, GRID_STEP_NM)
@@ -403,57 +550,18 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     window = 0.3 * fwd.fringe_nm
     warnings: list[str] = []
 
-    seeds = np.full((h, w), np.nan)
     if kind == "constant":
-        # One thickness for the film, each candidate with its own least-squares exposure
-        # (``g_j = sum y.T_j / sum |T_j|^2``): the exposure found above belongs to one order.
-        A = np.zeros(len(grid))
-        B = np.zeros(len(grid))
-        for s in range(0, len(y), 1024):
-            sl = slice(s, s + 1024)
-            t = lum[sl, None, None] * ((1 - a[sl, None, None]) * table[i0[sl]] + a[sl, None, None] * table[i1[sl]])
-            A += np.einsum("pc,pdc->d", y[sl], t)
-            B += np.einsum("pdc,pdc->d", t, t)
-        total = float(np.sum(y * y)) - A * A / np.maximum(B, 1e-30)
-        j = int(np.argmin(total))
-        gain = float(A[j] / B[j])
-        dpix = np.full(len(y), grid[j])
-        # Another order that fits nearly as well leaves the thickness ambiguous: a
-        # near-neutral film whose brightness the unknown exposure absorbs. "Nearly": worse
-        # by less than one noise variance (sigma^2, summed over the channels) per pixel on
-        # average, i.e. colours closer than the noise of a single pixel: a small mismatch
-        # of the model (a dispersion law, the lamp: ~1e-3 of the signal against the
-        # independent renderer) is common to all pixels and does not average out.
-        far = np.abs(grid - grid[j]) > 0.75 * fwd.fringe_nm  # past the neighbouring minima of this order
-        if far.any() and (total[far].min() - total[j]) / len(y) < sigma2:
-            alt = grid[far][int(np.argmin(total[far]))]
-            warnings.append(f"the colour fits {grid[j]:.0f} nm and {alt:.0f} nm nearly as well (another order); "
-                            "name the thickness of a region with --reference-region")
+        gain, dpix = _constant_thickness(y, lum, table, i0, i1, a, grid, fwd.fringe_nm, sigma2, warnings, clip_high)
+        order_from = "colour"
+    elif kind == "drainage":
+        start, order_from = _drainage_start(cost, grid, view, mask, region, ref_nm, window)
+        # the noise and the exposure come from each pixel's own best thickness, not from
+        # the profile: a profile that does not describe the film (a film turned sideways)
+        # must show as a misfit against the noise, not set the noise
+        dpix = best.astype(np.float64)
     else:
-        if region is not None:
-            x0, y0, x1, y1 = region
-            inside = np.zeros((h, w), bool)
-            inside[y0:y1, x0:x1] = True
-            sel = inside[mask]
-            near = np.abs(grid - ref_nm) <= window
-            jj = np.flatnonzero(near)
-            pick = grid[jj[np.argmin(cost[sel][:, jj], axis=1)]]
-            seeds[inside & mask] = pick
-        else:
-            # A black film or a contact point: pixels that match a film thinner than 0.3
-            # fringe (82 nm of air, 62 nm of water at 550 nm: the dark grey end of the colour
-            # chart) and are dark (below 0.35 x the median brightness, which a thick film
-            # fading to its grey mean reflectance, the other neutral colour, never is).
-            bright = y.sum(-1) / np.maximum(lum, 1e-9)
-            thin = best <= lo + 0.3 * fwd.fringe_nm
-            good = cost.min(1) <= np.percentile(cost.min(1), 75)
-            pick = thin & good & (bright <= 0.35 * np.median(bright))
-            if pick.sum() < 3:
-                raise InputError("no reference for the interference order: the photo has no black film or contact "
-                                 "point; name a region of known thickness with --reference-region x0,y0,x1,y1=NM")
-            flat = seeds.reshape(-1)
-            flat[np.flatnonzero(mask.ravel())[pick]] = best[pick]
-            seeds = flat.reshape(h, w)
+        seeds, order_from = _order_seeds(y, lum, cost, best, grid, mask, region, ref_nm, lo, fwd.fringe_nm, window,
+                                         view.height if scene.light == "area" else None)
         dmap = _propagate(cost, grid, mask, seeds, window, smooth=3.0 * sigma2 / window ** 2,
                           relax_weight=3.0 * sigma2 / RELAX_NM ** 2)
         dpix = dmap[mask]
@@ -472,9 +580,21 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     stderr = sigma / np.sqrt(np.maximum(jj_, 1e-20))
     params, perr = {}, {}
     if kind == "constant":
+        # the noise's error, widened by the Birge ratio for a misfit and with the
+        # thickness model error of the bubble fits added in quadrature (as for a drainage
+        # profile, :mod:`._drainage_plane`)
         dd = float(np.median(dref))
         params["thickness_nm"] = dd
-        perr["thickness_nm"] = float(sigma / np.sqrt(np.sum(jj_)))
+        birge = max(1.0, float(np.mean(res ** 2) / sigma ** 2))
+        perr["thickness_nm"] = float(np.hypot(sigma * np.sqrt(birge / np.sum(jj_)), FitOptions.thickness_model_error_nm))
+    if kind == "drainage":
+        dres = fit_drainage(fwd, y, lum, sin2, view.height[mask], start, gain, sigma, lo, hi, (h, w),
+                            np.flatnonzero(mask.ravel()), clip_high)
+        params, perr = dres.params, dres.stderr
+        dref, model, gain = dres.thickness, dres.model, dres.gain
+        stderr = dres.thickness_stderr
+        res = censored_residual(y, model, clip_high, np)
+        warnings.extend(_exponent_at_edge(params["exponent"]))
     if kind == "newton":
         from ._newton import fit_newton
 
@@ -484,10 +604,12 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         stderr = nres.thickness_stderr
         res = censored_residual(y, model, clip_high, np)
     chi2 = float(np.mean(res ** 2) / sigma ** 2)
-    tmap = np.full((h, w), np.nan)
-    tmap[mask] = dref
-    smap = np.full((h, w), np.nan)
-    smap[mask] = stderr
+    # with each channel's variance sigma^2 + (model_error y)^2, the floor by which a
+    # bubble's fit is judged (FitOptions.model_error: how much independent renderers
+    # differ on the same film); ``ok`` is judged by this one
+    chi2_floor = float(np.mean(res ** 2 / (sigma ** 2 + (FitOptions.model_error * y) ** 2)))
+    tmap = _on_image(mask, dref, np.nan)
+    smap = _on_image(mask, stderr, np.nan)
     hops = _hops(tmap, window) if kind == "map" else 0
     if hops:
         warnings.append(f"{hops} neighbouring pixel pairs differ by more than {window:.0f} nm (possible order hops)")
@@ -495,15 +617,14 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     if edge.mean() > 0.05:
         warnings.append(f"{100 * edge.mean():.0f} % of the film sits at the edge of the searched range "
                         f"{lo:g}-{hi:g} nm")
-    render = np.zeros((h, w, 3))
-    render[mask] = model
-    resid = np.zeros((h, w, 3))
-    resid[mask] = res
-    ok = not warnings and chi2 < 4.0
-    if chi2 >= 4.0:
-        warnings.append(f"the model does not explain the photo (residual {math.sqrt(chi2):.1f} x the noise)")
+    render = _on_image(mask, model, 0.0, 3)
+    resid = _on_image(mask, res, 0.0, 3)
+    ok = not warnings and chi2_floor < 4.0
+    if chi2_floor >= 4.0:
+        warnings.append(f"the model does not explain the photo (residual {math.sqrt(chi2_floor):.1f} x the noise "
+                        "and the model error)")
     if not np.isfinite(tmap[mask]).all():
         raise ComputationError("the planar fit produced non-finite thicknesses")
     return PlanarResult(kind=kind, ok=ok, thickness_map=tmap, thickness_stderr_map=smap, render=render, residual=resid,
                         gain=gain, sigma=sigma, params=params, stderr=perr, warnings=warnings, order_hops=hops,
-                        reduced_chi2=chi2)
+                        reduced_chi2=chi2, reduced_chi2_floor=chi2_floor, order_from=order_from)

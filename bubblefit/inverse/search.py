@@ -42,9 +42,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._observation import fitted_pixels
 from ._parameters import ParameterTable
-from ._programs import render_level
+from ._programs import fitted_pixels, render_level
 from ..model.geometry import compose_shift
 from ..model.render import render_pixels_at, render_terms
 from ..optics import spectral
@@ -342,7 +341,7 @@ def _candidates_paper(lev, table: ParameterTable, vals: dict, grid: np.ndarray, 
 def render_candidates(base: dict, thick, cfg, env, bg, table: ParameterTable, shift):
     """Render each candidate thickness field ``thick`` (G, ...) with exposure 1: (G, H, W, 3) x2,
     the disc moved by ``shift`` before the refinement ``base`` holds (a padded level's
-    ``base``, :func:`~bubblefit.inverse._observation.padded`). The thickness maps' candidates
+    ``base``, :func:`~bubblefit.inverse._programs.padded`). The thickness maps' candidates
     (:mod:`bubblefit.inverse._maps`); constant films trace their light once instead
     (:func:`_candidates_generic`)."""
 

@@ -14,7 +14,7 @@ import importlib
 
 _EXPORTS = {
     "Image": "images", "read_image": "images", "write_image": "images", "write_preview": "images",
-    "srgb_decode": "images", "srgb_encode": "images", "preview_path": "images",
+    "srgb_decode": "encoding", "srgb_encode": "encoding", "preview_path": "images",
     "atomic_path": "atomic", "write_text": "atomic", "write_bytes": "atomic", "write_json": "atomic",
     "json_text": "atomic",
     "jax_setup": "jaxcache", "default_cache_dir": "jaxcache",

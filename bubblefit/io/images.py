@@ -19,6 +19,7 @@ import OpenImageIO as oiio
 
 from ..errors import InputError, OutputError
 from .atomic import atomic_path, preview_path
+from .encoding import PhotoReading, decide_encoding, decode_codes, srgb_decode, srgb_encode, srgb_slope
 
 __all__ = [
     "Image",
@@ -181,27 +182,6 @@ def _first_line(text: str) -> str:
     return lines[0] if lines else ""
 
 
-def srgb_decode(values: np.ndarray) -> np.ndarray:
-    """sRGB-encoded values in [0, 1] to linear: ``V / 12.92`` up to 0.04045, else
-    ``((V + 0.055) / 1.055)^2.4`` (IEC 61966-2-1:1999, sec. 5.2)."""
-    v = np.clip(np.asarray(values, dtype=np.float64), 0.0, 1.0)
-    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
-
-
-def srgb_encode(values: np.ndarray) -> np.ndarray:
-    """Linear values to sRGB-encoded values in [0, 1]: ``12.92 L`` up to 0.0031308, else
-    ``1.055 L^(1/2.4) - 0.055`` (IEC 61966-2-1:1999, sec. 5.3)."""
-    lin = np.clip(np.asarray(values, dtype=np.float64), 0.0, 1.0)
-    return np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
-
-
-def srgb_slope(encoded: np.ndarray) -> np.ndarray:
-    """``dL/dV`` of :func:`srgb_decode` at the encoded values ``V`` (the size in linear units
-    of one step of the encoded value)."""
-    v = np.clip(np.asarray(encoded, dtype=np.float64), 0.0, 1.0)
-    return np.where(v <= 0.04045, 1 / 12.92, 2.4 / 1.055 * ((v + 0.055) / 1.055) ** 1.4)
-
-
 @dataclass
 class Image:
     """A linear RGB image with what its file said about it.
@@ -226,7 +206,7 @@ class Image:
     metadata: dict = field(default_factory=dict)
     alpha_dropped: bool = False
     was_gray: bool = False
-    #: How the values were decoded (:class:`bubblefit.io.camera_files.EncodingChoice`).
+    #: How the values were decoded (:class:`bubblefit.io.encoding.EncodingChoice`).
     encoding: object = None
 
     @property
@@ -335,9 +315,9 @@ def read_image(path: str | os.PathLike, *, linear: bool | None = None, dtype=np.
         dtype: of the pixels (float64, or float32 for large photos read by the fit,
             whose arithmetic is float32: half the memory).
         allow_nan: keep NaN pixels of a float file (a thickness map is NaN off the bubble).
-        encoding: a :class:`~bubblefit.io.camera_files.PhotoReading` (or one of its
+        encoding: a :class:`~bubblefit.io.encoding.PhotoReading` (or one of its
             encodings, ``"auto"``, ``"srgb"``, ``"linear"``): how the values map to linear,
-            decided by :func:`~bubblefit.io.camera_files.decide_encoding`; ``linear``, when
+            decided by :func:`~bubblefit.io.encoding.decide_encoding`; ``linear``, when
             given, is the same as ``"linear"``/``"srgb"`` forced.
 
     Raises:
@@ -361,8 +341,6 @@ def read_image(path: str | os.PathLike, *, linear: bool | None = None, dtype=np.
     _check_path(path)
     data, bit_depth, metadata, alpha_channel = _decode_file(path)
     data, alpha_dropped, was_gray = _rgb_channels(path, data, bit_depth, alpha_channel)
-
-    from .camera_files import PhotoReading, decide_encoding, decode_codes
 
     if linear is not None:
         reading = PhotoReading("linear" if linear else "srgb", force=True)

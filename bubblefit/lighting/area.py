@@ -65,7 +65,8 @@ class Patch:
         den = dirs @ n
         safe = np.abs(den) > 1e-12
         t = np.where(safe, ((c - origins) @ n) / np.where(safe, den, 1.0), np.inf)
-        p = origins + t[..., None] * dirs
+        with np.errstate(invalid="ignore"):  # a ray along the plane: t = inf, x = y = NaN, not inside
+            p = origins + t[..., None] * dirs
         x, y = (p - c) @ right, (p - c) @ up
         if self.shape == "disc":
             inside = x * x + y * y <= self.size[0] ** 2
@@ -87,19 +88,20 @@ class PlaneView:
 
 
 def view_plane(origins: np.ndarray, dirs: np.ndarray, film: Patch, light: Patch,
-               min_cos: float = 0.05) -> PlaneView:
+               min_cos: float = 0.05, strict: bool = True) -> PlaneView:
     """The film and the light as a camera's rays see them (the module's equation, geometry part).
 
     ``origins`` and ``dirs`` (H, W, 3): the camera's rays. Raises a one-line
     :class:`~bubblefit.errors.InputError` when the film is seen edge-on (every ray meets it
-    at ``cos(theta_i) < min_cos``; 0.05 is 87 degrees) or not at all.
+    at ``cos(theta_i) < min_cos``; 0.05 is 87 degrees) or not at all (``strict``; else an
+    empty mask).
     """
     t, on_film, x, y = film.intersect(origins, dirs)
     _, n, _, _ = film.frame()
     cos_i = np.abs(dirs @ n)
-    if not np.any(on_film):
+    if strict and not np.any(on_film):
         raise InputError("the film plane does not appear in the photo (no camera ray meets it)")
-    if np.max(cos_i[on_film]) < min_cos:
+    if strict and np.max(cos_i[on_film]) < min_cos:
         raise InputError(f"the film plane is seen edge-on (every ray meets it within {np.degrees(np.arccos(min_cos)):.0f}"
                          " degrees of grazing); turn the camera towards the film")
     mask = on_film & (cos_i >= min_cos)

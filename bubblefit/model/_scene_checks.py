@@ -13,7 +13,9 @@ import numpy as np
 
 from ..errors import InputError
 from ..optics.dispersion import parse_index
-from .modes import MODELS, THICKNESS_KINDS, check_effects_table
+from ..lighting.filtering import METHODS as FILTER_METHODS
+from ..optics.spectral import SPECTRAL_METHODS
+from .modes import INTERFERENCE_MODES, MODELS, THICKNESS_KINDS
 
 __all__ = ["SCHEMA", "validate", "check_values", "check_radiance", "colour_path", "film_index", "value_range", "vector",
            "samples_per_pixel", "white_balance"]
@@ -233,3 +235,37 @@ def vector(name: str, value, n: int) -> list[float]:
     if not ok:
         raise InputError(f"scene key {name} must be a list of {n} finite numbers, got {value!r}")
     return [float(x) for x in value]
+
+
+def check_effects_table(e: dict) -> None:
+    """Values of a scene's ``[effects]`` table (``docs/design.md``, "Scene files"), checked
+    before anything is computed; raises :class:`~bubblefit.errors.InputError` naming the key."""
+
+    def one_of(key, allowed):
+        if key in e and e[key] not in allowed:
+            raise InputError(f"effects.{key} must be one of {', '.join(map(str, allowed))}, got {e[key]!r}")
+
+    one_of("interference", ("auto",) + INTERFERENCE_MODES)
+    one_of("filtering", ("auto",) + FILTER_METHODS)
+    for key in ("front_reflection", "rear_reflection", "transmission", "transmission_tint", "diffuse"):
+        if key in e and not isinstance(e[key], bool) and e[key] != "auto":
+            raise InputError(f"effects.{key} must be true, false or \"auto\", got {e[key]!r}")
+    if "bounces" in e and e["bounces"] != "auto" and not (isinstance(e["bounces"], int) and 0 <= e["bounces"] <= 64):
+        raise InputError(f"effects.bounces must be \"auto\" or an integer in [0, 64], got {e['bounces']!r}")
+    for key, lo, hi in (("nodes", 1, 32), ("window", 0, 4096), ("level", 0, 32)):
+        if key in e and not lo <= e[key] <= hi:
+            raise InputError(f"scene value effects.{key} = {e[key]} is out of range [{lo}, {hi}]")
+    if "tolerance" in e and not e["tolerance"] > 0:
+        raise InputError(f"scene value effects.tolerance = {e['tolerance']} must be positive")
+    spec = e.get("spectral", "auto")
+    if isinstance(spec, str):
+        if spec != "auto" and spec not in SPECTRAL_METHODS:
+            raise InputError(f"effects.spectral must be \"auto\", one of {', '.join(SPECTRAL_METHODS)} "
+                             f"or a table {{method, samples}}, got {spec!r}")
+    else:
+        unknown = set(spec) - {"method", "samples"}
+        method, samples = spec.get("method", "uniform"), spec.get("samples", 30)
+        if unknown or method not in SPECTRAL_METHODS or isinstance(samples, bool) \
+                or not isinstance(samples, int) or not 1 <= samples <= 4000:
+            raise InputError("effects.spectral table must be {method = uniform|reference|fourier, "
+                             f"samples = 1..4000}}, got {spec!r}")

@@ -37,9 +37,9 @@ from ..lighting.area import Patch
 from ..lighting.coaxial import Stack
 from ..optics import dispersion
 
-__all__ = ["PlanarScene", "is_planar", "is_planar_file", "load_planar", "parse_planar", "parse_region"]
+__all__ = ["PlanarScene", "is_planar", "is_planar_file", "load_planar", "parse_cap", "parse_planar", "parse_region"]
 
-THICKNESS_KINDS = ("map", "newton", "constant")
+THICKNESS_KINDS = ("map", "newton", "constant", "drainage")
 
 
 @dataclass(frozen=True)
@@ -95,10 +95,24 @@ def is_planar_file(path) -> bool:
         return False
     f = data.get("film")
     shape = f.get("shape", "sphere") if isinstance(f, dict) else "sphere"
+    if shape == "cap":
+        cap = parse_cap(f)  # a bad cap gets its own line first
+        raise InputError(f'{path}: film.shape = "cap" (a bubble of height {cap.height:g} on a dish) is read, but '
+                         "fitting a cap is not available yet; only its geometry is modelled (bubblefit.model.cap)")
     if shape not in ("plane", "sphere"):
         raise InputError(f'{path}: film.shape = {shape!r} is not supported (use "plane" for a flat film or a gap, '
                          '"sphere" or a [bubble] table for a bubble)')
     return shape == "plane"
+
+
+def parse_cap(f: dict):
+    """The :class:`~bubblefit.model.cap.Cap` of a ``[film] shape = "cap"`` table: ``center``,
+    ``radius``, ``plane_y`` (the liquid's height) and ``liquid`` (its index, "water" by default)."""
+    from .cap import Cap
+
+    return Cap(center=_vec(f, "center", "film", 3, (0.0, 0.0, 0.0)), radius=_num(f, "radius", "film", 1.0, 0.0),
+               plane_y=_num(f, "plane_y", "film", 0.0), liquid=dispersion.parse_index(f.get("liquid", "water"),
+                                                                                      "film.liquid"))
 
 
 def load_planar(path) -> PlanarScene:

@@ -74,7 +74,7 @@ def _fmt(v) -> str:
 
 def parameter_rows(fit: dict) -> list[dict]:
     """One row per reported parameter: name, value, standard error (or why none), unit, meaning."""
-    from ..inverse._parameters import PARAMETERS
+    from ..inverse import PARAMETERS
 
     held = {h["name"]: h["reason"] for h in fit.get("held") or []}
     rows = []

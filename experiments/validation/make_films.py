@@ -80,7 +80,7 @@ def make(name: str, c: dict) -> None:
                  renderer_version=rf.VERSION, exposure=exposure,
                  noise={"model": "Poisson-Gaussian then 8-bit sRGB", "full_well_e_at_1.0": FULL_WELL,
                         "read_noise_e": READ_NOISE, "seed": c["seed"]},
-                 kind="film", fits=["newton" if c["kind"] == "newton" else "map"],
+                 kind="film", fits=["newton"] if c["kind"] == "newton" else ["map", "drainage"],
                  fit_args=["--scene", "scene.toml", *c["fit_args"]])
     vio.save_json(os.path.join(out, "truth.json"), truth)
     print(f"{name}: d {np.nanmin(d):.0f}..{np.nanmax(d):.0f} nm, exposure {exposure:.3g}")

@@ -429,20 +429,25 @@ def run_probe(stem: str, out_dir: str) -> dict:
     return rows
 
 
-def run_film(case: str, out_dir: str) -> dict:
-    """Fit a flat film or gap (reference_films.py) through the CLI and score its map.
+def run_film(case: str, out_dir: str, fit: str | None = None) -> dict:
+    """Fit a flat film or gap (reference_films.py, make_films_cycles.py) through the CLI and score it.
 
-    Pass: the map's median error <= 15 nm, >= 90 % of the film within 15 nm and no order
-    hops; for Newton's rings also R within 1 % and the gap within 5 % (5 nm at the
-    contact) up to 1.5 um."""
+    ``fit``: the thickness model (``--thickness``; the case's first by default). Pass: a
+    constant within TOL["constant"]; drainage ends within TOL["se"] standard errors; a
+    map (and the map a profile gives) with median error <= 15 nm, >= 90 % of the film
+    within 15 nm and no order hops; for Newton's rings also R within 1 % and the gap
+    within 5 % (5 nm at the contact) up to 1.5 um."""
     truth = load_truth(case)
+    fit = fit or truth["fits"][0]
     cdir = os.path.join(DATA, case)
     runs = os.path.join(out_dir, "runs")
     os.makedirs(runs, exist_ok=True)
-    prefix = os.path.join(runs, case)
+    prefix = os.path.join(runs, f"{case}_{fit}")
     args = [a if a != "scene.toml" else os.path.join(cdir, "scene.toml") for a in truth["fit_args"]]
+    if fit in ("constant", "drainage", "map"):
+        args += ["--thickness", fit]
     rc, err, wall = _cli(["fit", os.path.join(cdir, "photo.png"), *args, "-o", prefix, "--json", prefix + ".json"])
-    row = {"case": f"{case}:{truth['fits'][0]}", "kind": "film", "wall_s": round(wall, 1)}
+    row = {"case": f"{case}:{fit}", "kind": "film", "wall_s": round(wall, 1), "part": part_of(case)}
     if rc != 0:
         row.update({"pass": False, "message": err})
         return row
@@ -454,9 +459,21 @@ def run_film(case: str, out_dir: str) -> dict:
     true_map = vio.read_image(os.path.join(cdir, "thickness_true.exr"))[..., 0]
     h, w = true_map.shape
     m = map_metrics(fit_map, true_map, {"cx": w / 2, "cy": h / 2, "r": 10 * (h + w) / INNER})
-    row.update(m, ok=res.get("ok"), reduced_chi2=res.get("reduced_chi2"))
-    good = (m["map_median_nm"] is not None and m["map_median_nm"] <= TOL["median"]
-            and m["map_coverage"] >= TOL["coverage"] and m["order_hops"] == 0)
+    row.update(m, ok=res.get("ok"), reduced_chi2=res.get("reduced_chi2"), chi2_floor=res.get("reduced_chi2_floor"))
+    p, se = res.get("params", {}), res.get("stderr", {})
+    if fit == "constant":
+        e = p["thickness_nm"] - truth["thickness_nm"]
+        row.update(d_err_nm=e, d_err_se=e / se["thickness_nm"])
+        good = abs(e) <= TOL["constant"]
+    elif fit == "drainage":
+        for end in ("top", "bottom"):
+            e = p[f"{end}_nm"] - truth[f"{end}_nm"]
+            row.update({f"{end}_err_nm": e, f"{end}_err_se": e / se[f"{end}_nm"]})
+        good = all(abs(row[f"{k}_err_se"]) <= TOL["se"] for k in ("top", "bottom"))
+        good = good and m["map_median_nm"] <= TOL["median"] and m["map_coverage"] >= TOL["coverage"]
+    else:
+        good = (m["map_median_nm"] is not None and m["map_median_nm"] <= TOL["median"]
+                and m["map_coverage"] >= TOL["coverage"] and m["order_hops"] == 0)
     if "radius_mm" in truth:
         r_err = res["params"]["radius_mm"] / truth["radius_mm"] - 1
         near = true_map <= 1500.0
@@ -472,7 +489,7 @@ def jobs_for(case: str) -> list[tuple]:
     if truth.get("kind") == "calibration":
         return [("cal", case)]
     if truth.get("kind") == "film":
-        return [("film", case)]
+        return [("film", case, m) for m in truth.get("fits", ["map"]) if not ONLY_FITS or m in ONLY_FITS]
     return [("fit", case, m) for m in truth.get("fits", ["constant"]) if not ONLY_FITS or m in ONLY_FITS]
 
 
@@ -663,7 +680,7 @@ def main(argv=None) -> int:
             if job[0] == "cal":
                 row = run_calibration(job[1], a.out)
             elif job[0] == "film":
-                row = run_film(job[1], a.out)
+                row = run_film(job[1], a.out, job[2])
             else:
                 given = a.disc_given and load_truth(job[1]).get("camera", {}).get("type") == "orthographic"
                 row = run_fit(job[1], job[2], a.out, disc_given=given)

@@ -158,7 +158,8 @@ def run_validation(out, rec, cases):
             truth = json.load(fh)
         js = os.path.join(tempfile.mkdtemp(), "fit.json")
         args = ["fit", os.path.join(cdir, "photo.png"), "--envmap", os.path.join(VAL, truth["envmap"]),
-                "--background", os.path.join(cdir, "background.png"), "--thickness", "constant", "--json", js]
+                "--background", os.path.join(cdir, "background.png"), "--thickness",
+                truth.get("fits", ["constant"])[0], "--json", js]
         args += [os.path.join(cdir, a) if a.endswith((".toml", ".json")) else a for a in truth.get("fit_args", [])]
         if truth.get("illuminant") in ("D65", "E", "A"):
             args += ["--illuminant", truth["illuminant"]]
@@ -167,7 +168,7 @@ def run_validation(out, rec, cases):
         t0 = time.perf_counter()
         rc = main(args)
         res = json.load(open(js)) if rc == 0 else {}
-        rec.save(out, name, True, dict(truth=truth["thickness"].get("thickness_nm"), rc=rc,
+        rec.save(out, name, True, dict(truth=truth["thickness"].get("thickness_nm"), rc=rc, model=args[args.index("--thickness") + 1],
                                        thickness=res.get("params", {}).get("thickness_nm"), ok=res.get("ok"),
                                        chi2=res.get("reduced_chi2"), time_s=time.perf_counter() - t0),
                  kept=res.get("colour_check"))

@@ -5,7 +5,7 @@ and of the ColorChecker's 24 patches, seen by colour-science's ``Nikon 5100 (NPL
 illuminant E with 0.5 % noise, are synthesised here with numpy (independent of bubblefit).
 ``bubblefit.capture.camera_calibration.fit_response`` turns each into a response CSV;
 48 px photos of constant films rendered with the Nikon's sensitivities (noise, 8-bit sRGB
-quantisation, as tests/test_fit_colour.py) are fitted with that CSV and illuminant E.
+quantisation: tests/helpers.py's film_photo) are fitted with that CSV and illuminant E.
 Prints the thickness error and the verdict per photo.
 
 Usage: ``PYTHONPATH=. python experiments/calibrated_camera.py [--thickness 300,800,1500] [--source film,chart]``
@@ -22,8 +22,8 @@ import time
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(__file__))
-from wrong_camera import DISC, photo_of  # noqa: E402
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
+from helpers import FILM_PHOTO_DISC as DISC, film_photo  # noqa: E402  (the camera tests' one builder)
 
 LAM = np.arange(380.0, 781.0)
 CAMERA = "Nikon 5100 (NPL)"
@@ -76,7 +76,7 @@ def main():
         with open(path, "w") as fh:
             fh.write(cal.csv_text())
         for k, t in enumerate(float(x) for x in a.thickness.split(",")):
-            photo, bg = photo_of(env, CAMERA, t, 31 + k)
+            photo, bg = film_photo(env, t, 31 + k, CAMERA, "E")
             t0 = time.perf_counter()
             r = fit_photo(photo, env, background=bg, options=FitOptions(
                 disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", camera_response=path, illuminant="E",

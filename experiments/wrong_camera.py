@@ -2,7 +2,7 @@
 
 Renders 48 px photos of a constant film under illuminant E seen by a measured camera
 (colour-science's ``Nikon 5100 (NPL)`` or ``Sigma SDMerill (NPL)``), adds read and shot
-noise and 8-bit sRGB quantisation (as tests/test_fit_colour.py), fits each with the right
+noise and 8-bit sRGB quantisation (tests/helpers.py's film_photo), fits each with the right
 response and with wrong ones (sRGB/D65, the other camera), and prints the thickness, the
 fit's verdict and the colour check (bubblefit.inverse.colour_check).
 
@@ -13,35 +13,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import sys
 import time
 
 import numpy as np
 
-N = 48
-DISC = (N / 2, N / 2, 0.42 * N)
-
-
-def photo_of(env, camera: str, thickness: float, seed: int, illuminant: str = "E"):
-    from scipy import ndimage as ndi
-
-    from bubblefit.io.images import srgb_decode, srgb_encode
-    from bubblefit.model.scene import Scene, render_scene
-
-    rng = np.random.default_rng(seed)
-    bg = ndi.gaussian_filter(rng.uniform(0.15, 0.6, (N, N, 3)), (2.5, 2.5, 0))
-    scene = Scene.from_dict({
-        "camera": {"width": N, "height": N, "disc": list(DISC), "response": camera},
-        "bubble": {"t": 0.972, "roughness": 0.08, "f": 0.3, "thickness_nm": thickness},
-        "lighting": {"envmap": "unused.exr", "illuminant": illuminant},
-        "effects": {"model": "paper", "transmission_tint": True, "spectral": {"method": "uniform", "samples": 48}},
-    })
-    img = render_scene(scene, bg, env=env)
-
-    def q(x):
-        noisy = x + rng.normal(0.0, 1.0, x.shape) * np.sqrt(0.003**2 + 1e-4 * np.clip(x, 0, None))
-        return srgb_decode(np.round(srgb_encode(noisy) * 255) / 255)
-
-    return q(img), q(bg)
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
+from helpers import FILM_PHOTO_DISC as DISC, film_photo  # noqa: E402  (the camera tests' one builder)
 
 
 def main():
@@ -63,7 +42,7 @@ def main():
     env = EnvMap.from_array(px)
     rows, arrays = [], {}
     for k, d in enumerate(float(x) for x in a.thickness.split(",")):
-        photo, bg = photo_of(env, a.camera, d, 11 + k)
+        photo, bg = film_photo(env, d, 11 + k, a.camera, "E")
         for resp in a.responses.split("|"):
             ill = "D65" if resp == "srgb" else "E"
             t0 = time.perf_counter()

@@ -19,6 +19,8 @@ import pytest
 from bubblefit.errors import InputError
 from bubblefit.io.camera_files import PhotoReading, flat_dark, read_photo, read_raw
 
+from helpers import FILM_PHOTO_DISC, film_photo
+
 
 # ----------------------------------------------------------------------------- helpers
 
@@ -257,31 +259,8 @@ def test_fit_flat_of_another_size_exits_2(tmp_path):
 
 # ----------------------------------------------------------------------------- end to end
 
-N = 48
-DISC = (N / 2, N / 2, 0.42 * N)
+DISC = FILM_PHOTO_DISC
 NIKON = "Nikon 5100 (NPL)"  # measured raw sensitivities shipped with colour-science
-
-
-def _film_photo(env, thickness, seed, response="srgb", illuminant="D65"):
-    """A 48 px linear photo of a constant film (and its background) with read and shot noise."""
-    from scipy import ndimage as ndi
-
-    from bubblefit.model.scene import Scene, render_scene
-
-    rng = np.random.default_rng(seed)
-    bg = ndi.gaussian_filter(rng.uniform(0.15, 0.6, (N, N, 3)), (2.5, 2.5, 0))
-    scene = Scene.from_dict({
-        "camera": {"width": N, "height": N, "disc": list(DISC), "response": response},
-        "bubble": {"t": 0.972, "roughness": 0.08, "f": 0.3, "thickness_nm": thickness},
-        "lighting": {"envmap": "unused.exr", "illuminant": illuminant},
-        "effects": {"model": "paper", "transmission_tint": True, "spectral": {"method": "uniform", "samples": 48}},
-    })
-    img = render_scene(scene, bg, env=env)
-
-    def noisy(x):
-        return x + rng.normal(0.0, 1.0, x.shape) * np.sqrt(0.003**2 + 1e-4 * np.clip(x, 0, None))
-
-    return noisy(img), noisy(bg)
 
 
 def _fit_cli(tmp_path, name, photo, background, envfile, *flags):
@@ -308,7 +287,8 @@ def test_linear_tiff_and_dng_fit_as_the_exr(small_courtyard, tmp_path):
     from bubblefit.io.images import write_image
 
     truth = 700.0
-    photo, bg = _film_photo(__import__("bubblefit").lighting.envmap.EnvMap.from_array(small_courtyard), truth, 3)
+    photo, bg = film_photo(__import__("bubblefit").lighting.envmap.EnvMap.from_array(small_courtyard), truth, 3,
+                           quantised=False)
     envfile = tmp_path / "env.exr"
     write_image(envfile, small_courtyard, bit_depth=32)
     black, white = 64, 4095
@@ -325,6 +305,10 @@ def test_linear_tiff_and_dng_fit_as_the_exr(small_courtyard, tmp_path):
     d = {k: (r["params"]["thickness_nm"], r["stderr"]["thickness_nm"]) for k, r in
          (("exr", exr), ("tif", tif), ("dng", dng))}
     assert tif["photo_reading"]["encoding"] == "linear" and dng["photo_reading"]["encoding"] == "raw"
+    assert dng["photo_reading"]["raw"]["photosite_share"] == [0.25, 0.5, 0.25]
+    # the right camera: every file's colours pass the colour check and every fit is ok
+    assert all(r["ok"] and r["colour_check"]["consistent"] for r in (exr, tif, dng)), [
+        (r["colour_check"], r["warnings"]) for r in (exr, tif, dng)]
     assert abs(d["tif"][0] - d["exr"][0]) < 0.1 * d["exr"][1] + 0.05, d
     assert abs(d["dng"][0] - d["exr"][0]) < 3 * np.hypot(d["exr"][1], d["dng"][1]) + 0.5, d
     assert all(abs(v[0] - truth) < 5.0 for v in d.values()), d
@@ -400,70 +384,217 @@ def test_calibrate_camera_cli_and_bad_input(tmp_path):
     assert not (tmp_path / "c2.csv").exists()
 
 
-# ----------------------------------------------------------------------------- wrong camera
+def test_calibrated_response_names_its_lamp(tmp_path):
+    """A response CSV from calibrate-camera says which lamp it was fitted under: the fit
+    takes it when no illuminant is stated; one fitted under E already holds the lamp, so
+    another stated illuminant is refused in one line; one fitted under a named lamp (the
+    camera alone) may be used under another."""
+    from bubblefit.capture.camera_calibration import fit_response
+    from bubblefit.inverse._setup import calibrated_illuminant
+    from bubblefit.optics.spectral import response_functions
 
-
-def _quantised(x, rng):
-    """Read and shot noise, then 8-bit sRGB and back to linear (IEC 61966-2-1 written out)."""
-    noisy = x + rng.normal(0.0, 1.0, x.shape) * np.sqrt(0.003**2 + 1e-4 * np.clip(x, 0, None))
-    v = np.round(_srgb_encode(noisy) * 255) / 255
-    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+    d = np.linspace(0.0, 2000.0, 41)
+    product = tmp_path / "e.csv"
+    product.write_text(fit_response([("film", _airy(d), _film_samples(NIKON, d, 0.005, 0))]).csv_text())
+    assert calibrated_illuminant(str(product), "D65", stated=False) == "E"
+    assert calibrated_illuminant(str(product), "E", stated=True) == "E"
+    with pytest.raises(InputError, match="already holds the lamp") as exc:
+        calibrated_illuminant(str(product), "D65", stated=True)
+    assert "\n" not in str(exc.value)
+    camera = tmp_path / "a.csv"
+    camera.write_text(fit_response([("film", _airy(d), _film_samples(NIKON, d, 0.005, 0))], "A").csv_text())
+    assert calibrated_illuminant(str(camera), "D65", stated=False) == "A"
+    assert calibrated_illuminant(str(camera), "D65", stated=True) == "D65"
+    assert calibrated_illuminant(NIKON, "D65", stated=False) == "D65"  # a named camera says nothing
+    assert response_functions(str(product)).shape[1] == 3  # the comment line does not disturb the reader
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("thickness,told,right", [(600.0, "srgb", False), (1300.0, "Sigma SDMerill (NPL)", False),
-                                                  (1300.0, NIKON, True)])
-def test_a_wrong_camera_is_not_ok(small_courtyard, thickness, told, right):
-    """Photos rendered with the Nikon's sensitivities under illuminant E, fitted with the
-    response they were taken with (consistent, ok) and with another (sRGB/D65, the Sigma):
-    inconsistent, with a warning that names the camera response."""
-    from scipy import ndimage as ndi
+def test_film_calibrated_camera_reads_films(small_courtyard, tmp_path):
+    """The camera is never told: a draining film's linear colours (0-2000 nm, 61
+    thicknesses, 0.5 % noise) seen by the Nikon D5100 under illuminant E calibrate a
+    response with ``bubblefit calibrate-camera``; 48 px photos of 300, 1000 and 1500 nm
+    films rendered with the Nikon's own sensitivities (noise, 8-bit sRGB codes) are fitted
+    with ``--camera-response`` that CSV and no illuminant (the CSV's E is taken): each
+    within 5 nm of the truth, so in the right order, and ok. The same CSV with
+    ``--illuminant D65`` is refused with exit status 2. The fits start from roughness 0.04
+    (as experiments/calibrated_camera.py): from the default start the 300 nm film settles
+    at 514 nm with the calibrated CSV and with the Nikon's own response alike (a search
+    matter, not the camera's; the colour check then reads 48 and the fit is not ok)."""
+    from bubblefit.cli import main
+    from bubblefit.io.images import write_image
+    from bubblefit.lighting.envmap import EnvMap
 
+    d = np.linspace(0.0, 2000.0, 61)
+    y = _film_samples(NIKON, d, 0.005, 1)
+    film = tmp_path / "film.csv"
+    film.write_text("thickness_nm,r,g,b\n" + "\n".join(f"{t},{a},{b},{c}" for t, (a, b, c) in zip(d, y)))
+    cal = tmp_path / "camera.csv"
+    assert main(["calibrate-camera", "--film", str(film), "-o", str(cal)]) == 0
+    env = EnvMap.from_array(small_courtyard)
+    envfile = tmp_path / "env.exr"
+    write_image(envfile, small_courtyard, bit_depth=32)
+    for k, truth in enumerate((300.0, 1000.0, 1500.0)):
+        photo, bg = film_photo(env, truth, 31 + k, NIKON, "E")
+        write_image(tmp_path / f"p{k}.exr", photo, bit_depth=32)
+        write_image(tmp_path / f"b{k}.exr", bg, bit_depth=32)
+        r = _fit_cli(tmp_path, f"f{k}", tmp_path / f"p{k}.exr", tmp_path / f"b{k}.exr", envfile,
+                     "--camera-response", cal, "--set", "roughness=0.04")
+        assert abs(r["params"]["thickness_nm"] - truth) < 5.0, (truth, r["params"], r["warnings"])
+        assert r["ok"] and r["colour_check"]["consistent"], (truth, r["colour_check"], r["warnings"])
+    out = tmp_path / "refused.json"
+    rc = main(["fit", str(tmp_path / "p0.exr"), "--background", str(tmp_path / "b0.exr"), "--envmap", str(envfile),
+               "--disc", ",".join(map(str, DISC)), "--fov", "0", "--camera-response", str(cal), "--illuminant", "D65",
+               "--json", str(out)])
+    assert rc == 2 and not out.exists()
+
+
+# ----------------------------------------------------------------------------- wrong camera
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("thickness,told,right", [(600.0, "srgb", False), (1500.0, "srgb", False),
+                                                  (1300.0, "Sigma SDMerill (NPL)", False), (1300.0, NIKON, True)])
+def test_a_wrong_camera_is_not_ok(small_courtyard, thickness, told, right):
+    """Photos rendered with the Nikon's sensitivities under illuminant E (8-bit sRGB codes),
+    fitted with the response they were taken with (consistent, ok, the thickness within
+    10 nm) and with another (sRGB/D65, the Sigma): not ok, with the one warning that names
+    the camera response and what to do. The 1500 nm film read as sRGB is the hardest case
+    measured (experiments/colour_check_null.py: pale colours, a hue error under 1 %)."""
     from bubblefit.capture.view import ORTHOGRAPHIC
     from bubblefit.inverse.fit import FitOptions, fit_photo
     from bubblefit.lighting.envmap import EnvMap
-    from bubblefit.model.scene import Scene, render_scene
 
     env = EnvMap.from_array(small_courtyard)
-    rng = np.random.default_rng(int(thickness))
-    bg = ndi.gaussian_filter(rng.uniform(0.15, 0.6, (N, N, 3)), (2.5, 2.5, 0))
-    scene = Scene.from_dict({
-        "camera": {"width": N, "height": N, "disc": list(DISC), "response": NIKON},
-        "bubble": {"t": 0.972, "roughness": 0.08, "f": 0.3, "thickness_nm": thickness},
-        "lighting": {"envmap": "unused.exr", "illuminant": "E"},
-        "effects": {"model": "paper", "transmission_tint": True, "spectral": {"method": "uniform", "samples": 48}},
-    })
-    photo = _quantised(render_scene(scene, bg, env=env), rng)
-    r = fit_photo(photo, env, background=_quantised(bg, rng), options=FitOptions(
+    photo, bg = film_photo(env, thickness, int(thickness), NIKON, "E")
+    r = fit_photo(photo, env, background=bg, options=FitOptions(
         disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", camera_response=told, view=ORTHOGRAPHIC,
         illuminant="D65" if told == "srgb" else "E"))
     check = r.to_json()["colour_check"]
     assert check is not None and check["consistent"] is right, check
+    assert r.ok is right, (r.ok, r.warnings)
     if right:
-        assert r.ok and abs(r.params["thickness_nm"] - thickness) < 10.0, (r.params, r.warnings)
-    else:  # the check warns (it does not set ok false: bubblefit.inverse.colour_check.judge_colours)
-        assert any("camera response" in w for w in r.warnings), r.warnings
+        assert abs(r.params["thickness_nm"] - thickness) < 10.0, (r.params, r.warnings)
+    else:
+        said = [w for w in r.warnings if "camera response" in w]
+        assert len(said) == 1 and "calibrate-camera" in said[0] and "--encoding" in said[0], r.warnings
 
 
-def test_colour_check_sees_hue_not_brightness():
-    """On a disc of smoothly varying colours with noise (sigma 1 % of the signal): the
-    render itself is consistent at the false-alarm rate (a tenth of the seeds may fail at
-    most, 1e-3 expected); a render whose brightness is off by 5 % is still consistent (the
-    test looks at hue only); a render whose hue is off by 2 % in one channel is not."""
+def _smooth_colours(h=48, w=48):
+    y, x = np.mgrid[0:h, 0:w]
+    mask = (x - w / 2) ** 2 + (y - h / 2) ** 2 < (0.42 * w) ** 2
+    truth = np.stack([0.3 + 0.2 * np.sin(x / 7), 0.35 + 0.15 * np.cos(y / 9), 0.25 + 0.1 * np.sin((x + y) / 11)], -1)
+    return truth, mask
+
+
+def test_colour_check_null_law():
+    """The statistic's law when the render is right and the noise is the stated one:
+    Gaussian noise whose standard deviation differs between the channels (2, 6, 12 per
+    mille: the chromatic plane is far from isotropic) on ~25 px cells, no model floor.
+    Each cell's two chromatic components, whitened by their exact covariance, are two
+    standard normals, so the statistic per degree of freedom averages 1 (its standard
+    deviation over 300 photos is sqrt(2 / 64) / sqrt(300) = 0.01; tolerance 0.05) and the
+    check fails on a photo at the false-alarm rate 1e-3 (0.3 of 300 expected; at most 2)."""
     from bubblefit.inverse.colour_check import colour_check
 
-    h = w = 48
-    y, x = np.mgrid[0:h, 0:w]
-    mask = (x - 24) ** 2 + (y - 24) ** 2 < 20**2
-    truth = np.stack([0.3 + 0.2 * np.sin(x / 7), 0.35 + 0.15 * np.cos(y / 9), 0.25 + 0.1 * np.sin((x + y) / 11)], -1)
-    fails = 0
-    for seed in range(10):
-        photo = truth * (1 + 0.01 * np.random.default_rng(seed).normal(size=truth.shape))
-        fails += not colour_check(photo, truth, mask).consistent
-        assert colour_check(photo, truth * 1.05, mask).consistent
-        hue = colour_check(photo, truth * np.array([1.02, 1.0, 1.0]), mask)
+    truth, mask = _smooth_colours()
+    sigma = np.array([0.002, 0.006, 0.012]) * np.ones_like(truth)
+    values, fails = [], 0
+    for seed in range(300):
+        photo = truth + sigma * np.random.default_rng(seed).normal(size=truth.shape)
+        c = colour_check(photo, truth, mask, sigma, floor=0.0, chroma_floor=0.0)
+        values.append(c.chi2_per_dof)
+        fails += not c.consistent
+    assert abs(np.mean(values) - 1.0) < 0.05, np.mean(values)
+    assert fails <= 2, fails
+
+
+def test_colour_check_sees_hue_not_brightness_noise_or_glints():
+    """On a disc of smoothly varying colours with noise (1 % of the signal): a render whose
+    brightness is off by 5 % is consistent (the test looks at hue only), one whose hue is
+    off by 2 % in one channel is not; noise twice the stated one is measured from the
+    photo's own scatter (noise_scale ~ 4) and raises no alarm, and neither do a few glint
+    pixels (outliers of the fit's model-error floor, left out as the verdict's split does)."""
+    from bubblefit.inverse.colour_check import colour_check
+
+    truth, mask = _smooth_colours()
+    sigma = 0.01 * truth
+    for seed in range(5):
+        rng = np.random.default_rng(seed)
+        photo = truth + sigma * rng.normal(size=truth.shape)
+        assert colour_check(photo, truth * 1.05, mask, sigma).consistent
+        hue = colour_check(photo, truth * np.array([1.02, 1.0, 1.0]), mask, sigma)
         assert not hue.consistent and 0.004 < hue.chroma_rms < 0.02, hue
-    assert fails <= 1
+        loud = truth + 2 * sigma * rng.normal(size=truth.shape)
+        c = colour_check(loud, truth, mask, sigma)
+        assert c.consistent and 3.0 < c.noise_scale < 5.0, c
+        glint = photo.copy()
+        glint[20:22, 20:22] += np.array([0.6, 0.3, 0.0])
+        assert colour_check(glint, truth, mask, sigma, model_error=0.03).consistent
+
+
+def test_colour_check_noise_shared_by_neighbours():
+    """Noise shared by each 2 x 2 block of pixels (JPEG's 4:2:0 chroma subsampling keeps one
+    chroma sample per block) holds, in a mean over n pixels, the noise of about n/4
+    independent ones, while each pixel's scatter is the stated sigma: taken as independent
+    pixels the statistic would read about 4 per degree of freedom. The check measures the
+    blocks' variance from the photo (noise_scale ~ 3: the cells' planes take part of it)
+    and the statistic stays about 1 (200 photos: mean 1.07, 2 % false alarms; here 40
+    photos, mean within 0.15 of 1 and at most 3 false alarms, 0.8 expected)."""
+    from bubblefit.inverse.colour_check import colour_check
+
+    truth, mask = _smooth_colours()
+    sigma = 0.01 * np.ones_like(truth)
+    values, scales, fails = [], [], 0
+    for seed in range(40):
+        block = 0.01 * np.random.default_rng(seed).normal(size=(24, 24, 3))
+        c = colour_check(truth + np.kron(block, np.ones((2, 2, 1))), truth, mask, sigma, floor=0.0, chroma_floor=0.0)
+        values.append(c.chi2_per_dof)
+        scales.append(c.noise_scale)
+        fails += not c.consistent
+    assert abs(np.mean(values) - 1.0) < 0.15 and fails <= 3, (np.mean(values), fails)
+    assert 2.0 < np.mean(scales) < 5.0, np.mean(scales)
+
+
+def _bilinear(mosaic):
+    """Bilinear demosaic of an RGGB mosaic written here: each missing colour the weighted
+    mean of its nearest photosites of that colour (kernel 1-2-1 x 1-2-1, normalised)."""
+    from scipy.ndimage import convolve
+
+    h, w = mosaic.shape
+    where = np.zeros((h, w, 3), bool)
+    where[0::2, 0::2, 0] = where[0::2, 1::2, 1] = where[1::2, 0::2, 1] = where[1::2, 1::2, 2] = True
+    k = np.array([[1.0, 2.0, 1.0], [2.0, 4.0, 2.0], [1.0, 2.0, 1.0]])
+    out = np.empty((h, w, 3))
+    for c in range(3):
+        m = where[..., c].astype(float)
+        out[..., c] = np.where(where[..., c], mosaic, convolve(mosaic * m, k, mode="mirror") /
+                               convolve(m, k, mode="mirror"))
+    return out
+
+
+def test_colour_check_demosaiced_noise():
+    """A demosaiced photo's channel mean over n pixels holds the noise of about n/4 red,
+    n/2 green and n/4 blue photosites: the photosite noise divided by sqrt(share) bounds
+    the noise of a cell's mean from above (the interpolation spreads the photosites at a
+    cell's edge over its neighbours' pixels too, which averages them further), so the
+    statistic per degree of freedom is at most 1 (60 photos: standard deviation 0.023;
+    tolerance 0.05) and not far below (over 0.6 on these ~5 px cells); taken as
+    independent pixels it is about twice as large ((4 + 2) / 2 times less the spread)."""
+    from bubblefit.inverse.colour_check import colour_check
+
+    truth, mask = _smooth_colours()
+    clean = _bilinear(_mosaic(truth))  # the interpolation of the scene itself is not noise
+    sigma = 0.01 * np.ones_like(truth)
+    share = np.array([0.25, 0.5, 0.25])
+    right, naive = [], []
+    for seed in range(60):
+        noise = 0.01 * np.random.default_rng(seed).normal(size=truth.shape[:2])
+        photo = _bilinear(_mosaic(truth) + noise)
+        right.append(colour_check(photo, clean, mask, sigma / np.sqrt(share), floor=0, chroma_floor=0).chi2_per_dof)
+        naive.append(colour_check(photo, clean, mask, sigma, floor=0, chroma_floor=0).chi2_per_dof)
+    assert 0.6 < np.mean(right) < 1.05, np.mean(right)
+    assert np.mean(naive) > 2.0 * np.mean(right), (np.mean(naive), np.mean(right))
 
 
 def test_sequence_frames_carry_the_reading(tmp_path):

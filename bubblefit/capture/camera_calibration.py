@@ -122,8 +122,10 @@ class CameraCalibration:
 
     def csv_text(self) -> str:
         """``wavelength_nm,r,g,b,r_err,g_err,b_err`` (what ``--camera-response`` reads)."""
-        lines = [f"# camera response fitted by bubblefit calibrate-camera from {', '.join(self.sources)}; "
-                 f"illuminant {self.illuminant}" + (" (the response includes the lamp)" if self.illuminant == "E" else ""),
+        from ..optics.spectral import _LAMP_INCLUDED, CALIBRATED_UNDER
+
+        lines = [f"# camera response fitted by bubblefit calibrate-camera from {', '.join(self.sources)}"
+                 f"{CALIBRATED_UNDER}{self.illuminant}" + (_LAMP_INCLUDED if self.illuminant == "E" else ""),
                  "wavelength_nm,r,g,b,r_err,g_err,b_err"]
         for lam, r, e in zip(self.wavelengths, self.response, self.stderr):
             lines.append(f"{lam:g}," + ",".join(f"{v:.6g}" for v in (*r, *e)))

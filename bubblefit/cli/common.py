@@ -246,7 +246,8 @@ def add_index_options(parser, default: str = "1.4") -> None:
 def add_colour_options(parser) -> None:
     """``--illuminant`` and ``--camera-response`` (:mod:`bubblefit.optics.spectral`)."""
     parser.add_argument("--illuminant", default=None, type=input_file,
-                        help="illuminant: D65 (default), E, A, another CIE name, or a CSV wavelength_nm,power")
+                        help="illuminant: D65 (default; a fit takes the lamp a --camera-response CSV from "
+                             "calibrate-camera names), E, A, another CIE name, or a CSV wavelength_nm,power")
     parser.add_argument("--camera-response", default=None, type=input_file,
                         help="camera response: srgb (default), a colour-science camera (e.g. 'Nikon 5100 (NPL)'), "
                              "or a CSV wavelength_nm,r,g,b; white-balanced to the illuminant")

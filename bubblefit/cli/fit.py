@@ -239,16 +239,18 @@ def _bits(img) -> int | None:
     return None if img.linear_file else int(img.bit_depth)
 
 
-def build_fit_options(args, scene, bits: int | None, view=None):
+def build_fit_options(args, scene, bits: int | None, view=None, photosite_share=None):
     """:class:`~bubblefit.inverse.fit.FitOptions` of ``fit`` and ``fit-sequence``, built in
     this one place so that a sequence of one frame is fitted as ``fit`` fits the photo:
     :func:`fit_option_values`, the model (``--model``, else the scene's, else ``auto``),
-    the photo's bit depth for the noise model (``bits``), and ``fit``'s own flags where the
-    command has them."""
+    the photo's bit depth for the noise model (``bits``) and, for a demosaiced RAW file, its
+    channels' share of the photosites (``photosite_share``), and ``fit``'s own flags where
+    the command has them."""
     from ..inverse.fit import FitOptions
 
     model = args.model or (scene.table("effects").get("model", "auto") if scene is not None else "auto")
-    kw = dict(fit_option_values(args), model=model, bits=bits, view=view)
+    kw = dict(fit_option_values(args), model=model, bits=bits, view=view,
+              photosite_share=None if photosite_share is None else tuple(photosite_share))
     for flag in ("free_split", "fit_rotation"):
         if hasattr(args, flag):
             kw[flag] = getattr(args, flag)
@@ -292,7 +294,8 @@ def run(args) -> int:
                              f"the photo is {photo.pixels.shape[1]}x{photo.pixels.shape[0]}")
         background = bimg.pixels
     view = view_from_args(args, photo.metadata, photo.pixels.shape[1], photo.pixels.shape[0])
-    options = build_fit_options(args, scene, _bits(photo), view)
+    options = build_fit_options(args, scene, _bits(photo), view,
+                                (photo.metadata.get("raw") or {}).get("photosite_share"))
     with stage(f"fitting {photo.pixels.shape[1]}x{photo.pixels.shape[0]} ({options.thickness} thickness, "
                f"{options.model} model)"):
         result = fit_photo(photo.pixels, env, options=options, background=background, scene=scene,

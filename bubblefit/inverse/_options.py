@@ -81,6 +81,12 @@ class FitOptions:
         Pseudo-Huber scale in noise sigmas.
     noise_read, noise_shot, bits
         Noise model (``bits`` None for float photos).
+    photosite_share : tuple or None
+        For a photo demosaiced from a colour filter mosaic (a RAW file read by
+        :func:`bubblefit.io.camera_files.read_raw`), the fraction of the photosites behind
+        each of R, G, B (1/4, 1/2, 1/4 for a Bayer sensor): a mean over ``n`` pixels then
+        holds the noise of ``share * n`` photosites, which the colour check uses
+        (:mod:`bubblefit.inverse.colour_check`). None: every pixel measured each channel.
     saturation : float
         Photo values at or above this (in files with a maximum of 1) are clipped.
     rim : float
@@ -173,6 +179,7 @@ class FitOptions:
     noise_read: float = 2e-3
     noise_shot: float = 2e-4
     bits: int | None = 8
+    photosite_share: tuple | None = None
     saturation: float = 0.995
     rim: float = 0.96
     map_prior_nm: float = 150.0

@@ -234,6 +234,24 @@ def _settings(scene, opts: FitOptions) -> dict:
     return settings
 
 
+def calibrated_illuminant(response: str, illuminant: str, stated: bool) -> str:
+    """The fit's illuminant for a ``response`` written by ``bubblefit calibrate-camera``
+    (:func:`~bubblefit.optics.spectral.response_illuminant`): the lamp it was calibrated
+    under when none was ``stated``; a response calibrated under ``E`` holds the lamp, so
+    another stated illuminant would count the lamp twice and is refused in one line."""
+    from ..optics.spectral import response_illuminant
+
+    under = response_illuminant(response)
+    if under is None:
+        return illuminant
+    if not stated:
+        return under
+    if under.upper() == "E" and illuminant.upper() not in ("E", "EQUAL", "EQUAL_ENERGY"):
+        raise InputError(f"the camera response {response} was calibrated under illuminant E: it already holds the "
+                         f"lamp, so fit it with --illuminant E (or leave --illuminant out), not {illuminant}")
+    return illuminant
+
+
 def colour_settings(scene, opts: FitOptions, n_film: float) -> ColourSettings:
     """The illuminant, camera response, white balance, index law and rays per pixel of the
     fit: each from ``opts`` when given (the command line), else from the scene
@@ -243,8 +261,10 @@ def colour_settings(scene, opts: FitOptions, n_film: float) -> ColourSettings:
     from ..optics import spectral
 
     ill, resp, wb = scene.colour() if scene is not None else ("D65", "srgb", "illuminant")
+    stated = opts.illuminant is not None or (scene is not None and "illuminant" in scene.table("lighting"))
     ill = opts.illuminant if opts.illuminant is not None else ill
     resp = opts.camera_response if opts.camera_response is not None else resp
+    ill = calibrated_illuminant(resp, ill, stated)
     wb = opts.white_balance if opts.white_balance is not None else wb
     spectral.illuminant_spectrum(ill)
     spectral.response_functions(resp)

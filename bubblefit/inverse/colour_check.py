@@ -4,26 +4,57 @@ A film's colour is set by its thickness *through* the camera's spectral response
 with the wrong response (a Nikon's raw RGB read as sRGB/D65), the best thickness still
 leaves hues the stated response cannot reach. Brightness errors (the light's strength,
 the lobe's shape, the rim) are common to all channels, so this test looks only at the
-residual's *chromatic* part, the component orthogonal to the rendered colour,
-``e_perp = e - (e . c) c`` with ``c = render / |render|`` per pixel, and only at what is
-*coherent* over a patch of the film: the mean of ``e_perp`` over each cell of a grid laid
-on the disc's inner part (:data:`INNER_COS`; the rim is left to the chi^2). Noise, quantisation and single-pixel outliers average away in a cell's mean;
-a wrong response does not, because it shifts the hue of every pixel of a thickness the same
-way.
+residual's *chromatic* part and only at what is *coherent* over a patch of the film. A
+grid of :data:`GRID` x :data:`GRID` cells is laid on the disc's inner part
+(:data:`INNER_COS`; the rim is left to the chi^2); in cell ``b`` of ``n_b`` pixels, with
+``P_b`` the (2, 3) orthonormal basis of the plane orthogonal to the cell's mean rendered
+colour, the statistic's terms are
 
-Each cell's squared mean is compared with its own noise, the scatter of ``e_perp`` within
-the cell divided by its pixel count (so the test needs no noise model), plus a chromatic
-model-error floor :data:`CHROMA_FLOOR` of the cell's brightness and :data:`CHROMA_REL` of
-its chroma. Under the hypothesis that
-the colours are explained, ``2 sum_b |m_b|^2 / (s_b^2 / n_b + floor_b^2)`` follows a chi^2
-law with ``2 B`` degrees of freedom (two chromatic components per cell); the colours are
-called inconsistent when it exceeds the law's 1 - :data:`FALSE_ALARM` quantile.
+``m_b = P_b mean_i(photo_i - render_i)``, the cell's mean chromatic residual;
+``C_b = P_b diag(sum_i sigma_i^2) P_b^T / n_b^2``, its covariance under the fit's own noise
+model (``sigma_i`` per pixel and channel: read, shot and quantisation noise,
+:func:`~bubblefit.inverse._observation.noise_sigma`; channels independent), exact for any
+per-channel noise (the chromatic plane of a pale film is far from isotropic);
+``F_b``, a chromatic model-error floor that does not average down: :data:`CHROMA_FLOOR`
+of the cell's brightness and :data:`CHROMA_REL` of its chroma, split over the plane's two
+components.
+
+Under the hypothesis that the colours are explained, each ``m_b`` is a centred normal
+vector with covariance ``C_b`` (plus at most ``F_b``), so
+``T = sum_b m_b^T (kappa C_b + F_b)^-1 m_b`` follows (at most) a chi^2 law with ``2 B``
+degrees of freedom; the colours are inconsistent when ``T`` exceeds the law's
+1 - :data:`FALSE_ALARM` quantile. ``kappa >= 1`` guards the noise model: it is the ratio
+of the chromatic residuals' scatter about a plane in ``(x, y)`` in every cell (a smooth hue
+error is removed with the plane, noise is not) to the scatter the noise model predicts,
+pooled over all cells (hundreds of pixels, so it adds little tail), or the same for the
+means of 2 x 2 blocks of pixels times 4 when that is larger (noise that neighbours share,
+as JPEG's 4:2:0 chroma subsampling makes it, which independent pixels would average
+away); a camera noisier than the noise model (``FitOptions.noise_read``, ``noise_shot``)
+raises ``kappa``, not the alarm. A wrong response
+moves every pixel of a thickness the same way: ``m_b`` grows with it and ``C_b`` does not.
+
+Pixels the fit calls outliers (chi^2 with its model-error floor over
+:data:`~bubblefit.inverse._uncertainty.OUTLIER_CHI2`: glints, specks) are left out. A
+photo demosaiced from a Bayer mosaic holds, in a mean over ``n`` pixels, the noise of
+only ``share * n`` photosites per channel (1/4, 1/2, 1/4): the fit divides its ``sigma``
+by ``sqrt(share)`` (``FitOptions.photosite_share``), an upper bound of that noise.
+
+Why a cell's own scatter is not used as its noise: estimated from its ~25 pixels, it
+makes ``2 |m_b|^2 / (tr S_b / n_b)`` an F-like law with a heavier tail than chi^2, and
+its trace misweights an anisotropic plane. Drawn from those laws (``B = 32``,
+``n_b = 25``), the sum per degree of freedom has mean 1.04 and 1e-3 quantile 1.75 for
+isotropic noise, 1.07 and 2.11 when one chromatic component has ten times the other's
+variance, against the 1.64 of chi^2: right-camera photos read 1.8-1.9 were within that
+law's reach. And a RAW file's demosaic correlates neighbouring pixels: a right 48 px DNG
+read 3.5 as independent pixels, 1.4 with the photosite shares.
 
 References
 ----------
 The chromatic/achromatic split of a residual: Finlayson, Drew & Funt, "Color constancy:
 generalized diagonal transforms suffice", JOSA A 11(11), 1994 (colour as a direction in
-RGB); the test of a group mean against its within-group scatter: Welch, Biometrika 38, 1951.
+RGB); the quadratic form of a normal vector in its inverse covariance is chi^2-distributed
+(Mardia, Kent & Bibby, *Multivariate Analysis*, 1979, thm. 2.5.2); the Bayer mosaic:
+B. E. Bayer, US patent 3,971,065 (1976).
 """
 
 from __future__ import annotations
@@ -32,24 +63,27 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._uncertainty import OUTLIER_CHI2
+
 __all__ = ["ColourCheck", "colour_check", "judge_colours", "CHROMA_FLOOR", "CHROMA_REL", "FALSE_ALARM", "GRID",
            "INNER_COS"]
 
 #: Chromatic model error allowed per cell, as a fraction of the cell's brightness ``|render|``.
-#: From fits with the right camera only (experiments/wrong_camera.py: 48 px photos rendered
-#: by bubblefit with the Nikon's sensitivities, 48 uniform spectral samples, fitted with the
-#: fit's own quadrature): with 0.1 % their statistic reached 1.35 at 1000 nm (the
-#: quadratures' hue difference); 0.2 % brings the five thicknesses 300-1500 nm to 0.67-1.10.
+#: From fits with the right camera only (experiments/colour_check_null.py: 48 px photos
+#: rendered by bubblefit with the Nikon's sensitivities, 48 uniform spectral samples, fitted
+#: with the fit's own quadrature): the quadratures differ in hue by about this much, the
+#: largest at 1000 nm; with no floor the statistic reads 0.78-1.35 on the five thicknesses
+#: 300-1500 nm, with this one 0.60-0.99.
 CHROMA_FLOOR = 0.002
 
 #: A second floor, as a fraction of the cell's *chroma* (the norm of its mean rendered
 #: colour orthogonal to grey): independent renderers of the same film differ in the
 #: interference term itself (polarisations averaged per hit or per path, a mesh sphere),
-#: which colours saturated films most. The validation set's Cycles render of a 500 nm film
-#: (cyc_const500_courtyard_ortho, fitted to 499.2 nm under its own illuminant E) left a
-#: coherent hue error of 0.9 % of its chroma (statistic 3.46 without this floor, 0.59 with),
-#: its reference render of a 300 nm film 1.6 % (0.88, 0.65); the wrong cameras of
-#: experiments/wrong_camera.py leave 20-500 % of theirs, pale thick films included.
+#: which colours saturated films most. Chosen on the validation set's development case
+#: cyc_const500_courtyard_ortho (a Cycles render of a 500 nm film, fitted to 499.2 nm
+#: under its own illuminant E), which left a coherent hue error of 0.9 % of its chroma; the
+#: wrong cameras of experiments/wrong_camera.py leave 20-500 % of theirs, pale thick films
+#: included.
 CHROMA_REL = 0.01
 
 #: The test's false-alarm probability on a correctly explained photo.
@@ -78,76 +112,132 @@ class ColourCheck:
     chi2_per_dof: float      # the statistic divided by its degrees of freedom
     threshold_per_dof: float
     cells: int
-    chroma_rms: float        # RMS over cells of |mean e_perp| / |mean render| (a fraction)
+    chroma_rms: float        # RMS over cells of |mean chromatic residual| / |mean render| (a fraction)
+    noise_scale: float = 1.0  # kappa: the photo's scatter over the noise model's, at least 1
 
-    def warning(self) -> str | None:
-        """One sentence for the fit's warnings when the colours are inconsistent, else None."""
+    def warning(self, explained: bool = True) -> str | None:
+        """One line for the fit's warnings when the colours are inconsistent, else None;
+        when the model does not explain the photo's brightness either (``explained``
+        False: the verdict's chi^2 test failed), the line says the camera is then only one
+        suspect."""
         if self.consistent:
             return None
-        return (f"the photo's colours are not ones the stated camera response produces: a coherent hue error of "
-                f"{self.chroma_rms:.1%} over the film (chromatic chi^2/dof {self.chi2_per_dof:.3g} over {self.cells} "
-                f"patches, at most {self.threshold_per_dof:.3g} expected); wrong --camera-response, --illuminant "
-                "or --encoding? (docs/cameras.md)")
+        what = (f"a hue error of {self.chroma_rms:.1%} coherent over the film (chromatic chi^2/dof "
+                f"{self.chi2_per_dof:.3g} over {self.cells} patches, at most {self.threshold_per_dof:.3g} expected)")
+        if not explained:
+            return (f"the hues are not explained either: {what}; with the model missing the photo as a whole, the "
+                    "camera response (--camera-response, bubblefit calibrate-camera) and --encoding are suspects "
+                    "among the map, disc and model (docs/cameras.md)")
+        return (f"the stated camera response cannot produce the photo's colours: {what}: the camera response or the "
+                "file's encoding is wrong (or the thickness is an interference order off); give the camera "
+                "(--camera-response, a response from bubblefit calibrate-camera, with its --illuminant) and check "
+                "--encoding (docs/cameras.md)")
 
     def to_json(self) -> dict:
         return {"consistent": self.consistent, "chi2_per_dof": self.chi2_per_dof,
-                "threshold_per_dof": self.threshold_per_dof, "cells": self.cells, "chroma_rms": self.chroma_rms}
+                "threshold_per_dof": self.threshold_per_dof, "cells": self.cells, "chroma_rms": self.chroma_rms,
+                "noise_scale": self.noise_scale}
 
 
-def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, *, floor: float = CHROMA_FLOOR,
-                 chroma_floor: float = CHROMA_REL, grid: int = GRID,
+def _plane(c: np.ndarray) -> np.ndarray:
+    """(2, 3) orthonormal rows spanning the plane orthogonal to the unit colour ``c``."""
+    a = np.eye(3)[int(np.argmin(np.abs(c)))]
+    u = np.cross(c, a)
+    u /= np.linalg.norm(u)
+    return np.stack([u, np.cross(c, u)])
+
+
+def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma: np.ndarray, *,
+                 model_error: float | None = None, floor: float = CHROMA_FLOOR, chroma_floor: float = CHROMA_REL, grid: int = GRID,
                  false_alarm: float = FALSE_ALARM) -> ColourCheck | None:
-    """Test whether ``render`` explains the hues of ``photo`` over the pixels of ``mask``
-    (module docstring). ``None`` when fewer than two cells have :data:`MIN_PIXELS` pixels."""
+    """Test whether ``render`` explains the hues of ``photo`` over the pixels of ``mask``,
+    each pixel's channels having the noise standard deviation ``sigma`` (the fit's noise
+    model, :func:`~bubblefit.inverse._observation.noise_sigma`); module docstring. Pixels
+    that are outliers of the fit (chi^2 over their channels, with the fit's ``model_error``
+    floor, above :data:`~bubblefit.inverse._uncertainty.OUTLIER_CHI2`: glints, specks) are
+    left out, as the verdict's split leaves them out of the explained pixels (none with
+    ``model_error`` None). ``None`` when fewer than two cells have :data:`MIN_PIXELS` pixels."""
     from scipy.stats import chi2
 
     photo = np.asarray(photo, np.float64)
     render = np.asarray(render, np.float64)
+    var = np.asarray(sigma, np.float64) ** 2 * np.ones_like(photo)
     norm = np.linalg.norm(render, axis=-1)
-    use = np.asarray(mask, bool) & (norm > 0) & np.all(np.isfinite(photo), axis=-1)
+    use = (np.asarray(mask, bool) & (norm > 0) & np.all(np.isfinite(photo), axis=-1)
+           & np.all(np.isfinite(var) & (var > 0), axis=-1))
+    if model_error is not None:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            chi = np.sum((photo - render) ** 2 / (var + (model_error * np.clip(photo, 0, None)) ** 2), axis=-1)
+        use &= ~(chi > OUTLIER_CHI2)
     ys, xs = np.nonzero(use)
     if ys.size < 2 * MIN_PIXELS:
         return None
-    c = render[ys, xs] / norm[ys, xs, None]
-    e = photo[ys, xs] - render[ys, xs]
-    e_perp = e - np.sum(e * c, axis=-1, keepdims=True) * c
+    e, v, rend = photo[ys, xs] - render[ys, xs], var[ys, xs], render[ys, xs]
     y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
     cy = np.minimum((ys - y0) * grid // max(y1 - y0, 1), grid - 1)
     cx = np.minimum((xs - x0) * grid // max(x1 - x0, 1), grid - 1)
     cell = cy * grid + cx
-    stat, rel, cells = 0.0, [], 0
+    cells, scatter, expected = [], 0.0, 0.0
+    white = np.full(photo.shape[:2] + (2,), np.nan)  # detrended chromatic residual / its predicted sigma
     for b in np.unique(cell):
-        sel = cell == b
-        n = int(sel.sum())
+        sel = np.nonzero(cell == b)[0]
+        n = sel.size
         if n < MIN_PIXELS:
             continue
-        m = e_perp[sel].mean(axis=0)
-        s2 = float(np.sum((e_perp[sel] - m) ** 2)) / (n - 1)
-        bright = float(norm[ys[sel], xs[sel]].mean())
-        mean = render[ys[sel], xs[sel]].mean(axis=0)
+        mean = rend[sel].mean(axis=0)
+        p = _plane(mean / np.linalg.norm(mean))
+        ep = e[sel] @ p.T                                   # (n, 2) chromatic residuals
+        noise = (p * v[sel].sum(axis=0)) @ p.T / n**2       # covariance of their mean
+        # the scatter about a plane in (x, y): what the noise model must account for
+        x = np.stack([np.ones(n), ys[sel] - ys[sel].mean(), xs[sel] - xs[sel].mean()], axis=1)
+        fitted = x @ np.linalg.lstsq(x, ep, rcond=None)[0]
+        scatter += float(np.sum((ep - fitted) ** 2))
+        expected += float(np.trace((p * v[sel].mean(axis=0)) @ p.T)) * (n - 3)
+        per = np.sqrt(0.5 * np.einsum("ij,nj,ij->n", p, v[sel], p) * (n - 3) / n)
+        white[ys[sel], xs[sel]] = (ep - fitted) / per[:, None]
+        bright = float(np.linalg.norm(rend[sel], axis=1).mean())
         chroma = float(np.linalg.norm(mean - mean.mean()))  # the part orthogonal to grey (1, 1, 1)
-        stat += 2.0 * float(m @ m) / (s2 / n + (floor * bright) ** 2 + (chroma_floor * chroma) ** 2)
-        rel.append(float(np.linalg.norm(m)) / bright)
-        cells += 1
-    if cells < 2:
+        model = 0.5 * ((floor * bright) ** 2 + (chroma_floor * chroma) ** 2) * np.eye(2)
+        cells.append((ep.mean(axis=0), noise, model, bright))
+    if len(cells) < 2:
         return None
-    dof = 2 * cells
+    kappa = max(1.0, scatter / expected if expected > 0 else 1.0, _block_scale(white))
+    stat = sum(float(m @ np.linalg.solve(kappa * c + f, m)) for m, c, f, _ in cells)
+    dof = 2 * len(cells)
     thr = float(chi2.isf(false_alarm, dof)) / dof
     value = stat / dof
-    return ColourCheck(bool(value <= thr), value, thr, cells, float(np.sqrt(np.mean(np.square(rel)))))
+    rel = [float(np.linalg.norm(m)) / bright for m, _, _, bright in cells]
+    return ColourCheck(bool(value <= thr), value, thr, len(cells), float(np.sqrt(np.mean(np.square(rel)))), kappa)
 
 
-def judge_colours(ok: bool, warnings: list, photo, render, mask, cos) -> tuple[bool, list, dict | None]:
-    """The fit's verdict with the colour test added: ``(ok, warnings, record)``, a warning
-    appended when :func:`colour_check` finds the hues inconsistent over the fitted pixels
-    ``mask`` whose front film's ``cos`` (cosine of incidence) exceeds :data:`INNER_COS`.
+def _block_scale(white: np.ndarray, k: int = 2) -> float:
+    """``k^2`` times the mean square of the means of ``k x k`` blocks of ``white`` (the
+    chromatic residual about each cell's plane, over its noise model's sigma, NaN off the
+    tested pixels), pooled over every whole block: 1 when the noise is the model's and
+    independent between pixels, more when neighbours share it (JPEG's 4:2:0 chroma
+    subsampling keeps one chroma sample per 2 x 2 pixels); 0 with fewer than 20 whole
+    blocks."""
+    h, w = (white.shape[0] // k) * k, (white.shape[1] // k) * k
+    blocks = white[:h, :w].reshape(h // k, k, w // k, k, 2)
+    whole = np.all(np.isfinite(blocks), axis=(1, 3, 4))
+    if whole.sum() < 20:
+        return 0.0
+    return k * k * float(np.mean(blocks.mean(axis=(1, 3))[whole] ** 2))
 
-    The test warns and does not set ``ok`` false: its false-alarm rate on right-camera
-    photos is not yet established beyond the synthetic films it was built on (the demo's
-    own 96 px drainage photo, rendered with the response it is fitted with, reads 1.94
-    against 1.64), so a fit it flags keeps the verdict its residuals give."""
-    check = colour_check(photo, render, np.asarray(mask, bool) & (np.asarray(cos) > INNER_COS))
+
+def judge_colours(ok: bool, warnings: list, photo, render, mask, cos, sigma, model_error: float = 0.0,
+                  explained: bool = True) -> tuple[bool, list, dict | None]:
+    """The fit's verdict with the colour test added: ``(ok, warnings, record)``. The test
+    (:func:`colour_check`) runs over the fitted pixels ``mask`` whose front film's ``cos``
+    (cosine of incidence) exceeds :data:`INNER_COS`, with the fit's noise ``sigma`` and
+    model-error floor ``model_error`` (for its outliers); colours it finds inconsistent
+    make the fit not ``ok``, with the warning of :meth:`ColourCheck.warning` (worded for
+    a photo the model does not ``explained`` as a whole, as the verdict found)."""
+    check = colour_check(photo, render, np.asarray(mask, bool) & (np.asarray(cos) > INNER_COS), sigma,
+                         model_error=model_error)
     if check is None:
         return ok, warnings, None
-    why = check.warning()
-    return ok, (warnings + [why] if why else warnings), check.to_json()
+    why = check.warning(explained)
+    if why is None:
+        return ok, warnings, check.to_json()
+    return False, warnings + [why], check.to_json()

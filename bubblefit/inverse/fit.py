@@ -218,8 +218,11 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
                            misfit=unc.misfit, ok_chi2=float(opts.ok_chi2), model_error=float(opts.model_error),
                            notes=st.warnings)
     disc_stderr = judged.disc_stderr
-    # the camera response's test (bubblefit.inverse.colour_check), kept apart from the verdict
-    ok, warnings, colour_record = judge_colours(ok, warnings, st.photo, img, full.mask, full.cos)
+    # can the stated camera response produce the photo's colours? (bubblefit.inverse.colour_check)
+    sigma = st.sigma if opts.photosite_share is None else st.sigma / np.sqrt(np.asarray(opts.photosite_share))
+    explained = bool(unc.misfit.chi2_floor <= float(opts.ok_chi2))  # as the verdict judges it
+    ok, warnings, colour_record = judge_colours(ok, warnings, st.photo, img, full.mask, full.cos, sigma,
+                                                float(opts.model_error), explained)
     return FitResult(
         params=reported, stderr=stderr, held=list(table.held), converged=bool(converged),
         message="; ".join(notes) if notes else "converged", iterations=sol.steps, residual_rms=rms,

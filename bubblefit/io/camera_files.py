@@ -128,7 +128,8 @@ def read_raw(path: str, reading: PhotoReading = PhotoReading(), dtype=np.float64
             pattern = raw.raw_pattern
             bayer = pattern is not None and np.shape(pattern) == (2, 2) and len(set(desc[:3])) == 3
             if bayer:
-                pixels, saturated = _develop_bayer(raw, desc, wb, reading)
+                pixels, saturated, share = _develop_bayer(raw, desc, wb, reading)
+                info["photosite_share"] = share
                 how = "bilinear demosaic here"
                 flip = int(raw.sizes.flip)
             else:
@@ -150,8 +151,10 @@ def read_raw(path: str, reading: PhotoReading = PhotoReading(), dtype=np.float64
 
 
 def _develop_bayer(raw, desc: str, wb: np.ndarray, reading: PhotoReading):
-    """``(pixels, saturated)`` of a Bayer sensor: levels, white balance, bilinear demosaic,
-    and the colour matrix when asked (:func:`read_raw`)."""
+    """``(pixels, saturated, share)`` of a Bayer sensor: levels, white balance, bilinear
+    demosaic, and the colour matrix when asked (:func:`read_raw`); ``share`` is the fraction
+    of the photosites that measure each of R, G, B (1/4, 1/2, 1/4 for a Bayer mosaic): an
+    average over ``n`` demosaiced pixels holds the noise of ``share * n`` photosites only."""
     from scipy.ndimage import binary_dilation, convolve
 
     vals = np.asarray(raw.raw_image_visible, dtype=np.float64)
@@ -173,7 +176,8 @@ def _develop_bayer(raw, desc: str, wb: np.ndarray, reading: PhotoReading):
     saturated = binary_dilation(vals >= white, structure=np.ones((3, 3), bool))
     if reading.raw_colour == "srgb":
         out = out @ np.asarray(raw.color_matrix, np.float64)[:, :3].T
-    return out, saturated
+    share = [float(np.mean(channel == c)) for c in range(3)]
+    return out, saturated, share
 
 
 def _orient(arr: np.ndarray, flip: int) -> np.ndarray:

@@ -254,6 +254,27 @@ def response_functions(response: str) -> np.ndarray:
     return np.stack([np.interp(_GRID, data[:, 0], data[:, c], left=0.0, right=0.0) for c in (1, 2, 3)], axis=1)
 
 
+#: The comment a response CSV of ``bubblefit calibrate-camera`` opens with names the lamp it
+#: was fitted under after this (:meth:`bubblefit.capture.camera_calibration.CameraCalibration.csv_text`).
+CALIBRATED_UNDER = "; illuminant "
+_LAMP_INCLUDED = " (the response includes the lamp)"
+
+
+def response_illuminant(response: str) -> str | None:
+    """The illuminant a calibrated response CSV was fitted under, from its first comment
+    line (``E``: the CSV is the camera-times-lamp product), else None (a named camera, or
+    a CSV that does not say)."""
+    if not os.path.isfile(response):
+        return None
+    with open(response, encoding="utf-8", errors="replace") as fh:
+        first = fh.readline().strip()
+    if not first.startswith("#") or "calibrate-camera" not in first or CALIBRATED_UNDER not in first:
+        return None
+    name = first.rsplit(CALIBRATED_UNDER, 1)[1]
+    name = name[:-len(_LAMP_INCLUDED)] if name.endswith(_LAMP_INCLUDED) else name
+    return name.strip() or None
+
+
 def _colour_has(dataset: str, name: str) -> bool:
     """Whether colour-science's ``dataset`` (e.g. ``SDS_ILLUMINANTS``) holds ``name``; imports
     colour-science, so it is asked only for names bubblefit does not ship."""

@@ -390,7 +390,7 @@ def test_calibrated_response_names_its_lamp(tmp_path):
     another stated illuminant is refused in one line; one fitted under a named lamp (the
     camera alone) may be used under another."""
     from bubblefit.capture.camera_calibration import fit_response
-    from bubblefit.inverse._setup import calibrated_illuminant
+    from bubblefit.inverse import calibrated_illuminant
     from bubblefit.optics.spectral import response_functions
 
     d = np.linspace(0.0, 2000.0, 41)

@@ -43,6 +43,19 @@ def small_courtyard(courtyard_pixels) -> np.ndarray:
     return px
 
 
+@pytest.fixture(autouse=True)
+def _environment_restored():
+    """Each test starts from the environment the session started with: a command run in
+    this process (``bubblefit.cli.main``) sets JAX's variables for its workers
+    (:func:`bubblefit.io.jaxcache.jax_setup`), which would otherwise pass on to the
+    processes later tests start."""
+    saved = dict(os.environ)
+    yield
+    if os.environ != saved:
+        os.environ.clear()
+        os.environ.update(saved)
+
+
 @pytest.fixture
 def x64():
     """Run a test in float64."""

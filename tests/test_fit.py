@@ -159,11 +159,12 @@ def test_drainage_and_map(map_fit):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="not met yet on this 48 px photo: 84% of pixels within 15 nm, a neighbour jump of "
-                          "128 nm, the bump recovered as 21 nm over the fitted profile (issue 14's map targets)",
-                   strict=False)
+@pytest.mark.xfail(reason="not met on this 48 px photo: 89.6% of pixels within 15 nm (not 90%), and the 40 nm "
+                          "bump recovered as 21 nm over the fitted profile (no order hop: neighbours differ by 32 nm "
+                          "at most)",
+                   strict=True)
 def test_map_meets_order_targets(map_fit):
-    """Issue 14's targets for maps: >= 90% of pixels within 15 nm, no order hops, the 40 nm bump kept."""
+    """The targets for thickness maps: >= 90% of pixels within 15 nm, no order hops, the 40 nm bump kept."""
     from bubblefit.model.thickness import drainage_profile
 
     res, true, y, _ = map_fit
@@ -171,15 +172,19 @@ def test_map_meets_order_targets(map_fit):
     m = res.thickness_map
     used = np.isfinite(res.thickness_stderr_map)
     err = np.abs(m - true)[used]
-    assert np.mean(err < 15.0) > 0.9
+    within = float(np.mean(err < 15.0))
     # no order hops: neighbours never differ by a colour order (~200 nm) where the truth is smooth
+    hop = 0.0
     for ax in (0, 1):
         jump = np.abs(np.diff(m, axis=ax))
         both = np.take(used, range(used.shape[ax] - 1), axis=ax) & np.take(used, range(1, used.shape[ax]), axis=ax)
-        assert np.nanmax(np.where(both, jump, 0.0)) < 100.0
+        hop = max(hop, float(np.nanmax(np.where(both, jump, 0.0))))
     jc, ic = int(DISC[0] + 0.3 * DISC[2]), int(DISC[1])
     prof = np.asarray(drainage_profile(y, p["top_nm"], p["bottom_nm"], p["exponent"]))
-    assert abs((m - prof)[ic - 1:ic + 2, jc - 1:jc + 2].mean() - 40.0) < 15.0
+    bump = float((m - prof)[ic - 1:ic + 2, jc - 1:jc + 2].mean())
+    # all three measured before the verdict, so that a failure states each
+    assert within > 0.9 and hop < 100.0 and abs(bump - 40.0) < 15.0, dict(within_15nm=within, hop_nm=hop,
+                                                                           bump_nm=bump)
 
 
 @pytest.mark.slow

@@ -175,6 +175,7 @@ def test_without_enough_pinning_readings_each_is_read_alone():
     assert all(any("no shared lamp" in w for w in r.warnings) for r in results if not r.ok)
 
 
+@pytest.mark.slow
 def test_cli_shared_lamp_writes_the_series(tmp_path, capsys):
     spectra = series(THICK[:4] + THIN[:3], seed=5)
     files = []

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import os
 from pathlib import Path
 
@@ -16,7 +17,11 @@ _cache = Path(os.environ.get("BUBBLEFIT_TEST_CACHE", Path(__file__).resolve().pa
 try:
     _cache.mkdir(exist_ok=True)
     jax.config.update("jax_compilation_cache_dir", str(_cache))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    # every program goes into it (as the command line does, bubblefit.io.jaxcache): the
+    # compiled programs are dropped after each test module (below), and one that a later
+    # module needs again is loaded (milliseconds) rather than compiled
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 except OSError:
     pass
 
@@ -41,6 +46,29 @@ def small_courtyard(courtyard_pixels) -> np.ndarray:
     while px.shape[0] > 64:
         px = downsample(px)
     return px
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _compiled_programs_dropped():
+    """JAX keeps every program it compiles for the life of the process; after a test module
+    they are dropped (with the arrays only they held), so the suite's memory is that of its
+    largest module rather than the sum of all of them."""
+    yield
+    jax.clear_caches()
+    gc.collect()
+
+
+@pytest.fixture(autouse=True)
+def _environment_restored():
+    """Each test starts from the environment the session started with: a command run in
+    this process (``bubblefit.cli.main``) sets JAX's variables for its workers
+    (:func:`bubblefit.io.jaxcache.jax_setup`), which would otherwise pass on to the
+    processes later tests start."""
+    saved = dict(os.environ)
+    yield
+    if os.environ != saved:
+        os.environ.clear()
+        os.environ.update(saved)
 
 
 @pytest.fixture

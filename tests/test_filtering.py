@@ -39,7 +39,8 @@ def _rel(x, ref):
     return float(np.sqrt(np.mean((x - ref) ** 2)) / np.sqrt(np.mean(ref**2)))
 
 
-@pytest.mark.parametrize("a", [0.1, 0.3])
+# the 0.1 lobe (a level-0 sum over many texels per point) is the longest: slow; 0.3 runs in the fast part
+@pytest.mark.parametrize("a", [pytest.param(0.1, marks=pytest.mark.slow), 0.3])
 def test_window_converges_to_full_sum(env, a):
     n, wo = _points()
     ref = np.asarray(F.full_sum(env, n, wo, a, level=0, chunk=4096, normalize=False)[0])
@@ -48,7 +49,7 @@ def test_window_converges_to_full_sum(env, a):
     assert errs[-1] < 0.01 and errs[0] > 0.1, errs
 
 
-@pytest.mark.parametrize("a", [0.1, 0.3])
+@pytest.mark.parametrize("a", [pytest.param(0.1, marks=pytest.mark.slow), 0.3])  # as above
 def test_mipmap_converges_to_full_sum(env, a):
     """On the courtyard (a sun ~50x the mean) the mip-map quadrature approaches eq. (12)."""
     n, wo = _points()
@@ -72,7 +73,7 @@ def test_roughness_to_zero_tends_to_mirror(env):
     assert _rel(raw, mirror * cos_r) < 2e-3
 
 
-@pytest.mark.parametrize("a", [0.05, 0.1, 0.2])
+@pytest.mark.parametrize("a", [pytest.param(0.05, marks=pytest.mark.slow), 0.1, 0.2])  # 0.05: the longest sum
 def test_white_furnace_energy(a):
     """r_d + r_s = 1 - t (eq. 14) in a white furnace returns 1 - t up to Ward's known error."""
     white = EnvMap.constant(1.0, height=64)

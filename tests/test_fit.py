@@ -111,7 +111,7 @@ def test_constant_recovery(env, seed, thickness, tint, monkeypatch):
     assert res.render.shape == photo.shape and res.residual.shape == photo.shape
     # a prepared program called with arguments of other shapes would be left waiting, unused
     ours = [s for s in prepared if s.name.startswith("inverse._programs")]
-    assert {s.name for s in ours} == {"inverse._programs.solver", "inverse._programs.reporter",
+    assert {s.name for s in ours} == {"inverse.solver", "inverse._programs.reporter",
                                       "inverse._programs.reporter_jacobian"}
     assert all(not s.pending for s in ours)
 
@@ -159,11 +159,12 @@ def test_drainage_and_map(map_fit):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="not met yet on this 48 px photo: 84% of pixels within 15 nm, a neighbour jump of "
-                          "128 nm, the bump recovered as 21 nm over the fitted profile (issue 14's map targets)",
-                   strict=False)
+@pytest.mark.xfail(reason="not met on this 48 px photo: 89.6% of pixels within 15 nm (not 90%), and the 40 nm "
+                          "bump recovered as 21 nm over the fitted profile (no order hop: neighbours differ by 32 nm "
+                          "at most)",
+                   strict=True)
 def test_map_meets_order_targets(map_fit):
-    """Issue 14's targets for maps: >= 90% of pixels within 15 nm, no order hops, the 40 nm bump kept."""
+    """The targets for thickness maps: >= 90% of pixels within 15 nm, no order hops, the 40 nm bump kept."""
     from bubblefit.model.thickness import drainage_profile
 
     res, true, y, _ = map_fit
@@ -171,15 +172,19 @@ def test_map_meets_order_targets(map_fit):
     m = res.thickness_map
     used = np.isfinite(res.thickness_stderr_map)
     err = np.abs(m - true)[used]
-    assert np.mean(err < 15.0) > 0.9
+    within = float(np.mean(err < 15.0))
     # no order hops: neighbours never differ by a colour order (~200 nm) where the truth is smooth
+    hop = 0.0
     for ax in (0, 1):
         jump = np.abs(np.diff(m, axis=ax))
         both = np.take(used, range(used.shape[ax] - 1), axis=ax) & np.take(used, range(1, used.shape[ax]), axis=ax)
-        assert np.nanmax(np.where(both, jump, 0.0)) < 100.0
+        hop = max(hop, float(np.nanmax(np.where(both, jump, 0.0))))
     jc, ic = int(DISC[0] + 0.3 * DISC[2]), int(DISC[1])
     prof = np.asarray(drainage_profile(y, p["top_nm"], p["bottom_nm"], p["exponent"]))
-    assert abs((m - prof)[ic - 1:ic + 2, jc - 1:jc + 2].mean() - 40.0) < 15.0
+    bump = float((m - prof)[ic - 1:ic + 2, jc - 1:jc + 2].mean())
+    # all three measured before the verdict, so that a failure states each
+    assert within > 0.9 and hop < 100.0 and abs(bump - 40.0) < 15.0, dict(within_15nm=within, hop_nm=hop,
+                                                                           bump_nm=bump)
 
 
 @pytest.mark.slow
@@ -383,7 +388,7 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
 
     from dataclasses import replace
 
-    from bubblefit.inverse import _lm, _programs
+    from bubblefit.inverse import column_jacobian, solver
     from bubblefit.inverse import Level, fitted_pixels, padded, padded_size, pixel_bucket
     from bubblefit.inverse import render_level
     from bubblefit.model.geometry import compose_shift
@@ -454,7 +459,7 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
              "disc_y": -0.02, "disc_r": 0.03}
     lev.y = np.asarray(render_level(Params.make(thickness=655.0, roughness=0.04), lev, env), np.float32)
     px = fitted_pixels(lev, 256)
-    _, resid = _programs.solver(px.padded.cfg, table, 3.0, 20, 1e-5, 1e-6)
+    _, resid = solver(px.padded.cfg, table, 3.0, 20, 1e-5, 1e-6)
     z = table.unconstrained(start)
     fixed = {"n_film": jnp.float32(1.33), "rotation_deg": jnp.float32(0.0)}
     # with the background photo's noise (0.01, a 8-bit photo's order) widening the weights
@@ -463,7 +468,7 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
     args = (fixed, env, px.padded.bg, bg_sigma, px.y, px.w, px.padded.base, (px.rows, px.cols, px.idx))
     want = np.asarray(jax.jacfwd(resid)(z, args))
     assert table.jacobian_groups == ((0, 1, 3), (2,), (4,), (5, 6, 7))  # weights, light, film, disc
-    got = np.asarray(jax.jit(lambda z, a: _lm.column_jacobian(resid, table.jacobian_groups, z, a))(z, args))
+    got = np.asarray(jax.jit(lambda z, a: column_jacobian(resid, table.jacobian_groups, z, a))(z, args))
     assert got.shape == want.shape == (np.asarray(resid(z, args)).size, len(table.free))
     assert np.all(np.abs(want).max(axis=0) > 0)  # every parameter moves the render
     np.testing.assert_allclose(got, want, atol=1e-4 * np.abs(want).max())
@@ -480,9 +485,9 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
         return _quantise(render_scene(scene, bgp, env=env), rng)
 
     first = fit_photo(photo(DISC), env, options=_opts(), background=bgp)
-    misses = _programs.solver.cache_info().misses
+    misses = solver.cache_info().misses
     moved = (DISC[0] + 1.3, DISC[1] - 0.7, 0.93 * DISC[2])
     second = fit_photo(photo(moved), env, options=_opts(disc=moved), background=bgp)
-    assert _programs.solver.cache_info().misses == misses
+    assert solver.cache_info().misses == misses
     for res in (first, second):
         assert res.ok and abs(res.params["thickness_nm"] - 500.0) < 5.0

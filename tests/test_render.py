@@ -289,8 +289,8 @@ def test_transmission_tint_is_the_complement_of_the_reflection(x64):
         assert np.all(dev_r[strong] * dev_t[strong] < 0), (d, dev_r, dev_t)
 
 
-@pytest.mark.parametrize("camera", ["orthographic", "perspective"])
-@pytest.mark.parametrize("spp", [1, 4])
+@pytest.mark.parametrize("spp,camera", [(1, "orthographic"), (1, "perspective"), (4, "orthographic"),
+                                        pytest.param(4, "perspective", marks=pytest.mark.slow)])
 def test_render_plan_renders_the_bubble_and_its_backdrop(env64, camera, spp):
     """A plan shades only the pixels the bubble can touch and takes the backdrop elsewhere:
     the image equals the whole-image render, the rim's sub-pixel rays included."""
@@ -341,7 +341,7 @@ RAY_ROUNDINGS = 32 * 5 * 1.6
 
 
 @pytest.mark.parametrize("case", [pytest.param("physical_drainage_lamp_perspective", marks=pytest.mark.slow),
-                                  "paper_photo", "physical_mirror",
+                                  "paper_photo", pytest.param("physical_mirror", marks=pytest.mark.slow),
                                   pytest.param("supersampled", marks=pytest.mark.slow)])
 def test_render_plan_from_the_footprint_equals_the_traced_render(small_courtyard, case):
     """render_scene shades the bubble from the light its footprint read (one ray per pixel):
@@ -432,7 +432,7 @@ def test_render_plan_from_the_footprint_equals_the_traced_render(small_courtyard
     assert not lit_usable(fp, other, parts[0][0])
 
 
-@pytest.mark.parametrize("camera", ["orthographic", "perspective"])
+@pytest.mark.parametrize("camera", ["orthographic", pytest.param("perspective", marks=pytest.mark.slow)])
 def test_a_map_keeps_its_profile_on_the_films_the_photo_does_not_show(env64, camera):
     """A drainage film given as a ``map`` of its front film, with the profile under it
     (``Params.profile``), renders as the drainage film itself, rear film and internal
@@ -476,7 +476,8 @@ def test_a_map_keeps_its_profile_on_the_films_the_photo_does_not_show(env64, cam
     np.testing.assert_allclose(none, at_pix)
 
 
-@pytest.mark.parametrize("model,spp,photo", [("physical", 1, True), ("physical", 4, False), ("paper", 1, True)])
+@pytest.mark.parametrize("model,spp,photo", [("physical", 1, True), pytest.param("physical", 4, False, marks=pytest.mark.slow),
+                                             ("paper", 1, True)])
 def test_constant_films_at_many_thicknesses_equal_their_renders(env64, model, spp, photo):
     """render_pixels_at traces the rays and reads the map once for a list of thicknesses:
     each thickness's terms equal render_terms' at that thickness, on the listed pixels,

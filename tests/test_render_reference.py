@@ -293,8 +293,6 @@ def test_film_has_the_colours_of_its_thickness(kind, tmp_path):
 _CONV = __import__("pathlib").Path(__file__).resolve().parent.parent / "experiments" / "validation" / "data"
 
 
-@pytest.mark.skipif(not (_CONV / "conventions" / "mitsuba_mirror_ortho.exr").exists(),
-                    reason="the Mitsuba 3 convention renders are not present")
 def test_map_convention_is_mitsubas():
     """A perfect mirror sphere in the courtyard map, path traced by Mitsuba 3 (orthographic
     camera, disc (64, 64), r = 50 px, 128 x 128): the test's own lookup (tests/helpers.py,

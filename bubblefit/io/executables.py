@@ -41,7 +41,9 @@ on, and the call with arguments of the same shapes waits for it (the fit prepare
 final solve, its final render and its standard errors' programs before the global search).
 
 Two things XLA:CPU needs, found by running it: an executable is serialised from a fresh
-compile (one that the persistent cache loaded loses its fused kernels), and the LAPACK
+compile (one that the persistent cache loaded loses its fused kernels, and JAX's in-memory
+cache hands back such a one when the process already called the function plainly, so the
+store's compile carries :data:`FRESH_COMPILE`), and the LAPACK
 kernels are initialised before a loaded program runs (JAX does it while lowering, which a
 loaded program skips).
 """
@@ -89,6 +91,13 @@ FORMAT = 1
 SECRET_BYTES = 32
 #: Largest file the store reads (a fit's solve is 2-3 MB): a larger one is not its own.
 MAX_FILE_BYTES = 256 * 2**20
+#: An XLA option at its default value (embedding the HLO text in the executable, off),
+#: passed to the store's compiles: the program is the same, but the option is part of the
+#: key of JAX's in-memory cache of compiled programs, so the store never receives an
+#: executable that an earlier plain call loaded from the persistent cache (found by
+#: running it: the file stored from such a program failed its first run in every later
+#: process, which then compiled it again).
+FRESH_COMPILE = (("xla_embed_ir_in_executable", False),)
 #: Per-thread state: whether this thread's compiles bypass the persistent cache.
 _THREAD = threading.local()
 
@@ -435,9 +444,12 @@ def _fetch(jitted: Callable, key: str, args: tuple) -> tuple[Callable, Path | No
     if path is None:
         return jitted, None
     # An executable that XLA:CPU itself loaded from the persistent cache does not serialise
-    # whole (its fused kernels are missing when loaded again), so compile this one afresh.
+    # whole (its fused kernels are missing when loaded again), so compile this one afresh:
+    # past the persistent cache, and past JAX's in-memory cache of compiled programs, which
+    # would hand back the program a plain call of ``jitted`` already loaded from the
+    # persistent cache (:data:`FRESH_COMPILE` makes the compile's key new).
     with _persistent_cache(False):
-        compiled = jitted.lower(*args).compile()
+        compiled = jitted.lower(*args).compile(compiler_options=dict(FRESH_COMPILE))
     try:
         _save(path, compiled)
         _prune(path.parent)

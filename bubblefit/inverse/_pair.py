@@ -31,7 +31,7 @@ from scipy import ndimage as ndi
 
 from ..errors import InputError
 
-__all__ = ["PairCheck", "check_pair", "transmission_floor", "darkening", "outside_mismatch", "N_FILM_MAX",
+__all__ = ["PairCheck", "check_pair", "frame_mismatch", "FRAME_SHARE", "transmission_floor", "darkening", "outside_mismatch", "N_FILM_MAX",
            "LUMINANCE", "DARK_Z", "DARK_SHARE", "SAME_VIEW_Z", "SAME_VIEW_SHARE"]
 
 #: Linear sRGB (Rec. 709) weights of CIE Y (IEC 61966-2-1).
@@ -67,6 +67,13 @@ SAME_VIEW_TOLERANCE = 0.02
 #: scene: most of the view. On the right pairs of experiments/validation at most 0.3 %
 #: differed; a background of another scene differs nearly everywhere.
 SAME_VIEW_SHARE = 0.5
+#: Largest exposure ratio between the shots the same-view test takes out (one stop): the
+#: fit takes the background photo's radiance as it is, so a pair further apart cannot be
+#: explained either.
+EXPOSURE_RANGE = 2.0
+#: Share of the whole frame that must differ, when no bubble was found, for the message to
+#: name another view: a bubble changes only the pixels it covers.
+FRAME_SHARE = 0.9
 #: Fewest usable pixels off the bubble for the same-view test (a bubble that fills the
 #: frame leaves none, and the test is skipped).
 SAME_VIEW_MIN_PIXELS = 100
@@ -129,6 +136,7 @@ def outside_mismatch(photo, background, sigma, bg_sigma, off) -> tuple[float, in
     p, b = photo[off], background[off]
     lit = np.all(b > 4.0 * bg_sigma[off], axis=-1)
     ratio = np.median(p[lit] / b[lit], axis=0) if lit.sum() >= 10 else np.ones(3)
+    ratio = np.clip(ratio, 1.0 / EXPOSURE_RANGE, EXPOSURE_RANGE)
     var = sigma[off] ** 2 + ratio**2 * bg_sigma[off] ** 2 + (SAME_VIEW_TOLERANCE * np.abs(p)) ** 2
     z = np.abs(p - ratio * b) / np.sqrt(np.maximum(var, 1e-30))
     return float(np.mean(np.any(z > SAME_VIEW_Z, axis=-1))), n, ratio
@@ -183,6 +191,13 @@ class PairCheck:
         return None
 
 
+def frame_mismatch(photo, background, sigma, bg_sigma) -> float:
+    """:func:`outside_mismatch`'s share over the whole frame (finite pixels): the share of a
+    pair that differs beyond noise and exposure, when no bubble tells where to look."""
+    usable = np.all(np.isfinite(photo) & np.isfinite(background), axis=-1)
+    return outside_mismatch(photo, background, sigma, bg_sigma, usable)[0]
+
+
 def _block_var(a: np.ndarray, k: int, h: int, w: int) -> np.ndarray:
     if k == 1:
         return a[:h, :w]
@@ -214,7 +229,7 @@ def check_pair(frame, lev) -> PairCheck | None:
         yp, yb = y[off] @ LUMINANCE, bg[off] @ LUMINANCE
         lit = yb > 4.0 * np.sqrt((bg_sigma[off] ** 2) @ LUMINANCE**2)
         if lit.sum() >= 10:
-            gain = float(np.median(yp[lit] / yb[lit]))
+            gain = float(np.clip(np.median(yp[lit] / yb[lit]), 1.0 / EXPOSURE_RANGE, EXPOSURE_RANGE))
     cos = np.asarray(lev.cos, np.float64)
     tested = inside & usable & (cos >= math.sqrt(1.0 - MAX_SIN**2))
     dark, _ = darkening(y, bg, sigma, bg_sigma, cos, tested, gain)

@@ -216,7 +216,7 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     reported["n_film"] = float(st.vals["n_film"])
     ok, warnings = verdict(converged=bool(converged), disc_found=True, bound_warnings=judged.bounds,
                            misfit=unc.misfit, ok_chi2=float(opts.ok_chi2), model_error=float(opts.model_error),
-                           notes=st.warnings)
+                           notes=st.warnings, swap_possible=st.pair is not None and st.pair.swap_possible)
     disc_stderr = judged.disc_stderr
     # the camera response's test (bubblefit.inverse.colour_check), kept apart from the verdict
     ok, warnings, colour_record = judge_colours(ok, warnings, st.photo, img, full.mask, full.cos)

@@ -31,7 +31,7 @@ from scipy import ndimage as ndi
 
 from ..errors import InputError
 
-__all__ = ["PairCheck", "check_pair", "frame_mismatch", "FRAME_SHARE", "transmission_floor", "darkening", "outside_mismatch", "N_FILM_MAX",
+__all__ = ["PairCheck", "check_pair", "judge_pair", "frame_mismatch", "FRAME_SHARE", "transmission_floor", "darkening", "outside_mismatch", "N_FILM_MAX",
            "LUMINANCE", "DARK_Z", "DARK_SHARE", "SAME_VIEW_Z", "SAME_VIEW_SHARE"]
 
 #: Linear sRGB (Rec. 709) weights of CIE Y (IEC 61966-2-1).
@@ -204,12 +204,38 @@ def _block_var(a: np.ndarray, k: int, h: int, w: int) -> np.ndarray:
     return a[: h * k, : w * k].reshape(h, k, w, k, *a.shape[2:]).mean(axis=(1, 3)) / (k * k)
 
 
+def judge_pair(photo, background, sigma, bg_sigma, usable, inside, cos) -> PairCheck:
+    """The :class:`PairCheck` of a photo and its background photo, (h, w, 3) linear with
+    their noise standard deviations ``sigma`` and ``bg_sigma``: ``usable`` (h, w) pixels
+    unclipped and finite in both, ``inside`` (h, w) the pixels on the bubble and ``cos``
+    (h, w) the incidence cosine on its front film there. The conservation test uses the
+    bubble's pixels with ``sin(theta) <= MAX_SIN``; the same-view test the usable pixels
+    farther than 15 % of the radius (at least 2 pixels) from the bubble."""
+    photo, background = np.asarray(photo, np.float64), np.asarray(background, np.float64)
+    inside = np.asarray(inside, bool)
+    radius = math.sqrt(max(inside.sum(), 1) / math.pi)
+    off = ~ndi.binary_dilation(inside, iterations=max(2, int(round(0.15 * radius)))) & usable
+    share, n_off, _ = outside_mismatch(photo, background, sigma, bg_sigma, off)
+    gain = 1.0
+    if n_off >= SAME_VIEW_MIN_PIXELS:
+        yp, yb = photo[off] @ LUMINANCE, background[off] @ LUMINANCE
+        lit = yb > 4.0 * np.sqrt((bg_sigma[off] ** 2) @ LUMINANCE**2)
+        if lit.sum() >= 10:
+            gain = float(np.clip(np.median(yp[lit] / yb[lit]), 1.0 / EXPOSURE_RANGE, EXPOSURE_RANGE))
+    cos = np.asarray(cos, np.float64)
+    tested = inside & usable & (cos >= math.sqrt(1.0 - MAX_SIN**2))
+    dark, _ = darkening(photo, background, sigma, bg_sigma, cos, tested, gain)
+    dark_swapped, _ = darkening(background, photo, bg_sigma, sigma, cos, tested, 1.0 / gain)
+    return PairCheck(dark, dark_swapped, int(tested.sum()), share if n_off >= SAME_VIEW_MIN_PIXELS else float("nan"),
+                     n_off, gain)
+
+
 def check_pair(frame, lev) -> PairCheck | None:
-    """The :class:`PairCheck` of a fit's analysed ``frame``
-    (:class:`~bubblefit.inverse._observation.Frame`) at its fit ``lev``
+    """:func:`judge_pair` on a fit's analysed ``frame``
+    (:class:`~bubblefit.inverse._observation.Frame`) at its fit level ``lev``
     (:class:`~bubblefit.inverse._observation.Level`: the photo, the background, the film's
-    geometry), None without a background photo; raises :class:`InputError` with its
-    :meth:`~PairCheck.refusal` when the pair is refused."""
+    geometry), None without a background photo; raises :class:`InputError` with the
+    check's :meth:`~PairCheck.refusal` when the pair is refused."""
     if lev.bg is None or frame.background is None:
         return None
     k = lev.k
@@ -220,22 +246,7 @@ def check_pair(frame, lev) -> PairCheck | None:
     y, bg = lev.y.astype(np.float64), lev.bg.astype(np.float64)
     sat = frame.saturated[: h * k, : w * k].reshape(h, k, w, k).any(axis=(1, 3)) if k > 1 else frame.saturated[:h, :w]
     usable = ~sat & np.all(np.isfinite(y) & np.isfinite(bg), axis=-1)
-    inside = np.asarray(lev.inside, bool)
-    radius = math.sqrt(max(inside.sum(), 1) / math.pi)
-    off = ~ndi.binary_dilation(inside, iterations=max(2, int(round(0.15 * radius)))) & usable
-    share, n_off, _ = outside_mismatch(y, bg, sigma, bg_sigma, off)
-    gain = 1.0
-    if n_off >= SAME_VIEW_MIN_PIXELS:
-        yp, yb = y[off] @ LUMINANCE, bg[off] @ LUMINANCE
-        lit = yb > 4.0 * np.sqrt((bg_sigma[off] ** 2) @ LUMINANCE**2)
-        if lit.sum() >= 10:
-            gain = float(np.clip(np.median(yp[lit] / yb[lit]), 1.0 / EXPOSURE_RANGE, EXPOSURE_RANGE))
-    cos = np.asarray(lev.cos, np.float64)
-    tested = inside & usable & (cos >= math.sqrt(1.0 - MAX_SIN**2))
-    dark, _ = darkening(y, bg, sigma, bg_sigma, cos, tested, gain)
-    dark_swapped, _ = darkening(bg, y, bg_sigma, sigma, cos, tested, 1.0 / gain if gain > 0 else 1.0)
-    check = PairCheck(dark, dark_swapped, int(tested.sum()), share if n_off >= SAME_VIEW_MIN_PIXELS else float("nan"),
-                      n_off, gain)
+    check = judge_pair(y, bg, sigma, bg_sigma, usable, lev.inside, lev.cos)
     why = check.refusal()
     if why is not None:
         raise InputError(why)

@@ -108,20 +108,22 @@ def _luminance(rgb: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return rgb @ LUMINANCE, (sigma**2) @ LUMINANCE**2
 
 
-def darkening(photo, background, sigma, bg_sigma, cos, tested, gain: float = 1.0) -> tuple[float, int]:
-    """``(share, count)`` of the ``tested`` pixels where the photo's luminance lies more
+def darkening(photo, background, sigma, bg_sigma, cos, tested, gain: float = 1.0) -> tuple[float, int, float]:
+    """``(share, count, least)``: the share and count of the ``tested`` pixels where the photo's luminance lies more
     than :data:`DARK_Z` standard deviations below ``gain * T_min(theta)`` times the
     background's (:func:`transmission_floor`): light a film cannot have absorbed.
-    ``gain`` is the photo's exposure over the background's (1 when unknown)."""
+    ``gain`` is the photo's exposure over the background's (1 when unknown); ``least`` is
+    the lowest deviation from the floor, in standard deviations (the margin of a pair
+    that passes)."""
     n = int(np.count_nonzero(tested))
     if n == 0:
-        return 0.0, 0
+        return 0.0, 0, float("nan")
     yp, vp = _luminance(photo[tested], sigma[tested])
     yb, vb = _luminance(background[tested], bg_sigma[tested])
     floor = gain * transmission_floor(cos[tested])
     z = (yp - floor * yb) / np.sqrt(np.maximum(vp + floor**2 * vb, 1e-30))
     count = int(np.count_nonzero(z < -DARK_Z))
-    return count / n, count
+    return count / n, count, float(z.min())
 
 
 def outside_mismatch(photo, background, sigma, bg_sigma, off) -> tuple[float, int, np.ndarray]:
@@ -160,6 +162,8 @@ class PairCheck:
     gain : float
         The photo's luminance exposure over the background's, off the bubble (1 when
         not measured).
+    least_z : float
+        The lowest deviation of a tested pixel from the floor, in standard deviations.
     """
 
     dark_share: float
@@ -168,6 +172,7 @@ class PairCheck:
     outside_share: float
     outside_pixels: int
     gain: float
+    least_z: float = float("nan")
 
     @property
     def swap_possible(self) -> bool:
@@ -224,10 +229,10 @@ def judge_pair(photo, background, sigma, bg_sigma, usable, inside, cos) -> PairC
             gain = float(np.clip(np.median(yp[lit] / yb[lit]), 1.0 / EXPOSURE_RANGE, EXPOSURE_RANGE))
     cos = np.asarray(cos, np.float64)
     tested = inside & usable & (cos >= math.sqrt(1.0 - MAX_SIN**2))
-    dark, _ = darkening(photo, background, sigma, bg_sigma, cos, tested, gain)
-    dark_swapped, _ = darkening(background, photo, bg_sigma, sigma, cos, tested, 1.0 / gain)
+    dark, _, least = darkening(photo, background, sigma, bg_sigma, cos, tested, gain)
+    dark_swapped, _, _ = darkening(background, photo, bg_sigma, sigma, cos, tested, 1.0 / gain)
     return PairCheck(dark, dark_swapped, int(tested.sum()), share if n_off >= SAME_VIEW_MIN_PIXELS else float("nan"),
-                     n_off, gain)
+                     n_off, gain, least)
 
 
 def check_pair(frame, lev) -> PairCheck | None:

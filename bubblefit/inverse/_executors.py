@@ -253,6 +253,42 @@ def read_security(path: str):
     return Security(require_encryption=True, **files)
 
 
+#: The warning filter of the resource tracker a local cluster starts (``-W``): the reports
+#: of its module, which are its notes on cleaning up after a process that ended without
+#: releasing its semaphores.
+TRACKER_FILTER = "ignore::UserWarning:multiprocessing.resource_tracker"
+
+
+def quiet_resource_tracker() -> bool:
+    """Start Python's ``multiprocessing`` resource tracker now, with :data:`TRACKER_FILTER`.
+
+    A local Dask cluster's nannies hold two ``multiprocessing`` queues per worker process
+    (three named semaphores each), which the resource tracker, a process of its own, is
+    told about. When this process ends without closing them, killed with SIGKILL (the
+    only end that skips :func:`close_local_cluster`), the tracker unlinks them and prints
+    "resource_tracker: There appear to be 12 leaked semaphore objects to clean up at
+    shutdown" (two workers): a note on its own cleanup, not an error of the command, which
+    has already been reported (or not) by this process. The tracker is started with its
+    module's warnings ignored, so it still cleans up, silently; the command's own errors
+    are untouched. Returns False where the tracker was already running (started by
+    something else, with this process's flags) or this Python lays it out otherwise."""
+    try:
+        from multiprocessing import resource_tracker, util
+
+        tracker = resource_tracker._resource_tracker
+        if getattr(tracker, "_fd", None) is not None:
+            return False
+        flags = util._args_from_interpreter_flags
+    except (ImportError, AttributeError):  # pragma: no cover - another Python's layout
+        return False
+    util._args_from_interpreter_flags = lambda: [*flags(), "-W", TRACKER_FILTER]
+    try:
+        tracker.ensure_running()
+    finally:
+        util._args_from_interpreter_flags = flags
+    return True
+
+
 def _local_cluster(n: int):
     """A local cluster of ``n`` single-threaded worker processes that only this process can
     use: every connection is TLS with a certificate made for this run
@@ -260,6 +296,7 @@ def _local_cluster(n: int):
     127.0.0.1 only, and the dashboard is off (Dask's HTTP routes stay on 127.0.0.1)."""
     from distributed import Client, LocalCluster, Security
 
+    quiet_resource_tracker()
     security = Security.temporary()
     cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, protocol="tls://",
                            host="127.0.0.1", dashboard_address=None, security=security,

@@ -46,3 +46,31 @@ def test_a_killed_process_leaves_no_leak_lines_and_no_semaphores():
             break
         time.sleep(0.1)
     assert not any(os.path.exists("/dev/shm/sem." + n.lstrip("/")) for n in names)
+
+
+@pytest.mark.slow
+def test_a_local_cluster_that_does_not_stop_in_time_is_ended_with_one_warning(caplog):
+    """A worker busy in a task when the run ends: the close times out, one warning says so,
+    the worker process is ended, and no Dask or tornado error is logged."""
+    import logging
+    import time
+
+    from bubblefit.inverse._executors import _local_cluster, close_local_cluster
+
+    def busy(x):
+        import time as t
+
+        end = t.time() + 120
+        while t.time() < end:
+            pass
+        return x
+
+    client, cluster = _local_cluster(1)
+    procs = [n.process.process._process for n in cluster.workers.values()]
+    future = client.submit(busy, 1, pure=False)
+    time.sleep(2)
+    future.cancel()
+    with caplog.at_level(logging.ERROR), pytest.warns(UserWarning, match="did not stop within"):
+        close_local_cluster(client, cluster, timeout=0.5)
+    assert not any(r.levelno >= logging.ERROR for r in caplog.records)
+    assert procs and not any(p.is_alive() for p in procs)

@@ -201,23 +201,23 @@ def _fit(tmp_path, photo, background):
     return proc, out
 
 
+def _assert_refused(proc, out, phrase: str) -> None:
+    """Exit 2, one error line holding ``phrase``, no traceback, no JSON written, no search run."""
+    lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("bubblefit: error")]
+    assert proc.returncode == 2, proc.stderr
+    assert len(lines) == 1 and phrase in lines[0] and "Traceback" not in proc.stderr
+    assert not out.exists() and "searching" not in proc.stderr
+
+
 @pytest.mark.slow
 def test_fit_refuses_swapped_files_before_the_fit(pair, tmp_path):
     photo, back, _ = pair
     p, b = _write(tmp_path, "photo.png", photo), _write(tmp_path, "background.png", back)
-    proc, out = _fit(tmp_path, b, p)
-    lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("bubblefit: error")]
-    assert proc.returncode == 2, proc.stderr
-    assert len(lines) == 1 and "swapped" in lines[0] and "Traceback" not in proc.stderr
-    assert not out.exists() and "searching" not in proc.stderr
+    _assert_refused(*_fit(tmp_path, b, p), "look swapped")
 
 
 @pytest.mark.slow
 def test_fit_refuses_a_background_of_another_scene(pair, tmp_path):
     photo, _, other = pair
     p, o = _write(tmp_path, "photo.png", photo), _write(tmp_path, "other.png", other)
-    proc, out = _fit(tmp_path, p, o)
-    lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("bubblefit: error")]
-    assert proc.returncode == 2, proc.stderr
-    assert len(lines) == 1 and "does not show the photo's view" in lines[0] and "Traceback" not in proc.stderr
-    assert not out.exists()
+    _assert_refused(*_fit(tmp_path, p, o), "does not show the photo's view")

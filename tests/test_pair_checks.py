@@ -177,6 +177,32 @@ def test_exposure_range_holds_the_true_gain_and_not_an_absurd_one(pair):
     assert why is not None and "clipped" in why and "not the one" in why
 
 
+def test_an_8bit_studio_map_bounds_the_exposure_below_the_absurd(pair, tmp_path):
+    """The shipped studio map saved as an 8-bit JPEG (mostly black, its lamps clipped at 1):
+    the photo's brightness allows at most a gain of a few ten thousand, below the 95360 a
+    fit of such a map reported; and reading the JPEG warns that it is 8-bit and clipped."""
+    import warnings
+
+    from bubblefit.cli.fit import load_envmap
+    from bubblefit.inverse._exposure import exposure_range, least_reflectance, map_levels
+    from bubblefit.inverse._pair import LUMINANCE
+    from bubblefit.io.images import read_image, write_image
+    from bubblefit.model.scene import shipped_envmap
+
+    jpeg = tmp_path / "studio.jpg"
+    write_image(jpeg, np.clip(read_image(shipped_envmap("studio")).pixels, 0, 1))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        env = load_envmap(str(jpeg))
+    assert any("8 bits per channel" in str(w.message) and "clipped" in str(w.message) for w in caught)
+    photo, _, _ = pair
+    inside, cos = _geometry()
+    y = photo[inside & (cos > math.sqrt(1 - 0.96**2))] @ LUMINANCE
+    median, mean = map_levels(np.asarray(env.pixels))
+    _, upper = exposure_range(float(y.mean()), None, median, mean, least_reflectance(50.0, 2000.0, 0.96))
+    assert upper < 95360.0
+
+
 # ---------------------------------------------------------------------------------------
 # The command line: refused in one line, exit 2, before the fit, nothing written
 # ---------------------------------------------------------------------------------------

@@ -101,6 +101,22 @@ def test_right_pairs_are_never_refused_over_noise_draws(pair):
     assert _judge(photo * 2 ** -0.25, back).refusal() is None
 
 
+def test_a_sequence_checks_its_first_frame_before_any_fit(pair):
+    """``fit-sequence`` resolves the disc on its first frame and checks the pair there
+    (:func:`~bubblefit.inverse._pair.check_disc_pair`), at the photo's own resolution."""
+    from bubblefit.errors import InputError
+    from bubblefit.inverse._options import FitOptions
+    from bubblefit.inverse._pair import check_disc_pair
+
+    photo, back, other = pair
+    opts = FitOptions(bits=8)
+    assert check_disc_pair(photo, back, DISC, opts).refusal() is None
+    with pytest.raises(InputError, match="look swapped"):
+        check_disc_pair(back, photo, DISC, opts)
+    with pytest.raises(InputError, match="does not show the photo's view"):
+        check_disc_pair(photo, other, DISC, opts)
+
+
 def test_background_of_another_scene_is_refused(pair):
     photo, _, other = pair
     check = _judge(photo, other)

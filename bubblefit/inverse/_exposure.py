@@ -57,17 +57,23 @@ def least_reflectance(d_lo: float, d_hi: float, rim: float, n: float = N_FILM_MI
     ----------
     Born & Wolf, *Principles of Optics*, eq. 7.6(13); CIE 1931 2 degree observer.
     """
+    import jax
     import jax.numpy as jnp
 
     from ..optics.film import airy_reflectance
     from ..optics.spectral import integrate, spectral_basis
 
     basis = spectral_basis("uniform", 60)
-    lam = jnp.asarray(basis.wavelengths)
-    d = jnp.linspace(max(float(d_lo), 0.0), max(float(d_hi), float(d_lo)), 400)[:, None, None]
-    cos = jnp.linspace(math.sqrt(max(0.0, 1.0 - rim**2)), 1.0, 24)[None, :, None]
-    r = jnp.mean(airy_reflectance(d, lam, n, cos), axis=-1)  # (d, cos, lambda)
-    y = np.asarray(integrate(r, basis)) @ LUMINANCE
+
+    @jax.jit  # one program (stored by the compilation cache) instead of one per operation
+    def grid(lo, hi, cos_lo):
+        d = jnp.linspace(lo, hi, 400)[:, None, None]
+        cos = jnp.linspace(cos_lo, 1.0, 24)[None, :, None]
+        r = jnp.mean(airy_reflectance(d, jnp.asarray(basis.wavelengths), n, cos), axis=-1)  # (d, cos, lambda)
+        return integrate(r, basis) @ jnp.asarray(LUMINANCE, r.dtype)
+
+    lo = max(float(d_lo), 0.0)
+    y = np.asarray(grid(lo, max(float(d_hi), lo), math.sqrt(max(0.0, 1.0 - rim**2))))
     return float(max(y.min(), 0.0))
 
 

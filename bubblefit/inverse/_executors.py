@@ -253,6 +253,42 @@ def read_security(path: str):
     return Security(require_encryption=True, **files)
 
 
+#: The warning filter of the resource tracker a local cluster starts (``-W``): the reports
+#: of its module, which are its notes on cleaning up after a process that ended without
+#: releasing its semaphores.
+TRACKER_FILTER = "ignore::UserWarning:multiprocessing.resource_tracker"
+
+
+def quiet_resource_tracker() -> bool:
+    """Start Python's ``multiprocessing`` resource tracker now, with :data:`TRACKER_FILTER`.
+
+    A local Dask cluster's nannies hold two ``multiprocessing`` queues per worker process
+    (three named semaphores each), which the resource tracker, a process of its own, is
+    told about. When this process ends without closing them, killed with SIGKILL (the
+    only end that skips :func:`close_local_cluster`), the tracker unlinks them and prints
+    "resource_tracker: There appear to be 12 leaked semaphore objects to clean up at
+    shutdown" (two workers): a note on its own cleanup, not an error of the command, which
+    has already been reported (or not) by this process. The tracker is started with its
+    module's warnings ignored, so it still cleans up, silently; the command's own errors
+    are untouched. Returns False where the tracker was already running (started by
+    something else, with this process's flags) or this Python lays it out otherwise."""
+    try:
+        from multiprocessing import resource_tracker, util
+
+        tracker = resource_tracker._resource_tracker
+        if getattr(tracker, "_fd", None) is not None:
+            return False
+        flags = util._args_from_interpreter_flags
+    except (ImportError, AttributeError):  # pragma: no cover - another Python's layout
+        return False
+    util._args_from_interpreter_flags = lambda: [*flags(), "-W", TRACKER_FILTER]
+    try:
+        tracker.ensure_running()
+    finally:
+        util._args_from_interpreter_flags = flags
+    return True
+
+
 def local_cluster(n: int):
     """A local cluster of ``n`` single-threaded worker processes that only this process can
     use: every connection is TLS with a certificate made for this run
@@ -260,6 +296,7 @@ def local_cluster(n: int):
     127.0.0.1 only, and the dashboard is off (Dask's HTTP routes stay on 127.0.0.1)."""
     from distributed import Client, LocalCluster, Security
 
+    quiet_resource_tracker()
     security = Security.temporary()
     cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, protocol="tls://",
                            host="127.0.0.1", dashboard_address=None, security=security,
@@ -384,12 +421,74 @@ class DaskExecutor:
         return as_completed(list(futures))
 
     def close(self) -> None:
-        """Cancel what is still pending; close the client and cluster this executor started."""
+        """Cancel what is still pending; close the client and cluster this executor started
+        (a local one through :func:`close_local_cluster`)."""
         for f in self.submitted:
             if not f.done():
                 f.cancel()
         if self.cluster is not None:
-            self.client.close()
-            self.cluster.close()
+            close_local_cluster(self.client, self.cluster)
         elif isinstance(self.scheduler, str) and self.client is not None:
             self.client.close()
+
+
+#: Seconds a local cluster's workers are given to stop before they are ended.
+CLOSE_TIMEOUT_S = 60.0
+
+#: Loggers whose records during a local cluster's shutdown are the shutdown's own (a worker
+#: that stopped while the scheduler was talking to it, a close that timed out).
+_SHUTDOWN_LOGGERS = ("distributed", "tornado.application", "asyncio")
+
+
+def close_local_cluster(client, cluster, timeout: float = CLOSE_TIMEOUT_S) -> None:
+    """Close a local cluster this process started, quietly and always.
+
+    The frames' results are on disk before the cluster is closed, so its shutdown cannot
+    change them: the client closes, then the cluster within ``timeout`` seconds. Dask's
+    shutdown chatter (connection resets, a timed-out worker close logged by tornado with a
+    traceback) is not shown; a close that times out is one warning line, and the worker
+    processes still alive are ended (SIGTERM, then SIGKILL), each through its
+    ``multiprocessing`` handle, so that their queues' semaphores are released by their own
+    finalisers rather than reported as leaked by Python's resource tracker at exit.
+    """
+    import logging
+    import warnings
+
+    saved = {name: logging.getLogger(name).level for name in _SHUTDOWN_LOGGERS}
+    for name in _SHUTDOWN_LOGGERS:
+        logging.getLogger(name).setLevel(logging.CRITICAL)
+    try:
+        try:
+            client.close(timeout=timeout)
+        except Exception:  # noqa: BLE001 - a client of a cluster going away
+            pass
+        try:
+            cluster.close(timeout=timeout)
+        except Exception as exc:  # noqa: BLE001 - TimeoutError, OSError, CommClosedError
+            ended = _end_worker_processes(cluster)
+            warnings.warn(f"the local Dask cluster did not stop within {timeout:g} s ({type(exc).__name__}); "
+                          f"ended its {ended} worker process(es)", UserWarning,
+                          stacklevel=2)
+    finally:
+        for name, level in saved.items():
+            logging.getLogger(name).setLevel(level)
+
+
+def _end_worker_processes(cluster) -> int:
+    """End the worker processes of a local cluster that are still alive (their
+    ``multiprocessing.Process`` handles, held by each nanny); returns how many."""
+    procs = []
+    for nanny in list(getattr(cluster, "workers", {}).values()):
+        worker_process = getattr(nanny, "process", None)
+        async_process = getattr(worker_process, "process", None)
+        proc = getattr(async_process, "_process", None)
+        if proc is not None and proc.is_alive():
+            procs.append(proc)
+    for proc in procs:
+        proc.terminate()
+    for proc in procs:
+        proc.join(5.0)
+        if proc.is_alive():
+            proc.kill()
+            proc.join(5.0)
+    return len(procs)

@@ -269,6 +269,29 @@ def _agrees(a, b) -> bool:
 
 
 def resolve_disc(photo, background, opts: FitOptions, given=None) -> tuple[tuple, list]:
+    """:func:`_resolve_disc`; where it finds no bubble in a pair that differs over most of
+    the frame (:func:`~bubblefit.inverse._pair.frame_mismatch` above
+    :data:`~bubblefit.inverse._pair.FRAME_SHARE`), the line says that the background photo
+    does not show the photo's view."""
+    try:
+        return _resolve_disc(photo, background, opts, given)
+    except InputError as exc:
+        if background is None:
+            raise
+        from ._pair import FRAME_SHARE, frame_mismatch
+
+        k = max(1, math.ceil(max(photo.shape[:2]) / opts.analysis_size))
+        p, b = (block_mean(photo, k), block_mean(background, k)) if k > 1 else (photo, background)
+        sig = lambda a: noise_sigma(a, opts.noise_read, opts.noise_shot, opts.bits) / k  # noqa: E731
+        share = frame_mismatch(np.asarray(p, np.float64), np.asarray(b, np.float64), sig(p), sig(b))
+        if share <= FRAME_SHARE:
+            raise
+        raise InputError(f"no bubble found, and the background photo differs from the photo beyond noise and "
+                         f"exposure over {share:.0%} of the frame: it does not show the photo's view (if the bubble "
+                         "fills the frame, give --disc CX,CY,R)") from exc
+
+
+def _resolve_disc(photo, background, opts: FitOptions, given=None) -> tuple[tuple, list]:
     """``(disc, warnings)``: the disc a fit uses (``opts``: a ``FitOptions``).
 
     ``given`` (the options' or the scene's disc) is used as it is. A calibration's disc

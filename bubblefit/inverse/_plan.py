@@ -27,6 +27,7 @@ import numpy as np
 from ..errors import InputError
 from ..io.images import read_image, srgb_decode
 from ._observation import resolve_disc
+from ._pair import check_disc_pair
 
 __all__ = ["FrameRef", "discover_frames", "load_frame", "as_frames", "plan_chunks", "fingerprint", "fix_disc",
            "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS"]
@@ -252,6 +253,8 @@ def fix_disc(options, frames: list[FrameRef], background, scene):
     against it, else the one found: :func:`~bubblefit.inverse._observation.resolve_disc`), held as
     every frame's start and refined in each fit as ``fit`` refines it; one frame is then
     fitted as ``bubblefit fit`` fits it (give ``FitOptions.disc`` for a bubble that moves).
+    That frame and the background photo are checked as a pair before any fit
+    (:func:`~bubblefit.inverse._pair.check_disc_pair`: swapped, or of another view).
     """
     if not hasattr(options, "disc") or options.disc is not None:
         return options
@@ -268,6 +271,7 @@ def fix_disc(options, frames: list[FrameRef], background, scene):
         except InputError as exc:
             raise InputError(f"cannot find the bubble in frame {ref.index} ({ref.label}): {exc}; give its disc") \
                 from None
+        check_disc_pair(photo, background, disc, options)  # swapped or of another view: refused before any fit
         # held as every frame's start and refined in each, as a fit refines a disc it was not given
         return replace(options, disc=tuple(round(float(v), 2) for v in disc),
                        fit_disc=True if options.fit_disc is None else options.fit_disc)

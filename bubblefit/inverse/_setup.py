@@ -10,6 +10,7 @@ import numpy as np
 
 from ..capture.view import perspective_from_disc
 from ._observation import Frame, Level, analysis_frame, make_level, resolve_disc, saturation_mask
+from ._pair import PairCheck, check_pair
 from ._options import ColourSettings, FitOptions
 from ._parameters import ALIASES, DISC_PARAMETERS, PARAMETERS, ParameterTable, THICKNESS_PARAMETERS
 from ..errors import InputError
@@ -181,6 +182,8 @@ class Setup:
     frame: Frame
     warnings: list
     colour: ColourSettings
+    #: what the background photo says about the pairing (None without one)
+    pair: PairCheck | None = None
     levels: dict = field(default_factory=dict, repr=False)  # built by :meth:`level`, by (k, cfg, rim)
 
     def level(self, k: int, opts: FitOptions, cfg: RenderConfig | None = None) -> Level:
@@ -351,6 +354,7 @@ def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, d
                          frame.bg_sigma)
     if lev_fit.mask.sum() < 10:
         raise InputError("fewer than 10 usable pixels on the bubble (disc too small, or saturated)")
+    pair = check_pair(frame, lev_fit)  # a swapped pair or another scene is refused before any solve
     search_table = replace(table, free=tuple(n for n in table.free if n not in DISC_PARAMETERS))
     return Setup(frame.photo, frame.background, vals, table, search_table, fx, decisions, base_cfg, map_cfg, disc, frame.sigma,
-                 frame.saturated, k_search, lev_fit, frame, warnings, colour)
+                 frame.saturated, k_search, lev_fit, frame, warnings, colour, pair)

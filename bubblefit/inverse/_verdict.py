@@ -84,11 +84,19 @@ def unresolved(values: dict, stderr: dict, table: ParameterTable) -> list[str]:
     return [f"roughness = {v:.2g} is within three standard errors of a mirror: read it as an upper limit{bound}"]
 
 
+#: Largest share of outlier pixels a misfit may have to be called local: a misfit over most
+#: of the film is not local, whatever the few remaining pixels say.
+LOCAL_SHARE = 0.5
+
+
 def verdict(*, converged: bool, disc_found: bool, bound_warnings: list, misfit: Misfit, ok_chi2: float,
-            model_error: float, notes: list) -> tuple[bool, list]:
+            model_error: float, notes: list, swap_possible: bool = False) -> tuple[bool, list]:
     """``(ok, warnings)``: the conditions of the module docstring, each failed one in words
     (``notes``: cautions found on the way, kept first); ``misfit`` says whether the photo
-    is explained, and whether a misfit is local."""
+    is explained, and whether a misfit is local: only when the outliers are a minority of
+    the pixels (:data:`LOCAL_SHARE`) and the rest are explained. ``swap_possible``: a
+    background photo was given and the pre-fit test (:mod:`._pair`) could not tell which of
+    the two holds the bubble, so an unexplained photo may be a swapped pair."""
     chi2_floor, chi2_inliers, outliers = misfit.chi2_floor, misfit.chi2_inliers, misfit.outliers
     warnings = list(notes)
     if not converged:
@@ -100,12 +108,13 @@ def verdict(*, converged: bool, disc_found: bool, bound_warnings: list, misfit: 
     if not explained:
         text = (f"the model does not explain the photo: reduced chi^2 {chi2_floor:.3g} with a {model_error:.0%} "
                 f"model-error floor (at most {ok_chi2:g} expected)")
-        if outliers > 0 and chi2_inliers <= ok_chi2:
+        if 0 < outliers < LOCAL_SHARE and chi2_inliers <= ok_chi2:
             text += (f"; {outliers:.1%} of the pixels are outliers (chi^2 over {OUTLIER_CHI2:g} each) and the rest "
                      f"are at {chi2_inliers:.3g}: the misfit is local (glints of a compact light, which one ray per "
                      "pixel does not resolve; specks), or a model wrong over that share of the film")
         else:
-            text += "; wrong environment map, rotation, disc or model?"
+            text += ("; wrong environment map, rotation, disc or model, or the photo and the background photo "
+                     "swapped?" if swap_possible else "; wrong environment map, rotation, disc or model?")
         warnings.append(text)
     ok = converged and disc_found and not bound_warnings and explained
     return ok, warnings

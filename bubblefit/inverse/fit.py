@@ -185,6 +185,26 @@ def _judge(st: Setup, opts: FitOptions, sol: LocalSolution, notes: list) -> Judg
     return Judgement(unc, reported, stderr, disc, disc_stderr, status, converged, bounds)
 
 
+def _exposure_doubts(st: Setup, opts: FitOptions, env, full, reported: dict) -> list:
+    """The warning of :func:`~._exposure.exposure_doubt` for a fitted exposure outside what the
+    photo's and the map's brightness allow (:func:`~._exposure.exposure_range`), else none."""
+    from ._exposure import exposure_doubt, exposure_range, least_reflectance, map_levels
+    from ._pair import LUMINANCE
+
+    if "exposure" not in st.table.free or not full.mask.any():
+        return []
+    y = np.asarray(st.photo, np.float64)[full.mask] @ LUMINANCE
+    excess = None
+    if st.background is not None and not st.base_cfg.point_lights:
+        b = np.asarray(st.background, np.float64)[full.mask] @ LUMINANCE
+        excess = float(np.mean(np.maximum(y - b, 0.0)))
+    median, mean = map_levels(np.asarray(env.pixels))
+    rho_min = least_reflectance(*(float(v) for v in opts.thickness_range), float(opts.rim))
+    lower, upper = exposure_range(float(np.mean(y)), excess, median, mean, rho_min)
+    doubt = exposure_doubt(float(reported["exposure"]), lower, upper)
+    return [] if doubt is None else [doubt]
+
+
 def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgement, notes: list,
             t_start: float) -> FitResult:
     """The thickness map (``--thickness map``), the full-resolution render, the verdict and
@@ -214,9 +234,10 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     resid_img = st.photo - img
     rms = float(np.sqrt(np.mean(resid_img[full.mask] ** 2))) if full.mask.any() else float("nan")
     reported["n_film"] = float(st.vals["n_film"])
-    ok, warnings = verdict(converged=bool(converged), disc_found=True, bound_warnings=judged.bounds,
+    bounds = judged.bounds + _exposure_doubts(st, opts, env, full, reported)
+    ok, warnings = verdict(converged=bool(converged), disc_found=True, bound_warnings=bounds,
                            misfit=unc.misfit, ok_chi2=float(opts.ok_chi2), model_error=float(opts.model_error),
-                           notes=st.warnings)
+                           notes=st.warnings, swap_possible=st.pair is not None and st.pair.swap_possible)
     disc_stderr = judged.disc_stderr
     # can the stated camera response produce the photo's colours? (bubblefit.inverse.colour_check)
     sigma = st.sigma if opts.photosite_share is None else st.sigma / np.sqrt(np.asarray(opts.photosite_share))

@@ -28,9 +28,8 @@ import pytest
 from bubblefit.lighting.envmap import EnvMap
 from bubblefit.lighting.filtering import FilterConfig
 from bubblefit.model.effects import Effects
-from bubblefit.model.geometry import OrthographicCamera, PerspectiveCamera
+from bubblefit.model.geometry import OrthographicCamera, PerspectiveCamera, intersect_sphere
 from bubblefit.model.render import Params, RenderConfig, film_footprints, render, shading_points
-from bubblefit.model.geometry import intersect_sphere
 
 
 # --- numpy reference: cameras, sphere hits, reflections --------------------------------

@@ -38,7 +38,8 @@ from .bounds import MAX_BOUNCES
 from .effects import Effects
 from .geometry import hit_pixels, intersect_sphere
 from .modes import Model, ThicknessKind
-from .render import NO_PROFILE, RenderConfig, film_footprints, film_names, shading_points
+from .render import (NO_PROFILE, RenderConfig, film_footprints, film_names,
+                     shading_points)
 from .thickness import thickness_at
 
 __all__ = ["Footprint", "footprint", "trace_function", "jitted_trace", "pixel_budget", "filter_key", "FILTER_CANDIDATES",

@@ -55,7 +55,8 @@ from .geometry import (OrthographicCamera, PerspectiveCamera, internal_bounce, i
 from .thickness import thickness_at
 
 __all__ = ["Params", "RenderConfig", "render", "render_terms", "render_pixels", "render_pixels_at", "shade_lit",
-           "paper_terms", "film_footprints", "pixel_chunks", "chunk_size", "film_names", "shading_points", "TRACE_COUNTS", "PointLight"]
+           "paper_terms", "film_footprints", "pixel_chunks", "chunk_size", "film_names", "shading_points",
+           "TRACE_COUNTS", "PointLight"]
 
 #: No drainage profile under a thickness map (:attr:`Params.profile`): every film of a
 #: pixel takes the map's value there.

@@ -168,7 +168,7 @@ def slope_nodes(nodes: int):
     return x, w / w.sum(), width
 
 
-def specular_box(env: EnvMap, n, wo, footprint, *, normalize: bool, a=0.0) -> Float[Array, "N 3"]:
+def specular_box(env: EnvMap, n, wo, footprint, *, normalize: bool) -> Float[Array, "N 3"]:
     """A mirror's reflection averaged over the pixel's box: the map's mean over the
     directions ``reflect(wo, n + J (s, t))``, ``s, t`` in ``[-1/2, 1/2]`` (``J = footprint``,
     (N, 3, 2), :func:`~bubblefit.model.geometry.slope_footprint`).
@@ -179,9 +179,7 @@ def specular_box(env: EnvMap, n, wo, footprint, *, normalize: bool, a=0.0) -> Fl
     and averaged exactly over the bilinear interpolant
     (:func:`~bubblefit.lighting.envmap.lookup_box`): no sun between sub-pixel samples is
     missed, none is counted whole. Weighted as :func:`specular_mirror` (``cos th_r``, 1
-    when normalised). A lobe of width ``a`` (:func:`specular_mipmap`) widens the box by its
-    own second moments: the reflected direction spreads by ``2 a^2`` per axis (twice the
-    slope's ``a / sqrt(2)``), a box's ``w^2 / 12``.
+    when normalised).
 
     References
     ----------
@@ -191,10 +189,6 @@ def specular_box(env: EnvMap, n, wo, footprint, *, normalize: bool, a=0.0) -> Fl
     wo_dh = jnp.sum(wo[:, :, None] * footprint, axis=1)  # (N, 2)
     dr = 2.0 * wo_dh[:, None, :] * n[:, :, None] + 2.0 * cos[:, None, None] * footprint
     r = reflect(wo, n)
-    if not (isinstance(a, float) and a == 0.0):
-        u1, u2 = tangent_frame(r)
-        side = math.sqrt(24.0) * a
-        dr = jnp.concatenate([dr, side * jnp.stack([u1, u2], axis=-1)], axis=-1)
     rad = env.lookup_box(r, texel_footprint(r, dr, env.height, env.width))
     if normalize:
         return rad
@@ -237,15 +231,12 @@ def specular_mipmap(env: EnvMap, n, wo, a, *, nodes: int, normalize: bool, footp
     the quadrature integrates the lobe over the pixel: the half vectors of the pixel's rays
     spread about ``n`` with covariance ``F F^T`` and Ward's lobe about each of them with
     ``a^2 / 2`` per axis, and the two are taken as Gaussians, whose convolution adds the
-    covariances: ``C = a^2/2 I + M M^T / 12`` with ``M`` the footprint in the nodes' tangent
+    covariances: ``C = a^2/2 I + M M^T`` with ``M`` the footprint in the nodes' tangent
     frame. The nodes sit at ``sqrt(2) L (x_j, x_k)`` with ``L L^T = C`` (Cholesky), which is
     the plain lobe's ``a (x_j, x_k)`` when ``F = 0``, and each node's mip cell is
     ``sqrt(2 sqrt(det C))`` times its width. The approximations: a pixel's box is replaced
     by the Gaussian of its variance, and the differentials are those of the pixel's
-    centre (the footprint is linear across the pixel). The result is blended with the
-    box average of :func:`specular_box` (widened by the lobe) by the lobe's share of the
-    variance, ``a^2/2`` against the pixel's ``tr(J J^T) / 24``: nodes spaced wider than a
-    sun alias it, the box does not.
+    centre (the footprint is linear across the pixel).
     """
     x, w, width = slope_nodes(nodes)
     xx, yy = np.meshgrid(x, x)
@@ -276,18 +267,9 @@ def specular_mipmap(env: EnvMap, n, wo, a, *, nodes: int, normalize: bool, footp
     level = mip_footprint_level(node_cell, env.texel_angle)
     rad = env.lookup_level(jnp.stack(wi, axis=-1), jnp.broadcast_to(level, g.shape))
     num = jnp.einsum("nm,nmc->nc", g, rad)
-    out = num / jnp.maximum(jnp.sum(g, axis=1), 1e-12)[:, None] if normalize else num
-    if footprint is None:
-        return out
-    # Where the pixel's footprint outweighs the lobe the box average is the better of the
-    # two (exact over the map; the nodes alias a sun smaller than their spacing): the two
-    # estimates of the same lobe-times-pixel integral are blended by the lobe's share of
-    # the variance, so that a -> 0 is the mirror's box (specular_mirror) and a lobe much
-    # wider than the pixel its nodes.
-    lobe = 0.5 * a * a
-    pixel = jnp.sum(footprint**2, axis=(1, 2)) / 24.0  # J J^T / 12, per axis
-    share = (lobe / jnp.maximum(lobe + pixel, 1e-30))[:, None]
-    return share * out + (1.0 - share) * specular_box(env, n, wo, footprint, normalize=normalize, a=a)
+    if normalize:
+        return num / jnp.maximum(jnp.sum(g, axis=1), 1e-12)[:, None]
+    return num
 
 
 def _level_tables(env: EnvMap, level: int):

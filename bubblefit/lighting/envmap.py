@@ -29,6 +29,8 @@ __all__ = [
     "downsample",
     "build_mipmap",
     "irradiance_map",
+    "lookup_box",
+    "texel_footprint",
 ]
 
 
@@ -210,6 +212,87 @@ def lookup_levels(atlas, shapes: tuple, d: Float[Array, "... 3"], level) -> Floa
     return top * (1 - fy) + bot * fy
 
 
+def _tent_integral(s):
+    """The antiderivative of the bilinear tent ``max(0, 1 - |s|)``, 0 at ``s = -1``."""
+    s = jnp.clip(s, -1.0, 1.0)
+    return jnp.where(s < 0, 0.5 * (s + 1.0) ** 2, 1.0 - 0.5 * (1.0 - s) ** 2)
+
+
+#: Widest box (in texels of the level it reads) :func:`lookup_box` integrates: each axis
+#: then reads at most ``BOX_TEXELS + 2`` texels; a wider footprint reads a coarser level.
+BOX_TEXELS = 4
+
+
+def _box_axis(x, width):
+    """Indices (..., K) and weights of the texels whose bilinear tents a box ``[x - w/2,
+    x + w/2]`` covers, K = ``BOX_TEXELS + 2``: ``(T(x + w/2 - i) - T(x - w/2 - i)) / w``."""
+    k = BOX_TEXELS + 2
+    first = jnp.floor(x - 0.5 * width)
+    idx = first[..., None] + jnp.arange(k, dtype=x.dtype)
+    hi = _tent_integral(x[..., None] + 0.5 * width[..., None] - idx)
+    lo = _tent_integral(x[..., None] - 0.5 * width[..., None] - idx)
+    wts = (hi - lo) / width[..., None]
+    return idx.astype(jnp.int32), wts
+
+
+def lookup_box(atlas, shapes: tuple, d: Float[Array, "... 3"], widths) -> Float[Array, "... C"]:
+    """The mean of the map's bilinear interpolant over a box of ``widths = (wx, wy)`` texels
+    of level 0 (..., 2) centred on the directions ``d``: the area average a camera's pixel
+    takes of a map seen through its footprint (:func:`texel_footprint`).
+
+    Along each axis the box's integral of the tent-interpolated texels is exact (the
+    tent's antiderivative at the box's ends). A box wider than :data:`BOX_TEXELS` texels
+    reads the first mip level where it is not (the level's texels average the map's, so
+    the box is then widened by about half a texel of that level). Columns wrap, rows clamp,
+    as :func:`lookup_uv`.
+
+    References
+    ----------
+    F. C. Crow, "Summed-area tables for texture mapping", SIGGRAPH 1984 (box-filtered
+    lookups); L. Williams, "Pyramidal parametrics", SIGGRAPH 1983 (the pyramid).
+    """
+    h0 = shapes[0][0]
+    wx = jnp.maximum(widths[..., 0], 1e-3)
+    wy = jnp.maximum(widths[..., 1], 1e-3)
+    level = jnp.ceil(jnp.log2(jnp.maximum(jnp.maximum(wx, wy) / BOX_TEXELS, 1.0)))
+    level = jnp.clip(level, 0, len(shapes) - 1).astype(jnp.int32)
+    hs = jnp.asarray([sh[0] for sh in shapes], dtype=jnp.int32)[level]
+    ws = jnp.asarray([sh[1] for sh in shapes], dtype=jnp.int32)[level]
+    offs = jnp.asarray(np.cumsum([0] + [sh[0] * sh[1] for sh in shapes[:-1]]), dtype=jnp.int32)[level]
+    u, v = direction_to_uv(d)
+    x = u * ws - 0.5
+    y = v * (hs - 1)
+    scale_x = ws / shapes[0][1]
+    scale_y = (hs - 1) / (h0 - 1)
+    cols, cw = _box_axis(x, jnp.minimum(wx * scale_x, BOX_TEXELS))
+    rows, rw = _box_axis(y, jnp.minimum(wy * scale_y, BOX_TEXELS))
+    cols = cols % ws[..., None]
+    rows = jnp.clip(rows, 0, hs[..., None] - 1)
+    texels = atlas[offs[..., None, None] + rows[..., :, None] * ws[..., None, None] + cols[..., None, :]]
+    wts = rw[..., :, None] * cw[..., None, :]
+    return jnp.einsum("...ij,...ijc->...c", wts, texels)
+
+
+def texel_footprint(r: Float[Array, "N 3"], dr: Float[Array, "N 3 2"], height: int, width: int):
+    """The widths (N, 2), in texels of a ``height x width`` map, of the box with the second
+    moments of the parallelogram that the directions ``r + dr (s, t)``, ``s, t`` in
+    ``[-1/2, 1/2]``, cover (:func:`lookup_box`): along each map axis
+    ``sqrt(a^2 + b^2)`` for the parallelogram's sides ``a, b`` there (its variance is
+    ``(a^2 + b^2) / 12``, a box's ``w^2 / 12``).
+
+    ``u = atan2(x, -z) / 2 pi`` and ``v = acos(y) / pi`` (:func:`direction_to_uv`) move by
+    ``du = (-z dx + x dz) / (2 pi (x^2 + z^2))`` and ``dv = -dy / (pi sqrt(1 - y^2))``; a
+    box is at most the map's width (near the poles, where ``du`` grows without bound).
+    """
+    x, y, z = r[:, 0, None], r[:, 1, None], r[:, 2, None]
+    rho2 = jnp.maximum(x * x + z * z, 1e-12)
+    du = (-z * dr[:, 0] + x * dr[:, 2]) / (2 * jnp.pi * rho2)
+    dv = -dr[:, 1] / (jnp.pi * jnp.sqrt(rho2))
+    wx = jnp.sqrt(jnp.sum((du * width) ** 2, axis=-1))
+    wy = jnp.sqrt(jnp.sum((dv * (height - 1)) ** 2, axis=-1))
+    return jnp.stack([jnp.minimum(wx, width), jnp.minimum(wy, height)], axis=-1)
+
+
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True, eq=False)
 class EnvMap:
@@ -301,6 +384,10 @@ class EnvMap:
         a = lookup_levels(self.atlas, self.shapes, d, l0)
         b = lookup_levels(self.atlas, self.shapes, d, l1)
         return a * (1 - frac) + b * frac
+
+    def lookup_box(self, d: Float[Array, "... 3"], widths) -> Float[Array, "... 3"]:
+        """:func:`lookup_box`: the map averaged over boxes of ``widths`` texels (level 0)."""
+        return lookup_box(self.atlas, self.shapes, d, widths)
 
     def lookup_irradiance(self, n: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
         return lookup(self.irradiance, n)

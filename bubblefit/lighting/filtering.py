@@ -41,7 +41,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..optics.brdf import half_vector_weight, ward_lobe
-from .envmap import EnvMap, direction_to_uv, texel_directions, texel_solid_angles
+from .envmap import EnvMap, direction_to_uv, texel_directions, texel_footprint, texel_solid_angles
 
 __all__ = [
     "FilterConfig",
@@ -113,8 +113,15 @@ def tangent_frame(n: Float[Array, "N 3"]):
     return t1, t2
 
 
-def specular_mirror(env: EnvMap, n, wo, *, normalize: bool) -> Float[Array, "N 3"]:
-    """The ``a -> 0`` limit: ``L(reflect(w_o, n))``, times ``cos th_r`` for eq. (1) as written."""
+def specular_mirror(env: EnvMap, n, wo, *, normalize: bool, footprint=None) -> Float[Array, "N 3"]:
+    """The ``a -> 0`` limit: ``L(reflect(w_o, n))``, times ``cos th_r`` for eq. (1) as written.
+
+    With a pixel ``footprint`` (:func:`~bubblefit.model.geometry.slope_footprint`) the
+    mirror reads the map averaged over the directions the pixel's rays reflect into
+    (:func:`specular_box`): 16 texels instead of the bilinear lookup's 4.
+    """
+    if footprint is not None:
+        return specular_box(env, n, wo, footprint, normalize=normalize)
     cos_r = jnp.clip(_dot(n, wo), 0.0, 1.0)[..., None]
     rad = env.lookup(reflect(wo, n))
     return rad if normalize else rad * cos_r
@@ -161,7 +168,57 @@ def slope_nodes(nodes: int):
     return x, w / w.sum(), width
 
 
-def specular_mipmap(env: EnvMap, n, wo, a, *, nodes: int, normalize: bool) -> Float[Array, "N 3"]:
+def specular_box(env: EnvMap, n, wo, footprint, *, normalize: bool) -> Float[Array, "N 3"]:
+    """A mirror's reflection averaged over the pixel's box: the map's mean over the
+    directions ``reflect(wo, n + J (s, t))``, ``s, t`` in ``[-1/2, 1/2]`` (``J = footprint``,
+    (N, 3, 2), :func:`~bubblefit.model.geometry.slope_footprint`).
+
+    A half vector that moves by ``dh`` (normal to ``n``) turns the reflected direction by
+    ``dr = 2 (wo . dh) n + 2 (wo . n) dh``; the parallelogram those span is read as the box
+    of its second moments in the map's texels (:func:`~bubblefit.lighting.envmap.texel_footprint`)
+    and averaged exactly over the bilinear interpolant
+    (:func:`~bubblefit.lighting.envmap.lookup_box`): no sun between sub-pixel samples is
+    missed, none is counted whole. Weighted as :func:`specular_mirror` (``cos th_r``, 1
+    when normalised).
+
+    References
+    ----------
+    H. Igehy, "Tracing ray differentials", SIGGRAPH 1999 (the footprint).
+    """
+    cos = _dot(n, wo)
+    wo_dh = jnp.sum(wo[:, :, None] * footprint, axis=1)  # (N, 2)
+    dr = 2.0 * wo_dh[:, None, :] * n[:, :, None] + 2.0 * cos[:, None, None] * footprint
+    r = reflect(wo, n)
+    rad = env.lookup_box(r, texel_footprint(r, dr, env.height, env.width))
+    if normalize:
+        return rad
+    return rad * jnp.clip(cos, 0.0, 1.0)[..., None]
+
+
+def _footprint_nodes(footprint, t1, t2, a, sx, sy, cell):
+    """The slopes ``(s1, s2)`` of :func:`specular_mipmap`'s nodes along ``t1``, ``t2`` and
+    each node's mip cell, (N, M) each, for the lobe convolved with a pixel footprint."""
+    footprint = footprint / math.sqrt(12.0)  # the box's variance, 1/12 of its side squared
+    m11 = jnp.sum(t1 * footprint[..., 0], axis=-1)
+    m12 = jnp.sum(t1 * footprint[..., 1], axis=-1)
+    m21 = jnp.sum(t2 * footprint[..., 0], axis=-1)
+    m22 = jnp.sum(t2 * footprint[..., 1], axis=-1)
+    half_a2 = 0.5 * a * a
+    c11 = half_a2 + m11 * m11 + m12 * m12
+    c12 = m11 * m21 + m12 * m22
+    c22 = half_a2 + m21 * m21 + m22 * m22
+    # Cholesky of C, kept finite (and differentiable in a) where C vanishes
+    l11 = jnp.sqrt(c11 + 1e-20)
+    l21 = c12 / l11
+    l22 = jnp.sqrt(jnp.maximum(c22 - l21 * l21, 0.0) + 1e-20)
+    root2 = math.sqrt(2.0)
+    col = lambda v: root2 * v[:, None]
+    s1 = col(l11) * sx
+    s2 = col(l21) * sx + col(l22) * sy
+    return s1, s2, col(jnp.sqrt(l11 * l22)) * cell[None, :]
+
+
+def specular_mipmap(env: EnvMap, n, wo, a, *, nodes: int, normalize: bool, footprint=None) -> Float[Array, "N 3"]:
     """Quadrature of the slope-space Gaussian lobe (see :mod:`bubblefit.optics.brdf`).
 
     Node ``(j, k)`` sits at slope ``a (x_j t1 + x_k t2)``, with ``x`` and the weights of
@@ -169,6 +226,17 @@ def specular_mipmap(env: EnvMap, n, wo, a, *, nodes: int, normalize: bool) -> Fl
     vector gives ``w_i = reflect(w_o, h)``, read at the mip level whose texels match the
     cell the node stands for (:func:`mip_footprint_level`), so that a bright sun is
     prefiltered rather than aliased between nodes.
+
+    With a pixel ``footprint`` ``F`` (N, 3, 2) (:func:`~bubblefit.model.geometry.slope_footprint`)
+    the quadrature integrates the lobe over the pixel: the half vectors of the pixel's rays
+    spread about ``n`` with covariance ``F F^T`` and Ward's lobe about each of them with
+    ``a^2 / 2`` per axis, and the two are taken as Gaussians, whose convolution adds the
+    covariances: ``C = a^2/2 I + M M^T`` with ``M`` the footprint in the nodes' tangent
+    frame. The nodes sit at ``sqrt(2) L (x_j, x_k)`` with ``L L^T = C`` (Cholesky), which is
+    the plain lobe's ``a (x_j, x_k)`` when ``F = 0``, and each node's mip cell is
+    ``sqrt(2 sqrt(det C))`` times its width. The approximations: a pixel's box is replaced
+    by the Gaussian of its variance, and the differentials are those of the pixel's
+    centre (the footprint is linear across the pixel).
     """
     x, w, width = slope_nodes(nodes)
     xx, yy = np.meshgrid(x, x)
@@ -183,7 +251,11 @@ def specular_mipmap(env: EnvMap, n, wo, a, *, nodes: int, normalize: bool) -> Fl
     comp = lambda v: [v[:, k:k + 1] for k in range(3)]
     dot = lambda u, v: u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
     n_c, wo_c = comp(n), comp(wo)
-    h = [nk + a * (sx * ak + sy * bk) for nk, ak, bk in zip(n_c, comp(t1), comp(t2))]
+    if footprint is None:
+        s1, s2, node_cell = a * sx, a * sy, a * cell
+    else:
+        s1, s2, node_cell = _footprint_nodes(footprint, t1, t2, a, sx, sy, cell)
+    h = [nk + s1 * ak + s2 * bk for nk, ak, bk in zip(n_c, comp(t1), comp(t2))]
     norm = jnp.sqrt(jnp.maximum(dot(h, h), 1e-30))
     h = [hk / norm for hk in h]
     o_h = dot(wo_c, h)
@@ -192,7 +264,7 @@ def specular_mipmap(env: EnvMap, n, wo, a, *, nodes: int, normalize: bool) -> Fl
     cos_h = dot(n_c, h)
     cos_r = _dot(n, wo)[:, None]
     g = ww * half_vector_weight(cos_i, cos_r, o_h, cos_h)
-    level = mip_footprint_level(a * cell, env.texel_angle)[None, :]
+    level = mip_footprint_level(node_cell, env.texel_angle)
     rad = env.lookup_level(jnp.stack(wi, axis=-1), jnp.broadcast_to(level, g.shape))
     num = jnp.einsum("nm,nmc->nc", g, rad)
     if normalize:
@@ -309,12 +381,17 @@ def irradiance(env: EnvMap, n) -> Float[Array, "N 3"]:
     return env.lookup_irradiance(n)
 
 
-def specular(env: EnvMap, n, wo, a, config: FilterConfig, *, normalize: bool) -> Float[Array, "N 3"]:
-    """The specular integral by ``config.method`` (``full`` returns only its specular part)."""
+def specular(env: EnvMap, n, wo, a, config: FilterConfig, *, normalize: bool, footprint=None) -> Float[Array, "N 3"]:
+    """The specular integral by ``config.method`` (``full`` returns only its specular part).
+
+    ``footprint`` (N, 3, 2), the pixel's spread in slope space
+    (:func:`~bubblefit.model.geometry.slope_footprint`), widens the ``mirror`` and
+    ``mipmap`` lookups to the pixel's area; ``window`` and ``full``, the references, read
+    the pixel's centre ray."""
     if config.method == "mirror":
-        return specular_mirror(env, n, wo, normalize=normalize)
+        return specular_mirror(env, n, wo, normalize=normalize, footprint=footprint)
     if config.method == "mipmap":
-        return specular_mipmap(env, n, wo, a, nodes=config.nodes, normalize=normalize)
+        return specular_mipmap(env, n, wo, a, nodes=config.nodes, normalize=normalize, footprint=footprint)
     if config.method == "window":
         return specular_window(env, n, wo, a, window=config.window, level=config.level, normalize=normalize)
     return full_sum(env, n, wo, a, level=config.level, chunk=config.chunk, normalize=normalize)[0]

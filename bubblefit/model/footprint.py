@@ -38,7 +38,8 @@ from .bounds import MAX_BOUNCES
 from .effects import Effects
 from .geometry import hit_pixels, intersect_sphere
 from .modes import Model, ThicknessKind
-from .render import NO_PROFILE, RenderConfig, film_names, shading_points
+from .render import (NO_PROFILE, RenderConfig, film_footprints, film_names,
+                     shading_points)
 from .thickness import thickness_at
 
 __all__ = ["Footprint", "footprint", "trace_function", "jitted_trace", "pixel_budget", "filter_key", "FILTER_CANDIDATES",
@@ -80,7 +81,8 @@ class Footprint:
         environment, lights: whether ``spec`` and ``irr`` hold the map's light and the
             point lights' light.
 
-    The same rays, lookups and films as the renderer's at ``samples_per_pixel = 1``, so
+    The same rays, lookups (with the pixel footprints) and films as the renderer's at
+    ``samples_per_pixel = 1``, so
     :func:`~bubblefit.model.regions.render_plan` shades these pixels from it without reading
     the map again.
     """
@@ -119,21 +121,29 @@ def _trace(env, background, roughness, rotation, thickness_values, profile, pix,
     they read, in one program."""
     w = camera.width
     rows, cols = jnp.divmod(pix, w)
-    o, d = camera.rays(rows.astype(jnp.float32), cols.astype(jnp.float32), center, radius)
-    d = jnp.broadcast_to(d, o.shape)
+    rows, cols = rows.astype(jnp.float32), cols.astype(jnp.float32)
+
+    def rays(r, c):
+        o, d = camera.rays(r, c, center, radius)
+        return o, jnp.broadcast_to(d, o.shape)
+
+    o, d = rays(rows, cols)
     hits = intersect_sphere(o, d, center, radius)
     probe = _probe(model)
-    films, exits = shading_points(probe, RenderConfig(effects=probe, camera=camera, center=center, radius=radius),
-                                  hits, d)
+    cfg = RenderConfig(effects=probe, camera=camera, center=center, radius=radius)
+    films, exits = shading_points(probe, cfg, hits, d)
     n_all = jnp.stack([f[1] for f in films])
     wo_all = jnp.stack([f[2] for f in films])
     out = {"cos": hits.cos}
     if env is not None:
         nm, wm = rotate_y(n_all, -rotation), rotate_y(wo_all, -rotation)
         flat = lambda x: x.reshape(-1, 3)
+        # the renderer's pixel footprints (RenderConfig.pixel_footprint), in the map's frame
+        fp = film_footprints(probe, cfg, rays, rows, cols, films)
+        fp = jnp.stack([rotate_y(fp[..., k], -rotation) for k in range(2)], axis=-1)
         for conf in FILTER_CANDIDATES:
-            out[_key(conf)] = specular(env, flat(nm), flat(wm), roughness, conf,
-                                       normalize=model == "physical").reshape(n_all.shape)
+            out[_key(conf)] = specular(env, flat(nm), flat(wm), roughness, conf, normalize=model == "physical",
+                                       footprint=fp).reshape(n_all.shape)
         out["irr"] = env.lookup_irradiance(nm[:2])
         out["bg"] = env.lookup(rotate_y(d, -rotation))
     if lights:

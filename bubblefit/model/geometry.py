@@ -32,6 +32,7 @@ __all__ = [
     "pixel_offsets",
     "canonical_frame",
     "compose_shift",
+    "slope_footprint",
 ]
 
 
@@ -49,6 +50,41 @@ def pixel_offsets(samples_per_pixel: int) -> np.ndarray:
     k = (np.arange(s) + 0.5) / s - 0.5
     dy, dx = np.meshgrid(k, k, indexing="ij")
     return np.stack([dy.ravel(), dx.ravel()], axis=-1)
+
+
+def slope_footprint(directions, rows: Array, cols: Array, n: Float[Array, "N 3"], wo: Float[Array, "N 3"],
+                    samples_per_pixel: int = 1) -> Float[Array, "N 3 2"]:
+    """The pixel's footprint in the half vector's slope space: ``(N, 3, 2)``, the two
+    tangent vectors ``J`` at each normal ``n`` along which the half vectors of the pixel's
+    rays move from one side of the pixel (or sub-pixel) box to the other: the box's rays
+    reflect into ``reflect(wo, n + J (u, v))``, ``u, v`` in ``[-1/2, 1/2]``, to first order.
+
+    ``directions(rows, cols)`` returns the direction each film reads, ``reflect(wo, n)``
+    (N, 3), for rays through the (continuous) pixel coordinates; its two derivatives
+    ``dr/drow`` and ``dr/dcol`` are the ray differentials of Igehy (1999), taken here by
+    forward-mode differentiation of the renderer's own rays, hits and internal bounces,
+    so every camera and every film is covered by one rule. A reflected direction that
+    moves by ``dr`` across the pixel is the mirror image of the viewer in a half vector
+    ``h = normalize(wo + r)`` that moves by ``(I - n n^T) dr / (2 n.wo)`` (at the pixel's
+    centre ``h = n`` and ``|wo + r| = 2 n.wo``). A sub-pixel ray of
+    ``samples_per_pixel = s^2`` covers ``1/s`` of the pixel per axis:
+    ``J = [dh/drow, dh/dcol] / s``.
+
+    The footprint is a smoothing scale, not a parameter of the fit: it is returned
+    through ``stop_gradient``, so a Jacobian does not differentiate it.
+
+    References
+    ----------
+    H. Igehy, "Tracing ray differentials", SIGGRAPH 1999 (the reflected ray's
+    differential); ``docs/design.md``, "Pixel footprints".
+    """
+    zero, one = jnp.zeros_like(rows), jnp.ones_like(rows)
+    _, dr_row = jax.jvp(directions, (rows, cols), (one, zero))
+    _, dr_col = jax.jvp(directions, (rows, cols), (zero, one))
+    cos = jnp.sum(n * wo, axis=-1, keepdims=True)
+    scale = 1.0 / (2.0 * jnp.maximum(cos, 1e-3) * math.sqrt(samples_per_pixel))
+    tangent = lambda v: (v - n * jnp.sum(n * v, axis=-1, keepdims=True)) * scale
+    return jax.lax.stop_gradient(jnp.stack([tangent(dr_row), tangent(dr_col)], axis=-1))
 
 
 @dataclass(frozen=True)

@@ -44,18 +44,19 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..lighting.envmap import EnvMap, rotate_y
-from ..lighting.filtering import irradiance, specular
+from ..lighting.filtering import irradiance, reflect, specular
 from ..lighting.point_lights import PointLight, lights_radiance
 from ..optics import film, spectral
 from ..optics.dispersion import Cauchy, index_offset
 from .effects import Effects
 from .modes import COLOURED
 from .geometry import (OrthographicCamera, PerspectiveCamera, internal_bounce, intersect_sphere,
-                       pixel_offsets)
+                       pixel_offsets, slope_footprint)
 from .thickness import thickness_at
 
 __all__ = ["Params", "RenderConfig", "render", "render_terms", "render_pixels", "render_pixels_at", "shade_lit",
-           "paper_terms", "pixel_chunks", "chunk_size", "film_names", "shading_points", "TRACE_COUNTS", "PointLight"]
+           "paper_terms", "film_footprints", "pixel_chunks", "chunk_size", "film_names", "shading_points",
+           "TRACE_COUNTS", "PointLight"]
 
 #: No drainage profile under a thickness map (:attr:`Params.profile`): every film of a
 #: pixel takes the map's value there.
@@ -135,6 +136,10 @@ class RenderConfig:
     #: Rays per pixel, a square number: the pixel is the mean over a stratified ``s x s``
     #: grid of its box (:func:`~bubblefit.model.geometry.pixel_offsets`); 1 = its centre.
     samples_per_pixel: int = 1
+    #: Integrate each film's map lookup over the pixel's footprint (ray differentials,
+    #: :func:`~bubblefit.model.geometry.slope_footprint`), the area the camera's pixel (or
+    #: sub-pixel ray) covers; False reads the centre ray's direction only.
+    pixel_footprint: bool = True
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -210,15 +215,18 @@ class _Film:
         return film.paper_interference_factor(d[:, None], self.lam, self.p.n_film, self.cos[:, None], self.p.t)
 
 
-def _reflected(env, fx: Effects, cfg: RenderConfig, p: Params, n, wo, *, normalize):
-    """Filtered specular radiance and diffuse radiance at a film (world-frame n, wo)."""
+def _reflected(env, fx: Effects, cfg: RenderConfig, p: Params, n, wo, *, normalize, footprint=None):
+    """Filtered specular radiance and diffuse radiance at a film (world-frame n, wo; the
+    pixel's ``footprint`` (N, 3, 2) in slope space, or None for the centre ray)."""
     spec = 0.0
     diff = 0.0
     if fx.environment:
         nm = rotate_y(n, -p.rotation)
         wm = rotate_y(wo, -p.rotation)
+        fm = None if footprint is None else jnp.stack([rotate_y(footprint[..., k], -p.rotation) for k in range(2)],
+                                                      axis=-1)
         _count(f"filter_{fx.filtering.method}")
-        spec = specular(env, nm, wm, p.roughness, fx.filtering, normalize=normalize)
+        spec = specular(env, nm, wm, p.roughness, fx.filtering, normalize=normalize, footprint=fm)
         if fx.diffuse:
             _count("diffuse")
             diff = p.r_d / jnp.pi * irradiance(env, nm)
@@ -390,16 +398,43 @@ class _Traced:
     bg_rad: object
 
 
+def _camera_rays(cfg: RenderConfig, p: Params, rows, cols):
+    """``(origins, directions)`` (N, 3) of the camera's rays through the pixel coordinates
+    ``rows``, ``cols`` (an orthographic camera's disc moved by ``p.disc``)."""
+    if isinstance(cfg.camera, OrthographicCamera):
+        o, d = cfg.camera.rays(rows, cols, cfg.center, cfg.radius, p.disc)
+    else:
+        o, d = cfg.camera.rays(rows, cols, cfg.center, cfg.radius)
+    return o, jnp.broadcast_to(d, o.shape)
+
+
+def film_footprints(fx: Effects, cfg: RenderConfig, rays, rows, cols, films):
+    """The pixel footprint in slope space of every film of ``films`` (as
+    :func:`shading_points` returns them for the rays ``rays(rows, cols)``), (F N, 3, 2) in
+    their order, or None when ``cfg.pixel_footprint`` is off: the differentials of each film's reflected direction
+    across the pixel (:func:`~bubblefit.model.geometry.slope_footprint`), through the same
+    rays, hits and internal bounces."""
+    if not cfg.pixel_footprint or not films:
+        return None
+
+    def directions(r, c):
+        o, d = rays(r, c)
+        hits = intersect_sphere(o, d, cfg.center, cfg.radius)
+        return jnp.concatenate([reflect(f[2], f[1]) for f in shading_points(fx, cfg, hits, d)[0]])
+
+    return slope_footprint(directions, rows, cols, jnp.concatenate([f[1] for f in films]),
+                           jnp.concatenate([f[2] for f in films]), cfg.samples_per_pixel)
+
+
 def _trace_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols) -> _Traced:
     """Trace one chunk of pixels and read the light of every film this scene shades (the
     filtered map, the point lights, the background: the photo's pixels ``bg`` (N, 3) of the
     chunk): all of a render that does not depend on the film's thickness."""
     fx = cfg.effects
     dtype = p.t.dtype
-    if isinstance(cfg.camera, OrthographicCamera):
-        o, d = cfg.camera.rays(rows.astype(dtype), cols.astype(dtype), cfg.center, cfg.radius, p.disc)
-    else:
-        o, d = cfg.camera.rays(rows.astype(dtype), cols.astype(dtype), cfg.center, cfg.radius)
+    rows, cols = rows.astype(dtype), cols.astype(dtype)
+    rays = lambda r, c: _camera_rays(cfg, p, r, c)
+    o, d = rays(rows, cols)
     hits = intersect_sphere(o, d, cfg.center, cfg.radius)
     p, lam = _film_setup(p, cfg)
     bg_rad = _background(env, fx, p, d, bg)
@@ -410,7 +445,8 @@ def _trace_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols) -> _
     if films:
         nn = len(films)
         s_all, d_all = _reflected(env, fx, cfg, p, jnp.concatenate([f[1] for f in films]),
-                                  jnp.concatenate([f[2] for f in films]), normalize=fx.model == "physical")
+                                  jnp.concatenate([f[2] for f in films]), normalize=fx.model == "physical",
+                                  footprint=film_footprints(fx, cfg, rays, rows, cols, films))
         split = lambda x: jnp.split(x, nn) if jnp.ndim(x) else [x] * nn
         refl = dict(zip([f[0] for f in films], zip(split(s_all), split(d_all))))
     return _Traced(p, lam, hits, d, exits, refl, bg_rad)

@@ -189,6 +189,11 @@ def run_fit(case: str, model: str, out_dir: str, calibration: str | None = None,
             "--background", os.path.join(cdir, "background.png"), "--thickness", model, "--json", js, "-o", stem]
     fa = list(truth.get("fit_args", []))
     args += [os.path.join(cdir, a) if a.endswith((".toml", ".json")) else a for a in fa]
+    if truth.get("camera", {}).get("type") == "orthographic" and not {"--scene", "--fov"} & set(fa):
+        # an orthographic photo is fitted with its view stated, as a user who knows the
+        # camera states it (--fov 0); the perspective photos name theirs in scene.toml, and
+        # the *_nocam cases are fitted without one on purpose
+        args += ["--fov", "0"]
     if truth.get("illuminant") in ("D65", "E", "A"):
         # the white the renderer (or camera) integrated under is part of the capture, as the
         # environment map is: Cycles converts its spectra under E

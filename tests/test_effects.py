@@ -88,9 +88,6 @@ def test_auto_within_budget_of_all_on(name, maps):
     assert share <= 1.0, f"{name}: auto uses {share:.2f} of its budget: {[d.line() for d in decisions]}"
 
 
-@pytest.mark.xfail(strict=False, reason="with pixel footprints the mirror's lookup is the exact box average over the "
-                   "pixel and the 4 x 4 nodes of the all-on filter a Gaussian of its variance; on this 40 px scene (a "
-                   "pixel spans 5 texels) they differ beyond auto's budget, so the rest of the bubble takes mipmap")
 def test_sunny_mirror_bubble_is_cheapened_where_the_sun_is_not(maps):
     """The issue's scene (a = 5e-4, r_d = 0, 6 um, physical, sunrise with its sun): the
     sun's glint gets the filtered lookup, the rest of the bubble the mirror lookup and

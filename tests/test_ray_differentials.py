@@ -94,7 +94,7 @@ def _numeric_footprint(ray, cam, row, col, name, h=1e-4):
 
 
 def _package_footprint(cam, fx, rows, cols):
-    cfg = RenderConfig(effects=fx, camera=cam)
+    cfg = RenderConfig(effects=fx, camera=cam, pixel_footprint=True)
     p = Params.make()
 
     def rays(r, c):
@@ -177,7 +177,7 @@ def test_glint_flux_is_independent_of_the_resolution():
     for size in (40, 64, 100):
         # disc radius 16, 25.6 and 40 px: a pixel's reflection spans 5, 3.2 and 2 texels
         cam = OrthographicCamera(size, size, size / 2 + 0.17, size / 2 - 0.31, 0.4 * size)
-        img = np.asarray(render(p, RenderConfig(effects=fx, camera=cam), env))[..., 0]
+        img = np.asarray(render(p, RenderConfig(effects=fx, camera=cam, pixel_footprint=True), env))[..., 0]
         point = np.asarray(render(p, RenderConfig(effects=fx, camera=cam, pixel_footprint=False), env))[..., 0]
         # the closed form holds to the patch rows' solid angles (1e-4) and the mirror's
         # cos th_r across the patch (1e-3); the box of second moments that stands for the

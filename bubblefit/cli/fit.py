@@ -91,6 +91,9 @@ def add_model_options(p) -> None:
     p.add_argument("--samples-per-pixel", type=int, default=None, metavar="N",
                    help="rays per rendered pixel, a square number (1, 4, 9, ...): each pixel is the mean over its "
                         "area; default the scene's [camera] samples_per_pixel, else 1")
+    p.add_argument("--pixel-footprint", action="store_true",
+                   help="average each film's map lookup over the pixel's footprint (ray differentials): closer "
+                        "to a camera on glints of a bright sun, ~20%% slower (docs/validation-split.md)")
 
 
 def load_envmap(path: str):
@@ -206,7 +209,7 @@ def model_option_values(args) -> dict:
     if spp is not None:
         samples_per_pixel(spp, "--samples-per-pixel")
     return dict(illuminant=ill, camera_response=resp, n_film=film_index(args.n_film, args.cauchy, None),
-                samples_per_pixel=spp)
+                samples_per_pixel=spp, pixel_footprint=bool(getattr(args, "pixel_footprint", False)))
 
 
 def output_paths(args) -> list[str]:

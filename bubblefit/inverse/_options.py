@@ -147,6 +147,9 @@ class FitOptions:
     samples_per_pixel : int or None
         Rays per rendered pixel (a square number, :class:`~bubblefit.model.render.RenderConfig`);
         None: the scene's ``[camera] samples_per_pixel``, else 1.
+    pixel_footprint : bool
+        Average each film's map lookup over the pixel's footprint (ray differentials,
+        :attr:`~bubblefit.model.render.RenderConfig.pixel_footprint`); off by default.
     view : View or None
         The camera's view (:class:`~bubblefit.capture.view.View`: a field of view from an
         option or the photo's EXIF, :func:`~bubblefit.capture.view.resolve_view`). A
@@ -198,6 +201,7 @@ class FitOptions:
     white_balance: str | tuple | None = None
     n_film: object = None
     samples_per_pixel: int | None = None
+    pixel_footprint: bool = False
     parameters: tuple = ()
     view: object = None
 

@@ -344,7 +344,7 @@ def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, d
     fx = _coloured(fx, colour)
     map_cfg = RenderConfig(effects=fx, camera=camera, center=center, radius=radius, point_lights=tuple(lights),
                            dispersion=colour.n_film if isinstance(colour.n_film, Cauchy) else None,
-                           samples_per_pixel=colour.samples_per_pixel)
+                           samples_per_pixel=colour.samples_per_pixel, pixel_footprint=opts.pixel_footprint)
     table = _table(opts, fx, held0, fit_disc)
     # a map is fitted after a drainage profile: the local fits render the profile
     base_cfg = replace(map_cfg, effects=replace(fx, thickness=table.thickness_model))

@@ -140,7 +140,8 @@ def _trace(env, background, roughness, rotation, thickness_values, profile, pix,
         flat = lambda x: x.reshape(-1, 3)
         # the renderer's pixel footprints (RenderConfig.pixel_footprint), in the map's frame
         fp = film_footprints(probe, cfg, rays, rows, cols, films)
-        fp = jnp.stack([rotate_y(fp[..., k], -rotation) for k in range(2)], axis=-1)
+        if fp is not None:
+            fp = jnp.stack([rotate_y(fp[..., k], -rotation) for k in range(2)], axis=-1)
         for conf in FILTER_CANDIDATES:
             out[_key(conf)] = specular(env, flat(nm), flat(wm), roughness, conf, normalize=model == "physical",
                                        footprint=fp).reshape(n_all.shape)

@@ -74,10 +74,11 @@ JITTED = Programs(whole=_jitted_whole, pixels=_jitted_pixels, lit=_jitted_lit)
 
 def lit_usable(fp, p: Params, cfg: RenderConfig) -> bool:
     """Whether ``cfg``'s pixels can be shaded from the footprint ``fp``: its rays and lookups
-    are the ones this render would trace (one ray per pixel with its footprint, the camera's own disc, a filter
-    ``fp`` measured, the same parameters and the same lights)."""
+    are the ones this render would trace (one ray per pixel read at its centre direction, as the footprint's trace
+    reads it: no pixel footprint; the camera's own disc, a filter ``fp`` measured, the same parameters and the same
+    lights)."""
     fx = cfg.effects
-    if fp is None or cfg.samples_per_pixel != 1 or not cfg.pixel_footprint or filter_key(fx.filtering) not in fp.spec:
+    if fp is None or cfg.samples_per_pixel != 1 or cfg.pixel_footprint or filter_key(fx.filtering) not in fp.spec:
         return False
     if np.any(np.asarray(p.disc) != 0) and isinstance(cfg.camera, OrthographicCamera):
         return False

@@ -107,7 +107,8 @@ def view_of(scene) -> PlanarView:
     # A pixel counts when its whole footprint shows the film and the light: the rays
     # through its four corners too. A pixel that the frame's edge or the light's mirror
     # image crosses mixes the film with what lies beyond (a camera integrates over the
-    # pixel), and reads as a dimmer film of another colour.
+    # pixel), and reads as a dimmer film of another colour (on Blender Cycles' framed film,
+    # validation case cyc_film_drain_panel, such edge pixels read as order hops).
     cr, cc = np.mgrid[0:h + 1, 0:w + 1].astype(np.float64) - 0.5
     oc, dc = scene.camera.rays(jnp.asarray(cr), jnp.asarray(cc))
     vc = view_plane(np.asarray(oc, np.float64), np.asarray(dc, np.float64), scene.plane, scene.area, strict=False)
@@ -481,7 +482,8 @@ def _order_seeds(y, lum, cost, best, grid, mask, region, ref_nm, lo: float, frin
         # frame's up direction (a global fit over the whole film, :mod:`._drainage_plane`),
         # kept at the pixels whose best colour match lies within half the order window of
         # it; the rest follow from them, so a local departure from the profile (a thicker
-        # swirl) keeps its own map.
+        # swirl) keeps its own map (chosen on validation case cyc_film_drain_panel, which
+        # has no black film).
         from ..model.thickness import drainage_profile
         from ._drainage_plane import search_drainage
 

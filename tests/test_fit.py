@@ -111,7 +111,7 @@ def test_constant_recovery(env, seed, thickness, tint, monkeypatch):
     assert res.render.shape == photo.shape and res.residual.shape == photo.shape
     # a prepared program called with arguments of other shapes would be left waiting, unused
     ours = [s for s in prepared if s.name.startswith("inverse._programs")]
-    assert {s.name for s in ours} == {"inverse.solver", "inverse._programs.reporter",
+    assert {s.name for s in ours} == {"inverse._programs.solver", "inverse._programs.reporter",
                                       "inverse._programs.reporter_jacobian"}
     assert all(not s.pending for s in ours)
 

@@ -88,9 +88,14 @@ def _setup(env, scene=None, **kw):
     from bubblefit.inverse import setup
 
     rng = np.random.default_rng(0)
-    photo = rng.uniform(0.2, 0.5, (N, N, 3))
+    background = rng.uniform(0.2, 0.5, (N, N, 3))
+    # a pair the fit accepts: the same view off the bubble, and on it the background seen
+    # through the films (t^2 ~ 0.9) plus a reflection
+    yy, xx = np.mgrid[0:N, 0:N]
+    on = (xx - DISC[0]) ** 2 + (yy - DISC[1]) ** 2 <= DISC[2] ** 2
+    photo = np.where(on[..., None], 0.9 * background + rng.uniform(0.02, 0.08, (N, N, 3)), background)
     opts = FitOptions(**{"model": "paper", **kw}, disc=DISC, t_init=0.968, roughness_init=0.04)
-    return setup(photo, env, opts, rng.uniform(0.2, 0.5, (N, N, 3)), None, scene, None), opts
+    return setup(photo, env, opts, background, None, scene, None), opts
 
 
 def test_settings_reach_every_render_config(env):

@@ -454,6 +454,9 @@ def close_local_cluster(client, cluster, timeout: float = CLOSE_TIMEOUT_S) -> No
     import logging
     import warnings
 
+    # the handles are taken first: a close that times out may already have dropped its
+    # nannies from ``cluster.workers`` while their processes still run
+    procs = _worker_processes(cluster)
     saved = {name: logging.getLogger(name).level for name in _SHUTDOWN_LOGGERS}
     for name in _SHUTDOWN_LOGGERS:
         logging.getLogger(name).setLevel(logging.CRITICAL)
@@ -465,7 +468,7 @@ def close_local_cluster(client, cluster, timeout: float = CLOSE_TIMEOUT_S) -> No
         try:
             cluster.close(timeout=timeout)
         except Exception as exc:  # noqa: BLE001 - TimeoutError, OSError, CommClosedError
-            ended = _end_worker_processes(cluster)
+            ended = _end_processes(procs)
             warnings.warn(f"the local Dask cluster did not stop within {timeout:g} s ({type(exc).__name__}); "
                           f"ended its {ended} worker process(es)", UserWarning,
                           stacklevel=2)
@@ -474,16 +477,22 @@ def close_local_cluster(client, cluster, timeout: float = CLOSE_TIMEOUT_S) -> No
             logging.getLogger(name).setLevel(level)
 
 
-def _end_worker_processes(cluster) -> int:
-    """End the worker processes of a local cluster that are still alive (their
-    ``multiprocessing.Process`` handles, held by each nanny); returns how many."""
+def _worker_processes(cluster) -> list:
+    """The ``multiprocessing.Process`` handles of a local cluster's worker processes, held by
+    each nanny."""
     procs = []
     for nanny in list(getattr(cluster, "workers", {}).values()):
         worker_process = getattr(nanny, "process", None)
         async_process = getattr(worker_process, "process", None)
         proc = getattr(async_process, "_process", None)
-        if proc is not None and proc.is_alive():
+        if proc is not None:
             procs.append(proc)
+    return procs
+
+
+def _end_processes(procs: list) -> int:
+    """End those of ``procs`` still alive (SIGTERM, then SIGKILL); returns how many."""
+    procs = [proc for proc in procs if proc.is_alive()]
     for proc in procs:
         proc.terminate()
     for proc in procs:

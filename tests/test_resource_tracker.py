@@ -75,7 +75,9 @@ with warnings.catch_warnings(record=True) as caught:
     warnings.simplefilter("always")
     close_local_cluster(client, cluster, timeout=0.5)
 said = [str(w.message) for w in caught if "did not stop within" in str(w.message)]
-print("warned", len(said), "errors", len(errors), "workers", len(procs), "alive", sum(p.is_alive() for p in procs))
+from multiprocessing.connection import wait
+ended = wait([p.sentinel for p in procs], 10.0)  # an ended process has closed its sentinel pipe
+print("warned", len(said), "errors", len(errors), "workers", len(procs), "alive", len(procs) - len(ended))
 """
 
 

@@ -491,13 +491,29 @@ def _worker_processes(cluster) -> list:
 
 
 def _end_processes(procs: list) -> int:
-    """End those of ``procs`` still alive (SIGTERM, then SIGKILL); returns how many."""
-    procs = [proc for proc in procs if proc.is_alive()]
+    """End those of ``procs`` still running (SIGTERM, then SIGKILL); returns how many.
+
+    A process has ended when its ``sentinel`` is ready (the pipe its end closes).
+    ``is_alive`` is not asked: the nanny's watcher thread reaps the same child with its own
+    ``join``, and a ``waitpid`` that loses that race reads as still alive."""
+    from multiprocessing.connection import wait
+
+    def running(group):
+        out = []
+        for proc in group:
+            try:
+                if not wait([proc.sentinel], 0):
+                    out.append(proc)
+            except (ValueError, OSError):  # a handle already closed: its process is gone
+                pass
+        return out
+
+    procs = running(procs)
     for proc in procs:
         proc.terminate()
-    for proc in procs:
-        proc.join(5.0)
-        if proc.is_alive():
-            proc.kill()
-            proc.join(5.0)
+    wait([p.sentinel for p in procs], 5.0)
+    stubborn = running(procs)
+    for proc in stubborn:
+        proc.kill()
+    wait([p.sentinel for p in stubborn], 5.0)
     return len(procs)

@@ -190,6 +190,8 @@ def test_zero_roughness_is_the_mirror_not_a_bound(small_courtyard):
     assert unresolved({"roughness": 0.02}, {"roughness": 0.001}, table) == []  # resolved, if sub-texel
     assert unresolved({"roughness": 0.02}, {"roughness": None}, ParameterTable(free=("thickness_nm",))) == []
     assert "sits at a bound" in at_bounds({"roughness": 1.0, "thickness_nm": 500.0}, table, (100.0, 1500.0), 1.0)[0]
+    beyond = at_bounds({"roughness": 3.5, "thickness_nm": 500.0}, table, (100.0, 1500.0), 1.0)
+    assert len(beyond) == 1 and "lies outside its plausible range [0, 1]" in beyond[0]
 
 
 def test_refined_disc_in_pixels_with_its_model_error():

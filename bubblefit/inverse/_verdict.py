@@ -41,7 +41,9 @@ def at_bounds(values: dict, table: ParameterTable, thickness_range: tuple, margi
         else:
             lo, hi = PARAMETERS[name].plausible
             tol = 0.0
-        if v <= lo + tol or v >= hi - tol:
+        if v < lo or v > hi:
+            out.append(f"{name} = {v:.4g} lies outside its plausible range [{lo:.4g}, {hi:.4g}]")
+        elif v <= lo + tol or v >= hi - tol:
             out.append(f"{name} = {v:.4g} sits at a bound of its range [{lo:.4g}, {hi:.4g}]")
     return out
 

@@ -40,7 +40,8 @@ import numpy as np
 from ..errors import InputError
 from ..lighting.filtering import FilterConfig
 from ..optics.spectral import SpectralBasis, spectral_basis
-from .bounds import MAX_BOUNCES, FilmTable, SceneBounds, coefficient_difference, filter_bound, scene_bounds
+from .bounds import (MAX_BOUNCES, FilmTable, SceneBounds, SceneSummary, coefficient_difference, filter_bound,
+                     scene_bounds)
 from .modes import COLOURED, GREY, INTERFERENCE_MODES, MODELS, Background, Interference, Model, Switch, ThicknessKind
 
 __all__ = ["Effects", "Decision", "resolve", "decide", "all_on_settings", "ABSOLUTE_TOLERANCE", "MAX_AUTO_BOUNCES",
@@ -387,25 +388,18 @@ def source_decisions(b, front: bool, rear: bool, transmission: bool, thickness_k
     ]
 
 
-def resolve(*, model: Model, settings: dict, t: float, r_d: float, r_s: float, roughness: float,
-            thickness_range: tuple[float, float], thickness_kind: ThicknessKind, n_film: float,
-            env_texel_angle: float | None, env_peak: float, env_mean: float, background: Background,
-            background_peak: float, n_point_lights: int, light_peak: float, min_cos: float,
-            tolerance: float = ABSOLUTE_TOLERANCE, env_pixels: np.ndarray | None = None,
-            env_irradiance_peak: float | None = None,
-            reflect_theta_range: tuple[float, float] = (0.0, math.pi)) -> tuple[Effects, list[Decision]]:
+def resolve(summary: SceneSummary, settings: dict, *, thickness_kind: ThicknessKind,
+            tolerance: float = ABSOLUTE_TOLERANCE) -> tuple[Effects, list[Decision]]:
     """Decide every effect of a scene from its scalar summaries: :func:`scene_bounds`, then :func:`decide`.
 
-    The keyword arguments are those of :func:`~bubblefit.model.bounds.scene_bounds` plus
-    the scene's ``[effects]`` table (``settings``), its thickness model and the tolerance
-    (largest change, in linear radiance, a skipped effect may make).
+    Args:
+        summary: the scene's scalar summaries (:class:`~bubblefit.model.bounds.SceneSummary`).
+        settings: the scene's ``[effects]`` table (its ``nodes`` sets the ``mipmap`` quadrature).
+        thickness_kind: the thickness model.
+        tolerance: the largest change, in linear radiance, a skipped effect may make.
     """
-    if model not in MODELS:
-        raise InputError(f"effects.model must be paper or physical, got {model!r}")
+    if summary.model not in MODELS:
+        raise InputError(f"effects.model must be paper or physical, got {summary.model!r}")
     nodes = int(settings.get("nodes", ALL_ON_NODES))
-    b = scene_bounds(model=model, t=t, r_d=r_d, r_s=r_s, roughness=roughness, thickness_range=thickness_range,
-                     n_film=n_film, env_texel_angle=env_texel_angle, env_peak=env_peak, env_mean=env_mean,
-                     background=background, background_peak=background_peak, n_point_lights=n_point_lights,
-                     light_peak=light_peak, min_cos=min_cos, nodes=nodes, env_pixels=env_pixels,
-                     env_irradiance_peak=env_irradiance_peak, reflect_theta_range=reflect_theta_range)
+    b = scene_bounds(summary, nodes=nodes)
     return decide(b, settings, thickness_kind=thickness_kind, tolerance=tolerance, nodes=nodes)

@@ -368,6 +368,14 @@ class SceneBounds:
         """Radiance bounds of the (front, rear, background) film coefficients."""
         return self.w_refl, self.w_refl, self.bg_peak
 
+    def filter_bound(self, nodes: int) -> tuple[float, str]:
+        """:func:`filter_bound` of this scene's map at its roughness with ``nodes`` slope nodes
+        per axis: ``(bound, detail)``, ``inf`` when no map is given to bound the mirror lookup."""
+        if self.env_pixels is None:
+            return math.inf, "no map given to bound the mirror lookup"
+        return filter_bound(self.env_pixels, self.texel_angle, max(self.roughness, 1e-12), self.min_cos, nodes,
+                            self.model == "physical", self.reflect_theta_range)
+
 
 @dataclass(frozen=True, eq=False)
 class SceneSummary:
@@ -503,6 +511,11 @@ class FilmTable:
         lam_all = np.unique(np.concatenate([bb.wavelengths for bb in self.wanted + [basis] if bb.sigma is None and bb.phases is None]))
         self._spectra[mode] = (lam_all, film_spectra(b.model, mode, lam_all, b.d_grid, b.c_grid, b.t, b.n_film))
         return self._values(mode, basis)
+
+    def difference(self, a: dict, b: dict) -> float:
+        """:func:`coefficient_difference` of two of this table's coefficient sets, each term
+        weighted by the scene's radiance bound (:attr:`SceneBounds.weights`)."""
+        return coefficient_difference(a, b, *self.b.weights)
 
     def __call__(self, mode: Interference, basis: SpectralBasis | None = None) -> dict:
         """:func:`film_coefficients` for ``mode`` with ``basis`` (None for the grey modes)."""

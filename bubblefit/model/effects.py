@@ -40,8 +40,7 @@ import numpy as np
 from ..errors import InputError
 from ..lighting.filtering import FilterConfig
 from ..optics.spectral import SpectralBasis, spectral_basis
-from .bounds import (MAX_BOUNCES, FilmTable, SceneBounds, SceneSummary, coefficient_difference, filter_bound,
-                     scene_bounds)
+from .bounds import MAX_BOUNCES, FilmTable, SceneBounds, SceneSummary, scene_bounds
 from .modes import COLOURED, GREY, INTERFERENCE_MODES, MODELS, Background, Interference, Model, Switch, ThicknessKind
 
 __all__ = ["Effects", "Decision", "resolve", "decide", "all_on_settings", "ABSOLUTE_TOLERANCE", "MAX_AUTO_BOUNCES",
@@ -135,7 +134,8 @@ def decide_interference(b: SceneBounds, table: FilmTable, setting, tol: float) -
     """Interference on (``two_beam`` paper, ``airy`` physical) or the incoherent grey film.
 
     ``auto`` bounds the change from the coloured film (800-sample reference) to the grey
-    one (eq. 10's mean ``2 t^2``, or ``2 R / (1 + R)``) with :func:`coefficient_difference`.
+    one (eq. 10's mean ``2 t^2``, or ``2 R / (1 + R)``) with
+    :meth:`~bubblefit.model.bounds.FilmTable.difference`.
     """
     if setting not in ("auto",) + INTERFERENCE_MODES:
         raise InputError(f"effects.interference must be auto, off, two_beam, airy or incoherent, got {setting!r}")
@@ -143,7 +143,7 @@ def decide_interference(b: SceneBounds, table: FilmTable, setting, tol: float) -
     on_mode = "airy" if b.model == "physical" else "two_beam"
     if setting != "auto":
         return setting, Decision("interference", setting not in GREY, "set by the scene", setting)
-    bound = coefficient_difference(table("incoherent"), table(on_mode, spectral_basis("reference")), *b.weights)
+    bound = table.difference(table("incoherent"), table(on_mode, spectral_basis("reference")))
     if bound < tol:
         return "incoherent", Decision(
             "interference", False, f"film {dmin:.0f}-{dmax:.0f} nm: colours average out over the spectrum, "
@@ -164,7 +164,7 @@ def decide_spectral(b: SceneBounds, table: FilmTable, setting, interference: Int
         err = math.inf
         for k in SPECTRAL_CANDIDATES:
             basis = spectral_basis("uniform", k)
-            err = coefficient_difference(table(interference, basis), ref, *b.weights)
+            err = table.difference(table(interference, basis), ref)
             if err < tol:
                 return basis, Decision("spectral", True, f"{k} uniform samples: differ from the "
                                        f"{ref_basis.samples}-sample reference by <= {err:.2e} < tolerance {tol:g}",
@@ -203,7 +203,8 @@ def check_harmonic(basis: SpectralBasis | None, thickness_kind: ThicknessKind, d
 def decide_filtering(b: SceneBounds, setting, knobs: dict, nodes: int, spec_weight: float,
                      tol: float) -> tuple[FilterConfig, Decision]:
     """Mirror lookup or Ward-filtered lookup (eqs. 12-13): ``auto`` takes the mirror when
-    :func:`filter_bound` times the specular weight stays below the tolerance."""
+    :meth:`~bubblefit.model.bounds.SceneBounds.filter_bound` times the specular weight stays
+    below the tolerance."""
     if not b.has_env:
         return FilterConfig("mirror"), Decision("roughness_filtering", False, "no environment map: nothing to filter")
     if setting != "auto":
@@ -213,11 +214,7 @@ def decide_filtering(b: SceneBounds, setting, knobs: dict, nodes: int, spec_weig
             raise InputError(f"effects.filtering: {exc}") from None
         return conf, Decision("roughness_filtering", setting != "mirror", "set by the scene", conf.method)
     a = max(b.roughness, 1e-12)
-    if b.env_pixels is not None:
-        fb, detail = filter_bound(b.env_pixels, b.texel_angle, a, b.min_cos, nodes, b.model == "physical",
-                                  b.reflect_theta_range)
-    else:
-        fb, detail = math.inf, "no map given to bound the mirror lookup"
+    fb, detail = b.filter_bound(nodes)
     bound = spec_weight * fb
     if bound < tol:
         return FilterConfig("mirror"), Decision(

@@ -55,6 +55,7 @@ from .geometry import (OrthographicCamera, PerspectiveCamera, internal_bounce, i
 from .thickness import thickness_at
 
 __all__ = ["Params", "RenderConfig", "render", "render_terms", "render_pixels", "render_pixels_at", "shade_lit",
+           "trace_pixels", "shade_traced",
            "paper_terms", "film_footprints", "pixel_chunks", "chunk_size", "film_names", "shading_points",
            "TRACE_COUNTS", "PointLight"]
 
@@ -465,6 +466,31 @@ def _composite(tr: _Traced, cfg: RenderConfig, terms: dict):
     outside = tr.bg_rad if cfg.effects.background == "photo" else tr.p.exposure * tr.bg_rad
     pixel = jnp.where(inside, total, outside)
     return pixel, {k: jnp.where(inside, v, 0.0) for k, v in terms.items()}
+
+
+def trace_pixels(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols) -> list[_Traced]:
+    """The traced rays of one chunk of pixels (:func:`_trace_chunk`), one per sub-pixel
+    sample: the pixel centres, or the ``samples_per_pixel`` stratified offsets
+    (:func:`~bubblefit.model.geometry.pixel_offsets`) whose mean is the box-filtered pixel.
+
+    With :func:`shade_traced` this splits a render into what does not depend on the film's
+    thickness (traced once) and the film's optics (evaluated per thickness).
+    """
+    if cfg.samples_per_pixel == 1:
+        return [_trace_chunk(p, cfg, env, bg, rows, cols)]
+    offsets = pixel_offsets(cfg.samples_per_pixel)
+    dt = p.t.dtype
+    return [_trace_chunk(p, cfg, env, bg, rows.astype(dt) + float(o[0]), cols.astype(dt) + float(o[1]))
+            for o in np.asarray(offsets)]
+
+
+def shade_traced(tr: _Traced, cfg: RenderConfig, d0, d1, thick):
+    """The pixels (N, 3) and the masked terms of one traced chunk (:func:`trace_pixels`)
+    with front films of thickness ``d0`` and rear films ``d1`` (N,): eq. (11) or the
+    physical series (:func:`_terms`), composited over the background (:func:`_composite`).
+    ``thick(local)`` gives the thickness at other film points (the internal bounces')."""
+    terms = _terms(tr.p, cfg, tr.lam, tr.hits.cos, d0, d1, tr.exits, thick, tr.refl, tr.bg_rad)
+    return _composite(tr, cfg, terms)
 
 
 def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx):

@@ -382,21 +382,37 @@ class SceneSummary:
     """The scalar summaries of one scene that :func:`scene_bounds` turns into its :class:`SceneBounds`.
 
     A scene file (:meth:`bubblefit.model.scene.Scene.plan`) and a fit's setup
-    (:func:`bubblefit.inverse.setup`) each fill one from what they hold.
+    (:func:`bubblefit.inverse.fit.fit_photo`) each fill one from what they hold.
 
-    Attributes:
-        model: ``paper`` | ``physical``.
-        t, r_d, r_s, roughness, n_film: the scene's (or a fit's starting) values.
-        thickness_range: (min, max) film thickness over the bubble, nm.
-        env_texel_angle: the map's texel angle (rad), None without a map.
-        env_peak, env_mean: the map's largest and mean radiance (0 without a map).
-        background: ``envmap`` | ``black`` | ``photo``; background_peak: its largest radiance.
-        n_point_lights: number of distant lights; light_peak: the largest irradiance of one.
-        min_cos: smallest incidence cosine on the film among the image's pixels (the rim).
-        env_pixels: the (H, W, 3) map, or None.
-        env_irradiance_peak: the peak of the map's irradiance table, or None (then ``4 pi``
-            times ``env_mean`` bounds it).
-        reflect_theta_range: polar angles (rad) of the mirror directions the image reads.
+    Attributes
+    ----------
+    model : Model
+        ``paper`` | ``physical``.
+    t, r_d, r_s, roughness, n_film : float
+        The scene's (or a fit's starting) values.
+    thickness_range : tuple of float
+        (min, max) film thickness over the bubble, nm.
+    env_texel_angle : float or None
+        The map's texel angle (rad); None without a map.
+    env_peak, env_mean : float
+        The map's largest and mean radiance (0 without a map).
+    background : str
+        ``envmap`` | ``black`` | ``photo``.
+    background_peak : float
+        The background's largest radiance.
+    n_point_lights : int
+        Number of distant lights.
+    light_peak : float
+        The largest irradiance of one light.
+    min_cos : float
+        Smallest incidence cosine on the film among the image's pixels (the rim).
+    env_pixels : ndarray or None
+        The (H, W, 3) map.
+    env_irradiance_peak : float or None
+        The peak of the map's irradiance table; None: ``4 pi`` times ``env_mean`` bounds it.
+    reflect_theta_range : tuple of float
+        Polar angles (rad) of the mirror directions the image reads (the whole sphere
+        unless a caller knows better).
     """
 
     model: Model

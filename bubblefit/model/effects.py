@@ -389,11 +389,39 @@ def resolve(summary: SceneSummary, settings: dict, *, thickness_kind: ThicknessK
             tolerance: float = ABSOLUTE_TOLERANCE) -> tuple[Effects, list[Decision]]:
     """Decide every effect of a scene from its scalar summaries: :func:`scene_bounds`, then :func:`decide`.
 
-    Args:
-        summary: the scene's scalar summaries (:class:`~bubblefit.model.bounds.SceneSummary`).
-        settings: the scene's ``[effects]`` table (its ``nodes`` sets the ``mipmap`` quadrature).
-        thickness_kind: the thickness model.
-        tolerance: the largest change, in linear radiance, a skipped effect may make.
+    Parameters
+    ----------
+    summary : SceneSummary
+        The scene's scalar summaries (:class:`~bubblefit.model.bounds.SceneSummary`).
+    settings : dict
+        The scene's ``[effects]`` table (its ``nodes`` sets the ``mipmap`` quadrature).
+    thickness_kind : ThicknessKind
+        The thickness model.
+    tolerance : float
+        The largest change, in linear radiance, a skipped effect may make.
+
+    Returns
+    -------
+    tuple
+        The static :class:`Effects` and one :class:`Decision` per effect.
+
+    References
+    ----------
+    ``docs/design.md``, "Effects and auto".
+
+    Examples
+    --------
+    A bubble in a dark room in front of a lit backdrop: nothing lights the film, so only
+    the backdrop seen through it (eq. 11's ``t^4`` term) is simulated.
+
+    >>> from bubblefit import SceneSummary, resolve_effects
+    >>> dark = SceneSummary(model="paper", t=0.97, r_d=0.01, r_s=0.02, roughness=0.01,
+    ...                     thickness_range=(400.0, 600.0), n_film=1.33, env_texel_angle=None,
+    ...                     env_peak=0.0, env_mean=0.0, background="photo", background_peak=0.8,
+    ...                     n_point_lights=0, light_peak=0.0, min_cos=0.3)
+    >>> fx, decisions = resolve_effects(dark, {}, thickness_kind="constant")
+    >>> fx.front_reflection, fx.rear_reflection, fx.transmission, fx.interference
+    (False, False, True, 'incoherent')
     """
     if summary.model not in MODELS:
         raise InputError(f"effects.model must be paper or physical, got {summary.model!r}")

@@ -503,8 +503,7 @@ def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx)
     thick = lambda local: thickness_at(fx.thickness, tr.p.thickness, local, idx, tr.p.profile, hits.local0)
     d0 = thickness_at(fx.thickness, tr.p.thickness, hits.local0, idx)
     d1 = thick(hits.local1)
-    terms = _terms(tr.p, cfg, tr.lam, hits.cos, d0, d1, tr.exits, thick, tr.refl, tr.bg_rad)
-    return _composite(tr, cfg, terms)
+    return shade_traced(tr, cfg, d0, d1, thick)
 
 
 @functools.partial(jax.jit, static_argnames=("cfg",))
@@ -521,24 +520,18 @@ def render_pixels_at(p: Params, cfg: RenderConfig, env: EnvMap | None, backgroun
         raise ValueError("render_pixels_at evaluates constant films")
     dtype = p.t.dtype
     bg_all = None if background is None else jnp.asarray(background, dtype=dtype).reshape(-1, 3)
-    offsets = jnp.asarray(pixel_offsets(cfg.samples_per_pixel), dtype=dtype)
     thickness = jnp.asarray(thickness, dtype)
 
     def chunk(xs):
         r, c, i = xs
         bg = None if bg_all is None else bg_all[i]
-        if cfg.samples_per_pixel == 1:
-            traced = [_trace_chunk(p, cfg, env, bg, r, c)]
-        else:  # the box filter of _map_chunks: the mean over stratified sub-pixel rays
-            traced = [_trace_chunk(p, cfg, env, bg, r.astype(dtype) + o[0], c.astype(dtype) + o[1])
-                      for o in offsets]
+        traced = trace_pixels(p, cfg, env, bg, r, c)  # the box filter of _map_chunks: the mean over sub-pixel rays
 
         def at(th):
             out = None
             for tr in traced:
                 d = jnp.broadcast_to(th, tr.hits.cos.shape)
-                terms = _terms(tr.p, cfg, tr.lam, tr.hits.cos, d, d, tr.exits, lambda _: d, tr.refl, tr.bg_rad)
-                terms = _composite(tr, cfg, terms)[1]
+                terms = shade_traced(tr, cfg, d, d, lambda _: d)[1]
                 out = terms if out is None else {k: out[k] + v for k, v in terms.items()}
             return {k: v / len(traced) for k, v in out.items()}
 

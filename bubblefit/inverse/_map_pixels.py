@@ -28,7 +28,7 @@ from ._observation import Level
 from ._parameters import ParameterTable
 from ._programs import fitted_pixels
 from ..model.geometry import compose_shift
-from ..model.render import shade_traced, trace_pixels
+from ..model.render import shade_pixels, trace_pixels
 from ..model.thickness import thickness_at
 
 __all__ = ["TracedCosts", "refine", "CHUNK", "REFINE_STEPS", "REFINE_TOL_NM"]
@@ -41,15 +41,12 @@ def _predict(cfg, traced, d):
     """(N, 3) pixels of a chunk whose front films have thicknesses ``d`` (N,): the mean over
     the chunk's sub-pixel rays of the model's terms (eq. 11 or the physical series)."""
     pix = jnp.arange(d.shape[0])
-    out = None
-    for tr in traced:
-        hits = tr.hits
-        thick = lambda local, tr=tr: thickness_at("map", d, local, pix, tr.p.profile, tr.hits.local0)
-        d0 = d
-        d1 = thick(hits.local1)
-        img = shade_traced(tr, cfg, d0, d1, thick)[0]
-        out = img if out is None else out + img
-    return out / len(traced)
+
+    def films(tr):
+        thick = lambda local: thickness_at("map", d, local, pix, tr.p.profile, tr.hits.local0)
+        return d, thick(tr.hits.local1), thick
+
+    return shade_pixels(traced, cfg, films)[0]
 
 
 def _over_chunks(p, cfg, env, bg, rows, cols, idx, per_pixel, y, w, fn):

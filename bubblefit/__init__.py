@@ -28,7 +28,7 @@ _EXPORTS = {
     # forward model
     "Scene": "model.scene", "load_scene": "model.scene", "render_scene": "model.scene",
     "Params": "model.render", "RenderConfig": "model.render", "render": "model.render",
-    "render_terms": "model.render", "Effects": "model.effects",
+    "render_terms": "model.render", "Effects": "model.effects", "SceneSummary": "model.bounds",
     "OrthographicCamera": "model.geometry", "PerspectiveCamera": "model.geometry",
     "EnvMap": "lighting.envmap", "FilterConfig": "lighting.filtering",
     "spectral_basis": "optics.spectral", "interference_colours": "optics.chart",

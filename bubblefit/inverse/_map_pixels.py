@@ -5,7 +5,7 @@ bounces read the map at the same pixel, changed by the drainage profile between 
 heights of their film points, :func:`bubblefit.model.thickness.thickness_at`). The rays,
 the environment map's filtered light at every film point and the background do not
 depend on the thickness at all, so a level's pixels are traced once
-(:func:`bubblefit.model.render._trace_chunk`) and only the film's optics (the Airy film
+(:func:`bubblefit.model.render.trace_pixels`) and only the film's optics (the Airy film
 per wavelength and polarisation, or eq. 10's factor) are evaluated per candidate
 thickness: the map's cost for ``G`` candidates is one trace plus ``G`` optics, not ``G``
 renders of the whole image (:class:`bubblefit.inverse._maps.RenderCosts`).
@@ -28,7 +28,7 @@ from ._observation import Level
 from ._parameters import ParameterTable
 from ._programs import fitted_pixels
 from ..model.geometry import compose_shift
-from ..model.render import _composite, _terms, _trace_chunk, pixel_offsets
+from ..model.render import shade_pixels, trace_pixels
 from ..model.thickness import thickness_at
 
 __all__ = ["TracedCosts", "refine", "CHUNK", "REFINE_STEPS", "REFINE_TOL_NM"]
@@ -37,30 +37,16 @@ __all__ = ["TracedCosts", "refine", "CHUNK", "REFINE_STEPS", "REFINE_TOL_NM"]
 CHUNK = 512
 
 
-def _chunk_pixels(p, cfg, env, bg, rows, cols):
-    """The traced sub-pixel rays of one chunk (1 or ``samples_per_pixel`` of them)."""
-    if cfg.samples_per_pixel == 1:
-        return [_trace_chunk(p, cfg, env, bg, rows, cols)]
-    offsets = pixel_offsets(cfg.samples_per_pixel)
-    dt = p.t.dtype
-    return [_trace_chunk(p, cfg, env, bg, rows.astype(dt) + float(o[0]), cols.astype(dt) + float(o[1]))
-            for o in np.asarray(offsets)]
-
-
 def _predict(cfg, traced, d):
     """(N, 3) pixels of a chunk whose front films have thicknesses ``d`` (N,): the mean over
     the chunk's sub-pixel rays of the model's terms (eq. 11 or the physical series)."""
     pix = jnp.arange(d.shape[0])
-    out = None
-    for tr in traced:
-        hits = tr.hits
-        thick = lambda local, tr=tr: thickness_at("map", d, local, pix, tr.p.profile, tr.hits.local0)
-        d0 = d
-        d1 = thick(hits.local1)
-        terms = _terms(tr.p, cfg, tr.lam, hits.cos, d0, d1, tr.exits, thick, tr.refl, tr.bg_rad)
-        img = _composite(tr, cfg, terms)[0]
-        out = img if out is None else out + img
-    return out / len(traced)
+
+    def films(tr):
+        thick = lambda local: thickness_at("map", d, local, pix, tr.p.profile, tr.hits.local0)
+        return d, thick(tr.hits.local1), thick
+
+    return shade_pixels(traced, cfg, films)[0]
 
 
 def _over_chunks(p, cfg, env, bg, rows, cols, idx, per_pixel, y, w, fn):
@@ -70,7 +56,7 @@ def _over_chunks(p, cfg, env, bg, rows, cols, idx, per_pixel, y, w, fn):
     def chunk(xs):
         r, c, i, q, yy, ww = xs
         b = None if bg is None else bg.reshape(-1, 3)[i]
-        traced = _chunk_pixels(p, cfg, env, b, r, c)
+        traced = trace_pixels(p, cfg, env, b, r, c)
         return fn(lambda d: _predict(cfg, traced, d), q, yy, ww)
 
     return jax.lax.map(chunk, (rows, cols, idx, per_pixel, y, w))

@@ -15,6 +15,7 @@ from ._options import ColourSettings, FitOptions
 from ._parameters import ALIASES, DISC_PARAMETERS, PARAMETERS, ParameterTable, THICKNESS_PARAMETERS
 from ..errors import InputError
 from ..lighting.envmap import EnvMap
+from ..model.bounds import SceneSummary
 from ..model.effects import check_harmonic, resolve
 from ..model.geometry import OrthographicCamera
 from ..model.render import RenderConfig
@@ -91,19 +92,20 @@ def defaults(scene, init, opts: FitOptions, t_from_calibration):
 
 
 def _decide(opts: FitOptions, vals, env, bg, settings, camera, lights):
-    """The effects the fit simulates (:func:`bubblefit.model.effects.resolve`)."""
+    """The effects the fit simulates (:func:`bubblefit.model.effects.resolve`) from the
+    starting values, the map, the background and the rim's incidence."""
     envpx = np.asarray(env.pixels)
     bg_kind = "photo" if bg is not None else "envmap"
-    return resolve(
-        model=opts.model, settings=settings, t=vals["t"], r_d=vals["r_d"], r_s=vals["r_s"],
-        roughness=vals["roughness"], thickness_range=tuple(float(x) for x in opts.thickness_range),
-        thickness_kind=opts.thickness, n_film=vals["n_film"], env_texel_angle=env.texel_angle,
-        env_peak=float(envpx.max()), env_mean=float(envpx.mean()), background=bg_kind,
-        background_peak=float(np.max(bg)) if bg is not None else float(envpx.max()),
+    summary = SceneSummary(
+        model=opts.model, t=vals["t"], r_d=vals["r_d"], r_s=vals["r_s"], roughness=vals["roughness"],
+        thickness_range=tuple(float(x) for x in opts.thickness_range), n_film=vals["n_film"],
+        env_texel_angle=env.texel_angle, env_peak=float(envpx.max()), env_mean=float(envpx.mean()),
+        background=bg_kind, background_peak=float(np.max(bg)) if bg is not None else float(envpx.max()),
         n_point_lights=len(lights), light_peak=max([max(l.irradiance) for l in lights], default=0.0),
-        min_cos=math.sqrt(max(0.0, 1 - opts.rim**2)), tolerance=float(settings.get("tolerance", 1e-3)),
-        env_pixels=envpx, env_irradiance_peak=float(np.max(np.asarray(env.irradiance))),
+        min_cos=math.sqrt(max(0.0, 1 - opts.rim**2)), env_pixels=envpx,
+        env_irradiance_peak=float(np.max(np.asarray(env.irradiance))),
     )
+    return resolve(summary, settings, thickness_kind=opts.thickness, tolerance=float(settings.get("tolerance", 1e-3)))
 
 
 def _held_by_effects(opts: FitOptions, fx, hold: dict) -> tuple:

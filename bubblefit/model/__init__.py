@@ -17,7 +17,7 @@ from __future__ import annotations
 import importlib
 
 _MODULES = ("effects", "geometry", "render", "scene", "thickness")
-_EXPORTS = {"Effects": "effects", "OrthographicCamera": "geometry", "PerspectiveCamera": "geometry",
+_EXPORTS = {"Effects": "effects", "SceneSummary": "bounds", "OrthographicCamera": "geometry", "PerspectiveCamera": "geometry",
             "Params": "render", "RenderConfig": "render", "render_terms": "render", "Scene": "scene",
             "load_scene": "scene", "render_scene": "scene",
             # a scene's value checks that the command line shares

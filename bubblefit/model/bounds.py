@@ -41,7 +41,7 @@ from ..optics import film
 from ..optics.spectral import LAMBDA_MIN, SpectralBasis, harmonic_weights
 from .modes import GREY, Interference, Model
 
-__all__ = ["SceneBounds", "FilmTable", "scene_bounds", "film_grids", "film_spectra", "harmonic_spectra",
+__all__ = ["SceneSummary", "SceneBounds", "FilmTable", "scene_bounds", "film_grids", "film_spectra", "harmonic_spectra",
            "film_coefficients", "coefficient_difference", "lookup_variation", "mipmap_albedo", "filter_bound",
            "MAX_BOUNCES"]
 
@@ -368,15 +368,75 @@ class SceneBounds:
         """Radiance bounds of the (front, rear, background) film coefficients."""
         return self.w_refl, self.w_refl, self.bg_peak
 
+    def filter_bound(self, nodes: int) -> tuple[float, str]:
+        """:func:`filter_bound` of this scene's map at its roughness with ``nodes`` slope nodes
+        per axis: ``(bound, detail)``, ``inf`` when no map is given to bound the mirror lookup."""
+        if self.env_pixels is None:
+            return math.inf, "no map given to bound the mirror lookup"
+        return filter_bound(self.env_pixels, self.texel_angle, max(self.roughness, 1e-12), self.min_cos, nodes,
+                            self.model == "physical", self.reflect_theta_range)
 
-def scene_bounds(*, model: Model, t: float, r_d: float, r_s: float, roughness: float,
-                 thickness_range: tuple[float, float], n_film: float, env_texel_angle: float | None,
-                 env_peak: float, env_mean: float, background: str, background_peak: float,
-                 n_point_lights: int, light_peak: float, min_cos: float, nodes: int,
-                 env_pixels: np.ndarray | None = None, env_irradiance_peak: float | None = None,
-                 reflect_theta_range: tuple[float, float] = (0.0, math.pi), per_pixel: bool = False,
-                 field: bool = False) -> SceneBounds:
-    """The :class:`SceneBounds` of a scene from its scalar summaries.
+
+@dataclass(frozen=True, eq=False)
+class SceneSummary:
+    """The scalar summaries of one scene that :func:`scene_bounds` turns into its :class:`SceneBounds`.
+
+    A scene file (:meth:`bubblefit.model.scene.Scene.plan`) and a fit's setup
+    (:func:`bubblefit.inverse.fit.fit_photo`) each fill one from what they hold.
+
+    Attributes
+    ----------
+    model : Model
+        ``paper`` | ``physical``.
+    t, r_d, r_s, roughness, n_film : float
+        The scene's (or a fit's starting) values.
+    thickness_range : tuple of float
+        (min, max) film thickness over the bubble, nm.
+    env_texel_angle : float or None
+        The map's texel angle (rad); None without a map.
+    env_peak, env_mean : float
+        The map's largest and mean radiance (0 without a map).
+    background : str
+        ``envmap`` | ``black`` | ``photo``.
+    background_peak : float
+        The background's largest radiance.
+    n_point_lights : int
+        Number of distant lights.
+    light_peak : float
+        The largest irradiance of one light.
+    min_cos : float
+        Smallest incidence cosine on the film among the image's pixels (the rim).
+    env_pixels : ndarray or None
+        The (H, W, 3) map.
+    env_irradiance_peak : float or None
+        The peak of the map's irradiance table; None: ``4 pi`` times ``env_mean`` bounds it.
+    reflect_theta_range : tuple of float
+        Polar angles (rad) of the mirror directions the image reads (the whole sphere
+        unless a caller knows better).
+    """
+
+    model: Model
+    t: float
+    r_d: float
+    r_s: float
+    roughness: float
+    thickness_range: tuple[float, float]
+    n_film: float
+    env_texel_angle: float | None
+    env_peak: float
+    env_mean: float
+    background: str
+    background_peak: float
+    n_point_lights: int
+    light_peak: float
+    min_cos: float
+    env_pixels: np.ndarray | None = field(default=None, repr=False)
+    env_irradiance_peak: float | None = None
+    reflect_theta_range: tuple[float, float] = (0.0, math.pi)
+
+
+def scene_bounds(s: SceneSummary, *, nodes: int, per_pixel: bool = False, field: bool = False) -> SceneBounds:
+    """The :class:`SceneBounds` of a scene from its scalar summaries (:class:`SceneSummary`).
 
     ``per_pixel``: the grids serve ``auto``'s per-pixel cells (:func:`film_grids`);
     ``field``: the thickness varies over the film (drainage, a map), so the
@@ -390,32 +450,34 @@ def scene_bounds(*, model: Model, t: float, r_d: float, r_s: float, roughness: f
     quadrature whose albedo (eq. 1 unnormalised, :func:`mipmap_albedo`) scales the paper
     model's specular radiance.
     """
-    has_env = env_texel_angle is not None
-    a = max(float(roughness), 1e-12)
-    peak_env = env_peak if has_env else 0.0
-    irr_env = (env_irradiance_peak if env_irradiance_peak is not None else 4 * math.pi * env_mean) if has_env else 0.0
-    light_spec = light_peak / (4 * math.pi * a * a * math.sqrt(max(min_cos, 1e-3))) if n_point_lights else 0.0
-    light_irr = light_peak * max(n_point_lights, 0)
-    spec_peak = max(peak_env, 0.0) + light_spec * max(n_point_lights, 0)
+    model, min_cos, n_lights = s.model, s.min_cos, s.n_point_lights
+    has_env = s.env_texel_angle is not None
+    a = max(float(s.roughness), 1e-12)
+    peak_env = s.env_peak if has_env else 0.0
+    irr_env = ((s.env_irradiance_peak if s.env_irradiance_peak is not None else 4 * math.pi * s.env_mean)
+               if has_env else 0.0)
+    light_spec = s.light_peak / (4 * math.pi * a * a * math.sqrt(max(min_cos, 1e-3))) if n_lights else 0.0
+    light_irr = s.light_peak * max(n_lights, 0)
+    spec_peak = max(peak_env, 0.0) + light_spec * max(n_lights, 0)
     irr_peak = irr_env + light_irr
     alb = 1.0
     if model == "paper" and has_env:
         alb = max(1.0, float(np.max(mipmap_albedo(a, np.linspace(max(min_cos, 1e-3), 1.0, 8), nodes))))
     if model == "paper":
         # L' = r_s S + r_d E / pi (eq. 2), the radiance the paper's factors multiply.
-        w_refl = max(r_s, 0.0) * spec_peak * alb + max(r_d, 0.0) * irr_peak / math.pi
+        w_refl = max(s.r_s, 0.0) * spec_peak * alb + max(s.r_d, 0.0) * irr_peak / math.pi
     else:
-        w_refl = spec_peak + max(r_d, 0.0) * irr_peak / math.pi
-    dmin, dmax = (float(thickness_range[0]), float(thickness_range[1]))
-    d_grid, c_grid = film_grids((dmin, dmax), min_cos, n_film, reach=2.0 if model == "physical" and field else 1.0,
+        w_refl = spec_peak + max(s.r_d, 0.0) * irr_peak / math.pi
+    dmin, dmax = (float(s.thickness_range[0]), float(s.thickness_range[1]))
+    d_grid, c_grid = film_grids((dmin, dmax), min_cos, s.n_film, reach=2.0 if model == "physical" and field else 1.0,
                                 per_pixel=per_pixel)
-    return SceneBounds(model=model, t=float(t), r_d=float(r_d), r_s=float(r_s), roughness=float(roughness),
-                       n_film=float(n_film), thickness_range=(dmin, dmax), min_cos=float(min_cos), has_env=has_env,
-                       env_peak=float(peak_env), env_pixels=env_pixels, texel_angle=env_texel_angle,
-                       spec_peak=spec_peak, irr_peak=irr_peak, background=background,
-                       bg_peak=background_peak if background != "black" else 0.0,
-                       n_point_lights=int(n_point_lights), albedo=alb, w_refl=w_refl,
-                       reflect_theta_range=tuple(reflect_theta_range), d_grid=d_grid, c_grid=c_grid)
+    return SceneBounds(model=model, t=float(s.t), r_d=float(s.r_d), r_s=float(s.r_s), roughness=float(s.roughness),
+                       n_film=float(s.n_film), thickness_range=(dmin, dmax), min_cos=float(min_cos), has_env=has_env,
+                       env_peak=float(peak_env), env_pixels=s.env_pixels, texel_angle=s.env_texel_angle,
+                       spec_peak=spec_peak, irr_peak=irr_peak, background=s.background,
+                       bg_peak=s.background_peak if s.background != "black" else 0.0,
+                       n_point_lights=int(n_lights), albedo=alb, w_refl=w_refl,
+                       reflect_theta_range=tuple(s.reflect_theta_range), d_grid=d_grid, c_grid=c_grid)
 
 
 class FilmTable:
@@ -465,6 +527,11 @@ class FilmTable:
         lam_all = np.unique(np.concatenate([bb.wavelengths for bb in self.wanted + [basis] if bb.sigma is None and bb.phases is None]))
         self._spectra[mode] = (lam_all, film_spectra(b.model, mode, lam_all, b.d_grid, b.c_grid, b.t, b.n_film))
         return self._values(mode, basis)
+
+    def difference(self, a: dict, b: dict) -> float:
+        """:func:`coefficient_difference` of two of this table's coefficient sets, each term
+        weighted by the scene's radiance bound (:attr:`SceneBounds.weights`)."""
+        return coefficient_difference(a, b, *self.b.weights)
 
     def __call__(self, mode: Interference, basis: SpectralBasis | None = None) -> dict:
         """:func:`film_coefficients` for ``mode`` with ``basis`` (None for the grey modes)."""

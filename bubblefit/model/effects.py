@@ -40,7 +40,7 @@ import numpy as np
 from ..errors import InputError
 from ..lighting.filtering import FilterConfig
 from ..optics.spectral import SpectralBasis, spectral_basis
-from .bounds import MAX_BOUNCES, FilmTable, SceneBounds, coefficient_difference, filter_bound, scene_bounds
+from .bounds import MAX_BOUNCES, FilmTable, SceneBounds, SceneSummary, scene_bounds
 from .modes import COLOURED, GREY, INTERFERENCE_MODES, MODELS, Background, Interference, Model, Switch, ThicknessKind
 
 __all__ = ["Effects", "Decision", "resolve", "decide", "all_on_settings", "ABSOLUTE_TOLERANCE", "MAX_AUTO_BOUNCES",
@@ -134,7 +134,8 @@ def decide_interference(b: SceneBounds, table: FilmTable, setting, tol: float) -
     """Interference on (``two_beam`` paper, ``airy`` physical) or the incoherent grey film.
 
     ``auto`` bounds the change from the coloured film (800-sample reference) to the grey
-    one (eq. 10's mean ``2 t^2``, or ``2 R / (1 + R)``) with :func:`coefficient_difference`.
+    one (eq. 10's mean ``2 t^2``, or ``2 R / (1 + R)``) with
+    :meth:`~bubblefit.model.bounds.FilmTable.difference`.
     """
     if setting not in ("auto",) + INTERFERENCE_MODES:
         raise InputError(f"effects.interference must be auto, off, two_beam, airy or incoherent, got {setting!r}")
@@ -142,7 +143,7 @@ def decide_interference(b: SceneBounds, table: FilmTable, setting, tol: float) -
     on_mode = "airy" if b.model == "physical" else "two_beam"
     if setting != "auto":
         return setting, Decision("interference", setting not in GREY, "set by the scene", setting)
-    bound = coefficient_difference(table("incoherent"), table(on_mode, spectral_basis("reference")), *b.weights)
+    bound = table.difference(table("incoherent"), table(on_mode, spectral_basis("reference")))
     if bound < tol:
         return "incoherent", Decision(
             "interference", False, f"film {dmin:.0f}-{dmax:.0f} nm: colours average out over the spectrum, "
@@ -163,7 +164,7 @@ def decide_spectral(b: SceneBounds, table: FilmTable, setting, interference: Int
         err = math.inf
         for k in SPECTRAL_CANDIDATES:
             basis = spectral_basis("uniform", k)
-            err = coefficient_difference(table(interference, basis), ref, *b.weights)
+            err = table.difference(table(interference, basis), ref)
             if err < tol:
                 return basis, Decision("spectral", True, f"{k} uniform samples: differ from the "
                                        f"{ref_basis.samples}-sample reference by <= {err:.2e} < tolerance {tol:g}",
@@ -202,7 +203,8 @@ def check_harmonic(basis: SpectralBasis | None, thickness_kind: ThicknessKind, d
 def decide_filtering(b: SceneBounds, setting, knobs: dict, nodes: int, spec_weight: float,
                      tol: float) -> tuple[FilterConfig, Decision]:
     """Mirror lookup or Ward-filtered lookup (eqs. 12-13): ``auto`` takes the mirror when
-    :func:`filter_bound` times the specular weight stays below the tolerance."""
+    :meth:`~bubblefit.model.bounds.SceneBounds.filter_bound` times the specular weight stays
+    below the tolerance."""
     if not b.has_env:
         return FilterConfig("mirror"), Decision("roughness_filtering", False, "no environment map: nothing to filter")
     if setting != "auto":
@@ -212,11 +214,7 @@ def decide_filtering(b: SceneBounds, setting, knobs: dict, nodes: int, spec_weig
             raise InputError(f"effects.filtering: {exc}") from None
         return conf, Decision("roughness_filtering", setting != "mirror", "set by the scene", conf.method)
     a = max(b.roughness, 1e-12)
-    if b.env_pixels is not None:
-        fb, detail = filter_bound(b.env_pixels, b.texel_angle, a, b.min_cos, nodes, b.model == "physical",
-                                  b.reflect_theta_range)
-    else:
-        fb, detail = math.inf, "no map given to bound the mirror lookup"
+    fb, detail = b.filter_bound(nodes)
     bound = spec_weight * fb
     if bound < tol:
         return FilterConfig("mirror"), Decision(
@@ -387,25 +385,46 @@ def source_decisions(b, front: bool, rear: bool, transmission: bool, thickness_k
     ]
 
 
-def resolve(*, model: Model, settings: dict, t: float, r_d: float, r_s: float, roughness: float,
-            thickness_range: tuple[float, float], thickness_kind: ThicknessKind, n_film: float,
-            env_texel_angle: float | None, env_peak: float, env_mean: float, background: Background,
-            background_peak: float, n_point_lights: int, light_peak: float, min_cos: float,
-            tolerance: float = ABSOLUTE_TOLERANCE, env_pixels: np.ndarray | None = None,
-            env_irradiance_peak: float | None = None,
-            reflect_theta_range: tuple[float, float] = (0.0, math.pi)) -> tuple[Effects, list[Decision]]:
+def resolve(summary: SceneSummary, settings: dict, *, thickness_kind: ThicknessKind,
+            tolerance: float = ABSOLUTE_TOLERANCE) -> tuple[Effects, list[Decision]]:
     """Decide every effect of a scene from its scalar summaries: :func:`scene_bounds`, then :func:`decide`.
 
-    The keyword arguments are those of :func:`~bubblefit.model.bounds.scene_bounds` plus
-    the scene's ``[effects]`` table (``settings``), its thickness model and the tolerance
-    (largest change, in linear radiance, a skipped effect may make).
+    Parameters
+    ----------
+    summary : SceneSummary
+        The scene's scalar summaries (:class:`~bubblefit.model.bounds.SceneSummary`).
+    settings : dict
+        The scene's ``[effects]`` table (its ``nodes`` sets the ``mipmap`` quadrature).
+    thickness_kind : ThicknessKind
+        The thickness model.
+    tolerance : float
+        The largest change, in linear radiance, a skipped effect may make.
+
+    Returns
+    -------
+    tuple
+        The static :class:`Effects` and one :class:`Decision` per effect.
+
+    References
+    ----------
+    ``docs/design.md``, "Effects and auto".
+
+    Examples
+    --------
+    A bubble in a dark room in front of a lit backdrop: nothing lights the film, so only
+    the backdrop seen through it (eq. 11's ``t^4`` term) is simulated.
+
+    >>> from bubblefit import SceneSummary, resolve_effects
+    >>> dark = SceneSummary(model="paper", t=0.97, r_d=0.01, r_s=0.02, roughness=0.01,
+    ...                     thickness_range=(400.0, 600.0), n_film=1.33, env_texel_angle=None,
+    ...                     env_peak=0.0, env_mean=0.0, background="photo", background_peak=0.8,
+    ...                     n_point_lights=0, light_peak=0.0, min_cos=0.3)
+    >>> fx, decisions = resolve_effects(dark, {}, thickness_kind="constant")
+    >>> fx.front_reflection, fx.rear_reflection, fx.transmission, fx.interference
+    (False, False, True, 'incoherent')
     """
-    if model not in MODELS:
-        raise InputError(f"effects.model must be paper or physical, got {model!r}")
+    if summary.model not in MODELS:
+        raise InputError(f"effects.model must be paper or physical, got {summary.model!r}")
     nodes = int(settings.get("nodes", ALL_ON_NODES))
-    b = scene_bounds(model=model, t=t, r_d=r_d, r_s=r_s, roughness=roughness, thickness_range=thickness_range,
-                     n_film=n_film, env_texel_angle=env_texel_angle, env_peak=env_peak, env_mean=env_mean,
-                     background=background, background_peak=background_peak, n_point_lights=n_point_lights,
-                     light_peak=light_peak, min_cos=min_cos, nodes=nodes, env_pixels=env_pixels,
-                     env_irradiance_peak=env_irradiance_peak, reflect_theta_range=reflect_theta_range)
+    b = scene_bounds(summary, nodes=nodes)
     return decide(b, settings, thickness_kind=thickness_kind, tolerance=tolerance, nodes=nodes)

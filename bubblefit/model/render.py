@@ -55,6 +55,7 @@ from .geometry import (OrthographicCamera, PerspectiveCamera, internal_bounce, i
 from .thickness import thickness_at
 
 __all__ = ["Params", "RenderConfig", "render", "render_terms", "render_pixels", "render_pixels_at", "shade_lit",
+           "trace_pixels", "shade_pixels",
            "paper_terms", "film_footprints", "pixel_chunks", "chunk_size", "film_names", "shading_points",
            "TRACE_COUNTS", "PointLight"]
 
@@ -467,6 +468,50 @@ def _composite(tr: _Traced, cfg: RenderConfig, terms: dict):
     return pixel, {k: jnp.where(inside, v, 0.0) for k, v in terms.items()}
 
 
+def trace_pixels(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols) -> list[_Traced]:
+    """The traced rays of one chunk of pixels (:func:`_trace_chunk`), one per sub-pixel
+    sample: the pixel centres, or the ``samples_per_pixel`` stratified offsets
+    (:func:`~bubblefit.model.geometry.pixel_offsets`) whose mean is the box-filtered pixel.
+
+    With :func:`shade_pixels` this splits a render into what does not depend on the film's
+    thickness (traced once) and the film's optics (evaluated per thickness).
+    """
+    if cfg.samples_per_pixel == 1:
+        return [_trace_chunk(p, cfg, env, bg, rows, cols)]
+    offsets = pixel_offsets(cfg.samples_per_pixel)
+    dt = p.t.dtype
+    return [_trace_chunk(p, cfg, env, bg, rows.astype(dt) + float(o[0]), cols.astype(dt) + float(o[1]))
+            for o in np.asarray(offsets)]
+
+
+def _shade_traced(tr: _Traced, cfg: RenderConfig, d0, d1, thick):
+    """The pixels (N, 3) and the masked terms of one traced chunk (:func:`trace_pixels`)
+    with front films of thickness ``d0`` and rear films ``d1`` (N,): eq. (11) or the
+    physical series (:func:`_terms`), composited over the background (:func:`_composite`).
+    ``thick(local)`` gives the thickness at other film points (the internal bounces')."""
+    terms = _terms(tr.p, cfg, tr.lam, tr.hits.cos, d0, d1, tr.exits, thick, tr.refl, tr.bg_rad)
+    return _composite(tr, cfg, terms)
+
+
+def shade_pixels(traced: list[_Traced], cfg: RenderConfig, films):
+    """The pixels (N, 3) and the masked terms of one chunk from its traced sub-pixel rays
+    (:func:`trace_pixels`): the mean over the rays (the box filter) of eq. (11) or the
+    physical series, composited over the background.
+
+    ``films(tr)`` gives, for one traced ray set, ``(d0, d1, thick)``: the front films'
+    thicknesses (N,), the rear films' (N,) and ``thick(local)``, the thickness at other
+    film points (the internal bounces'). Only the film's optics are evaluated here; the
+    rays and the light they read are those traced.
+    """
+    pixel, terms = None, None
+    for tr in traced:
+        img, t = _shade_traced(tr, cfg, *films(tr))
+        pixel = img if pixel is None else pixel + img
+        terms = t if terms is None else {k: terms[k] + v for k, v in t.items()}
+    n = len(traced)
+    return pixel / n, {k: v / n for k, v in terms.items()}
+
+
 def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx):
     """Radiance (N, 3) of one chunk of pixels, and a dict of the model's terms."""
     fx = cfg.effects
@@ -477,8 +522,7 @@ def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx)
     thick = lambda local: thickness_at(fx.thickness, tr.p.thickness, local, idx, tr.p.profile, hits.local0)
     d0 = thickness_at(fx.thickness, tr.p.thickness, hits.local0, idx)
     d1 = thick(hits.local1)
-    terms = _terms(tr.p, cfg, tr.lam, hits.cos, d0, d1, tr.exits, thick, tr.refl, tr.bg_rad)
-    return _composite(tr, cfg, terms)
+    return _shade_traced(tr, cfg, d0, d1, thick)
 
 
 @functools.partial(jax.jit, static_argnames=("cfg",))
@@ -495,26 +539,19 @@ def render_pixels_at(p: Params, cfg: RenderConfig, env: EnvMap | None, backgroun
         raise ValueError("render_pixels_at evaluates constant films")
     dtype = p.t.dtype
     bg_all = None if background is None else jnp.asarray(background, dtype=dtype).reshape(-1, 3)
-    offsets = jnp.asarray(pixel_offsets(cfg.samples_per_pixel), dtype=dtype)
     thickness = jnp.asarray(thickness, dtype)
 
     def chunk(xs):
         r, c, i = xs
         bg = None if bg_all is None else bg_all[i]
-        if cfg.samples_per_pixel == 1:
-            traced = [_trace_chunk(p, cfg, env, bg, r, c)]
-        else:  # the box filter of _map_chunks: the mean over stratified sub-pixel rays
-            traced = [_trace_chunk(p, cfg, env, bg, r.astype(dtype) + o[0], c.astype(dtype) + o[1])
-                      for o in offsets]
+        traced = trace_pixels(p, cfg, env, bg, r, c)  # the box filter of _map_chunks: the mean over sub-pixel rays
 
         def at(th):
-            out = None
-            for tr in traced:
+            def films(tr):
                 d = jnp.broadcast_to(th, tr.hits.cos.shape)
-                terms = _terms(tr.p, cfg, tr.lam, tr.hits.cos, d, d, tr.exits, lambda _: d, tr.refl, tr.bg_rad)
-                terms = _composite(tr, cfg, terms)[1]
-                out = terms if out is None else {k: out[k] + v for k, v in terms.items()}
-            return {k: v / len(traced) for k, v in out.items()}
+                return d, d, lambda _: d
+
+            return shade_pixels(traced, cfg, films)[1]
 
         return jax.lax.map(at, thickness)
 

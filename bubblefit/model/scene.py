@@ -24,7 +24,7 @@ from ..optics.dispersion import REFERENCE_WAVELENGTH_NM, Cauchy, refractive_inde
 from ..io.images import read_image
 from ..lighting.envmap import EnvMap
 from .auto import DEFAULT_TOLERANCE, decide_pixels
-from .bounds import scene_bounds
+from .bounds import SceneSummary, scene_bounds
 from .effects import ALL_ON_NODES, check_harmonic
 from .footprint import footprint
 from ._scene_checks import check_radiance, check_values, colour_path, film_index, validate
@@ -206,7 +206,7 @@ class Scene:
             out.append(PointLight(tuple(d / np.linalg.norm(d)), tuple(float(x) for x in e)))
         return tuple(out)
 
-    def _summaries(self, env, background) -> dict:
+    def _summaries(self, env, background) -> SceneSummary:
         """The scalar summaries :func:`~bubblefit.model.bounds.scene_bounds` reads."""
         e = self.table("effects")
         p = self.params()
@@ -219,7 +219,7 @@ class Scene:
         lights = self.point_lights()
         env_px = None if env is None else np.asarray(env.pixels)
         camera = self.camera()
-        return dict(
+        return SceneSummary(
             model=e.get("model", "paper"), t=float(p.t), r_d=float(p.r_d), r_s=float(p.r_s),
             roughness=float(p.roughness), thickness_range=trange, n_film=float(p.n_film),
             env_texel_angle=None if env is None else env.texel_angle,
@@ -261,11 +261,11 @@ class Scene:
         law, spp = self.dispersion(), self.samples_per_pixel
         p = self.params()
         camera, lights = self.camera(), self.point_lights()
-        bg_kind = summ["background"]
+        bg_kind = summ.background
         try:
-            b = scene_bounds(nodes=nodes, per_pixel=True, field=kind != "constant", **summ)
-            fp = footprint(camera=camera, center=self.center, radius=self.radius, model=summ["model"],
-                           roughness=summ["roughness"], env=env, rotation=float(p.rotation), lights=lights,
+            b = scene_bounds(summ, nodes=nodes, per_pixel=True, field=kind != "constant")
+            fp = footprint(camera=camera, center=self.center, radius=self.radius, model=summ.model,
+                           roughness=summ.roughness, env=env, rotation=float(p.rotation), lights=lights,
                            background=background, background_kind=bg_kind, thickness_kind=kind,
                            thickness_values=values, thickness_profile=self.map_profile(), programs=stored_trace)
             plan, decisions = decide_pixels(b, fp, e, thickness_kind=kind, tolerance=tol, nodes=nodes,

@@ -45,8 +45,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["CANDIDATE_DCHI2", "ORDER_REASON", "AMBIGUOUS_REASON", "DrainPath", "SideVerdict", "drain_path", "candidate_stderr", "series_sides", "isotonic_blocks", "profile_candidates",
-           "BLOCK_P"]
+__all__ = ["CANDIDATE_DCHI2", "BLOCK_P", "ORDER_REASON", "AMBIGUOUS_REASON", "DrainPath", "SideVerdict",
+           "profile_candidates", "drain_path", "candidate_stderr", "isotonic_blocks", "series_sides"]
 
 #: Candidates further than this in ``chi^2`` above a reading's best are left out: a side the
 #: reading excludes by ``exp(-50)`` in likelihood (model error is in its ``s^2`` already)
@@ -281,8 +281,12 @@ def _rising(take: list[int], thickness: list[float], stderr: list[float]) -> dic
             continue
         p = float(stats.chi2.sf(chi2, b - a - 1))
         if p < BLOCK_P:
+            # the largest rise within the block: from a reading to the highest after it
+            rises = [(max(thickness[k:b]) - thickness[k], k) for k in range(a, b)]
+            k = max(rises)[1]
+            low, top = thickness[k], max(thickness[k:b])
             why = (f"readings {take[a] + 1}-{take[b - 1] + 1} of the series in time order rise from "
-                   f"{thickness[a]:.1f} to {max(thickness[a:b]):.1f} nm where a draining film thins (chi2 {chi2:.0f} "
+                   f"{low:.1f} to {top:.1f} nm where a draining film thins (chi2 {chi2:.0f} "
                    f"for {b - a - 1} degree(s) of freedom about their common level {level:.1f} nm): the film thickened, "
                    "or the series' lamp puts these readings on the wrong side of a maximum of R")
             out.update(dict.fromkeys(range(a, b), why))

@@ -1,9 +1,9 @@
 """The table of ``docs/spectra.md`` ("Measured on real readings") from the results of
 ``experiments/spectrum_real.py --defaults-only`` (``experiments/results/spectrum_real.json``),
 per series of optifik's readings; with ``--before OLD.json`` the same rows from an older
-results file beside them. Writes ``experiments/results/spectrum_real_table.md``.
+results file beside them. Writes ``experiments/results/spectrum_real_table.md`` (or ``--out``).
 
-Usage: ``python experiments/spectrum_real_table.py [--before OLD.json]``
+Usage: ``python experiments/spectrum_real_table.py [--before OLD.json] [--out FILE.md]``
 """
 
 from __future__ import annotations
@@ -80,12 +80,13 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--results", default=str(RESULTS / "spectrum_real.json"))
     ap.add_argument("--before", default=None, help="an older results file, its rows shown as 'before -> now'")
+    ap.add_argument("--out", default=str(RESULTS / "spectrum_real_table.md"), help="the markdown file written")
     args = ap.parse_args()
     rows = json.loads(Path(args.results).read_text())["rows"]
     before = json.loads(Path(args.before).read_text())["rows"] if args.before else None
     text = table(rows, before)
     print(text)
-    out = RESULTS / "spectrum_real_table.md"
+    out = Path(args.out)
     out.write_text(("Before -> now (the 'before' file: " + Path(args.before).name + ")\n\n" if before else "") + text + "\n")
     return 0
 

@@ -87,7 +87,8 @@ def main():
     text = table(rows, before)
     print(text)
     out = Path(args.out)
-    out.write_text(("Before -> now (the 'before' file: " + Path(args.before).name + ")\n\n" if before else "") + text + "\n")
+    note = f"Before -> now (the 'before' file: {Path(args.before).name})\n\n" if before else ""
+    out.write_text(note + text + "\n")
     return 0
 
 

@@ -215,7 +215,8 @@ def series_sides(results, ambiguity_dchi2: float) -> list[SideVerdict]:
         chosen = float(d[m][k])
         if k != o:
             if c[m][k] - c[m][o] > ambiguity_dchi2:
-                reasons.append(f"the reading puts the film at {d[m][o]:.1f} nm, the series' thinning at {chosen:.1f} nm "
+                reasons.append(f"the reading puts the film at {d[m][o]:.1f} nm, the series' thinning at "
+                               f"{chosen:.1f} nm "
                                f"(delta chi2 {c[m][k] - c[m][o]:.1f} for the reading): they disagree (did the film "
                                "thicken?)")
                 chosen, k = float(d[m][o]), o
@@ -287,7 +288,8 @@ def _rising(take: list[int], thickness: list[float], stderr: list[float]) -> dic
             low, top = thickness[k], max(thickness[k:b])
             why = (f"readings {take[a] + 1}-{take[b - 1] + 1} of the series in time order rise from "
                    f"{low:.1f} to {top:.1f} nm where a draining film thins (chi2 {chi2:.0f} "
-                   f"for {b - a - 1} degree(s) of freedom about their common level {level:.1f} nm): the film thickened, "
+                   f"for {b - a - 1} degree(s) of freedom about their common level {level:.1f} nm): the film "
+                   "thickened, "
                    "or the series' lamp puts these readings on the wrong side of a maximum of R")
             out.update(dict.fromkeys(range(a, b), why))
     return out

@@ -1,0 +1,214 @@
+"""The forward render of a bubble on a dish: the sphere's film optics on a spherical cap.
+
+A cap (:class:`~bubblefit.model.cap.Cap`) is the sphere bubble's film restricted to the
+part above the liquid plane ``y = plane_y``. Its pixels are shaded by the sphere's own
+code (:mod:`bubblefit.model.render`: the rays, :func:`~bubblefit.model.geometry.intersect_sphere`,
+the films of :func:`~bubblefit.model.render.shading_points`, their filtered light and the
+``paper`` or ``physical`` terms); this module only says where the liquid enters. The
+liquid is a still, deep surface: it reflects with Fresnel's reflectance of air to the
+liquid (``R_l``, unpolarised, grey: the liquid's index at 589.3 nm) and sends nothing back
+from below it.
+
+Light paths modelled, for a camera ray ``o + s d``:
+
+1. *The cap seen directly* (the sphere's near hit ``p0`` lies above the plane): the front
+   film, transmission through it, and then
+
+   * the rear film at ``p1`` when ``p1`` lies above the plane (its reflection and the
+     transmission through it, as for the sphere), or
+   * the liquid inside the cap's foot when ``p1`` lies below the plane: no rear film; the
+     ray reflects there (``R_l``) and leaves upwards through the cap's wall.
+
+2. *The cap mirrored in the liquid*: a ray that meets the liquid first (outside the foot)
+   continues as its mirror ray from the liquid, with weight ``R_l``, and is then shaded as
+   in 1 (the cap's mirror image) or reads the map (the liquid reflecting the environment).
+
+3. *Every direction below the horizon meets the liquid*: wherever the sphere's code reads
+   the environment along a direction ``w`` with ``w_y < 0`` (a film's mirror direction,
+   the direction through the bubble), the light is ``R_l(|w_y|) L(w')`` with ``w'`` the
+   direction mirrored about the plane. A liquid in a dish thus hides the map's lower half.
+
+Light paths skipped (the render's skipped-effects report lists them, :data:`SKIPPED`):
+the cap's wall crossed a second time after the liquid's reflection inside the foot (taken
+at the front film's angle and thickness, i.e. the rear film's transmission stands for
+it); a film's mirror direction reflected by the liquid onto the cap itself (the cap seen
+in its own reflection in the liquid, ``R_film R_l``: about 1e-3 of the map); internal
+bounces past the first rear reflection (``physical`` with ``bounces > 1`` is refused);
+the diffuse term (a soap film has none); the meniscus at the foot; light from below the
+liquid's surface.
+
+References
+----------
+M. Pharr, W. Jakob and G. Humphreys, *Physically Based Rendering*, 3rd ed., sec. 3.2 and
+8.2 (ray-sphere intersection, specular reflection); M. Born and E. Wolf, *Principles of
+Optics*, 7th ed., sec. 1.5.2 (Fresnel's formulae); the paper, eqs. (2), (10), (11).
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..lighting.filtering import reflect
+from ..optics import dispersion, film
+from .cap import Cap
+from .geometry import intersect_sphere, pixel_offsets
+from .render import (Params, RenderConfig, _background, _camera_rays, _film_setup, _reflected, _terms,
+                     pixel_chunks, shading_points)
+from .thickness import drainage_profile
+
+__all__ = ["CapConfig", "render_cap", "render_cap_pixels", "cap_classes", "cap_drainage", "SKIPPED"]
+
+#: The light paths the cap's render does not trace (module docstring), for reports.
+SKIPPED = (
+    "second crossing of the cap's wall after the liquid's reflection inside the foot (the rear film's "
+    "transmission stands for it)",
+    "the cap seen in its own reflection in the liquid via a film's mirror direction (~1e-3 of the map)",
+    "internal bounces past the first rear reflection",
+    "diffuse reflection of the film",
+    "the meniscus at the foot and light from below the liquid's surface",
+)
+
+_FLIP = jnp.asarray([1.0, -1.0, 1.0])
+
+
+@dataclass(frozen=True)
+class CapConfig:
+    """A sphere's :class:`~bubblefit.model.render.RenderConfig` (its centre and radius are
+    the cap's sphere) with the liquid plane and its index (hashable: a compiled program's
+    static argument)."""
+
+    render: RenderConfig
+    plane_y: float
+    n_liquid: float
+
+    @staticmethod
+    def of(cfg: RenderConfig, cap: Cap) -> "CapConfig":
+        n = float(dispersion.refractive_index(cap.liquid, dispersion.REFERENCE_WAVELENGTH_NM))
+        if cfg.effects.model == "physical" and cfg.effects.bounces > 1:
+            raise ValueError("a cap's render traces one rear reflection (bounces = 1)")
+        return CapConfig(cfg, float(cap.plane_y), n)
+
+
+def liquid_reflectance(cos, n_liquid: float):
+    """Unpolarised Fresnel reflectance of air to the liquid at incidence ``cos`` (Born & Wolf 1.5.2)."""
+    return jnp.mean(film.fresnel_reflectance(jnp.clip(cos, 1e-6, 1.0), n_liquid), axis=-1)
+
+
+def _fold(w, n_liquid: float):
+    """``(weight, w')``: a direction below the horizon meets the liquid and continues
+    mirrored, with the liquid's reflectance as weight (module, path 3)."""
+    down = w[:, 1] < 0
+    weight = jnp.where(down, liquid_reflectance(jnp.abs(w[:, 1]), n_liquid), 1.0)
+    return weight, jnp.where(down[:, None], w * _FLIP, w)
+
+
+def cap_drainage(local_y, values, cfg: CapConfig):
+    """The drainage profile along the cap's height: ``top + (bottom - top) u^exponent`` with
+    ``u = (y_top - y) / H`` (0 at the top, 1 at the foot; ``H`` the cap's height), the
+    sphere's :func:`~bubblefit.model.thickness.drainage_profile` at the local height whose
+    ``(1 - y') / 2`` is ``u``."""
+    r = cfg.render
+    height = r.center[1] + r.radius - cfg.plane_y
+    u = (1.0 - local_y) * r.radius / height
+    return drainage_profile(1.0 - 2.0 * u, values[0], values[1], values[2])
+
+
+def _thickness(cfg: CapConfig, values, local):
+    if cfg.render.effects.thickness == "constant":
+        return jnp.broadcast_to(values, local.shape[:1])
+    return cap_drainage(local[:, 1], values, cfg)
+
+
+def _trace(cfg: CapConfig, p: Params, rows, cols):
+    """Rays after the liquid: ``(o, d, weight, hits, on, rear)``: the camera ray, or its
+    mirror ray from the liquid (weight ``R_l``); ``on`` where it meets the cap above the
+    plane, ``rear`` where its rear hit lies above the plane too."""
+    r = cfg.render
+    o, d = _camera_rays(r, p, rows, cols)
+    hits = intersect_sphere(o, d, r.center, r.radius)
+    s0 = jnp.sum((hits.p0 - o) * d, axis=-1)
+    direct = hits.inside & (s0 > 0) & (hits.p0[:, 1] >= cfg.plane_y)
+    down = d[:, 1] < 0
+    s_l = (cfg.plane_y - o[:, 1]) / jnp.where(down, d[:, 1], -1.0)
+    via = down & ~direct & (s_l > 0)
+    p_l = o + jnp.where(via, s_l, 0.0)[:, None] * d
+    o2 = jnp.where(via[:, None], p_l, o)
+    d2 = jnp.where(via[:, None], d * _FLIP, d)
+    weight = jnp.where(via, liquid_reflectance(jnp.abs(d[:, 1]), cfg.n_liquid), 1.0)
+    hits = intersect_sphere(o2, d2, r.center, r.radius)
+    s0 = jnp.sum((hits.p0 - o2) * d2, axis=-1)
+    on = hits.inside & (s0 > 0) & (hits.p0[:, 1] >= cfg.plane_y)
+    rear = hits.p1[:, 1] >= cfg.plane_y
+    return o2, d2, weight, hits, on, rear
+
+
+def _shade(cfg: CapConfig, p: Params, env, rows, cols):
+    """Radiance (N, 3) of the rays through ``rows``, ``cols`` (the module's light paths)."""
+    r = cfg.render
+    fx = r.effects
+    dtype = p.t.dtype
+    _, d, weight, hits, on, rear = _trace(cfg, p, rows.astype(dtype), cols.astype(dtype))
+    p, lam = _film_setup(p, r)
+    w_bg, d_bg = _fold(d, cfg.n_liquid)
+    bg_rad = w_bg[:, None] * _background(env, fx, p, d_bg, None)
+    films, exits = shading_points(fx, r, hits, d)
+    refl = {}
+    for name, n, wo in films:
+        w_r, _ = _fold(reflect(wo, n), cfg.n_liquid)
+        down = (w_r < 1.0)[:, None]
+        spec, dif = _reflected(env, fx, r, p, jnp.where(down, n * _FLIP, n), jnp.where(down, wo * _FLIP, wo),
+                               normalize=fx.model == "physical")
+        refl[name] = (w_r[:, None] * spec, dif)
+    d0 = _thickness(cfg, p.thickness, hits.local0)
+    d1 = _thickness(cfg, p.thickness, hits.local1)
+    terms = _terms(p, r, lam, hits.cos, d0, d1, exits, lambda local: _thickness(cfg, p.thickness, local), refl,
+                   bg_rad)
+    total = jnp.zeros_like(bg_rad)
+    for k, v in terms.items():
+        total = total + (jnp.where(rear[:, None], v, 0.0) if k == "rear" else v)
+    pixel = jnp.where(on[:, None], total, p.exposure * bg_rad)
+    return weight[:, None] * pixel
+
+
+def _map(cfg: CapConfig, p: Params, env, rows, cols):
+    offsets = jnp.asarray(pixel_offsets(cfg.render.samples_per_pixel), dtype=p.t.dtype)
+
+    def body(xs):
+        rr, cc = xs
+        shade = lambda o: _shade(cfg, p, env, rr.astype(o.dtype) + o[0], cc.astype(o.dtype) + o[1])
+        return jnp.mean(jax.lax.map(shade, offsets), axis=0)
+
+    return jax.lax.map(body, (jnp.asarray(rows), jnp.asarray(cols)))
+
+
+@functools.partial(jax.jit, static_argnames=("cfg",))
+def render_cap(p: Params, cfg: CapConfig, env):
+    """The (H, W, 3) linear image of a bubble on a dish (the module's light paths), each
+    pixel the box mean over ``cfg.render.samples_per_pixel`` stratified rays."""
+    h, w = cfg.render.shape
+    rows, cols, _, npix = pixel_chunks(cfg.render)
+    return _map(cfg, p, env, rows, cols).reshape(-1, 3)[:npix].reshape(h, w, 3)
+
+
+@functools.partial(jax.jit, static_argnames=("cfg",))
+def render_cap_pixels(p: Params, cfg: CapConfig, env, rows, cols):
+    """Radiance (N, 3) of the pixels ``rows``, ``cols`` (chunked as
+    :func:`~bubblefit.model.render.pixel_chunks` gives them), as :func:`render_cap`."""
+    return _map(cfg, p, env, rows, cols).reshape(-1, 3)
+
+
+def cap_classes(cfg: CapConfig, rows, cols) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(direct, mirrored, local0)`` at the rays through ``rows``, ``cols`` (continuous pixel
+    coordinates): whether each meets the cap directly, or its mirror image in the liquid,
+    and the unit local position of the film it meets first (numpy)."""
+    p = Params.make()
+    rows = jnp.asarray(rows, jnp.float32).ravel()
+    cols = jnp.asarray(cols, jnp.float32).ravel()
+    _, _, weight, hits, on, _ = _trace(cfg, p, rows, cols)
+    on, weight = np.asarray(on), np.asarray(weight)
+    return on & (weight == 1.0), on & (weight < 1.0), np.asarray(hits.local0)

@@ -60,6 +60,7 @@ CAP_SPECTRAL_SAMPLES = 40
 #: Drainage search grid: ends on 6 nm steps (a fraction of the 25 nm between the colour
 #: cost's minima), exponents over the flat films' range.
 DRAIN_STEP_NM = 6.0
+CAP_BOUNCES = 3
 DRAIN_EXPONENTS = np.geomspace(0.5, 3.0, 12)
 
 
@@ -84,7 +85,7 @@ def cap_config(scene, kind: str, samples_per_pixel: int = 1) -> CapConfig:
     fx = Effects(model="physical", interference="airy", diffuse=False, filtering=FilterConfig("mirror"),
                  spectral=spectral.spectral_basis("uniform", CAP_SPECTRAL_SAMPLES, illuminant=scene.illuminant,
                                                   response=scene.response),
-                 bounces=1, thickness=kind)
+                 bounces=CAP_BOUNCES, thickness=kind)
     cfg = RenderConfig(effects=fx, camera=scene.camera, center=tuple(scene.cap.center), radius=float(scene.cap.radius),
                        samples_per_pixel=samples_per_pixel)
     return CapConfig.of(cfg, scene.cap)

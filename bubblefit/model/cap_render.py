@@ -56,7 +56,7 @@ import numpy as np
 from ..lighting.filtering import reflect
 from ..optics import dispersion, film
 from .cap import Cap
-from .geometry import intersect_sphere, pixel_offsets
+from .geometry import internal_bounce, intersect_sphere, pixel_offsets
 from .render import (Params, RenderConfig, _background, _camera_rays, _film_setup, _reflected, _terms,
                      pixel_chunks, shading_points)
 from .thickness import drainage_profile
@@ -89,8 +89,6 @@ class CapConfig:
     @staticmethod
     def of(cfg: RenderConfig, cap: Cap) -> "CapConfig":
         n = float(dispersion.refractive_index(cap.liquid, dispersion.REFERENCE_WAVELENGTH_NM))
-        if cfg.effects.model == "physical" and cfg.effects.bounces > 1:
-            raise ValueError("a cap's render traces one rear reflection (bounces = 1)")
         return CapConfig(cfg, float(cap.plane_y), n)
 
 
@@ -116,6 +114,22 @@ def cap_drainage(local_y, values, cfg: CapConfig):
     height = r.center[1] + r.radius - cfg.plane_y
     u = (1.0 - local_y) * r.radius / height
     return drainage_profile(1.0 - 2.0 * u, values[0], values[1], values[2])
+
+
+def _bounce_above(cfg: CapConfig, hits, d) -> dict:
+    """``{"bounce<k>": mask}``: where the k-th internal reflection (``physical``) and every one
+    before it meet the film above the plane (below it the ray has met the liquid: the
+    bounce does not happen and its light is not added, module docstring)."""
+    fx = cfg.render.effects
+    if fx.model != "physical" or not fx.rear_reflection:
+        return {}
+    out, ok = {}, jnp.ones(d.shape[:1], bool)
+    q, e = hits.p1, d - 2.0 * jnp.sum(d * hits.n1, axis=-1)[:, None] * hits.n1
+    for k in range(1, fx.bounces + 1):
+        ok = ok & (q[:, 1] >= cfg.plane_y)
+        out[f"bounce{k}"] = ok
+        q, e, _ = internal_bounce(q, e, cfg.render.center, cfg.render.radius)
+    return out
 
 
 def _thickness(cfg: CapConfig, values, local):
@@ -157,20 +171,22 @@ def _shade(cfg: CapConfig, p: Params, env, rows, cols):
     w_bg, d_bg = _fold(d, cfg.n_liquid)
     bg_rad = w_bg[:, None] * _background(env, fx, p, d_bg, None)
     films, exits = shading_points(fx, r, hits, d)
+    above = _bounce_above(cfg, hits, d)
     refl = {}
     for name, n, wo in films:
         w_r, _ = _fold(reflect(wo, n), cfg.n_liquid)
         down = (w_r < 1.0)[:, None]
         spec, dif = _reflected(env, fx, r, p, jnp.where(down, n * _FLIP, n), jnp.where(down, wo * _FLIP, wo),
                                normalize=fx.model == "physical")
-        refl[name] = (w_r[:, None] * spec, dif)
+        keep = above.get(name, rear) if name != "front" else jnp.ones_like(rear)
+        refl[name] = (jnp.where(keep[:, None], w_r[:, None] * spec, 0.0), dif)
     d0 = _thickness(cfg, p.thickness, hits.local0)
     d1 = _thickness(cfg, p.thickness, hits.local1)
     terms = _terms(p, r, lam, hits.cos, d0, d1, exits, lambda local: _thickness(cfg, p.thickness, local), refl,
                    bg_rad)
     total = jnp.zeros_like(bg_rad)
-    for k, v in terms.items():
-        total = total + (jnp.where(rear[:, None], v, 0.0) if k == "rear" else v)
+    for v in terms.values():
+        total = total + v
     pixel = jnp.where(on[:, None], total, p.exposure * bg_rad)
     return weight[:, None] * pixel
 

@@ -50,7 +50,8 @@ def run_cap(args) -> int:
     with stage(f"fitting a bubble on a dish (cap {scene.cap.height:g} high on a sphere of radius "
                f"{scene.cap.radius:g}, {kind})"):
         result = fit_cap(photo.pixels[..., :3], scene, env, kind=kind,
-                         clip_high=np.inf if photo.linear_file else 1.0)
+                         clip_high=np.inf if photo.linear_file else 1.0,
+                         bits=None if photo.linear_file else photo.bit_depth)
     print(result.report())
     out = result.to_json()
     out["photo"] = str(args.photo)

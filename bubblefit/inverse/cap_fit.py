@@ -18,9 +18,10 @@ what lies on either side and is left out, as a flat film's frame edge is).
 3. *Levenberg-Marquardt* on ``(thickness or top, bottom, exponent, log g)`` against the
    fitted pixels' colours on the exact render (front and rear films at their own
    thicknesses), with the censored residual of clipped channels
-   (:func:`._planar_lm.fit_colours`), whitened by the noise ``sigma`` (1.4826 x the
-   residuals' median absolute deviation after the search).
-4. *Standard errors*: ``sigma^2 (J^T J)^-1`` widened by the Birge ratio, plus the thickness
+   (:func:`._planar_lm.fit_colours`), whitened by each channel's noise ``sigma`` (the
+   bubble fit's model of read, shot and quantisation noise,
+   :func:`._observation.noise_sigma`), each pixel the mean of 2 x 2 rays.
+4. *Standard errors*: ``(J^T J)^-1`` widened by the Birge ratio, plus the thickness
    model error (:attr:`FitOptions.thickness_model_error_nm`) in quadrature, as for flat
    films. ``ok`` as for flat films: no warning and a reduced chi^2 with the model-error
    floor (:attr:`FitOptions.model_error`) below 4.
@@ -50,7 +51,8 @@ from ._censored import BLACK_CLIP, censored_residual
 from ._drainage_plane import EXPONENT_RANGE
 from ._options import FitOptions
 from ._planar_lm import fit_colours
-from .planar import GRID_STEP_NM, PlanarResult, _noise_sigma, _on_image
+from ._observation import noise_sigma
+from .planar import GRID_STEP_NM, PlanarResult, _on_image
 
 __all__ = ["fit_cap", "cap_config", "fitted_pixels", "CapResult", "CAP_SPECTRAL_SAMPLES"]
 
@@ -60,7 +62,14 @@ CAP_SPECTRAL_SAMPLES = 40
 #: Drainage search grid: ends on 6 nm steps (a fraction of the 25 nm between the colour
 #: cost's minima), exponents over the flat films' range.
 DRAIN_STEP_NM = 6.0
+#: Internal bounces: the sphere fit's count (inverse/_setup.py, chosen on ref_const300).
 CAP_BOUNCES = 3
+#: Rays per pixel of the fit's render (a 2 x 2 box): the map's sharp features (a window's
+#: edge) seen in the film change within a pixel. On the development case
+#: cyc_cap_const_courtyard one ray per pixel left the exposure 8 % low and the reduced
+#: chi^2 with the floor at 11.7; four rays 0.6 % and 7.4, nine 0.3 % and 6.95 at twice
+#: the cost of four.
+SAMPLES_PER_PIXEL = 4
 DRAIN_EXPONENTS = np.geomspace(0.5, 3.0, 12)
 
 
@@ -88,7 +97,7 @@ def cap_config(scene, kind: str, samples_per_pixel: int = 1) -> CapConfig:
                  bounces=CAP_BOUNCES, thickness=kind)
     cfg = RenderConfig(effects=fx, camera=scene.camera, center=tuple(scene.cap.center), radius=float(scene.cap.radius),
                        samples_per_pixel=samples_per_pixel)
-    return CapConfig.of(cfg, scene.cap)
+    return CapConfig.of(cfg, scene.cap, scene.film_rgb)
 
 
 def fitted_pixels(cfg: CapConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -126,10 +135,11 @@ def _ls_cost(y, model, seen):
     return gain, float(np.sum((y * y)[seen > 0])) - a * gain
 
 
-def _search_constant(y, table, grid, seen, fringe_nm, warnings):
+def _search_constant(y, table, grid, seen, fringe_nm, sigma2, warnings):
+    """Best ``(thickness, log g)`` of a film of one thickness; another order whose misfit
+    is worse by less than one noise variance ``sigma2`` per pixel is a warning."""
     gain, cost = _ls_cost(y, table, seen)
     j = int(np.argmin(cost))
-    sigma2 = max(float(cost[j]) / y.size, 1e-12)
     far = np.abs(grid - grid[j]) > 0.75 * fringe_nm
     if far.any() and (cost[far].min() - cost[j]) / len(y) < sigma2:
         alt = grid[far][int(np.argmin(cost[far]))]
@@ -163,16 +173,18 @@ def _search_drainage(y, table, grid, seen, local_y, cfg: CapConfig):
 
 
 def fit_cap(photo: np.ndarray, scene, env, *, kind: str | None = None, clip_high: float = np.inf,
-            options: FitOptions | None = None) -> PlanarResult:
+            bits: int | None = 8, options: FitOptions | None = None) -> PlanarResult:
     """Fit a dish bubble's film (``constant`` or ``drainage`` along the cap's height) to a
     linear photo (H, W, 3) (the module's method). ``env``: the scene's map
-    (:class:`~bubblefit.lighting.envmap.EnvMap`)."""
+    (:class:`~bubblefit.lighting.envmap.EnvMap`); ``bits``: the photo file's integer bit
+    depth (None for a float file), for the noise model."""
     opts = options or FitOptions()
     kind = kind or scene.thickness
     h, w = photo.shape[:2]
     if (h, w) != (scene.camera.height, scene.camera.width):
         raise InputError(f"the photo is {w}x{h}, the scene's camera {scene.camera.width}x{scene.camera.height}")
     cfg = cap_config(scene, kind)
+    fine = cap_config(scene, kind, samples_per_pixel=SAMPLES_PER_PIXEL)
     direct, mirrored = fitted_pixels(cfg)
     if direct.sum() < 20:
         raise InputError("the cap does not appear in the photo (the camera sees fewer than 20 of its pixels whole)")
@@ -183,13 +195,15 @@ def fit_cap(photo: np.ndarray, scene, env, *, kind: str | None = None, clip_high
     if float(np.percentile(y[direct.ravel()[flat]].max(-1), 99)) <= 0.005:
         raise InputError("the cap does not appear in the photo (the pixels where it should be are dark)")
     seen = ((y > BLACK_CLIP) & (y < clip_high)).astype(np.float64)
+    # the bubble fit's noise model per pixel and channel (read, shot and quantisation noise)
+    sigma = noise_sigma(y, opts.noise_read, opts.noise_shot, bits)
     lo, hi = scene.thickness_range
     grid = np.arange(lo, hi + 0.5 * GRID_STEP_NM, GRID_STEP_NM)
     table = _table(scene, cap_config(scene, "constant"), env, rows, cols, npix, grid)
     fringe_nm = 550.0 / (2.0 * scene.n_film)
     warnings: list[str] = []
     if kind == "constant":
-        theta0 = _search_constant(y, table, grid, seen, fringe_nm, warnings)
+        theta0 = _search_constant(y, table, grid, seen, fringe_nm, float(np.mean(sigma ** 2)), warnings)
     else:
         r, c = np.divmod(flat, w)
         _, _, local0 = cap_classes(cfg, r, c)
@@ -197,21 +211,17 @@ def fit_cap(photo: np.ndarray, scene, env, *, kind: str | None = None, clip_high
 
     def model(theta):
         th = theta[0] if kind == "constant" else theta[:3]
-        return render_cap_pixels(_params(scene, th, jnp.exp(theta[-1])), cfg, env, rows, cols)[:npix]
+        return render_cap_pixels(_params(scene, th, jnp.exp(theta[-1])), fine, env, rows, cols)[:npix]
 
-    m0 = np.asarray(model(jnp.asarray(theta0, jnp.float32)), np.float64)
-    sigma0 = _noise_sigma(censored_residual(y, m0, clip_high, np))
-    theta, _, _, jac = fit_colours(model, jnp.asarray(y, jnp.float32), sigma0, clip_high,
+    theta, _, _, jac = fit_colours(model, jnp.asarray(y, jnp.float32), jnp.asarray(sigma, jnp.float32), clip_high,
                                    jnp.asarray(theta0, jnp.float32))
     theta = np.asarray(theta, np.float64)
     fitted = np.asarray(model(jnp.asarray(theta, jnp.float32)), np.float64)
     res = censored_residual(y, fitted, clip_high, np)
-    sigma = _noise_sigma(res)
-    chi2 = float(np.mean(res ** 2) / sigma ** 2)
+    chi2 = float(np.mean((res / sigma) ** 2))
     try:
-        # jac is that of the residual whitened by sigma0: rescale to the fitted noise sigma,
         # widened by the Birge ratio of a misfit
-        cov = np.linalg.inv(jac.T @ jac) * (sigma / sigma0) ** 2 * max(1.0, chi2)
+        cov = np.linalg.inv(jac.T @ jac) * max(1.0, chi2)
     except np.linalg.LinAlgError:
         raise ComputationError("the cap's fit is singular (no colour changes with the thickness)") from None
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
@@ -234,6 +244,7 @@ def fit_cap(photo: np.ndarray, scene, env, *, kind: str | None = None, clip_high
     if edge.mean() > 0.05:
         warnings.append(f"{100 * edge.mean():.0f} % of the cap sits at the edge of the searched range {lo:g}-{hi:g} nm")
     chi2_floor = float(np.mean(res ** 2 / (sigma ** 2 + (opts.model_error * y) ** 2)))
+    sigma = float(np.median(sigma))
     if chi2_floor >= 4.0:
         warnings.append(f"the model does not explain the photo (residual {math.sqrt(chi2_floor):.1f} x the noise "
                         "and the model error)")

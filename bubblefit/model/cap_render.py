@@ -57,7 +57,7 @@ from ..lighting.filtering import reflect
 from ..optics import dispersion, film
 from .cap import Cap
 from .geometry import internal_bounce, intersect_sphere, pixel_offsets
-from .render import (Params, RenderConfig, _background, _camera_rays, _film_setup, _reflected, _terms,
+from .render import (Params, RenderConfig, _background, _camera_rays, _Film, _film_setup, _reflected, _terms,
                      pixel_chunks, shading_points)
 from .thickness import drainage_profile
 
@@ -85,11 +85,18 @@ class CapConfig:
     render: RenderConfig
     plane_y: float
     n_liquid: float
+    #: ``"spectral"``: the physical series per wavelength and polarisation, integrated to
+    #: RGB at the end (:func:`~bubblefit.model.render._terms`); ``"clamped"``: each film's
+    #: reflectance integrated to RGB and clamped to [0, 1] per channel first, the series
+    #: then taken in RGB (:func:`_clamped_series`), as Blender Cycles' thin film shades.
+    film_rgb: str = "spectral"
 
     @staticmethod
-    def of(cfg: RenderConfig, cap: Cap) -> "CapConfig":
+    def of(cfg: RenderConfig, cap: Cap, film_rgb: str = "spectral") -> "CapConfig":
         n = float(dispersion.refractive_index(cap.liquid, dispersion.REFERENCE_WAVELENGTH_NM))
-        return CapConfig(cfg, float(cap.plane_y), n)
+        if film_rgb not in ("spectral", "clamped"):
+            raise ValueError(f"film_rgb must be 'spectral' or 'clamped', got {film_rgb!r}")
+        return CapConfig(cfg, float(cap.plane_y), n, film_rgb)
 
 
 def liquid_reflectance(cos, n_liquid: float):
@@ -132,6 +139,21 @@ def _bounce_above(cfg: CapConfig, hits, d) -> dict:
     return out
 
 
+def _wall_after_liquid(cfg: CapConfig, hits, d):
+    """``(normal, direction to the viewer, weight)`` of the rear reflection of a ray whose
+    rear hit lies below the plane: it meets the liquid inside the foot, reflects (weight
+    ``R_l``) and meets the cap's wall from inside, where the film reflects it (module, path
+    1; the film's reflectance is taken at the front film's angle of incidence, exact for a
+    hemisphere, whose mirror image is its own sphere)."""
+    r = cfg.render
+    down = d[:, 1] < 0
+    s = (cfg.plane_y - hits.p0[:, 1]) / jnp.where(down, d[:, 1], -1.0)
+    q = hits.p0 + jnp.where(down, s, 0.0)[:, None] * d
+    e = d * _FLIP
+    wall = intersect_sphere(q, e, r.center, r.radius)
+    return -wall.n1, -e, liquid_reflectance(jnp.abs(d[:, 1]), cfg.n_liquid)
+
+
 def _thickness(cfg: CapConfig, values, local):
     if cfg.render.effects.thickness == "constant":
         return jnp.broadcast_to(values, local.shape[:1])
@@ -172,23 +194,62 @@ def _shade(cfg: CapConfig, p: Params, env, rows, cols):
     bg_rad = w_bg[:, None] * _background(env, fx, p, d_bg, None)
     films, exits = shading_points(fx, r, hits, d)
     above = _bounce_above(cfg, hits, d)
+    foot_n, foot_wo, foot_w = _wall_after_liquid(cfg, hits, d)
     refl = {}
-    for name, n, wo in films:
+    for k, (name, n, wo) in enumerate(films):
+        keep, w_path = jnp.ones_like(rear), 1.0
+        if name != "front":
+            keep = above.get(name, rear)
+        if k == int(fx.front_reflection) and fx.rear_reflection:   # the first rear reflection
+            below = ~rear
+            n = jnp.where(below[:, None], foot_n, n)
+            wo = jnp.where(below[:, None], foot_wo, wo)
+            w_path = jnp.where(below, foot_w, 1.0)
+            keep = keep | below
         w_r, _ = _fold(reflect(wo, n), cfg.n_liquid)
         down = (w_r < 1.0)[:, None]
         spec, dif = _reflected(env, fx, r, p, jnp.where(down, n * _FLIP, n), jnp.where(down, wo * _FLIP, wo),
                                normalize=fx.model == "physical")
-        keep = above.get(name, rear) if name != "front" else jnp.ones_like(rear)
-        refl[name] = (jnp.where(keep[:, None], w_r[:, None] * spec, 0.0), dif)
+        refl[name] = (jnp.where(keep[:, None], (w_path * w_r)[:, None] * spec, 0.0), dif)
     d0 = _thickness(cfg, p.thickness, hits.local0)
     d1 = _thickness(cfg, p.thickness, hits.local1)
-    terms = _terms(p, r, lam, hits.cos, d0, d1, exits, lambda local: _thickness(cfg, p.thickness, local), refl,
-                   bg_rad)
+    thick = lambda local: _thickness(cfg, p.thickness, local)
+    if cfg.film_rgb == "clamped":
+        terms = _clamped_series(p, r, lam, hits.cos, d0, d1, exits, thick, refl, bg_rad)
+    else:
+        terms = _terms(p, r, lam, hits.cos, d0, d1, exits, thick, refl, bg_rad)
     total = jnp.zeros_like(bg_rad)
     for v in terms.values():
         total = total + v
     pixel = jnp.where(on[:, None], total, p.exposure * bg_rad)
     return weight[:, None] * pixel
+
+
+def _clamped_series(p: Params, cfg: RenderConfig, lam, cos, d0, d1, exits, thick, refl, bg_rad) -> dict:
+    """The physical series of :func:`~bubblefit.model.render._physical_terms` with each film's
+    reflectance first averaged over polarisations, integrated to RGB and clamped to [0, 1]
+    per channel, ``R = clip(rgb(R(lambda)))``, and the series taken per channel: front
+    ``R_0 S_0``, background ``(1 - R_0)(1 - R_1) L_b``, bounces
+    ``(1 - R_0) R_1 ... R_k (1 - R_(k+1)) S_k``. A film whose colour lies outside the
+    camera's gamut then reflects nothing in that channel, as Blender Cycles' thin film
+    (its Fresnel term is an RGB triple in [0, 1] that each path samples) shades it."""
+    fx = cfg.effects
+    opt = _Film(fx, p, cos, lam, d0)
+    rgb_r = lambda d: jnp.clip(opt.rgb(jnp.mean(opt.reflectance(d), axis=-1)), 0.0, 1.0)
+    r0 = rgb_r(d0)
+    one = fx.thickness == "constant"
+    r1 = r0 if one else rgb_r(d1)
+    terms = {"front": p.exposure * r0 * refl["front"][0],
+             "background": p.exposure * (1.0 - r0) * (1.0 - r1) * bg_rad}
+    if fx.rear_reflection and fx.bounces > 0:
+        path = (1.0 - r0) * r1
+        rear = jnp.zeros_like(bg_rad)
+        for k, nq in enumerate(exits, start=1):
+            r_q = r0 if one else rgb_r(thick(nq))
+            rear = rear + path * (1.0 - r_q) * refl[f"bounce{k}"][0]
+            path = path * r_q
+        terms["rear"] = p.exposure * rear
+    return terms
 
 
 def _map(cfg: CapConfig, p: Params, env, rows, cols):

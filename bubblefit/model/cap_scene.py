@@ -5,7 +5,10 @@
     surface, +y up), ``liquid`` (its index: a number, ``"water"``, ...; water by default),
     ``n`` (the film's index at 589.3 nm, 1.4 by default), ``thickness`` = ``"constant"``
     or ``"drainage"`` (along the cap's height: :func:`~bubblefit.model.cap_render.cap_drainage`),
-    ``range_nm = [lo, hi]``.
+    ``range_nm = [lo, hi]``; ``film_rgb`` = ``"spectral"`` (the default: the film's
+    light per wavelength, integrated to RGB once) or ``"clamped"`` (each film's
+    reflectance clamped to [0, 1] per RGB channel first, as Blender Cycles' thin film
+    shades: for its renders, :class:`~bubblefit.model.cap_render.CapConfig`).
 ``[environment]``
     ``path`` (an equirectangular map, relative to the scene file), ``rotation_deg``, ``scale``.
 ``[camera]``
@@ -46,6 +49,7 @@ class CapScene:
     env_scale: float = 1.0
     illuminant: str = "D65"
     response: str = "srgb"
+    film_rgb: str = "spectral"
 
 
 def is_cap_file(path) -> bool:
@@ -82,6 +86,9 @@ def parse_cap_scene(data: dict, base_dir=".") -> CapScene:
     if not 0 <= lo < hi <= 5000:
         raise InputError(f"film.range_nm must satisfy 0 <= lo < hi <= 5000 nm, got {[lo, hi]}")
     n_film = _num(f, "n", "film", 1.4, 1.0, 3.0)
+    film_rgb = f.get("film_rgb", "spectral")
+    if film_rgb not in ("spectral", "clamped"):
+        raise InputError(f'film.film_rgb must be "spectral" or "clamped", got {film_rgb!r}')
     if not isinstance(env, dict) or not isinstance(env.get("path"), str):
         raise InputError("a cap needs [environment] path = the environment map it stands in")
     envmap = Path(env["path"])
@@ -100,4 +107,5 @@ def parse_cap_scene(data: dict, base_dir=".") -> CapScene:
     return CapScene(cap=cap, camera=camera, envmap=envmap, n_film=n_film, thickness=kind, thickness_range=(lo, hi),
                     rotation_deg=_num(env, "rotation_deg", "environment", 0.0, -360.0, 360.0),
                     env_scale=_num(env, "scale", "environment", 1.0, 0.0),
-                    illuminant=str(light.get("illuminant", "D65")), response=str(cam.get("response", "srgb")))
+                    illuminant=str(light.get("illuminant", "D65")), response=str(cam.get("response", "srgb")),
+                    film_rgb=film_rgb)

@@ -355,7 +355,8 @@ def dish_scene_toml(c, kind) -> str:
     return (
         "# A soap bubble standing on water (a spherical cap) in an environment map (Blender Cycles)\n"
         f"[film]\nshape = \"cap\"\ncenter = [0.0, 0.0, 0.0]\nradius = 1.0\nplane_y = {c['plane_y']}\n"
-        f"liquid = {N_LIQUID}\nn = {mc.N_FILM}\nthickness = \"{kind}\"\nrange_nm = [0.0, 1500.0]\n\n"
+        f"liquid = {N_LIQUID}\nn = {mc.N_FILM}\nthickness = \"{kind}\"\nrange_nm = [0.0, 1500.0]\n"
+        "film_rgb = \"clamped\"   # Cycles clamps each film's RGB reflectance to [0, 1]\n\n"
         f"[environment]\npath = \"../envmaps/{c['envmap']}.exr\"\n\n"
         "[lighting]\nilluminant = \"E\"   # Cycles integrates its thin film under illuminant E\n\n"
         f"[camera]\ntype = \"perspective\"\nwidth = {DISH_SIZE}\nheight = {DISH_SIZE}\n"

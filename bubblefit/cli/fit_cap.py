@@ -14,7 +14,7 @@ import dataclasses
 
 import numpy as np
 
-from ..errors import ComputationError, InputError
+from ..errors import InputError
 
 #: Options of ``fit`` that belong to a floating bubble only: refused for a cap, not ignored.
 _SPHERE_ONLY = ("background", "calibration", "t", "disc", "fit_rotation", "reference_region")
@@ -22,12 +22,12 @@ _SPHERE_ONLY = ("background", "calibration", "t", "disc", "fit_rotation", "refer
 
 def run_cap(args) -> int:
     from ..inverse.cap_fit import fit_cap
-    from ..io.atomic import output_set, preview_path
-    from ..io.images import read_image, write_image
+    from ..io.images import read_image
     from ..model.cap_scene import KINDS, load_cap_scene
     from ..model.scene import read_envmap
     from ..progress import stage
-    from .common import guard_args, write_fit_images, write_json
+    from .common import guard_args
+    from .fit_planar import film_outputs, report_film_fit
 
     for name in _SPHERE_ONLY:
         if getattr(args, name, None):
@@ -40,10 +40,7 @@ def run_cap(args) -> int:
     kind = args.thickness if args.thickness != "constant" or scene.thickness == "constant" else scene.thickness
     if kind not in KINDS:
         raise InputError(f"--thickness {kind} is not available for a cap (use {' or '.join(KINDS)})")
-    names = ["render", "residual", "thickness", "thickness_stderr"]
-    outs = [f"{args.output}_{n}.exr" for n in names] if args.output else []
-    outs += [str(preview_path(p)) for p in outs]
-    guard_args(args, inputs=[str(scene.envmap)], outputs=outs)
+    guard_args(args, inputs=[str(scene.envmap)], outputs=film_outputs(args))
     with stage("reading the photo and the environment map"):
         photo = read_image(args.photo, dtype=np.float64)
         env = read_envmap(scene.envmap, scale=scene.env_scale)
@@ -52,15 +49,4 @@ def run_cap(args) -> int:
         result = fit_cap(photo.pixels[..., :3], scene, env, kind=kind,
                          clip_high=np.inf if photo.linear_file else 1.0,
                          bits=None if photo.linear_file else photo.bit_depth)
-    print(result.report())
-    out = result.to_json()
-    out["photo"] = str(args.photo)
-    with output_set():  # the maps and the JSON replace the earlier ones together, or none does
-        if args.output:
-            with stage("writing the maps"):
-                out["outputs"] = write_fit_images(args.output, result, write_image, preview_path)
-        if args.json:
-            write_json(args.json, out)
-    if args.strict and not result.ok:
-        raise ComputationError("the fit is not ok: " + "; ".join(result.warnings))
-    return 0
+    return report_film_fit(args, result)

@@ -9,8 +9,9 @@ what lies on either side and is left out, as a flat film's frame edge is).
 
 1. *Table*: the colour ``T[j, p]`` of every candidate thickness ``d_j`` (2 nm steps) at
    every fitted pixel ``p`` with the exposure 1, a film of one thickness.
-2. *Search*: ``constant``: each candidate with its own least-squares exposure (clipped
-   channels left out), the best one kept; another order within one noise variance per
+2. *Search* (each pixel's chi^2 capped at an outlier's, :func:`_ls_cost`): ``constant``:
+   each candidate with its own least-squares exposure (clipped channels left out), the
+   best one kept; another order within one noise variance per
    pixel is a warning (:func:`bubblefit.inverse.planar._constant_thickness`'s rule).
    ``drainage``: every profile ``(top, bottom, exponent)`` on a grid (6 nm steps,
    ``bottom >= top``, exponents 0.5 ... 3) reads each pixel's colour from the table at
@@ -18,7 +19,9 @@ what lies on either side and is left out, as a flat film's frame edge is).
 3. *Levenberg-Marquardt* on ``(thickness or top, bottom, exponent, log g)`` against the
    fitted pixels' colours on the exact render (front and rear films at their own
    thicknesses), with the censored residual of clipped channels
-   (:func:`._planar_lm.fit_colours`), whitened by each channel's noise ``sigma`` (the
+   (:func:`._censored.censored_residual`) made robust as the bubble fit's
+   (:func:`._lm.robust`, ``FitOptions.robust_scale``; :func:`._planar_lm.levenberg_marquardt`),
+   whitened by each channel's noise ``sigma`` (the
    bubble fit's model of read, shot and quantisation noise,
    :func:`._observation.noise_sigma`), each pixel the mean of 2 x 2 rays.
 4. *Standard errors*: ``(J^T J)^-1`` widened by the Birge ratio, plus the thickness
@@ -50,7 +53,9 @@ from ..optics import spectral
 from ._censored import BLACK_CLIP, censored_residual
 from ._drainage_plane import EXPONENT_RANGE
 from ._options import FitOptions
-from ._planar_lm import fit_colours
+from ._lm import robust
+from ._planar_lm import levenberg_marquardt
+from ._uncertainty import OUTLIER_CHI2
 from ._observation import noise_sigma
 from .planar import GRID_STEP_NM, PlanarResult, _on_image
 
@@ -128,29 +133,43 @@ def _table(scene, cfg: CapConfig, env, rows, cols, npix, grid) -> np.ndarray:
     return np.stack([np.asarray(fn(jnp.float32(d)))[:npix] for d in grid])
 
 
-def _ls_cost(y, model, seen):
-    """Per candidate (leading axes of ``model``, (..., P, 3)): the least-squares exposure
-    of the channels ``seen`` and the summed squared misfit at it."""
-    m = model * seen
-    a = np.einsum("pc,...pc->...", y, m)
-    b = np.einsum("...pc,...pc->...", m, m)
-    gain = a / np.maximum(b, 1e-30)
-    return gain, float(np.sum((y * y)[seen > 0])) - a * gain
+def _ls_cost(y, model, seen, sigma):
+    """Per candidate (leading axes of ``model``, (..., P, 3)): a robust exposure and the
+    misfit at it, whitened by the noise ``sigma`` (P, 3) over the channels ``seen``, with
+    each pixel's chi^2 capped at an outlier's (:data:`._uncertainty.OUTLIER_CHI2`, the
+    bubble fit's truncated loss). The exposure is the median of the pixels' own
+    least-squares exposures, then the least-squares one over the pixels within the cap:
+    a glint of the sun, which one ray per pixel places differently from the photo's pixel
+    box and which the photo clips, then moves neither the exposure nor the cost by more
+    than an outlier's worth."""
+    w = seen / sigma
+    yw, m = y * w, model * w
+    a = np.einsum("pc,...pc->...p", yw, m)
+    b = np.einsum("...pc,...pc->...p", m, m)
+    own = np.where(b > 1e-12, a / np.maximum(b, 1e-12), np.nan)
+    gain = np.nan_to_num(np.nanmedian(own, axis=-1))
+
+    def chi(g):
+        return np.sum((yw - g[..., None, None] * m) ** 2, axis=-1)
+
+    inl = chi(gain) < OUTLIER_CHI2
+    gain = np.sum(a * inl, axis=-1) / np.maximum(np.sum(b * inl, axis=-1), 1e-30)
+    return gain, np.sum(np.minimum(chi(gain), OUTLIER_CHI2), axis=-1)
 
 
-def _search_constant(y, table, grid, seen, fringe_nm, sigma2, warnings):
+def _search_constant(y, table, grid, seen, fringe_nm, sigma, warnings):
     """Best ``(thickness, log g)`` of a film of one thickness; another order whose misfit
-    is worse by less than one noise variance ``sigma2`` per pixel is a warning."""
-    gain, cost = _ls_cost(y, table, seen)
+    is worse by less than one (whitened) noise variance per pixel is a warning."""
+    gain, cost = _ls_cost(y, table, seen, sigma)
     j = int(np.argmin(cost))
     far = np.abs(grid - grid[j]) > 0.75 * fringe_nm
-    if far.any() and (cost[far].min() - cost[j]) / len(y) < sigma2:
+    if far.any() and (cost[far].min() - cost[j]) / len(y) < 1.0:
         alt = grid[far][int(np.argmin(cost[far]))]
         warnings.append(f"the colour fits {grid[j]:.0f} nm and {alt:.0f} nm nearly as well (another order)")
     return np.array([grid[j], math.log(max(gain[j], 1e-12))])
 
 
-def _search_drainage(y, table, grid, seen, local_y, cfg: CapConfig):
+def _search_drainage(y, table, grid, seen, sigma, local_y, cfg: CapConfig):
     """Best ``(top, bottom, exponent, log g)`` on the grid, each pixel's colour read from the
     table at its front film's thickness (linear interpolation between candidates)."""
     lo, hi = grid[0], grid[-1]
@@ -158,7 +177,7 @@ def _search_drainage(y, table, grid, seen, local_y, cfg: CapConfig):
     # every k-th pixel in order of height: the search needs the colour sequence along the
     # height, not every pixel (Levenberg-Marquardt then fits them all)
     pick = np.argsort(local_y)[:: max(1, len(y) // SEARCH_PIXELS)]
-    y, table, seen, local_y = y[pick], table[:, pick], seen[pick], local_y[pick]
+    y, table, seen, sigma, local_y = y[pick], table[:, pick], seen[pick], sigma[pick], local_y[pick]
     r = cfg.render
     u = np.clip((1.0 - local_y) * r.radius / (r.center[1] + r.radius - cfg.plane_y), 0.0, 1.0)
     best = (np.inf, None)
@@ -172,7 +191,7 @@ def _search_drainage(y, table, grid, seen, local_y, cfg: CapConfig):
             i0 = np.clip(np.floor(f).astype(int), 0, len(grid) - 2)
             a = np.clip(f - i0, 0.0, 1.0)[..., None]
             model = (1 - a) * table[i0, idx] + a * table[i0 + 1, idx]   # (B, P, 3)
-            gain, cost = _ls_cost(y, model, seen)
+            gain, cost = _ls_cost(y, model, seen, sigma)
             k = int(np.argmin(cost))
             if cost[k] < best[0]:
                 best = (cost[k], np.array([top, bottoms[k], e, math.log(max(gain[k], 1e-12))]))
@@ -210,19 +229,30 @@ def fit_cap(photo: np.ndarray, scene, env, *, kind: str | None = None, clip_high
     fringe_nm = 550.0 / (2.0 * scene.n_film)
     warnings: list[str] = []
     if kind == "constant":
-        theta0 = _search_constant(y, table, grid, seen, fringe_nm, float(np.mean(sigma ** 2)), warnings)
+        theta0 = _search_constant(y, table, grid, seen, fringe_nm, sigma, warnings)
     else:
         r, c = np.divmod(flat, w)
         _, _, local0 = cap_classes(cfg, r, c)
-        theta0 = _search_drainage(y, table, grid, seen, local0[:, 1], cfg)
+        theta0 = _search_drainage(y, table, grid, seen, sigma, local0[:, 1], cfg)
 
     def model(theta):
-        th = theta[0] if kind == "constant" else theta[:3]
+        th = jnp.abs(theta[0]) if kind == "constant" else jnp.abs(theta[:3])
         return render_cap_pixels(_params(scene, th, jnp.exp(theta[-1])), fine, env, rows, cols)[:npix]
 
-    theta, _, _, jac = fit_colours(model, jnp.asarray(y, jnp.float32), jnp.asarray(sigma, jnp.float32), clip_high,
-                                   jnp.asarray(theta0, jnp.float32))
+    sig = jnp.asarray(sigma, jnp.float32)
+    obs = jnp.asarray(y, jnp.float32)
+    scale = opts.robust_scale
+
+    def resid(t):  # the bubble fit's robust (pseudo-Huber) residual of the censored, whitened misfit
+        return robust(censored_residual(obs, model(t), clip_high) / sig, scale).ravel()
+
+    rj = jax.jit(resid)
+    jj = jax.jit(jax.jacfwd(resid))
+    theta, _, _ = levenberg_marquardt(rj, jj, jnp.asarray(theta0, jnp.float32))
+    jac = np.asarray(jj(theta), np.float64)
     theta = np.asarray(theta, np.float64)
+    n_th = 1 if kind == "constant" else 3   # the colour is even in the thickness: values by their size
+    theta[:n_th] = np.abs(theta[:n_th])
     fitted = np.asarray(model(jnp.asarray(theta, jnp.float32)), np.float64)
     res = censored_residual(y, fitted, clip_high, np)
     chi2 = float(np.mean((res / sigma) ** 2))

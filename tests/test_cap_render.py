@@ -210,3 +210,25 @@ def test_fit_of_a_cap_recovers_its_thickness_from_a_noisy_8bit_render(tmp_path):
     assert abs(res["params"]["exposure"] / expo - 1) < 0.01
     assert res["ok"], res["warnings"]
     assert res["skipped_light_paths"]
+
+
+@pytest.mark.parametrize("film, camera_origin, words", [
+    ("plane_y = -2.5", "[0.0, 1.0, 5.0]", "taller than its sphere"),
+    ("plane_y = 1.2", "[0.0, 2.0, 5.0]", "above the sphere"),
+    ("plane_y = -0.3", "[0.0, -1.0, 5.0]", "below the liquid"),
+    ("plane_y = -0.3\nthickness = \"map\"", "[0.0, 1.0, 5.0]", "film.thickness of a cap"),
+])
+def test_a_bad_cap_scene_is_one_line(tmp_path, film, camera_origin, words):
+    import tomllib
+
+    from bubblefit.errors import InputError
+    from bubblefit.io.images import write_image
+    from bubblefit.model.cap_scene import parse_cap_scene
+
+    write_image(str(tmp_path / "env.exr"), np.ones((8, 16, 3), np.float32))
+    text = (f'[film]\nshape = "cap"\nradius = 1.0\n{film}\n[environment]\npath = "env.exr"\n'
+            f'[camera]\ntype = "perspective"\nwidth = 32\nheight = 32\norigin = {camera_origin}\n'
+            'target = [0.0, 0.0, 0.0]\n')
+    with pytest.raises(InputError, match=words) as err:
+        parse_cap_scene(tomllib.loads(text), tmp_path)
+    assert "\n" not in str(err.value)

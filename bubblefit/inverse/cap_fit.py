@@ -26,8 +26,9 @@ what lies on either side and is left out, as a flat film's frame edge is).
    :func:`._observation.noise_sigma`), each pixel the mean of 2 x 2 rays.
 4. *Standard errors*: ``(J^T J)^-1`` widened by the Birge ratio, plus the thickness
    model error (:attr:`FitOptions.thickness_model_error_nm`) in quadrature, as for flat
-   films. ``ok`` as for flat films: no warning and a reduced chi^2 with the model-error
-   floor (:attr:`FitOptions.model_error`) below 4.
+   films. ``ok`` by the bubble fit's verdict (:func:`._verdict.verdict`): no warning and
+   a reduced chi^2 with the model-error floor (:attr:`FitOptions.model_error`) at most
+   :attr:`FitOptions.ok_chi2`; a local misfit (glints of the sun) is named, and not ok.
 
 References
 ----------
@@ -55,7 +56,8 @@ from ._drainage_plane import EXPONENT_RANGE
 from ._options import FitOptions
 from ._lm import robust
 from ._planar_lm import levenberg_marquardt
-from ._uncertainty import OUTLIER_CHI2
+from ._uncertainty import OUTLIER_CHI2, Misfit
+from ._verdict import verdict
 from ._observation import noise_sigma
 from .planar import GRID_STEP_NM, PlanarResult, _on_image
 
@@ -280,12 +282,13 @@ def fit_cap(photo: np.ndarray, scene, env, *, kind: str | None = None, clip_high
     edge = (dfront <= lo + 1e-6) | (dfront >= hi - 1e-6)
     if edge.mean() > 0.05:
         warnings.append(f"{100 * edge.mean():.0f} % of the cap sits at the edge of the searched range {lo:g}-{hi:g} nm")
-    chi2_floor = float(np.mean(res ** 2 / (sigma ** 2 + (opts.model_error * y) ** 2)))
+    fit_misfit = _misfit(res, sigma, y, opts.model_error, len(theta))
+    chi2_floor = fit_misfit.chi2_floor
     sigma = float(np.median(sigma))
-    if chi2_floor >= 4.0:
-        warnings.append(f"the model does not explain the photo (residual {math.sqrt(chi2_floor):.1f} x the noise "
-                        "and the model error)")
-    ok = not warnings
+    # the bubble fit's verdict: explained within ok_chi2 with the model-error floor; a
+    # misfit it calls local (outliers, the rest explained) keeps the fit not ok
+    ok, warnings = verdict(converged=True, disc_found=True, bound_warnings=[], misfit=fit_misfit, ok_chi2=opts.ok_chi2,
+                           model_error=opts.model_error, notes=warnings)
     on_dir = direct.ravel()[flat]
     tmap = _on_image(direct, dfront[on_dir], np.nan)
     smap = _on_image(direct, np.full(int(on_dir.sum()), stderr[names[0]] if kind == "constant" else np.nan), np.nan)
@@ -299,6 +302,21 @@ def fit_cap(photo: np.ndarray, scene, env, *, kind: str | None = None, clip_high
                        gain=gain, sigma=sigma, params=params, stderr=stderr, warnings=warnings, order_hops=0,
                      reduced_chi2=chi2, reduced_chi2_floor=chi2_floor, order_from="colour", pixels_direct=int(direct.sum()),
                      pixels_mirrored=int(mirrored.sum()))
+
+
+def _misfit(res, sigma, y, model_error: float, n_free: int) -> Misfit:
+    """The bubble fit's :class:`~._uncertainty.Misfit` of the fitted pixels (P, 3): reduced
+    chi^2 of the noise alone and with each channel's variance ``sigma^2 + (model_error y)^2``,
+    that split between outlier pixels (:data:`~._uncertainty.OUTLIER_CHI2`) and the rest,
+    and capped, as :func:`._uncertainty.misfit` computes it for a bubble."""
+    dof = max(res.size - n_free, 1)
+    per = res ** 2 / (sigma ** 2 + (model_error * np.clip(y, 0, None)) ** 2)
+    chi_pix = per.sum(-1)
+    bad = chi_pix > OUTLIER_CHI2
+    dof_in = max(3 * int((~bad).sum()) - n_free, 1)
+    return Misfit(float(np.sum((res / sigma) ** 2)) / dof, float(per.sum()) / dof,
+                  float(chi_pix[~bad].sum()) / dof_in, float(bad.mean()),
+                  float(np.minimum(chi_pix, OUTLIER_CHI2).sum()) / dof)
 
 
 def _front_thickness(cfg: CapConfig, kind: str, theta, flat, w) -> np.ndarray:

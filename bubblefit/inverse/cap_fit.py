@@ -92,6 +92,11 @@ class CapResult(PlanarResult):
     pixels_mirrored: int = 0
     skipped: tuple = SKIPPED
 
+    def report(self) -> str:
+        """The flat films' report, the cap's pixel counts and the light paths its render skips."""
+        return (super().report() + f"\ncap pixels fitted: {self.pixels_direct} seen directly, "
+                f"{self.pixels_mirrored} mirrored in the liquid\nlight paths skipped: " + "; ".join(self.skipped))
+
     def to_json(self) -> dict:
         out = super().to_json()
         out.update(shape="cap", pixels_direct=self.pixels_direct, pixels_mirrored=self.pixels_mirrored,

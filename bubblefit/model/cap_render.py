@@ -15,9 +15,13 @@ Light paths modelled, for a camera ray ``o + s d``:
    film, transmission through it, and then
 
    * the rear film at ``p1`` when ``p1`` lies above the plane (its reflection and the
-     transmission through it, as for the sphere), or
-   * the liquid inside the cap's foot when ``p1`` lies below the plane: no rear film; the
-     ray reflects there (``R_l``) and leaves upwards through the cap's wall.
+     transmission through it, as for the sphere), and the ``physical`` model's further
+     internal bounces while each stays above the plane; or
+   * the liquid inside the cap's foot when ``p1`` lies below the plane: the ray reflects
+     there (``R_l``), meets the cap's wall from inside, and the film there reflects
+     (the rear reflection of this ray, its reflectance taken at the front film's angle of
+     incidence: exact for a hemisphere, whose mirror image is its own sphere) or
+     transmits it to the map (the rear film's transmission stands for it).
 
 2. *The cap mirrored in the liquid*: a ray that meets the liquid first (outside the foot)
    continues as its mirror ray from the liquid, with weight ``R_l``, and is then shaded as
@@ -28,14 +32,16 @@ Light paths modelled, for a camera ray ``o + s d``:
    the direction through the bubble), the light is ``R_l(|w_y|) L(w')`` with ``w'`` the
    direction mirrored about the plane. A liquid in a dish thus hides the map's lower half.
 
-Light paths skipped (the render's skipped-effects report lists them, :data:`SKIPPED`):
-the cap's wall crossed a second time after the liquid's reflection inside the foot (taken
-at the front film's angle and thickness, i.e. the rear film's transmission stands for
-it); a film's mirror direction reflected by the liquid onto the cap itself (the cap seen
-in its own reflection in the liquid, ``R_film R_l``: about 1e-3 of the map); internal
-bounces past the first rear reflection (``physical`` with ``bounces > 1`` is refused);
+Light paths skipped (the fit's report and JSON list them, :data:`SKIPPED`): a film's
+mirror direction reflected by the liquid onto the cap itself (the cap seen in its own
+reflection in the liquid, ``R_film R_l``: about 1e-3 of the map); internal bounces past
+the configured count, and past the first after the liquid's reflection inside the foot;
 the diffuse term (a soap film has none); the meniscus at the foot; light from below the
 liquid's surface.
+
+``film_rgb = "clamped"`` (:class:`CapConfig`) takes each film's reflectance to RGB and
+clamps it to [0, 1] before the series (:func:`_clamped_series`), as Blender Cycles' thin
+film shades; the default integrates the series per wavelength (the physics).
 
 References
 ----------
@@ -65,10 +71,11 @@ __all__ = ["CapConfig", "render_cap", "render_cap_pixels", "cap_classes", "cap_d
 
 #: The light paths the cap's render does not trace (module docstring), for reports.
 SKIPPED = (
-    "second crossing of the cap's wall after the liquid's reflection inside the foot (the rear film's "
-    "transmission stands for it)",
+    "the cap's wall crossed after the liquid's reflection inside the foot (the rear film's transmission "
+    "stands for it)",
     "the cap seen in its own reflection in the liquid via a film's mirror direction (~1e-3 of the map)",
-    "internal bounces past the first rear reflection",
+    "internal bounces past the configured count (3 in a fit), and any after the liquid's reflection inside "
+    "the foot but the first (taken at the front film's angle of incidence)",
     "diffuse reflection of the film",
     "the meniscus at the foot and light from below the liquid's surface",
 )

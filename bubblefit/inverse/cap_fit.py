@@ -63,8 +63,9 @@ from .planar import GRID_STEP_NM, PlanarResult, _on_image
 
 __all__ = ["fit_cap", "cap_config", "fitted_pixels", "CapResult", "CAP_SPECTRAL_SAMPLES"]
 
-#: Spectral samples of the cap's render: 10 nm bins from 380 to 780 nm, a fortieth of the
-#: narrowest fringe of a 1.5 um film of n = 1.4 (lambda^2 / (2 n d) = 69 nm at 380 nm).
+#: Spectral samples of the cap's render: 10 nm bins over the visible, about seven per
+#: spectral fringe of the thickest film searched (1.5 um, n = 1.4: lambda^2 / (2 n d) =
+#: 69 nm at 380 nm).
 CAP_SPECTRAL_SAMPLES = 40
 #: Drainage search grid: ends on 6 nm steps (a fraction of the 25 nm between the colour
 #: cost's minima), exponents over the flat films' range.

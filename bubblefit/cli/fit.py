@@ -72,6 +72,10 @@ def register(sub):
                                                              "(and PREFIX_thickness.exr) with PNG previews")
     p.add_argument("--explain", action="store_true", help="print which effects are simulated or skipped, and why")
     p.add_argument("--strict", action="store_true", help="exit with status 1 when the fit did not converge")
+    p.add_argument("--calibrate-camera", action="store_true",
+                   help="also fit the camera response's coefficients with the film, from the stated (or default) "
+                        "response; needs a film spanning several interference orders, e.g. --thickness drainage "
+                        "(docs/cameras.md)")
     add_model_options(p)
     add_view_options(p)
     from .photo_args import add_photo_options
@@ -254,7 +258,7 @@ def build_fit_options(args, scene, bits: int | None, view=None, photosite_share=
     model = args.model or (scene.table("effects").get("model", "auto") if scene is not None else "auto")
     kw = dict(fit_option_values(args), model=model, bits=bits, view=view,
               photosite_share=None if photosite_share is None else tuple(photosite_share))
-    for flag in ("free_split", "fit_rotation"):
+    for flag in ("free_split", "fit_rotation", "calibrate_camera"):
         if hasattr(args, flag):
             kw[flag] = getattr(args, flag)
     return FitOptions(**kw)

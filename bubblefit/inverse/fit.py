@@ -323,6 +323,12 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     >>> result.ok, round(float(result.params["thickness_nm"]))
     (True, 600)
     """
+    if options.calibrate_camera:  # the stated response's fit first, then the response freed
+        from .self_calibration import self_calibrated
+
+        first = fit_photo(photo, env, options=replace(options, calibrate_camera=False), background=background,
+                          init=init, scene=scene, saturated=saturated)
+        return self_calibrated(first, photo, env, options, background, scene, saturated)
     view = fit_view(options, scene)
     options = replace(options, view=view)
     if view.source != "assumed":

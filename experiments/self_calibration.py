@@ -26,7 +26,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
 from helpers import FILM_PHOTO_DISC as DISC, film_photo  # noqa: E402  (the camera tests' one builder)
 
 PROFILE = (200.0, 1500.0, 1.0)
-CASES = "Nikon 5100 (NPL)/E/8,Sigma SDMerill (NPL)/E/8,Nikon 5100 (NPL)/D65/16"
+CASES = "Nikon 5100 (NPL)/E/8,Sigma SDMerill (NPL)/E/8,Nikon 5100 (NPL)/D65/16,Nikon 5100 (NPL)/E/8/600"
 
 
 def profile_error(params: dict, truth=PROFILE) -> float:
@@ -47,7 +47,8 @@ def main():
     from bubblefit.lighting.envmap import EnvMap, downsample
 
     ap = argparse.ArgumentParser()
-    ap.add_argument("--cases", default=CASES, help="camera/illuminant/bits, comma-separated")
+    ap.add_argument("--cases", default=CASES, help="camera/illuminant/bits[/constant film nm], comma-separated "
+                                                   "(without a thickness, the draining film PROFILE)")
     ap.add_argument("--json")
     a = ap.parse_args()
     px = read_image("bubblefit/data/courtyard.exr").pixels
@@ -56,31 +57,34 @@ def main():
     env = EnvMap.from_array(px)
     rows = []
     for k, case in enumerate(a.cases.split(",")):
-        cam, ill, bits = case.split("/")
-        photo, bg = film_photo(env, PROFILE, 41 + k, cam, ill, quantised=int(bits))
+        cam, ill, bits, *const = case.split("/")
+        truth = float(const[0]) if const else PROFILE
+        photo, bg = film_photo(env, truth, 41 + k, cam, ill, quantised=int(bits))
         t0 = time.perf_counter()
         opts = FitOptions(disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", view=ORTHOGRAPHIC,
-                          thickness="drainage", calibrate_camera=True, bits=8 if bits == "8" else None)
+                          thickness="constant" if const else "drainage", calibrate_camera=True, bits=8 if bits == "8" else None)
         r = fit_photo(photo, env, options=opts, background=bg)
         cal = r.camera_calibration
         first = cal["stated_response_fit"]
-        row = dict(camera=cam, illuminant=ill, bits=int(bits), truth=PROFILE,
-                   stated=dict(params={k: first["params"][k] for k in ("top_nm", "bottom_nm", "exponent")},
-                               ok=first["ok"], max_error_nm=profile_error(first["params"]),
-                               colour_check=first["colour_check"]),
-                   calibrated=dict(params={k: r.params[k] for k in ("top_nm", "bottom_nm", "exponent")},
-                                   stderr={k: r.stderr[k] for k in ("top_nm", "bottom_nm", "exponent")},
-                                   ok=r.ok, max_error_nm=profile_error(r.params), reduced_chi2=r.reduced_chi2,
+        keys = ("thickness_nm",) if const else ("top_nm", "bottom_nm", "exponent")
+
+        def error(p):
+            return abs(p["thickness_nm"] - truth) if const else profile_error(p)
+
+        row = dict(camera=cam, illuminant=ill, bits=int(bits), truth=truth,
+                   stated=dict(params={k: first["params"][k] for k in keys}, ok=first["ok"],
+                               max_error_nm=error(first["params"]), colour_check=first["colour_check"]),
+                   calibrated=dict(params={k: r.params[k] for k in keys}, stderr={k: r.stderr[k] for k in keys},
+                                   ok=r.ok, max_error_nm=error(r.params), reduced_chi2=r.reduced_chi2,
                                    colour_check=r.colour_check, rank=cal["rank"], warnings=r.warnings),
                    time_s=time.perf_counter() - t0)
         rows.append(row)
         c, s = row["calibrated"], row["stated"]
-        print(f"{cam} / {ill} / {bits}-bit: stated sRGB ok={s['ok']} max err {s['max_error_nm']:.0f} nm; "
-              f"calibrated top {c['params']['top_nm']:.1f}+-{c['stderr']['top_nm']:.1f} bottom "
-              f"{c['params']['bottom_nm']:.1f}+-{c['stderr']['bottom_nm']:.1f} exp {c['params']['exponent']:.3f} "
-              f"max err {c['max_error_nm']:.1f} nm ok={c['ok']} chi2={c['reduced_chi2']:.2f} "
-              f"rank {c['rank']['rank']}/{c['rank']['parameters']} cond {c['rank']['condition']:.3g} "
-              f"({row['time_s']:.0f} s)", flush=True)
+        fitted = " ".join(f"{k} {c['params'][k]:.1f}+-{c['stderr'][k]:.1f}" for k in keys)
+        print(f"{cam} / {ill} / {bits}-bit / {truth}: stated sRGB ok={s['ok']} max err {s['max_error_nm']:.0f} nm; "
+              f"calibrated {fitted} max err {c['max_error_nm']:.1f} nm ok={c['ok']} chi2={c['reduced_chi2']:.2f} "
+              f"rank {c['rank']['rank']}/{c['rank']['parameters']} response share {c['rank']['response_floor']:.3g} "
+              f"(floor {c['rank']['floor']:.3g}) ({row['time_s']:.0f} s)", flush=True)
     if a.json:
         with open(a.json, "w") as fh:
             json.dump(rows, fh, indent=1)

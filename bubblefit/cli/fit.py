@@ -318,6 +318,10 @@ def run(args) -> int:
         for d in result.effects:
             print(d.line())
     print(result.report())
+    if result.camera_calibration is not None:
+        from ..inverse.self_calibration import summary
+
+        print(summary(result.camera_calibration))
     with output_set():  # the maps and the JSON replace the earlier ones together, or none does
         if args.output:
             with stage("writing the maps"):

@@ -5,9 +5,10 @@ The fit integrates a film's spectrum into RGB with the ``fourier`` quadrature
 weights ``W`` (K, 3) that make ``sum_k W_kc G_k(nu)`` the channel's response times the
 lamp. Every response the fit is told is projected onto these lobes
 (:func:`~bubblefit.optics.spectral._fourier_arrays`), so ``W`` is the response as the
-fit sees it: here its columns are freed. With the white balance that makes a flat
-reflector grey (``"illuminant"``), each column sums to 1, which leaves ``K - 1`` free
-coefficients per channel: 21 for the fit's 8 lobes.
+fit sees it: here its columns are freed. Lobes that a photo cannot tell apart share one
+weight (:data:`TIED_OVERLAP`: two pairs of the fit's 8), and with the white balance that
+makes a flat reflector grey (``"illuminant"``) each column sums to 1, which leaves 5 free
+coefficients per channel, 15 in all (:func:`lobe_groups`).
 
 Every channel of the forward model is linear in its own column of ``W``: the film's
 reflectance and transmittance are integrated sample by sample before they meet the
@@ -25,16 +26,20 @@ from the ordinary fit's film and the stated response's ``W``.
 
 When does a photo determine the response? A film's colours depend on the response only
 through its cosine transform at the film's optical paths (``harmonic`` quadrature of
-:mod:`bubblefit.optics.spectral`): a constant film fixes three numbers per path, not 21
+:mod:`bubblefit.optics.spectral`): a constant film fixes three numbers per path, not 15
 coefficients, while a draining film whose paths span several orders fixes the transform
-over a range. The test is the rank of the whitened joint Jacobian (:func:`degeneracy`):
-columns scaled to unit norm (parameters in any unit), its singular values, and the
-numerical rank at the tolerance ``s_max max(M, N) eps`` (Golub & Van Loan, *Matrix
-Computations*, 4th ed., sec. 5.4.1; numpy's ``matrix_rank``) with ``eps`` the
-resolution of the renders (float32). A rank below the number of parameters means the
-photo leaves some combination of response and thickness free: the fit refuses to call
-its thickness measured (``ok`` false, with the reason), instead of reporting the
-start's response as a calibration.
+over a range. The test (:func:`degeneracy`) is on the whitened joint Jacobian with its
+columns scaled to unit norm (parameters in any unit): its numerical rank at the
+tolerance ``s_max max(M, N) eps`` (Golub & Van Loan, *Matrix Computations*, 4th ed., sec.
+5.4.1; numpy's ``matrix_rank``), ``eps`` the renders' resolution (float32), and the least
+singular value of the response's columns projected off the film's (what the film's
+parameters cannot mimic), which must exceed the fit's model-error floor
+(``FitOptions.model_error``). A bubble's constant film is seen over a spread of
+refraction angles, so its Jacobian has full numerical rank, but the response's distinct
+part is a few parts in ten thousand of its coefficients' effects: far under what the
+model is trusted to render. A photo that fails either test leaves some combination of
+response and thickness free: the fit is not ``ok``, with the reason, rather than
+reporting a thickness that a wrong response explains as well.
 
 One direction is close to degenerate for every photo: stretching all thicknesses by
 ``s`` and the response in wavenumber by ``1/s`` leaves a non-dispersive film's colours

@@ -328,8 +328,8 @@ def _search(st, opts, env, vals, film, lev, w0, e, y, wgt, step_nm: float, keep:
     return scored[:keep]
 
 
-def calibrate_in_fit(st, opts, env, vals: dict, max_steps: int = 40, search_step_nm: float = 100.0,
-                     starts: int = 2, rounds: int = 3) -> SelfCalibration:
+def calibrate_in_fit(st, opts, env, vals: dict, max_steps: int = 30, search_step_nm: float = 100.0,
+                     starts: int = 1, rounds: int = 3) -> SelfCalibration:
     """Fit the film's parameters (those free in ``st.table``, the disc's refinement apart)
     together with the response's lobe weights (module docstring): a search over films of
     the thickness range, each with its best response, then Levenberg-Marquardt from the
@@ -395,7 +395,7 @@ def calibrate_in_fit(st, opts, env, vals: dict, max_steps: int = 40, search_step
                 theta, coef, cost = t_new, c_new, new_cost
                 lam = max(lam / 3.0, 1e-9)
                 r, jm, b = evaluate(theta, coef, True)
-                if rel < 1e-7:
+                if rel < 1e-6:
                     converged = True
                     break
             else:

@@ -145,3 +145,21 @@ def test_untold_camera_calibrated_in_the_fit(small_courtyard, bits):
     allowed = max(5.0, 3.0 * max(r.stderr["top_nm"], r.stderr["bottom_nm"]))
     assert np.max(np.abs(fitted - true)) < allowed, (p, r.stderr)
     assert allowed < 50.0, r.stderr  # error bars well under an order (~200 nm)
+
+
+def test_fit_option_from_the_command_line(tmp_path):
+    """``fit --calibrate-camera`` sets ``FitOptions.calibrate_camera``; without it the fit is
+    the ordinary one; the one-line summary of a calibration record says both verdicts."""
+    from bubblefit.cli import build_parser
+    from bubblefit.cli.fit import build_fit_options
+    from bubblefit.inverse.self_calibration import summary
+
+    photo, env = tmp_path / "p.png", tmp_path / "e.exr"
+    for f in (photo, env):
+        f.write_bytes(b"x")
+    for extra, want in (([], False), (["--calibrate-camera"], True)):
+        args = build_parser().parse_args(["fit", str(photo), "--envmap", str(env), "--thickness", "drainage", *extra])
+        assert build_fit_options(args, None, 8, None).calibrate_camera is want
+    line = summary({"rank": {"determined": False, "rank": 15, "parameters": 20, "condition": 1e4},
+                    "coefficients": ["r0"] * 15, "stated_response_fit": {"ok": False}})
+    assert "NOT determined" in line and "rank 15 of 20" in line and "was not ok" in line

@@ -56,6 +56,7 @@ sec. 5.4.1 (numerical rank); the lobes: Belcour & Barla, ACM TOG 36(4), 2017, se
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -473,11 +474,10 @@ def self_calibrated(first, photo, env, options, background, scene, saturated):
     import jax.numpy as jnp
 
     from ..model.thickness import drainage_profile
+    from ._parameters import THICKNESSES
     from ._setup import setup
     from ._verdict import verdict
     from .colour_check import judge_colours
-
-    import time
 
     t0 = time.perf_counter()
     opts = replace(options, calibrate_camera=False, disc=first.disc if first.disc is not None else options.disc,
@@ -501,18 +501,27 @@ def self_calibrated(first, photo, env, options, background, scene, saturated):
     n_free = len(cal.values) + len(cal.coefficient_names)
     mis = _misfit(r_white, full.y[m], full.w[m], float(opts.model_error), n_free)
     notes = [] if cal.rank.determined else [cal.rank.reason()]
-    ok, warnings = verdict(converged=bool(cal.converged), disc_found=True, bound_warnings=[], misfit=mis,
+    lo, hi = opts.thickness_range
+    bounds = [f"{k} = {v:.1f} nm lies outside the searched thickness range {lo:g}-{hi:g} nm"
+              for k, v in cal.values.items() if k in THICKNESSES and not lo - 1.0 <= v <= hi + 1.0]
+    ok, warnings = verdict(converged=bool(cal.converged), disc_found=True, bound_warnings=bounds, misfit=mis,
                            ok_chi2=float(opts.ok_chi2), model_error=float(opts.model_error), notes=notes)
     ok = ok and cal.rank.determined
     sigma = st.sigma if opts.photosite_share is None else st.sigma / np.sqrt(np.asarray(opts.photosite_share))
     ok, warnings, colour_record = judge_colours(ok, warnings, st.photo, img, m, full.cos, sigma,
                                                 float(opts.model_error), mis.chi2_floor <= float(opts.ok_chi2))
+    # the joint fit's values as the fit reports them; standard errors for the fitted names
+    # (a value derived from them, e.g. r_d and r_s from the split, has none here)
     params, stderr = dict(first.params), dict(first.stderr)
     floor = float(opts.thickness_model_error_nm)
-    for k, v in cal.values.items():
-        params[k] = float(v)
-        e = cal.stderr[k]
-        stderr[k] = float(np.hypot(e, floor)) if k.endswith("_nm") else float(e)
+    for k, v in st.table.reported({k: np.float32(v) for k, v in vals.items()}).items():
+        if k in params:
+            params[k] = float(v)
+            stderr[k] = float("nan")
+    for k in cal.values:
+        if k in params:
+            e = cal.stderr[k]
+            stderr[k] = float(np.hypot(e, floor)) if k in THICKNESSES else float(e)
     thickness_map = first.thickness_map
     if "top_nm" in cal.values:
         prof = (params["top_nm"], params["bottom_nm"], params["exponent"])

@@ -326,6 +326,14 @@ def run(args) -> int:
         if args.output:
             with stage("writing the maps"):
                 out["outputs"] = write_fit_images(args.output, result, write_image, preview_path)
+                if result.camera_calibration is not None:  # the response fitted with the film
+                    from ..inverse.self_calibration import response_csv
+                    from ..io.atomic import write_text
+
+                    text = response_csv(result.camera_calibration)
+                    if text is not None:
+                        write_text(f"{args.output}_response.csv", text)
+                        out["outputs"]["response"] = f"{args.output}_response.csv"
         if args.json:
             write_json(args.json, out)
     if args.strict and not result.ok:

@@ -64,6 +64,7 @@ import numpy as np
 from ..optics.spectral import SpectralBasis
 
 __all__ = ["ProbeBasis", "Degeneracy", "degeneracy", "SelfCalibration", "calibrate_in_fit", "self_calibrated", "summary",
+           "response_csv",
            "lobe_groups", "RENDER_EPS", "TIED_OVERLAP"]
 
 #: Resolution of a rendered value: the renders are float32.
@@ -197,6 +198,23 @@ class SelfCalibration:
         d = (g @ self.weights) / lam[:, None] ** 2
         return lam, d / np.max(np.abs(d), axis=0)
 
+    def response_stderr(self, grid=None) -> np.ndarray:
+        """Standard errors of :meth:`response_nm` (L, 3) from the coefficients' covariance
+        (linear propagation; the normalisation's own uncertainty left out); NaN when the
+        photo did not determine the response."""
+        lam = np.arange(380.0, 781.0, 5.0) if grid is None else np.asarray(grid, np.float64)
+        nu = 1.0 / lam
+        g = np.exp(-0.5 * ((nu[:, None] - 1.0 / self.wavelengths) / self.sigma) ** 2) / self.sigma / lam[:, None] ** 2
+        peak = np.max(np.abs(g @ self.weights), axis=0)
+        e = _directions(self.groups, len(self.wavelengths))  # (G-1, K)
+        ge = g @ e.T  # (L, G-1): the density's change per coefficient
+        ng = e.shape[0]
+        out = np.empty((len(lam), 3))
+        for c in range(3):
+            cov = self.covariance[c * ng:(c + 1) * ng, c * ng:(c + 1) * ng]
+            out[:, c] = np.sqrt(np.clip(np.einsum("lg,gh,lh->l", ge, cov, ge), 0.0, None)) / peak[c]
+        return out
+
     def to_json(self) -> dict:
         lam, resp = self.response_nm()
         return {
@@ -207,6 +225,7 @@ class SelfCalibration:
             "coefficients": self.coefficient_names, "tied_lobes": self.groups,
             "covariance": [[float(v) for v in row] for row in self.covariance],
             "response_wavelength_nm": lam.tolist(), "response": resp.tolist(),
+            "response_stderr": self.response_stderr().tolist(),
             "rank": self.rank.to_json(), "reduced_chi2": self.reduced_chi2,
             "iterations": self.iterations, "converged": self.converged,
             "film": {k: float(v) for k, v in self.values.items()},
@@ -436,6 +455,25 @@ def calibrate_in_fit(st, opts, env, vals: dict, max_steps: int = 30, search_step
         covariance=cov[nf:, nf:], coefficient_names=names[nf:], wavelengths=np.asarray(base.wavelengths, np.float64),
         sigma=np.asarray(base.sigma, np.float64), start_weights=w0, rank=rank, reduced_chi2=chi2, iterations=steps,
         converged=converged, render=_combine(b, w), groups=groups)
+
+
+def response_csv(record: dict) -> str | None:
+    """The fitted response of a ``camera_calibration`` record as the CSV that
+    ``--camera-response`` reads (:meth:`bubblefit.capture.camera_calibration.CameraCalibration.csv_text`:
+    the camera-times-lamp product, so calibrated under illuminant ``E``; negative values
+    clipped to 0), or None when the photo did not determine it."""
+    from ..capture.camera_calibration import CameraCalibration
+
+    if not record["rank"]["determined"]:
+        return None
+    # a sum of lobes dips below zero where the weights do (the Nikon's own projection's red
+    # channel, to -4 % of its peak); a response file holds no negative values
+    resp = np.clip(np.asarray(record["response"], np.float64), 0.0, None)
+    nan = np.full(3, np.nan)
+    cal = CameraCalibration(np.asarray(record["response_wavelength_nm"], np.float64), resp,
+                            np.asarray(record["response_stderr"], np.float64), nan, nan, nan,
+                            0, "E", ["a film fitted with bubblefit fit --calibrate-camera"])
+    return cal.csv_text()
 
 
 def summary(record: dict) -> str:

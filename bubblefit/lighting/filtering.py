@@ -195,9 +195,13 @@ def specular_box(env: EnvMap, n, wo, footprint, *, normalize: bool) -> Float[Arr
     return rad * jnp.clip(cos, 0.0, 1.0)[..., None]
 
 
-def _footprint_nodes(footprint, t1, t2, a, sx, sy, cell):
-    """The slopes ``(s1, s2)`` of :func:`specular_mipmap`'s nodes along ``t1``, ``t2`` and
-    each node's mip cell, (N, M) each, for the lobe convolved with a pixel footprint."""
+def _footprint_nodes(footprint, t1, t2, a, sx, sy, wx, wy):
+    """The nodes of :func:`specular_mipmap` for the lobe convolved with a pixel footprint:
+    their slopes ``(s1, s2)`` (N, M) along ``t1``, ``t2``, and the two sides of the
+    parallelogram each node's cell covers (each a pair of (N, M) slopes along ``t1``, ``t2``):
+    with ``L L^T = C`` (Cholesky), node ``(j, k)`` sits at ``sqrt(2) L (x_j, x_k)`` and its
+    cell is spanned by ``sqrt(2) L (wx_j, 0)`` and ``sqrt(2) L (0, wy_k)``, so the cells
+    tile the distribution along its own axes, however elongated."""
     footprint = footprint / math.sqrt(12.0)  # the box's variance, 1/12 of its side squared
     m11 = jnp.sum(t1 * footprint[..., 0], axis=-1)
     m12 = jnp.sum(t1 * footprint[..., 1], axis=-1)
@@ -215,7 +219,9 @@ def _footprint_nodes(footprint, t1, t2, a, sx, sy, cell):
     col = lambda v: root2 * v[:, None]
     s1 = col(l11) * sx
     s2 = col(l21) * sx + col(l22) * sy
-    return s1, s2, col(jnp.sqrt(l11 * l22)) * cell[None, :]
+    side1 = (col(l11) * wx, col(l21) * wx)
+    side2 = (jnp.zeros_like(s1), col(l22) * wy)
+    return s1, s2, side1, side2
 
 
 def specular_mipmap(env: EnvMap, n, wo, a, *, nodes: int, normalize: bool, footprint=None) -> Float[Array, "N 3"]:
@@ -229,19 +235,28 @@ def specular_mipmap(env: EnvMap, n, wo, a, *, nodes: int, normalize: bool, footp
 
     With a pixel ``footprint`` ``F`` (N, 3, 2) (:func:`~bubblefit.model.geometry.slope_footprint`)
     the quadrature integrates the lobe over the pixel: the half vectors of the pixel's rays
-    spread about ``n`` with covariance ``F F^T`` and Ward's lobe about each of them with
-    ``a^2 / 2`` per axis, and the two are taken as Gaussians, whose convolution adds the
-    covariances: ``C = a^2/2 I + M M^T`` with ``M`` the footprint in the nodes' tangent
-    frame. The nodes sit at ``sqrt(2) L (x_j, x_k)`` with ``L L^T = C`` (Cholesky), which is
-    the plain lobe's ``a (x_j, x_k)`` when ``F = 0``, and each node's mip cell is
-    ``sqrt(2 sqrt(det C))`` times its width. The approximations: a pixel's box is replaced
-    by the Gaussian of its variance, and the differentials are those of the pixel's
-    centre (the footprint is linear across the pixel).
+    spread about ``n`` with covariance ``F F^T / 12`` (a box of side 1 has variance 1/12)
+    and Ward's lobe about each of them with ``a^2 / 2`` per axis, and the two are taken as
+    Gaussians, whose convolution adds the covariances: ``C = a^2/2 I + M M^T`` with ``M``
+    the footprint over ``sqrt(12)`` in the nodes' tangent frame. The nodes sit at
+    ``sqrt(2) L (x_j, x_k)`` with ``L L^T = C`` (Cholesky), which is the plain lobe's
+    ``a (x_j, x_k)`` when ``F = 0``. Each node then reads the map averaged over the
+    parallelogram of directions its own cell (``sqrt(2) L`` times the node's widths)
+    reflects into, as :func:`specular_box` does for a pixel
+    (:func:`~bubblefit.lighting.envmap.lookup_box`, per map axis): the cells tile the
+    distribution, so a sun smaller than the nodes' spacing is neither missed between
+    nodes nor counted whole at one, and a long, thin footprint (a film near the rim, an
+    internal bounce) is filtered along each of its axes by its own width. (An isotropic
+    mip level from the cells' geometric mean, which the plain lobe uses, blurs such a
+    footprint's long axis far less than its nodes are spaced: on the sunny off-centre
+    drainage photo of the validation set it put the sun's reflection on single nodes.)
+    The approximations: a pixel's box is replaced by the Gaussian of its variance, each
+    cell by the box of its second moments on the map's axes, and the differentials are
+    those of the pixel's centre (the footprint is linear across the pixel).
     """
     x, w, width = slope_nodes(nodes)
     xx, yy = np.meshgrid(x, x)
     ww = jnp.asarray((w[:, None] * w[None, :]).ravel(), dtype=n.dtype)
-    cell = jnp.asarray(np.sqrt(width[:, None] * width[None, :]).ravel(), dtype=n.dtype)
     sx = jnp.asarray(xx.ravel(), dtype=n.dtype)[None, :]
     sy = jnp.asarray(yy.ravel(), dtype=n.dtype)[None, :]
     t1, t2 = tangent_frame(n)
@@ -251,11 +266,15 @@ def specular_mipmap(env: EnvMap, n, wo, a, *, nodes: int, normalize: bool, footp
     comp = lambda v: [v[:, k:k + 1] for k in range(3)]
     dot = lambda u, v: u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
     n_c, wo_c = comp(n), comp(wo)
+    t1_c, t2_c = comp(t1), comp(t2)
     if footprint is None:
-        s1, s2, node_cell = a * sx, a * sy, a * cell
+        s1, s2 = a * sx, a * sy
     else:
-        s1, s2, node_cell = _footprint_nodes(footprint, t1, t2, a, sx, sy, cell)
-    h = [nk + s1 * ak + s2 * bk for nk, ak, bk in zip(n_c, comp(t1), comp(t2))]
+        wx, wy = np.meshgrid(width, width)
+        wx = jnp.asarray(wx.ravel(), dtype=n.dtype)[None, :]
+        wy = jnp.asarray(wy.ravel(), dtype=n.dtype)[None, :]
+        s1, s2, side1, side2 = _footprint_nodes(footprint, t1, t2, a, sx, sy, wx, wy)
+    h = [nk + s1 * ak + s2 * bk for nk, ak, bk in zip(n_c, t1_c, t2_c)]
     norm = jnp.sqrt(jnp.maximum(dot(h, h), 1e-30))
     h = [hk / norm for hk in h]
     o_h = dot(wo_c, h)
@@ -264,8 +283,25 @@ def specular_mipmap(env: EnvMap, n, wo, a, *, nodes: int, normalize: bool, footp
     cos_h = dot(n_c, h)
     cos_r = _dot(n, wo)[:, None]
     g = ww * half_vector_weight(cos_i, cos_r, o_h, cos_h)
-    level = mip_footprint_level(node_cell, env.texel_angle)
-    rad = env.lookup_level(jnp.stack(wi, axis=-1), jnp.broadcast_to(level, g.shape))
+    wi = jnp.stack(wi, axis=-1)
+    if footprint is None:
+        cell = jnp.asarray(np.sqrt(width[:, None] * width[None, :]).ravel(), dtype=n.dtype)
+        level = mip_footprint_level(a * cell, env.texel_angle)
+        rad = env.lookup_level(wi, jnp.broadcast_to(level, g.shape))
+    else:
+        # each node reads the map's mean over the parallelogram of directions its cell
+        # reflects into (as specular_box for the pixel): cells tile the lobe convolved with
+        # the pixel, so a source smaller than the nodes' spacing is neither missed nor
+        # counted whole, and an elongated footprint is filtered along its own axes
+        def turn(side):
+            dh = [side[0] * ak + side[1] * bk for ak, bk in zip(t1_c, t2_c)]
+            wo_dh = dot(wo_c, dh)
+            return jnp.stack([2.0 * wo_dh * hk + 2.0 * o_h * dk for hk, dk in zip(h, dh)], axis=-1)
+
+        dr = jnp.stack([turn(side1), turn(side2)], axis=-1)  # (N, M, 3, 2)
+        m = wi.shape[0] * wi.shape[1]
+        widths = texel_footprint(wi.reshape(m, 3), dr.reshape(m, 3, 2), env.height, env.width)
+        rad = env.lookup_box(wi, widths.reshape(wi.shape[:2] + (2,)))
     num = jnp.einsum("nm,nmc->nc", g, rad)
     if normalize:
         return num / jnp.maximum(jnp.sum(g, axis=1), 1e-12)[:, None]

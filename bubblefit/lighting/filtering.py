@@ -195,33 +195,72 @@ def specular_box(env: EnvMap, n, wo, footprint, *, normalize: bool) -> Float[Arr
     return rad * jnp.clip(cos, 0.0, 1.0)[..., None]
 
 
-def _footprint_nodes(footprint, t1, t2, a, sx, sy, wx, wy):
+def box_nodes(nodes: int):
+    """Nodes, weights and widths of the midpoint rule for a box with the variance of
+    ``exp(-x^2)`` (1/2): ``nodes`` equal cells tiling ``[-sqrt(3/2), sqrt(3/2)]``."""
+    half = math.sqrt(1.5)
+    step = 2.0 * half / nodes
+    x = -half + (np.arange(nodes) + 0.5) * step
+    return x, np.full(nodes, 1.0 / nodes), np.full(nodes, step)
+
+
+def _footprint_nodes(footprint, t1, t2, a, nodes: int):
     """The nodes of :func:`specular_mipmap` for the lobe convolved with a pixel footprint:
-    their slopes ``(s1, s2)`` (N, M) along ``t1``, ``t2``, and the two sides of the
-    parallelogram each node's cell covers (each a pair of (N, M) slopes along ``t1``, ``t2``):
-    with ``L L^T = C`` (Cholesky), node ``(j, k)`` sits at ``sqrt(2) L (x_j, x_k)`` and its
-    cell is spanned by ``sqrt(2) L (wx_j, 0)`` and ``sqrt(2) L (0, wy_k)``, so the cells
-    tile the distribution along its own axes, however elongated."""
-    footprint = footprint / math.sqrt(12.0)  # the box's variance, 1/12 of its side squared
-    m11 = jnp.sum(t1 * footprint[..., 0], axis=-1)
-    m12 = jnp.sum(t1 * footprint[..., 1], axis=-1)
-    m21 = jnp.sum(t2 * footprint[..., 0], axis=-1)
-    m22 = jnp.sum(t2 * footprint[..., 1], axis=-1)
+    their slopes ``(s1, s2)`` (N, M) along ``t1``, ``t2``, their weights (N, M), and the two
+    sides of the parallelogram each node's cell covers (each a pair of (N, M) slopes).
+
+    With ``G`` the footprint in the ``t1, t2`` frame over ``sqrt(12)`` (the pixel box's
+    covariance is ``G G^T``) and ``C = G G^T + a^2/2 I``, the nodes sit at
+    ``sqrt(2) L (x_j, x_k)`` with ``L = C^(1/2) R``, ``R`` the rotation (or reflection) of
+    ``G``'s polar decomposition: ``L L^T = C``, ``L = G`` at ``a = 0`` and ``L`` tends to
+    ``a / sqrt(2)`` times a rotation as the lobe outgrows the pixel. The rule ``x``, its
+    weights and cell widths pass from the box's midpoint rule (:func:`box_nodes`, the
+    pixel's own box at ``a = 0``, tiled exactly) to :func:`slope_nodes` (the lobe's) in
+    proportion to the lobe's share of the variance, ``b = (a^2/2) / (a^2/2 + tr(G G^T)/2)``.
+    """
+    g = footprint / math.sqrt(12.0)  # the box's variance, 1/12 of its side squared
+    g11 = jnp.sum(t1 * g[..., 0], axis=-1)
+    g12 = jnp.sum(t1 * g[..., 1], axis=-1)
+    g21 = jnp.sum(t2 * g[..., 0], axis=-1)
+    g22 = jnp.sum(t2 * g[..., 1], axis=-1)
     half_a2 = 0.5 * a * a
-    c11 = half_a2 + m11 * m11 + m12 * m12
-    c12 = m11 * m21 + m12 * m22
-    c22 = half_a2 + m21 * m21 + m22 * m22
-    # Cholesky of C, kept finite (and differentiable in a) where C vanishes
-    l11 = jnp.sqrt(c11 + 1e-20)
-    l21 = c12 / l11
-    l22 = jnp.sqrt(jnp.maximum(c22 - l21 * l21, 0.0) + 1e-20)
+    c11 = half_a2 + g11 * g11 + g12 * g12
+    c12 = g11 * g21 + g12 * g22
+    c22 = half_a2 + g21 * g21 + g22 * g22
+    # C^(1/2) of a 2 x 2 SPD matrix: (C + sqrt(det C) I) / sqrt(tr C + 2 sqrt(det C))
+    root_det = jnp.sqrt(jnp.maximum(c11 * c22 - c12 * c12, 0.0))
+    den = jnp.sqrt(c11 + c22 + 2.0 * root_det + 1e-30)
+    q11, q12, q22 = (c11 + root_det) / den, c12 / den, (c22 + root_det) / den
+    # G's polar factor: a rotation where det G >= 0, else a reflection
+    det_g = g11 * g22 - g12 * g21
+    rot = jnp.arctan2(g21 - g12, g11 + g22)
+    ref = jnp.arctan2(g21 + g12, g11 - g22)
+    pos = det_g >= 0
+    r11 = jnp.where(pos, jnp.cos(rot), jnp.cos(ref))
+    r21 = jnp.where(pos, jnp.sin(rot), jnp.sin(ref))
+    r12 = jnp.where(pos, -jnp.sin(rot), jnp.sin(ref))
+    r22 = jnp.where(pos, jnp.cos(rot), -jnp.cos(ref))
+    l11, l12 = q11 * r11 + q12 * r21, q11 * r12 + q12 * r22
+    l21, l22 = q12 * r11 + q22 * r21, q12 * r12 + q22 * r22
+    share = half_a2 / (half_a2 + 0.5 * (g11**2 + g12**2 + g21**2 + g22**2) + 1e-30)
+    xg, wg, dg = slope_nodes(nodes)
+    xb, wb, db = box_nodes(nodes)
+    col = lambda v: v[:, None]
+    b = col(share)
+    mix = lambda u, v: jnp.asarray(u, g.dtype)[None, :] * (1.0 - b) + jnp.asarray(v, g.dtype)[None, :] * b
+    x, w, d = mix(xb, xg), mix(wb, wg), mix(db, dg)  # (N, nodes) each
+    xj, xk = x[:, None, :], x[:, :, None]  # node (k, j): j along the first column of L
+    dj, dk = d[:, None, :], d[:, :, None]
+    flat = lambda v: jnp.broadcast_to(v, (x.shape[0], nodes, nodes)).reshape(x.shape[0], -1)
+    xj, xk, dj, dk = flat(xj), flat(xk), flat(dj), flat(dk)
+    weights = flat(w[:, :, None] * w[:, None, :])
     root2 = math.sqrt(2.0)
-    col = lambda v: root2 * v[:, None]
-    s1 = col(l11) * sx
-    s2 = col(l21) * sx + col(l22) * sy
-    side1 = (col(l11) * wx, col(l21) * wx)
-    side2 = (jnp.zeros_like(s1), col(l22) * wy)
-    return s1, s2, side1, side2
+    e = lambda v: root2 * col(v)
+    s1 = e(l11) * xj + e(l12) * xk
+    s2 = e(l21) * xj + e(l22) * xk
+    side1 = (e(l11) * dj, e(l21) * dj)
+    side2 = (e(l12) * dk, e(l22) * dk)
+    return s1, s2, weights, side1, side2
 
 
 def specular_mipmap(env: EnvMap, n, wo, a, *, nodes: int, normalize: bool, footprint=None) -> Float[Array, "N 3"]:
@@ -270,10 +309,7 @@ def specular_mipmap(env: EnvMap, n, wo, a, *, nodes: int, normalize: bool, footp
     if footprint is None:
         s1, s2 = a * sx, a * sy
     else:
-        wx, wy = np.meshgrid(width, width)
-        wx = jnp.asarray(wx.ravel(), dtype=n.dtype)[None, :]
-        wy = jnp.asarray(wy.ravel(), dtype=n.dtype)[None, :]
-        s1, s2, side1, side2 = _footprint_nodes(footprint, t1, t2, a, sx, sy, wx, wy)
+        s1, s2, ww, side1, side2 = _footprint_nodes(footprint, t1, t2, a, nodes)
     h = [nk + s1 * ak + s2 * bk for nk, ak, bk in zip(n_c, t1_c, t2_c)]
     norm = jnp.sqrt(jnp.maximum(dot(h, h), 1e-30))
     h = [hk / norm for hk in h]

@@ -251,10 +251,19 @@ def lookup_box(atlas, shapes: tuple, d: Float[Array, "... 3"], widths) -> Float[
     F. C. Crow, "Summed-area tables for texture mapping", SIGGRAPH 1984 (box-filtered
     lookups); L. Williams, "Pyramidal parametrics", SIGGRAPH 1983 (the pyramid).
     """
-    h0 = shapes[0][0]
+    h0, w0 = shapes[0]
     wx = jnp.maximum(widths[..., 0], 1e-3)
     wy = jnp.maximum(widths[..., 1], 1e-3)
-    level = jnp.ceil(jnp.log2(jnp.maximum(jnp.maximum(wx, wy) / BOX_TEXELS, 1.0)))
+    # The level is chosen by the box's angular extent: a column's texel spans sin(theta)
+    # times a row's angle (2 pi / W against pi / (H - 1)), so near a pole a box many
+    # columns wide is small, and reading it at the level its column count asks for would
+    # blur it along the rows by as much; there it reads the level its size asks for, and
+    # the columns it spans beyond BOX_TEXELS of that level (directions closer together
+    # than its rows) are left out.
+    cos_t = d[..., 1] / jnp.sqrt(jnp.maximum(jnp.sum(d * d, axis=-1), 1e-30))
+    sin_t = jnp.sqrt(jnp.clip(1.0 - cos_t**2, 0.0, 1.0))
+    wx_angle = wx * sin_t * (2.0 * (h0 - 1) / w0)
+    level = jnp.ceil(jnp.log2(jnp.maximum(jnp.maximum(wx_angle, wy) / BOX_TEXELS, 1.0)))
     level = jnp.clip(level, 0, len(shapes) - 1).astype(jnp.int32)
     hs = jnp.asarray([sh[0] for sh in shapes], dtype=jnp.int32)[level]
     ws = jnp.asarray([sh[1] for sh in shapes], dtype=jnp.int32)[level]

@@ -195,27 +195,72 @@ def specular_box(env: EnvMap, n, wo, footprint, *, normalize: bool) -> Float[Arr
     return rad * jnp.clip(cos, 0.0, 1.0)[..., None]
 
 
-def _footprint_nodes(footprint, t1, t2, a, sx, sy, cell):
-    """The slopes ``(s1, s2)`` of :func:`specular_mipmap`'s nodes along ``t1``, ``t2`` and
-    each node's mip cell, (N, M) each, for the lobe convolved with a pixel footprint."""
-    footprint = footprint / math.sqrt(12.0)  # the box's variance, 1/12 of its side squared
-    m11 = jnp.sum(t1 * footprint[..., 0], axis=-1)
-    m12 = jnp.sum(t1 * footprint[..., 1], axis=-1)
-    m21 = jnp.sum(t2 * footprint[..., 0], axis=-1)
-    m22 = jnp.sum(t2 * footprint[..., 1], axis=-1)
+def box_nodes(nodes: int):
+    """Nodes, weights and widths of the midpoint rule for a box with the variance of
+    ``exp(-x^2)`` (1/2): ``nodes`` equal cells tiling ``[-sqrt(3/2), sqrt(3/2)]``."""
+    half = math.sqrt(1.5)
+    step = 2.0 * half / nodes
+    x = -half + (np.arange(nodes) + 0.5) * step
+    return x, np.full(nodes, 1.0 / nodes), np.full(nodes, step)
+
+
+def _footprint_nodes(footprint, t1, t2, a, nodes: int):
+    """The nodes of :func:`specular_mipmap` for the lobe convolved with a pixel footprint:
+    their slopes ``(s1, s2)`` (N, M) along ``t1``, ``t2``, their weights (N, M), and the two
+    sides of the parallelogram each node's cell covers (each a pair of (N, M) slopes).
+
+    With ``G`` the footprint in the ``t1, t2`` frame over ``sqrt(12)`` (the pixel box's
+    covariance is ``G G^T``) and ``C = G G^T + a^2/2 I``, the nodes sit at
+    ``sqrt(2) L (x_j, x_k)`` with ``L = C^(1/2) R``, ``R`` the rotation (or reflection) of
+    ``G``'s polar decomposition: ``L L^T = C``, ``L = G`` at ``a = 0`` and ``L`` tends to
+    ``a / sqrt(2)`` times a rotation as the lobe outgrows the pixel. The rule ``x``, its
+    weights and cell widths pass from the box's midpoint rule (:func:`box_nodes`, the
+    pixel's own box at ``a = 0``, tiled exactly) to :func:`slope_nodes` (the lobe's) in
+    proportion to the lobe's share of the variance, ``b = (a^2/2) / (a^2/2 + tr(G G^T)/2)``.
+    """
+    g = footprint / math.sqrt(12.0)  # the box's variance, 1/12 of its side squared
+    g11 = jnp.sum(t1 * g[..., 0], axis=-1)
+    g12 = jnp.sum(t1 * g[..., 1], axis=-1)
+    g21 = jnp.sum(t2 * g[..., 0], axis=-1)
+    g22 = jnp.sum(t2 * g[..., 1], axis=-1)
     half_a2 = 0.5 * a * a
-    c11 = half_a2 + m11 * m11 + m12 * m12
-    c12 = m11 * m21 + m12 * m22
-    c22 = half_a2 + m21 * m21 + m22 * m22
-    # Cholesky of C, kept finite (and differentiable in a) where C vanishes
-    l11 = jnp.sqrt(c11 + 1e-20)
-    l21 = c12 / l11
-    l22 = jnp.sqrt(jnp.maximum(c22 - l21 * l21, 0.0) + 1e-20)
+    c11 = half_a2 + g11 * g11 + g12 * g12
+    c12 = g11 * g21 + g12 * g22
+    c22 = half_a2 + g21 * g21 + g22 * g22
+    # C^(1/2) of a 2 x 2 SPD matrix: (C + sqrt(det C) I) / sqrt(tr C + 2 sqrt(det C))
+    root_det = jnp.sqrt(jnp.maximum(c11 * c22 - c12 * c12, 0.0))
+    den = jnp.sqrt(c11 + c22 + 2.0 * root_det + 1e-30)
+    q11, q12, q22 = (c11 + root_det) / den, c12 / den, (c22 + root_det) / den
+    # G's polar factor: a rotation where det G >= 0, else a reflection
+    det_g = g11 * g22 - g12 * g21
+    rot = jnp.arctan2(g21 - g12, g11 + g22)
+    ref = jnp.arctan2(g21 + g12, g11 - g22)
+    pos = det_g >= 0
+    r11 = jnp.where(pos, jnp.cos(rot), jnp.cos(ref))
+    r21 = jnp.where(pos, jnp.sin(rot), jnp.sin(ref))
+    r12 = jnp.where(pos, -jnp.sin(rot), jnp.sin(ref))
+    r22 = jnp.where(pos, jnp.cos(rot), -jnp.cos(ref))
+    l11, l12 = q11 * r11 + q12 * r21, q11 * r12 + q12 * r22
+    l21, l22 = q12 * r11 + q22 * r21, q12 * r12 + q22 * r22
+    share = half_a2 / (half_a2 + 0.5 * (g11**2 + g12**2 + g21**2 + g22**2) + 1e-30)
+    xg, wg, dg = slope_nodes(nodes)
+    xb, wb, db = box_nodes(nodes)
+    col = lambda v: v[:, None]
+    b = col(share)
+    mix = lambda u, v: jnp.asarray(u, g.dtype)[None, :] * (1.0 - b) + jnp.asarray(v, g.dtype)[None, :] * b
+    x, w, d = mix(xb, xg), mix(wb, wg), mix(db, dg)  # (N, nodes) each
+    xj, xk = x[:, None, :], x[:, :, None]  # node (k, j): j along the first column of L
+    dj, dk = d[:, None, :], d[:, :, None]
+    flat = lambda v: jnp.broadcast_to(v, (x.shape[0], nodes, nodes)).reshape(x.shape[0], -1)
+    xj, xk, dj, dk = flat(xj), flat(xk), flat(dj), flat(dk)
+    weights = flat(w[:, :, None] * w[:, None, :])
     root2 = math.sqrt(2.0)
-    col = lambda v: root2 * v[:, None]
-    s1 = col(l11) * sx
-    s2 = col(l21) * sx + col(l22) * sy
-    return s1, s2, col(jnp.sqrt(l11 * l22)) * cell[None, :]
+    e = lambda v: root2 * col(v)
+    s1 = e(l11) * xj + e(l12) * xk
+    s2 = e(l21) * xj + e(l22) * xk
+    side1 = (e(l11) * dj, e(l21) * dj)
+    side2 = (e(l12) * dk, e(l22) * dk)
+    return s1, s2, weights, side1, side2
 
 
 def specular_mipmap(env: EnvMap, n, wo, a, *, nodes: int, normalize: bool, footprint=None) -> Float[Array, "N 3"]:
@@ -229,19 +274,28 @@ def specular_mipmap(env: EnvMap, n, wo, a, *, nodes: int, normalize: bool, footp
 
     With a pixel ``footprint`` ``F`` (N, 3, 2) (:func:`~bubblefit.model.geometry.slope_footprint`)
     the quadrature integrates the lobe over the pixel: the half vectors of the pixel's rays
-    spread about ``n`` with covariance ``F F^T`` and Ward's lobe about each of them with
-    ``a^2 / 2`` per axis, and the two are taken as Gaussians, whose convolution adds the
-    covariances: ``C = a^2/2 I + M M^T`` with ``M`` the footprint in the nodes' tangent
-    frame. The nodes sit at ``sqrt(2) L (x_j, x_k)`` with ``L L^T = C`` (Cholesky), which is
-    the plain lobe's ``a (x_j, x_k)`` when ``F = 0``, and each node's mip cell is
-    ``sqrt(2 sqrt(det C))`` times its width. The approximations: a pixel's box is replaced
-    by the Gaussian of its variance, and the differentials are those of the pixel's
-    centre (the footprint is linear across the pixel).
+    spread about ``n`` with covariance ``F F^T / 12`` (a box of side 1 has variance 1/12)
+    and Ward's lobe about each of them with ``a^2 / 2`` per axis, and the two are taken as
+    Gaussians, whose convolution adds the covariances: ``C = a^2/2 I + M M^T`` with ``M``
+    the footprint over ``sqrt(12)`` in the nodes' tangent frame. The nodes sit at
+    ``sqrt(2) L (x_j, x_k)`` with ``L L^T = C`` (Cholesky), which is the plain lobe's
+    ``a (x_j, x_k)`` when ``F = 0``. Each node then reads the map averaged over the
+    parallelogram of directions its own cell (``sqrt(2) L`` times the node's widths)
+    reflects into, as :func:`specular_box` does for a pixel
+    (:func:`~bubblefit.lighting.envmap.lookup_box`, per map axis): the cells tile the
+    distribution, so a sun smaller than the nodes' spacing is neither missed between
+    nodes nor counted whole at one, and a long, thin footprint (a film near the rim, an
+    internal bounce) is filtered along each of its axes by its own width. (An isotropic
+    mip level from the cells' geometric mean, which the plain lobe uses, blurs such a
+    footprint's long axis far less than its nodes are spaced: on the sunny off-centre
+    drainage photo of the validation set it put the sun's reflection on single nodes.)
+    The approximations: a pixel's box is replaced by the Gaussian of its variance, each
+    cell by the box of its second moments on the map's axes, and the differentials are
+    those of the pixel's centre (the footprint is linear across the pixel).
     """
     x, w, width = slope_nodes(nodes)
     xx, yy = np.meshgrid(x, x)
     ww = jnp.asarray((w[:, None] * w[None, :]).ravel(), dtype=n.dtype)
-    cell = jnp.asarray(np.sqrt(width[:, None] * width[None, :]).ravel(), dtype=n.dtype)
     sx = jnp.asarray(xx.ravel(), dtype=n.dtype)[None, :]
     sy = jnp.asarray(yy.ravel(), dtype=n.dtype)[None, :]
     t1, t2 = tangent_frame(n)
@@ -251,11 +305,12 @@ def specular_mipmap(env: EnvMap, n, wo, a, *, nodes: int, normalize: bool, footp
     comp = lambda v: [v[:, k:k + 1] for k in range(3)]
     dot = lambda u, v: u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
     n_c, wo_c = comp(n), comp(wo)
+    t1_c, t2_c = comp(t1), comp(t2)
     if footprint is None:
-        s1, s2, node_cell = a * sx, a * sy, a * cell
+        s1, s2 = a * sx, a * sy
     else:
-        s1, s2, node_cell = _footprint_nodes(footprint, t1, t2, a, sx, sy, cell)
-    h = [nk + s1 * ak + s2 * bk for nk, ak, bk in zip(n_c, comp(t1), comp(t2))]
+        s1, s2, ww, side1, side2 = _footprint_nodes(footprint, t1, t2, a, nodes)
+    h = [nk + s1 * ak + s2 * bk for nk, ak, bk in zip(n_c, t1_c, t2_c)]
     norm = jnp.sqrt(jnp.maximum(dot(h, h), 1e-30))
     h = [hk / norm for hk in h]
     o_h = dot(wo_c, h)
@@ -264,8 +319,25 @@ def specular_mipmap(env: EnvMap, n, wo, a, *, nodes: int, normalize: bool, footp
     cos_h = dot(n_c, h)
     cos_r = _dot(n, wo)[:, None]
     g = ww * half_vector_weight(cos_i, cos_r, o_h, cos_h)
-    level = mip_footprint_level(node_cell, env.texel_angle)
-    rad = env.lookup_level(jnp.stack(wi, axis=-1), jnp.broadcast_to(level, g.shape))
+    wi = jnp.stack(wi, axis=-1)
+    if footprint is None:
+        cell = jnp.asarray(np.sqrt(width[:, None] * width[None, :]).ravel(), dtype=n.dtype)
+        level = mip_footprint_level(a * cell, env.texel_angle)
+        rad = env.lookup_level(wi, jnp.broadcast_to(level, g.shape))
+    else:
+        # each node reads the map's mean over the parallelogram of directions its cell
+        # reflects into (as specular_box for the pixel): cells tile the lobe convolved with
+        # the pixel, so a source smaller than the nodes' spacing is neither missed nor
+        # counted whole, and an elongated footprint is filtered along its own axes
+        def turn(side):
+            dh = [side[0] * ak + side[1] * bk for ak, bk in zip(t1_c, t2_c)]
+            wo_dh = dot(wo_c, dh)
+            return jnp.stack([2.0 * wo_dh * hk + 2.0 * o_h * dk for hk, dk in zip(h, dh)], axis=-1)
+
+        dr = jnp.stack([turn(side1), turn(side2)], axis=-1)  # (N, M, 3, 2)
+        m = wi.shape[0] * wi.shape[1]
+        widths = texel_footprint(wi.reshape(m, 3), dr.reshape(m, 3, 2), env.height, env.width)
+        rad = env.lookup_box(wi, widths.reshape(wi.shape[:2] + (2,)))
     num = jnp.einsum("nm,nmc->nc", g, rad)
     if normalize:
         return num / jnp.maximum(jnp.sum(g, axis=1), 1e-12)[:, None]

@@ -246,14 +246,14 @@ def build_fit_options(args, scene, bits: int | None, view=None, photosite_share=
     """:class:`~bubblefit.inverse.fit.FitOptions` of ``fit`` and ``fit-sequence``, built in
     this one place so that a sequence of one frame is fitted as ``fit`` fits the photo:
     :func:`fit_option_values`, the model (``--model``, else the scene's, else ``auto``),
-    the photo's bit depth for the noise model (``bits``) and, for a demosaiced RAW file, its
-    channels' share of the photosites (``photosite_share``), and ``fit``'s own flags where
+    the photo's bit depth for the noise model (``NoiseSettings.bits``) and, for a demosaiced RAW
+    file, its channels' share of the photosites (``NoiseSettings.photosite_share``), and ``fit``'s own flags where
     the command has them."""
-    from ..inverse.fit import FitOptions
+    from ..inverse.fit import FitOptions, NoiseSettings
 
     model = args.model or (scene.table("effects").get("model", "auto") if scene is not None else "auto")
-    kw = dict(fit_option_values(args), model=model, bits=bits, view=view,
-              photosite_share=None if photosite_share is None else tuple(photosite_share))
+    noise = NoiseSettings(bits=bits, photosite_share=None if photosite_share is None else tuple(photosite_share))
+    kw = dict(fit_option_values(args), model=model, noise=noise, view=view)
     for flag in ("free_split", "fit_rotation"):
         if hasattr(args, flag):
             kw[flag] = getattr(args, flag)

@@ -16,7 +16,8 @@ from ..errors import InputError
 from ..model.modes import MODEL_CHOICES, THICKNESS_KINDS, Model, ModelChoice, ThicknessKind, in_words
 from ._parameters import ParameterSetting
 
-__all__ = ["ThicknessModel", "ForwardModel", "ModelChoice", "FitStatus", "FitOptions", "FitResult", "ColourSettings"]
+__all__ = ["ThicknessModel", "ForwardModel", "ModelChoice", "FitStatus", "FitOptions", "FitResult", "ColourSettings",
+           "NoiseSettings"]
 
 #: How the film's thickness varies over the bubble: :data:`bubblefit.model.modes.ThicknessKind`
 #: under the name the fit's API has used (its values are ``thickness_nm``,
@@ -28,6 +29,37 @@ ForwardModel = Model
 #: ``max_steps``: it stopped at its step limit; ``failed``: it diverged, or the Jacobian
 #: is singular at the optimum.
 FitStatus = Literal["converged", "max_steps", "failed"]
+
+
+@dataclass(frozen=True)
+class NoiseSettings:
+    """The photo's noise model (:func:`~bubblefit.inverse._observation.noise_sigma`) and
+    the level at which its values are clipped.
+
+    Attributes
+    ----------
+    read : float
+        Read noise: the standard deviation of a linear pixel value at zero signal.
+    shot : float
+        Shot noise: the variance per unit of linear signal (Poisson).
+    bits : int or None
+        Bits per channel of an integer sRGB file (its quantisation step is noise too);
+        None for a float photo.
+    photosite_share : tuple or None
+        For a photo demosaiced from a colour filter mosaic (a RAW file read by
+        :func:`bubblefit.io.camera_files.read_raw`), the fraction of the photosites behind
+        each of R, G, B (1/4, 1/2, 1/4 for a Bayer sensor): a mean over ``n`` pixels then
+        holds the noise of ``share * n`` photosites, which the colour check uses
+        (:mod:`bubblefit.inverse.colour_check`). None: every pixel measured each channel.
+    saturation : float
+        Photo values at or above this (in files with a maximum of 1) are clipped.
+    """
+
+    read: float = 2e-3
+    shot: float = 2e-4
+    bits: int | None = 8
+    photosite_share: tuple | None = None
+    saturation: float = 0.995
 
 
 @dataclass(frozen=True)
@@ -79,16 +111,8 @@ class FitOptions:
         on the search image.
     robust_scale : float
         Pseudo-Huber scale in noise sigmas.
-    noise_read, noise_shot, bits
-        Noise model (``bits`` None for float photos).
-    photosite_share : tuple or None
-        For a photo demosaiced from a colour filter mosaic (a RAW file read by
-        :func:`bubblefit.io.camera_files.read_raw`), the fraction of the photosites behind
-        each of R, G, B (1/4, 1/2, 1/4 for a Bayer sensor): a mean over ``n`` pixels then
-        holds the noise of ``share * n`` photosites, which the colour check uses
-        (:mod:`bubblefit.inverse.colour_check`). None: every pixel measured each channel.
-    saturation : float
-        Photo values at or above this (in files with a maximum of 1) are clipped.
+    noise : NoiseSettings
+        The photo's noise model and clipping level.
     rim : float
         Fraction of the disc radius used (the rim mixes with the background).
     map_prior_nm : float
@@ -179,11 +203,7 @@ class FitOptions:
     candidates: int = 2
     search_steps: int = 20
     robust_scale: float = 3.0
-    noise_read: float = 2e-3
-    noise_shot: float = 2e-4
-    bits: int | None = 8
-    photosite_share: tuple | None = None
-    saturation: float = 0.995
+    noise: NoiseSettings = NoiseSettings()
     rim: float = 0.96
     map_prior_nm: float = 150.0
     hold: tuple = ()

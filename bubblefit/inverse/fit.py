@@ -57,7 +57,7 @@ from ._observation import noise_sigma
 from ..capture.circle import detect_disc
 from ._programs import (FINAL_SOLVE, SEARCH_SOLVE, WARM_SOLVE, SolveSettings, batched_solver, final_params,
                         fitted_pixels, held_values, render_bubble, render_level, reporter, warm_up)
-from ._options import FitOptions, FitResult
+from ._options import FitOptions, FitResult, NoiseSettings
 from ._parameters import THICKNESSES, extrapolated, parameter_roles, refined_disc
 from ._setup import Setup, defaults, setup
 from ._uncertainty import Uncertainty, uncertainty
@@ -68,7 +68,7 @@ from ..lighting.envmap import EnvMap
 from ..model.thickness import drainage_profile
 from ..progress import stage
 
-__all__ = ["FitOptions", "FitResult", "fit_photo", "fit_batch", "detect_disc", "noise_sigma"]
+__all__ = ["FitOptions", "FitResult", "NoiseSettings", "fit_photo", "fit_batch", "detect_disc", "noise_sigma"]
 
 #: A warm-started fit whose noise-weighted reduced chi^2 exceeds this is checked against a
 #: global thickness search (see :func:`fit_photo`).
@@ -240,7 +240,8 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
                            notes=st.warnings, swap_possible=st.pair is not None and st.pair.swap_possible)
     disc_stderr = judged.disc_stderr
     # can the stated camera response produce the photo's colours? (bubblefit.inverse.colour_check)
-    sigma = st.sigma if opts.photosite_share is None else st.sigma / np.sqrt(np.asarray(opts.photosite_share))
+    share = opts.noise.photosite_share
+    sigma = st.sigma if share is None else st.sigma / np.sqrt(np.asarray(share))
     explained = bool(unc.misfit.chi2_floor <= float(opts.ok_chi2))  # as the verdict judges it
     ok, warnings, colour_record = judge_colours(ok, warnings, st.photo, img, full.mask, full.cos, sigma,
                                                 float(opts.model_error), explained)
@@ -300,7 +301,7 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
         held fixed.
     saturated : np.ndarray, optional
         (H, W) bool of clipped pixels (e.g. :attr:`Image.saturated`), excluded in addition
-        to values >= ``options.saturation``.
+        to values >= ``options.noise.saturation``.
 
     Returns
     -------

@@ -17,7 +17,7 @@ from ..model.modes import MODEL_CHOICES, THICKNESS_KINDS, Model, ModelChoice, Th
 from ._parameters import ParameterSetting
 
 __all__ = ["ThicknessModel", "ForwardModel", "ModelChoice", "FitStatus", "FitOptions", "FitResult", "ColourSettings",
-           "NoiseSettings"]
+           "NoiseSettings", "MapSettings"]
 
 #: How the film's thickness varies over the bubble: :data:`bubblefit.model.modes.ThicknessKind`
 #: under the name the fit's API has used (its values are ``thickness_nm``,
@@ -60,6 +60,25 @@ class NoiseSettings:
     bits: int | None = 8
     photosite_share: tuple | None = None
     saturation: float = 0.995
+
+
+@dataclass(frozen=True)
+class MapSettings:
+    """The priors of a thickness map (:func:`~bubblefit.inverse._maps.fit_map`).
+
+    Attributes
+    ----------
+    prior_nm : float
+        Width of the prior tying a thickness map to the fitted profile.
+    smoothness_nm : float
+        The smoothness prior: the standard deviation (nm) of the difference between
+        neighbouring pixels' thicknesses at the photo's resolution. Smaller values smooth
+        more; a film's real features (a 40 nm bump a few pixels wide) change by a few nm
+        per pixel and survive the default.
+    """
+
+    prior_nm: float = 150.0
+    smoothness_nm: float = 8.0
 
 
 @dataclass(frozen=True)
@@ -115,8 +134,8 @@ class FitOptions:
         The photo's noise model and clipping level.
     rim : float
         Fraction of the disc radius used (the rim mixes with the background).
-    map_prior_nm : float
-        Width of the prior tying a thickness map to the fitted profile.
+    map : MapSettings
+        The priors of a thickness map (``thickness = "map"``).
     hold : tuple
         Names of parameters to hold at their starting values.
     parameters : tuple
@@ -155,11 +174,6 @@ class FitOptions:
         before anything else: memory stays bounded by this size, not the photo's. The
         fit's images (render, residual, maps) are then in that frame
         (:attr:`FitResult.frame`); the disc is always reported in the photo's pixels.
-    map_smoothness_nm : float
-        The thickness map's smoothness prior: the standard deviation (nm) of the
-        difference between neighbouring pixels' thicknesses at the photo's resolution.
-        Smaller values smooth more; a film's real features (a 40 nm bump a few pixels
-        wide) change by a few nm per pixel and survive the default.
     illuminant, camera_response, white_balance : str, str, str or tuple, or None
         The light's spectrum, the camera's channel responses and its white balance
         (:mod:`bubblefit.optics.spectral`); None: the scene's (``[lighting] illuminant``,
@@ -205,7 +219,7 @@ class FitOptions:
     robust_scale: float = 3.0
     noise: NoiseSettings = NoiseSettings()
     rim: float = 0.96
-    map_prior_nm: float = 150.0
+    map: MapSettings = MapSettings()
     hold: tuple = ()
     effects: tuple = ()
     calibration_disc: tuple | None = None
@@ -215,7 +229,6 @@ class FitOptions:
     disc_model_error: float = 0.002
     ok_chi2: float = 3.0
     analysis_size: int = 1024
-    map_smoothness_nm: float = 8.0
     illuminant: str | None = None
     camera_response: str | None = None
     white_balance: str | tuple | None = None

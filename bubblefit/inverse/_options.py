@@ -17,7 +17,8 @@ from ..model.modes import MODEL_CHOICES, THICKNESS_KINDS, Model, ModelChoice, Th
 from ._parameters import ParameterSetting
 
 __all__ = ["ThicknessModel", "ForwardModel", "ModelChoice", "FitStatus", "FitOptions", "FitResult", "ColourSettings",
-           "NoiseSettings", "MapSettings"]
+           "NoiseSettings", "MapSettings",
+           "JudgeSettings"]
 
 #: How the film's thickness varies over the bubble: :data:`bubblefit.model.modes.ThicknessKind`
 #: under the name the fit's API has used (its values are ``thickness_nm``,
@@ -82,6 +83,33 @@ class MapSettings:
 
 
 @dataclass(frozen=True)
+class JudgeSettings:
+    """How a fit is judged (:func:`~bubblefit.inverse._verdict.verdict`) and what its
+    standard errors carry beyond the photo's noise (:mod:`bubblefit.inverse._uncertainty`).
+
+    Attributes
+    ----------
+    model_error : float
+        The model-error floor: a fraction of each pixel's value added in quadrature to its
+        noise when judging whether the photo is explained (``ok``). Renderers disagree by
+        about this much on the same film (experiments/validation/cross_check.py on development cases cyc_const500, cyc_drain_lin_sunrise, cyc_bump_city, mts_thick_courtyard, mts_thick_sunrise; spectral sampling, observer tables, the rim's
+        filtering), so a fit is not failed for differences of that size.
+    thickness_model_error_nm : float
+        Added in quadrature to the standard error of every fitted thickness (and of each
+        pixel of a map): the scatter of bubblefit's thicknesses against independent
+        renderers on the validation set's constant films (development cases ref_const300, ref_const620, ref_const1200, ref_const450, cyc_const500: experiments/validation/split.toml), RMS 0.6 nm, which no estimate from the photo's
+        residual shows (:mod:`bubblefit.inverse._uncertainty`). 0 gives the photo's own.
+    ok_chi2 : float
+        A fit is ``ok`` only when the reduced chi^2 with the model-error floor is at most
+        this.
+    """
+
+    model_error: float = 0.03
+    thickness_model_error_nm: float = 0.6
+    ok_chi2: float = 3.0
+
+
+@dataclass(frozen=True)
 class FitOptions:
     """Static settings of a fit.
 
@@ -92,7 +120,7 @@ class FitOptions:
     model : ModelChoice
         ``paper`` | ``physical`` forward model, or ``auto`` (the default, as on the command
         line): the paper model first and, when it does not explain the photo (reduced
-        chi^2 with the model-error floor above ``ok_chi2``), the physical model
+        chi^2 with the model-error floor above ``judge.ok_chi2``), the physical model
         warm-started from it; the fit that explains the photo better is returned.
     fit_rotation : bool
         Also fit the environment's rotation about +y.
@@ -150,24 +178,13 @@ class FitOptions:
         photo agrees with it; otherwise the detected disc is used and a warning says why.
     calibration_size : tuple or None
         ``(width, height)`` of the calibration frame, when the calibration JSON records it.
-    model_error : float
-        The model-error floor: a fraction of each pixel's value added in quadrature to its
-        noise when judging whether the photo is explained (``ok``). Renderers disagree by
-        about this much on the same film (experiments/validation/cross_check.py on development cases cyc_const500, cyc_drain_lin_sunrise, cyc_bump_city, mts_thick_courtyard, mts_thick_sunrise; spectral sampling, observer tables, the rim's
-        filtering), so a fit is not failed for differences of that size.
-    thickness_model_error_nm : float
-        Added in quadrature to the standard error of every fitted thickness (and of each
-        pixel of a map): the scatter of bubblefit's thicknesses against independent
-        renderers on the validation set's constant films (development cases ref_const300, ref_const620, ref_const1200, ref_const450, cyc_const500: experiments/validation/split.toml), RMS 0.6 nm, which no estimate from the photo's
-        residual shows (:mod:`bubblefit.inverse._uncertainty`). 0 gives the photo's own.
+    judge : JudgeSettings
+        How the fit is judged: its model-error floors and the chi^2 that counts as explained.
     disc_model_error : float
         Added in quadrature to the standard errors of a refined disc, in radii: on the
         orthographic validation photos (radius 48-57 px; development cases ref_const300, ref_drain_lin_courtyard, ref_drain_lin_city, ref_bump_sunrise, cyc_const500, cyc_bump_city, mts_thick_sunrise in experiments/validation/split.toml) the refined disc was 0.02-0.18 px
         from the truth (RMS 0.08 px per centre coordinate, 0.11 px in radius, about 0.2 %
         of the radius) while the noise said 0.01-0.02 px.
-    ok_chi2 : float
-        A fit is ``ok`` only when the reduced chi^2 with the model-error floor is at most
-        this.
     analysis_size : int
         A photo whose larger side exceeds this is cropped to the bubble (1.15 radii around
         its disc) and block-averaged so that the crop's larger side is at most this,
@@ -224,10 +241,8 @@ class FitOptions:
     effects: tuple = ()
     calibration_disc: tuple | None = None
     calibration_size: tuple | None = None
-    model_error: float = 0.03
-    thickness_model_error_nm: float = 0.6
+    judge: JudgeSettings = JudgeSettings()
     disc_model_error: float = 0.002
-    ok_chi2: float = 3.0
     analysis_size: int = 1024
     illuminant: str | None = None
     camera_response: str | None = None
@@ -354,7 +369,7 @@ class FitResult:
     warnings : list
         Each reason ``ok`` is False (and other cautions), in words.
     chi2_floor : float
-        Reduced chi^2 with the model-error floor (``FitOptions.model_error``).
+        Reduced chi^2 with the model-error floor (``JudgeSettings.model_error``).
     chi2_inliers : float
         The same over the pixels that are not outliers (JSON ``reduced_chi2_inliers``).
     outliers : float

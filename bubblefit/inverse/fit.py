@@ -57,7 +57,7 @@ from ._observation import noise_sigma
 from ..capture.circle import detect_disc
 from ._programs import (FINAL_SOLVE, SEARCH_SOLVE, WARM_SOLVE, SolveSettings, batched_solver, final_params,
                         fitted_pixels, held_values, render_bubble, render_level, reporter, warm_up)
-from ._options import FitOptions, FitResult, MapSettings, NoiseSettings
+from ._options import FitOptions, FitResult, JudgeSettings, MapSettings, NoiseSettings
 from ._parameters import THICKNESSES, extrapolated, parameter_roles, refined_disc
 from ._setup import Setup, defaults, setup
 from ._uncertainty import Uncertainty, uncertainty
@@ -68,7 +68,8 @@ from ..lighting.envmap import EnvMap
 from ..model.thickness import drainage_profile
 from ..progress import stage
 
-__all__ = ["FitOptions", "FitResult", "NoiseSettings", "MapSettings", "fit_photo", "fit_batch", "detect_disc", "noise_sigma"]
+__all__ = ["FitOptions", "FitResult", "NoiseSettings", "MapSettings", "JudgeSettings", "fit_photo", "fit_batch",
+           "detect_disc", "noise_sigma"]
 
 #: A warm-started fit whose noise-weighted reduced chi^2 exceeds this is checked against a
 #: global thickness search (see :func:`fit_photo`).
@@ -171,8 +172,8 @@ def _judge(st: Setup, opts: FitOptions, sol: LocalSolution, notes: list) -> Judg
     the solver's status and the parameters at a bound or out of the searched range; the
     cautions are appended to ``notes``."""
     table = st.table
-    unc = uncertainty(sol, table, st.lev_fit, float(opts.robust_scale), float(opts.model_error),
-                      float(opts.thickness_model_error_nm))
+    unc = uncertainty(sol, table, st.lev_fit, float(opts.robust_scale), float(opts.judge.model_error),
+                      float(opts.judge.thickness_model_error_nm))
     reported, stderr = unc.reported, unc.stderr
     disc, disc_stderr = refined_disc(st.disc, reported, stderr, float(opts.disc_model_error))
     status, converged = _status_notes(sol, unc.finite, unc.misfit.chi2_nu, notes, table.free)
@@ -209,7 +210,7 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
             t_start: float) -> FitResult:
     """The thickness map (``--thickness map``), the full-resolution render, the verdict and
     the :class:`FitResult` of a judged solve."""
-    table, unc = st.table, judged.uncertainty
+    table, unc, judge = st.table, judged.uncertainty, opts.judge
     reported, stderr = dict(judged.reported), dict(judged.stderr)
     status, converged = judged.status, judged.converged
     new = sol.values
@@ -221,7 +222,7 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
                                      make_level=lambda k: st.level(k, opts, st.map_cfg))
         final_vals["map"] = dmap
         thickness_map = np.where(full.inside, dmap, np.nan)
-        stderr_map = np.where(full.mask, np.hypot(emap, float(opts.thickness_model_error_nm)), np.nan)
+        stderr_map = np.where(full.mask, np.hypot(emap, float(judge.thickness_model_error_nm)), np.nan)
         reported["thickness_nm"] = float(np.median(dmap[full.mask])) if full.mask.any() else float("nan")
         stderr["thickness_nm"] = float(np.nanmedian(stderr_map[full.mask])) if full.mask.any() else float("nan")
         if not map_ok:
@@ -236,15 +237,15 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     reported["n_film"] = float(st.vals["n_film"])
     bounds = judged.bounds + _exposure_doubts(st, opts, env, full, reported)
     ok, warnings = verdict(converged=bool(converged), disc_found=True, bound_warnings=bounds,
-                           misfit=unc.misfit, ok_chi2=float(opts.ok_chi2), model_error=float(opts.model_error),
+                           misfit=unc.misfit, ok_chi2=float(judge.ok_chi2), model_error=float(judge.model_error),
                            notes=st.warnings, swap_possible=st.pair is not None and st.pair.swap_possible)
     disc_stderr = judged.disc_stderr
     # can the stated camera response produce the photo's colours? (bubblefit.inverse.colour_check)
     share = opts.noise.photosite_share
     sigma = st.sigma if share is None else st.sigma / np.sqrt(np.asarray(share))
-    explained = bool(unc.misfit.chi2_floor <= float(opts.ok_chi2))  # as the verdict judges it
+    explained = bool(unc.misfit.chi2_floor <= float(judge.ok_chi2))  # as the verdict judges it
     ok, warnings, colour_record = judge_colours(ok, warnings, st.photo, img, full.mask, full.cos, sigma,
-                                                float(opts.model_error), explained)
+                                                float(judge.model_error), explained)
     return FitResult(
         params=reported, stderr=stderr, held=list(table.held), converged=bool(converged),
         message="; ".join(notes) if notes else "converged", iterations=sol.steps, residual_rms=rms,
@@ -253,8 +254,8 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
         thickness_model=opts.thickness, model=opts.model, reduced_chi2=unc.misfit.chi2_nu,
         pixels_used=int(st.lev_fit.mask.sum()), status=status, names=unc.names, covariance=unc.covariance,
         ok=ok, warnings=warnings, chi2_floor=unc.misfit.chi2_floor, chi2_inliers=unc.misfit.chi2_inliers,
-        outliers=unc.misfit.outliers, chi2_capped=unc.misfit.chi2_capped, model_error=float(opts.model_error),
-        thickness_model_error_nm=float(opts.thickness_model_error_nm),
+        outliers=unc.misfit.outliers, chi2_capped=unc.misfit.chi2_capped, model_error=float(judge.model_error),
+        thickness_model_error_nm=float(judge.thickness_model_error_nm),
         disc_model_error=float(opts.disc_model_error) if disc_stderr is not None else float("nan"),
         stderr_scale=unc.scale, roles=parameter_roles(table, st.fx.model, tuple(reported)),
         frame=None if st.frame.whole else (st.frame.x0, st.frame.y0, st.frame.k), colour=st.colour,
@@ -409,10 +410,10 @@ def _judged_text(r: FitResult) -> str:
     return "failed" if r.status == "failed" else f"{_judged_chi2(r):.3g}"
 
 
-def _explained(r: FitResult, opts: FitOptions) -> bool:
+def _explained(r: FitResult, judge: JudgeSettings) -> bool:
     """Whether a fit explains its photo: converged, with the reduced chi^2 with the
-    model-error floor within ``opts.ok_chi2``."""
-    return bool(r.converged) and r.chi2_floor <= float(opts.ok_chi2)
+    model-error floor within ``judge.ok_chi2``."""
+    return bool(r.converged) and r.chi2_floor <= float(judge.ok_chi2)
 
 
 def _fit_either_model(photo, env, options: FitOptions, background, init, scene, saturated) -> FitResult:
@@ -431,7 +432,7 @@ def _fit_either_model(photo, env, options: FitOptions, background, init, scene, 
     t0 = time.perf_counter()
     with stage("paper model"):
         first = _fit_one(photo, env, replace(options, model="paper"), background, init, scene, saturated)
-    if _explained(first, options):
+    if _explained(first, options.judge):
         first.message += "; model auto: the paper model explains the photo"
         return first
     start = {k: v for k, v in first.params.items() if np.isfinite(v)} if first.converged else init

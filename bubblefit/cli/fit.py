@@ -159,7 +159,7 @@ def fit_option_values(args) -> dict:
     """The :class:`~bubblefit.inverse.fit.FitOptions` values that ``fit`` and ``fit-sequence`` read
     the same way: starting t and disc (``--calibration``, ``--t``, ``--disc``), thickness
     kind and range, held parameters and the step limit. One-line errors for bad values."""
-    from ..inverse import parse_setting
+    from ..inverse import SolverSettings, parse_setting
     from .common import parse_floats
 
     t_init, disc, cal_disc, cal_size = None, None, None, None
@@ -186,7 +186,7 @@ def fit_option_values(args) -> dict:
     if args.max_steps is not None:
         if args.max_steps < 1:
             raise InputError("--max-steps must be at least 1")
-        kw["max_steps"] = args.max_steps
+        kw["solver"] = SolverSettings(max_steps=args.max_steps)
     kw.update(model_option_values(args))
     return kw
 

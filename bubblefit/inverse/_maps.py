@@ -259,12 +259,13 @@ def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts: FitOption
         if prev is None:
             # the drainage profile has settled the interference order: the coarsest level
             # searches within less than half an order of it, with the profile's prior
-            best, err, c = _level_map(L, costs_of, prior, s, opts.search_step_nm, WINDOW_NM, prior=prior,
+            best, err, c = _level_map(L, costs_of, prior, s, opts.solver.search_step_nm, WINDOW_NM, prior=prior,
                                       prior_nm=float(opts.map.prior_nm))
         else:
             centre = _upsample(prev, prev_map, L).reshape(-1)[sel]
             # the finest level refines within a few coarse steps; the order is settled by then
-            step, half = (FINE_STEP_NM, 6 * opts.search_step_nm) if k == 1 else (opts.search_step_nm, WINDOW_NM)
+            grid = opts.solver.search_step_nm
+            step, half = (FINE_STEP_NM, 6 * grid) if k == 1 else (grid, WINDOW_NM)
             if k == 1 and not exact and FINE_SOLVE == "newton":
                 # each pixel's thickness moves its own pixel only: Gauss-Newton with a diagonal
                 # Jacobian and the smoothness prior's sparse Laplacian, not a grid of renders

@@ -18,7 +18,7 @@ from ._parameters import ParameterSetting
 
 __all__ = ["ThicknessModel", "ForwardModel", "ModelChoice", "FitStatus", "FitOptions", "FitResult", "ColourSettings",
            "NoiseSettings", "MapSettings",
-           "JudgeSettings"]
+           "JudgeSettings", "SolverSettings"]
 
 #: How the film's thickness varies over the bubble: :data:`bubblefit.model.modes.ThicknessKind`
 #: under the name the fit's API has used (its values are ``thickness_nm``,
@@ -110,6 +110,38 @@ class JudgeSettings:
 
 
 @dataclass(frozen=True)
+class SolverSettings:
+    """The global thickness search (:mod:`bubblefit.inverse.search`) and the local
+    Levenberg-Marquardt solves (:func:`~bubblefit.inverse._local.solve_local`) of a fit.
+
+    Attributes
+    ----------
+    max_steps : int
+        Levenberg-Marquardt's step limit of the final solve.
+    rtol, atol : float
+        Its tolerances (optimistix' Cauchy test: every unconstrained coordinate and every
+        whitened residual changes by less than ``atol + rtol |value|`` in a step). Looser
+        tolerances (1e-4) stop drainage fits early, far from the optimum
+        (tests/test_fit.py::test_drainage_and_map).
+    search_step_nm : float
+        Thickness grid step of the global search.
+    candidates, search_steps : int
+        Local minima of the search refined, each with at most ``search_steps`` LM steps
+        on the search image.
+    robust_scale : float
+        Pseudo-Huber scale in noise sigmas.
+    """
+
+    max_steps: int = 80
+    rtol: float = 1e-5
+    atol: float = 1e-6
+    candidates: int = 2
+    search_steps: int = 20
+    search_step_nm: float = 4.0
+    robust_scale: float = 3.0
+
+
+@dataclass(frozen=True)
 class FitOptions:
     """Static settings of a fit.
 
@@ -141,23 +173,13 @@ class FitOptions:
         (``t_init`` also overrides a scene file's ``t``).
     thickness_range : tuple
         (min, max) nm searched (and used to decide the effects).
-    max_steps, rtol, atol
-        Levenberg-Marquardt limits and tolerances (optimistix' Cauchy test: every
-        unconstrained coordinate and every whitened residual changes by less than
-        ``atol + rtol |value|`` in a step). Looser tolerances (1e-4) stop drainage fits
-        early, far from the optimum (tests/test_fit.py::test_drainage_and_map).
     downsample : int or None
         Factor of the image the local fit runs on (None: so that its larger side is at
         most ``fit_size``).
     fit_size, search_size : int
         Larger side of the fit and search images (pixels).
-    search_step_nm : float
-        Thickness grid step of the global search.
-    candidates, search_steps : int
-        Local minima of the search refined, each with at most ``search_steps`` LM steps
-        on the search image.
-    robust_scale : float
-        Pseudo-Huber scale in noise sigmas.
+    solver : SolverSettings
+        The global search's grid and refinement, and the local solver's limits.
     noise : NoiseSettings
         The photo's noise model and clipping level.
     rim : float
@@ -224,16 +246,10 @@ class FitOptions:
     t_init: float | None = None
     roughness_init: float | None = None
     thickness_range: tuple = (50.0, 2000.0)
-    max_steps: int = 80
-    rtol: float = 1e-5
-    atol: float = 1e-6
     downsample: int | None = None
     fit_size: int = 96
     search_size: int = 48
-    search_step_nm: float = 4.0
-    candidates: int = 2
-    search_steps: int = 20
-    robust_scale: float = 3.0
+    solver: SolverSettings = SolverSettings()
     noise: NoiseSettings = NoiseSettings()
     rim: float = 0.96
     map: MapSettings = MapSettings()

@@ -21,7 +21,7 @@ about +y, from a linear (H, W, 3) photo and its environment map. It runs the sta
 4. Local Levenberg-Marquardt (:mod:`._local`, :mod:`._lm`) on the whitened, robust residual
    ``(render - photo) / sigma`` inside the disc (``rho < rim``), not saturated, with
    ``sigma^2 = read^2 + shot * I + q^2``, through a pseudo-Huber loss of scale
-   ``robust_scale`` sigmas.
+   ``SolverSettings.robust_scale`` sigmas.
 5. Uncertainty (:mod:`._uncertainty`): covariance by the delta method.
 6. Thickness map (:mod:`._maps`), after a drainage fit.
 
@@ -57,7 +57,7 @@ from ._observation import noise_sigma
 from ..capture.circle import detect_disc
 from ._programs import (FINAL_SOLVE, SEARCH_SOLVE, WARM_SOLVE, SolveSettings, batched_solver, final_params,
                         fitted_pixels, held_values, render_bubble, render_level, reporter, warm_up)
-from ._options import FitOptions, FitResult, JudgeSettings, MapSettings, NoiseSettings
+from ._options import FitOptions, FitResult, JudgeSettings, MapSettings, NoiseSettings, SolverSettings
 from ._parameters import THICKNESSES, extrapolated, parameter_roles, refined_disc
 from ._setup import Setup, defaults, setup
 from ._uncertainty import Uncertainty, uncertainty
@@ -68,8 +68,8 @@ from ..lighting.envmap import EnvMap
 from ..model.thickness import drainage_profile
 from ..progress import stage
 
-__all__ = ["FitOptions", "FitResult", "NoiseSettings", "MapSettings", "JudgeSettings", "fit_photo", "fit_batch",
-           "detect_disc", "noise_sigma"]
+__all__ = ["FitOptions", "FitResult", "NoiseSettings", "MapSettings", "JudgeSettings", "SolverSettings",
+           "fit_photo", "fit_batch", "detect_disc", "noise_sigma"]
 
 #: A warm-started fit whose noise-weighted reduced chi^2 exceeds this is checked against a
 #: global thickness search (see :func:`fit_photo`).
@@ -103,10 +103,11 @@ def _searched_start(st: Setup, opts: FitOptions, env) -> dict:
     in the final solve only); the lowest cost wins."""
     lev_s = st.level(st.k_search, opts)
     starts = search.search_starts(lev_s, st.search_table, st.vals, env, opts.thickness_range,
-                                  opts.search_step_nm, opts.candidates)
+                                  opts.solver.search_step_nm, opts.solver.candidates)
     best_v, best_c = None, np.inf
     for s in starts:
-        sol = solve_local(lev_s, st.search_table, opts, s, env, max_steps=opts.search_steps, settings=SEARCH_SOLVE)
+        sol = solve_local(lev_s, st.search_table, opts.solver, s, env, max_steps=opts.solver.search_steps,
+                          settings=SEARCH_SOLVE)
         if np.isfinite(sol.cost) and sol.cost < best_c:
             best_v, best_c = sol.values, sol.cost
     return best_v if best_v is not None else starts[0]
@@ -172,7 +173,7 @@ def _judge(st: Setup, opts: FitOptions, sol: LocalSolution, notes: list) -> Judg
     the solver's status and the parameters at a bound or out of the searched range; the
     cautions are appended to ``notes``."""
     table = st.table
-    unc = uncertainty(sol, table, st.lev_fit, float(opts.robust_scale), float(opts.judge.model_error),
+    unc = uncertainty(sol, table, st.lev_fit, float(opts.solver.robust_scale), float(opts.judge.model_error),
                       float(opts.judge.thickness_model_error_nm))
     reported, stderr = unc.reported, unc.stderr
     disc, disc_stderr = refined_disc(st.disc, reported, stderr, float(opts.disc_model_error))
@@ -180,7 +181,7 @@ def _judge(st: Setup, opts: FitOptions, sol: LocalSolution, notes: list) -> Judg
     solved = reported
     reported, outside = clamp_to_range(solved, table, opts.thickness_range, THICKNESSES)
     clamped = {k for k in THICKNESSES if reported.get(k) != solved.get(k)}  # said once, by clamp_to_range
-    bounds = outside + [w for w in at_bounds(sol.values, table, opts.thickness_range, 0.5 * opts.search_step_nm)
+    bounds = outside + [w for w in at_bounds(sol.values, table, opts.thickness_range, 0.5 * opts.solver.search_step_nm)
                         if w.split(" = ")[0] not in clamped]
     notes += unresolved(reported, stderr, table)
     return Judgement(unc, reported, stderr, disc, disc_stderr, status, converged, bounds)
@@ -365,7 +366,7 @@ def _fit_one(photo, env, options: FitOptions, background, init, scene, saturated
     else:
         start = st.vals
     with stage(f"local fit, {len(st.table.free)} parameters"):
-        sol = solve_local(st.lev_fit, st.table, opts, start, env, settings=settings)
+        sol = solve_local(st.lev_fit, st.table, opts.solver, start, env, settings=settings)
     notes = []
     if warm and searches:
         sol = _checked_warm_start(st, opts, env, sol, settings, notes)
@@ -385,7 +386,7 @@ def _checked_warm_start(st: Setup, opts: FitOptions, env, sol: LocalSolution, se
     if not why:
         return sol
     with stage(f"warm start doubtful ({why}): global search and local fit"):
-        second = solve_local(st.lev_fit, st.table, opts, _searched_start(st, opts, env), env,
+        second = solve_local(st.lev_fit, st.table, opts.solver, _searched_start(st, opts, env), env,
                              settings=replace(settings, stall=True))
     if np.isfinite(second.cost) and (not np.isfinite(sol.cost) or second.cost < sol.cost):
         notes.append(f"warm start rejected ({why}); searched globally")
@@ -491,8 +492,9 @@ def fit_batch(photos, env: EnvMap, *, options: FitOptions = FitOptions(), backgr
     union = np.logical_or.reduce([s.lev_fit.mask for s in setups])  # a frame's other pixels: weight 0
     pxs = [fitted_pixels(s.lev_fit, s.lev_fit.cfg.chunk, union) for s in setups]
     pad = pxs[0].padded
-    solve = batched_solver(pad.cfg, table, float(options.robust_scale), int(options.max_steps),
-                           float(options.rtol), float(options.atol), None)
+    lm = options.solver
+    solve = batched_solver(pad.cfg, table, float(lm.robust_scale), int(lm.max_steps), float(lm.rtol), float(lm.atol),
+                           None)
     out = solve(jnp.asarray(np.stack(z0), jnp.float32),
                 (fixed, env, pad.bg, pad.bg_sigma, jnp.stack([x.y for x in pxs]), jnp.stack([x.w for x in pxs]), pad.base,
                  (pxs[0].rows, pxs[0].cols, pxs[0].idx)))

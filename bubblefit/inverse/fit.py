@@ -211,7 +211,8 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
             t_start: float) -> FitResult:
     """The thickness map (``--thickness map``), the full-resolution render, the verdict and
     the :class:`FitResult` of a judged solve."""
-    table, unc, judge = st.table, judged.uncertainty, opts.judge
+    table, unc = st.table, judged.uncertainty
+    judge = opts.judge
     reported, stderr = dict(judged.reported), dict(judged.stderr)
     status, converged = judged.status, judged.converged
     new = sol.values

@@ -17,7 +17,7 @@ import pytest
 
 from bubblefit.cli import main
 from bubblefit.inverse import (DIVIDED_NOISE_RATIO, SpectrumOptions, fit_spectrum, in_time_order, looks_normalised,
-                               noise_says_divided, same_grid, series_departures, series_twins)
+                               noise_says_divided, same_grid, series_departures)
 from bubblefit.io.spectra import Spectrum
 
 from test_spectrum import _write, airy, lamp, soap_index, synth
@@ -120,25 +120,6 @@ def test_same_grid_and_time_order(tmp_path):
     assert in_time_order([str(tmp_path / n) for n in names])[0]  # by modification time
     os.utime(tmp_path / "t_2.csv", (2000.0, 2000.0))
     assert not in_time_order([str(tmp_path / n) for n in names])[0]
-
-
-def test_a_jump_to_the_twin_is_flagged():
-    """Neighbours thinning through 150-130 nm, one reading at its twin 260 nm with its second
-    minimum at 140 nm: flagged, naming the neighbours' value; a reading whose second minimum
-    is elsewhere is left alone."""
-    def r(d, second, ok=True, dchi2=3.0):
-        return SimpleNamespace(thickness_nm=d, second_minimum_nm=second, delta_chi2=dchi2, ok=ok)
-
-    series = [r(150, np.nan), r(145, np.nan), r(260, 141), r(135, np.nan), r(130, np.nan), r(420, 600)]
-    flagged = series_twins(series, [200.0] * len(series))
-    assert [i for i, _, _ in flagged] == [2]
-    assert "140 nm" in flagged[0][2]
-    # a twin the reading itself excludes (delta chi2 1e4) is no jump; nor is a fast-thinning
-    # series' first reading, which lies on the line through its neighbours
-    series[2] = r(260, 141, dchi2=1e4)
-    assert series_twins(series, [200.0] * len(series)) == []
-    fast = [r(1500, 1255), r(1329, np.nan), r(1177, np.nan), r(1043, np.nan)]
-    assert series_twins(fast, [200.0] * 4) == []
 
 
 def test_a_washed_out_thick_film_read_thin_by_its_brightness_is_flagged():

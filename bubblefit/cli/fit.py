@@ -278,6 +278,12 @@ def run(args) -> int:
             from .fit_planar import run_planar
 
             return run_planar(args)
+        from ..model.cap_scene import is_cap_file
+
+        if is_cap_file(args.scene):
+            from .fit_cap import run_cap
+
+            return run_cap(args)
     if not args.envmap:
         raise InputError("fit: --envmap is required for a bubble (a flat film's scene says [film] shape = \"plane\")")
     reading = photo_reading(args)

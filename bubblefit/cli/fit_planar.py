@@ -17,31 +17,22 @@ from ..errors import ComputationError, InputError
 _BUBBLE_ONLY = ("envmap", "background", "calibration", "t", "disc", "fit_rotation")
 
 
-def run_planar(args) -> int:
-    from ..inverse.planar import fit_planar
-    from ..io.atomic import output_set, preview_path
-    from ..io.images import read_image, write_image
-    from ..model.planar_scene import load_planar, parse_region
-    from ..progress import stage
-    from .common import guard_args, write_fit_images, write_json
+def film_outputs(args) -> list[str]:
+    """The files ``-o PREFIX`` writes for a film's fit (the maps, the render, the residual, their previews)."""
+    from ..io.atomic import preview_path
 
-    for name in _BUBBLE_ONLY:
-        if getattr(args, name, None):
-            raise InputError(f"--{name.replace('_', '-')} applies to bubbles, not to a flat film's scene")
-    scene = load_planar(args.scene)
-    kind = args.thickness if args.thickness != "constant" or scene.thickness == "constant" else scene.thickness
-    region = nm = None
-    if args.reference_region:
-        region, nm = parse_region(args.reference_region, scene.width, scene.height)
     names = ["render", "residual", "thickness", "thickness_stderr"]
     outs = [f"{args.output}_{n}.exr" for n in names] if args.output else []
-    outs += [str(preview_path(p)) for p in outs]
-    guard_args(args, outputs=outs)
-    with stage("reading the photo"):
-        photo = read_image(args.photo, dtype=np.float64)
-    with stage(f"fitting a flat film ({scene.stack.describe()}, {scene.light} light, {kind})"):
-        result = fit_planar(photo.pixels[..., :3], scene, reference_region=region, reference_nm=nm, kind=kind,
-                            clip_high=np.inf if photo.linear_file else 1.0)
+    return outs + [str(preview_path(p)) for p in outs]
+
+
+def report_film_fit(args, result) -> int:
+    """Print a film's fit, write its maps and JSON together (or none), exit as ``--strict`` says."""
+    from ..io.atomic import output_set, preview_path
+    from ..io.images import write_image
+    from ..progress import stage
+    from .common import write_fit_images, write_json
+
     print(result.report())
     out = result.to_json()
     out["photo"] = str(args.photo)
@@ -54,3 +45,27 @@ def run_planar(args) -> int:
     if args.strict and not result.ok:
         raise ComputationError("the fit is not ok: " + "; ".join(result.warnings))
     return 0
+
+
+def run_planar(args) -> int:
+    from ..inverse.planar import fit_planar
+    from ..io.images import read_image
+    from ..model.planar_scene import load_planar, parse_region
+    from ..progress import stage
+    from .common import guard_args
+
+    for name in _BUBBLE_ONLY:
+        if getattr(args, name, None):
+            raise InputError(f"--{name.replace('_', '-')} applies to bubbles, not to a flat film's scene")
+    scene = load_planar(args.scene)
+    kind = args.thickness if args.thickness != "constant" or scene.thickness == "constant" else scene.thickness
+    region = nm = None
+    if args.reference_region:
+        region, nm = parse_region(args.reference_region, scene.width, scene.height)
+    guard_args(args, outputs=film_outputs(args))
+    with stage("reading the photo"):
+        photo = read_image(args.photo, dtype=np.float64)
+    with stage(f"fitting a flat film ({scene.stack.describe()}, {scene.light} light, {kind})"):
+        result = fit_planar(photo.pixels[..., :3], scene, reference_region=region, reference_nm=nm, kind=kind,
+                            clip_high=np.inf if photo.linear_file else 1.0)
+    return report_film_fit(args, result)

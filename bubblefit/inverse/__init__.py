@@ -71,7 +71,7 @@ _EXPORTS = {
     "result_record": "_records", "flag_jumps": "_tables", "write_tables": "_tables", "row_ok": "_tables",
     # spectra: what the readings are, their noise, the extrema test
     "in_time_order": "_spectrum_defaults", "looks_normalised": "_spectrum_defaults",
-    "same_grid": "_spectrum_defaults", "series_twins": "_spectrum_defaults",
+    "same_grid": "_spectrum_defaults", "series_sides": "_spectrum_drain", "drain_path": "_spectrum_drain",
     "noise_says_divided": "_spectrum_defaults", "series_departures": "_spectrum_defaults",
     "DIVIDED_NOISE_RATIO": "_spectrum_defaults", "local_noise": "_spectrum_profile",
     "positive_lamp_lstsq": "_spectrum_profile", "fringe_extrema": "_spectrum_extrema",

@@ -42,6 +42,7 @@ import numpy as np
 from numpy.polynomial import legendre
 from scipy import stats
 
+from ._spectrum_drain import profile_candidates
 from ._spectrum_profile import (ProfileProblem, profile_variance, refine_d, refine_near, residual_correlation,
                                 second_difference_noise, second_minimum)
 
@@ -212,6 +213,7 @@ def read_with_lamp(prob: FixedLampProblem, grid: np.ndarray, alternatives) -> di
     if len(alternatives):
         rows = prob.rss_lamps(grid, 0.0, np.array([p.lamp for p in alternatives]))
         alt = [refine_d(p, grid, row, 0.0, keep=1)[0][0] for p, row in zip(alternatives, rows)]
+    candidates = profile_candidates(minima, step, s2)
     sys_nm = 0.0
     if len(alt) > 1:
         # This reading's lamp is one more draw from the lamps the K pinning readings sample:
@@ -220,4 +222,5 @@ def read_with_lamp(prob: FixedLampProblem, grid: np.ndarray, alternatives) -> di
         k = len(alt)
         sys_nm = float(np.std(alt, ddof=1) * np.sqrt(1.0 + 1.0 / k) * stats.t.ppf(_ONE_SIGMA, k - 1))
     return dict(d=d, rss=rss_best, dof=dof, rho=rho, s2=s2, stat=stat, sys=sys_nm, second=second,
-                dchi2=dchi2, profile=(rss - rss_best) / s2, noise=second_difference_noise(prob.y))
+                dchi2=dchi2, profile=(rss - rss_best) / s2, noise=second_difference_noise(prob.y),
+                candidates=candidates)

@@ -1,6 +1,6 @@
 """What a set of readings is, read from the readings themselves: divided by the lamp or not,
 one series or separate readings, in time order or not, and which reading of a draining
-series jumps to the twin of its neighbours' film.
+series read from its brightness is thinner than the film later was.
 
 Each choice is made only when no option forces it, and is said in the result.
 """
@@ -15,7 +15,7 @@ import numpy as np
 from ._spectrum_extrema import fringe_extrema
 from ._spectrum_profile import local_noise
 
-__all__ = ["looks_normalised", "series_normalised", "TWIN_DCHI2", "same_grid", "in_time_order", "series_twins", "ENVELOPE_WINDOWS",
+__all__ = ["looks_normalised", "series_normalised", "same_grid", "in_time_order", "ENVELOPE_WINDOWS",
            "FLAT_TOLERANCE", "SLOW_SLOPE", "DIVIDED_NOISE_RATIO", "TILTED_FLAT_TOLERANCE", "NOISE_WINDOWS", "noise_says_divided",
            "series_departures"]
 
@@ -191,43 +191,6 @@ def in_time_order(paths: list[str]) -> tuple[bool, str]:
     if all(b > a for a, b in zip(times, times[1:])):
         return True, "modification times in order"
     return False, "neither names nor times in order"
-
-
-#: A reading's second minimum counts as the twin its neighbours point to only when it is
-#: within this ``chi^2`` of its best: a twin the reading excludes by more is not a jump
-#: (``exp(-50)`` less likely under the model; model error is in ``s^2`` already).
-TWIN_DCHI2 = 100.0
-
-
-def series_twins(results, order_spacing: list[float], window: int = 2) -> list[tuple[int, float, str]]:
-    """Readings of a series in time order that jump away from their neighbours to a twin.
-
-    A draining film thins smoothly, so a reading's thickness is close to the line through
-    its ok neighbours (``window`` each side, by their place in the series). Near the first
-    maximum of ``R`` (a quarter wave, ~100 nm) and between orders, a film has a twin whose
-    spectrum differs from its own by little; a reading more than a quarter of an order from
-    that line, whose second minimum lies within a quarter order of it and within
-    :data:`TWIN_DCHI2` of its best, is flagged.
-    Returns (index, the neighbours' thickness, the reason)."""
-    d = np.array([r.thickness_nm for r in results])
-    ok = np.array([bool(r.ok) for r in results])
-    out = []
-    for i, r in enumerate(results):
-        idx = [j for j in range(max(0, i - window), min(len(d), i + window + 1)) if j != i and ok[j]]
-        if len(idx) < 2:
-            continue
-        slope, icpt = np.polyfit(np.array(idx, float), d[idx], 1)
-        pred = float(slope * i + icpt)
-        quarter = 0.25 * order_spacing[i]
-        if abs(d[i] - pred) <= quarter:
-            continue
-        second = r.second_minimum_nm
-        if np.isfinite(second) and abs(second - pred) <= quarter and r.delta_chi2 < TWIN_DCHI2:
-            why = (f"the series in time order says {pred:.0f} nm (its neighbours), where this reading's second "
-                   f"minimum lies ({second:.1f} nm, delta chi2 {r.delta_chi2:.1f}): it jumped to the twin on the "
-                   "other side of a maximum of R")
-            out.append((i, pred, why))
-    return out
 
 
 def series_departures(results, order_spacing: list[float], alone: set[int]) -> list[tuple[int, float, str]]:

@@ -64,6 +64,7 @@ from ..errors import InputError
 from ..io.spectra import Spectrum
 from ..optics import dispersion, film
 from ._spectrum_defaults import looks_normalised
+from ._spectrum_drain import profile_candidates
 from ._spectrum_extrema import RANDOM_PHASE, extrema_phase, fringe_extrema
 from ._spectrum_profile import (ProfileProblem, local_noise, profile_variance, refine_d, refine_dw, refine_near,
                                 residual_correlation, rss_grids, second_difference_noise, second_minimum)
@@ -190,12 +191,20 @@ class SpectrumFit:
     #: than 3 clear extrema) and the number of extrema it used.
     extrema_phase: float = float("nan")
     extrema: int = 0
+    #: The profile's distinct local minima within
+    #: :data:`~bubblefit.inverse._spectrum_drain.CANDIDATE_DCHI2` of the best, as
+    #: (thickness nm, ``chi^2`` above the best), best first: the sides of a maximum of ``R``
+    #: a series in time order may choose between (:mod:`._spectrum_drain`).
+    candidates: list = field(default_factory=list)
+    #: Whether it was read with the lamp of its series (:mod:`._shared_lamp`), whose error
+    #: (``stderr_lamp_nm``) is then common to the readings that lamp reads.
+    shared_lamp: bool = False
 
     def summary(self) -> dict:
         """The scalar results as a JSON-ready dict (no arrays)."""
         keys = ("thickness_nm", "thickness_nm_stderr", "stderr_statistical_nm", "stderr_lamp_nm", "ok", "order", "fringes", "resolution_nm", "reduced_chi2",
                 "residual_rms", "n_film", "second_minimum_nm", "delta_chi2", "reasons", "warnings", "normalised",
-                "normalised_why", "extrema_phase", "extrema")
+                "normalised_why", "extrema_phase", "extrema", "candidates", "shared_lamp")
         return {k: getattr(self, k) for k in keys}
 
 
@@ -476,6 +485,7 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
                                     d_best, w, 3.0 * step, grid) - d_best) for k in extra)
     stderr = float(np.hypot(stat, lamp_sys))
     second, dchi2 = second_minimum(minima, d_best, step, s2)
+    candidates = profile_candidates([(d_best, rss_best), *minima], step, s2)
     noise = second_difference_noise(y)
     red = float(rss_best / dof / noise**2) if noise > 0 else float("nan")
     reasons = _verdict(d_best, stderr, second, dchi2, grid, lam, n, reference is not None, options)
@@ -512,7 +522,7 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
         n_film=float(np.interp(0.5 * (lam.min() + lam.max()), lam, n)), second_minimum_nm=second,
         delta_chi2=dchi2, reasons=reasons, warnings=warnings, wavelength_nm=lam, measured=y, fitted=fitted,
         profile_nm=grid, profile_chi2=profile, normalised=bool(options.normalised), normalised_why=why,
-        extrema_phase=phase, extrema=int(len(ext)))
+        extrema_phase=phase, extrema=int(len(ext)), candidates=candidates)
 
 
 def resolve_normalised(spectrum: Spectrum, dark: Spectrum | None, reference: Spectrum | None,

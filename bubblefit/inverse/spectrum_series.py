@@ -18,7 +18,8 @@ import numpy as np
 
 from ..io.spectra import Spectrum
 from . import spectrum as sp
-from ._spectrum_defaults import series_departures, series_normalised, series_twins
+from ._spectrum_defaults import series_departures, series_normalised
+from ._spectrum_drain import AMBIGUOUS_REASON, series_sides
 from ._shared_lamp import (MIN_PINNING_READINGS, SHARED_MISFIT_RATIO, FixedLampProblem, SharedLamp, read_with_lamp,
                            shared_lamp)
 
@@ -31,11 +32,11 @@ def fit_spectrum_series(spectra: list[Spectrum], *, dark=None, reference=None, o
 
     With ``options.normalised`` None the series is read as divided by its lamp or not by
     the majority of its readings (:func:`._spectrum_defaults.series_normalised`). With
-    ``time_ordered`` (the readings in time order, a draining film) a reading that jumps to
-    the twin of its neighbours' thickness is not ok, with the reason
-    (:func:`._spectrum_defaults.series_twins`), and so is a reading read with the shared
-    lamp that is thinner than a later reading read by its own fringes
-    (:func:`._spectrum_defaults.series_departures`: a draining film does not thicken).
+    ``time_ordered`` (the readings in time order, a draining film) a reading read with the
+    shared lamp that is thinner than a later reading read by its own fringes is not ok
+    (:func:`._spectrum_defaults.series_departures`: a draining film does not thicken), and
+    every other reading is put on the side of a maximum of ``R`` that the series' thinning
+    says, or is not ok with the reason (:func:`._spectrum_drain.series_sides`).
 
     Each reading is first read alone (:func:`bubblefit.inverse.spectrum.fit_spectrum`).
     With at least :data:`MIN_PINNING_READINGS` of them ``ok`` the shared lamp is fitted to
@@ -59,11 +60,28 @@ def fit_spectrum_series(spectra: list[Spectrum], *, dark=None, reference=None, o
         spacing = [sp._order_spacing(r.wavelength_nm, sp.dispersion.refractive_index(options.n_film, r.wavelength_nm))
                    for r in out]
         alone = set(lamp.pinning) if lamp is not None else set(range(len(out)))
-        flags = series_twins(out, spacing) + series_departures(out, spacing, alone)
-        for i, _, reason in flags:
+        for i, _, reason in series_departures(out, spacing, alone):
             out[i].ok = False
             out[i].reasons.append(reason)
+        _take_sides(out, options)
     return out, lamp
+
+
+def _take_sides(out: list, options) -> None:
+    """Each reading of a draining series on the side of a maximum of ``R`` its thinning says
+    (:func:`._spectrum_drain.series_sides`), in place: its thickness, its error bar (the
+    twin's weight in it), its order, and its reasons (the series' own replace "interference
+    order ambiguous", which the path settles or restates)."""
+    for v in series_sides(out, options.ambiguity_dchi2):
+        r = out[v.index]
+        r.thickness_nm, r.thickness_nm_stderr = v.thickness_nm, v.stderr_nm
+        if v.moved:
+            r.order, r.fringes = sp.interference_order(v.thickness_nm, r.wavelength_nm,
+                                                       sp.dispersion.refractive_index(options.n_film, r.wavelength_nm))
+        r.reasons = [x for x in r.reasons if not x.startswith(AMBIGUOUS_REASON)] + v.reasons
+        if v.warning:
+            r.warnings.append(v.warning)
+        r.ok = not r.reasons
 
 
 def _fit_series(spectra, dark, reference, options, progress):
@@ -134,4 +152,4 @@ def read_with_shared_lamp(p, lamp: np.ndarray, alternatives: np.ndarray, options
         n_film=float(np.interp(0.5 * (lam.min() + lam.max()), lam, n)), second_minimum_nm=r["second"],
         delta_chi2=r["dchi2"], reasons=reasons, warnings=warnings, wavelength_nm=lam, measured=p.y, fitted=fitted,
         profile_nm=p.grid, profile_chi2=r["profile"], normalised=bool(options.normalised),
-        normalised_why=alone.normalised_why)
+        normalised_why=alone.normalised_why, candidates=r["candidates"], shared_lamp=True)

@@ -88,7 +88,8 @@ def _read_toml(path) -> dict:
 def is_planar_file(path) -> bool:
     """Whether the scene file at ``path`` describes a flat film (False for a missing or bad file:
     the bubble's loader then says what is wrong). A ``[film]`` of another shape than
-    ``"plane"`` or ``"sphere"`` is refused in one line."""
+    ``"plane"``, ``"cap"`` or ``"sphere"`` is refused in one line, as is a cap whose
+    plane misses its sphere (:class:`~bubblefit.model.cap.Cap`)."""
     try:
         data = _read_toml(path)
     except InputError:
@@ -96,12 +97,11 @@ def is_planar_file(path) -> bool:
     f = data.get("film")
     shape = f.get("shape", "sphere") if isinstance(f, dict) else "sphere"
     if shape == "cap":
-        cap = parse_cap(f)  # a bad cap gets its own line first
-        raise InputError(f'{path}: film.shape = "cap" (a bubble of height {cap.height:g} on a dish) is read, but '
-                         "fitting a cap is not available yet; only its geometry is modelled (bubblefit.model.cap)")
+        parse_cap(f)  # a bad cap gets its own line here; a good one is fitted by the cap's path
+        return False
     if shape not in ("plane", "sphere"):
         raise InputError(f'{path}: film.shape = {shape!r} is not supported (use "plane" for a flat film or a gap, '
-                         '"sphere" or a [bubble] table for a bubble)')
+                         '"cap" for a bubble on a dish, "sphere" or a [bubble] table for a bubble)')
     return shape == "plane"
 
 

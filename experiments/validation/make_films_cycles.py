@@ -2,7 +2,8 @@
 
     .venv-render/bin/python make_films_cycles.py [probe] [cap] [CASE ...]   # default: every case
 
-``cap`` renders the masks of a bubble on a dish for check_cap.py (data/conventions/).
+``cap`` renders the masks of a bubble on a dish for check_cap.py (data/conventions/);
+the ``cyc_cap_*`` cases render soap bubbles standing on water (:func:`make_dish`).
 
 The film is a square mesh (the frame's opening, 0.18 m) in the plane z = 0 of the
 bubblefit frame (normal +z, up +y), with a Principled BSDF whose Thin Film Thickness
@@ -257,6 +258,165 @@ def make_cap():
         print("cycles cap", name, flush=True)
 
 
+#: Bubbles on a dish: a soap film on the sphere of radius 1 at the origin (make_cycles.py's
+#: UV sphere and thin-film material, n = 1.4, transmissive), standing in a water surface
+#: y = plane_y, in an environment map. The film's thickness is a constant or the drainage
+#: profile along the cap's height, d = top + (bottom - top) u^exponent with u = (1 - y) / H
+#: (0 at the top, 1 at the foot, H = 1 - plane_y the cap's height).
+DISH_CASES = {
+    "cyc_cap_const_courtyard": dict(plane_y=-0.3, top_nm=460.0, bottom_nm=460.0, exponent=1.0, envmap="courtyard",
+                                    origin=(0.4, 1.6, 5.0), target=(0.0, -0.1, 0.0), fov_deg=34.0, seed=61,
+                                    fits=["constant"]),
+    # held out (split.toml, test part): a hemisphere, thicker, another map and camera
+    "cyc_cap_const_city_hemi": dict(plane_y=0.0, top_nm=680.0, bottom_nm=680.0, exponent=1.0, envmap="city",
+                                    origin=(-0.9, 1.9, 4.6), target=(0.0, 0.2, 0.0), fov_deg=32.0, seed=62,
+                                    fits=["constant"]),
+    "cyc_cap_drain_sunrise": dict(plane_y=-0.2, top_nm=220.0, bottom_nm=900.0, exponent=1.3, envmap="sunrise",
+                                  origin=(0.3, 1.4, 5.0), target=(0.0, 0.0, 0.0), fov_deg=34.0, seed=63,
+                                  fits=["drainage"]),
+    # held out (split.toml, test part)
+    "cyc_cap_drain_forest_hemi": dict(plane_y=0.0, top_nm=150.0, bottom_nm=1000.0, exponent=1.6, envmap="forest",
+                                      origin=(0.7, 1.7, 4.8), target=(0.0, 0.25, 0.0), fov_deg=32.0, seed=64,
+                                      fits=["drainage"]),
+}
+DISH_SIZE = 112
+N_LIQUID = 1.333   # water at 589 nm; Cycles' Principled IOR is one number
+
+
+def dish_film_material(c):
+    """make_cycles.py's bubble material, its thickness a constant or the cap's drainage profile."""
+    m = mc.bubble_material(rr.Thickness("constant", c["top_nm"]))
+    if c["top_nm"] == c["bottom_nm"]:
+        return m
+    nt = m.node_tree
+    p = nt.nodes["Principled BSDF"]
+    tc = nt.nodes.new("ShaderNodeTexCoord")
+    sep = nt.nodes.new("ShaderNodeSeparateXYZ")
+    nt.links.new(tc.outputs["Object"], sep.inputs[0])
+    u = mc.math_node(nt, "SUBTRACT", 1.0, sep.outputs["Z"])           # 1 - y (bubblefit y = object Z)
+    u = mc.math_node(nt, "MULTIPLY", u, 1.0 / (1.0 - c["plane_y"]))   # 0 at the top, 1 at the foot
+    u = mc.math_node(nt, "MAXIMUM", u, 0.0)
+    u = mc.math_node(nt, "POWER", u, c["exponent"])
+    u = mc.math_node(nt, "MULTIPLY", u, c["bottom_nm"] - c["top_nm"])
+    d = mc.math_node(nt, "ADD", u, c["top_nm"])
+    nt.links.new(d, p.inputs["Thin Film Thickness"])
+    return m
+
+
+def water_material():
+    """A deep, still water surface: Principled BSDF, IOR 1.333, black base (nothing comes
+    back from under the surface), roughness 0, opaque: its specular layer is the
+    dielectric Fresnel reflectance of air to water."""
+    m = bpy.data.materials.new("water")
+    m.use_nodes = True
+    p = m.node_tree.nodes["Principled BSDF"]
+    p.inputs["Base Color"].default_value = (0, 0, 0, 1)
+    p.inputs["IOR"].default_value = N_LIQUID
+    p.inputs["Roughness"].default_value = 0.0
+    p.inputs["Metallic"].default_value = 0.0
+    p.inputs["Transmission Weight"].default_value = 0.0
+    return m
+
+
+def liquid_plane(sc, plane_y, material, half=60.0):
+    import bmesh
+
+    mesh = bpy.data.meshes.new("liquid")
+    bm = bmesh.new()
+    corners = [(-half, plane_y, half), (half, plane_y, half), (half, plane_y, -half), (-half, plane_y, -half)]
+    bm.faces.new([bm.verts.new(mc.to_blender(v)) for v in corners])
+    bm.to_mesh(mesh)
+    bm.free()
+    obj = bpy.data.objects.new("liquid", mesh)
+    sc.collection.objects.link(obj)
+    mesh.materials.append(material)
+    return obj
+
+
+def dish_camera(c) -> rr.Camera:
+    return rr.Camera("persp", DISH_SIZE, DISH_SIZE, origin=c["origin"], target=c["target"], up=(0.0, 1.0, 0.0),
+                     fov_deg=c["fov_deg"])
+
+
+def dish_truth(c) -> np.ndarray:
+    """Thickness of the film each pixel centre's ray meets first (NaN where it meets none)."""
+    cam = dish_camera(c)
+    jj, ii = np.meshgrid(np.arange(DISH_SIZE) + 0.5, np.arange(DISH_SIZE) + 0.5)
+    o, d = cam.rays(jj.reshape(-1), ii.reshape(-1), np.zeros(3), 1.0)
+    hit, s = rr._intersect(o, d, np.zeros(3), 1.0)
+    p = o + np.where(hit, s, 0.0)[:, None] * d
+    on = hit & (p[:, 1] >= c["plane_y"])
+    u = np.clip((1.0 - p[:, 1]) / (1.0 - c["plane_y"]), 0.0, 1.0)
+    th = c["top_nm"] + (c["bottom_nm"] - c["top_nm"]) * u ** c["exponent"]
+    return np.where(on, th, np.nan).reshape(DISH_SIZE, DISH_SIZE)
+
+
+def dish_scene_toml(c, kind) -> str:
+    return (
+        "# A soap bubble standing on water (a spherical cap) in an environment map (Blender Cycles)\n"
+        f"[film]\nshape = \"cap\"\ncenter = [0.0, 0.0, 0.0]\nradius = 1.0\nplane_y = {c['plane_y']}\n"
+        f"liquid = {N_LIQUID}\nn = {mc.N_FILM}\nthickness = \"{kind}\"\nrange_nm = [0.0, 1500.0]\n"
+        "film_rgb = \"clamped\"   # Cycles clamps each film's RGB reflectance to [0, 1]\n\n"
+        f"[environment]\npath = \"../envmaps/{c['envmap']}.exr\"\n\n"
+        "[lighting]\nilluminant = \"E\"   # Cycles integrates its thin film under illuminant E\n\n"
+        f"[camera]\ntype = \"perspective\"\nwidth = {DISH_SIZE}\nheight = {DISH_SIZE}\n"
+        f"origin = {list(c['origin'])}\ntarget = {list(c['target'])}\nup = [0.0, 1.0, 0.0]\n"
+        f"fov_deg = {c['fov_deg']}\n")
+
+
+def make_dish(name, c):
+    """A bubble on a dish: the film (make_cycles.py's sphere, whole: its part under the
+    water is hidden, the water plane being opaque) standing in a water plane, in a map."""
+    out = os.path.join(vio.DATA, name)
+    os.makedirs(out, exist_ok=True)
+    cam = dish_camera(c)
+    t0 = time.time()
+    sc = mc.reset(cam.width, cam.height, mc.SPP)
+    mc.world(sc, os.path.join(vio.ENVMAPS, c["envmap"] + ".exr"))
+    mc.camera(sc, cam)
+    liquid_plane(sc, c["plane_y"], water_material())
+    mc.sphere(sc, dish_film_material(c))
+    img = mc.render_to_array(sc, os.path.join("/tmp", name + ".exr"))
+    secs = time.time() - t0
+    expo = 0.9 / float(np.percentile(img, 99.5))
+    rng = np.random.default_rng(c["seed"])
+    vio.write_png8(os.path.join(out, "photo.png"), None,
+                   vio.add_noise_and_quantise(img * expo, rng, FULL_WELL, READ_NOISE))
+    vio.write_exr(os.path.join(out, "thickness_true.exr"), dish_truth(c).astype(np.float32))
+    kind = c["fits"][0]
+    with open(os.path.join(out, "scene.toml"), "w") as fh:
+        fh.write(dish_scene_toml(c, kind))
+    truth = {
+        "case": name, "kind": "film",
+        "renderer": f"Blender {bpy.app.version_string} Cycles (CPU), {mc.SPP} spp, box filter 1 px, denoiser off",
+        "renderer_version": f"bpy {bpy.app.version_string}", "render_seconds": round(secs, 1),
+        "camera": cam.describe(),
+        "cap": {"center": [0.0, 0.0, 0.0], "radius": 1.0, "plane_y": c["plane_y"], "height": 1.0 - c["plane_y"],
+                "n_film": mc.N_FILM, "liquid_ior": N_LIQUID,
+                "material": "Principled BSDF: IOR 1.0, Transmission Weight 1, Roughness 0, Thin Film IOR 1.4",
+                "mesh": "UV sphere 256 x 128, smooth shading (its part under the water hidden by the water plane)",
+                "liquid": "120 x 120 plane, Principled BSDF: IOR 1.333, Base Color black, Roughness 0, opaque"},
+        "envmap": f"envmaps/{c['envmap']}.exr",
+        "top_nm": c["top_nm"], "bottom_nm": c["bottom_nm"], "exponent": c["exponent"],
+        "profile": "d = top + (bottom - top) u^exponent, u = (1 - y) / H: 0 at the cap's top, 1 at its foot",
+        "illuminant": "E",
+        "approximations": [
+            "Cycles averages s and p polarisation at each surface hit",
+            "Cycles integrates the film's spectrum under illuminant E",
+            "film index 1.4 and water index 1.333 at every wavelength",
+            "UV-sphere mesh (256 x 128) with interpolated normals, not an exact sphere",
+            "every light path (to 64 bounces), Monte Carlo noise (denoiser off)"],
+        "exposure": expo,
+        "noise": {"model": "Cycles Monte Carlo noise, then Poisson-Gaussian and 8-bit sRGB",
+                  "full_well_e_at_1.0": FULL_WELL, "read_noise_e": READ_NOISE, "seed": c["seed"]},
+        "fits": c["fits"], "fit_args": ["--scene", "scene.toml"],
+    }
+    if c["top_nm"] == c["bottom_nm"]:
+        truth["thickness_nm"] = c["top_nm"]
+    vio.save_json(os.path.join(out, "truth.json"), truth)
+    print(f"{name}: {secs:.1f} s, exposure {expo:.4g}", flush=True)
+
+
 def make(name, c):
     out = os.path.join(vio.DATA, name)
     os.makedirs(out, exist_ok=True)
@@ -301,7 +461,7 @@ def make(name, c):
 
 
 if __name__ == "__main__":
-    jobs = sys.argv[1:] or [*CASES, "cap"]
+    jobs = sys.argv[1:] or [*CASES, "cap", *DISH_CASES]
     if "probe" in jobs:
         probe()
     if "cap" in jobs:
@@ -309,3 +469,5 @@ if __name__ == "__main__":
     for name in jobs:
         if name in CASES:
             make(name, CASES[name])
+        if name in DISH_CASES:
+            make_dish(name, DISH_CASES[name])

@@ -435,7 +435,8 @@ def run_probe(stem: str, out_dir: str) -> dict:
 
 
 def run_film(case: str, out_dir: str, fit: str | None = None) -> dict:
-    """Fit a flat film or gap (reference_films.py, make_films_cycles.py) through the CLI and score it.
+    """Fit a flat film, a gap (reference_films.py, make_films_cycles.py) or a bubble on a dish
+    (make_films_cycles.py cyc_cap_*) through the CLI and score it.
 
     ``fit``: the thickness model (``--thickness``; the case's first by default). Pass: a
     constant within TOL["constant"]; drainage ends within TOL["se"] standard errors; a

@@ -1,0 +1,52 @@
+"""``bubblefit fit PHOTO --scene CAP.toml``: the film of a bubble standing on a dish.
+
+Reached from ``fit`` when the scene's ``[film]`` says ``shape = "cap"``; the method is
+:func:`bubblefit.inverse.cap_fit.fit_cap`. The environment map is the scene's
+``[environment] path`` (``--envmap`` replaces it). Writes, with ``-o PREFIX``,
+``PREFIX_thickness.exr`` and ``PREFIX_thickness_stderr.exr`` (nm, NaN off the cap's
+directly seen pixels; PNG previews), ``PREFIX_render.exr`` and ``PREFIX_residual.exr``;
+``--json`` the result, with the light paths the cap's render skips.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ..errors import InputError
+
+#: Options of ``fit`` that belong to a floating bubble only: refused for a cap, not ignored.
+_SPHERE_ONLY = ("background", "calibration", "t", "disc", "fit_rotation", "reference_region")
+
+
+def run_cap(args) -> int:
+    from ..inverse.cap_fit import fit_cap
+    from ..io.images import read_image
+    from ..model.cap_scene import KINDS, load_cap_scene
+    from ..model.scene import read_envmap
+    from ..progress import stage
+    from .common import guard_args
+    from .fit_planar import film_outputs, report_film_fit
+
+    for name in _SPHERE_ONLY:
+        if getattr(args, name, None):
+            raise InputError(f"--{name.replace('_', '-')} does not apply to a bubble on a dish")
+    scene = load_cap_scene(args.scene)
+    if args.envmap:
+        from pathlib import Path
+
+        scene = dataclasses.replace(scene, envmap=Path(args.envmap))
+    kind = args.thickness if args.thickness != "constant" or scene.thickness == "constant" else scene.thickness
+    if kind not in KINDS:
+        raise InputError(f"--thickness {kind} is not available for a cap (use {' or '.join(KINDS)})")
+    guard_args(args, inputs=[str(scene.envmap)], outputs=film_outputs(args))
+    with stage("reading the photo and the environment map"):
+        photo = read_image(args.photo, dtype=np.float64)
+        env = read_envmap(scene.envmap, scale=scene.env_scale)
+    with stage(f"fitting a bubble on a dish (cap {scene.cap.height:g} high on a sphere of radius "
+               f"{scene.cap.radius:g}, {kind})"):
+        result = fit_cap(photo.pixels[..., :3], scene, env, kind=kind,
+                         clip_high=np.inf if photo.linear_file else 1.0,
+                         bits=None if photo.linear_file else photo.bit_depth)
+    return report_film_fit(args, result)

@@ -1,0 +1,111 @@
+"""Scene files of a bubble on a dish: ``[film] shape = "cap"`` with its map and camera.
+
+``[film]``
+    ``shape = "cap"``; ``center``, ``radius`` (the sphere), ``plane_y`` (the liquid's
+    surface, +y up), ``liquid`` (its index: a number, ``"water"``, ...; water by default),
+    ``n`` (the film's index at 589.3 nm, 1.4 by default), ``thickness`` = ``"constant"``
+    or ``"drainage"`` (along the cap's height: :func:`~bubblefit.model.cap_render.cap_drainage`),
+    ``range_nm = [lo, hi]``; ``film_rgb`` = ``"spectral"`` (the default: the film's
+    light per wavelength, integrated to RGB once) or ``"clamped"`` (each film's
+    reflectance clamped to [0, 1] per RGB channel first, as Blender Cycles' thin film
+    shades: for its renders, :class:`~bubblefit.model.cap_render.CapConfig`).
+``[environment]``
+    ``path`` (an equirectangular map, relative to the scene file), ``rotation_deg``, ``scale``.
+``[camera]``
+    ``type = "perspective"`` with ``width``, ``height``, ``origin``, ``target``, ``up``,
+    ``fov_deg``; ``response`` (the camera's sensitivities, ``"srgb"`` by default).
+``[lighting]``
+    ``illuminant``: the white the camera's colours are balanced to (``D65`` by default;
+    ``E`` for Blender Cycles' thin film).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import InputError
+from .cap import Cap
+from .geometry import PerspectiveCamera
+from .planar_scene import _num, _read_toml, _vec, parse_cap
+
+__all__ = ["CapScene", "load_cap_scene", "parse_cap_scene", "is_cap_file", "KINDS"]
+
+KINDS = ("constant", "drainage")
+
+
+@dataclass(frozen=True)
+class CapScene:
+    """A bubble on a dish, its map and its camera (typed record of the scene's tables)."""
+
+    cap: Cap
+    camera: PerspectiveCamera
+    envmap: Path
+    n_film: float = 1.4
+    thickness: str = "constant"
+    thickness_range: tuple = (0.0, 1500.0)
+    rotation_deg: float = 0.0
+    env_scale: float = 1.0
+    illuminant: str = "D65"
+    response: str = "srgb"
+    film_rgb: str = "spectral"
+
+
+def is_cap_file(path) -> bool:
+    """Whether the scene file at ``path`` says ``[film] shape = "cap"`` (False for a missing or bad file)."""
+    try:
+        data = _read_toml(path)
+    except InputError:
+        return False
+    f = data.get("film")
+    return isinstance(f, dict) and f.get("shape") == "cap"
+
+
+def load_cap_scene(path) -> CapScene:
+    """Read and check a dish bubble's scene file (one line for a bad value)."""
+    return parse_cap_scene(_read_toml(path), Path(path).parent)
+
+
+def _misses(cap: Cap, camera: PerspectiveCamera) -> bool:
+    """Whether the camera sits below the liquid or inside the sphere: it cannot see the cap."""
+    o = camera.origin
+    inside = math.dist(o, cap.center) <= cap.radius
+    return o[1] <= cap.plane_y or inside
+
+
+def parse_cap_scene(data: dict, base_dir=".") -> CapScene:
+    """The :class:`CapScene` of a parsed scene file."""
+    base = Path(base_dir)
+    f, env, cam, light = (data.get(k, {}) for k in ("film", "environment", "camera", "lighting"))
+    cap = parse_cap(f)
+    kind = f.get("thickness", "constant")
+    if kind not in KINDS:
+        raise InputError(f"film.thickness of a cap must be one of {', '.join(KINDS)}, got {kind!r}")
+    lo, hi = _vec(f, "range_nm", "film", 2, (0.0, 1500.0))
+    if not 0 <= lo < hi <= 5000:
+        raise InputError(f"film.range_nm must satisfy 0 <= lo < hi <= 5000 nm, got {[lo, hi]}")
+    n_film = _num(f, "n", "film", 1.4, 1.0, 3.0)
+    film_rgb = f.get("film_rgb", "spectral")
+    if film_rgb not in ("spectral", "clamped"):
+        raise InputError(f'film.film_rgb must be "spectral" or "clamped", got {film_rgb!r}')
+    if not isinstance(env, dict) or not isinstance(env.get("path"), str):
+        raise InputError("a cap needs [environment] path = the environment map it stands in")
+    envmap = Path(env["path"])
+    envmap = envmap if envmap.is_absolute() else base / envmap
+    if not envmap.is_file():
+        raise InputError(f"environment map not found: {envmap}")
+    if cam.get("type") != "perspective":
+        raise InputError('a cap needs a [camera] type = "perspective" (origin, target, up, fov_deg)')
+    camera = PerspectiveCamera(width=int(_num(cam, "width", "camera", 256, 8, 16384)),
+                               height=int(_num(cam, "height", "camera", 256, 8, 16384)),
+                               origin=_vec(cam, "origin", "camera", 3), target=_vec(cam, "target", "camera", 3),
+                               up=_vec(cam, "up", "camera", 3, (0.0, 1.0, 0.0)),
+                               fov_deg=_num(cam, "fov_deg", "camera", 35.0, 1.0, 170.0))
+    if _misses(cap, camera):
+        raise InputError("the camera lies below the liquid or inside the bubble: it cannot see the cap")
+    return CapScene(cap=cap, camera=camera, envmap=envmap, n_film=n_film, thickness=kind, thickness_range=(lo, hi),
+                    rotation_deg=_num(env, "rotation_deg", "environment", 0.0, -360.0, 360.0),
+                    env_scale=_num(env, "scale", "environment", 1.0, 0.0),
+                    illuminant=str(light.get("illuminant", "D65")), response=str(cam.get("response", "srgb")),
+                    film_rgb=film_rgb)

@@ -84,12 +84,14 @@ FILM_PHOTO_SIZE = 48
 FILM_PHOTO_DISC = (FILM_PHOTO_SIZE / 2, FILM_PHOTO_SIZE / 2, 0.42 * FILM_PHOTO_SIZE)
 
 
-def film_photo(env, thickness: float, seed: int, response: str = "srgb", illuminant: str = "D65",
-               quantised: bool = True):
-    """``(photo, background)``: a constant film of ``thickness`` nm over a smooth backdrop
+def film_photo(env, thickness, seed: int, response: str = "srgb", illuminant: str = "D65",
+               quantised: bool | int = True):
+    """``(photo, background)``: a constant film of ``thickness`` nm (or a draining film,
+    ``thickness = (top_nm, bottom_nm, exponent)``) over a smooth backdrop
     (:func:`smooth_backdrop`), rendered by bubblefit's ``render_scene`` (paper model, 48
     uniform spectral samples) through the camera ``response`` under ``illuminant``, then
-    read and shot noise and, when ``quantised``, 8-bit sRGB codes (:func:`quantise_8bit`).
+    read and shot noise and, when ``quantised``, 8-bit sRGB codes (:func:`quantise_8bit`),
+    or with ``quantised=16`` 16-bit linear codes.
     The one builder of the camera tests (tests/test_cameras.py) and experiments
     (wrong_camera.py, calibrated_camera.py, colour_check_null.py)."""
     from bubblefit.model.scene import Scene, render_scene
@@ -99,16 +101,22 @@ def film_photo(env, thickness: float, seed: int, response: str = "srgb", illumin
     scene = Scene.from_dict({
         "camera": {"width": FILM_PHOTO_SIZE, "height": FILM_PHOTO_SIZE, "disc": list(FILM_PHOTO_DISC),
                    "response": response},
-        "bubble": {"t": 0.972, "roughness": 0.08, "f": 0.3, "thickness_nm": thickness},
+        "bubble": {"t": 0.972, "roughness": 0.08, "f": 0.3, **(
+            {"thickness_nm": thickness} if np.isscalar(thickness) else
+            {"thickness": dict(zip(("profile", "top_nm", "bottom_nm", "exponent"), ("drainage", *thickness)))})},
         "lighting": {"envmap": "unused.exr", "illuminant": illuminant},
         "effects": {"model": "paper", "transmission_tint": True, "spectral": {"method": "uniform", "samples": 48}},
     })
     img = np.asarray(render_scene(scene, bg, env=env), np.float64)
-    if quantised:
-        return quantise_8bit(img, rng), quantise_8bit(bg, rng)
 
     def noisy(x):
         return x + rng.normal(size=x.shape) * np.sqrt(0.003**2 + 1e-4 * np.clip(x, 0.0, None))
+
+    if quantised is True or quantised == 8:
+        return quantise_8bit(img, rng), quantise_8bit(bg, rng)
+    if quantised == 16:
+        return (np.round(np.clip(noisy(img), 0.0, 1.0) * 65535) / 65535,
+                np.round(np.clip(noisy(bg), 0.0, 1.0) * 65535) / 65535)
 
     return noisy(img), noisy(bg)
 

@@ -384,6 +384,40 @@ def test_calibrate_camera_cli_and_bad_input(tmp_path):
     assert not (tmp_path / "c2.csv").exists()
 
 
+def _chart_image(values, patch=50, gap=12, margin=40, rng=None):
+    """A synthetic ColorChecker photo (linear): 24 square patches of ``values`` in 4 rows of
+    6, on a black frame inside a grey surround, with 0.2 % read noise."""
+    h, w = 4 * patch + 5 * gap + 2 * margin, 6 * patch + 7 * gap + 2 * margin
+    img = np.full((h, w, 3), 0.6 * values.max())
+    img[margin:h - margin, margin:w - margin] = 0.02 * values.max()
+    for i, v in enumerate(values):
+        r, c = divmod(i, 6)
+        y0, x0 = margin + gap + r * (patch + gap), margin + gap + c * (patch + gap)
+        img[y0:y0 + patch, x0:x0 + patch] = v
+    rng = rng or np.random.default_rng(0)
+    return img + 0.002 * values.max() * rng.normal(size=img.shape)
+
+
+@pytest.mark.slow
+def test_chart_found_in_a_photo():
+    """The 24 patches of a synthetic chart photographed by the Nikon under E (reflectances
+    times sensitivities, numpy), found by colour-checker-detection, upright and upside
+    down: each patch's value within 1 % of the chart's brightest (the noise averages over
+    hundreds of pixels; the detector samples the patch's centre); a photo without a chart
+    is refused in one line."""
+    pytest.importorskip("colour_checker_detection")
+    from bubblefit.capture.camera_calibration import chart_reflectances, detect_chart
+
+    _, refl = chart_reflectances()
+    truth = refl @ _sensitivities(NIKON)
+    img = _chart_image(truth)
+    for photo in (img, img[::-1, ::-1]):
+        found = detect_chart(photo)
+        assert np.max(np.abs(found - truth)) < 0.01 * truth.max(), np.abs(found - truth).max() / truth.max()
+    with pytest.raises(InputError, match="found 0 ColorChecker"):
+        detect_chart(np.full((200, 300, 3), 0.3) + 0.01 * np.random.default_rng(1).normal(size=(200, 300, 3)))
+
+
 def test_calibrated_response_names_its_lamp(tmp_path):
     """A response CSV from calibrate-camera says which lamp it was fitted under: the fit
     takes it when no illuminant is stated; one fitted under E already holds the lamp, so

@@ -39,7 +39,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["KNOT_STEP_NM", "CHART", "CameraCalibration", "chart_reflectances", "film_reflectances",
+__all__ = ["KNOT_STEP_NM", "CHART", "CameraCalibration", "chart_reflectances", "detect_chart", "film_reflectances",
            "fit_response", "patch_means"]
 
 #: Spacing of the response's knots (nm). A film's fringes at 1.5 um (optical path 4.2 um)
@@ -102,6 +102,43 @@ def patch_means(pixels: np.ndarray, patches: np.ndarray, saturated: np.ndarray |
             raise InputError(f"patch {i + 1} at ({x:g}, {y:g}) has clipped pixels: expose the chart darker")
         out.append(pixels[y0:y1, x0:x1].reshape(-1, 3).mean(axis=0))
     return np.asarray(out)
+
+
+def detect_chart(pixels: np.ndarray) -> np.ndarray:
+    """The 24 patches' mean linear RGB (24, 3), in the chart's reading order, of the one
+    ColorChecker found in a linear photo by colour-science's ``colour-checker-detection``
+    (its segmentation detector: the chart's quadrilateral found from the patches' contours,
+    warped to a canonical chart and each patch sampled at its centre; the order is the
+    chart's whatever its rotation).
+
+    References
+    ----------
+    Mansencal et al., colour-checker-detection (https://github.com/colour-science/colour-checker-detection),
+    ``detect_colour_checkers_segmentation``.
+
+    Raises
+    ------
+    InputError
+        The package is not installed, or no chart or several are found. Clipped patches are
+        not detected here: give their centres (:func:`patch_means` refuses clipped ones).
+    """
+    try:
+        import colour_checker_detection as ccd
+    except ImportError:
+        raise InputError("finding the chart in the photo needs colour-checker-detection (pip install "
+                         "'bubblefit[chart]'), or give the patches' centres with --patches") from None
+    img = np.clip(np.asarray(pixels, np.float32), 0.0, None)
+    peak = float(np.percentile(img, 99.5)) if img.size else 0.0
+    if not peak > 0:
+        raise InputError("the chart photo is black: no chart to find")
+    found = ccd.detect_colour_checkers_segmentation(img / peak, apply_cctf_decoding=False, additional_data=True)
+    if len(found) != 1:
+        raise InputError(f"found {len(found)} ColorChecker charts in the photo, not one: give the patches' "
+                         "centres with --patches")
+    values = np.asarray(found[0].swatch_colours, np.float64) * peak
+    if values.shape != (24, 3) or not np.all(np.isfinite(values)):
+        raise InputError("the chart found in the photo does not have 24 patches: give their centres with --patches")
+    return values
 
 
 @dataclass

@@ -1,4 +1,4 @@
-"""``bubblefit calibrate-camera -o RESPONSE.csv [--chart PHOTO --patches P.csv | --chart-values V.csv] [--film F.csv]``.
+"""``bubblefit calibrate-camera -o RESPONSE.csv [--chart PHOTO [--patches P.csv] | --chart-values V.csv] [--film F.csv]``.
 
 Fits the camera-times-lamp spectral response per channel
 (:mod:`bubblefit.capture.camera_calibration`) from a ColorChecker photographed under the
@@ -28,7 +28,8 @@ def register(sub):
     p.add_argument("--chart", metavar="PHOTO", type=input_file, help="photo of an X-Rite ColorChecker (24 patches) under the lamp")
     p.add_argument("--patches", metavar="P.csv", type=input_file,
                    help="with --chart: 24 rows x,y,half_size (pixels) of the patches' centres, in the chart's "
-                        "reading order (row by row from 'dark skin' to 'black')")
+                        "reading order (row by row from 'dark skin' to 'black'); without it the chart is found "
+                        "in the photo (needs the colour-checker-detection package: pip install 'bubblefit[chart]')")
     p.add_argument("--chart-values", metavar="V.csv", type=input_file, help="instead of --chart: 24 rows r,g,b of the patches' "
                                                            "linear values, in the chart's reading order")
     p.add_argument("--film", metavar="F.csv", type=input_file,
@@ -70,8 +71,6 @@ def run(args) -> int:
         raise InputError(f"the output must be a .csv file, got {args.output}")
     if args.chart and args.chart_values:
         raise InputError("give --chart (with --patches) or --chart-values, not both")
-    if args.chart and not args.patches:
-        raise InputError("--chart needs --patches (the 24 patches' centres and half-size)")
     if args.patches and not args.chart:
         raise InputError("--patches goes with --chart")
     if not (args.chart or args.chart_values or args.film):
@@ -85,10 +84,15 @@ def run(args) -> int:
         names, refl = cc.chart_reflectances()
         if args.chart:
             img = read_photo(args.chart, reading, what="chart")
-            patches = _rows(args.patches, 3, "patches")
-            if len(patches) != len(names):
-                raise InputError(f"--patches {args.patches} has {len(patches)} rows; the chart has {len(names)} patches")
-            values = cc.patch_means(img.pixels, patches, img.saturated)
+            if args.patches:
+                patches = _rows(args.patches, 3, "patches")
+                if len(patches) != len(names):
+                    raise InputError(f"--patches {args.patches} has {len(patches)} rows; the chart has "
+                                     f"{len(names)} patches")
+                values = cc.patch_means(img.pixels, patches, img.saturated)
+            else:  # found in the photo (colour-checker-detection)
+                values = cc.detect_chart(img.pixels)
+                record["chart_detected"] = True
             record["chart_reading"] = reading_record(img)
         else:
             values = _rows(args.chart_values, 3, "chart values")

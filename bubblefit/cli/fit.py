@@ -72,6 +72,10 @@ def register(sub):
                                                              "(and PREFIX_thickness.exr) with PNG previews")
     p.add_argument("--explain", action="store_true", help="print which effects are simulated or skipped, and why")
     p.add_argument("--strict", action="store_true", help="exit with status 1 when the fit did not converge")
+    p.add_argument("--calibrate-camera", action="store_true",
+                   help="also fit the camera response's coefficients with the film, from the stated (or default) "
+                        "response; needs a film spanning several interference orders, e.g. --thickness drainage "
+                        "(docs/cameras.md)")
     add_model_options(p)
     add_view_options(p)
     from .photo_args import add_photo_options
@@ -246,15 +250,15 @@ def build_fit_options(args, scene, bits: int | None, view=None, photosite_share=
     """:class:`~bubblefit.inverse.fit.FitOptions` of ``fit`` and ``fit-sequence``, built in
     this one place so that a sequence of one frame is fitted as ``fit`` fits the photo:
     :func:`fit_option_values`, the model (``--model``, else the scene's, else ``auto``),
-    the photo's bit depth for the noise model (``NoiseSettings.bits``) and, for a demosaiced RAW
-    file, its channels' share of the photosites (``NoiseSettings.photosite_share``), and ``fit``'s own flags where
-    the command has them."""
+    the photo's bit depth for the noise model (``NoiseSettings.bits``) and, for a demosaiced
+    RAW file, its channels' share of the photosites (``NoiseSettings.photosite_share``), and
+    ``fit``'s own flags where the command has them."""
     from ..inverse.fit import FitOptions, NoiseSettings
 
     model = args.model or (scene.table("effects").get("model", "auto") if scene is not None else "auto")
     noise = NoiseSettings(bits=bits, photosite_share=None if photosite_share is None else tuple(photosite_share))
     kw = dict(fit_option_values(args), model=model, noise=noise, view=view)
-    for flag in ("free_split", "fit_rotation"):
+    for flag in ("free_split", "fit_rotation", "calibrate_camera"):
         if hasattr(args, flag):
             kw[flag] = getattr(args, flag)
     return FitOptions(**kw)
@@ -320,10 +324,22 @@ def run(args) -> int:
         for d in result.effects:
             print(d.line())
     print(result.report())
+    if result.camera_calibration is not None:
+        from ..inverse.self_calibration import summary
+
+        print(summary(result.camera_calibration))
     with output_set():  # the maps and the JSON replace the earlier ones together, or none does
         if args.output:
             with stage("writing the maps"):
                 out["outputs"] = write_fit_images(args.output, result, write_image, preview_path)
+                if result.camera_calibration is not None:  # the response fitted with the film
+                    from ..inverse.self_calibration import response_csv
+                    from ..io.atomic import write_text
+
+                    text = response_csv(result.camera_calibration)
+                    if text is not None:
+                        write_text(f"{args.output}_response.csv", text)
+                        out["outputs"]["response"] = f"{args.output}_response.csv"
         if args.json:
             write_json(args.json, out)
     if args.strict and not result.ok:

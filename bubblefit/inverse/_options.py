@@ -224,6 +224,12 @@ class FitOptions:
     samples_per_pixel : int or None
         Rays per rendered pixel (a square number, :class:`~bubblefit.model.render.RenderConfig`);
         None: the scene's ``[camera] samples_per_pixel``, else 1.
+    calibrate_camera : bool
+        Free the camera response's coefficients (the spectral lobes' weights) together with
+        the film, after the fit with the stated response, and report them with their
+        covariance (JSON key ``camera_calibration``;
+        :mod:`bubblefit.inverse.self_calibration`). A photo that does not determine them
+        (a constant film) is not ``ok``, with the reason.
     pixel_footprint : bool
         Average each film's map lookup over the pixel's footprint (ray differentials,
         :attr:`~bubblefit.model.render.RenderConfig.pixel_footprint`); off by default.
@@ -266,6 +272,7 @@ class FitOptions:
     n_film: object = None
     samples_per_pixel: int | None = None
     pixel_footprint: bool = False
+    calibrate_camera: bool = False
     parameters: tuple = ()
     view: object = None
 
@@ -449,6 +456,9 @@ class FitResult:
     camera: dict | None = None
     #: :meth:`bubblefit.inverse.colour_check.ColourCheck.to_json`, or None where not tested.
     colour_check: dict | None = None
+    #: :meth:`bubblefit.inverse.self_calibration.SelfCalibration.to_json` with the stated
+    #: response's fit, or None without ``FitOptions.calibrate_camera``.
+    camera_calibration: dict | None = None
 
     def to_json(self) -> dict:
         """The command line's result (``docs/design.md``): params, stderr, converged,
@@ -492,6 +502,7 @@ class FitResult:
             "colour": None if self.colour is None else self.colour.to_json(),
             "camera": self.camera,
             "colour_check": self.colour_check,
+            "camera_calibration": self.camera_calibration,
             "effects": [{"effect": d.effect, "simulated": d.simulated, "setting": d.setting, "reason": d.reason}
                         for d in self.effects],
         }

@@ -64,6 +64,7 @@ from ._uncertainty import Uncertainty, uncertainty
 from ._verdict import at_bounds, clamp_to_range, unresolved, verdict
 from ._view import camera_record, fit_view, lens_for, widen_for_view
 from .colour_check import judge_colours
+from ..errors import InputError
 from ..lighting.envmap import EnvMap
 from ..model.thickness import drainage_profile
 from ..progress import stage
@@ -327,6 +328,15 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     >>> result.ok, round(float(result.params["thickness_nm"]))
     (True, 600)
     """
+    if options.calibrate_camera:  # the stated response's fit first, then the response freed
+        from .self_calibration import self_calibrated
+
+        if options.thickness == "map":
+            raise InputError("--calibrate-camera fits the response with a constant film or a drainage profile, not a "
+                             "thickness map: calibrate with --thickness drainage, then fit the map with the response")
+        first = fit_photo(photo, env, options=replace(options, calibrate_camera=False), background=background,
+                          init=init, scene=scene, saturated=saturated)
+        return self_calibrated(first, photo, env, options, background, scene, saturated)
     view = fit_view(options, scene)
     options = replace(options, view=view)
     if view.source != "assumed":

@@ -227,7 +227,7 @@ def run_demo(out_dir="bubblefit-demo", size: int = 96, seed: int = 0, progress: 
     from .io.atomic import write_json
     from .errors import InputError
     from .capture.view import ORTHOGRAPHIC
-    from .inverse.fit import FitOptions, fit_photo
+    from .inverse.fit import FitOptions, NoiseSettings, SolverSettings, fit_photo
     from .model.scene import Scene
 
     if size < 32:
@@ -257,10 +257,10 @@ def run_demo(out_dir="bubblefit-demo", size: int = 96, seed: int = 0, progress: 
     # The drainage profile's top, bottom and exponent are strongly correlated: LM needs more
     # than the default 80 steps to meet its tolerances here.
     settings = dict(effects=(("spectral", "uniform"), ("transmission_tint", False)), fit_size=FIT_SIZE,
-                    search_size=FIT_SIZE, max_steps=400)
+                    search_size=FIT_SIZE, solver=SolverSettings(max_steps=400))
     settings.update(fit_options or {})
     opts = FitOptions(thickness="drainage", model="paper", disc=disc, t_init=cal.t, view=ORTHOGRAPHIC,
-                      noise_read=NOISE_READ, noise_shot=NOISE_SHOT, **settings)  # rendered with parallel rays
+                      noise=NoiseSettings(read=NOISE_READ, shot=NOISE_SHOT), **settings)  # rendered with parallel rays
     scene = Scene.from_dict({"lighting": {"rotation_deg": truth.rotation_deg}})
     fit = fit_photo(syn["photo"], syn["env"], options=opts, background=syn["background"], scene=scene)
     times["fit"] = time.perf_counter() - t2

@@ -226,7 +226,7 @@ def profile_solver(photo, env, bg, truth, out: Path, models=("paper", "physical"
         def resid(z, a):
             fx, e, b, y, w = a
             img = render(table.render_params(table.values(z, fx)), lev.cfg, e, b)
-            return _lm.robust((img - y) * w, float(opts.robust_scale)).reshape(-1)
+            return _lm.robust((img - y) * w, float(opts.solver.robust_scale)).reshape(-1)
 
         def lin_tangent(z, a):
             f, lin = jax.linearize(lambda u: resid(u, a), z)
@@ -242,10 +242,10 @@ def profile_solver(photo, env, bg, truth, out: Path, models=("paper", "physical"
             first, warm = _clock(jax.jit(fn), z0, args)
             row[f"{name}_ms"] = round(1000 * warm, 1)
             row[f"{name}_first_s"] = round(first, 2)
-        for label, lm in (("bubblefit", _lm.LevenbergMarquardt(rtol=float(opts.rtol), atol=float(opts.atol))),
-                          ("optimistix", optx.LevenbergMarquardt(rtol=float(opts.rtol), atol=float(opts.atol)))):
+        tol = dict(rtol=float(opts.solver.rtol), atol=float(opts.solver.atol))
+        for label, lm in (("bubblefit", _lm.LevenbergMarquardt(**tol)), ("optimistix", optx.LevenbergMarquardt(**tol))):
             def run(z, a, lm=lm):
-                sol = optx.least_squares(resid, lm, z, a, max_steps=int(opts.max_steps), throw=False)
+                sol = optx.least_squares(resid, lm, z, a, max_steps=int(opts.solver.max_steps), throw=False)
                 return sol.value, sol.stats["num_steps"]
 
             solve = jax.jit(run)
@@ -284,7 +284,8 @@ def compile_profile(photo, env, bg, out: Path, models=("paper", "physical"), rep
     for model in models:
         opts = FitOptions(model=model)
         st = _setup.setup(photo, env, opts, bg, None, None, None)
-        key, a, _ = _programs.solve_program(st.lev_fit, st.table, opts, st.vals, env, None, _programs.FINAL_SOLVE)
+        key, a, _ = _programs.solve_program(st.lev_fit, st.table, opts.solver, st.vals, env, None,
+                                             _programs.FINAL_SOLVE)
         solve, resid = _programs.solver.__wrapped__(*key)  # fresh jitted functions, compiled here
         z0 = st.table.unconstrained(st.vals)
         groups = st.table.jacobian_groups

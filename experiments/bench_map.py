@@ -52,6 +52,7 @@ from bench_fit import numpy_yardstick  # noqa: E402  (python -c "import numpy", 
 def load_case(case: str):
     """Photo, map, background and FitOptions keywords of one validation case, as the CLI reads them."""
     from bubblefit.cli.fit import load_envmap
+    from bubblefit.inverse.fit import NoiseSettings
     from bubblefit.io.images import read_image
 
     d = DATA / case
@@ -59,7 +60,7 @@ def load_case(case: str):
     photo = read_image(str(d / "photo.png"), dtype=np.float32)
     bg = read_image(str(d / "background.png"), dtype=np.float32).pixels
     env = load_envmap(str(DATA / truth["envmap"]))
-    kw = dict(bits=int(photo.bit_depth))
+    kw = dict(noise=NoiseSettings(bits=int(photo.bit_depth)))
     if truth.get("illuminant") in ("D65", "E", "A"):
         kw["illuminant"] = truth["illuminant"]
     return photo, env, bg, kw, truth

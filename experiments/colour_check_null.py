@@ -221,7 +221,7 @@ def table(out):
         meta = json.load(open(os.path.join(out, f)))
         arr = np.load(os.path.join(out, f[:-5] + ".npz"))
         mask = arr["mask"] & (arr["cos"] > INNER_COS)
-        me = float(arr["model_error"]) if "model_error" in arr else 0.03  # FitOptions.model_error's default
+        me = float(arr["model_error"]) if "model_error" in arr else 0.03  # JudgeSettings.model_error's default
         c = colour_check(arr["photo"], arr["render"], mask, arr["sigma"], model_error=me)
         rows.append(dict(case=meta["name"], right=meta["right"], truth=meta.get("truth"),
                          thickness=meta.get("thickness"), statistic=c.chi2_per_dof, threshold=c.threshold_per_dof,

@@ -110,10 +110,10 @@ def test_model_error_reaches_the_exponent_through_the_middle_height():
     """log(exponent) = (d_mid - (1 - h) top - h bottom) / slope with h = 0.5^e and slope =
     (bottom - top) h ln(0.5) e: independent errors s at the top, bottom and middle give it
     the variance s^2 (1 + (1 - h)^2 + h^2) / slope^2; the ends keep s^2."""
-    from bubblefit.inverse import FitOptions
+    from bubblefit.inverse import JudgeSettings
     from bubblefit.inverse import drainage_covariance
 
-    s2 = FitOptions.thickness_model_error_nm ** 2
+    s2 = JudgeSettings.thickness_model_error_nm ** 2
     top, bottom, e = 100.0, 900.0, 1.5
     h = 0.5 ** e
     slope = (bottom - top) * h * math.log(0.5) * e

@@ -217,12 +217,13 @@ def test_model_mismatch(env, rim):
 def test_failed_fit_is_reported_and_skipped_effects_held(env):
     """A fit stopped after 2 steps says it did not converge (and why); with the diffuse
     term off, the split is held and reported without an error bar."""
-    from bubblefit.inverse.fit import fit_photo
+    from bubblefit.inverse.fit import SolverSettings, fit_photo
 
     rng = np.random.default_rng(3)
     bg = _background(rng)
     photo = _quantise(_render(env, bg, {"roughness": 0.08, "thickness_nm": 900.0}), rng)
-    res = fit_photo(photo, env, options=_opts(max_steps=2, search_steps=2, effects=(("diffuse", False),)),
+    res = fit_photo(photo, env, options=_opts(solver=SolverSettings(max_steps=2, search_steps=2),
+                                              effects=(("diffuse", False),)),
                     background=bg)
     assert not res.converged
     assert "solver" in res.message

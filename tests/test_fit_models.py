@@ -110,10 +110,11 @@ def test_disc_is_refined(off_grid_photo):
 
 @pytest.mark.slow
 def test_given_disc_is_held(off_grid_photo):
-    from bubblefit.inverse.fit import fit_photo
+    from bubblefit.inverse.fit import SolverSettings, fit_photo
 
     env, photo, bg = off_grid_photo
-    res = fit_photo(photo, env, options=_opts(model="paper", disc=TRUE_DISC, max_steps=30), background=bg)
+    res = fit_photo(photo, env, options=_opts(model="paper", disc=TRUE_DISC, solver=SolverSettings(max_steps=30)),
+                    background=bg)
     assert res.disc == TRUE_DISC and res.disc_stderr is None
     assert res.to_json()["disc_model_error"] is None
 

@@ -64,7 +64,7 @@ def test_analysis_frame_memory_is_bounded_by_the_frame():
     # the noise's reference on the first and last 16 block rows (the bands built first and last)
     for rows in (slice(0, 16), slice(h - 16, h)):
         part = crop[rows.start * k:rows.stop * k]
-        var = sensor_sigma(part, opts.noise_read, opts.noise_shot, opts.bits) ** 2
+        var = sensor_sigma(part, opts.noise.read, opts.noise.shot, opts.noise.bits) ** 2
         np.testing.assert_allclose(frame.sigma[rows], np.sqrt(block_average(var, k) / k**2), rtol=1e-9)
     # the background photo's noise, the same way (here the background is the photo itself)
     np.testing.assert_allclose(frame.bg_sigma, frame.sigma, rtol=1e-12)

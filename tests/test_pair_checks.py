@@ -105,11 +105,11 @@ def test_a_sequence_checks_its_first_frame_before_any_fit(pair):
     """``fit-sequence`` resolves the disc on its first frame and checks the pair there
     (:func:`~bubblefit.inverse._pair.check_disc_pair`), at the photo's own resolution."""
     from bubblefit.errors import InputError
-    from bubblefit.inverse import FitOptions
+    from bubblefit.inverse import FitOptions, NoiseSettings
     from bubblefit.inverse import check_disc_pair
 
     photo, back, other = pair
-    opts = FitOptions(bits=8)
+    opts = FitOptions(noise=NoiseSettings(bits=8))
     assert check_disc_pair(photo, back, DISC, opts).refusal() is None
     with pytest.raises(InputError, match="look swapped"):
         check_disc_pair(back, photo, DISC, opts)

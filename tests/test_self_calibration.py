@@ -17,7 +17,7 @@ import pytest
 from helpers import FILM_PHOTO_DISC as DISC, film_photo
 
 NIKON = "Nikon 5100 (NPL)"
-FLOOR = 0.03  # FitOptions.model_error's default
+FLOOR = 0.03  # JudgeSettings.model_error's default
 NU = np.linspace(1.0 / 800.0, 1.0 / 360.0, 3000)  # wavenumber, 1/nm
 
 
@@ -122,7 +122,7 @@ def test_untold_camera_calibrated_in_the_fit(small_courtyard, bits):
     truth at every height (so the order is right everywhere); the coefficients come with
     their covariance."""
     from bubblefit.capture.view import ORTHOGRAPHIC
-    from bubblefit.inverse.fit import FitOptions, fit_photo
+    from bubblefit.inverse.fit import FitOptions, NoiseSettings, fit_photo
     from bubblefit.lighting.envmap import EnvMap
 
     env = EnvMap.from_array(small_courtyard)
@@ -130,7 +130,7 @@ def test_untold_camera_calibrated_in_the_fit(small_courtyard, bits):
     photo, bg = film_photo(env, truth, 7, NIKON, "E", quantised=bits)
     r = fit_photo(photo, env, background=bg, options=FitOptions(
         disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", view=ORTHOGRAPHIC, thickness="drainage",
-        calibrate_camera=True, bits=8 if bits == 8 else None))
+        calibrate_camera=True, noise=NoiseSettings(bits=8 if bits == 8 else None)))
     cal = r.to_json()["camera_calibration"]
     assert cal["stated_response_fit"]["ok"] is False
     assert r.ok, r.warnings

@@ -163,7 +163,7 @@ def fit_option_values(args) -> dict:
     """The :class:`~bubblefit.inverse.fit.FitOptions` values that ``fit`` and ``fit-sequence`` read
     the same way: starting t and disc (``--calibration``, ``--t``, ``--disc``), thickness
     kind and range, held parameters and the step limit. One-line errors for bad values."""
-    from ..inverse import parse_setting
+    from ..inverse import SolverSettings, parse_setting
     from .common import parse_floats
 
     t_init, disc, cal_disc, cal_size = None, None, None, None
@@ -190,7 +190,7 @@ def fit_option_values(args) -> dict:
     if args.max_steps is not None:
         if args.max_steps < 1:
             raise InputError("--max-steps must be at least 1")
-        kw["max_steps"] = args.max_steps
+        kw["solver"] = SolverSettings(max_steps=args.max_steps)
     kw.update(model_option_values(args))
     return kw
 
@@ -250,14 +250,14 @@ def build_fit_options(args, scene, bits: int | None, view=None, photosite_share=
     """:class:`~bubblefit.inverse.fit.FitOptions` of ``fit`` and ``fit-sequence``, built in
     this one place so that a sequence of one frame is fitted as ``fit`` fits the photo:
     :func:`fit_option_values`, the model (``--model``, else the scene's, else ``auto``),
-    the photo's bit depth for the noise model (``bits``) and, for a demosaiced RAW file, its
-    channels' share of the photosites (``photosite_share``), and ``fit``'s own flags where
-    the command has them."""
-    from ..inverse.fit import FitOptions
+    the photo's bit depth for the noise model (``NoiseSettings.bits``) and, for a demosaiced
+    RAW file, its channels' share of the photosites (``NoiseSettings.photosite_share``), and
+    ``fit``'s own flags where the command has them."""
+    from ..inverse.fit import FitOptions, NoiseSettings
 
     model = args.model or (scene.table("effects").get("model", "auto") if scene is not None else "auto")
-    kw = dict(fit_option_values(args), model=model, bits=bits, view=view,
-              photosite_share=None if photosite_share is None else tuple(photosite_share))
+    noise = NoiseSettings(bits=bits, photosite_share=None if photosite_share is None else tuple(photosite_share))
+    kw = dict(fit_option_values(args), model=model, noise=noise, view=view)
     for flag in ("free_split", "fit_rotation", "calibrate_camera"):
         if hasattr(args, flag):
             kw[flag] = getattr(args, flag)

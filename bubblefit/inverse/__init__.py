@@ -35,6 +35,8 @@ import importlib
 _EXPORTS = {
     # entry points and their records
     "FitOptions": "_options", "FitResult": "_options", "FitStatus": "_options", "ForwardModel": "_options",
+    "NoiseSettings": "_options", "MapSettings": "_options", "JudgeSettings": "_options",
+    "SolverSettings": "_options",
     "ThicknessModel": "_options", "fit_batch": "fit", "fit_photo": "fit", "SequenceOptions": "sequence",
     "SequenceResult": "sequence", "fit_sequence": "sequence", "SpectrumFit": "spectrum",
     "SpectrumOptions": "spectrum", "fit_spectrum": "spectrum", "fit_spectrum_series": "spectrum_series",

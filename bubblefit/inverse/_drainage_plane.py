@@ -29,7 +29,7 @@ The parameters are found in two steps:
 
 Standard errors: ``(J^T J)^-1`` widened by the larger of the Birge ratio and the cluster
 sandwich over blocks of the film (:func:`._uncertainty.widened`, as for a bubble), plus
-the thickness model error of :class:`~bubblefit.inverse._options.FitOptions` taken
+the thickness model error of :class:`~bubblefit.inverse._options.JudgeSettings` taken
 independently at the film's top, bottom and middle height and carried to the parameters
 (:func:`drainage_covariance`: the ends get it in quadrature, the exponent what the middle's
 share implies); each pixel's thickness error follows by the delta method.
@@ -51,7 +51,7 @@ import numpy as np
 
 from ..errors import ComputationError
 from ..model.thickness import drainage_profile
-from ._options import FitOptions
+from ._options import JudgeSettings
 from ._planar_lm import ModelFit, fit_colours
 from ._uncertainty import widened
 
@@ -131,11 +131,11 @@ def search_drainage(cost: np.ndarray, grid: np.ndarray, height: np.ndarray, refe
 
 def drainage_covariance(top: float, bottom: float, exponent: float) -> np.ndarray:
     """Covariance of ``(top, bottom, log exponent)`` from the thickness model error
-    (:class:`~bubblefit.inverse._options.FitOptions`) taken independently at the film's top,
+    (:class:`~bubblefit.inverse._options.JudgeSettings`) taken independently at the film's top,
     bottom and middle height: ``G^-1 s^2 G^-T`` with ``G`` the Jacobian of those three
     thicknesses; the ends get ``s^2`` itself. A film whose ends are equal has no exponent
     (infinite variance)."""
-    s2 = float(FitOptions.thickness_model_error_nm) ** 2
+    s2 = float(JudgeSettings.thickness_model_error_nm) ** 2
     half = 0.5 ** exponent
     slope = (bottom - top) * half * math.log(0.5) * exponent   # d d(mid) / d log(exponent)
     if abs(slope) < 1e-9:

@@ -14,7 +14,7 @@ import numpy as np
 from ._lm import gauss_newton_decrement, presses_bound
 from ._observation import Level
 from ._parameters import ParameterTable, value_and_slope
-from ._options import FitOptions
+from ._options import SolverSettings
 from ._programs import Pixels, SolveSettings, solve_program, stored_solver
 
 __all__ = ["LocalSolution", "remaining_step", "solve_local", "cost", "solution_from", "improves",
@@ -117,15 +117,16 @@ def improves(restart: LocalSolution, sol: LocalSolution) -> bool:
     return ended and bool(np.isfinite(restart.cost)) and restart.cost <= sol.cost
 
 
-def solve_local(lev: Level, table: ParameterTable, opts: FitOptions, vals: dict, env, max_steps: int | None = None,
-                settings: SolveSettings = SolveSettings()) -> LocalSolution:
-    """Levenberg-Marquardt from ``vals`` on ``lev``. With ``settings.stall`` it stops after
+def solve_local(lev: Level, table: ParameterTable, solver: SolverSettings, vals: dict, env,
+                max_steps: int | None = None, settings: SolveSettings = SolveSettings()) -> LocalSolution:
+    """Levenberg-Marquardt from ``vals`` on ``lev``, with ``solver``'s tolerances, robust scale
+    and step limit (``max_steps`` instead, when given). With ``settings.stall`` it stops after
     :data:`~bubblefit.inverse._lm.MAX_REJECTIONS` rejections and restarts while far from
     the optimum, without it runs optimistix' own stopping rule alone (warm starts);
     ``settings`` also says how its Jacobian is computed and how XLA compiles its program
     (:class:`~bubblefit.inverse._programs.SolveSettings`)."""
     stall = settings.stall
-    key, args, px = solve_program(lev, table, opts, vals, env, max_steps, settings)
+    key, args, px = solve_program(lev, table, solver, vals, env, max_steps, settings)
     solve, fixed = stored_solver(*key), args[0]
     sol = solution_from(table, vals, *solve(table.unconstrained(vals), args), fixed, lev, px)
     # A solve stopped by rejections early on (a trust region still far too large) starts

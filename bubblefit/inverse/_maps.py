@@ -12,14 +12,14 @@ little better. A soap film is smooth apart from real features, so the map is bui
    disc of about :data:`COARSE_RADIUS` pixels): the drainage profile, fitted globally
    first, has settled the interference order, so the coarsest level searches a window
    of +-:data:`WINDOW_NM` (less than half an order) around it, with a Gaussian prior of
-   ``FitOptions.map_prior_nm`` towards it; each finer level searches the same window
+   ``MapSettings.prior_nm`` towards it; each finer level searches the same window
    around the coarser map, so no pixel can take a neighbouring order. (Scoring every
    thickness of the range on the coarsest level let a model error between renderers pick
    the next order in whole regions: on independent photos 50% of the film was off by
    one order: development cases ref_drain_lin_courtyard, ref_drain_lin_city, ref_bump_sunrise, cyc_drain_lin_sunrise in experiments/validation/split.toml.)
 2. with a smoothness prior on every level: the energy of pixel ``p`` at thickness ``d``
    is its data chi^2 plus ``sum over its 4 neighbours q of ((d - d_q) / s)^2``, ``s`` =
-   ``FitOptions.map_smoothness_nm`` times the level's block size (neighbours are that
+   ``MapSettings.smoothness_nm`` times the level's block size (neighbours are that
    far apart), minimised by iterated conditional modes (Besag 1986) in a red-black order;
 3. refined below the grid by a parabola through the energy around each pixel's minimum;
    its curvature gives the pixel's standard error (of its posterior: data, prior and
@@ -254,17 +254,18 @@ def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts: FitOption
         if sel.sum() == 0:
             continue
         costs_of = _PaperCosts(L, table, base, env, hi + WINDOW_NM) if exact else TracedCosts(L, table, base, env)
-        s = float(opts.map_smoothness_nm) * k
+        s = float(opts.map.smoothness_nm) * k
         prior = profile_map(L, prof).reshape(-1)[sel]
         if prev is None:
             # the drainage profile has settled the interference order: the coarsest level
             # searches within less than half an order of it, with the profile's prior
-            best, err, c = _level_map(L, costs_of, prior, s, opts.search_step_nm, WINDOW_NM, prior=prior,
-                                      prior_nm=float(opts.map_prior_nm))
+            best, err, c = _level_map(L, costs_of, prior, s, opts.solver.search_step_nm, WINDOW_NM, prior=prior,
+                                      prior_nm=float(opts.map.prior_nm))
         else:
             centre = _upsample(prev, prev_map, L).reshape(-1)[sel]
             # the finest level refines within a few coarse steps; the order is settled by then
-            step, half = (FINE_STEP_NM, 6 * opts.search_step_nm) if k == 1 else (opts.search_step_nm, WINDOW_NM)
+            grid = opts.solver.search_step_nm
+            step, half = (FINE_STEP_NM, 6 * grid) if k == 1 else (grid, WINDOW_NM)
             if k == 1 and not exact and FINE_SOLVE == "newton":
                 # each pixel's thickness moves its own pixel only: Gauss-Newton with a diagonal
                 # Jacobian and the smoothness prior's sparse Laplacian, not a grid of renders

@@ -132,8 +132,8 @@ def analysis_frame(photo, background, saturated, disc, opts: FitOptions) -> Fram
     """
     H, W = photo.shape[:2]
     if disc is None or max(H, W) <= opts.analysis_size:
-        sigma = noise_sigma(photo, opts.noise_read, opts.noise_shot, opts.bits)
-        bgs = None if background is None else noise_sigma(background, opts.noise_read, opts.noise_shot, opts.bits)
+        sigma = noise_sigma(photo, opts.noise.read, opts.noise.shot, opts.noise.bits)
+        bgs = None if background is None else noise_sigma(background, opts.noise.read, opts.noise.shot, opts.noise.bits)
         return Frame(0, 0, 1, photo, background, sigma, saturated, disc, bgs)
     cx, cy, r = disc
     half = 1.15 * r
@@ -152,12 +152,12 @@ def analysis_frame(photo, background, saturated, disc, opts: FitOptions) -> Fram
         a, b = y0 + i * k, y0 + min(h, i + rows) * k
         band = np.asarray(photo[a:b, x0:x1], np.float64)
         small[i:i + rows] = block_mean(band, k)
-        var = noise_sigma(band, opts.noise_read, opts.noise_shot, opts.bits) ** 2
+        var = noise_sigma(band, opts.noise.read, opts.noise.shot, opts.noise.bits) ** 2
         sigma[i:i + rows] = np.sqrt(block_mean(var, k) / (k * k))
         if bg is not None:
             bband = np.asarray(background[a:b, x0:x1], np.float64)
             bg[i:i + rows] = block_mean(bband, k)
-            bvar = noise_sigma(bband, opts.noise_read, opts.noise_shot, opts.bits) ** 2
+            bvar = noise_sigma(bband, opts.noise.read, opts.noise.shot, opts.noise.bits) ** 2
             bgs[i:i + rows] = np.sqrt(block_mean(bvar, k) / (k * k))
     sat = _block(saturated[y0:y1, x0:x1], k, h, w, how="any")
     return Frame(x0, y0, k, small, bg, sigma, sat, ((cx - x0) / k, (cy - y0) / k, r / k), bgs)
@@ -248,8 +248,8 @@ def _detect(photo, background, opts: FitOptions) -> Disc:
     k = max(1, math.ceil(max(photo.shape[:2]) / opts.analysis_size))
     small = block_mean(photo, k) if k > 1 else photo
     bsmall = None if background is None else (block_mean(background, k) if k > 1 else background)
-    sigma = np.sqrt(np.maximum(noise_sigma(photo if k == 1 else small, opts.noise_read, opts.noise_shot,
-                                           opts.bits) ** 2 / (k * k), 1e-30))
+    sigma = np.sqrt(np.maximum(noise_sigma(photo if k == 1 else small, opts.noise.read, opts.noise.shot,
+                                           opts.noise.bits) ** 2 / (k * k), 1e-30))
     d = find_bubble(small, bsmall, sigma=sigma)
     if k == 1 or not d.found:
         return d
@@ -282,7 +282,7 @@ def resolve_disc(photo, background, opts: FitOptions, given=None) -> tuple[tuple
 
         k = max(1, math.ceil(max(photo.shape[:2]) / opts.analysis_size))
         p, b = (block_mean(photo, k), block_mean(background, k)) if k > 1 else (photo, background)
-        sig = lambda a: noise_sigma(a, opts.noise_read, opts.noise_shot, opts.bits) / k  # noqa: E731
+        sig = lambda a: noise_sigma(a, opts.noise.read, opts.noise.shot, opts.noise.bits) / k  # noqa: E731
         share = frame_mismatch(np.asarray(p, np.float64), np.asarray(b, np.float64), sig(p), sig(b))
         if share <= FRAME_SHARE:
             raise
@@ -329,7 +329,7 @@ def _resolve_disc(photo, background, opts: FitOptions, given=None) -> tuple[tupl
         return tuple(cal), []
     if background is not None and opts.calibration_size is not None:
         # same frame size, another disc found: the pair says which outlines the bubble
-        sig = noise_sigma(photo, opts.noise_read, opts.noise_shot, opts.bits)
+        sig = noise_sigma(photo, opts.noise.read, opts.noise.shot, opts.noise.bits)
         c_cal = bubble_contrast(photo, background, sig, cal)
         c_found = bubble_contrast(photo, background, sig, (found.cx, found.cy, found.r))
         if c_cal >= 0.8 * c_found:

@@ -16,7 +16,9 @@ from ..errors import InputError
 from ..model.modes import MODEL_CHOICES, THICKNESS_KINDS, Model, ModelChoice, ThicknessKind, in_words
 from ._parameters import ParameterSetting
 
-__all__ = ["ThicknessModel", "ForwardModel", "ModelChoice", "FitStatus", "FitOptions", "FitResult", "ColourSettings"]
+__all__ = ["ThicknessModel", "ForwardModel", "ModelChoice", "FitStatus", "FitOptions", "FitResult", "ColourSettings",
+           "NoiseSettings", "MapSettings",
+           "JudgeSettings", "SolverSettings"]
 
 #: How the film's thickness varies over the bubble: :data:`bubblefit.model.modes.ThicknessKind`
 #: under the name the fit's API has used (its values are ``thickness_nm``,
@@ -31,6 +33,115 @@ FitStatus = Literal["converged", "max_steps", "failed"]
 
 
 @dataclass(frozen=True)
+class NoiseSettings:
+    """The photo's noise model (:func:`~bubblefit.inverse._observation.noise_sigma`) and
+    the level at which its values are clipped.
+
+    Attributes
+    ----------
+    read : float
+        Read noise: the standard deviation of a linear pixel value at zero signal.
+    shot : float
+        Shot noise: the variance per unit of linear signal (Poisson).
+    bits : int or None
+        Bits per channel of an integer sRGB file (its quantisation step is noise too);
+        None for a float photo.
+    photosite_share : tuple or None
+        For a photo demosaiced from a colour filter mosaic (a RAW file read by
+        :func:`bubblefit.io.camera_files.read_raw`), the fraction of the photosites behind
+        each of R, G, B (1/4, 1/2, 1/4 for a Bayer sensor): a mean over ``n`` pixels then
+        holds the noise of ``share * n`` photosites, which the colour check uses
+        (:mod:`bubblefit.inverse.colour_check`). None: every pixel measured each channel.
+    saturation : float
+        Photo values at or above this (in files with a maximum of 1) are clipped.
+    """
+
+    read: float = 2e-3
+    shot: float = 2e-4
+    bits: int | None = 8
+    photosite_share: tuple | None = None
+    saturation: float = 0.995
+
+
+@dataclass(frozen=True)
+class MapSettings:
+    """The priors of a thickness map (:func:`~bubblefit.inverse._maps.fit_map`).
+
+    Attributes
+    ----------
+    prior_nm : float
+        Width of the prior tying a thickness map to the fitted profile.
+    smoothness_nm : float
+        The smoothness prior: the standard deviation (nm) of the difference between
+        neighbouring pixels' thicknesses at the photo's resolution. Smaller values smooth
+        more; a film's real features (a 40 nm bump a few pixels wide) change by a few nm
+        per pixel and survive the default.
+    """
+
+    prior_nm: float = 150.0
+    smoothness_nm: float = 8.0
+
+
+@dataclass(frozen=True)
+class JudgeSettings:
+    """How a fit is judged (:func:`~bubblefit.inverse._verdict.verdict`) and what its
+    standard errors carry beyond the photo's noise (:mod:`bubblefit.inverse._uncertainty`).
+
+    Attributes
+    ----------
+    model_error : float
+        The model-error floor: a fraction of each pixel's value added in quadrature to its
+        noise when judging whether the photo is explained (``ok``). Renderers disagree by
+        about this much on the same film (experiments/validation/cross_check.py on development cases cyc_const500, cyc_drain_lin_sunrise, cyc_bump_city, mts_thick_courtyard, mts_thick_sunrise; spectral sampling, observer tables, the rim's
+        filtering), so a fit is not failed for differences of that size.
+    thickness_model_error_nm : float
+        Added in quadrature to the standard error of every fitted thickness (and of each
+        pixel of a map): the scatter of bubblefit's thicknesses against independent
+        renderers on the validation set's constant films (development cases ref_const300, ref_const620, ref_const1200, ref_const450, cyc_const500: experiments/validation/split.toml), RMS 0.6 nm, which no estimate from the photo's
+        residual shows (:mod:`bubblefit.inverse._uncertainty`). 0 gives the photo's own.
+    ok_chi2 : float
+        A fit is ``ok`` only when the reduced chi^2 with the model-error floor is at most
+        this.
+    """
+
+    model_error: float = 0.03
+    thickness_model_error_nm: float = 0.6
+    ok_chi2: float = 3.0
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    """The global thickness search (:mod:`bubblefit.inverse.search`) and the local
+    Levenberg-Marquardt solves (:func:`~bubblefit.inverse._local.solve_local`) of a fit.
+
+    Attributes
+    ----------
+    max_steps : int
+        Levenberg-Marquardt's step limit of the final solve.
+    rtol, atol : float
+        Its tolerances (optimistix' Cauchy test: every unconstrained coordinate and every
+        whitened residual changes by less than ``atol + rtol |value|`` in a step). Looser
+        tolerances (1e-4) stop drainage fits early, far from the optimum
+        (tests/test_fit.py::test_drainage_and_map).
+    search_step_nm : float
+        Thickness grid step of the global search.
+    candidates, search_steps : int
+        Local minima of the search refined, each with at most ``search_steps`` LM steps
+        on the search image.
+    robust_scale : float
+        Pseudo-Huber scale in noise sigmas.
+    """
+
+    max_steps: int = 80
+    rtol: float = 1e-5
+    atol: float = 1e-6
+    candidates: int = 2
+    search_steps: int = 20
+    search_step_nm: float = 4.0
+    robust_scale: float = 3.0
+
+
+@dataclass(frozen=True)
 class FitOptions:
     """Static settings of a fit.
 
@@ -41,7 +152,7 @@ class FitOptions:
     model : ModelChoice
         ``paper`` | ``physical`` forward model, or ``auto`` (the default, as on the command
         line): the paper model first and, when it does not explain the photo (reduced
-        chi^2 with the model-error floor above ``ok_chi2``), the physical model
+        chi^2 with the model-error floor above ``judge.ok_chi2``), the physical model
         warm-started from it; the fit that explains the photo better is returned.
     fit_rotation : bool
         Also fit the environment's rotation about +y.
@@ -62,37 +173,19 @@ class FitOptions:
         (``t_init`` also overrides a scene file's ``t``).
     thickness_range : tuple
         (min, max) nm searched (and used to decide the effects).
-    max_steps, rtol, atol
-        Levenberg-Marquardt limits and tolerances (optimistix' Cauchy test: every
-        unconstrained coordinate and every whitened residual changes by less than
-        ``atol + rtol |value|`` in a step). Looser tolerances (1e-4) stop drainage fits
-        early, far from the optimum (tests/test_fit.py::test_drainage_and_map).
     downsample : int or None
         Factor of the image the local fit runs on (None: so that its larger side is at
         most ``fit_size``).
     fit_size, search_size : int
         Larger side of the fit and search images (pixels).
-    search_step_nm : float
-        Thickness grid step of the global search.
-    candidates, search_steps : int
-        Local minima of the search refined, each with at most ``search_steps`` LM steps
-        on the search image.
-    robust_scale : float
-        Pseudo-Huber scale in noise sigmas.
-    noise_read, noise_shot, bits
-        Noise model (``bits`` None for float photos).
-    photosite_share : tuple or None
-        For a photo demosaiced from a colour filter mosaic (a RAW file read by
-        :func:`bubblefit.io.camera_files.read_raw`), the fraction of the photosites behind
-        each of R, G, B (1/4, 1/2, 1/4 for a Bayer sensor): a mean over ``n`` pixels then
-        holds the noise of ``share * n`` photosites, which the colour check uses
-        (:mod:`bubblefit.inverse.colour_check`). None: every pixel measured each channel.
-    saturation : float
-        Photo values at or above this (in files with a maximum of 1) are clipped.
+    solver : SolverSettings
+        The global search's grid and refinement, and the local solver's limits.
+    noise : NoiseSettings
+        The photo's noise model and clipping level.
     rim : float
         Fraction of the disc radius used (the rim mixes with the background).
-    map_prior_nm : float
-        Width of the prior tying a thickness map to the fitted profile.
+    map : MapSettings
+        The priors of a thickness map (``thickness = "map"``).
     hold : tuple
         Names of parameters to hold at their starting values.
     parameters : tuple
@@ -107,35 +200,19 @@ class FitOptions:
         photo agrees with it; otherwise the detected disc is used and a warning says why.
     calibration_size : tuple or None
         ``(width, height)`` of the calibration frame, when the calibration JSON records it.
-    model_error : float
-        The model-error floor: a fraction of each pixel's value added in quadrature to its
-        noise when judging whether the photo is explained (``ok``). Renderers disagree by
-        about this much on the same film (experiments/validation/cross_check.py on development cases cyc_const500, cyc_drain_lin_sunrise, cyc_bump_city, mts_thick_courtyard, mts_thick_sunrise; spectral sampling, observer tables, the rim's
-        filtering), so a fit is not failed for differences of that size.
-    thickness_model_error_nm : float
-        Added in quadrature to the standard error of every fitted thickness (and of each
-        pixel of a map): the scatter of bubblefit's thicknesses against independent
-        renderers on the validation set's constant films (development cases ref_const300, ref_const620, ref_const1200, ref_const450, cyc_const500: experiments/validation/split.toml), RMS 0.6 nm, which no estimate from the photo's
-        residual shows (:mod:`bubblefit.inverse._uncertainty`). 0 gives the photo's own.
+    judge : JudgeSettings
+        How the fit is judged: its model-error floors and the chi^2 that counts as explained.
     disc_model_error : float
         Added in quadrature to the standard errors of a refined disc, in radii: on the
         orthographic validation photos (radius 48-57 px; development cases ref_const300, ref_drain_lin_courtyard, ref_drain_lin_city, ref_bump_sunrise, cyc_const500, cyc_bump_city, mts_thick_sunrise in experiments/validation/split.toml) the refined disc was 0.02-0.18 px
         from the truth (RMS 0.08 px per centre coordinate, 0.11 px in radius, about 0.2 %
         of the radius) while the noise said 0.01-0.02 px.
-    ok_chi2 : float
-        A fit is ``ok`` only when the reduced chi^2 with the model-error floor is at most
-        this.
     analysis_size : int
         A photo whose larger side exceeds this is cropped to the bubble (1.15 radii around
         its disc) and block-averaged so that the crop's larger side is at most this,
         before anything else: memory stays bounded by this size, not the photo's. The
         fit's images (render, residual, maps) are then in that frame
         (:attr:`FitResult.frame`); the disc is always reported in the photo's pixels.
-    map_smoothness_nm : float
-        The thickness map's smoothness prior: the standard deviation (nm) of the
-        difference between neighbouring pixels' thicknesses at the photo's resolution.
-        Smaller values smooth more; a film's real features (a 40 nm bump a few pixels
-        wide) change by a few nm per pixel and survive the default.
     illuminant, camera_response, white_balance : str, str, str or tuple, or None
         The light's spectrum, the camera's channel responses and its white balance
         (:mod:`bubblefit.optics.spectral`); None: the scene's (``[lighting] illuminant``,
@@ -175,33 +252,20 @@ class FitOptions:
     t_init: float | None = None
     roughness_init: float | None = None
     thickness_range: tuple = (50.0, 2000.0)
-    max_steps: int = 80
-    rtol: float = 1e-5
-    atol: float = 1e-6
     downsample: int | None = None
     fit_size: int = 96
     search_size: int = 48
-    search_step_nm: float = 4.0
-    candidates: int = 2
-    search_steps: int = 20
-    robust_scale: float = 3.0
-    noise_read: float = 2e-3
-    noise_shot: float = 2e-4
-    bits: int | None = 8
-    photosite_share: tuple | None = None
-    saturation: float = 0.995
+    solver: SolverSettings = SolverSettings()
+    noise: NoiseSettings = NoiseSettings()
     rim: float = 0.96
-    map_prior_nm: float = 150.0
+    map: MapSettings = MapSettings()
     hold: tuple = ()
     effects: tuple = ()
     calibration_disc: tuple | None = None
     calibration_size: tuple | None = None
-    model_error: float = 0.03
-    thickness_model_error_nm: float = 0.6
+    judge: JudgeSettings = JudgeSettings()
     disc_model_error: float = 0.002
-    ok_chi2: float = 3.0
     analysis_size: int = 1024
-    map_smoothness_nm: float = 8.0
     illuminant: str | None = None
     camera_response: str | None = None
     white_balance: str | tuple | None = None
@@ -328,7 +392,7 @@ class FitResult:
     warnings : list
         Each reason ``ok`` is False (and other cautions), in words.
     chi2_floor : float
-        Reduced chi^2 with the model-error floor (``FitOptions.model_error``).
+        Reduced chi^2 with the model-error floor (``JudgeSettings.model_error``).
     chi2_inliers : float
         The same over the pixels that are not outliers (JSON ``reduced_chi2_inliers``).
     outliers : float

@@ -273,12 +273,12 @@ def check_disc_pair(photo, background, disc, opts) -> PairCheck | None:
     if background is None or disc is None:
         return None
     k = max(1, math.ceil(max(photo.shape[:2]) / opts.analysis_size))
-    sat = saturation_mask(np.asarray(photo), opts.saturation, None) | saturation_mask(np.asarray(background),
-                                                                                      opts.saturation, None)
+    clip = opts.noise.saturation
+    sat = saturation_mask(np.asarray(photo), clip, None) | saturation_mask(np.asarray(background), clip, None)
     p, b = (block_mean(np.asarray(photo, np.float64), k), block_mean(np.asarray(background, np.float64), k))
     h, w = p.shape[:2]
     sat = sat[: h * k, : w * k].reshape(h, k, w, k).any(axis=(1, 3)) if k > 1 else sat
-    sig = lambda a: noise_sigma(a, opts.noise_read, opts.noise_shot, opts.bits) / k
+    sig = lambda a: noise_sigma(a, opts.noise.read, opts.noise.shot, opts.noise.bits) / k
     cx, cy, r = (float(v) / k for v in disc)
     yy, xx = np.mgrid[0:h, 0:w] + 0.5
     rho = np.hypot(xx - cx, yy - cy) / r

@@ -28,7 +28,7 @@ import optimistix as optx
 
 from ._lm import JACOBIANS, MAX_REJECTIONS, LevenbergMarquardt, robust
 from ._observation import Level
-from ._options import FitOptions
+from ._options import FitOptions, SolverSettings
 from ._parameters import ParameterTable
 from ..io.executables import stored
 from ..model.geometry import OrthographicCamera, canonical_frame, compose_shift
@@ -306,28 +306,28 @@ def held_values(table: ParameterTable, vals: dict) -> dict:
     return {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k not in table.free}
 
 
-def solve_program(lev: Level, table: ParameterTable, opts: FitOptions, vals: dict, env, max_steps: int | None,
+def solve_program(lev: Level, table: ParameterTable, solver: SolverSettings, vals: dict, env, max_steps: int | None,
                   settings: SolveSettings):
     """``(key, args, pixels)``: the key of :func:`~bubblefit.inverse._local.solve_local`'s solve for ``lev``
     (:func:`solver`'s arguments) and the arguments it takes besides the start (the held
     ``vals`` and the level's fitted pixels)."""
     px = fitted_pixels(lev, lev.cfg.chunk)
     pad = px.padded
-    key = (pad.cfg, table, float(opts.robust_scale), int(max_steps or opts.max_steps), float(opts.rtol),
-           float(opts.atol), MAX_REJECTIONS if settings.stall else None, settings.jacobian,
+    key = (pad.cfg, table, float(solver.robust_scale), int(max_steps or solver.max_steps), float(solver.rtol),
+           float(solver.atol), MAX_REJECTIONS if settings.stall else None, settings.jacobian,
            tuple(settings.compile_options))
     args = (held_values(table, vals), env, pad.bg, pad.bg_sigma, px.y, px.w, pad.base, (px.rows, px.cols, px.idx))
     return key, args, px
 
 
-def prepare_local(lev: Level, table: ParameterTable, opts: FitOptions, vals: dict, env, max_steps=None,
+def prepare_local(lev: Level, table: ParameterTable, solver: SolverSettings, vals: dict, env, max_steps=None,
                   settings: SolveSettings = SolveSettings()) -> None:
     """Start compiling (or loading) the program of :func:`~bubblefit.inverse._local.solve_local` with these arguments
     in the background (:meth:`bubblefit.io.executables.Stored.prepare`): a fit calls it for
     its final solve before the global search, whose own programs compile meanwhile. Only
     the shapes of ``vals`` and the level count; without the executable store (library
     calls) the program is compiled in the background all the same, not saved."""
-    key, args, _ = solve_program(lev, table, opts, vals, env, max_steps, settings)
+    key, args, _ = solve_program(lev, table, solver, vals, env, max_steps, settings)
     stored_solver(*key).prepare(table.unconstrained(vals), args)
 
 
@@ -421,7 +421,7 @@ def warm_up(st, opts: FitOptions, env, settings: SolveSettings) -> None:
     :func:`prepare_reporter`). On 2 cores an empty-cache fit takes about 4 s less
     (``experiments/bench_fit.py --background-compile``). ``st``: the fit's
     :class:`~bubblefit.inverse._setup.Setup`."""
-    prepare_local(st.lev_fit, st.table, opts, st.vals, env, settings=settings)
+    prepare_local(st.lev_fit, st.table, opts.solver, st.vals, env, settings=settings)
     if opts.thickness != "map":
         prepare_render_bubble(final_params(st.table, st.vals, opts), st.level(1, opts), env)
     prepare_reporter(st.table, st.vals)

@@ -333,7 +333,7 @@ def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, d
     if saturated_in is not None and np.shape(saturated_in) != photo.shape[:2]:
         raise InputError(f"the saturation mask is {np.shape(saturated_in)}, the photo is "
                          f"{photo.shape[1]}x{photo.shape[0]}")
-    frame = analysis_frame(photo, background, saturation_mask(photo, opts.saturation, saturated_in), disc, opts)
+    frame = analysis_frame(photo, background, saturation_mask(photo, opts.noise.saturation, saturated_in), disc, opts)
     del photo, background  # from here on, only the analysed frame
     H, W = frame.photo.shape[:2]
     camera, center, radius = persp or (OrthographicCamera(W, H, *frame.disc), (0.0, 0.0, 0.0), 1.0)

@@ -27,7 +27,7 @@ by a smooth, thickness-like amount moves the fitted thickness and leaves no resi
 Against three renderers that share no code with bubblefit (``experiments/validation``'s development cases ref_const300, ref_const620, ref_const1200, ref_const450, cyc_const500)
 the constant films came out 0.1-1.1 nm from the truth, RMS 0.6 nm, while the estimates
 above said 0.1-0.2 nm. That scatter is added in quadrature to the variance of every
-thickness (``FitOptions.thickness_model_error_nm``): a Type B uncertainty, evaluated from
+thickness (``JudgeSettings.thickness_model_error_nm``): a Type B uncertainty, evaluated from
 other information than the data at hand (JCGM 100:2008, the GUM, sec. 4.3), independent
 between the thickness keys.
 

@@ -5,7 +5,7 @@ A fit is ``ok`` only when (1) the local solver met its tolerances with finite er
 (its :data:`~bubblefit.inverse._parameters.PARAMETERS` ``plausible`` range, or the
 searched thickness range) and (4) the photo is explained within its noise plus the
 model-error floor: the reduced chi^2 with each pixel's variance
-``sigma^2 + (FitOptions.model_error * photo)^2`` is at most ``FitOptions.ok_chi2``; after
+``sigma^2 + (JudgeSettings.model_error * photo)^2`` is at most ``JudgeSettings.ok_chi2``; after
 :func:`verdict`, the fit adds (5): the stated camera response can produce the photo's hues
 (:func:`bubblefit.inverse.colour_check.judge_colours`). When
 it is not, the warning says whether the misfit is local: a few outlier pixels

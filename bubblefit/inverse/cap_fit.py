@@ -20,15 +20,15 @@ what lies on either side and is left out, as a flat film's frame edge is).
    fitted pixels' colours on the exact render (front and rear films at their own
    thicknesses), with the censored residual of clipped channels
    (:func:`._censored.censored_residual`) made robust as the bubble fit's
-   (:func:`._lm.robust`, ``FitOptions.robust_scale``; :func:`._planar_lm.levenberg_marquardt`),
+   (:func:`._lm.robust`, ``SolverSettings.robust_scale``; :func:`._planar_lm.levenberg_marquardt`),
    whitened by each channel's noise ``sigma`` (the
    bubble fit's model of read, shot and quantisation noise,
    :func:`._observation.noise_sigma`), each pixel the mean of 2 x 2 rays.
 4. *Standard errors*: ``(J^T J)^-1`` widened by the Birge ratio, plus the thickness
-   model error (:attr:`FitOptions.thickness_model_error_nm`) in quadrature, as for flat
+   model error (:attr:`JudgeSettings.thickness_model_error_nm`) in quadrature, as for flat
    films. ``ok`` by the bubble fit's verdict (:func:`._verdict.verdict`): no warning and
-   a reduced chi^2 with the model-error floor (:attr:`FitOptions.model_error`) at most
-   :attr:`FitOptions.ok_chi2`; a local misfit (glints of the sun) is named, and not ok.
+   a reduced chi^2 with the model-error floor (:attr:`JudgeSettings.model_error`) at most
+   :attr:`JudgeSettings.ok_chi2`; a local misfit (glints of the sun) is named, and not ok.
 
 References
 ----------
@@ -230,7 +230,7 @@ def fit_cap(photo: np.ndarray, scene, env, *, kind: str | None = None, clip_high
         raise InputError("the cap does not appear in the photo (the pixels where it should be are dark)")
     seen = ((y > BLACK_CLIP) & (y < clip_high)).astype(np.float64)
     # the bubble fit's noise model per pixel and channel (read, shot and quantisation noise)
-    sigma = noise_sigma(y, opts.noise_read, opts.noise_shot, bits)
+    sigma = noise_sigma(y, opts.noise.read, opts.noise.shot, bits)
     lo, hi = scene.thickness_range
     grid = np.arange(lo, hi + 0.5 * GRID_STEP_NM, GRID_STEP_NM)
     table = _table(scene, cap_config(scene, "constant"), env, rows, cols, npix, grid)
@@ -249,7 +249,7 @@ def fit_cap(photo: np.ndarray, scene, env, *, kind: str | None = None, clip_high
 
     sig = jnp.asarray(sigma, jnp.float32)
     obs = jnp.asarray(y, jnp.float32)
-    scale = opts.robust_scale
+    scale = opts.solver.robust_scale
 
     def resid(t):  # the bubble fit's robust (pseudo-Huber) residual of the censored, whitened misfit
         return robust(censored_residual(obs, model(t), clip_high) / sig, scale).ravel()
@@ -270,7 +270,7 @@ def fit_cap(photo: np.ndarray, scene, env, *, kind: str | None = None, clip_high
     except np.linalg.LinAlgError:
         raise ComputationError("the cap's fit is singular (no colour changes with the thickness)") from None
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    me = opts.thickness_model_error_nm
+    me = opts.judge.thickness_model_error_nm
     names = ["thickness_nm"] if kind == "constant" else ["top_nm", "bottom_nm", "exponent"]
     params = {n: float(v) for n, v in zip(names, theta)}
     stderr = {n: float(s) for n, s in zip(names, se)}
@@ -288,13 +288,13 @@ def fit_cap(photo: np.ndarray, scene, env, *, kind: str | None = None, clip_high
     edge = (dfront <= lo + 1e-6) | (dfront >= hi - 1e-6)
     if edge.mean() > 0.05:
         warnings.append(f"{100 * edge.mean():.0f} % of the cap sits at the edge of the searched range {lo:g}-{hi:g} nm")
-    fit_misfit = _misfit(res, sigma, y, opts.model_error, len(theta))
+    fit_misfit = _misfit(res, sigma, y, opts.judge.model_error, len(theta))
     chi2_floor = fit_misfit.chi2_floor
     sigma = float(np.median(sigma))
     # the bubble fit's verdict: explained within ok_chi2 with the model-error floor; a
     # misfit it calls local (outliers, the rest explained) keeps the fit not ok
-    ok, warnings = verdict(converged=True, disc_found=True, bound_warnings=[], misfit=fit_misfit, ok_chi2=opts.ok_chi2,
-                           model_error=opts.model_error, notes=warnings)
+    ok, warnings = verdict(converged=True, disc_found=True, bound_warnings=[], misfit=fit_misfit,
+                           ok_chi2=opts.judge.ok_chi2, model_error=opts.judge.model_error, notes=warnings)
     on_dir = direct.ravel()[flat]
     tmap = _on_image(direct, dfront[on_dir], np.nan)
     smap = _on_image(direct, np.full(int(on_dir.sum()), stderr[names[0]] if kind == "constant" else np.nan), np.nan)

@@ -29,15 +29,15 @@ error is removed with the plane, noise is not) to the scatter the noise model pr
 pooled over all cells (hundreds of pixels, so it adds little tail), or the same for the
 means of 2 x 2 blocks of pixels times 4 when that is larger (noise that neighbours share,
 as JPEG's 4:2:0 chroma subsampling makes it, which independent pixels would average
-away); a camera noisier than the noise model (``FitOptions.noise_read``, ``noise_shot``)
-raises ``kappa``, not the alarm. A wrong response
+away); a camera noisier than the noise model (``FitOptions.noise``) raises ``kappa``, not
+the alarm. A wrong response
 moves every pixel of a thickness the same way: ``m_b`` grows with it and ``C_b`` does not.
 
 Pixels the fit calls outliers (chi^2 with its model-error floor over
 :data:`~bubblefit.inverse._uncertainty.OUTLIER_CHI2`: glints, specks) are left out. A
 photo demosaiced from a Bayer mosaic holds, in a mean over ``n`` pixels, the noise of
 only ``share * n`` photosites per channel (1/4, 1/2, 1/4): the fit divides its ``sigma``
-by ``sqrt(share)`` (``FitOptions.photosite_share``), an upper bound of that noise.
+by ``sqrt(share)`` (``NoiseSettings.photosite_share``), an upper bound of that noise.
 
 Why a cell's own scatter is not used as its noise: estimated from its ~25 pixels, it
 makes ``2 |m_b|^2 / (tr S_b / n_b)`` an F-like law with a heavier tail than chi^2, and

@@ -21,7 +21,7 @@ about +y, from a linear (H, W, 3) photo and its environment map. It runs the sta
 4. Local Levenberg-Marquardt (:mod:`._local`, :mod:`._lm`) on the whitened, robust residual
    ``(render - photo) / sigma`` inside the disc (``rho < rim``), not saturated, with
    ``sigma^2 = read^2 + shot * I + q^2``, through a pseudo-Huber loss of scale
-   ``robust_scale`` sigmas.
+   ``SolverSettings.robust_scale`` sigmas.
 5. Uncertainty (:mod:`._uncertainty`): covariance by the delta method.
 6. Thickness map (:mod:`._maps`), after a drainage fit.
 
@@ -57,7 +57,7 @@ from ._observation import noise_sigma
 from ..capture.circle import detect_disc
 from ._programs import (FINAL_SOLVE, SEARCH_SOLVE, WARM_SOLVE, SolveSettings, batched_solver, final_params,
                         fitted_pixels, held_values, render_bubble, render_level, reporter, warm_up)
-from ._options import FitOptions, FitResult
+from ._options import FitOptions, FitResult, JudgeSettings, MapSettings, NoiseSettings, SolverSettings
 from ._parameters import THICKNESSES, extrapolated, parameter_roles, refined_disc
 from ._setup import Setup, defaults, setup
 from ._uncertainty import Uncertainty, uncertainty
@@ -69,7 +69,8 @@ from ..lighting.envmap import EnvMap
 from ..model.thickness import drainage_profile
 from ..progress import stage
 
-__all__ = ["FitOptions", "FitResult", "fit_photo", "fit_batch", "detect_disc", "noise_sigma"]
+__all__ = ["FitOptions", "FitResult", "NoiseSettings", "MapSettings", "JudgeSettings", "SolverSettings",
+           "fit_photo", "fit_batch", "detect_disc", "noise_sigma"]
 
 #: A warm-started fit whose noise-weighted reduced chi^2 exceeds this is checked against a
 #: global thickness search (see :func:`fit_photo`).
@@ -103,10 +104,11 @@ def _searched_start(st: Setup, opts: FitOptions, env) -> dict:
     in the final solve only); the lowest cost wins."""
     lev_s = st.level(st.k_search, opts)
     starts = search.search_starts(lev_s, st.search_table, st.vals, env, opts.thickness_range,
-                                  opts.search_step_nm, opts.candidates)
+                                  opts.solver.search_step_nm, opts.solver.candidates)
     best_v, best_c = None, np.inf
     for s in starts:
-        sol = solve_local(lev_s, st.search_table, opts, s, env, max_steps=opts.search_steps, settings=SEARCH_SOLVE)
+        sol = solve_local(lev_s, st.search_table, opts.solver, s, env, max_steps=opts.solver.search_steps,
+                          settings=SEARCH_SOLVE)
         if np.isfinite(sol.cost) and sol.cost < best_c:
             best_v, best_c = sol.values, sol.cost
     return best_v if best_v is not None else starts[0]
@@ -172,15 +174,15 @@ def _judge(st: Setup, opts: FitOptions, sol: LocalSolution, notes: list) -> Judg
     the solver's status and the parameters at a bound or out of the searched range; the
     cautions are appended to ``notes``."""
     table = st.table
-    unc = uncertainty(sol, table, st.lev_fit, float(opts.robust_scale), float(opts.model_error),
-                      float(opts.thickness_model_error_nm))
+    unc = uncertainty(sol, table, st.lev_fit, float(opts.solver.robust_scale), float(opts.judge.model_error),
+                      float(opts.judge.thickness_model_error_nm))
     reported, stderr = unc.reported, unc.stderr
     disc, disc_stderr = refined_disc(st.disc, reported, stderr, float(opts.disc_model_error))
     status, converged = _status_notes(sol, unc.finite, unc.misfit.chi2_nu, notes, table.free)
     solved = reported
     reported, outside = clamp_to_range(solved, table, opts.thickness_range, THICKNESSES)
     clamped = {k for k in THICKNESSES if reported.get(k) != solved.get(k)}  # said once, by clamp_to_range
-    bounds = outside + [w for w in at_bounds(sol.values, table, opts.thickness_range, 0.5 * opts.search_step_nm)
+    bounds = outside + [w for w in at_bounds(sol.values, table, opts.thickness_range, 0.5 * opts.solver.search_step_nm)
                         if w.split(" = ")[0] not in clamped]
     notes += unresolved(reported, stderr, table)
     return Judgement(unc, reported, stderr, disc, disc_stderr, status, converged, bounds)
@@ -211,6 +213,7 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     """The thickness map (``--thickness map``), the full-resolution render, the verdict and
     the :class:`FitResult` of a judged solve."""
     table, unc = st.table, judged.uncertainty
+    judge = opts.judge
     reported, stderr = dict(judged.reported), dict(judged.stderr)
     status, converged = judged.status, judged.converged
     new = sol.values
@@ -222,7 +225,7 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
                                      make_level=lambda k: st.level(k, opts, st.map_cfg))
         final_vals["map"] = dmap
         thickness_map = np.where(full.inside, dmap, np.nan)
-        stderr_map = np.where(full.mask, np.hypot(emap, float(opts.thickness_model_error_nm)), np.nan)
+        stderr_map = np.where(full.mask, np.hypot(emap, float(judge.thickness_model_error_nm)), np.nan)
         reported["thickness_nm"] = float(np.median(dmap[full.mask])) if full.mask.any() else float("nan")
         stderr["thickness_nm"] = float(np.nanmedian(stderr_map[full.mask])) if full.mask.any() else float("nan")
         if not map_ok:
@@ -237,14 +240,15 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     reported["n_film"] = float(st.vals["n_film"])
     bounds = judged.bounds + _exposure_doubts(st, opts, env, full, reported)
     ok, warnings = verdict(converged=bool(converged), disc_found=True, bound_warnings=bounds,
-                           misfit=unc.misfit, ok_chi2=float(opts.ok_chi2), model_error=float(opts.model_error),
+                           misfit=unc.misfit, ok_chi2=float(judge.ok_chi2), model_error=float(judge.model_error),
                            notes=st.warnings, swap_possible=st.pair is not None and st.pair.swap_possible)
     disc_stderr = judged.disc_stderr
     # can the stated camera response produce the photo's colours? (bubblefit.inverse.colour_check)
-    sigma = st.sigma if opts.photosite_share is None else st.sigma / np.sqrt(np.asarray(opts.photosite_share))
-    explained = bool(unc.misfit.chi2_floor <= float(opts.ok_chi2))  # as the verdict judges it
+    share = opts.noise.photosite_share
+    sigma = st.sigma if share is None else st.sigma / np.sqrt(np.asarray(share))
+    explained = bool(unc.misfit.chi2_floor <= float(judge.ok_chi2))  # as the verdict judges it
     ok, warnings, colour_record = judge_colours(ok, warnings, st.photo, img, full.mask, full.cos, sigma,
-                                                float(opts.model_error), explained)
+                                                float(judge.model_error), explained)
     return FitResult(
         params=reported, stderr=stderr, held=list(table.held), converged=bool(converged),
         message="; ".join(notes) if notes else "converged", iterations=sol.steps, residual_rms=rms,
@@ -253,8 +257,8 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
         thickness_model=opts.thickness, model=opts.model, reduced_chi2=unc.misfit.chi2_nu,
         pixels_used=int(st.lev_fit.mask.sum()), status=status, names=unc.names, covariance=unc.covariance,
         ok=ok, warnings=warnings, chi2_floor=unc.misfit.chi2_floor, chi2_inliers=unc.misfit.chi2_inliers,
-        outliers=unc.misfit.outliers, chi2_capped=unc.misfit.chi2_capped, model_error=float(opts.model_error),
-        thickness_model_error_nm=float(opts.thickness_model_error_nm),
+        outliers=unc.misfit.outliers, chi2_capped=unc.misfit.chi2_capped, model_error=float(judge.model_error),
+        thickness_model_error_nm=float(judge.thickness_model_error_nm),
         disc_model_error=float(opts.disc_model_error) if disc_stderr is not None else float("nan"),
         stderr_scale=unc.scale, roles=parameter_roles(table, st.fx.model, tuple(reported)),
         frame=None if st.frame.whole else (st.frame.x0, st.frame.y0, st.frame.k), colour=st.colour,
@@ -301,7 +305,7 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
         held fixed.
     saturated : np.ndarray, optional
         (H, W) bool of clipped pixels (e.g. :attr:`Image.saturated`), excluded in addition
-        to values >= ``options.saturation``.
+        to values >= ``options.noise.saturation``.
 
     Returns
     -------
@@ -373,7 +377,7 @@ def _fit_one(photo, env, options: FitOptions, background, init, scene, saturated
     else:
         start = st.vals
     with stage(f"local fit, {len(st.table.free)} parameters"):
-        sol = solve_local(st.lev_fit, st.table, opts, start, env, settings=settings)
+        sol = solve_local(st.lev_fit, st.table, opts.solver, start, env, settings=settings)
     notes = []
     if warm and searches:
         sol = _checked_warm_start(st, opts, env, sol, settings, notes)
@@ -393,7 +397,7 @@ def _checked_warm_start(st: Setup, opts: FitOptions, env, sol: LocalSolution, se
     if not why:
         return sol
     with stage(f"warm start doubtful ({why}): global search and local fit"):
-        second = solve_local(st.lev_fit, st.table, opts, _searched_start(st, opts, env), env,
+        second = solve_local(st.lev_fit, st.table, opts.solver, _searched_start(st, opts, env), env,
                              settings=replace(settings, stall=True))
     if np.isfinite(second.cost) and (not np.isfinite(sol.cost) or second.cost < sol.cost):
         notes.append(f"warm start rejected ({why}); searched globally")
@@ -418,10 +422,10 @@ def _judged_text(r: FitResult) -> str:
     return "failed" if r.status == "failed" else f"{_judged_chi2(r):.3g}"
 
 
-def _explained(r: FitResult, opts: FitOptions) -> bool:
+def _explained(r: FitResult, judge: JudgeSettings) -> bool:
     """Whether a fit explains its photo: converged, with the reduced chi^2 with the
-    model-error floor within ``opts.ok_chi2``."""
-    return bool(r.converged) and r.chi2_floor <= float(opts.ok_chi2)
+    model-error floor within ``judge.ok_chi2``."""
+    return bool(r.converged) and r.chi2_floor <= float(judge.ok_chi2)
 
 
 def _fit_either_model(photo, env, options: FitOptions, background, init, scene, saturated) -> FitResult:
@@ -440,7 +444,7 @@ def _fit_either_model(photo, env, options: FitOptions, background, init, scene, 
     t0 = time.perf_counter()
     with stage("paper model"):
         first = _fit_one(photo, env, replace(options, model="paper"), background, init, scene, saturated)
-    if _explained(first, options):
+    if _explained(first, options.judge):
         first.message += "; model auto: the paper model explains the photo"
         return first
     start = {k: v for k, v in first.params.items() if np.isfinite(v)} if first.converged else init
@@ -499,8 +503,9 @@ def fit_batch(photos, env: EnvMap, *, options: FitOptions = FitOptions(), backgr
     union = np.logical_or.reduce([s.lev_fit.mask for s in setups])  # a frame's other pixels: weight 0
     pxs = [fitted_pixels(s.lev_fit, s.lev_fit.cfg.chunk, union) for s in setups]
     pad = pxs[0].padded
-    solve = batched_solver(pad.cfg, table, float(options.robust_scale), int(options.max_steps),
-                           float(options.rtol), float(options.atol), None)
+    lm = options.solver
+    solve = batched_solver(pad.cfg, table, float(lm.robust_scale), int(lm.max_steps), float(lm.rtol), float(lm.atol),
+                           None)
     out = solve(jnp.asarray(np.stack(z0), jnp.float32),
                 (fixed, env, pad.bg, pad.bg_sigma, jnp.stack([x.y for x in pxs]), jnp.stack([x.w for x in pxs]), pad.base,
                  (pxs[0].rows, pxs[0].cols, pxs[0].idx)))

@@ -55,7 +55,7 @@ from ..lighting import coaxial
 from ..optics import dispersion, spectral
 from ._censored import BLACK_CLIP, censored_residual
 from ._drainage_plane import EXPONENT_RANGE, film_height, fit_drainage
-from ._options import FitOptions
+from ._options import JudgeSettings
 
 __all__ = ["PlanarView", "PlanarForward", "PlanarResult", "fit_planar", "view_of"]
 
@@ -588,7 +588,8 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         dd = float(np.median(dref))
         params["thickness_nm"] = dd
         birge = max(1.0, float(np.mean(res ** 2) / sigma ** 2))
-        perr["thickness_nm"] = float(np.hypot(sigma * np.sqrt(birge / np.sum(jj_)), FitOptions.thickness_model_error_nm))
+        perr["thickness_nm"] = float(np.hypot(sigma * np.sqrt(birge / np.sum(jj_)),
+                                              JudgeSettings.thickness_model_error_nm))
     if kind == "drainage":
         dres = fit_drainage(fwd, y, lum, sin2, view.height[mask], start, gain, sigma, lo, hi, (h, w),
                             np.flatnonzero(mask.ravel()), clip_high)
@@ -607,9 +608,9 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         res = censored_residual(y, model, clip_high, np)
     chi2 = float(np.mean(res ** 2) / sigma ** 2)
     # with each channel's variance sigma^2 + (model_error y)^2, the floor by which a
-    # bubble's fit is judged (FitOptions.model_error: how much independent renderers
+    # bubble's fit is judged (JudgeSettings.model_error: how much independent renderers
     # differ on the same film); ``ok`` is judged by this one
-    chi2_floor = float(np.mean(res ** 2 / (sigma ** 2 + (FitOptions.model_error * y) ** 2)))
+    chi2_floor = float(np.mean(res ** 2 / (sigma ** 2 + (JudgeSettings.model_error * y) ** 2)))
     tmap = _on_image(mask, dref, np.nan)
     smap = _on_image(mask, stderr, np.nan)
     hops = _hops(tmap, window) if kind == "map" else 0

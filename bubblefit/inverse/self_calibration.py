@@ -34,7 +34,7 @@ tolerance ``s_max max(M, N) eps`` (Golub & Van Loan, *Matrix Computations*, 4th 
 5.4.1; numpy's ``matrix_rank``), ``eps`` the renders' resolution (float32), and the least
 singular value of the response's columns projected off the film's (what the film's
 parameters cannot mimic), which must exceed the fit's model-error floor
-(``FitOptions.model_error``). A bubble's constant film is seen over a spread of
+(``JudgeSettings.model_error``). A bubble's constant film is seen over a spread of
 refraction angles, so its Jacobian has full numerical rank, but the response's distinct
 part is a few parts in ten thousand of its coefficients' effects: far under what the
 model is trusted to render. A photo that fails either test leaves some combination of
@@ -443,7 +443,7 @@ def calibrate_in_fit(st, opts, env, vals: dict, max_steps: int = 30, search_step
     cost, theta, coef, r, jm, b, steps, converged = best
     dof = max(r.size - len(names), 1)
     chi2 = cost / dof
-    rank = degeneracy(jm, names, len(film), float(opts.model_error))
+    rank = degeneracy(jm, names, len(film), float(opts.judge.model_error))
     cov = np.linalg.pinv(jm.T @ jm) * max(chi2, 1.0)
     if not rank.determined:
         cov = np.full_like(cov, np.nan)
@@ -537,21 +537,22 @@ def self_calibrated(first, photo, env, options, background, scene, saturated):
     m = full.mask
     r_white = (img[m] - full.y[m]) * full.w[m]
     n_free = len(cal.values) + len(cal.coefficient_names)
-    mis = _misfit(r_white, full.y[m], full.w[m], float(opts.model_error), n_free)
+    mis = _misfit(r_white, full.y[m], full.w[m], float(opts.judge.model_error), n_free)
     notes = [] if cal.rank.determined else [cal.rank.reason()]
     lo, hi = opts.thickness_range
     bounds = [f"{k} = {v:.1f} nm lies outside the searched thickness range {lo:g}-{hi:g} nm"
               for k, v in cal.values.items() if k in THICKNESSES and not lo - 1.0 <= v <= hi + 1.0]
     ok, warnings = verdict(converged=bool(cal.converged), disc_found=True, bound_warnings=bounds, misfit=mis,
-                           ok_chi2=float(opts.ok_chi2), model_error=float(opts.model_error), notes=notes)
+                           ok_chi2=float(opts.judge.ok_chi2), model_error=float(opts.judge.model_error), notes=notes)
     ok = ok and cal.rank.determined
-    sigma = st.sigma if opts.photosite_share is None else st.sigma / np.sqrt(np.asarray(opts.photosite_share))
+    share = opts.noise.photosite_share
+    sigma = st.sigma if share is None else st.sigma / np.sqrt(np.asarray(share))
     ok, warnings, colour_record = judge_colours(ok, warnings, st.photo, img, m, full.cos, sigma,
-                                                float(opts.model_error), mis.chi2_floor <= float(opts.ok_chi2))
+                                                float(opts.judge.model_error), mis.chi2_floor <= float(opts.judge.ok_chi2))
     # the joint fit's values as the fit reports them; standard errors for the fitted names
     # (a value derived from them, e.g. r_d and r_s from the split, has none here)
     params, stderr = dict(first.params), dict(first.stderr)
-    floor = float(opts.thickness_model_error_nm)
+    floor = float(opts.judge.thickness_model_error_nm)
     for k, v in st.table.reported({k: np.float32(v) for k, v in vals.items()}).items():
         if k in params:
             params[k] = float(v)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import gc
 import os
+import sys
 from pathlib import Path
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
@@ -48,12 +49,31 @@ def small_courtyard(courtyard_pixels) -> np.ndarray:
     return px
 
 
+def _package_caches():
+    """The ``functools.lru_cache`` functions of the loaded ``bubblefit`` modules, except the
+    one-entry ones (the source digest, the compile thread pool: no programs in them)."""
+    found = {}
+    for name, module in list(sys.modules.items()):
+        if module is None or not (name == "bubblefit" or name.startswith("bubblefit.")):
+            continue
+        for value in list(vars(module).values()):
+            info = getattr(value, "cache_info", None)
+            if callable(info) and hasattr(value, "cache_clear") and info().maxsize != 1:
+                found[id(value)] = value
+    return list(found.values())
+
+
 @pytest.fixture(scope="module", autouse=True)
 def _compiled_programs_dropped():
-    """JAX keeps every program it compiles for the life of the process; after a test module
-    they are dropped (with the arrays only they held), so the suite's memory is that of its
-    largest module rather than the sum of all of them."""
+    """JAX keeps every program it compiles for the life of the process, and the package
+    keeps the jitted and stored programs it builds per configuration in ``lru_cache``s
+    (with the executables they loaded): after a test module both are emptied (with the
+    arrays only they held), so the suite's memory is that of its largest module rather
+    than the sum of all of them. After ``test_fit.py``, JAX's caches alone left 1.23 GB
+    resident and the package's caches held 0.57 GB of it."""
     yield
+    for cached in _package_caches():
+        cached.cache_clear()
     jax.clear_caches()
     gc.collect()
 

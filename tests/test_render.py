@@ -93,6 +93,11 @@ from bubblefit.model.geometry import OrthographicCamera  # noqa: E402
 from bubblefit.model.render import Params, RenderConfig, render, render_terms  # noqa: E402
 from bubblefit.optics.spectral import spectral_basis  # noqa: E402
 
+# render_terms is not jitted itself (render is, around it): called eagerly, its chunk loop
+# (a lax.map) is compiled afresh on every call; jitted once per configuration here, a test
+# that renders one configuration at several thicknesses compiles it once
+_terms = jax.jit(render_terms, static_argnames=("cfg",))
+
 CAM = OrthographicCamera(40, 40, 20.0, 20.0, 18.0)
 
 
@@ -256,7 +261,6 @@ def test_transmission_tint_is_the_complement_of_the_reflection(x64):
     (normal incidence) against that formula written here with numpy, for the background
     term; without the tint the background is eq. (11)'s grey t^4; and the tint's colour
     opposes the reflected one (energy conservation: what is not reflected goes through)."""
-    from bubblefit.model.render import render_terms
     from bubblefit.model.scene import Scene
 
     from bubblefit.lighting.envmap import EnvMap
@@ -274,7 +278,7 @@ def test_transmission_tint_is_the_complement_of_the_reflection(x64):
                             "filtering": "mirror", "rear_reflection": False, "diffuse": False,
                             "spectral": {"method": "uniform", "samples": 64}}})
             cfg, _ = scene.config(env)
-            _, tm = render_terms(scene.params(dtype=np.float64), cfg, env)
+            _, tm = _terms(scene.params(dtype=np.float64), cfg, env)
             terms[tint] = {k: np.asarray(v)[size // 2, size // 2] for k, v in tm.items()}
         basis = cfg.effects.spectral
         lam = np.asarray(basis.wavelengths)
@@ -453,7 +457,7 @@ def test_a_map_keeps_its_profile_on_the_films_the_photo_does_not_show(env64, cam
     inside = inside.reshape(32, 32)
     front_map = np.asarray(drainage_profile(local0[:, 1], *prof), np.float32).reshape(32, 32)
     fx = Effects(model="physical", interference="airy", spectral=spectral_basis("uniform", 32), bounces=3)
-    terms = lambda kind, th, pr=NO_PROFILE: {k: np.asarray(v) for k, v in render_terms(
+    terms = lambda kind, th, pr=NO_PROFILE: {k: np.asarray(v) for k, v in _terms(
         Params.make(roughness=0.05, thickness=th, profile=pr),
         RenderConfig(effects=dataclasses.replace(fx, thickness=kind), camera=cam, chunk=256), env)[1].items()}
     total = lambda t: sum(t.values())
@@ -483,7 +487,7 @@ def test_constant_films_at_many_thicknesses_equal_their_renders(env64, model, sp
     """render_pixels_at traces the rays and reads the map once for a list of thicknesses:
     each thickness's terms equal render_terms' at that thickness, on the listed pixels,
     for both models, sub-pixel rays and a background photo; a wrong thickness does not."""
-    from bubblefit.model.render import pixel_chunks, render_pixels_at, render_terms
+    from bubblefit.model.render import pixel_chunks, render_pixels_at
 
     env = EnvMap.from_array(env64[1])
     cam = OrthographicCamera(24, 20, 12.0, 10.5, 8.0)
@@ -498,7 +502,7 @@ def test_constant_films_at_many_thicknesses_equal_their_renders(env64, model, sp
     many = render_pixels_at(p, cfg, env, bg, rows, cols, idx, thick)
     assert set(many) == ({"front", "rear", "background"})
     for g, d in enumerate(thick):
-        _, terms = render_terms(dataclasses.replace(p, thickness=jnp.float32(d)), cfg, env, bg)
+        _, terms = _terms(dataclasses.replace(p, thickness=jnp.float32(d)), cfg, env, bg)
         for name, v in terms.items():
             want = np.asarray(v).reshape(-1, 3)[pixels]
             got = np.asarray(many[name][g])[:npix]

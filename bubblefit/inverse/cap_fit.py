@@ -149,7 +149,8 @@ def _ls_cost(y, model, seen, sigma):
     least-squares exposures, then the least-squares one over the pixels within the cap:
     a glint of the sun, which one ray per pixel places differently from the photo's pixel
     box and which the photo clips, then moves neither the exposure nor the cost by more
-    than an outlier's worth."""
+    than an outlier's worth. Chosen on the development case cyc_cap_drain_sunrise, whose
+    sun glints had drawn a least-squares search to a nearly black film."""
     w = seen / sigma
     yw, m = y * w, model * w
     a = np.einsum("pc,...pc->...p", yw, m)

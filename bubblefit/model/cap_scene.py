@@ -28,7 +28,7 @@ from pathlib import Path
 from ..errors import InputError
 from .cap import Cap
 from .geometry import PerspectiveCamera
-from .planar_scene import _num, _read_toml, _vec, parse_cap
+from .planar_scene import _num, _read_toml, _vec, film_kind_and_range, parse_cap
 
 __all__ = ["CapScene", "load_cap_scene", "parse_cap_scene", "is_cap_file", "KINDS"]
 
@@ -79,12 +79,7 @@ def parse_cap_scene(data: dict, base_dir=".") -> CapScene:
     base = Path(base_dir)
     f, env, cam, light = (data.get(k, {}) for k in ("film", "environment", "camera", "lighting"))
     cap = parse_cap(f)
-    kind = f.get("thickness", "constant")
-    if kind not in KINDS:
-        raise InputError(f"film.thickness of a cap must be one of {', '.join(KINDS)}, got {kind!r}")
-    lo, hi = _vec(f, "range_nm", "film", 2, (0.0, 1500.0))
-    if not 0 <= lo < hi <= 5000:
-        raise InputError(f"film.range_nm must satisfy 0 <= lo < hi <= 5000 nm, got {[lo, hi]}")
+    kind, (lo, hi) = film_kind_and_range(f, KINDS, "constant", (0.0, 1500.0), 5000, what=" of a cap")
     n_film = _num(f, "n", "film", 1.4, 1.0, 3.0)
     film_rgb = f.get("film_rgb", "spectral")
     if film_rgb not in ("spectral", "clamped"):

@@ -37,7 +37,7 @@ from ..lighting.area import Patch
 from ..lighting.coaxial import Stack
 from ..optics import dispersion
 
-__all__ = ["PlanarScene", "is_planar", "is_planar_file", "load_planar", "parse_cap", "parse_planar", "parse_region"]
+__all__ = ["PlanarScene", "film_kind_and_range", "is_planar", "is_planar_file", "load_planar", "parse_cap", "parse_planar", "parse_region"]
 
 THICKNESS_KINDS = ("map", "newton", "constant", "drainage")
 
@@ -127,6 +127,19 @@ def _num(table: dict, key: str, where: str, default=None, lo=-math.inf, hi=math.
     return float(v)
 
 
+def film_kind_and_range(f: dict, kinds, default_kind: str, default_range: tuple, limit_nm: float,
+                        what: str = "") -> tuple[str, tuple[float, float]]:
+    """The ``[film]`` table's thickness model (one of ``kinds``) and searched range
+    ``range_nm`` (0 <= lo < hi <= ``limit_nm``); ``what`` names the film in the messages."""
+    kind = f.get("thickness", default_kind)
+    if kind not in kinds:
+        raise InputError(f"film.thickness{what} must be one of {', '.join(kinds)}, got {kind!r}")
+    lo, hi = _vec(f, "range_nm", "film", 2, default_range)
+    if not 0 <= lo < hi <= limit_nm:
+        raise InputError(f"film.range_nm must satisfy 0 <= lo < hi <= {limit_nm:g} nm, got {[lo, hi]}")
+    return kind, (lo, hi)
+
+
 def _vec(table: dict, key: str, where: str, n: int, default=None) -> tuple:
     v = table.get(key, default)
     ok = isinstance(v, (list, tuple)) and len(v) == n and all(
@@ -176,12 +189,7 @@ def parse_planar(data: dict, base_dir: str | os.PathLike = ".") -> PlanarScene:
     stack = Stack(above=dispersion.parse_index(f.get("above", "air"), "film.above"),
                   film=dispersion.parse_index(f.get("n", 1.4), "film.n"),
                   below=dispersion.parse_index(f.get("below", "air"), "film.below"))
-    kind = f.get("thickness", "map")
-    if kind not in THICKNESS_KINDS:
-        raise InputError(f"film.thickness must be one of {', '.join(THICKNESS_KINDS)}, got {kind!r}")
-    lo, hi = _vec(f, "range_nm", "film", 2, (0.0, 2000.0))
-    if not 0 <= lo < hi <= 20000:
-        raise InputError(f"film.range_nm must satisfy 0 <= lo < hi <= 20000 nm, got {[lo, hi]}")
+    kind, (lo, hi) = film_kind_and_range(f, THICKNESS_KINDS, "map", (0.0, 2000.0), 20000)
     region, ref_nm = None, None
     if "reference_region" in f:
         region = tuple(int(v) for v in _vec(f, "reference_region", "film", 4))

@@ -1,0 +1,224 @@
+"""A whole bubble under an area light, against references written here.
+
+* A numpy ray trace of a sphere and a rectangle (the ray-sphere quadratic, the mirror law,
+  the ray-plane intersection and the rectangle's outline), with the Airy sum of a film in
+  air per polarisation (Born & Wolf 1.5.2 and 7.6.1): the render's pixels, front film, rear
+  film and the light straight through.
+* A closed form: an orthographic view of a mirror sphere along -z sends the ray that meets
+  it at the unit normal ``n`` into ``(2 n_z n_x, 2 n_z n_y, 2 n_z^2 - 1)``, so a distant disc
+  light on the axis, seen within a cone of half-angle ``alpha``, lights exactly the image
+  points within ``sin(alpha / 2)`` of the sphere's radius from the centre.
+* A rough film's share of the light against a Monte Carlo integral of Ward's lobe
+  (half-vector slopes drawn as Ward's Gaussian) over the rectangle.
+* The scene file's bad inputs: one line, exit status 2.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from bubblefit.lighting.area import Patch, patch_coverage
+from bubblefit.lighting.envmap import dark_room
+from bubblefit.lighting.filtering import FilterConfig
+from bubblefit.model.cap_render import CapConfig, render_cap
+from bubblefit.model.effects import Effects
+from bubblefit.model.geometry import OrthographicCamera, PerspectiveCamera
+from bubblefit.model.render import Params, RenderConfig
+from bubblefit.optics import spectral
+
+N_FILM, D_NM = 1.4, 380.0
+W = H = 48
+PANEL = dict(center=(0.2, 0.3, 4.4), normal=(0.0, 0.0, -1.0), up=(0.0, 1.0, 0.0), size=(5.0, 3.0), radiance=2.0)
+
+
+def _film_r(cos_i, lam):
+    """Airy reflectance of a film of N_FILM in air, (K, 2) per polarisation."""
+    sin_t = math.sqrt(1 - cos_i**2) / N_FILM
+    cos_t = math.sqrt(1 - sin_t**2)
+    rs = (cos_i - N_FILM * cos_t) / (cos_i + N_FILM * cos_t)
+    rp = (N_FILM * cos_i - cos_t) / (N_FILM * cos_i + cos_t)
+    r01 = np.array([rs, rp])
+    phase = np.exp(1j * 4 * np.pi * N_FILM * D_NM * cos_t / lam)[:, None]
+    r = (r01[None] - r01[None] * phase) / (1 - r01[None] ** 2 * phase)
+    return np.abs(r) ** 2
+
+
+def _panel(o, w):
+    """(radiance, distance of the hit to the outline) of the rectangle along o + s w, s > 0;
+    it emits towards -z only."""
+    c = np.asarray(PANEL["center"])
+    if w[2] <= 0:
+        return 0.0, np.inf
+    s = (c[2] - o[2]) / w[2]
+    if s <= 0:
+        return 0.0, np.inf
+    x, y = (o + s * w - c)[:2]
+    hw, hh = PANEL["size"][0] / 2, PANEL["size"][1] / 2
+    margin = min(abs(abs(x) - hw), abs(abs(y) - hh))
+    return (PANEL["radiance"] if abs(x) <= hw and abs(y) <= hh else 0.0), margin
+
+
+def _reference(cam, i, j, basis):
+    """The pixel's radiance: front film, one rear reflection, the light straight through;
+    None off the sphere or within 1e-3 of the light's outline (float32 rays may fall on
+    either side there)."""
+    o = np.asarray(cam.origin, float)
+    fwd = np.asarray(cam.target, float) - o
+    fwd /= np.linalg.norm(fwd)
+    right = np.cross(fwd, [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, fwd)
+    t = math.tan(math.radians(cam.fov_deg) / 2)
+    d = ((2 * (j + 0.5) / W - 1) * t) * right + ((1 - 2 * (i + 0.5) / H) * t) * up + fwd
+    d /= np.linalg.norm(d)
+    b = o @ d
+    disc = b * b - (o @ o - 1.0)
+    if disc <= 0:
+        return None
+    p0, p1 = o + (-b - math.sqrt(disc)) * d, o + (-b + math.sqrt(disc)) * d
+    cos = abs(p0 @ d)
+    R = _film_r(cos, np.asarray(basis.wavelengths))
+    T = 1 - R
+    rgb = lambda spec: spec.mean(-1) @ np.asarray(basis.weights)
+    lf, mf = _panel(p0, d - 2 * (d @ p0) * p0)
+    lr, mr = _panel(p1, d - 2 * (d @ p1) * p1)
+    lb, mb = _panel(o, d)
+    if min(mf, mr, mb) < 1e-3:
+        return None
+    kinds = {k for k, v in (("front", lf), ("rear", lr), ("through", lb)) if v > 0} or {"dark"}
+    return rgb(R) * lf + rgb(T * R * T) * lr + rgb(T * T) * lb, kinds
+
+
+def _config(camera, bounces=1, **fx):
+    basis = spectral.spectral_basis("uniform", 24, illuminant="E")
+    effects = Effects(model="physical", interference="airy", diffuse=False, filtering=FilterConfig("mirror"),
+                      spectral=basis, bounces=bounces, thickness="constant", **fx)
+    return CapConfig.sphere(RenderConfig(effects=effects, camera=camera), Patch(**PANEL)), basis
+
+
+def test_sphere_under_a_panel_matches_an_independent_trace():
+    """Front film, rear film and straight through, each seeing the panel or not, from the
+    film's own point (the panel is 4 radii away: the point matters)."""
+    cam = PerspectiveCamera(W, H, origin=(0.3, 0.2, 3.8), target=(0.0, 0.0, 0.0), fov_deg=40.0)
+    cfg, basis = _config(cam)
+    img = np.asarray(render_cap(Params.make(thickness=D_NM, n_film=N_FILM, exposure=1.0, roughness=0.0), cfg,
+                                dark_room()))
+    seen = {}
+    for i in range(H):
+        for j in range(W):
+            ref = _reference(cam, i, j, basis)
+            if ref is None:
+                continue
+            # float32 rays and film optics: a few 1e-5 relative
+            np.testing.assert_allclose(img[i, j], ref[0], rtol=1e-3, atol=1e-5, err_msg=f"pixel {i},{j}")
+            for k in ref[1]:
+                seen[k] = seen.get(k, 0) + 1
+    # every kind of pixel was compared: the panel in the front film, in the rear film, dark film
+    assert seen.get("front", 0) > 40 and seen.get("rear", 0) > 10 and seen.get("dark", 0) > 100, seen
+
+
+def test_mirror_sphere_lights_the_closed_form_disc():
+    """Orthographic view, distant disc light on the axis: the lit pixels are those within
+    ``sin(alpha / 2)`` of the sphere's radius from its centre (module docstring)."""
+    alpha = math.radians(50.0)
+    dist = 1e4   # the light's distance in radii: the film's offset from the centre moves the cone by 1e-4
+    cam = OrthographicCamera(96, 96, cx=48.0, cy=48.0, r=40.0)
+    basis = spectral.spectral_basis("uniform", 24, illuminant="E")
+    effects = Effects(model="physical", interference="airy", diffuse=False, filtering=FilterConfig("mirror"),
+                      spectral=basis, bounces=1, thickness="constant", rear_reflection=False, transmission=False)
+    light = Patch(center=(0.0, 0.0, dist), normal=(0.0, 0.0, -1.0), size=(dist * math.tan(alpha),) * 2, shape="disc")
+    cfg = CapConfig.sphere(RenderConfig(effects=effects, camera=cam), light)
+    img = np.asarray(render_cap(Params.make(thickness=D_NM, n_film=N_FILM, roughness=0.0), cfg, dark_room()))
+    i, j = np.mgrid[0:96, 0:96]
+    rho = np.hypot((j + 0.5 - 48.0) / 40.0, (i + 0.5 - 48.0) / 40.0)
+    edge = np.abs(rho - math.sin(alpha / 2)) < 2e-3        # centres on the closed form's circle: either side
+    expect = rho <= math.sin(alpha / 2)
+    got = img.max(-1) > 0
+    assert np.array_equal(got[~edge], expect[~edge])
+    assert expect.sum() > 800   # a disc of about 17 pixels' radius
+
+
+@pytest.mark.parametrize("offset", [0.0, 1.9, 2.5, 3.1])
+def test_rough_share_of_the_panel_against_monte_carlo(offset):
+    """A film point 4 units from a 5 x 3 panel, its mirror ray aimed ``offset`` from the
+    panel's centre along x (inside, near the edge, at it, beyond it), Ward's ``a`` = 0.05:
+    the Gaussian share within 0.02 of a Monte Carlo over the lobe's half-vectors."""
+    a, n_mc = 0.05, 200_000
+    light = Patch(center=(0.0, 0.0, 4.0), normal=(0.0, 0.0, -1.0), size=(5.0, 3.0))
+    o = np.zeros(3)
+    w = np.array([offset, 0.0, 4.0])
+    w /= np.linalg.norm(w)
+    n = np.array([0.0, 0.0, 1.0])
+    wo = 2 * (w @ n) * n - w                     # the viewer's direction whose mirror ray is w
+    rng = np.random.default_rng(3)
+    # Ward's lobe exp(-tan^2 / a^2): the half-vector's slopes are Gaussian with variance a^2 / 2,
+    # about the normal, in a frame where the mirror half-vector is n
+    sx, sy = rng.normal(0.0, a / math.sqrt(2), (2, n_mc))
+    h = np.stack([sx, sy, np.ones(n_mc)], -1)
+    h /= np.linalg.norm(h, axis=-1, keepdims=True)
+    wr = 2 * (h @ wo)[:, None] * h - wo
+    s = 4.0 / wr[:, 2]
+    x, y = s * wr[:, 0], s * wr[:, 1]
+    mc = np.mean((np.abs(x) <= 2.5) & (np.abs(y) <= 1.5) & (wr[:, 2] > 0))
+    got = float(patch_coverage(light, np.asarray([o], np.float32), np.asarray([w], np.float32), 0.05)[0])
+    assert abs(got - mc) < 0.02, (got, mc)
+    mirror = float(patch_coverage(light, np.asarray([o], np.float32), np.asarray([w], np.float32), 0.0)[0])
+    assert mirror == (1.0 if offset < 2.5 else 0.0) or offset == 2.5
+
+
+SCENE = """
+[film]
+shape = "sphere"
+center = [0.0, 0.0, 0.0]
+radius = 1.0
+n = 1.4
+thickness = "constant"
+range_nm = [0.0, 1200.0]
+
+[light]
+type = "area"
+shape = "rect"
+center = [0.0, 0.0, 4.4]
+normal = NORMAL
+size = SIZE
+lamp = "E"
+
+[camera]
+type = "perspective"
+width = 40
+height = 40
+origin = [0.0, 0.0, 4.0]
+target = [0.0, 0.0, 0.0]
+fov_deg = 34.0
+"""
+
+
+@pytest.mark.parametrize("normal, size, message", [
+    ("[0.0, 0.0, 1.0]", "[4.0, 4.0]", "faces away from the bubble"),
+    ("[0.0, 0.0, -1.0]", "[0.0, 4.0]", "has no size"),
+])
+def test_bad_area_light_is_one_line(tmp_path, normal, size, message):
+    """A light turned away from the bubble or of zero size: one line, exit 2, nothing written."""
+    from bubblefit.cli import main
+
+    (tmp_path / "scene.toml").write_text(SCENE.replace("NORMAL", normal).replace("SIZE", size))
+    from PIL import Image
+
+    Image.fromarray(np.zeros((40, 40, 3), np.uint8)).save(tmp_path / "photo.png")
+    import contextlib
+    import io
+
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        try:
+            code = main(["fit", str(tmp_path / "photo.png"), "--scene", str(tmp_path / "scene.toml"),
+                         "--json", str(tmp_path / "out.json")])
+        except SystemExit as exc:
+            code = exc.code
+    lines = [ln for ln in err.getvalue().splitlines() if ln.strip()]
+    assert code == 2
+    assert len(lines) == 1 and message in lines[0], lines
+    assert not (tmp_path / "out.json").exists()

@@ -19,6 +19,7 @@ import math
 
 import numpy as np
 import pytest
+from helpers import airy_reflectance, pinhole_ray
 
 from bubblefit.lighting.area import Patch, patch_coverage
 from bubblefit.lighting.envmap import dark_room
@@ -35,15 +36,8 @@ PANEL = dict(center=(0.2, 0.3, 4.4), normal=(0.0, 0.0, -1.0), up=(0.0, 1.0, 0.0)
 
 
 def _film_r(cos_i, lam):
-    """Airy reflectance of a film of N_FILM in air, (K, 2) per polarisation."""
-    sin_t = math.sqrt(1 - cos_i**2) / N_FILM
-    cos_t = math.sqrt(1 - sin_t**2)
-    rs = (cos_i - N_FILM * cos_t) / (cos_i + N_FILM * cos_t)
-    rp = (N_FILM * cos_i - cos_t) / (N_FILM * cos_i + cos_t)
-    r01 = np.array([rs, rp])
-    phase = np.exp(1j * 4 * np.pi * N_FILM * D_NM * cos_t / lam)[:, None]
-    r = (r01[None] - r01[None] * phase) / (1 - r01[None] ** 2 * phase)
-    return np.abs(r) ** 2
+    """Airy reflectance of a film of N_FILM and D_NM in air, (K, 2) per polarisation."""
+    return airy_reflectance(np.full(len(lam), cos_i), N_FILM, D_NM, lam)
 
 
 def _panel(o, w):
@@ -65,15 +59,7 @@ def _reference(cam, i, j, basis):
     """The pixel's radiance: front film, one rear reflection, the light straight through;
     None off the sphere or within 1e-3 of the light's outline (float32 rays may fall on
     either side there)."""
-    o = np.asarray(cam.origin, float)
-    fwd = np.asarray(cam.target, float) - o
-    fwd /= np.linalg.norm(fwd)
-    right = np.cross(fwd, [0.0, 1.0, 0.0])
-    right /= np.linalg.norm(right)
-    up = np.cross(right, fwd)
-    t = math.tan(math.radians(cam.fov_deg) / 2)
-    d = ((2 * (j + 0.5) / W - 1) * t) * right + ((1 - 2 * (i + 0.5) / H) * t) * up + fwd
-    d /= np.linalg.norm(d)
+    o, d = pinhole_ray(cam, i, j)
     b = o @ d
     disc = b * b - (o @ o - 1.0)
     if disc <= 0:
@@ -244,7 +230,7 @@ def test_fit_of_a_bubble_under_a_panel_from_a_noisy_8bit_render(tmp_path, truth_
     import sys
     import tomllib
 
-    from PIL import Image
+    from helpers import save_sensor_png
 
     from bubblefit.inverse.cap_fit import cap_config
     from bubblefit.model.cap_scene import parse_cap_scene
@@ -255,11 +241,7 @@ def test_fit_of_a_bubble_under_a_panel_from_a_noisy_8bit_render(tmp_path, truth_
     img = np.asarray(render_cap(Params.make(thickness=truth_nm, n_film=1.4, exposure=1.0, roughness=0.0),
                                 cap_config(scene, "constant", samples_per_pixel=16), dark_room()))
     img = img * 0.9 / np.percentile(img, 99.5)
-    rng = np.random.default_rng(11)
-    electrons = rng.poisson(np.clip(img, 0, None) * 4000.0) + rng.normal(0.0, 3.0, img.shape)
-    lin = np.clip(electrons / 4000.0, 0.0, 1.0)
-    srgb = np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
-    Image.fromarray(np.round(srgb * 255).astype(np.uint8)).save(tmp_path / "photo.png")
+    save_sensor_png(img, tmp_path / "photo.png", seed=11)
     proc = subprocess.run([sys.executable, "-m", "bubblefit", "fit", str(tmp_path / "photo.png"), "--scene",
                            str(tmp_path / "scene.toml"), "--json", str(tmp_path / "r.json")],
                           capture_output=True, text=True, timeout=900)

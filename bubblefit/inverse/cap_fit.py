@@ -145,7 +145,9 @@ def _whole_in_light(cfg: CapConfig, centres, corners) -> np.ndarray:
     """(H, W): the pixels that see the area light in the front film or the first rear
     reflection, each film seeing it at the centre and the four corners alike (an outline of
     the light's image crossing a pixel mixes light and dark, as a flat film's frame edge,
-    and a pixel that sees the light in neither film is dark). As a flat film under a panel."""
+    and a pixel that sees the light in neither film is dark). The flat films' rule under a
+    panel, chosen there on the development case cyc_film_drain_panel (pixels crossed by the
+    frame's edge read as order hops)."""
     h, w = cfg.render.shape
     fc, rc = (k.reshape(h, w) for k in area_light_hits(cfg, *centres))
     fk, rk = (k.reshape(h + 1, w + 1) for k in area_light_hits(cfg, *corners))

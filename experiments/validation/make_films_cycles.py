@@ -365,6 +365,18 @@ def dish_scene_toml(c, kind) -> str:
         f"fov_deg = {c['fov_deg']}\n")
 
 
+def render_photo(sc, name, out, seed, t0):
+    """Render ``sc``, scale its 99.5th percentile to 0.9, add the sensor's noise and write
+    ``out/photo.png`` (8-bit sRGB); returns (render seconds, exposure)."""
+    img = mc.render_to_array(sc, os.path.join("/tmp", name + ".exr"))
+    secs = time.time() - t0
+    expo = 0.9 / float(np.percentile(img, 99.5))
+    rng = np.random.default_rng(seed)
+    vio.write_png8(os.path.join(out, "photo.png"), None,
+                   vio.add_noise_and_quantise(img * expo, rng, FULL_WELL, READ_NOISE))
+    return secs, expo
+
+
 def make_dish(name, c):
     """A bubble on a dish: the film (make_cycles.py's sphere, whole: its part under the
     water is hidden, the water plane being opaque) standing in a water plane, in a map."""
@@ -377,12 +389,7 @@ def make_dish(name, c):
     mc.camera(sc, cam)
     liquid_plane(sc, c["plane_y"], water_material())
     mc.sphere(sc, dish_film_material(c))
-    img = mc.render_to_array(sc, os.path.join("/tmp", name + ".exr"))
-    secs = time.time() - t0
-    expo = 0.9 / float(np.percentile(img, 99.5))
-    rng = np.random.default_rng(c["seed"])
-    vio.write_png8(os.path.join(out, "photo.png"), None,
-                   vio.add_noise_and_quantise(img * expo, rng, FULL_WELL, READ_NOISE))
+    secs, expo = render_photo(sc, name, out, c["seed"], t0)
     vio.write_exr(os.path.join(out, "thickness_true.exr"), dish_truth(c).astype(np.float32))
     kind = c["fits"][0]
     with open(os.path.join(out, "scene.toml"), "w") as fh:
@@ -472,12 +479,7 @@ def make_sphere_panel(name, c):
     mc.camera(sc, cam)
     sphere_panel(sc, c)
     mc.sphere(sc, mc.bubble_material(rr.Thickness("constant", c["thickness_nm"])))
-    img = mc.render_to_array(sc, os.path.join("/tmp", name + ".exr"))
-    secs = time.time() - t0
-    expo = 0.9 / float(np.percentile(img, 99.5))
-    rng = np.random.default_rng(c["seed"])
-    vio.write_png8(os.path.join(out, "photo.png"), None,
-                   vio.add_noise_and_quantise(img * expo, rng, FULL_WELL, READ_NOISE))
+    secs, expo = render_photo(sc, name, out, c["seed"], t0)
     jj, ii = np.meshgrid(np.arange(SPHERE_SIZE) + 0.5, np.arange(SPHERE_SIZE) + 0.5)
     o, d = cam.rays(jj.reshape(-1), ii.reshape(-1), np.zeros(3), 1.0)
     hit, _ = rr._intersect(o, d, np.zeros(3), 1.0)

@@ -248,6 +248,7 @@ def test_fit_of_a_bubble_under_a_panel_from_a_noisy_8bit_render(tmp_path, truth_
     assert proc.returncode == 0, proc.stderr
     res = json.loads((tmp_path / "r.json").read_text())
     assert res["shape"] == "sphere" and res["pixels_direct"] > 50
+    assert res["traced_light_paths"] and res["skipped_light_paths"]   # what the scene simulates and skips
     d, se = res["params"]["thickness_nm"], res["stderr"]["thickness_nm"]
     assert abs(d - truth_nm) <= 3 * se, (d, se)
     assert res["ok"], res["warnings"]
@@ -270,3 +271,22 @@ def test_cycles_bubble_under_a_panel(tmp_path):
     res = json.loads((tmp_path / "r.json").read_text())
     d, se = res["params"]["thickness_nm"], res["stderr"]["thickness_nm"]
     assert abs(d - 590.0) <= min(5.0, 3 * se), (d, se)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (("normal = [0.0, 0.0, -1.0]", "normal = [0.0, 0.0, 1.0]"), "faces away from the film"),
+    (("size = [1.0, 1.0]", "size = [1.0, 0.0]"), "has no size"),
+])
+def test_flat_film_panel_facing_away_or_of_no_size_is_refused(edit, message):
+    """The flat film reads the same [light] table: the same two refusals."""
+    import tomllib
+    from pathlib import Path
+
+    from bubblefit.errors import InputError
+    from bubblefit.model.planar_scene import parse_planar
+
+    case = Path(__file__).resolve().parent.parent / "experiments" / "validation" / "data" / "film_drain_water_area"
+    text = (case / "scene.toml").read_text()
+    assert edit[0] in text
+    with pytest.raises(InputError, match=message):
+        parse_planar(tomllib.loads(text.replace(*edit)), case)

@@ -47,7 +47,7 @@ import numpy as np
 
 from ..errors import ComputationError, InputError
 from ..lighting.filtering import FilterConfig
-from ..model.cap_render import (SKIPPED, SKIPPED_SPHERE, CapConfig, area_light_hits, cap_classes, cap_drainage,
+from ..model.cap_render import (SKIPPED, SKIPPED_SPHERE, TRACED_SPHERE, CapConfig, area_light_hits, cap_classes, cap_drainage,
                                 render_cap, render_cap_pixels)
 from ..model.effects import Effects
 from ..model.render import Params, RenderConfig, pixel_chunks
@@ -94,6 +94,8 @@ class CapResult(PlanarResult):
     pixels_mirrored: int = 0
     skipped: tuple = SKIPPED
     shape: str = "cap"
+    #: The light paths the render traces, reported for a whole bubble under an area light.
+    traced: tuple = ()
 
     def report(self) -> str:
         """The flat films' report, the cap's pixel counts and the light paths its render skips."""
@@ -102,12 +104,15 @@ class CapResult(PlanarResult):
         else:
             counts = (f"\ncap pixels fitted: {self.pixels_direct} seen directly, "
                       f"{self.pixels_mirrored} mirrored in the liquid")
-        return super().report() + counts + "\nlight paths skipped: " + "; ".join(self.skipped)
+        traced = "\nlight paths traced: " + "; ".join(self.traced) if self.traced else ""
+        return super().report() + counts + traced + "\nlight paths skipped: " + "; ".join(self.skipped)
 
     def to_json(self) -> dict:
         out = super().to_json()
         out.update(shape=self.shape, pixels_direct=self.pixels_direct, pixels_mirrored=self.pixels_mirrored,
                    skipped_light_paths=list(self.skipped))
+        if self.traced:
+            out["traced_light_paths"] = list(self.traced)
         return out
 
 
@@ -337,7 +342,8 @@ def fit_cap(photo: np.ndarray, scene, env, *, kind: str | None = None, clip_high
                        gain=gain, sigma=sigma, params=params, stderr=stderr, warnings=warnings, order_hops=0,
                      reduced_chi2=chi2, reduced_chi2_floor=chi2_floor, order_from="colour", pixels_direct=int(direct.sum()),
                      pixels_mirrored=int(mirrored.sum()), shape="sphere" if cfg.area is not None else "cap",
-                     skipped=SKIPPED_SPHERE if cfg.area is not None else SKIPPED)
+                     skipped=SKIPPED_SPHERE if cfg.area is not None else SKIPPED,
+                     traced=TRACED_SPHERE if cfg.area is not None else ())
 
 
 def _misfit(res, sigma, y, model_error: float, n_free: int) -> Misfit:

@@ -83,7 +83,7 @@ from .render import (Params, RenderConfig, _background, _camera_rays, _Film, _fi
 from .thickness import drainage_profile
 
 __all__ = ["CapConfig", "render_cap", "render_cap_pixels", "cap_classes", "cap_drainage", "area_light_hits", "SKIPPED",
-           "SKIPPED_SPHERE"]
+           "SKIPPED_SPHERE", "TRACED_SPHERE"]
 
 #: The light paths the cap's render does not trace (module docstring), for reports.
 SKIPPED = (
@@ -94,6 +94,14 @@ SKIPPED = (
     "the foot but the first (taken at the front film's angle of incidence)",
     "diffuse reflection of the film",
     "the meniscus at the foot and light from below the liquid's surface",
+)
+
+#: The light paths a whole bubble's render under an area light traces (module docstring).
+TRACED_SPHERE = (
+    "the front film's reflection of the area light, traced from the film's own point",
+    "the rear film's reflection and the internal bounces (3 in a fit), each traced from its own point",
+    "the area light and the map straight through the bubble",
+    "the map in every film's mirror direction, when the scene gives one",
 )
 
 #: The light paths a whole bubble's render (no liquid, an area light) does not trace.

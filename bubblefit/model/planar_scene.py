@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..lighting.area import Patch
+from ..lighting.area import Patch, check_light_faces
 from ..lighting.coaxial import Stack
 from ..optics import dispersion
 
@@ -214,7 +214,9 @@ def parse_planar(data: dict, base_dir: str | os.PathLike = ".") -> PlanarScene:
                                fov_deg=_num(cam, "fov_deg", "camera", 35.0, 1.0, 170.0))
     plane = Patch(center=_vec(f, "center", "film", 3), normal=_vec(f, "normal", "film", 3),
                   up=_vec(f, "up", "film", 3, (0, 1, 0)), size=_vec(f, "size", "film", 2))
-    return PlanarScene(light="area", camera=camera, plane=plane, area=parse_area_light(light), **common)
+    area = parse_area_light(light)
+    check_light_faces(area, plane.center, "the film")
+    return PlanarScene(light="area", camera=camera, plane=plane, area=area, **common)
 
 
 def parse_area_light(light: dict) -> Patch:

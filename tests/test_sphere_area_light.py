@@ -290,3 +290,40 @@ def test_flat_film_panel_facing_away_or_of_no_size_is_refused(edit, message):
     assert edit[0] in text
     with pytest.raises(InputError, match=message):
         parse_planar(tomllib.loads(text.replace(*edit)), case)
+
+
+def _cli(args):
+    import contextlib
+    import io
+
+    from bubblefit.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            code = main(args)
+        except SystemExit as exc:
+            code = exc.code
+    return code, out.getvalue(), err.getvalue()
+
+
+def test_render_command_draws_the_panel_in_the_bubble_and_explains(tmp_path):
+    """``bubblefit render`` of a whole bubble under a panel: the panel's mirror image in the
+    middle of the bubble (the mirror ray of the centre pixel goes back to the camera, and the
+    panel lies behind it), dark beside the bubble; ``--explain`` names the traced and skipped
+    paths; a scene without the thickness to render is one line, exit 2."""
+    from bubblefit.io.images import read_image
+
+    text = _scene_text(size=24).replace('thickness = "constant"', 'thickness = "constant"\nthickness_nm = 500.0')
+    (tmp_path / "scene.toml").write_text(text.replace("origin = [0.25, 0.3, 4.0]", "origin = [0.0, 0.0, 4.0]")
+                                         .replace("center = [0.0, 0.4, 4.6]", "center = [0.0, 0.0, 4.6]"))
+    code, out, err = _cli(["render", str(tmp_path / "scene.toml"), "-o", str(tmp_path / "r.exr"), "--explain"])
+    assert code == 0, err
+    assert "traced   the front film's reflection" in out and "skipped  " in out
+    img = read_image(tmp_path / "r.exr").pixels[..., :3]
+    assert img[11:13, 11:13].min() > 0.01 and img[0, 0].max() == 0.0
+    (tmp_path / "bad.toml").write_text(text.replace("thickness_nm = 500.0\n", ""))
+    code, _, err = _cli(["render", str(tmp_path / "bad.toml"), "-o", str(tmp_path / "b.exr")])
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert code == 2 and len(lines) == 1 and "thickness_nm" in lines[0], lines
+    assert not (tmp_path / "b.exr").exists()

@@ -327,3 +327,35 @@ def test_render_command_draws_the_panel_in_the_bubble_and_explains(tmp_path):
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert code == 2 and len(lines) == 1 and "thickness_nm" in lines[0], lines
     assert not (tmp_path / "b.exr").exists()
+
+
+@pytest.mark.slow
+def test_drainage_of_a_bubble_under_a_panel_from_a_noisy_8bit_render(tmp_path):
+    """The sphere's drainage profile (250 -> 950 nm, exponent 1.4) seen only where the panel
+    is mirrored (the middle third of the bubble's height): the ends, extrapolated from
+    there, within 3 of their standard errors, and ok."""
+    import json
+    import subprocess
+    import sys
+    import tomllib
+
+    from helpers import save_sensor_png
+
+    from bubblefit.inverse.cap_fit import cap_config
+    from bubblefit.model.cap_scene import parse_cap_scene
+
+    text = _scene_text(thickness="drainage")
+    (tmp_path / "scene.toml").write_text(text)
+    scene = parse_cap_scene(tomllib.loads(text), tmp_path)
+    truth = np.array([250.0, 950.0, 1.4])
+    img = np.asarray(render_cap(Params.make(thickness=truth, n_film=1.4, exposure=1.0, roughness=0.0),
+                                cap_config(scene, "drainage", samples_per_pixel=16), dark_room()))
+    save_sensor_png(img * 0.9 / np.percentile(img, 99.5), tmp_path / "photo.png", seed=5)
+    proc = subprocess.run([sys.executable, "-m", "bubblefit", "fit", str(tmp_path / "photo.png"), "--scene",
+                           str(tmp_path / "scene.toml"), "--json", str(tmp_path / "r.json")],
+                          capture_output=True, text=True, timeout=1200)
+    assert proc.returncode == 0, proc.stderr
+    res = json.loads((tmp_path / "r.json").read_text())
+    for name, value in zip(("top_nm", "bottom_nm", "exponent"), truth):
+        assert abs(res["params"][name] - value) <= 3 * res["stderr"][name], (name, res["params"], res["stderr"])
+    assert res["ok"], res["warnings"]

@@ -96,6 +96,69 @@ def run_films(out, rec, thicknesses, responses):
             print(name, r.params["thickness_nm"], r.colour_check, flush=True)
 
 
+#: Draining films (top, bottom, exponent) and the photos' seed, camera, lamp and codes:
+#: two Nikon photos under E fitted with the right response and wrong ones, and the two
+#: photos of experiments/self_calibration.py (seeds 41 and 42) fitted as sRGB/D65.
+DRAINAGE = (((200.0, 1500.0, 1.0), 51, NIKON, "E", 8, (NIKON, "srgb", SIGMA)),
+            ((300.0, 1000.0, 1.0), 52, NIKON, "E", 8, (NIKON, "srgb", SIGMA)),
+            ((200.0, 1500.0, 1.0), 41, NIKON, "E", 8, ("srgb",)),
+            ((200.0, 1500.0, 1.0), 42, NIKON, "D65", 16, ("srgb",)))
+
+#: Constant films taken by the Sigma under E, fitted with its own response and wrong ones.
+SIGMA_FILMS = (((600.0, 1300.0)), (SIGMA, NIKON, "srgb"))
+
+
+def _fit_case(out, rec, name, photo, bg, env, resp, bits, **kw):
+    from helpers import FILM_PHOTO_DISC as DISC
+
+    from bubblefit.capture.view import ORTHOGRAPHIC
+    from bubblefit.inverse.fit import FitOptions, NoiseSettings, fit_photo
+
+    t0 = time.perf_counter()
+    r = fit_photo(photo, env, background=bg, options=FitOptions(
+        disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", view=ORTHOGRAPHIC, camera_response=resp,
+        illuminant="D65" if resp == "srgb" else "E", noise=NoiseSettings(bits=8 if bits == 8 else None), **kw))
+    keys = ("top_nm", "bottom_nm", "exponent") if kw.get("thickness") == "drainage" else ("thickness_nm",)
+    fitted = [r.params[k] for k in keys]
+    return r, fitted, time.perf_counter() - t0
+
+
+def run_drainage(out, rec, cases=DRAINAGE):
+    """Draining films (:data:`DRAINAGE`) fitted with the drainage profile through the
+    right response and wrong ones."""
+    from helpers import film_photo
+
+    env, _ = _env()
+    for prof, seed, cam, ill, bits, responses in cases:
+        photo, bg = film_photo(env, prof, seed, cam, ill, quantised=bits)
+        for resp in responses:
+            name = f"drain{prof[0]:.0f}-{prof[1]:.0f}s{seed}_{cam.split()[0].lower()}{ill}{bits}_as_{resp.split()[0].lower()}"
+            if os.path.exists(os.path.join(out, name + ".json")):
+                continue
+            r, fitted, dt = _fit_case(out, rec, name, photo, bg, env, resp, bits, thickness="drainage")
+            rec.save(out, name, resp == cam, dict(truth=list(prof), thickness=fitted, ok=r.ok, chi2=r.reduced_chi2,
+                                                   warnings=r.warnings, time_s=dt))
+            print(name, fitted, r.ok, r.colour_check, f"{dt:.0f} s", flush=True)
+
+
+def run_sigma(out, rec, cases=SIGMA_FILMS):
+    """Constant films taken by the Sigma under E (8-bit), fitted with its response and wrong ones."""
+    from helpers import film_photo
+
+    env, _ = _env()
+    thicknesses, responses = cases
+    for k, d in enumerate(thicknesses):
+        photo, bg = film_photo(env, d, 61 + k, SIGMA, "E")
+        for resp in responses:
+            name = f"sigmafilm{d:.0f}_as_{resp.split()[0].lower()}"
+            if os.path.exists(os.path.join(out, name + ".json")):
+                continue
+            r, fitted, dt = _fit_case(out, rec, name, photo, bg, env, resp, 8)
+            rec.save(out, name, resp == SIGMA, dict(truth=d, thickness=fitted[0], ok=r.ok, chi2=r.reduced_chi2,
+                                                   warnings=r.warnings, time_s=dt))
+            print(name, fitted, r.ok, r.colour_check, f"{dt:.0f} s", flush=True)
+
+
 def run_calibrated(out, rec, thicknesses, sources=("film", "chart")):
     """experiments/calibrated_camera.py's fits: a response calibrated from a film or a chart."""
     from calibrated_camera import CAMERA, airy, sensitivities
@@ -211,6 +274,59 @@ def run_raw(out, rec):
         print(name, res.get("params", {}).get("thickness_nm"), res.get("colour_check"), flush=True)
 
 
+def null_sources():
+    """The right-camera cases whose photo :func:`helpers.film_photo` rebuilds noise-free:
+    ``{case: (thickness, seed, camera, lamp, quantised)}``."""
+    src = {f"film{d:.0f}_nikon": (d, 11 + k, NIKON, "E", True) for k, d in enumerate(THICKNESSES)}
+    for prof, seed, cam, ill, bits, _ in DRAINAGE:
+        src[f"drain{prof[0]:.0f}-{prof[1]:.0f}s{seed}_{cam.split()[0].lower()}{ill}{bits}_as_{cam.split()[0].lower()}"] = (
+            prof, seed, cam, ill, bits)
+    for k, d in enumerate(SIGMA_FILMS[0]):
+        src[f"sigmafilm{d:.0f}_as_sigma"] = (d, 61 + k, SIGMA, "E", True)
+    src["raw_exr"] = (700.0, 3, "srgb", "D65", False)
+    return src
+
+
+def null_draws(out, draws: int, seed: int = 2024):
+    """The statistic's law on right-camera fits: each rebuildable case's noise-free photo
+    gets ``draws`` new draws of its noise (:func:`helpers.film_noise`) and is tested
+    against the render its fit kept (the fit is not repeated: a refit would absorb part of
+    each draw, so the rates are upper bounds), with the fit's noise model and mask.
+    Returns one row per case: mean, 99th and 99.9th percentile of the statistic per
+    degree of freedom, the alarms at the check's threshold, and their one-sided 95 %
+    upper bound (Clopper-Pearson)."""
+    from helpers import film_noise, film_photo
+    from scipy.stats import beta
+
+    from bubblefit.inverse.colour_check import INNER_COS, colour_check
+
+    env, _ = _env()
+    rng = np.random.default_rng(seed)
+    rows = []
+    for case, (thickness, s, cam, ill, quantised) in null_sources().items():
+        path = os.path.join(out, case + ".npz")
+        if not os.path.exists(path):
+            continue
+        arr = np.load(path)
+        clean, _ = film_photo(env, thickness, s, cam, ill, quantised=quantised, noise=False)
+        mask = arr["mask"] & (arr["cos"] > INNER_COS)
+        values, alarms, thr = [], 0, None
+        for _ in range(draws):
+            c = colour_check(film_noise(clean, rng, quantised), arr["render"], mask, arr["sigma"],
+                             model_error=float(arr["model_error"]) if "model_error" in arr else 0.03)
+            values.append(c.chi2_per_dof)
+            alarms += not c.consistent
+            thr = c.threshold_per_dof
+        v = np.asarray(values)
+        upper = float(beta.ppf(0.95, alarms + 1, draws - alarms))
+        rows.append(dict(case=case, draws=draws, mean=float(v.mean()), q99=float(np.quantile(v, 0.99)),
+                         q999=float(np.quantile(v, 0.999)), max=float(v.max()), threshold=thr, alarms=alarms,
+                         rate_upper95=upper))
+        print(f"{case:44s} mean {v.mean():.3f} q99 {rows[-1]['q99']:.3f} q999 {rows[-1]['q999']:.3f} max {v.max():.3f} "
+              f"thr {thr:.3f} alarms {alarms}/{draws} (rate < {upper:.2g})", flush=True)
+    return rows
+
+
 def table(out):
     from bubblefit.inverse.colour_check import INNER_COS, colour_check
 
@@ -240,9 +356,17 @@ def main():
     ap.add_argument("--thickness", default=",".join(f"{t:.0f}" for t in THICKNESSES))
     ap.add_argument("--val", default=",".join(VAL_CASES))
     ap.add_argument("--table", action="store_true")
-    ap.add_argument("--json", help="with --table: also write the table here")
+    ap.add_argument("--json", help="with --table or --null: also write the table here")
+    ap.add_argument("--null", type=int, metavar="DRAWS",
+                    help="draw the noise of the rebuildable right-camera photos this many times (null_draws)")
     a = ap.parse_args()
     os.makedirs(a.out, exist_ok=True)
+    if a.null:
+        rows = null_draws(a.out, a.null)
+        if a.json:
+            with open(a.json, "w") as fh:
+                json.dump(rows, fh, indent=1)
+        return
     if a.table:
         rows = table(a.out)
         if a.json:
@@ -254,6 +378,10 @@ def main():
     for case in a.cases.split(","):
         if case == "films":
             run_films(a.out, rec, ts, (NIKON, "srgb", SIGMA))
+        elif case == "drainage":
+            run_drainage(a.out, rec)
+        elif case == "sigma":
+            run_sigma(a.out, rec)
         elif case == "calibrated":
             run_calibrated(a.out, rec, ts)
         elif case == "demo":

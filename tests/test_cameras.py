@@ -590,6 +590,98 @@ def test_colour_check_noise_shared_by_neighbours():
     assert 2.0 < np.mean(scales) < 5.0, np.mean(scales)
 
 
+def _draining_film_colours(camera: str, lamp: str | None = None, n: int = 64):
+    """Closed-form colours of a draining film seen by a measured camera, written here
+    independently of the package: the Airy reflectance of a free film in air at normal
+    incidence (index 1.33), ``R = F sin^2(delta/2) / (1 + F sin^2(delta/2))`` with
+    ``delta = 4 pi n d / lambda`` and ``F = 4 r^2 / (1 - r^2)^2``, times colour-science's
+    camera sensitivities (and a CIE lamp's spectrum) over 400-700 nm, each channel's
+    white 1. Returns ``(colours(top, bottom), mask)``: a function giving the (n, n, 3)
+    image of a film thinning linearly from ``top`` nm at the disc's top to ``bottom``
+    nm at its bottom, and the disc (radius 0.42 n)."""
+    import colour
+
+    lam = np.arange(400.0, 701.0, 5.0)
+    msds = colour.MSDS_CAMERA_SENSITIVITIES[camera]
+    sens = np.stack([np.interp(lam, msds.wavelengths, msds.values[:, c]) for c in range(3)], axis=1)
+    if lamp is not None:
+        sd = colour.SDS_ILLUMINANTS[lamp]
+        sens = sens * np.interp(lam, sd.wavelengths, sd.values)[:, None]
+    depth = np.arange(0.0, 2500.0, 1.0)
+    r = (1.33 - 1) / (1.33 + 1)
+    f = 4 * r**2 / (1 - r**2) ** 2
+    s2 = np.sin(2 * np.pi * 1.33 * depth[:, None] / lam) ** 2
+    table = (f * s2 / (1 + f * s2)) @ sens / sens.sum(axis=0)
+    y, x = np.mgrid[0:n, 0:n]
+    radius = 0.42 * n
+    mask = (x - n / 2 + 0.5) ** 2 + (y - n / 2 + 0.5) ** 2 < radius**2
+    height = np.clip((y - (n / 2 - radius)) / (2 * radius), 0.0, 1.0)
+
+    def colours(top, bottom):
+        return table[np.round(top + (bottom - top) * height).astype(int)]
+
+    return colours, mask
+
+
+def test_colour_check_wrong_lamp_on_a_draining_film():
+    """A 64 px draining film (200 -> 1500 nm) photographed by the Nikon D5100 under
+    illuminant E (read and shot noise), and the same film rendered as if lit by CIE A (a
+    halogen lamp: the stated response Nikon x A), its profile and a gain per channel fitted
+    to the photo by least squares (more freedom than a fit's exposure): its reduced chi^2
+    with the fit's 3 % model-error floor is about 1.3, within the verdict's 3, but its hues
+    follow the thickness, and the colour check fails it (20 noise draws: statistic at least
+    2.7, mean 3.4, threshold 1.64); the noise scale from neighbouring pixels stays near 1 (the hue error
+    cancels in their differences). The right render passes every draw (at most 1.03)."""
+    from bubblefit.inverse.colour_check import colour_check
+
+    right, mask = _draining_film_colours("Nikon 5100 (NPL)")
+    wrong, _ = _draining_film_colours("Nikon 5100 (NPL)", "A")
+    clean = 3.0 * right(200.0, 1500.0) + 0.05
+    sigma = np.sqrt(0.003**2 + 1e-4 * clean)
+    for seed in range(10):
+        photo = clean + sigma * np.random.default_rng(seed).normal(size=clean.shape)
+        good = colour_check(photo, clean, mask, sigma)
+        assert good.consistent and good.noise_scale < 1.2, good
+        best = None
+        for top in np.arange(150.0, 251.0, 5.0):
+            for bottom in np.arange(1450.0, 1551.0, 5.0):
+                base, seen = wrong(top, bottom)[mask], photo[mask] - 0.05
+                gain = (base * seen).sum(axis=0) / (base * base).sum(axis=0)
+                chi2 = np.sum((base * gain - seen) ** 2 / (sigma[mask] ** 2 + (0.03 * photo[mask]) ** 2))
+                if best is None or chi2 < best[0]:
+                    best = (chi2, top, bottom, gain)
+        chi2, top, bottom, gain = best
+        assert chi2 / (3 * mask.sum()) < 3.0, best  # the chi^2 alone would pass it
+        bad = colour_check(photo, wrong(top, bottom) * gain + 0.05, mask, sigma)
+        assert not bad.consistent and bad.noise_scale < 1.2, bad
+
+
+def test_colour_check_decides_or_warns():
+    """``judge_colours`` with ``decide`` (``JudgeSettings.colour_check = "decide"``, the
+    default) makes a fit with inconsistent hues not ok; with ``decide`` False
+    (``"warn"``) it keeps ``ok`` and adds the same reason, marked as a warning only; both
+    record the test and whether it decided. A consistent photo keeps ``ok`` either way."""
+    from bubblefit.inverse import JudgeSettings
+    from bubblefit.inverse.colour_check import judge_colours
+
+    assert JudgeSettings().colour_check == "decide"
+    with pytest.raises(ValueError):
+        JudgeSettings(colour_check="ignore")
+    truth, mask = _smooth_colours()
+    sigma = 0.01 * truth
+    photo = truth + sigma * np.random.default_rng(0).normal(size=truth.shape)
+    cos = np.ones(mask.shape)
+    hue = truth * np.array([1.02, 1.0, 1.0])
+    ok, warnings, record = judge_colours(True, [], photo, hue, mask, cos, sigma)
+    assert not ok and len(warnings) == 1 and "camera response" in warnings[0] and record["decides"], warnings
+    ok, warnings, record = judge_colours(True, [], photo, hue, mask, cos, sigma, decide=False)
+    assert ok and len(warnings) == 1 and "warning only" in warnings[0], warnings
+    assert not record["consistent"] and not record["decides"]
+    for decide in (True, False):
+        ok, warnings, record = judge_colours(True, [], photo, truth, mask, cos, sigma, decide=decide)
+        assert ok and warnings == [] and record["consistent"], (warnings, record)
+
+
 def _bilinear(mosaic):
     """Bilinear demosaic of an RGGB mosaic written here: each missing colour the weighted
     mean of its nearest photosites of that colour (kernel 1-2-1 x 1-2-1, normalised)."""

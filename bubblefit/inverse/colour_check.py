@@ -23,14 +23,18 @@ Under the hypothesis that the colours are explained, each ``m_b`` is a centred n
 vector with covariance ``C_b`` (plus at most ``F_b``), so
 ``T = sum_b m_b^T (kappa C_b + F_b)^-1 m_b`` follows (at most) a chi^2 law with ``2 B``
 degrees of freedom; the colours are inconsistent when ``T`` exceeds the law's
-1 - :data:`FALSE_ALARM` quantile. ``kappa >= 1`` guards the noise model: it is the ratio
-of the chromatic residuals' scatter about a plane in ``(x, y)`` in every cell (a smooth hue
-error is removed with the plane, noise is not) to the scatter the noise model predicts,
-pooled over all cells (hundreds of pixels, so it adds little tail), or the same for the
-means of 2 x 2 blocks of pixels times 4 when that is larger (noise that neighbours share,
-as JPEG's 4:2:0 chroma subsampling makes it, which independent pixels would average
-away); a camera noisier than the noise model (``FitOptions.noise``) raises ``kappa``, not
-the alarm. A wrong response
+1 - :data:`FALSE_ALARM` quantile. ``kappa >= 1`` guards the noise model
+(:func:`noise_scale`): the ratio of the chromatic part of each pixel's residual minus the
+mean of its four neighbours' to what the noise model predicts for it, pooled over the
+film (hundreds of pixels, so it adds little tail). A hue error that follows the film's
+thickness varies over several pixels and cancels in that difference; noise does not. (The
+scatter about a plane fitted in each cell would also hold the part of a wrong response's
+hue error that varies within a cell: on draining films read with a wrong response it
+reads 3.6-4.1 and hides the error.) Where neighbours differ less than
+independent pixels would (:data:`SHARED_BELOW`: they share noise), the means of 2 x 2 blocks
+of pixels measure it instead (noise drawn once per block, which independent pixels would
+average away). A camera noisier than the noise model (``FitOptions.noise``) raises
+``kappa``, not the alarm. A wrong response
 moves every pixel of a thickness the same way: ``m_b`` grows with it and ``C_b`` does not.
 
 Pixels the fit calls outliers (chi^2 with its model-error floor over

@@ -514,6 +514,34 @@ def test_a_wrong_camera_is_not_ok(small_courtyard, thickness, told, right):
         assert len(said) == 1 and "calibrate-camera" in said[0] and "--encoding" in said[0], r.warnings
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("mode", ["decide", "warn"])
+def test_a_wrong_camera_on_a_draining_film(small_courtyard, mode):
+    """A draining film (200 nm at the top to 1500 nm at the bottom) photographed by the
+    Nikon under illuminant E (8-bit), fitted as sRGB/D65 with the drainage profile: the
+    colour check fails it (measured 6.7 against 1.64 on this photo,
+    experiments/colour_check_null.py), and the fit is not ok with the camera's warning;
+    with ``JudgeSettings(colour_check="warn")`` the same warning is there, marked as a
+    warning only, and the record says it did not decide."""
+    from bubblefit.capture.view import ORTHOGRAPHIC
+    from bubblefit.inverse import JudgeSettings
+    from bubblefit.inverse.fit import FitOptions, fit_photo
+    from bubblefit.lighting.envmap import EnvMap
+
+    env = EnvMap.from_array(small_courtyard)
+    photo, bg = film_photo(env, (200.0, 1500.0, 1.0), 51, NIKON, "E")
+    r = fit_photo(photo, env, background=bg, options=FitOptions(
+        disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", camera_response="srgb", view=ORTHOGRAPHIC,
+        illuminant="D65", thickness="drainage", judge=JudgeSettings(colour_check=mode)))
+    check = r.to_json()["colour_check"]
+    assert check is not None and not check["consistent"] and check["decides"] is (mode == "decide"), check
+    said = [w for w in r.warnings if "camera response" in w]
+    assert len(said) == 1 and "calibrate-camera" in said[0], r.warnings
+    assert ("warning only" in said[0]) is (mode == "warn"), said
+    if mode == "decide":
+        assert not r.ok
+
+
 def _smooth_colours(h=48, w=48):
     y, x = np.mgrid[0:h, 0:w]
     mask = (x - w / 2) ** 2 + (y - h / 2) ** 2 < (0.42 * w) ** 2

@@ -2,15 +2,18 @@
 
 Runs fits whose camera response is known to be right (the demo's drainage photo, the
 validation set's development cases, the RAW/TIFF photos of tests/test_cameras.py, the
-48 px films of experiments/wrong_camera.py fitted with the Nikon's response, and the same
-fitted with a response calibrated from a film) and wrong (those films fitted as sRGB/D65 or
-as the Sigma), records what the fit hands the colour check
+48 px constant and draining films of tests/helpers.py's film_photo fitted with the
+response they were taken with, and the Nikon's films fitted with a response calibrated
+from a film or a chart) and wrong (Nikon films fitted as sRGB/D65 or as the Sigma, Sigma
+films as sRGB/D65 or as the Nikon), records what the fit hands the colour check
 (:func:`bubblefit.inverse.colour_check.judge_colours`: photo, render, mask, cosine of
 incidence, the noise model's sigma) to an ``.npz`` per case, and prints the check's
 statistic, its threshold and its verdict.
 
-Usage: ``PYTHONPATH=. python experiments/colour_check_null.py --out DIR [--cases demo,val,raw,films,calibrated]``
-and ``--table [--json OUT]`` to recompute the table from the saved arrays (no fitting).
+Usage: ``PYTHONPATH=. python experiments/colour_check_null.py --out DIR
+[--cases films,drainage,sigma,raw,demo,val,calibrated]``; ``--table [--json OUT]``
+recomputes the table from the saved arrays (no fitting); ``--null DRAWS [--json OUT]``
+draws the noise of the right-camera synthetic photos again (:func:`null_draws`).
 """
 
 from __future__ import annotations
@@ -74,26 +77,21 @@ def _env():
     return EnvMap.from_array(px), px
 
 
-def run_films(out, rec, thicknesses, responses):
-    from helpers import FILM_PHOTO_DISC as DISC, film_photo
-
-    from bubblefit.capture.view import ORTHOGRAPHIC
-    from bubblefit.inverse.fit import FitOptions, fit_photo
+def run_films(out, rec, thicknesses, responses, camera=NIKON, seed0=11, name="film{d:.0f}_{resp}"):
+    """Constant films taken by ``camera`` under E (8-bit), each fitted with every response."""
+    from helpers import film_photo
 
     env, _ = _env()
     for k, d in enumerate(thicknesses):
-        photo, bg = film_photo(env, d, 11 + k, NIKON, "E")
+        photo, bg = film_photo(env, d, seed0 + k, camera, "E")
         for resp in responses:
-            name = f"film{d:.0f}_{resp.split()[0].lower()}"
-            if os.path.exists(os.path.join(out, name + ".json")):
+            case = name.format(d=d, resp=resp.split()[0].lower())
+            if os.path.exists(os.path.join(out, case + ".json")):
                 continue
-            t0 = time.perf_counter()
-            r = fit_photo(photo, env, background=bg, options=FitOptions(
-                disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", view=ORTHOGRAPHIC, camera_response=resp,
-                illuminant="D65" if resp == "srgb" else "E"))
-            rec.save(out, name, resp == NIKON, dict(truth=d, thickness=r.params["thickness_nm"], ok=r.ok,
-                                                   chi2=r.reduced_chi2, time_s=time.perf_counter() - t0))
-            print(name, r.params["thickness_nm"], r.colour_check, flush=True)
+            r, fitted, dt = _fit_case(out, rec, case, photo, bg, env, resp, 8)
+            rec.save(out, case, resp == camera, dict(truth=d, thickness=fitted[0], ok=r.ok, chi2=r.reduced_chi2,
+                                                    time_s=dt))
+            print(case, fitted, r.ok, r.colour_check, f"{dt:.0f} s", flush=True)
 
 
 #: Draining films (top, bottom, exponent) and the photos' seed, camera, lamp and codes:
@@ -105,7 +103,7 @@ DRAINAGE = (((200.0, 1500.0, 1.0), 51, NIKON, "E", 8, (NIKON, "srgb", SIGMA)),
             ((200.0, 1500.0, 1.0), 42, NIKON, "D65", 16, ("srgb",)))
 
 #: Constant films taken by the Sigma under E, fitted with its own response and wrong ones.
-SIGMA_FILMS = (((600.0, 1300.0)), (SIGMA, NIKON, "srgb"))
+SIGMA_FILMS = ((600.0, 1300.0), (SIGMA, NIKON, "srgb"))
 
 
 def _fit_case(out, rec, name, photo, bg, env, resp, bits, **kw):
@@ -137,24 +135,6 @@ def run_drainage(out, rec, cases=DRAINAGE):
                 continue
             r, fitted, dt = _fit_case(out, rec, name, photo, bg, env, resp, bits, thickness="drainage")
             rec.save(out, name, resp == cam, dict(truth=list(prof), thickness=fitted, ok=r.ok, chi2=r.reduced_chi2,
-                                                   warnings=r.warnings, time_s=dt))
-            print(name, fitted, r.ok, r.colour_check, f"{dt:.0f} s", flush=True)
-
-
-def run_sigma(out, rec, cases=SIGMA_FILMS):
-    """Constant films taken by the Sigma under E (8-bit), fitted with its response and wrong ones."""
-    from helpers import film_photo
-
-    env, _ = _env()
-    thicknesses, responses = cases
-    for k, d in enumerate(thicknesses):
-        photo, bg = film_photo(env, d, 61 + k, SIGMA, "E")
-        for resp in responses:
-            name = f"sigmafilm{d:.0f}_as_{resp.split()[0].lower()}"
-            if os.path.exists(os.path.join(out, name + ".json")):
-                continue
-            r, fitted, dt = _fit_case(out, rec, name, photo, bg, env, resp, 8)
-            rec.save(out, name, resp == SIGMA, dict(truth=d, thickness=fitted[0], ok=r.ok, chi2=r.reduced_chi2,
                                                    warnings=r.warnings, time_s=dt))
             print(name, fitted, r.ok, r.colour_check, f"{dt:.0f} s", flush=True)
 
@@ -379,7 +359,7 @@ def table(out):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", required=True)
-    ap.add_argument("--cases", default="films,raw,demo,val,calibrated")
+    ap.add_argument("--cases", default="films,drainage,sigma,raw,demo,val,calibrated")
     ap.add_argument("--thickness", default=",".join(f"{t:.0f}" for t in THICKNESSES))
     ap.add_argument("--val", default=",".join(VAL_CASES))
     ap.add_argument("--table", action="store_true")
@@ -408,7 +388,7 @@ def main():
         elif case == "drainage":
             run_drainage(a.out, rec)
         elif case == "sigma":
-            run_sigma(a.out, rec)
+            run_films(a.out, rec, *SIGMA_FILMS, camera=SIGMA, seed0=61, name="sigmafilm{d:.0f}_as_{resp}")
         elif case == "calibrated":
             run_calibrated(a.out, rec, ts)
         elif case == "demo":

@@ -596,11 +596,12 @@ def test_colour_check_sees_hue_not_brightness_noise_or_glints():
 
 
 def test_colour_check_noise_shared_by_neighbours():
-    """Noise shared by each 2 x 2 block of pixels (JPEG's 4:2:0 chroma subsampling keeps one
-    chroma sample per block) holds, in a mean over n pixels, the noise of about n/4
-    independent ones, while each pixel's scatter is the stated sigma: taken as independent
-    pixels the statistic would read about 4 per degree of freedom. The check measures the
-    blocks' variance from the photo (noise_scale ~ 3: the cells' planes take part of it)
+    """Noise drawn once per 2 x 2 block of pixels holds, in a mean over n pixels, the noise
+    of about n/4 independent ones, while each pixel's scatter is the stated sigma: taken as
+    independent pixels the statistic would read about 4 per degree of freedom. Neighbouring
+    pixels then differ less than independent ones (0.3 of the prediction, under the check's
+    0.6), so the check measures the blocks' variance from the photo (noise_scale ~ 3: the
+    cells' planes take part of it)
     and the statistic stays about 1 (200 photos: mean 1.07, 2 % false alarms; here 40
     photos, mean within 0.15 of 1 and at most 3 false alarms, 0.8 expected)."""
     from bubblefit.inverse.colour_check import colour_check

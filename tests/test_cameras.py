@@ -711,6 +711,27 @@ def test_colour_check_decides_or_warns():
         assert ok and warnings == [] and record["consistent"], (warnings, record)
 
 
+def test_colour_check_option_of_fit_and_fit_sequence(tmp_path, capsys):
+    """``--colour-check warn`` reaches ``FitOptions.judge.colour_check`` for ``fit`` and
+    ``fit-sequence``; the default decides; another word is refused by the parser (exit 2,
+    one line naming the choices)."""
+    from bubblefit.cli import build_parser
+    from bubblefit.cli.fit import build_fit_options
+
+    photo, env = tmp_path / "p.png", tmp_path / "e.exr"
+    for f in (photo, env):
+        f.write_bytes(b"x")
+    for command in (["fit", str(photo)], ["fit-sequence", str(photo), "-o", str(tmp_path / "frames")]):
+        for extra, want in (([], "decide"), (["--colour-check", "warn"], "warn")):
+            args = build_parser().parse_args([*command, "--envmap", str(env), *extra])
+            assert build_fit_options(args, None, 8, None).judge.colour_check == want
+    with pytest.raises(SystemExit) as stop:
+        build_parser().parse_args(["fit", str(photo), "--envmap", str(env), "--colour-check", "ignore"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "decide" in err[0] and "warn" in err[0], err
+
+
 def _bilinear(mosaic):
     """Bilinear demosaic of an RGGB mosaic written here: each missing colour the weighted
     mean of its nearest photosites of that colour (kernel 1-2-1 x 1-2-1, normalised)."""

@@ -58,7 +58,9 @@ The chromatic/achromatic split of a residual: Finlayson, Drew & Funt, "Color con
 generalized diagonal transforms suffice", JOSA A 11(11), 1994 (colour as a direction in
 RGB); the quadratic form of a normal vector in its inverse covariance is chi^2-distributed
 (Mardia, Kent & Bibby, *Multivariate Analysis*, 1979, thm. 2.5.2); the Bayer mosaic:
-B. E. Bayer, US patent 3,971,065 (1976).
+B. E. Bayer, US patent 3,971,065 (1976); a noise level from each pixel less the mean of its
+neighbours (a Laplacian, which a smooth signal cancels): J. Immerkaer, "Fast noise variance
+estimation", Computer Vision and Image Understanding 64(2), 1996.
 """
 
 from __future__ import annotations
@@ -69,8 +71,8 @@ import numpy as np
 
 from ._uncertainty import OUTLIER_CHI2
 
-__all__ = ["ColourCheck", "colour_check", "judge_colours", "CHROMA_FLOOR", "CHROMA_REL", "FALSE_ALARM", "GRID",
-           "INNER_COS"]
+__all__ = ["ColourCheck", "colour_check", "judge_colours", "neighbour_scale", "noise_scale", "CHROMA_FLOOR",
+           "CHROMA_REL", "FALSE_ALARM", "GRID", "INNER_COS", "SHARED_BELOW"]
 
 #: Chromatic model error allowed per cell, as a fraction of the cell's brightness ``|render|``.
 #: From fits with the right camera only (experiments/colour_check_null.py: 48 px photos
@@ -234,7 +236,6 @@ def neighbour_scale(photo: np.ndarray, render: np.ndarray, var: np.ndarray, use:
     model's and independent between pixels, more for a noisier photo, less for noise that
     neighbours share (which ``d`` partly cancels: 0.3 when each 2 x 2 block shares one
     draw) or a pessimistic model. 0 with fewer than 20 such pixels."""
-    h, w = use.shape
     inner = np.zeros_like(use)
     inner[1:-1, 1:-1] = use[1:-1, 1:-1] & use[:-2, 1:-1] & use[2:, 1:-1] & use[1:-1, :-2] & use[1:-1, 2:]
     ys, xs = np.nonzero(inner)

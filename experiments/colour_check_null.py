@@ -31,9 +31,11 @@ sys.path.insert(0, os.path.dirname(__file__))
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
 
 VAL = os.path.join(os.path.dirname(__file__), "validation", "data")
-#: development cases of experiments/validation/split.toml with a constant film (the cheap ones)
+#: development cases of experiments/validation/split.toml: the constant films, and the
+#: draining films fitted with the drainage profile (5-13 minutes each on two shared cores)
 VAL_CASES = ("ref_const300_courtyard_ortho", "cyc_const500_courtyard_ortho", "ref_const450_interior_ortho",
-             "ref_const1200_night_ortho_offc", "ref_const620_sunrise_persp")
+             "ref_const1200_night_ortho_offc", "ref_const620_sunrise_persp", "ref_drain_exp15_studio_persp",
+             "ref_drain_lin_courtyard_ortho", "cyc_drain_lin_sunrise_persp", "ref_drain_lin_city_ortho_offc")
 THICKNESSES = (300.0, 600.0, 1000.0, 1300.0, 1500.0)
 NIKON, SIGMA = "Nikon 5100 (NPL)", "Sigma SDMerill (NPL)"
 

@@ -112,13 +112,14 @@ FILM_PHOTO_DISC = (FILM_PHOTO_SIZE / 2, FILM_PHOTO_SIZE / 2, 0.42 * FILM_PHOTO_S
 
 
 def film_photo(env, thickness, seed: int, response: str = "srgb", illuminant: str = "D65",
-               quantised: bool | int = True):
+               quantised: bool | int = True, noise: bool = True):
     """``(photo, background)``: a constant film of ``thickness`` nm (or a draining film,
     ``thickness = (top_nm, bottom_nm, exponent)``) over a smooth backdrop
     (:func:`smooth_backdrop`), rendered by bubblefit's ``render_scene`` (paper model, 48
     uniform spectral samples) through the camera ``response`` under ``illuminant``, then
     read and shot noise and, when ``quantised``, 8-bit sRGB codes (:func:`quantise_8bit`),
-    or with ``quantised=16`` 16-bit linear codes.
+    or with ``quantised=16`` 16-bit linear codes; with ``noise`` False the noise-free
+    renders, whose noise :func:`film_noise` draws.
     The one builder of the camera tests (tests/test_cameras.py) and experiments
     (wrong_camera.py, calibrated_camera.py, colour_check_null.py)."""
     from bubblefit.model.scene import Scene, render_scene
@@ -135,17 +136,20 @@ def film_photo(env, thickness, seed: int, response: str = "srgb", illuminant: st
         "effects": {"model": "paper", "transmission_tint": True, "spectral": {"method": "uniform", "samples": 48}},
     })
     img = np.asarray(render_scene(scene, bg, env=env), np.float64)
+    if not noise:
+        return img, bg
+    return film_noise(img, rng, quantised), film_noise(bg, rng, quantised)
 
-    def noisy(x):
-        return x + rng.normal(size=x.shape) * np.sqrt(0.003**2 + 1e-4 * np.clip(x, 0.0, None))
 
+def film_noise(img, rng: np.random.Generator, quantised: bool | int = True):
+    """:func:`film_photo`'s noise on a noise-free render ``img``: read and shot noise, then
+    8-bit sRGB codes (``quantised`` True or 8), 16-bit linear codes (16) or none (False)."""
     if quantised is True or quantised == 8:
-        return quantise_8bit(img, rng), quantise_8bit(bg, rng)
+        return quantise_8bit(img, rng)
+    noisy = img + rng.normal(size=img.shape) * np.sqrt(0.003**2 + 1e-4 * np.clip(img, 0.0, None))
     if quantised == 16:
-        return (np.round(np.clip(noisy(img), 0.0, 1.0) * 65535) / 65535,
-                np.round(np.clip(noisy(bg), 0.0, 1.0) * 65535) / 65535)
-
-    return noisy(img), noisy(bg)
+        return np.round(np.clip(noisy, 0.0, 1.0) * 65535) / 65535
+    return noisy
 
 
 # --------------------------------------------------------------------------------------

@@ -61,12 +61,13 @@ class Recorder:
     def save(self, out, name, right: bool, extra: dict, kept: dict | None = None):
         """Save the call whose record is ``kept`` (the fit's reported ``colour_check``: a fit
         without a stated view tries two and keeps one), else the last; then forget them."""
-        pick = [a for a, rec in self.calls if kept and rec and rec.get("chi2_per_dof") == kept.get("chi2_per_dof")]
-        arrs = pick[-1] if pick else (self.calls[-1][0] if self.calls else {})
+        pick = [(a, rec) for a, rec in self.calls if kept and rec and rec.get("chi2_per_dof") == kept.get("chi2_per_dof")]
+        arrs, record = pick[-1] if pick else (self.calls[-1] if self.calls else ({}, None))
         self.calls = []
         np.savez_compressed(os.path.join(out, f"{name}.npz"), **arrs)
         with open(os.path.join(out, f"{name}.json"), "w") as fh:
-            json.dump(dict(name=name, right=right, **extra), fh, indent=1, default=float)
+            # the fit's own record: a calibrated response's errors (response_errors) enter only there
+            json.dump(dict(name=name, right=right, fit_record=record, **extra), fh, indent=1, default=float)
 
 
 def _env():
@@ -331,7 +332,7 @@ def kind(meta) -> str:
 
 def table(out):
     """Recompute the colour check on every saved case; print and return one row each."""
-    from bubblefit.inverse.colour_check import INNER_COS, colour_check
+    from bubblefit.inverse.colour_check import INNER_COS, ColourCheck, colour_check
 
     rows = []
     for f in sorted(os.listdir(out)):
@@ -342,11 +343,15 @@ def table(out):
         mask = arr["mask"] & (arr["cos"] > INNER_COS)
         me = float(arr["model_error"]) if "model_error" in arr else 0.03  # JudgeSettings.model_error's default
         c = colour_check(arr["photo"], arr["render"], mask, arr["sigma"], model_error=me)
+        plain = c.chi2_per_dof  # the response taken as exact
+        if (meta.get("fit_record") or {}).get("response_errors"):
+            # a calibrated response: the fit's check held its errors (not saved here), so its record stands
+            c = ColourCheck(**{k: meta["fit_record"][k] for k in ColourCheck.__dataclass_fields__})
         k = kind(meta)
         rows.append(dict(case=meta["name"], kind=k, right=meta["right"], truth=meta.get("truth"),
                          thickness=meta.get("thickness"), statistic=c.chi2_per_dof, threshold=c.threshold_per_dof,
                          cells=c.cells, noise_scale=c.noise_scale, consistent=c.consistent,
-                         reduced_chi2=meta.get("chi2")))
+                         reduced_chi2=meta.get("chi2"), statistic_response_exact=plain))
         fitted = np.round(np.atleast_1d(meta.get("thickness") if meta.get("thickness") is not None else np.nan), 1)
         print(f"{meta['name']:48s} {k:10s} truth {meta.get('truth')!s:>20} fit {fitted!s:>24} stat "
               f"{c.chi2_per_dof:7.3f} thr {c.threshold_per_dof:5.3f} kappa {c.noise_scale:5.2f} -> "

@@ -120,6 +120,7 @@ class ColourCheck:
     cells: int
     chroma_rms: float        # RMS over cells of |mean chromatic residual| / |mean render| (a fraction)
     noise_scale: float = 1.0  # kappa: the photo's scatter over the noise model's, at least 1
+    response_errors: bool = False  # whether the response's own stated errors are in the null
 
     def warning(self, explained: bool = True) -> str | None:
         """One line for the fit's warnings when the colours are inconsistent, else None;
@@ -144,7 +145,7 @@ class ColourCheck:
         ``ok`` (``JudgeSettings.colour_check``)."""
         return {"consistent": self.consistent, "chi2_per_dof": self.chi2_per_dof,
                 "threshold_per_dof": self.threshold_per_dof, "cells": self.cells, "chroma_rms": self.chroma_rms,
-                "noise_scale": self.noise_scale, "decides": bool(decides)}
+                "noise_scale": self.noise_scale, "response_errors": self.response_errors, "decides": bool(decides)}
 
 
 def _plane(c: np.ndarray) -> np.ndarray:
@@ -157,14 +158,18 @@ def _plane(c: np.ndarray) -> np.ndarray:
 
 def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma: np.ndarray, *,
                  model_error: float | None = None, floor: float = CHROMA_FLOOR, chroma_floor: float = CHROMA_REL, grid: int = GRID,
-                 false_alarm: float = FALSE_ALARM) -> ColourCheck | None:
+                 false_alarm: float = FALSE_ALARM, response_cov=None) -> ColourCheck | None:
     """Test whether ``render`` explains the hues of ``photo`` over the pixels of ``mask``,
     each pixel's channels having the noise standard deviation ``sigma`` (the fit's noise
     model, :func:`~bubblefit.inverse._observation.noise_sigma`); module docstring. Pixels
     that are outliers of the fit (chi^2 over their channels, with the fit's ``model_error``
     floor, above :data:`~bubblefit.inverse._uncertainty.OUTLIER_CHI2`: glints, specks) are
     left out, as the verdict's split leaves them out of the explained pixels (none with
-    ``model_error`` None). ``None`` when fewer than two cells have :data:`MIN_PIXELS` pixels."""
+    ``model_error`` None). ``response_cov``, where the camera response states its own
+    errors (:func:`bubblefit.inverse.response_error.response_cells`): a function of a cell's
+    pixel rows and columns giving the (3, 3) covariance of its mean render from them, added
+    to the cell's floor (it does not average down either). ``None`` when fewer than two
+    cells have :data:`MIN_PIXELS` pixels."""
     from scipy.stats import chi2
 
     photo = np.asarray(photo, np.float64)
@@ -204,6 +209,8 @@ def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma:
         bright = float(np.linalg.norm(rend[sel], axis=1).mean())
         chroma = float(np.linalg.norm(mean - mean.mean()))  # the part orthogonal to grey (1, 1, 1)
         model = 0.5 * ((floor * bright) ** 2 + (chroma_floor * chroma) ** 2) * np.eye(2)
+        if response_cov is not None:
+            model = model + p @ response_cov(ys[sel], xs[sel]) @ p.T
         cells.append((ep.mean(axis=0), noise, model, bright))
     if len(cells) < 2:
         return None
@@ -213,7 +220,8 @@ def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma:
     thr = float(chi2.isf(false_alarm, dof)) / dof
     value = stat / dof
     rel = [float(np.linalg.norm(m)) / bright for m, _, _, bright in cells]
-    return ColourCheck(bool(value <= thr), value, thr, len(cells), float(np.sqrt(np.mean(np.square(rel)))), kappa)
+    return ColourCheck(bool(value <= thr), value, thr, len(cells), float(np.sqrt(np.mean(np.square(rel)))), kappa,
+                       response_cov is not None)
 
 
 def _planes(c: np.ndarray) -> np.ndarray:
@@ -283,16 +291,17 @@ def _block_scale(white: np.ndarray, k: int = 2) -> float:
 
 
 def judge_colours(ok: bool, warnings: list, photo, render, mask, cos, sigma, model_error: float = 0.0,
-                  explained: bool = True, decide: bool = True) -> tuple[bool, list, dict | None]:
+                  explained: bool = True, decide: bool = True, response_cov=None) -> tuple[bool, list, dict | None]:
     """The fit's verdict with the colour test added: ``(ok, warnings, record)``. The test
     (:func:`colour_check`) runs over the fitted pixels ``mask`` whose front film's ``cos``
     (cosine of incidence) exceeds :data:`INNER_COS`, with the fit's noise ``sigma`` and
     model-error floor ``model_error`` (for its outliers); colours it finds inconsistent
     add the warning of :meth:`ColourCheck.warning` (worded for a photo the model does not
     ``explained`` as a whole, as the verdict found) and, with ``decide`` true
-    (``JudgeSettings.colour_check == "decide"``), make the fit not ``ok``."""
+    (``JudgeSettings.colour_check == "decide"``), make the fit not ``ok``. ``response_cov``:
+    the calibrated response's own errors (:func:`colour_check`)."""
     check = colour_check(photo, render, np.asarray(mask, bool) & (np.asarray(cos) > INNER_COS), sigma,
-                         model_error=model_error)
+                         model_error=model_error, response_cov=response_cov)
     if check is None:
         return ok, warnings, None
     why = check.warning(explained)

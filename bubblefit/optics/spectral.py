@@ -70,6 +70,7 @@ from jaxtyping import Array, Float
 __all__ = [
     "illuminant_spectrum",
     "response_functions",
+    "response_stderr",
     "is_named_illuminant",
     "is_named_response",
     "LAMBDA_MIN",
@@ -252,6 +253,23 @@ def response_functions(response: str) -> np.ndarray:
                          f"{', '.join(colour.MSDS_CAMERA_SENSITIVITIES)}, or a CSV wavelength_nm,r,g,b)")
     data = _read_columns(response, 4, "camera response")
     return np.stack([np.interp(_GRID, data[:, 0], data[:, c], left=0.0, right=0.0) for c in (1, 2, 3)], axis=1)
+
+
+def response_stderr(response: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(wavelengths (L,), standard errors (L, 3))`` of a response CSV that states them
+    (``wavelength_nm,r,g,b,r_err,g_err,b_err``, as ``bubblefit calibrate-camera`` writes:
+    :meth:`bubblefit.capture.camera_calibration.CameraCalibration.csv_text`), on the CSV's
+    own rows, which :func:`response_functions` interpolates linearly between; None for a
+    named response or a CSV without the error columns (the response is then taken as
+    exact). The errors are per row only: the CSV holds no covariance between rows."""
+    if not os.path.isfile(response):
+        return None
+    with open(response, encoding="utf-8", errors="replace") as fh:
+        head = [line for line in (fh.readline() for _ in range(3)) if line.strip()]
+    if not any("r_err" in line for line in head):
+        return None
+    data = _read_columns(response, 7, "camera response")
+    return data[:, 0], data[:, 4:7]
 
 
 #: The comment a response CSV of ``bubblefit calibrate-camera`` opens with names the lamp it

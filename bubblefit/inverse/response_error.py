@@ -1,0 +1,125 @@
+"""How far a calibrated camera response's own errors move a fitted photo's colours.
+
+A response CSV from ``bubblefit calibrate-camera`` states each row's standard error
+(:func:`bubblefit.optics.spectral.response_stderr`). The colour check
+(:mod:`bubblefit.inverse.colour_check`) asks whether the stated response can produce the
+photo's hues; a response known only to within its errors can produce any hue those errors
+reach, so the check's null hypothesis holds their covariance too. It is propagated
+linearly (the first-order, "delta method" law of propagation of uncertainty: JCGM 100:2008,
+GUM, section 5.1.2):
+
+- the response of channel ``k`` is linear between the CSV's rows ``lambda_j``:
+  ``rho_k(lambda) = sum_j x_kj H_j(lambda)`` with hat functions ``H_j``, and the rows'
+  errors ``s_kj`` are taken as independent (the CSV holds no covariance between rows) and
+  independent between channels (each channel is fitted alone);
+- a film of Airy reflectance ``R(lambda)`` (Born & Wolf eq. 7.6(13), the fit's own
+  :func:`bubblefit.optics.film.airy_reflectance`, both polarisations averaged, at the
+  pixel's fitted thickness and angle) seen through the white-balanced response reflects
+  ``f_k = sum_l w_k R / sum_l w_k`` of the light, ``w_k = rho_k I`` with the lamp ``I``
+  (the fit's white balance divides by the flat spectrum's ``sum_l w_k``), so
+  ``d f_k / d x_kj = sum_l H_j I (R - f_k) / sum_l w_k``;
+- the paper's model (eq. 11) renders a pixel as the light the film reflects plus the
+  background it transmits, ``y_k = E_k f_k + B_k (1 - f_k)``: linear in ``f_k``, so
+  ``d y_k / d f_k = E_k - B_k = (y_k - B_k) / f_k``, with ``y`` the fit's render and ``B``
+  the background photo (zero without one, which overstates the response's share where
+  the map's light is seen through the film: the check is then more lenient).
+
+A cell's mean render then moves by ``J_b = mean_i d y_i / d x`` per unit of the
+coefficients, and its covariance from the response is ``J_b diag(s^2) J_b^T`` (3 x 3). It
+does not average down over pixels (every pixel sees the same response), and cells of
+similar thickness share it, which the check's sum over cells treats as independent.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["ResponseError", "response_error", "MAX_PIXELS"]
+
+#: Pixels per cell the mean Jacobian is taken over (evenly strided): the Jacobian follows
+#: the fitted thickness, smooth over a cell, so a subsample gives its mean (and bounds the
+#: work on large photos).
+MAX_PIXELS = 400
+
+
+@dataclass(frozen=True)
+class ResponseError:
+    """A response's stated errors on its rows, ready to propagate (module docstring):
+    ``hats`` (G, L) ``H_j(lambda) I(lambda)`` on the fine grid, ``density`` (G, 3)
+    ``w_k = rho_k I``, ``stderr`` (L, 3) the rows' standard errors, ``wavelengths`` (G,) nm
+    and the film's index ``n_film``."""
+
+    wavelengths: np.ndarray
+    hats: np.ndarray
+    density: np.ndarray
+    stderr: np.ndarray
+    n_film: float
+
+    def jacobian(self, render: np.ndarray, background: np.ndarray | None, thickness: np.ndarray,
+                 cos: np.ndarray) -> np.ndarray:
+        """(n, 3, L): each pixel's change of its render ``(n, 3)`` per one standard error of
+        each row of each channel's response, at the pixel's film ``thickness`` (n,) nm seen
+        at ``cos`` (n,) (cosine of incidence)."""
+        from ..optics.film import airy_reflectance
+
+        refl = np.asarray(airy_reflectance(np.asarray(thickness, np.float64)[:, None], self.wavelengths[None, :],
+                                           self.n_film, np.asarray(cos, np.float64)[:, None])).mean(axis=-1)
+        total = self.density.sum(axis=0)                         # (3,)
+        f = refl @ self.density / total                          # (n, 3) the film's reflected share per channel
+        proj = refl @ self.hats                                  # (n, L)
+        dfdx = (proj[:, None, :] - f[:, :, None] * self.hats.sum(axis=0)[None, None, :]) / total[None, :, None]
+        bg = 0.0 if background is None else np.asarray(background, np.float64)
+        dydf = (np.asarray(render, np.float64) - bg) / np.maximum(f, 1e-9)
+        return dydf[:, :, None] * dfdx * self.stderr.T[None, :, :]
+
+    def cell_covariance(self, render, background, thickness, cos) -> np.ndarray:
+        """(3, 3): the covariance of a cell's mean render from the response's errors, over
+        the cell's pixels (at most :data:`MAX_PIXELS` of them, evenly strided)."""
+        good = np.nonzero(np.isfinite(np.asarray(thickness, np.float64)))[0]
+        if good.size == 0:
+            return np.zeros((3, 3))
+        take = good if good.size <= MAX_PIXELS else good[np.linspace(0, good.size - 1, MAX_PIXELS).astype(int)]
+        bg = None if background is None else np.asarray(background)[take]
+        jac = self.jacobian(np.asarray(render)[take], bg, np.asarray(thickness)[take], np.asarray(cos)[take]).mean(axis=0)
+        return np.diag(np.sum(jac**2, axis=-1))  # channels' coefficients are independent: a diagonal
+
+
+def response_error(response: str, illuminant: str, n_film: float) -> ResponseError | None:
+    """The :class:`ResponseError` of ``response`` (a CSV with ``r_err,g_err,b_err``
+    columns) under ``illuminant``, for a film of index ``n_film``; None when the response
+    states no errors (a named camera, sRGB, a CSV without them: taken as exact)."""
+    from ..optics.spectral import (LAMBDA_MAX, LAMBDA_MIN, _GRID, _channel_density, illuminant_spectrum,
+                                   response_stderr)
+
+    stated = response_stderr(response)
+    if stated is None:
+        return None
+    rows, err = stated
+    inside = (_GRID >= LAMBDA_MIN) & (_GRID <= LAMBDA_MAX)
+    lam = _GRID[inside]
+    lamp = illuminant_spectrum(illuminant)[inside]
+    hats = np.stack([np.interp(lam, rows, np.eye(len(rows))[j], left=0.0, right=0.0) for j in range(len(rows))],
+                    axis=1) * lamp[:, None]
+    return ResponseError(lam, hats, _channel_density(illuminant, response)[inside], np.asarray(err, np.float64),
+                         float(n_film))
+
+
+def response_cells(response: str, illuminant: str, n_film: float, render: np.ndarray, background: np.ndarray | None,
+                   thickness: np.ndarray, cos: np.ndarray):
+    """For the colour check (:func:`bubblefit.inverse.colour_check.colour_check`'s
+    ``response_cov``): a function of a cell's pixel rows and columns giving the (3, 3)
+    covariance of its mean render from the response's stated errors
+    (:meth:`ResponseError.cell_covariance`), over images ``render``, ``background`` (None:
+    none given), ``thickness`` (nm) and ``cos``; None when the response states no errors."""
+    err = response_error(response, illuminant, n_film)
+    if err is None:
+        return None
+    thickness = np.broadcast_to(np.asarray(thickness, np.float64), np.shape(render)[:2])
+
+    def cov(ys, xs):
+        bg = None if background is None else np.asarray(background, np.float64)[ys, xs]
+        return err.cell_covariance(np.asarray(render)[ys, xs], bg, thickness[ys, xs], np.asarray(cos)[ys, xs])
+
+    return cov

@@ -1,0 +1,105 @@
+"""A calibrated response's stated errors in the colour check's null hypothesis.
+
+References are independent of the package: colour-science's measured camera
+sensitivities, the Airy reflectance of a film in air at normal incidence written out here
+(Born & Wolf eq. 7.6(13)), and Monte Carlo draws of the response within its stated errors
+against the package's linear propagation."""
+
+import numpy as np
+import pytest
+
+from bubblefit.inverse.colour_check import colour_check
+from bubblefit.inverse.response_error import response_cells, response_error
+from bubblefit.optics.spectral import response_stderr
+
+CAMERA = "Nikon 5100 (NPL)"
+ROWS = np.arange(380.0, 781.0, 5.0)
+LAM = np.arange(380.0, 781.0, 1.0)
+
+
+def _nikon(rows):
+    import colour
+
+    ms = colour.MSDS_CAMERA_SENSITIVITIES[CAMERA]
+    s = np.stack([np.interp(rows, ms.wavelengths, ms.values[:, c], left=0, right=0) for c in range(3)], axis=1)
+    return s / s.max(axis=0)
+
+
+def _airy(d, n=1.33):
+    r = (1 - n) / (1 + n)
+    f = 4 * r * r / (1 - r * r) ** 2
+    s2 = np.sin(2 * np.pi * n * d / LAM) ** 2
+    return f * s2 / (1 + f * s2)
+
+
+def _csv(tmp_path, err_rel):
+    resp = _nikon(ROWS)
+    err = err_rel * np.ones_like(resp)
+    path = tmp_path / "camera.csv"
+    lines = ["# camera response fitted by bubblefit calibrate-camera from film; illuminant E",
+             "wavelength_nm,r,g,b,r_err,g_err,b_err"]
+    lines += [f"{w:g}," + ",".join(f"{v:.8g}" for v in (*r, *e)) for w, r, e in zip(ROWS, resp, err)]
+    path.write_text("\n".join(lines) + "\n")
+    return str(path), resp, err
+
+
+def test_stated_errors_read_and_absent(tmp_path):
+    path, _, err = _csv(tmp_path, 0.01)
+    rows, read = response_stderr(path)
+    assert np.allclose(rows, ROWS) and np.allclose(read, err)
+    bare = tmp_path / "bare.csv"
+    bare.write_text("wavelength_nm,r,g,b\n" + "\n".join(f"{w:g},1,1,1" for w in ROWS) + "\n")
+    assert response_stderr(str(bare)) is None and response_error(str(bare), "E", 1.33) is None
+    assert response_error(CAMERA, "E", 1.33) is None and response_error("srgb", "D65", 1.33) is None
+
+
+@pytest.mark.parametrize("d", [300.0, 1000.0, 1500.0])
+def test_propagation_against_monte_carlo(tmp_path, d):
+    """The linear covariance of a pixel ``y = E f + B (1 - f)`` against 4000 responses
+    drawn within their errors (2 % of the peak per row, independent). Monte Carlo's
+    relative error on a variance is sqrt(2/4000) = 2.2 %; the draws' second-order terms
+    add about the square of the colour's relative change (a few %): 12 % allowed."""
+    path, resp, err = _csv(tmp_path, 0.02)
+    e_light, b_light = np.array([0.9, 1.0, 0.8]), np.array([0.2, 0.3, 0.25])
+    rng = np.random.default_rng(3)
+    refl = _airy(d)
+
+    def pixel(r_rows):
+        w = np.stack([np.interp(LAM, ROWS, r_rows[:, c]) for c in range(3)], axis=1)
+        f = refl @ w / w.sum(axis=0)
+        return e_light * f + b_light * (1 - f)
+
+    draws = np.array([pixel(resp + err * rng.normal(size=resp.shape)) for _ in range(4000)])
+    y0 = pixel(resp)
+    jac = response_error(path, "E", 1.33).jacobian(y0[None], b_light[None], np.array([d]), np.array([1.0]))[0]
+    predicted = np.sum(jac**2, axis=-1)
+    assert np.allclose(predicted, draws.var(axis=0), rtol=0.12)
+
+
+def test_check_holds_the_response_error(tmp_path):
+    """With the model-error floors off (they would hide the small shift), cells whose mean hue is moved by one coherent draw of the response's error (the
+    same draw for every pixel, as a calibrated response moves them) plus pixel noise: the
+    check without the response's errors flags them, with them it does not."""
+    path, _, _ = _csv(tmp_path, 0.3)
+    rng = np.random.default_rng(8)
+    h = w = 36
+    yy, xx = np.mgrid[:h, :w]
+    thick = 300.0 + 20.0 * xx  # a wedge: 300 -> 1000 nm
+    refl = np.stack([_airy(t) for t in thick.ravel()])
+    w_rows = _nikon(LAM)
+    f = (refl @ w_rows / w_rows.sum(axis=0)).reshape(h, w, 3)
+    e_light, b_light = np.array([0.9, 1.0, 0.8]), np.array([0.2, 0.3, 0.25])
+    render = e_light * f + b_light * (1 - f)
+    bg = np.broadcast_to(b_light, render.shape).copy()
+    cos = np.ones((h, w))
+    err = response_error(path, "E", 1.33)
+    jac = err.jacobian(render.reshape(-1, 3), bg.reshape(-1, 3), thick.ravel(), cos.ravel())
+    shift = np.einsum("nkl,kl->nk", jac, rng.normal(size=(3, len(ROWS)))).reshape(h, w, 3)
+    sigma = np.full((h, w, 3), 0.002)
+    photo = render + shift + sigma * rng.normal(size=render.shape)
+    mask = np.ones((h, w), bool)
+    plain = colour_check(photo, render, mask, sigma, floor=0.0, chroma_floor=0.0)
+    held = colour_check(photo, render, mask, sigma, floor=0.0, chroma_floor=0.0,
+                        response_cov=response_cells(path, "E", 1.33, render, bg, thick, cos))
+    print(plain.chi2_per_dof, held.chi2_per_dof)
+    assert not plain.consistent and held.consistent and held.response_errors

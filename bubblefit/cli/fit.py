@@ -19,6 +19,8 @@ import math
 import numpy as np
 
 from ..errors import ComputationError, InputError
+from .fit_cap import run_cap
+from .fit_planar import run_planar
 
 NAME = "fit"
 
@@ -265,6 +267,17 @@ def build_fit_options(args, scene, bits: int | None, view=None, photosite_share=
 
 
 def run(args) -> int:
+    """``fit``: the command of the film's shape the scene file describes
+    (:func:`~bubblefit.model.planar_scene.film_shape`; a floating bubble without one),
+    from :data:`COMMANDS`."""
+    from ..model.planar_scene import film_shape
+
+    return COMMANDS[film_shape(args.scene) if args.scene else "sphere"](args)
+
+
+def run_bubble(args) -> int:
+    """``fit`` of a floating bubble: read the photo, its background and map, fit
+    (:func:`~bubblefit.inverse.fit.fit_photo`), print, write the maps and the JSON."""
     from ..inverse.fit import fit_photo
     from ..io.atomic import output_set
     from ..io.camera_files import read_photo, reading_record
@@ -275,19 +288,6 @@ def run(args) -> int:
     from .photo_args import photo_reading
     from .view_options import check_view_args, view_from_args
 
-    if args.scene:
-        from ..model.planar_scene import is_planar_file
-
-        if is_planar_file(args.scene):
-            from .fit_planar import run_planar
-
-            return run_planar(args)
-        from ..model.cap_scene import is_cap_file
-
-        if is_cap_file(args.scene):
-            from .fit_cap import run_cap
-
-            return run_cap(args)
     if not args.envmap:
         raise InputError("fit: --envmap is required for a bubble (a flat film's scene says [film] shape = \"plane\")")
     reading = photo_reading(args)
@@ -345,3 +345,7 @@ def run(args) -> int:
     if args.strict and not result.ok:
         raise ComputationError("the fit is not ok: " + ("; ".join(result.warnings) or result.message))
     return 0
+
+
+#: ``fit``'s command for each shape of film (:func:`~bubblefit.model.planar_scene.film_shape`).
+COMMANDS = {"sphere": run_bubble, "cap": run_cap, "plane": run_planar}

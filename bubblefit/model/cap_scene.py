@@ -30,7 +30,7 @@ from .cap import Cap
 from .geometry import PerspectiveCamera
 from .planar_scene import _num, _read_toml, _vec, film_kind_and_range, parse_cap
 
-__all__ = ["CapScene", "load_cap_scene", "parse_cap_scene", "is_cap_file", "KINDS"]
+__all__ = ["CapScene", "load_cap_scene", "parse_cap_scene", "KINDS"]
 
 KINDS = ("constant", "drainage")
 
@@ -50,16 +50,6 @@ class CapScene:
     illuminant: str = "D65"
     response: str = "srgb"
     film_rgb: str = "spectral"
-
-
-def is_cap_file(path) -> bool:
-    """Whether the scene file at ``path`` says ``[film] shape = "cap"`` (False for a missing or bad file)."""
-    try:
-        data = _read_toml(path)
-    except InputError:
-        return False
-    f = data.get("film")
-    return isinstance(f, dict) and f.get("shape") == "cap"
 
 
 def load_cap_scene(path) -> CapScene:

@@ -37,7 +37,7 @@ from ..lighting.area import Patch
 from ..lighting.coaxial import Stack
 from ..optics import dispersion
 
-__all__ = ["PlanarScene", "film_kind_and_range", "is_planar", "is_planar_file", "load_planar", "parse_cap", "parse_planar", "parse_region"]
+__all__ = ["PlanarScene", "film_kind_and_range", "film_shape", "is_planar", "load_planar", "parse_cap", "parse_planar", "parse_region"]
 
 THICKNESS_KINDS = ("map", "newton", "constant", "drainage")
 
@@ -85,24 +85,25 @@ def _read_toml(path) -> dict:
         raise InputError(f"scene file {path} is not valid TOML: {exc}") from None
 
 
-def is_planar_file(path) -> bool:
-    """Whether the scene file at ``path`` describes a flat film (False for a missing or bad file:
-    the bubble's loader then says what is wrong). A ``[film]`` of another shape than
-    ``"plane"``, ``"cap"`` or ``"sphere"`` is refused in one line, as is a cap whose
-    plane misses its sphere (:class:`~bubblefit.model.cap.Cap`)."""
+def film_shape(path) -> str:
+    """The shape of the film the scene file at ``path`` describes: ``"plane"`` (a flat film
+    or a gap), ``"cap"`` (a bubble on a dish) or ``"sphere"`` (a floating bubble; also for
+    a missing or bad file: the bubble's loader then says what is wrong). A ``[film]`` of
+    another shape is refused in one line, as is a cap whose plane misses its sphere
+    (:class:`~bubblefit.model.cap.Cap`)."""
     try:
         data = _read_toml(path)
     except InputError:
-        return False
+        return "sphere"
     f = data.get("film")
     shape = f.get("shape", "sphere") if isinstance(f, dict) else "sphere"
     if shape == "cap":
         parse_cap(f)  # a bad cap gets its own line here; a good one is fitted by the cap's path
-        return False
+        return shape
     if shape not in ("plane", "sphere"):
         raise InputError(f'{path}: film.shape = {shape!r} is not supported (use "plane" for a flat film or a gap, '
                          '"cap" for a bubble on a dish, "sphere" or a [bubble] table for a bubble)')
-    return shape == "plane"
+    return shape
 
 
 def parse_cap(f: dict):

@@ -405,9 +405,10 @@ def _fit_photo(env, bubble, seed=0):
 
 def _fit_options(**kw):
     from bubblefit.capture.view import ORTHOGRAPHIC
-    from bubblefit.inverse.fit import FitOptions, SolverSettings
+    from bubblefit.inverse.fit import FitOptions, ImageSizes, SolverSettings
 
-    base = dict(disc=FIT_DISC, t_init=0.968, roughness_init=0.04, solver=SolverSettings(max_steps=30), search_size=24,
+    base = dict(disc=FIT_DISC, t_init=0.968, roughness_init=0.04, solver=SolverSettings(max_steps=30),
+                sizes=ImageSizes(search=24),
                 model="paper", view=ORTHOGRAPHIC,
                 effects=(("spectral", {"method": "uniform", "samples": 32}),))
     base.update(kw)

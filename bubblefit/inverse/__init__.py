@@ -35,7 +35,7 @@ import importlib
 _EXPORTS = {
     # entry points and their records
     "FitOptions": "_options", "FitResult": "_options", "FitStatus": "_options", "ForwardModel": "_options",
-    "NoiseSettings": "_options", "MapSettings": "_options", "JudgeSettings": "_options",
+    "NoiseSettings": "_options", "MapSettings": "_options", "JudgeSettings": "_options", "ImageSizes": "_options",
     "SolverSettings": "_options",
     "ThicknessModel": "_options", "fit_batch": "fit", "fit_photo": "fit", "SequenceOptions": "sequence",
     "SequenceResult": "sequence", "fit_sequence": "sequence", "SpectrumFit": "spectrum",

@@ -263,7 +263,7 @@ def check_pair(frame, lev) -> PairCheck | None:
 def check_disc_pair(photo, background, disc, opts) -> PairCheck | None:
     """:func:`judge_pair` of a photo and its background photo around an orthographic disc
     ``(cx, cy, r)`` in pixels, before any fit is set up (``fit-sequence`` checks its first
-    frame so): the pair block-averaged to at most ``opts.analysis_size`` pixels (``opts``:
+    frame so): the pair block-averaged to at most ``opts.sizes.analysis`` pixels (``opts``:
     a :class:`~bubblefit.inverse._options.FitOptions`), its noise and clipped pixels as a
     fit's (:func:`~bubblefit.inverse._observation.noise_sigma`,
     :func:`~bubblefit.inverse._observation.saturation_mask`). None without a background
@@ -272,7 +272,7 @@ def check_disc_pair(photo, background, disc, opts) -> PairCheck | None:
 
     if background is None or disc is None:
         return None
-    k = max(1, math.ceil(max(photo.shape[:2]) / opts.analysis_size))
+    k = max(1, math.ceil(max(photo.shape[:2]) / opts.sizes.analysis))
     clip = opts.noise.saturation
     sat = saturation_mask(np.asarray(photo), clip, None) | saturation_mask(np.asarray(background), clip, None)
     p, b = (block_mean(np.asarray(photo, np.float64), k), block_mean(np.asarray(background, np.float64), k))

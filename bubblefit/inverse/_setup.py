@@ -350,8 +350,8 @@ def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, d
     table = _table(opts, fx, held0, fit_disc)
     # a map is fitted after a drainage profile: the local fits render the profile
     base_cfg = replace(map_cfg, effects=replace(fx, thickness=table.thickness_model))
-    k_fit = opts.downsample or max(1, math.ceil(max(H, W) / opts.fit_size))
-    k_search = max(k_fit, math.ceil(max(H, W) / opts.search_size))
+    k_fit = opts.sizes.downsample or max(1, math.ceil(max(H, W) / opts.sizes.fit))
+    k_search = max(k_fit, math.ceil(max(H, W) / opts.sizes.search))
     lev_fit = make_level(k_fit, base_cfg, frame.photo, frame.sigma, frame.background, frame.saturated, opts.rim,
                          frame.bg_sigma)
     if lev_fit.mask.sum() < 10:

@@ -227,6 +227,7 @@ def run_demo(out_dir="bubblefit-demo", size: int = 96, seed: int = 0, progress: 
     from .io.atomic import write_json
     from .errors import InputError
     from .capture.view import ORTHOGRAPHIC
+    from .inverse import ParameterSetting
     from .inverse.fit import FitOptions, ImageSizes, NoiseSettings, SolverSettings, fit_photo
     from .model.scene import Scene
 
@@ -259,7 +260,8 @@ def run_demo(out_dir="bubblefit-demo", size: int = 96, seed: int = 0, progress: 
     settings = dict(effects=(("spectral", "uniform"), ("transmission_tint", False)),
                     sizes=ImageSizes(fit=FIT_SIZE, search=FIT_SIZE), solver=SolverSettings(max_steps=400))
     settings.update(fit_options or {})
-    opts = FitOptions(thickness="drainage", model="paper", disc=disc, t_init=cal.t, view=ORTHOGRAPHIC,
+    opts = FitOptions(thickness="drainage", model="paper", disc=disc, view=ORTHOGRAPHIC,
+                      parameters=(ParameterSetting("t", cal.t, measured=True),),
                       noise=NoiseSettings(read=NOISE_READ, shot=NOISE_SHOT), **settings)  # rendered with parallel rays
     scene = Scene.from_dict({"lighting": {"rotation_deg": truth.rotation_deg}})
     fit = fit_photo(syn["photo"], syn["env"], options=opts, background=syn["background"], scene=scene)

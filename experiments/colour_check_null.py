@@ -79,6 +79,7 @@ def run_films(out, rec, thicknesses, responses):
 
     from bubblefit.capture.view import ORTHOGRAPHIC
     from bubblefit.inverse.fit import FitOptions, fit_photo
+    from bubblefit.inverse import starts
 
     env, _ = _env()
     for k, d in enumerate(thicknesses):
@@ -89,7 +90,7 @@ def run_films(out, rec, thicknesses, responses):
                 continue
             t0 = time.perf_counter()
             r = fit_photo(photo, env, background=bg, options=FitOptions(
-                disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", view=ORTHOGRAPHIC, camera_response=resp,
+                disc=DISC, parameters=starts(t=0.968, roughness=0.04), model="paper", view=ORTHOGRAPHIC, camera_response=resp,
                 illuminant="D65" if resp == "srgb" else "E"))
             rec.save(out, name, resp == NIKON, dict(truth=d, thickness=r.params["thickness_nm"], ok=r.ok,
                                                    chi2=r.reduced_chi2, time_s=time.perf_counter() - t0))
@@ -104,6 +105,7 @@ def run_calibrated(out, rec, thicknesses, sources=("film", "chart")):
     from bubblefit.capture.camera_calibration import chart_reflectances, fit_response
     from bubblefit.capture.view import ORTHOGRAPHIC
     from bubblefit.inverse.fit import FitOptions, fit_photo
+    from bubblefit.inverse import starts
 
     env, _ = _env()
     rng = np.random.default_rng(5)
@@ -123,7 +125,7 @@ def run_calibrated(out, rec, thicknesses, sources=("film", "chart")):
             photo, bg = film_photo(env, t, 31 + k, CAMERA, "E")
             t0 = time.perf_counter()
             r = fit_photo(photo, env, background=bg, options=FitOptions(
-                disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", camera_response=path, illuminant="E",
+                disc=DISC, parameters=starts(t=0.968, roughness=0.04), model="paper", camera_response=path, illuminant="E",
                 view=ORTHOGRAPHIC))
             good = abs(r.params["thickness_nm"] - t) < 25.0  # the right order: a usable calibration
             rec.save(out, name, good, dict(truth=t, thickness=r.params["thickness_nm"], ok=r.ok, chi2=r.reduced_chi2,

@@ -497,12 +497,13 @@ def test_a_wrong_camera_is_not_ok(small_courtyard, thickness, told, right):
     measured (experiments/colour_check_null.py: pale colours, a hue error under 1 %)."""
     from bubblefit.capture.view import ORTHOGRAPHIC
     from bubblefit.inverse.fit import FitOptions, fit_photo
+    from bubblefit.inverse import starts
     from bubblefit.lighting.envmap import EnvMap
 
     env = EnvMap.from_array(small_courtyard)
     photo, bg = film_photo(env, thickness, int(thickness), NIKON, "E")
     r = fit_photo(photo, env, background=bg, options=FitOptions(
-        disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", camera_response=told, view=ORTHOGRAPHIC,
+        disc=DISC, parameters=starts(t=0.968, roughness=0.04), model="paper", camera_response=told, view=ORTHOGRAPHIC,
         illuminant="D65" if told == "srgb" else "E"))
     check = r.to_json()["colour_check"]
     assert check is not None and check["consistent"] is right, check

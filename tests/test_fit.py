@@ -56,9 +56,10 @@ def env(small_courtyard):
 def _opts(**kw):
     from bubblefit.capture.view import ORTHOGRAPHIC
     from bubblefit.inverse.fit import FitOptions
+    from bubblefit.inverse import starts
 
     # 48 uniform spectral samples resolve films up to ~1500 nm (Nyquist) and keep the tests fast
-    base = dict(disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", view=ORTHOGRAPHIC,
+    base = dict(disc=DISC, parameters=starts(t=0.968, roughness=0.04), model="paper", view=ORTHOGRAPHIC,
                 effects=(("spectral", {"method": "uniform", "samples": 48}),))
     base.update(kw)
     return FitOptions(**base)

@@ -165,7 +165,7 @@ def fit_option_values(args) -> dict:
     """The :class:`~bubblefit.inverse.fit.FitOptions` values that ``fit`` and ``fit-sequence`` read
     the same way: starting t and disc (``--calibration``, ``--t``, ``--disc``), thickness
     kind and range, held parameters and the step limit. One-line errors for bad values."""
-    from ..inverse import SolverSettings, parse_setting
+    from ..inverse import ParameterSetting, SolverSettings, parse_setting
     from .common import parse_floats
 
     t_init, disc, cal_disc, cal_size = None, None, None, None
@@ -184,11 +184,11 @@ def fit_option_values(args) -> dict:
     lo, hi = parse_floats(args.thickness_range, 2, "--thickness-range")
     if not (math.isfinite(lo) and math.isfinite(hi)):
         raise InputError(f"--thickness-range must be two finite thicknesses in nm, got {args.thickness_range}")
+    measured = () if t_init is None else (ParameterSetting("t", t_init, measured=True),)  # replaces a scene's t
     kw = dict(thickness=args.thickness, disc=disc, fit_disc=True if getattr(args, "refine_disc", False) else None,
-              t_init=t_init, thickness_range=(lo, hi),
-              calibration_disc=cal_disc, calibration_size=cal_size,
+              thickness_range=(lo, hi), calibration_disc=cal_disc, calibration_size=cal_size,
               hold=tuple(h.strip() for h in args.hold.split(",") if h.strip()),
-              parameters=tuple(parse_setting(s) for s in getattr(args, "set", None) or ()))
+              parameters=measured + tuple(parse_setting(s) for s in getattr(args, "set", None) or ()))
     if args.max_steps is not None:
         if args.max_steps < 1:
             raise InputError("--max-steps must be at least 1")

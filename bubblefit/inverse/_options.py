@@ -194,10 +194,6 @@ class FitOptions:
         disc found in the photo (or read from a calibration), use a disc given
         (``disc``, the scene's camera) as it is; True: refine a given disc too (it is
         then the start); False, or ``hold=("disc",)``: never.
-    t_init, roughness_init : float or None
-        Starting ``t`` (e.g. from ``bubblefit calibrate``) and roughness (the roughness
-        also decides whether filtering is simulated); the same as a ``parameters`` entry
-        (``t_init`` also overrides a scene file's ``t``).
     thickness_range : tuple
         (min, max) nm searched (and used to decide the effects).
     sizes : ImageSizes
@@ -213,9 +209,12 @@ class FitOptions:
     hold : tuple
         Names of parameters to hold at their starting values.
     parameters : tuple
-        :class:`~bubblefit.inverse._parameters.ParameterSetting` s: a starting value and
-        whether it is held, per parameter (``--set NAME=VALUE``); applied after a warm
-        start and ``t_init``/``roughness_init``, except to a value the scene file sets.
+        :class:`~bubblefit.inverse._parameters.ParameterSetting` s: a starting value,
+        whether it is held and whether it is measured, per parameter (``--set NAME=VALUE``,
+        ``--t``, a calibration's ``t``; :func:`~bubblefit.inverse._parameters.starts`),
+        applied in order after a warm start. A starting value never replaces a value the
+        scene file sets; a measured one does (it stays held). The starting roughness also
+        decides whether filtering is simulated.
     effects : tuple
         Extra ``[effects]`` settings as ``((key, value), ...)``.
     calibration_disc : tuple or None
@@ -267,8 +266,6 @@ class FitOptions:
     free_split: bool = False
     disc: tuple | None = None
     fit_disc: bool | None = None
-    t_init: float | None = None
-    roughness_init: float | None = None
     thickness_range: tuple = (50.0, 2000.0)
     sizes: ImageSizes = ImageSizes()
     solver: SolverSettings = SolverSettings()

@@ -51,9 +51,14 @@ def _scene_values(scene, vals: dict, held: dict) -> None:
         held["rotation_deg"] = "set by the scene file"
 
 
-def defaults(scene, init, opts: FitOptions, t_from_calibration):
+def defaults(scene, init, opts: FitOptions):
     """Starting values (keyed by :data:`PARAMETERS` names) and the parameters held by the
-    scene or the options, with the reasons."""
+    scene or the options, with the reasons.
+
+    In this order: the fit's defaults, the scene file's values (held), a warm start
+    ``init``, the options' ``n_film``, then ``opts.parameters`` in their order; a
+    parameter's starting value does not replace a value the scene file sets, a measured
+    one does (:class:`~bubblefit.inverse._parameters.ParameterSetting`)."""
     vals = {"t": 0.972, "f": 0.3, "r_d": None, "r_s": None, "roughness": 0.01, "thickness_nm": 500.0,
             "top_nm": 200.0, "bottom_nm": 1000.0, "exponent": 1.0, "exposure": 1.0, "rotation_deg": 0.0,
             "n_film": 1.4, **{n: 0.0 for n in DISC_PARAMETERS}}
@@ -66,12 +71,8 @@ def defaults(scene, init, opts: FitOptions, t_from_calibration):
             vals[k] = float(v)
     if opts.n_film is not None:  # the command line's index wins over the scene's and a warm start's
         vals["n_film"] = float(refractive_index(opts.n_film, REFERENCE_WAVELENGTH_NM))
-    if t_from_calibration is not None:
-        vals["t"] = float(t_from_calibration)
-    if opts.roughness_init is not None and "roughness" not in held:
-        vals["roughness"] = float(opts.roughness_init)
-    for setting in opts.parameters:  # the user's own starting values; a scene file's value stays
-        if setting.value is not None and ALIASES.get(setting.name, setting.name) not in held:
+    for setting in opts.parameters:  # the user's own values; a scene file's stays, unless measured
+        if setting.value is not None and (setting.measured or ALIASES.get(setting.name, setting.name) not in held):
             vals[setting.start] = float(setting.value)
     if not 0 < vals["t"] < 1:
         raise InputError(f"starting t must lie in (0, 1), got {vals['t']}")
@@ -322,7 +323,7 @@ def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, d
     """Validate the inputs, decide the effects (unless ``decided`` gives ``(fx, decisions)``),
     lay out the parameters and build the photo's fit level."""
     photo, background = _check_inputs(photo, env, background)
-    vals, held0 = defaults(scene, init, opts, opts.t_init)
+    vals, held0 = defaults(scene, init, opts)
     lights = scene.point_lights() if scene is not None else ()
     persp = _perspective(scene, photo)
     disc, warnings, fit_disc = (None, [], False) if persp else _disc(scene, opts, photo, background)

@@ -497,7 +497,7 @@ def fit_batch(photos, env: EnvMap, *, options: FitOptions = FitOptions(), backgr
         return [alone(p, init) for p in photos]
     setups = [first] + [setup(p, env, options, background, init, scene, None, decided=(first.fx, first.decisions))
                         for p in photos[1:]]
-    prev_vals = defaults(scene, previous, options, options.t_init)[0] if previous else None
+    prev_vals = defaults(scene, previous, options)[0] if previous else None
     z0 = _batch_starts(first, len(photos), prev_vals)
     fixed = held_values(table, first.vals)
     union = np.logical_or.reduce([s.lev_fit.mask for s in setups])  # a frame's other pixels: weight 0

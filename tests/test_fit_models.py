@@ -349,3 +349,10 @@ def test_parameter_settings_start_and_hold():
         FitOptions(parameters=(ParameterSetting("exposure", 0.0),))
     with pytest.raises(InputError):  # a measurement without its value
         FitOptions(parameters=(ParameterSetting("t", measured=True),))
+    # --hold NAME: a setting without a value; any parameter, or the disc's refinement
+    vals, held = defaults(None, None, FitOptions(parameters=(ParameterSetting("f", hold=True),
+                                                             ParameterSetting("disc", hold=True))))
+    assert held == {"split": "held by request", "disc_x": "held by request", "disc_y": "held by request",
+                    "disc_r": "held by request"}
+    with pytest.raises(InputError, match="cannot hold 'colour'"):
+        FitOptions(parameters=(ParameterSetting("colour", hold=True),))

@@ -185,10 +185,10 @@ def fit_option_values(args) -> dict:
     if not (math.isfinite(lo) and math.isfinite(hi)):
         raise InputError(f"--thickness-range must be two finite thicknesses in nm, got {args.thickness_range}")
     measured = () if t_init is None else (ParameterSetting("t", t_init, measured=True),)  # replaces a scene's t
+    held = tuple(ParameterSetting(h.strip(), hold=True) for h in args.hold.split(",") if h.strip())
     kw = dict(thickness=args.thickness, disc=disc, fit_disc=True if getattr(args, "refine_disc", False) else None,
               thickness_range=(lo, hi), calibration_disc=cal_disc, calibration_size=cal_size,
-              hold=tuple(h.strip() for h in args.hold.split(",") if h.strip()),
-              parameters=measured + tuple(parse_setting(s) for s in getattr(args, "set", None) or ()))
+              parameters=measured + tuple(parse_setting(s) for s in getattr(args, "set", None) or ()) + held)
     if args.max_steps is not None:
         if args.max_steps < 1:
             raise InputError("--max-steps must be at least 1")

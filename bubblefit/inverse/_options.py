@@ -193,7 +193,7 @@ class FitOptions:
         result's disc is the refined one, with standard errors. None (default): refine a
         disc found in the photo (or read from a calibration), use a disc given
         (``disc``, the scene's camera) as it is; True: refine a given disc too (it is
-        then the start); False, or ``hold=("disc",)``: never.
+        then the start); False, or ``ParameterSetting("disc", hold=True)`` (``--hold disc``): never.
     thickness_range : tuple
         (min, max) nm searched (and used to decide the effects).
     sizes : ImageSizes
@@ -206,12 +206,10 @@ class FitOptions:
         Fraction of the disc radius used (the rim mixes with the background).
     map : MapSettings
         The priors of a thickness map (``thickness = "map"``).
-    hold : tuple
-        Names of parameters to hold at their starting values.
     parameters : tuple
         :class:`~bubblefit.inverse._parameters.ParameterSetting` s: a starting value,
         whether it is held and whether it is measured, per parameter (``--set NAME=VALUE``,
-        ``--t``, a calibration's ``t``; :func:`~bubblefit.inverse._parameters.starts`),
+        ``--hold NAME``, ``--t``, a calibration's ``t``; :func:`~bubblefit.inverse._parameters.starts`),
         applied in order after a warm start. A starting value never replaces a value the
         scene file sets; a measured one does (it stays held). The starting roughness also
         decides whether filtering is simulated.
@@ -272,7 +270,6 @@ class FitOptions:
     noise: NoiseSettings = NoiseSettings()
     rim: float = 0.96
     map: MapSettings = MapSettings()
-    hold: tuple = ()
     effects: tuple = ()
     calibration_disc: tuple | None = None
     calibration_size: tuple | None = None

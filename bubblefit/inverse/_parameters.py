@@ -363,7 +363,9 @@ class ParameterSetting:
     Attributes
     ----------
     name : str
-        One of :data:`STARTS` (or an alias of :data:`ALIASES`).
+        One of :data:`STARTS` (or an alias of :data:`ALIASES`); a setting that only holds
+        (no value) may name any parameter of :data:`PARAMETERS`, or ``disc`` (the disc's
+        refinement).
     value : float or None
         The starting value, in the parameter's unit (:data:`PARAMETERS`).
     hold : bool
@@ -386,6 +388,12 @@ class ParameterSetting:
     def check(self, where: str = "parameters") -> None:
         """Raise :class:`~bubblefit.errors.InputError` (one line) for an unknown name or a
         value outside the parameter's bounds."""
+        if self.hold and self.value is None:  # held at the fit's own start
+            name = ALIASES.get(self.name, self.name)
+            if name != "disc" and name not in PARAMETERS:
+                raise InputError(f"cannot hold {name!r}: known parameters are t, f, r_d, r_s, roughness, thickness_nm, "
+                                 "exposure, rotation_deg, top_nm, bottom_nm, exponent, disc")
+            return
         if self.start not in STARTS:
             raise InputError(f"{where}: unknown parameter {self.name!r} (known: {', '.join(STARTS)})")
         if self.value is None:

@@ -12,7 +12,7 @@ from ..capture.view import perspective_from_disc
 from ._observation import Frame, Level, analysis_frame, make_level, resolve_disc, saturation_mask
 from ._pair import PairCheck, check_pair
 from ._options import ColourSettings, FitOptions
-from ._parameters import ALIASES, DISC_PARAMETERS, PARAMETERS, ParameterTable, THICKNESS_PARAMETERS
+from ._parameters import ALIASES, DISC_PARAMETERS, ParameterTable, THICKNESS_PARAMETERS
 from ..errors import InputError
 from ..lighting.envmap import EnvMap
 from ..model.bounds import SceneSummary
@@ -80,15 +80,11 @@ def defaults(scene, init, opts: FitOptions):
         vals["r_s"] = (1 - vals["t"]) / (1 + vals["f"])
         vals["r_d"] = (1 - vals["t"]) - vals["r_s"]
     vals["split"] = vals["r_s"] / max(vals["r_s"] + vals["r_d"], 1e-12)
-    for name in (*opts.hold, *(s.name for s in opts.parameters if s.hold)):
-        name = ALIASES.get(name, name)
+    for name in (ALIASES.get(s.name, s.name) for s in opts.parameters if s.hold):  # names checked by the setting
         if name == "disc":
             held.update({n: "held by request" for n in DISC_PARAMETERS})
-            continue
-        if name not in PARAMETERS:
-            raise InputError(f"cannot hold {name!r}: known parameters are t, f, r_d, r_s, roughness, thickness_nm, "
-                             "exposure, rotation_deg, top_nm, bottom_nm, exponent, disc")
-        held[name] = "held by request"
+        else:
+            held[name] = "held by request"
     return vals, held
 
 

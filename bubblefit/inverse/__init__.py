@@ -77,7 +77,7 @@ _EXPORTS = {
     "positive_lamp_lstsq": "_spectrum_profile", "fringe_extrema": "_spectrum_extrema",
     "extrema_phase": "_spectrum_extrema", "RANDOM_PHASE": "_spectrum_extrema",
     # is the pair a photo and its background, in that order; is the exposure possible
-    "PairCheck": "_pair", "check_pair": "_pair", "check_disc_pair": "_pair", "judge_pair": "_pair",
+    "PairCheck": "_pair", "check_pair": "_pair", "check_disc_pair": "_plan", "judge_pair": "_pair",
     "frame_mismatch": "_pair", "outside_mismatch": "_pair", "transmission_floor": "_pair", "LUMINANCE": "_pair",
     "least_reflectance": "_exposure", "map_levels": "_exposure", "exposure_range": "_exposure",
     "exposure_doubt": "_exposure", "quiet_resource_tracker": "_executors", "close_local_cluster": "_executors",

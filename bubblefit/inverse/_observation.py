@@ -19,6 +19,7 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from ._options import FitOptions
+from ._pair import FRAME_SHARE, frame_mismatch
 from ..capture.circle import detect_disc
 from ..capture.disc import NO_BUBBLE_CONTRAST, NO_BUBBLE_SPREAD, Disc, bubble_contrast, change_spread, find_disc
 from ..errors import InputError
@@ -278,8 +279,6 @@ def resolve_disc(photo, background, opts: FitOptions, given=None) -> tuple[tuple
     except InputError as exc:
         if background is None:
             raise
-        from ._pair import FRAME_SHARE, frame_mismatch
-
         k = max(1, math.ceil(max(photo.shape[:2]) / opts.sizes.analysis))
         p, b = (block_mean(photo, k), block_mean(background, k)) if k > 1 else (photo, background)
         sig = lambda a: noise_sigma(a, opts.noise.read, opts.noise.shot, opts.noise.bits) / k  # noqa: E731

@@ -282,7 +282,9 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     terms) lens warm-started from it; the view that explains the photo better (the lower
     capped reduced chi^2, :func:`_judged_chi2`) is kept, and its standard errors are
     widened by the shift to the other (:func:`~bubblefit.inverse._view.widen_for_view`;
-    ``docs/camera-view.md``).
+    ``docs/camera-view.md``). With ``options.calibrate_camera`` that fit, made with the
+    stated camera response, is then refitted with the response freed
+    (:func:`~bubblefit.inverse.self_calibration.self_calibrated`).
 
     Parameters
     ----------
@@ -328,15 +330,23 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     >>> result.ok, round(float(result.params["thickness_nm"]))
     (True, 600)
     """
-    if options.calibrate_camera:  # the stated response's fit first, then the response freed
-        from .self_calibration import self_calibrated
+    if options.calibrate_camera and options.thickness == "map":
+        raise InputError("--calibrate-camera fits the response with a constant film or a drainage profile, not a "
+                         "thickness map: calibrate with --thickness drainage, then fit the map with the response")
+    stated = replace(options, calibrate_camera=False) if options.calibrate_camera else options
+    fit = _fit_views(photo, env, stated, background, init, scene, saturated)
+    if not options.calibrate_camera:
+        return fit
+    # the stated response's fit first, then the response freed
+    from .self_calibration import self_calibrated
 
-        if options.thickness == "map":
-            raise InputError("--calibrate-camera fits the response with a constant film or a drainage profile, not a "
-                             "thickness map: calibrate with --thickness drainage, then fit the map with the response")
-        first = fit_photo(photo, env, options=replace(options, calibrate_camera=False), background=background,
-                          init=init, scene=scene, saturated=saturated)
-        return self_calibrated(first, photo, env, options, background, scene, saturated)
+    return self_calibrated(fit, photo, env, options, background, scene, saturated)
+
+
+def _fit_views(photo, env, options: FitOptions, background, init, scene, saturated) -> FitResult:
+    """The fit through the camera's view (:func:`~bubblefit.inverse._view.fit_view`): the
+    scene's or the options', else the orthographic view and a 50 mm lens compared
+    (:func:`fit_photo`)."""
     view = fit_view(options, scene)
     options = replace(options, view=view)
     if view.source != "assumed":

@@ -79,6 +79,33 @@ def quantise_8bit(img, rng: np.random.Generator, read: float = 0.003, shot: floa
     return srgb_to_linear(np.round(linear_to_srgb(noisy) * 255) / 255)
 
 
+def pinhole_ray(cam, i, j):
+    """``(origin, unit direction)`` of a pinhole camera's ray through the centre of pixel
+    row ``i``, column ``j``: looking from ``cam.origin`` at ``cam.target`` with +y up, the
+    field of view ``cam.fov_deg`` across the width (a square image)."""
+    import math
+
+    o = np.asarray(cam.origin, float)
+    fwd = np.asarray(cam.target, float) - o
+    fwd /= np.linalg.norm(fwd)
+    right = np.cross(fwd, [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, fwd)
+    t = math.tan(math.radians(cam.fov_deg) / 2)
+    d = ((2 * (j + 0.5) / cam.width - 1) * t) * right + ((1 - 2 * (i + 0.5) / cam.height) * t) * up + fwd
+    return o, d / np.linalg.norm(d)
+
+
+def save_sensor_png(img, path, seed: int, full_well: float = 4000.0, read_e: float = 3.0):
+    """A linear image (1 = full well) as an 8-bit sRGB PNG through a sensor: Poisson shot
+    noise of ``full_well`` electrons at 1, Gaussian read noise of ``read_e`` electrons."""
+    from PIL import Image
+
+    rng = np.random.default_rng(seed)
+    electrons = rng.poisson(np.clip(img, 0, None) * full_well) + rng.normal(0.0, read_e, np.shape(img))
+    Image.fromarray(np.round(linear_to_srgb(electrons / full_well) * 255).astype(np.uint8)).save(path)
+
+
 #: The synthetic camera films of :func:`film_photo`: a 48 px orthographic view, its disc.
 FILM_PHOTO_SIZE = 48
 FILM_PHOTO_DISC = (FILM_PHOTO_SIZE / 2, FILM_PHOTO_SIZE / 2, 0.42 * FILM_PHOTO_SIZE)

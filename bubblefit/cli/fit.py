@@ -267,12 +267,12 @@ def build_fit_options(args, scene, bits: int | None, view=None, photosite_share=
 
 
 def run(args) -> int:
-    """``fit``: the command of the film's shape the scene file describes
-    (:func:`~bubblefit.model.planar_scene.film_shape`; a floating bubble without one),
-    from :data:`COMMANDS`."""
-    from ..model.planar_scene import film_shape
+    """``fit``: the command of the fit the scene file asks for
+    (:func:`~bubblefit.model.planar_scene.scene_fit`; a floating bubble without one), from
+    :data:`COMMANDS`."""
+    from ..model.planar_scene import scene_fit
 
-    return COMMANDS[film_shape(args.scene) if args.scene else "sphere"](args)
+    return COMMANDS[scene_fit(args.scene) if args.scene else "bubble"](args)
 
 
 def run_bubble(args) -> int:
@@ -347,5 +347,5 @@ def run_bubble(args) -> int:
     return 0
 
 
-#: ``fit``'s command for each shape of film (:func:`~bubblefit.model.planar_scene.film_shape`).
-COMMANDS = {"sphere": run_bubble, "cap": run_cap, "plane": run_planar}
+#: ``fit``'s command for each fit a scene file may ask for (:func:`~bubblefit.model.planar_scene.scene_fit`).
+COMMANDS = {"bubble": run_bubble, "cap": run_cap, "plane": run_planar}

@@ -33,11 +33,12 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..lighting.area import Patch
+from ..lighting.area import Patch, check_light_faces
 from ..lighting.coaxial import Stack
 from ..optics import dispersion
 
-__all__ = ["PlanarScene", "film_kind_and_range", "film_shape", "is_planar", "load_planar", "parse_cap", "parse_planar", "parse_region"]
+__all__ = ["PlanarScene", "film_kind_and_range", "scene_fit", "is_area_sphere", "is_planar", "load_planar",
+           "parse_area_light", "parse_cap", "parse_planar", "parse_region"]
 
 THICKNESS_KINDS = ("map", "newton", "constant", "drainage")
 
@@ -85,21 +86,37 @@ def _read_toml(path) -> dict:
         raise InputError(f"scene file {path} is not valid TOML: {exc}") from None
 
 
-def film_shape(path) -> str:
-    """The shape of the film the scene file at ``path`` describes: ``"plane"`` (a flat film
-    or a gap), ``"cap"`` (a bubble on a dish) or ``"sphere"`` (a floating bubble; also for
-    a missing or bad file: the bubble's loader then says what is wrong). A ``[film]`` of
-    another shape is refused in one line, as is a cap whose plane misses its sphere
+def is_area_sphere(data: dict) -> bool:
+    """Whether a parsed scene file describes a whole bubble under an area light
+    (``[film] shape = "sphere"`` with ``[light] type = "area"``), which the cap's fit fits
+    without a liquid (:mod:`bubblefit.model.cap_scene`)."""
+    f, light = data.get("film"), data.get("light")
+    return (isinstance(f, dict) and f.get("shape") == "sphere" and isinstance(light, dict)
+            and light.get("type") == "area")
+
+
+def scene_fit(path) -> str:
+    """Which fit the scene file at ``path`` asks for: ``"plane"`` (a flat film or a gap),
+    ``"cap"`` (the cap's fit: a bubble on a dish, or a whole bubble under an area light,
+    :func:`is_area_sphere`) or ``"bubble"`` (a floating bubble in an environment map; also
+    for a missing or bad file: the bubble's loader then says what is wrong). A ``[film]``
+    of another shape is refused in one line, as is a cap whose plane misses its sphere
     (:class:`~bubblefit.model.cap.Cap`)."""
     try:
         data = _read_toml(path)
     except InputError:
-        return "sphere"
+        return "bubble"
     f = data.get("film")
     shape = f.get("shape", "sphere") if isinstance(f, dict) else "sphere"
     if shape == "cap":
         parse_cap(f)  # a bad cap gets its own line here; a good one is fitted by the cap's path
-        return shape
+        return "cap"
+    if shape not in ("plane", "sphere"):
+        raise InputError(f'{path}: film.shape = {shape!r} is not supported (use "plane" for a flat film or a gap, '
+                         '"cap" for a bubble on a dish, "sphere" or a [bubble] table for a bubble)')
+    if shape == "plane":
+        return "plane"
+    return "cap" if is_area_sphere(data) else "bubble"
     if shape not in ("plane", "sphere"):
         raise InputError(f'{path}: film.shape = {shape!r} is not supported (use "plane" for a flat film or a gap, '
                          '"cap" for a bubble on a dish, "sphere" or a [bubble] table for a bubble)')
@@ -215,11 +232,23 @@ def parse_planar(data: dict, base_dir: str | os.PathLike = ".") -> PlanarScene:
                                fov_deg=_num(cam, "fov_deg", "camera", 35.0, 1.0, 170.0))
     plane = Patch(center=_vec(f, "center", "film", 3), normal=_vec(f, "normal", "film", 3),
                   up=_vec(f, "up", "film", 3, (0, 1, 0)), size=_vec(f, "size", "film", 2))
+    area = parse_area_light(light)
+    check_light_faces(area, plane.center, "the film")
+    return PlanarScene(light="area", camera=camera, plane=plane, area=area, **common)
+
+
+def parse_area_light(light: dict) -> Patch:
+    """The :class:`~bubblefit.lighting.area.Patch` of a ``[light] type = "area"`` table
+    (flat films and whole bubbles alike): ``shape`` ``"rect"`` (``size = [w, h]``) or
+    ``"disc"`` (``radius``), ``center``, ``normal`` (the side it shines to), ``up`` and
+    ``radiance``; a zero size is one line."""
     shape = light.get("shape", "rect")
     if shape not in ("rect", "disc"):
         raise InputError(f'light.shape must be "rect" or "disc", got {shape!r}')
     size = _vec(light, "size", "light", 2) if shape == "rect" else (_num(light, "radius", "light", None, 0),) * 2
-    area = Patch(center=_vec(light, "center", "light", 3), normal=_vec(light, "normal", "light", 3),
+    if min(size) <= 0:
+        raise InputError(f"the area light has no size (light.{'size' if shape == 'rect' else 'radius'} must be "
+                         f"positive, got {list(size) if shape == 'rect' else size[0]})")
+    return Patch(center=_vec(light, "center", "light", 3), normal=_vec(light, "normal", "light", 3),
                  up=_vec(light, "up", "light", 3, (0, 1, 0)), size=size, shape=shape,
                  radiance=_num(light, "radiance", "light", 1.0, 0.0))
-    return PlanarScene(light="area", camera=camera, plane=plane, area=area, **common)

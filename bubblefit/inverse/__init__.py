@@ -43,7 +43,8 @@ _EXPORTS = {
     # observe: noise, clipped pixels, the frame, the levels, which disc
     "Disc": "_observation", "find_bubble": "_observation", "detect_disc": "_observation",
     "noise_sigma": "_observation", "analysis_frame": "_observation", "Level": "_observation",
-    "resolve_disc": "_observation",
+    "resolve_disc": "_observation", "saturation_mask": "_observation", "block_mean": "_observation",
+    "censored_residual": "_censored",
     # the parameters: described once, one fit's table, their roles, a user's settings
     "PARAMETERS": "_parameters", "Parameter": "_parameters", "ParameterTable": "_parameters",
     "ParameterSetting": "_parameters", "parse_setting": "_parameters", "starts": "_parameters", "parameter_roles": "_parameters",
@@ -72,6 +73,7 @@ _EXPORTS = {
     # spectra: what the readings are, their noise, the extrema test
     "in_time_order": "_spectrum_defaults", "looks_normalised": "_spectrum_defaults",
     "same_grid": "_spectrum_defaults", "series_sides": "_spectrum_drain", "drain_path": "_spectrum_drain",
+    "candidate_stderr": "_spectrum_drain", "isotonic_blocks": "_spectrum_drain",
     "noise_says_divided": "_spectrum_defaults", "series_departures": "_spectrum_defaults",
     "DIVIDED_NOISE_RATIO": "_spectrum_defaults", "local_noise": "_spectrum_profile",
     "positive_lamp_lstsq": "_spectrum_profile", "fringe_extrema": "_spectrum_extrema",

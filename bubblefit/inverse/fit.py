@@ -57,7 +57,7 @@ from ._observation import noise_sigma
 from ..capture.circle import detect_disc
 from ._programs import (FINAL_SOLVE, SEARCH_SOLVE, WARM_SOLVE, SolveSettings, batched_solver, final_params,
                         fitted_pixels, held_values, render_bubble, render_level, reporter, warm_up)
-from ._options import FitOptions, FitResult, JudgeSettings, MapSettings, NoiseSettings, SolverSettings
+from ._options import FitOptions, FitResult, ImageSizes, JudgeSettings, MapSettings, NoiseSettings, SolverSettings
 from ._parameters import THICKNESSES, extrapolated, parameter_roles, refined_disc
 from ._setup import Setup, defaults, setup
 from ._uncertainty import Uncertainty, uncertainty
@@ -69,7 +69,7 @@ from ..lighting.envmap import EnvMap
 from ..model.thickness import drainage_profile
 from ..progress import stage
 
-__all__ = ["FitOptions", "FitResult", "NoiseSettings", "MapSettings", "JudgeSettings", "SolverSettings",
+__all__ = ["FitOptions", "FitResult", "NoiseSettings", "MapSettings", "JudgeSettings", "SolverSettings", "ImageSizes",
            "fit_photo", "fit_batch", "detect_disc", "noise_sigma"]
 
 #: A warm-started fit whose noise-weighted reduced chi^2 exceeds this is checked against a
@@ -282,7 +282,9 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     terms) lens warm-started from it; the view that explains the photo better (the lower
     capped reduced chi^2, :func:`_judged_chi2`) is kept, and its standard errors are
     widened by the shift to the other (:func:`~bubblefit.inverse._view.widen_for_view`;
-    ``docs/camera-view.md``).
+    ``docs/camera-view.md``). With ``options.calibrate_camera`` that fit, made with the
+    stated camera response, is then refitted with the response freed
+    (:func:`~bubblefit.inverse.self_calibration.self_calibrated`).
 
     Parameters
     ----------
@@ -328,15 +330,23 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     >>> result.ok, round(float(result.params["thickness_nm"]))
     (True, 600)
     """
-    if options.calibrate_camera:  # the stated response's fit first, then the response freed
-        from .self_calibration import self_calibrated
+    if options.calibrate_camera and options.thickness == "map":
+        raise InputError("--calibrate-camera fits the response with a constant film or a drainage profile, not a "
+                         "thickness map: calibrate with --thickness drainage, then fit the map with the response")
+    stated = replace(options, calibrate_camera=False) if options.calibrate_camera else options
+    fit = _fit_views(photo, env, stated, background, init, scene, saturated)
+    if not options.calibrate_camera:
+        return fit
+    # the stated response's fit first, then the response freed
+    from .self_calibration import self_calibrated
 
-        if options.thickness == "map":
-            raise InputError("--calibrate-camera fits the response with a constant film or a drainage profile, not a "
-                             "thickness map: calibrate with --thickness drainage, then fit the map with the response")
-        first = fit_photo(photo, env, options=replace(options, calibrate_camera=False), background=background,
-                          init=init, scene=scene, saturated=saturated)
-        return self_calibrated(first, photo, env, options, background, scene, saturated)
+    return self_calibrated(fit, photo, env, options, background, scene, saturated)
+
+
+def _fit_views(photo, env, options: FitOptions, background, init, scene, saturated) -> FitResult:
+    """The fit through the camera's view (:func:`~bubblefit.inverse._view.fit_view`): the
+    scene's or the options', else the orthographic view and a 50 mm lens compared
+    (:func:`fit_photo`)."""
     view = fit_view(options, scene)
     options = replace(options, view=view)
     if view.source != "assumed":
@@ -497,7 +507,7 @@ def fit_batch(photos, env: EnvMap, *, options: FitOptions = FitOptions(), backgr
         return [alone(p, init) for p in photos]
     setups = [first] + [setup(p, env, options, background, init, scene, None, decided=(first.fx, first.decisions))
                         for p in photos[1:]]
-    prev_vals = defaults(scene, previous, options, options.t_init)[0] if previous else None
+    prev_vals = defaults(scene, previous, options)[0] if previous else None
     z0 = _batch_starts(first, len(photos), prev_vals)
     fixed = held_values(table, first.vals)
     union = np.logical_or.reduce([s.lev_fit.mask for s in setups])  # a frame's other pixels: weight 0

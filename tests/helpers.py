@@ -79,19 +79,47 @@ def quantise_8bit(img, rng: np.random.Generator, read: float = 0.003, shot: floa
     return srgb_to_linear(np.round(linear_to_srgb(noisy) * 255) / 255)
 
 
+def pinhole_ray(cam, i, j):
+    """``(origin, unit direction)`` of a pinhole camera's ray through the centre of pixel
+    row ``i``, column ``j``: looking from ``cam.origin`` at ``cam.target`` with +y up, the
+    field of view ``cam.fov_deg`` across the width (a square image)."""
+    import math
+
+    o = np.asarray(cam.origin, float)
+    fwd = np.asarray(cam.target, float) - o
+    fwd /= np.linalg.norm(fwd)
+    right = np.cross(fwd, [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, fwd)
+    t = math.tan(math.radians(cam.fov_deg) / 2)
+    d = ((2 * (j + 0.5) / cam.width - 1) * t) * right + ((1 - 2 * (i + 0.5) / cam.height) * t) * up + fwd
+    return o, d / np.linalg.norm(d)
+
+
+def save_sensor_png(img, path, seed: int, full_well: float = 4000.0, read_e: float = 3.0):
+    """A linear image (1 = full well) as an 8-bit sRGB PNG through a sensor: Poisson shot
+    noise of ``full_well`` electrons at 1, Gaussian read noise of ``read_e`` electrons."""
+    from PIL import Image
+
+    rng = np.random.default_rng(seed)
+    electrons = rng.poisson(np.clip(img, 0, None) * full_well) + rng.normal(0.0, read_e, np.shape(img))
+    Image.fromarray(np.round(linear_to_srgb(electrons / full_well) * 255).astype(np.uint8)).save(path)
+
+
 #: The synthetic camera films of :func:`film_photo`: a 48 px orthographic view, its disc.
 FILM_PHOTO_SIZE = 48
 FILM_PHOTO_DISC = (FILM_PHOTO_SIZE / 2, FILM_PHOTO_SIZE / 2, 0.42 * FILM_PHOTO_SIZE)
 
 
 def film_photo(env, thickness, seed: int, response: str = "srgb", illuminant: str = "D65",
-               quantised: bool | int = True):
+               quantised: bool | int = True, noise: bool = True):
     """``(photo, background)``: a constant film of ``thickness`` nm (or a draining film,
     ``thickness = (top_nm, bottom_nm, exponent)``) over a smooth backdrop
     (:func:`smooth_backdrop`), rendered by bubblefit's ``render_scene`` (paper model, 48
     uniform spectral samples) through the camera ``response`` under ``illuminant``, then
     read and shot noise and, when ``quantised``, 8-bit sRGB codes (:func:`quantise_8bit`),
-    or with ``quantised=16`` 16-bit linear codes.
+    or with ``quantised=16`` 16-bit linear codes; with ``noise`` False the noise-free
+    renders, whose noise :func:`film_noise` draws.
     The one builder of the camera tests (tests/test_cameras.py) and experiments
     (wrong_camera.py, calibrated_camera.py, colour_check_null.py)."""
     from bubblefit.model.scene import Scene, render_scene
@@ -108,17 +136,20 @@ def film_photo(env, thickness, seed: int, response: str = "srgb", illuminant: st
         "effects": {"model": "paper", "transmission_tint": True, "spectral": {"method": "uniform", "samples": 48}},
     })
     img = np.asarray(render_scene(scene, bg, env=env), np.float64)
+    if not noise:
+        return img, bg
+    return film_noise(img, rng, quantised), film_noise(bg, rng, quantised)
 
-    def noisy(x):
-        return x + rng.normal(size=x.shape) * np.sqrt(0.003**2 + 1e-4 * np.clip(x, 0.0, None))
 
+def film_noise(img, rng: np.random.Generator, quantised: bool | int = True):
+    """:func:`film_photo`'s noise on a noise-free render ``img``: read and shot noise, then
+    8-bit sRGB codes (``quantised`` True or 8), 16-bit linear codes (16) or none (False)."""
     if quantised is True or quantised == 8:
-        return quantise_8bit(img, rng), quantise_8bit(bg, rng)
+        return quantise_8bit(img, rng)
+    noisy = img + rng.normal(size=img.shape) * np.sqrt(0.003**2 + 1e-4 * np.clip(img, 0.0, None))
     if quantised == 16:
-        return (np.round(np.clip(noisy(img), 0.0, 1.0) * 65535) / 65535,
-                np.round(np.clip(noisy(bg), 0.0, 1.0) * 65535) / 65535)
-
-    return noisy(img), noisy(bg)
+        return np.round(np.clip(noisy, 0.0, 1.0) * 65535) / 65535
+    return noisy
 
 
 # --------------------------------------------------------------------------------------

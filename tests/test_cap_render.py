@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 import pytest
+from helpers import pinhole_ray
 
 from bubblefit.lighting.envmap import EnvMap
 from bubblefit.lighting.filtering import FilterConfig
@@ -76,15 +77,7 @@ def _sphere(o, d, c, rad):
 
 
 def _reference(cam, cap, i, j, basis, film_rgb="spectral"):
-    o = np.asarray(cam.origin, float)
-    fwd = np.asarray(cam.target, float) - o
-    fwd /= np.linalg.norm(fwd)
-    right = np.cross(fwd, [0.0, 1.0, 0.0])
-    right /= np.linalg.norm(right)
-    up = np.cross(right, fwd)
-    t = math.tan(math.radians(cam.fov_deg) / 2)
-    d = ((2 * (j + 0.5) / W - 1) * t) * right + ((1 - 2 * (i + 0.5) / H) * t) * up + fwd
-    d /= np.linalg.norm(d)
+    o, d = pinhole_ray(cam, i, j)
     c = np.asarray(cap.center, float)
     weight, kind = 1.0, "direct"
     hit = _sphere(o, d, c, cap.radius)
@@ -165,8 +158,6 @@ def test_fit_of_a_cap_recovers_its_thickness_from_a_noisy_8bit_render(tmp_path):
     import subprocess
     import sys
 
-    from PIL import Image
-
     from bubblefit.inverse.cap_fit import cap_config
     from bubblefit.model.cap_scene import parse_cap_scene
 
@@ -193,11 +184,9 @@ def test_fit_of_a_cap_recovers_its_thickness_from_a_noisy_8bit_render(tmp_path):
 
     img = np.asarray(render_cap(Params.make(thickness=truth_nm, n_film=1.4, exposure=expo, roughness=0.0),
                                 cap_config(scene, "constant", samples_per_pixel=4), read_envmap(scene.envmap)))
-    rng = np.random.default_rng(7)
-    electrons = rng.poisson(np.clip(img, 0, None) * 4000.0) + rng.normal(0.0, 3.0, img.shape)
-    lin = np.clip(electrons / 4000.0, 0.0, 1.0)
-    srgb = np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
-    Image.fromarray(np.round(srgb * 255).astype(np.uint8)).save(tmp_path / "photo.png")
+    from helpers import save_sensor_png
+
+    save_sensor_png(img, tmp_path / "photo.png", seed=7)
     proc = subprocess.run([sys.executable, "-m", "bubblefit", "fit", str(tmp_path / "photo.png"), "--scene",
                            str(tmp_path / "scene.toml"), "--json", str(tmp_path / "r.json")],
                           capture_output=True, text=True, timeout=600)

@@ -87,7 +87,8 @@ def register(sub):
 def add_model_options(p) -> None:
     """The forward model's light, camera and film options of ``fit`` and ``fit-sequence``:
     ``--illuminant``, ``--camera-response`` (as ``render``), ``--n-film``/``--cauchy`` (as
-    ``chart``) and ``--samples-per-pixel``; each overrides the scene's value."""
+    ``chart``) and ``--samples-per-pixel``; each overrides the scene's value; and
+    ``--colour-check``, what a failed test of the camera response does."""
     from .common import add_colour_options, add_index_options
 
     add_colour_options(p)
@@ -98,6 +99,9 @@ def add_model_options(p) -> None:
     p.add_argument("--pixel-footprint", action="store_true",
                    help="average each film's map lookup over the pixel's footprint (ray differentials): closer "
                         "to a camera on glints of a bright sun, ~20%% slower (docs/validation-split.md)")
+    p.add_argument("--colour-check", choices=("decide", "warn"), default="decide",
+                   help="when the stated camera response cannot produce the photo's hues: decide (the fit is not "
+                        "ok, with the reason) or warn (the reason only) [decide] (docs/cameras.md)")
 
 
 def load_envmap(path: str):
@@ -198,7 +202,9 @@ def fit_option_values(args) -> dict:
 def model_option_values(args) -> dict:
     """``illuminant``, ``camera_response``, ``n_film`` and ``samples_per_pixel`` of
     :class:`~bubblefit.inverse.fit.FitOptions` from :func:`add_model_options`' flags (None
-    where not given: the scene's then apply), checked before any photo is read."""
+    where not given: the scene's then apply), checked before any photo is read, and
+    ``judge`` with ``--colour-check``."""
+    from ..inverse import JudgeSettings
     from ..model import samples_per_pixel
     from ..optics import spectral
     from .common import colour_option, film_index
@@ -213,7 +219,8 @@ def model_option_values(args) -> dict:
     if spp is not None:
         samples_per_pixel(spp, "--samples-per-pixel")
     return dict(illuminant=ill, camera_response=resp, n_film=film_index(args.n_film, args.cauchy, None),
-                samples_per_pixel=spp, pixel_footprint=bool(getattr(args, "pixel_footprint", False)))
+                samples_per_pixel=spp, pixel_footprint=bool(getattr(args, "pixel_footprint", False)),
+                judge=JudgeSettings(colour_check=getattr(args, "colour_check", "decide")))
 
 
 def output_paths(args) -> list[str]:

@@ -1,6 +1,8 @@
 """``bubblefit fit PHOTO --scene CAP.toml``: the film of a bubble standing on a dish.
 
-Reached from ``fit`` when the scene's ``[film]`` says ``shape = "cap"``; the method is
+Reached from ``fit`` when the scene's ``[film]`` says ``shape = "cap"``, or ``"sphere"``
+under a ``[light] type = "area"`` (a whole bubble lit by a panel: the same fit without a
+liquid, the map optional); the method is
 :func:`bubblefit.inverse.cap_fit.fit_cap`. The environment map is the scene's
 ``[environment] path`` (``--envmap`` replaces it). Writes, with ``-o PREFIX``,
 ``PREFIX_thickness.exr`` and ``PREFIX_thickness_stderr.exr`` (nm, NaN off the cap's
@@ -24,6 +26,7 @@ def run_cap(args) -> int:
     from ..inverse.cap_fit import fit_cap
     from ..io.images import read_image
     from ..model.cap_scene import KINDS, load_cap_scene
+    from ..lighting.envmap import dark_room
     from ..model.scene import read_envmap
     from ..progress import stage
     from .common import guard_args
@@ -31,7 +34,8 @@ def run_cap(args) -> int:
 
     for name in _SPHERE_ONLY:
         if getattr(args, name, None):
-            raise InputError(f"--{name.replace('_', '-')} does not apply to a bubble on a dish")
+            raise InputError(f"--{name.replace('_', '-')} does not apply to a scene with a [film] table "
+                             "(a bubble on a dish or under an area light)")
     scene = load_cap_scene(args.scene)
     if args.envmap:
         from pathlib import Path
@@ -40,12 +44,13 @@ def run_cap(args) -> int:
     kind = args.thickness if args.thickness != "constant" or scene.thickness == "constant" else scene.thickness
     if kind not in KINDS:
         raise InputError(f"--thickness {kind} is not available for a cap (use {' or '.join(KINDS)})")
-    guard_args(args, inputs=[str(scene.envmap)], outputs=film_outputs(args))
+    guard_args(args, inputs=[str(scene.envmap)] if scene.envmap is not None else [], outputs=film_outputs(args))
     with stage("reading the photo and the environment map"):
         photo = read_image(args.photo, dtype=np.float64)
-        env = read_envmap(scene.envmap, scale=scene.env_scale)
-    with stage(f"fitting a bubble on a dish (cap {scene.cap.height:g} high on a sphere of radius "
-               f"{scene.cap.radius:g}, {kind})"):
+        env = read_envmap(scene.envmap, scale=scene.env_scale) if scene.envmap is not None else dark_room()
+    what = (f"a bubble of radius {scene.cap.radius:g} under an area light" if scene.sphere else
+            f"a bubble on a dish (cap {scene.cap.height:g} high on a sphere of radius {scene.cap.radius:g}")
+    with stage(f"fitting {what}, {kind})" if not scene.sphere else f"fitting {what} ({kind})"):
         result = fit_cap(photo.pixels[..., :3], scene, env, kind=kind,
                          clip_high=np.inf if photo.linear_file else 1.0,
                          bits=None if photo.linear_file else photo.bit_depth)

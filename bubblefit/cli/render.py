@@ -46,6 +46,12 @@ def run(args) -> int:
     from ..optics import spectral
     from .common import colour_option
 
+    from ..model.cap_scene import is_cap_file
+
+    if is_cap_file(args.scene):   # a cap on a liquid, or a whole bubble under an area light
+        from .render_film import run_film_render
+
+        return run_film_render(args)
     with stage("reading the scene"):
         scene = load_scene(args.scene)
     if args.tolerance is not None:

@@ -102,11 +102,25 @@ class JudgeSettings:
     ok_chi2 : float
         A fit is ``ok`` only when the reduced chi^2 with the model-error floor is at most
         this.
+    colour_check : str
+        What the colour check (:mod:`bubblefit.inverse.colour_check`: can the stated camera
+        response produce the photo's hues?) does when it fails: ``"decide"`` makes the fit
+        not ``ok``, with its reason among the warnings; ``"warn"`` adds the reason and
+        leaves ``ok`` to the other tests.
     """
 
     model_error: float = 0.03
     thickness_model_error_nm: float = 0.6
     ok_chi2: float = 3.0
+    colour_check: str = "decide"
+
+    def __post_init__(self):
+        if self.colour_check not in COLOUR_CHECK_MODES:
+            raise ValueError(f"colour_check must be one of {', '.join(COLOUR_CHECK_MODES)}, got {self.colour_check!r}")
+
+
+#: What a failed colour check does (:attr:`JudgeSettings.colour_check`).
+COLOUR_CHECK_MODES = ("decide", "warn")
 
 
 @dataclass(frozen=True)

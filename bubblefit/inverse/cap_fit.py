@@ -47,7 +47,8 @@ import numpy as np
 
 from ..errors import ComputationError, InputError
 from ..lighting.filtering import FilterConfig
-from ..model.cap_render import SKIPPED, CapConfig, cap_classes, cap_drainage, render_cap, render_cap_pixels
+from ..model.cap_render import (SKIPPED, SKIPPED_SPHERE, TRACED_SPHERE, CapConfig, area_light_hits, cap_classes, cap_drainage,
+                                render_cap, render_cap_pixels)
 from ..model.effects import Effects
 from ..model.render import Params, RenderConfig, pixel_chunks
 from ..optics import spectral
@@ -92,16 +93,26 @@ class CapResult(PlanarResult):
     pixels_direct: int = 0
     pixels_mirrored: int = 0
     skipped: tuple = SKIPPED
+    shape: str = "cap"
+    #: The light paths the render traces, reported for a whole bubble under an area light.
+    traced: tuple = ()
 
     def report(self) -> str:
         """The flat films' report, the cap's pixel counts and the light paths its render skips."""
-        return (super().report() + f"\ncap pixels fitted: {self.pixels_direct} seen directly, "
-                f"{self.pixels_mirrored} mirrored in the liquid\nlight paths skipped: " + "; ".join(self.skipped))
+        if self.shape == "sphere":
+            counts = f"\nbubble pixels fitted (seeing the area light): {self.pixels_direct}"
+        else:
+            counts = (f"\ncap pixels fitted: {self.pixels_direct} seen directly, "
+                      f"{self.pixels_mirrored} mirrored in the liquid")
+        traced = "\nlight paths traced: " + "; ".join(self.traced) if self.traced else ""
+        return super().report() + counts + traced + "\nlight paths skipped: " + "; ".join(self.skipped)
 
     def to_json(self) -> dict:
         out = super().to_json()
-        out.update(shape="cap", pixels_direct=self.pixels_direct, pixels_mirrored=self.pixels_mirrored,
+        out.update(shape=self.shape, pixels_direct=self.pixels_direct, pixels_mirrored=self.pixels_mirrored,
                    skipped_light_paths=list(self.skipped))
+        if self.traced:
+            out["traced_light_paths"] = list(self.traced)
         return out
 
 
@@ -113,6 +124,8 @@ def cap_config(scene, kind: str, samples_per_pixel: int = 1) -> CapConfig:
                  bounces=CAP_BOUNCES, thickness=kind)
     cfg = RenderConfig(effects=fx, camera=scene.camera, center=tuple(scene.cap.center), radius=float(scene.cap.radius),
                        samples_per_pixel=samples_per_pixel)
+    if getattr(scene, "sphere", False):
+        return CapConfig.sphere(cfg, scene.area, scene.film_rgb)
     return CapConfig.of(cfg, scene.cap, scene.film_rgb)
 
 
@@ -127,7 +140,24 @@ def fitted_pixels(cfg: CapConfig) -> tuple[np.ndarray, np.ndarray]:
     dk, mk, _ = cap_classes(cfg, cr, cc)
     dk, mk = dk.reshape(h + 1, w + 1), mk.reshape(h + 1, w + 1)
     all4 = lambda k: k[:-1, :-1] & k[1:, :-1] & k[:-1, 1:] & k[1:, 1:]
-    return dc & all4(dk), mc & all4(mk)
+    direct, mirrored = dc & all4(dk), mc & all4(mk)
+    if cfg.area is not None:
+        direct = direct & _whole_in_light(cfg, (r, c), (cr, cc))
+    return direct, mirrored
+
+
+def _whole_in_light(cfg: CapConfig, centres, corners) -> np.ndarray:
+    """(H, W): the pixels that see the area light in the front film or the first rear
+    reflection, each film seeing it at the centre and the four corners alike (an outline of
+    the light's image crossing a pixel mixes light and dark, as a flat film's frame edge,
+    and a pixel that sees the light in neither film is dark). The flat films' rule under a
+    panel, chosen there on the development case cyc_film_drain_panel (pixels crossed by the
+    frame's edge read as order hops)."""
+    h, w = cfg.render.shape
+    fc, rc = (k.reshape(h, w) for k in area_light_hits(cfg, *centres))
+    fk, rk = (k.reshape(h + 1, w + 1) for k in area_light_hits(cfg, *corners))
+    same = lambda c, k: (k[:-1, :-1] == c) & (k[1:, :-1] == c) & (k[:-1, 1:] == c) & (k[1:, 1:] == c)
+    return same(fc, fk) & same(rc, rk) & (fc | rc)
 
 
 def _params(scene, thickness, exposure):
@@ -221,14 +251,17 @@ def fit_cap(photo: np.ndarray, scene, env, *, kind: str | None = None, clip_high
     cfg = cap_config(scene, kind)
     fine = cap_config(scene, kind, samples_per_pixel=SAMPLES_PER_PIXEL)
     direct, mirrored = fitted_pixels(cfg)
+    film = "bubble" if cfg.area is not None else "cap"
     if direct.sum() < 20:
-        raise InputError("the cap does not appear in the photo (the camera sees fewer than 20 of its pixels whole)")
+        seen = " lit by the area light" if cfg.area is not None else ""
+        raise InputError(f"the {film} does not appear in the photo (the camera sees fewer than 20 of its pixels "
+                         f"whole{seen})")
     mask = direct | mirrored
     flat = np.flatnonzero(mask.ravel())
     rows, cols, _, npix = pixel_chunks(cfg.render, flat)
     y = np.asarray(photo, np.float64).reshape(-1, 3)[flat]
     if float(np.percentile(y[direct.ravel()[flat]].max(-1), 99)) <= 0.005:
-        raise InputError("the cap does not appear in the photo (the pixels where it should be are dark)")
+        raise InputError(f"the {film} does not appear in the photo (the pixels where it should be are dark)")
     seen = ((y > BLACK_CLIP) & (y < clip_high)).astype(np.float64)
     # the bubble fit's noise model per pixel and channel (read, shot and quantisation noise)
     sigma = noise_sigma(y, opts.noise.read, opts.noise.shot, bits)
@@ -308,7 +341,9 @@ def fit_cap(photo: np.ndarray, scene, env, *, kind: str | None = None, clip_high
     return CapResult(kind=kind, ok=ok, thickness_map=tmap, thickness_stderr_map=smap, render=full, residual=resid,
                        gain=gain, sigma=sigma, params=params, stderr=stderr, warnings=warnings, order_hops=0,
                      reduced_chi2=chi2, reduced_chi2_floor=chi2_floor, order_from="colour", pixels_direct=int(direct.sum()),
-                     pixels_mirrored=int(mirrored.sum()))
+                     pixels_mirrored=int(mirrored.sum()), shape="sphere" if cfg.area is not None else "cap",
+                     skipped=SKIPPED_SPHERE if cfg.area is not None else SKIPPED,
+                     traced=TRACED_SPHERE if cfg.area is not None else ())
 
 
 def _misfit(res, sigma, y, model_error: float, n_free: int) -> Misfit:

@@ -23,14 +23,18 @@ Under the hypothesis that the colours are explained, each ``m_b`` is a centred n
 vector with covariance ``C_b`` (plus at most ``F_b``), so
 ``T = sum_b m_b^T (kappa C_b + F_b)^-1 m_b`` follows (at most) a chi^2 law with ``2 B``
 degrees of freedom; the colours are inconsistent when ``T`` exceeds the law's
-1 - :data:`FALSE_ALARM` quantile. ``kappa >= 1`` guards the noise model: it is the ratio
-of the chromatic residuals' scatter about a plane in ``(x, y)`` in every cell (a smooth hue
-error is removed with the plane, noise is not) to the scatter the noise model predicts,
-pooled over all cells (hundreds of pixels, so it adds little tail), or the same for the
-means of 2 x 2 blocks of pixels times 4 when that is larger (noise that neighbours share,
-as JPEG's 4:2:0 chroma subsampling makes it, which independent pixels would average
-away); a camera noisier than the noise model (``FitOptions.noise``) raises ``kappa``, not
-the alarm. A wrong response
+1 - :data:`FALSE_ALARM` quantile. ``kappa >= 1`` guards the noise model
+(:func:`noise_scale`): the ratio of the chromatic part of each pixel's residual minus the
+mean of its four neighbours' to what the noise model predicts for it, pooled over the
+film (hundreds of pixels, so it adds little tail). A hue error that follows the film's
+thickness varies over several pixels and cancels in that difference; noise does not. (The
+scatter about a plane fitted in each cell would also hold the part of a wrong response's
+hue error that varies within a cell: on draining films read with a wrong response it
+reads 3.6-4.1 and hides the error.) Where neighbours differ less than
+independent pixels would (:data:`SHARED_BELOW`: they share noise), the means of 2 x 2 blocks
+of pixels measure it instead (noise drawn once per block, which independent pixels would
+average away). A camera noisier than the noise model (``FitOptions.noise``) raises
+``kappa``, not the alarm. A wrong response
 moves every pixel of a thickness the same way: ``m_b`` grows with it and ``C_b`` does not.
 
 Pixels the fit calls outliers (chi^2 with its model-error floor over
@@ -54,7 +58,9 @@ The chromatic/achromatic split of a residual: Finlayson, Drew & Funt, "Color con
 generalized diagonal transforms suffice", JOSA A 11(11), 1994 (colour as a direction in
 RGB); the quadratic form of a normal vector in its inverse covariance is chi^2-distributed
 (Mardia, Kent & Bibby, *Multivariate Analysis*, 1979, thm. 2.5.2); the Bayer mosaic:
-B. E. Bayer, US patent 3,971,065 (1976).
+B. E. Bayer, US patent 3,971,065 (1976); a noise level from each pixel less the mean of its
+neighbours (a Laplacian, which a smooth signal cancels): J. Immerkaer, "Fast noise variance
+estimation", Computer Vision and Image Understanding 64(2), 1996.
 """
 
 from __future__ import annotations
@@ -65,8 +71,8 @@ import numpy as np
 
 from ._uncertainty import OUTLIER_CHI2
 
-__all__ = ["ColourCheck", "colour_check", "judge_colours", "CHROMA_FLOOR", "CHROMA_REL", "FALSE_ALARM", "GRID",
-           "INNER_COS"]
+__all__ = ["ColourCheck", "colour_check", "judge_colours", "neighbour_scale", "noise_scale", "CHROMA_FLOOR",
+           "CHROMA_REL", "FALSE_ALARM", "GRID", "INNER_COS", "SHARED_BELOW"]
 
 #: Chromatic model error allowed per cell, as a fraction of the cell's brightness ``|render|``.
 #: From fits with the right camera only (experiments/colour_check_null.py: 48 px photos
@@ -133,10 +139,12 @@ class ColourCheck:
                 "(--camera-response, a response from bubblefit calibrate-camera, with its --illuminant) and check "
                 "--encoding (docs/cameras.md)")
 
-    def to_json(self) -> dict:
+    def to_json(self, decides: bool = True) -> dict:
+        """The record of the fit's JSON; ``decides``: whether a failure makes the fit not
+        ``ok`` (``JudgeSettings.colour_check``)."""
         return {"consistent": self.consistent, "chi2_per_dof": self.chi2_per_dof,
                 "threshold_per_dof": self.threshold_per_dof, "cells": self.cells, "chroma_rms": self.chroma_rms,
-                "noise_scale": self.noise_scale}
+                "noise_scale": self.noise_scale, "decides": bool(decides)}
 
 
 def _plane(c: np.ndarray) -> np.ndarray:
@@ -179,7 +187,7 @@ def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma:
     cy = np.minimum((ys - y0) * grid // max(y1 - y0, 1), grid - 1)
     cx = np.minimum((xs - x0) * grid // max(x1 - x0, 1), grid - 1)
     cell = cy * grid + cx
-    cells, scatter, expected = [], 0.0, 0.0
+    cells = []
     white = np.full(photo.shape[:2] + (2,), np.nan)  # detrended chromatic residual / its predicted sigma
     for b in np.unique(cell):
         sel = np.nonzero(cell == b)[0]
@@ -190,11 +198,9 @@ def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma:
         p = _plane(mean / np.linalg.norm(mean))
         ep = e[sel] @ p.T                                   # (n, 2) chromatic residuals
         noise = (p * v[sel].sum(axis=0)) @ p.T / n**2       # covariance of their mean
-        # the scatter about a plane in (x, y): what the noise model must account for
+        # the scatter about a plane in (x, y), whitened: for the 2 x 2 block means (_block_scale)
         x = np.stack([np.ones(n), ys[sel] - ys[sel].mean(), xs[sel] - xs[sel].mean()], axis=1)
         fitted = x @ np.linalg.lstsq(x, ep, rcond=None)[0]
-        scatter += float(np.sum((ep - fitted) ** 2))
-        expected += float(np.trace((p * v[sel].mean(axis=0)) @ p.T)) * (n - 3)
         per = np.sqrt(0.5 * np.einsum("ij,nj,ij->n", p, v[sel], p) * (n - 3) / n)
         white[ys[sel], xs[sel]] = (ep - fitted) / per[:, None]
         bright = float(np.linalg.norm(rend[sel], axis=1).mean())
@@ -203,13 +209,64 @@ def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma:
         cells.append((ep.mean(axis=0), noise, model, bright))
     if len(cells) < 2:
         return None
-    kappa = max(1.0, scatter / expected if expected > 0 else 1.0, _block_scale(white))
+    kappa = noise_scale(photo, render, var, use, white)
     stat = sum(float(m @ np.linalg.solve(kappa * c + f, m)) for m, c, f, _ in cells)
     dof = 2 * len(cells)
     thr = float(chdtri(dof, false_alarm)) / dof
     value = stat / dof
     rel = [float(np.linalg.norm(m)) / bright for m, _, _, bright in cells]
     return ColourCheck(bool(value <= thr), value, thr, len(cells), float(np.sqrt(np.mean(np.square(rel)))), kappa)
+
+
+def _planes(c: np.ndarray) -> np.ndarray:
+    """(N, 2, 3): :func:`_plane` of each row of ``c`` (N, 3), not necessarily unit."""
+    c = c / np.linalg.norm(c, axis=-1, keepdims=True)
+    a = np.eye(3)[np.argmin(np.abs(c), axis=-1)]
+    u = np.cross(c, a)
+    u /= np.linalg.norm(u, axis=-1, keepdims=True)
+    return np.stack([u, np.cross(c, u)], axis=-2)
+
+
+def neighbour_scale(photo: np.ndarray, render: np.ndarray, var: np.ndarray, use: np.ndarray) -> float:
+    """The photo's chromatic noise over the noise model's, from differences between
+    neighbouring pixels: at every tested pixel whose four neighbours are tested too,
+    ``d = e - mean(e of the 4 neighbours)`` (``e = photo - render``), projected on the
+    plane orthogonal to the pixel's rendered colour; the sum of ``|P d|^2`` over the sum
+    of its variance under the model, ``tr P (v + sum_4 v_j / 16) P^T``. A hue error that
+    varies smoothly over a few pixels (a wrong response's, which follows the film's
+    thickness) cancels in ``d`` to first order, noise does not: 1 when the noise is the
+    model's and independent between pixels, more for a noisier photo, less for noise that
+    neighbours share (which ``d`` partly cancels: 0.3 when each 2 x 2 block shares one
+    draw) or a pessimistic model. 0 with fewer than 20 such pixels."""
+    inner = np.zeros_like(use)
+    inner[1:-1, 1:-1] = use[1:-1, 1:-1] & use[:-2, 1:-1] & use[2:, 1:-1] & use[1:-1, :-2] & use[1:-1, 2:]
+    ys, xs = np.nonzero(inner)
+    if ys.size < 20:
+        return 0.0
+    e = photo - render
+    d = e[ys, xs] - 0.25 * (e[ys - 1, xs] + e[ys + 1, xs] + e[ys, xs - 1] + e[ys, xs + 1])
+    vd = var[ys, xs] + (var[ys - 1, xs] + var[ys + 1, xs] + var[ys, xs - 1] + var[ys, xs + 1]) / 16.0
+    p = _planes(render[ys, xs])
+    return float(np.sum(np.einsum("nij,nj->ni", p, d) ** 2) / np.sum(np.einsum("nij,nj,nij->n", p, vd, p)))
+
+
+#: Below this :func:`neighbour_scale`, neighbouring pixels are taken to share noise and the
+#: noise scale is measured on 2 x 2 block means (:func:`_block_scale`): noise drawn once per
+#: 2 x 2 block reads 0.3 (``(1/4 + 1/8) / (1 + 1/4)``, closed form), independent noise 1,
+#: and the right-camera 48 px films of experiments/colour_check_null.py, whose noise model
+#: (``NoiseSettings``) is more pessimistic than their noise, 0.82-1.07. A hue error that
+#: varies over a few pixels raises both measures, so the block means, which a wrong
+#: response's error on a draining film inflates (noise scale 3.6-4.1), are not read for a
+#: photo whose neighbours differ as independent pixels do.
+SHARED_BELOW = 0.6
+
+
+def noise_scale(photo, render, var, use, white) -> float:
+    """``kappa``: the factor, at least 1, on the noise model's variance of a cell's mean:
+    :func:`neighbour_scale`, or :func:`_block_scale` of the whitened residual ``white``
+    where the neighbour scale is under :data:`SHARED_BELOW` (neighbours share noise)."""
+    near = neighbour_scale(photo, render, var, use)
+    return max(1.0, near, _block_scale(white) if near < SHARED_BELOW else 0.0)
 
 
 def _block_scale(white: np.ndarray, k: int = 2) -> float:
@@ -228,18 +285,21 @@ def _block_scale(white: np.ndarray, k: int = 2) -> float:
 
 
 def judge_colours(ok: bool, warnings: list, photo, render, mask, cos, sigma, model_error: float = 0.0,
-                  explained: bool = True) -> tuple[bool, list, dict | None]:
+                  explained: bool = True, decide: bool = True) -> tuple[bool, list, dict | None]:
     """The fit's verdict with the colour test added: ``(ok, warnings, record)``. The test
     (:func:`colour_check`) runs over the fitted pixels ``mask`` whose front film's ``cos``
     (cosine of incidence) exceeds :data:`INNER_COS`, with the fit's noise ``sigma`` and
     model-error floor ``model_error`` (for its outliers); colours it finds inconsistent
-    make the fit not ``ok``, with the warning of :meth:`ColourCheck.warning` (worded for
-    a photo the model does not ``explained`` as a whole, as the verdict found)."""
+    add the warning of :meth:`ColourCheck.warning` (worded for a photo the model does not
+    ``explained`` as a whole, as the verdict found) and, with ``decide`` true
+    (``JudgeSettings.colour_check == "decide"``), make the fit not ``ok``."""
     check = colour_check(photo, render, np.asarray(mask, bool) & (np.asarray(cos) > INNER_COS), sigma,
                          model_error=model_error)
     if check is None:
         return ok, warnings, None
     why = check.warning(explained)
     if why is None:
-        return ok, warnings, check.to_json()
-    return False, warnings + [why], check.to_json()
+        return ok, warnings, check.to_json(decide)
+    if not decide:
+        return ok, warnings + [why + " [warning only: --colour-check warn]"], check.to_json(decide)
+    return False, warnings + [why], check.to_json(decide)

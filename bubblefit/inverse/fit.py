@@ -248,7 +248,7 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     sigma = st.sigma if share is None else st.sigma / np.sqrt(np.asarray(share))
     explained = bool(unc.misfit.chi2_floor <= float(judge.ok_chi2))  # as the verdict judges it
     ok, warnings, colour_record = judge_colours(ok, warnings, st.photo, img, full.mask, full.cos, sigma,
-                                                float(judge.model_error), explained)
+                                                float(judge.model_error), explained, judge.colour_check == "decide")
     return FitResult(
         params=reported, stderr=stderr, held=list(table.held), converged=bool(converged),
         message="; ".join(notes) if notes else "converged", iterations=sol.steps, residual_rms=rms,

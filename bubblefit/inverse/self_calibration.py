@@ -548,7 +548,8 @@ def self_calibrated(first, photo, env, options, background, scene, saturated):
     share = opts.noise.photosite_share
     sigma = st.sigma if share is None else st.sigma / np.sqrt(np.asarray(share))
     ok, warnings, colour_record = judge_colours(ok, warnings, st.photo, img, m, full.cos, sigma,
-                                                float(opts.judge.model_error), mis.chi2_floor <= float(opts.judge.ok_chi2))
+                                                float(opts.judge.model_error), mis.chi2_floor <= float(opts.judge.ok_chi2),
+                                                opts.judge.colour_check == "decide")
     # the joint fit's values as the fit reports them; standard errors for the fitted names
     # (a value derived from them, e.g. r_d and r_s from the split, has none here)
     params, stderr = dict(first.params), dict(first.stderr)

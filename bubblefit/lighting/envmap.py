@@ -31,6 +31,7 @@ __all__ = [
     "irradiance_map",
     "lookup_box",
     "texel_footprint",
+    "dark_room",
 ]
 
 
@@ -400,3 +401,8 @@ class EnvMap:
 
     def lookup_irradiance(self, n: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
         return lookup(self.irradiance, n)
+
+
+def dark_room() -> "EnvMap":
+    """A black map (8 x 16 texels): a room dark but for the scene's own lights."""
+    return EnvMap.from_array(np.zeros((8, 16, 3)))

@@ -39,6 +39,20 @@ the configured count, and past the first after the liquid's reflection inside th
 the diffuse term (a soap film has none); the meniscus at the foot; light from below the
 liquid's surface.
 
+*A whole bubble* (:meth:`CapConfig.sphere`, ``liquid = False``): the same paths with no
+liquid, i.e. the sphere's front film, its rear film and internal bounces, and the map
+straight through.
+
+*Area light* (:attr:`CapConfig.area`, a rectangle or disc of given radiance whose
+spectrum is the illuminant): every film adds the light it sends along the film's mirror
+ray, traced from the film's own point (the light is at a finite distance, so the point
+matters, not only the direction), and the rays straight through the bubble or beside it
+add the light they meet. A mirror film (roughness 0, as fitted) sees the light or not
+(exact); a rough film takes the share of its lobe landing on the light, a Gaussian spread
+across the light's outline (:func:`~bubblefit.lighting.area.patch_coverage`, an
+approximation stated there). The light sits in front of the map and does not hide it;
+the bubble casts no shadow on it and it is not seen in a liquid.
+
 ``film_rgb = "clamped"`` (:class:`CapConfig`) takes each film's reflectance to RGB and
 clamps it to [0, 1] before the series (:func:`_clamped_series`), as Blender Cycles' thin
 film shades; the default integrates the series per wavelength (the physics).
@@ -59,6 +73,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..lighting.area import Patch, patch_coverage
 from ..lighting.filtering import reflect
 from ..optics import dispersion, film
 from .cap import Cap
@@ -67,7 +82,8 @@ from .render import (Params, RenderConfig, _background, _camera_rays, _Film, _fi
                      pixel_chunks, shading_points)
 from .thickness import drainage_profile
 
-__all__ = ["CapConfig", "render_cap", "render_cap_pixels", "cap_classes", "cap_drainage", "SKIPPED"]
+__all__ = ["CapConfig", "render_cap", "render_cap_pixels", "cap_classes", "cap_drainage", "area_light_hits", "SKIPPED",
+           "SKIPPED_SPHERE", "TRACED_SPHERE"]
 
 #: The light paths the cap's render does not trace (module docstring), for reports.
 SKIPPED = (
@@ -78,6 +94,22 @@ SKIPPED = (
     "the foot but the first (taken at the front film's angle of incidence)",
     "diffuse reflection of the film",
     "the meniscus at the foot and light from below the liquid's surface",
+)
+
+#: The light paths a whole bubble's render under an area light traces (module docstring).
+TRACED_SPHERE = (
+    "the front film's reflection of the area light, traced from the film's own point",
+    "the rear film's reflection and the internal bounces (3 in a fit), each traced from its own point",
+    "the area light and the map straight through the bubble",
+    "the map in every film's mirror direction, when the scene gives one",
+)
+
+#: The light paths a whole bubble's render (no liquid, an area light) does not trace.
+SKIPPED_SPHERE = (
+    "internal bounces past the configured count (3 in a fit)",
+    "diffuse reflection of the film",
+    "the area light's lobe share on a rough film is a Gaussian estimate (exact for a mirror film, as fitted)",
+    "light reflected by the room (the walls, the camera) other than the area light and the map",
 )
 
 _FLIP = jnp.asarray([1.0, -1.0, 1.0])
@@ -97,6 +129,12 @@ class CapConfig:
     #: reflectance integrated to RGB and clamped to [0, 1] per channel first, the series
     #: then taken in RGB (:func:`_clamped_series`), as Blender Cycles' thin film shades.
     film_rgb: str = "spectral"
+    #: False: no liquid at all, a whole bubble floating free (``plane_y`` then only sets the
+    #: drainage profile's foot at the sphere's bottom: the sphere's own profile).
+    liquid: bool = True
+    #: An area light (:class:`~bubblefit.lighting.area.Patch`) every film and the rays
+    #: through the bubble see as well as the map (module docstring, "Area light"), or None.
+    area: Patch | None = None
 
     @staticmethod
     def of(cfg: RenderConfig, cap: Cap, film_rgb: str = "spectral") -> "CapConfig":
@@ -105,15 +143,25 @@ class CapConfig:
             raise ValueError(f"film_rgb must be 'spectral' or 'clamped', got {film_rgb!r}")
         return CapConfig(cfg, float(cap.plane_y), n, film_rgb)
 
+    @staticmethod
+    def sphere(cfg: RenderConfig, area: Patch | None = None, film_rgb: str = "spectral") -> "CapConfig":
+        """A whole bubble (the sphere of ``cfg``, no liquid), lit by ``area`` and the map."""
+        if film_rgb not in ("spectral", "clamped"):
+            raise ValueError(f"film_rgb must be 'spectral' or 'clamped', got {film_rgb!r}")
+        return CapConfig(cfg, float(cfg.center[1]) - float(cfg.radius), 1.0, film_rgb, liquid=False, area=area)
+
 
 def liquid_reflectance(cos, n_liquid: float):
     """Unpolarised Fresnel reflectance of air to the liquid at incidence ``cos`` (Born & Wolf 1.5.2)."""
     return jnp.mean(film.fresnel_reflectance(jnp.clip(cos, 1e-6, 1.0), n_liquid), axis=-1)
 
 
-def _fold(w, n_liquid: float):
+def _fold(w, n_liquid: float, liquid: bool = True):
     """``(weight, w')``: a direction below the horizon meets the liquid and continues
-    mirrored, with the liquid's reflectance as weight (module, path 3)."""
+    mirrored, with the liquid's reflectance as weight (module, path 3); unchanged without
+    a liquid."""
+    if not liquid:
+        return jnp.ones(w.shape[:1], w.dtype), w
     down = w[:, 1] < 0
     weight = jnp.where(down, liquid_reflectance(jnp.abs(w[:, 1]), n_liquid), 1.0)
     return weight, jnp.where(down[:, None], w * _FLIP, w)
@@ -138,6 +186,8 @@ def _bounce_above(cfg: CapConfig, hits, d) -> dict:
     if fx.model != "physical" or not fx.rear_reflection:
         return {}
     out, ok = {}, jnp.ones(d.shape[:1], bool)
+    if not cfg.liquid:
+        return {f"bounce{k}": ok for k in range(1, fx.bounces + 1)}
     q, e = hits.p1, d - 2.0 * jnp.sum(d * hits.n1, axis=-1)[:, None] * hits.n1
     for k in range(1, fx.bounces + 1):
         ok = ok & (q[:, 1] >= cfg.plane_y)
@@ -178,7 +228,7 @@ def _trace(cfg: CapConfig, p: Params, rows, cols):
     direct = hits.inside & (s0 > 0) & (hits.p0[:, 1] >= cfg.plane_y)
     down = d[:, 1] < 0
     s_l = (cfg.plane_y - o[:, 1]) / jnp.where(down, d[:, 1], -1.0)
-    via = down & ~direct & (s_l > 0)
+    via = down & ~direct & (s_l > 0) & cfg.liquid
     p_l = o + jnp.where(via, s_l, 0.0)[:, None] * d
     o2 = jnp.where(via[:, None], p_l, o)
     d2 = jnp.where(via[:, None], d * _FLIP, d)
@@ -186,7 +236,7 @@ def _trace(cfg: CapConfig, p: Params, rows, cols):
     hits = intersect_sphere(o2, d2, r.center, r.radius)
     s0 = jnp.sum((hits.p0 - o2) * d2, axis=-1)
     on = hits.inside & (s0 > 0) & (hits.p0[:, 1] >= cfg.plane_y)
-    rear = hits.p1[:, 1] >= cfg.plane_y
+    rear = (hits.p1[:, 1] >= cfg.plane_y) | (not cfg.liquid)
     return o2, d2, weight, hits, on, rear
 
 
@@ -195,10 +245,12 @@ def _shade(cfg: CapConfig, p: Params, env, rows, cols):
     r = cfg.render
     fx = r.effects
     dtype = p.t.dtype
-    _, d, weight, hits, on, rear = _trace(cfg, p, rows.astype(dtype), cols.astype(dtype))
+    o, d, weight, hits, on, rear = _trace(cfg, p, rows.astype(dtype), cols.astype(dtype))
     p, lam = _film_setup(p, r)
-    w_bg, d_bg = _fold(d, cfg.n_liquid)
+    w_bg, d_bg = _fold(d, cfg.n_liquid, cfg.liquid)
     bg_rad = w_bg[:, None] * _background(env, fx, p, d_bg, None)
+    if cfg.area is not None:   # the light straight along the ray (through the bubble, or beside it)
+        bg_rad = bg_rad + _area_light(cfg, o, d, 0.0)
     films, exits = shading_points(fx, r, hits, d)
     above = _bounce_above(cfg, hits, d)
     foot_n, foot_wo, foot_w = _wall_after_liquid(cfg, hits, d)
@@ -213,10 +265,13 @@ def _shade(cfg: CapConfig, p: Params, env, rows, cols):
             wo = jnp.where(below[:, None], foot_wo, wo)
             w_path = jnp.where(below, foot_w, 1.0)
             keep = keep | below
-        w_r, _ = _fold(reflect(wo, n), cfg.n_liquid)
+        w_r, _ = _fold(reflect(wo, n), cfg.n_liquid, cfg.liquid)
         down = (w_r < 1.0)[:, None]
         spec, dif = _reflected(env, fx, r, p, jnp.where(down, n * _FLIP, n), jnp.where(down, wo * _FLIP, wo),
                                normalize=fx.model == "physical")
+        if cfg.area is not None:   # the film point: on the sphere along its outward normal
+            at = jnp.asarray(r.center, dtype) + r.radius * (n if name == "front" else -n)
+            spec = spec + _area_light(cfg, at, reflect(wo, n), p.roughness)
         refl[name] = (jnp.where(keep[:, None], (w_path * w_r)[:, None] * spec, 0.0), dif)
     d0 = _thickness(cfg, p.thickness, hits.local0)
     d1 = _thickness(cfg, p.thickness, hits.local1)
@@ -230,6 +285,29 @@ def _shade(cfg: CapConfig, p: Params, env, rows, cols):
         total = total + v
     pixel = jnp.where(on[:, None], total, p.exposure * bg_rad)
     return weight[:, None] * pixel
+
+
+def _area_light(cfg: CapConfig, origins, dirs, roughness):
+    """RGB radiance (N, 3) the area light sends back along rays leaving ``origins`` along
+    ``dirs``: its radiance (grey in the camera's white, the lamp being the illuminant)
+    times the share of the lobe that lands on it (:func:`~bubblefit.lighting.area.patch_coverage`)."""
+    share = patch_coverage(cfg.area, origins, dirs, roughness)
+    return (float(cfg.area.radiance) * share)[:, None] * jnp.ones((1, 3), dirs.dtype)
+
+
+def area_light_hits(cfg: CapConfig, rows, cols) -> tuple[np.ndarray, np.ndarray]:
+    """``(front, rear)``: whether the mirror ray of the front film and of the first rear
+    reflection meets the area light, at the rays through ``rows``, ``cols`` (numpy bools;
+    False off the bubble)."""
+    p = Params.make()
+    rows = jnp.asarray(rows, jnp.float32).ravel()
+    cols = jnp.asarray(cols, jnp.float32).ravel()
+    _, d, _, hits, on, _ = _trace(cfg, p, rows, cols)
+    c = jnp.asarray(cfg.render.center, jnp.float32)
+    front = patch_coverage(cfg.area, c + cfg.render.radius * hits.n0, reflect(-d, hits.n0)) > 0.5
+    rear = patch_coverage(cfg.area, c + cfg.render.radius * hits.n1, reflect(-d, -hits.n1)) > 0.5
+    on = np.asarray(on)
+    return on & np.asarray(front), on & np.asarray(rear)
 
 
 def _clamped_series(p: Params, cfg: RenderConfig, lam, cos, d0, d1, exits, thick, refl, bg_rad) -> dict:

@@ -33,11 +33,11 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..lighting.area import Patch
+from ..lighting.area import Patch, check_light_faces
 from ..lighting.coaxial import Stack
 from ..optics import dispersion
 
-__all__ = ["PlanarScene", "film_kind_and_range", "is_planar", "is_planar_file", "load_planar", "parse_cap", "parse_planar", "parse_region"]
+__all__ = ["PlanarScene", "film_kind_and_range", "is_planar", "is_planar_file", "load_planar", "parse_area_light", "parse_cap", "parse_planar", "parse_region"]
 
 THICKNESS_KINDS = ("map", "newton", "constant", "drainage")
 
@@ -214,11 +214,23 @@ def parse_planar(data: dict, base_dir: str | os.PathLike = ".") -> PlanarScene:
                                fov_deg=_num(cam, "fov_deg", "camera", 35.0, 1.0, 170.0))
     plane = Patch(center=_vec(f, "center", "film", 3), normal=_vec(f, "normal", "film", 3),
                   up=_vec(f, "up", "film", 3, (0, 1, 0)), size=_vec(f, "size", "film", 2))
+    area = parse_area_light(light)
+    check_light_faces(area, plane.center, "the film")
+    return PlanarScene(light="area", camera=camera, plane=plane, area=area, **common)
+
+
+def parse_area_light(light: dict) -> Patch:
+    """The :class:`~bubblefit.lighting.area.Patch` of a ``[light] type = "area"`` table
+    (flat films and whole bubbles alike): ``shape`` ``"rect"`` (``size = [w, h]``) or
+    ``"disc"`` (``radius``), ``center``, ``normal`` (the side it shines to), ``up`` and
+    ``radiance``; a zero size is one line."""
     shape = light.get("shape", "rect")
     if shape not in ("rect", "disc"):
         raise InputError(f'light.shape must be "rect" or "disc", got {shape!r}')
     size = _vec(light, "size", "light", 2) if shape == "rect" else (_num(light, "radius", "light", None, 0),) * 2
-    area = Patch(center=_vec(light, "center", "light", 3), normal=_vec(light, "normal", "light", 3),
+    if min(size) <= 0:
+        raise InputError(f"the area light has no size (light.{'size' if shape == 'rect' else 'radius'} must be "
+                         f"positive, got {list(size) if shape == 'rect' else size[0]})")
+    return Patch(center=_vec(light, "center", "light", 3), normal=_vec(light, "normal", "light", 3),
                  up=_vec(light, "up", "light", 3, (0, 1, 0)), size=size, shape=shape,
                  radiance=_num(light, "radiance", "light", 1.0, 0.0))
-    return PlanarScene(light="area", camera=camera, plane=plane, area=area, **common)

@@ -3,7 +3,8 @@
     .venv-render/bin/python make_films_cycles.py [probe] [cap] [CASE ...]   # default: every case
 
 ``cap`` renders the masks of a bubble on a dish for check_cap.py (data/conventions/);
-the ``cyc_cap_*`` cases render soap bubbles standing on water (:func:`make_dish`).
+the ``cyc_cap_*`` cases render soap bubbles standing on water (:func:`make_dish`), the
+``cyc_sphere_*`` cases whole bubbles under a panel behind the camera (:func:`make_sphere_panel`).
 
 The film is a square mesh (the frame's opening, 0.18 m) in the plane z = 0 of the
 bubblefit frame (normal +z, up +y), with a Principled BSDF whose Thin Film Thickness
@@ -364,6 +365,18 @@ def dish_scene_toml(c, kind) -> str:
         f"fov_deg = {c['fov_deg']}\n")
 
 
+def render_photo(sc, name, out, seed, t0):
+    """Render ``sc``, scale its 99.5th percentile to 0.9, add the sensor's noise and write
+    ``out/photo.png`` (8-bit sRGB); returns (render seconds, exposure)."""
+    img = mc.render_to_array(sc, os.path.join("/tmp", name + ".exr"))
+    secs = time.time() - t0
+    expo = 0.9 / float(np.percentile(img, 99.5))
+    rng = np.random.default_rng(seed)
+    vio.write_png8(os.path.join(out, "photo.png"), None,
+                   vio.add_noise_and_quantise(img * expo, rng, FULL_WELL, READ_NOISE))
+    return secs, expo
+
+
 def make_dish(name, c):
     """A bubble on a dish: the film (make_cycles.py's sphere, whole: its part under the
     water is hidden, the water plane being opaque) standing in a water plane, in a map."""
@@ -376,12 +389,7 @@ def make_dish(name, c):
     mc.camera(sc, cam)
     liquid_plane(sc, c["plane_y"], water_material())
     mc.sphere(sc, dish_film_material(c))
-    img = mc.render_to_array(sc, os.path.join("/tmp", name + ".exr"))
-    secs = time.time() - t0
-    expo = 0.9 / float(np.percentile(img, 99.5))
-    rng = np.random.default_rng(c["seed"])
-    vio.write_png8(os.path.join(out, "photo.png"), None,
-                   vio.add_noise_and_quantise(img * expo, rng, FULL_WELL, READ_NOISE))
+    secs, expo = render_photo(sc, name, out, c["seed"], t0)
     vio.write_exr(os.path.join(out, "thickness_true.exr"), dish_truth(c).astype(np.float32))
     kind = c["fits"][0]
     with open(os.path.join(out, "scene.toml"), "w") as fh:
@@ -413,6 +421,96 @@ def make_dish(name, c):
     }
     if c["top_nm"] == c["bottom_nm"]:
         truth["thickness_nm"] = c["top_nm"]
+    vio.save_json(os.path.join(out, "truth.json"), truth)
+    print(f"{name}: {secs:.1f} s, exposure {expo:.4g}", flush=True)
+
+
+#: A whole soap bubble under a diffuse panel behind the camera, in a dark room: make_cycles.py's
+#: bubble (UV sphere of radius 1 at the origin, transmissive, Thin Film IOR 1.4, roughness 0)
+#: and a Blender rectangular area light (spread 180 degrees: a Lambertian panel) facing -z.
+SPHERE_PANEL_CASES = {
+    # held out (split.toml, test part): rendered before any fit was run on it
+    "cyc_sphere_const_panel": dict(thickness_nm=590.0, origin=(0.25, 0.3, 4.0), target=(0.0, 0.0, 0.0), fov_deg=34.0,
+                                   panel_center=(0.0, 0.4, 4.6), panel_size=(6.0, 4.0), spp=1024, seed=71,
+                                   fits=["constant"]),
+}
+SPHERE_SIZE = 112
+
+
+def sphere_panel(sc, c):
+    """The rectangle ``panel_size`` (width along x, height along y) at ``panel_center``, emitting towards -z."""
+    data = bpy.data.lights.new("panel", type="AREA")
+    data.shape = "RECTANGLE"
+    data.size, data.size_y = c["panel_size"]
+    data.energy = 1000.0
+    data.spread = math.pi
+    data.color = (1.0, 1.0, 1.0)
+    obj = bpy.data.objects.new("panel", data)
+    sc.collection.objects.link(obj)
+    obj.location = mc.to_blender(c["panel_center"])
+    obj.rotation_euler = (math.pi / 2, 0.0, 0.0)             # local -Z to bubblefit -z, local Y to bubblefit +y
+    return obj
+
+
+def sphere_scene_toml(c) -> str:
+    w, h = c["panel_size"]
+    return (
+        "# A soap bubble under a diffuse panel behind the camera, in a dark room (Blender Cycles)\n"
+        f"[film]\nshape = \"sphere\"\ncenter = [0.0, 0.0, 0.0]\nradius = 1.0\nn = {mc.N_FILM}\n"
+        "thickness = \"constant\"\nrange_nm = [0.0, 1500.0]\n"
+        "film_rgb = \"clamped\"   # Cycles clamps each film's RGB reflectance to [0, 1]\n\n"
+        f"[light]\ntype = \"area\"\nshape = \"rect\"\ncenter = {list(c['panel_center'])}\nnormal = [0.0, 0.0, -1.0]\n"
+        f"up = [0.0, 1.0, 0.0]\nsize = [{w}, {h}]\nradiance = 1.0\n"
+        "lamp = \"E\"   # Cycles integrates its thin film under illuminant E\n\n"
+        f"[camera]\ntype = \"perspective\"\nwidth = {SPHERE_SIZE}\nheight = {SPHERE_SIZE}\n"
+        f"origin = {list(c['origin'])}\ntarget = {list(c['target'])}\nup = [0.0, 1.0, 0.0]\n"
+        f"fov_deg = {c['fov_deg']}\n")
+
+
+def make_sphere_panel(name, c):
+    """A whole bubble lit by a panel behind the camera; the world is black."""
+    out = os.path.join(vio.DATA, name)
+    os.makedirs(out, exist_ok=True)
+    cam = rr.Camera("persp", SPHERE_SIZE, SPHERE_SIZE, origin=c["origin"], target=c["target"], up=(0.0, 1.0, 0.0),
+                    fov_deg=c["fov_deg"])
+    t0 = time.time()
+    sc = mc.reset(cam.width, cam.height, c["spp"])
+    black_world(sc)
+    mc.camera(sc, cam)
+    sphere_panel(sc, c)
+    mc.sphere(sc, mc.bubble_material(rr.Thickness("constant", c["thickness_nm"])))
+    secs, expo = render_photo(sc, name, out, c["seed"], t0)
+    jj, ii = np.meshgrid(np.arange(SPHERE_SIZE) + 0.5, np.arange(SPHERE_SIZE) + 0.5)
+    o, d = cam.rays(jj.reshape(-1), ii.reshape(-1), np.zeros(3), 1.0)
+    hit, _ = rr._intersect(o, d, np.zeros(3), 1.0)
+    vio.write_exr(os.path.join(out, "thickness_true.exr"),
+                  np.where(hit, c["thickness_nm"], np.nan).reshape(SPHERE_SIZE, SPHERE_SIZE).astype(np.float32))
+    with open(os.path.join(out, "scene.toml"), "w") as fh:
+        fh.write(sphere_scene_toml(c))
+    truth = {
+        "case": name, "kind": "film",
+        "renderer": f"Blender {bpy.app.version_string} Cycles (CPU), {c['spp']} spp, box filter 1 px, denoiser off",
+        "renderer_version": f"bpy {bpy.app.version_string}", "render_seconds": round(secs, 1),
+        "camera": cam.describe(),
+        "sphere": {"center": [0.0, 0.0, 0.0], "radius": 1.0, "n_film": mc.N_FILM,
+                   "material": "Principled BSDF: IOR 1.0, Transmission Weight 1, Roughness 0, Thin Film IOR 1.4",
+                   "mesh": "UV sphere 256 x 128, smooth shading"},
+        "light": {"type": "Blender Area light, rectangle, spread 180 deg, emitting along -z",
+                  "center": list(c["panel_center"]), "size": list(c["panel_size"])},
+        "world": "black",
+        "thickness_nm": c["thickness_nm"], "illuminant": "E",
+        "approximations": [
+            "Cycles averages s and p polarisation at each surface hit",
+            "Cycles integrates the film's spectrum under illuminant E and clamps each RGB channel to [0, 1]",
+            "film index 1.4 at every wavelength",
+            "UV-sphere mesh (256 x 128) with interpolated normals, not an exact sphere",
+            "every light path (to 64 bounces), Monte Carlo noise (denoiser off): each sample reflects or "
+            "transmits at random in proportion to the film's reflectance"],
+        "exposure": expo,
+        "noise": {"model": "Cycles Monte Carlo noise, then Poisson-Gaussian and 8-bit sRGB",
+                  "full_well_e_at_1.0": FULL_WELL, "read_noise_e": READ_NOISE, "seed": c["seed"]},
+        "fits": c["fits"], "fit_args": ["--scene", "scene.toml"],
+    }
     vio.save_json(os.path.join(out, "truth.json"), truth)
     print(f"{name}: {secs:.1f} s, exposure {expo:.4g}", flush=True)
 
@@ -461,7 +559,7 @@ def make(name, c):
 
 
 if __name__ == "__main__":
-    jobs = sys.argv[1:] or [*CASES, "cap", *DISH_CASES]
+    jobs = sys.argv[1:] or [*CASES, "cap", *DISH_CASES, *SPHERE_PANEL_CASES]
     if "probe" in jobs:
         probe()
     if "cap" in jobs:
@@ -471,3 +569,5 @@ if __name__ == "__main__":
             make(name, CASES[name])
         if name in DISH_CASES:
             make_dish(name, DISH_CASES[name])
+        if name in SPHERE_PANEL_CASES:
+            make_sphere_panel(name, SPHERE_PANEL_CASES[name])

@@ -62,6 +62,29 @@ def test_auto_keeps_the_model_that_explains_the_photo(physical_photo):
     assert abs(auto.params["thickness_nm"] - 480.0) < 10.0
 
 
+
+@pytest.mark.slow
+def test_auto_makes_the_thickness_map_of_the_kept_model_only(physical_photo, monkeypatch):
+    """``auto`` compares its models by their solves' standard errors, which a thickness map
+    does not change, so the map (the costliest stage after the solves) is made once, for
+    the model it keeps; the kept map recovers the film as the single fit does."""
+    import bubblefit.inverse.fit as fit_module
+
+    made = []
+    inner = fit_module.fit_map
+
+    def counted(*args, **kwargs):
+        made.append(1)
+        return inner(*args, **kwargs)
+
+    monkeypatch.setattr(fit_module, "fit_map", counted)
+    env, photo, bg = physical_photo
+    res = fit_module.fit_photo(photo, env, options=_opts(model="auto", thickness="map"), background=bg)
+    assert "model auto" in res.message and res.thickness_map is not None
+    assert len(made) == 1, f"{len(made)} maps made for one kept model ({res.message})"
+    # the constant 480 nm film as a map: its median within the constant fit's 10 nm above
+    assert abs(float(np.nanmedian(res.thickness_map)) - 480.0) < 10.0, res.message
+
 # ---------------------------------------------------------------------------------------
 # The disc found is refined with the other parameters
 # ---------------------------------------------------------------------------------------

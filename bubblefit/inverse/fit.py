@@ -371,15 +371,68 @@ def _fit_model(photo, env, options: FitOptions, background, init, scene, saturat
     return _fit_one(photo, env, options, background, init, scene, saturated)
 
 
-def _fit_one(photo, env, options: FitOptions, background, init, scene, saturated) -> FitResult:
-    """The stages of one model's fit through ``options.view``."""
+@dataclass(frozen=True)
+class Solved:
+    """One model's fit up to its judgement (:func:`_solve_one`): what ``auto`` compares
+    before the thickness map and the final render are made for the model it keeps.
+
+    Its ``status``, ``converged``, ``chi2_floor``, ``chi2_capped`` and ``params`` read as a
+    :class:`FitResult`'s do, from the solve's standard errors (:func:`_judge`); a map's
+    failure is known only once :func:`_report` has made it.
+    """
+
+    setup: Setup
+    options: FitOptions
+    solution: LocalSolution
+    judged: Judgement
+    notes: list
+    t_start: float
+
+    @property
+    def model(self) -> str:
+        return self.options.model
+
+    @property
+    def status(self) -> str:
+        return self.judged.status
+
+    @property
+    def converged(self) -> bool:
+        return bool(self.judged.converged)
+
+    @property
+    def chi2_floor(self) -> float:
+        return float(self.judged.uncertainty.misfit.chi2_floor)
+
+    @property
+    def chi2_capped(self) -> float:
+        return float(self.judged.uncertainty.misfit.chi2_capped)
+
+    @property
+    def params(self) -> dict:
+        """The reported values as :func:`_report` writes them (with ``n_film``), less a
+        map's median thickness."""
+        return {**self.judged.reported, "n_film": float(self.setup.vals["n_film"])}
+
+    def report(self, env) -> FitResult:
+        """The thickness map, the final render and the verdict (:func:`_report`)."""
+        with stage("thickness map, final render" if self.options.thickness == "map" else "final render"):
+            return _report(self.setup, env, self.options, self.solution, self.judged, list(self.notes),
+                           self.t_start)
+
+
+def _solve_one(photo, env, options: FitOptions, background, init, scene, saturated,
+               settings: SolveSettings | None = None) -> Solved:
+    """The stages of one model's fit through ``options.view`` up to the standard errors;
+    ``settings``: the local solve's (default: a warm start's when ``init`` is given, else
+    a searched fit's)."""
     t_start = time.perf_counter()
     opts = options
     with stage("finding the disc, choosing the effects"):
         st = setup(photo, env, opts, background, init, scene, saturated)
     searches = "thickness_nm" in st.table.free or "top_nm" in st.table.free
     warm = bool(init)
-    settings = WARM_SOLVE if warm else FINAL_SOLVE
+    settings = settings or (WARM_SOLVE if warm else FINAL_SOLVE)
     if searches and not warm:
         warm_up(st, opts, env, settings)  # the final solve's programs compile during the search
         with stage("global thickness search"):
@@ -391,10 +444,14 @@ def _fit_one(photo, env, options: FitOptions, background, init, scene, saturated
     notes = []
     if warm and searches:
         sol = _checked_warm_start(st, opts, env, sol, settings, notes)
-    with stage("thickness map, standard errors, final render" if opts.thickness == "map"
-               else "standard errors, final render"):
+    with stage("standard errors"):
         judged = _judge(st, opts, sol, notes)
-        return _report(st, env, opts, sol, judged, notes, t_start)
+    return Solved(st, opts, sol, judged, notes, t_start)
+
+
+def _fit_one(photo, env, options: FitOptions, background, init, scene, saturated) -> FitResult:
+    """The stages of one model's fit through ``options.view``."""
+    return _solve_one(photo, env, options, background, init, scene, saturated).report(env)
 
 
 def _checked_warm_start(st: Setup, opts: FitOptions, env, sol: LocalSolution, settings: SolveSettings,
@@ -414,6 +471,14 @@ def _checked_warm_start(st: Setup, opts: FitOptions, env, sol: LocalSolution, se
         return second
     notes.append(f"warm start doubtful ({why}); a global search did not do better")
     return sol
+
+
+#: ``auto``'s physical solve from the paper model's values: a start that is not the
+#: physical model's optimum (its t and r_s are replaced by Fresnel's equations), so it
+#: stops on rejections and restarts as a searched fit's final solve does, rather than by
+#: optimistix' rule alone, which on the validation photos spends most of its steps rejected
+#: near the optimum. The program is the one a doubtful warm start's second solve uses.
+SWITCH_SOLVE = replace(WARM_SOLVE, stall=True)
 
 
 def _judged_chi2(r: FitResult) -> float:
@@ -450,19 +515,26 @@ def _fit_either_model(photo, env, options: FitOptions, background, init, scene, 
 
     The paper model's two-beam film and grey ``t`` bias a real film's drainage ends and
     leave a misfit that hides a wrong map; a photo from a physical film (another renderer,
-    a camera) is explained by the physical model, within its floor."""
+    a camera) is explained by the physical model, within its floor.
+
+    Only the kept model's thickness map and final render are made: the models are
+    compared by their solves' standard errors (:class:`Solved`), which the map does not
+    change, so a model's map is never made to be discarded."""
     t0 = time.perf_counter()
     with stage("paper model"):
-        first = _fit_one(photo, env, replace(options, model="paper"), background, init, scene, saturated)
-    if _explained(first, options.judge):
-        first.message += "; model auto: the paper model explains the photo"
-        return first
+        first = _solve_one(photo, env, replace(options, model="paper"), background, init, scene, saturated)
+    paper = first.report(env) if _explained(first, options.judge) else None
+    if paper is not None and _explained(paper, options.judge):  # its map, when one is made, is sound
+        paper.message += "; model auto: the paper model explains the photo"
+        return paper
     start = {k: v for k, v in first.params.items() if np.isfinite(v)} if first.converged else init
     c1 = _judged_chi2(first)
     with stage(f"physical model (the paper model's reduced chi^2 {_judged_text(first)} with the floor, capped)"):
-        second = _fit_one(photo, env, replace(options, model="physical"), background, start, scene, saturated)
+        second = _solve_one(photo, env, replace(options, model="physical"), background, start, scene, saturated,
+                            settings=SWITCH_SOLVE if start else None)
     c2 = _judged_chi2(second)
-    best = second if (not second.converged, c2) < (not first.converged, c1) else first
+    keep_second = (not second.converged, c2) < (not first.converged, c1)
+    best = second.report(env) if keep_second else (paper or first.report(env))
     best.message += (f"; model auto: paper reduced chi^2 {_judged_text(first)}, physical {_judged_text(second)} "
                      f"(with the floor, each pixel capped at an outlier's share): kept the {best.model} model")
     best.time_s = time.perf_counter() - t0

@@ -34,7 +34,7 @@ _EXPORTS = {
     "spectral_basis": "optics.spectral", "interference_colours": "optics.chart",
     # fitting
     "FitOptions": "inverse.fit", "FitResult": "inverse.fit", "fit_photo": "inverse.fit",
-    "NoiseSettings": "inverse.fit", "MapSettings": "inverse.fit", "JudgeSettings": "inverse.fit",
+    "NoiseSettings": "inverse.fit", "MapSettings": "inverse.fit", "JudgeSettings": "inverse.fit", "ImageSizes": "inverse.fit",
     "SolverSettings": "inverse.fit",
     "fit_sequence": "inverse.sequence", "fit_spectrum": "inverse.spectrum",
     "fit_spectrum_series": "inverse.spectrum_series", "read_spectrum": "io.spectra",

@@ -227,7 +227,8 @@ def run_demo(out_dir="bubblefit-demo", size: int = 96, seed: int = 0, progress: 
     from .io.atomic import write_json
     from .errors import InputError
     from .capture.view import ORTHOGRAPHIC
-    from .inverse.fit import FitOptions, NoiseSettings, SolverSettings, fit_photo
+    from .inverse import ParameterSetting
+    from .inverse.fit import FitOptions, ImageSizes, NoiseSettings, SolverSettings, fit_photo
     from .model.scene import Scene
 
     if size < 32:
@@ -256,10 +257,11 @@ def run_demo(out_dir="bubblefit-demo", size: int = 96, seed: int = 0, progress: 
     # so; fits of photographs default to the film's complementary transmission tint.
     # The drainage profile's top, bottom and exponent are strongly correlated: LM needs more
     # than the default 80 steps to meet its tolerances here.
-    settings = dict(effects=(("spectral", "uniform"), ("transmission_tint", False)), fit_size=FIT_SIZE,
-                    search_size=FIT_SIZE, solver=SolverSettings(max_steps=400))
+    settings = dict(effects=(("spectral", "uniform"), ("transmission_tint", False)),
+                    sizes=ImageSizes(fit=FIT_SIZE, search=FIT_SIZE), solver=SolverSettings(max_steps=400))
     settings.update(fit_options or {})
-    opts = FitOptions(thickness="drainage", model="paper", disc=disc, t_init=cal.t, view=ORTHOGRAPHIC,
+    opts = FitOptions(thickness="drainage", model="paper", disc=disc, view=ORTHOGRAPHIC,
+                      parameters=(ParameterSetting("t", cal.t, measured=True),),
                       noise=NoiseSettings(read=NOISE_READ, shot=NOISE_SHOT), **settings)  # rendered with parallel rays
     scene = Scene.from_dict({"lighting": {"rotation_deg": truth.rotation_deg}})
     fit = fit_photo(syn["photo"], syn["env"], options=opts, background=syn["background"], scene=scene)

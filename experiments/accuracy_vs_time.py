@@ -309,7 +309,8 @@ def sweep_precision(rows, q):
 
 def sweep_fit(rows, q, env):
     try:
-        from bubblefit.inverse.fit import FitOptions, SolverSettings, fit_photo
+        from bubblefit.inverse.fit import FitOptions, ImageSizes, SolverSettings, fit_photo
+        from bubblefit.inverse import starts
         from bubblefit.capture.view import ORTHOGRAPHIC
     except ImportError as exc:  # the fit module is optional for this script
         F.log(f"fit sweep skipped: {exc}")
@@ -332,7 +333,7 @@ def sweep_fit(rows, q, env):
     for knob, values in (("fit_max_steps", q.fit_steps), ("fit_rtol", q.fit_rtols)):
         for v in values:
             solver = SolverSettings(max_steps=v) if knob == "fit_max_steps" else SolverSettings(rtol=v, atol=v * 0.1)
-            opts = FitOptions(disc=disc, t_init=t_true, fit_size=size, search_size=min(48, size), model="paper", view=ORTHOGRAPHIC,
+            opts = FitOptions(disc=disc, parameters=starts(t=t_true), sizes=ImageSizes(fit=size, search=min(48, size)), model="paper", view=ORTHOGRAPHIC,
                               solver=solver)
             t0 = time.perf_counter()
             res = fit_photo(photo, env, options=opts, scene=known)

@@ -99,6 +99,7 @@ def main():
 
     from bubblefit.lighting.envmap import EnvMap, downsample
     from bubblefit.inverse.fit import FitOptions, fit_photo
+    from bubblefit.inverse import starts
     from bubblefit.capture.view import ORTHOGRAPHIC
     from bubblefit.io.images import read_image, srgb_decode, srgb_encode
     from bubblefit.model.scene import Scene, render_scene, shipped_envmap
@@ -151,7 +152,7 @@ def main():
         return profile_solver(photo, env, q(bg), truth, Path(args.out), args.models.split(","))
     rows = []
     for kind in ("constant",) + (() if args.no_map else ("map",)):
-        opts = FitOptions(thickness=kind, disc=disc, t_init=0.965, roughness_init=0.04, effects=effects,
+        opts = FitOptions(thickness=kind, disc=disc, parameters=starts(t=0.965, roughness=0.04), effects=effects,
                               model="paper", view=ORTHOGRAPHIC)
         for rep in range(repeats + 1):
             t0 = time.perf_counter()

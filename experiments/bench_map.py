@@ -29,6 +29,19 @@ default ``--model physical``; scored against the truth), a first process on the
 compilation cache as found and ``--repeats`` more, each followed by Mitsuba 3 (256x256,
 64 spp, ``--mitsuba-python``, default ``.venv-render/bin/python``) and ``python -c "import
 numpy"``. Writes ``whole_process_maps.json``.
+
+``--staged CASE[:THICKNESS] ...`` profiles ``bubblefit fit`` (the default ``auto`` model, or
+``--fit-args``) and ``bubblefit render`` (256x256, physical, defaults, over the sunset map
+clamped as the validation photos use it) as whole processes with a warm compilation cache
+(``--repeats`` runs after a first that may compile): the stage lines the command prints
+with ``BUBBLEFIT_VERBOSE=1`` (disc and effects, global search, local fit, standard errors
+with the map and the final render, per model of ``auto``), the process's wall and CPU
+(user + sys) seconds, and, in turns with each, Mitsuba 3 (256x256, 64 spp) and ``python -c
+"import numpy"`` with their own wall and CPU seconds and the 1-minute load average.
+Writes ``whole_process_stages.json``.
+
+    PYTHONPATH=. python experiments/bench_map.py --staged ref_const380_sunset_ortho:constant \
+        ref_drain_exp12_sunset_ortho_offc:map --mitsuba-python .venv/bin/python --repeats 2
 """
 
 from __future__ import annotations
@@ -273,13 +286,150 @@ def whole_process(cases: list[str], fit_args: list[str], out: Path, repeats: int
     print(f"wrote {path}")
 
 
+def _timed_process(cmd: list[str], env: dict | None = None, cwd: str | None = None) -> dict:
+    """Wall and CPU (user + sys, the children's rusage) seconds of one process, its stderr
+    and the 1-minute load average when it started."""
+    import resource
+
+    load = os.getloadavg()[0]
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    p = subprocess.run(cmd, capture_output=True, text=True, env=env, stdin=subprocess.DEVNULL, cwd=cwd)
+    wall = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime
+    return {"wall_s": round(wall, 3), "cpu_s": round(cpu, 3), "load1": round(load, 2), "rc": p.returncode,
+            "stderr": p.stderr}
+
+
+#: A ``bubblefit`` process whose stages (bubblefit.progress.stage) also record their CPU
+#: seconds (``time.process_time``: every thread of the process, XLA's included) and the
+#: process's CPU before its first stage (interpreter start, imports, argument parsing); the
+#: records go to stderr as one ``STAGES_JSON`` line.
+STAGE_CLOCK = r"""
+import contextlib, json, sys, time
+import bubblefit.progress as progress
+inner, rec = progress.stage, []
+
+@contextlib.contextmanager
+def stage(name, **k):
+    depth, t0, c0 = progress._DEPTH, time.perf_counter(), time.process_time()
+    rec.append(None)
+    i = len(rec) - 1
+    try:
+        with inner(name, **k):
+            yield
+    finally:
+        rec[i] = (depth, name, round(time.perf_counter() - t0, 3), round(time.process_time() - c0, 3))
+
+progress.stage = stage
+from bubblefit.cli import main
+rc = 1
+try:
+    rc = main(sys.argv[1:])
+finally:
+    print("STAGES_JSON " + json.dumps({"stages": [r for r in rec if r], "cpu_s": time.process_time()}), file=sys.stderr)
+sys.exit(rc)
+"""
+
+
+def _stage_lines(stderr: str) -> list:
+    """``[(depth, name, wall seconds, CPU seconds)]`` of a :data:`STAGE_CLOCK` process."""
+    for line in stderr.splitlines():
+        if line.startswith("STAGES_JSON "):
+            return json.loads(line[len("STAGES_JSON "):])["stages"]
+    return []
+
+
+def staged(cases: list[str], fit_args: list[str], out: Path, repeats: int, mitsuba_python: str,
+           code: list[str] | None = None, render: bool = True):
+    """Whole-process stage profile of ``bubblefit fit`` and ``bubblefit render`` beside
+    Mitsuba 3 and ``python -c "import numpy"`` (module docstring, ``--staged``); with
+    several ``code`` folders (checkouts of the package), each run of a job takes its turn
+    in each of them."""
+    import tempfile
+
+    sys.path.insert(0, str(HERE))
+    from bench_effects import MAPS, MITSUBA_SCRIPT
+
+    code = code or [str(HERE.parent)]
+    envs = [dict(os.environ, BUBBLEFIT_VERBOSE="1", PYTHONPATH=c) for c in code]
+    for env in envs:
+        env.pop("BUBBLEFIT_QUIET", None)
+        # an installed package's modules are byte-compiled: without this every process
+        # would compile the package's sources again (1.3 s of a loaded render's 23 s)
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        mitsuba = [mitsuba_python, "-c", MITSUBA_SCRIPT, "256", str(MAPS / "sunrise.exr"), str(tmp / "m.exr")]
+        numpy_cmd = [sys.executable, "-c", "import numpy"]
+        scene = tmp / "bubble.toml"
+        scene.write_text(f'[camera]\nwidth = 256\nheight = 256\n[lighting]\nenvmap = "{DATA / "envmaps" / "sunset.exr"}"\n'
+                         '[effects]\nmodel = "physical"\n')
+        jobs = []
+        for spec in cases:
+            case, _, thick = spec.partition(":")
+            d = DATA / case
+            truth = json.loads((d / "truth.json").read_text())
+            thick = thick or truth.get("fits", ["constant"])[0]
+            args = ["fit", str(d / "photo.png"), "--envmap", str(DATA / truth["envmap"]), "--background",
+                    str(d / "background.png"), "--thickness", thick, "--json", str(tmp / "fit.json"),
+                    "-o", str(tmp / "fit")]
+            fa = list(truth.get("fit_args", []))
+            args += [str(d / a) if a.endswith((".toml", ".json")) else a for a in fa]
+            if truth.get("camera", {}).get("type") == "orthographic" and not {"--scene", "--fov"} & set(fa):
+                args += ["--fov", "0"]  # as validate.py states an orthographic photo's view
+            if truth.get("illuminant") in ("D65", "E", "A"):
+                args += ["--illuminant", truth["illuminant"]]
+            jobs.append((f"fit {case}:{thick}", [sys.executable, "-c", STAGE_CLOCK, *args, *fit_args]))
+        if render:
+            jobs.append(("render 256x256 physical sunset", [sys.executable, "-c", STAGE_CLOCK, "render", str(scene),
+                                                             "-o", str(tmp / "b.exr")]))
+        for name, cmd in jobs:
+            for rep, (c, env) in ((rep, ce) for rep in range(repeats + 1) for ce in zip(code, envs)):
+                (tmp / "fit.json").unlink(missing_ok=True)
+                r = _timed_process(cmd, env, cwd=str(tmp))  # not the checkout: PYTHONPATH picks the package
+                row = {"job": name, "code": c, "run": "first" if rep == 0 else "warm", **{k: r[k] for k in
+                       ("wall_s", "cpu_s", "load1", "rc")}, "stages": _stage_lines(r["stderr"])}
+                if name.startswith("fit") and (tmp / "fit.json").exists():
+                    res = json.loads((tmp / "fit.json").read_text())
+                    row["result"] = {k: res.get(k) for k in ("ok", "message")}
+                    row["result"]["params"] = {k: v for k, v in res.get("params", {}).items()
+                                               if k in ("thickness_nm", "top_nm", "bottom_nm", "exponent")}
+                if r["rc"] != 0:
+                    row["error"] = r["stderr"].strip().splitlines()[-1:]
+                if Path(mitsuba_python).exists():
+                    m = _timed_process(mitsuba)
+                    row["mitsuba"] = {k: m[k] for k in ("wall_s", "cpu_s", "load1")}
+                    row["ratio_wall"] = round(row["wall_s"] / m["wall_s"], 2)
+                    row["ratio_cpu"] = round(row["cpu_s"] / max(m["cpu_s"], 1e-3), 2)
+                n = _timed_process(numpy_cmd)
+                row["numpy"] = {k: n[k] for k in ("wall_s", "cpu_s")}
+                row["ratio_numpy_cpu"] = round(row["cpu_s"] / max(n["cpu_s"], 1e-3), 1)
+                print(json.dumps({k: v for k, v in row.items() if k != "stages"}), flush=True)
+                for depth, stage_name, sec, cpu in row["stages"]:
+                    print(f"    {'  ' * depth}{stage_name}: {sec:.2f} s wall, {cpu:.2f} s CPU", flush=True)
+                rows.append(row)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "whole_process_stages.json"
+    old = json.loads(path.read_text()) if path.exists() else {}
+    old.setdefault("runs", []).append({"fit_args": fit_args, "rows": rows})
+    path.write_text(json.dumps(old, indent=1))
+    print(f"wrote {path}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--profile", nargs="+", metavar="CASE[:THICKNESS]")
     ap.add_argument("--map-only", nargs="+", metavar="CASE")
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--whole", nargs="+", metavar="CASE[:THICKNESS]", help="bubblefit fit as a process (see above)")
-    ap.add_argument("--fit-args", default="--model physical", help="--whole: extra bubblefit fit arguments")
+    ap.add_argument("--staged", nargs="+", metavar="CASE[:THICKNESS]", help="stages of whole processes (see above)")
+    ap.add_argument("--code", default=None, help="--staged: comma-separated package folders taking turns")
+    ap.add_argument("--no-render", action="store_true", help="--staged: fits only")
+    ap.add_argument("--fit-args", default=None,
+                    help="--whole, --staged: extra bubblefit fit arguments (--whole: default --model physical)")
     ap.add_argument("--mitsuba-python", default=str(HERE.parent / ".venv-render" / "bin" / "python"))
     ap.add_argument("--start", choices=("fit", "truth"), default="fit",
                     help="--map-only: start the map from the case's drainage fit or its true profile")
@@ -290,15 +440,18 @@ def main(argv=None):
     from bubblefit.io.jaxcache import jax_setup
 
     jax_setup()  # the persistent compilation cache of the command line (BUBBLEFIT_CACHE_DIR)
-    if a.whole:
-        whole_process(a.whole, a.fit_args.split(), Path(a.out), a.repeats, a.mitsuba_python)
+    if a.staged:
+        staged(a.staged, (a.fit_args or "").split(), Path(a.out), a.repeats, a.mitsuba_python,
+               a.code.split(",") if a.code else None, not a.no_render)
+    elif a.whole:
+        whole_process(a.whole, (a.fit_args if a.fit_args is not None else "--model physical").split(), Path(a.out), a.repeats, a.mitsuba_python)
     elif a.map_only:
         map_only(a.map_only, "physical" if a.model == "auto" else a.model, Path(a.out), a.repeats,
                  a.ways.split(","), a.start)
     elif a.profile:
         profile(a.profile, a.model, Path(a.out))
     else:
-        ap.error("give --profile or --map-only")
+        ap.error("give --profile, --map-only, --whole or --staged")
 
 
 if __name__ == "__main__":

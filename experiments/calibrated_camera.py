@@ -47,6 +47,7 @@ def main():
     from bubblefit.capture.camera_calibration import chart_reflectances, fit_response
     from bubblefit.capture.view import ORTHOGRAPHIC
     from bubblefit.inverse.fit import FitOptions, fit_photo
+    from bubblefit.inverse import starts
     from bubblefit.io.images import read_image
     from bubblefit.lighting.envmap import EnvMap, downsample
 
@@ -79,7 +80,7 @@ def main():
             photo, bg = film_photo(env, t, 31 + k, CAMERA, "E")
             t0 = time.perf_counter()
             r = fit_photo(photo, env, background=bg, options=FitOptions(
-                disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", camera_response=path, illuminant="E",
+                disc=DISC, parameters=starts(t=0.968, roughness=0.04), model="paper", camera_response=path, illuminant="E",
                 view=ORTHOGRAPHIC))
             row = dict(source=source, truth=t, thickness=r.params["thickness_nm"],
                        stderr=r.stderr.get("thickness_nm"), ok=r.ok, chi2=r.reduced_chi2,

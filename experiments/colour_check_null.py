@@ -113,11 +113,12 @@ def _fit_case(out, rec, name, photo, bg, env, resp, bits, **kw):
     from helpers import FILM_PHOTO_DISC as DISC
 
     from bubblefit.capture.view import ORTHOGRAPHIC
+    from bubblefit.inverse import starts
     from bubblefit.inverse.fit import FitOptions, NoiseSettings, fit_photo
 
     t0 = time.perf_counter()
     r = fit_photo(photo, env, background=bg, options=FitOptions(
-        disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", view=ORTHOGRAPHIC, camera_response=resp,
+        disc=DISC, parameters=starts(t=0.968, roughness=0.04), model="paper", view=ORTHOGRAPHIC, camera_response=resp,
         illuminant="D65" if resp == "srgb" else "E", noise=NoiseSettings(bits=8 if bits == 8 else None), **kw))
     keys = ("top_nm", "bottom_nm", "exponent") if kw.get("thickness") == "drainage" else ("thickness_nm",)
     fitted = [r.params[k] for k in keys]
@@ -150,6 +151,7 @@ def run_calibrated(out, rec, thicknesses, sources=("film", "chart")):
     from bubblefit.capture.camera_calibration import chart_reflectances, fit_response
     from bubblefit.capture.view import ORTHOGRAPHIC
     from bubblefit.inverse.fit import FitOptions, fit_photo
+    from bubblefit.inverse import starts
 
     env, _ = _env()
     rng = np.random.default_rng(5)
@@ -169,7 +171,7 @@ def run_calibrated(out, rec, thicknesses, sources=("film", "chart")):
             photo, bg = film_photo(env, t, 31 + k, CAMERA, "E")
             t0 = time.perf_counter()
             r = fit_photo(photo, env, background=bg, options=FitOptions(
-                disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", camera_response=path, illuminant="E",
+                disc=DISC, parameters=starts(t=0.968, roughness=0.04), model="paper", camera_response=path, illuminant="E",
                 view=ORTHOGRAPHIC))
             good = abs(r.params["thickness_nm"] - t) < 25.0  # the right order: a usable calibration
             rec.save(out, name, good, dict(truth=t, thickness=r.params["thickness_nm"], ok=r.ok, chi2=r.reduced_chi2,

@@ -43,6 +43,7 @@ def profile_error(params: dict, truth=PROFILE) -> float:
 def main():
     from bubblefit.capture.view import ORTHOGRAPHIC
     from bubblefit.inverse.fit import FitOptions, NoiseSettings, fit_photo
+    from bubblefit.inverse import starts
     from bubblefit.io.images import read_image
     from bubblefit.lighting.envmap import EnvMap, downsample
 
@@ -61,7 +62,7 @@ def main():
         truth = float(const[0]) if const else PROFILE
         photo, bg = film_photo(env, truth, 41 + k, cam, ill, quantised=int(bits))
         t0 = time.perf_counter()
-        opts = FitOptions(disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", view=ORTHOGRAPHIC,
+        opts = FitOptions(disc=DISC, parameters=starts(t=0.968, roughness=0.04), model="paper", view=ORTHOGRAPHIC,
                           thickness="constant" if const else "drainage", calibrate_camera=True,
                           noise=NoiseSettings(bits=8 if bits == "8" else None))
         r = fit_photo(photo, env, options=opts, background=bg)

@@ -26,6 +26,7 @@ from helpers import FILM_PHOTO_DISC as DISC, film_photo  # noqa: E402  (the came
 def main():
     from bubblefit.capture.view import ORTHOGRAPHIC
     from bubblefit.inverse.fit import FitOptions, fit_photo
+    from bubblefit.inverse import starts
     from bubblefit.io.images import read_image
     from bubblefit.lighting.envmap import EnvMap, downsample
 
@@ -46,7 +47,7 @@ def main():
         for resp in a.responses.split("|"):
             ill = "D65" if resp == "srgb" else "E"
             t0 = time.perf_counter()
-            r = fit_photo(photo, env, options=FitOptions(disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", view=ORTHOGRAPHIC,
+            r = fit_photo(photo, env, options=FitOptions(disc=DISC, parameters=starts(t=0.968, roughness=0.04), model="paper", view=ORTHOGRAPHIC,
                                                          camera_response=resp, illuminant=ill), background=bg)
             j = r.to_json()
             row = dict(truth=d, response=resp, thickness=r.params["thickness_nm"], ok=r.ok,

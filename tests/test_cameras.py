@@ -497,12 +497,13 @@ def test_a_wrong_camera_is_not_ok(small_courtyard, thickness, told, right):
     measured (experiments/colour_check_null.py: pale colours, a hue error under 1 %)."""
     from bubblefit.capture.view import ORTHOGRAPHIC
     from bubblefit.inverse.fit import FitOptions, fit_photo
+    from bubblefit.inverse import starts
     from bubblefit.lighting.envmap import EnvMap
 
     env = EnvMap.from_array(small_courtyard)
     photo, bg = film_photo(env, thickness, int(thickness), NIKON, "E")
     r = fit_photo(photo, env, background=bg, options=FitOptions(
-        disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", camera_response=told, view=ORTHOGRAPHIC,
+        disc=DISC, parameters=starts(t=0.968, roughness=0.04), model="paper", camera_response=told, view=ORTHOGRAPHIC,
         illuminant="D65" if told == "srgb" else "E"))
     check = r.to_json()["colour_check"]
     assert check is not None and check["consistent"] is right, check
@@ -524,14 +525,14 @@ def test_a_wrong_camera_on_a_draining_film(small_courtyard, mode):
     with ``JudgeSettings(colour_check="warn")`` the same warning is there, marked as a
     warning only, and the record says it did not decide."""
     from bubblefit.capture.view import ORTHOGRAPHIC
-    from bubblefit.inverse import JudgeSettings
+    from bubblefit.inverse import JudgeSettings, starts
     from bubblefit.inverse.fit import FitOptions, fit_photo
     from bubblefit.lighting.envmap import EnvMap
 
     env = EnvMap.from_array(small_courtyard)
     photo, bg = film_photo(env, (200.0, 1500.0, 1.0), 51, NIKON, "E")
     r = fit_photo(photo, env, background=bg, options=FitOptions(
-        disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", camera_response="srgb", view=ORTHOGRAPHIC,
+        disc=DISC, parameters=starts(t=0.968, roughness=0.04), model="paper", camera_response="srgb", view=ORTHOGRAPHIC,
         illuminant="D65", thickness="drainage", judge=JudgeSettings(colour_check=mode)))
     check = r.to_json()["colour_check"]
     assert check is not None and not check["consistent"] and check["decides"] is (mode == "decide"), check

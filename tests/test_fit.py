@@ -56,9 +56,10 @@ def env(small_courtyard):
 def _opts(**kw):
     from bubblefit.capture.view import ORTHOGRAPHIC
     from bubblefit.inverse.fit import FitOptions
+    from bubblefit.inverse import starts
 
     # 48 uniform spectral samples resolve films up to ~1500 nm (Nyquist) and keep the tests fast
-    base = dict(disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", view=ORTHOGRAPHIC,
+    base = dict(disc=DISC, parameters=starts(t=0.968, roughness=0.04), model="paper", view=ORTHOGRAPHIC,
                 effects=(("spectral", {"method": "uniform", "samples": 48}),))
     base.update(kw)
     return FitOptions(**base)
@@ -352,19 +353,20 @@ def test_calibration_disc_is_checked_against_the_photo():
 
 
 def test_large_photo_is_cropped_to_the_bubble():
-    """A photo larger than ``analysis_size`` is analysed as a crop around the bubble,
+    """A photo larger than ``ImageSizes.analysis`` is analysed as a crop around the bubble,
     block-averaged to at most that size, with the disc mapped back to the photo's pixels."""
-    from bubblefit.inverse import analysis_frame
+    from bubblefit.inverse import ImageSizes, analysis_frame
 
     H, W = 1200, 1800
     photo = np.full((H, W, 3), 0.3)
     sat = np.zeros((H, W), bool)
     disc = (1100.5, 500.25, 300.0)
-    fr = analysis_frame(photo, photo, sat, disc, _opts(analysis_size=256))
+    fr = analysis_frame(photo, photo, sat, disc, _opts(sizes=ImageSizes(analysis=256)))
     assert max(fr.photo.shape[:2]) <= 256 and fr.k == 3
     assert fr.sigma.shape == fr.photo.shape and fr.background.shape == fr.photo.shape
     assert fr.to_photo(fr.disc) == pytest.approx(disc)
-    small = analysis_frame(photo[:200, :200], None, sat[:200, :200], (100, 100, 50), _opts(analysis_size=256))
+    small = analysis_frame(photo[:200, :200], None, sat[:200, :200], (100, 100, 50),
+                           _opts(sizes=ImageSizes(analysis=256)))
     assert small.whole and small.photo.shape == (200, 200, 3)
 
 

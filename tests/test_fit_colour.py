@@ -59,6 +59,7 @@ def test_fit_uses_the_scenes_camera_light_and_dispersion(env):
 
     from bubblefit.capture.view import ORTHOGRAPHIC
     from bubblefit.inverse.fit import FitOptions, fit_photo
+    from bubblefit.inverse import starts
     from bubblefit.model.scene import render_scene
     from bubblefit.optics.dispersion import Cauchy, refractive_index
 
@@ -68,7 +69,7 @@ def test_fit_uses_the_scenes_camera_light_and_dispersion(env):
     photo = _quantise(render_scene(_camera_scene(t=0.972, roughness=0.08, f=0.3, thickness_nm=truth), bg, env=env),
                       rng)
     bgq = _quantise(bg, rng)
-    base = dict(disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", view=ORTHOGRAPHIC)  # the fit's default spectral quadrature
+    base = dict(disc=DISC, parameters=starts(t=0.968, roughness=0.04), model="paper", view=ORTHOGRAPHIC)  # the fit's default spectral quadrature
     matched = fit_photo(photo, env, options=FitOptions(**base), background=bgq, scene=_camera_scene())
     n_d = float(refractive_index(Cauchy(tuple(SOAP)), 589.3))
     plain = fit_photo(photo, env, options=FitOptions(**base, n_film=n_d), background=bgq)
@@ -85,6 +86,7 @@ def test_fit_uses_the_scenes_camera_light_and_dispersion(env):
 
 def _setup(env, scene=None, **kw):
     from bubblefit.inverse.fit import FitOptions
+    from bubblefit.inverse import starts
     from bubblefit.inverse import setup
 
     rng = np.random.default_rng(0)
@@ -94,7 +96,7 @@ def _setup(env, scene=None, **kw):
     yy, xx = np.mgrid[0:N, 0:N]
     on = (xx - DISC[0]) ** 2 + (yy - DISC[1]) ** 2 <= DISC[2] ** 2
     photo = np.where(on[..., None], 0.9 * background + rng.uniform(0.02, 0.08, (N, N, 3)), background)
-    opts = FitOptions(**{"model": "paper", **kw}, disc=DISC, t_init=0.968, roughness_init=0.04)
+    opts = FitOptions(**{"model": "paper", **kw}, disc=DISC, parameters=starts(t=0.968, roughness=0.04))
     return setup(photo, env, opts, background, None, scene, None), opts
 
 

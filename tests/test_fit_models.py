@@ -62,6 +62,29 @@ def test_auto_keeps_the_model_that_explains_the_photo(physical_photo):
     assert abs(auto.params["thickness_nm"] - 480.0) < 10.0
 
 
+
+@pytest.mark.slow
+def test_auto_makes_the_thickness_map_of_the_kept_model_only(physical_photo, monkeypatch):
+    """``auto`` compares its models by their solves' standard errors, which a thickness map
+    does not change, so the map (the costliest stage after the solves) is made once, for
+    the model it keeps; the kept map recovers the film as the single fit does."""
+    import bubblefit.inverse.fit as fit_module
+
+    made = []
+    inner = fit_module.fit_map
+
+    def counted(*args, **kwargs):
+        made.append(1)
+        return inner(*args, **kwargs)
+
+    monkeypatch.setattr(fit_module, "fit_map", counted)
+    env, photo, bg = physical_photo
+    res = fit_module.fit_photo(photo, env, options=_opts(model="auto", thickness="map"), background=bg)
+    assert "model auto" in res.message and res.thickness_map is not None
+    assert len(made) == 1, f"{len(made)} maps made for one kept model ({res.message})"
+    # the constant 480 nm film as a map: its median within the constant fit's 10 nm above
+    assert abs(float(np.nanmedian(res.thickness_map)) - 480.0) < 10.0, res.message
+
 # ---------------------------------------------------------------------------------------
 # The disc found is refined with the other parameters
 # ---------------------------------------------------------------------------------------
@@ -319,8 +342,8 @@ def test_the_parameter_table_agrees_with_the_standard_errors(model, free, held, 
 def test_parameter_settings_start_and_hold():
     """``FitOptions.parameters`` (``--set NAME=VALUE``, ``--hold NAME``) sets starting values
     under the parameters' own names or their aliases, holds them on request, leaves a
-    value the scene file sets alone, and refuses unknown names and values outside a
-    parameter's bounds in one line."""
+    value the scene file sets alone unless the setting is a measurement (a calibration's
+    t), and refuses unknown names and values outside a parameter's bounds in one line."""
     from bubblefit.errors import InputError
     from bubblefit.inverse import ParameterSetting, parse_setting
     from bubblefit.inverse import defaults
@@ -329,17 +352,30 @@ def test_parameter_settings_start_and_hold():
 
     opts = FitOptions(parameters=(parse_setting("thickness=700"), ParameterSetting("roughness", 0.05, hold=True),
                                   parse_setting("f = 0.5"), parse_setting("t=0.95")))
-    vals, held = defaults(None, None, opts, opts.t_init)
+    vals, held = defaults(None, None, opts)
     assert vals["thickness_nm"] == 700.0 and vals["roughness"] == 0.05 and vals["t"] == 0.95
     assert held == {"roughness": "held by request"}
     # eq. (14): r_s = (1 - t) / (1 + f), r_d = (1 - t) - r_s from the starting t and f
     assert vals["r_s"] == pytest.approx(0.05 / 1.5) and vals["r_d"] == pytest.approx(0.05 - 0.05 / 1.5)
-    scene = Scene.from_dict({"camera": {"width": 16, "height": 16}, "bubble": {"roughness": 0.2},
+    scene = Scene.from_dict({"camera": {"width": 16, "height": 16}, "bubble": {"roughness": 0.2, "t": 0.97},
                              "lighting": {"envmap": "unused.exr"}})
-    vals, held = defaults(scene, None, FitOptions(parameters=(parse_setting("roughness=0.05"),)), None)
+    vals, held = defaults(scene, None, FitOptions(parameters=(parse_setting("roughness=0.05"), parse_setting("t=0.9"))))
     assert vals["roughness"] == 0.2 and held["roughness"] == "set by the scene file"
+    assert vals["t"] == 0.97 and held["t"] == "set by the scene file"
+    # a measurement of this bubble (a calibration's t, --t) replaces the scene's value, still held
+    vals, held = defaults(scene, None, FitOptions(parameters=(ParameterSetting("t", 0.9, measured=True),)))
+    assert vals["t"] == 0.9 and held["t"] == "set by the scene file"
     for bad in ("colour=1", "t=1.5", "roughness=-1", "t", "t=x", "=3"):
         with pytest.raises(InputError):
             parse_setting(bad)
     with pytest.raises(InputError):
         FitOptions(parameters=(ParameterSetting("exposure", 0.0),))
+    with pytest.raises(InputError):  # a measurement without its value
+        FitOptions(parameters=(ParameterSetting("t", measured=True),))
+    # --hold NAME: a setting without a value; any parameter, or the disc's refinement
+    vals, held = defaults(None, None, FitOptions(parameters=(ParameterSetting("f", hold=True),
+                                                             ParameterSetting("disc", hold=True))))
+    assert held == {"split": "held by request", "disc_x": "held by request", "disc_y": "held by request",
+                    "disc_r": "held by request"}
+    with pytest.raises(InputError, match="cannot hold 'colour'"):
+        FitOptions(parameters=(ParameterSetting("colour", hold=True),))

@@ -51,7 +51,7 @@ def test_analysis_frame_memory_is_bounded_by_the_frame():
     finally:
         tracemalloc.stop()
     outputs = frame.photo.nbytes + frame.background.nbytes + frame.sigma.nbytes + frame.bg_sigma.nbytes
-    assert max(frame.photo.shape[:2]) <= opts.analysis_size
+    assert max(frame.photo.shape[:2]) <= opts.sizes.analysis
     crop64 = (2 * 1.15 * disc[2]) ** 2 * 3 * 8  # the crop alone, in float64
     assert peak < 2.5 * outputs and peak < crop64, (peak / 2**20, outputs / 2**20)
     # the band-by-band result is the block mean of the crop, and its noise per block

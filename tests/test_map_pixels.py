@@ -22,9 +22,10 @@ DISC = (N / 2, N / 2, 0.42 * N)
 
 def _opts(**kw):
     from bubblefit.inverse.fit import FitOptions
+    from bubblefit.inverse import starts
 
     # 48 uniform spectral samples resolve films up to ~1500 nm (Nyquist)
-    return FitOptions(**dict(dict(disc=DISC, roughness_init=0.04,
+    return FitOptions(**dict(dict(disc=DISC, parameters=starts(roughness=0.04),
                                   effects=(("spectral", {"method": "uniform", "samples": 48}),)), **kw))
 
 

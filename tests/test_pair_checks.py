@@ -103,7 +103,7 @@ def test_right_pairs_are_never_refused_over_noise_draws(pair):
 
 def test_a_sequence_checks_its_first_frame_before_any_fit(pair):
     """``fit-sequence`` resolves the disc on its first frame and checks the pair there
-    (:func:`~bubblefit.inverse._pair.check_disc_pair`), at the photo's own resolution."""
+    (:func:`~bubblefit.inverse._plan.check_disc_pair`), at the photo's own resolution."""
     from bubblefit.errors import InputError
     from bubblefit.inverse import FitOptions, NoiseSettings
     from bubblefit.inverse import check_disc_pair

@@ -123,13 +123,14 @@ def test_untold_camera_calibrated_in_the_fit(small_courtyard, bits):
     their covariance."""
     from bubblefit.capture.view import ORTHOGRAPHIC
     from bubblefit.inverse.fit import FitOptions, NoiseSettings, fit_photo
+    from bubblefit.inverse import starts
     from bubblefit.lighting.envmap import EnvMap
 
     env = EnvMap.from_array(small_courtyard)
     truth = (200.0, 1500.0, 1.0)
     photo, bg = film_photo(env, truth, 7, NIKON, "E", quantised=bits)
     r = fit_photo(photo, env, background=bg, options=FitOptions(
-        disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", view=ORTHOGRAPHIC, thickness="drainage",
+        disc=DISC, parameters=starts(t=0.968, roughness=0.04), model="paper", view=ORTHOGRAPHIC, thickness="drainage",
         calibrate_camera=True, noise=NoiseSettings(bits=8 if bits == 8 else None)))
     cal = r.to_json()["camera_calibration"]
     assert cal["stated_response_fit"]["ok"] is False

@@ -15,7 +15,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from bubblefit.inverse._spectrum_drain import candidate_stderr, drain_path, series_sides
+from bubblefit.inverse import candidate_stderr, drain_path, series_sides
 
 
 def _brute(d, c, s):
@@ -122,7 +122,7 @@ def test_other_reasons_keep_a_reading_out_of_the_path():
 def test_isotonic_blocks_pool_the_rises():
     """A thinning series with one rise (92 -> 100) pools those two readings at their
     weighted mean, chi2 about it as written out here; a steadily thinning one pools none."""
-    from bubblefit.inverse._spectrum_drain import isotonic_blocks
+    from bubblefit.inverse import isotonic_blocks
 
     d = np.array([130.0, 110.0, 92.0, 100.0, 80.0])
     s = np.array([2.0, 2.0, 2.0, 4.0, 2.0])

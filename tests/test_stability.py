@@ -405,9 +405,11 @@ def _fit_photo(env, bubble, seed=0):
 
 def _fit_options(**kw):
     from bubblefit.capture.view import ORTHOGRAPHIC
-    from bubblefit.inverse.fit import FitOptions, SolverSettings
+    from bubblefit.inverse.fit import FitOptions, ImageSizes, SolverSettings
+    from bubblefit.inverse import starts
 
-    base = dict(disc=FIT_DISC, t_init=0.968, roughness_init=0.04, solver=SolverSettings(max_steps=30), search_size=24,
+    base = dict(disc=FIT_DISC, parameters=starts(t=0.968, roughness=0.04), solver=SolverSettings(max_steps=30),
+                sizes=ImageSizes(search=24),
                 model="paper", view=ORTHOGRAPHIC,
                 effects=(("spectral", {"method": "uniform", "samples": 32}),))
     base.update(kw)
@@ -464,7 +466,7 @@ def test_fit_unidentifiable_roughness_in_uniform_light():
     assert res.converged, res.message
     assert abs(res.params["thickness_nm"] - 600.0) <= 5 * res.stderr["thickness_nm"] + 5.0, res.params
     assert "roughness" in {name for name, _ in res.held}, res.held
-    assert res.stderr.get("roughness") is None and res.params["roughness"] == pytest.approx(opts.roughness_init)
+    assert res.stderr.get("roughness") is None and res.params["roughness"] == pytest.approx(0.04)  # _fit_options' start
 
 
 @pytest.mark.slow

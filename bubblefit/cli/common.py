@@ -266,6 +266,15 @@ def colour_option(value: str | None, named, option: str) -> str | None:
     return os.path.abspath(value)
 
 
+def auto_exposure(img: np.ndarray) -> float:
+    """Exposure that maps the 99.5th percentile of a linear image to 0.9 (1 if it is dark):
+    the PNG previews of ``render``."""
+    import numpy as np
+
+    hi = float(np.percentile(img, 99.5)) if img.size else 0.0
+    return 0.9 / hi if hi > 0.9 else 1.0
+
+
 def write_fit_images(prefix: str, result, write_image, preview_path) -> dict:
     """A fit's images: ``PREFIX_render``, ``_residual``, ``_thickness``, ``_thickness_stderr`` (EXR + PNG; the
     residual's and the maps' PNGs are the figures of :mod:`bubblefit.report.figures`)."""

@@ -19,6 +19,8 @@ import math
 import numpy as np
 
 from ..errors import ComputationError, InputError
+from .fit_cap import run_cap
+from .fit_planar import run_planar
 
 NAME = "fit"
 
@@ -167,7 +169,7 @@ def fit_option_values(args) -> dict:
     """The :class:`~bubblefit.inverse.fit.FitOptions` values that ``fit`` and ``fit-sequence`` read
     the same way: starting t and disc (``--calibration``, ``--t``, ``--disc``), thickness
     kind and range, held parameters and the step limit. One-line errors for bad values."""
-    from ..inverse import SolverSettings, parse_setting
+    from ..inverse import ParameterSetting, SolverSettings, parse_setting
     from .common import parse_floats
 
     t_init, disc, cal_disc, cal_size = None, None, None, None
@@ -186,11 +188,11 @@ def fit_option_values(args) -> dict:
     lo, hi = parse_floats(args.thickness_range, 2, "--thickness-range")
     if not (math.isfinite(lo) and math.isfinite(hi)):
         raise InputError(f"--thickness-range must be two finite thicknesses in nm, got {args.thickness_range}")
+    measured = () if t_init is None else (ParameterSetting("t", t_init, measured=True),)  # replaces a scene's t
+    held = tuple(ParameterSetting(h.strip(), hold=True) for h in args.hold.split(",") if h.strip())
     kw = dict(thickness=args.thickness, disc=disc, fit_disc=True if getattr(args, "refine_disc", False) else None,
-              t_init=t_init, thickness_range=(lo, hi),
-              calibration_disc=cal_disc, calibration_size=cal_size,
-              hold=tuple(h.strip() for h in args.hold.split(",") if h.strip()),
-              parameters=tuple(parse_setting(s) for s in getattr(args, "set", None) or ()))
+              thickness_range=(lo, hi), calibration_disc=cal_disc, calibration_size=cal_size,
+              parameters=measured + tuple(parse_setting(s) for s in getattr(args, "set", None) or ()) + held)
     if args.max_steps is not None:
         if args.max_steps < 1:
             raise InputError("--max-steps must be at least 1")
@@ -272,6 +274,17 @@ def build_fit_options(args, scene, bits: int | None, view=None, photosite_share=
 
 
 def run(args) -> int:
+    """``fit``: the command of the fit the scene file asks for
+    (:func:`~bubblefit.model.planar_scene.scene_fit`; a floating bubble without one), from
+    :data:`COMMANDS`."""
+    from ..model.planar_scene import scene_fit
+
+    return COMMANDS[scene_fit(args.scene) if args.scene else "bubble"](args)
+
+
+def run_bubble(args) -> int:
+    """``fit`` of a floating bubble: read the photo, its background and map, fit
+    (:func:`~bubblefit.inverse.fit.fit_photo`), print, write the maps and the JSON."""
     from ..inverse.fit import fit_photo
     from ..io.atomic import output_set
     from ..io.camera_files import read_photo, reading_record
@@ -282,19 +295,6 @@ def run(args) -> int:
     from .photo_args import photo_reading
     from .view_options import check_view_args, view_from_args
 
-    if args.scene:
-        from ..model.planar_scene import is_planar_file
-
-        if is_planar_file(args.scene):
-            from .fit_planar import run_planar
-
-            return run_planar(args)
-        from ..model.cap_scene import is_cap_file
-
-        if is_cap_file(args.scene):
-            from .fit_cap import run_cap
-
-            return run_cap(args)
     if not args.envmap:
         raise InputError("fit: --envmap is required for a bubble (a flat film's scene says [film] shape = \"plane\")")
     reading = photo_reading(args)
@@ -352,3 +352,7 @@ def run(args) -> int:
     if args.strict and not result.ok:
         raise ComputationError("the fit is not ok: " + ("; ".join(result.warnings) or result.message))
     return 0
+
+
+#: ``fit``'s command for each fit a scene file may ask for (:func:`~bubblefit.model.planar_scene.scene_fit`).
+COMMANDS = {"bubble": run_bubble, "cap": run_cap, "plane": run_planar}

@@ -30,18 +30,12 @@ def register(sub):
     p.set_defaults(func=run)
 
 
-def auto_exposure(img: np.ndarray) -> float:
-    """Exposure that maps the 99.5th percentile of a linear image to 0.9 (1 if it is dark)."""
-    hi = float(np.percentile(img, 99.5)) if img.size else 0.0
-    return 0.9 / hi if hi > 0.9 else 1.0
-
-
 def run(args) -> int:
     from ..io.atomic import output_set
     from ..io.images import preview_path, write_image
     from ..model.scene import load_scene, render_scene
     from ..progress import stage
-    from .common import guard_args, scene_inputs, write_json
+    from .common import auto_exposure, guard_args, scene_inputs, write_json
 
     from ..optics import spectral
     from .common import colour_option

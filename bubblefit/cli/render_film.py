@@ -37,8 +37,7 @@ def run_film_render(args) -> int:
     from ..model.planar_scene import _num, _read_toml
     from ..model.scene import read_envmap
     from ..progress import stage
-    from .common import guard_args, write_json
-    from .render import auto_exposure
+    from .common import auto_exposure, guard_args, write_json
 
     for name in ("illuminant", "camera_response", "tolerance"):
         if getattr(args, name, None) is not None:

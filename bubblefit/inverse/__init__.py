@@ -35,7 +35,7 @@ import importlib
 _EXPORTS = {
     # entry points and their records
     "FitOptions": "_options", "FitResult": "_options", "FitStatus": "_options", "ForwardModel": "_options",
-    "NoiseSettings": "_options", "MapSettings": "_options", "JudgeSettings": "_options",
+    "NoiseSettings": "_options", "MapSettings": "_options", "JudgeSettings": "_options", "ImageSizes": "_options",
     "SolverSettings": "_options",
     "ThicknessModel": "_options", "fit_batch": "fit", "fit_photo": "fit", "SequenceOptions": "sequence",
     "SequenceResult": "sequence", "fit_sequence": "sequence", "SpectrumFit": "spectrum",
@@ -43,10 +43,11 @@ _EXPORTS = {
     # observe: noise, clipped pixels, the frame, the levels, which disc
     "Disc": "_observation", "find_bubble": "_observation", "detect_disc": "_observation",
     "noise_sigma": "_observation", "analysis_frame": "_observation", "Level": "_observation",
-    "resolve_disc": "_observation",
+    "resolve_disc": "_observation", "saturation_mask": "_observation", "block_mean": "_observation",
+    "censored_residual": "_censored",
     # the parameters: described once, one fit's table, their roles, a user's settings
     "PARAMETERS": "_parameters", "Parameter": "_parameters", "ParameterTable": "_parameters",
-    "ParameterSetting": "_parameters", "parse_setting": "_parameters", "parameter_roles": "_parameters",
+    "ParameterSetting": "_parameters", "parse_setting": "_parameters", "starts": "_parameters", "parameter_roles": "_parameters",
     "refined_disc": "_parameters", "extrapolated": "_parameters", "inverse": "_parameters",
     # set up, and the camera's view
     "Setup": "_setup", "setup": "_setup", "defaults": "_setup", "colour_settings": "_setup",
@@ -72,12 +73,13 @@ _EXPORTS = {
     # spectra: what the readings are, their noise, the extrema test
     "in_time_order": "_spectrum_defaults", "looks_normalised": "_spectrum_defaults",
     "same_grid": "_spectrum_defaults", "series_sides": "_spectrum_drain", "drain_path": "_spectrum_drain",
+    "candidate_stderr": "_spectrum_drain", "isotonic_blocks": "_spectrum_drain",
     "noise_says_divided": "_spectrum_defaults", "series_departures": "_spectrum_defaults",
     "DIVIDED_NOISE_RATIO": "_spectrum_defaults", "local_noise": "_spectrum_profile",
     "positive_lamp_lstsq": "_spectrum_profile", "fringe_extrema": "_spectrum_extrema",
     "extrema_phase": "_spectrum_extrema", "RANDOM_PHASE": "_spectrum_extrema",
     # is the pair a photo and its background, in that order; is the exposure possible
-    "PairCheck": "_pair", "check_pair": "_pair", "check_disc_pair": "_pair", "judge_pair": "_pair",
+    "PairCheck": "_pair", "check_pair": "_pair", "check_disc_pair": "_plan", "judge_pair": "_pair",
     "frame_mismatch": "_pair", "outside_mismatch": "_pair", "transmission_floor": "_pair", "LUMINANCE": "_pair",
     "least_reflectance": "_exposure", "map_levels": "_exposure", "exposure_range": "_exposure",
     "exposure_doubt": "_exposure", "quiet_resource_tracker": "_executors", "close_local_cluster": "_executors",

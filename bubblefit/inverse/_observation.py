@@ -19,6 +19,7 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from ._options import FitOptions
+from ._pair import FRAME_SHARE, frame_mismatch
 from ..capture.circle import detect_disc
 from ..capture.disc import NO_BUBBLE_CONTRAST, NO_BUBBLE_SPREAD, Disc, bubble_contrast, change_spread, find_disc
 from ..errors import InputError
@@ -124,14 +125,14 @@ class Frame:
 def analysis_frame(photo, background, saturated, disc, opts: FitOptions) -> Frame:
     """The :class:`Frame` a fit analyses (``opts``: a ``FitOptions``).
 
-    A photo whose larger side is at most ``opts.analysis_size`` (or without a disc, i.e.
+    A photo whose larger side is at most ``opts.sizes.analysis`` (or without a disc, i.e.
     a perspective camera) is used whole. A larger one is cropped to 1.15 radii around
     the disc and block-averaged by ``k`` so that the crop's larger side is at most
-    ``analysis_size``: the noise variance of a block mean is the mean variance over
+    ``opts.sizes.analysis``: the noise variance of a block mean is the mean variance over
     ``k^2``, and a block with a clipped pixel is clipped.
     """
     H, W = photo.shape[:2]
-    if disc is None or max(H, W) <= opts.analysis_size:
+    if disc is None or max(H, W) <= opts.sizes.analysis:
         sigma = noise_sigma(photo, opts.noise.read, opts.noise.shot, opts.noise.bits)
         bgs = None if background is None else noise_sigma(background, opts.noise.read, opts.noise.shot, opts.noise.bits)
         return Frame(0, 0, 1, photo, background, sigma, saturated, disc, bgs)
@@ -141,7 +142,7 @@ def analysis_frame(photo, background, saturated, disc, opts: FitOptions) -> Fram
     y0, y1 = max(0, int(math.floor(cy - half))), min(H, int(math.ceil(cy + half)))
     if x1 - x0 < 8 or y1 - y0 < 8:
         raise InputError(f"the bubble's disc {disc} lies outside the {W}x{H} photo")
-    k = max(1, math.ceil(max(x1 - x0, y1 - y0) / opts.analysis_size))
+    k = max(1, math.ceil(max(x1 - x0, y1 - y0) / opts.sizes.analysis))
     h, w = (y1 - y0) // k, (x1 - x0) // k
     y1, x1 = y0 + h * k, x0 + w * k
     # block-averaged band by band, so that no temporary is larger than a band of the crop
@@ -244,8 +245,8 @@ def find_bubble(photo: np.ndarray, background: np.ndarray | None = None, *,
 
 
 def _detect(photo, background, opts: FitOptions) -> Disc:
-    """:func:`find_bubble` on a copy block-averaged to at most ``opts.analysis_size`` pixels."""
-    k = max(1, math.ceil(max(photo.shape[:2]) / opts.analysis_size))
+    """:func:`find_bubble` on a copy block-averaged to at most ``opts.sizes.analysis`` pixels."""
+    k = max(1, math.ceil(max(photo.shape[:2]) / opts.sizes.analysis))
     small = block_mean(photo, k) if k > 1 else photo
     bsmall = None if background is None else (block_mean(background, k) if k > 1 else background)
     sigma = np.sqrt(np.maximum(noise_sigma(photo if k == 1 else small, opts.noise.read, opts.noise.shot,
@@ -278,9 +279,7 @@ def resolve_disc(photo, background, opts: FitOptions, given=None) -> tuple[tuple
     except InputError as exc:
         if background is None:
             raise
-        from ._pair import FRAME_SHARE, frame_mismatch
-
-        k = max(1, math.ceil(max(photo.shape[:2]) / opts.analysis_size))
+        k = max(1, math.ceil(max(photo.shape[:2]) / opts.sizes.analysis))
         p, b = (block_mean(photo, k), block_mean(background, k)) if k > 1 else (photo, background)
         sig = lambda a: noise_sigma(a, opts.noise.read, opts.noise.shot, opts.noise.bits) / k  # noqa: E731
         share = frame_mismatch(np.asarray(p, np.float64), np.asarray(b, np.float64), sig(p), sig(b))

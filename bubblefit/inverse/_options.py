@@ -18,7 +18,7 @@ from ._parameters import ParameterSetting
 
 __all__ = ["ThicknessModel", "ForwardModel", "ModelChoice", "FitStatus", "FitOptions", "FitResult", "ColourSettings",
            "NoiseSettings", "MapSettings",
-           "JudgeSettings", "SolverSettings"]
+           "JudgeSettings", "SolverSettings", "ImageSizes"]
 
 #: How the film's thickness varies over the bubble: :data:`bubblefit.model.modes.ThicknessKind`
 #: under the name the fit's API has used (its values are ``thickness_nm``,
@@ -61,6 +61,33 @@ class NoiseSettings:
     bits: int | None = 8
     photosite_share: tuple | None = None
     saturation: float = 0.995
+
+
+@dataclass(frozen=True)
+class ImageSizes:
+    """The resolutions a fit works at: the frame it analyses
+    (:func:`~bubblefit.inverse._observation.analysis_frame`), the local fit's image and the
+    global search's image (:func:`~bubblefit.inverse._setup.setup`).
+
+    Attributes
+    ----------
+    analysis : int
+        A photo whose larger side exceeds this is cropped to the bubble (1.15 radii around
+        its disc) and block-averaged so that the crop's larger side is at most this,
+        before anything else: memory stays bounded by this size, not the photo's. The
+        fit's images (render, residual, maps) are then in that frame
+        (:attr:`FitResult.frame`); the disc is always reported in the photo's pixels.
+    fit, search : int
+        Larger side of the local fit's and the global search's images (pixels).
+    downsample : int or None
+        Factor of the image the local fit runs on (None: so that its larger side is at
+        most ``fit``).
+    """
+
+    analysis: int = 1024
+    fit: int = 96
+    search: int = 48
+    downsample: int | None = None
 
 
 @dataclass(frozen=True)
@@ -186,18 +213,11 @@ class FitOptions:
         result's disc is the refined one, with standard errors. None (default): refine a
         disc found in the photo (or read from a calibration), use a disc given
         (``disc``, the scene's camera) as it is; True: refine a given disc too (it is
-        then the start); False, or ``hold=("disc",)``: never.
-    t_init, roughness_init : float or None
-        Starting ``t`` (e.g. from ``bubblefit calibrate``) and roughness (the roughness
-        also decides whether filtering is simulated); the same as a ``parameters`` entry
-        (``t_init`` also overrides a scene file's ``t``).
+        then the start); False, or ``ParameterSetting("disc", hold=True)`` (``--hold disc``): never.
     thickness_range : tuple
         (min, max) nm searched (and used to decide the effects).
-    downsample : int or None
-        Factor of the image the local fit runs on (None: so that its larger side is at
-        most ``fit_size``).
-    fit_size, search_size : int
-        Larger side of the fit and search images (pixels).
+    sizes : ImageSizes
+        The resolutions of the analysed frame, the local fit and the global search.
     solver : SolverSettings
         The global search's grid and refinement, and the local solver's limits.
     noise : NoiseSettings
@@ -206,12 +226,13 @@ class FitOptions:
         Fraction of the disc radius used (the rim mixes with the background).
     map : MapSettings
         The priors of a thickness map (``thickness = "map"``).
-    hold : tuple
-        Names of parameters to hold at their starting values.
     parameters : tuple
-        :class:`~bubblefit.inverse._parameters.ParameterSetting` s: a starting value and
-        whether it is held, per parameter (``--set NAME=VALUE``); applied after a warm
-        start and ``t_init``/``roughness_init``, except to a value the scene file sets.
+        :class:`~bubblefit.inverse._parameters.ParameterSetting` s: a starting value,
+        whether it is held and whether it is measured, per parameter (``--set NAME=VALUE``,
+        ``--hold NAME``, ``--t``, a calibration's ``t``; :func:`~bubblefit.inverse._parameters.starts`),
+        applied in order after a warm start. A starting value never replaces a value the
+        scene file sets; a measured one does (it stays held). The starting roughness also
+        decides whether filtering is simulated.
     effects : tuple
         Extra ``[effects]`` settings as ``((key, value), ...)``.
     calibration_disc : tuple or None
@@ -227,12 +248,6 @@ class FitOptions:
         orthographic validation photos (radius 48-57 px; development cases ref_const300, ref_drain_lin_courtyard, ref_drain_lin_city, ref_bump_sunrise, cyc_const500, cyc_bump_city, mts_thick_sunrise in experiments/validation/split.toml) the refined disc was 0.02-0.18 px
         from the truth (RMS 0.08 px per centre coordinate, 0.11 px in radius, about 0.2 %
         of the radius) while the noise said 0.01-0.02 px.
-    analysis_size : int
-        A photo whose larger side exceeds this is cropped to the bubble (1.15 radii around
-        its disc) and block-averaged so that the crop's larger side is at most this,
-        before anything else: memory stays bounded by this size, not the photo's. The
-        fit's images (render, residual, maps) are then in that frame
-        (:attr:`FitResult.frame`); the disc is always reported in the photo's pixels.
     illuminant, camera_response, white_balance : str, str, str or tuple, or None
         The light's spectrum, the camera's channel responses and its white balance
         (:mod:`bubblefit.optics.spectral`); None: the scene's (``[lighting] illuminant``,
@@ -269,23 +284,17 @@ class FitOptions:
     free_split: bool = False
     disc: tuple | None = None
     fit_disc: bool | None = None
-    t_init: float | None = None
-    roughness_init: float | None = None
     thickness_range: tuple = (50.0, 2000.0)
-    downsample: int | None = None
-    fit_size: int = 96
-    search_size: int = 48
+    sizes: ImageSizes = ImageSizes()
     solver: SolverSettings = SolverSettings()
     noise: NoiseSettings = NoiseSettings()
     rim: float = 0.96
     map: MapSettings = MapSettings()
-    hold: tuple = ()
     effects: tuple = ()
     calibration_disc: tuple | None = None
     calibration_size: tuple | None = None
     judge: JudgeSettings = JudgeSettings()
     disc_model_error: float = 0.002
-    analysis_size: int = 1024
     illuminant: str | None = None
     camera_response: str | None = None
     white_balance: str | tuple | None = None

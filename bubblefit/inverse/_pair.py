@@ -31,7 +31,7 @@ from scipy import ndimage as ndi
 
 from ..errors import InputError
 
-__all__ = ["PairCheck", "check_pair", "check_disc_pair", "judge_pair", "frame_mismatch", "transmission_floor",
+__all__ = ["PairCheck", "check_pair", "judge_pair", "frame_mismatch", "transmission_floor",
            "darkening", "outside_mismatch", "N_FILM_MAX", "LUMINANCE", "DARK_Z", "DARK_SHARE", "SAME_VIEW_Z",
            "SAME_VIEW_SHARE", "FRAME_SHARE"]
 
@@ -254,36 +254,6 @@ def check_pair(frame, lev) -> PairCheck | None:
     sat = frame.saturated[: h * k, : w * k].reshape(h, k, w, k).any(axis=(1, 3)) if k > 1 else frame.saturated[:h, :w]
     usable = ~sat & np.all(np.isfinite(y) & np.isfinite(bg), axis=-1)
     check = judge_pair(y, bg, sigma, bg_sigma, usable, lev.inside, lev.cos)
-    why = check.refusal()
-    if why is not None:
-        raise InputError(why)
-    return check
-
-
-def check_disc_pair(photo, background, disc, opts) -> PairCheck | None:
-    """:func:`judge_pair` of a photo and its background photo around an orthographic disc
-    ``(cx, cy, r)`` in pixels, before any fit is set up (``fit-sequence`` checks its first
-    frame so): the pair block-averaged to at most ``opts.analysis_size`` pixels (``opts``:
-    a :class:`~bubblefit.inverse._options.FitOptions`), its noise and clipped pixels as a
-    fit's (:func:`~bubblefit.inverse._observation.noise_sigma`,
-    :func:`~bubblefit.inverse._observation.saturation_mask`). None without a background
-    photo; raises :class:`InputError` with the refusal."""
-    from ._observation import block_mean, noise_sigma, saturation_mask
-
-    if background is None or disc is None:
-        return None
-    k = max(1, math.ceil(max(photo.shape[:2]) / opts.analysis_size))
-    clip = opts.noise.saturation
-    sat = saturation_mask(np.asarray(photo), clip, None) | saturation_mask(np.asarray(background), clip, None)
-    p, b = (block_mean(np.asarray(photo, np.float64), k), block_mean(np.asarray(background, np.float64), k))
-    h, w = p.shape[:2]
-    sat = sat[: h * k, : w * k].reshape(h, k, w, k).any(axis=(1, 3)) if k > 1 else sat
-    sig = lambda a: noise_sigma(a, opts.noise.read, opts.noise.shot, opts.noise.bits) / k
-    cx, cy, r = (float(v) / k for v in disc)
-    yy, xx = np.mgrid[0:h, 0:w] + 0.5
-    rho = np.hypot(xx - cx, yy - cy) / r
-    usable = ~sat & np.all(np.isfinite(p) & np.isfinite(b), axis=-1)
-    check = judge_pair(p, b, sig(p), sig(b), usable, rho < 1.0, np.sqrt(np.clip(1.0 - rho**2, 0.0, 1.0)))
     why = check.refusal()
     if why is not None:
         raise InputError(why)

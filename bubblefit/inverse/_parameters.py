@@ -37,7 +37,7 @@ from ..model.modes import ThicknessKind
 from ..model.render import NO_PROFILE, Params
 
 __all__ = ["Parameter", "PARAMETERS", "ParameterTable", "ParameterRole", "parameter_roles", "ParameterSetting",
-           "parse_setting", "ALIASES", "STARTS", "THICK_UNIT", "THICKNESSES", "DISC_PARAMETERS", "forward", "inverse", "value_and_slope", "refined_disc", "extrapolated"]
+           "parse_setting", "starts", "ALIASES", "STARTS", "THICK_UNIT", "THICKNESSES", "DISC_PARAMETERS", "forward", "inverse", "value_and_slope", "refined_disc", "extrapolated"]
 
 #: nm per unit of the unconstrained thickness coordinate.
 THICK_UNIT = 100.0
@@ -352,22 +352,33 @@ STARTS = ("t", "f", "r_d", "r_s", "roughness", "exposure", "rotation_deg", "thic
 @dataclass(frozen=True)
 class ParameterSetting:
     """What a user says about one parameter before a fit (``FitOptions.parameters``,
-    ``--set NAME=VALUE``, ``--hold NAME``), in the manner of lmfit's ``Parameter``: its
-    starting value (None: the fit's default) and whether it is held at it.
+    ``--set NAME=VALUE``, ``--hold NAME``, ``--t``, ``--calibration``), in the manner of
+    lmfit's ``Parameter``: its starting value (None: the fit's default), whether it is held
+    at it, and whether the value is a measurement of this bubble.
+
+    A value the scene file sets is held at the scene's value, and a starting value does
+    not replace it; a measured value (a dark-box calibration's ``t``) does, and stays held
+    (:func:`~bubblefit.inverse._setup.defaults`, ``docs/fit-pipeline.md``).
 
     Attributes
     ----------
     name : str
-        One of :data:`STARTS` (or an alias of :data:`ALIASES`).
+        One of :data:`STARTS` (or an alias of :data:`ALIASES`); a setting that only holds
+        (no value) may name any parameter of :data:`PARAMETERS`, or ``disc`` (the disc's
+        refinement).
     value : float or None
         The starting value, in the parameter's unit (:data:`PARAMETERS`).
     hold : bool
         Held at its starting value instead of fitted.
+    measured : bool
+        The value is a measurement of this bubble (``bubblefit calibrate``'s ``t``): it
+        replaces a value the scene file sets.
     """
 
     name: str
     value: float | None = None
     hold: bool = False
+    measured: bool = False
 
     @property
     def start(self) -> str:
@@ -377,9 +388,17 @@ class ParameterSetting:
     def check(self, where: str = "parameters") -> None:
         """Raise :class:`~bubblefit.errors.InputError` (one line) for an unknown name or a
         value outside the parameter's bounds."""
+        if self.hold and self.value is None:  # held at the fit's own start
+            name = ALIASES.get(self.name, self.name)
+            if name != "disc" and name not in PARAMETERS:
+                raise InputError(f"cannot hold {name!r}: known parameters are t, f, r_d, r_s, roughness, thickness_nm, "
+                                 "exposure, rotation_deg, top_nm, bottom_nm, exponent, disc")
+            return
         if self.start not in STARTS:
             raise InputError(f"{where}: unknown parameter {self.name!r} (known: {', '.join(STARTS)})")
         if self.value is None:
+            if self.measured:
+                raise InputError(f"{where}: a measured {self.name} needs its value")
             return
         v = float(self.value)
         lo, hi = (0.0, math.inf) if self.start == "f" else PARAMETERS[self.start].bounds
@@ -387,6 +406,12 @@ class ParameterSetting:
         inside = (lo < v < hi) if strict else (lo <= v <= hi)
         if not (math.isfinite(v) and inside):
             raise InputError(f"{where}: {self.name} = {self.value} lies outside its range ({lo:g}, {hi:g})")
+
+
+def starts(**values: float) -> tuple[ParameterSetting, ...]:
+    """Starting values as ``FitOptions.parameters`` entries, in the order given:
+    ``starts(t=0.968, roughness=0.04)`` (each is checked by :class:`FitOptions`)."""
+    return tuple(ParameterSetting(name, float(v)) for name, v in values.items())
 
 
 def parse_setting(text: str, where: str = "--set") -> ParameterSetting:

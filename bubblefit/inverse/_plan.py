@@ -26,11 +26,11 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.images import read_image, srgb_decode
-from ._observation import resolve_disc
-from ._pair import check_disc_pair
+from ._observation import block_mean, noise_sigma, resolve_disc, saturation_mask
+from ._pair import PairCheck, judge_pair
 
 __all__ = ["FrameRef", "discover_frames", "load_frame", "as_frames", "plan_chunks", "fingerprint", "fix_disc",
-           "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS"]
+           "check_disc_pair", "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS"]
 
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr", ".hdr", ".pfm", ".bmp")
@@ -243,6 +243,34 @@ def fingerprint(options, env, background, scene) -> str:
     return h.hexdigest()[:16]
 
 
+def check_disc_pair(photo, background, disc, opts) -> PairCheck | None:
+    """:func:`~bubblefit.inverse._pair.judge_pair` of a photo and its background photo around an orthographic disc
+    ``(cx, cy, r)`` in pixels, before any fit is set up (``fit-sequence`` checks its first
+    frame so): the pair block-averaged to at most ``opts.sizes.analysis`` pixels (``opts``:
+    a :class:`~bubblefit.inverse._options.FitOptions`), its noise and clipped pixels as a
+    fit's (:func:`~bubblefit.inverse._observation.noise_sigma`,
+    :func:`~bubblefit.inverse._observation.saturation_mask`). None without a background
+    photo; raises :class:`InputError` with the refusal."""
+    if background is None or disc is None:
+        return None
+    k = max(1, math.ceil(max(photo.shape[:2]) / opts.sizes.analysis))
+    clip = opts.noise.saturation
+    sat = saturation_mask(np.asarray(photo), clip, None) | saturation_mask(np.asarray(background), clip, None)
+    p, b = (block_mean(np.asarray(photo, np.float64), k), block_mean(np.asarray(background, np.float64), k))
+    h, w = p.shape[:2]
+    sat = sat[: h * k, : w * k].reshape(h, k, w, k).any(axis=(1, 3)) if k > 1 else sat
+    sig = lambda a: noise_sigma(a, opts.noise.read, opts.noise.shot, opts.noise.bits) / k
+    cx, cy, r = (float(v) / k for v in disc)
+    yy, xx = np.mgrid[0:h, 0:w] + 0.5
+    rho = np.hypot(xx - cx, yy - cy) / r
+    usable = ~sat & np.all(np.isfinite(p) & np.isfinite(b), axis=-1)
+    check = judge_pair(p, b, sig(p), sig(b), usable, rho < 1.0, np.sqrt(np.clip(1.0 - rho**2, 0.0, 1.0)))
+    why = check.refusal()
+    if why is not None:
+        raise InputError(why)
+    return check
+
+
 def fix_disc(options, frames: list[FrameRef], background, scene):
     """Options with the bubble's disc fixed for the whole sequence.
 
@@ -254,7 +282,7 @@ def fix_disc(options, frames: list[FrameRef], background, scene):
     every frame's start and refined in each fit as ``fit`` refines it; one frame is then
     fitted as ``bubblefit fit`` fits it (give ``FitOptions.disc`` for a bubble that moves).
     That frame and the background photo are checked as a pair before any fit
-    (:func:`~bubblefit.inverse._pair.check_disc_pair`: swapped, or of another view).
+    (:func:`check_disc_pair`: swapped, or of another view).
     """
     if not hasattr(options, "disc") or options.disc is not None:
         return options

@@ -12,7 +12,7 @@ from ..capture.view import perspective_from_disc
 from ._observation import Frame, Level, analysis_frame, make_level, resolve_disc, saturation_mask
 from ._pair import PairCheck, check_pair
 from ._options import ColourSettings, FitOptions
-from ._parameters import ALIASES, DISC_PARAMETERS, PARAMETERS, ParameterTable, THICKNESS_PARAMETERS
+from ._parameters import ALIASES, DISC_PARAMETERS, ParameterTable, THICKNESS_PARAMETERS
 from ..errors import InputError
 from ..lighting.envmap import EnvMap
 from ..model.bounds import SceneSummary
@@ -51,9 +51,14 @@ def _scene_values(scene, vals: dict, held: dict) -> None:
         held["rotation_deg"] = "set by the scene file"
 
 
-def defaults(scene, init, opts: FitOptions, t_from_calibration):
+def defaults(scene, init, opts: FitOptions):
     """Starting values (keyed by :data:`PARAMETERS` names) and the parameters held by the
-    scene or the options, with the reasons."""
+    scene or the options, with the reasons.
+
+    In this order: the fit's defaults, the scene file's values (held), a warm start
+    ``init``, the options' ``n_film``, then ``opts.parameters`` in their order; a
+    parameter's starting value does not replace a value the scene file sets, a measured
+    one does (:class:`~bubblefit.inverse._parameters.ParameterSetting`)."""
     vals = {"t": 0.972, "f": 0.3, "r_d": None, "r_s": None, "roughness": 0.01, "thickness_nm": 500.0,
             "top_nm": 200.0, "bottom_nm": 1000.0, "exponent": 1.0, "exposure": 1.0, "rotation_deg": 0.0,
             "n_film": 1.4, **{n: 0.0 for n in DISC_PARAMETERS}}
@@ -66,12 +71,8 @@ def defaults(scene, init, opts: FitOptions, t_from_calibration):
             vals[k] = float(v)
     if opts.n_film is not None:  # the command line's index wins over the scene's and a warm start's
         vals["n_film"] = float(refractive_index(opts.n_film, REFERENCE_WAVELENGTH_NM))
-    if t_from_calibration is not None:
-        vals["t"] = float(t_from_calibration)
-    if opts.roughness_init is not None and "roughness" not in held:
-        vals["roughness"] = float(opts.roughness_init)
-    for setting in opts.parameters:  # the user's own starting values; a scene file's value stays
-        if setting.value is not None and ALIASES.get(setting.name, setting.name) not in held:
+    for setting in opts.parameters:  # the user's own values; a scene file's stays, unless measured
+        if setting.value is not None and (setting.measured or ALIASES.get(setting.name, setting.name) not in held):
             vals[setting.start] = float(setting.value)
     if not 0 < vals["t"] < 1:
         raise InputError(f"starting t must lie in (0, 1), got {vals['t']}")
@@ -79,15 +80,11 @@ def defaults(scene, init, opts: FitOptions, t_from_calibration):
         vals["r_s"] = (1 - vals["t"]) / (1 + vals["f"])
         vals["r_d"] = (1 - vals["t"]) - vals["r_s"]
     vals["split"] = vals["r_s"] / max(vals["r_s"] + vals["r_d"], 1e-12)
-    for name in (*opts.hold, *(s.name for s in opts.parameters if s.hold)):
-        name = ALIASES.get(name, name)
+    for name in (ALIASES.get(s.name, s.name) for s in opts.parameters if s.hold):  # names checked by the setting
         if name == "disc":
             held.update({n: "held by request" for n in DISC_PARAMETERS})
-            continue
-        if name not in PARAMETERS:
-            raise InputError(f"cannot hold {name!r}: known parameters are t, f, r_d, r_s, roughness, thickness_nm, "
-                             "exposure, rotation_deg, top_nm, bottom_nm, exponent, disc")
-        held[name] = "held by request"
+        else:
+            held[name] = "held by request"
     return vals, held
 
 
@@ -322,7 +319,7 @@ def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, d
     """Validate the inputs, decide the effects (unless ``decided`` gives ``(fx, decisions)``),
     lay out the parameters and build the photo's fit level."""
     photo, background = _check_inputs(photo, env, background)
-    vals, held0 = defaults(scene, init, opts, opts.t_init)
+    vals, held0 = defaults(scene, init, opts)
     lights = scene.point_lights() if scene is not None else ()
     persp = _perspective(scene, photo)
     disc, warnings, fit_disc = (None, [], False) if persp else _disc(scene, opts, photo, background)
@@ -350,8 +347,8 @@ def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, d
     table = _table(opts, fx, held0, fit_disc)
     # a map is fitted after a drainage profile: the local fits render the profile
     base_cfg = replace(map_cfg, effects=replace(fx, thickness=table.thickness_model))
-    k_fit = opts.downsample or max(1, math.ceil(max(H, W) / opts.fit_size))
-    k_search = max(k_fit, math.ceil(max(H, W) / opts.search_size))
+    k_fit = opts.sizes.downsample or max(1, math.ceil(max(H, W) / opts.sizes.fit))
+    k_search = max(k_fit, math.ceil(max(H, W) / opts.sizes.search))
     lev_fit = make_level(k_fit, base_cfg, frame.photo, frame.sigma, frame.background, frame.saturated, opts.rim,
                          frame.bg_sigma)
     if lev_fit.mask.sum() < 10:

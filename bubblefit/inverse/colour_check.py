@@ -170,7 +170,9 @@ def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma:
     pixel rows and columns giving the (3, 3) covariance of its mean render from them, added
     to the cell's floor (it does not average down either). ``None`` when fewer than two
     cells have :data:`MIN_PIXELS` pixels."""
-    from scipy.stats import chi2
+    # the chi-square upper quantile, chi2.isf(p, dof) of scipy.stats, from scipy.special:
+    # the same function without scipy.stats' import (0.4 s of CPU in every fit's process)
+    from scipy.special import chdtri
 
     photo = np.asarray(photo, np.float64)
     render = np.asarray(render, np.float64)
@@ -217,7 +219,7 @@ def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma:
     kappa = noise_scale(photo, render, var, use, white)
     stat = sum(float(m @ np.linalg.solve(kappa * c + f, m)) for m, c, f, _ in cells)
     dof = 2 * len(cells)
-    thr = float(chi2.isf(false_alarm, dof)) / dof
+    thr = float(chdtri(dof, false_alarm)) / dof
     value = stat / dof
     rel = [float(np.linalg.norm(m)) / bright for m, _, _, bright in cells]
     return ColourCheck(bool(value <= thr), value, thr, len(cells), float(np.sqrt(np.mean(np.square(rel)))), kappa,

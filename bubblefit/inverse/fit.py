@@ -57,7 +57,7 @@ from ._observation import noise_sigma
 from ..capture.circle import detect_disc
 from ._programs import (FINAL_SOLVE, SEARCH_SOLVE, WARM_SOLVE, SolveSettings, batched_solver, final_params,
                         fitted_pixels, held_values, render_bubble, render_level, reporter, warm_up)
-from ._options import FitOptions, FitResult, JudgeSettings, MapSettings, NoiseSettings, SolverSettings
+from ._options import FitOptions, FitResult, ImageSizes, JudgeSettings, MapSettings, NoiseSettings, SolverSettings
 from ._parameters import THICKNESSES, extrapolated, parameter_roles, refined_disc
 from ._setup import Setup, defaults, setup
 from ._uncertainty import Uncertainty, uncertainty
@@ -70,7 +70,7 @@ from ..lighting.envmap import EnvMap
 from ..model.thickness import drainage_profile
 from ..progress import stage
 
-__all__ = ["FitOptions", "FitResult", "NoiseSettings", "MapSettings", "JudgeSettings", "SolverSettings",
+__all__ = ["FitOptions", "FitResult", "NoiseSettings", "MapSettings", "JudgeSettings", "SolverSettings", "ImageSizes",
            "fit_photo", "fit_batch", "detect_disc", "noise_sigma"]
 
 #: A warm-started fit whose noise-weighted reduced chi^2 exceeds this is checked against a
@@ -287,7 +287,9 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     terms) lens warm-started from it; the view that explains the photo better (the lower
     capped reduced chi^2, :func:`_judged_chi2`) is kept, and its standard errors are
     widened by the shift to the other (:func:`~bubblefit.inverse._view.widen_for_view`;
-    ``docs/camera-view.md``).
+    ``docs/camera-view.md``). With ``options.calibrate_camera`` that fit, made with the
+    stated camera response, is then refitted with the response freed
+    (:func:`~bubblefit.inverse.self_calibration.self_calibrated`).
 
     Parameters
     ----------
@@ -333,15 +335,23 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     >>> result.ok, round(float(result.params["thickness_nm"]))
     (True, 600)
     """
-    if options.calibrate_camera:  # the stated response's fit first, then the response freed
-        from .self_calibration import self_calibrated
+    if options.calibrate_camera and options.thickness == "map":
+        raise InputError("--calibrate-camera fits the response with a constant film or a drainage profile, not a "
+                         "thickness map: calibrate with --thickness drainage, then fit the map with the response")
+    stated = replace(options, calibrate_camera=False) if options.calibrate_camera else options
+    fit = _fit_views(photo, env, stated, background, init, scene, saturated)
+    if not options.calibrate_camera:
+        return fit
+    # the stated response's fit first, then the response freed
+    from .self_calibration import self_calibrated
 
-        if options.thickness == "map":
-            raise InputError("--calibrate-camera fits the response with a constant film or a drainage profile, not a "
-                             "thickness map: calibrate with --thickness drainage, then fit the map with the response")
-        first = fit_photo(photo, env, options=replace(options, calibrate_camera=False), background=background,
-                          init=init, scene=scene, saturated=saturated)
-        return self_calibrated(first, photo, env, options, background, scene, saturated)
+    return self_calibrated(fit, photo, env, options, background, scene, saturated)
+
+
+def _fit_views(photo, env, options: FitOptions, background, init, scene, saturated) -> FitResult:
+    """The fit through the camera's view (:func:`~bubblefit.inverse._view.fit_view`): the
+    scene's or the options', else the orthographic view and a 50 mm lens compared
+    (:func:`fit_photo`)."""
     view = fit_view(options, scene)
     options = replace(options, view=view)
     if view.source != "assumed":
@@ -366,15 +376,68 @@ def _fit_model(photo, env, options: FitOptions, background, init, scene, saturat
     return _fit_one(photo, env, options, background, init, scene, saturated)
 
 
-def _fit_one(photo, env, options: FitOptions, background, init, scene, saturated) -> FitResult:
-    """The stages of one model's fit through ``options.view``."""
+@dataclass(frozen=True)
+class Solved:
+    """One model's fit up to its judgement (:func:`_solve_one`): what ``auto`` compares
+    before the thickness map and the final render are made for the model it keeps.
+
+    Its ``status``, ``converged``, ``chi2_floor``, ``chi2_capped`` and ``params`` read as a
+    :class:`FitResult`'s do, from the solve's standard errors (:func:`_judge`); a map's
+    failure is known only once :func:`_report` has made it.
+    """
+
+    setup: Setup
+    options: FitOptions
+    solution: LocalSolution
+    judged: Judgement
+    notes: list
+    t_start: float
+
+    @property
+    def model(self) -> str:
+        return self.options.model
+
+    @property
+    def status(self) -> str:
+        return self.judged.status
+
+    @property
+    def converged(self) -> bool:
+        return bool(self.judged.converged)
+
+    @property
+    def chi2_floor(self) -> float:
+        return float(self.judged.uncertainty.misfit.chi2_floor)
+
+    @property
+    def chi2_capped(self) -> float:
+        return float(self.judged.uncertainty.misfit.chi2_capped)
+
+    @property
+    def params(self) -> dict:
+        """The reported values as :func:`_report` writes them (with ``n_film``), less a
+        map's median thickness."""
+        return {**self.judged.reported, "n_film": float(self.setup.vals["n_film"])}
+
+    def report(self, env) -> FitResult:
+        """The thickness map, the final render and the verdict (:func:`_report`)."""
+        with stage("thickness map, final render" if self.options.thickness == "map" else "final render"):
+            return _report(self.setup, env, self.options, self.solution, self.judged, list(self.notes),
+                           self.t_start)
+
+
+def _solve_one(photo, env, options: FitOptions, background, init, scene, saturated,
+               settings: SolveSettings | None = None) -> Solved:
+    """The stages of one model's fit through ``options.view`` up to the standard errors;
+    ``settings``: the local solve's (default: a warm start's when ``init`` is given, else
+    a searched fit's)."""
     t_start = time.perf_counter()
     opts = options
     with stage("finding the disc, choosing the effects"):
         st = setup(photo, env, opts, background, init, scene, saturated)
     searches = "thickness_nm" in st.table.free or "top_nm" in st.table.free
     warm = bool(init)
-    settings = WARM_SOLVE if warm else FINAL_SOLVE
+    settings = settings or (WARM_SOLVE if warm else FINAL_SOLVE)
     if searches and not warm:
         warm_up(st, opts, env, settings)  # the final solve's programs compile during the search
         with stage("global thickness search"):
@@ -386,10 +449,14 @@ def _fit_one(photo, env, options: FitOptions, background, init, scene, saturated
     notes = []
     if warm and searches:
         sol = _checked_warm_start(st, opts, env, sol, settings, notes)
-    with stage("thickness map, standard errors, final render" if opts.thickness == "map"
-               else "standard errors, final render"):
+    with stage("standard errors"):
         judged = _judge(st, opts, sol, notes)
-        return _report(st, env, opts, sol, judged, notes, t_start)
+    return Solved(st, opts, sol, judged, notes, t_start)
+
+
+def _fit_one(photo, env, options: FitOptions, background, init, scene, saturated) -> FitResult:
+    """The stages of one model's fit through ``options.view``."""
+    return _solve_one(photo, env, options, background, init, scene, saturated).report(env)
 
 
 def _checked_warm_start(st: Setup, opts: FitOptions, env, sol: LocalSolution, settings: SolveSettings,
@@ -409,6 +476,14 @@ def _checked_warm_start(st: Setup, opts: FitOptions, env, sol: LocalSolution, se
         return second
     notes.append(f"warm start doubtful ({why}); a global search did not do better")
     return sol
+
+
+#: ``auto``'s physical solve from the paper model's values: a start that is not the
+#: physical model's optimum (its t and r_s are replaced by Fresnel's equations), so it
+#: stops on rejections and restarts as a searched fit's final solve does, rather than by
+#: optimistix' rule alone, which on the validation photos spends most of its steps rejected
+#: near the optimum. The program is the one a doubtful warm start's second solve uses.
+SWITCH_SOLVE = replace(WARM_SOLVE, stall=True)
 
 
 def _judged_chi2(r: FitResult) -> float:
@@ -445,19 +520,26 @@ def _fit_either_model(photo, env, options: FitOptions, background, init, scene, 
 
     The paper model's two-beam film and grey ``t`` bias a real film's drainage ends and
     leave a misfit that hides a wrong map; a photo from a physical film (another renderer,
-    a camera) is explained by the physical model, within its floor."""
+    a camera) is explained by the physical model, within its floor.
+
+    Only the kept model's thickness map and final render are made: the models are
+    compared by their solves' standard errors (:class:`Solved`), which the map does not
+    change, so a model's map is never made to be discarded."""
     t0 = time.perf_counter()
     with stage("paper model"):
-        first = _fit_one(photo, env, replace(options, model="paper"), background, init, scene, saturated)
-    if _explained(first, options.judge):
-        first.message += "; model auto: the paper model explains the photo"
-        return first
+        first = _solve_one(photo, env, replace(options, model="paper"), background, init, scene, saturated)
+    paper = first.report(env) if _explained(first, options.judge) else None
+    if paper is not None and _explained(paper, options.judge):  # its map, when one is made, is sound
+        paper.message += "; model auto: the paper model explains the photo"
+        return paper
     start = {k: v for k, v in first.params.items() if np.isfinite(v)} if first.converged else init
     c1 = _judged_chi2(first)
     with stage(f"physical model (the paper model's reduced chi^2 {_judged_text(first)} with the floor, capped)"):
-        second = _fit_one(photo, env, replace(options, model="physical"), background, start, scene, saturated)
+        second = _solve_one(photo, env, replace(options, model="physical"), background, start, scene, saturated,
+                            settings=SWITCH_SOLVE if start else None)
     c2 = _judged_chi2(second)
-    best = second if (not second.converged, c2) < (not first.converged, c1) else first
+    keep_second = (not second.converged, c2) < (not first.converged, c1)
+    best = second.report(env) if keep_second else (paper or first.report(env))
     best.message += (f"; model auto: paper reduced chi^2 {_judged_text(first)}, physical {_judged_text(second)} "
                      f"(with the floor, each pixel capped at an outlier's share): kept the {best.model} model")
     best.time_s = time.perf_counter() - t0
@@ -502,7 +584,7 @@ def fit_batch(photos, env: EnvMap, *, options: FitOptions = FitOptions(), backgr
         return [alone(p, init) for p in photos]
     setups = [first] + [setup(p, env, options, background, init, scene, None, decided=(first.fx, first.decisions))
                         for p in photos[1:]]
-    prev_vals = defaults(scene, previous, options, options.t_init)[0] if previous else None
+    prev_vals = defaults(scene, previous, options)[0] if previous else None
     z0 = _batch_starts(first, len(photos), prev_vals)
     fixed = held_values(table, first.vals)
     union = np.logical_or.reduce([s.lev_fit.mask for s in setups])  # a frame's other pixels: weight 0

@@ -36,7 +36,8 @@ from ..errors import InputError
 from .cap import Cap
 from .geometry import PerspectiveCamera
 from ..lighting.area import Patch, check_light_faces
-from .planar_scene import _lamp, _num, _read_toml, _vec, film_kind_and_range, parse_area_light, parse_cap
+from .planar_scene import (_lamp, _num, _read_toml, _vec, film_kind_and_range, is_area_sphere, parse_area_light,
+                           parse_cap)
 
 __all__ = ["CapScene", "load_cap_scene", "parse_cap_scene", "is_cap_file", "KINDS"]
 
@@ -64,22 +65,17 @@ class CapScene:
     area: Patch | None = None
 
 
-def _is_area_sphere(data: dict) -> bool:
-    f, light = data.get("film"), data.get("light")
-    return (isinstance(f, dict) and f.get("shape") == "sphere" and isinstance(light, dict)
-            and light.get("type") == "area")
-
-
 def is_cap_file(path) -> bool:
     """Whether the scene file at ``path`` says ``[film] shape = "cap"``, or ``"sphere"`` under
     a ``[light] type = "area"`` (a whole bubble, fitted by the cap's path without a
-    liquid); False for a missing or bad file."""
+    liquid, :func:`~bubblefit.model.planar_scene.is_area_sphere`); False for a missing or
+    bad file (``bubblefit render``; ``fit`` asks :func:`~bubblefit.model.planar_scene.scene_fit`)."""
     try:
         data = _read_toml(path)
     except InputError:
         return False
     f = data.get("film")
-    return (isinstance(f, dict) and f.get("shape") == "cap") or _is_area_sphere(data)
+    return (isinstance(f, dict) and f.get("shape") == "cap") or is_area_sphere(data)
 
 
 def load_cap_scene(path) -> CapScene:
@@ -98,7 +94,7 @@ def parse_cap_scene(data: dict, base_dir=".") -> CapScene:
     """The :class:`CapScene` of a parsed scene file."""
     base = Path(base_dir)
     f, env, cam, light = (data.get(k, {}) for k in ("film", "environment", "camera", "lighting"))
-    sphere = _is_area_sphere(data)
+    sphere = is_area_sphere(data)
     if sphere:
         radius = _num(f, "radius", "film", 1.0, 0.0)
         if radius <= 0:

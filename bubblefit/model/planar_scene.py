@@ -37,7 +37,8 @@ from ..lighting.area import Patch, check_light_faces
 from ..lighting.coaxial import Stack
 from ..optics import dispersion
 
-__all__ = ["PlanarScene", "film_kind_and_range", "is_planar", "is_planar_file", "load_planar", "parse_area_light", "parse_cap", "parse_planar", "parse_region"]
+__all__ = ["PlanarScene", "film_kind_and_range", "scene_fit", "is_area_sphere", "is_planar", "load_planar",
+           "parse_area_light", "parse_cap", "parse_planar", "parse_region"]
 
 THICKNESS_KINDS = ("map", "newton", "constant", "drainage")
 
@@ -85,24 +86,41 @@ def _read_toml(path) -> dict:
         raise InputError(f"scene file {path} is not valid TOML: {exc}") from None
 
 
-def is_planar_file(path) -> bool:
-    """Whether the scene file at ``path`` describes a flat film (False for a missing or bad file:
-    the bubble's loader then says what is wrong). A ``[film]`` of another shape than
-    ``"plane"``, ``"cap"`` or ``"sphere"`` is refused in one line, as is a cap whose
-    plane misses its sphere (:class:`~bubblefit.model.cap.Cap`)."""
+def is_area_sphere(data: dict) -> bool:
+    """Whether a parsed scene file describes a whole bubble under an area light
+    (``[film] shape = "sphere"`` with ``[light] type = "area"``), which the cap's fit fits
+    without a liquid (:mod:`bubblefit.model.cap_scene`)."""
+    f, light = data.get("film"), data.get("light")
+    return (isinstance(f, dict) and f.get("shape") == "sphere" and isinstance(light, dict)
+            and light.get("type") == "area")
+
+
+def scene_fit(path) -> str:
+    """Which fit the scene file at ``path`` asks for: ``"plane"`` (a flat film or a gap),
+    ``"cap"`` (the cap's fit: a bubble on a dish, or a whole bubble under an area light,
+    :func:`is_area_sphere`) or ``"bubble"`` (a floating bubble in an environment map; also
+    for a missing or bad file: the bubble's loader then says what is wrong). A ``[film]``
+    of another shape is refused in one line, as is a cap whose plane misses its sphere
+    (:class:`~bubblefit.model.cap.Cap`)."""
     try:
         data = _read_toml(path)
     except InputError:
-        return False
+        return "bubble"
     f = data.get("film")
     shape = f.get("shape", "sphere") if isinstance(f, dict) else "sphere"
     if shape == "cap":
         parse_cap(f)  # a bad cap gets its own line here; a good one is fitted by the cap's path
-        return False
+        return "cap"
     if shape not in ("plane", "sphere"):
         raise InputError(f'{path}: film.shape = {shape!r} is not supported (use "plane" for a flat film or a gap, '
                          '"cap" for a bubble on a dish, "sphere" or a [bubble] table for a bubble)')
-    return shape == "plane"
+    if shape == "plane":
+        return "plane"
+    return "cap" if is_area_sphere(data) else "bubble"
+    if shape not in ("plane", "sphere"):
+        raise InputError(f'{path}: film.shape = {shape!r} is not supported (use "plane" for a flat film or a gap, '
+                         '"cap" for a bubble on a dish, "sphere" or a [bubble] table for a bubble)')
+    return shape
 
 
 def parse_cap(f: dict):

@@ -27,7 +27,7 @@ import sys
 import numpy as np
 from scipy import ndimage as ndi
 
-from bubblefit.inverse._observation import noise_sigma, saturation_mask
+from bubblefit.inverse import noise_sigma, saturation_mask
 from bubblefit.io.images import read_image
 
 HERE = os.path.dirname(os.path.abspath(__file__))

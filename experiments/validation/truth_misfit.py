@@ -19,8 +19,7 @@ import json, os, sys, dataclasses, numpy as np
 from bubblefit.model.scene import Scene, read_envmap
 from bubblefit.model.render import render
 from bubblefit.io.images import read_image
-from bubblefit.inverse._observation import block_mean, noise_sigma, saturation_mask
-from bubblefit.inverse._censored import censored_residual
+from bubblefit.inverse import block_mean, censored_residual, noise_sigma, saturation_mask
 from bubblefit.lighting.filtering import FilterConfig
 D = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data")
 case = sys.argv[1]

@@ -28,6 +28,7 @@ def main():
     from helpers import FILM_PHOTO_DISC as DISC, film_photo
 
     from bubblefit.capture.view import ORTHOGRAPHIC
+    from bubblefit.inverse import starts
     from bubblefit.inverse.fit import FitOptions, fit_photo
 
     ap = argparse.ArgumentParser()
@@ -37,7 +38,7 @@ def main():
     ap.add_argument("--json")
     a = ap.parse_args()
     env, _ = _env()
-    opts = FitOptions(disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", camera_response=a.response,
+    opts = FitOptions(disc=DISC, parameters=starts(t=0.968, roughness=0.04), model="paper", camera_response=a.response,
                       illuminant="E", view=ORTHOGRAPHIC)
     rows = []
     for seed in (int(s) for s in a.seeds.split(",")):

@@ -820,13 +820,14 @@ def test_pale_thick_film_found_in_its_order(small_courtyard, seed):
     two candidates. Within 5 nm (standard error about 1.1 nm, the model-error floor aside)
     and ok."""
     from bubblefit.capture.view import ORTHOGRAPHIC
+    from bubblefit.inverse import starts
     from bubblefit.inverse.fit import FitOptions, fit_photo
     from bubblefit.lighting.envmap import EnvMap
 
     env = EnvMap.from_array(small_courtyard)
     photo, bg = film_photo(env, 1500.0, seed, NIKON, "E")
     r = fit_photo(photo, env, background=bg, options=FitOptions(
-        disc=DISC, t_init=0.968, roughness_init=0.04, model="paper", camera_response=NIKON, illuminant="E",
+        disc=DISC, parameters=starts(t=0.968, roughness=0.04), model="paper", camera_response=NIKON, illuminant="E",
         view=ORTHOGRAPHIC))
     assert abs(r.params["thickness_nm"] - 1500.0) < 5.0, (r.params, r.warnings)
     assert r.ok, r.warnings

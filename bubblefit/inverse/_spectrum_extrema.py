@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.signal import find_peaks, savgol_filter
 
-__all__ = ["fringe_extrema", "extrema_phase", "RANDOM_PHASE", "MIN_EXTREMA"]
+__all__ = ["fringe_extrema", "fringe_minima", "extrema_phase", "minima_phase", "RANDOM_PHASE", "MIN_EXTREMA"]
 
 #: The score of a thickness unrelated to the fringes: rms distance of a uniform number
 #: from the nearest integer.
@@ -28,19 +28,49 @@ RANDOM_PHASE = 1.0 / np.sqrt(12.0)
 MIN_EXTREMA = 3
 
 
+def _peaks_and_troughs(y: np.ndarray, window: int, prominence: float) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of the smoothed reading's maxima and of its minima (Savitzky-Golay, cubic,
+    ``window`` samples) whose prominence is at least ``prominence`` of its mean level."""
+    y = np.asarray(y, np.float64)
+    win = min(window, len(y) // 2 * 2 - 1)
+    if win < 5:
+        return np.array([], int), np.array([], int)
+    smooth = savgol_filter(y, win, 3)
+    p = prominence * float(np.mean(np.abs(smooth)))
+    return find_peaks(smooth, prominence=p)[0], find_peaks(-smooth, prominence=p)[0]
+
+
 def fringe_extrema(wavelength_nm: np.ndarray, y: np.ndarray, window: int = 51, prominence: float = 0.05) -> np.ndarray:
     """Wavelengths of the smoothed reading's maxima and minima (Savitzky-Golay, cubic,
     ``window`` samples) whose prominence is at least ``prominence`` of its mean level (a
     fraction of its range would count the wiggles of a reading without fringes)."""
-    y = np.asarray(y, np.float64)
-    win = min(window, len(y) // 2 * 2 - 1)
-    if win < 5:
-        return np.array([])
-    smooth = savgol_filter(y, win, 3)
-    p = prominence * float(np.mean(np.abs(smooth)))
-    peaks, _ = find_peaks(smooth, prominence=p)
-    troughs, _ = find_peaks(-smooth, prominence=p)
+    peaks, troughs = _peaks_and_troughs(y, window, prominence)
     return np.sort(np.asarray(wavelength_nm)[np.r_[peaks, troughs]])
+
+
+def fringe_minima(wavelength_nm: np.ndarray, y: np.ndarray, window: int = 51, prominence: float = 0.05) -> np.ndarray:
+    """Wavelengths of the clear minima alone among :func:`fringe_extrema`."""
+    return np.sort(np.asarray(wavelength_nm)[_peaks_and_troughs(y, window, prominence)[1]])
+
+
+def minima_phase(thickness_nm: float, minima_nm: np.ndarray, n_at) -> float:
+    """Largest distance of ``4 n d / lambda`` from the nearest even number at the reading's
+    fringe minima ``minima_nm``; NaN for no thickness or no minimum.
+
+    A film in air reflects nothing where ``2 n d / lambda`` is whole (Born & Wolf, sec.
+    7.6.1: ``R = F sin^2(delta/2) / (1 + F sin^2(delta/2))``, ``delta = 4 pi n d / lambda``),
+    and a reading ``I = L R + S`` has its minimum there whatever the lamp ``L``: at a zero
+    of ``R`` (and of its slope) ``dI/dlambda = dS/dlambda``, so only the stray light's slope
+    moves the minimum, by ``-S' / (L R'')``. One clear minimum thus places the thickness
+    within its order without any lamp model, which the rms of :func:`extrema_phase` needs
+    three extrema for. Even numbers, not whole ones: a thickness that puts a maximum of ``R``
+    where the reading has its minimum scores 1.
+    """
+    if thickness_nm is None or not np.isfinite(thickness_nm) or len(minima_nm) == 0:
+        return float("nan")
+    lam = np.asarray(minima_nm, np.float64)
+    x = 4.0 * np.asarray(n_at(lam)) * thickness_nm / lam
+    return float(np.max(np.abs(x - 2.0 * np.round(x / 2.0))))
 
 
 def extrema_phase(thickness_nm: float, extrema_nm: np.ndarray, n_at) -> float:

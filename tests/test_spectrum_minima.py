@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bubblefit.inverse import SpectrumOptions, fit_spectrum, fringe_minima, minima_phase
+from bubblefit.inverse import SpectrumOptions, fit_spectrum, fringe_extrema, fringe_minima, minima_phase
 from bubblefit.io.spectra import Spectrum
 
 N = 1.34  # a constant index keeps the reference independent of the package's laws
@@ -41,9 +41,9 @@ def test_the_minimum_places_the_true_thickness(d):
     minima = fringe_minima(lam, y)
     assert len(minima) == 1
     # the zero of R is at 2 n d / lambda = 1; the stray light's slope moves the reading's
-    # minimum by -S'/(L R''): here 1e-4 / (7 * 2 F (pi x / 2 lambda)^2) ~ 3 nm, 0.01 in x
-    assert abs(minima[0] - 2.0 * N * d) < 6.0
-    assert minima_phase(d, minima, lambda x: np.full_like(x, N)) < 0.03
+    # minimum by -S'/(L R''): here 1e-4 / (7 * 2 F (pi x / 2 lambda)^2) ~ 3 nm, and the red end's noise a few nm more
+    assert abs(minima[0] - 2.0 * N * d) < 10.0
+    assert minima_phase(d, minima, lambda x: np.full_like(x, N)) < 0.05
     # a film 12 % thinner puts the zero 0.24 away (x = 2 * 0.88): beyond the limit of 0.2
     assert minima_phase(0.88 * d, minima, lambda x: np.full_like(x, N)) > 0.2
     # a maximum of R put at the minimum (x odd) scores 1
@@ -58,3 +58,19 @@ def test_a_thickness_that_misplaces_the_minimum_is_not_ok():
     assert abs(right.thickness_nm - 220.0) < 0.05 * 220.0
     assert not any("fringe minimum" in r for r in right.reasons)
     assert any("fringe minimum" in r for r in wrong.reasons) and not wrong.ok
+
+
+def test_a_dip_on_a_bright_stretch_is_not_a_zero():
+    # a 250 nm film: a zero at x = 2 (670 nm), a maximum at x = 3 (447 nm); a narrow dip
+    # where R is two thirds of its peak (x = 2.6, 515 nm) is a minimum of the reading that
+    # lies far above its floor, not a zero of R
+    d = 250.0
+    lam, y = _reading(d, seed=5)
+    dip = 4.0 * N * d / 2.6
+    y = y - 0.06 * np.exp(-(((lam - dip) / 6.0) ** 2))
+    assert np.any(np.abs(fringe_extrema(lam, y) - dip) < 6.0)  # seen as an extremum
+    minima = fringe_minima(lam, y)
+    # the zero placed within 0.05 in x (the stray light's slope moves it by ~0.01, the noise
+    # at the red end by a few nm)
+    assert len(minima) == 1
+    assert minima_phase(d, minima, lambda x: np.full_like(x, N)) < 0.05

@@ -36,8 +36,9 @@ Manue readings the first 50 nm are a lamp-divided reading where the lamp is dark
 between 0 and the ceiling.
 
 The column "bubblefit defaults" is ``bubblefit fit-spectrum`` run as a new user runs it, with
-no switch but the film's index: each group's files given together (whole readings, the
-void reading as ``--dark`` where there is one), so that the command decides whether they
+no switch but the film's index: each group's files given together (whole readings; the
+void reading, a reading of the empty frame with the light on, is not a dark reading and is
+left out unless ``--void-as-dark``), so that the command decides whether they
 were divided by the lamp, whether they form one series (and reads them with its shared
 lamp), and uses their time order (the file names) against jumps to a twin. Each row also
 carries the extrema phase test (:mod:`bubblefit.inverse._spectrum_extrema`) of the stated
@@ -232,7 +233,7 @@ def _median(v):
     return float(np.median(v)) if v else float("nan")
 
 
-def run_defaults(cases, data: Path, join: list[str] | None = None) -> dict:
+def run_defaults(cases, data: Path, join: list[str] | None = None, void_as_dark: bool = False) -> dict:
     """Each group's stated files through ``bubblefit fit-spectrum`` with no switch (see the
     module): file -> thickness, stderr, ok, normalised, reasons, extrema phase of the
     stated value and of this one."""
@@ -248,7 +249,11 @@ def run_defaults(cases, data: Path, join: list[str] | None = None) -> dict:
     for g, members in groups.items():
         sub = [c for c in cases if c["group"] in members and c["expected"] is not None]
         sub.sort(key=lambda c: int(re.sub(r"\D", "", Path(c["file"]).name) or 0))
-        void = next((c["void"] for c in sub if c["void"]), None)
+        # The void reading (the empty frame, light on) is not given as --dark: a dark reading
+        # has no light, and the void's stray light is not the series' (the series' last,
+        # black, film reads up to 0.015 below it from 450 nm on, where a black film reflects
+        # about 0.01 above the stray light); each reading's own stray light is fitted instead.
+        void = next((c["void"] for c in sub if c["void"]), None) if void_as_dark else None
         with tempfile.TemporaryDirectory() as tmp:
             js = os.path.join(tmp, "o.json")
             argv = ["fit-spectrum", *[str(data / c["file"]) for c in sub], "--json", js,
@@ -266,7 +271,7 @@ def run_defaults(cases, data: Path, join: list[str] | None = None) -> dict:
             ext = fringe_extrema(lam, y)
             n_of = soap_index if c["n"] == SOAP else (lambda x, n=float(c["n"]): np.full_like(x, n))
             stated, mine = extrema_phase(c["expected"], ext, n_of), extrema_phase(r["thickness_nm"], ext, n_of)
-            out[c["file"]] = dict(bf_def=r["thickness_nm"], bf_def_stderr=r["thickness_nm_stderr"], bf_def_ok=r["ok"],
+            out[c["file"]] = dict(bf_def_dark=bool(void), bf_def=r["thickness_nm"], bf_def_stderr=r["thickness_nm_stderr"], bf_def_ok=r["ok"],
                                   bf_def_normalised=r["normalised"], bf_def_reasons=" | ".join(r["reasons"]),
                                   extrema=len(ext), extrema_phase_stated=stated, extrema_phase_bf_def=mine)
     return out
@@ -287,7 +292,7 @@ def stated_check(c, data: Path, row: dict) -> dict:
 
     lam, y = load(data / c["file"], 0.0)
     dark = None
-    if c["void"]:
+    if c["void"] and row.get("bf_def_dark", True):
         dl, dy = load(data / c["void"], 0.0)
         dark = Spectrum(dl, dy, c["void"])
     v = c["expected"]
@@ -325,6 +330,22 @@ def judge_doubt(row: dict) -> str:
         return (f"the stated value puts the reading's {row['extrema']} extrema {ps:.2f} rms off whole phases, "
                 f"the defaults' {pb:.2f}")
     return ""
+
+
+def minimum_check(row: dict, data: Path) -> dict:
+    """The fringe-minimum test (:func:`bubblefit.inverse._spectrum_extrema.minima_phase`) of
+    the stated value and of the defaults' value on a reading with one to three clear extrema
+    and a clear minimum (a zero of ``R``, placed whatever the lamp): the distance of
+    ``4 n d / lambda`` from an even number there. Empty for other readings."""
+    from bubblefit.inverse import fringe_extrema, fringe_minima, minima_phase
+
+    lam, y = load(data / row["file"])
+    minima = fringe_minima(lam, y)
+    if not len(minima) or len(fringe_extrema(lam, y)) >= 4:
+        return {}
+    n_of = soap_index if row["n"] == SOAP else (lambda x, n=float(row["n"]): np.full_like(x, n))
+    return {"minima": int(len(minima)), "minima_phase_stated": minima_phase(row["expected"], minima, n_of),
+            "minima_phase_bf_def": minima_phase(row["bf_def"], minima, n_of)}
 
 
 def plot_doubt(rows, data: Path, path, count: int = 4):
@@ -534,6 +555,8 @@ def main():
                          "spectraVictor2's film, whose order-1 readings pin the lamp of the order-0 ones)")
     ap.add_argument("--skip-failing", default="",
                     help="comma-separated groups whose known_to_fail.yaml readings are left out (time)")
+    ap.add_argument("--void-as-dark", action="store_true",
+                    help="give the void reading (empty frame) to the defaults' command as --dark (it is not a dark reading)")
     ap.add_argument("--resummarise", action="store_true",
                     help="recompute the summary and figures of the results file already written (no fitting)")
     ap.add_argument("--optifik-worker", nargs=2, help=argparse.SUPPRESS)
@@ -553,7 +576,7 @@ def main():
         keep = set(args.groups.split(","))
         cases = [c for c in cases if c["group"] in keep]
     of = run_optifik(cases, data, args.optifik_python) if cases else []
-    defaults = run_defaults(cases, data, args.join.split(",") if args.join else None)
+    defaults = run_defaults(cases, data, args.join.split(",") if args.join else None, args.void_as_dark)
     rows = []
     for c, o in zip(cases, of):
         row = {"group": c["group"], "file": c["file"], "expected": c["expected"], "stated_in": c.get("src"), "n": c["n"],
@@ -589,6 +612,7 @@ def main():
             r.setdefault("stated_in", stated_in.get(r["file"]))
     for r in rows:
         if "bf_def" in r and r["expected"] is not None:
+            r.update(minimum_check(r, data))
             r["stated_in_doubt"] = judge_doubt(r)
     order = list(GROUPS) + ["basic", "series_manue3"]
     rows.sort(key=lambda r: (order.index(r["group"]) if r["group"] in order else len(order), r["file"]))

@@ -78,6 +78,7 @@ _EXPORTS = {
     "DIVIDED_NOISE_RATIO": "_spectrum_defaults", "local_noise": "_spectrum_profile",
     "positive_lamp_lstsq": "_spectrum_profile", "fringe_extrema": "_spectrum_extrema",
     "extrema_phase": "_spectrum_extrema", "RANDOM_PHASE": "_spectrum_extrema",
+    "fringe_minima": "_spectrum_extrema", "minima_phase": "_spectrum_extrema",
     # is the pair a photo and its background, in that order; is the exposure possible
     "PairCheck": "_pair", "check_pair": "_pair", "check_disc_pair": "_plan", "judge_pair": "_pair",
     "frame_mismatch": "_pair", "outside_mismatch": "_pair", "transmission_floor": "_pair", "LUMINANCE": "_pair",

@@ -65,7 +65,7 @@ from ..io.spectra import Spectrum
 from ..optics import dispersion, film
 from ._spectrum_defaults import looks_normalised
 from ._spectrum_drain import profile_candidates
-from ._spectrum_extrema import RANDOM_PHASE, extrema_phase, fringe_extrema
+from ._spectrum_extrema import RANDOM_PHASE, extrema_phase, fringe_extrema, fringe_minima, minima_phase
 from ._spectrum_profile import (ProfileProblem, local_noise, profile_variance, refine_d, refine_dw, refine_near,
                                 residual_correlation, rss_grids, second_difference_noise, second_minimum)
 
@@ -115,6 +115,14 @@ MODEL_ERROR_FLOOR = 0.005
 #: raw lamp's hump move the extrema; 0.145 for a raw 700 nm film with 5 extrema).
 EXTREMA_PHASE_LIMIT = 0.2
 EXTREMA_FOR_VERDICT = 4
+#: A fit with fewer than ``EXTREMA_FOR_VERDICT`` extrema is not ok either when one clear fringe minimum lies further than this from an even
+#: ``4 n d / lambda`` (:func:`~bubblefit.inverse._spectrum_extrema.minima_phase`): a minimum is a zero of
+#: ``R``, which the lamp cannot move, so one minimum suffices. The same two thirds of the way as
+#: ``EXTREMA_PHASE_LIMIT`` (from the synthetic readings of tests/test_spectrum*.py); on a film of order 1
+#: (one minimum at ``x = 2``) it is 10 % of the thickness. The stray light's slope moves a
+#: minimum by ``-S' / (L R'')``: under 0.01 in ``x`` on the order-1 readings of optifik's
+#: spectraVictor2 (``S'`` of its void reading, ``L R''`` of the reading).
+MINIMUM_PHASE_LIMIT = EXTREMA_PHASE_LIMIT
 
 
 @dataclass(frozen=True)
@@ -509,12 +517,7 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
                         f"{(1 - rho) / (1 + rho):.2f} independent samples per point")
     profile = (rss - rss_best) / s2
     scale = float(np.mean(np.abs(y))) or 1.0
-    ext = fringe_extrema(lam, y)
-    phase = extrema_phase(d_best, ext, lambda x: dispersion.refractive_index(options.n_film, x))
-    if len(ext) >= EXTREMA_FOR_VERDICT and phase > EXTREMA_PHASE_LIMIT:
-        reasons.append(f"the thickness does not put the reading's {len(ext)} fringe extrema where they are "
-                       f"(4 n d / lambda is {phase:.2f} rms from whole numbers there; {RANDOM_PHASE:.2f} for a "
-                       "thickness unrelated to them)")
+    phase, count = extrema_verdict(lam, y, d_best, options.n_film, reasons)
     return SpectrumFit(
         thickness_nm=float(d_best), thickness_nm_stderr=stderr, stderr_statistical_nm=stat,
         stderr_lamp_nm=float(lamp_sys), ok=not reasons, order=order, fringes=fringes,
@@ -522,7 +525,42 @@ def fit_spectrum(spectrum: Spectrum, *, dark: Spectrum | None = None, reference:
         n_film=float(np.interp(0.5 * (lam.min() + lam.max()), lam, n)), second_minimum_nm=second,
         delta_chi2=dchi2, reasons=reasons, warnings=warnings, wavelength_nm=lam, measured=y, fitted=fitted,
         profile_nm=grid, profile_chi2=profile, normalised=bool(options.normalised), normalised_why=why,
-        extrema_phase=phase, extrema=int(len(ext)), candidates=candidates)
+        extrema_phase=phase, extrema=count, candidates=candidates)
+
+
+def extrema_verdict(lam: np.ndarray, y: np.ndarray, d: float, n_film, reasons: list[str]) -> tuple[float, int]:
+    """The extrema phase of thickness ``d`` on the reading ``y`` and its number of clear
+    extrema (:mod:`._spectrum_extrema`), appending to ``reasons`` when the thickness
+    misplaces them: the rms phase above :data:`EXTREMA_PHASE_LIMIT` with at least
+    :data:`EXTREMA_FOR_VERDICT` extrema, or, with fewer (a film of order 0 to 2, whose
+    extrema the rms cannot judge), one clear minimum (a zero of ``R``, which no lamp moves)
+    further than :data:`MINIMUM_PHASE_LIMIT` from an even ``4 n d / lambda``. The limit is
+    in ``x``, where a minimum's error in wavelength counts ``x`` times over: a test of each
+    minimum is tight for the few fringes of a thin film and would not hold for a thick one's
+    many (the smoothing's shift of a minimum of a 10 um film's fine fringes is itself ~0.2).
+
+    References
+    ----------
+    Born & Wolf, *Principles of Optics*, 7th ed., sec. 7.6.1 (extrema of the Airy reflectance).
+    """
+    def n_at(x):
+        return dispersion.refractive_index(n_film, x)
+
+    ext = fringe_extrema(lam, y)
+    phase = extrema_phase(d, ext, n_at)
+    if len(ext) >= EXTREMA_FOR_VERDICT:
+        if phase > EXTREMA_PHASE_LIMIT:
+            reasons.append(f"the thickness does not put the reading's {len(ext)} fringe extrema where they are "
+                           f"(4 n d / lambda is {phase:.2f} rms from whole numbers there; {RANDOM_PHASE:.2f} for a "
+                           "thickness unrelated to them)")
+        return phase, int(len(ext))
+    minima = fringe_minima(lam, y)
+    off = minima_phase(d, minima, n_at)
+    if np.isfinite(off) and off > MINIMUM_PHASE_LIMIT:
+        reasons.append(f"the thickness does not put the reading's fringe minimum where it is: a film in air reflects "
+                       f"nothing where 4 n d / lambda is even, whatever the lamp, and at the reading's minimum "
+                       f"it is {off:.2f} from an even number (limit {MINIMUM_PHASE_LIMIT:g})")
+    return phase, int(len(ext))
 
 
 def resolve_normalised(spectrum: Spectrum, dark: Spectrum | None, reference: Spectrum | None,

@@ -145,6 +145,7 @@ def read_with_shared_lamp(p, lamp: np.ndarray, alternatives: np.ndarray, options
         reasons.append(f"the series' lamp leaves structure in this reading (the residual is {np.sqrt(red):.1f} times "
                        "its noise): its own lamp differs from the series', and a film read from its brightness "
                        "takes the difference for thickness")
+    phase, count = sp.extrema_verdict(lam, p.y, d, options.n_film, reasons)
     return sp.SpectrumFit(
         thickness_nm=float(d), thickness_nm_stderr=stderr, stderr_statistical_nm=r["stat"], stderr_lamp_nm=r["sys"],
         ok=not reasons, order=order, fringes=fringes, resolution_nm=0.0, reduced_chi2=red,
@@ -152,4 +153,5 @@ def read_with_shared_lamp(p, lamp: np.ndarray, alternatives: np.ndarray, options
         n_film=float(np.interp(0.5 * (lam.min() + lam.max()), lam, n)), second_minimum_nm=r["second"],
         delta_chi2=r["dchi2"], reasons=reasons, warnings=warnings, wavelength_nm=lam, measured=p.y, fitted=fitted,
         profile_nm=p.grid, profile_chi2=r["profile"], normalised=bool(options.normalised),
-        normalised_why=alone.normalised_why, candidates=r["candidates"], shared_lamp=True)
+        normalised_why=alone.normalised_why, candidates=r["candidates"], shared_lamp=True, extrema_phase=phase,
+        extrema=count)

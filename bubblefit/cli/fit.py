@@ -12,6 +12,7 @@ not ``ok`` says why (and exits 1 with ``--strict``).
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import math
@@ -98,9 +99,10 @@ def add_model_options(p) -> None:
     p.add_argument("--samples-per-pixel", type=int, default=None, metavar="N",
                    help="rays per rendered pixel, a square number (1, 4, 9, ...): each pixel is the mean over its "
                         "area; default the scene's [camera] samples_per_pixel, else 1")
-    p.add_argument("--pixel-footprint", action="store_true",
-                   help="average each film's map lookup over the pixel's footprint (ray differentials): closer "
-                        "to a camera on glints of a bright sun, ~20%% slower (docs/validation-split.md)")
+    p.add_argument("--pixel-footprint", action=argparse.BooleanOptionalAction, default=None,
+                   help="average each film's map lookup over the pixel's footprint (ray differentials), as a "
+                        "camera integrates the glints of a sun or lamp; default: on when the map holds a compact "
+                        "bright source (its peak over 100x its mean), off otherwise (docs/trust.md)")
     p.add_argument("--colour-check", choices=("decide", "warn"), default="decide",
                    help="when the stated camera response cannot produce the photo's hues: decide (the fit is not "
                         "ok, with the reason) or warn (the reason only) [decide] (docs/cameras.md)")
@@ -221,7 +223,7 @@ def model_option_values(args) -> dict:
     if spp is not None:
         samples_per_pixel(spp, "--samples-per-pixel")
     return dict(illuminant=ill, camera_response=resp, n_film=film_index(args.n_film, args.cauchy, None),
-                samples_per_pixel=spp, pixel_footprint=bool(getattr(args, "pixel_footprint", False)),
+                samples_per_pixel=spp, pixel_footprint=getattr(args, "pixel_footprint", None),
                 judge=JudgeSettings(colour_check=getattr(args, "colour_check", "decide")))
 
 

@@ -51,7 +51,7 @@ _EXPORTS = {
     "refined_disc": "_parameters", "extrapolated": "_parameters", "inverse": "_parameters",
     # set up, and the camera's view
     "Setup": "_setup", "setup": "_setup", "defaults": "_setup", "colour_settings": "_setup",
-    "calibrated_illuminant": "_setup",
+    "calibrated_illuminant": "_setup", "compact_source": "_setup", "COMPACT_SOURCE_RATIO": "_setup",
     "fit_view": "_view", "widen_for_view": "_view",
     # compiled programs: the padded level, its fitted pixels, the renders of a level
     "padded": "_programs", "padded_size": "_programs", "fitted_pixels": "_programs",

@@ -265,9 +265,11 @@ class FitOptions:
         covariance (JSON key ``camera_calibration``;
         :mod:`bubblefit.inverse.self_calibration`). A photo that does not determine them
         (a constant film) is not ``ok``, with the reason.
-    pixel_footprint : bool
+    pixel_footprint : bool or None
         Average each film's map lookup over the pixel's footprint (ray differentials,
-        :attr:`~bubblefit.model.render.RenderConfig.pixel_footprint`); off by default.
+        :attr:`~bubblefit.model.render.RenderConfig.pixel_footprint`). None: on when the map
+        holds a compact bright source, a sun, a lamp or city lights
+        (:func:`~bubblefit.inverse._setup.compact_source`), off otherwise.
     view : View or None
         The camera's view (:class:`~bubblefit.capture.view.View`: a field of view from an
         option or the photo's EXIF, :func:`~bubblefit.capture.view.resolve_view`). A
@@ -300,7 +302,7 @@ class FitOptions:
     white_balance: str | tuple | None = None
     n_film: object = None
     samples_per_pixel: int | None = None
-    pixel_footprint: bool = False
+    pixel_footprint: bool | None = None
     calibrate_camera: bool = False
     parameters: tuple = ()
     view: object = None

@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
+from ._censored import censored_residual
 from ._lm import JACOBIANS, MAX_REJECTIONS, LevenbergMarquardt, robust
 from ._observation import Level
 from ._options import FitOptions, SolverSettings
@@ -234,7 +235,10 @@ def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_st
 
     ``args = (fixed, env, background, background_sigma, photo, weights, base, (rows, cols, idx))``: the
     fitted pixels of a padded level (:func:`fitted_pixels`);
-    the residual is ``robust((render - photo) * weights)`` over them (the weights widened by
+    the residual is ``robust((render - photo) * weights)`` over them, censored where the photo
+    clipped a channel at black (:func:`~bubblefit.inverse._censored.censored_residual`: a film's
+    colour outside the camera's gamut has a negative channel, which the photo records as 0;
+    only a model above the clip leaves a residual there) (the weights widened by
     the background photo's noise, ``background_sigma``, carried by ``dI/dL_b``; Deming,
     J. Wiley 1943: the errors-in-variables weighting), flattened, rendered
     with the disc moved by ``base`` and then by the fitted refinement
@@ -254,7 +258,7 @@ def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_st
             # low by a noisy regressor and its error bar includes the background's share.
             img, carried = jax.jvp(lambda b: render_pixels(p, cfg, env, b, rows, cols, idx), (bg,), (bg_sigma,))
             w = w * jax.lax.rsqrt(1.0 + (w * carried) ** 2)
-        return robust((img - y) * w, robust_scale).reshape(-1)
+        return robust(-censored_residual(y, img) * w, robust_scale).reshape(-1)
 
     lm = LevenbergMarquardt(rtol=rtol, atol=atol, max_rejections=max_rejections, free=table.free,
                             jacobian=JACOBIANS[jacobian](resid, table))

@@ -10,13 +10,13 @@ import numpy as np
 
 from ..capture.view import perspective_from_disc
 from ._observation import Frame, Level, analysis_frame, make_level, resolve_disc, saturation_mask
-from ._pair import PairCheck, check_pair
+from ._pair import LUMINANCE, PairCheck, check_pair
 from ._options import ColourSettings, FitOptions
 from ._parameters import ALIASES, DISC_PARAMETERS, ParameterTable, THICKNESS_PARAMETERS
 from ..errors import InputError
-from ..lighting.envmap import EnvMap
+from ..lighting.envmap import EnvMap, downsample
 from ..model.bounds import SceneSummary
-from ..model.effects import check_harmonic, resolve
+from ..model.effects import Decision, check_harmonic, resolve
 from ..model.geometry import OrthographicCamera
 from ..model.render import RenderConfig
 from ..optics.dispersion import REFERENCE_WAVELENGTH_NM, Cauchy, refractive_index
@@ -103,6 +103,45 @@ def _decide(opts: FitOptions, vals, env, bg, settings, camera, lights):
         env_irradiance_peak=float(np.max(np.asarray(env.irradiance))),
     )
     return resolve(summary, settings, thickness_kind=opts.thickness, tolerance=float(settings.get("tolerance", 1e-3)))
+
+
+#: A map holds a compact bright source (a sun, a lamp, city lights), whose glints one ray
+#: per pixel point-samples, when its brightest texel at :data:`COMPACT_SOURCE_ROWS` rows
+#: exceeds the map's mean luminance by more than this; the fit then integrates the map over
+#: each pixel's footprint. The ratio on the development cases' maps
+#: (experiments/validation/split.toml): courtyard 27 (ref_const300_courtyard_ortho,
+#: ref_drain_lin_courtyard_ortho, cyc_const500_courtyard_ortho, mts_thick_courtyard_persp;
+#: the shipped 1024 x 512 copy also 27), studio 630 (ref_drain_exp15_studio_persp), night
+#: 2800 (ref_const1200_night_ortho_offc), city 4000 (ref_drain_lin_city_ortho_offc,
+#: cyc_bump_city_ortho_offc), interior 8000 (ref_const450_interior_ortho), sunrise 11600
+#: (ref_const620_sunrise_persp, cyc_drain_lin_sunrise_persp, ref_bump_sunrise_ortho);
+#: 100 lies 3.7x above the first and 6x below the second group.
+COMPACT_SOURCE_RATIO = 100.0
+
+#: Rows (1.4 degree texels) of the map, halved with its power kept, at which
+#: :func:`compact_source` reads its peak, so that the measure does not depend on the map's
+#: resolution (a smaller map is read as it is).
+COMPACT_SOURCE_ROWS = 128
+
+
+def compact_source(env: EnvMap) -> tuple[bool, str]:
+    """Whether the map ``env`` holds a compact bright source, and the reason in words: its
+    luminance peak at :data:`COMPACT_SOURCE_ROWS` rows (the map halved with its power kept,
+    :func:`~bubblefit.lighting.envmap.downsample`) over its solid-angle mean luminance
+    (:func:`~bubblefit.inverse._exposure.map_levels`) above :data:`COMPACT_SOURCE_RATIO`.
+    Where it does, one ray per pixel point-samples the source's glints, which a camera
+    integrates over its pixel."""
+    from ._exposure import map_levels
+
+    px = np.asarray(env.pixels, np.float64)
+    while px.shape[0] > COMPACT_SOURCE_ROWS:
+        px = downsample(px)
+    _, mean = map_levels(px)
+    ratio = float(np.max(px @ LUMINANCE)) / mean if mean > 0 else float("inf")
+    if ratio > COMPACT_SOURCE_RATIO:
+        return True, (f"the map's peak is {ratio:.0f}x its mean at 1.4 degrees (a compact bright source): each "
+                      "lookup is averaged over the pixel's footprint")
+    return False, f"the map's peak is {ratio:.0f}x its mean at 1.4 degrees (no compact source): one ray per pixel"
 
 
 def _held_by_effects(opts: FitOptions, fx, hold: dict) -> tuple:
@@ -341,9 +380,12 @@ def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, d
     # (search, local solves, map, final image) starts from these configurations.
     colour = colour_settings(scene, opts, vals["n_film"])
     fx = _coloured(fx, colour)
+    footprint, why = compact_source(env) if opts.pixel_footprint is None else (
+        bool(opts.pixel_footprint), "as asked (--pixel-footprint / --no-pixel-footprint)")
+    decisions = [*(d for d in decisions if d.effect != "pixel footprint"), Decision("pixel footprint", footprint, why)]
     map_cfg = RenderConfig(effects=fx, camera=camera, center=center, radius=radius, point_lights=tuple(lights),
                            dispersion=colour.n_film if isinstance(colour.n_film, Cauchy) else None,
-                           samples_per_pixel=colour.samples_per_pixel, pixel_footprint=opts.pixel_footprint)
+                           samples_per_pixel=colour.samples_per_pixel, pixel_footprint=footprint)
     table = _table(opts, fx, held0, fit_disc)
     # a map is fitted after a drainage profile: the local fits render the profile
     base_cfg = replace(map_cfg, effects=replace(fx, thickness=table.thickness_model))

@@ -42,6 +42,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._censored import censored_residual
 from ._parameters import ParameterTable
 from ._programs import fitted_pixels, render_level
 from ..model.geometry import compose_shift
@@ -216,7 +217,7 @@ def score_global(refl, fixed, y, w2):
     num = jnp.sum(w2 * refl * target, axis=(1, 2))
     den = jnp.sum(w2 * refl * refl, axis=(1, 2))
     gain = jnp.maximum(num / jnp.maximum(den, 1e-30), 0.0)
-    res = gain[:, None, None] * refl - target
+    res = -censored_residual(y, gain[:, None, None] * refl + fixed)  # the gain is the uncensored one
     return jnp.sum(w2 * res * res, axis=(1, 2)), gain
 
 
@@ -251,9 +252,10 @@ def pixel_costs(refl, fixed, y, w2):
     """(G, P) weighted squared residual of every candidate at every pixel (gain 1).
 
     ``refl`` (G, P, 3), ``fixed`` (P, 3) or (G, P, 3), ``y`` and ``w2`` (P, 3) as in
-    :func:`score_global`.
+    :func:`score_global`. Channels the photo clipped at black are censored
+    (:func:`~bubblefit.inverse._censored.censored_residual`).
     """
-    res = refl - (y - fixed)
+    res = -censored_residual(y, refl + fixed)
     return jnp.sum(w2 * res * res, axis=-1)
 
 

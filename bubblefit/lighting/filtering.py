@@ -228,7 +228,9 @@ def _footprint_nodes(footprint, t1, t2, a, nodes: int):
     c12 = g11 * g21 + g12 * g22
     c22 = half_a2 + g21 * g21 + g22 * g22
     # C^(1/2) of a 2 x 2 SPD matrix: (C + sqrt(det C) I) / sqrt(tr C + 2 sqrt(det C))
-    root_det = jnp.sqrt(jnp.maximum(c11 * c22 - c12 * c12, 0.0))
+    # (a floor above 0: where float32 rounds det C of a thin footprint at roughness ~0 to
+    # <= 0, sqrt's infinite slope at 0 times max's zero slope would make a NaN Jacobian)
+    root_det = jnp.sqrt(jnp.maximum(c11 * c22 - c12 * c12, 1e-30))
     den = jnp.sqrt(c11 + c22 + 2.0 * root_det + 1e-30)
     q11, q12, q22 = (c11 + root_det) / den, c12 / den, (c22 + root_det) / den
     # G's polar factor: a rotation where det G >= 0, else a reflection

@@ -139,11 +139,10 @@ class RenderConfig:
     samples_per_pixel: int = 1
     #: Integrate each film's map lookup over the pixel's footprint (ray differentials,
     #: :func:`~bubblefit.model.geometry.slope_footprint`), the area the camera's pixel (or
-    #: sub-pixel ray) covers; False reads the centre ray's direction only. Off by default:
-    #: on the sunny test photos it lowers the misfit of the mirror films' fits (forest 850 nm:
-    #: reduced chi^2 4.24 -> 2.74) and of the Cycles rough constant film (15.1 -> 8.3), but
-    #: its per-node box reads slow a fit down by a factor not yet timed against a yardstick
-    #: (600 s against 188 s for one drainage fit on a loaded machine; docs/validation-split.md).
+    #: sub-pixel ray) covers; False reads the centre ray's direction only. A fit turns it on
+    #: where the map holds a compact bright source (:func:`bubblefit.inverse.compact_source`);
+    #: a render does so when asked (docs/validation-split.md: its effect and cost on the
+    #: sunny photos).
     pixel_footprint: bool = False
 
     @property

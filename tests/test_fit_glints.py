@@ -1,0 +1,106 @@
+"""Glints of a compact bright source in the fit: when the pixel footprint is on by default,
+and channels the photo clipped at black (a glint on a film whose colour lies outside the
+camera's gamut has a large negative channel; an 8-bit photo records 0 there).
+
+References: the censored residual of a Tobit model (J. Tobin, Econometrica 26, 1958);
+the map's power-preserving halving is an average over solid angle, so a source's peak at a
+fixed texel size does not depend on the resolution the map was stored at.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+
+def _sun_map(rows: int, sun: float) -> np.ndarray:
+    """A uniform map of radiance 1 with a sun of ``sun`` over the solid angle of one texel
+    of the 128-row map, centred on texel (40, 100) of that map."""
+    px = np.ones((rows, 2 * rows, 3))
+    k = rows // 128
+    px[40 * k:41 * k, 100 * k:101 * k] = sun
+    return px
+
+
+def test_compact_source_reads_the_map_at_a_fixed_texel_size():
+    from bubblefit.inverse import COMPACT_SOURCE_RATIO, compact_source
+    from bubblefit.lighting.envmap import EnvMap, texel_solid_angles
+
+    sun = 5000.0
+    on_128, why = compact_source(EnvMap.from_array(_sun_map(128, sun)))
+    on_512, why_512 = compact_source(EnvMap.from_array(_sun_map(512, sun)))
+    assert on_128 and on_512
+    # the ratio by hand: peak luminance (1 + sun over one texel) over the solid-angle mean
+    sa = np.repeat(texel_solid_angles(128, 256)[:, None], 256, axis=1)
+    mean = (np.sum(sa) + (sun - 1.0) * sa[40, 100]) / np.sum(sa)
+    ratio = sun / mean
+    assert f"{ratio:.0f}x" in why and f"{ratio:.0f}x" in why_512, (why, why_512, ratio)
+    # a source weaker than the ratio's limit is not compact
+    weak = 0.5 * COMPACT_SOURCE_RATIO * mean
+    assert not compact_source(EnvMap.from_array(_sun_map(128, weak)))[0]
+
+
+def test_the_shipped_maps_decide_the_footprint():
+    """The courtyard's sun is soft (peak 27x the mean at 1.4 degrees): one ray per pixel; the
+    studio's lamps (630x) are compact: the footprint."""
+    from bubblefit.inverse import compact_source
+    from bubblefit.model.scene import read_envmap, shipped_envmap
+
+    assert not compact_source(read_envmap(shipped_envmap("courtyard")))[0]
+    assert compact_source(read_envmap(shipped_envmap("studio")))[0]
+
+
+def test_the_command_line_turns_the_footprint_either_way():
+    from bubblefit.cli import build_parser
+    from bubblefit.inverse import FitOptions
+
+    base = ["fit", "photo.png", "--envmap", "env.exr"]
+    parse = build_parser().parse_args
+    assert parse(base).pixel_footprint is None and FitOptions().pixel_footprint is None
+    assert parse(base + ["--pixel-footprint"]).pixel_footprint is True
+    assert parse(base + ["--no-pixel-footprint"]).pixel_footprint is False
+
+
+@pytest.mark.parametrize("model_red, counted", [(-0.4, 0.0), (0.0005, 0.0), (0.05, 0.05 - 0.001)])
+def test_a_channel_clipped_at_black_is_censored(model_red, counted):
+    """A photo channel at or below the black clip only says the true value is there or
+    lower: a model below the recorded value costs nothing, a model above it costs its distance."""
+    from bubblefit.inverse import search
+
+    y = np.array([[0.001, 0.20, 0.03]])      # red clipped at black
+    w2 = np.array([[1e6, 1e4, 1e5]])
+    refl = np.array([[[model_red, 0.21, 0.03]]])
+    fixed = np.zeros((1, 3))
+    cost = float(np.asarray(search.pixel_costs(refl, fixed, y, w2))[0, 0])
+    expected = 1e6 * counted**2 + 1e4 * 0.01**2
+    assert cost == pytest.approx(expected, rel=1e-5)
+
+
+def test_the_footprint_lookup_has_a_finite_roughness_derivative_at_a_mirror():
+    """A thin footprint (one axis 1e-4 of the other) at roughness 0 and 1e-6: float32 rounds
+    the determinant of the lobe-plus-pixel covariance to <= 0, and the Jacobian a mirror
+    film's fit takes through the lookup must stay finite (a NaN made the off-centre sunset
+    drainage fit fail at roughness 1.8e-6). The derivative's value is checked against a
+    central difference at a roughness where both sides are smooth."""
+    import jax
+    import jax.numpy as jnp
+
+    from bubblefit.lighting.envmap import EnvMap
+    from bubblefit.lighting.filtering import specular_mipmap
+
+    rng = np.random.default_rng(3)
+    env = EnvMap.from_array(rng.uniform(0.2, 1.0, (32, 64, 3)).astype(np.float32))
+    n = jnp.asarray([[0.3, 0.2, 0.93], [0.0, 0.6, 0.8]], jnp.float32)
+    n = n / jnp.linalg.norm(n, axis=-1, keepdims=True)
+    wo = jnp.asarray([[0.0, 0.0, 1.0]] * 2, jnp.float32)
+    long = jnp.asarray([[0.7, -0.5, 0.1], [0.2, 0.9, -0.3]], jnp.float32) * 0.02
+    fp = jnp.stack([long, 1e-4 * long[:, ::-1]], axis=-1)  # (N, 3, 2), nearly rank 1
+
+    def total(a):
+        return jnp.sum(specular_mipmap(env, n, wo, a, nodes=4, normalize=True, footprint=fp))
+
+    for a in (0.0, 1e-6):
+        assert np.isfinite(float(jax.grad(total)(jnp.float32(a))))
+    a0, h = 0.05, 1e-3
+    fd = (float(total(jnp.float32(a0 + h))) - float(total(jnp.float32(a0 - h)))) / (2 * h)
+    assert float(jax.grad(total)(jnp.float32(a0))) == pytest.approx(fd, rel=0.05, abs=1e-3)

@@ -124,7 +124,7 @@ def test_film_float32_matches_float64(enable_x64):
     c, d, n, lam = np.meshgrid(_cos(np.linspace(0, 85, 18)), THICKNESS_NM, N_FILM[N_FILM >= 1.05], WAVELENGTHS,
                                indexing="ij")
     for name in ("airy", "two_beam", "incoherent"):
-        fn = FILM_FUNCS[name]
+        fn = jax.jit(FILM_FUNCS[name])  # compiled, as the renderer runs it (eagerly, each operation compiles)
         r64 = np.asarray(fn(*(jnp.asarray(x, jnp.float64) for x in (d, lam, n, c))))
         r32 = np.asarray(fn(*(jnp.asarray(x, jnp.float32) for x in (d, lam, n, c))))
         err = np.abs(r64 - r32)

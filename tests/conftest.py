@@ -84,8 +84,8 @@ def _heap_trimmed() -> None:
     """Hand the C heap's free pages back to the system (glibc's ``malloc_trim``; nothing
     elsewhere): freed arrays otherwise stay in the process's resident memory, and the
     next module's allocations, of other sizes, do not always fit in them. After the fast
-    part of ``test_filtering.py`` (1.58 GB at its peak) the process keeps 1.35 GB resident
-    without it and 0.46 GB with it."""
+    part of ``test_filtering.py`` (0.66 GB at its peak, programs loaded from the cache) the
+    process keeps 0.42 GB resident without it and 0.27 GB with it."""
     try:
         ctypes.CDLL("libc.so.6").malloc_trim(0)
     except (OSError, AttributeError):

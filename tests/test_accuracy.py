@@ -32,14 +32,21 @@ N = 1.4
 
 
 def colours(basis, d, cos_i=1.0):
-    """Linear sRGB (N, 3) of an Airy film, filtered per lobe when the basis has lobes."""
+    """Linear sRGB (N, 3) of an Airy film, filtered per lobe when the basis has lobes.
+
+    Compiled once per basis, as the renderer runs it (called eagerly, each operation
+    compiles again for each basis' number of samples)."""
     lam = jnp.asarray(basis.wavelengths)
-    dd = jnp.asarray(d)[:, None]
-    if basis.sigma is None:
-        s = film.airy_reflectance(dd, lam, N, cos_i)
-    else:
-        s = film.filtered_airy_reflectance(dd, lam, N, cos_i, jnp.asarray(basis.sigma))
-    return np.asarray(spectral.integrate(s.mean(-1), basis), dtype=np.float64)
+
+    @jax.jit
+    def rgb(dd, c):
+        if basis.sigma is None:
+            s = film.airy_reflectance(dd, lam, N, c)
+        else:
+            s = film.filtered_airy_reflectance(dd, lam, N, c, jnp.asarray(basis.sigma))
+        return spectral.integrate(s.mean(-1), basis)
+
+    return np.asarray(rgb(jnp.asarray(d)[:, None], jnp.asarray(cos_i)), dtype=np.float64)
 
 
 def delta_e(a, b, cos_i=1.0):

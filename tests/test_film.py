@@ -7,6 +7,7 @@ dependency) for the exact film reflectance; Born & Wolf 7.6 for the two-beam tru
 
 from __future__ import annotations
 
+import jax
 import numpy as np
 import pytest
 
@@ -14,6 +15,12 @@ tmm = pytest.importorskip("tmm")
 
 from bubblefit.optics import film
 from bubblefit.optics import spectral  # noqa: E402
+
+
+# Compiled, as the renderer runs them: called eagerly, JAX compiles each operation again
+# for every array size and dtype.
+airy_reflectance = jax.jit(film.airy_reflectance)
+two_beam_reflectance = jax.jit(film.two_beam_reflectance)
 
 THICKNESS = np.array([0.0, 1.0, 5.0, 10.0, 37.0, 100.0, 250.0, 512.0, 1000.0, 1999.0, 3500.0, 5000.0])
 ANGLES_DEG = np.array([0.0, 10.0, 30.0, 45.0, 60.0, 70.0, 80.0, 85.0, 89.0])
@@ -35,8 +42,8 @@ def _tmm_reflectance(d, angle_deg, lam, n):
 def test_airy_matches_transfer_matrix(x64, n):
     ref = _tmm_reflectance(THICKNESS, ANGLES_DEG, WAVELENGTHS, n)
     cos_i = np.cos(np.radians(ANGLES_DEG))
-    got = np.asarray(film.airy_reflectance(THICKNESS[:, None, None], WAVELENGTHS[None, None, :], n,
-                                           cos_i[None, :, None]))
+    got = np.asarray(airy_reflectance(THICKNESS[:, None, None], WAVELENGTHS[None, None, :], n,
+                                      cos_i[None, :, None]))
     assert got.shape == ref.shape
     err = np.abs(got - ref)
     assert err.max() < 1e-6, f"max |R - R_tmm| = {err.max():.3e} at {np.unravel_index(err.argmax(), err.shape)}"
@@ -68,8 +75,8 @@ def test_two_beam_differs_from_airy_by_order_r_squared(x64, n):
     d = np.linspace(0.0, 3000.0, 301)[:, None, None]
     for angle in [0.0, 30.0, 60.0, 75.0]:
         cos_i = np.cos(np.radians(angle))
-        airy = np.asarray(film.airy_reflectance(d, lam[None, :, None], n, cos_i))
-        two = np.asarray(film.two_beam_reflectance(d, lam[None, :, None], n, cos_i))
+        airy = np.asarray(airy_reflectance(d, lam[None, :, None], n, cos_i))
+        two = np.asarray(two_beam_reflectance(d, lam[None, :, None], n, cos_i))
         r1 = np.asarray(film.fresnel_reflectance(cos_i, n))
         ratio = np.abs(airy - two).max(axis=(0, 1, 2)) / r1**2
         # Leading term of the difference is 4 R1^2 cos(delta)... : bounded by ~4 R1^2, and
@@ -84,15 +91,15 @@ def test_thin_films_are_black():
     for angle in [0.0, 45.0, 70.0]:
         cos_i = np.cos(np.radians(angle))
         grey = float(np.mean(film.incoherent_reflectance(cos_i, 1.4)))
-        rgb0 = np.asarray(spectral.integrate(film.airy_reflectance(0.0, lam, 1.4, cos_i).mean(-1), basis))
+        rgb0 = np.asarray(spectral.integrate(airy_reflectance(0.0, lam, 1.4, cos_i).mean(-1), basis))
         assert np.abs(rgb0).max() < 1e-6
         for d in [2.0, 5.0, 9.9]:
-            rgb = np.asarray(spectral.integrate(film.airy_reflectance(d, lam, 1.4, cos_i).mean(-1), basis))
+            rgb = np.asarray(spectral.integrate(airy_reflectance(d, lam, 1.4, cos_i).mean(-1), basis))
             # A 10 nm film reflects under a tenth of the incoherent grey; it grows like d^2.
             assert np.all(rgb < 0.1 * grey), (angle, d, rgb / grey)
             assert np.all(rgb >= 0)
-        r5 = np.asarray(spectral.integrate(film.airy_reflectance(5.0, lam, 1.4, cos_i).mean(-1), basis))
-        r2 = np.asarray(spectral.integrate(film.airy_reflectance(2.5, lam, 1.4, cos_i).mean(-1), basis))
+        r5 = np.asarray(spectral.integrate(airy_reflectance(5.0, lam, 1.4, cos_i).mean(-1), basis))
+        r2 = np.asarray(spectral.integrate(airy_reflectance(2.5, lam, 1.4, cos_i).mean(-1), basis))
         np.testing.assert_allclose(r5 / r2, 4.0, rtol=0.05)
     # The paper's eq. (10) factor has the same black-film limit (the + pi of eq. 8).
     assert float(np.max(film.paper_interference_factor(0.0, lam, 1.4, 1.0, 0.97))) < 1e-10
@@ -106,8 +113,8 @@ def test_thick_films_tend_to_incoherent_limit(x64, angle):
     coarse = spectral.spectral_basis("uniform", 10)
     fine_dev, coarse_dev = [], []
     for d in [8000.0, 12345.0, 20000.0]:
-        f = np.asarray(spectral.integrate(film.airy_reflectance(d, fine.wavelengths, 1.4, cos_i).mean(-1), fine))
-        c = np.asarray(spectral.integrate(film.airy_reflectance(d, coarse.wavelengths, 1.4, cos_i).mean(-1), coarse))
+        f = np.asarray(spectral.integrate(airy_reflectance(d, fine.wavelengths, 1.4, cos_i).mean(-1), fine))
+        c = np.asarray(spectral.integrate(airy_reflectance(d, coarse.wavelengths, 1.4, cos_i).mean(-1), coarse))
         fine_dev.append(np.abs(f / grey - 1).max())
         coarse_dev.append(np.abs(c / grey - 1).max())
     assert max(fine_dev) < 5e-3, fine_dev
@@ -124,7 +131,7 @@ def test_incoherent_is_phase_average_of_airy(x64):
         cos_t = float(film.cos_transmitted(cos_i, n))
         period = lam / (2 * n * cos_t)  # thickness step that advances the phase by 2 pi
         d = np.linspace(0.0, period, 4001)[:-1]
-        mean = np.asarray(film.airy_reflectance(d, lam, n, cos_i)).mean(axis=0)
+        mean = np.asarray(airy_reflectance(d, lam, n, cos_i)).mean(axis=0)
         np.testing.assert_allclose(mean, np.asarray(film.incoherent_reflectance(cos_i, n)), rtol=1e-9)
 
 
@@ -132,13 +139,13 @@ def test_energy_and_grazing_limits(x64):
     lam = np.linspace(380, 780, 41)
     d = np.linspace(0, 5000, 101)[:, None]
     for cos_i in [1.0, 0.5, 1e-3, 0.0]:
-        r = np.asarray(film.airy_reflectance(d, lam, 1.4, cos_i))
+        r = np.asarray(airy_reflectance(d, lam, 1.4, cos_i))
         assert np.all((r >= 0) & (r <= 1))
     # At grazing incidence every film (except the black d -> 0 limit) reflects everything.
-    r = np.asarray(film.airy_reflectance(500.0, lam, 1.4, 0.0))
+    r = np.asarray(airy_reflectance(500.0, lam, 1.4, 0.0))
     np.testing.assert_allclose(r, 1.0, atol=1e-9)
     # n = 1 is no film at all.
-    assert np.abs(np.asarray(film.airy_reflectance(d, lam, 1.0, 0.7))).max() < 1e-12
+    assert np.abs(np.asarray(airy_reflectance(d, lam, 1.0, 0.7))).max() < 1e-12
 
 
 def test_gradients_are_finite_everywhere():
@@ -146,9 +153,9 @@ def test_gradients_are_finite_everywhere():
     import jax.numpy as jnp
 
     def f(d, n, c):
-        return jnp.sum(film.airy_reflectance(d, 550.0, n, c)) + jnp.sum(film.two_beam_reflectance(d, 550.0, n, c))
+        return jnp.sum(airy_reflectance(d, 550.0, n, c)) + jnp.sum(two_beam_reflectance(d, 550.0, n, c))
 
-    g = jax.grad(f, argnums=(0, 1, 2))
+    g = jax.jit(jax.grad(f, argnums=(0, 1, 2)))
     for d in [0.0, 1e-3, 500.0]:
         for c in [0.0, 1e-6, 0.5, 1.0]:
             for n in [1.0, 1.4]:

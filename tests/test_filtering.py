@@ -9,12 +9,24 @@ to ``cos th_r`` at oblique view as ``a -> 0`` (Walter, "Notes on the Ward BRDF",
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from bubblefit.lighting import filtering as F
 from bubblefit.lighting.envmap import EnvMap
+
+
+# The renderer calls the filters inside its compiled programs (bubblefit.model.render), and
+# the tests call them compiled too: one program per setting. Called eagerly, JAX compiles
+# each operation again for every array size (from an empty compilation cache the window's
+# and the mip-map's convergence checks took 20 s of CPU eagerly, 4 s compiled; the results
+# differ by float32 rounding, 2e-6 at most).
+specular_mipmap = jax.jit(F.specular_mipmap, static_argnames=("nodes", "normalize"))
+specular_window = jax.jit(F.specular_window, static_argnames=("window", "level", "normalize"))
+specular_mirror = jax.jit(F.specular_mirror, static_argnames=("normalize",))
+full_sum = jax.jit(F.full_sum, static_argnames=("level", "chunk", "normalize"))
 
 
 def _points(count=120, max_angle=1.1, seed=0):
@@ -34,6 +46,22 @@ def env(small_courtyard):
     return EnvMap.from_array(small_courtyard)
 
 
+@pytest.fixture(scope="module")
+def full_sum_of(env):
+    """Eq. (12) summed over every texel of the courtyard at the points of :func:`_points`,
+    per lobe width ``a``: computed once and shared by the window's and the mip-map's
+    convergence checks, which compare with the same sum."""
+    sums = {}
+
+    def full(a):
+        if a not in sums:
+            n, wo = _points()
+            sums[a] = np.asarray(full_sum(env, n, wo, a, level=0, chunk=4096, normalize=False)[0])
+        return sums[a]
+
+    return full
+
+
 def _rel(x, ref):
     x = np.asarray(x)
     return float(np.sqrt(np.mean((x - ref) ** 2)) / np.sqrt(np.mean(ref**2)))
@@ -41,21 +69,21 @@ def _rel(x, ref):
 
 # the 0.1 lobe (a level-0 sum over many texels per point) is the longest: slow; 0.3 runs in the fast part
 @pytest.mark.parametrize("a", [pytest.param(0.1, marks=pytest.mark.slow), 0.3])
-def test_window_converges_to_full_sum(env, a):
+def test_window_converges_to_full_sum(env, full_sum_of, a):
     n, wo = _points()
-    ref = np.asarray(F.full_sum(env, n, wo, a, level=0, chunk=4096, normalize=False)[0])
-    errs = [_rel(F.specular_window(env, n, wo, a, window=k, level=0, normalize=False), ref) for k in (2, 6, 16, 40)]
+    ref = full_sum_of(a)
+    errs = [_rel(specular_window(env, n, wo, a, window=k, level=0, normalize=False), ref) for k in (2, 6, 16, 40)]
     assert all(e1 <= e0 + 1e-6 for e0, e1 in zip(errs, errs[1:])), errs
     assert errs[-1] < 0.01 and errs[0] > 0.1, errs
 
 
 @pytest.mark.parametrize("a", [pytest.param(0.1, marks=pytest.mark.slow), 0.3])  # as above
-def test_mipmap_converges_to_full_sum(env, a):
+def test_mipmap_converges_to_full_sum(env, full_sum_of, a):
     """On the courtyard (a sun ~50x the mean) the mip-map quadrature approaches eq. (12)."""
     n, wo = _points()
-    ref = np.asarray(F.full_sum(env, n, wo, a, level=0, chunk=4096, normalize=False)[0])
+    ref = full_sum_of(a)
     nodes = (4, 8, 16, 32)
-    errs = [_rel(F.specular_mipmap(env, n, wo, a, nodes=k, normalize=False), ref) for k in nodes]
+    errs = [_rel(specular_mipmap(env, n, wo, a, nodes=k, normalize=False), ref) for k in nodes]
     print(dict(zip(nodes, errs)))
     assert errs[1] < errs[0] and errs[2] < errs[1] and errs[3] < errs[2], errs
     assert errs[-1] < 0.02, errs
@@ -63,13 +91,13 @@ def test_mipmap_converges_to_full_sum(env, a):
 
 def test_roughness_to_zero_tends_to_mirror(env):
     n, wo = _points(max_angle=1.0)
-    mirror = np.asarray(F.specular_mirror(env, n, wo, normalize=True))
-    errs = [_rel(F.specular_mipmap(env, n, wo, a, nodes=6, normalize=True), mirror) for a in (0.05, 0.01, 0.002, 2e-4)]
+    mirror = np.asarray(specular_mirror(env, n, wo, normalize=True))
+    errs = [_rel(specular_mipmap(env, n, wo, a, nodes=6, normalize=True), mirror) for a in (0.05, 0.01, 0.002, 2e-4)]
     assert all(e1 < e0 for e0, e1 in zip(errs, errs[1:])), errs
     assert errs[-1] < 2e-3, errs
     # Unnormalised (eq. 1 as written) the limit carries the lobe's albedo cos th_r.
     cos_r = np.asarray(jnp.sum(n * wo, -1))[:, None]
-    raw = np.asarray(F.specular_mipmap(env, n, wo, 2e-4, nodes=6, normalize=False))
+    raw = np.asarray(specular_mipmap(env, n, wo, 2e-4, nodes=6, normalize=False))
     assert _rel(raw, mirror * cos_r) < 2e-3
 
 
@@ -82,7 +110,7 @@ def test_white_furnace_energy(a):
     n = jnp.asarray([[0.0, 0.0, 1.0], [0.0, 0.6, 0.8], [0.8, 0.0, 0.6]], jnp.float32)
     wo = jnp.asarray([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, 1.0]], jnp.float32)
     cos_r = np.asarray(jnp.sum(n * wo, -1))
-    spec, irr = F.full_sum(white, n, wo, a, level=0, chunk=4096, normalize=False)
+    spec, irr = full_sum(white, n, wo, a, level=0, chunk=4096, normalize=False)
     diffuse = r_d / np.pi * np.asarray(F.irradiance(white, n))[:, 0]
     np.testing.assert_allclose(np.asarray(irr)[:, 0], np.pi, rtol=2e-3)  # E = pi in a white furnace
     np.testing.assert_allclose(diffuse, r_d, rtol=1e-2)
@@ -94,9 +122,9 @@ def test_white_furnace_energy(a):
     albedo = np.asarray(spec)[:, 0]
     np.testing.assert_allclose(albedo[1:], cos_r[1:], rtol=4 * a * a + 2e-3)
     # Mip-map quadrature sees the same furnace, and normalised filtering returns exactly 1.
-    mip = np.asarray(F.specular_mipmap(white, n, wo, a, nodes=8, normalize=False))[:, 0]
+    mip = np.asarray(specular_mipmap(white, n, wo, a, nodes=8, normalize=False))[:, 0]
     np.testing.assert_allclose(mip, albedo, rtol=5e-3)  # measured 0.2 % at most
-    norm = np.asarray(F.specular_mipmap(white, n, wo, a, nodes=8, normalize=True))
+    norm = np.asarray(specular_mipmap(white, n, wo, a, nodes=8, normalize=True))
     np.testing.assert_allclose(norm, 1.0, rtol=1e-5)
 
 
@@ -232,7 +260,7 @@ def test_footprint_lookup_resolves_a_small_sun(elongation):
     n = np.stack([(n0 + o * e1) / np.linalg.norm(n0 + o * e1) for o in offsets])
     jacs = np.stack([jac - np.outer(m, m @ jac) for m in n])  # tangent at each normal
     ref = np.stack([_box_pixel_mirror(pixels, m, wo, j) for m, j in zip(n, jacs)])[:, 0]
-    got = np.asarray(F.specular_mipmap(env, jnp.asarray(n, jnp.float32), jnp.asarray(np.tile(wo, (len(n), 1)), jnp.float32),
+    got = np.asarray(specular_mipmap(env, jnp.asarray(n, jnp.float32), jnp.asarray(np.tile(wo, (len(n), 1)), jnp.float32),
                                        jnp.float32(0.0), nodes=4, normalize=True,
                                        footprint=jnp.asarray(jacs, jnp.float32)))[:, 0]
     err = (got - ref) / ref.max()
@@ -256,6 +284,6 @@ def test_footprint_lookup_of_a_smooth_map_is_the_brute_force_integral():
     jac = rng.normal(scale=0.05, size=(40, 3, 2))
     jac -= n[:, :, None] * np.einsum("nc,nck->nk", n, jac)[:, None, :]
     ref = np.stack([_box_pixel_mirror(smooth, m, o, j) for m, o, j in zip(n, wo, jac)])
-    got = np.asarray(F.specular_mipmap(env, jnp.asarray(n, jnp.float32), jnp.asarray(wo, jnp.float32), jnp.float32(0.0),
+    got = np.asarray(specular_mipmap(env, jnp.asarray(n, jnp.float32), jnp.asarray(wo, jnp.float32), jnp.float32(0.0),
                                        nodes=4, normalize=True, footprint=jnp.asarray(jac, jnp.float32)))
     np.testing.assert_allclose(got, ref, rtol=5e-3)  # measured 0.2 % at most

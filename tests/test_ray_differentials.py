@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -104,12 +105,17 @@ def _package_footprint(cam, fx, rows, cols):
             o, d = cam.rays(r, c, cfg.center, cfg.radius)
         return o, jnp.broadcast_to(d, o.shape)
 
-    r = jnp.asarray(rows, jnp.float32)
-    c = jnp.asarray(cols, jnp.float32)
-    o, d = rays(r, c)
-    films, _ = shading_points(fx, cfg, intersect_sphere(o, d, cfg.center, cfg.radius), d)
-    fp = np.asarray(film_footprints(fx, cfg, rays, r, c, films))
-    return {f[0]: fp[k * len(rows):(k + 1) * len(rows)] for k, f in enumerate(films)}
+    names = []
+
+    def footprints(r, c):
+        o, d = rays(r, c)
+        films, _ = shading_points(fx, cfg, intersect_sphere(o, d, cfg.center, cfg.radius), d)
+        names[:] = [f[0] for f in films]
+        return film_footprints(fx, cfg, rays, r, c, films)
+
+    # compiled, as the renderer runs it (eagerly, each operation would compile on its own)
+    fp = np.asarray(jax.jit(footprints)(jnp.asarray(rows, jnp.float32), jnp.asarray(cols, jnp.float32)))
+    return {name: fp[k * len(rows):(k + 1) * len(rows)] for k, name in enumerate(names)}
 
 
 CAMERAS = {

@@ -170,7 +170,10 @@ def _fd_check(p, cfg, env, names, rel=1e-6, rtol=2e-3):
     def loss(q):
         return jnp.sum(render(q, cfg, env) * w)
 
-    g = jax.grad(loss)(p)
+    # one compiled program gives the loss and its gradient (eagerly, the gradient's
+    # forward and backward passes and the loss each compile a render of their own)
+    value_and_grad = jax.jit(jax.value_and_grad(loss))
+    g = value_and_grad(p)[1]
     for name in names:
         v = getattr(p, name)
         h = rel * max(1.0, float(jnp.max(jnp.abs(v))))
@@ -180,7 +183,7 @@ def _fd_check(p, cfg, env, names, rel=1e-6, rtol=2e-3):
             e[i] = h
             up = with_field(p, name, jnp.asarray(flat + e).reshape(v.shape))
             dn = with_field(p, name, jnp.asarray(flat - e).reshape(v.shape))
-            fd = (float(loss(up)) - float(loss(dn))) / (2 * h)
+            fd = (float(value_and_grad(up)[0]) - float(value_and_grad(dn)[0])) / (2 * h)
             ad = float(np.asarray(getattr(g, name)).ravel()[i])
             assert np.isfinite(ad)
             assert ad == pytest.approx(fd, rel=rtol, abs=1e-6 * (1 + abs(fd))), (name, i, ad, fd)

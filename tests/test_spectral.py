@@ -411,8 +411,11 @@ def test_harmonic_weights_are_differentiable_and_finite():
     import jax.numpy as jnp
 
     basis = spectral.spectral_basis("harmonic", 16)
+    weights = lambda v: spectral.harmonic_weights(v, basis)
+    # compiled, as the renderer runs them (eagerly, each operation compiles on its own)
+    weights_c, jac_c = jax.jit(weights), jax.jit(jax.jacfwd(weights))
     for x in (0.0, 1e-3, 850.0, 16800.0, 1e6):  # beyond the table the harmonics vanish
-        jac = jax.jacfwd(lambda v: spectral.harmonic_weights(v, basis))(jnp.float32(x))
-        val = spectral.harmonic_weights(jnp.float32(x), basis)
+        jac = jac_c(jnp.float32(x))
+        val = weights_c(jnp.float32(x))
         assert np.all(np.isfinite(np.asarray(jac))) and np.all(np.isfinite(np.asarray(val)))
         np.testing.assert_allclose(np.asarray(val).sum(0), 1.0, atol=1e-5)  # a flat spectrum stays white

@@ -109,9 +109,11 @@ def test_paper_factor_and_snell_near_tir(dtype, enable_x64):
         assert _all_finite(g)
     # Glass-like inside (1.5) to a film of n in [1, 1.5]: the critical angle asin(n/1.5).
     cos_i = jnp.asarray(_cos(np.linspace(0, 90, 721)), dtype)
+    cos_transmitted = jax.jit(film.cos_transmitted)  # compiled, as the renderer runs it
+    grad_cos = jax.jit(jax.vmap(jax.grad(film.cos_transmitted, argnums=(0, 1)), in_axes=(0, None, None)))
     for n_in in (1.0, 1.2, 1.4999):
-        ct = film.cos_transmitted(cos_i, n_in, 1.5)
-        g = jax.vmap(jax.grad(film.cos_transmitted, argnums=(0, 1)), in_axes=(0, None, None))(cos_i, jnp.asarray(n_in, dtype), 1.5)
+        ct = cos_transmitted(cos_i, jnp.asarray(n_in, dtype), 1.5)
+        g = grad_cos(cos_i, jnp.asarray(n_in, dtype), 1.5)
         assert _all_finite(ct) and _all_finite(g)
         sin_i = np.sqrt(1 - np.asarray(cos_i, np.float64) ** 2)
         beyond = 1.5 * sin_i > n_in * (1 + 1e-3)
@@ -124,7 +126,7 @@ def test_film_float32_matches_float64(enable_x64):
     c, d, n, lam = np.meshgrid(_cos(np.linspace(0, 85, 18)), THICKNESS_NM, N_FILM[N_FILM >= 1.05], WAVELENGTHS,
                                indexing="ij")
     for name in ("airy", "two_beam", "incoherent"):
-        fn = FILM_FUNCS[name]
+        fn = jax.jit(FILM_FUNCS[name])  # compiled, as the renderer runs it (eagerly, each operation compiles)
         r64 = np.asarray(fn(*(jnp.asarray(x, jnp.float64) for x in (d, lam, n, c))))
         r32 = np.asarray(fn(*(jnp.asarray(x, jnp.float32) for x in (d, lam, n, c))))
         err = np.abs(r64 - r32)
@@ -180,7 +182,8 @@ def test_ward_float32_matches_float64(enable_x64):
     ci, cr, ch, a = (np.asarray(x) for x in c64)
     ok = (ci >= np.cos(np.radians(85))) & (cr >= np.cos(np.radians(85))) & (ch <= 1.0)
     peak = 1.0 / (4 * np.pi * a**2 * np.sqrt(np.maximum(ci * cr, 1e-8)))
-    err = np.abs(np.asarray(brdf.ward_lobe(*c64)) - np.asarray(brdf.ward_lobe(*c32))) / peak
+    lobe = jax.jit(brdf.ward_lobe)  # compiled, as the renderer runs it
+    err = np.abs(np.asarray(lobe(*c64)) - np.asarray(lobe(*c32))) / peak
     assert np.all(err[ok] < WARD_F32_RTOL(a[ok])), (err / WARD_F32_RTOL(a))[ok].max()
 
 

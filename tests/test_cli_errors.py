@@ -815,7 +815,8 @@ def test_every_file_argument_is_declared_as_input_or_output():
     undeclared = []
     for name, p in sub.choices.items():
         for a in p._actions:
-            if isinstance(a, (argparse._HelpAction, argparse._StoreTrueAction, argparse._StoreConstAction)) or \
+            if isinstance(a, (argparse._HelpAction, argparse._StoreTrueAction, argparse._StoreConstAction,
+                              argparse.BooleanOptionalAction)) or \
                     a.type in (int, float) or a.choices:
                 continue
             flag = a.option_strings[-1] if a.option_strings else a.dest

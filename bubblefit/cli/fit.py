@@ -304,6 +304,7 @@ def run_bubble(args) -> int:
     check_view_args(args)
     with stage("reading the photo and the environment map"):
         photo = read_photo(args.photo, reading, dtype=np.float32)  # the fit's arithmetic is float32
+        photo_record = reading_record(photo)
         check_photo_size(photo, args.photo)
         env = load_envmap(args.envmap)
     background = None
@@ -325,7 +326,7 @@ def run_bubble(args) -> int:
     out["inputs"] = {k: None if v is None else os.path.abspath(v) for k, v in
                      (("envmap", args.envmap), ("background", args.background), ("scene", args.scene),
                       ("calibration", args.calibration))}
-    out["photo_reading"] = reading_record(photo)
+    out["photo_reading"] = photo_record
     if args.explain:
         print("effect               state     [setting] reason")
         for d in result.effects:

@@ -332,22 +332,22 @@ def run_bubble(args) -> int:
         for d in result.effects:
             print(d.line())
     print(result.report())
+    response = None  # the camera response fitted with the film, as the CSV written beside the maps
     if result.camera_calibration is not None:
-        from ..inverse.self_calibration import summary
+        from ..inverse.self_calibration import response_csv, summary
 
         print(summary(result.camera_calibration))
+        if args.output:
+            response = response_csv(result.camera_calibration)
     with output_set():  # the maps and the JSON replace the earlier ones together, or none does
         if args.output:
             with stage("writing the maps"):
                 out["outputs"] = write_fit_images(args.output, result, write_image, preview_path)
-                if result.camera_calibration is not None:  # the response fitted with the film
-                    from ..inverse.self_calibration import response_csv
+                if response is not None:
                     from ..io.atomic import write_text
 
-                    text = response_csv(result.camera_calibration)
-                    if text is not None:
-                        write_text(f"{args.output}_response.csv", text)
-                        out["outputs"]["response"] = f"{args.output}_response.csv"
+                    write_text(f"{args.output}_response.csv", response)
+                    out["outputs"]["response"] = f"{args.output}_response.csv"
         if args.json:
             write_json(args.json, out)
     if args.strict and not result.ok:

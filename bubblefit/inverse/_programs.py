@@ -334,8 +334,9 @@ def prepare_local(lev: Level, table: ParameterTable, solver: SolverSettings, val
 def prepare_reporter(table: ParameterTable, vals: dict) -> None:
     """Start compiling (or loading) :func:`reporter`'s programs in the background, for a
     solution of ``table`` held at ``vals`` (the standard errors, :mod:`._uncertainty`)."""
+    z, fixed = table.unconstrained(vals), held_values(table, vals)
     for program in reporter(table):
-        program.prepare(table.unconstrained(vals), held_values(table, vals))
+        program.prepare(z, fixed)
 
 
 

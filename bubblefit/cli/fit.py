@@ -197,7 +197,7 @@ def fit_option_values(args) -> dict:
         if args.max_steps < 1:
             raise InputError("--max-steps must be at least 1")
         kw["solver"] = SolverSettings(max_steps=args.max_steps)
-    kw.update(model_option_values(args))
+    kw |= model_option_values(args)
     return kw
 
 

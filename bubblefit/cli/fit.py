@@ -170,7 +170,7 @@ def fit_option_values(args) -> dict:
     the same way: starting t and disc (``--calibration``, ``--t``, ``--disc``), thickness
     kind and range, held parameters and the step limit. One-line errors for bad values."""
     from ..inverse import ParameterSetting, SolverSettings, parse_setting
-    from .common import parse_floats
+    from .common import model_option_values, parse_floats
 
     t_init, disc, cal_disc, cal_size = None, None, None, None
     if args.calibration:  # its disc is checked against each photo (FitOptions.calibration_disc)
@@ -199,30 +199,6 @@ def fit_option_values(args) -> dict:
         kw["solver"] = SolverSettings(max_steps=args.max_steps)
     kw |= model_option_values(args)
     return kw
-
-
-def model_option_values(args) -> dict:
-    """``illuminant``, ``camera_response``, ``n_film`` and ``samples_per_pixel`` of
-    :class:`~bubblefit.inverse.fit.FitOptions` from :func:`add_model_options`' flags (None
-    where not given: the scene's then apply), checked before any photo is read, and
-    ``judge`` with ``--colour-check``."""
-    from ..inverse import JudgeSettings
-    from ..model import samples_per_pixel
-    from ..optics import spectral
-    from .common import colour_option, film_index
-
-    ill = colour_option(args.illuminant, spectral.is_named_illuminant, "--illuminant")
-    resp = colour_option(args.camera_response, spectral.is_named_response, "--camera-response")
-    if ill is not None:
-        spectral.illuminant_spectrum(ill)
-    if resp is not None:
-        spectral.response_functions(resp)
-    spp = args.samples_per_pixel
-    if spp is not None:
-        samples_per_pixel(spp, "--samples-per-pixel")
-    return dict(illuminant=ill, camera_response=resp, n_film=film_index(args.n_film, args.cauchy, None),
-                samples_per_pixel=spp, pixel_footprint=bool(getattr(args, "pixel_footprint", False)),
-                judge=JudgeSettings(colour_check=getattr(args, "colour_check", "decide")))
 
 
 def output_paths(args) -> list[str]:

@@ -17,7 +17,8 @@ from ..errors import InputError, OutputError
 from ..io.atomic import write_json
 
 __all__ = ["parse_floats", "guard_outputs", "guard_args", "scene_inputs", "folder_files", "write_json",
-           "input_file", "output_file", "output_folder", "InputFile", "OutputFile", "OutputFolder"]
+           "input_file", "output_file", "output_folder", "InputFile", "OutputFile", "OutputFolder",
+           "model_option_values"]
 
 PathLike = str | os.PathLike
 
@@ -300,3 +301,26 @@ def write_fit_images(prefix: str, result, write_image, preview_path) -> dict:
             figures.map_figure(preview_path(path), img, title, "viridis" if name == "thickness" else "magma",
                                "thickness (nm)" if name == "thickness" else "standard error (nm)")
     return {k: f"{prefix}_{k}.exr" for k in files}
+
+
+def model_option_values(args) -> dict:
+    """``illuminant``, ``camera_response``, ``n_film`` and ``samples_per_pixel`` of
+    :class:`~bubblefit.inverse.fit.FitOptions` from the flags of
+    :func:`~bubblefit.cli.fit.add_model_options` (None where not given: the scene's then
+    apply), checked before any photo is read, and ``judge`` with ``--colour-check``."""
+    from ..inverse import JudgeSettings
+    from ..model import samples_per_pixel
+    from ..optics import spectral
+
+    ill = colour_option(args.illuminant, spectral.is_named_illuminant, "--illuminant")
+    resp = colour_option(args.camera_response, spectral.is_named_response, "--camera-response")
+    if ill is not None:
+        spectral.illuminant_spectrum(ill)
+    if resp is not None:
+        spectral.response_functions(resp)
+    spp = args.samples_per_pixel
+    if spp is not None:
+        samples_per_pixel(spp, "--samples-per-pixel")
+    return dict(illuminant=ill, camera_response=resp, n_film=film_index(args.n_film, args.cauchy, None),
+                samples_per_pixel=spp, pixel_footprint=getattr(args, "pixel_footprint", None),
+                judge=JudgeSettings(colour_check=getattr(args, "colour_check", "decide")))

@@ -172,7 +172,7 @@ def fit_option_values(args) -> dict:
     the same way: starting t and disc (``--calibration``, ``--t``, ``--disc``), thickness
     kind and range, held parameters and the step limit. One-line errors for bad values."""
     from ..inverse import ParameterSetting, SolverSettings, parse_setting
-    from .common import parse_floats
+    from .common import model_option_values, parse_floats
 
     t_init, disc, cal_disc, cal_size = None, None, None, None
     if args.calibration:  # its disc is checked against each photo (FitOptions.calibration_disc)
@@ -199,32 +199,8 @@ def fit_option_values(args) -> dict:
         if args.max_steps < 1:
             raise InputError("--max-steps must be at least 1")
         kw["solver"] = SolverSettings(max_steps=args.max_steps)
-    kw.update(model_option_values(args))
+    kw |= model_option_values(args)
     return kw
-
-
-def model_option_values(args) -> dict:
-    """``illuminant``, ``camera_response``, ``n_film`` and ``samples_per_pixel`` of
-    :class:`~bubblefit.inverse.fit.FitOptions` from :func:`add_model_options`' flags (None
-    where not given: the scene's then apply), checked before any photo is read, and
-    ``judge`` with ``--colour-check``."""
-    from ..inverse import JudgeSettings
-    from ..model import samples_per_pixel
-    from ..optics import spectral
-    from .common import colour_option, film_index
-
-    ill = colour_option(args.illuminant, spectral.is_named_illuminant, "--illuminant")
-    resp = colour_option(args.camera_response, spectral.is_named_response, "--camera-response")
-    if ill is not None:
-        spectral.illuminant_spectrum(ill)
-    if resp is not None:
-        spectral.response_functions(resp)
-    spp = args.samples_per_pixel
-    if spp is not None:
-        samples_per_pixel(spp, "--samples-per-pixel")
-    return dict(illuminant=ill, camera_response=resp, n_film=film_index(args.n_film, args.cauchy, None),
-                samples_per_pixel=spp, pixel_footprint=getattr(args, "pixel_footprint", None),
-                judge=JudgeSettings(colour_check=getattr(args, "colour_check", "decide")))
 
 
 def output_paths(args) -> list[str]:
@@ -306,6 +282,7 @@ def run_bubble(args) -> int:
     check_view_args(args)
     with stage("reading the photo and the environment map"):
         photo = read_photo(args.photo, reading, dtype=np.float32)  # the fit's arithmetic is float32
+        photo_record = reading_record(photo)
         check_photo_size(photo, args.photo)
         env = load_envmap(args.envmap)
     background = None
@@ -327,28 +304,28 @@ def run_bubble(args) -> int:
     out["inputs"] = {k: None if v is None else os.path.abspath(v) for k, v in
                      (("envmap", args.envmap), ("background", args.background), ("scene", args.scene),
                       ("calibration", args.calibration))}
-    out["photo_reading"] = reading_record(photo)
+    out["photo_reading"] = photo_record
     if args.explain:
         print("effect               state     [setting] reason")
         for d in result.effects:
             print(d.line())
     print(result.report())
+    response = None  # the camera response fitted with the film, as the CSV written beside the maps
     if result.camera_calibration is not None:
-        from ..inverse.self_calibration import summary
+        from ..inverse.self_calibration import response_csv, summary
 
         print(summary(result.camera_calibration))
+        if args.output:
+            response = response_csv(result.camera_calibration)
     with output_set():  # the maps and the JSON replace the earlier ones together, or none does
         if args.output:
             with stage("writing the maps"):
                 out["outputs"] = write_fit_images(args.output, result, write_image, preview_path)
-                if result.camera_calibration is not None:  # the response fitted with the film
-                    from ..inverse.self_calibration import response_csv
+                if response is not None:
                     from ..io.atomic import write_text
 
-                    text = response_csv(result.camera_calibration)
-                    if text is not None:
-                        write_text(f"{args.output}_response.csv", text)
-                        out["outputs"]["response"] = f"{args.output}_response.csv"
+                    write_text(f"{args.output}_response.csv", response)
+                    out["outputs"]["response"] = f"{args.output}_response.csv"
         if args.json:
             write_json(args.json, out)
     if args.strict and not result.ok:

@@ -219,6 +219,7 @@ def find_bubble(photo: np.ndarray, background: np.ndarray | None = None, *,
     is the photo's noise (default: :func:`noise_sigma` of an
     8-bit file with the fit's default noise).
     """
+    sig = sigma if sigma is not None or background is None else noise_sigma(photo, 2e-3, 2e-4, 8)
     d = find_disc(photo, background, sigma=sigma)
     note = ""
     if d.found:
@@ -235,7 +236,6 @@ def find_bubble(photo: np.ndarray, background: np.ndarray | None = None, *,
                 "check it, or give --disc")
     contrast = float("nan")
     if background is not None:
-        sig = sigma if sigma is not None else noise_sigma(photo, 2e-3, 2e-4, 8)
         contrast = bubble_contrast(photo, background, sig, (cx, cy, r))
         if contrast < NO_BUBBLE_CONTRAST and change_spread(photo, background, sig) < NO_BUBBLE_SPREAD:
             return Disc(float(cx), float(cy), float(r), found=False, contrast=contrast,

@@ -338,8 +338,9 @@ def prepare_local(lev: Level, table: ParameterTable, solver: SolverSettings, val
 def prepare_reporter(table: ParameterTable, vals: dict) -> None:
     """Start compiling (or loading) :func:`reporter`'s programs in the background, for a
     solution of ``table`` held at ``vals`` (the standard errors, :mod:`._uncertainty`)."""
+    z, fixed = table.unconstrained(vals), held_values(table, vals)
     for program in reporter(table):
-        program.prepare(table.unconstrained(vals), held_values(table, vals))
+        program.prepare(z, fixed)
 
 
 
@@ -425,7 +426,8 @@ def warm_up(st, opts: FitOptions, env, settings: SolveSettings) -> None:
     :func:`prepare_reporter`). On 2 cores an empty-cache fit takes about 4 s less
     (``experiments/bench_fit.py --background-compile``). ``st``: the fit's
     :class:`~bubblefit.inverse._setup.Setup`."""
+    final = final_params(st.table, st.vals, opts) if opts.thickness != "map" else None
     prepare_local(st.lev_fit, st.table, opts.solver, st.vals, env, settings=settings)
-    if opts.thickness != "map":
-        prepare_render_bubble(final_params(st.table, st.vals, opts), st.level(1, opts), env)
+    if final is not None:
+        prepare_render_bubble(final, st.level(1, opts), env)
     prepare_reporter(st.table, st.vals)

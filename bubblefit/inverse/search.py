@@ -330,9 +330,9 @@ def _candidates_paper(lev, table: ParameterTable, vals: dict, grid: np.ndarray, 
     """(G, P, 3) gain-scaled part and (P, 3) fixed part for constant films (paper model, exact)."""
     fx = lev.cfg.effects
     m, c = unlit_terms(lev, table, dict(vals, exposure=1.0), env)
-    phi = PaperPhi(lev, float(vals["n_film"]), float(grid.max()))
     r_s = float(table.render_params({k: jnp.asarray(x, jnp.float32) for k, x in dict(vals, thickness_nm=0.0).items()
                                      if k != "map"}, "constant").r_s) if fx.tint and fx.transmission else 0.0
+    phi = PaperPhi(lev, float(vals["n_film"]), float(grid.max()))
     refl, back = paper_pixel_candidates(grid, phi, m, c, float(vals["t"]), r_s)
     if fx.background == "photo":
         return refl, back

@@ -11,6 +11,7 @@ import json
 from pathlib import Path
 
 import cv2
+import jax
 import jax.numpy as jnp
 import numpy as np
 import OpenImageIO as oiio
@@ -171,7 +172,7 @@ def ball_image(size=128, circle=Circle(64, 64, 48), scale=1.0, bg=0.02):
     env[:8] = [2.0, 2.4, 3.0]  # sky
     env[3, 20] = [400.0, 380.0, 350.0]  # sun
     dirs, inside = mirror_ball_directions((size, size), circle)
-    L = np.asarray(em.lookup(jnp.asarray(env), jnp.asarray(np.where(inside[..., None], dirs, [0, 1.0, 0]))))
+    L = np.asarray(jax.jit(em.lookup)(jnp.asarray(env), jnp.asarray(np.where(inside[..., None], dirs, [0, 1.0, 0]))))
     return np.where(inside[..., None], L, bg) * scale
 
 

@@ -101,27 +101,36 @@ def test_linear_problem_reaches_the_normal_equations():
     assert np.all(np.abs(early - best) <= 0.2 * se + 1e-5), (early - best) / se
 
 
+@functools.partial(jax.jit, static_argnames="free")
+def _decrement_and_steps(r, jac, z=None, free=()):
+    """The descent's factors of ``(r, jac)`` (float32), the scaled decrement
+    (:func:`scaled_decrement`) there, and the steps for a step size of 1e12 and of 0, in
+    one compiled program."""
+    import lineax as lx
+
+    from bubblefit.inverse import DenseDampedNewtonDescent
+
+    f_info = optx.FunctionInfo.ResidualJac(r, lx.MatrixLinearOperator(jac))
+    desc = DenseDampedNewtonDescent()
+    dense = desc.query(jnp.zeros(3), f_info, desc.init(jnp.zeros(3), f_info))
+    decrement = scaled_decrement(dense, r) if z is None else scaled_decrement(dense, r, z, free)
+    return decrement, desc.step(jnp.asarray(1e12, jnp.float32), dense)[0], desc.step(jnp.asarray(0.0, jnp.float32), dense)[0]
+
+
 def test_scaled_decrement_is_the_gauss_newton_drop():
-    from bubblefit.inverse import DenseDampedNewtonDescent, gauss_newton_decrement
+    from bubblefit.inverse import gauss_newton_decrement
 
     rng = np.random.default_rng(1)
     jac = rng.normal(size=(500, 3))
     r = rng.normal(size=500) * 2.0  # chi2_nu ~ 4: the decrement is divided by it
-    import lineax as lx
-
-    f_info = optx.FunctionInfo.ResidualJac(jnp.asarray(r, jnp.float32),
-                                           lx.MatrixLinearOperator(jnp.asarray(jac, jnp.float32)))
-    desc = DenseDampedNewtonDescent()
-    dense = desc.query(jnp.zeros(3), f_info, desc.init(jnp.zeros(3), f_info))
+    decrement, step, step0 = _decrement_and_steps(jnp.asarray(r, jnp.float32), jnp.asarray(jac, jnp.float32))
     chi2_nu = np.sum(r**2) / (r.size - 3)
     want = gauss_newton_decrement(r, jac) / chi2_nu
-    assert float(scaled_decrement(dense, jnp.asarray(r, jnp.float32))) == pytest.approx(want, rel=1e-3)
+    assert float(decrement) == pytest.approx(want, rel=1e-3)
     # the undamped step (step size -> inf) is the Gauss-Newton step
-    step, _ = desc.step(jnp.asarray(1e12, jnp.float32), dense)
     gn = -np.linalg.solve(jac.T @ jac, jac.T @ r)
     np.testing.assert_allclose(np.asarray(step), gn, rtol=1e-3, atol=1e-5)
     # infinite damping (step size 0) is the zero step
-    step0, _ = desc.step(jnp.asarray(0.0, jnp.float32), dense)
     assert np.all(np.asarray(step0) == 0.0)
 
 
@@ -131,9 +140,7 @@ def test_bounded_decrement_drops_a_parameter_pressing_on_its_bound():
     worse than 100 % whose Gauss-Newton step points below zero is left out, and the
     decrement is then that of the other columns; a well-measured roughness, or a step
     pointing away from zero, keeps it."""
-    import lineax as lx
-
-    from bubblefit.inverse import DenseDampedNewtonDescent, gauss_newton_decrement
+    from bubblefit.inverse import gauss_newton_decrement
     from bubblefit.inverse import LocalSolution, remaining_step
     from bubblefit.inverse import inverse
 
@@ -142,14 +149,11 @@ def test_bounded_decrement_drops_a_parameter_pressing_on_its_bound():
     base = rng.normal(size=400)
     free = ("thickness_nm", "t", "roughness")
     z = np.array([inverse("thickness_nm", 700.0), inverse("t", 0.97), inverse("roughness", 1e-4)])
-    desc = DenseDampedNewtonDescent()
     for col, sign, dropped in ((0.02, 1.0, True), (1.0, 1.0, False), (0.02, -1.0, False)):
         jac = base_jac * np.array([1.0, 1.0, col])  # col 0.02: the roughness poorly constrained
         r = base + sign * 3.0 * jac[:, 2] / col  # its Gauss-Newton step: -3 (toward 0) or +3 in z
-        f_info = optx.FunctionInfo.ResidualJac(jnp.asarray(r, jnp.float32),
-                                               lx.MatrixLinearOperator(jnp.asarray(jac, jnp.float32)))
-        dense = desc.query(jnp.zeros(3), f_info, desc.init(jnp.zeros(3), f_info))
-        got = float(scaled_decrement(dense, jnp.asarray(r, jnp.float32), jnp.asarray(z, jnp.float32), free))
+        got = float(_decrement_and_steps(jnp.asarray(r, jnp.float32), jnp.asarray(jac, jnp.float32),
+                                         jnp.asarray(z, jnp.float32), free)[0])
         chi2_nu = np.sum(r**2) / (r.size - 3)
         want = remaining_step(LocalSolution({}, z, True, False, 1, r, jac, {}), chi2_nu, free)
         assert got == pytest.approx(want, rel=2e-3, abs=1e-6), (col, sign)
@@ -181,7 +185,8 @@ def test_column_jacobian_is_the_derivative():
     residual, and a solve through them takes the steps of the default ``jax.jacfwd`` one."""
     fn, fn_np = _decay_problem()
     z = np.array([2.2, 1.1, 0.3])
-    got = np.asarray(column_jacobian(fn, ((0, 2), (1,)), jnp.asarray(z, jnp.float32), None), np.float64)
+    jacobian = jax.jit(column_jacobian, static_argnums=(0, 1))
+    got = np.asarray(jacobian(fn, ((0, 2), (1,)), jnp.asarray(z, jnp.float32), None), np.float64)
     h = 1e-6
     want = np.stack([(fn_np(z + h * e) - fn_np(z - h * e)) / (2 * h) for e in np.eye(3)], axis=-1)
     assert got.shape == want.shape == (60, 3)
@@ -228,7 +233,7 @@ def test_robust_residual_is_the_pseudo_huber_residual_up_to_overflow():
     r = np.concatenate([-np.logspace(-3, 38, 200), np.logspace(-3, 38, 200)])
     rho = s * s * (np.sqrt(1.0 + (r / s) ** 2) - 1.0)
     exact = np.sign(r) * np.sqrt(2.0 * rho)
-    got = np.asarray(robust(jnp.asarray(r, jnp.float32), s), np.float64)
+    got = np.asarray(jax.jit(robust, static_argnums=1)(jnp.asarray(r, jnp.float32), s), np.float64)
     np.testing.assert_allclose(got, exact, rtol=2e-6)
-    grad = np.asarray(jax.vmap(jax.grad(lambda x: robust(x, s)))(jnp.asarray(r, jnp.float32)))
+    grad = np.asarray(jax.jit(jax.vmap(jax.grad(lambda x: robust(x, s))))(jnp.asarray(r, jnp.float32)))
     assert np.all(np.isfinite(grad)) and np.all(grad > 0)

@@ -96,6 +96,13 @@ class Disc:
     support: float = 0.0
     reason: str = ""
 
+    def refusal(self) -> str:
+        """Why a fit must not use this detection: the detector's ``reason`` when no disc
+        was found, else (a disc kept with a doubt noted in ``reason``, e.g. only the
+        simpler detector's guess) that no rim is clear. Fitting a disc the evidence does
+        not support measures films that are not there."""
+        return self.reason if not self.found else "no rim of a bubble is clear in the photo"
+
     def to_json(self) -> dict[str, float]:
         """``{"cx", "cy", "r"}`` in pixels (the ``disc`` of the command line's JSON)."""
         return {"cx": round(float(self.cx), 3), "cy": round(float(self.cy), 3), "r": round(float(self.r), 3)}

@@ -109,16 +109,16 @@ def add_model_options(p) -> None:
 
 
 def load_envmap(path: str):
-    """Read the environment map for a fit: :func:`~bubblefit.model.scene.read_envmap`, and refuse
-    a map without light (nothing to fit against)."""
-    from ..io.images import ImageWarning, stored_bit_depth
-    from ..model.scene import read_envmap
+    """Read the environment map for a fit (:func:`~bubblefit.model.scene.read_map_file`), refuse
+    a map without light (nothing to fit against) and warn of one stored in integers."""
+    from ..io.images import ImageWarning
+    from ..model.scene import read_map_file
 
-    env = read_envmap(path)
+    read = read_map_file(path)
+    env, bits = read.env, read.bit_depth
     if not np.any(np.asarray(env.pixels) > 0):
         raise InputError(f"environment map {path} is black or unreadable")
-    bits = stored_bit_depth(path)
-    if bits is not None and bits < 32:
+    if bits < 32:
         import warnings
 
         warnings.warn(f"environment map {path} has {bits} bits per channel: its sun and lamps are clipped, and the fitted "

@@ -257,12 +257,8 @@ def _detect(photo, background, opts: FitOptions) -> Disc:
     return replace(d, cx=d.cx * k, cy=d.cy * k, r=d.r * k)
 
 
-def _no_bubble(found: Disc) -> str:
-    """The one line that refuses a photo in which the disc detector
-    (:func:`~bubblefit.capture.disc.find_disc`) found no bubble: fitting a disc it did not
-    find (the simpler detector's guess) measured films that were not there."""
-    why = found.reason if not found.found else "no rim of a bubble is clear in the photo"
-    return f"{why}; give the bubble's disc (--disc CX,CY,R) or a scene file with its camera to fit it anyway"
+#: What a photo refused for want of a disc may give instead.
+GIVE_DISC = "give the bubble's disc (--disc CX,CY,R) or a scene file with its camera to fit it anyway"
 
 
 def _agrees(a, b) -> bool:
@@ -301,24 +297,29 @@ def _resolve_disc(photo, background, opts: FitOptions, given=None) -> tuple[tupl
     (:func:`bubble_contrast`, within 20%); otherwise the disc found is used and a warning
     says why. With neither, the disc is found; a photo whose rim
     :func:`~bubblefit.capture.disc.find_disc` does not find (no bubble, or only the simpler
-    detector's guess) raises :class:`InputError` (:func:`_no_bubble`).
+    detector's guess) raises :class:`InputError` (:meth:`~bubblefit.capture.disc.Disc.refusal`
+    and :data:`GIVE_DISC`).
     """
     if given is not None:
         return tuple(float(v) for v in given), []
     H, W = photo.shape[:2]
     cal = opts.calibration_disc
-    if cal is not None and opts.calibration_size is not None and tuple(opts.calibration_size) != (W, H):
-        found = _detect(photo, background, opts)
+    other_frame = cal is not None and opts.calibration_size is not None and tuple(opts.calibration_size) != (W, H)
+    # the noise that weighs the calibration's disc against the one found (same frame, a pair)
+    sig = (noise_sigma(photo, opts.noise.read, opts.noise.shot, opts.noise.bits)
+           if cal is not None and background is not None and opts.calibration_size is not None and not other_frame
+           else None)
+    found = _detect(photo, background, opts)
+    if other_frame:
         if not found.found:
             raise InputError(found.reason)
         cw, ch = opts.calibration_size
         return (found.cx, found.cy, found.r), [
             f"the calibration's disc was found in a {cw}x{ch} frame and the photo is {W}x{H}: "
             f"used the disc found in the photo instead"]
-    found = _detect(photo, background, opts)
     if cal is None:
         if not found.found or found.reason:
-            raise InputError(_no_bubble(found))
+            raise InputError(f"{found.refusal()}; {GIVE_DISC}")
         return (found.cx, found.cy, found.r), []
     if not found.found:
         if found.contrast == found.contrast:  # a background photo says: no bubble
@@ -326,9 +327,8 @@ def _resolve_disc(photo, background, opts: FitOptions, given=None) -> tuple[tupl
         return tuple(cal), ["the calibration's disc could not be checked against the photo (no disc found in it)"]
     if _agrees(cal, (found.cx, found.cy, found.r)):
         return tuple(cal), []
-    if background is not None and opts.calibration_size is not None:
+    if sig is not None:
         # same frame size, another disc found: the pair says which outlines the bubble
-        sig = noise_sigma(photo, opts.noise.read, opts.noise.shot, opts.noise.bits)
         c_cal = bubble_contrast(photo, background, sig, cal)
         c_found = bubble_contrast(photo, background, sig, (found.cx, found.cy, found.r))
         if c_cal >= 0.8 * c_found:

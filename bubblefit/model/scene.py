@@ -33,14 +33,25 @@ from .programs import STORED, stored_trace
 from .regions import render_plan
 from .render import NO_PROFILE, Params, PointLight, RenderConfig
 
-__all__ = ["Scene", "load_scene", "render_scene", "read_envmap", "DATA_DIR", "shipped_envmap"]
+__all__ = ["Scene", "load_scene", "render_scene", "read_envmap", "read_map_file", "MapFile", "DATA_DIR", "shipped_envmap"]
 
 DATA_DIR = Path(__file__).resolve().parent.parent / "data"
 
 
 
-def read_envmap(path, *, scale: float = 1.0):
-    """Read an equirectangular environment map file into an :class:`~bubblefit.lighting.envmap.EnvMap`.
+@dataclass(frozen=True)
+class MapFile:
+    """An environment map as its file gave it: the map and the file's bits per channel
+    (8 or 16 for integer files, 32 for float ones, half included:
+    :attr:`~bubblefit.io.images.Image.bit_depth`)."""
+
+    env: EnvMap
+    bit_depth: int
+
+
+def read_map_file(path, *, scale: float = 1.0) -> MapFile:
+    """Read an equirectangular environment map file into a :class:`MapFile`: the
+    :class:`~bubblefit.lighting.envmap.EnvMap` and the file's bit depth, from one read.
 
     Raises :class:`InputError` (one line) for an unreadable file, a map that is not twice
     as wide as high, or one with fewer than 2 rows.
@@ -56,7 +67,13 @@ def read_envmap(path, *, scale: float = 1.0):
     if h < 2:
         raise InputError(f"environment map {path} is {w}x{h}; it needs at least 2 rows (4x2 texels)")
     check_radiance(path, img.pixels * scale)
-    return EnvMap.from_array(img.pixels * scale)
+    return MapFile(EnvMap.from_array(img.pixels * scale), int(img.bit_depth))
+
+
+def read_envmap(path, *, scale: float = 1.0) -> EnvMap:
+    """Read an equirectangular environment map file into an
+    :class:`~bubblefit.lighting.envmap.EnvMap` (:func:`read_map_file`'s map)."""
+    return read_map_file(path, scale=scale).env
 
 
 def shipped_envmap(name: str = "courtyard") -> Path:

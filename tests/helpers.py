@@ -106,6 +106,24 @@ def save_sensor_png(img, path, seed: int, full_well: float = 4000.0, read_e: flo
     Image.fromarray(np.round(linear_to_srgb(electrons / full_well) * 255).astype(np.uint8)).save(path)
 
 
+def fit_scene_photo(img, folder, seed: int, timeout: float) -> dict:
+    """Write ``img`` through the sensor of :func:`save_sensor_png` as ``folder/photo.png``,
+    run ``bubblefit fit photo.png --scene folder/scene.toml`` in a subprocess, assert that
+    it exits 0, and return its JSON."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    folder = Path(folder)
+    save_sensor_png(img, folder / "photo.png", seed=seed)
+    proc = subprocess.run([sys.executable, "-m", "bubblefit", "fit", str(folder / "photo.png"), "--scene",
+                           str(folder / "scene.toml"), "--json", str(folder / "r.json")],
+                          capture_output=True, text=True, timeout=timeout)
+    assert proc.returncode == 0, proc.stderr
+    return json.loads((folder / "r.json").read_text())
+
+
 #: The synthetic camera films of :func:`film_photo`: a 48 px orthographic view, its disc.
 FILM_PHOTO_SIZE = 48
 FILM_PHOTO_DISC = (FILM_PHOTO_SIZE / 2, FILM_PHOTO_SIZE / 2, 0.42 * FILM_PHOTO_SIZE)

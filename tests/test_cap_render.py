@@ -154,10 +154,6 @@ def test_cap_pixels_match_an_independent_trace(plane_y, origin, film_rgb):
 def test_fit_of_a_cap_recovers_its_thickness_from_a_noisy_8bit_render(tmp_path):
     """Known film -> render (4 rays per pixel) -> Poisson-Gaussian noise and 8-bit sRGB ->
     the ``fit`` command -> the thickness within its standard errors' reach."""
-    import json
-    import subprocess
-    import sys
-
     from bubblefit.inverse.cap_fit import cap_config
     from bubblefit.model.cap_scene import parse_cap_scene
 
@@ -184,14 +180,9 @@ def test_fit_of_a_cap_recovers_its_thickness_from_a_noisy_8bit_render(tmp_path):
 
     img = np.asarray(render_cap(Params.make(thickness=truth_nm, n_film=1.4, exposure=expo, roughness=0.0),
                                 cap_config(scene, "constant", samples_per_pixel=4), read_envmap(scene.envmap)))
-    from helpers import save_sensor_png
+    from helpers import fit_scene_photo
 
-    save_sensor_png(img, tmp_path / "photo.png", seed=7)
-    proc = subprocess.run([sys.executable, "-m", "bubblefit", "fit", str(tmp_path / "photo.png"), "--scene",
-                           str(tmp_path / "scene.toml"), "--json", str(tmp_path / "r.json")],
-                          capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr
-    res = json.loads((tmp_path / "r.json").read_text())
+    res = fit_scene_photo(img, tmp_path, seed=7, timeout=600)
     d, se = res["params"]["thickness_nm"], res["stderr"]["thickness_nm"]
     # the standard error holds the 0.6 nm model error; the photo's own error is ~0.1 nm,
     # the 8-bit quantisation of dark pixels a bias of the same order: 3 standard errors

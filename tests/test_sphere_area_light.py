@@ -225,12 +225,9 @@ def test_fit_of_a_bubble_under_a_panel_from_a_noisy_8bit_render(tmp_path, truth_
     the ``fit`` command -> the thickness within 3 of its standard errors, and ok. The
     standard error (0.6 nm, mostly the model-error term) bounds a mismatch of the 4-ray
     fit against the 16-ray photo at the light's outline, which the fitted pixels avoid."""
-    import json
-    import subprocess
-    import sys
     import tomllib
 
-    from helpers import save_sensor_png
+    from helpers import fit_scene_photo
 
     from bubblefit.inverse.cap_fit import cap_config
     from bubblefit.model.cap_scene import parse_cap_scene
@@ -241,12 +238,7 @@ def test_fit_of_a_bubble_under_a_panel_from_a_noisy_8bit_render(tmp_path, truth_
     img = np.asarray(render_cap(Params.make(thickness=truth_nm, n_film=1.4, exposure=1.0, roughness=0.0),
                                 cap_config(scene, "constant", samples_per_pixel=16), dark_room()))
     img = img * 0.9 / np.percentile(img, 99.5)
-    save_sensor_png(img, tmp_path / "photo.png", seed=11)
-    proc = subprocess.run([sys.executable, "-m", "bubblefit", "fit", str(tmp_path / "photo.png"), "--scene",
-                           str(tmp_path / "scene.toml"), "--json", str(tmp_path / "r.json")],
-                          capture_output=True, text=True, timeout=900)
-    assert proc.returncode == 0, proc.stderr
-    res = json.loads((tmp_path / "r.json").read_text())
+    res = fit_scene_photo(img, tmp_path, seed=11, timeout=900)
     assert res["shape"] == "sphere" and res["pixels_direct"] > 50
     assert res["traced_light_paths"] and res["skipped_light_paths"]   # what the scene simulates and skips
     d, se = res["params"]["thickness_nm"], res["stderr"]["thickness_nm"]
@@ -334,12 +326,9 @@ def test_drainage_of_a_bubble_under_a_panel_from_a_noisy_8bit_render(tmp_path):
     """The sphere's drainage profile (250 -> 950 nm, exponent 1.4) seen only where the panel
     is mirrored (the middle third of the bubble's height): the ends, extrapolated from
     there, within 3 of their standard errors, and ok."""
-    import json
-    import subprocess
-    import sys
     import tomllib
 
-    from helpers import save_sensor_png
+    from helpers import fit_scene_photo
 
     from bubblefit.inverse.cap_fit import cap_config
     from bubblefit.model.cap_scene import parse_cap_scene
@@ -350,12 +339,7 @@ def test_drainage_of_a_bubble_under_a_panel_from_a_noisy_8bit_render(tmp_path):
     truth = np.array([250.0, 950.0, 1.4])
     img = np.asarray(render_cap(Params.make(thickness=truth, n_film=1.4, exposure=1.0, roughness=0.0),
                                 cap_config(scene, "drainage", samples_per_pixel=16), dark_room()))
-    save_sensor_png(img * 0.9 / np.percentile(img, 99.5), tmp_path / "photo.png", seed=5)
-    proc = subprocess.run([sys.executable, "-m", "bubblefit", "fit", str(tmp_path / "photo.png"), "--scene",
-                           str(tmp_path / "scene.toml"), "--json", str(tmp_path / "r.json")],
-                          capture_output=True, text=True, timeout=1200)
-    assert proc.returncode == 0, proc.stderr
-    res = json.loads((tmp_path / "r.json").read_text())
+    res = fit_scene_photo(img * 0.9 / np.percentile(img, 99.5), tmp_path, seed=5, timeout=1200)
     for name, value in zip(("top_nm", "bottom_nm", "exponent"), truth):
         assert abs(res["params"][name] - value) <= 3 * res["stderr"][name], (name, res["params"], res["stderr"])
     assert res["ok"], res["warnings"]

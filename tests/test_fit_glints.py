@@ -64,16 +64,28 @@ def test_the_command_line_turns_the_footprint_either_way():
 @pytest.mark.parametrize("model_red, counted", [(-0.4, 0.0), (0.0005, 0.0), (0.05, 0.05 - 0.001)])
 def test_a_channel_clipped_at_black_is_censored(model_red, counted):
     """A photo channel at or below the black clip only says the true value is there or
-    lower: a model below the recorded value costs nothing, a model above it costs its distance."""
+    lower: a model below the recorded value costs nothing, a model above it costs its
+    distance; the other channels keep their plain residual ``y - m``."""
+    from bubblefit.inverse import censored_residual
+
+    y = np.array([0.001, 0.20, 0.03])      # red clipped at black
+    m = np.array([model_red, 0.21, 0.03])
+    r = np.asarray(censored_residual(y, m))
+    assert r[0] == pytest.approx(-counted, abs=1e-7)
+    assert r[1] == pytest.approx(-0.01, abs=1e-7) and r[2] == pytest.approx(0.0, abs=1e-7)
+
+
+def test_a_dim_pixel_still_ranks_its_candidates():
+    """A pixel whose every channel lies under the black clip (a dim but recorded colour):
+    its own candidate costs are plain squared residuals, so the candidate of its colour
+    beats a black film; censored, both would cost nothing and the tie would go to the
+    grid's first candidate."""
     from bubblefit.inverse import search
 
-    y = np.array([[0.001, 0.20, 0.03]])      # red clipped at black
-    w2 = np.array([[1e6, 1e4, 1e5]])
-    refl = np.array([[[model_red, 0.21, 0.03]]])
-    fixed = np.zeros((1, 3))
-    cost = float(np.asarray(search.pixel_costs(refl, fixed, y, w2))[0, 0])
-    expected = 1e6 * counted**2 + 1e4 * 0.01**2
-    assert cost == pytest.approx(expected, rel=1e-5)
+    y = np.array([[0.0015, 0.0012, 0.0018]])
+    refl = np.array([[[0.0, 0.0, 0.0]], [[0.0015, 0.0012, 0.0018]]])   # black film, the pixel's colour
+    cost = np.asarray(search.pixel_costs(refl, np.zeros((1, 3)), y, np.ones((1, 3))))[:, 0]
+    assert int(np.argmin(cost)) == 1 and cost[0] > 0.0
 
 
 def test_the_footprint_lookup_has_a_finite_roughness_derivative_at_a_mirror():

@@ -260,10 +260,9 @@ def _settings(scene, opts: FitOptions) -> dict:
     settings = dict(scene.table("effects")) if scene is not None else {}
     settings.update(dict(opts.effects))
     settings["model"] = opts.model
-    # Unless told otherwise, fit with the alias-free 8-lobe spectral quadrature: its colour
-    # error is below uniform 30 samples' at the cost of ~8 (experiments/accuracy_vs_time.py),
+    # Unless told otherwise, the spectral quadrature is chosen in :func:`setup` from the
+    # films the fit may meet (:func:`~bubblefit.inverse._spectral_rule.fit_spectral_basis`),
     # whereas "auto" may ask for hundreds of samples to bound the error everywhere.
-    settings.setdefault("spectral", {"method": "fourier", "samples": 8})
     # The physical model's internal bounces: 3 explain an independent 8-bounce render as
     # well as 8 do (reduced chi^2 3.30 against 3.35 on experiments/validation's
     # ref_const300, a development case in split.toml; 2 bounces: 4.25), whereas the absolute bound of "auto" asks for all 8.
@@ -316,6 +315,18 @@ def colour_settings(scene, opts: FitOptions, n_film: float) -> ColourSettings:
     if spp is None:
         spp = scene.samples_per_pixel if scene is not None else 1
     return ColourSettings(ill, resp, wb, law, int(spp))
+
+
+def _quadrature(opts: FitOptions, vals: dict, colour: ColourSettings):
+    """``(basis, decision)``: the spectral quadrature that films of ``opts.thickness_range``
+    (index ``vals["n_film"]``), seen down to the rim's incidence, need under ``colour``'s
+    illuminant, response and white balance
+    (:func:`~bubblefit.inverse._spectral_rule.fit_spectral_basis`)."""
+    from ._spectral_rule import fit_spectral_basis
+
+    lo, hi = (float(x) for x in opts.thickness_range)
+    return fit_spectral_basis(lo, hi, float(vals["n_film"]), math.sqrt(max(0.0, 1.0 - float(opts.rim) ** 2)),
+                              colour.illuminant, colour.response, colour.white_balance)
 
 
 def _coloured(fx, colour: ColourSettings):
@@ -373,12 +384,20 @@ def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, d
     del photo, background  # from here on, only the analysed frame
     H, W = frame.photo.shape[:2]
     camera, center, radius = persp or (OrthographicCamera(W, H, *frame.disc), (0.0, 0.0, 0.0), 1.0)
-    fx, decisions = decided if decided is not None else _decide(opts, vals, env, frame.background,
-                                                                _settings(scene, opts), camera, lights)
-    check_harmonic(fx.spectral, opts.thickness, False, where="fit")
     # The one place the fit's colour, dispersion and pixel sampling enter: every render
     # (search, local solves, map, final image) starts from these configurations.
     colour = colour_settings(scene, opts, vals["n_film"])
+    if decided is None:
+        settings, quadrature = _settings(scene, opts), None
+        if "spectral" not in settings:  # the quadrature the films of the searched range need
+            basis, quadrature = _quadrature(opts, vals, colour)
+            settings["spectral"] = {"method": basis.method, "samples": basis.samples}
+        fx, decisions = _decide(opts, vals, env, frame.background, settings, camera, lights)
+        if quadrature is not None:
+            decisions = [quadrature if d.effect == "spectral" and d.simulated else d for d in decisions]
+    else:
+        fx, decisions = decided
+    check_harmonic(fx.spectral, opts.thickness, False, where="fit")
     fx = _coloured(fx, colour)
     footprint, why = compact_source(env) if opts.pixel_footprint is None else (
         bool(opts.pixel_footprint), "as asked (--pixel-footprint / --no-pixel-footprint)")

@@ -338,6 +338,8 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     if options.calibrate_camera and options.thickness == "map":
         raise InputError("--calibrate-camera fits the response with a constant film or a drainage profile, not a "
                          "thickness map: calibrate with --thickness drainage, then fit the map with the response")
+    if options.calibrate_camera:
+        options = _with_lobes(options, scene)
     stated = replace(options, calibrate_camera=False) if options.calibrate_camera else options
     fit = _fit_views(photo, env, stated, background, init, scene, saturated)
     if not options.calibrate_camera:
@@ -346,6 +348,17 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     from .self_calibration import self_calibrated
 
     return self_calibrated(fit, photo, env, options, background, scene, saturated)
+
+
+def _with_lobes(options: FitOptions, scene) -> FitOptions:
+    """``options`` with the 8-lobe ``fourier`` quadrature whose lobes a camera's
+    self-calibration frees (:mod:`~bubblefit.inverse.self_calibration`), unless the options
+    or the scene's ``[effects]`` set a quadrature (which the calibration then refuses
+    unless it is ``fourier``)."""
+    stated = dict(options.effects)
+    if "spectral" in stated or (scene is not None and "spectral" in scene.table("effects")):
+        return options
+    return replace(options, effects=(*options.effects, ("spectral", {"method": "fourier", "samples": 8})))
 
 
 def _fit_views(photo, env, options: FitOptions, background, init, scene, saturated) -> FitResult:

@@ -10,14 +10,16 @@ asked for. Per basis it prints:
 
 * the colour check's statistic per degree of freedom
   (:func:`bubblefit.inverse.colour_check.colour_check`, threshold 1.64) and the reduced
-  chi^2 with the 3 % model-error floor over the fitted pixels: what the quadrature leaves
+  chi^2 with the 3 % model-error floor over the fitted pixels (black-clipped channels
+  censored, as the fit censors them): what the quadrature leaves
   before anything is fitted;
 * the render's CPU time (user + system of this process, the median of ``REPEATS`` warm
   calls, after one call that compiles), and its ratio to the 8-lobe basis' in the same
   run, with the load average beside it;
-* the largest error of the basis' characteristic function against the 800-sample
-  reference over the film's optical paths
-  (:func:`bubblefit.inverse.spectral_rule.basis_error`), which the fit's rule reads.
+* what the fit's rule reads for this basis on the case's true films
+  (:func:`bubblefit.inverse.quadrature_excess`: the largest addition of its hue error to
+  the colour check's statistic per degree of freedom on a noise-free cell; the rule
+  allows 0.25).
 
 Run from the repository root (names as ``method/samples``):
 
@@ -48,11 +50,11 @@ def main(argv=None) -> int:
     import jax.numpy as jnp
 
     from bubblefit.capture.view import ORTHOGRAPHIC
-    from bubblefit.inverse import FitOptions, noise_sigma
+    from bubblefit.inverse import FitOptions, censored_residual, noise_sigma
     from bubblefit.inverse._programs import render_level
     from bubblefit.inverse._setup import setup
     from bubblefit.inverse.colour_check import INNER_COS, colour_check
-    from bubblefit.inverse import optical_path_range, quadrature_excess
+    from bubblefit.inverse import quadrature_excess
     from bubblefit.io.images import read_image
     from bubblefit.model.scene import load_scene, read_envmap
     from bubblefit.optics.spectral import SpectralBasis
@@ -85,8 +87,8 @@ def main(argv=None) -> int:
     sig = noise_sigma(photo, 2e-3, 2e-4, 8)
     inner = full.mask & (full.cos > INNER_COS)
     fx = st.base_cfg.effects
-    paths = optical_path_range(lo, hi, vals["n_film"], float(np.min(full.cos[full.mask])))
-    print(f"{case}: {kind} {lo:.0f}-{hi:.0f} nm, optical paths {paths[0]:.0f}-{paths[1]:.0f} nm, "
+    min_cos = float(np.min(full.cos[full.mask]))
+    print(f"{case}: {kind} {lo:.0f}-{hi:.0f} nm, incidence cosines {min_cos:.2f}-1, "
           f"footprint {st.base_cfg.pixel_footprint}, bounces {fx.bounces}, load {os.getloadavg()[0]:.1f}", flush=True)
     print(f"{'basis':12s} {'samples':>7s} {'colour':>7s} {'chi2 fl':>7s} {'cpu s':>7s} {'x 8 lobes':>9s} "
           f"{'excess':>8s}")
@@ -104,10 +106,10 @@ def main(argv=None) -> int:
         cpu = float(np.median(cpu))
         base_cpu = cpu if name == "fourier/8" else base_cpu
         cc = colour_check(photo, img, inner, sig, model_error=0.03)
-        r = photo - img
+        r = censored_residual(photo, img, xp=np)
         chi = np.sum(r**2 / (sig**2 + (0.03 * np.clip(photo, 0, None)) ** 2), axis=-1)
         chi2 = float(chi[full.mask].sum() / (3 * full.mask.sum()))
-        err = quadrature_excess(basis, *paths, vals["n_film"])
+        err = quadrature_excess(basis, (lo, hi), vals["n_film"], min_cos, fx.bounces)
         ratio = f"{cpu / base_cpu:9.2f}" if base_cpu else f"{'':9s}"
         print(f"{name:12s} {basis.samples:7d} {cc.chi2_per_dof:7.2f} {chi2:7.2f} {cpu:7.2f} {ratio} {err:8.4f}"
               f"   load {os.getloadavg()[0]:.1f}", flush=True)

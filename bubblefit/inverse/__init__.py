@@ -54,8 +54,7 @@ _EXPORTS = {
     "calibrated_illuminant": "_setup", "compact_source": "_setup", "COMPACT_SOURCE_RATIO": "_setup",
     "fit_view": "_view", "widen_for_view": "_view",
     "fit_spectral_basis": "_spectral_rule", "quadrature_excess": "_spectral_rule",
-    "optical_path_range": "_spectral_rule", "FIT_SPECTRAL_CANDIDATES": "_spectral_rule",
-    "QUADRATURE_EXCESS": "_spectral_rule",
+    "FIT_SPECTRAL_CANDIDATES": "_spectral_rule", "QUADRATURE_EXCESS": "_spectral_rule",
     # compiled programs: the padded level, its fitted pixels, the renders of a level
     "padded": "_programs", "padded_size": "_programs", "fitted_pixels": "_programs",
     "pixel_bucket": "_programs", "render_level": "_programs", "render_bubble": "_programs",

@@ -317,16 +317,17 @@ def colour_settings(scene, opts: FitOptions, n_film: float) -> ColourSettings:
     return ColourSettings(ill, resp, wb, law, int(spp))
 
 
-def _quadrature(opts: FitOptions, vals: dict, colour: ColourSettings):
+def _quadrature(opts: FitOptions, vals: dict, colour: ColourSettings, bounces: int):
     """``(basis, decision)``: the spectral quadrature that films of ``opts.thickness_range``
-    (index ``vals["n_film"]``), seen down to the rim's incidence, need under ``colour``'s
+    (index ``vals["n_film"]``, ``bounces`` internal bounces), seen down to the rim's
+    incidence, need under ``colour``'s
     illuminant, response and white balance
     (:func:`~bubblefit.inverse._spectral_rule.fit_spectral_basis`)."""
     from ._spectral_rule import fit_spectral_basis
 
-    lo, hi = (float(x) for x in opts.thickness_range)
-    return fit_spectral_basis(lo, hi, float(vals["n_film"]), math.sqrt(max(0.0, 1.0 - float(opts.rim) ** 2)),
-                              colour.illuminant, colour.response, colour.white_balance)
+    return fit_spectral_basis(tuple(float(x) for x in opts.thickness_range), float(vals["n_film"]),
+                              math.sqrt(max(0.0, 1.0 - float(opts.rim) ** 2)), int(bounces), colour.illuminant,
+                              colour.response, colour.white_balance)
 
 
 def _coloured(fx, colour: ColourSettings):
@@ -390,7 +391,8 @@ def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, d
     if decided is None:
         settings, quadrature = _settings(scene, opts), None
         if "spectral" not in settings:  # the quadrature the films of the searched range need
-            basis, quadrature = _quadrature(opts, vals, colour)
+            bounces = settings.get("bounces", 3)  # "auto": as many as it may ask for
+            basis, quadrature = _quadrature(opts, vals, colour, bounces if isinstance(bounces, int) else 8)
             settings["spectral"] = {"method": basis.method, "samples": basis.samples}
         fx, decisions = _decide(opts, vals, env, frame.background, settings, camera, lights)
         if quadrature is not None:

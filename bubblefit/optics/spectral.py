@@ -81,7 +81,6 @@ __all__ = [
     "REFERENCE_SAMPLES",
     "FOURIER_LOBES",
     "harmonic_weights",
-    "fringe_response",
     "HARMONIC_REACH_NM",
     "SpectralMethod",
     "SPECTRAL_METHODS",
@@ -412,28 +411,6 @@ def _harmonic_table(illuminant: str, response: str, white_balance) -> tuple[floa
 def _harmonic_phases(samples: int) -> np.ndarray:
     """The phases ``delta_j = theta_j + pi`` of eq. (8) at ``theta_j = 2 pi (j + 1/2) / K``."""
     return 2.0 * np.pi * (np.arange(samples) + 0.5) / samples + np.pi
-
-
-def fringe_response(basis: "SpectralBasis", opd) -> np.ndarray:
-    """What each channel of ``basis`` reads of a unit fringe ``exp(2 pi i x nu)`` of optical
-    path ``x = opd`` (nm, any shape): ``sum_k W_kc exp(2 pi i x / lambda_k) g_k(x)``, complex,
-    shape ``opd.shape + (3,)``, with ``g_k`` the lobe's attenuation of a ``fourier`` sample
-    (:func:`bubblefit.optics.film.fringe_attenuation`) and 1 for a point sample. Its real
-    part is the channel value of ``cos(2 pi x / lambda)``, so every film function's channel
-    values follow from it harmonic by harmonic (the module docstring's ``harmonic``
-    method); for the ``reference`` basis it is the response's own characteristic function
-    ``A_c(x)``, and the difference of two bases' is the error of one against the other on
-    any fringe. Numpy; 1 at ``x = 0`` for an ``illuminant`` white balance. Not for a
-    ``harmonic`` basis, whose samples are phases."""
-    if basis.wavelengths is None:
-        raise ValueError("fringe_response: a harmonic basis has no wavelengths")
-    x = np.asarray(opd, np.float64)[..., None]
-    resp = np.exp(2j * np.pi * x / basis.wavelengths)
-    if basis.sigma is not None:
-        from .film import fringe_attenuation
-
-        resp = resp * np.asarray(fringe_attenuation(x, basis.sigma), np.float64)
-    return resp @ basis.weights
 
 
 def harmonic_weights(opd, basis: "SpectralBasis"):

@@ -320,8 +320,7 @@ def colour_settings(scene, opts: FitOptions, n_film: float) -> ColourSettings:
 def _quadrature(opts: FitOptions, vals: dict, colour: ColourSettings, bounces: int):
     """``(basis, decision)``: the spectral quadrature that films of ``opts.thickness_range``
     (index ``vals["n_film"]``, ``bounces`` internal bounces), seen down to the rim's
-    incidence, need under ``colour``'s
-    illuminant, response and white balance
+    incidence, need under ``colour``'s illuminant, response and white balance
     (:func:`~bubblefit.inverse._spectral_rule.fit_spectral_basis`)."""
     from ._spectral_rule import fit_spectral_basis
 

@@ -76,7 +76,14 @@ def quadrature_excess(basis: SpectralBasis, thickness_range: tuple, n_film: floa
     """The largest ``q`` of the module docstring over films of ``thickness_range`` (nm) of
     index ``n_film`` seen at incidence cosines ``min_cos``-1 with ``bounces`` internal
     bounces: what ``basis``' hue error adds, at most, to the colour check's statistic per
-    degree of freedom. 0 for the reference."""
+    degree of freedom. 0 for the reference.
+
+    References
+    ----------
+    The film: Airy's sum per polarisation (Born & Wolf, *Principles of Optics*, 7th ed.,
+    sec. 7.6) with the paper's eq. (8) phase; the lobes: Belcour & Barla, ACM TOG 36(4),
+    2017, sec. 4; the floor: :mod:`bubblefit.inverse.colour_check`.
+    """
     if basis.method == "reference":
         return 0.0
     key = (tuple(float(x) for x in thickness_range), float(n_film), float(min_cos), int(bounces))

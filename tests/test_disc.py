@@ -67,9 +67,9 @@ def _bubble(bg: np.ndarray, refl: np.ndarray, cx: float, cy: float, r: float, *,
     """
     h, w = bg.shape[:2]
     up = lambda a: np.repeat(np.repeat(a, ss, 0), ss, 1)  # noqa: E731
-    ys, xs = np.mgrid[0 : h * ss, 0 : w * ss]
-    x = (xs + 0.5) / ss
-    y = (ys + 0.5) / ss
+    # sub-pixel centres as a row and a column (broadcast against each other below)
+    x = (np.arange(w * ss)[None, :] + 0.5) / ss
+    y = (np.arange(h * ss)[:, None] + 0.5) / ss
     rho = np.hypot(x - cx, y - cy) / r
     inside = rho < 1
     cos = np.sqrt(np.clip(1 - rho * rho, 0, 1))

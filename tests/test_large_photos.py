@@ -39,8 +39,10 @@ def test_every_8bit_code_decodes_exactly(tmp_path):
 
 def test_analysis_frame_memory_is_bounded_by_the_frame():
     H, W, disc = 3000, 4000, (2000.0, 1500.0, 1200.0)
-    yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
-    photo = np.stack([0.3 + 1e-4 * xx, 0.2 + 1e-4 * yy, 0.5 + np.sin(0.01 * xx * yy) * 0.1], axis=-1)
+    xx = np.arange(W, dtype=np.float32)[None, :]  # a row and a column, broadcast
+    yy = np.arange(H, dtype=np.float32)[:, None]
+    photo = np.stack(np.broadcast_arrays(0.3 + 1e-4 * xx, 0.2 + 1e-4 * yy, 0.5 + np.sin(0.01 * xx * yy) * 0.1),
+                     axis=-1)
     del yy, xx
     opts = FitOptions()
     sat = np.zeros((H, W), bool)

@@ -67,7 +67,8 @@ def _film_grid(dtype):
 
 
 def _all_finite(tree) -> bool:
-    return all(bool(jnp.all(jnp.isfinite(x))) for x in jax.tree_util.tree_leaves(tree))
+    # read in numpy: eagerly, jnp.isfinite and jnp.all compile again for every shape and dtype
+    return all(bool(np.all(np.isfinite(np.asarray(x)))) for x in jax.tree_util.tree_leaves(tree))
 
 
 FILM_FUNCS = {

@@ -290,6 +290,7 @@ def thickness_texture(bubble: FittedBubble, nu: int = 512, nv: int = 256) -> np.
     to, changed by the profile between that pixel's front-film height and its own; texels
     outside the photo or off the map take the profile (or the map's median without one).
     """
+    import jax
     import jax.numpy as jnp
 
     from ..model.thickness import drainage_profile, thickness_at
@@ -299,8 +300,11 @@ def thickness_texture(bubble: FittedBubble, nu: int = 512, nv: int = 256) -> np.
     flat = local.reshape(-1, 3)
     if th.kind == "constant":
         return np.full((nv, nu), th.value, np.float64)
+    # each call compiled as one program (eagerly each of its operations compiles on its
+    # own); the profile's three numbers stay Python numbers, as in an eager call
+    profile_at = jax.jit(drainage_profile, static_argnums=(1, 2, 3))
     if th.kind == "drainage":
-        return np.asarray(drainage_profile(jnp.asarray(flat[:, 1]), *th.profile), np.float64).reshape(nv, nu)
+        return np.asarray(profile_at(jnp.asarray(flat[:, 1]), *th.profile), np.float64).reshape(nv, nu)
     cam = bubble.camera
     world = np.asarray(bubble.center) + bubble.radius * flat
     col, row = cam.project(world)
@@ -312,11 +316,12 @@ def thickness_texture(bubble: FittedBubble, nu: int = 512, nv: int = 256) -> np.
     seen &= valid.reshape(-1)[pix]
     front = _front_points(bubble, pix)
     prof = np.asarray(th.profile if th.profile is not None else (np.nan,) * 3, np.float32)
-    out = np.asarray(thickness_at("map", jnp.asarray(np.nan_to_num(tmap.reshape(-1)), jnp.float32),
+    out = np.asarray(jax.jit(thickness_at, static_argnums=0)(
+        "map", jnp.asarray(np.nan_to_num(tmap.reshape(-1)), jnp.float32),
                                   jnp.asarray(flat, jnp.float32), jnp.asarray(pix), jnp.asarray(prof),
                                   jnp.asarray(front, jnp.float32)), np.float64)
     if th.profile is not None:
-        fill = np.asarray(drainage_profile(jnp.asarray(flat[:, 1]), *th.profile), np.float64)
+        fill = np.asarray(profile_at(jnp.asarray(flat[:, 1]), *th.profile), np.float64)
     else:
         fill = np.full(len(flat), float(np.nanmedian(tmap)))
     return np.where(seen, out, fill).reshape(nv, nu)
@@ -339,11 +344,23 @@ def _front_points(bubble: FittedBubble, pix: np.ndarray) -> np.ndarray:
     (:func:`bubblefit.model.geometry.intersect_sphere`)."""
     import jax.numpy as jnp
 
-    from ..model.geometry import intersect_sphere
-
     cam = bubble.camera
     i, j = np.divmod(pix, cam.width)
-    o, d = geometry_camera(cam).rays(jnp.asarray(i, jnp.float32), jnp.asarray(j, jnp.float32),
-                                     bubble.center, bubble.radius)
-    d = jnp.broadcast_to(d, o.shape)
-    return np.asarray(intersect_sphere(o, d, bubble.center, bubble.radius).local0, np.float64)
+    return np.asarray(_front_local(geometry_camera(cam), jnp.asarray(i, jnp.float32), jnp.asarray(j, jnp.float32),
+                                   tuple(bubble.center), bubble.radius), np.float64)
+
+
+def _front_local(camera, rows, cols, center: tuple, radius: float):
+    """The front hits' ``local0`` of the rays through pixels ``(rows, cols)``, compiled as
+    one program per camera, centre and radius (which stay Python values, as in an eager
+    call)."""
+    import jax
+
+    from ..model.geometry import intersect_sphere
+
+    def local(camera, rows, cols, center, radius):
+        o, d = camera.rays(rows, cols, center, radius)
+        d = jax.numpy.broadcast_to(d, o.shape)
+        return intersect_sphere(o, d, center, radius).local0
+
+    return jax.jit(local, static_argnums=(0, 3, 4))(camera, rows, cols, center, radius)

@@ -32,6 +32,7 @@ similar thickness share it, which the check's sum over cells treats as independe
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -62,10 +63,8 @@ class ResponseError:
         """(n, 3, L): each pixel's change of its render ``(n, 3)`` per one standard error of
         each row of each channel's response, at the pixel's film ``thickness`` (n,) nm seen
         at ``cos`` (n,) (cosine of incidence)."""
-        from ..optics.film import airy_reflectance
-
-        refl = np.asarray(airy_reflectance(np.asarray(thickness, np.float64)[:, None], self.wavelengths[None, :],
-                                           self.n_film, np.asarray(cos, np.float64)[:, None])).mean(axis=-1)
+        refl = np.asarray(_airy()(np.asarray(thickness, np.float64)[:, None], self.wavelengths[None, :],
+                                  self.n_film, np.asarray(cos, np.float64)[:, None])).mean(axis=-1)
         total = self.density.sum(axis=0)                         # (3,)
         f = refl @ self.density / total                          # (n, 3) the film's reflected share per channel
         proj = refl @ self.hats                                  # (n, L)
@@ -84,6 +83,17 @@ class ResponseError:
         bg = None if background is None else np.asarray(background)[take]
         jac = self.jacobian(np.asarray(render)[take], bg, np.asarray(thickness)[take], np.asarray(cos)[take]).mean(axis=0)
         return np.diag(np.sum(jac**2, axis=-1))  # channels' coefficients are independent: a diagonal
+
+
+@functools.cache
+def _airy():
+    """:func:`bubblefit.optics.film.airy_reflectance`, compiled (one program per cell size;
+    eagerly each of its operations compiled on its own, again for every cell size)."""
+    import jax
+
+    from ..optics.film import airy_reflectance
+
+    return jax.jit(airy_reflectance)
 
 
 def response_error(response: str, illuminant: str, n_film: float) -> ResponseError | None:

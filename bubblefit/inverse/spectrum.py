@@ -267,8 +267,10 @@ def reflector(wavelength_nm, n):
                 kernel, args = _airy_kernel, (lam_j, n_j)
             for s in range(0, len(d), block):
                 part = d[s:s + block]
-                padded = np.pad(part, (0, block - len(part)), mode="edge")
-                out[s:s + len(part)] = np.asarray(kernel(jnp.asarray(padded), *args))[: len(part)]
+                # (a numpy block goes to the kernel as it is: a fit makes thousands of
+                # one-thickness calls, and np.pad and jnp.asarray cost more than the kernel)
+                padded = part if len(part) == block else np.pad(part, (0, block - len(part)), mode="edge")
+                out[s:s + len(part)] = np.asarray(kernel(padded, *args))[: len(part)]
         return out
 
     return reflect

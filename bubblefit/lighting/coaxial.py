@@ -32,6 +32,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
@@ -124,10 +125,19 @@ def coaxial_reflectance(thickness: ArrayLike, wavelength: ArrayLike, n: StackInd
     """The stack's reflectance averaged over an objective's cone (the module's equation).
 
     ``thickness`` broadcasts against ``wavelength`` (the last axis); returns the
-    unpolarised, cos-weighted cone average of :func:`reflectance_at_angles`.
+    unpolarised, cos-weighted cone average of :func:`reflectance_at_angles`. The nodes are
+    summed in order by one loop (``jax.lax.scan``), so that the program has one copy of the
+    film's reflectance whatever the number of nodes; each weight is taken in the
+    reflectance's precision.
     """
     u, w = cone_quadrature(na, nodes)
-    out = 0.0
-    for uk, wk in zip(u, w):
-        out = out + float(wk) * reflectance_at_angles(thickness, wavelength, n, float(uk))
+    u, w = jnp.asarray(u), jnp.asarray(w)
+
+    def add(out, node):
+        uk, wk = node
+        r = reflectance_at_angles(thickness, wavelength, n, uk)
+        return out + wk.astype(r.dtype) * r, None
+
+    like = jax.eval_shape(lambda: reflectance_at_angles(thickness, wavelength, n, u[0]))
+    out, _ = jax.lax.scan(add, jnp.zeros(like.shape, like.dtype), (u, w))
     return out

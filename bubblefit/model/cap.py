@@ -29,9 +29,11 @@ M. Pharr, W. Jakob and G. Humphreys, *Physically Based Rendering*, 3rd ed., sec.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -95,13 +97,26 @@ class CapView:
     mirror_cos: np.ndarray
 
 
+@functools.partial(jax.jit, static_argnames=("radius",))
+def _sphere_hits(o, d, center, radius: float):
+    """``(p0, inside, cos)`` of :func:`bubblefit.model.geometry.intersect_sphere`, compiled
+    once per radius (the radius stays a Python number, as in an eager call)."""
+    hits = intersect_sphere(o, d, center, radius)
+    return hits.p0, hits.inside, hits.cos
+
+
+#: :func:`bubblefit.optics.film.fresnel_reflectance`, compiled.
+_fresnel_reflectance = jax.jit(film.fresnel_reflectance)
+
+
 def _cap_hit(o, d, cap: Cap):
     """(hit, point, cos) of rays' first meeting with the cap's surface above the plane."""
-    hits = intersect_sphere(jnp.asarray(o), jnp.asarray(d), cap.center, float(cap.radius))
-    p0 = np.asarray(hits.p0)
+    o32 = jnp.asarray(o)
+    p0, inside, cos = _sphere_hits(o32, jnp.asarray(d), jnp.asarray(cap.center, o32.dtype), float(cap.radius))
+    p0 = np.asarray(p0)
     s0 = np.sum((p0 - o) * d, axis=-1)
-    hit = np.asarray(hits.inside) & (s0 > 0) & (p0[:, 1] >= cap.plane_y)
-    return hit, p0, np.asarray(hits.cos)
+    hit = np.asarray(inside) & (s0 > 0) & (p0[:, 1] >= cap.plane_y)
+    return hit, p0, np.asarray(cos)
 
 
 def trace_cap(origins, dirs, cap: Cap, wavelength_nm=(550.0,)) -> CapView:
@@ -122,7 +137,7 @@ def trace_cap(origins, dirs, cap: Cap, wavelength_nm=(550.0,)) -> CapView:
     lam = np.asarray(wavelength_nm, np.float64)
     n_liq = np.asarray(dispersion.refractive_index(cap.liquid, lam), np.float64)
     cos_l = np.abs(d[:, 1])[:, None]
-    refl = np.asarray(film.fresnel_reflectance(jnp.asarray(cos_l), jnp.asarray(n_liq))).mean(-1)
+    refl = np.asarray(_fresnel_reflectance(jnp.asarray(cos_l), jnp.asarray(n_liq))).mean(-1)
     return CapView(film=on_cap, film_point=p_cap, film_cos=cos_cap, liquid=liquid, liquid_point=p_l,
                    liquid_reflectance=np.where(liquid[:, None], refl, 0.0), mirror_dir=m, mirror_film=mirror_film,
                    mirror_point=p_m, mirror_cos=cos_m)

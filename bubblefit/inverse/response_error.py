@@ -1,7 +1,8 @@
 """How far a calibrated camera response's own errors move a fitted photo's colours.
 
-A response CSV from ``bubblefit calibrate-camera`` states each row's standard error
-(:func:`bubblefit.optics.spectral.response_stderr`). The colour check
+A response CSV from ``bubblefit calibrate-camera`` states its errors as modes of each
+channel's covariance between rows (:func:`bubblefit.optics.spectral.response_error_modes`;
+a CSV with per-row errors only states independent rows). The colour check
 (:mod:`bubblefit.inverse.colour_check`) asks whether the stated response can produce the
 photo's hues; a response known only to within its errors can produce any hue those errors
 reach, so the check's null hypothesis holds their covariance too. It is propagated
@@ -9,9 +10,9 @@ linearly (the first-order, "delta method" law of propagation of uncertainty: JCG
 GUM, section 5.1.2):
 
 - the response of channel ``k`` is linear between the CSV's rows ``lambda_j``:
-  ``rho_k(lambda) = sum_j x_kj H_j(lambda)`` with hat functions ``H_j``, and the rows'
-  errors ``s_kj`` are taken as independent (the CSV holds no covariance between rows) and
-  independent between channels (each channel is fitted alone);
+  ``rho_k(lambda) = sum_j x_kj H_j(lambda)`` with hat functions ``H_j``; the rows' errors
+  have the covariance ``C_k = sum_m u_km u_km^T`` (the CSV's modes ``u_km``), and the
+  channels are independent (each channel is fitted alone);
 - a film of Airy reflectance ``R(lambda)`` (Born & Wolf eq. 7.6(13), the fit's own
   :func:`bubblefit.optics.film.airy_reflectance`, both polarisations averaged, at the
   pixel's fitted thickness and angle) seen through the white-balanced response reflects
@@ -24,8 +25,9 @@ GUM, section 5.1.2):
   the background photo (zero without one, which overstates the response's share where
   the map's light is seen through the film: the check is then more lenient).
 
-A cell's mean render then moves by ``J_b = mean_i d y_i / d x`` per unit of the
-coefficients, and its covariance from the response is ``J_b diag(s^2) J_b^T`` (3 x 3). It
+A pixel's render moves by ``d y_k / d x_k u_km`` per mode (:meth:`ResponseError.jacobian`);
+a cell's mean render by the mean of that over its pixels, ``J_b``, and its covariance from
+the response is ``sum_m J_bm J_bm^T`` (3 x 3). It
 does not average down over pixels (every pixel sees the same response), and cells of
 similar thickness share it, which the check's sum over cells treats as independent.
 """
@@ -48,20 +50,20 @@ MAX_PIXELS = 400
 class ResponseError:
     """A response's stated errors on its rows, ready to propagate (module docstring):
     ``hats`` (G, L) ``H_j(lambda) I(lambda)`` on the fine grid, ``density`` (G, 3)
-    ``w_k = rho_k I``, ``stderr`` (L, 3) the rows' standard errors, ``wavelengths`` (G,) nm
-    and the film's index ``n_film``."""
+    ``w_k = rho_k I``, ``modes`` (L, 3, M) the modes of each channel's covariance between
+    rows, ``wavelengths`` (G,) nm and the film's index ``n_film``."""
 
     wavelengths: np.ndarray
     hats: np.ndarray
     density: np.ndarray
-    stderr: np.ndarray
+    modes: np.ndarray
     n_film: float
 
     def jacobian(self, render: np.ndarray, background: np.ndarray | None, thickness: np.ndarray,
                  cos: np.ndarray) -> np.ndarray:
-        """(n, 3, L): each pixel's change of its render ``(n, 3)`` per one standard error of
-        each row of each channel's response, at the pixel's film ``thickness`` (n,) nm seen
-        at ``cos`` (n,) (cosine of incidence)."""
+        """(n, 3, M): each pixel's change of its render ``(n, 3)`` along each error mode of
+        each channel's response (one standard deviation), at the pixel's film ``thickness``
+        (n,) nm seen at ``cos`` (n,) (cosine of incidence)."""
         from ..optics.film import airy_reflectance
 
         refl = np.asarray(airy_reflectance(np.asarray(thickness, np.float64)[:, None], self.wavelengths[None, :],
@@ -72,7 +74,7 @@ class ResponseError:
         dfdx = (proj[:, None, :] - f[:, :, None] * self.hats.sum(axis=0)[None, None, :]) / total[None, :, None]
         bg = 0.0 if background is None else np.asarray(background, np.float64)
         dydf = (np.asarray(render, np.float64) - bg) / np.maximum(f, 1e-9)
-        return dydf[:, :, None] * dfdx * self.stderr.T[None, :, :]
+        return dydf[:, :, None] * np.einsum("ncl,lcm->ncm", dfdx, self.modes)
 
     def cell_covariance(self, render, background, thickness, cos) -> np.ndarray:
         """(3, 3): the covariance of a cell's mean render from the response's errors, over
@@ -88,21 +90,21 @@ class ResponseError:
 
 def response_error(response: str, illuminant: str, n_film: float) -> ResponseError | None:
     """The :class:`ResponseError` of ``response`` (a CSV with ``r_err,g_err,b_err``
-    columns) under ``illuminant``, for a film of index ``n_film``; None when the response
+    columns, and its covariance's modes where it holds them) under ``illuminant``, for a film of index ``n_film``; None when the response
     states no errors (a named camera, sRGB, a CSV without them: taken as exact)."""
-    from ..optics.spectral import (LAMBDA_MAX, LAMBDA_MIN, _GRID, _channel_density, illuminant_spectrum,
-                                   response_stderr)
+    from ..optics.spectral import (LAMBDA_MAX, LAMBDA_MIN, TABLE_GRID, channel_density, illuminant_spectrum,
+                                   response_error_modes)
 
-    stated = response_stderr(response)
+    stated = response_error_modes(response)
     if stated is None:
         return None
-    rows, err = stated
-    inside = (_GRID >= LAMBDA_MIN) & (_GRID <= LAMBDA_MAX)
-    lam = _GRID[inside]
+    rows, modes = stated
+    inside = (TABLE_GRID >= LAMBDA_MIN) & (TABLE_GRID <= LAMBDA_MAX)
+    lam = TABLE_GRID[inside]
     lamp = illuminant_spectrum(illuminant)[inside]
     hats = np.stack([np.interp(lam, rows, np.eye(len(rows))[j], left=0.0, right=0.0) for j in range(len(rows))],
                     axis=1) * lamp[:, None]
-    return ResponseError(lam, hats, _channel_density(illuminant, response)[inside], np.asarray(err, np.float64),
+    return ResponseError(lam, hats, channel_density(illuminant, response)[inside], np.asarray(modes, np.float64),
                          float(n_film))
 
 

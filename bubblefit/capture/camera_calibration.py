@@ -22,9 +22,10 @@ lamp ``I(lambda)`` is ``y_c = g_c int rho_c(lambda) I(lambda) S(lambda) dlambda`
   (exposure times white balance, ``g_c``) is free: the response is normalised to a
   maximum of 1 per channel.
 - **smoothing weight and uncertainty**: the penalty is a Gaussian prior on the second
-  differences; its weight maximises the samples' restricted (marginal) likelihood
-  (Wood, JRSS B 73(1), 2011), and the stated covariance is the posterior's,
-  ``s^2 (A^T A + lambda D^T D)^-1`` (Wahba, JRSS B 45(1), 1983), which holds the
+  differences; its weight is weighed by the samples' restricted (marginal) likelihood
+  (Wood, JRSS B 73(1), 2011) and the result averaged over it, and the stated covariance is
+  the posterior's, ``s^2 (A^T A + lambda D^T D)^-1`` (Wahba, JRSS B 45(1), 1983) averaged
+  the same way plus the scatter of the solutions between weights, which holds the
   smoothing's bias where the samples do not fix the response: a chart's 24 smooth
   reflectances leave the fine structure a film's colours depend on to the prior, and the
   posterior says so. (Generalised cross-validation chose the weight on the chart erratically,
@@ -199,9 +200,10 @@ def _design(spectra: np.ndarray, lamp: np.ndarray, knots: np.ndarray) -> np.ndar
 
 
 def _smooth_fit(a: np.ndarray, y: np.ndarray, d: np.ndarray):
-    """Penalised least squares ``min |y - A x|^2 + lambda |D x|^2`` with the penalty weight of
-    greatest restricted (marginal) likelihood, and the posterior covariance of ``x``:
-    ``(x, cov, lambda, dof, rel)`` (module docstring).
+    """Penalised least squares ``min |y - A x|^2 + lambda |D x|^2``, averaged over the penalty
+    weight by its restricted (marginal) likelihood, with the posterior covariance of ``x``:
+    ``(x, cov, lambda, dof, rel)`` (module docstring; ``lambda`` and ``dof`` of the most
+    likely weight).
 
     The penalty is a Gaussian prior on the response's second differences, of variance
     ``s^2 / lambda``; integrating ``x`` out, the restricted log likelihood of the samples is
@@ -209,10 +211,14 @@ def _smooth_fit(a: np.ndarray, y: np.ndarray, d: np.ndarray):
     maximum ``(|y - A x|^2 + lambda x^T P x) / (n - m0)``, ``P = D^T D`` and ``m0`` the
     dimension of ``P``'s null space (Wood, "Fast stable restricted maximum likelihood and
     marginal likelihood estimation of semiparametric generalized linear models", JRSS B
-    73(1), 2011, eq. 4). The posterior covariance ``s^2 (A^T A + lambda P)^-1`` holds the
-    smoothing's bias as well as the noise (Wahba, "Bayesian 'confidence intervals' for the
-    cross-validated smoothing spline", JRSS B 45(1), 1983): where the samples say nothing
-    (a chart's smooth reflectances and a response's fine structure) it is the prior's width."""
+    73(1), 2011, eq. 4). For one weight the posterior covariance ``s^2 (A^T A + lambda P)^-1``
+    holds the smoothing's bias as well as the noise (Wahba, "Bayesian 'confidence
+    intervals' for the cross-validated smoothing spline", JRSS B 45(1), 1983): where the
+    samples say nothing (a chart's smooth reflectances and a response's fine structure) it
+    is the prior's width. The weight itself is uncertain, so the result is averaged over a
+    grid of weights (uniform in ``log lambda``) with their likelihoods: the mean of the
+    solutions, and the mean of their covariances plus the solutions' scatter (the law of
+    total variance)."""
     ata, aty, pen = a.T @ a, a.T @ y, d.T @ d
     ev = np.linalg.eigvalsh(pen)
     kept = ev > 1e-10 * ev.max()
@@ -221,7 +227,7 @@ def _smooth_fit(a: np.ndarray, y: np.ndarray, d: np.ndarray):
     n = len(y)
     if n - m0 < 2:
         raise InputError("too few calibration samples for the response's smoothness (give more patches or thicknesses)")
-    best = None
+    fits = []
     for lam in scale * np.logspace(-9, 3, 61):
         m = ata + lam * pen
         sign, log_det = np.linalg.slogdet(m)
@@ -234,14 +240,21 @@ def _smooth_fit(a: np.ndarray, y: np.ndarray, d: np.ndarray):
         if not s2 > 0:
             continue
         score = (n - m0) * np.log(s2) + log_det - (np.count_nonzero(kept) * np.log(lam) + log_det_pen)
-        if best is None or score < best[0]:
-            best = (score, lam, x, minv, s2, res)
-    if best is None:
+        fits.append((score, lam, x, s2 * minv, minv))
+    if not fits:
         raise InputError("too few calibration samples for the response's smoothness (give more patches or thicknesses)")
-    _, lam, x, minv, s2, res = best
+    scores = np.array([f[0] for f in fits])
+    wts = np.exp(-0.5 * (scores - scores.min()))
+    wts /= wts.sum()
+    xs = np.stack([f[2] for f in fits])
+    x = wts @ xs
+    dev = xs - x
+    cov = np.einsum("k,kij->ij", wts, np.stack([f[3] for f in fits])) + (dev * wts[:, None]).T @ dev
+    _, lam, _, _, minv = fits[int(np.argmin(scores))]
     tr = float(np.trace(a @ minv @ a.T))
+    res = y - a @ x
     rel = float(np.sqrt(np.mean(res**2)) / max(np.sqrt(np.mean(y**2)), 1e-300))
-    return x, s2 * minv, lam, tr, rel
+    return x, cov, lam, tr, rel
 
 
 #: Modes of a covariance whose variance is below this share of the largest mode's are

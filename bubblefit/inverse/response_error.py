@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ResponseError", "response_error", "MAX_PIXELS"]
+__all__ = ["ResponseError", "response_error", "response_cells", "response_gram", "solve_response_gram", "MAX_PIXELS"]
 
 #: Pixels per cell the mean Jacobian is taken over (evenly strided): the Jacobian follows
 #: the fitted thickness, smooth over a cell, so a subsample gives its mean (and bounds the
@@ -125,3 +125,73 @@ def response_cells(response: str, illuminant: str, n_film: float, render: np.nda
         return err.cell_covariance(np.asarray(render)[ys, xs], bg, thickness[ys, xs], np.asarray(cos)[ys, xs])
 
     return cov
+
+
+#: Pixels per block of :func:`response_gram` (bounds its memory: a block holds its pixels'
+#: derivatives along every mode, 3 M floats each).
+_GRAM_BLOCK = 2048
+
+
+def response_gram(err: ResponseError | None, jac: np.ndarray, weight: np.ndarray, render: np.ndarray,
+                  background: np.ndarray | None, thickness: np.ndarray, cos: np.ndarray) -> np.ndarray | None:
+    """(p, p) ``sum_m (J^T W dy_m)(J^T W dy_m)^T`` over the response's error modes ``dy_m``
+    (:meth:`ResponseError.jacobian`; module docstring): what the response's errors add to
+    the fitted parameters' covariance between two ``(J^T J)^-1``.
+
+    Parameters
+    ----------
+    err : ResponseError or None
+        The response's stated errors (None: exact, and so is the result).
+    jac : np.ndarray
+        (h w 3, p) the Jacobian of the whitened residual over the level's pixels.
+    weight : np.ndarray
+        (h, w, 3) the whitening ``1 / sigma`` (0 where not fitted).
+    render, background : np.ndarray
+        (h, w, 3) the fit's render and the background photo (None: none).
+    thickness, cos : np.ndarray
+        (h, w) each pixel's film thickness (nm) and cosine of incidence.
+    """
+    if err is None:
+        return None
+    h, w = weight.shape[:2]
+    p = jac.shape[1]
+    pix = np.nonzero(np.any(np.asarray(weight) > 0, axis=-1).ravel())[0]
+    jr = np.asarray(jac, np.float64).reshape(h * w, 3, p)
+    flat = lambda a, n: np.asarray(a, np.float64).reshape(h * w, n)  # noqa: E731
+    wt, y = flat(weight, 3), flat(render, 3)
+    bg = None if background is None else flat(background, 3)
+    th = np.broadcast_to(np.asarray(thickness, np.float64), (h, w)).reshape(-1)
+    cs = np.broadcast_to(np.asarray(cos, np.float64), (h, w)).reshape(-1)
+    total = np.zeros((p, 3, err.modes.shape[-1]))
+    for lo in range(0, pix.size, _GRAM_BLOCK):
+        i = pix[lo:lo + _GRAM_BLOCK]
+        dy = err.jacobian(y[i], None if bg is None else bg[i], th[i], cs[i]) * wt[i][:, :, None]
+        total += np.einsum("ncp,ncm->pcm", jr[i], np.nan_to_num(dy))
+    return np.einsum("pcm,qcm->pq", total, total)
+
+
+def solve_response_gram(response: str, illuminant: str, n_film: float, lev, sol, robust_scale: float):
+    """:func:`response_gram` of a solve ``sol`` (a :class:`~bubblefit.inverse._local.LocalSolution`)
+    on its level ``lev``: the render is the photo plus the plain residual, the thickness the
+    solve's constant film or drainage profile (:func:`bubblefit.model.thickness.drainage_profile`)
+    at each pixel's height; None when the response states no errors."""
+    import jax.numpy as jnp
+
+    from ..model.thickness import drainage_profile
+    from ._uncertainty import plain_residual
+
+    err = response_error(response, illuminant, n_film)
+    if err is None or sol.jacobian is None or not sol.jacobian.size:
+        return None
+    v = sol.values
+    if "thickness_nm" in v:
+        thickness = np.full(lev.y.shape[:2], float(v["thickness_nm"]))
+    elif all(k in v for k in ("top_nm", "bottom_nm", "exponent")):
+        thickness = np.asarray(drainage_profile(jnp.asarray(lev.height), v["top_nm"], v["bottom_nm"], v["exponent"]),
+                               np.float64)
+    else:
+        return None
+    weight = np.asarray(lev.w, np.float64)
+    resid = plain_residual(sol.residual, robust_scale).reshape(lev.y.shape)
+    render = np.asarray(lev.y, np.float64) + np.where(weight > 0, resid / np.where(weight > 0, weight, 1.0), 0.0)
+    return response_gram(err, sol.jacobian, weight, render, lev.bg, thickness, lev.cos)

@@ -9,7 +9,11 @@ quantisation: tests/helpers.py's film_photo) are fitted with that CSV and illumi
 Prints the thickness error, its standard error and the camera response's share of it
 (``stderr_camera``), and the verdict per photo.
 
-Usage: ``PYTHONPATH=. python experiments/calibrated_camera.py [--thickness 300,800,1500] [--source film,chart]``
+``--photo-camera`` renders the photos with another camera than the one calibrated (a wrong
+calibrated response, which the fit should not call ok); ``--keep DIR`` keeps the CSVs.
+
+Usage: ``PYTHONPATH=. python experiments/calibrated_camera.py [--thickness 300,800,1500] [--source film,chart]
+[--photo-camera "Sigma SDMerill (NPL)"] [--keep DIR]``
 """
 
 from __future__ import annotations
@@ -67,7 +71,8 @@ def main():
     while px.shape[0] > 64:
         px = downsample(px)
     env = EnvMap.from_array(px)
-    tmp = tempfile.mkdtemp()
+    tmp = a.keep or tempfile.mkdtemp()
+    os.makedirs(tmp, exist_ok=True)
     rows, arrays = [], {}
     for source in a.source.split(","):
         spectra = data[source]
@@ -78,12 +83,12 @@ def main():
         with open(path, "w") as fh:
             fh.write(cal.csv_text())
         for k, t in enumerate(float(x) for x in a.thickness.split(",")):
-            photo, bg = film_photo(env, t, 31 + k, CAMERA, "E")
+            photo, bg = film_photo(env, t, 31 + k, a.photo_camera, "E")
             t0 = time.perf_counter()
             r = fit_photo(photo, env, background=bg, options=FitOptions(
                 disc=DISC, parameters=starts(t=0.968, roughness=0.04), model="paper", camera_response=path, illuminant="E",
                 view=ORTHOGRAPHIC))
-            row = dict(source=source, truth=t, thickness=r.params["thickness_nm"],
+            row = dict(source=source, photo_camera=a.photo_camera, truth=t, thickness=r.params["thickness_nm"],
                        stderr=r.stderr.get("thickness_nm"), ok=r.ok,
                        stderr_camera=(r.stderr_camera or {}).get("thickness_nm"), chi2=r.reduced_chi2,
                        colour=r.colour_check, warnings=r.warnings, time_s=time.perf_counter() - t0)

@@ -61,6 +61,8 @@ def main():
     ap.add_argument("--source", default="film,chart")
     ap.add_argument("--json")
     ap.add_argument("--arrays", help="also save each fit's photo, render and disc to this .npz")
+    ap.add_argument("--photo-camera", default=CAMERA, help="the camera the photos are rendered with")
+    ap.add_argument("--keep", help="write the calibrated CSVs to this folder")
     a = ap.parse_args()
     rng = np.random.default_rng(5)
     sens = sensitivities(CAMERA)

@@ -18,26 +18,15 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import tempfile
 
 import numpy as np
 
-LAM = np.arange(380.0, 781.0)
+sys.path.insert(0, os.path.dirname(__file__))
+from calibrated_camera import airy, sensitivities  # noqa: E402  (the same numpy film and cameras)
+
 CAMERAS = ("Nikon 5100 (NPL)", "Sigma SDMerill (NPL)")
-
-
-def sensitivities(name):
-    import colour
-
-    ms = colour.MSDS_CAMERA_SENSITIVITIES[name]
-    return np.stack([np.interp(LAM, ms.wavelengths, ms.values[:, c], left=0, right=0) for c in range(3)], axis=1)
-
-
-def airy(d, n=1.33):
-    r = (1 - n) / (1 + n)
-    f = 4 * r * r / (1 - r * r) ** 2
-    s2 = np.sin(2 * np.pi * n * np.asarray(d, float)[:, None] / LAM) ** 2
-    return f * s2 / (1 + f * s2)
 
 
 def main():

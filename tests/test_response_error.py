@@ -76,15 +76,14 @@ def test_propagation_against_monte_carlo(tmp_path, d):
     assert np.allclose(predicted, draws.var(axis=0), rtol=0.12)
 
 
-def test_check_holds_the_response_error(tmp_path):
-    """With the model-error floors off (they would hide the small shift), cells whose mean hue is moved by one coherent draw of the response's error (the
-    same draw for every pixel, as a calibrated response moves them) plus pixel noise: the
-    check without the response's errors flags them, with them it does not."""
+def _wedge(tmp_path):
+    """A 36 px wedge 300 -> 1000 nm seen by the Nikon over a grey background, and each
+    pixel's render change per one standard error of each row of a response CSV stating
+    30 % errors."""
     path, _, _ = _csv(tmp_path, 0.3)
-    rng = np.random.default_rng(8)
     h = w = 36
     yy, xx = np.mgrid[:h, :w]
-    thick = 300.0 + 20.0 * xx  # a wedge: 300 -> 1000 nm
+    thick = 300.0 + 20.0 * xx
     refl = np.stack([_airy(t) for t in thick.ravel()])
     w_rows = _nikon(LAM)
     f = (refl @ w_rows / w_rows.sum(axis=0)).reshape(h, w, 3)
@@ -92,17 +91,44 @@ def test_check_holds_the_response_error(tmp_path):
     render = e_light * f + b_light * (1 - f)
     bg = np.broadcast_to(b_light, render.shape).copy()
     cos = np.ones((h, w))
-    err = response_error(path, "E", 1.33)
-    jac = err.jacobian(render.reshape(-1, 3), bg.reshape(-1, 3), thick.ravel(), cos.ravel())
-    shift = np.einsum("nkl,kl->nk", jac, rng.normal(size=(3, len(ROWS)))).reshape(h, w, 3)
-    sigma = np.full((h, w, 3), 0.002)
+    jac = response_error(path, "E", 1.33).jacobian(render.reshape(-1, 3), bg.reshape(-1, 3), thick.ravel(), cos.ravel())
+    return path, render, bg, thick, cos, jac.reshape(h, w, 3, -1)
+
+
+def test_check_holds_the_response_error(tmp_path):
+    """With the model-error floors off (they would hide the small shift), cells whose mean
+    hue is moved by one coherent draw of the response's error (the same draw for every
+    pixel, as a calibrated response moves them) plus pixel noise: the check without the
+    response's errors flags them, with them it does not."""
+    path, render, bg, thick, cos, jac = _wedge(tmp_path)
+    rng = np.random.default_rng(8)
+    shift = np.einsum("yxkl,kl->yxk", jac, rng.normal(size=(3, len(ROWS))))
+    sigma = np.full(render.shape, 0.002)
     photo = render + shift + sigma * rng.normal(size=render.shape)
-    mask = np.ones((h, w), bool)
+    mask = np.ones(render.shape[:2], bool)
     plain = colour_check(photo, render, mask, sigma, floor=0.0, chroma_floor=0.0)
     held = colour_check(photo, render, mask, sigma, floor=0.0, chroma_floor=0.0,
-                        response_cov=response_cells(path, "E", 1.33, render, bg, thick, cos))
-    print(plain.chi2_per_dof, held.chi2_per_dof)
+                        response_jac=response_cells(path, "E", 1.33, render, bg, thick, cos))
     assert not plain.consistent and held.consistent and held.response_errors
+
+
+def test_check_shares_the_response_between_cells(tmp_path):
+    """The same wedge, but each 6 x 6 cell's hue moved by its own draw of the response's
+    error: every cell alone is within the response's errors, the film as a whole is not
+    (one response cannot move each cell its own way), and the check, whose null holds one
+    draw for the whole photo, flags it."""
+    path, render, bg, thick, cos, jac = _wedge(tmp_path)
+    rng = np.random.default_rng(9)
+    shift = np.zeros_like(render)
+    for by in range(0, 36, 6):
+        for bx in range(0, 36, 6):
+            draw = rng.normal(size=(3, len(ROWS)))
+            shift[by:by + 6, bx:bx + 6] = np.einsum("yxkl,kl->yxk", jac[by:by + 6, bx:bx + 6], draw)
+    sigma = np.full(render.shape, 0.002)
+    photo = render + shift + sigma * rng.normal(size=render.shape)
+    check = colour_check(photo, render, np.ones(render.shape[:2], bool), sigma, floor=0.0, chroma_floor=0.0,
+                         response_jac=response_cells(path, "E", 1.33, render, bg, thick, cos))
+    assert not check.consistent, check.chi2_per_dof
 
 
 def _modes_csv(tmp_path, rel, corr_nm):

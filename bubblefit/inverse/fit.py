@@ -251,11 +251,11 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     sigma = st.sigma if share is None else st.sigma / np.sqrt(np.asarray(share))
     explained = bool(unc.misfit.chi2_floor <= float(judge.ok_chi2))  # as the verdict judges it
     thick = thickness_map if thickness_map is not None else reported["thickness_nm"]
-    response_cov = response_cells(st.colour.response, st.colour.illuminant, reported["n_film"], img, st.background,
+    response_jac = response_cells(st.colour.response, st.colour.illuminant, reported["n_film"], img, st.background,
                                   thick, full.cos)  # a calibrated response's own errors (None: exact)
     ok, warnings, colour_record = judge_colours(ok, warnings, st.photo, img, full.mask, full.cos, sigma,
                                                 float(judge.model_error), explained, judge.colour_check == "decide",
-                                                response_cov)
+                                                response_jac)
     return FitResult(
         params=reported, stderr=stderr, held=list(table.held), converged=bool(converged),
         message="; ".join(notes) if notes else "converged", iterations=sol.steps, residual_rms=rms,

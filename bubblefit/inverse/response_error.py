@@ -26,10 +26,19 @@ GUM, section 5.1.2):
   the map's light is seen through the film: the check is then more lenient).
 
 A pixel's render moves by ``d y_k / d x_k u_km`` per mode (:meth:`ResponseError.jacobian`);
-a cell's mean render by the mean of that over its pixels, ``J_b``, and its covariance from
-the response is ``sum_m J_bm J_bm^T`` (3 x 3). It
-does not average down over pixels (every pixel sees the same response), and cells of
-similar thickness share it, which the check's sum over cells treats as independent.
+a cell's mean render by the mean of that over its pixels, ``J_b`` (:meth:`ResponseError.cell_jacobian`).
+It does not average down over pixels, and every cell shares the same mode coefficients: the
+colour check's null holds one draw of them for the whole photo
+(:func:`bubblefit.inverse.colour_check.colour_check`).
+
+The same derivatives give the response's share of the fitted parameters' covariance
+(:func:`response_gram`): a change ``dy`` of the render at fixed parameters moves the
+least-squares optimum by ``dz = -(J^T J)^-1 J^T W dy`` (``J`` the Jacobian of the whitened
+residual, ``W`` the whitening ``1 / sigma``), so the response's errors add
+``(J^T J)^-1 [sum_m (J^T W dy_m)(J^T W dy_m)^T] (J^T J)^-1`` to the parameters' covariance
+(the delta method for an input of known covariance, GUM sec. 5.1.2, with the fit's
+solution as the measurement function). Unlike a pixel's noise it does not average down
+over the film.
 """
 
 from __future__ import annotations
@@ -76,16 +85,22 @@ class ResponseError:
         dydf = (np.asarray(render, np.float64) - bg) / np.maximum(f, 1e-9)
         return dydf[:, :, None] * np.einsum("ncl,lcm->ncm", dfdx, self.modes)
 
-    def cell_covariance(self, render, background, thickness, cos) -> np.ndarray:
-        """(3, 3): the covariance of a cell's mean render from the response's errors, over
-        the cell's pixels (at most :data:`MAX_PIXELS` of them, evenly strided)."""
+    def cell_jacobian(self, render, background, thickness, cos) -> np.ndarray:
+        """(3, 3 M): how a cell's mean render moves per unit of each channel's mode
+        coefficients (channel ``k``'s modes in columns ``k M`` to ``(k + 1) M``; they move
+        channel ``k`` only), over the cell's pixels (at most :data:`MAX_PIXELS` of them,
+        evenly strided). Its outer product is the cell's covariance from the response."""
         good = np.nonzero(np.isfinite(np.asarray(thickness, np.float64)))[0]
+        m = self.modes.shape[-1]
+        out = np.zeros((3, 3 * m))
         if good.size == 0:
-            return np.zeros((3, 3))
+            return out
         take = good if good.size <= MAX_PIXELS else good[np.linspace(0, good.size - 1, MAX_PIXELS).astype(int)]
         bg = None if background is None else np.asarray(background)[take]
         jac = self.jacobian(np.asarray(render)[take], bg, np.asarray(thickness)[take], np.asarray(cos)[take]).mean(axis=0)
-        return np.diag(np.sum(jac**2, axis=-1))  # channels' coefficients are independent: a diagonal
+        for k in range(3):
+            out[k, k * m:(k + 1) * m] = jac[k]
+        return out
 
 
 def response_error(response: str, illuminant: str, n_film: float) -> ResponseError | None:
@@ -111,20 +126,21 @@ def response_error(response: str, illuminant: str, n_film: float) -> ResponseErr
 def response_cells(response: str, illuminant: str, n_film: float, render: np.ndarray, background: np.ndarray | None,
                    thickness: np.ndarray, cos: np.ndarray):
     """For the colour check (:func:`bubblefit.inverse.colour_check.colour_check`'s
-    ``response_cov``): a function of a cell's pixel rows and columns giving the (3, 3)
-    covariance of its mean render from the response's stated errors
-    (:meth:`ResponseError.cell_covariance`), over images ``render``, ``background`` (None:
-    none given), ``thickness`` (nm) and ``cos``; None when the response states no errors."""
+    ``response_jac``): a function of a cell's pixel rows and columns giving the (3, 3 M)
+    change of its mean render per unit of the response's mode coefficients
+    (:meth:`ResponseError.cell_jacobian`; the coefficients are shared by every cell), over
+    images ``render``, ``background`` (None: none given), ``thickness`` (nm) and ``cos``;
+    None when the response states no errors."""
     err = response_error(response, illuminant, n_film)
     if err is None:
         return None
     thickness = np.broadcast_to(np.asarray(thickness, np.float64), np.shape(render)[:2])
 
-    def cov(ys, xs):
+    def jac(ys, xs):
         bg = None if background is None else np.asarray(background, np.float64)[ys, xs]
-        return err.cell_covariance(np.asarray(render)[ys, xs], bg, thickness[ys, xs], np.asarray(cos)[ys, xs])
+        return err.cell_jacobian(np.asarray(render)[ys, xs], bg, thickness[ys, xs], np.asarray(cos)[ys, xs])
 
-    return cov
+    return jac
 
 
 #: Pixels per block of :func:`response_gram` (bounds its memory: a block holds its pixels'

@@ -17,8 +17,7 @@ lamp ``I(lambda)`` is ``y_c = g_c int rho_c(lambda) I(lambda) S(lambda) dlambda`
 - **basis**: ``rho_c I`` piecewise linear on knots every :data:`KNOT_STEP_NM` nm over
   380-780 nm, smoothed by a penalty on its second differences (a discrete smoothing
   spline: Eilers & Marx, "Flexible smoothing with B-splines and penalties", Statistical
-  Science 11(2), 1996); the penalty's weight per channel minimises generalised
-  cross-validation (Golub, Heath & Wahba, Technometrics 21(2), 1979). The channel's scale
+  Science 11(2), 1996). The channel's scale
   (exposure times white balance, ``g_c``) is free: the response is normalised to a
   maximum of 1 per channel.
 - **smoothing weight and uncertainty**: the penalty is a Gaussian prior on the second
@@ -28,16 +27,17 @@ lamp ``I(lambda)`` is ``y_c = g_c int rho_c(lambda) I(lambda) S(lambda) dlambda`
   the same way plus the scatter of the solutions between weights, which holds the
   smoothing's bias where the samples do not fix the response: a chart's 24 smooth
   reflectances leave the fine structure a film's colours depend on to the prior, and the
-  posterior says so. (Generalised cross-validation chose the weight on the chart erratically,
-  from nearly none to heavy, and the frequentist covariance ``s^2 M^-1 A^T A M^-1`` left
-  the bias out: the Nikon D5100's chart calibration read its film colours 2.5-7 stated
-  errors off, ``experiments/chart_calibration_error.py``.)
+  posterior says so. (Generalised cross-validation picks the weight on a chart
+  erratically, from nearly none to heavy, and the frequentist covariance
+  ``s^2 M^-1 A^T A M^-1`` leaves the bias out: with both, the Nikon D5100's chart
+  calibration reads its film colours 3.6-7.4 stated errors off (RMS), against 1.2-1.9
+  this way; ``experiments/chart_calibration_error.py``.)
 - The response may dip below zero where a steep filter edge makes the smooth fit ring; it
   is not clipped, since the negative ring and the overshoot beside it integrate to the
   edge's colours (:func:`bubblefit.optics.spectral.response_functions` reads signed values).
 
-The result, divided by the lamp's spectrum when one is named (else the product itself,
-to be used with illuminant ``E``), is a CSV ``wavelength_nm,r,g,b,r_err,g_err,b_err,m1_r,m1_g,m1_b,...``
+The result (the camera's own sensitivity when a lamp is named, since the design holds the
+lamp; else the camera-times-lamp product, to be used with illuminant ``E``) is a CSV ``wavelength_nm,r,g,b,r_err,g_err,b_err,m1_r,m1_g,m1_b,...``
 that ``--camera-response`` reads (:func:`bubblefit.optics.spectral.response_functions`
 reads its first four columns; the errors and the covariance's modes are read by
 :func:`bubblefit.optics.spectral.response_error_modes`).

@@ -157,30 +157,31 @@ def detect_chart(pixels: np.ndarray) -> np.ndarray:
 class CameraCalibration:
     """A fitted response: ``response`` (L, 3) at ``wavelengths`` (L,) with ``stderr`` (L, 3),
     each channel's maximum 1, and ``modes`` (L, 3, M) of each channel's covariance between
-    rows (``sum_m u_m u_m^T``); the fit's relative residual per channel, its smoothing
-    weights and degrees of freedom."""
+    rows (``sum_m u_m u_m^T``; None: the rows' errors only, taken as independent); the fit's
+    relative residual per channel, its smoothing weights and degrees of freedom."""
 
     wavelengths: np.ndarray
     response: np.ndarray
     stderr: np.ndarray
-    modes: np.ndarray
     residual_rel: np.ndarray
     smoothing: np.ndarray
     effective_dof: np.ndarray
     samples: int
     illuminant: str
     sources: list = field(default_factory=list)
+    modes: np.ndarray | None = None
 
     def csv_text(self) -> str:
         """``wavelength_nm,r,g,b,r_err,g_err,b_err,m1_r,...`` (what ``--camera-response`` reads)."""
         from ..optics.spectral import _LAMP_INCLUDED, CALIBRATED_UNDER
 
-        n_modes = self.modes.shape[-1]
+        modes = np.zeros((len(self.wavelengths), 3, 0)) if self.modes is None else self.modes
+        n_modes = modes.shape[-1]
         lines = [f"# camera response fitted by bubblefit calibrate-camera from {', '.join(self.sources)}"
                  f"{CALIBRATED_UNDER}{self.illuminant}" + (_LAMP_INCLUDED if self.illuminant == "E" else ""),
                  "wavelength_nm,r,g,b,r_err,g_err,b_err"
                  + "".join(f",m{m + 1}_r,m{m + 1}_g,m{m + 1}_b" for m in range(n_modes))]
-        for lam, r, e, u in zip(self.wavelengths, self.response, self.stderr, self.modes):
+        for lam, r, e, u in zip(self.wavelengths, self.response, self.stderr, modes):
             lines.append(f"{lam:g}," + ",".join(f"{v:.6g}" for v in (*r, *e, *u.T.ravel())))
         return "\n".join(lines) + "\n"
 
@@ -315,5 +316,5 @@ def fit_response(sources: list[tuple[str, np.ndarray, np.ndarray]], illuminant: 
     modes = np.stack([np.pad(u, ((0, 0), (0, n_modes - u.shape[1]))) for u in modes], axis=1)
     # the design holds the lamp (``_design``), so ``x`` is the camera's own sensitivity under a
     # named lamp and the camera-times-lamp product under ``E``
-    return CameraCalibration(knots, response, stderr, modes, np.asarray(rels), np.asarray(lams), np.asarray(dofs),
-                             int(len(rgb)), illuminant, [name for name, _, _ in sources])
+    return CameraCalibration(knots, response, stderr, np.asarray(rels), np.asarray(lams), np.asarray(dofs),
+                             int(len(rgb)), illuminant, [name for name, _, _ in sources], modes)

@@ -6,9 +6,14 @@ illuminant E with 0.5 % noise, are synthesised here with numpy (independent of b
 ``bubblefit.capture.camera_calibration.fit_response`` turns each into a response CSV;
 48 px photos of constant films rendered with the Nikon's sensitivities (noise, 8-bit sRGB
 quantisation: tests/helpers.py's film_photo) are fitted with that CSV and illuminant E.
-Prints the thickness error and the verdict per photo.
+Prints the thickness error, its standard error and the camera response's share of it
+(``stderr_camera``), and the verdict per photo.
 
-Usage: ``PYTHONPATH=. python experiments/calibrated_camera.py [--thickness 300,800,1500] [--source film,chart]``
+``--photo-camera`` renders the photos with another camera than the one calibrated (a wrong
+calibrated response, which the fit should not call ok); ``--keep DIR`` keeps the CSVs.
+
+Usage: ``PYTHONPATH=. python experiments/calibrated_camera.py [--thickness 300,800,1500] [--source film,chart]
+[--photo-camera "Sigma SDMerill (NPL)"] [--keep DIR]``
 """
 
 from __future__ import annotations
@@ -56,6 +61,8 @@ def main():
     ap.add_argument("--source", default="film,chart")
     ap.add_argument("--json")
     ap.add_argument("--arrays", help="also save each fit's photo, render and disc to this .npz")
+    ap.add_argument("--photo-camera", default=CAMERA, help="the camera the photos are rendered with")
+    ap.add_argument("--keep", help="write the calibrated CSVs to this folder")
     a = ap.parse_args()
     rng = np.random.default_rng(5)
     sens = sensitivities(CAMERA)
@@ -66,7 +73,8 @@ def main():
     while px.shape[0] > 64:
         px = downsample(px)
     env = EnvMap.from_array(px)
-    tmp = tempfile.mkdtemp()
+    tmp = a.keep or tempfile.mkdtemp()
+    os.makedirs(tmp, exist_ok=True)
     rows, arrays = [], {}
     for source in a.source.split(","):
         spectra = data[source]
@@ -77,19 +85,23 @@ def main():
         with open(path, "w") as fh:
             fh.write(cal.csv_text())
         for k, t in enumerate(float(x) for x in a.thickness.split(",")):
-            photo, bg = film_photo(env, t, 31 + k, CAMERA, "E")
+            photo, bg = film_photo(env, t, 31 + k, a.photo_camera, "E")
             t0 = time.perf_counter()
             r = fit_photo(photo, env, background=bg, options=FitOptions(
                 disc=DISC, parameters=starts(t=0.968, roughness=0.04), model="paper", camera_response=path, illuminant="E",
                 view=ORTHOGRAPHIC))
-            row = dict(source=source, truth=t, thickness=r.params["thickness_nm"],
-                       stderr=r.stderr.get("thickness_nm"), ok=r.ok, chi2=r.reduced_chi2,
+            row = dict(source=source, photo_camera=a.photo_camera, truth=t, thickness=r.params["thickness_nm"],
+                       stderr=r.stderr.get("thickness_nm"), ok=r.ok,
+                       stderr_camera=(r.stderr_camera or {}).get("thickness_nm"), chi2=r.reduced_chi2,
                        colour=r.colour_check, warnings=r.warnings, time_s=time.perf_counter() - t0)
             rows.append(row)
             arrays[f"{source}_{t:.0f}" + "_photo"] = photo
             arrays[f"{source}_{t:.0f}" + "_render"] = r.render
             arrays[f"{source}_{t:.0f}" + "_disc"] = np.asarray(r.disc)
-            print(f"{source:6s} {t:6.0f} -> {row['thickness']:8.1f} nm (error {row['thickness'] - t:+6.1f}) ok={r.ok!s:5} "
+            se = row["stderr"] or float("nan")
+            print(f"{source:6s} {t:6.0f} -> {row['thickness']:8.1f} nm (error {row['thickness'] - t:+6.1f}, "
+                  f"SE {se:.1f} of which camera {row['stderr_camera'] or 0:.1f}, {(row['thickness'] - t) / se:+.1f} SE) "
+                  f"ok={r.ok!s:5} "
                   f"chi2={r.reduced_chi2:5.2f} colour chi2/dof={(r.colour_check or {}).get('chi2_per_dof')} "
                   f"({row['time_s']:.0f} s)", flush=True)
     if a.arrays:

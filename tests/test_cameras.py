@@ -360,6 +360,53 @@ def test_film_calibration_predicts_film_colours():
     assert np.all(err < 0.02), err
 
 
+def test_chart_calibration_states_its_errors(tmp_path):
+    """The ColorChecker's 24 patches seen by the Nikon under E (0.5 % noise) calibrate a
+    response whose stated errors, propagated to the colours of films of 50-2000 nm
+    (``response_error``), cover what it gets wrong against the true sensitivities. One draw
+    of an honest response error moves all film colours of a channel together (a few
+    effective modes), so the RMS of their z is below sqrt(chi2_4(0.999) / 4) = 2.3; the
+    development cameras' measured shortfall is up to 1.3x (experiments/chart_calibration_error.py):
+    3 allowed. Errors that left the smoothing's bias out read 3.6-7.4 here."""
+    from bubblefit.capture.camera_calibration import chart_reflectances, fit_response
+    from bubblefit.inverse.response_error import response_error
+
+    _, refl = chart_reflectances()
+    rgb = refl @ _sensitivities(NIKON) * (1 + 0.005 * np.random.default_rng(0).normal(size=(24, 3)))
+    path = tmp_path / "chart.csv"
+    path.write_text(fit_response([("chart", refl, rgb)]).csv_text())
+    held = np.linspace(50.0, 2000.0, 40)
+    truth = _airy(held) @ _sensitivities(NIKON)
+    truth = truth / _sensitivities(NIKON).sum(axis=0)
+    err = response_error(str(path), "E", 1.33)
+    pred = _airy(held) @ err.density / err.density.sum(axis=0)
+    sd = np.sqrt(np.sum(err.jacobian(pred, None, held, np.ones_like(held)) ** 2, axis=-1))
+    rms_z = np.sqrt(np.mean(((pred - truth) / sd) ** 2, axis=0))
+    assert np.all(rms_z < 3.0), rms_z
+
+
+def test_calibration_under_a_lamp_is_the_camera():
+    """Film colours seen by the Nikon under illuminant A (colour-science's tabulated SPD,
+    applied here in numpy) calibrated with the lamp named: the CSV's response is the
+    camera's own sensitivity (each channel's peak 1): its rows' RMS error is under 5 % of
+    the peak (the stated errors there are 1.5-3.5 %, and the rows' z have unit RMS), where
+    the sensitivity divided by the lamp once more is 9-13 % off."""
+    import colour
+
+    from bubblefit.capture.camera_calibration import fit_response
+
+    lamp = np.interp(_LAM, colour.SDS_ILLUMINANTS["A"].wavelengths, colour.SDS_ILLUMINANTS["A"].values)
+    d = np.linspace(0.0, 2000.0, 81)
+    sens = _sensitivities(NIKON)
+    rgb = _airy(d) @ (sens * lamp[:, None]) * (1 + 0.005 * np.random.default_rng(2).normal(size=(81, 3)))
+    cal = fit_response([("film", _airy(d), rgb)], "A")
+    true = np.stack([np.interp(cal.wavelengths, _LAM, sens[:, c]) for c in range(3)], axis=1)
+    true = true / true.max(axis=0)
+    rms = np.sqrt(np.mean((cal.response - true) ** 2, axis=0))
+    assert np.all(rms < 0.05), rms
+    assert np.all(np.sqrt(np.mean(((cal.response - true) / cal.stderr) ** 2, axis=0)) < 2.0)
+
+
 @pytest.mark.slow
 def test_calibrate_camera_cli_and_bad_input(tmp_path):
     from bubblefit.capture.camera_calibration import chart_reflectances

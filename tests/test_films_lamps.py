@@ -68,7 +68,7 @@ def test_aperture_fades_thick_fringes(x64):
 
 def test_planck_lamp_is_cie_a():
     """CIE illuminant A is a black body at 2856 K: '2856K' matches the shipped A over 380-780 nm."""
-    grid = spectral._GRID
+    grid = spectral.TABLE_GRID
     inside = (grid >= 380) & (grid <= 780)
     a = spectral.illuminant_spectrum("A")
     b = spectral.illuminant_spectrum("2856K")

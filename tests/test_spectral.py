@@ -311,13 +311,13 @@ def test_shipped_colour_tables_equal_colour_science():
     colour-science import) are colour-science's datasets, value for value, and the sRGB
     matrix is colour-science's."""
     cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
-    cmf = np.stack([np.interp(spectral._GRID, cmfs.wavelengths, cmfs.values[:, c]) for c in range(3)], axis=1)
+    cmf = np.stack([np.interp(spectral.TABLE_GRID, cmfs.wavelengths, cmfs.values[:, c]) for c in range(3)], axis=1)
     m = colour.RGB_COLOURSPACES["sRGB"].matrix_XYZ_to_RGB
     np.testing.assert_array_equal(spectral.response_functions("srgb"), cmf @ np.asarray(m).T)
     for name in ("D65", "A"):
         sd = colour.SDS_ILLUMINANTS[name]
         np.testing.assert_array_equal(spectral.illuminant_spectrum(name),
-                                      np.interp(spectral._GRID, sd.wavelengths, sd.values))
+                                      np.interp(spectral.TABLE_GRID, sd.wavelengths, sd.values))
     assert spectral.is_named_illuminant("D50") and not spectral.is_named_illuminant("nowhere.csv")
 
 

@@ -17,18 +17,30 @@ lamp ``I(lambda)`` is ``y_c = g_c int rho_c(lambda) I(lambda) S(lambda) dlambda`
 - **basis**: ``rho_c I`` piecewise linear on knots every :data:`KNOT_STEP_NM` nm over
   380-780 nm, smoothed by a penalty on its second differences (a discrete smoothing
   spline: Eilers & Marx, "Flexible smoothing with B-splines and penalties", Statistical
-  Science 11(2), 1996); the penalty's weight per channel minimises generalised
-  cross-validation (Golub, Heath & Wahba, Technometrics 21(2), 1979). The channel's scale
+  Science 11(2), 1996). The channel's scale
   (exposure times white balance, ``g_c``) is free: the response is normalised to a
   maximum of 1 per channel.
-- **uncertainty**: the covariance of the penalised least squares,
-  ``s^2 M^-1 A^T A M^-1`` with ``M = A^T A + lambda D^T D`` and ``s^2`` the residual
-  variance (the bias of the smoothing is not in it).
+- **smoothing weight and uncertainty**: the penalty is a Gaussian prior on the second
+  differences; its weight is weighed by the samples' restricted (marginal) likelihood
+  (Wood, JRSS B 73(1), 2011) and the result averaged over it, and the stated covariance is
+  the posterior's, ``s^2 (A^T A + lambda D^T D)^-1`` (Wahba, JRSS B 45(1), 1983) averaged
+  the same way plus the scatter of the solutions between weights, which holds the
+  smoothing's bias where the samples do not fix the response: a chart's 24 smooth
+  reflectances leave the fine structure a film's colours depend on to the prior, and the
+  posterior says so. (Generalised cross-validation picks the weight on a chart
+  erratically, from nearly none to heavy, and the frequentist covariance
+  ``s^2 M^-1 A^T A M^-1`` leaves the bias out: with both, the Nikon D5100's chart
+  calibration reads its film colours 3.6-7.4 stated errors off (RMS), against 1.2-1.9
+  this way; ``experiments/chart_calibration_error.py``.)
+- The response may dip below zero where a steep filter edge makes the smooth fit ring; it
+  is not clipped, since the negative ring and the overshoot beside it integrate to the
+  edge's colours (:func:`bubblefit.optics.spectral.response_functions` reads signed values).
 
-The result, divided by the lamp's spectrum when one is named (else the product itself,
-to be used with illuminant ``E``), is a CSV ``wavelength_nm,r,g,b,r_err,g_err,b_err``
+The result (the camera's own sensitivity when a lamp is named, since the design holds the
+lamp; else the camera-times-lamp product, to be used with illuminant ``E``) is a CSV ``wavelength_nm,r,g,b,r_err,g_err,b_err,m1_r,m1_g,m1_b,...``
 that ``--camera-response`` reads (:func:`bubblefit.optics.spectral.response_functions`
-reads its first four columns).
+reads its first four columns; the errors and the covariance's modes are read by
+:func:`bubblefit.optics.spectral.response_error_modes`).
 """
 
 from __future__ import annotations
@@ -144,8 +156,9 @@ def detect_chart(pixels: np.ndarray) -> np.ndarray:
 @dataclass
 class CameraCalibration:
     """A fitted response: ``response`` (L, 3) at ``wavelengths`` (L,) with ``stderr`` (L, 3),
-    each channel's maximum 1; the fit's relative residual per channel, its smoothing
-    weights and degrees of freedom."""
+    each channel's maximum 1, and ``modes`` (L, 3, M) of each channel's covariance between
+    rows (``sum_m u_m u_m^T``; None: the rows' errors only, taken as independent); the fit's
+    relative residual per channel, its smoothing weights and degrees of freedom."""
 
     wavelengths: np.ndarray
     response: np.ndarray
@@ -156,16 +169,20 @@ class CameraCalibration:
     samples: int
     illuminant: str
     sources: list = field(default_factory=list)
+    modes: np.ndarray | None = None
 
     def csv_text(self) -> str:
-        """``wavelength_nm,r,g,b,r_err,g_err,b_err`` (what ``--camera-response`` reads)."""
+        """``wavelength_nm,r,g,b,r_err,g_err,b_err,m1_r,...`` (what ``--camera-response`` reads)."""
         from ..optics.spectral import _LAMP_INCLUDED, CALIBRATED_UNDER
 
+        modes = np.zeros((len(self.wavelengths), 3, 0)) if self.modes is None else self.modes
+        n_modes = modes.shape[-1]
         lines = [f"# camera response fitted by bubblefit calibrate-camera from {', '.join(self.sources)}"
                  f"{CALIBRATED_UNDER}{self.illuminant}" + (_LAMP_INCLUDED if self.illuminant == "E" else ""),
-                 "wavelength_nm,r,g,b,r_err,g_err,b_err"]
-        for lam, r, e in zip(self.wavelengths, self.response, self.stderr):
-            lines.append(f"{lam:g}," + ",".join(f"{v:.6g}" for v in (*r, *e)))
+                 "wavelength_nm,r,g,b,r_err,g_err,b_err"
+                 + "".join(f",m{m + 1}_r,m{m + 1}_g,m{m + 1}_b" for m in range(n_modes))]
+        for lam, r, e, u in zip(self.wavelengths, self.response, self.stderr, modes):
+            lines.append(f"{lam:g}," + ",".join(f"{v:.6g}" for v in (*r, *e, *u.T.ravel())))
         return "\n".join(lines) + "\n"
 
     def to_json(self) -> dict:
@@ -184,32 +201,76 @@ def _design(spectra: np.ndarray, lamp: np.ndarray, knots: np.ndarray) -> np.ndar
 
 
 def _smooth_fit(a: np.ndarray, y: np.ndarray, d: np.ndarray):
-    """Penalised least squares with the penalty weight of least GCV: ``(x, cov, lambda, dof, rel)``."""
-    ata, aty, dtd = a.T @ a, a.T @ y, d.T @ d
-    scale = np.trace(ata) / max(np.trace(dtd), 1e-300)
+    """Penalised least squares ``min |y - A x|^2 + lambda |D x|^2``, averaged over the penalty
+    weight by its restricted (marginal) likelihood, with the posterior covariance of ``x``:
+    ``(x, cov, lambda, dof, rel)`` (module docstring; ``lambda`` and ``dof`` of the most
+    likely weight).
+
+    The penalty is a Gaussian prior on the response's second differences, of variance
+    ``s^2 / lambda``; integrating ``x`` out, the restricted log likelihood of the samples is
+    ``-1/2 [(n - m0) log s^2 + log|A^T A + lambda P| - log|lambda P|_+]`` with ``s^2`` at its
+    maximum ``(|y - A x|^2 + lambda x^T P x) / (n - m0)``, ``P = D^T D`` and ``m0`` the
+    dimension of ``P``'s null space (Wood, "Fast stable restricted maximum likelihood and
+    marginal likelihood estimation of semiparametric generalized linear models", JRSS B
+    73(1), 2011, eq. 4). For one weight the posterior covariance ``s^2 (A^T A + lambda P)^-1``
+    holds the smoothing's bias as well as the noise (Wahba, "Bayesian 'confidence
+    intervals' for the cross-validated smoothing spline", JRSS B 45(1), 1983): where the
+    samples say nothing (a chart's smooth reflectances and a response's fine structure) it
+    is the prior's width. The weight itself is uncertain, so the result is averaged over a
+    grid of weights (uniform in ``log lambda``) with their likelihoods: the mean of the
+    solutions, and the mean of their covariances plus the solutions' scatter (the law of
+    total variance)."""
+    ata, aty, pen = a.T @ a, a.T @ y, d.T @ d
+    ev = np.linalg.eigvalsh(pen)
+    kept = ev > 1e-10 * ev.max()
+    log_det_pen, m0 = float(np.sum(np.log(ev[kept]))), int(np.count_nonzero(~kept))
+    scale = np.trace(ata) / max(np.trace(pen), 1e-300)
     n = len(y)
-    best = None
-    for lam in scale * np.logspace(-9, 1, 41):
-        m = ata + lam * dtd
-        try:
-            minv = np.linalg.inv(m)
-        except np.linalg.LinAlgError:
-            continue
-        x = minv @ aty
-        hat_trace = float(np.trace(a @ minv @ a.T))
-        res = y - a @ x
-        if n - hat_trace <= 0.5:
-            continue
-        gcv = n * float(res @ res) / (n - hat_trace) ** 2
-        if best is None or gcv < best[0]:
-            best = (gcv, lam, x, minv, hat_trace, res)
-    if best is None:
+    if n - m0 < 2:
         raise InputError("too few calibration samples for the response's smoothness (give more patches or thicknesses)")
-    _, lam, x, minv, tr, res = best
-    s2 = float(res @ res) / max(n - tr, 1.0)
-    cov = s2 * minv @ ata @ minv
+    fits = []
+    for lam in scale * np.logspace(-9, 3, 61):
+        m = ata + lam * pen
+        sign, log_det = np.linalg.slogdet(m)
+        if sign <= 0:
+            continue
+        minv = np.linalg.inv(m)
+        x = minv @ aty
+        res = y - a @ x
+        s2 = (float(res @ res) + lam * float(x @ pen @ x)) / (n - m0)
+        if not s2 > 0:
+            continue
+        score = (n - m0) * np.log(s2) + log_det - (np.count_nonzero(kept) * np.log(lam) + log_det_pen)
+        fits.append((score, lam, x, s2 * minv, minv))
+    if not fits:
+        raise InputError("too few calibration samples for the response's smoothness (give more patches or thicknesses)")
+    scores = np.array([f[0] for f in fits])
+    wts = np.exp(-0.5 * (scores - scores.min()))
+    wts /= wts.sum()
+    xs = np.stack([f[2] for f in fits])
+    x = wts @ xs
+    dev = xs - x
+    cov = np.einsum("k,kij->ij", wts, np.stack([f[3] for f in fits])) + (dev * wts[:, None]).T @ dev
+    _, lam, _, _, minv = fits[int(np.argmin(scores))]
+    tr = float(np.trace(a @ minv @ a.T))
+    res = y - a @ x
     rel = float(np.sqrt(np.mean(res**2)) / max(np.sqrt(np.mean(y**2)), 1e-300))
     return x, cov, lam, tr, rel
+
+
+#: Modes of a covariance whose variance is below this share of the largest mode's are
+#: dropped from the CSV (negligible: the smallest kept mode is 1e-4 of the largest in deviation).
+_MODE_SHARE = 1e-8
+
+
+def _covariance_modes(cov: np.ndarray) -> np.ndarray:
+    """(L, M) modes ``u_m = sqrt(e_m) v_m`` of a symmetric covariance (``cov = sum_m u_m u_m^T``
+    over its eigenpairs), largest first, those below :data:`_MODE_SHARE` of the largest dropped."""
+    vals, vecs = np.linalg.eigh(0.5 * (cov + cov.T))
+    order = np.argsort(vals)[::-1]
+    vals, vecs = np.clip(vals[order], 0.0, None), vecs[:, order]
+    keep = vals > _MODE_SHARE * max(float(vals[0]), 1e-300)
+    return vecs[:, keep] * np.sqrt(vals[keep])
 
 
 def fit_response(sources: list[tuple[str, np.ndarray, np.ndarray]], illuminant: str = "E") -> CameraCalibration:
@@ -221,7 +282,7 @@ def fit_response(sources: list[tuple[str, np.ndarray, np.ndarray]], illuminant: 
     InputError
         Fewer than 6 samples, non-finite or negative values, or a channel without signal.
     """
-    from ..optics.spectral import _GRID, illuminant_spectrum
+    from ..optics.spectral import TABLE_GRID, illuminant_spectrum
 
     spectra = np.concatenate([s for _, s, _ in sources])
     rgb = np.concatenate([np.asarray(v, np.float64) for _, _, v in sources])
@@ -231,31 +292,29 @@ def fit_response(sources: list[tuple[str, np.ndarray, np.ndarray]], illuminant: 
         raise InputError("calibration samples hold NaN or Inf values")
     if np.any(rgb.max(axis=0) <= 0):
         raise InputError("a colour channel has no signal in the calibration samples (wrong encoding or exposure?)")
-    lamp = np.interp(_FINE, _GRID, illuminant_spectrum(illuminant))
+    lamp = np.interp(_FINE, TABLE_GRID, illuminant_spectrum(illuminant))
     knots = _knots()
     a = _design(spectra, lamp, knots)
     a_scale = np.abs(a).max()
     d = np.diff(np.eye(len(knots)), n=2, axis=0)
-    resp, err, lams, dofs, rels = [], [], [], [], []
+    resp, err, modes, lams, dofs, rels = [], [], [], [], [], []
     for c in range(3):
         y = rgb[:, c] / rgb[:, c].max()
         x, cov, lam, tr, rel = _smooth_fit(a / a_scale, y, d)
         peak = float(np.max(x))
         if not peak > 0:
             raise InputError("the fitted response of a channel is not positive anywhere: check the samples")
-        resp.append(np.clip(x / peak, 0.0, None))
+        resp.append(x / peak)
         err.append(np.sqrt(np.clip(np.diag(cov), 0.0, None)) / peak)
+        modes.append(_covariance_modes(cov) / peak)
         lams.append(lam)
         dofs.append(tr)
         rels.append(rel)
     response = np.stack(resp, axis=1)
     stderr = np.stack(err, axis=1)
-    if illuminant.upper() not in ("E", "EQUAL", "EQUAL_ENERGY"):
-        # the fitted product rho * I, divided by the lamp: the camera's own sensitivity
-        li = np.interp(knots, _FINE, lamp)
-        li = li / li.max()
-        response, stderr = response / li[:, None], stderr / li[:, None]
-        peak = response.max(axis=0)
-        response, stderr = response / peak, stderr / peak
+    n_modes = max(u.shape[1] for u in modes)
+    modes = np.stack([np.pad(u, ((0, 0), (0, n_modes - u.shape[1]))) for u in modes], axis=1)
+    # the design holds the lamp (``_design``), so ``x`` is the camera's own sensitivity under a
+    # named lamp and the camera-times-lamp product under ``E``
     return CameraCalibration(knots, response, stderr, np.asarray(rels), np.asarray(lams), np.asarray(dofs),
-                             int(len(rgb)), illuminant, [name for name, _, _ in sources])
+                             int(len(rgb)), illuminant, [name for name, _, _ in sources], modes)

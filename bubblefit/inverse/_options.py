@@ -490,6 +490,10 @@ class FitResult:
     #: :meth:`bubblefit.inverse.self_calibration.SelfCalibration.to_json` with the stated
     #: response's fit, or None without ``FitOptions.calibrate_camera``.
     camera_calibration: dict | None = None
+    #: The share of each standard error that is the calibrated camera response's: the
+    #: standard error from the response's stated errors alone (included in ``stderr``;
+    #: :mod:`bubblefit.inverse._uncertainty`), or None where the response is taken as exact.
+    stderr_camera: dict | None = None
 
     def to_json(self) -> dict:
         """The command line's result (``docs/design.md``): params, stderr, converged,
@@ -534,6 +538,7 @@ class FitResult:
             "camera": self.camera,
             "colour_check": self.colour_check,
             "camera_calibration": self.camera_calibration,
+            "stderr_camera": None if self.stderr_camera is None else _clean(self.stderr_camera),
             "effects": [{"effect": d.effect, "simulated": d.simulated, "setting": d.setting, "reason": d.reason}
                         for d in self.effects],
         }

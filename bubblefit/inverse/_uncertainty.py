@@ -22,6 +22,11 @@ Two estimates widen the errors of a fit that does not explain the photo within i
 
 The correlations are the sandwich's; ``stderr_scale`` reports the largest widening.
 
+A calibrated camera response's own errors (:mod:`bubblefit.inverse.response_error`) are a
+third term, added to the widened covariance: ``(J^T J)^-1 G_R (J^T J)^-1`` with ``G_R``
+from :func:`~bubblefit.inverse.response_error.response_gram`. Its share of each reported
+standard error is ``camera_stderr`` (JSON ``stderr_camera``).
+
 Neither estimate sees a model error that a parameter absorbs: a forward model that is off
 by a smooth, thickness-like amount moves the fitted thickness and leaves no residual.
 Against three renderers that share no code with bubblefit (``experiments/validation``'s development cases ref_const300, ref_const620, ref_const1200, ref_const450, cyc_const500)
@@ -88,6 +93,9 @@ class Uncertainty:
         The largest factor a standard error was widened by over the noise-only one.
     finite : bool
         False when ``J^T J`` is singular (some parameter the photo does not constrain).
+    camera_stderr : dict or None
+        The standard error each fitted reported value has from the camera response's
+        stated errors alone (None: the response is taken as exact).
     """
 
     reported: dict
@@ -97,6 +105,7 @@ class Uncertainty:
     misfit: Misfit
     scale: float
     finite: bool
+    camera_stderr: dict | None = None
 
 
 def plain_residual(r_robust, scale: float):
@@ -199,10 +208,12 @@ def widened(cov_birge: np.ndarray, a_inv: np.ndarray, jac, r, shape: tuple, bloc
 
 
 def uncertainty(sol: LocalSolution, table: ParameterTable, lev: Level, robust_scale: float,
-                model_error: float, thickness_model_error_nm: float = 0.0) -> Uncertainty:
+                model_error: float, thickness_model_error_nm: float = 0.0,
+                response_gram: np.ndarray | None = None) -> Uncertainty:
     """Standard errors and covariance of the reported parameters at ``sol`` on ``lev`` (the
     delta method, widened for misfit, plus ``thickness_model_error_nm`` squared on every
-    thickness's variance; module docstring)."""
+    thickness's variance, plus the camera response's term from ``response_gram``, (p, p) in
+    the solver's coordinates; module docstring)."""
     fit = misfit(sol, lev, robust_scale, model_error, len(table.free))
     s2 = fit.chi2_nu  # the Birge ratio's square
     scale = 1.0
@@ -212,6 +223,7 @@ def uncertainty(sol: LocalSolution, table: ParameterTable, lev: Level, robust_sc
     stderr = {k: None for k in reported}
     finite = True
     names, cov = (), np.zeros((0, 0))
+    camera = None
     if table.free:
         jac = sol.jacobian
         try:
@@ -223,6 +235,9 @@ def uncertainty(sol: LocalSolution, table: ParameterTable, lev: Level, robust_sc
         except np.linalg.LinAlgError:
             cov_z = np.full((len(table.free), len(table.free)), np.nan)
             finite = False
+        cam_z = None if response_gram is None or not finite else a_inv @ response_gram @ a_inv
+        if cam_z is not None:
+            cov_z = cov_z + cam_z
         gmat = {k: np.asarray(g, np.float64).reshape(-1) for k, g in rep_jac(zj, sol.fixed).items()}
         drop = held_keys(table)
         names = tuple(k for k in reported if k not in drop)
@@ -233,4 +248,7 @@ def uncertainty(sol: LocalSolution, table: ParameterTable, lev: Level, robust_sc
         for i, key in enumerate(names):
             var = cov[i, i]
             stderr[key] = float(math.sqrt(var)) if np.isfinite(var) and var >= 0 else float("nan")
-    return Uncertainty(reported, stderr, names, cov, fit, scale, finite)
+        if cam_z is not None:
+            cam_var = np.diag(g @ cam_z @ g.T)
+            camera = {k: float(math.sqrt(max(v, 0.0))) for k, v in zip(names, cam_var)}
+    return Uncertainty(reported, stderr, names, cov, fit, scale, finite, camera)

@@ -158,18 +158,25 @@ def _plane(c: np.ndarray) -> np.ndarray:
 
 def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma: np.ndarray, *,
                  model_error: float | None = None, floor: float = CHROMA_FLOOR, chroma_floor: float = CHROMA_REL, grid: int = GRID,
-                 false_alarm: float = FALSE_ALARM, response_cov=None) -> ColourCheck | None:
+                 false_alarm: float = FALSE_ALARM, response_jac=None) -> ColourCheck | None:
     """Test whether ``render`` explains the hues of ``photo`` over the pixels of ``mask``,
     each pixel's channels having the noise standard deviation ``sigma`` (the fit's noise
     model, :func:`~bubblefit.inverse._observation.noise_sigma`); module docstring. Pixels
     that are outliers of the fit (chi^2 over their channels, with the fit's ``model_error``
     floor, above :data:`~bubblefit.inverse._uncertainty.OUTLIER_CHI2`: glints, specks) are
     left out, as the verdict's split leaves them out of the explained pixels (none with
-    ``model_error`` None). ``response_cov``, where the camera response states its own
+    ``model_error`` None). ``response_jac``, where the camera response states its own
     errors (:func:`bubblefit.inverse.response_error.response_cells`): a function of a cell's
-    pixel rows and columns giving the (3, 3) covariance of its mean render from them, added
-    to the cell's floor (it does not average down either). ``None`` when fewer than two
-    cells have :data:`MIN_PIXELS` pixels."""
+    pixel rows and columns giving the (3, K) change of its mean render per unit of the
+    response's K error coefficients (independent, unit variance), which every cell shares:
+    the null's covariance over all cells is then ``blockdiag(C_b) + G G^T`` (``C_b`` each
+    cell's noise and floor, ``G`` the cells' projected Jacobians stacked), and the
+    statistic ``m^T (blockdiag(C_b) + G G^T)^-1 m`` is computed by the Woodbury identity,
+    ``sum_b m_b^T C_b^-1 m_b - u^T (I + sum_b G_b^T C_b^-1 G_b)^-1 u`` with
+    ``u = sum_b G_b^T C_b^-1 m_b`` (Woodbury, 1950; Press et al., *Numerical Recipes*, 3rd
+    ed., sec. 2.7.3): one draw of the response explains one pattern of hue errors over the
+    film, not a different one in each cell. ``None`` when fewer than two cells have
+    :data:`MIN_PIXELS` pixels."""
     # the chi-square upper quantile, chi2.isf(p, dof) of scipy.stats, from scipy.special:
     # the same function without scipy.stats' import (0.4 s of CPU in every fit's process)
     from scipy.special import chdtri
@@ -211,19 +218,26 @@ def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma:
         bright = float(np.linalg.norm(rend[sel], axis=1).mean())
         chroma = float(np.linalg.norm(mean - mean.mean()))  # the part orthogonal to grey (1, 1, 1)
         model = 0.5 * ((floor * bright) ** 2 + (chroma_floor * chroma) ** 2) * np.eye(2)
-        if response_cov is not None:
-            model = model + p @ response_cov(ys[sel], xs[sel]) @ p.T
-        cells.append((ep.mean(axis=0), noise, model, bright))
+        shared = None if response_jac is None else p @ response_jac(ys[sel], xs[sel])  # (2, K)
+        cells.append((ep.mean(axis=0), noise, model, bright, shared))
     if len(cells) < 2:
         return None
     kappa = noise_scale(photo, render, var, use, white)
-    stat = sum(float(m @ np.linalg.solve(kappa * c + f, m)) for m, c, f, _ in cells)
+    stat = sum(float(m @ np.linalg.solve(kappa * c + f, m)) for m, c, f, _, _ in cells)
+    if response_jac is not None:  # the shared response's draw, by the Woodbury identity
+        k = cells[0][4].shape[1]
+        u, inner = np.zeros(k), np.eye(k)
+        for m, c, f, _, g in cells:
+            cg = np.linalg.solve(kappa * c + f, g)  # C_b^-1 G_b
+            u += cg.T @ m
+            inner += g.T @ cg
+        stat -= float(u @ np.linalg.solve(inner, u))
     dof = 2 * len(cells)
     thr = float(chdtri(dof, false_alarm)) / dof
     value = stat / dof
-    rel = [float(np.linalg.norm(m)) / bright for m, _, _, bright in cells]
+    rel = [float(np.linalg.norm(m)) / bright for m, _, _, bright, _ in cells]
     return ColourCheck(bool(value <= thr), value, thr, len(cells), float(np.sqrt(np.mean(np.square(rel)))), kappa,
-                       response_cov is not None)
+                       response_jac is not None)
 
 
 def _planes(c: np.ndarray) -> np.ndarray:
@@ -293,17 +307,17 @@ def _block_scale(white: np.ndarray, k: int = 2) -> float:
 
 
 def judge_colours(ok: bool, warnings: list, photo, render, mask, cos, sigma, model_error: float = 0.0,
-                  explained: bool = True, decide: bool = True, response_cov=None) -> tuple[bool, list, dict | None]:
+                  explained: bool = True, decide: bool = True, response_jac=None) -> tuple[bool, list, dict | None]:
     """The fit's verdict with the colour test added: ``(ok, warnings, record)``. The test
     (:func:`colour_check`) runs over the fitted pixels ``mask`` whose front film's ``cos``
     (cosine of incidence) exceeds :data:`INNER_COS`, with the fit's noise ``sigma`` and
     model-error floor ``model_error`` (for its outliers); colours it finds inconsistent
     add the warning of :meth:`ColourCheck.warning` (worded for a photo the model does not
     ``explained`` as a whole, as the verdict found) and, with ``decide`` true
-    (``JudgeSettings.colour_check == "decide"``), make the fit not ``ok``. ``response_cov``:
+    (``JudgeSettings.colour_check == "decide"``), make the fit not ``ok``. ``response_jac``:
     the calibrated response's own errors (:func:`colour_check`)."""
     check = colour_check(photo, render, np.asarray(mask, bool) & (np.asarray(cos) > INNER_COS), sigma,
-                         model_error=model_error, response_cov=response_cov)
+                         model_error=model_error, response_jac=response_jac)
     if check is None:
         return ok, warnings, None
     why = check.warning(explained)

@@ -64,7 +64,7 @@ from ._uncertainty import Uncertainty, uncertainty
 from ._verdict import at_bounds, clamp_to_range, unresolved, verdict
 from ._view import camera_record, fit_view, lens_for, widen_for_view
 from .colour_check import judge_colours
-from .response_error import response_cells
+from .response_error import response_cells, solve_response_gram
 from ..errors import InputError
 from ..lighting.envmap import EnvMap
 from ..model.thickness import drainage_profile
@@ -175,8 +175,10 @@ def _judge(st: Setup, opts: FitOptions, sol: LocalSolution, notes: list) -> Judg
     the solver's status and the parameters at a bound or out of the searched range; the
     cautions are appended to ``notes``."""
     table = st.table
+    gram = solve_response_gram(st.colour.response, st.colour.illuminant, float(st.vals["n_film"]), st.lev_fit, sol,
+                               float(opts.solver.robust_scale))  # a calibrated response's own errors (None: exact)
     unc = uncertainty(sol, table, st.lev_fit, float(opts.solver.robust_scale), float(opts.judge.model_error),
-                      float(opts.judge.thickness_model_error_nm))
+                      float(opts.judge.thickness_model_error_nm), gram)
     reported, stderr = unc.reported, unc.stderr
     disc, disc_stderr = refined_disc(st.disc, reported, stderr, float(opts.disc_model_error))
     status, converged = _status_notes(sol, unc.finite, unc.misfit.chi2_nu, notes, table.free)
@@ -249,11 +251,11 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     sigma = st.sigma if share is None else st.sigma / np.sqrt(np.asarray(share))
     explained = bool(unc.misfit.chi2_floor <= float(judge.ok_chi2))  # as the verdict judges it
     thick = thickness_map if thickness_map is not None else reported["thickness_nm"]
-    response_cov = response_cells(st.colour.response, st.colour.illuminant, reported["n_film"], img, st.background,
+    response_jac = response_cells(st.colour.response, st.colour.illuminant, reported["n_film"], img, st.background,
                                   thick, full.cos)  # a calibrated response's own errors (None: exact)
     ok, warnings, colour_record = judge_colours(ok, warnings, st.photo, img, full.mask, full.cos, sigma,
                                                 float(judge.model_error), explained, judge.colour_check == "decide",
-                                                response_cov)
+                                                response_jac)
     return FitResult(
         params=reported, stderr=stderr, held=list(table.held), converged=bool(converged),
         message="; ".join(notes) if notes else "converged", iterations=sol.steps, residual_rms=rms,
@@ -268,7 +270,7 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
         stderr_scale=unc.scale, roles=parameter_roles(table, st.fx.model, tuple(reported)),
         frame=None if st.frame.whole else (st.frame.x0, st.frame.y0, st.frame.k), colour=st.colour,
         camera=None if opts.view is None else camera_record(opts.view, st.base_cfg.camera),
-        colour_check=colour_record,
+        colour_check=colour_record, stderr_camera=unc.camera_stderr,
     )
 
 

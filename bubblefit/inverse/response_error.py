@@ -1,7 +1,8 @@
 """How far a calibrated camera response's own errors move a fitted photo's colours.
 
-A response CSV from ``bubblefit calibrate-camera`` states each row's standard error
-(:func:`bubblefit.optics.spectral.response_stderr`). The colour check
+A response CSV from ``bubblefit calibrate-camera`` states its errors as modes of each
+channel's covariance between rows (:func:`bubblefit.optics.spectral.response_error_modes`;
+a CSV with per-row errors only states independent rows). The colour check
 (:mod:`bubblefit.inverse.colour_check`) asks whether the stated response can produce the
 photo's hues; a response known only to within its errors can produce any hue those errors
 reach, so the check's null hypothesis holds their covariance too. It is propagated
@@ -9,9 +10,9 @@ linearly (the first-order, "delta method" law of propagation of uncertainty: JCG
 GUM, section 5.1.2):
 
 - the response of channel ``k`` is linear between the CSV's rows ``lambda_j``:
-  ``rho_k(lambda) = sum_j x_kj H_j(lambda)`` with hat functions ``H_j``, and the rows'
-  errors ``s_kj`` are taken as independent (the CSV holds no covariance between rows) and
-  independent between channels (each channel is fitted alone);
+  ``rho_k(lambda) = sum_j x_kj H_j(lambda)`` with hat functions ``H_j``; the rows' errors
+  have the covariance ``C_k = sum_m u_km u_km^T`` (the CSV's modes ``u_km``), and the
+  channels are independent (each channel is fitted alone);
 - a film of Airy reflectance ``R(lambda)`` (Born & Wolf eq. 7.6(13), the fit's own
   :func:`bubblefit.optics.film.airy_reflectance`, both polarisations averaged, at the
   pixel's fitted thickness and angle) seen through the white-balanced response reflects
@@ -24,10 +25,20 @@ GUM, section 5.1.2):
   the background photo (zero without one, which overstates the response's share where
   the map's light is seen through the film: the check is then more lenient).
 
-A cell's mean render then moves by ``J_b = mean_i d y_i / d x`` per unit of the
-coefficients, and its covariance from the response is ``J_b diag(s^2) J_b^T`` (3 x 3). It
-does not average down over pixels (every pixel sees the same response), and cells of
-similar thickness share it, which the check's sum over cells treats as independent.
+A pixel's render moves by ``d y_k / d x_k u_km`` per mode (:meth:`ResponseError.jacobian`);
+a cell's mean render by the mean of that over its pixels, ``J_b`` (:meth:`ResponseError.cell_jacobian`).
+It does not average down over pixels, and every cell shares the same mode coefficients: the
+colour check's null holds one draw of them for the whole photo
+(:func:`bubblefit.inverse.colour_check.colour_check`).
+
+The same derivatives give the response's share of the fitted parameters' covariance
+(:func:`response_gram`): a change ``dy`` of the render at fixed parameters moves the
+least-squares optimum by ``dz = -(J^T J)^-1 J^T W dy`` (``J`` the Jacobian of the whitened
+residual, ``W`` the whitening ``1 / sigma``), so the response's errors add
+``(J^T J)^-1 [sum_m (J^T W dy_m)(J^T W dy_m)^T] (J^T J)^-1`` to the parameters' covariance
+(the delta method for an input of known covariance, GUM sec. 5.1.2, with the fit's
+solution as the measurement function). Unlike a pixel's noise it does not average down
+over the film.
 """
 
 from __future__ import annotations
@@ -37,7 +48,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ResponseError", "response_error", "MAX_PIXELS"]
+__all__ = ["ResponseError", "response_error", "response_cells", "response_gram", "solve_response_gram", "MAX_PIXELS"]
 
 #: Pixels per cell the mean Jacobian is taken over (evenly strided): the Jacobian follows
 #: the fitted thickness, smooth over a cell, so a subsample gives its mean (and bounds the
@@ -49,20 +60,20 @@ MAX_PIXELS = 400
 class ResponseError:
     """A response's stated errors on its rows, ready to propagate (module docstring):
     ``hats`` (G, L) ``H_j(lambda) I(lambda)`` on the fine grid, ``density`` (G, 3)
-    ``w_k = rho_k I``, ``stderr`` (L, 3) the rows' standard errors, ``wavelengths`` (G,) nm
-    and the film's index ``n_film``."""
+    ``w_k = rho_k I``, ``modes`` (L, 3, M) the modes of each channel's covariance between
+    rows, ``wavelengths`` (G,) nm and the film's index ``n_film``."""
 
     wavelengths: np.ndarray
     hats: np.ndarray
     density: np.ndarray
-    stderr: np.ndarray
+    modes: np.ndarray
     n_film: float
 
     def jacobian(self, render: np.ndarray, background: np.ndarray | None, thickness: np.ndarray,
                  cos: np.ndarray) -> np.ndarray:
-        """(n, 3, L): each pixel's change of its render ``(n, 3)`` per one standard error of
-        each row of each channel's response, at the pixel's film ``thickness`` (n,) nm seen
-        at ``cos`` (n,) (cosine of incidence)."""
+        """(n, 3, M): each pixel's change of its render ``(n, 3)`` along each error mode of
+        each channel's response (one standard deviation), at the pixel's film ``thickness``
+        (n,) nm seen at ``cos`` (n,) (cosine of incidence)."""
         refl = np.asarray(_airy()(np.asarray(thickness, np.float64)[:, None], self.wavelengths[None, :],
                                   self.n_film, np.asarray(cos, np.float64)[:, None])).mean(axis=-1)
         total = self.density.sum(axis=0)                         # (3,)
@@ -71,18 +82,24 @@ class ResponseError:
         dfdx = (proj[:, None, :] - f[:, :, None] * self.hats.sum(axis=0)[None, None, :]) / total[None, :, None]
         bg = 0.0 if background is None else np.asarray(background, np.float64)
         dydf = (np.asarray(render, np.float64) - bg) / np.maximum(f, 1e-9)
-        return dydf[:, :, None] * dfdx * self.stderr.T[None, :, :]
+        return dydf[:, :, None] * np.einsum("ncl,lcm->ncm", dfdx, self.modes)
 
-    def cell_covariance(self, render, background, thickness, cos) -> np.ndarray:
-        """(3, 3): the covariance of a cell's mean render from the response's errors, over
-        the cell's pixels (at most :data:`MAX_PIXELS` of them, evenly strided)."""
+    def cell_jacobian(self, render, background, thickness, cos) -> np.ndarray:
+        """(3, 3 M): how a cell's mean render moves per unit of each channel's mode
+        coefficients (channel ``k``'s modes in columns ``k M`` to ``(k + 1) M``; they move
+        channel ``k`` only), over the cell's pixels (at most :data:`MAX_PIXELS` of them,
+        evenly strided). Its outer product is the cell's covariance from the response."""
         good = np.nonzero(np.isfinite(np.asarray(thickness, np.float64)))[0]
+        m = self.modes.shape[-1]
+        out = np.zeros((3, 3 * m))
         if good.size == 0:
-            return np.zeros((3, 3))
+            return out
         take = good if good.size <= MAX_PIXELS else good[np.linspace(0, good.size - 1, MAX_PIXELS).astype(int)]
         bg = None if background is None else np.asarray(background)[take]
         jac = self.jacobian(np.asarray(render)[take], bg, np.asarray(thickness)[take], np.asarray(cos)[take]).mean(axis=0)
-        return np.diag(np.sum(jac**2, axis=-1))  # channels' coefficients are independent: a diagonal
+        for k in range(3):
+            out[k, k * m:(k + 1) * m] = jac[k]
+        return out
 
 
 @functools.cache
@@ -98,38 +115,109 @@ def _airy():
 
 def response_error(response: str, illuminant: str, n_film: float) -> ResponseError | None:
     """The :class:`ResponseError` of ``response`` (a CSV with ``r_err,g_err,b_err``
-    columns) under ``illuminant``, for a film of index ``n_film``; None when the response
+    columns, and its covariance's modes where it holds them) under ``illuminant``, for a film of index ``n_film``; None when the response
     states no errors (a named camera, sRGB, a CSV without them: taken as exact)."""
-    from ..optics.spectral import (LAMBDA_MAX, LAMBDA_MIN, _GRID, _channel_density, illuminant_spectrum,
-                                   response_stderr)
+    from ..optics.spectral import (LAMBDA_MAX, LAMBDA_MIN, TABLE_GRID, channel_density, illuminant_spectrum,
+                                   response_error_modes)
 
-    stated = response_stderr(response)
+    stated = response_error_modes(response)
     if stated is None:
         return None
-    rows, err = stated
-    inside = (_GRID >= LAMBDA_MIN) & (_GRID <= LAMBDA_MAX)
-    lam = _GRID[inside]
+    rows, modes = stated
+    inside = (TABLE_GRID >= LAMBDA_MIN) & (TABLE_GRID <= LAMBDA_MAX)
+    lam = TABLE_GRID[inside]
     lamp = illuminant_spectrum(illuminant)[inside]
     hats = np.stack([np.interp(lam, rows, np.eye(len(rows))[j], left=0.0, right=0.0) for j in range(len(rows))],
                     axis=1) * lamp[:, None]
-    return ResponseError(lam, hats, _channel_density(illuminant, response)[inside], np.asarray(err, np.float64),
+    return ResponseError(lam, hats, channel_density(illuminant, response)[inside], np.asarray(modes, np.float64),
                          float(n_film))
 
 
 def response_cells(response: str, illuminant: str, n_film: float, render: np.ndarray, background: np.ndarray | None,
                    thickness: np.ndarray, cos: np.ndarray):
     """For the colour check (:func:`bubblefit.inverse.colour_check.colour_check`'s
-    ``response_cov``): a function of a cell's pixel rows and columns giving the (3, 3)
-    covariance of its mean render from the response's stated errors
-    (:meth:`ResponseError.cell_covariance`), over images ``render``, ``background`` (None:
-    none given), ``thickness`` (nm) and ``cos``; None when the response states no errors."""
+    ``response_jac``): a function of a cell's pixel rows and columns giving the (3, 3 M)
+    change of its mean render per unit of the response's mode coefficients
+    (:meth:`ResponseError.cell_jacobian`; the coefficients are shared by every cell), over
+    images ``render``, ``background`` (None: none given), ``thickness`` (nm) and ``cos``;
+    None when the response states no errors."""
     err = response_error(response, illuminant, n_film)
     if err is None:
         return None
     thickness = np.broadcast_to(np.asarray(thickness, np.float64), np.shape(render)[:2])
 
-    def cov(ys, xs):
+    def jac(ys, xs):
         bg = None if background is None else np.asarray(background, np.float64)[ys, xs]
-        return err.cell_covariance(np.asarray(render)[ys, xs], bg, thickness[ys, xs], np.asarray(cos)[ys, xs])
+        return err.cell_jacobian(np.asarray(render)[ys, xs], bg, thickness[ys, xs], np.asarray(cos)[ys, xs])
 
-    return cov
+    return jac
+
+
+#: Pixels per block of :func:`response_gram` (bounds its memory: a block holds its pixels'
+#: derivatives along every mode, 3 M floats each).
+_GRAM_BLOCK = 2048
+
+
+def response_gram(err: ResponseError | None, jac: np.ndarray, weight: np.ndarray, render: np.ndarray,
+                  background: np.ndarray | None, thickness: np.ndarray, cos: np.ndarray) -> np.ndarray | None:
+    """(p, p) ``sum_m (J^T W dy_m)(J^T W dy_m)^T`` over the response's error modes ``dy_m``
+    (:meth:`ResponseError.jacobian`; module docstring): what the response's errors add to
+    the fitted parameters' covariance between two ``(J^T J)^-1``.
+
+    Parameters
+    ----------
+    err : ResponseError or None
+        The response's stated errors (None: exact, and so is the result).
+    jac : np.ndarray
+        (h w 3, p) the Jacobian of the whitened residual over the level's pixels.
+    weight : np.ndarray
+        (h, w, 3) the whitening ``1 / sigma`` (0 where not fitted).
+    render, background : np.ndarray
+        (h, w, 3) the fit's render and the background photo (None: none).
+    thickness, cos : np.ndarray
+        (h, w) each pixel's film thickness (nm) and cosine of incidence.
+    """
+    if err is None:
+        return None
+    h, w = weight.shape[:2]
+    p = jac.shape[1]
+    pix = np.nonzero(np.any(np.asarray(weight) > 0, axis=-1).ravel())[0]
+    jr = np.asarray(jac, np.float64).reshape(h * w, 3, p)
+    flat = lambda a, n: np.asarray(a, np.float64).reshape(h * w, n)  # noqa: E731
+    wt, y = flat(weight, 3), flat(render, 3)
+    bg = None if background is None else flat(background, 3)
+    th = np.broadcast_to(np.asarray(thickness, np.float64), (h, w)).reshape(-1)
+    cs = np.broadcast_to(np.asarray(cos, np.float64), (h, w)).reshape(-1)
+    total = np.zeros((p, 3, err.modes.shape[-1]))
+    for lo in range(0, pix.size, _GRAM_BLOCK):
+        i = pix[lo:lo + _GRAM_BLOCK]
+        dy = err.jacobian(y[i], None if bg is None else bg[i], th[i], cs[i]) * wt[i][:, :, None]
+        total += np.einsum("ncp,ncm->pcm", jr[i], np.nan_to_num(dy))
+    return np.einsum("pcm,qcm->pq", total, total)
+
+
+def solve_response_gram(response: str, illuminant: str, n_film: float, lev, sol, robust_scale: float):
+    """:func:`response_gram` of a solve ``sol`` (a :class:`~bubblefit.inverse._local.LocalSolution`)
+    on its level ``lev``: the render is the photo plus the plain residual, the thickness the
+    solve's constant film or drainage profile (:func:`bubblefit.model.thickness.drainage_profile`)
+    at each pixel's height; None when the response states no errors."""
+    import jax.numpy as jnp
+
+    from ..model.thickness import drainage_profile
+    from ._uncertainty import plain_residual
+
+    err = response_error(response, illuminant, n_film)
+    if err is None or sol.jacobian is None or not sol.jacobian.size:
+        return None
+    v = sol.values
+    if "thickness_nm" in v:
+        thickness = np.full(lev.y.shape[:2], float(v["thickness_nm"]))
+    elif all(k in v for k in ("top_nm", "bottom_nm", "exponent")):
+        thickness = np.asarray(drainage_profile(jnp.asarray(lev.height), v["top_nm"], v["bottom_nm"], v["exponent"]),
+                               np.float64)
+    else:
+        return None
+    weight = np.asarray(lev.w, np.float64)
+    resid = plain_residual(sol.residual, robust_scale).reshape(lev.y.shape)
+    render = np.asarray(lev.y, np.float64) + np.where(weight > 0, resid / np.where(weight > 0, weight, 1.0), 0.0)
+    return response_gram(err, sol.jacobian, weight, render, lev.bg, thickness, lev.cos)

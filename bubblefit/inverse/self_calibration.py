@@ -467,7 +467,7 @@ def response_csv(record: dict) -> str | None:
     if not record["rank"]["determined"]:
         return None
     # a sum of lobes dips below zero where the weights do (the Nikon's own projection's red
-    # channel, to -4 % of its peak); a response file holds no negative values
+    # channel, to -4 % of its peak); it is written clipped at zero
     resp = np.clip(np.asarray(record["response"], np.float64), 0.0, None)
     nan = np.full(3, np.nan)
     cal = CameraCalibration(np.asarray(record["response_wavelength_nm"], np.float64), resp,

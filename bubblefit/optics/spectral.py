@@ -71,10 +71,13 @@ __all__ = [
     "illuminant_spectrum",
     "response_functions",
     "response_stderr",
+    "response_error_modes",
     "is_named_illuminant",
     "is_named_response",
     "LAMBDA_MIN",
     "LAMBDA_MAX",
+    "TABLE_GRID",
+    "channel_density",
     "SpectralBasis",
     "spectral_basis",
     "integrate",
@@ -96,7 +99,7 @@ REFERENCE_SAMPLES = 800
 
 
 #: The colour-matching and response tables' grid: 1 nm over 360-830 nm.
-_GRID = np.arange(360.0, 831.0, 1.0)
+TABLE_GRID = np.arange(360.0, 831.0, 1.0)
 
 #: XYZ to linear sRGB, the matrix as IEC 61966-2-1:1999 prints it (colour-science's too).
 XYZ_TO_SRGB = np.array([[3.2406, -1.5372, -0.4986],
@@ -148,14 +151,17 @@ def read_number_rows(path: str, columns: int, what: str) -> np.ndarray:
     return np.asarray(rows, dtype=np.float64).reshape(-1, columns)
 
 
-def _read_columns(path: str, columns: int, what: str) -> np.ndarray:
-    """A CSV (comma or whitespace) of ``columns`` numbers per row, header lines skipped."""
+def _read_columns(path: str, columns: int, what: str, signed: tuple = ()) -> np.ndarray:
+    """A CSV (comma or whitespace) of ``columns`` numbers per row, header lines skipped; the
+    value columns ``signed`` (indices) may be negative, the others must be >= 0."""
     from ..errors import InputError
 
     data = read_number_rows(path, columns, what)
     if len(data) < 2 or np.any(np.diff(np.sort(data[:, 0])) <= 0):
         raise InputError(f"{what} {path}: need at least 2 rows with distinct wavelengths (nm) in the first column")
-    if data[:, 0].max() < LAMBDA_MIN or data[:, 0].min() > LAMBDA_MAX or np.any(data[:, 1:] < 0):
+    unsigned = np.ones(columns, bool)
+    unsigned[[0, *signed]] = False
+    if data[:, 0].max() < LAMBDA_MIN or data[:, 0].min() > LAMBDA_MAX or np.any(data[:, unsigned] < 0):
         raise InputError(f"{what} {path}: wavelengths must overlap 380-780 nm and values must be >= 0")
     return data[np.argsort(data[:, 0])]
 
@@ -198,7 +204,7 @@ def planck_spectrum(wavelength_nm, kelvin: float) -> np.ndarray:
 
 @functools.lru_cache(maxsize=16)
 def illuminant_spectrum(illuminant: str) -> np.ndarray:
-    """Relative spectral power of an illuminant on the 1 nm grid 360-830 nm (``_GRID``).
+    """Relative spectral power of an illuminant on the 1 nm grid 360-830 nm (``TABLE_GRID``).
 
     ``"E"`` is equal energy; ``"3200K"`` a black body (:func:`planck_spectrum`); other names are colour-science's ``SDS_ILLUMINANTS`` (CIE D65,
     A, ...); anything else is read as a CSV ``wavelength_nm,power`` (zero outside it).
@@ -206,28 +212,28 @@ def illuminant_spectrum(illuminant: str) -> np.ndarray:
     from ..errors import InputError
 
     if illuminant.upper() in ("E", "EQUAL", "EQUAL_ENERGY"):
-        return np.ones_like(_GRID)
+        return np.ones_like(TABLE_GRID)
     kelvin = colour_temperature(illuminant)
     if kelvin is not None:
-        return planck_spectrum(_GRID, kelvin)
+        return planck_spectrum(TABLE_GRID, kelvin)
     if illuminant in _SHIPPED_ILLUMINANTS:
         names, table = _shipped_table("cie_illuminants.csv")
-        return np.interp(_GRID, table[:, 0], table[:, names.index(illuminant)])
+        return np.interp(TABLE_GRID, table[:, 0], table[:, names.index(illuminant)])
     if not os.path.isfile(illuminant) and _colour_has("SDS_ILLUMINANTS", illuminant):
         import colour
 
         sd = colour.SDS_ILLUMINANTS[illuminant]
-        return np.interp(_GRID, np.asarray(sd.wavelengths), np.asarray(sd.values))
+        return np.interp(TABLE_GRID, np.asarray(sd.wavelengths), np.asarray(sd.values))
     if not os.path.isfile(illuminant):
         raise InputError(f"unknown illuminant {illuminant!r} (D65, E, A, another CIE name, or a CSV "
                          "wavelength_nm,power)")
     data = _read_columns(illuminant, 2, "illuminant")
-    return np.interp(_GRID, data[:, 0], data[:, 1], left=0.0, right=0.0)
+    return np.interp(TABLE_GRID, data[:, 0], data[:, 1], left=0.0, right=0.0)
 
 
 @functools.lru_cache(maxsize=16)
 def response_functions(response: str) -> np.ndarray:
-    """(L, 3) channel responses on ``_GRID``: ``srgb``, a colour-science camera, or a CSV.
+    """(L, 3) channel responses on ``TABLE_GRID``: ``srgb``, a colour-science camera, or a CSV.
 
     References
     ----------
@@ -238,21 +244,27 @@ def response_functions(response: str) -> np.ndarray:
 
     if response.lower() == "srgb":
         _, table = _shipped_table("cie_1931_2deg.csv")
-        cmf = np.stack([np.interp(_GRID, table[:, 0], table[:, c]) for c in (1, 2, 3)], axis=1)
+        cmf = np.stack([np.interp(TABLE_GRID, table[:, 0], table[:, c]) for c in (1, 2, 3)], axis=1)
         return cmf @ XYZ_TO_SRGB.T
     if not os.path.isfile(response) and _colour_has("MSDS_CAMERA_SENSITIVITIES", response):
         import colour
 
         msds = colour.MSDS_CAMERA_SENSITIVITIES[response]
         lam, vals = np.asarray(msds.wavelengths), np.asarray(msds.values)
-        return np.stack([np.interp(_GRID, lam, vals[:, c], left=0.0, right=0.0) for c in range(3)], axis=1)
+        return np.stack([np.interp(TABLE_GRID, lam, vals[:, c], left=0.0, right=0.0) for c in range(3)], axis=1)
     if not os.path.isfile(response):
         import colour
 
         raise InputError(f"unknown camera response {response!r} (srgb, one of "
                          f"{', '.join(colour.MSDS_CAMERA_SENSITIVITIES)}, or a CSV wavelength_nm,r,g,b)")
-    data = _read_columns(response, 4, "camera response")
-    return np.stack([np.interp(_GRID, data[:, 0], data[:, c], left=0.0, right=0.0) for c in (1, 2, 3)], axis=1)
+    data = _read_columns(response, 4, "camera response", signed=_RESPONSE_COLUMNS)
+    return np.stack([np.interp(TABLE_GRID, data[:, 0], data[:, c], left=0.0, right=0.0) for c in (1, 2, 3)], axis=1)
+
+
+#: A response CSV's value columns that may be negative: a response may have negative lobes
+#: (sRGB's own have; a calibrated response may ring about a steep filter edge, and clipping
+#: the ring would bias every colour it integrates and leave the stated errors behind).
+_RESPONSE_COLUMNS = (1, 2, 3)
 
 
 def response_stderr(response: str) -> tuple[np.ndarray, np.ndarray] | None:
@@ -261,15 +273,38 @@ def response_stderr(response: str) -> tuple[np.ndarray, np.ndarray] | None:
     :meth:`bubblefit.capture.camera_calibration.CameraCalibration.csv_text`), on the CSV's
     own rows, which :func:`response_functions` interpolates linearly between; None for a
     named response or a CSV without the error columns (the response is then taken as
-    exact). The errors are per row only: the CSV holds no covariance between rows."""
+    exact)."""
+    modes = response_error_modes(response)
+    if modes is None:
+        return None
+    rows, factor = modes
+    return rows, np.sqrt(np.sum(factor**2, axis=-1))
+
+
+def response_error_modes(response: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(wavelengths (L,), modes (L, 3, M))`` of a response CSV's stated errors: each
+    channel's covariance between the rows is ``sum_m u_m u_m^T`` over its modes ``u_m``.
+
+    A CSV of ``bubblefit calibrate-camera`` holds the modes after the row errors, in
+    columns ``m1_r,m1_g,m1_b,m2_r,...`` (the eigenvectors of each channel's posterior
+    covariance scaled by the square roots of their eigenvalues); a CSV with the error
+    columns only states independent rows (``M = L``, one mode per row). None for a named
+    response or a CSV without errors."""
     if not os.path.isfile(response):
         return None
     with open(response, encoding="utf-8", errors="replace") as fh:
         head = [line for line in (fh.readline() for _ in range(3)) if line.strip()]
-    if not any("r_err" in line for line in head):
+    header = next((line for line in head if "r_err" in line), None)
+    if header is None:
         return None
-    data = _read_columns(response, 7, "camera response")
-    return data[:, 0], data[:, 4:7]
+    names = [x for x in header.replace(",", " ").replace(";", " ").split() if x]
+    n_modes = sum(1 for x in names if x.startswith("m") and x.endswith("_r"))
+    columns = 7 + 3 * n_modes
+    data = _read_columns(response, columns, "camera response", signed=_RESPONSE_COLUMNS + tuple(range(7, columns)))
+    if n_modes == 0:
+        err = data[:, 4:7]
+        return data[:, 0], np.stack([np.diag(err[:, c]) for c in range(3)], axis=1)
+    return data[:, 0], data[:, 7:].reshape(len(data), n_modes, 3).transpose(0, 2, 1)
 
 
 #: The comment a response CSV of ``bubblefit calibrate-camera`` opens with names the lamp it
@@ -312,9 +347,9 @@ def is_named_response(name: str) -> bool:
     return name.lower() == "srgb" or _colour_has("MSDS_CAMERA_SENSITIVITIES", name)
 
 
-def _channel_density(illuminant: str, response: str) -> np.ndarray:
-    """(L, 3) ``rho_c(lambda) I(lambda)`` on ``_GRID``, zero outside 380-780 nm."""
-    inside = ((_GRID >= LAMBDA_MIN) & (_GRID <= LAMBDA_MAX))[:, None]
+def channel_density(illuminant: str, response: str) -> np.ndarray:
+    """(L, 3) ``rho_c(lambda) I(lambda)`` on ``TABLE_GRID``, zero outside 380-780 nm."""
+    inside = ((TABLE_GRID >= LAMBDA_MIN) & (TABLE_GRID <= LAMBDA_MAX))[:, None]
     dens = response_functions(response) * illuminant_spectrum(illuminant)[:, None] * inside
     if np.any(dens.sum(axis=0) <= 0):
         from ..errors import InputError
@@ -373,11 +408,11 @@ def _fourier_arrays(samples: int, illuminant: str, response: str):
 def _wavenumber_density(illuminant: str, response: str = "srgb", points: int = 600):
     """The three channels' weight densities per unit wavenumber (each of unit integral), (P, 3),
     on a grid ``nu`` (P,) in 1/nm spanning the visible range with a margin of zeros."""
-    dens_tab = _channel_density(illuminant, response)
+    dens_tab = channel_density(illuminant, response)
     lo, hi = 1.0 / LAMBDA_MAX, 1.0 / LAMBDA_MIN
     nu = np.linspace(lo - 2e-4, hi + 2e-4, points)
     lam = 1.0 / nu
-    dens = np.stack([np.interp(lam, _GRID, dens_tab[:, c], left=0.0, right=0.0) for c in range(3)], axis=1)
+    dens = np.stack([np.interp(lam, TABLE_GRID, dens_tab[:, c], left=0.0, right=0.0) for c in range(3)], axis=1)
     dens = dens * lam[:, None] ** 2
     return nu, dens / (dens.sum(axis=0, keepdims=True) * (nu[1] - nu[0]))
 
@@ -451,8 +486,8 @@ def _basis_arrays(method: str, samples: int, illuminant: str, response: str = "s
             raise ValueError("harmonic spectral samples must be >= 2")
         return None, None, None, None
     fine = np.linspace(LAMBDA_MIN, LAMBDA_MAX, 4001)
-    dens_tab = _channel_density(illuminant, response)
-    rgb_f = np.stack([np.interp(fine, _GRID, dens_tab[:, c]) for c in range(3)], axis=1)
+    dens_tab = channel_density(illuminant, response)
+    rgb_f = np.stack([np.interp(fine, TABLE_GRID, dens_tab[:, c]) for c in range(3)], axis=1)
     raw_white = rgb_f.sum(axis=0)
     gains = _balance(raw_white, white_balance) * raw_white  # 1 for "illuminant"
     if method == "fourier":

@@ -8,6 +8,7 @@ Each choice is made only when no option forces it, and is said in the result.
 from __future__ import annotations
 
 import re
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,7 @@ from ._spectrum_profile import local_noise
 
 __all__ = ["looks_normalised", "series_normalised", "same_grid", "in_time_order", "ENVELOPE_WINDOWS",
            "FLAT_TOLERANCE", "SLOW_SLOPE", "DIVIDED_NOISE_RATIO", "TILTED_FLAT_TOLERANCE", "NOISE_WINDOWS", "noise_says_divided",
-           "series_departures"]
+           "series_departures", "SeriesGroup", "series_groups"]
 
 #: Most windows (equal in wavenumber) whose envelopes are compared (one per fringe at most).
 ENVELOPE_WINDOWS = 6
@@ -191,6 +192,57 @@ def in_time_order(paths: list[str]) -> tuple[bool, str]:
     if all(b > a for a, b in zip(times, times[1:])):
         return True, "modification times in order"
     return False, "neither names nor times in order"
+
+
+@dataclass(frozen=True)
+class SeriesGroup:
+    """One series of a set of readings: the indices of its files (in the order given), what
+    set it apart (``"folder"``, ``"name"`` or ``"given"``), its key (the folder or the
+    name's stem), and whether it is in time order and why (:func:`in_time_order`)."""
+
+    indices: tuple[int, ...]
+    by: str
+    key: str
+    ordered: bool
+    order_why: str
+
+    def summary(self, paths) -> dict:
+        return {"by": self.by, "key": self.key, "files": [paths[i] for i in self.indices],
+                "time_ordered": self.ordered, "time_order": self.order_why}
+
+
+def _stem_key(path: str) -> str:
+    """A file name's stem less its trailing number (``run2_0013.xy`` -> ``run2_``)."""
+    return re.sub(r"\d+$", "", Path(path).stem)
+
+
+def series_groups(paths: list[str], by: str = "auto", ordered: bool | None = None) -> list[SeriesGroup]:
+    """The series a set of readings forms, each with its own time order.
+
+    Files taken on one instrument may come from several films (several draining runs, one
+    a folder, or one a name stem such as ``runA_0001``, ``runB_0001``). They share the lamp
+    but not a time order: a reading of one run says nothing about whether a reading of
+    another thinned. ``by`` is ``"folder"`` (a series per parent folder), ``"name"`` (per
+    name stem, the name less its trailing number), ``"one"`` (the files as given, one
+    series) or ``"auto"`` (by folder when the files lie in several, else by name stem when
+    the names have several stems, else one). ``ordered`` forces every series' time order
+    (None: each is in time order when its names, or else its modification times, are:
+    :func:`in_time_order`)."""
+    keys: dict[str, list[int]] = {}
+    if by == "auto":
+        folders = {str(Path(p).resolve().parent) for p in paths}
+        by = "folder" if len(folders) > 1 else "name" if len({_stem_key(p) for p in paths}) > 1 else "one"
+    for i, p in enumerate(paths):
+        key = (str(Path(p).resolve().parent) if by == "folder" else _stem_key(p) if by == "name" else "")
+        keys.setdefault(key, []).append(i)
+    out = []
+    for key, idx in keys.items():
+        if ordered is None:
+            flag, why = in_time_order([paths[i] for i in idx])
+        else:
+            flag, why = ordered, "as forced"
+        out.append(SeriesGroup(tuple(idx), "given" if by == "one" else by, key, flag, why))
+    return out
 
 
 def series_departures(results, order_spacing: list[float], alone: set[int]) -> list[tuple[int, float, str]]:

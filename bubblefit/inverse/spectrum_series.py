@@ -18,16 +18,17 @@ import numpy as np
 
 from ..io.spectra import Spectrum
 from . import spectrum as sp
-from ._spectrum_defaults import series_departures, series_normalised
+from ._spectrum_defaults import SeriesGroup, series_departures, series_normalised
 from ._spectrum_drain import AMBIGUOUS_REASON, series_sides
-from ._shared_lamp import (MIN_PINNING_READINGS, SHARED_MISFIT_RATIO, FixedLampProblem, SharedLamp, read_with_lamp,
-                           shared_lamp)
+from ._shared_lamp import (MIN_PINNING_READINGS, SHARED_MISFIT_RATIO, FixedLampProblem, SharedLamp, alternative_lamps,
+                           read_with_lamp, shared_lamp)
 
 __all__ = ["fit_spectrum_series", "read_with_shared_lamp"]
 
 
 def fit_spectrum_series(spectra: list[Spectrum], *, dark=None, reference=None, options=None,
-                        progress=None, time_ordered: bool = False) -> tuple[list, SharedLamp | None]:
+                        progress=None, time_ordered: bool = False,
+                        groups: list[SeriesGroup] | None = None) -> tuple[list, SharedLamp | None]:
     """Fit every reading of ``spectra`` with one lamp shared by the series (see the module).
 
     With ``options.normalised`` None the series is read as divided by its lamp or not by
@@ -43,7 +44,13 @@ def fit_spectrum_series(spectra: list[Spectrum], *, dark=None, reference=None, o
     those, and every other reading is read again with it (its own stray light free); the
     pinning readings keep their own results. With fewer, every reading keeps its own
     result and the others get a warning saying why. ``progress(stage, k, n)`` is called
-    before each reading of each stage (``"alone"``, then ``"shared lamp"``). Returns the :class:`~bubblefit.inverse.spectrum.SpectrumFit` of
+    before each reading of each stage (``"alone"``, then ``"shared lamp"``).
+
+    ``groups`` splits the readings into several series on one instrument
+    (:func:`._spectrum_defaults.series_groups`: several folders or name stems, several
+    films): the lamp is shared by all of them, and each series' own time order (its
+    ``ordered``) is used within it only; ``time_ordered`` is then not used. Without
+    ``groups`` the readings are one series, in time order when ``time_ordered``. Returns the :class:`~bubblefit.inverse.spectrum.SpectrumFit` of
     each reading, in order, and the :class:`SharedLamp` (None when there was none).
     """
     options = options or sp.SpectrumOptions()
@@ -56,14 +63,19 @@ def fit_spectrum_series(spectra: list[Spectrum], *, dark=None, reference=None, o
     for r in out:
         if why:
             r.normalised_why = why
-    if time_ordered:
+    if groups is None:
+        groups = [SeriesGroup(tuple(range(len(out))), "given", "", bool(time_ordered), "")]
+    alone = set(lamp.pinning) if lamp is not None else set(range(len(out)))
+    for g in groups:
+        if not g.ordered:
+            continue
+        sub = [out[i] for i in g.indices]
         spacing = [sp._order_spacing(r.wavelength_nm, sp.dispersion.refractive_index(options.n_film, r.wavelength_nm))
-                   for r in out]
-        alone = set(lamp.pinning) if lamp is not None else set(range(len(out)))
-        for i, _, reason in series_departures(out, spacing, alone):
-            out[i].ok = False
-            out[i].reasons.append(reason)
-        _take_sides(out, options)
+                   for r in sub]
+        for k, _, reason in series_departures(sub, spacing, {k for k, i in enumerate(g.indices) if i in alone}):
+            sub[k].ok = False
+            sub[k].reasons.append(reason)
+        _take_sides(sub, options)
     return out, lamp
 
 
@@ -112,6 +124,7 @@ def _fit_series(spectra, dark, reference, options, progress):
     note = (f"read with the lamp shared by {len(pins)} readings of the series that can be read alone "
             f"(their brightness spreads by {lamp.scale_spread:.1%}; the thickness's spread over their own lamps "
             "is in the error bar)")
+    each = alternative_lamps(lamp.each)
     out = []
     for i, (r, p) in enumerate(zip(alone, prepared)):
         if progress is not None:
@@ -120,7 +133,7 @@ def _fit_series(spectra, dark, reference, options, progress):
             r.warnings.append(f"pinned the shared lamp ({len(pins)} readings)")
             out.append(r)
             continue
-        out.append(read_with_shared_lamp(p, bases[i] @ lamp.coefficients, bases[i] @ lamp.each.T, options, note, r))
+        out.append(read_with_shared_lamp(p, bases[i] @ lamp.coefficients, bases[i] @ each.T, options, note, r))
     return out, lamp
 
 

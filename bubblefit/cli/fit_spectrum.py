@@ -8,6 +8,9 @@ spectra, the residual and the profile likelihood over thickness. With ``--shared
 the files are one series under one lamp (:func:`bubblefit.inverse.spectrum.fit_spectrum_series`):
 the readings that can be read alone fit the lamp, and the others (films too thin for
 fringes) are read with it; ``-o`` then also plots the series' thicknesses in file order.
+Files on one instrument that form several series (several folders or name stems,
+``--series-by``) share that lamp, and each series keeps its own time order
+(:func:`bubblefit.inverse.series_groups`).
 
 A spectral image (a cube: ENVI ``.hdr``, ``.npy``/``.npz``, HDF5, Zarr; or a line scan, a
 2-D array) gives a thickness map (:func:`bubblefit.inverse.spectral_map.fit_cube`):

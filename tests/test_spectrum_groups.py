@@ -127,3 +127,50 @@ def test_two_runs_in_two_folders_share_the_lamp_not_the_time_order(tmp_path, cap
     first = json.loads(one.read_text())["spectra"][len(PINS):len(truth)]
     assert all(not r["ok"] and any("does not thicken" in x for x in r["reasons"]) for r in first)
     assert isinstance(series_groups(files)[0], SeriesGroup)
+
+
+def test_each_series_is_read_at_its_own_brightness_where_it_measures_it():
+    """Two runs divided by different readings (0.8 and 1.2 of the shared lamp, 2 % scatter
+    within each) and a third run without pinning readings of its own: the first two are read
+    at their own mean brightness with their own spread, the third at the shared lamp's with
+    the spread of all of them."""
+    from bubblefit.inverse import SharedLamp
+    from bubblefit.inverse.spectrum_series import series_brightness
+
+    rng = np.random.default_rng(4)
+    scales = np.concatenate([0.8 * (1 + 0.02 * rng.standard_normal(4)), 1.2 * (1 + 0.02 * rng.standard_normal(4))])
+    scales /= scales.mean()
+    pins = (0, 1, 2, 3, 5, 6, 7, 8)
+    lamp_ = SharedLamp(np.ones(3), (1 / 800, 1 / 400), float(np.std(scales, ddof=1)), pins,
+                       each=scales[:, None] * np.ones((1, 3)), scales=tuple(scales))
+    groups = [SeriesGroup((0, 1, 2, 3, 4), "folder", "a", True, ""), SeriesGroup((5, 6, 7, 8), "folder", "b", True, ""),
+              SeriesGroup((9, 10), "folder", "c", True, "")]
+    got = series_brightness(lamp_, groups)
+    for idx, own in ((range(5), scales[:4]), (range(5, 9), scales[4:])):
+        for i in idx:
+            assert got[i].scale == pytest.approx(own.mean())
+            assert got[i].spread == pytest.approx(own.std(ddof=1) / own.mean())
+            assert np.allclose(np.sort(got[i].each[:, 0]), np.sort(own))
+    assert got[9].scale == 1.0 and got[9].spread == pytest.approx(lamp_.scale_spread) and len(got[9].each) == 8
+    assert got[9].spread > 5 * got[0].spread  # the runs' levels differ far beyond their scatter
+    # one series: the shared lamp itself
+    one = series_brightness(lamp_, [SeriesGroup(tuple(range(11)), "given", "", True, "")])
+    assert one[0].scale == 1.0 and len(one[0].each) == 8
+
+
+def test_folders_that_continue_one_another_are_one_series(tmp_path):
+    """One film filed in folders by order, each ending on the frame the next begins with
+    (``T9503`` and ``T09503``), is one series in frame order; a folder of another run is not
+    joined."""
+    layout = {"order2": ("T7652", "T8500", "T9503"), "order1": ("T09503", "T12000"), "other": ("T3817", "T4000")}
+    paths = []
+    for folder, names in layout.items():
+        (tmp_path / folder).mkdir()
+        paths += [str(tmp_path / folder / f"{n}.xy") for n in names]
+    groups = series_groups(paths)
+    assert len(groups) == 2
+    film = next(g for g in groups if g.key.endswith("{order2,order1}"))
+    assert [paths[i].split("/")[-1] for i in film.indices] == ["T7652.xy", "T8500.xy", "T9503.xy", "T09503.xy",
+                                                              "T12000.xy"]
+    assert film.ordered
+    assert next(g for g in groups if g.key.endswith("other")).indices == (5, 6)

@@ -130,7 +130,7 @@ def _check_outputs(args) -> None:
 def run(args) -> int:
     from ..inverse.spectrum import SpectrumOptions, fit_spectrum
     from ..inverse import series_groups
-    from ..inverse.spectrum_series import fit_spectrum_series
+    from ..inverse.spectrum_series import fit_spectrum_series, series_brightness
     from ..io.spectra import read_spectrum
     from ..optics import dispersion
     from ..progress import status
@@ -192,6 +192,11 @@ def run(args) -> int:
         if lamp is not None:
             print(f"shared lamp: fitted to {len(lamp.pinning)} of {len(spectra)} readings; their brightness "
                   f"spreads by {lamp.scale_spread:.1%}")
+            if len(groups) > 1:
+                bright = series_brightness(lamp, groups)
+                for g in groups:
+                    b = bright[g.indices[0]]
+                    print(f"  {g.key}: read at {b.why}, spread {b.spread:.1%}")
     else:
         results, lamp = None, None
     rows = []
@@ -226,9 +231,22 @@ def run(args) -> int:
                     f"{len(groups)} series (one per {groups[0].by}) on the same wavelengths (one spectrometer): one "
                     "lamp fitted to the readings of all of them that can be read alone, each series' time order its own")}
         write_json(args.json, {"n_film": dispersion.describe(index), "dark": args.dark, "reference": args.reference,
-                               "series": None if groups is None else [g.summary(paths) for g in groups],
+                               "series": None if groups is None else _series_json(groups, paths, lamp),
                                "shared_lamp": shared, "ok": all(r["ok"] for r in rows), "spectra": rows})
     return 1 if args.strict and not all(r["ok"] for r in rows) else 0
+
+
+def _series_json(groups, paths, lamp) -> list[dict]:
+    """Each series' files, time order and, with a shared lamp, the brightness it was read at."""
+    from ..inverse.spectrum_series import series_brightness
+
+    out = [g.summary(paths) for g in groups]
+    if lamp is not None:
+        bright = series_brightness(lamp, groups)
+        for g, entry in zip(groups, out):
+            b = bright[g.indices[0]]
+            entry.update(lamp_scale=b.scale, lamp_scale_spread=b.spread, lamp_scale_from=b.why)
+    return out
 
 
 def _cube_outputs(args, line: bool) -> list[str]:

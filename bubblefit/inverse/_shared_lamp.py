@@ -80,13 +80,15 @@ class SharedLamp:
     (1/nm, (min, max)) onto [-1, 1], the relative spread of the pinning readings' own
     scales, which readings (indices into the series) pinned it, and the lamp each of
     them implies alone (``each``, (K, J): its own coefficients with its thickness held),
-    whose differences measure how well the series shares one lamp."""
+    whose differences measure how well the series shares one lamp, and their brightness
+    against the shared lamp (``scales``, mean 1)."""
 
     coefficients: np.ndarray
     nu_range: tuple[float, float]
     scale_spread: float
     pinning: tuple[int, ...]
     each: np.ndarray | None = None
+    scales: tuple[float, ...] = ()
 
     def basis(self, wavelength_nm: np.ndarray) -> np.ndarray:
         """(N, J) Legendre polynomials of the series' wavenumber range at ``wavelength_nm``."""
@@ -204,7 +206,8 @@ def shared_lamp(problems: list[ProfileProblem], alone: list, lamp_basis: list[np
     spread = float(np.std(s, ddof=1)) if len(s) > 1 else float("inf")
     each = np.array([_lamp_coefficients([p], [x], [1.0], [v], [b])
                      for p, x, v, b in zip(problems, d, w, lamp_basis)])
-    return SharedLamp(coefficients=coef, nu_range=nu_range, scale_spread=spread, pinning=(), each=each)
+    return SharedLamp(coefficients=coef, nu_range=nu_range, scale_spread=spread, pinning=(), each=each,
+                      scales=tuple(float(x) for x in s))
 
 
 def alternative_lamps(each: np.ndarray, most: int = MAX_ALTERNATIVE_LAMPS) -> np.ndarray:

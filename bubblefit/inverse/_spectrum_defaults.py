@@ -7,6 +7,7 @@ Each choice is made only when no option forces it, and is said in the result.
 
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -227,7 +228,13 @@ def series_groups(paths: list[str], by: str = "auto", ordered: bool | None = Non
     series) or ``"auto"`` (by folder when the files lie in several, else by name stem when
     the names have several stems, else one). ``ordered`` forces every series' time order
     (None: each is in time order when its names, or else its modification times, are:
-    :func:`in_time_order`)."""
+    :func:`in_time_order`).
+
+    Folders that share a frame (a file of the same name stem and frame number, as
+    ``T9503.xy`` and ``T09503.xy``) are one film filed in parts, each part ending on the
+    frame the next begins with (``spectraVictor2`` of optifik's data: one draining film in
+    six folders by interference order, 5543 to 25492): they are one series, its files in
+    frame order, and its key names its folders (``parent/{order5,order4}``)."""
     keys: dict[str, list[int]] = {}
     if by == "auto":
         folders = {str(Path(p).resolve().parent) for p in paths}
@@ -235,6 +242,8 @@ def series_groups(paths: list[str], by: str = "auto", ordered: bool | None = Non
     for i, p in enumerate(paths):
         key = (str(Path(p).resolve().parent) if by == "folder" else _stem_key(p) if by == "name" else "")
         keys.setdefault(key, []).append(i)
+    if by == "folder":
+        keys = _join_continued(keys, paths)
     out = []
     for key, idx in keys.items():
         if ordered is None:
@@ -242,6 +251,43 @@ def series_groups(paths: list[str], by: str = "auto", ordered: bool | None = Non
         else:
             flag, why = ordered, "as forced"
         out.append(SeriesGroup(tuple(idx), "given" if by == "one" else by, key, flag, why))
+    return out
+
+
+def _frame(path: str) -> tuple[str, int] | None:
+    """A file's name stem and trailing frame number (None without one)."""
+    m = re.match(r"^(.*?)(\d+)$", Path(path).stem)
+    return (m.group(1), int(m.group(2))) if m else None
+
+
+def _join_continued(keys: dict[str, list[int]], paths: list[str]) -> dict[str, list[int]]:
+    """Folders (``key -> indices``) that share a frame joined into one, in frame order."""
+    names = list(keys)
+    frames = {k: {_frame(paths[i]) for i in keys[k]} - {None} for k in names}
+    parent = {k: k for k in names}
+
+    def root(k):
+        while parent[k] != k:
+            k = parent[k]
+        return k
+
+    for a in range(len(names)):
+        for b in range(a + 1, len(names)):
+            if frames[names[a]] & frames[names[b]]:
+                parent[root(names[b])] = root(names[a])
+    joined: dict[str, list[str]] = {}
+    for k in names:
+        joined.setdefault(root(k), []).append(k)
+    out = {}
+    for members in joined.values():
+        idx = [i for k in members for i in keys[k]]
+        if len(members) > 1:
+            idx.sort(key=lambda i: (_frame(paths[i]) or ("", -1))[1])
+        if len(members) > 1:
+            top = os.path.commonpath(members)
+            out[f"{top}/{{{','.join(os.path.relpath(m, top) for m in members)}}}"] = idx
+        else:
+            out[members[0]] = idx
     return out
 
 

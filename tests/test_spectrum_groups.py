@@ -174,3 +174,6 @@ def test_folders_that_continue_one_another_are_one_series(tmp_path):
                                                               "T12000.xy"]
     assert film.ordered
     assert next(g for g in groups if g.key.endswith("other")).indices == (5, 6)
+    # two runs each numbered from the same frame overlap, not continue: two series
+    assert len(series_groups([str(tmp_path / "order2" / "T7652.xy"), str(tmp_path / "order2" / "T9503.xy"),
+                              str(tmp_path / "other" / "T7652.xy"), str(tmp_path / "other" / "T9503.xy")])) == 2

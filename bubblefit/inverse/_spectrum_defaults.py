@@ -230,9 +230,8 @@ def series_groups(paths: list[str], by: str = "auto", ordered: bool | None = Non
     (None: each is in time order when its names, or else its modification times, are:
     :func:`in_time_order`).
 
-    Folders that share a frame (a file of the same name stem and frame number, as
-    ``T9503.xy`` and ``T09503.xy``) are one film filed in parts, each part ending on the
-    frame the next begins with (``spectraVictor2`` of optifik's data: one draining film in
+    Folders of which one ends on the frame the other begins with (a file of the same name
+    stem and frame number, as ``T9503.xy`` and ``T09503.xy``) are one film filed in parts (``spectraVictor2`` of optifik's data: one draining film in
     six folders by interference order, 5543 to 25492): they are one series, its files in
     frame order, and its key names its folders (``parent/{order5,order4}``)."""
     keys: dict[str, list[int]] = {}
@@ -261,7 +260,8 @@ def _frame(path: str) -> tuple[str, int] | None:
 
 
 def _join_continued(keys: dict[str, list[int]], paths: list[str]) -> dict[str, list[int]]:
-    """Folders (``key -> indices``) that share a frame joined into one, in frame order."""
+    """Folders (``key -> indices``) joined into one, in frame order, where one ends on the frame
+    the other begins with (two runs each numbered from 0 overlap instead, and stay apart)."""
     names = list(keys)
     frames = {k: {_frame(paths[i]) for i in keys[k]} - {None} for k in names}
     parent = {k: k for k in names}
@@ -271,9 +271,14 @@ def _join_continued(keys: dict[str, list[int]], paths: list[str]) -> dict[str, l
             k = parent[k]
         return k
 
+    def ends(k):  # the first and last frame of a folder (stem, number)
+        f = sorted(frames[k], key=lambda t: t[1])
+        return (f[0], f[-1]) if f else (None, None)
+
     for a in range(len(names)):
         for b in range(a + 1, len(names)):
-            if frames[names[a]] & frames[names[b]]:
+            (a0, a1), (b0, b1) = ends(names[a]), ends(names[b])
+            if a0 is not None and b0 is not None and (a1 == b0 or b1 == a0):
                 parent[root(names[b])] = root(names[a])
     joined: dict[str, list[str]] = {}
     for k in names:

@@ -40,7 +40,10 @@ no switch but the film's index: each group's files given together (whole reading
 void reading, a reading of the empty frame with the light on, is not a dark reading and is
 left out unless ``--void-as-dark``), so that the command decides whether they
 were divided by the lamp, whether they form one series (and reads them with its shared
-lamp), and uses their time order (the file names) against jumps to a twin. Each row also
+lamp), and uses their time order (the file names) against jumps to a twin. With ``--join``
+the groups named are given to one command, as a user with the whole data set would give
+them: the command tells the series apart by their folders (``spectraVictor2``'s six folders
+share their boundary frames and are one film) and shares the lamp's shape among them. Each row also
 carries the extrema phase test (:mod:`bubblefit.inverse._spectrum_extrema`) of the stated
 value and of the defaults' value; a stated value is marked in doubt when it scores worse
 than 0.2 where the defaults' value scores better than 0.1.

@@ -8,6 +8,9 @@ spectra, the residual and the profile likelihood over thickness. With ``--shared
 the files are one series under one lamp (:func:`bubblefit.inverse.spectrum.fit_spectrum_series`):
 the readings that can be read alone fit the lamp, and the others (films too thin for
 fringes) are read with it; ``-o`` then also plots the series' thicknesses in file order.
+Files on one instrument that form several series (several folders or name stems,
+``--series-by``) share that lamp, and each series keeps its own time order
+(:func:`bubblefit.inverse.series_groups`).
 
 A spectral image (a cube: ENVI ``.hdr``, ``.npy``/``.npz``, HDF5, Zarr; or a line scan, a
 2-D array) gives a thickness map (:func:`bubblefit.inverse.spectral_map.fit_cube`):
@@ -77,6 +80,11 @@ def register(sub):
                          "(default: on for 5 or more files on the same wavelengths)")
     g3.add_argument("--no-series", dest="series", action="store_const", const=False,
                     help="read every file alone, even when they look like one series")
+    p.add_argument("--series-by", choices=("auto", "folder", "name", "one"), default="auto",
+                   help="what tells the series apart when the files on one instrument come from several films: each "
+                        "folder, each name stem (the name less its trailing number), or none (one series in the "
+                        "order given); they share the lamp, each keeps its own time order (default auto: by folder "
+                        "when the files lie in several, else by name stem when there are several)")
     p.add_argument("--unordered", action="store_true",
                    help="the series' files are not in time order (default: in order when their names, or else "
                         "their modification times, are; a reading that jumps to its neighbours' twin is then "
@@ -121,8 +129,8 @@ def _check_outputs(args) -> None:
 
 def run(args) -> int:
     from ..inverse.spectrum import SpectrumOptions, fit_spectrum
-    from ..inverse import in_time_order
-    from ..inverse.spectrum_series import fit_spectrum_series
+    from ..inverse import series_groups
+    from ..inverse.spectrum_series import fit_spectrum_series, series_brightness
     from ..io.spectra import read_spectrum
     from ..optics import dispersion
     from ..progress import status
@@ -155,11 +163,21 @@ def run(args) -> int:
         if spec.skipped:
             print(f"warning: {spec.path}: skipped {spec.skipped} rows that are not finite numbers", file=sys.stderr)
     series = _is_series(args, spectra)
+    groups = None
     if series:
-        ordered, order_why = (False, "--unordered") if args.unordered else in_time_order([s.path for s in spectra])
-        print(f"series: the {len(spectra)} files are read as one series under one lamp ("
-              + ("--series" if args.series else "same wavelengths; --no-series to read each alone") + "); "
-              + (f"in time order ({order_why})" if ordered else f"not in time order ({order_why})"))
+        groups = series_groups([s.path for s in spectra], args.series_by, False if args.unordered else None)
+        why = "--series" if args.series else "same wavelengths; --no-series to read each alone"
+        if len(groups) == 1:
+            g = groups[0]
+            print(f"series: the {len(spectra)} files are read as one series under one lamp ({why}); "
+                  + (f"in time order ({g.order_why})" if g.ordered else f"not in time order ({g.order_why})"))
+        else:
+            print(f"series: the {len(spectra)} files are {len(groups)} series (one per {groups[0].by}) on one "
+                  f"instrument, read under one lamp shared by all ({why}); each keeps its own time order "
+                  "(--series-by one: a single series)")
+            for g in groups:
+                print(f"  {g.key or '(given)'}: {len(g.indices)} files, "
+                      + (f"in time order ({g.order_why})" if g.ordered else f"not in time order ({g.order_why})"))
         from ..inverse import same_grid
 
         if not same_grid(spectra):
@@ -168,12 +186,17 @@ def run(args) -> int:
         results, lamp = fit_spectrum_series(spectra, dark=dark, reference=reference, options=opts,
                                             progress=lambda stage, k, n: status(
                                                 f"reading {spectra[k].path} ({stage}, {k + 1}/{n}) ..."),
-                                            time_ordered=ordered)
+                                            groups=groups)
         if results and results[0].normalised_why:
             print(f"series: {results[0].normalised_why}")
         if lamp is not None:
             print(f"shared lamp: fitted to {len(lamp.pinning)} of {len(spectra)} readings; their brightness "
                   f"spreads by {lamp.scale_spread:.1%}")
+            if len(groups) > 1:
+                bright = series_brightness(lamp, groups)
+                for g in groups:
+                    b = bright[g.indices[0]]
+                    print(f"  {g.key}: read at {b.why}, spread {b.spread:.1%}")
     else:
         results, lamp = None, None
     rows = []
@@ -199,13 +222,31 @@ def run(args) -> int:
     if args.csv:
         _write_csv(args.csv, rows)
     if args.json:
+        paths = [s.path for s in spectra]
         shared = None if lamp is None else {
-            "pinning": [spectra[i].path for i in lamp.pinning], "scale_spread": lamp.scale_spread,
+            "pinning": [paths[i] for i in lamp.pinning], "scale_spread": lamp.scale_spread,
             "coefficients": [float(c) for c in lamp.coefficients],
-            "wavenumber_range_per_nm": list(lamp.nu_range)}
+            "wavenumber_range_per_nm": list(lamp.nu_range), "series_sharing": len(groups),
+            "why": ("one series under one lamp" if len(groups) == 1 else
+                    f"{len(groups)} series (one per {groups[0].by}) on the same wavelengths (one spectrometer): one "
+                    "lamp fitted to the readings of all of them that can be read alone, each series' time order its own")}
         write_json(args.json, {"n_film": dispersion.describe(index), "dark": args.dark, "reference": args.reference,
+                               "series": None if groups is None else _series_json(groups, paths, lamp),
                                "shared_lamp": shared, "ok": all(r["ok"] for r in rows), "spectra": rows})
     return 1 if args.strict and not all(r["ok"] for r in rows) else 0
+
+
+def _series_json(groups, paths, lamp) -> list[dict]:
+    """Each series' files, time order and, with a shared lamp, the brightness it was read at."""
+    from ..inverse.spectrum_series import series_brightness
+
+    out = [g.summary(paths) for g in groups]
+    if lamp is not None:
+        bright = series_brightness(lamp, groups)
+        for g, entry in zip(groups, out):
+            b = bright[g.indices[0]]
+            entry.update(lamp_scale=b.scale, lamp_scale_spread=b.spread, lamp_scale_from=b.why)
+    return out
 
 
 def _cube_outputs(args, line: bool) -> list[str]:

@@ -46,7 +46,8 @@ from ._spectrum_drain import profile_candidates
 from ._spectrum_profile import (ProfileProblem, profile_variance, refine_d, refine_near, residual_correlation,
                                 second_difference_noise, second_minimum)
 
-__all__ = ["SharedLamp", "FixedLampProblem", "MIN_PINNING_READINGS", "shared_lamp", "read_with_lamp"]
+__all__ = ["SharedLamp", "FixedLampProblem", "MIN_PINNING_READINGS", "MAX_ALTERNATIVE_LAMPS", "shared_lamp",
+           "read_with_lamp", "alternative_lamps"]
 
 #: The fewest readings that must be read alone (``ok``) for a shared lamp: with fewer the
 #: spread of their scales, which sizes every thin film's error bar, is not measured.
@@ -60,6 +61,14 @@ SHARED_MISFIT_RATIO = 2.0
 #: The probability within one standard deviation of a normal variable's mean, one-sided.
 _ONE_SIGMA = 0.5 * (1.0 + math.erf(1.0 / math.sqrt(2.0)))
 
+#: Most of the pinning readings' own lamps a film read with the shared lamp is read again
+#: with (its systematic error): each is one global search, so that a series of many pinning
+#: readings (spectraVictor2, six folders, 150 of them) would cost each reading 150 searches.
+#: Sixteen spread evenly over the series sample the lamp's changes from start to end; the
+#: Student-t factor of :func:`read_with_lamp` for 15 degrees of freedom is 3 % above the
+#: normal one (1.034 against 1).
+MAX_ALTERNATIVE_LAMPS = 16
+
 #: Most rounds of the alternation, and the relative change of the lamp that ends it.
 ROUNDS = 12
 LAMP_TOLERANCE = 1e-4
@@ -71,13 +80,15 @@ class SharedLamp:
     (1/nm, (min, max)) onto [-1, 1], the relative spread of the pinning readings' own
     scales, which readings (indices into the series) pinned it, and the lamp each of
     them implies alone (``each``, (K, J): its own coefficients with its thickness held),
-    whose differences measure how well the series shares one lamp."""
+    whose differences measure how well the series shares one lamp, and their brightness
+    against the shared lamp (``scales``, mean 1)."""
 
     coefficients: np.ndarray
     nu_range: tuple[float, float]
     scale_spread: float
     pinning: tuple[int, ...]
     each: np.ndarray | None = None
+    scales: tuple[float, ...] = ()
 
     def basis(self, wavelength_nm: np.ndarray) -> np.ndarray:
         """(N, J) Legendre polynomials of the series' wavenumber range at ``wavelength_nm``."""
@@ -118,15 +129,26 @@ class FixedLampProblem:
     def rss_grid(self, thickness: np.ndarray, w: float, chunk: int = 256) -> np.ndarray:
         return self.rss_lamps(thickness, w, self.lamp[None, :], chunk)[0]
 
-    def rss_lamps(self, thickness: np.ndarray, w: float, lamps: np.ndarray, chunk: int = 64) -> np.ndarray:
+    def rss_lamps(self, thickness: np.ndarray, w: float, lamps: np.ndarray, chunk: int = 512) -> np.ndarray:
         """(K, D) weighted RSS at each thickness with each of the lamps ``lamps`` (K, N)
-        in place of ``lamp`` (the film's reflectance computed once for all of them)."""
+        in place of ``lamp`` (the film's reflectance computed once for all of them).
+
+        With ``P`` the projector that removes the weighted stray-light columns ``Q`` and
+        ``m = L R`` (weighted), ``|P (y - m)|^2 = |P y|^2 - 2 (P y) . m + |m|^2 - |Q^T m|^2``:
+        every term is a matrix product of the lamps with the reflectance rows, so no (K, D, N)
+        array is formed."""
         out = np.empty((len(lamps), len(thickness)))
         lw = lamps * self.weight[None, :]
+        cross = lw * self._yw[None, :]  # (K, N): (P y) . (L R) = sum_n (P y)_n L_n R_n
+        square = lw * lw
+        qs = [lw * self._q[:, j][None, :] for j in range(self._q.shape[1])] if self._q is not None else []
+        yy = float(self._yw @ self._yw)
         for s in range(0, len(thickness), chunk):
-            r = self.reflect(thickness[s:s + chunk], w)
-            m = self._project(lw[:, None, :] * r[None, :, :])
-            out[:, s:s + len(r)] = np.sum((self._yw - m) ** 2, axis=2)
+            r = self.reflect(thickness[s:s + chunk], w)  # (C, N)
+            part = yy - 2.0 * (cross @ r.T) + square @ (r * r).T
+            for q in qs:
+                part -= (q @ r.T) ** 2
+            out[:, s:s + len(r)] = np.maximum(part, 0.0)
         return out
 
     def rss(self, d: float, w: float) -> float:
@@ -184,7 +206,16 @@ def shared_lamp(problems: list[ProfileProblem], alone: list, lamp_basis: list[np
     spread = float(np.std(s, ddof=1)) if len(s) > 1 else float("inf")
     each = np.array([_lamp_coefficients([p], [x], [1.0], [v], [b])
                      for p, x, v, b in zip(problems, d, w, lamp_basis)])
-    return SharedLamp(coefficients=coef, nu_range=nu_range, scale_spread=spread, pinning=(), each=each)
+    return SharedLamp(coefficients=coef, nu_range=nu_range, scale_spread=spread, pinning=(), each=each,
+                      scales=tuple(float(x) for x in s))
+
+
+def alternative_lamps(each: np.ndarray, most: int = MAX_ALTERNATIVE_LAMPS) -> np.ndarray:
+    """At most ``most`` rows of the pinning readings' own lamps ``each`` (K, J), evenly
+    spread over the series' order (all of them when there are no more)."""
+    if len(each) <= most:
+        return each
+    return each[np.unique(np.round(np.linspace(0, len(each) - 1, most)).astype(int))]
 
 
 def read_with_lamp(prob: FixedLampProblem, grid: np.ndarray, alternatives) -> dict:

@@ -7,7 +7,9 @@ Each choice is made only when no option forces it, and is said in the result.
 
 from __future__ import annotations
 
+import os
 import re
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +19,7 @@ from ._spectrum_profile import local_noise
 
 __all__ = ["looks_normalised", "series_normalised", "same_grid", "in_time_order", "ENVELOPE_WINDOWS",
            "FLAT_TOLERANCE", "SLOW_SLOPE", "DIVIDED_NOISE_RATIO", "TILTED_FLAT_TOLERANCE", "NOISE_WINDOWS", "noise_says_divided",
-           "series_departures"]
+           "series_departures", "SeriesGroup", "series_groups"]
 
 #: Most windows (equal in wavenumber) whose envelopes are compared (one per fringe at most).
 ENVELOPE_WINDOWS = 6
@@ -191,6 +193,107 @@ def in_time_order(paths: list[str]) -> tuple[bool, str]:
     if all(b > a for a, b in zip(times, times[1:])):
         return True, "modification times in order"
     return False, "neither names nor times in order"
+
+
+@dataclass(frozen=True)
+class SeriesGroup:
+    """One series of a set of readings: the indices of its files (in the order given), what
+    set it apart (``"folder"``, ``"name"`` or ``"given"``), its key (the folder or the
+    name's stem), and whether it is in time order and why (:func:`in_time_order`)."""
+
+    indices: tuple[int, ...]
+    by: str
+    key: str
+    ordered: bool
+    order_why: str
+
+    def summary(self, paths) -> dict:
+        return {"by": self.by, "key": self.key, "files": [paths[i] for i in self.indices],
+                "time_ordered": self.ordered, "time_order": self.order_why}
+
+
+def _stem_key(path: str) -> str:
+    """A file name's stem less its trailing number (``run2_0013.xy`` -> ``run2_``)."""
+    return re.sub(r"\d+$", "", Path(path).stem)
+
+
+def series_groups(paths: list[str], by: str = "auto", ordered: bool | None = None) -> list[SeriesGroup]:
+    """The series a set of readings forms, each with its own time order.
+
+    Files taken on one instrument may come from several films (several draining runs, one
+    a folder, or one a name stem such as ``runA_0001``, ``runB_0001``). They share the lamp
+    but not a time order: a reading of one run says nothing about whether a reading of
+    another thinned. ``by`` is ``"folder"`` (a series per parent folder), ``"name"`` (per
+    name stem, the name less its trailing number), ``"one"`` (the files as given, one
+    series) or ``"auto"`` (by folder when the files lie in several, else by name stem when
+    the names have several stems, else one). ``ordered`` forces every series' time order
+    (None: each is in time order when its names, or else its modification times, are:
+    :func:`in_time_order`).
+
+    Folders of which one ends on the frame the other begins with (a file of the same name
+    stem and frame number, as ``T9503.xy`` and ``T09503.xy``) are one film filed in parts (``spectraVictor2`` of optifik's data: one draining film in
+    six folders by interference order, 5543 to 25492): they are one series, its files in
+    frame order, and its key names its folders (``parent/{order5,order4}``)."""
+    keys: dict[str, list[int]] = {}
+    if by == "auto":
+        folders = {str(Path(p).resolve().parent) for p in paths}
+        by = "folder" if len(folders) > 1 else "name" if len({_stem_key(p) for p in paths}) > 1 else "one"
+    for i, p in enumerate(paths):
+        key = (str(Path(p).resolve().parent) if by == "folder" else _stem_key(p) if by == "name" else "")
+        keys.setdefault(key, []).append(i)
+    if by == "folder":
+        keys = _join_continued(keys, paths)
+    out = []
+    for key, idx in keys.items():
+        if ordered is None:
+            flag, why = in_time_order([paths[i] for i in idx])
+        else:
+            flag, why = ordered, "as forced"
+        out.append(SeriesGroup(tuple(idx), "given" if by == "one" else by, key, flag, why))
+    return out
+
+
+def _frame(path: str) -> tuple[str, int] | None:
+    """A file's name stem and trailing frame number (None without one)."""
+    m = re.match(r"^(.*?)(\d+)$", Path(path).stem)
+    return (m.group(1), int(m.group(2))) if m else None
+
+
+def _join_continued(keys: dict[str, list[int]], paths: list[str]) -> dict[str, list[int]]:
+    """Folders (``key -> indices``) joined into one, in frame order, where one ends on the frame
+    the other begins with (two runs each numbered from 0 overlap instead, and stay apart)."""
+    names = list(keys)
+    frames = {k: {_frame(paths[i]) for i in keys[k]} - {None} for k in names}
+    parent = {k: k for k in names}
+
+    def root(k):
+        while parent[k] != k:
+            k = parent[k]
+        return k
+
+    def ends(k):  # the first and last frame of a folder (stem, number)
+        f = sorted(frames[k], key=lambda t: t[1])
+        return (f[0], f[-1]) if f else (None, None)
+
+    for a in range(len(names)):
+        for b in range(a + 1, len(names)):
+            (a0, a1), (b0, b1) = ends(names[a]), ends(names[b])
+            if a0 is not None and b0 is not None and (a1 == b0 or b1 == a0):
+                parent[root(names[b])] = root(names[a])
+    joined: dict[str, list[str]] = {}
+    for k in names:
+        joined.setdefault(root(k), []).append(k)
+    out = {}
+    for members in joined.values():
+        idx = [i for k in members for i in keys[k]]
+        if len(members) > 1:
+            idx.sort(key=lambda i: (_frame(paths[i]) or ("", -1))[1])
+        if len(members) > 1:
+            top = os.path.commonpath(members)
+            out[f"{top}/{{{','.join(os.path.relpath(m, top) for m in members)}}}"] = idx
+        else:
+            out[members[0]] = idx
+    return out
 
 
 def series_departures(results, order_spacing: list[float], alone: set[int]) -> list[tuple[int, float, str]]:

@@ -12,22 +12,23 @@ A. Scheludko, Adv. Colloid Interface Sci. 1, 391-464 (1967).
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..io.spectra import Spectrum
 from . import spectrum as sp
-from ._spectrum_defaults import series_departures, series_normalised
+from ._spectrum_defaults import SeriesGroup, series_departures, series_normalised
 from ._spectrum_drain import AMBIGUOUS_REASON, series_sides
-from ._shared_lamp import (MIN_PINNING_READINGS, SHARED_MISFIT_RATIO, FixedLampProblem, SharedLamp, read_with_lamp,
-                           shared_lamp)
+from ._shared_lamp import (MAX_ALTERNATIVE_LAMPS, MIN_PINNING_READINGS, SHARED_MISFIT_RATIO, FixedLampProblem,
+                           SharedLamp, alternative_lamps, read_with_lamp, shared_lamp)
 
-__all__ = ["fit_spectrum_series", "read_with_shared_lamp"]
+__all__ = ["fit_spectrum_series", "read_with_shared_lamp", "series_brightness", "SeriesBrightness", "nearest_pins"]
 
 
 def fit_spectrum_series(spectra: list[Spectrum], *, dark=None, reference=None, options=None,
-                        progress=None, time_ordered: bool = False) -> tuple[list, SharedLamp | None]:
+                        progress=None, time_ordered: bool = False,
+                        groups: list[SeriesGroup] | None = None) -> tuple[list, SharedLamp | None]:
     """Fit every reading of ``spectra`` with one lamp shared by the series (see the module).
 
     With ``options.normalised`` None the series is read as divided by its lamp or not by
@@ -43,7 +44,16 @@ def fit_spectrum_series(spectra: list[Spectrum], *, dark=None, reference=None, o
     those, and every other reading is read again with it (its own stray light free); the
     pinning readings keep their own results. With fewer, every reading keeps its own
     result and the others get a warning saying why. ``progress(stage, k, n)`` is called
-    before each reading of each stage (``"alone"``, then ``"shared lamp"``). Returns the :class:`~bubblefit.inverse.spectrum.SpectrumFit` of
+    before each reading of each stage (``"alone"``, then ``"shared lamp"``).
+
+    ``groups`` splits the readings into several series on one instrument
+    (:func:`._spectrum_defaults.series_groups`: several folders or name stems, several
+    films): the lamp is fitted to the pinning readings of all of them, and each series' own
+    time order (its ``ordered``) is used within it only; ``time_ordered`` is then not used.
+    A series is read at its own brightness where it has pinning readings enough
+    (:func:`series_brightness`), and a film of a long series in time order with the lamp of
+    the pinning readings nearest it in time (:func:`nearest_pins`). Without
+    ``groups`` the readings are one series, in time order when ``time_ordered``. Returns the :class:`~bubblefit.inverse.spectrum.SpectrumFit` of
     each reading, in order, and the :class:`SharedLamp` (None when there was none).
     """
     options = options or sp.SpectrumOptions()
@@ -52,18 +62,23 @@ def fit_spectrum_series(spectra: list[Spectrum], *, dark=None, reference=None, o
         flat, why = (False, "not divided: a reference reading was given") if reference is not None else \
             series_normalised(spectra, dark)
         options = replace(options, normalised=flat)
-    out, lamp = _fit_series(spectra, dark, reference, options, progress)
+    if groups is None:
+        groups = [SeriesGroup(tuple(range(len(spectra))), "given", "", bool(time_ordered), "")]
+    out, lamp = _fit_series(spectra, dark, reference, options, progress, groups)
     for r in out:
         if why:
             r.normalised_why = why
-    if time_ordered:
+    alone = set(lamp.pinning) if lamp is not None else set(range(len(out)))
+    for g in groups:
+        if not g.ordered:
+            continue
+        sub = [out[i] for i in g.indices]
         spacing = [sp._order_spacing(r.wavelength_nm, sp.dispersion.refractive_index(options.n_film, r.wavelength_nm))
-                   for r in out]
-        alone = set(lamp.pinning) if lamp is not None else set(range(len(out)))
-        for i, _, reason in series_departures(out, spacing, alone):
-            out[i].ok = False
-            out[i].reasons.append(reason)
-        _take_sides(out, options)
+                   for r in sub]
+        for k, _, reason in series_departures(sub, spacing, {k for k, i in enumerate(g.indices) if i in alone}):
+            sub[k].ok = False
+            sub[k].reasons.append(reason)
+        _take_sides(sub, options)
     return out, lamp
 
 
@@ -84,8 +99,9 @@ def _take_sides(out: list, options) -> None:
         r.ok = not r.reasons
 
 
-def _fit_series(spectra, dark, reference, options, progress):
-    """:func:`fit_spectrum_series` with ``options.normalised`` decided."""
+def _fit_series(spectra, dark, reference, options, progress, groups):
+    """:func:`fit_spectrum_series` with ``options.normalised`` decided; ``groups`` the series
+    (:func:`series_brightness`)."""
     alone = []
     for k, spec in enumerate(spectra):
         if progress is not None:
@@ -109,9 +125,8 @@ def _fit_series(spectra, dark, reference, options, progress):
     lamp = shared_lamp([prepared[i].problem for i in pins], [alone[i] for i in pins], [bases[i] for i in pins],
                        nu_range, [prepared[i].grid for i in pins], [prepared[i].order_spacing for i in pins])
     lamp = replace(lamp, pinning=tuple(pins))
-    note = (f"read with the lamp shared by {len(pins)} readings of the series that can be read alone "
-            f"(their brightness spreads by {lamp.scale_spread:.1%}; the thickness's spread over their own lamps "
-            "is in the error bar)")
+    bright = series_brightness(lamp, groups)
+    local: dict[tuple[int, ...], SharedLamp] = {}
     out = []
     for i, (r, p) in enumerate(zip(alone, prepared)):
         if progress is not None:
@@ -120,8 +135,94 @@ def _fit_series(spectra, dark, reference, options, progress):
             r.warnings.append(f"pinned the shared lamp ({len(pins)} readings)")
             out.append(r)
             continue
-        out.append(read_with_shared_lamp(p, bases[i] @ lamp.coefficients, bases[i] @ lamp.each.T, options, note, r))
+        b = bright[i]
+        coef, each, why = b.scale * lamp.coefficients, b.each, b.why
+        near = nearest_pins(lamp, groups, i)
+        if near is not None:
+            key = tuple(near)
+            if key not in local:
+                local[key] = shared_lamp([prepared[j].problem for j in near], [alone[j] for j in near],
+                                         [bases[j] for j in near], nu_range, [prepared[j].grid for j in near],
+                                         [prepared[j].order_spacing for j in near])
+            coef, each = local[key].coefficients, local[key].each
+            why = (f"the lamp of the {len(near)} of them nearest in its series' time order (readings "
+                   f"{min(near) + 1}-{max(near) + 1} of the set; their brightness spreads by "
+                   f"{local[key].scale_spread:.1%})")
+        note = (f"read with the lamp shared by {len(pins)} readings that can be read alone, at {why} (its "
+                f"series' readings' brightness spreads by {b.spread:.1%}; the thickness's spread over their own lamps "
+                "is in the error bar)")
+        out.append(read_with_shared_lamp(p, bases[i] @ coef, bases[i] @ each.T, options, note, r))
     return out, lamp
+
+
+#: Pinning readings nearest in time whose lamp reads a film of a long series: the order-1
+#: films of ``spectraVictor2`` (development) read with the 16 nearest (its 9 order-1 pins and
+#: 7 order-2 ones) gave 4 readings called ok and more than 10 % and 3 standard errors off
+#: their stated values (which their fringe minima support); with the 8 nearest (order 1's
+#: own) none, 64 of the 66 called ok and 63 of them within 10 %, as when order 1 alone
+#: pinned the lamp.
+LOCAL_PINS = 8
+
+
+def nearest_pins(lamp: SharedLamp, groups: list[SeriesGroup], i: int) -> list[int] | None:
+    """The :data:`LOCAL_PINS` pinning readings nearest reading ``i`` in its series' time
+    order, when the series is in time order and has more pinning readings than that (None
+    otherwise: it is read with the shared lamp at its series' brightness,
+    :func:`series_brightness`). The reading is then read with the lamp fitted to those
+    readings alone, as the shared lamp is fitted (:func:`._shared_lamp.shared_lamp`), its
+    error from their own lamps.
+
+    A lamp-divided reading's lamp is not one lamp over a long series: the level of the
+    lamp that the films of one interference order pin changes from order to order
+    (``spectraVictor2``, one film in one series: 0.78 of the shared lamp for its order-5
+    readings, 0.96, 1.13, 1.11 and 1.09 for orders 4 to 1), so a thin film is read with the
+    lamps of the readings taken just before and after it, the lamp's error from their
+    scatter."""
+    g = next(g for g in groups if i in g.indices)
+    own = [j for j in g.indices if j in set(lamp.pinning)]
+    if not g.ordered or len(own) <= LOCAL_PINS:
+        return None
+    at = {j: k for k, j in enumerate(g.indices)}
+    return sorted(sorted(own, key=lambda j: (abs(at[j] - at[i]), at[j]))[:LOCAL_PINS])
+
+
+@dataclass(frozen=True)
+class SeriesBrightness:
+    """The shared lamp's brightness for the readings of one series: its scale (the shared
+    lamp's is 1), the relative spread of the pinning readings it comes from, the lamps of
+    (at most :data:`._shared_lamp.MAX_ALTERNATIVE_LAMPS` of) those readings, (K, J), and
+    what it was taken from."""
+
+    scale: float
+    spread: float
+    each: np.ndarray
+    why: str
+
+
+def series_brightness(lamp: SharedLamp, groups: list[SeriesGroup]) -> dict[int, SeriesBrightness]:
+    """Each reading's :class:`SeriesBrightness` (by its index in the series).
+
+    Several series on one instrument share the lamp's shape, but a lamp-divided reading's
+    level is set by the reading it was divided by, taken once per run: the pinning
+    readings of ``spectraVictor1`` and ``spectraVictor2`` (optifik's data, one
+    spectrometer) read with one lamp spread by 23 % in brightness, against 4-10 % within
+    one folder. A series with at least :data:`MIN_PINNING_READINGS` pinning readings of its
+    own is read at their mean brightness, its lamp's error from their own lamps; a series
+    with fewer at the brightness of all the pinning readings, its error from all of their
+    lamps (the spread between series then widens it)."""
+    scales = np.asarray(lamp.scales, dtype=np.float64)
+    everyone = SeriesBrightness(1.0, lamp.scale_spread, alternative_lamps(lamp.each),
+                                f"the brightness of all {len(lamp.pinning)} of them")
+    out = {}
+    for g in groups:
+        own = [k for k, i in enumerate(lamp.pinning) if i in set(g.indices)]
+        b = everyone
+        if len(groups) > 1 and len(own) >= MIN_PINNING_READINGS:
+            level = float(np.mean(scales[own]))
+            b = SeriesBrightness(level, float(np.std(scales[own], ddof=1) / level), alternative_lamps(lamp.each[own]),
+                                 f"the brightness of the {len(own)} of its own series ({level:.3f} of the shared lamp's)")
+        out.update(dict.fromkeys(g.indices, b))
+    return out
 
 
 def read_with_shared_lamp(p, lamp: np.ndarray, alternatives: np.ndarray, options, note: str, alone):

@@ -575,24 +575,27 @@ def _fit_either_model(photo, env, options: FitOptions, background, init, scene, 
     change, so a model's map is never made to be discarded.
 
     Which model is solved first: the paper model's global search is cheap (eq. 11 is
-    linear in a tabulated interference factor, :mod:`.search`); from its winner the
-    physical model takes the same short solve on the search image (:func:`_search_chi2`).
-    When its noise-weighted reduced chi^2 there is the lower, the physical model is
-    solved first, from the search's start (the paper model's local solve only refines
-    that start within its colour order, which the physical solve does as well), and when
-    it explains the photo that fit is kept without the paper model's local solve: a
-    photo of a real film costs one model's fit and a search. Otherwise, and for warm
-    starts, the paper model is solved first as above."""
+    linear in a tabulated interference factor, :mod:`.search`). When its winner leaves a
+    noise-weighted reduced chi^2 above :data:`WARM_START_CHI2` on the search image (the
+    bound a warm start is doubted by), the physical model takes the same short solve
+    there from that winner (:func:`_search_chi2`). When its reduced chi^2 there is the
+    lower, the physical model is solved first, from the search's start (the paper
+    model's local solve only refines that start within its colour order, which the
+    physical solve does as well), and when it explains the photo that fit is kept
+    without the paper model's local solve: a photo of a real film costs one model's fit
+    and a search. Otherwise (a photo the paper model explains, as its own renders) and
+    for warm starts, the paper model is solved first as above."""
     t0 = time.perf_counter()
     physical = replace(options, model="physical")
     with stage("paper model"):
         begun = _start_one(photo, env, replace(options, model="paper"), background, init, scene, saturated)
     early = None  # the physical model's report when it was fitted first
     raced = None
-    if begun.search_chi2 is not None:
-        # both models on the search image from the paper search's start: the physical
-        # model's short solve there (its exposure differs from the paper model's) says
-        # whether it explains the photo better than the paper model can
+    if begun.search_chi2 is not None and not begun.search_chi2 <= WARM_START_CHI2:
+        # the paper model leaves its search image unexplained (the bound a warm start is
+        # doubted by): both models on the search image from the paper search's start; the
+        # physical model's short solve there (its exposure differs from the paper model's)
+        # says whether it explains the photo better than the paper model can
         start = {k: float(v) for k, v in begun.start.items() if np.isfinite(v)}
         with stage("physical model on the search image"):
             raced = _start_one(photo, env, physical, background, start, scene, saturated, settings=SWITCH_SOLVE)

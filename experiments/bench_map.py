@@ -436,7 +436,12 @@ def main(argv=None):
     ap.add_argument("--ways", default="render-grid,traced-grid,traced-newton")
     ap.add_argument("--model", default="auto")
     ap.add_argument("--out", default=str(HERE / "results"))
+    ap.add_argument("--data", help="another folder of cases with its envmaps/ (validation/make_reference.py "
+                    "--size's 320x320 photos)")
     a = ap.parse_args(argv)
+    if a.data:
+        global DATA
+        DATA = Path(a.data).resolve()
     from bubblefit.io.jaxcache import jax_setup
 
     jax_setup()  # the persistent compilation cache of the command line (BUBBLEFIT_CACHE_DIR)

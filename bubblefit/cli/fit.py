@@ -54,8 +54,9 @@ def register(sub):
     p.add_argument("--thickness", choices=THICKNESS_KINDS, default="constant",
                    help="thickness model (default: constant)")
     p.add_argument("--model", choices=MODEL_CHOICES, default=None,
-                   help="forward model: paper, physical, or auto (the paper model, then the physical one when "
-                        "the paper model does not explain the photo; default: the scene's, else auto)")
+                   help="forward model: paper, physical, or auto (the model that explains the paper model's "
+                        "search image better first, the other one when it does not explain the photo; "
+                        "default: the scene's, else auto)")
     p.add_argument("--disc", metavar="CX,CY,R", help="the bubble's disc in pixels (default: detected; a disc "
                                                       "found is refined with the fit, one given is not)")
     p.add_argument("--refine-disc", action="store_true",

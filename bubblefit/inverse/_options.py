@@ -198,9 +198,11 @@ class FitOptions:
         The thickness model: ``constant`` | ``drainage`` | ``map``.
     model : ModelChoice
         ``paper`` | ``physical`` forward model, or ``auto`` (the default, as on the command
-        line): the paper model first and, when it does not explain the photo (reduced
-        chi^2 with the model-error floor above ``judge.ok_chi2``), the physical model
-        warm-started from it; the fit that explains the photo better is returned.
+        line): the paper model's global search, then the model that explains the search
+        image better solved first (the physical one from the search's start) and, when
+        it does not explain the photo (reduced chi^2 with the model-error floor above
+        ``judge.ok_chi2``), the other one; the fit that explains the photo better is
+        returned (:func:`bubblefit.inverse.fit.fit_photo`).
     fit_rotation : bool
         Also fit the environment's rotation about +y.
     free_split : bool

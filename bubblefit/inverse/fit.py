@@ -99,10 +99,12 @@ def _warm_doubt(st: Setup, opts: FitOptions, sol: LocalSolution) -> str | None:
     return None
 
 
-def _searched_start(st: Setup, opts: FitOptions, env) -> dict:
+def _searched_start(st: Setup, opts: FitOptions, env, misfit: list | None = None) -> dict:
     """The global search's best start: each of :func:`search.search_starts` refined with at
     most ``search_steps`` LM steps on the search image (the disc as found: it is refined
-    in the final solve only); the lowest cost wins."""
+    in the final solve only); the lowest cost wins. ``misfit``, when given, receives the
+    winner's noise-weighted reduced chi^2 on the search image (its cost over the fitted
+    pixels less the free parameters), the measure :func:`_warm_doubt` reads."""
     lev_s = st.level(st.k_search, opts)
     starts = search.search_starts(lev_s, st.search_table, st.vals, env, opts.thickness_range,
                                   opts.solver.search_step_nm, opts.solver.candidates)
@@ -112,6 +114,9 @@ def _searched_start(st: Setup, opts: FitOptions, env) -> dict:
                           settings=SEARCH_SOLVE)
         if np.isfinite(sol.cost) and sol.cost < best_c:
             best_v, best_c = sol.values, sol.cost
+    if misfit is not None:
+        dof = max(int(np.count_nonzero(lev_s.w)) - len(st.search_table.free), 1)
+        misfit.append(best_c / dof)
     return best_v if best_v is not None else starts[0]
 
 
@@ -441,11 +446,28 @@ class Solved:
                            self.t_start)
 
 
-def _solve_one(photo, env, options: FitOptions, background, init, scene, saturated,
-               settings: SolveSettings | None = None) -> Solved:
-    """The stages of one model's fit through ``options.view`` up to the standard errors;
-    ``settings``: the local solve's (default: a warm start's when ``init`` is given, else
-    a searched fit's)."""
+@dataclass(frozen=True)
+class Started:
+    """One model's fit up to its local solve (:func:`_start_one`): the set-up, the start the
+    solve takes and, after a global search, the search winner's noise-weighted reduced
+    chi^2 on the search image (None for a warm start)."""
+
+    setup: Setup
+    options: FitOptions
+    start: dict
+    settings: SolveSettings
+    warm: bool
+    searches: bool
+    search_chi2: float | None
+    t_start: float
+
+
+def _start_one(photo, env, options: FitOptions, background, init, scene, saturated,
+               settings: SolveSettings | None = None, compile_ahead: bool = True) -> Started:
+    """Set-up and, for a fit that is not warm-started, the global search of one model's
+    fit through ``options.view``; ``settings``: the local solve's (default: a warm start's
+    when ``init`` is given, else a searched fit's); ``compile_ahead``: start the local
+    solve's programs during the search (:func:`~._programs.warm_up`)."""
     t_start = time.perf_counter()
     opts = options
     with stage("finding the disc, choosing the effects"):
@@ -453,20 +475,46 @@ def _solve_one(photo, env, options: FitOptions, background, init, scene, saturat
     searches = "thickness_nm" in st.table.free or "top_nm" in st.table.free
     warm = bool(init)
     settings = settings or (WARM_SOLVE if warm else FINAL_SOLVE)
+    chi2 = []
     if searches and not warm:
-        warm_up(st, opts, env, settings)  # the final solve's programs compile during the search
+        if compile_ahead:
+            warm_up(st, opts, env, settings)  # the final solve's programs compile during the search
         with stage("global thickness search"):
-            start = _searched_start(st, opts, env)
+            start = _searched_start(st, opts, env, chi2)
     else:
         start = st.vals
+    return Started(st, opts, start, settings, warm, searches, chi2[0] if chi2 else None, t_start)
+
+
+def _search_chi2(started: Started, env) -> float:
+    """The noise-weighted reduced chi^2 of a short solve (``search_steps`` steps, as the
+    global search refines its candidates) from ``started.start`` on the search image."""
+    st, opts = started.setup, started.options
+    lev_s = st.level(st.k_search, opts)
+    sol = solve_local(lev_s, st.search_table, opts.solver, started.start, env, max_steps=opts.solver.search_steps,
+                      settings=SEARCH_SOLVE)
+    dof = max(int(np.count_nonzero(lev_s.w)) - len(st.search_table.free), 1)
+    return float(sol.cost / dof) if np.isfinite(sol.cost) else float("inf")
+
+
+def _solve_started(started: Started, env) -> Solved:
+    """The local solve and the standard errors of a :func:`_start_one`."""
+    st, opts, settings = started.setup, started.options, started.settings
     with stage(f"local fit, {len(st.table.free)} parameters"):
-        sol = solve_local(st.lev_fit, st.table, opts.solver, start, env, settings=settings)
+        sol = solve_local(st.lev_fit, st.table, opts.solver, started.start, env, settings=settings)
     notes = []
-    if warm and searches:
+    if started.warm and started.searches:
         sol = _checked_warm_start(st, opts, env, sol, settings, notes)
     with stage("standard errors"):
         judged = _judge(st, opts, sol, notes)
-    return Solved(st, opts, sol, judged, notes, t_start)
+    return Solved(st, opts, sol, judged, notes, started.t_start)
+
+
+def _solve_one(photo, env, options: FitOptions, background, init, scene, saturated,
+               settings: SolveSettings | None = None) -> Solved:
+    """The stages of one model's fit through ``options.view`` up to the standard errors
+    (:func:`_start_one`, then :func:`_solve_started`)."""
+    return _solve_started(_start_one(photo, env, options, background, init, scene, saturated, settings), env)
 
 
 def _fit_one(photo, env, options: FitOptions, background, init, scene, saturated) -> FitResult:
@@ -539,22 +587,66 @@ def _fit_either_model(photo, env, options: FitOptions, background, init, scene, 
 
     Only the kept model's thickness map and final render are made: the models are
     compared by their solves' standard errors (:class:`Solved`), which the map does not
-    change, so a model's map is never made to be discarded."""
+    change, so a model's map is never made to be discarded.
+
+    Which model is solved first: the paper model's global search is cheap (eq. 11 is
+    linear in a tabulated interference factor, :mod:`.search`). When its winner leaves a
+    noise-weighted reduced chi^2 above :data:`WARM_START_CHI2` on the search image (the
+    bound a warm start is doubted by), the physical model takes the same short solve
+    there from that winner (:func:`_search_chi2`). When its reduced chi^2 there is the
+    lower, the physical model is solved first, from the search's start (the paper
+    model's local solve only refines that start within its colour order, which the
+    physical solve does as well), and when it explains the photo that fit is kept
+    without the paper model's local solve: a photo of a real film costs one model's fit
+    and a search. Otherwise (a photo the paper model explains, as its own renders) and
+    for warm starts, the paper model is solved first as above."""
     t0 = time.perf_counter()
+    physical = replace(options, model="physical")
     with stage("paper model"):
-        first = _solve_one(photo, env, replace(options, model="paper"), background, init, scene, saturated)
-    paper = first.report(env) if _explained(first, options.judge) else None
-    if paper is not None and _explained(paper, options.judge):  # its map, when one is made, is sound
-        paper.message += "; model auto: the paper model explains the photo"
-        return paper
-    start = {k: v for k, v in first.params.items() if np.isfinite(v)} if first.converged else init
-    c1 = _judged_chi2(first)
-    with stage(f"physical model (the paper model's reduced chi^2 {_judged_text(first)} with the floor, capped)"):
-        second = _solve_one(photo, env, replace(options, model="physical"), background, start, scene, saturated,
-                            settings=SWITCH_SOLVE if start else None)
-    c2 = _judged_chi2(second)
+        begun = _start_one(photo, env, replace(options, model="paper"), background, init, scene, saturated)
+    early = None  # the physical model's report when it was fitted first
+    raced = None
+    if begun.search_chi2 is not None and not begun.search_chi2 <= WARM_START_CHI2:
+        # the paper model leaves its search image unexplained (the bound a warm start is
+        # doubted by): both models on the search image from the paper search's start; the
+        # physical model's short solve there (its exposure differs from the paper model's)
+        # says whether it explains the photo better than the paper model can
+        start = {k: float(v) for k, v in begun.start.items() if np.isfinite(v)}
+        with stage("physical model on the search image"):
+            raced = _start_one(photo, env, physical, background, start, scene, saturated, settings=SWITCH_SOLVE)
+            raced_chi2 = _search_chi2(raced, env)
+    if raced is not None and raced_chi2 < begun.search_chi2:
+        # the physical model explains the search image better: solve it first, and the
+        # paper model's own local solve only if the physical fit does not explain the photo
+        with stage(f"physical model first (search image reduced chi^2 {raced_chi2:.3g} against the paper "
+                   f"model's {begun.search_chi2:.3g})"):
+            second = _solve_started(raced, env)
+        if _explained(second, options.judge):
+            early = second.report(env)
+            if _explained(early, options.judge):  # its map, when one is made, is sound
+                early.message += (f"; model auto: on the search image the physical model's reduced chi^2 "
+                                  f"{raced_chi2:.3g} (noise-weighted) against the paper model's "
+                                  f"{begun.search_chi2:.3g}: fitted the physical model first, which explains "
+                                  f"the photo")
+                early.time_s = time.perf_counter() - t0
+                return early
+        with stage("paper model's local fit"):
+            first = _solve_started(begun, env)
+        paper = first.report(env) if _explained(first, options.judge) else None
+    else:
+        first = _solve_started(begun, env)
+        paper = first.report(env) if _explained(first, options.judge) else None
+        if paper is not None and _explained(paper, options.judge):  # its map, when one is made, is sound
+            paper.message += "; model auto: the paper model explains the photo"
+            return paper
+        start = {k: v for k, v in first.params.items() if np.isfinite(v)} if first.converged else init
+        with stage(f"physical model (the paper model's reduced chi^2 {_judged_text(first)} with the floor, "
+                   "capped)"):
+            second = _solve_one(photo, env, physical, background, start, scene, saturated,
+                                settings=SWITCH_SOLVE if start else None)
+    c1, c2 = _judged_chi2(first), _judged_chi2(second)
     keep_second = (not second.converged, c2) < (not first.converged, c1)
-    best = second.report(env) if keep_second else (paper or first.report(env))
+    best = (early or second.report(env)) if keep_second else (paper or first.report(env))
     best.message += (f"; model auto: paper reduced chi^2 {_judged_text(first)}, physical {_judged_text(second)} "
                      f"(with the floor, each pixel capped at an outlier's share): kept the {best.model} model")
     best.time_s = time.perf_counter() - t0

@@ -5,6 +5,13 @@ thickness_true.exr (front film thickness per pixel, NaN off the bubble), truth.j
 for a perspective camera, scene.toml (the camera only, for `bubblefit fit --scene`).
 
     python make_reference.py [CASE ...]       # default: all
+
+``--size N --out DIR`` renders a case at N x N pixels into DIR/<case>_N/ instead (the disc
+keeps its place and its share of the photo's larger side; a perspective camera keeps its
+field of view along the width), for benchmarks on photos of the size users take; the
+folder is not part of the validation set:
+
+    python make_reference.py --size 320 --out ../results/photos320 ref_const380_sunset_ortho
 """
 
 from __future__ import annotations
@@ -107,8 +114,19 @@ def load_env(name):
     return vio.read_image(os.path.join(vio.ENVMAPS, name + ".exr"))[..., :3]
 
 
-def make_case(name: str, spec: dict, illuminant: str = "D65") -> None:
-    out = os.path.join(vio.DATA, name)
+def resized(cam: rr.Camera, size: int) -> rr.Camera:
+    """The camera at size x size pixels: an orthographic disc keeps its relative place and
+    its share of the larger side; a perspective camera keeps its field of view (width)."""
+    if cam.kind == "ortho":
+        cx, cy, r = cam.disc
+        disc = (cx / cam.width * size, cy / cam.height * size, r * size / max(cam.width, cam.height))
+        return rr.Camera("ortho", size, size, disc=disc)
+    return rr.Camera("persp", size, size, origin=cam.origin, target=cam.target, up=cam.up, fov_deg=cam.fov_deg)
+
+
+def make_case(name: str, spec: dict, illuminant: str = "D65", root: str | None = None,
+              source: str | None = None) -> None:
+    out = os.path.join(root or vio.DATA, name)
     os.makedirs(out, exist_ok=True)
     env = load_env(spec["envmap"])
     sp = rr.spectral_setup(illuminant, 2.0)
@@ -128,6 +146,7 @@ def make_case(name: str, spec: dict, illuminant: str = "D65") -> None:
     cx, cy, r = cam.disc_pixels(bubble.center, bubble.radius)
     truth = {
         "case": name,
+        **({"resized_from": source} if source else {}),
         "kind": "positive",
         "renderer": "reference_renderer.py (numpy, exact Airy film, s/p carried separately)",
         "renderer_version": rr.VERSION,
@@ -228,7 +247,20 @@ def make_negative(name: str, spec: dict) -> None:
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("cases", nargs="*")
+    ap.add_argument("--size", type=int, help="render the cases at SIZE x SIZE into --out/<case>_SIZE/")
+    ap.add_argument("--out", help="folder for --size's cases (not the validation set's data/)")
     a = ap.parse_args()
+    if a.size:
+        if not a.out or not a.cases or not set(a.cases) <= set(CASES):
+            sys.exit("--size needs --out and positive case names")
+        os.makedirs(a.out, exist_ok=True)
+        link = os.path.join(a.out, "envmaps")  # truth.json names its map relative to the data folder
+        if not os.path.exists(link):
+            os.symlink(os.path.relpath(vio.ENVMAPS, a.out), link)
+        for n in a.cases:
+            make_case(f"{n}_{a.size}", dict(CASES[n], camera=resized(CASES[n]["camera"], a.size)),
+                      root=a.out, source=n)
+        sys.exit(0)
     names = a.cases or list(CASES) + list(NEGATIVES) + list(NO_CAMERA)
     for n in names:
         if n in CASES:

@@ -636,14 +636,18 @@ def main(argv=None) -> int:
     ap.add_argument("--fit-args", default="", help="extra arguments for every `bubblefit fit`, e.g. '--model physical'")
     ap.add_argument("--only", default="", help="comma-separated thickness models to run, e.g. 'drainage'")
     ap.add_argument("--no-cross", action="store_true", help="skip the fit that is handed another framing's calibration")
+    ap.add_argument("--data", help="another folder of cases (and its envmaps/), e.g. make_reference.py --size's; "
+                    "its cases are in no part of the split")
     ap.add_argument("--part", choices=PARTS, help="only the cases of this part of split.toml")
     ap.add_argument("--runs", help="folder for each fit's JSON and images [OUT/runs]")
     a = ap.parse_args(argv)
     EXTRA_FIT_ARGS[:] = a.fit_args.split()
     RUNS_DIR[:] = [a.runs] if a.runs else []
     ONLY_FITS[:] = [m for m in a.only.split(",") if m]
-    global FIT_TIMEOUT
+    global FIT_TIMEOUT, DATA
     FIT_TIMEOUT = a.timeout
+    if a.data:
+        DATA = os.path.abspath(a.data)
     if a.merge:
         rows, seen = [], set()
         missing = [d for d in a.merge if not os.path.isfile(os.path.join(d, "results.json"))]

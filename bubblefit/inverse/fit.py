@@ -115,9 +115,15 @@ def _searched_start(st: Setup, opts: FitOptions, env, misfit: list | None = None
         if np.isfinite(sol.cost) and sol.cost < best_c:
             best_v, best_c = sol.values, sol.cost
     if misfit is not None:
-        dof = max(int(np.count_nonzero(lev_s.w)) - len(st.search_table.free), 1)
-        misfit.append(best_c / dof)
+        misfit.append(_reduced_search_chi2(best_c, lev_s, st))
     return best_v if best_v is not None else starts[0]
+
+
+def _reduced_search_chi2(cost: float, lev_s, st: Setup) -> float:
+    """A solve's noise-weighted reduced chi^2 on the search image ``lev_s``: its ``cost``
+    over the fitted pixels less the search's free parameters (inf for a failed solve)."""
+    dof = max(int(np.count_nonzero(lev_s.w)) - len(st.search_table.free), 1)
+    return float(cost / dof) if np.isfinite(cost) else float("inf")
 
 
 def _status_notes(sol: LocalSolution, finite: bool, chi2_nu: float, notes: list, free=()) -> tuple[str, bool]:
@@ -493,8 +499,7 @@ def _search_chi2(started: Started, env) -> float:
     lev_s = st.level(st.k_search, opts)
     sol = solve_local(lev_s, st.search_table, opts.solver, started.start, env, max_steps=opts.solver.search_steps,
                       settings=SEARCH_SOLVE)
-    dof = max(int(np.count_nonzero(lev_s.w)) - len(st.search_table.free), 1)
-    return float(sol.cost / dof) if np.isfinite(sol.cost) else float("inf")
+    return _reduced_search_chi2(sol.cost, lev_s, st)
 
 
 def _solve_started(started: Started, env) -> Solved:

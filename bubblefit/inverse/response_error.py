@@ -116,7 +116,15 @@ def _airy():
 def response_error(response: str, illuminant: str, n_film: float) -> ResponseError | None:
     """The :class:`ResponseError` of ``response`` (a CSV with ``r_err,g_err,b_err``
     columns, and its covariance's modes where it holds them) under ``illuminant``, for a film of index ``n_film``; None when the response
-    states no errors (a named camera, sRGB, a CSV without them: taken as exact)."""
+    states no errors (a named camera, sRGB, a CSV without them: taken as exact). Kept per
+    file name, as :func:`~bubblefit.optics.spectral.response_functions` keeps the response
+    itself: a fit reads it for its error bars and again for its colour check."""
+    return _response_error(str(response), str(illuminant), float(n_film))
+
+
+@functools.lru_cache(maxsize=8)
+def _response_error(response: str, illuminant: str, n_film: float) -> ResponseError | None:
+    """:func:`response_error`, kept per file name, illuminant and index."""
     from ..optics.spectral import (LAMBDA_MAX, LAMBDA_MIN, TABLE_GRID, channel_density, illuminant_spectrum,
                                    response_error_modes)
 

@@ -33,7 +33,6 @@ __all__ = [
     "preview_path",
     "ImageWarning",
     "MAX_PIXELS",
-    "stored_bit_depth",
 ]
 
 _LINEAR_EXTENSIONS = {".exr", ".hdr", ".pfm"}
@@ -57,20 +56,6 @@ def max_pixels() -> int:
         return int(float(os.environ.get("BUBBLEFIT_MAX_PIXELS", "")))
     except ValueError:
         return MAX_PIXELS
-
-
-def stored_bit_depth(path: str | os.PathLike) -> int | None:
-    """Bits per channel of an image file from its header alone: 8 or 16 for integer
-    files, 32 for float files (half included), None when the header cannot be read."""
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        oiio.geterror()
-        return None
-    try:
-        base = inp.spec().format.basetype
-    finally:
-        inp.close()
-    return 8 if base in (oiio.UINT8, oiio.INT8) else 16 if base in (oiio.UINT16, oiio.INT16) else 32
 
 
 def _check_declared_size(path: str, spec) -> None:

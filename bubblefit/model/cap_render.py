@@ -21,7 +21,8 @@ Light paths modelled, for a camera ray ``o + s d``:
      there (``R_l``), meets the cap's wall from inside, and the film there reflects
      (the rear reflection of this ray, its reflectance taken at the front film's angle of
      incidence: exact for a hemisphere, whose mirror image is its own sphere) or
-     transmits it to the map (the rear film's transmission stands for it).
+     transmits it to the map. Both read the wall's film at the wall's own thickness, and
+     the reflection leaves through the film where its chord ends, at that film's own.
 
 2. *The cap mirrored in the liquid*: a ray that meets the liquid first (outside the foot)
    continues as its mirror ray from the liquid, with weight ``R_l``, and is then shaded as
@@ -87,8 +88,8 @@ __all__ = ["CapConfig", "render_cap", "render_cap_pixels", "cap_classes", "cap_d
 
 #: The light paths the cap's render does not trace (module docstring), for reports.
 SKIPPED = (
-    "the cap's wall crossed after the liquid's reflection inside the foot (the rear film's transmission "
-    "stands for it)",
+    "the cap's wall crossed after the liquid's reflection inside the foot is taken at the front film's angle "
+    "of incidence (exact for a hemisphere), its thickness at the wall's own height",
     "the cap seen in its own reflection in the liquid via a film's mirror direction (~1e-3 of the map)",
     "internal bounces past the configured count (3 in a fit), and any after the liquid's reflection inside "
     "the foot but the first (taken at the front film's angle of incidence)",

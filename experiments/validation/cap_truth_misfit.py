@@ -13,9 +13,13 @@ reports the reduced chi^2 with the 3 % model-error floor (the fit's noise model,
   image (no film at all: how the renderers agree on the map alone).
 
 If more rays per pixel remove a misfit, the pixel's footprint (sampling) causes it; if
-not, the light paths or the map's reading do. Run from the repository root:
+not, the light paths or the map's reading do. ``--texel-centres`` reads the map with its
+rows at ``v = (i + 1/2) / h`` (Blender's equirectangular texel centres) instead of
+bubblefit's ``v = i / (h - 1)`` (:func:`bubblefit.lighting.envmap.lookup_uv`, Mitsuba's
+rows), in this script only. Run from the repository root:
 
-    PYTHONPATH=. .venv/bin/python experiments/validation/cap_truth_misfit.py CASE [...] [--json OUT]
+    PYTHONPATH=. .venv/bin/python experiments/validation/cap_truth_misfit.py CASE [...] [--rays 4 16 64]
+        [--texel-centres] [--json OUT]
 """
 
 from __future__ import annotations
@@ -39,6 +43,23 @@ from bubblefit.model.scene import read_envmap
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 FLOOR, OUTLIER = 0.03, 30.0
+
+
+def lookup_uv_texel_centres(pixels, u, v):
+    """Bilinear lookup at (u, v) with texel ``(i, j)`` centred at ``((j + 1/2) / w, (i + 1/2) / h)``
+    (Blender's equirectangular image texture); columns wrap, rows clamp."""
+    h, w = pixels.shape[0], pixels.shape[1]
+    x = u * w - 0.5
+    y = jnp.clip(v * h - 0.5, 0.0, h - 1.0)
+    x0 = jnp.floor(x)
+    y0 = jnp.clip(jnp.floor(y), 0, max(h - 2, 0))
+    fx, fy = (x - x0)[..., None], jnp.clip(y - y0, 0.0, 1.0)[..., None]
+    x0i = x0.astype(jnp.int32) % w
+    x1i, y0i = (x0i + 1) % w, y0.astype(jnp.int32)
+    y1i = jnp.minimum(y0i + 1, h - 1)
+    top = pixels[y0i, x0i] * (1 - fx) + pixels[y0i, x1i] * fx
+    bot = pixels[y1i, x0i] * (1 - fx) + pixels[y1i, x1i] * fx
+    return top * (1 - fy) + bot * fy
 
 
 def classes(cfg, shape) -> dict:
@@ -93,9 +114,15 @@ def case_misfit(case: str, rays=(4, 16, 64)) -> dict:
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("cases", nargs="+")
+    ap.add_argument("--rays", type=int, nargs="+", default=[4, 16, 64])
+    ap.add_argument("--texel-centres", action="store_true")
     ap.add_argument("--json")
     a = ap.parse_args()
-    rows = [case_misfit(c) for c in a.cases]
+    if a.texel_centres:
+        import bubblefit.lighting.envmap as envmap
+
+        envmap.lookup_uv = lookup_uv_texel_centres
+    rows = [case_misfit(c, tuple(a.rays)) for c in a.cases]
     if a.json:
         with open(a.json, "w") as fh:
             json.dump(rows, fh, indent=1)

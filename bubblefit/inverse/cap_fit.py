@@ -115,7 +115,7 @@ class CapResult(PlanarResult):
     def to_json(self) -> dict:
         out = super().to_json()
         out.update(shape=self.shape, pixels_direct=self.pixels_direct, pixels_mirrored=self.pixels_mirrored,
-                   outliers=self.outliers, reduced_chi2_inliers=self.chi2_inliers,
+                   outlier_fraction=self.outliers, reduced_chi2_inliers=self.chi2_inliers,
                    skipped_light_paths=list(self.skipped))
         if self.traced:
             out["traced_light_paths"] = list(self.traced)

@@ -96,6 +96,11 @@ class CapResult(PlanarResult):
     shape: str = "cap"
     #: The light paths the render traces, reported for a whole bubble under an area light.
     traced: tuple = ()
+    #: Fraction of the fitted pixels that are outliers (chi^2 with the model-error floor over
+    #: :data:`~._uncertainty.OUTLIER_CHI2`) and the reduced chi^2 with the floor of the rest
+    #: (:class:`~._uncertainty.Misfit`), as a bubble's fit reports them.
+    outliers: float = float("nan")
+    chi2_inliers: float = float("nan")
 
     def report(self) -> str:
         """The flat films' report, the cap's pixel counts and the light paths its render skips."""
@@ -110,6 +115,7 @@ class CapResult(PlanarResult):
     def to_json(self) -> dict:
         out = super().to_json()
         out.update(shape=self.shape, pixels_direct=self.pixels_direct, pixels_mirrored=self.pixels_mirrored,
+                   outlier_fraction=self.outliers, reduced_chi2_inliers=self.chi2_inliers,
                    skipped_light_paths=list(self.skipped))
         if self.traced:
             out["traced_light_paths"] = list(self.traced)
@@ -343,7 +349,8 @@ def fit_cap(photo: np.ndarray, scene, env, *, kind: str | None = None, clip_high
                      reduced_chi2=chi2, reduced_chi2_floor=chi2_floor, order_from="colour", pixels_direct=int(direct.sum()),
                      pixels_mirrored=int(mirrored.sum()), shape="sphere" if cfg.area is not None else "cap",
                      skipped=SKIPPED_SPHERE if cfg.area is not None else SKIPPED,
-                     traced=TRACED_SPHERE if cfg.area is not None else ())
+                     traced=TRACED_SPHERE if cfg.area is not None else (), outliers=fit_misfit.outliers,
+                     chi2_inliers=fit_misfit.chi2_inliers)
 
 
 def _misfit(res, sigma, y, model_error: float, n_free: int) -> Misfit:

@@ -21,7 +21,8 @@ Light paths modelled, for a camera ray ``o + s d``:
      there (``R_l``), meets the cap's wall from inside, and the film there reflects
      (the rear reflection of this ray, its reflectance taken at the front film's angle of
      incidence: exact for a hemisphere, whose mirror image is its own sphere) or
-     transmits it to the map (the rear film's transmission stands for it).
+     transmits it to the map. Both read the wall's film at the wall's own thickness, and
+     the reflection leaves through the film where its chord ends, at that film's own.
 
 2. *The cap mirrored in the liquid*: a ray that meets the liquid first (outside the foot)
    continues as its mirror ray from the liquid, with weight ``R_l``, and is then shaded as
@@ -87,8 +88,8 @@ __all__ = ["CapConfig", "render_cap", "render_cap_pixels", "cap_classes", "cap_d
 
 #: The light paths the cap's render does not trace (module docstring), for reports.
 SKIPPED = (
-    "the cap's wall crossed after the liquid's reflection inside the foot (the rear film's transmission "
-    "stands for it)",
+    "the cap's wall crossed after the liquid's reflection inside the foot is taken at the front film's angle "
+    "of incidence (exact for a hemisphere), its thickness at the wall's own height",
     "the cap seen in its own reflection in the liquid via a film's mirror direction (~1e-3 of the map)",
     "internal bounces past the configured count (3 in a fit), and any after the liquid's reflection inside "
     "the foot but the first (taken at the front film's angle of incidence)",
@@ -197,18 +198,25 @@ def _bounce_above(cfg: CapConfig, hits, d) -> dict:
 
 
 def _wall_after_liquid(cfg: CapConfig, hits, d):
-    """``(normal, direction to the viewer, weight)`` of the rear reflection of a ray whose
-    rear hit lies below the plane: it meets the liquid inside the foot, reflects (weight
-    ``R_l``) and meets the cap's wall from inside, where the film reflects it (module, path
-    1; the film's reflectance is taken at the front film's angle of incidence, exact for a
-    hemisphere, whose mirror image is its own sphere)."""
+    """``(normal, direction to the viewer, weight, wall, exit)`` of the rear reflection of a
+    ray whose rear hit lies below the plane: it meets the liquid inside the foot, reflects
+    (weight ``R_l``) and meets the cap's wall from inside, where the film reflects it (module,
+    path 1; the film's reflectance is taken at the front film's angle of incidence, exact for
+    a hemisphere, whose mirror image is its own sphere). ``wall`` and ``exit`` (N, 3) are the
+    unit local positions of the wall's film and of the film where the wall's reflection
+    leaves the sphere (:func:`~bubblefit.model.geometry.internal_bounce`): the films whose
+    thickness the reflection and the transmission through the wall see, not the rear hit
+    below the plane, which the light never reaches (a drainage film is thinner up the wall
+    than at the foot)."""
     r = cfg.render
     down = d[:, 1] < 0
     s = (cfg.plane_y - hits.p0[:, 1]) / jnp.where(down, d[:, 1], -1.0)
     q = hits.p0 + jnp.where(down, s, 0.0)[:, None] * d
     e = d * _FLIP
     wall = intersect_sphere(q, e, r.center, r.radius)
-    return -wall.n1, -e, liquid_reflectance(jnp.abs(d[:, 1]), cfg.n_liquid)
+    _, _, exit_local = internal_bounce(wall.p1, e - 2.0 * jnp.sum(e * wall.n1, axis=-1)[:, None] * wall.n1,
+                                       r.center, r.radius)
+    return -wall.n1, -e, liquid_reflectance(jnp.abs(d[:, 1]), cfg.n_liquid), wall.local1, exit_local
 
 
 def _thickness(cfg: CapConfig, values, local):
@@ -253,14 +261,16 @@ def _shade(cfg: CapConfig, p: Params, env, rows, cols):
         bg_rad = bg_rad + _area_light(cfg, o, d, 0.0)
     films, exits = shading_points(fx, r, hits, d)
     above = _bounce_above(cfg, hits, d)
-    foot_n, foot_wo, foot_w = _wall_after_liquid(cfg, hits, d)
+    foot_n, foot_wo, foot_w, foot_wall, foot_exit = _wall_after_liquid(cfg, hits, d)
+    below = ~rear
+    if exits:   # below the plane, the first rear reflection happens on the wall after the liquid
+        exits = [jnp.where(below[:, None], foot_exit, exits[0]), *exits[1:]]
     refl = {}
     for k, (name, n, wo) in enumerate(films):
         keep, w_path = jnp.ones_like(rear), 1.0
         if name != "front":
             keep = above.get(name, rear)
         if k == int(fx.front_reflection) and fx.rear_reflection:   # the first rear reflection
-            below = ~rear
             n = jnp.where(below[:, None], foot_n, n)
             wo = jnp.where(below[:, None], foot_wo, wo)
             w_path = jnp.where(below, foot_w, 1.0)
@@ -274,7 +284,7 @@ def _shade(cfg: CapConfig, p: Params, env, rows, cols):
             spec = spec + _area_light(cfg, at, reflect(wo, n), p.roughness)
         refl[name] = (jnp.where(keep[:, None], (w_path * w_r)[:, None] * spec, 0.0), dif)
     d0 = _thickness(cfg, p.thickness, hits.local0)
-    d1 = _thickness(cfg, p.thickness, hits.local1)
+    d1 = _thickness(cfg, p.thickness, jnp.where(below[:, None], foot_wall, hits.local1))
     thick = lambda local: _thickness(cfg, p.thickness, local)
     if cfg.film_rgb == "clamped":
         terms = _clamped_series(p, r, lam, hits.cos, d0, d1, exits, thick, refl, bg_rad)

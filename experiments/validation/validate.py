@@ -465,7 +465,8 @@ def run_film(case: str, out_dir: str, fit: str | None = None) -> dict:
     true_map = vio.read_image(os.path.join(cdir, "thickness_true.exr"))[..., 0]
     h, w = true_map.shape
     m = map_metrics(fit_map, true_map, {"cx": w / 2, "cy": h / 2, "r": 10 * (h + w) / INNER})
-    row.update(m, ok=res.get("ok"), reduced_chi2=res.get("reduced_chi2"), chi2_floor=res.get("reduced_chi2_floor"))
+    row.update(m, ok=res.get("ok"), reduced_chi2=res.get("reduced_chi2"), chi2_floor=res.get("reduced_chi2_floor"),
+               chi2_inliers=res.get("reduced_chi2_inliers"), outliers=res.get("outlier_fraction"))
     p, se = res.get("params", {}), res.get("stderr", {})
     if fit == "constant":
         e = p["thickness_nm"] - truth["thickness_nm"]

@@ -31,6 +31,7 @@ __all__ = [
     "irradiance_map",
     "lookup_box",
     "texel_footprint",
+    "lookup_parallelogram",
     "dark_room",
 ]
 
@@ -303,6 +304,50 @@ def texel_footprint(r: Float[Array, "N 3"], dr: Float[Array, "N 3 2"], height: i
     return jnp.stack([jnp.minimum(wx, width), jnp.minimum(wy, height)], axis=-1)
 
 
+#: Pieces :func:`lookup_parallelogram` cuts a footprint into along each side by default.
+BOX_PROBES = 4
+
+
+def lookup_parallelogram(atlas, shapes: tuple, r: Float[Array, "N 3"], dr: Float[Array, "N 3 2"],
+                         probes: int = BOX_PROBES, across: int = BOX_PROBES) -> Float[Array, "N C"]:
+    """The map's mean over the directions ``r + dr (s, t)``, ``s, t`` in ``[-1/2, 1/2]``:
+    the parallelogram cut into ``probes`` equal pieces along its longer side (in angle,
+    ``|dr[:, :, k]|``) and ``across`` along its shorter, each piece read by
+    :func:`lookup_box` over the box of its second moments (:func:`texel_footprint`), and
+    the pieces averaged (equal areas of a uniform distribution, so the mean of the
+    pieces' means is the whole's).
+
+    A single box reads a coarser mip level as soon as its longer axis passes
+    :data:`BOX_TEXELS`, and that level's texels widen the shorter axis as well: a pixel
+    near the bubble's rim or an internal bounce, whose footprint is many texels long and
+    under one wide, then reads a source beside the line its rays sweep. Each piece is
+    ``1/probes`` as long, so a footprint up to ``probes * BOX_TEXELS`` texels long is read
+    at level 0 along its own width; and the box of a piece's second moments covers more
+    than the piece wherever its sides are not the map's axes (a footprint diagonal to
+    them, or sheared), by an area that shrinks with the piece: ``probes x across`` pieces
+    tile the parallelogram as the midpoint rule tiles a pixel's box.
+
+    References
+    ----------
+    J. McCormack, R. Perry, K. I. Farkas, N. P. Jouppi, "Feline: fast elliptical lines
+    for anisotropic texture mapping", SIGGRAPH 1999 (probes along the footprint's major
+    axis); F. C. Crow, "Summed-area tables for texture mapping", SIGGRAPH 1984 (each
+    probe's box).
+    """
+    h0, w0 = shapes[0]
+    long_first = jnp.sum(dr[..., 0] ** 2, axis=-1) >= jnp.sum(dr[..., 1] ** 2, axis=-1)
+    a = jnp.where(long_first[:, None], dr[..., 0], dr[..., 1])
+    b = jnp.where(long_first[:, None], dr[..., 1], dr[..., 0])
+    piece = jnp.stack([a / probes, b / across], axis=-1)
+    total = 0.0
+    for k in range(probes):
+        for j in range(across):
+            rk = r + ((k + 0.5) / probes - 0.5) * a + ((j + 0.5) / across - 0.5) * b
+            rk = rk / jnp.sqrt(jnp.maximum(jnp.sum(rk * rk, axis=-1, keepdims=True), 1e-30))
+            total = total + lookup_box(atlas, shapes, rk, texel_footprint(rk, piece, h0, w0))
+    return total / (probes * across)
+
+
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True, eq=False)
 class EnvMap:
@@ -398,6 +443,11 @@ class EnvMap:
     def lookup_box(self, d: Float[Array, "... 3"], widths) -> Float[Array, "... 3"]:
         """:func:`lookup_box`: the map averaged over boxes of ``widths`` texels (level 0)."""
         return lookup_box(self.atlas, self.shapes, d, widths)
+
+    def lookup_parallelogram(self, r: Float[Array, "N 3"], dr: Float[Array, "N 3 2"],
+                             probes: int = BOX_PROBES, across: int = BOX_PROBES) -> Float[Array, "N 3"]:
+        """:func:`lookup_parallelogram`: the map averaged over the directions ``r + dr (s, t)``."""
+        return lookup_parallelogram(self.atlas, self.shapes, r, dr, probes, across)
 
     def lookup_irradiance(self, n: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
         return lookup(self.irradiance, n)

@@ -48,7 +48,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ResponseError", "response_error", "response_cells", "response_gram", "solve_response_gram", "MAX_PIXELS"]
+__all__ = ["ResponseError", "response_error", "response_cells", "response_gram", "solve_response_gram", "marginal_chi2",
+           "solve_marginal_chi2", "MAX_PIXELS"]
 
 #: Pixels per cell the mean Jacobian is taken over (evenly strided): the Jacobian follows
 #: the fitted thickness, smooth over a cell, so a subsample gives its mean (and bounds the
@@ -166,6 +167,26 @@ def response_cells(response: str, illuminant: str, n_film: float, render: np.nda
 _GRAM_BLOCK = 2048
 
 
+def _whitened_modes(err: ResponseError, weight: np.ndarray, render: np.ndarray, background: np.ndarray | None,
+                    thickness: np.ndarray, cos: np.ndarray):
+    """Blocks of :data:`_GRAM_BLOCK` fitted pixels (``weight > 0`` in a channel): yields
+    ``(index, W dy)``, the flat pixel indices and their whitened render change ``(n, 3, M)``
+    along each error mode (:meth:`ResponseError.jacobian` times the whitening ``W = 1 / sigma``),
+    over (h, w, 3) ``weight``, ``render``, ``background`` (None: none) and (h, w) ``thickness``
+    (nm) and ``cos``: the columns ``G`` that :func:`response_gram` and :func:`marginal_chi2` read."""
+    h, w = weight.shape[:2]
+    pix = np.nonzero(np.any(np.asarray(weight) > 0, axis=-1).ravel())[0]
+    flat = lambda a, n: np.asarray(a, np.float64).reshape(h * w, n)  # noqa: E731
+    wt, y = flat(weight, 3), flat(render, 3)
+    bg = None if background is None else flat(background, 3)
+    th = np.broadcast_to(np.asarray(thickness, np.float64), (h, w)).reshape(-1)
+    cs = np.broadcast_to(np.asarray(cos, np.float64), (h, w)).reshape(-1)
+    for lo in range(0, pix.size, _GRAM_BLOCK):
+        i = pix[lo:lo + _GRAM_BLOCK]
+        dy = err.jacobian(y[i], None if bg is None else bg[i], th[i], cs[i]) * wt[i][:, :, None]
+        yield i, np.nan_to_num(dy)
+
+
 def response_gram(err: ResponseError | None, jac: np.ndarray, weight: np.ndarray, render: np.ndarray,
                   background: np.ndarray | None, thickness: np.ndarray, cos: np.ndarray) -> np.ndarray | None:
     """(p, p) ``sum_m (J^T W dy_m)(J^T W dy_m)^T`` over the response's error modes ``dy_m``
@@ -189,34 +210,67 @@ def response_gram(err: ResponseError | None, jac: np.ndarray, weight: np.ndarray
         return None
     h, w = weight.shape[:2]
     p = jac.shape[1]
-    pix = np.nonzero(np.any(np.asarray(weight) > 0, axis=-1).ravel())[0]
     jr = np.asarray(jac, np.float64).reshape(h * w, 3, p)
-    flat = lambda a, n: np.asarray(a, np.float64).reshape(h * w, n)  # noqa: E731
-    wt, y = flat(weight, 3), flat(render, 3)
-    bg = None if background is None else flat(background, 3)
-    th = np.broadcast_to(np.asarray(thickness, np.float64), (h, w)).reshape(-1)
-    cs = np.broadcast_to(np.asarray(cos, np.float64), (h, w)).reshape(-1)
     total = np.zeros((p, 3, err.modes.shape[-1]))
-    for lo in range(0, pix.size, _GRAM_BLOCK):
-        i = pix[lo:lo + _GRAM_BLOCK]
-        dy = err.jacobian(y[i], None if bg is None else bg[i], th[i], cs[i]) * wt[i][:, :, None]
-        total += np.einsum("ncp,ncm->pcm", jr[i], np.nan_to_num(dy))
+    for i, dy in _whitened_modes(err, weight, render, background, thickness, cos):
+        total += np.einsum("ncp,ncm->pcm", jr[i], dy)
     return np.einsum("pcm,qcm->pq", total, total)
 
 
-def solve_response_gram(response: str, illuminant: str, n_film: float, lev, sol, robust_scale: float):
-    """:func:`response_gram` of a solve ``sol`` (a :class:`~bubblefit.inverse._local.LocalSolution`)
-    on its level ``lev``: the render is the photo plus the plain residual, the thickness the
-    solve's constant film or drainage profile (:func:`bubblefit.model.thickness.drainage_profile`)
-    at each pixel's height; None when the response states no errors."""
+def marginal_chi2(err: ResponseError | None, jac: np.ndarray, resid: np.ndarray, weight: np.ndarray,
+                  render: np.ndarray, background: np.ndarray | None, thickness: np.ndarray,
+                  cos: np.ndarray) -> tuple[float, float]:
+    """``(chi2, marginal)``: a solve's chi^2 ``r^T r`` and its chi^2 with the response's
+    errors marginalised and the fitted parameters re-solved to first order.
+
+    The response's error coefficients ``c`` (unit normal, one draw for the whole photo)
+    move the whitened residual by ``G c`` (``G = W dy``, :func:`_whitened_modes`), the
+    parameters by ``J dz``; the least ``|r + J dz + G c|^2 + |c|^2`` over both (the
+    Gaussian prior on ``c`` integrated out, which for a linear model is its minimum) is
+    ``r^T r - b^T A^-1 b`` with ``A = [[J^T J, J^T G], [G^T J, G^T G + I]]`` and
+    ``b = [J^T r; G^T r]``: the Gauss-Newton decrement of the joint problem, the same
+    normal equations whose response block :func:`response_gram` sandwiches (the
+    generalised least squares of ``r`` under the covariance ``I + G G^T``, by the
+    Woodbury identity; Press et al., *Numerical Recipes*, 3rd ed., sec. 2.7.3 and 15.4).
+    ``jac`` (h w 3, p) and ``resid`` (h w 3,) are the whitened residual's Jacobian and
+    plain residual; the other arguments as :func:`response_gram`'s. Without stated
+    errors (``err`` None) the marginal is the decrement over the parameters alone."""
+    h, w = weight.shape[:2]
+    r = np.nan_to_num(np.asarray(resid, np.float64).reshape(h * w, 3))
+    jr = np.nan_to_num(np.asarray(jac, np.float64).reshape(h * w, 3, -1))
+    p = jr.shape[-1]
+    k = 0 if err is None else 3 * err.modes.shape[-1]
+    a = np.zeros((p + k, p + k))
+    b = np.zeros(p + k)
+    a[:p, :p] = np.einsum("ncp,ncq->pq", jr, jr)
+    b[:p] = np.einsum("ncp,nc->p", jr, r)
+    if err is not None:
+        m = err.modes.shape[-1]
+        a[p:, p:] = np.eye(k)
+        for i, dy in _whitened_modes(err, weight, render, background, thickness, cos):
+            g = np.zeros((i.size, 3, k))  # channel c's modes move channel c only
+            for c in range(3):
+                g[:, c, c * m:(c + 1) * m] = dy[:, c]
+            a[:p, p:] += np.einsum("ncp,nck->pk", jr[i], g)
+            a[p:, p:] += np.einsum("nck,ncl->kl", g, g)
+            b[p:] += np.einsum("nck,nc->k", g, r[i])
+        a[p:, :p] = a[:p, p:].T
+    chi2 = float(np.sum(r * r))
+    return chi2, chi2 - float(b @ np.linalg.lstsq(a, b, rcond=None)[0])
+
+
+def _solve_images(lev, sol, robust_scale: float):
+    """``(weight, render, thickness, resid)`` of a solve ``sol`` (a
+    :class:`~bubblefit.inverse._local.LocalSolution`) on its level ``lev``: the whitening,
+    the render (the photo plus the plain residual), each pixel's thickness (the solve's
+    constant film or drainage profile, :func:`bubblefit.model.thickness.drainage_profile`,
+    at the pixel's height) and the plain whitened residual (flat); None for a solve with
+    neither."""
     import jax.numpy as jnp
 
     from ..model.thickness import drainage_profile
     from ._uncertainty import plain_residual
 
-    err = response_error(response, illuminant, n_film)
-    if err is None or sol.jacobian is None or not sol.jacobian.size:
-        return None
     v = sol.values
     if "thickness_nm" in v:
         thickness = np.full(lev.y.shape[:2], float(v["thickness_nm"]))
@@ -226,6 +280,32 @@ def solve_response_gram(response: str, illuminant: str, n_film: float, lev, sol,
     else:
         return None
     weight = np.asarray(lev.w, np.float64)
-    resid = plain_residual(sol.residual, robust_scale).reshape(lev.y.shape)
-    render = np.asarray(lev.y, np.float64) + np.where(weight > 0, resid / np.where(weight > 0, weight, 1.0), 0.0)
+    resid = plain_residual(sol.residual, robust_scale)
+    shaped = resid.reshape(lev.y.shape)
+    render = np.asarray(lev.y, np.float64) + np.where(weight > 0, shaped / np.where(weight > 0, weight, 1.0), 0.0)
+    return weight, render, thickness, resid
+
+
+def solve_response_gram(response: str, illuminant: str, n_film: float, lev, sol, robust_scale: float):
+    """:func:`response_gram` of a solve ``sol`` (a :class:`~bubblefit.inverse._local.LocalSolution`)
+    on its level ``lev`` (:func:`_solve_images`); None when the response states no errors."""
+    err = response_error(response, illuminant, n_film)
+    if err is None or sol.jacobian is None or not sol.jacobian.size:
+        return None
+    images = _solve_images(lev, sol, robust_scale)
+    if images is None:
+        return None
+    weight, render, thickness, _ = images
     return response_gram(err, sol.jacobian, weight, render, lev.bg, thickness, lev.cos)
+
+
+def solve_marginal_chi2(err: ResponseError | None, lev, sol, robust_scale: float) -> tuple[float, float] | None:
+    """:func:`marginal_chi2` of a solve ``sol`` on its level ``lev`` (:func:`_solve_images`);
+    None for a solve without a Jacobian or a thickness."""
+    if sol.jacobian is None or not sol.jacobian.size:
+        return None
+    images = _solve_images(lev, sol, robust_scale)
+    if images is None:
+        return None
+    weight, render, thickness, resid = images
+    return marginal_chi2(err, sol.jacobian, resid, weight, render, lev.bg, thickness, lev.cos)

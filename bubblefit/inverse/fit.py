@@ -65,7 +65,7 @@ from ._verdict import at_bounds, clamp_to_range, unresolved, verdict
 from ._view import camera_record, fit_view, lens_for, widen_for_view
 from .colour_check import judge_colours
 from .order_check import OrderCheck, order_check
-from .response_error import response_cells, response_error, solve_response_gram
+from .response_error import pixel_thickness_stderr, response_cells, response_error, solve_response_gram
 from ..errors import InputError
 from ..lighting.envmap import EnvMap
 from ..model.thickness import drainage_profile
@@ -263,6 +263,11 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     draw = render_level if opts.thickness == "map" else render_bubble
     img = np.asarray(draw(final_params(table, final_vals, opts), full, env), np.float64)
     resid_img = st.photo - img
+    camera_stderr = unc.camera_stderr
+    if opts.thickness == "map" and full.mask.any():  # each pixel's share of a calibrated response's errors
+        camera_stderr, stderr_map = _map_camera_stderr(st, full, img, thickness_map, stderr_map, camera_stderr)
+        if camera_stderr is not None:
+            stderr["thickness_nm"] = float(np.nanmedian(stderr_map[full.mask]))
     rms = float(np.sqrt(np.mean(resid_img[full.mask] ** 2))) if full.mask.any() else float("nan")
     reported["n_film"] = float(st.vals["n_film"])
     bounds = judged.bounds + _exposure_doubts(st, opts, env, full, reported)
@@ -297,9 +302,26 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
         stderr_scale=unc.scale, roles=parameter_roles(table, st.fx.model, tuple(reported)),
         frame=None if st.frame.whole else (st.frame.x0, st.frame.y0, st.frame.k), colour=st.colour,
         camera=None if opts.view is None else camera_record(opts.view, st.base_cfg.camera),
-        colour_check=colour_record, stderr_camera=unc.camera_stderr,
+        colour_check=colour_record, stderr_camera=camera_stderr,
         order_check=None if order is None else order.to_json(),
     )
+
+
+def _map_camera_stderr(st: Setup, full, img, thickness_map, stderr_map, camera_stderr):
+    """A thickness map's share of a calibrated response's errors: each pixel's standard
+    error from the response alone (:func:`~bubblefit.inverse.response_error.pixel_thickness_stderr`)
+    added in quadrature to ``stderr_map``, and ``camera_stderr`` with the map's median
+    of it as ``thickness_nm``; both unchanged for a response taken as exact."""
+    err = response_error(st.colour.response, st.colour.illuminant, float(st.vals["n_film"]))
+    if err is None:
+        return camera_stderr, stderr_map
+    m = full.mask
+    bg = None if st.background is None else np.asarray(st.background, np.float64)[m]
+    cam = pixel_thickness_stderr(err, img[m], bg, thickness_map[m], np.asarray(full.cos)[m],
+                                 np.asarray(full.w, np.float64)[m])
+    out = np.array(stderr_map, np.float64)
+    out[m] = np.hypot(out[m], cam)
+    return dict(camera_stderr or {}, thickness_nm=float(np.nanmedian(cam))), out
 
 
 def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t_start: float) -> FitResult:

@@ -126,6 +126,7 @@ class PlanarForward:
 
     def __init__(self, stack: coaxial.Stack, lamp: str, response: str, na: float, max_nm: float):
         self.basis = spectral.spectral_basis("uniform", SPECTRAL_SAMPLES, illuminant=lamp, response=response)
+        self.stack, self.lamp, self.response = stack, lamp, response
         lam = self.basis.wavelengths
         self.lam = jnp.asarray(lam)
         self.n = stack.indices(lam)
@@ -137,12 +138,31 @@ class PlanarForward:
 
     def rgb(self, d, sin2):
         """(..., 3) colour of thickness ``d`` seen at ``sin2`` (ignored under coaxial light)."""
+        return spectral.integrate(self.reflectance(d, sin2), self.basis)
+
+    def reflectance(self, d, sin2, lam=None):
+        """(..., L) the stack's reflectance at thickness ``d`` seen at ``sin2`` (ignored under
+        coaxial light), at the basis's wavelengths or at ``lam`` (nm)."""
         d = jnp.asarray(d)[..., None]
+        n = self.n if lam is None else self.stack.indices(np.asarray(lam))
+        lam = self.lam if lam is None else jnp.asarray(lam)
         if self.na > 0:
-            r = coaxial.coaxial_reflectance(d, self.lam, self.n, self.na, self.nodes)
-        else:
-            r = coaxial.reflectance_at_angles(d, self.lam, self.n, jnp.asarray(sin2)[..., None])
-        return spectral.integrate(r, self.basis)
+            return coaxial.coaxial_reflectance(d, lam, n, self.na, self.nodes)
+        return coaxial.reflectance_at_angles(d, lam, n, jnp.asarray(sin2)[..., None])
+
+    def camera_shifts(self, model, d, sin2, sigma: float):
+        """:func:`~bubblefit.inverse.response_error.pixel_thickness_shifts` of the pixels'
+        colours ``model`` (P, 3) at thicknesses ``d`` (P,) seen at ``sin2`` (P,) with the
+        noise ``sigma``, through the stack's reflectance (no background: the film's
+        reflection is the whole pixel); None for a response taken as exact."""
+        from .response_error import pixel_thickness_shifts, response_error
+
+        err = response_error(self.response, self.lamp, float(np.median(np.asarray(self.n.film))))
+        if err is None:
+            return None
+        s2 = np.asarray(sin2, np.float64)
+        refl = lambda x: np.asarray(self.reflectance(np.asarray(x, np.float64), s2, err.wavelengths), np.float64)  # noqa: E731
+        return pixel_thickness_shifts(err, model, None, d, np.ones(len(d)), np.full(np.shape(model), 1.0 / sigma), refl)
 
 
 @dataclass
@@ -164,6 +184,10 @@ class PlanarResult:
     reduced_chi2: float = float("nan")
     reduced_chi2_floor: float = float("nan")
     order_from: str = ""
+    #: Each value's standard error from a calibrated response's stated errors alone
+    #: (already in ``stderr``; :mod:`bubblefit.inverse.response_error`), or None where the
+    #: response is taken as exact or the term is not computed.
+    stderr_camera: dict | None = None
 
     @property
     def residual_rms(self) -> float:
@@ -176,7 +200,7 @@ class PlanarResult:
         return {"kind": self.kind, "ok": self.ok, "warnings": self.warnings, "params": self.params,
                 "stderr": self.stderr, "gain": self.gain, "noise_sigma": self.sigma,
                 "reduced_chi2": self.reduced_chi2, "reduced_chi2_floor": self.reduced_chi2_floor,
-                "order_from": self.order_from, "order_hops": self.order_hops,
+                "order_from": self.order_from, "order_hops": self.order_hops, "stderr_camera": self.stderr_camera,
                 "thickness_nm": {"min": float(m.min()), "median": float(np.median(m)), "max": float(m.max()),
                                  "median_stderr": float(np.nanmedian(self.thickness_stderr_map))} if m.size else None}
 
@@ -611,6 +635,19 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     # bubble's fit is judged (JudgeSettings.model_error: how much independent renderers
     # differ on the same film); ``ok`` is judged by this one
     chi2_floor = float(np.mean(res ** 2 / (sigma ** 2 + (JudgeSettings.model_error * y) ** 2)))
+    stderr_camera = None
+    if kind in ("constant", "map"):  # a calibrated response's share (one draw moves every pixel)
+        moved = fwd.camera_shifts(model, dref, sin2, sigma)
+        if moved is not None:
+            shifts, jj = moved
+            if kind == "constant":
+                cam = float(np.sqrt(np.sum((np.tensordot(jj, shifts, axes=1) / max(float(jj.sum()), 1e-300)) ** 2)))
+                perr["thickness_nm"] = float(np.hypot(perr["thickness_nm"], cam))
+            else:
+                pix = np.sqrt(np.sum(shifts**2, axis=(1, 2)))
+                stderr = np.hypot(stderr, pix)
+                cam = float(np.median(pix))
+            stderr_camera = {"thickness_nm": cam}
     tmap = _on_image(mask, dref, np.nan)
     smap = _on_image(mask, stderr, np.nan)
     hops = _hops(tmap, window) if kind == "map" else 0
@@ -630,4 +667,5 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         raise ComputationError("the planar fit produced non-finite thicknesses")
     return PlanarResult(kind=kind, ok=ok, thickness_map=tmap, thickness_stderr_map=smap, render=render, residual=resid,
                         gain=gain, sigma=sigma, params=params, stderr=perr, warnings=warnings, order_hops=hops,
-                        reduced_chi2=chi2, reduced_chi2_floor=chi2_floor, order_from=order_from)
+                        reduced_chi2=chi2, reduced_chi2_floor=chi2_floor, order_from=order_from,
+                        stderr_camera=stderr_camera)

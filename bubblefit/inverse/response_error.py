@@ -49,7 +49,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["ResponseError", "response_error", "response_cells", "response_gram", "solve_response_gram", "marginal_chi2",
-           "solve_marginal_chi2", "MAX_PIXELS"]
+           "solve_marginal_chi2", "pixel_thickness_stderr", "pixel_thickness_shifts", "MAX_PIXELS"]
 
 #: Pixels per cell the mean Jacobian is taken over (evenly strided): the Jacobian follows
 #: the fitted thickness, smooth over a cell, so a subsample gives its mean (and bounds the
@@ -70,15 +70,27 @@ class ResponseError:
     modes: np.ndarray
     n_film: float
 
+    def reflectance(self, thickness: np.ndarray, cos: np.ndarray) -> np.ndarray:
+        """(n, G) the Airy reflectance of a film in air (Born & Wolf eq. 7.6(13), both
+        polarisations averaged) of ``thickness`` (n,) nm seen at ``cos`` (n,), on the grid."""
+        return np.asarray(_airy()(np.asarray(thickness, np.float64)[:, None], self.wavelengths[None, :],
+                                  self.n_film, np.asarray(cos, np.float64)[:, None])).mean(axis=-1)
+
+    def shares(self, refl: np.ndarray) -> np.ndarray:
+        """(n, 3) ``f_k = sum_l w_k R / sum_l w_k``: the reflected share per channel of a
+        reflectance ``refl`` (n, G) on the grid (module docstring)."""
+        return np.asarray(refl, np.float64) @ self.density / self.density.sum(axis=0)
+
     def jacobian(self, render: np.ndarray, background: np.ndarray | None, thickness: np.ndarray,
-                 cos: np.ndarray) -> np.ndarray:
+                 cos: np.ndarray, refl: np.ndarray | None = None) -> np.ndarray:
         """(n, 3, M): each pixel's change of its render ``(n, 3)`` along each error mode of
         each channel's response (one standard deviation), at the pixel's film ``thickness``
-        (n,) nm seen at ``cos`` (n,) (cosine of incidence)."""
-        refl = np.asarray(_airy()(np.asarray(thickness, np.float64)[:, None], self.wavelengths[None, :],
-                                  self.n_film, np.asarray(cos, np.float64)[:, None])).mean(axis=-1)
+        (n,) nm seen at ``cos`` (n,) (cosine of incidence); ``refl`` (n, G): the film's
+        reflectance on the grid where it is not a film in air (:meth:`reflectance`), e.g. a
+        film on a substrate."""
+        refl = self.reflectance(thickness, cos) if refl is None else np.asarray(refl, np.float64)
         total = self.density.sum(axis=0)                         # (3,)
-        f = refl @ self.density / total                          # (n, 3) the film's reflected share per channel
+        f = self.shares(refl)                                    # (n, 3) the film's reflected share per channel
         proj = refl @ self.hats                                  # (n, L)
         dfdx = (proj[:, None, :] - f[:, :, None] * self.hats.sum(axis=0)[None, None, :]) / total[None, :, None]
         bg = 0.0 if background is None else np.asarray(background, np.float64)
@@ -165,6 +177,55 @@ def response_cells(response: str, illuminant: str, n_film: float, render: np.nda
 #: Pixels per block of :func:`response_gram` (bounds its memory: a block holds its pixels'
 #: derivatives along every mode, 3 M floats each).
 _GRAM_BLOCK = 2048
+
+
+#: Half step (nm) of the central difference of a film's channel shares in its thickness
+#: (:func:`pixel_thickness_stderr`): the shares change on the scale of a fringe's tenth
+#: (about 20 nm), so the difference's truncation error is under 1e-3 of the slope.
+THICKNESS_STEP_NM = 0.5
+
+
+def pixel_thickness_stderr(err: ResponseError | None, render: np.ndarray, background: np.ndarray | None,
+                           thickness: np.ndarray, cos: np.ndarray, weight: np.ndarray,
+                           reflectance=None) -> np.ndarray | None:
+    """(n,) each pixel's thickness standard error from the response's errors alone, the
+    pixel's thickness fitted from its own three channels (a per-pixel thickness map): the
+    root sum of squares of :func:`pixel_thickness_shifts` over the response's error
+    coefficients (arguments as there); None when the response states no errors."""
+    shifts = pixel_thickness_shifts(err, render, background, thickness, cos, weight, reflectance)
+    return None if shifts is None else np.sqrt(np.sum(shifts[0] ** 2, axis=(1, 2)))
+
+
+def pixel_thickness_shifts(err: ResponseError | None, render: np.ndarray, background: np.ndarray | None,
+                           thickness: np.ndarray, cos: np.ndarray, weight: np.ndarray,
+                           reflectance=None) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(shifts, jj)``: (n, 3, M) how far each pixel's thickness, fitted from its own three
+    channels, moves per unit of each channel's error coefficients, and (n,) ``j^T j``: :func:`response_gram`'s sandwich with
+    one parameter per pixel, ``-(j_k W_k dy_km) / (j^T j)`` with ``j = W dy / dd`` the whitened render's slope in the
+    thickness (``dy / dd = (dy / df) (df / dd)``, the shares ``f`` of :meth:`ResponseError.shares`
+    differenced over :data:`THICKNESS_STEP_NM`) and ``dy_km`` channel ``k``'s render change
+    along its mode ``m`` (:meth:`ResponseError.jacobian`). A smoothness prior between
+    pixels does not narrow it: one draw of the response moves neighbouring pixels alike.
+    ``render``, ``background`` (None: none) and ``weight`` (``1 / sigma``) are (n, 3),
+    ``thickness`` and ``cos`` (n,); ``reflectance(d)`` gives the film's reflectance (n, G)
+    on the response's grid at thicknesses ``d`` (n,) where it is not a film in air (default:
+    :meth:`ResponseError.reflectance` at ``cos``). None when the response states no errors.
+    A film whose pixels share one thickness moves by their ``j^T j``-weighted mean."""
+    if err is None:
+        return None
+    d = np.asarray(thickness, np.float64)
+    cs = np.asarray(cos, np.float64)
+    refl = (lambda x: err.reflectance(x, cs)) if reflectance is None else reflectance
+    r0 = refl(d)
+    bg = 0.0 if background is None else np.asarray(background, np.float64)
+    y = np.asarray(render, np.float64)
+    f = err.shares(r0)
+    dfdd = (err.shares(refl(d + THICKNESS_STEP_NM)) - err.shares(refl(d - THICKNESS_STEP_NM))) / (2 * THICKNESS_STEP_NM)
+    wt = np.asarray(weight, np.float64)
+    j = wt * (y - bg) / np.maximum(f, 1e-9) * dfdd                                       # (n, 3)
+    g = err.jacobian(y, background, d, cs, refl=r0) * wt[:, :, None]                   # (n, 3, M)
+    jj = np.sum(j * j, axis=1)
+    return -j[:, :, None] * g / np.maximum(jj, 1e-300)[:, None, None], jj
 
 
 def _whitened_modes(err: ResponseError, weight: np.ndarray, render: np.ndarray, background: np.ndarray | None,

@@ -95,9 +95,9 @@ def order_check(err, lev, solutions: list, robust_scale: float, n_params: int) -
     errors ``err`` (:class:`~bubblefit.inverse.response_error.ResponseError`) marginalised
     (module docstring), and taken as exact (the chi^2 less the Gauss-Newton decrement
     over the parameters alone: both to first order from where the search's short solves
-    stopped). The best is the lowest cost (the search's winner); a candidate is another order when its thickness is more than :func:`order_separation`
-    from the best's. ``n_params``: the solve's free parameters (for the reduced chi^2).
-    None when the response states no errors or no candidate has a constant thickness."""
+    stopped). The best is the lowest chi^2 (the search's winner); a candidate is another
+    order when its thickness is more than :func:`order_separation` from the best's.
+    ``n_params``: the solve's free parameters (for the reduced chi^2). None when the response states no errors or no candidate has a constant thickness."""
     from .response_error import solve_marginal_chi2
 
     if err is None:

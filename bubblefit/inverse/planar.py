@@ -161,7 +161,9 @@ class PlanarForward:
         if err is None:
             return None
         s2 = np.asarray(sin2, np.float64)
-        refl = lambda x: np.asarray(self.reflectance(np.asarray(x, np.float64), s2, err.wavelengths), np.float64)  # noqa: E731
+        def refl(x):
+            return np.asarray(self.reflectance(np.asarray(x, np.float64), s2, err.wavelengths), np.float64)
+
         return pixel_thickness_shifts(err, model, None, d, np.ones(len(d)), np.full(np.shape(model), 1.0 / sigma), refl)
 
 

@@ -200,9 +200,10 @@ def pixel_thickness_shifts(err: ResponseError | None, render: np.ndarray, backgr
                            thickness: np.ndarray, cos: np.ndarray, weight: np.ndarray,
                            reflectance=None) -> tuple[np.ndarray, np.ndarray] | None:
     """``(shifts, jj)``: (n, 3, M) how far each pixel's thickness, fitted from its own three
-    channels, moves per unit of each channel's error coefficients, and (n,) ``j^T j``: :func:`response_gram`'s sandwich with
-    one parameter per pixel, ``-(j_k W_k dy_km) / (j^T j)`` with ``j = W dy / dd`` the whitened render's slope in the
-    thickness (``dy / dd = (dy / df) (df / dd)``, the shares ``f`` of :meth:`ResponseError.shares`
+    channels, moves per unit of each channel's error coefficients, and (n,) ``j^T j``:
+    :func:`response_gram`'s sandwich with one parameter per pixel, ``-(j_k W_k dy_km) /
+    (j^T j)`` with ``j = W dy / dd`` the whitened render's slope in the thickness
+    (``dy / dd = (dy / df) (df / dd)``, the shares ``f`` of :meth:`ResponseError.shares`
     differenced over :data:`THICKNESS_STEP_NM`) and ``dy_km`` channel ``k``'s render change
     along its mode ``m`` (:meth:`ResponseError.jacobian`). A smoothness prior between
     pixels does not narrow it: one draw of the response moves neighbouring pixels alike.

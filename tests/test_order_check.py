@@ -126,3 +126,18 @@ def test_threshold_is_the_one_degree_of_freedom_quantile():
     Stegun, table 26.8)."""
     assert order_threshold(1e-3) == pytest.approx(10.828, abs=1e-3)
     assert order_separation(1.33) == pytest.approx(580.0 / (4 * 1.33))
+
+
+def test_a_fit_in_another_order_than_the_best_is_not_determined(tmp_path):
+    """Seen from the neighbouring order's candidate (a warm start that settled there), the
+    test is not determined whatever the margin, and names the best's order, with the
+    difference's sign turned (the best explains the photo better)."""
+    path, resp, _ = _modes_csv(tmp_path, 0.0005, 25.0)
+    rows = np.arange(380.0, 781.0, 5.0)
+    photo, sols = _candidates(path, rows, resp)
+    check = order_check(response_error(path, "E", 1.33), _level(None, photo), sols, robust_scale=1e6, n_params=2)
+    assert check.determined and check.at(D_TRUE + 2.0, 1.33) is check
+    other = check.at(sols[1].values["thickness_nm"], 1.33)
+    assert not other.determined and other.alternative_nm == pytest.approx(check.thickness_nm)
+    assert other.delta_chi2 == pytest.approx(-check.delta_chi2)
+    assert "explains the photo better" in other.warning()

@@ -286,6 +286,8 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
                                                 float(judge.model_error), explained, judge.colour_check == "decide",
                                                 response_jac)
     order = judged.order  # does the photo tell the order, the response's errors allowed?
+    if order is not None and np.isfinite(reported.get("thickness_nm", np.nan)):
+        order = order.at(float(reported["thickness_nm"]), float(reported["n_film"]))
     if order is not None and order.warning() is not None:
         ok, warnings = False, warnings + [order.warning()]
     return FitResult(
@@ -579,8 +581,17 @@ def _solve_started(started: Started, env) -> Solved:
         sol = _checked_warm_start(st, opts, env, sol, settings, notes)
     with stage("standard errors"):
         judged = _judge(st, opts, sol, notes)
-    if started.order is not None:  # the search's candidates compared (a search is not warm-started)
-        judged = replace(judged, order=started.order)
+    order = started.order
+    if order is None and started.warm and started.searches and opts.thickness == "constant" and \
+            response_error(st.colour.response, st.colour.illuminant, float(st.vals["n_film"])) is not None:
+        # a warm start has no candidates: with a response that states its errors, a search
+        # supplies them, and the test then judges the warm start's order (OrderCheck.at)
+        found = []
+        with stage("global thickness search for the order test"):
+            _searched_start(st, opts, env, order=found)
+        order = found[0]
+    if order is not None:
+        judged = replace(judged, order=order)
     return Solved(st, opts, sol, judged, notes, started.t_start)
 
 

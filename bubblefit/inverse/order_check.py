@@ -70,16 +70,40 @@ class OrderCheck:
     threshold: float
     scale: float
     candidates: int
+    #: every candidate's ``(thickness, chi^2 taken as exact, marginal chi^2)``, unscaled
+    scored: tuple = ()
 
     def warning(self) -> str | None:
         """One line for the fit's warnings when the neighbouring order is admitted."""
         if self.determined or self.alternative_nm is None:
             return None
-        return (f"the response's uncertainty admits the neighbouring order at {self.alternative_nm:.0f} nm "
-                f"(its chi^2 with the response's errors marginalised is {self.delta_chi2:.3g} above the best's, "
-                f"under the {self.threshold:.3g} that excludes it at level {LEVEL:g}; without them "
-                f"{self.delta_chi2_plain:.3g}): the thickness's order is not determined; calibrate the camera from "
-                "a film of known thickness (docs/cameras.md)")
+        if self.delta_chi2 < 0:
+            how = (f"which explains the photo better (its chi^2 with the response's errors marginalised is "
+                   f"{-self.delta_chi2:.3g} below this order's; without them {self.delta_chi2_plain:+.3g})")
+        else:
+            how = (f"(its chi^2 with the response's errors marginalised is {self.delta_chi2:.3g} above the best's, "
+                   f"under the {self.threshold:.3g} that excludes it at level {LEVEL:g}; without them "
+                   f"{self.delta_chi2_plain:.3g})")
+        return (f"the response's uncertainty admits the neighbouring order at {self.alternative_nm:.0f} nm {how}: "
+                "the thickness's order is not determined; calibrate the camera from a film of known thickness "
+                "(docs/cameras.md)")
+
+    def at(self, thickness_nm: float, n_film: float) -> "OrderCheck":
+        """The test seen from the candidate in the order of ``thickness_nm`` (the fit's final
+        thickness, which a warm start or the final solve may have left in another order
+        than the search's best): unchanged when that is the best's order or no candidate's;
+        otherwise not determined, the best's order the alternative (a negative difference)."""
+        sep = order_separation(n_film)
+        if abs(thickness_nm - self.thickness_nm) <= sep:
+            return self
+        near = [c for c in self.scored if abs(c[0] - thickness_nm) <= sep]
+        best = [c for c in self.scored if abs(c[0] - self.thickness_nm) <= sep]
+        if not near or not best:
+            return self
+        own, top = near[0], best[0]
+        return OrderCheck(False, own[0], top[0], float((top[2] - own[2]) / self.scale),
+                          float((top[1] - own[1]) / self.scale), self.threshold, self.scale, self.candidates,
+                          self.scored)
 
     def to_json(self) -> dict:
         """The record of the fit's JSON (``order_check``)."""
@@ -118,9 +142,10 @@ def order_check(err, lev, solutions: list, robust_scale: float, n_params: int) -
     scale = max(1.0, best[3] / dof)
     others = [s for s in scored if abs(s[0] - best[0]) > order_separation(err.n_film)]
     thr = order_threshold()
+    kept = tuple((s[0], s[1], s[2]) for s in scored)
     if not others:
-        return OrderCheck(True, best[0], None, None, None, thr, scale, len(scored))
+        return OrderCheck(True, best[0], None, None, None, thr, scale, len(scored), kept)
     alt = min(others, key=lambda s: s[2])
     delta = (alt[2] - best[2]) / scale
     return OrderCheck(bool(delta > thr), best[0], alt[0], float(delta), float((alt[1] - best[1]) / scale), thr, scale,
-                      len(scored))
+                      len(scored), kept)

@@ -432,32 +432,8 @@ def _fit_views(photo, env, options: FitOptions, background, init, scene, saturat
     # the photo may tell the views apart: keep the one that explains it better
     lens_better = lens_fit.converged and _judged_chi2(lens_fit) < _judged_chi2(ortho)
     out = widen_for_view(lens_fit, ortho, lens) if lens_better else widen_for_view(ortho, lens_fit, lens)
-    if lens_better:  # the lens fit is warm-started: the orthographic fit's search tested the order
-        out = _carry_order(out, ortho.order_check, ortho.warnings)
     out.time_s = time.perf_counter() - t0
     return out
-
-
-def _carry_order(result: FitResult, record: dict | None, warnings: list) -> FitResult:
-    """``result`` (a warm-started fit, which has no search candidates) with the order test
-    of the fit it was started from (``record``, :meth:`~bubblefit.inverse.order_check.OrderCheck.to_json`,
-    and that fit's ``warnings``) when it settled in the same order (within
-    :func:`~bubblefit.inverse.order_check.order_separation`): a neighbouring order the test
-    admitted makes it not ``ok`` with the same line."""
-    from .order_check import order_separation
-
-    d = result.params.get("thickness_nm")
-    if result.order_check is not None or record is None or d is None or not np.isfinite(d):
-        return result
-    if abs(d - record["thickness_nm"]) > order_separation(result.params.get("n_film", 1.33)):
-        return result
-    result.order_check = record
-    if not record["determined"]:
-        line = next((w for w in warnings if w.startswith("the response's uncertainty admits")), None)
-        result.ok = False
-        if line is not None and line not in result.warnings:
-            result.warnings = list(result.warnings) + [line]
-    return result
 
 
 def _fit_model(photo, env, options: FitOptions, background, init, scene, saturated) -> FitResult:
@@ -707,7 +683,7 @@ def _fit_either_model(photo, env, options: FitOptions, background, init, scene, 
                    f"model's {begun.search_chi2:.3g})"):
             second = _solve_started(raced, env)
         if _explained(second, options.judge):
-            early = _carry_order(second.report(env), *_order_of(begun))
+            early = second.report(env)
             if _explained(early, options.judge):  # its map, when one is made, is sound
                 early.message += (f"; model auto: on the search image the physical model's reduced chi^2 "
                                   f"{raced_chi2:.3g} (noise-weighted) against the paper model's "
@@ -731,22 +707,11 @@ def _fit_either_model(photo, env, options: FitOptions, background, init, scene, 
                                 settings=SWITCH_SOLVE if start else None)
     c1, c2 = _judged_chi2(first), _judged_chi2(second)
     keep_second = (not second.converged, c2) < (not first.converged, c1)
-    if keep_second:
-        best = early or _carry_order(second.report(env), *_order_of(begun))
-    else:
-        best = paper or first.report(env)
+    best = (early or second.report(env)) if keep_second else (paper or first.report(env))
     best.message += (f"; model auto: paper reduced chi^2 {_judged_text(first)}, physical {_judged_text(second)} "
                      f"(with the floor, each pixel capped at an outlier's share): kept the {best.model} model")
     best.time_s = time.perf_counter() - t0
     return best
-
-
-def _order_of(begun: Started) -> tuple:
-    """``(record, warnings)`` of a started fit's order test for :func:`_carry_order`."""
-    order = begun.order
-    if order is None:
-        return None, []
-    return order.to_json(), [w for w in (order.warning(),) if w is not None]
 
 
 def _batch_starts(first: Setup, n: int, prev_vals: dict | None) -> list:

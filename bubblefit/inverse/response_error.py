@@ -310,12 +310,11 @@ def marginal_chi2(err: ResponseError | None, jac: np.ndarray, resid: np.ndarray,
         m = err.modes.shape[-1]
         a[p:, p:] = np.eye(k)
         for i, dy in _whitened_modes(err, weight, render, background, thickness, cos):
-            g = np.zeros((i.size, 3, k))  # channel c's modes move channel c only
-            for c in range(3):
-                g[:, c, c * m:(c + 1) * m] = dy[:, c]
-            a[:p, p:] += np.einsum("ncp,nck->pk", jr[i], g)
-            a[p:, p:] += np.einsum("nck,ncl->kl", g, g)
-            b[p:] += np.einsum("nck,nc->k", g, r[i])
+            for c in range(3):  # channel c's modes move channel c only
+                cols = slice(p + c * m, p + (c + 1) * m)
+                a[:p, cols] += jr[i, c].T @ dy[:, c]
+                a[cols, cols] += dy[:, c].T @ dy[:, c]
+                b[cols] += dy[:, c].T @ r[i, c]
         a[p:, :p] = a[:p, p:].T
     chi2 = float(np.sum(r * r))
     return chi2, chi2 - float(b @ np.linalg.lstsq(a, b, rcond=None)[0])

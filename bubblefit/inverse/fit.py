@@ -326,9 +326,26 @@ def _map_camera_stderr(st: Setup, full, img, thickness_map, stderr_map, camera_s
     return dict(camera_stderr or {}, thickness_nm=float(np.nanmedian(cam))), out
 
 
+def _warm_order(st: Setup, opts: FitOptions, env) -> OrderCheck | None:
+    """The order test of a warm-started constant fit, which has no candidates of its own:
+    with a response that states its errors the global search supplies them, and the test
+    then judges the warm start's order (:meth:`~bubblefit.inverse.order_check.OrderCheck.at`);
+    None otherwise (no search is run)."""
+    if opts.thickness != "constant" or "thickness_nm" not in st.table.free or \
+            response_error(st.colour.response, st.colour.illuminant, float(st.vals["n_film"])) is None:
+        return None
+    found = []
+    with stage("global thickness search for the order test"):
+        _searched_start(st, opts, env, order=found)
+    return found[0]
+
+
 def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t_start: float) -> FitResult:
-    """Judge a solve (:func:`_judge`) and report it (:func:`_report`)."""
-    return _report(st, env, opts, sol, _judge(st, opts, sol, notes), notes, t_start)
+    """Judge a solve (:func:`_judge`) and report it (:func:`_report`); a warm start's order
+    test (:func:`_warm_order`) with it."""
+    judged = _judge(st, opts, sol, notes)
+    order = _warm_order(st, opts, env)
+    return _report(st, env, opts, sol, judged if order is None else replace(judged, order=order), notes, t_start)
 
 
 def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOptions(), background=None,
@@ -558,14 +575,8 @@ def _solve_started(started: Started, env) -> Solved:
     with stage("standard errors"):
         judged = _judge(st, opts, sol, notes)
     order = started.order
-    if order is None and started.warm and started.searches and opts.thickness == "constant" and \
-            response_error(st.colour.response, st.colour.illuminant, float(st.vals["n_film"])) is not None:
-        # a warm start has no candidates: with a response that states its errors, a search
-        # supplies them, and the test then judges the warm start's order (OrderCheck.at)
-        found = []
-        with stage("global thickness search for the order test"):
-            _searched_start(st, opts, env, order=found)
-        order = found[0]
+    if order is None and started.warm and started.searches:
+        order = _warm_order(st, opts, env)
     if order is not None:
         judged = replace(judged, order=order)
     return Solved(st, opts, sol, judged, notes, started.t_start)

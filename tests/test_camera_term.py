@@ -53,3 +53,29 @@ def test_planar_fits_state_the_camera_term(tmp_path, d):
     assert const.to_json()["stderr_camera"] == const.stderr_camera
     plain = fit_planar(_photo(_scene("Nikon 5100 (NPL)"), d, rng), _scene("Nikon 5100 (NPL)"), kind="constant")
     assert plain.stderr_camera is None
+
+
+@pytest.mark.slow
+def test_planar_drainage_states_the_camera_term(tmp_path):
+    """A draining flat film (300 -> 900 nm down the frame) fitted as a drainage profile with
+    a response that states errors: each profile parameter's camera share is positive and
+    inside its standard error; with the response taken as exact there is none."""
+    from bubblefit.inverse.planar import PlanarForward, fit_planar, view_of
+    from bubblefit.model.thickness import drainage_profile
+
+    path, _, _ = _modes_csv(tmp_path, 0.03, 25.0)
+    rng = np.random.default_rng(5)
+    for response, stated in ((path, True), ("Nikon 5100 (NPL)", False)):
+        scene = _scene(response)
+        view = view_of(scene)
+        fwd = PlanarForward(scene.stack, scene.lamp, scene.response, scene.na, 1600.0)
+        d = np.asarray(drainage_profile(view.height[view.mask], 300.0, 900.0, 1.0), np.float64)
+        rgb = np.asarray(fwd.rgb(d, view.sin2[view.mask]), np.float64)
+        photo = np.zeros((scene.height, scene.width, 3))
+        photo[view.mask] = 0.6 * rgb / rgb.max() + 0.002 * rng.normal(size=rgb.shape)
+        res = fit_planar(photo, scene, kind="drainage", reference_region=(0, 0, 16, 2), reference_nm=300.0)
+        if not stated:
+            assert res.stderr_camera is None
+            continue
+        for key in ("top_nm", "bottom_nm"):
+            assert 0 < res.stderr_camera[key] <= res.stderr[key], (key, res.stderr_camera, res.stderr)

@@ -150,6 +150,28 @@ class PlanarForward:
             return coaxial.coaxial_reflectance(d, lam, n, self.na, self.nodes)
         return coaxial.reflectance_at_angles(d, lam, n, jnp.asarray(sin2)[..., None])
 
+    def camera_covariance(self, jac, model, d, sin2, sigma: float):
+        """``(J^T J)^-1 G_R (J^T J)^-1``: a calibrated response's share of a few-parameter
+        model's covariance, ``G_R`` from :func:`~bubblefit.inverse.response_error.response_gram`
+        over the pixels' colours ``model`` (P, 3) at thicknesses ``d`` (P,) seen at ``sin2``
+        (P,), through the stack's reflectance, with ``jac`` (P 3, p) the Jacobian of the
+        residual whitened by the noise ``sigma``; None for a response taken as exact."""
+        from .response_error import response_error, response_gram
+
+        err = response_error(self.response, self.lamp, float(np.median(np.asarray(self.n.film))))
+        if err is None:
+            return None
+        d, s2 = np.asarray(d, np.float64), np.asarray(sin2, np.float64)
+
+        def refl(i):
+            return np.asarray(self.reflectance(d[i], s2[i], err.wavelengths), np.float64)
+
+        n = len(d)
+        gram = response_gram(err, jac, np.full((n, 1, 3), 1.0 / sigma), np.asarray(model)[:, None], None,
+                             d[:, None], np.ones((n, 1)), refl)
+        a_inv = np.linalg.pinv(jac.T @ jac)
+        return a_inv @ gram @ a_inv
+
     def camera_shifts(self, model, d, sin2, sigma: float):
         """:func:`~bubblefit.inverse.response_error.pixel_thickness_shifts` of the pixels'
         colours ``model`` (P, 3) at thicknesses ``d`` (P,) seen at ``sin2`` (P,) with the
@@ -577,6 +599,7 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     sigma2 = max(float(np.median(cost.min(1))) / 3.0, 1e-10)
     window = 0.3 * fwd.fringe_nm
     warnings: list[str] = []
+    drain_camera = None
 
     if kind == "constant":
         gain, dpix = _constant_thickness(y, lum, table, i0, i1, a, grid, fwd.fringe_nm, sigma2, warnings, clip_high)
@@ -622,6 +645,7 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         params, perr = dres.params, dres.stderr
         dref, model, gain = dres.thickness, dres.model, dres.gain
         stderr = dres.thickness_stderr
+        drain_camera = dres.stderr_camera
         res = censored_residual(y, model, clip_high, np)
         warnings.extend(_exponent_at_edge(params["exponent"]))
     if kind == "newton":
@@ -637,7 +661,7 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     # bubble's fit is judged (JudgeSettings.model_error: how much independent renderers
     # differ on the same film); ``ok`` is judged by this one
     chi2_floor = float(np.mean(res ** 2 / (sigma ** 2 + (JudgeSettings.model_error * y) ** 2)))
-    stderr_camera = None
+    stderr_camera = drain_camera if kind == "drainage" else None
     if kind in ("constant", "map"):  # a calibrated response's share (one draw moves every pixel)
         moved = fwd.camera_shifts(model, dref, sin2, sigma)
         if moved is not None:

@@ -230,12 +230,14 @@ def pixel_thickness_shifts(err: ResponseError | None, render: np.ndarray, backgr
 
 
 def _whitened_modes(err: ResponseError, weight: np.ndarray, render: np.ndarray, background: np.ndarray | None,
-                    thickness: np.ndarray, cos: np.ndarray):
+                    thickness: np.ndarray, cos: np.ndarray, reflectance=None):
     """Blocks of :data:`_GRAM_BLOCK` fitted pixels (``weight > 0`` in a channel): yields
     ``(index, W dy)``, the flat pixel indices and their whitened render change ``(n, 3, M)``
     along each error mode (:meth:`ResponseError.jacobian` times the whitening ``W = 1 / sigma``),
     over (h, w, 3) ``weight``, ``render``, ``background`` (None: none) and (h, w) ``thickness``
-    (nm) and ``cos``: the columns ``G`` that :func:`response_gram` and :func:`marginal_chi2` read."""
+    (nm) and ``cos``: the columns ``G`` that :func:`response_gram` and :func:`marginal_chi2` read.
+    ``reflectance(i)``: the film's reflectance (n, G) on the response's grid at the flat
+    pixels ``i`` where it is not a film in air (default: :meth:`ResponseError.reflectance`)."""
     h, w = weight.shape[:2]
     pix = np.nonzero(np.any(np.asarray(weight) > 0, axis=-1).ravel())[0]
     flat = lambda a, n: np.asarray(a, np.float64).reshape(h * w, n)  # noqa: E731
@@ -245,12 +247,14 @@ def _whitened_modes(err: ResponseError, weight: np.ndarray, render: np.ndarray, 
     cs = np.broadcast_to(np.asarray(cos, np.float64), (h, w)).reshape(-1)
     for lo in range(0, pix.size, _GRAM_BLOCK):
         i = pix[lo:lo + _GRAM_BLOCK]
-        dy = err.jacobian(y[i], None if bg is None else bg[i], th[i], cs[i]) * wt[i][:, :, None]
+        refl = None if reflectance is None else reflectance(i)
+        dy = err.jacobian(y[i], None if bg is None else bg[i], th[i], cs[i], refl=refl) * wt[i][:, :, None]
         yield i, np.nan_to_num(dy)
 
 
 def response_gram(err: ResponseError | None, jac: np.ndarray, weight: np.ndarray, render: np.ndarray,
-                  background: np.ndarray | None, thickness: np.ndarray, cos: np.ndarray) -> np.ndarray | None:
+                  background: np.ndarray | None, thickness: np.ndarray, cos: np.ndarray,
+                  reflectance=None) -> np.ndarray | None:
     """(p, p) ``sum_m (J^T W dy_m)(J^T W dy_m)^T`` over the response's error modes ``dy_m``
     (:meth:`ResponseError.jacobian`; module docstring): what the response's errors add to
     the fitted parameters' covariance between two ``(J^T J)^-1``.
@@ -267,6 +271,9 @@ def response_gram(err: ResponseError | None, jac: np.ndarray, weight: np.ndarray
         (h, w, 3) the fit's render and the background photo (None: none).
     thickness, cos : np.ndarray
         (h, w) each pixel's film thickness (nm) and cosine of incidence.
+    reflectance : callable, optional
+        The film's reflectance at flat pixel indices where it is not a film in air
+        (:func:`_whitened_modes`).
     """
     if err is None:
         return None
@@ -274,7 +281,7 @@ def response_gram(err: ResponseError | None, jac: np.ndarray, weight: np.ndarray
     p = jac.shape[1]
     jr = np.asarray(jac, np.float64).reshape(h * w, 3, p)
     total = np.zeros((p, 3, err.modes.shape[-1]))
-    for i, dy in _whitened_modes(err, weight, render, background, thickness, cos):
+    for i, dy in _whitened_modes(err, weight, render, background, thickness, cos, reflectance):
         total += np.einsum("ncp,ncm->pcm", jr[i], dy)
     return np.einsum("pcm,qcm->pq", total, total)
 

@@ -7,7 +7,8 @@ illuminant E with 0.5 % noise, are synthesised here with numpy (independent of b
 48 px photos of constant films rendered with the Nikon's sensitivities (noise, 8-bit sRGB
 quantisation: tests/helpers.py's film_photo) are fitted with that CSV and illuminant E.
 Prints the thickness error, its standard error and the camera response's share of it
-(``stderr_camera``), and the verdict per photo.
+(``stderr_camera``), the order test (``order_check``: the neighbouring order's chi^2 above
+the best's with the response's errors marginalised, and without) and the verdict per photo.
 
 ``--photo-camera`` renders the photos with another camera than the one calibrated (a wrong
 calibrated response, which the fit should not call ok); ``--keep DIR`` keeps the CSVs.
@@ -93,7 +94,8 @@ def main():
             row = dict(source=source, photo_camera=a.photo_camera, truth=t, thickness=r.params["thickness_nm"],
                        stderr=r.stderr.get("thickness_nm"), ok=r.ok,
                        stderr_camera=(r.stderr_camera or {}).get("thickness_nm"), chi2=r.reduced_chi2,
-                       colour=r.colour_check, warnings=r.warnings, time_s=time.perf_counter() - t0)
+                       colour=r.colour_check, order=r.order_check, warnings=r.warnings,
+                       time_s=time.perf_counter() - t0)
             rows.append(row)
             arrays[f"{source}_{t:.0f}" + "_photo"] = photo
             arrays[f"{source}_{t:.0f}" + "_render"] = r.render
@@ -103,6 +105,8 @@ def main():
                   f"SE {se:.1f} of which camera {row['stderr_camera'] or 0:.1f}, {(row['thickness'] - t) / se:+.1f} SE) "
                   f"ok={r.ok!s:5} "
                   f"chi2={r.reduced_chi2:5.2f} colour chi2/dof={(r.colour_check or {}).get('chi2_per_dof')} "
+                  f"order: alternative {(r.order_check or {}).get('alternative_nm')} nm, delta chi2 "
+                  f"{(r.order_check or {}).get('delta_chi2')} (plain {(r.order_check or {}).get('delta_chi2_plain')}) "
                   f"({row['time_s']:.0f} s)", flush=True)
     if a.arrays:
         np.savez_compressed(a.arrays, **arrays)

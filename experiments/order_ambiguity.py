@@ -55,6 +55,7 @@ def main():
             out[key] = {"thickness_nm": fit.params["thickness_nm"], "stderr_nm": fit.stderr.get("thickness_nm"),
                         "reduced_chi2": fit.reduced_chi2, "chi2": fit.reduced_chi2 * n, "chi2_floor": fit.chi2_floor,
                         "ok": fit.ok, "colour_chi2_per_dof": (fit.colour_check or {}).get("chi2_per_dof"),
+                        "order_check": fit.order_check,
                         "candidates": (fit.effects or {}).get("thickness_candidates") if isinstance(fit.effects, dict) else None}
         out["time_s"] = time.perf_counter() - t0
         rows.append(out)

@@ -878,3 +878,41 @@ def test_pale_thick_film_found_in_its_order(small_courtyard, seed):
         view=ORTHOGRAPHIC))
     assert abs(r.params["thickness_nm"] - 1500.0) < 5.0, (r.params, r.warnings)
     assert r.ok, r.warnings
+
+
+@pytest.mark.slow
+def test_chart_calibrated_order_test(small_courtyard):
+    """The ColorChecker's patches seen by the Nikon under E (0.5 % noise) calibrate a CSV
+    whose errors are wide on thick films. A 1300 nm photo rendered with the Nikon's own
+    sensitivities is fitted with it by the global search, and warm-started one order up
+    (1524 nm). The colour check cannot tell the orders apart with these errors; the order
+    test (the search's candidates compared with the CSV's errors marginalised,
+    bubblefit.inverse.order_check) must: a fit is ok only within 3 standard errors of the
+    truth, and the warm start one order up is not ok, with the line that names the order
+    the photo prefers."""
+    from bubblefit.capture.camera_calibration import chart_reflectances, fit_response
+    from bubblefit.capture.view import ORTHOGRAPHIC
+    from bubblefit.inverse import starts
+    from bubblefit.inverse.fit import FitOptions, fit_photo
+    from bubblefit.lighting.envmap import EnvMap
+    import tempfile
+
+    _, refl = chart_reflectances()
+    rgb = refl @ _sensitivities(NIKON) * (1 + 0.005 * np.random.default_rng(0).normal(size=(24, 3)))
+    env = EnvMap.from_array(small_courtyard)
+    photo, bg = film_photo(env, 1300.0, 34, NIKON, "E")
+    with tempfile.TemporaryDirectory() as tmp:
+        path = f"{tmp}/chart.csv"
+        with open(path, "w") as fh:
+            fh.write(fit_response([("chart", refl, rgb)]).csv_text())
+        opts = FitOptions(disc=DISC, parameters=starts(t=0.968, roughness=0.04), model="paper", camera_response=path,
+                          illuminant="E", view=ORTHOGRAPHIC)
+        searched = fit_photo(photo, env, background=bg, options=opts)
+        warm = fit_photo(photo, env, background=bg, options=opts, init=dict(searched.params, thickness_nm=1524.0))
+    for fit in (searched, warm):
+        assert fit.order_check is not None
+        if fit.ok:
+            assert abs(fit.params["thickness_nm"] - 1300.0) < 3 * fit.stderr["thickness_nm"], fit.params
+    assert abs(warm.params["thickness_nm"] - 1300.0) > 150.0  # the warm start stayed an order up
+    assert not warm.ok and not warm.order_check["determined"], warm.order_check
+    assert any("admits the neighbouring order" in w for w in warm.warnings), warm.warnings

@@ -176,13 +176,23 @@ def fit_drainage(fwd, y, lum, sin2, height, start, gain, sigma, lo, hi, shape, p
                          (h, w, 3), block)
     t = np.asarray(theta, np.float64)
     cov[:3, :3] += drainage_covariance(t[0], t[1], float(np.exp(np.clip(t[2], elo, ehi))))
-    se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     d = np.asarray(profile(theta), np.float64)
+    # a calibrated response's share (bubblefit.inverse.response_error.response_gram)
+    cam = fwd.camera_covariance(J, np.asarray(model(theta), np.float64), np.clip(d, lo, hi), sin2, sigma)
+    if cam is not None:
+        cov = cov + cam
+    se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     dj = np.asarray(jax.jacfwd(profile)(theta), np.float64)[:, :3]
     d_se = np.sqrt(np.clip(np.einsum("pi,ij,pj->p", dj, cov[:3, :3], dj), 0.0, None))
     expo = float(np.exp(np.clip(t[2], elo, ehi)))
     params = {"top_nm": float(t[0]), "bottom_nm": float(t[1]), "exponent": expo, "exposure": float(np.exp(t[3]))}
     stderr = {"top_nm": float(se[0]), "bottom_nm": float(se[1]), "exponent": expo * float(se[2]),
               "exposure": float(np.exp(t[3]) * se[3])}
+    camera = None
+    if cam is not None:
+        cse = np.sqrt(np.clip(np.diag(cam), 0.0, None))
+        camera = {"top_nm": float(cse[0]), "bottom_nm": float(cse[1]), "exponent": expo * float(cse[2]),
+                  "exposure": float(np.exp(t[3]) * cse[3])}
     return ModelFit(params=params, stderr=stderr, thickness=np.clip(d, lo, hi), thickness_stderr=d_se,
-                       model=np.asarray(model(theta), np.float64), gain=float(np.exp(t[3])), stderr_scale=scale)
+                    model=np.asarray(model(theta), np.float64), gain=float(np.exp(t[3])), stderr_scale=scale,
+                    stderr_camera=camera)

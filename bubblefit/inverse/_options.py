@@ -496,6 +496,10 @@ class FitResult:
     #: standard error from the response's stated errors alone (included in ``stderr``;
     #: :mod:`bubblefit.inverse._uncertainty`), or None where the response is taken as exact.
     stderr_camera: dict | None = None
+    #: :meth:`bubblefit.inverse.order_check.OrderCheck.to_json`: whether the photo tells the
+    #: film's order with the calibrated response's errors marginalised, or None where not
+    #: tested (a response taken as exact, a warm start, a thickness other than constant).
+    order_check: dict | None = None
 
     def to_json(self) -> dict:
         """The command line's result (``docs/design.md``): params, stderr, converged,
@@ -541,6 +545,7 @@ class FitResult:
             "colour_check": self.colour_check,
             "camera_calibration": self.camera_calibration,
             "stderr_camera": None if self.stderr_camera is None else _clean(self.stderr_camera),
+            "order_check": self.order_check,
             "effects": [{"effect": d.effect, "simulated": d.simulated, "setting": d.setting, "reason": d.reason}
                         for d in self.effects],
         }

@@ -38,6 +38,9 @@ class ModelFit:
     model: np.ndarray
     gain: float
     stderr_scale: float = 1.0
+    #: each parameter's standard error from a calibrated response's errors alone (in
+    #: ``stderr``), or None where the response is taken as exact or it is not computed
+    stderr_camera: dict | None = None
 
 
 def levenberg_marquardt(resid: Callable, jac: Callable, theta, iters: int = 40, rel_stop: float = 1e-9):

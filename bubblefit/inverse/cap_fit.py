@@ -58,6 +58,7 @@ from ._options import FitOptions
 from ._lm import robust
 from ._planar_lm import levenberg_marquardt
 from ._uncertainty import OUTLIER_CHI2, Misfit
+from .response_error import response_error, response_gram
 from ._verdict import verdict
 from ._observation import noise_sigma
 from .planar import GRID_STEP_NM, PlanarResult, _on_image
@@ -309,9 +310,13 @@ def fit_cap(photo: np.ndarray, scene, env, *, kind: str | None = None, clip_high
         cov = np.linalg.inv(jac.T @ jac) * max(1.0, chi2)
     except np.linalg.LinAlgError:
         raise ComputationError("the cap's fit is singular (no colour changes with the thickness)") from None
+    names = ["thickness_nm"] if kind == "constant" else ["top_nm", "bottom_nm", "exponent"]
+    dfront = _front_thickness(cfg, kind, theta, flat, w)
+    cam_cov = _camera_covariance(scene, jac, seen / sigma, fitted, dfront)
+    if cam_cov is not None:
+        cov = cov + cam_cov
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     me = opts.judge.thickness_model_error_nm
-    names = ["thickness_nm"] if kind == "constant" else ["top_nm", "bottom_nm", "exponent"]
     params = {n: float(v) for n, v in zip(names, theta)}
     stderr = {n: float(s) for n, s in zip(names, se)}
     for n in names:
@@ -319,12 +324,16 @@ def fit_cap(photo: np.ndarray, scene, env, *, kind: str | None = None, clip_high
             stderr[n] = float(np.hypot(stderr[n], me))
     gain = float(np.exp(theta[-1]))
     params["exposure"], stderr["exposure"] = gain, float(gain * se[-1])
+    stderr_camera = None
+    if cam_cov is not None:
+        cam_se = np.sqrt(np.maximum(np.diag(cam_cov), 0.0))
+        stderr_camera = {n: float(v) for n, v in zip(names, cam_se)}
+        stderr_camera["exposure"] = float(gain * cam_se[-1])
     if kind == "drainage":
         e = params["exponent"]
         lo_e, hi_e = EXPONENT_RANGE
         if not lo_e < e < hi_e:
             warnings.append(f"the drainage exponent {e:.3g} lies outside {lo_e:g}-{hi_e:g}")
-    dfront = _front_thickness(cfg, kind, theta, flat, w)
     edge = (dfront <= lo + 1e-6) | (dfront >= hi - 1e-6)
     if edge.mean() > 0.05:
         warnings.append(f"{100 * edge.mean():.0f} % of the cap sits at the edge of the searched range {lo:g}-{hi:g} nm")
@@ -350,7 +359,27 @@ def fit_cap(photo: np.ndarray, scene, env, *, kind: str | None = None, clip_high
                      pixels_mirrored=int(mirrored.sum()), shape="sphere" if cfg.area is not None else "cap",
                      skipped=SKIPPED_SPHERE if cfg.area is not None else SKIPPED,
                      traced=TRACED_SPHERE if cfg.area is not None else (), outliers=fit_misfit.outliers,
-                     chi2_inliers=fit_misfit.chi2_inliers)
+                     chi2_inliers=fit_misfit.chi2_inliers, stderr_camera=stderr_camera)
+
+
+def _camera_covariance(scene, jac, weight, fitted, dfront):
+    """The calibrated response's share of the parameters' covariance,
+    ``(J^T J)^-1 G_R (J^T J)^-1`` with ``G_R`` from
+    :func:`~bubblefit.inverse.response_error.response_gram` (the bubble fit's term,
+    :mod:`bubblefit.inverse._uncertainty`), over the fitted pixels (P, 3) ``weight``
+    (``1 / sigma``, 0 where censored) and ``fitted`` (the render) at each pixel's front
+    film ``dfront`` (P,) seen at normal incidence (the cap's angles are not traced here;
+    a ray at 30 degrees sees a 5 % shorter optical path), with no background (the light
+    seen through the film counted as reflected, which overstates the response's share);
+    None for a response taken as exact."""
+    err = response_error(scene.response, scene.illuminant, float(scene.n_film))
+    if err is None:
+        return None
+    n = len(fitted)
+    gram = response_gram(err, jac, np.asarray(weight, np.float64)[:, None], np.asarray(fitted)[:, None], None,
+                         np.asarray(dfront, np.float64)[:, None], np.ones((n, 1)))
+    a_inv = np.linalg.inv(jac.T @ jac)
+    return a_inv @ gram @ a_inv
 
 
 def _misfit(res, sigma, y, model_error: float, n_free: int) -> Misfit:

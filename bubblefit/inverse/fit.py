@@ -64,7 +64,8 @@ from ._uncertainty import Uncertainty, uncertainty
 from ._verdict import at_bounds, clamp_to_range, unresolved, verdict
 from ._view import camera_record, fit_view, lens_for, widen_for_view
 from .colour_check import judge_colours
-from .response_error import response_cells, solve_response_gram
+from .order_check import OrderCheck, order_check
+from .response_error import pixel_thickness_stderr, response_cells, response_error, solve_response_gram
 from ..errors import InputError
 from ..lighting.envmap import EnvMap
 from ..model.thickness import drainage_profile
@@ -99,23 +100,31 @@ def _warm_doubt(st: Setup, opts: FitOptions, sol: LocalSolution) -> str | None:
     return None
 
 
-def _searched_start(st: Setup, opts: FitOptions, env, misfit: list | None = None) -> dict:
+def _searched_start(st: Setup, opts: FitOptions, env, misfit: list | None = None, order: list | None = None) -> dict:
     """The global search's best start: each of :func:`search.search_starts` refined with at
     most ``search_steps`` LM steps on the search image (the disc as found: it is refined
     in the final solve only); the lowest cost wins. ``misfit``, when given, receives the
     winner's noise-weighted reduced chi^2 on the search image (its cost over the fitted
-    pixels less the free parameters), the measure :func:`_warm_doubt` reads."""
+    pixels less the free parameters), the measure :func:`_warm_doubt` reads; ``order``
+    receives the refined candidates compared with the response's errors marginalised
+    (:func:`~bubblefit.inverse.order_check.order_check`; None when the response states no
+    errors)."""
     lev_s = st.level(st.k_search, opts)
     starts = search.search_starts(lev_s, st.search_table, st.vals, env, opts.thickness_range,
                                   opts.solver.search_step_nm, opts.solver.candidates)
     best_v, best_c = None, np.inf
+    refined = []
     for s in starts:
         sol = solve_local(lev_s, st.search_table, opts.solver, s, env, max_steps=opts.solver.search_steps,
                           settings=SEARCH_SOLVE)
+        refined.append(sol)
         if np.isfinite(sol.cost) and sol.cost < best_c:
             best_v, best_c = sol.values, sol.cost
     if misfit is not None:
         misfit.append(_reduced_search_chi2(best_c, lev_s, st))
+    if order is not None:
+        err = response_error(st.colour.response, st.colour.illuminant, float(st.vals["n_film"]))
+        order.append(order_check(err, lev_s, refined, float(opts.solver.robust_scale), len(st.search_table.free)))
     return best_v if best_v is not None else starts[0]
 
 
@@ -169,6 +178,9 @@ class Judgement:
         The solver met its tolerances with finite errors.
     bounds : list
         Warnings for free parameters at a bound of their range.
+    order : OrderCheck or None
+        The global search's candidates compared with the response's errors marginalised
+        (:mod:`bubblefit.inverse.order_check`; None without a search or without stated errors).
     """
 
     uncertainty: Uncertainty
@@ -179,6 +191,7 @@ class Judgement:
     status: str
     converged: bool
     bounds: list
+    order: OrderCheck | None = None
 
 
 def _judge(st: Setup, opts: FitOptions, sol: LocalSolution, notes: list) -> Judgement:
@@ -250,6 +263,11 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     draw = render_level if opts.thickness == "map" else render_bubble
     img = np.asarray(draw(final_params(table, final_vals, opts), full, env), np.float64)
     resid_img = st.photo - img
+    camera_stderr = unc.camera_stderr
+    if opts.thickness == "map" and full.mask.any():  # each pixel's share of a calibrated response's errors
+        camera_stderr, stderr_map = _map_camera_stderr(st, full, img, thickness_map, stderr_map, camera_stderr)
+        if camera_stderr is not None:
+            stderr["thickness_nm"] = float(np.nanmedian(stderr_map[full.mask]))
     rms = float(np.sqrt(np.mean(resid_img[full.mask] ** 2))) if full.mask.any() else float("nan")
     reported["n_film"] = float(st.vals["n_film"])
     bounds = judged.bounds + _exposure_doubts(st, opts, env, full, reported)
@@ -267,6 +285,11 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     ok, warnings, colour_record = judge_colours(ok, warnings, st.photo, img, full.mask, full.cos, sigma,
                                                 float(judge.model_error), explained, judge.colour_check == "decide",
                                                 response_jac)
+    order = judged.order  # does the photo tell the order, the response's errors allowed?
+    if order is not None and np.isfinite(reported.get("thickness_nm", np.nan)):
+        order = order.at(float(reported["thickness_nm"]), float(reported["n_film"]))
+    if order is not None and order.warning() is not None:
+        ok, warnings = False, warnings + [order.warning()]
     return FitResult(
         params=reported, stderr=stderr, held=list(table.held), converged=bool(converged),
         message="; ".join(notes) if notes else "converged", iterations=sol.steps, residual_rms=rms,
@@ -281,13 +304,48 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
         stderr_scale=unc.scale, roles=parameter_roles(table, st.fx.model, tuple(reported)),
         frame=None if st.frame.whole else (st.frame.x0, st.frame.y0, st.frame.k), colour=st.colour,
         camera=None if opts.view is None else camera_record(opts.view, st.base_cfg.camera),
-        colour_check=colour_record, stderr_camera=unc.camera_stderr,
+        colour_check=colour_record, stderr_camera=camera_stderr,
+        order_check=None if order is None else order.to_json(),
     )
 
 
+def _map_camera_stderr(st: Setup, full, img, thickness_map, stderr_map, camera_stderr):
+    """A thickness map's share of a calibrated response's errors: each pixel's standard
+    error from the response alone (:func:`~bubblefit.inverse.response_error.pixel_thickness_stderr`)
+    added in quadrature to ``stderr_map``, and ``camera_stderr`` with the map's median
+    of it as ``thickness_nm``; both unchanged for a response taken as exact."""
+    err = response_error(st.colour.response, st.colour.illuminant, float(st.vals["n_film"]))
+    if err is None:
+        return camera_stderr, stderr_map
+    m = full.mask
+    bg = None if st.background is None else np.asarray(st.background, np.float64)[m]
+    cam = pixel_thickness_stderr(err, img[m], bg, thickness_map[m], np.asarray(full.cos)[m],
+                                 np.asarray(full.w, np.float64)[m])
+    out = np.array(stderr_map, np.float64)
+    out[m] = np.hypot(out[m], cam)
+    return dict(camera_stderr or {}, thickness_nm=float(np.nanmedian(cam))), out
+
+
+def _warm_order(st: Setup, opts: FitOptions, env) -> OrderCheck | None:
+    """The order test of a warm-started constant fit, which has no candidates of its own:
+    with a response that states its errors the global search supplies them, and the test
+    then judges the warm start's order (:meth:`~bubblefit.inverse.order_check.OrderCheck.at`);
+    None otherwise (no search is run)."""
+    if opts.thickness != "constant" or "thickness_nm" not in st.table.free or \
+            response_error(st.colour.response, st.colour.illuminant, float(st.vals["n_film"])) is None:
+        return None
+    found = []
+    with stage("global thickness search for the order test"):
+        _searched_start(st, opts, env, order=found)
+    return found[0]
+
+
 def _finish(st: Setup, env, opts: FitOptions, sol: LocalSolution, notes: list, t_start: float) -> FitResult:
-    """Judge a solve (:func:`_judge`) and report it (:func:`_report`)."""
-    return _report(st, env, opts, sol, _judge(st, opts, sol, notes), notes, t_start)
+    """Judge a solve (:func:`_judge`) and report it (:func:`_report`); a warm start's order
+    test (:func:`_warm_order`) with it."""
+    judged = _judge(st, opts, sol, notes)
+    order = _warm_order(st, opts, env)
+    return _report(st, env, opts, sol, judged if order is None else replace(judged, order=order), notes, t_start)
 
 
 def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOptions(), background=None,
@@ -456,7 +514,9 @@ class Solved:
 class Started:
     """One model's fit up to its local solve (:func:`_start_one`): the set-up, the start the
     solve takes and, after a global search, the search winner's noise-weighted reduced
-    chi^2 on the search image (None for a warm start)."""
+    chi^2 on the search image (None for a warm start) and its candidates' order test
+    (:mod:`bubblefit.inverse.order_check`; None for a warm start or a response taken as
+    exact)."""
 
     setup: Setup
     options: FitOptions
@@ -466,6 +526,7 @@ class Started:
     searches: bool
     search_chi2: float | None
     t_start: float
+    order: OrderCheck | None = None
 
 
 def _start_one(photo, env, options: FitOptions, background, init, scene, saturated,
@@ -481,15 +542,16 @@ def _start_one(photo, env, options: FitOptions, background, init, scene, saturat
     searches = "thickness_nm" in st.table.free or "top_nm" in st.table.free
     warm = bool(init)
     settings = settings or (WARM_SOLVE if warm else FINAL_SOLVE)
-    chi2 = []
+    chi2, order = [], []
     if searches and not warm:
         if compile_ahead:
             warm_up(st, opts, env, settings)  # the final solve's programs compile during the search
         with stage("global thickness search"):
-            start = _searched_start(st, opts, env, chi2)
+            start = _searched_start(st, opts, env, chi2, order)
     else:
         start = st.vals
-    return Started(st, opts, start, settings, warm, searches, chi2[0] if chi2 else None, t_start)
+    return Started(st, opts, start, settings, warm, searches, chi2[0] if chi2 else None, t_start,
+                   order[0] if order else None)
 
 
 def _search_chi2(started: Started, env) -> float:
@@ -512,6 +574,11 @@ def _solve_started(started: Started, env) -> Solved:
         sol = _checked_warm_start(st, opts, env, sol, settings, notes)
     with stage("standard errors"):
         judged = _judge(st, opts, sol, notes)
+    order = started.order
+    if order is None and started.warm and started.searches:
+        order = _warm_order(st, opts, env)
+    if order is not None:
+        judged = replace(judged, order=order)
     return Solved(st, opts, sol, judged, notes, started.t_start)
 
 

@@ -126,6 +126,7 @@ class PlanarForward:
 
     def __init__(self, stack: coaxial.Stack, lamp: str, response: str, na: float, max_nm: float):
         self.basis = spectral.spectral_basis("uniform", SPECTRAL_SAMPLES, illuminant=lamp, response=response)
+        self.stack, self.lamp, self.response = stack, lamp, response
         lam = self.basis.wavelengths
         self.lam = jnp.asarray(lam)
         self.n = stack.indices(lam)
@@ -137,12 +138,55 @@ class PlanarForward:
 
     def rgb(self, d, sin2):
         """(..., 3) colour of thickness ``d`` seen at ``sin2`` (ignored under coaxial light)."""
+        return spectral.integrate(self.reflectance(d, sin2), self.basis)
+
+    def reflectance(self, d, sin2, lam=None):
+        """(..., L) the stack's reflectance at thickness ``d`` seen at ``sin2`` (ignored under
+        coaxial light), at the basis's wavelengths or at ``lam`` (nm)."""
         d = jnp.asarray(d)[..., None]
+        n = self.n if lam is None else self.stack.indices(np.asarray(lam))
+        lam = self.lam if lam is None else jnp.asarray(lam)
         if self.na > 0:
-            r = coaxial.coaxial_reflectance(d, self.lam, self.n, self.na, self.nodes)
-        else:
-            r = coaxial.reflectance_at_angles(d, self.lam, self.n, jnp.asarray(sin2)[..., None])
-        return spectral.integrate(r, self.basis)
+            return coaxial.coaxial_reflectance(d, lam, n, self.na, self.nodes)
+        return coaxial.reflectance_at_angles(d, lam, n, jnp.asarray(sin2)[..., None])
+
+    def camera_covariance(self, jac, model, d, sin2, sigma: float):
+        """``(J^T J)^-1 G_R (J^T J)^-1``: a calibrated response's share of a few-parameter
+        model's covariance, ``G_R`` from :func:`~bubblefit.inverse.response_error.response_gram`
+        over the pixels' colours ``model`` (P, 3) at thicknesses ``d`` (P,) seen at ``sin2``
+        (P,), through the stack's reflectance, with ``jac`` (P 3, p) the Jacobian of the
+        residual whitened by the noise ``sigma``; None for a response taken as exact."""
+        from .response_error import response_error, response_gram
+
+        err = response_error(self.response, self.lamp, float(np.median(np.asarray(self.n.film))))
+        if err is None:
+            return None
+        d, s2 = np.asarray(d, np.float64), np.asarray(sin2, np.float64)
+
+        def refl(i):
+            return np.asarray(self.reflectance(d[i], s2[i], err.wavelengths), np.float64)
+
+        n = len(d)
+        gram = response_gram(err, jac, np.full((n, 1, 3), 1.0 / sigma), np.asarray(model)[:, None], None,
+                             d[:, None], np.ones((n, 1)), refl)
+        a_inv = np.linalg.pinv(jac.T @ jac)
+        return a_inv @ gram @ a_inv
+
+    def camera_shifts(self, model, d, sin2, sigma: float):
+        """:func:`~bubblefit.inverse.response_error.pixel_thickness_shifts` of the pixels'
+        colours ``model`` (P, 3) at thicknesses ``d`` (P,) seen at ``sin2`` (P,) with the
+        noise ``sigma``, through the stack's reflectance (no background: the film's
+        reflection is the whole pixel); None for a response taken as exact."""
+        from .response_error import pixel_thickness_shifts, response_error
+
+        err = response_error(self.response, self.lamp, float(np.median(np.asarray(self.n.film))))
+        if err is None:
+            return None
+        s2 = np.asarray(sin2, np.float64)
+        def refl(x):
+            return np.asarray(self.reflectance(np.asarray(x, np.float64), s2, err.wavelengths), np.float64)
+
+        return pixel_thickness_shifts(err, model, None, d, np.ones(len(d)), np.full(np.shape(model), 1.0 / sigma), refl)
 
 
 @dataclass
@@ -164,6 +208,10 @@ class PlanarResult:
     reduced_chi2: float = float("nan")
     reduced_chi2_floor: float = float("nan")
     order_from: str = ""
+    #: Each value's standard error from a calibrated response's stated errors alone
+    #: (already in ``stderr``; :mod:`bubblefit.inverse.response_error`), or None where the
+    #: response is taken as exact or the term is not computed.
+    stderr_camera: dict | None = None
 
     @property
     def residual_rms(self) -> float:
@@ -176,7 +224,7 @@ class PlanarResult:
         return {"kind": self.kind, "ok": self.ok, "warnings": self.warnings, "params": self.params,
                 "stderr": self.stderr, "gain": self.gain, "noise_sigma": self.sigma,
                 "reduced_chi2": self.reduced_chi2, "reduced_chi2_floor": self.reduced_chi2_floor,
-                "order_from": self.order_from, "order_hops": self.order_hops,
+                "order_from": self.order_from, "order_hops": self.order_hops, "stderr_camera": self.stderr_camera,
                 "thickness_nm": {"min": float(m.min()), "median": float(np.median(m)), "max": float(m.max()),
                                  "median_stderr": float(np.nanmedian(self.thickness_stderr_map))} if m.size else None}
 
@@ -551,6 +599,7 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     sigma2 = max(float(np.median(cost.min(1))) / 3.0, 1e-10)
     window = 0.3 * fwd.fringe_nm
     warnings: list[str] = []
+    drain_camera = None
 
     if kind == "constant":
         gain, dpix = _constant_thickness(y, lum, table, i0, i1, a, grid, fwd.fringe_nm, sigma2, warnings, clip_high)
@@ -596,6 +645,7 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         params, perr = dres.params, dres.stderr
         dref, model, gain = dres.thickness, dres.model, dres.gain
         stderr = dres.thickness_stderr
+        drain_camera = dres.stderr_camera
         res = censored_residual(y, model, clip_high, np)
         warnings.extend(_exponent_at_edge(params["exponent"]))
     if kind == "newton":
@@ -611,6 +661,19 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     # bubble's fit is judged (JudgeSettings.model_error: how much independent renderers
     # differ on the same film); ``ok`` is judged by this one
     chi2_floor = float(np.mean(res ** 2 / (sigma ** 2 + (JudgeSettings.model_error * y) ** 2)))
+    stderr_camera = drain_camera if kind == "drainage" else None
+    if kind in ("constant", "map"):  # a calibrated response's share (one draw moves every pixel)
+        moved = fwd.camera_shifts(model, dref, sin2, sigma)
+        if moved is not None:
+            shifts, jj = moved
+            if kind == "constant":
+                cam = float(np.sqrt(np.sum((np.tensordot(jj, shifts, axes=1) / max(float(jj.sum()), 1e-300)) ** 2)))
+                perr["thickness_nm"] = float(np.hypot(perr["thickness_nm"], cam))
+            else:
+                pix = np.sqrt(np.sum(shifts**2, axis=(1, 2)))
+                stderr = np.hypot(stderr, pix)
+                cam = float(np.median(pix))
+            stderr_camera = {"thickness_nm": cam}
     tmap = _on_image(mask, dref, np.nan)
     smap = _on_image(mask, stderr, np.nan)
     hops = _hops(tmap, window) if kind == "map" else 0
@@ -630,4 +693,5 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         raise ComputationError("the planar fit produced non-finite thicknesses")
     return PlanarResult(kind=kind, ok=ok, thickness_map=tmap, thickness_stderr_map=smap, render=render, residual=resid,
                         gain=gain, sigma=sigma, params=params, stderr=perr, warnings=warnings, order_hops=hops,
-                        reduced_chi2=chi2, reduced_chi2_floor=chi2_floor, order_from=order_from)
+                        reduced_chi2=chi2, reduced_chi2_floor=chi2_floor, order_from=order_from,
+                        stderr_camera=stderr_camera)

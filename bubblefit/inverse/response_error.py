@@ -48,7 +48,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ResponseError", "response_error", "response_cells", "response_gram", "solve_response_gram", "MAX_PIXELS"]
+__all__ = ["ResponseError", "response_error", "response_cells", "response_gram", "solve_response_gram", "marginal_chi2",
+           "solve_marginal_chi2", "pixel_thickness_stderr", "pixel_thickness_shifts", "MAX_PIXELS"]
 
 #: Pixels per cell the mean Jacobian is taken over (evenly strided): the Jacobian follows
 #: the fitted thickness, smooth over a cell, so a subsample gives its mean (and bounds the
@@ -69,15 +70,27 @@ class ResponseError:
     modes: np.ndarray
     n_film: float
 
+    def reflectance(self, thickness: np.ndarray, cos: np.ndarray) -> np.ndarray:
+        """(n, G) the Airy reflectance of a film in air (Born & Wolf eq. 7.6(13), both
+        polarisations averaged) of ``thickness`` (n,) nm seen at ``cos`` (n,), on the grid."""
+        return np.asarray(_airy()(np.asarray(thickness, np.float64)[:, None], self.wavelengths[None, :],
+                                  self.n_film, np.asarray(cos, np.float64)[:, None])).mean(axis=-1)
+
+    def shares(self, refl: np.ndarray) -> np.ndarray:
+        """(n, 3) ``f_k = sum_l w_k R / sum_l w_k``: the reflected share per channel of a
+        reflectance ``refl`` (n, G) on the grid (module docstring)."""
+        return np.asarray(refl, np.float64) @ self.density / self.density.sum(axis=0)
+
     def jacobian(self, render: np.ndarray, background: np.ndarray | None, thickness: np.ndarray,
-                 cos: np.ndarray) -> np.ndarray:
+                 cos: np.ndarray, refl: np.ndarray | None = None) -> np.ndarray:
         """(n, 3, M): each pixel's change of its render ``(n, 3)`` along each error mode of
         each channel's response (one standard deviation), at the pixel's film ``thickness``
-        (n,) nm seen at ``cos`` (n,) (cosine of incidence)."""
-        refl = np.asarray(_airy()(np.asarray(thickness, np.float64)[:, None], self.wavelengths[None, :],
-                                  self.n_film, np.asarray(cos, np.float64)[:, None])).mean(axis=-1)
+        (n,) nm seen at ``cos`` (n,) (cosine of incidence); ``refl`` (n, G): the film's
+        reflectance on the grid where it is not a film in air (:meth:`reflectance`), e.g. a
+        film on a substrate."""
+        refl = self.reflectance(thickness, cos) if refl is None else np.asarray(refl, np.float64)
         total = self.density.sum(axis=0)                         # (3,)
-        f = refl @ self.density / total                          # (n, 3) the film's reflected share per channel
+        f = self.shares(refl)                                    # (n, 3) the film's reflected share per channel
         proj = refl @ self.hats                                  # (n, L)
         dfdx = (proj[:, None, :] - f[:, :, None] * self.hats.sum(axis=0)[None, None, :]) / total[None, :, None]
         bg = 0.0 if background is None else np.asarray(background, np.float64)
@@ -166,8 +179,82 @@ def response_cells(response: str, illuminant: str, n_film: float, render: np.nda
 _GRAM_BLOCK = 2048
 
 
+#: Half step (nm) of the central difference of a film's channel shares in its thickness
+#: (:func:`pixel_thickness_stderr`): the shares change on the scale of a fringe's tenth
+#: (about 20 nm), so the difference's truncation error is under 1e-3 of the slope.
+THICKNESS_STEP_NM = 0.5
+
+
+def pixel_thickness_stderr(err: ResponseError | None, render: np.ndarray, background: np.ndarray | None,
+                           thickness: np.ndarray, cos: np.ndarray, weight: np.ndarray,
+                           reflectance=None) -> np.ndarray | None:
+    """(n,) each pixel's thickness standard error from the response's errors alone, the
+    pixel's thickness fitted from its own three channels (a per-pixel thickness map): the
+    root sum of squares of :func:`pixel_thickness_shifts` over the response's error
+    coefficients (arguments as there); None when the response states no errors."""
+    shifts = pixel_thickness_shifts(err, render, background, thickness, cos, weight, reflectance)
+    return None if shifts is None else np.sqrt(np.sum(shifts[0] ** 2, axis=(1, 2)))
+
+
+def pixel_thickness_shifts(err: ResponseError | None, render: np.ndarray, background: np.ndarray | None,
+                           thickness: np.ndarray, cos: np.ndarray, weight: np.ndarray,
+                           reflectance=None) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(shifts, jj)``: (n, 3, M) how far each pixel's thickness, fitted from its own three
+    channels, moves per unit of each channel's error coefficients, and (n,) ``j^T j``:
+    :func:`response_gram`'s sandwich with one parameter per pixel, ``-(j_k W_k dy_km) /
+    (j^T j)`` with ``j = W dy / dd`` the whitened render's slope in the thickness
+    (``dy / dd = (dy / df) (df / dd)``, the shares ``f`` of :meth:`ResponseError.shares`
+    differenced over :data:`THICKNESS_STEP_NM`) and ``dy_km`` channel ``k``'s render change
+    along its mode ``m`` (:meth:`ResponseError.jacobian`). A smoothness prior between
+    pixels does not narrow it: one draw of the response moves neighbouring pixels alike.
+    ``render``, ``background`` (None: none) and ``weight`` (``1 / sigma``) are (n, 3),
+    ``thickness`` and ``cos`` (n,); ``reflectance(d)`` gives the film's reflectance (n, G)
+    on the response's grid at thicknesses ``d`` (n,) where it is not a film in air (default:
+    :meth:`ResponseError.reflectance` at ``cos``). None when the response states no errors.
+    A film whose pixels share one thickness moves by their ``j^T j``-weighted mean."""
+    if err is None:
+        return None
+    d = np.asarray(thickness, np.float64)
+    cs = np.asarray(cos, np.float64)
+    refl = (lambda x: err.reflectance(x, cs)) if reflectance is None else reflectance
+    r0 = refl(d)
+    bg = 0.0 if background is None else np.asarray(background, np.float64)
+    y = np.asarray(render, np.float64)
+    f = err.shares(r0)
+    dfdd = (err.shares(refl(d + THICKNESS_STEP_NM)) - err.shares(refl(d - THICKNESS_STEP_NM))) / (2 * THICKNESS_STEP_NM)
+    wt = np.asarray(weight, np.float64)
+    j = wt * (y - bg) / np.maximum(f, 1e-9) * dfdd                                       # (n, 3)
+    g = err.jacobian(y, background, d, cs, refl=r0) * wt[:, :, None]                   # (n, 3, M)
+    jj = np.sum(j * j, axis=1)
+    return -j[:, :, None] * g / np.maximum(jj, 1e-300)[:, None, None], jj
+
+
+def _whitened_modes(err: ResponseError, weight: np.ndarray, render: np.ndarray, background: np.ndarray | None,
+                    thickness: np.ndarray, cos: np.ndarray, reflectance=None):
+    """Blocks of :data:`_GRAM_BLOCK` fitted pixels (``weight > 0`` in a channel): yields
+    ``(index, W dy)``, the flat pixel indices and their whitened render change ``(n, 3, M)``
+    along each error mode (:meth:`ResponseError.jacobian` times the whitening ``W = 1 / sigma``),
+    over (h, w, 3) ``weight``, ``render``, ``background`` (None: none) and (h, w) ``thickness``
+    (nm) and ``cos``: the columns ``G`` that :func:`response_gram` and :func:`marginal_chi2` read.
+    ``reflectance(i)``: the film's reflectance (n, G) on the response's grid at the flat
+    pixels ``i`` where it is not a film in air (default: :meth:`ResponseError.reflectance`)."""
+    h, w = weight.shape[:2]
+    pix = np.nonzero(np.any(np.asarray(weight) > 0, axis=-1).ravel())[0]
+    flat = lambda a, n: np.asarray(a, np.float64).reshape(h * w, n)  # noqa: E731
+    wt, y = flat(weight, 3), flat(render, 3)
+    bg = None if background is None else flat(background, 3)
+    th = np.broadcast_to(np.asarray(thickness, np.float64), (h, w)).reshape(-1)
+    cs = np.broadcast_to(np.asarray(cos, np.float64), (h, w)).reshape(-1)
+    for lo in range(0, pix.size, _GRAM_BLOCK):
+        i = pix[lo:lo + _GRAM_BLOCK]
+        refl = None if reflectance is None else reflectance(i)
+        dy = err.jacobian(y[i], None if bg is None else bg[i], th[i], cs[i], refl=refl) * wt[i][:, :, None]
+        yield i, np.nan_to_num(dy)
+
+
 def response_gram(err: ResponseError | None, jac: np.ndarray, weight: np.ndarray, render: np.ndarray,
-                  background: np.ndarray | None, thickness: np.ndarray, cos: np.ndarray) -> np.ndarray | None:
+                  background: np.ndarray | None, thickness: np.ndarray, cos: np.ndarray,
+                  reflectance=None) -> np.ndarray | None:
     """(p, p) ``sum_m (J^T W dy_m)(J^T W dy_m)^T`` over the response's error modes ``dy_m``
     (:meth:`ResponseError.jacobian`; module docstring): what the response's errors add to
     the fitted parameters' covariance between two ``(J^T J)^-1``.
@@ -184,39 +271,74 @@ def response_gram(err: ResponseError | None, jac: np.ndarray, weight: np.ndarray
         (h, w, 3) the fit's render and the background photo (None: none).
     thickness, cos : np.ndarray
         (h, w) each pixel's film thickness (nm) and cosine of incidence.
+    reflectance : callable, optional
+        The film's reflectance at flat pixel indices where it is not a film in air
+        (:func:`_whitened_modes`).
     """
     if err is None:
         return None
     h, w = weight.shape[:2]
     p = jac.shape[1]
-    pix = np.nonzero(np.any(np.asarray(weight) > 0, axis=-1).ravel())[0]
     jr = np.asarray(jac, np.float64).reshape(h * w, 3, p)
-    flat = lambda a, n: np.asarray(a, np.float64).reshape(h * w, n)  # noqa: E731
-    wt, y = flat(weight, 3), flat(render, 3)
-    bg = None if background is None else flat(background, 3)
-    th = np.broadcast_to(np.asarray(thickness, np.float64), (h, w)).reshape(-1)
-    cs = np.broadcast_to(np.asarray(cos, np.float64), (h, w)).reshape(-1)
     total = np.zeros((p, 3, err.modes.shape[-1]))
-    for lo in range(0, pix.size, _GRAM_BLOCK):
-        i = pix[lo:lo + _GRAM_BLOCK]
-        dy = err.jacobian(y[i], None if bg is None else bg[i], th[i], cs[i]) * wt[i][:, :, None]
-        total += np.einsum("ncp,ncm->pcm", jr[i], np.nan_to_num(dy))
+    for i, dy in _whitened_modes(err, weight, render, background, thickness, cos, reflectance):
+        total += np.einsum("ncp,ncm->pcm", jr[i], dy)
     return np.einsum("pcm,qcm->pq", total, total)
 
 
-def solve_response_gram(response: str, illuminant: str, n_film: float, lev, sol, robust_scale: float):
-    """:func:`response_gram` of a solve ``sol`` (a :class:`~bubblefit.inverse._local.LocalSolution`)
-    on its level ``lev``: the render is the photo plus the plain residual, the thickness the
-    solve's constant film or drainage profile (:func:`bubblefit.model.thickness.drainage_profile`)
-    at each pixel's height; None when the response states no errors."""
+def marginal_chi2(err: ResponseError | None, jac: np.ndarray, resid: np.ndarray, weight: np.ndarray,
+                  render: np.ndarray, background: np.ndarray | None, thickness: np.ndarray,
+                  cos: np.ndarray) -> tuple[float, float]:
+    """``(chi2, marginal)``: a solve's chi^2 ``r^T r`` and its chi^2 with the response's
+    errors marginalised and the fitted parameters re-solved to first order.
+
+    The response's error coefficients ``c`` (unit normal, one draw for the whole photo)
+    move the whitened residual by ``G c`` (``G = W dy``, :func:`_whitened_modes`), the
+    parameters by ``J dz``; the least ``|r + J dz + G c|^2 + |c|^2`` over both (the
+    Gaussian prior on ``c`` integrated out, which for a linear model is its minimum) is
+    ``r^T r - b^T A^-1 b`` with ``A = [[J^T J, J^T G], [G^T J, G^T G + I]]`` and
+    ``b = [J^T r; G^T r]``: the Gauss-Newton decrement of the joint problem, the same
+    normal equations whose response block :func:`response_gram` sandwiches (the
+    generalised least squares of ``r`` under the covariance ``I + G G^T``, by the
+    Woodbury identity; Press et al., *Numerical Recipes*, 3rd ed., sec. 2.7.3 and 15.4).
+    ``jac`` (h w 3, p) and ``resid`` (h w 3,) are the whitened residual's Jacobian and
+    plain residual; the other arguments as :func:`response_gram`'s. Without stated
+    errors (``err`` None) the marginal is the decrement over the parameters alone."""
+    h, w = weight.shape[:2]
+    r = np.nan_to_num(np.asarray(resid, np.float64).reshape(h * w, 3))
+    jr = np.nan_to_num(np.asarray(jac, np.float64).reshape(h * w, 3, -1))
+    p = jr.shape[-1]
+    k = 0 if err is None else 3 * err.modes.shape[-1]
+    a = np.zeros((p + k, p + k))
+    b = np.zeros(p + k)
+    a[:p, :p] = np.einsum("ncp,ncq->pq", jr, jr)
+    b[:p] = np.einsum("ncp,nc->p", jr, r)
+    if err is not None:
+        m = err.modes.shape[-1]
+        a[p:, p:] = np.eye(k)
+        for i, dy in _whitened_modes(err, weight, render, background, thickness, cos):
+            for c in range(3):  # channel c's modes move channel c only
+                cols = slice(p + c * m, p + (c + 1) * m)
+                a[:p, cols] += jr[i, c].T @ dy[:, c]
+                a[cols, cols] += dy[:, c].T @ dy[:, c]
+                b[cols] += dy[:, c].T @ r[i, c]
+        a[p:, :p] = a[:p, p:].T
+    chi2 = float(np.sum(r * r))
+    return chi2, chi2 - float(b @ np.linalg.lstsq(a, b, rcond=None)[0])
+
+
+def _solve_images(lev, sol, robust_scale: float):
+    """``(weight, render, thickness, resid)`` of a solve ``sol`` (a
+    :class:`~bubblefit.inverse._local.LocalSolution`) on its level ``lev``: the whitening,
+    the render (the photo plus the plain residual), each pixel's thickness (the solve's
+    constant film or drainage profile, :func:`bubblefit.model.thickness.drainage_profile`,
+    at the pixel's height) and the plain whitened residual (flat); None for a solve with
+    neither."""
     import jax.numpy as jnp
 
     from ..model.thickness import drainage_profile
     from ._uncertainty import plain_residual
 
-    err = response_error(response, illuminant, n_film)
-    if err is None or sol.jacobian is None or not sol.jacobian.size:
-        return None
     v = sol.values
     if "thickness_nm" in v:
         thickness = np.full(lev.y.shape[:2], float(v["thickness_nm"]))
@@ -226,6 +348,32 @@ def solve_response_gram(response: str, illuminant: str, n_film: float, lev, sol,
     else:
         return None
     weight = np.asarray(lev.w, np.float64)
-    resid = plain_residual(sol.residual, robust_scale).reshape(lev.y.shape)
-    render = np.asarray(lev.y, np.float64) + np.where(weight > 0, resid / np.where(weight > 0, weight, 1.0), 0.0)
+    resid = plain_residual(sol.residual, robust_scale)
+    shaped = resid.reshape(lev.y.shape)
+    render = np.asarray(lev.y, np.float64) + np.where(weight > 0, shaped / np.where(weight > 0, weight, 1.0), 0.0)
+    return weight, render, thickness, resid
+
+
+def solve_response_gram(response: str, illuminant: str, n_film: float, lev, sol, robust_scale: float):
+    """:func:`response_gram` of a solve ``sol`` (a :class:`~bubblefit.inverse._local.LocalSolution`)
+    on its level ``lev`` (:func:`_solve_images`); None when the response states no errors."""
+    err = response_error(response, illuminant, n_film)
+    if err is None or sol.jacobian is None or not sol.jacobian.size:
+        return None
+    images = _solve_images(lev, sol, robust_scale)
+    if images is None:
+        return None
+    weight, render, thickness, _ = images
     return response_gram(err, sol.jacobian, weight, render, lev.bg, thickness, lev.cos)
+
+
+def solve_marginal_chi2(err: ResponseError | None, lev, sol, robust_scale: float) -> tuple[float, float] | None:
+    """:func:`marginal_chi2` of a solve ``sol`` on its level ``lev`` (:func:`_solve_images`);
+    None for a solve without a Jacobian or a thickness."""
+    if sol.jacobian is None or not sol.jacobian.size:
+        return None
+    images = _solve_images(lev, sol, robust_scale)
+    if images is None:
+        return None
+    weight, render, thickness, resid = images
+    return marginal_chi2(err, sol.jacobian, resid, weight, render, lev.bg, thickness, lev.cos)

@@ -9,6 +9,8 @@ With ``auto`` the fit keeps whichever model explains the photo better, and says 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import pytest
 
@@ -389,6 +391,15 @@ def test_parameter_settings_start_and_hold():
 # auto's order of solves, with the solves replaced by stand-ins (seconds, no rendering)
 # ---------------------------------------------------------------------------------------
 
+@dataclass(frozen=True)
+class _Begun:
+    """A stand-in for :class:`bubblefit.inverse.fit.Started`."""
+
+    options: object
+    start: dict
+    search_chi2: float | None
+
+
 class _Run:
     """Stand-ins for one model's search, short solve, local solve and report, recording
     what ``auto`` asked for, in order. ``fits[model]``: (converged, chi2_floor,
@@ -399,23 +410,23 @@ class _Run:
         import bubblefit.inverse.fit as fit_module
         from types import SimpleNamespace
 
-        self.events, self.fits = [], fits
+        self.events, self.fits, self.starts = [], fits, {}
         self.ns = SimpleNamespace
 
         def start_one(photo, env, options, background, init, scene, saturated, settings=None, compile_ahead=True):
             model = options.model
             self.events.append(("start", model, None if init is None else tuple(sorted(init)),
                                 getattr(settings, "stall", None)))
-            return SimpleNamespace(options=options, start={"thickness_nm": 400.0}, warm=bool(init),
-                                   search_chi2=search if model == "paper" else None)
+            return _Begun(options, {"thickness_nm": 400.0}, search if model == "paper" else None)
 
         def search_chi2(started, env):
             self.events.append(("search image", started.options.model))
-            return raced
+            return raced, {"thickness_nm": 402.0}
 
         def solve_started(started, env):
             model = started.options.model
             self.events.append(("solve", model))
+            self.starts[model] = started.start
             converged, floor, capped = self.fits[model]
 
             def report(env, model=model):
@@ -475,9 +486,12 @@ def test_auto_solves_its_models_in_the_order_its_rules_give(monkeypatch, search,
     leaves the search image unexplained (reduced chi^2 above ``WARM_START_CHI2``) and the
     physical model's short solve there does better; the first model's fit is kept when it
     explains the photo, else the other model is solved and the lower capped reduced
-    chi^2 kept. Each model is solved and reported at most once."""
+    chi^2 kept. Each model is solved and reported at most once. The physical model solved
+    first starts on the fit image where its short solve on the search image stopped."""
     run = _Run(monkeypatch, search, raced, fits)
     res = run.fit(init={"thickness_nm": 400.0} if search is None else None)
     assert res.model == kept, (res.message, run.events)
     assert "model auto" in res.message
     assert run.events == events
+    if raced is not None and raced < search:
+        assert run.starts["physical"] == {"thickness_nm": 402.0}  # the stand-in short solve's values

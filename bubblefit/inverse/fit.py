@@ -492,14 +492,16 @@ def _start_one(photo, env, options: FitOptions, background, init, scene, saturat
     return Started(st, opts, start, settings, warm, searches, chi2[0] if chi2 else None, t_start)
 
 
-def _search_chi2(started: Started, env) -> float:
-    """The noise-weighted reduced chi^2 of a short solve (``search_steps`` steps, as the
-    global search refines its candidates) from ``started.start`` on the search image."""
+def _search_chi2(started: Started, env) -> tuple[float, dict]:
+    """A short solve (``search_steps`` steps, as the global search refines its candidates)
+    from ``started.start`` on the search image: its noise-weighted reduced chi^2 there and
+    the values it reached (all finite, else ``started.start``)."""
     st, opts = started.setup, started.options
     lev_s = st.level(st.k_search, opts)
     sol = solve_local(lev_s, st.search_table, opts.solver, started.start, env, max_steps=opts.solver.search_steps,
                       settings=SEARCH_SOLVE)
-    return _reduced_search_chi2(sol.cost, lev_s, st)
+    reached = sol.values if all(np.isfinite(v) for v in sol.values.values()) else started.start
+    return _reduced_search_chi2(sol.cost, lev_s, st), reached
 
 
 def _solve_started(started: Started, env) -> Solved:
@@ -649,8 +651,11 @@ def _auto_order(started: dict, begin, env) -> tuple[tuple, dict, str]:
         start = {k: float(v) for k, v in begun.start.items() if np.isfinite(v)}
         with stage("physical model on the search image"):
             started["physical"] = begin("physical", start, SWITCH_SOLVE)
-            raced = _search_chi2(started["physical"], env)
+            raced, reached = _search_chi2(started["physical"], env)
         if raced < begun.search_chi2:
+            # the fit image's solve starts where the search image's stopped: a coarser
+            # pyramid level's solution, as the paper search's winner is the paper model's
+            started["physical"] = replace(started["physical"], start=reached)
             return (("physical", "paper"),
                     {"physical": f"physical model first (search image reduced chi^2 {raced:.3g} against the paper "
                                  f"model's {begun.search_chi2:.3g})", "paper": "paper model's local fit"},

@@ -9,6 +9,8 @@ With ``auto`` the fit keeps whichever model explains the photo better, and says 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import pytest
 
@@ -383,3 +385,113 @@ def test_parameter_settings_start_and_hold():
                     "disc_r": "held by request"}
     with pytest.raises(InputError, match="cannot hold 'colour'"):
         FitOptions(parameters=(ParameterSetting("colour", hold=True),))
+
+
+# ---------------------------------------------------------------------------------------
+# auto's order of solves, with the solves replaced by stand-ins (seconds, no rendering)
+# ---------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class _Begun:
+    """A stand-in for :class:`bubblefit.inverse.fit.Started`."""
+
+    options: object
+    start: dict
+    search_chi2: float | None
+
+
+class _Run:
+    """Stand-ins for one model's search, short solve, local solve and report, recording
+    what ``auto`` asked for, in order. ``fits[model]``: (converged, chi2_floor,
+    chi2_capped) of that model's solve; ``search``: the paper search's reduced chi^2 on
+    the search image (None: a warm start); ``raced``: the physical model's there."""
+
+    def __init__(self, monkeypatch, search, raced, fits):
+        import bubblefit.inverse.fit as fit_module
+        from types import SimpleNamespace
+
+        self.events, self.fits, self.starts = [], fits, {}
+        self.ns = SimpleNamespace
+
+        def start_one(photo, env, options, background, init, scene, saturated, settings=None, compile_ahead=True):
+            model = options.model
+            self.events.append(("start", model, None if init is None else tuple(sorted(init)),
+                                getattr(settings, "stall", None)))
+            return _Begun(options, {"thickness_nm": 400.0}, search if model == "paper" else None)
+
+        def search_chi2(started, env):
+            self.events.append(("search image", started.options.model))
+            return raced, {"thickness_nm": 402.0}
+
+        def solve_started(started, env):
+            model = started.options.model
+            self.events.append(("solve", model))
+            self.starts[model] = started.start
+            converged, floor, capped = self.fits[model]
+
+            def report(env, model=model):
+                self.events.append(("report", model))
+                return SimpleNamespace(model=model, converged=converged, chi2_floor=floor, chi2_capped=capped,
+                                       status="converged" if converged else "max_steps", message=model,
+                                       time_s=0.0)
+
+            return SimpleNamespace(model=model, converged=converged, chi2_floor=floor, chi2_capped=capped,
+                                   status="converged" if converged else "max_steps",
+                                   params={"thickness_nm": 401.0}, report=report)
+
+        monkeypatch.setattr(fit_module, "_start_one", start_one)
+        monkeypatch.setattr(fit_module, "_search_chi2", search_chi2)
+        monkeypatch.setattr(fit_module, "_solve_started", solve_started)
+        self.fit = lambda init=None: fit_module._fit_either_model(None, None, _opts(model="auto"), None, init,
+                                                                  None, None)
+
+
+_EXPLAINS, _MISFITS, _WORSE = (True, 1.0, 1.0), (True, 9.0, 6.0), (True, 20.0, 12.0)
+
+
+@pytest.mark.parametrize("search,raced,fits,kept,events", [
+    # the paper search explains its image: the paper model first, kept when it explains the photo
+    (1.5, None, {"paper": _EXPLAINS, "physical": _EXPLAINS}, "paper",
+     [("start", "paper", None, None), ("solve", "paper"), ("report", "paper")]),
+    # ... else the physical model from the paper fit's values, and the lower capped chi^2 kept
+    (1.5, None, {"paper": _MISFITS, "physical": _WORSE}, "paper",
+     [("start", "paper", None, None), ("solve", "paper"), ("start", "physical", ("thickness_nm",), True),
+      ("solve", "physical"), ("report", "paper")]),
+    (1.5, None, {"paper": _WORSE, "physical": _MISFITS}, "physical",
+     [("start", "paper", None, None), ("solve", "paper"), ("start", "physical", ("thickness_nm",), True),
+      ("solve", "physical"), ("report", "physical")]),
+    # the paper search leaves its image unexplained and the physical model explains it
+    # better: the physical model first, kept without the paper solve when it explains the photo
+    (50.0, 10.0, {"paper": _MISFITS, "physical": _EXPLAINS}, "physical",
+     [("start", "paper", None, None), ("start", "physical", ("thickness_nm",), True), ("search image", "physical"),
+      ("solve", "physical"), ("report", "physical")]),
+    # ... else the paper model's solve follows and the two are compared
+    (50.0, 10.0, {"paper": _MISFITS, "physical": _WORSE}, "paper",
+     [("start", "paper", None, None), ("start", "physical", ("thickness_nm",), True), ("search image", "physical"),
+      ("solve", "physical"), ("solve", "paper"), ("report", "paper")]),
+    (50.0, 10.0, {"paper": _WORSE, "physical": _MISFITS}, "physical",
+     [("start", "paper", None, None), ("start", "physical", ("thickness_nm",), True), ("search image", "physical"),
+      ("solve", "physical"), ("solve", "paper"), ("report", "physical")]),
+    # the physical model does no better on the search image: the paper model first
+    (50.0, 60.0, {"paper": _EXPLAINS, "physical": _EXPLAINS}, "paper",
+     [("start", "paper", None, None), ("start", "physical", ("thickness_nm",), True), ("search image", "physical"),
+      ("solve", "paper"), ("report", "paper")]),
+    # a warm start (no search): the paper model first
+    (None, None, {"paper": _MISFITS, "physical": _WORSE}, "paper",
+     [("start", "paper", ("thickness_nm",), None), ("solve", "paper"),
+      ("start", "physical", ("thickness_nm",), True), ("solve", "physical"), ("report", "paper")]),
+])
+def test_auto_solves_its_models_in_the_order_its_rules_give(monkeypatch, search, raced, fits, kept, events):
+    """``auto`` (``_fit_either_model``): the paper model first unless its global search
+    leaves the search image unexplained (reduced chi^2 above ``WARM_START_CHI2``) and the
+    physical model's short solve there does better; the first model's fit is kept when it
+    explains the photo, else the other model is solved and the lower capped reduced
+    chi^2 kept. Each model is solved and reported at most once. The physical model solved
+    first starts on the fit image where its short solve on the search image stopped."""
+    run = _Run(monkeypatch, search, raced, fits)
+    res = run.fit(init={"thickness_nm": 400.0} if search is None else None)
+    assert res.model == kept, (res.message, run.events)
+    assert "model auto" in res.message
+    assert run.events == events
+    if raced is not None and raced < search:
+        assert run.starts["physical"] == {"thickness_nm": 402.0}  # the stand-in short solve's values

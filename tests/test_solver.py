@@ -237,3 +237,39 @@ def test_robust_residual_is_the_pseudo_huber_residual_up_to_overflow():
     np.testing.assert_allclose(got, exact, rtol=2e-6)
     grad = np.asarray(jax.jit(jax.vmap(jax.grad(lambda x: robust(x, s))))(jnp.asarray(r, jnp.float32)))
     assert np.all(np.isfinite(grad)) and np.all(grad > 0)
+
+
+@pytest.mark.parametrize("restarts_move", [False, True])
+def test_a_restart_that_accepted_no_step_is_not_repeated(monkeypatch, restarts_move):
+    """``solve_local`` starts a solve that stopped on rejections far from its optimum
+    afresh, up to ``MAX_RESTARTS`` times; once a fresh start accepts no step, the next
+    would start from the same point with the same trust region and, the program being
+    deterministic, repeat it: it is not run. Restarts that move are all run. The solve
+    itself is a stand-in here (its steps and end point chosen per call)."""
+    from types import SimpleNamespace
+
+    import bubblefit.inverse._local as local
+
+    calls = []
+
+    def solve(z, args):
+        calls.append(np.asarray(z).copy())
+        first = len(calls) == 1
+        z_end = np.asarray(z, np.float64) + (1.0 if first or restarts_move else 0.0)
+        r = np.full(4, 10.0 - len(calls) if first or restarts_move else 10.0 - 1)
+        return z_end, r, 12 if first else 7
+
+    def solution_from(table, vals, z, r, steps, fixed, lev, px):
+        return local.LocalSolution({}, z, True, False, steps, r, np.zeros((r.size, 2)), fixed)
+
+    monkeypatch.setattr(local, "solve_program", lambda *a: (("key",), ({},), None))
+    monkeypatch.setattr(local, "stored_solver", lambda *key: solve)
+    monkeypatch.setattr(local, "solution_from", solution_from)
+    monkeypatch.setattr(local, "remaining_step", lambda sol, chi2, free: 1.0)  # always far from the optimum
+    table = SimpleNamespace(unconstrained=lambda v: np.zeros(2), free=("a", "b"))
+    sol = local.solve_local(SimpleNamespace(w=np.ones(4)), table, None, {}, None,
+                            settings=SimpleNamespace(stall=True))
+    runs = 1 + (local.MAX_RESTARTS if restarts_move else 1)
+    assert len(calls) == runs
+    assert sol.steps == 12 + 7 * (runs - 1)
+    assert np.array_equal(sol.z, np.full(2, float(runs if restarts_move else 1)))  # where the last run ended

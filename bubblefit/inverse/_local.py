@@ -130,7 +130,10 @@ def solve_local(lev: Level, table: ParameterTable, solver: SolverSettings, vals:
     solve, fixed = stored_solver(*key), args[0]
     sol = solution_from(table, vals, *solve(table.unconstrained(vals), args), fixed, lev, px)
     # A solve stopped by rejections early on (a trust region still far too large) starts
-    # afresh from where it stopped, with a fresh trust region, up to MAX_RESTARTS times.
+    # afresh from where it stopped, with a fresh trust region, up to MAX_RESTARTS times;
+    # not again after a fresh start that accepted no step (the program is deterministic,
+    # so the next would repeat it from the same point: on the 320x320 sunset photo of
+    # docs/speed.md two such repeats were 14 of the physical solve's 33 steps).
     dof = max(int(np.count_nonzero(lev.w)) - len(table.free), 1)
     steps = sol.steps
     for _ in range(MAX_RESTARTS if stall else 0):
@@ -140,6 +143,9 @@ def solve_local(lev: Level, table: ParameterTable, solver: SolverSettings, vals:
         steps += nxt.steps
         if not improves(nxt, sol):
             break
+        moved = not np.array_equal(nxt.z, sol.z)
         sol = nxt
+        if not moved:  # every trial step rejected: a fresh start from the same point repeats this one exactly
+            break
     sol.steps = steps
     return sol

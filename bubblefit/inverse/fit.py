@@ -462,7 +462,7 @@ def _fit_model(photo, env, options: FitOptions, background, init, scene, saturat
 
 @dataclass(frozen=True)
 class Solved:
-    """One model's fit up to its judgement (:func:`_solve_one`): what ``auto`` compares
+    """One model's fit up to its judgement (:func:`_solve_started`): what ``auto`` compares
     before the thickness map and the final render are made for the model it keeps.
 
     Its ``status``, ``converged``, ``chi2_floor``, ``chi2_capped`` and ``params`` read as a
@@ -554,14 +554,16 @@ def _start_one(photo, env, options: FitOptions, background, init, scene, saturat
                    order[0] if order else None)
 
 
-def _search_chi2(started: Started, env) -> float:
-    """The noise-weighted reduced chi^2 of a short solve (``search_steps`` steps, as the
-    global search refines its candidates) from ``started.start`` on the search image."""
+def _search_chi2(started: Started, env) -> tuple[float, dict]:
+    """A short solve (``search_steps`` steps, as the global search refines its candidates)
+    from ``started.start`` on the search image: its noise-weighted reduced chi^2 there and
+    the values it reached (all finite, else ``started.start``)."""
     st, opts = started.setup, started.options
     lev_s = st.level(st.k_search, opts)
     sol = solve_local(lev_s, st.search_table, opts.solver, started.start, env, max_steps=opts.solver.search_steps,
                       settings=SEARCH_SOLVE)
-    return _reduced_search_chi2(sol.cost, lev_s, st)
+    reached = sol.values if all(np.isfinite(v) for v in sol.values.values()) else started.start
+    return _reduced_search_chi2(sol.cost, lev_s, st), reached
 
 
 def _solve_started(started: Started, env) -> Solved:
@@ -582,16 +584,10 @@ def _solve_started(started: Started, env) -> Solved:
     return Solved(st, opts, sol, judged, notes, started.t_start)
 
 
-def _solve_one(photo, env, options: FitOptions, background, init, scene, saturated,
-               settings: SolveSettings | None = None) -> Solved:
-    """The stages of one model's fit through ``options.view`` up to the standard errors
-    (:func:`_start_one`, then :func:`_solve_started`)."""
-    return _solve_started(_start_one(photo, env, options, background, init, scene, saturated, settings), env)
-
-
 def _fit_one(photo, env, options: FitOptions, background, init, scene, saturated) -> FitResult:
-    """The stages of one model's fit through ``options.view``."""
-    return _solve_one(photo, env, options, background, init, scene, saturated).report(env)
+    """The stages of one model's fit through ``options.view`` (:func:`_start_one`, then
+    :func:`_solve_started` and the report)."""
+    return _solve_started(_start_one(photo, env, options, background, init, scene, saturated), env).report(env)
 
 
 def _checked_warm_start(st: Setup, opts: FitOptions, env, sol: LocalSolution, settings: SolveSettings,
@@ -661,68 +657,80 @@ def _fit_either_model(photo, env, options: FitOptions, background, init, scene, 
     compared by their solves' standard errors (:class:`Solved`), which the map does not
     change, so a model's map is never made to be discarded.
 
-    Which model is solved first: the paper model's global search is cheap (eq. 11 is
-    linear in a tabulated interference factor, :mod:`.search`). When its winner leaves a
-    noise-weighted reduced chi^2 above :data:`WARM_START_CHI2` on the search image (the
-    bound a warm start is doubted by), the physical model takes the same short solve
-    there from that winner (:func:`_search_chi2`). When its reduced chi^2 there is the
-    lower, the physical model is solved first, from the search's start (the paper
-    model's local solve only refines that start within its colour order, which the
-    physical solve does as well), and when it explains the photo that fit is kept
-    without the paper model's local solve: a photo of a real film costs one model's fit
-    and a search. Otherwise (a photo the paper model explains, as its own renders) and
-    for warm starts, the paper model is solved first as above."""
+    Which model is solved first (:func:`_auto_order`): the paper model's global search is
+    cheap (eq. 11 is linear in a tabulated interference factor, :mod:`.search`). When its
+    winner leaves a noise-weighted reduced chi^2 above :data:`WARM_START_CHI2` on the
+    search image (the bound a warm start is doubted by) and the physical model's short
+    solve there from that winner (:func:`_search_chi2`) leaves a lower one, the physical
+    model is solved first, from the search's start (the paper model's local solve only
+    refines that start within its colour order, which the physical solve does as well):
+    a photo of a real film costs one model's fit and a search. Otherwise (a photo the
+    paper model explains, as its own renders) and for warm starts, the paper model is
+    solved first. The first model's fit is kept when it explains the photo (its map, when
+    one is made, included); else the other model is solved and the two compared."""
     t0 = time.perf_counter()
-    physical = replace(options, model="physical")
+
+    def begin(model: str, start=init, settings: SolveSettings | None = None) -> Started:
+        """One model's set-up and, unless warm-started, global search (:func:`_start_one`)."""
+        return _start_one(photo, env, replace(options, model=model), background, start, scene, saturated, settings)
+
     with stage("paper model"):
-        begun = _start_one(photo, env, replace(options, model="paper"), background, init, scene, saturated)
-    early = None  # the physical model's report when it was fitted first
-    raced = None
-    if begun.search_chi2 is not None and not begun.search_chi2 <= WARM_START_CHI2:
-        # the paper model leaves its search image unexplained (the bound a warm start is
-        # doubted by): both models on the search image from the paper search's start; the
-        # physical model's short solve there (its exposure differs from the paper model's)
-        # says whether it explains the photo better than the paper model can
-        start = {k: float(v) for k, v in begun.start.items() if np.isfinite(v)}
-        with stage("physical model on the search image"):
-            raced = _start_one(photo, env, physical, background, start, scene, saturated, settings=SWITCH_SOLVE)
-            raced_chi2 = _search_chi2(raced, env)
-    if raced is not None and raced_chi2 < begun.search_chi2:
-        # the physical model explains the search image better: solve it first, and the
-        # paper model's own local solve only if the physical fit does not explain the photo
-        with stage(f"physical model first (search image reduced chi^2 {raced_chi2:.3g} against the paper "
-                   f"model's {begun.search_chi2:.3g})"):
-            second = _solve_started(raced, env)
-        if _explained(second, options.judge):
-            early = second.report(env)
+        started = {"paper": begin("paper")}
+    order, labels, why = _auto_order(started, begin, env)
+    solved, made = {}, {}  # made: the first model's report, when made
+    for model in order:
+        paper = solved.get("paper")
+        with stage(labels.get(model) or f"physical model (the paper model's reduced chi^2 {_judged_text(paper)} "
+                                        "with the floor, capped)"):
+            if model not in started:  # the physical model after the paper model's solve, from its values
+                start = {k: v for k, v in paper.params.items() if np.isfinite(v)} if paper.converged else init
+                started[model] = begin(model, start, SWITCH_SOLVE if start else None)
+            solved[model] = _solve_started(started[model], env)
+        if model == order[0] and _explained(solved[model], options.judge):
+            made[model] = early = solved[model].report(env)
             if _explained(early, options.judge):  # its map, when one is made, is sound
-                early.message += (f"; model auto: on the search image the physical model's reduced chi^2 "
-                                  f"{raced_chi2:.3g} (noise-weighted) against the paper model's "
-                                  f"{begun.search_chi2:.3g}: fitted the physical model first, which explains "
-                                  f"the photo")
+                early.message += f"; model auto: {why}"
                 early.time_s = time.perf_counter() - t0
                 return early
-        with stage("paper model's local fit"):
-            first = _solve_started(begun, env)
-        paper = first.report(env) if _explained(first, options.judge) else None
-    else:
-        first = _solve_started(begun, env)
-        paper = first.report(env) if _explained(first, options.judge) else None
-        if paper is not None and _explained(paper, options.judge):  # its map, when one is made, is sound
-            paper.message += "; model auto: the paper model explains the photo"
-            return paper
-        start = {k: v for k, v in first.params.items() if np.isfinite(v)} if first.converged else init
-        with stage(f"physical model (the paper model's reduced chi^2 {_judged_text(first)} with the floor, "
-                   "capped)"):
-            second = _solve_one(photo, env, physical, background, start, scene, saturated,
-                                settings=SWITCH_SOLVE if start else None)
-    c1, c2 = _judged_chi2(first), _judged_chi2(second)
-    keep_second = (not second.converged, c2) < (not first.converged, c1)
-    best = (early or second.report(env)) if keep_second else (paper or first.report(env))
-    best.message += (f"; model auto: paper reduced chi^2 {_judged_text(first)}, physical {_judged_text(second)} "
+    paper, physical = solved["paper"], solved["physical"]
+    c1, c2 = _judged_chi2(paper), _judged_chi2(physical)
+    kept = "physical" if (not physical.converged, c2) < (not paper.converged, c1) else "paper"
+    best = made.get(kept) or solved[kept].report(env)
+    best.message += (f"; model auto: paper reduced chi^2 {_judged_text(paper)}, physical {_judged_text(physical)} "
                      f"(with the floor, each pixel capped at an outlier's share): kept the {best.model} model")
     best.time_s = time.perf_counter() - t0
     return best
+
+
+def _auto_order(started: dict, begin, env) -> tuple[tuple, dict, str]:
+    """``auto``'s order of solves (:func:`_fit_either_model`: the paper model, eq. 11, and
+    the physical model) from the paper model's global search in ``started``: when its winner leaves the search image unexplained
+    (reduced chi^2 above :data:`WARM_START_CHI2`), the physical model's set-up and short
+    solve there from that winner (``begin(model, start, settings)`` sets a model up; its
+    :class:`Started` joins ``started``), which comes first when its reduced chi^2 there is
+    the lower. Returns the models in order, the stage labels known before solving, and
+    what the message says when the first model explains the photo."""
+    begun = started["paper"]
+    if begun.search_chi2 is not None and not begun.search_chi2 <= WARM_START_CHI2:
+        # both models on the search image from the paper search's start; the physical
+        # model's short solve there (its exposure differs from the paper model's) says
+        # whether it explains the photo better than the paper model can
+        start = {k: float(v) for k, v in begun.start.items() if np.isfinite(v)}
+        with stage("physical model on the search image"):
+            started["physical"] = begin("physical", start, SWITCH_SOLVE)
+            raced, reached = _search_chi2(started["physical"], env)
+        if raced < begun.search_chi2:
+            # the fit image's solve starts where the search image's stopped: a coarser
+            # pyramid level's solution, as the paper search's winner is the paper model's
+            started["physical"] = replace(started["physical"], start=reached)
+            return (("physical", "paper"),
+                    {"physical": f"physical model first (search image reduced chi^2 {raced:.3g} against the paper "
+                                 f"model's {begun.search_chi2:.3g})", "paper": "paper model's local fit"},
+                    f"on the search image the physical model's reduced chi^2 {raced:.3g} (noise-weighted) against "
+                    f"the paper model's {begun.search_chi2:.3g}: fitted the physical model first, which explains "
+                    "the photo")
+        started.pop("physical")  # the paper model first; the physical model from its values
+    return ("paper", "physical"), {"paper": "paper model's local fit"}, "the paper model explains the photo"
 
 
 def _batch_starts(first: Setup, n: int, prev_vals: dict | None) -> list:

@@ -209,7 +209,7 @@ def test_order0_films_under_stray_light_of_another_colour_are_read_as_they_thin(
     its reflectance (``R ~ sin^2(2 pi n d / lambda)``: its maximum moves from 720 nm to
     400 nm over these films); with an offset and a tilt of stray light free in each reading
     only the curvature of ``R`` is left, which the stray light's own curvature bends, and
-    the films are read 10-45 nm off (before the maximum as their thick twins). Held at the
+    the films are read 10-45 nm off, on either side of the maximum. Held at the
     series' stray light, fitted with the lamp on the pinning readings, each film is read
     within 10 % (the criterion of optifik's tests and of ``docs/spectra.md``'s table; the
     lamp's 3 % drift alone moves a read by about 1.5 %, ``R ~ d^2`` below the maximum), and

@@ -243,6 +243,20 @@ def series_brightness(lamp: SharedLamp, groups: list[SeriesGroup]) -> dict[int, 
     return out
 
 
+def lamp_residual(others: list, prob, d: float) -> float:
+    """The mean square (weighted, as the fit's residual) that a reading read with the series'
+    lamp at thickness ``d`` keeps because its own lamp is one more draw like the pinning
+    readings' own: the variance over ``others`` (the :class:`FixedLampProblem` of each of
+    their lamps and stray light) of the model ``L_k R(d) + S_k``, mean over the range
+    (0 with fewer than two). The spread of lamps that sizes the error bar's lamp part
+    (:func:`._shared_lamp.read_with_lamp`), seen in the reading's residual."""
+    if len(others) < 2:
+        return 0.0
+    r = prob.reflect(np.array([d]), 0.0)[0]
+    models = np.array([(o.lamp * r + (prob.y - o.y)) * o.weight for o in others])
+    return float(np.mean(np.var(models, axis=0, ddof=1)))
+
+
 def read_with_shared_lamp(p, lamp: np.ndarray, alternatives: np.ndarray, options, note: str, alone,
                           stray: np.ndarray | None = None, stray_alternatives: np.ndarray | None = None):
     """The :class:`~bubblefit.inverse.spectrum.SpectrumFit` of a prepared reading ``p``
@@ -266,12 +280,20 @@ def read_with_shared_lamp(p, lamp: np.ndarray, alternatives: np.ndarray, options
     warnings = [*p.warnings, note, f"read alone: {alone.thickness_nm:.1f} nm, " + ("ok" if alone.ok else "not ok")]
     level = float(np.mean(np.abs(p.y))) or 1.0
     flagged = len(reasons)
-    sp._misfit(r["rss"] / r["dof"], r["noise"], level, reasons, warnings)
+    # A lamp like the series' (one more draw like the pinning readings' own, whose spread of
+    # reads is already the error bar's lamp part) leaves the difference between it and the
+    # shared lamp in the residual: the noise the misfit tests judge by includes the spread of
+    # the pinning readings' own models at this thickness (their variance, mean over the range).
+    lamp_ms = lamp_residual(others, prob, d)
+    scatter = float(np.sqrt(r["noise"] ** 2 + lamp_ms))
+    sp._misfit(r["rss"] / r["dof"], scatter, level, reasons, warnings)
     fitted = prob.model(d, 0.0) + stray
     red = float(r["rss"] / r["dof"] / r["noise"] ** 2) if r["noise"] > 0 else float("nan")
-    if len(reasons) == flagged and red > SHARED_MISFIT_RATIO**2:
+    beyond = float(r["rss"] / r["dof"] / scatter**2) if scatter > 0 else float("nan")
+    if len(reasons) == flagged and beyond > SHARED_MISFIT_RATIO**2:
         reasons.append(f"the series' lamp leaves structure in this reading (the residual is {np.sqrt(red):.1f} times "
-                       "its noise): its own lamp differs from the series', and a film read from its brightness "
+                       f"its noise, {np.sqrt(beyond):.1f} times its noise and the pinning readings' own lamps' "
+                       "spread): its own lamp differs from the series', and a film read from its brightness "
                        "takes the difference for thickness")
     phase, count = sp.extrema_verdict(lam, p.y, d, options.n_film, reasons)
     return sp.SpectrumFit(

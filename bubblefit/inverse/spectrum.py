@@ -69,7 +69,7 @@ from ._spectrum_extrema import RANDOM_PHASE, extrema_phase, fringe_extrema, frin
 from ._spectrum_profile import (ProfileProblem, local_noise, profile_variance, refine_d, refine_dw, refine_near,
                                 residual_correlation, rss_grids, second_difference_noise, second_minimum)
 
-__all__ = ["SpectrumOptions", "SpectrumFit", "film_reflectance", "reflector", "fit_spectrum",
+__all__ = ["SpectrumOptions", "SpectrumFit", "film_reflectance", "reflector", "fit_spectrum", "stray_basis",
            "resolve_normalised", "interference_order", "min_fringes"]
 
 _FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))

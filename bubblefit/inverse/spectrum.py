@@ -685,15 +685,17 @@ def _resolution_matters(d: float, lam: np.ndarray, n: np.ndarray, w_max: float) 
     return float(film.fringe_attenuation(x, sigma)) < 0.8
 
 
-def _misfit(mean_square: float, noise: float, level: float, reasons: list[str], warnings: list[str]) -> None:
+def _misfit(mean_square: float, noise: float, level: float, reasons: list[str], warnings: list[str],
+            what: str = "the reading's noise") -> None:
     """Not ok when the residual exceeds ``MISFIT_RATIO`` times the noise plus the model-error
-    floor; a warning when it exceeds twice the noise alone."""
+    floor; a warning when it exceeds twice the noise alone. ``what`` names ``noise`` in the
+    messages (a reading read with its series' lamp is judged by its noise and that lamp's spread)."""
     red = mean_square / noise**2 if noise > 0 else float("nan")
     if mean_square > MISFIT_RATIO**2 * (noise**2 + (MODEL_ERROR_FLOOR * level) ** 2):
-        reasons.append(f"the model does not explain the spectrum: the residual is {np.sqrt(red):.1f} times the "
-                       "reading's noise (check the index, the range, the reference, or --lamp-terms)")
+        reasons.append(f"the model does not explain the spectrum: the residual is {np.sqrt(red):.1f} times "
+                       f"{what} (check the index, the range, the reference, or --lamp-terms)")
     elif np.isfinite(red) and red > 4.0:
-        warnings.append(f"the residual is {np.sqrt(red):.1f} times the noise of the reading: the model leaves "
+        warnings.append(f"the residual is {np.sqrt(red):.1f} times {what}: the model leaves "
                         "structure (lamp, reference or index?); the error bar is widened for it")
 
 

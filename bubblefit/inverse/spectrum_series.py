@@ -286,7 +286,8 @@ def read_with_shared_lamp(p, lamp: np.ndarray, alternatives: np.ndarray, options
     # the pinning readings' own models at this thickness (their variance, mean over the range).
     lamp_ms = lamp_residual(others, prob, d)
     scatter = float(np.sqrt(r["noise"] ** 2 + lamp_ms))
-    sp._misfit(r["rss"] / r["dof"], scatter, level, reasons, warnings)
+    sp._misfit(r["rss"] / r["dof"], scatter, level, reasons, warnings,
+               "the reading's noise and the spread of the pinning readings' own lamps")
     fitted = prob.model(d, 0.0) + stray
     red = float(r["rss"] / r["dof"] / r["noise"] ** 2) if r["noise"] > 0 else float("nan")
     beyond = float(r["rss"] / r["dof"] / scatter**2) if scatter > 0 else float("nan")

@@ -17,8 +17,9 @@ brightness and colour give its thickness. ``S`` is held, not refitted per readin
 film of order 0 reflects ``R ~ sin^2(2 pi n d nu)``, whose level and slope over the range
 are what tell its thickness (the maximum of ``R`` moves across the visible as it thins
 through ~100 nm); a stray light with its own offset and tilt in each reading takes both
-up and leaves the curvature of ``R``, which a lamp's small error in colour bends as much
-as the thickness does, so that a film past the first maximum read as its thick twin.
+up and leaves the curvature of ``R``, which a small error in the colour of the lamp or of
+the stray light bends as much as the thickness does, so that a film can be read as its
+twin across the first maximum.
 Scheludko's method holds the stray light too (read on the black film).
 
 The lamp is found by alternating (block coordinate descent, each step lowering the total
@@ -157,7 +158,7 @@ class FixedLampProblem:
         cross = lw * yw  # (K, N): (P y) . (L R) = sum_n (P y)_n L_n R_n
         square = lw * lw
         qs = [lw * self._q[:, j][None, :] for j in range(self._q.shape[1])] if self._q is not None else []
-        yy = np.sum(yw * yw, axis=1)[:, None] * np.ones((len(lamps), 1))
+        yy = np.sum(yw * yw, axis=1)[:, None]  # (K, 1), or (1, 1) for the one reading
         for s in range(0, len(thickness), chunk):
             r = self.reflect(thickness[s:s + chunk], w)  # (C, N)
             part = yy - 2.0 * (cross @ r.T) + square @ (r * r).T

@@ -241,3 +241,22 @@ def test_folders_that_continue_one_another_are_one_series(tmp_path):
     # two runs each numbered from the same frame overlap, not continue: two series
     assert len(series_groups([str(tmp_path / "order2" / "T7652.xy"), str(tmp_path / "order2" / "T9503.xy"),
                               str(tmp_path / "other" / "T7652.xy"), str(tmp_path / "other" / "T9503.xy")])) == 2
+
+
+def test_one_of_several_series_is_read_with_its_own_pinning_readings():
+    """Which pinning readings' lamp and stray light read a film (``nearest_pins``): one of
+    several series with 3 to 8 pinning readings of its own, all of them (its stray light
+    and brightness are set by the reading it was divided by); one with fewer, the shared
+    lamp (None); a long series in time order, the 8 nearest; a single series with few
+    pinning readings, the shared lamp, which is theirs."""
+    from bubblefit.inverse import SharedLamp
+    from bubblefit.inverse.spectrum_series import nearest_pins
+
+    pins = (0, 1, 2, 3, 5, 6) + tuple(range(10, 30))
+    lamp_ = SharedLamp(np.ones(3), (1 / 800, 1 / 400), 0.1, pins)
+    groups = [SeriesGroup((0, 1, 2, 3, 4), "folder", "a", True, ""), SeriesGroup((5, 6, 7), "folder", "b", True, ""),
+              SeriesGroup(tuple(range(8, 31)), "folder", "c", True, "")]
+    assert nearest_pins(lamp_, groups, 4) == [0, 1, 2, 3]
+    assert nearest_pins(lamp_, groups, 7) is None
+    assert nearest_pins(lamp_, groups, 30) == list(range(22, 30))
+    assert nearest_pins(lamp_, [SeriesGroup(tuple(range(8)), "given", "", True, "")], 4) is None

@@ -150,7 +150,7 @@ def _fit_series(spectra, dark, reference, options, progress, groups):
                                          [prepared[j].order_spacing for j in near], [strays[j] for j in near])
             coef, each = local[key].coefficients, local[key].each
             stray, each_stray = local[key].stray, local[key].each_stray
-            why = (f"the lamp of the {len(near)} of them nearest in its series' time order (readings "
+            why = (f"the lamp and stray light of the {len(near)} of them in its own series nearest it in time (readings "
                    f"{min(near) + 1}-{max(near) + 1} of the set; their brightness spreads by "
                    f"{local[key].scale_spread:.1%})")
         note = (f"read with the lamp shared by {len(pins)} readings that can be read alone, at {why} (its "
@@ -183,9 +183,19 @@ def nearest_pins(lamp: SharedLamp, groups: list[SeriesGroup], i: int) -> list[in
     (``spectraVictor2``, one film in one series: 0.78 of the shared lamp for its order-5
     readings, 0.96, 1.13, 1.11 and 1.09 for orders 4 to 1), so a thin film is read with the
     lamps of the readings taken just before and after it, the lamp's error from their
-    scatter."""
+    scatter.
+
+    One of several series (``groups``) with at least :data:`MIN_PINNING_READINGS` pinning
+    readings of its own and no more than :data:`LOCAL_PINS` (or not in time order) is read
+    with the lamp and stray light of all of them: a lamp-divided reading's stray light, as
+    its brightness, is set by the reading it was divided by (``spectraVictor1``'s pinning
+    readings put it at 0.26 - 0.13 P_1 alone, against 0.16 + 0.04 P_1 shared with
+    ``spectraVictor2``'s; held at the shared one, three of its washed-out readings of
+    1290-1390 nm as stated were read as films of 62-170 nm, at its own as 1150-1250 nm)."""
     g = next(g for g in groups if i in g.indices)
     own = [j for j in g.indices if j in set(lamp.pinning)]
+    if len(groups) > 1 and len(own) >= MIN_PINNING_READINGS and (not g.ordered or len(own) <= LOCAL_PINS):
+        return own  # one of several series: its own lamp and stray light (see above)
     if not g.ordered or len(own) <= LOCAL_PINS:
         return None
     at = {j: k for k, j in enumerate(g.indices)}

@@ -75,6 +75,70 @@ def test_fixed_lamp_profile_matches_least_squares():
     assert grid[np.argmin(got[0])] == pytest.approx(420.0, abs=grid[1] - grid[0])
 
 
+def test_fixed_lamp_profile_with_each_lamps_own_reading():
+    """``rss_lamps`` with ``readings``: each lamp with its own reading (the reading less that
+    lamp's own held stray light) and no free stray light, against the weighted RSS written
+    out here, ``sum w^2 (y_k - L_k R(d))^2``, with the Airy reflectance of an air-film-air
+    slab (Born & Wolf eq. 7.6(13))."""
+    lam = np.linspace(450.0, 800.0, 300)
+    n = 1.33 + 3000.0 / lam**2
+    rng = np.random.default_rng(5)
+    r1 = ((n - 1.0) / (n + 1.0)) ** 2
+    f = 4.0 * r1 / (1.0 - r1) ** 2
+
+    def airy(d):
+        s2 = np.sin(2.0 * np.pi * n * d / lam) ** 2
+        return f * s2 / (1.0 + f * s2)
+
+    lamp = 1.0 + 0.2 * lam / 800.0
+    stray = 0.02 + 0.01 * lam / 800.0
+    y = lamp * airy(110.0) + stray + rng.normal(0.0, 1e-4, lam.size)
+    weight = 1.0 / (0.5 + lam / 800.0)
+    prob = FixedLampProblem(y - stray, lamp, np.zeros((lam.size, 0)), reflector(lam, n), weight)
+    grid = np.linspace(0.0, 400.0, 201)
+    lamps = np.array([lamp, 1.05 * lamp, lamp * (0.9 + 0.1 * lam / 800.0)])
+    readings = np.array([y - stray, y - 1.1 * stray, y - stray - 0.003])
+    got = prob.rss_lamps(grid, 0.0, lamps, chunk=64, readings=readings)
+    for k in range(len(lamps)):
+        for j in range(0, len(grid), 20):
+            want = float(np.sum(((readings[k] - lamps[k] * airy(grid[j])) * weight) ** 2))
+            assert got[k, j] == pytest.approx(want, rel=1e-7, abs=1e-12 * float(np.sum((y * weight) ** 2)))
+    assert grid[np.argmin(got[0])] == pytest.approx(110.0, abs=grid[1] - grid[0])
+
+
+def test_shared_stray_light_is_recovered_from_the_pinning_readings():
+    """Four films read by their fringes (250-600 nm) under one lamp and one stray light of
+    their own colour (an offset and a tilt in wavenumber, as the basis), each reading
+    brighter or dimmer by a few per cent: the series' stray light and lamp are solved with
+    the pinning readings' thicknesses and scales, and are the ones the readings were made
+    with, to the noise (1e-4 of readings of ~0.1: a few 1e-4 on coefficients of ~0.05)."""
+    from test_spectrum import airy, soap_index
+
+    from bubblefit.inverse import shared_lamp
+    from bubblefit.inverse.spectrum import SpectrumOptions, prepared_problem, stray_basis
+    from bubblefit.io.spectra import Spectrum
+
+    lam = np.arange(420.0, 800.0 + 1e-9, 1.0)
+    nu_range = (1.0 / 800.0, 1.0 / 420.0)
+    u = 2.0 * (1.0 / lam - nu_range[0]) / (nu_range[1] - nu_range[0]) - 1.0
+    lamp_true = 1.0 - 0.2 * u + 0.05 * (1.5 * u**2 - 0.5)  # Legendre P0 - 0.2 P1 + 0.05 P2
+    stray_true = 0.03 + 0.01 * u
+    rng = np.random.default_rng(7)
+    thick, scales = (600.0, 450.0, 330.0, 250.0), (1.02, 0.97, 1.01, 1.0)
+    opts = SpectrumOptions(normalised=True, thickness_range=(0.0, 1000.0))
+    prepared = [prepared_problem(Spectrum(lam, s * lamp_true * airy(d, lam, soap_index(lam)) + stray_true
+                                          + rng.normal(0.0, 1e-4, lam.size)), None, None, opts)
+                for d, s in zip(thick, scales)]
+    alone = [type("Alone", (), {"thickness_nm": d, "resolution_nm": 0.0})() for d in thick]
+    probe = np.polynomial.legendre.legvander(u, 2)
+    lamp_ = shared_lamp([p.problem for p in prepared], alone, [probe] * 4, nu_range, [p.grid for p in prepared],
+                        [p.order_spacing for p in prepared], [stray_basis(p, nu_range) for p in prepared])
+    mean = float(np.mean(scales))
+    assert lamp_.coefficients == pytest.approx(mean * np.array([1.0, -0.2, 0.05]), abs=3e-3)
+    assert lamp_.stray == pytest.approx([0.03, 0.01], abs=3e-4)
+    assert lamp_.each_stray.shape == (4, 2) and lamp_.each.shape == (4, 3)
+
+
 def test_alternative_lamps_are_bounded_and_spread():
     each = np.arange(150.0)[:, None] * np.ones((1, 3))
     picked = alternative_lamps(each)
@@ -177,3 +241,22 @@ def test_folders_that_continue_one_another_are_one_series(tmp_path):
     # two runs each numbered from the same frame overlap, not continue: two series
     assert len(series_groups([str(tmp_path / "order2" / "T7652.xy"), str(tmp_path / "order2" / "T9503.xy"),
                               str(tmp_path / "other" / "T7652.xy"), str(tmp_path / "other" / "T9503.xy")])) == 2
+
+
+def test_one_of_several_series_is_read_with_its_own_pinning_readings():
+    """Which pinning readings' lamp and stray light read a film (``nearest_pins``): one of
+    several series with 3 to 8 pinning readings of its own, all of them (its stray light
+    and brightness are set by the reading it was divided by); one with fewer, the shared
+    lamp (None); a long series in time order, the 8 nearest; a single series with few
+    pinning readings, the shared lamp, which is theirs."""
+    from bubblefit.inverse import SharedLamp
+    from bubblefit.inverse.spectrum_series import nearest_pins
+
+    pins = (0, 1, 2, 3, 5, 6) + tuple(range(10, 30))
+    lamp_ = SharedLamp(np.ones(3), (1 / 800, 1 / 400), 0.1, pins)
+    groups = [SeriesGroup((0, 1, 2, 3, 4), "folder", "a", True, ""), SeriesGroup((5, 6, 7), "folder", "b", True, ""),
+              SeriesGroup(tuple(range(8, 31)), "folder", "c", True, "")]
+    assert nearest_pins(lamp_, groups, 4) == [0, 1, 2, 3]
+    assert nearest_pins(lamp_, groups, 7) is None
+    assert nearest_pins(lamp_, groups, 30) == list(range(22, 30))
+    assert nearest_pins(lamp_, [SeriesGroup(tuple(range(8)), "given", "", True, "")], 4) is None

@@ -226,6 +226,7 @@ def run(args) -> int:
         shared = None if lamp is None else {
             "pinning": [paths[i] for i in lamp.pinning], "scale_spread": lamp.scale_spread,
             "coefficients": [float(c) for c in lamp.coefficients],
+            "stray_coefficients": None if lamp.stray is None else [float(c) for c in lamp.stray],
             "wavenumber_range_per_nm": list(lamp.nu_range), "series_sharing": len(groups),
             "why": ("one series under one lamp" if len(groups) == 1 else
                     f"{len(groups)} series (one per {groups[0].by}) on the same wavelengths (one spectrometer): one "

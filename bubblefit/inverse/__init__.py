@@ -77,6 +77,7 @@ _EXPORTS = {
     "same_grid": "_spectrum_defaults", "series_sides": "_spectrum_drain", "drain_path": "_spectrum_drain",
     "series_groups": "_spectrum_defaults", "SeriesGroup": "_spectrum_defaults",
     "FixedLampProblem": "_shared_lamp", "SharedLamp": "_shared_lamp", "alternative_lamps": "_shared_lamp", "MAX_ALTERNATIVE_LAMPS": "_shared_lamp",
+    "shared_lamp": "_shared_lamp",
     "candidate_stderr": "_spectrum_drain", "isotonic_blocks": "_spectrum_drain",
     "noise_says_divided": "_spectrum_defaults", "series_departures": "_spectrum_defaults",
     "DIVIDED_NOISE_RATIO": "_spectrum_defaults", "local_noise": "_spectrum_profile",

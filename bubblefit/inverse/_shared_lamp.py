@@ -10,9 +10,17 @@ read as a series, from many fringes down to the black film, with the same lamp a
 spectrometer. The readings that can be read alone (``ok``) fix the lamp, shape and
 scale, ``L(nu) = sum_j a_j P_j(nu)`` (the Legendre series of
 :func:`bubblefit.inverse.spectrum._lamp_basis`, on one wavenumber range for the whole
-series); each reading of the series is then the known ``L R(d) + S`` with only its own
-stray light ``S`` (the offset and background terms) and its thickness free, and a thin
-film's brightness gives its thickness.
+series), and with it the instrument's stray light ``S`` (the offset and background terms
+on the same range, :func:`bubblefit.inverse.spectrum.stray_basis`); each reading of the
+series is then the known ``L R(d) + S`` with only its thickness free, and a thin film's
+brightness and colour give its thickness. ``S`` is held, not refitted per reading: a
+film of order 0 reflects ``R ~ sin^2(2 pi n d nu)``, whose level and slope over the range
+are what tell its thickness (the maximum of ``R`` moves across the visible as it thins
+through ~100 nm); a stray light with its own offset and tilt in each reading takes both
+up and leaves the curvature of ``R``, which a small error in the colour of the lamp or of
+the stray light bends as much as the thickness does, so that a film can be read as its
+twin across the first maximum.
+Scheludko's method holds the stray light too (read on the black film).
 
 The lamp is found by alternating (block coordinate descent, each step lowering the total
 weighted RSS): with the pinning readings' thicknesses and scales held, the lamp's
@@ -81,7 +89,9 @@ class SharedLamp:
     scales, which readings (indices into the series) pinned it, and the lamp each of
     them implies alone (``each``, (K, J): its own coefficients with its thickness held),
     whose differences measure how well the series shares one lamp, and their brightness
-    against the shared lamp (``scales``, mean 1)."""
+    against the shared lamp (``scales``, mean 1). With the stray light shared too
+    (:func:`shared_lamp`'s ``stray_basis``), ``stray`` (S,) are its coefficients and
+    ``each_stray`` (K, S) each pinning reading's own, fitted with its own lamp."""
 
     coefficients: np.ndarray
     nu_range: tuple[float, float]
@@ -89,6 +99,8 @@ class SharedLamp:
     pinning: tuple[int, ...]
     each: np.ndarray | None = None
     scales: tuple[float, ...] = ()
+    stray: np.ndarray | None = None
+    each_stray: np.ndarray | None = None
 
     def basis(self, wavelength_nm: np.ndarray) -> np.ndarray:
         """(N, J) Legendre polynomials of the series' wavenumber range at ``wavelength_nm``."""
@@ -129,9 +141,12 @@ class FixedLampProblem:
     def rss_grid(self, thickness: np.ndarray, w: float, chunk: int = 256) -> np.ndarray:
         return self.rss_lamps(thickness, w, self.lamp[None, :], chunk)[0]
 
-    def rss_lamps(self, thickness: np.ndarray, w: float, lamps: np.ndarray, chunk: int = 512) -> np.ndarray:
+    def rss_lamps(self, thickness: np.ndarray, w: float, lamps: np.ndarray, chunk: int = 512,
+                  readings: np.ndarray | None = None) -> np.ndarray:
         """(K, D) weighted RSS at each thickness with each of the lamps ``lamps`` (K, N)
-        in place of ``lamp`` (the film's reflectance computed once for all of them).
+        in place of ``lamp`` (the film's reflectance computed once for all of them), and,
+        with ``readings`` (K, N), each lamp's own reading in place of ``y`` (the reading less
+        each lamp's own held stray light, :func:`shared_lamp`).
 
         With ``P`` the projector that removes the weighted stray-light columns ``Q`` and
         ``m = L R`` (weighted), ``|P (y - m)|^2 = |P y|^2 - 2 (P y) . m + |m|^2 - |Q^T m|^2``:
@@ -139,10 +154,11 @@ class FixedLampProblem:
         array is formed."""
         out = np.empty((len(lamps), len(thickness)))
         lw = lamps * self.weight[None, :]
-        cross = lw * self._yw[None, :]  # (K, N): (P y) . (L R) = sum_n (P y)_n L_n R_n
+        yw = self._yw[None, :] if readings is None else self._project(np.asarray(readings) * self.weight[None, :])
+        cross = lw * yw  # (K, N): (P y) . (L R) = sum_n (P y)_n L_n R_n
         square = lw * lw
         qs = [lw * self._q[:, j][None, :] for j in range(self._q.shape[1])] if self._q is not None else []
-        yy = float(self._yw @ self._yw)
+        yy = np.sum(yw * yw, axis=1)[:, None]  # (K, 1), or (1, 1) for the one reading
         for s in range(0, len(thickness), chunk):
             r = self.reflect(thickness[s:s + chunk], w)  # (C, N)
             part = yy - 2.0 * (cross @ r.T) + square @ (r * r).T
@@ -163,51 +179,70 @@ class FixedLampProblem:
         return film + self.additive @ coef
 
 
-def _lamp_coefficients(problems, thickness, scale, resolution, lamp_basis) -> np.ndarray:
+def _lamp_coefficients(problems, thickness, scale, resolution, lamp_basis, stray_basis=None) -> np.ndarray:
     """The lamp's coefficients (J,) that minimise the pinning readings' total weighted RSS
-    with their thicknesses, scales and resolutions held and their stray light solved."""
-    j = lamp_basis[0].shape[1]
+    with their thicknesses, scales and resolutions held and each one's stray light solved;
+    with ``stray_basis`` (one (N, S) array per reading) the stray light is one for all of
+    them, ``S = stray_basis @ e``, solved with the lamp: (J + S,) coefficients, the lamp's
+    first."""
+    j = lamp_basis[0].shape[1] + (stray_basis[0].shape[1] if stray_basis is not None else 0)
     gram, rhs = np.zeros((j, j)), np.zeros(j)
-    for p, d, s, w, b in zip(problems, thickness, scale, resolution, lamp_basis):
+    for k, (p, d, s, w, b) in enumerate(zip(problems, thickness, scale, resolution, lamp_basis)):
         wt = p.weight
         x = s * b * (p.reflect(np.array([d]), w)[0] * wt)[:, None]
         y = p.y * wt
-        add = p.additive * wt[:, None]
-        if add.shape[1]:
-            q = np.linalg.qr(add)[0]
-            x, y = x - q @ (q.T @ x), y - q @ (q.T @ y)
+        if stray_basis is not None:
+            x = np.column_stack([x, stray_basis[k] * wt[:, None]])
+        else:
+            add = p.additive * wt[:, None]
+            if add.shape[1]:
+                q = np.linalg.qr(add)[0]
+                x, y = x - q @ (q.T @ x), y - q @ (q.T @ y)
         gram += x.T @ x
         rhs += x.T @ y
     return np.linalg.lstsq(gram, rhs, rcond=None)[0]
 
 
 def shared_lamp(problems: list[ProfileProblem], alone: list, lamp_basis: list[np.ndarray], nu_range,
-                grids: list[np.ndarray], orders: list[float]) -> SharedLamp:
+                grids: list[np.ndarray], orders: list[float], stray_basis: list[np.ndarray] | None = None) -> SharedLamp:
     """The lamp of the pinning readings (:class:`ProfileProblem` each, their ``alone`` fits
-    giving the starting thicknesses and resolutions), by alternation (see the module)."""
+    giving the starting thicknesses and resolutions), by alternation (see the module).
+
+    With ``stray_basis`` (each reading's (N, S) stray-light columns on the series'
+    wavenumber range) the stray light is the instrument's, shared like the lamp: the
+    alternation solves the lamp and one stray light ``S`` together over all the pinning
+    readings (:func:`_lamp_coefficients`) and refines each reading's thickness and scale
+    with both held; each reading's own lamp and stray light are then solved with its
+    thickness held (``each``, ``each_stray``).
+    A film read with the shared lamp then keeps ``S`` held (see the module)."""
     d = np.array([r.thickness_nm for r in alone])
     w = np.array([r.resolution_nm for r in alone])
     s = np.ones(len(problems))
-    coef = _lamp_coefficients(problems, d, s, w, lamp_basis)
+    j = lamp_basis[0].shape[1]
+    coef = _lamp_coefficients(problems, d, s, w, lamp_basis, stray_basis)
     for _ in range(ROUNDS):
         for i, (p, b) in enumerate(zip(problems, lamp_basis)):
-            one = replace(p, basis=(b @ coef)[:, None], positive=False)
+            one = replace(p, basis=(b @ coef[:j])[:, None], positive=False)
+            if stray_basis is not None:  # the shared stray light held, none of the reading's own
+                one = replace(one, y=p.y - stray_basis[i] @ coef[j:], offset=False, background=None)
             d[i] = refine_near(one, d[i], w[i], 0.25 * orders[i], grids[i])
             s[i] = float(one.solve(d[i], w[i])[0][0])
         mean = float(np.mean(s))
         if not mean > 0:
             break
         s /= mean
-        new = _lamp_coefficients(problems, d, s, w, lamp_basis)
+        new = _lamp_coefficients(problems, d, s, w, lamp_basis, stray_basis)
         change = float(np.max(np.abs(new - coef)) / max(np.max(np.abs(coef)), 1e-300))
         coef = new
         if change < LAMP_TOLERANCE:
             break
     spread = float(np.std(s, ddof=1)) if len(s) > 1 else float("inf")
-    each = np.array([_lamp_coefficients([p], [x], [1.0], [v], [b])
-                     for p, x, v, b in zip(problems, d, w, lamp_basis)])
-    return SharedLamp(coefficients=coef, nu_range=nu_range, scale_spread=spread, pinning=(), each=each,
-                      scales=tuple(float(x) for x in s))
+    strays = stray_basis if stray_basis is not None else [None] * len(problems)
+    each = np.array([_lamp_coefficients([p], [x], [1.0], [v], [b], None if e is None else [e])
+                     for p, x, v, b, e in zip(problems, d, w, lamp_basis, strays)])
+    shared = dict(stray=coef[j:], each_stray=each[:, j:]) if stray_basis is not None else {}
+    return SharedLamp(coefficients=coef[:j], nu_range=nu_range, scale_spread=spread, pinning=(), each=each[:, :j],
+                      scales=tuple(float(x) for x in s), **shared)
 
 
 def alternative_lamps(each: np.ndarray, most: int = MAX_ALTERNATIVE_LAMPS) -> np.ndarray:
@@ -242,7 +277,8 @@ def read_with_lamp(prob: FixedLampProblem, grid: np.ndarray, alternatives) -> di
     second, dchi2 = second_minimum(minima, d, step, s2)
     alt = []
     if len(alternatives):
-        rows = prob.rss_lamps(grid, 0.0, np.array([p.lamp for p in alternatives]))
+        rows = prob.rss_lamps(grid, 0.0, np.array([p.lamp for p in alternatives]),
+                              readings=np.array([p.y for p in alternatives]))
         alt = [refine_d(p, grid, row, 0.0, keep=1)[0][0] for p, row in zip(alternatives, rows)]
     candidates = profile_candidates(minima, step, s2)
     sys_nm = 0.0

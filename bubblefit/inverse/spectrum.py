@@ -69,7 +69,7 @@ from ._spectrum_extrema import RANDOM_PHASE, extrema_phase, fringe_extrema, frin
 from ._spectrum_profile import (ProfileProblem, local_noise, profile_variance, refine_d, refine_dw, refine_near,
                                 residual_correlation, rss_grids, second_difference_noise, second_minimum)
 
-__all__ = ["SpectrumOptions", "SpectrumFit", "film_reflectance", "reflector", "fit_spectrum",
+__all__ = ["SpectrumOptions", "SpectrumFit", "film_reflectance", "reflector", "fit_spectrum", "stray_basis",
            "resolve_normalised", "interference_order", "min_fringes"]
 
 _FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
@@ -292,10 +292,12 @@ def _order_spacing(wavelength_nm: np.ndarray, n: np.ndarray) -> float:
     return 1.0 / (2.0 * float(np.median(n / wavelength_nm)))
 
 
-def _unit_wavenumber(wavelength_nm: np.ndarray) -> np.ndarray:
-    """Wavenumber mapped linearly onto [-1, 1] over the range."""
+def _unit_wavenumber(wavelength_nm: np.ndarray, nu_range: tuple[float, float] | None = None) -> np.ndarray:
+    """Wavenumber mapped linearly onto [-1, 1] over the range (the reading's own, or
+    ``nu_range``, (min, max) 1/nm: a series' common one)."""
     nu = 1.0 / wavelength_nm
-    return 2.0 * (nu - nu.min()) / max(nu.max() - nu.min(), 1e-30) - 1.0
+    lo, hi = (nu.min(), nu.max()) if nu_range is None else nu_range
+    return 2.0 * (nu - lo) / max(hi - lo, 1e-30) - 1.0
 
 
 def _lamp_basis(wavelength_nm: np.ndarray, terms: int, reference: np.ndarray | None) -> np.ndarray:
@@ -304,20 +306,35 @@ def _lamp_basis(wavelength_nm: np.ndarray, terms: int, reference: np.ndarray | N
     return p * reference[:, None] if reference is not None else p
 
 
-def _background_basis(wavelength_nm: np.ndarray, terms: int, reference: np.ndarray | None) -> np.ndarray | None:
+def _background_basis(wavelength_nm: np.ndarray, terms: int, reference: np.ndarray | None,
+                      nu_range: tuple[float, float] | None = None) -> np.ndarray | None:
     """(N, terms) additive stray-light columns beyond the constant offset, or None for 0 terms.
 
     Light that reaches the spectrometer without passing through the film's interference
     (a reflection off a window or the frame, light scattered in the spectrometer) adds
     incoherently: ``I = L R + S``. Without a reference ``S`` is a smooth series
     (Legendre ``P_1 .. P_terms`` in wavenumber; ``P_0`` is the offset ``c``); with one it
-    has the lamp's spectrum, the reference times ``P_0 .. P_{terms-1}``.
+    has the lamp's spectrum, the reference times ``P_0 .. P_{terms-1}``. The polynomials
+    are on the reading's own wavenumber range, or on ``nu_range`` (a series' stray light
+    shared by readings of several ranges).
     """
     if terms <= 0:
         return None
+    u = _unit_wavenumber(wavelength_nm, nu_range)
     if reference is None:
-        return legendre.legvander(_unit_wavenumber(wavelength_nm), terms)[:, 1:]
-    return legendre.legvander(_unit_wavenumber(wavelength_nm), terms - 1) * reference[:, None]
+        return legendre.legvander(u, terms)[:, 1:]
+    return legendre.legvander(u, terms - 1) * reference[:, None]
+
+
+def stray_basis(p: "PreparedReading", nu_range: tuple[float, float]) -> np.ndarray:
+    """(N, K) the stray-light columns of prepared reading ``p`` (its offset, then
+    :func:`_background_basis`) on a series' common wavenumber range ``nu_range``: the same
+    space as ``p.problem.additive``, the same coefficients for every reading of a series."""
+    cols = [np.ones((len(p.y), 1))] if p.problem.offset else []
+    bg = _background_basis(p.wavelength_nm, p.background_terms, p.reference, nu_range)
+    if bg is not None:
+        cols.append(bg)
+    return np.column_stack(cols) if cols else np.zeros((len(p.y), 0))
 
 
 def _prepare(spectrum: Spectrum, dark: Spectrum | None, reference: Spectrum | None, opts: SpectrumOptions):
@@ -668,15 +685,17 @@ def _resolution_matters(d: float, lam: np.ndarray, n: np.ndarray, w_max: float) 
     return float(film.fringe_attenuation(x, sigma)) < 0.8
 
 
-def _misfit(mean_square: float, noise: float, level: float, reasons: list[str], warnings: list[str]) -> None:
+def _misfit(mean_square: float, noise: float, level: float, reasons: list[str], warnings: list[str],
+            what: str = "the reading's noise") -> None:
     """Not ok when the residual exceeds ``MISFIT_RATIO`` times the noise plus the model-error
-    floor; a warning when it exceeds twice the noise alone."""
+    floor; a warning when it exceeds twice the noise alone. ``what`` names ``noise`` in the
+    messages (a reading read with its series' lamp is judged by its noise and that lamp's spread)."""
     red = mean_square / noise**2 if noise > 0 else float("nan")
     if mean_square > MISFIT_RATIO**2 * (noise**2 + (MODEL_ERROR_FLOOR * level) ** 2):
-        reasons.append(f"the model does not explain the spectrum: the residual is {np.sqrt(red):.1f} times the "
-                       "reading's noise (check the index, the range, the reference, or --lamp-terms)")
+        reasons.append(f"the model does not explain the spectrum: the residual is {np.sqrt(red):.1f} times "
+                       f"{what} (check the index, the range, the reference, or --lamp-terms)")
     elif np.isfinite(red) and red > 4.0:
-        warnings.append(f"the residual is {np.sqrt(red):.1f} times the noise of the reading: the model leaves "
+        warnings.append(f"the residual is {np.sqrt(red):.1f} times {what}: the model leaves "
                         "structure (lamp, reference or index?); the error bar is widened for it")
 
 

@@ -41,7 +41,8 @@ def fit_spectrum_series(spectra: list[Spectrum], *, dark=None, reference=None, o
 
     Each reading is first read alone (:func:`bubblefit.inverse.spectrum.fit_spectrum`).
     With at least :data:`MIN_PINNING_READINGS` of them ``ok`` the shared lamp is fitted to
-    those, and every other reading is read again with it (its own stray light free); the
+    those, with the instrument's stray light, and every other reading is read again with both
+    held (:mod:`._shared_lamp`: only its thickness free); the
     pinning readings keep their own results. With fewer, every reading keeps its own
     result and the others get a warning saying why. ``progress(stage, k, n)`` is called
     before each reading of each stage (``"alone"``, then ``"shared lamp"``).
@@ -122,8 +123,10 @@ def _fit_series(spectra, dark, reference, options, progress, groups):
     probe = SharedLamp(np.zeros(terms), nu_range, 0.0, ())
     bases = [probe.basis(p.wavelength_nm) * (p.reference[:, None] if p.reference is not None else 1.0)
              for p in prepared]
+    strays = [sp.stray_basis(p, nu_range) for p in prepared]
     lamp = shared_lamp([prepared[i].problem for i in pins], [alone[i] for i in pins], [bases[i] for i in pins],
-                       nu_range, [prepared[i].grid for i in pins], [prepared[i].order_spacing for i in pins])
+                       nu_range, [prepared[i].grid for i in pins], [prepared[i].order_spacing for i in pins],
+                       [strays[i] for i in pins])
     lamp = replace(lamp, pinning=tuple(pins))
     bright = series_brightness(lamp, groups)
     local: dict[tuple[int, ...], SharedLamp] = {}
@@ -137,21 +140,24 @@ def _fit_series(spectra, dark, reference, options, progress, groups):
             continue
         b = bright[i]
         coef, each, why = b.scale * lamp.coefficients, b.each, b.why
+        stray, each_stray = lamp.stray, b.each_stray
         near = nearest_pins(lamp, groups, i)
         if near is not None:
             key = tuple(near)
             if key not in local:
                 local[key] = shared_lamp([prepared[j].problem for j in near], [alone[j] for j in near],
                                          [bases[j] for j in near], nu_range, [prepared[j].grid for j in near],
-                                         [prepared[j].order_spacing for j in near])
+                                         [prepared[j].order_spacing for j in near], [strays[j] for j in near])
             coef, each = local[key].coefficients, local[key].each
-            why = (f"the lamp of the {len(near)} of them nearest in its series' time order (readings "
+            stray, each_stray = local[key].stray, local[key].each_stray
+            why = (f"the lamp and stray light of the {len(near)} of them in its own series nearest it in time (readings "
                    f"{min(near) + 1}-{max(near) + 1} of the set; their brightness spreads by "
                    f"{local[key].scale_spread:.1%})")
         note = (f"read with the lamp shared by {len(pins)} readings that can be read alone, at {why} (its "
                 f"series' readings' brightness spreads by {b.spread:.1%}; the thickness's spread over their own lamps "
                 "is in the error bar)")
-        out.append(read_with_shared_lamp(p, bases[i] @ coef, bases[i] @ each.T, options, note, r))
+        out.append(read_with_shared_lamp(p, bases[i] @ coef, bases[i] @ each.T, options, note, r,
+                                         strays[i] @ stray, strays[i] @ each_stray.T))
     return out, lamp
 
 
@@ -177,9 +183,19 @@ def nearest_pins(lamp: SharedLamp, groups: list[SeriesGroup], i: int) -> list[in
     (``spectraVictor2``, one film in one series: 0.78 of the shared lamp for its order-5
     readings, 0.96, 1.13, 1.11 and 1.09 for orders 4 to 1), so a thin film is read with the
     lamps of the readings taken just before and after it, the lamp's error from their
-    scatter."""
+    scatter.
+
+    One of several series (``groups``) with at least :data:`MIN_PINNING_READINGS` pinning
+    readings of its own and no more than :data:`LOCAL_PINS` (or not in time order) is read
+    with the lamp and stray light of all of them: a lamp-divided reading's stray light, as
+    its brightness, is set by the reading it was divided by (``spectraVictor1``'s pinning
+    readings put it at 0.26 - 0.13 P_1 alone, against 0.16 + 0.04 P_1 shared with
+    ``spectraVictor2``'s; held at the shared one, three of its washed-out readings of
+    1290-1390 nm as stated were read as films of 62-170 nm, at its own as 1150-1250 nm)."""
     g = next(g for g in groups if i in g.indices)
     own = [j for j in g.indices if j in set(lamp.pinning)]
+    if len(groups) > 1 and len(own) >= MIN_PINNING_READINGS and (not g.ordered or len(own) <= LOCAL_PINS):
+        return own  # one of several series: its own lamp and stray light (see above)
     if not g.ordered or len(own) <= LOCAL_PINS:
         return None
     at = {j: k for k, j in enumerate(g.indices)}
@@ -190,13 +206,15 @@ def nearest_pins(lamp: SharedLamp, groups: list[SeriesGroup], i: int) -> list[in
 class SeriesBrightness:
     """The shared lamp's brightness for the readings of one series: its scale (the shared
     lamp's is 1), the relative spread of the pinning readings it comes from, the lamps of
-    (at most :data:`._shared_lamp.MAX_ALTERNATIVE_LAMPS` of) those readings, (K, J), and
-    what it was taken from."""
+    (at most :data:`._shared_lamp.MAX_ALTERNATIVE_LAMPS` of) those readings, (K, J), what
+    it was taken from, and those readings' own stray light (K, S) when the series shares
+    its stray light (:func:`._shared_lamp.shared_lamp`)."""
 
     scale: float
     spread: float
     each: np.ndarray
     why: str
+    each_stray: np.ndarray | None = None
 
 
 def series_brightness(lamp: SharedLamp, groups: list[SeriesGroup]) -> dict[int, SeriesBrightness]:
@@ -211,27 +229,60 @@ def series_brightness(lamp: SharedLamp, groups: list[SeriesGroup]) -> dict[int, 
     with fewer at the brightness of all the pinning readings, its error from all of their
     lamps (the spread between series then widens it)."""
     scales = np.asarray(lamp.scales, dtype=np.float64)
-    everyone = SeriesBrightness(1.0, lamp.scale_spread, alternative_lamps(lamp.each),
-                                f"the brightness of all {len(lamp.pinning)} of them")
+    j = lamp.each.shape[1]
+    both = lamp.each if lamp.each_stray is None else np.column_stack([lamp.each, lamp.each_stray])
+
+    def pick(rows):
+        got = alternative_lamps(both[rows])
+        return got[:, :j], (None if lamp.each_stray is None else got[:, j:])
+
+    each, each_stray = pick(slice(None))
+    everyone = SeriesBrightness(1.0, lamp.scale_spread, each, f"the brightness of all {len(lamp.pinning)} of them",
+                                each_stray)
     out = {}
     for g in groups:
         own = [k for k, i in enumerate(lamp.pinning) if i in set(g.indices)]
         b = everyone
         if len(groups) > 1 and len(own) >= MIN_PINNING_READINGS:
             level = float(np.mean(scales[own]))
-            b = SeriesBrightness(level, float(np.std(scales[own], ddof=1) / level), alternative_lamps(lamp.each[own]),
-                                 f"the brightness of the {len(own)} of its own series ({level:.3f} of the shared lamp's)")
+            each, each_stray = pick(own)
+            b = SeriesBrightness(level, float(np.std(scales[own], ddof=1) / level), each,
+                                 f"the brightness of the {len(own)} of its own series ({level:.3f} of the shared lamp's)",
+                                 each_stray)
         out.update(dict.fromkeys(g.indices, b))
     return out
 
 
-def read_with_shared_lamp(p, lamp: np.ndarray, alternatives: np.ndarray, options, note: str, alone):
+def lamp_residual(others: list, prob, d: float) -> float:
+    """The mean square (weighted, as the fit's residual) that a reading read with the series'
+    lamp at thickness ``d`` keeps because its own lamp is one more draw like the pinning
+    readings' own: the variance over ``others`` (the :class:`FixedLampProblem` of each of
+    their lamps and stray light) of the model ``L_k R(d) + S_k``, mean over the range
+    (0 with fewer than two). The spread of lamps that sizes the error bar's lamp part
+    (:func:`._shared_lamp.read_with_lamp`), seen in the reading's residual."""
+    if len(others) < 2:
+        return 0.0
+    r = prob.reflect(np.array([d]), 0.0)[0]
+    models = np.array([(o.lamp * r + (prob.y - o.y)) * o.weight for o in others])
+    return float(np.mean(np.var(models, axis=0, ddof=1)))
+
+
+def read_with_shared_lamp(p, lamp: np.ndarray, alternatives: np.ndarray, options, note: str, alone,
+                          stray: np.ndarray | None = None, stray_alternatives: np.ndarray | None = None):
     """The :class:`~bubblefit.inverse.spectrum.SpectrumFit` of a prepared reading ``p``
     (:func:`bubblefit.inverse.spectrum.prepared_problem`) with the lamp ``lamp`` (N,), its
     systematic error from the lamps of ``alternatives`` (N, K); ``alone`` is its own fit,
-    named in a warning."""
-    prob = FixedLampProblem(p.y, lamp, p.problem.additive, p.problem.reflect, p.problem.weight)
-    r = read_with_lamp(prob, p.grid, [replace(prob, lamp=col) for col in alternatives.T])
+    named in a warning. With ``stray`` (N,) the series' stray light is held
+    (:func:`._shared_lamp.shared_lamp`), each alternative lamp with its own stray light
+    (``stray_alternatives``, (N, K)); without, the reading's own stray light is fitted."""
+    if stray is None:
+        prob = FixedLampProblem(p.y, lamp, p.problem.additive, p.problem.reflect, p.problem.weight)
+        others = [replace(prob, lamp=col) for col in alternatives.T]
+        stray = 0.0
+    else:
+        prob = FixedLampProblem(p.y - stray, lamp, np.zeros((len(p.y), 0)), p.problem.reflect, p.problem.weight)
+        others = [replace(prob, y=p.y - s, lamp=col) for col, s in zip(alternatives.T, stray_alternatives.T)]
+    r = read_with_lamp(prob, p.grid, others)
     lam, n, d = p.wavelength_nm, p.n, r["d"]
     stderr = float(np.hypot(r["stat"], r["sys"]))
     order, fringes = sp.interference_order(d, lam, n)
@@ -239,12 +290,21 @@ def read_with_shared_lamp(p, lamp: np.ndarray, alternatives: np.ndarray, options
     warnings = [*p.warnings, note, f"read alone: {alone.thickness_nm:.1f} nm, " + ("ok" if alone.ok else "not ok")]
     level = float(np.mean(np.abs(p.y))) or 1.0
     flagged = len(reasons)
-    sp._misfit(r["rss"] / r["dof"], r["noise"], level, reasons, warnings)
-    fitted = prob.model(d, 0.0)
+    # A lamp like the series' (one more draw like the pinning readings' own, whose spread of
+    # reads is already the error bar's lamp part) leaves the difference between it and the
+    # shared lamp in the residual: the noise the misfit tests judge by includes the spread of
+    # the pinning readings' own models at this thickness (their variance, mean over the range).
+    lamp_ms = lamp_residual(others, prob, d)
+    scatter = float(np.sqrt(r["noise"] ** 2 + lamp_ms))
+    sp._misfit(r["rss"] / r["dof"], scatter, level, reasons, warnings,
+               "the reading's noise and the spread of the pinning readings' own lamps")
+    fitted = prob.model(d, 0.0) + stray
     red = float(r["rss"] / r["dof"] / r["noise"] ** 2) if r["noise"] > 0 else float("nan")
-    if len(reasons) == flagged and red > SHARED_MISFIT_RATIO**2:
+    beyond = float(r["rss"] / r["dof"] / scatter**2) if scatter > 0 else float("nan")
+    if len(reasons) == flagged and beyond > SHARED_MISFIT_RATIO**2:
         reasons.append(f"the series' lamp leaves structure in this reading (the residual is {np.sqrt(red):.1f} times "
-                       "its noise): its own lamp differs from the series', and a film read from its brightness "
+                       f"its noise, {np.sqrt(beyond):.1f} times its noise and the pinning readings' own lamps' "
+                       "spread): its own lamp differs from the series', and a film read from its brightness "
                        "takes the difference for thickness")
     phase, count = sp.extrema_verdict(lam, p.y, d, options.n_film, reasons)
     return sp.SpectrumFit(

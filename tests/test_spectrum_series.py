@@ -116,8 +116,9 @@ def _colour_series(seed):
             outside += 1
     # The series' stray light is held in the thin films' reads (the instrument's, fitted with
     # the lamp): a film whose lamp changed colour by its own 20 % draw keeps that change in its
-    # residual, which flags it, so that few thin films are ok; at least one must be.
-    assert sum(r.ok for d, r in zip(thick + thin, results) if d in thin) >= 1, seed
+    # residual, which may flag it; a lamp like the series' (about 90 % of draws, see below)
+    # leaves it ok, so that of six thin films at least two must be.
+    assert sum(r.ok for d, r in zip(thick + thin, results) if d in thin) >= 2, seed
     return covered, outside
 
 

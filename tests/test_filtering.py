@@ -323,3 +323,41 @@ def test_footprint_lookups_are_never_negative():
     mirror = np.asarray(specular_mirror(env, n, wo, normalize=True, footprint=fp))
     mip = np.asarray(specular_mipmap(env, n, wo, jnp.float32(0.0), nodes=4, normalize=True, footprint=fp))
     assert mirror.min() >= 0.0 and mip.min() >= 0.0, (mirror.min(), mip.min())
+
+
+def test_short_footprints_read_as_one_box():
+    """:func:`~bubblefit.lighting.envmap.lookup_parallelogram` reads a footprint whose
+    longer side is under ``SHORT_TEXELS`` texels as one box (but those among the longest
+    ``PIECES_SHARE``) and every other in its pieces when at most that share of them are
+    long, and every footprint in pieces when more are: each value is then the one or the other reader's own, to float32 rounding of
+    a sum of 16 lookups of a map whose texels reach 2000 times its floor (1e-5 relative)."""
+    from bubblefit.lighting import envmap as E
+
+    pixels, _, _ = _sun_map()
+    env = EnvMap.from_array(pixels)
+    rng = np.random.default_rng(3)
+    m = 512
+    d = rng.normal(size=(m, 3))
+    d[:, 1] *= 0.3  # away from the poles, where a column is narrower than a row
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    texel = np.pi / (SUN_H - 1)
+    dr = rng.normal(size=(m, 3, 2))
+    dr -= d[:, :, None] * np.einsum("mc,mck->mk", d, dr)[:, None, :]
+    dr /= np.linalg.norm(dr, axis=1, keepdims=True)
+    reader = jax.jit(env.lookup_parallelogram)
+    pieces = jax.jit(lambda r, s: E._pieces(env.atlas, env.shapes, r, s, E.BOX_PROBES, E.BOX_PROBES))
+    box = jax.jit(lambda r, s: E._pieces(env.atlas, env.shapes, r, s, 1, 1))
+    for long_share in (0.3, 0.8):
+        long = rng.random(m) < long_share
+        # short: under a quarter texel of the map's rows along each side; long: 5 to 20
+        length = np.where(long, rng.uniform(5, 20, m), rng.uniform(0.0, 0.25, m)) * texel
+        s = dr * length[:, None, None]
+        d32, s32 = jnp.asarray(d, jnp.float32), jnp.asarray(s, jnp.float32)
+        got, all_pieces, one_box = (np.asarray(f(d32, s32)) for f in (reader, pieces, box))
+        close = lambda x: np.all(np.abs(got - x) <= 1e-5 * np.abs(x), axis=-1)
+        if long.mean() > E.PIECES_SHARE:
+            assert close(all_pieces).all()
+        else:  # the long ones in pieces; a short one as one box, or in pieces if the share has room
+            assert close(all_pieces)[long].all() and (close(one_box) | close(all_pieces))[~long].all()
+            assert close(one_box)[~long].mean() >= 1.0 - E.PIECES_SHARE / (1.0 - long.mean()) - 1e-9
+        assert np.abs(all_pieces - one_box)[long].max() > 1e-3 * np.abs(all_pieces).max()  # the two readers differ

@@ -308,6 +308,16 @@ def texel_footprint(r: Float[Array, "N 3"], dr: Float[Array, "N 3 2"], height: i
 BOX_PROBES = 4
 
 
+#: Longest footprint side, in texels of level 0, that :func:`lookup_parallelogram` reads as
+#: one box: the bilinear tent's own width, so that one box and the pieces read the same
+#: texels of level 0 and differ by less than the tent's reach.
+SHORT_TEXELS = 1.0
+#: Share of a lookup's footprints :func:`lookup_parallelogram` reads in pieces when no more
+#: than that share are longer than :data:`SHORT_TEXELS`: static, so a lookup then costs one
+#: box per footprint plus ``PIECES_SHARE`` of its pieces.
+PIECES_SHARE = 0.5
+
+
 def lookup_parallelogram(atlas, shapes: tuple, r: Float[Array, "N 3"], dr: Float[Array, "N 3 2"],
                          probes: int = BOX_PROBES, across: int = BOX_PROBES) -> Float[Array, "N C"]:
     """The map's mean over the directions ``r + dr (s, t)``, ``s, t`` in ``[-1/2, 1/2]``:
@@ -327,6 +337,14 @@ def lookup_parallelogram(atlas, shapes: tuple, r: Float[Array, "N 3"], dr: Float
     them, or sheared), by an area that shrinks with the piece: ``probes x across`` pieces
     tile the parallelogram as the midpoint rule tiles a pixel's box.
 
+    A footprint whose longer side is at most :data:`SHORT_TEXELS` texels of level 0 reads
+    level 0 as one box and as pieces alike, and its box of second moments lies within the
+    bilinear tent's own texel of the parallelogram: it is read as one box. With static
+    shapes the pieces are read for the :data:`PIECES_SHARE` of the footprints that are
+    longest, the rest as one box, whenever no more than that share is longer than
+    :data:`SHORT_TEXELS` (the pixels that miss the bubble have no footprint at all);
+    otherwise every footprint is read in pieces.
+
     References
     ----------
     J. McCormack, R. Perry, K. I. Farkas, N. P. Jouppi, "Feline: fast elliptical lines
@@ -334,6 +352,28 @@ def lookup_parallelogram(atlas, shapes: tuple, r: Float[Array, "N 3"], dr: Float
     axis); F. C. Crow, "Summed-area tables for texture mapping", SIGGRAPH 1984 (each
     probe's box).
     """
+    n = r.shape[0]
+    cap = int(n * PIECES_SHARE)
+    if probes * across < 4 or cap < 1:  # two pieces cost no more than one box and a share of pieces
+        return _pieces(atlas, shapes, r, dr, probes, across)
+    h0, w0 = shapes[0]
+    side = lambda k: jnp.sqrt(jnp.sum(texel_footprint(r, dr[..., k:k + 1], h0, w0) ** 2, axis=-1))
+    length = jax.lax.stop_gradient(jnp.maximum(side(0), side(1)))
+
+    def few(_):
+        out = _pieces(atlas, shapes, r, dr, 1, 1)
+        _, idx = jax.lax.top_k(length, cap)
+        return out.at[idx].set(_pieces(atlas, shapes, r[idx], dr[idx], probes, across))
+
+    return jax.lax.cond(jnp.sum(length > SHORT_TEXELS) <= cap, few,
+                        lambda _: _pieces(atlas, shapes, r, dr, probes, across), None)
+
+
+def _pieces(atlas, shapes: tuple, r: Float[Array, "N 3"], dr: Float[Array, "N 3 2"],
+            probes: int, across: int) -> Float[Array, "N C"]:
+    """:func:`lookup_parallelogram` with every footprint cut into ``probes x across`` pieces
+    (J. McCormack et al., "Feline", SIGGRAPH 1999: probes along the major axis; each
+    piece's box as F. C. Crow's summed-area tables read one)."""
     h0, w0 = shapes[0]
     long_first = jnp.sum(dr[..., 0] ** 2, axis=-1) >= jnp.sum(dr[..., 1] ** 2, axis=-1)
     a = jnp.where(long_first[:, None], dr[..., 0], dr[..., 1])

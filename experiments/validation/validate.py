@@ -692,7 +692,7 @@ def main(argv=None) -> int:
                             r["pass"] = None      # the unwrap alone has no target
                         if "cov_n" not in r:
                             r.update(coverage(r))
-                        if r.get("t_err") is not None and "t_err_se" not in r and r.get("kind") != "calibration":
+                        if r.get("t_err") is not None and r.get("t_err_se") is None and r.get("kind") != "calibration":
                             _rescore_t(d, r)
                         rows.append(r)
         os.makedirs(a.out, exist_ok=True)

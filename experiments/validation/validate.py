@@ -311,6 +311,15 @@ def map_se_metrics(fit_map, se_map, true_map, disc) -> dict:
             "map_median_se_nm": float(np.median(se_map[ok])) if ok.any() else None}
 
 
+def _t_err_se_ci(row: dict) -> float | None:
+    """t's error in standard errors read from its two-sided 95 % interval (normal: the
+    half-width is 1.96 standard errors)."""
+    lo, hi, e = row.get("t_ci_lo"), row.get("t_ci_hi"), row.get("t_err")
+    if lo is None or hi is None or e is None or not hi > lo:
+        return None
+    return e / ((hi - lo) / (2 * 1.959964))
+
+
 def _t_fitted(res: dict) -> bool:
     """Whether the fit estimated t: the physical model derives transmission from n_film
     (Fresnel) and reports t at its start value with the role "unused"."""
@@ -384,6 +393,7 @@ def run_calibration(case: str, out_dir: str) -> dict:
     if isinstance(ci, (list, tuple)) and len(ci) == 2 and t is not None:
         row["t_ci_lo"], row["t_ci_hi"] = float(ci[0]), float(ci[1])
         inside = ci[0] <= truth["t"] <= ci[1]
+        row["t_err_se"] = _t_err_se_ci(row)
     row["t_in_ci"] = inside
     dc, dr = disc_error(res.get("bubble") or res.get("disc"), truth.get("disc"))
     row["disc_dc_px"], row["disc_dr_px"] = dc, dr
@@ -604,14 +614,15 @@ def summarise(rows: list[dict]) -> list[dict]:
             continue
         judged = [r for r in rs if r.get("pass") is not None]
         pos = [r for r in rs if r.get("kind") == "positive"]
+        cal = [r for r in rs if r.get("kind") == "calibration"]
         explained = [r for r in pos if r.get("ok") is True and (r.get("chi2_floor") or math.inf) <= 3.0]
         out.append({"part": part, "fits": len(rs), "judged": len(judged),
                     "pass": sum(bool(r.get("pass")) for r in judged),
                     "positives": len(pos), "ok": sum(r.get("ok") is True for r in pos),
                     "explained": len(explained),
                     "cov_n": sum(r.get("cov_n", 0) for r in rs), "cov_in": sum(r.get("cov_in", 0) for r in rs),
-                    "t_n": sum(r.get("t_err_se") is not None for r in pos),
-                    "t_in": sum(r.get("t_err_se") is not None and abs(r["t_err_se"]) <= COVER_SE for r in pos),
+                    "t_n": sum(r.get("t_err_se") is not None for r in pos + cal),
+                    "t_in": sum(r.get("t_err_se") is not None and abs(r["t_err_se"]) <= COVER_SE for r in pos + cal),
                     "negatives": sum(r.get("kind") == "negative" for r in rs),
                     "negatives_caught": sum(r.get("kind") == "negative" and bool(r.get("pass")) for r in rs)})
     return out
@@ -692,8 +703,11 @@ def main(argv=None) -> int:
                             r["pass"] = None      # the unwrap alone has no target
                         if "cov_n" not in r:
                             r.update(coverage(r))
-                        if r.get("t_err") is not None and r.get("t_err_se") is None and r.get("kind") != "calibration":
-                            _rescore_t(d, r)
+                        if r.get("t_err") is not None and r.get("t_err_se") is None:
+                            if r.get("kind") == "calibration":
+                                r["t_err_se"] = _t_err_se_ci(r)
+                            else:
+                                _rescore_t(d, r)
                         rows.append(r)
         os.makedirs(a.out, exist_ok=True)
         write_outputs(rows, a.out)

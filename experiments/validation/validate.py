@@ -254,9 +254,11 @@ def score_fit(res: dict | None, truth: dict, model: str, stem: str) -> dict:
     out["time_s"] = _num(res.get("time_s"))
     out["warnings"] = "; ".join(res.get("warnings", []) or [])[:400]
     t_true = truth.get("t")
-    if _num(p.get("t")) is not None and t_true is not None:
+    if _num(p.get("t")) is not None and t_true is not None and _t_fitted(res):
         out["t"] = _num(p["t"])
         out["t_err"] = out["t"] - t_true
+        s_t = _num(se.get("t"))
+        out["t_err_se"] = out["t_err"] / s_t if s_t else None
     out["roughness"] = _num(p.get("roughness"))
     dc, dr = disc_error(res.get("disc"), truth.get("disc"))
     out["disc_dc_px"], out["disc_dr_px"] = dc, dr
@@ -309,6 +311,38 @@ def map_se_metrics(fit_map, se_map, true_map, disc) -> dict:
             "map_median_se_nm": float(np.median(se_map[ok])) if ok.any() else None}
 
 
+def _t_err_se_ci(row: dict) -> float | None:
+    """t's error in standard errors read from its two-sided 95 % interval (normal: the
+    half-width is 1.96 standard errors)."""
+    lo, hi, e = row.get("t_ci_lo"), row.get("t_ci_hi"), row.get("t_err")
+    if lo is None or hi is None or e is None or not hi > lo:
+        return None
+    return e / ((hi - lo) / (2 * 1.959964))
+
+
+def _t_fitted(res: dict) -> bool:
+    """Whether the fit estimated t: the physical model derives transmission from n_film
+    (Fresnel) and reports t at its start value with the role "unused"."""
+    roles = {q.get("name"): q.get("role") for q in res.get("parameters", []) or []}
+    return roles.get("t", "fitted") == "fitted"
+
+
+def _rescore_t(out_dir: str, row: dict) -> None:
+    """t, its error and its error in stated standard errors from the fit's JSON under
+    ``out_dir``/runs (rows scored before those columns existed); t is dropped where the fit
+    did not estimate it."""
+    js = os.path.join(out_dir, "runs", row["case"].replace(":", "_").replace(" ", "_") + ".json")
+    if not os.path.isfile(js):
+        return
+    with open(js) as fh:
+        res = json.load(fh)
+    if not _t_fitted(res):
+        row["t"] = row["t_err"] = row["t_err_se"] = None
+        return
+    s_t = _num((res.get("stderr") or {}).get("t"))
+    row["t_err_se"] = row["t_err"] / s_t if s_t else None
+
+
 def judge(row: dict, truth: dict, model: str):
     """True / False against the issue's targets, None where no target applies."""
     if truth.get("kind") == "negative":
@@ -359,6 +393,7 @@ def run_calibration(case: str, out_dir: str) -> dict:
     if isinstance(ci, (list, tuple)) and len(ci) == 2 and t is not None:
         row["t_ci_lo"], row["t_ci_hi"] = float(ci[0]), float(ci[1])
         inside = ci[0] <= truth["t"] <= ci[1]
+        row["t_err_se"] = _t_err_se_ci(row)
     row["t_in_ci"] = inside
     dc, dr = disc_error(res.get("bubble") or res.get("disc"), truth.get("disc"))
     row["disc_dc_px"], row["disc_dr_px"] = dc, dr
@@ -502,11 +537,11 @@ def jobs_for(case: str) -> list[tuple]:
 
 COLUMNS = ["case", "part", "pass", "ok", "converged", "refused", "d_err_nm", "d_err_se", "top_err_nm", "top_err_se",
            "bottom_err_nm", "bottom_err_se", "map_median_nm", "map_p90_nm", "map_coverage", "map_cover_3se", "order_hops", "t",
-           "t_err", "t_in_ci", "disc_dc_px", "disc_dr_px", "model_kept", "reduced_chi2", "chi2_floor", "chi2_inliers",
+           "t_err", "t_err_se", "t_in_ci", "disc_dc_px", "disc_dr_px", "model_kept", "reduced_chi2", "chi2_floor", "chi2_inliers",
            "outliers", "map_log_err_median", "time_s", "wall_s"]
 SHORT = {"d_err_nm": "d err", "d_err_se": "d/se", "top_err_nm": "top err", "top_err_se": "top/se",
          "bottom_err_nm": "bot err", "bottom_err_se": "bot/se", "map_median_nm": "map med", "map_p90_nm": "map p90",
-         "map_coverage": "cover", "map_cover_3se": "map in 3se", "order_hops": "hops", "t_in_ci": "t in CI", "disc_dc_px": "disc dc",
+         "map_coverage": "cover", "map_cover_3se": "map in 3se", "order_hops": "hops", "t_err_se": "t/se", "t_in_ci": "t in CI", "disc_dc_px": "disc dc",
          "disc_dr_px": "disc dr", "model_kept": "model", "reduced_chi2": "chi2r", "chi2_floor": "chi2 floor",
          "chi2_inliers": "chi2 in", "outliers": "outl", "map_log_err_median": "probe |log|", "converged": "conv", "refused": "refused"}
 
@@ -579,23 +614,27 @@ def summarise(rows: list[dict]) -> list[dict]:
             continue
         judged = [r for r in rs if r.get("pass") is not None]
         pos = [r for r in rs if r.get("kind") == "positive"]
+        cal = [r for r in rs if r.get("kind") == "calibration"]
         explained = [r for r in pos if r.get("ok") is True and (r.get("chi2_floor") or math.inf) <= 3.0]
         out.append({"part": part, "fits": len(rs), "judged": len(judged),
                     "pass": sum(bool(r.get("pass")) for r in judged),
                     "positives": len(pos), "ok": sum(r.get("ok") is True for r in pos),
                     "explained": len(explained),
                     "cov_n": sum(r.get("cov_n", 0) for r in rs), "cov_in": sum(r.get("cov_in", 0) for r in rs),
+                    "t_n": sum(r.get("t_err_se") is not None for r in pos + cal),
+                    "t_in": sum(r.get("t_err_se") is not None and abs(r["t_err_se"]) <= COVER_SE for r in pos + cal),
                     "negatives": sum(r.get("kind") == "negative" for r in rs),
                     "negatives_caught": sum(r.get("kind") == "negative" and bool(r.get("pass")) for r in rs)})
     return out
 
 
 def summary_table(summary: list[dict]) -> str:
-    lines = ["| part | fits | targets met | positives ok | thicknesses within 3 SE | negatives caught |",
-             "|---|---|---|---|---|---|"]
+    lines = ["| part | fits | targets met | positives ok | thicknesses within 3 SE | t within 3 SE | negatives caught |",
+             "|---|---|---|---|---|---|---|"]
     for s in summary:
+        t_cov = f"{s['t_in']} / {s['t_n']}" if s.get("t_n") else "-"
         lines.append(f"| {s['part']} | {s['fits']} | {s['pass']} / {s['judged']} | {s['ok']} / {s['positives']} | "
-                     f"{s['cov_in']} / {s['cov_n']} | {s['negatives_caught']} / {s['negatives']} |")
+                     f"{s['cov_in']} / {s['cov_n']} | {t_cov} | {s['negatives_caught']} / {s['negatives']} |")
     return "\n".join(lines)
 
 
@@ -664,6 +703,11 @@ def main(argv=None) -> int:
                             r["pass"] = None      # the unwrap alone has no target
                         if "cov_n" not in r:
                             r.update(coverage(r))
+                        if r.get("t_err") is not None and r.get("t_err_se") is None:
+                            if r.get("kind") == "calibration":
+                                r["t_err_se"] = _t_err_se_ci(r)
+                            else:
+                                _rescore_t(d, r)
                         rows.append(r)
         os.makedirs(a.out, exist_ok=True)
         write_outputs(rows, a.out)

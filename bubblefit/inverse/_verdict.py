@@ -10,7 +10,8 @@ model-error floor: the reduced chi^2 with each pixel's variance
 (:func:`bubblefit.inverse.colour_check.judge_colours`). When
 it is not, the warning says whether the misfit is local: a few outlier pixels
 (:data:`~bubblefit.inverse._uncertainty.OUTLIER_CHI2`) with the rest explained, as the
-glints of the sun or of a lamp leave, which one ray per pixel does not resolve. Such a fit
+glints of the sun or of a lamp leave where the model renders them coarser than the camera
+integrated them (one ray per pixel, or the pixel footprint's boxes). Such a fit
 stays not ``ok``: on independent photos the share of outliers did not tell a glint from a
 biased model apart (4-6 % on right fits with sun, studio and night maps and 20 % on one
 over a bright city map, 10 % on the paper model's biased courtyard drainage profile; development cases ref_const620_sunrise, ref_const1200_night, ref_drain_exp15_studio, cyc_bump_city, ref_drain_lin_courtyard in experiments/validation/split.toml).
@@ -112,8 +113,8 @@ def verdict(*, converged: bool, disc_found: bool, bound_warnings: list, misfit: 
                 f"model-error floor (at most {ok_chi2:g} expected)")
         if 0 < outliers < LOCAL_SHARE and chi2_inliers <= ok_chi2:
             text += (f"; {outliers:.1%} of the pixels are outliers (chi^2 over {OUTLIER_CHI2:g} each) and the rest "
-                     f"are at {chi2_inliers:.3g}: the misfit is local (glints of a compact light, which one ray per "
-                     "pixel does not resolve; specks), or a model wrong over that share of the film")
+                     f"are at {chi2_inliers:.3g}: the misfit is local (glints of a compact light sharper than the "
+                     "model renders them; specks), or a model wrong over that share of the film")
         else:
             text += ("; wrong environment map, rotation, disc or model, or the photo and the background photo "
                      "swapped?" if swap_possible else "; wrong environment map, rotation, disc or model?")

@@ -563,6 +563,26 @@ def _on_image(mask, values, fill, channels: int = 0) -> np.ndarray:
     return out
 
 
+def _with_camera_term(fwd, kind: str, model, dref, sin2, sigma, perr: dict, stderr):
+    """A constant film's or a map's errors widened by the calibrated response's share
+    (:meth:`PlanarForward.camera_shifts`: one draw of the response moves every pixel
+    together, so a constant film's share is the shift of the pixels' Jacobian-weighted
+    mean): ``(perr, stderr, stderr_camera)``, unchanged with ``None`` for a response taken
+    as exact."""
+    moved = fwd.camera_shifts(model, dref, sin2, sigma)
+    if moved is None:
+        return perr, stderr, None
+    shifts, jj = moved
+    if kind == "constant":
+        cam = float(np.sqrt(np.sum((np.tensordot(jj, shifts, axes=1) / max(float(jj.sum()), 1e-300)) ** 2)))
+        perr = {**perr, "thickness_nm": float(np.hypot(perr["thickness_nm"], cam))}
+    else:
+        pix = np.sqrt(np.sum(shifts**2, axis=(1, 2)))
+        stderr = np.hypot(stderr, pix)
+        cam = float(np.median(pix))
+    return perr, stderr, {"thickness_nm": cam}
+
+
 def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=None,
                kind: str | None = None, seed: int = 0, clip_high: float = np.inf) -> PlanarResult:
     """Fit a flat film's or a gap's thickness to a linear photo (H, W, 3) (the module's method).
@@ -662,18 +682,8 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     # differ on the same film); ``ok`` is judged by this one
     chi2_floor = float(np.mean(res ** 2 / (sigma ** 2 + (JudgeSettings.model_error * y) ** 2)))
     stderr_camera = drain_camera if kind == "drainage" else None
-    if kind in ("constant", "map"):  # a calibrated response's share (one draw moves every pixel)
-        moved = fwd.camera_shifts(model, dref, sin2, sigma)
-        if moved is not None:
-            shifts, jj = moved
-            if kind == "constant":
-                cam = float(np.sqrt(np.sum((np.tensordot(jj, shifts, axes=1) / max(float(jj.sum()), 1e-300)) ** 2)))
-                perr["thickness_nm"] = float(np.hypot(perr["thickness_nm"], cam))
-            else:
-                pix = np.sqrt(np.sum(shifts**2, axis=(1, 2)))
-                stderr = np.hypot(stderr, pix)
-                cam = float(np.median(pix))
-            stderr_camera = {"thickness_nm": cam}
+    if kind in ("constant", "map"):
+        perr, stderr, stderr_camera = _with_camera_term(fwd, kind, model, dref, sin2, sigma, perr, stderr)
     tmap = _on_image(mask, dref, np.nan)
     smap = _on_image(mask, stderr, np.nan)
     hops = _hops(tmap, window) if kind == "map" else 0

@@ -61,7 +61,7 @@ from ._uncertainty import OUTLIER_CHI2, Misfit
 from .response_error import response_error, response_gram
 from ._verdict import verdict
 from ._observation import noise_sigma
-from .planar import GRID_STEP_NM, PlanarResult, _on_image
+from .planar import GRID_STEP_NM, PlanarResult, _on_image, range_edge_warning
 
 __all__ = ["fit_cap", "cap_config", "fitted_pixels", "CapResult", "CAP_SPECTRAL_SAMPLES"]
 
@@ -334,9 +334,7 @@ def fit_cap(photo: np.ndarray, scene, env, *, kind: str | None = None, clip_high
         lo_e, hi_e = EXPONENT_RANGE
         if not lo_e < e < hi_e:
             warnings.append(f"the drainage exponent {e:.3g} lies outside {lo_e:g}-{hi_e:g}")
-    edge = (dfront <= lo + 1e-6) | (dfront >= hi - 1e-6)
-    if edge.mean() > 0.05:
-        warnings.append(f"{100 * edge.mean():.0f} % of the cap sits at the edge of the searched range {lo:g}-{hi:g} nm")
+    warnings.extend(range_edge_warning(dfront, lo, hi, "cap"))
     fit_misfit = _misfit(res, sigma, y, opts.judge.model_error, len(theta))
     chi2_floor = fit_misfit.chi2_floor
     sigma = float(np.median(sigma))

@@ -563,6 +563,16 @@ def _on_image(mask, values, fill, channels: int = 0) -> np.ndarray:
     return out
 
 
+def range_edge_warning(d, lo: float, hi: float, what: str) -> list[str]:
+    """A warning when more than 5 % of the thicknesses ``d`` sit at an end of the searched
+    range ``lo``-``hi`` nm (the film may lie outside it), else none; ``what``: the film's
+    name in the message."""
+    edge = (np.asarray(d) <= lo + 1e-6) | (np.asarray(d) >= hi - 1e-6)
+    if edge.mean() <= 0.05:
+        return []
+    return [f"{100 * edge.mean():.0f} % of the {what} sits at the edge of the searched range {lo:g}-{hi:g} nm"]
+
+
 def _with_camera_term(fwd, kind: str, model, dref, sin2, sigma, perr: dict, stderr):
     """A constant film's or a map's errors widened by the calibrated response's share
     (:meth:`PlanarForward.camera_shifts`: one draw of the response moves every pixel
@@ -689,10 +699,7 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     hops = _hops(tmap, window) if kind == "map" else 0
     if hops:
         warnings.append(f"{hops} neighbouring pixel pairs differ by more than {window:.0f} nm (possible order hops)")
-    edge = (dref <= lo + 1e-6) | (dref >= hi - 1e-6)
-    if edge.mean() > 0.05:
-        warnings.append(f"{100 * edge.mean():.0f} % of the film sits at the edge of the searched range "
-                        f"{lo:g}-{hi:g} nm")
+    warnings.extend(range_edge_warning(dref, lo, hi, "film"))
     render = _on_image(mask, model, 0.0, 3)
     resid = _on_image(mask, res, 0.0, 3)
     ok = not warnings and chi2_floor < 4.0

@@ -20,6 +20,7 @@ from ..io.spectra import Spectrum
 from . import spectrum as sp
 from ._spectrum_defaults import SeriesGroup, series_departures, series_normalised
 from ._spectrum_drain import AMBIGUOUS_REASON, series_sides
+from ._first_maximum import first_lobe, first_maximum_lamp
 from ._shared_lamp import (MAX_ALTERNATIVE_LAMPS, MIN_PINNING_READINGS, SHARED_MISFIT_RATIO, FixedLampProblem,
                            SharedLamp, alternative_lamps, read_with_lamp, shared_lamp)
 
@@ -130,6 +131,7 @@ def _fit_series(spectra, dark, reference, options, progress, groups):
     lamp = replace(lamp, pinning=tuple(pins))
     bright = series_brightness(lamp, groups)
     local: dict[tuple[int, ...], SharedLamp] = {}
+    held: dict[int, tuple] = {}
     out = []
     for i, (r, p) in enumerate(zip(alone, prepared)):
         if progress is not None:
@@ -156,9 +158,68 @@ def _fit_series(spectra, dark, reference, options, progress, groups):
         note = (f"read with the lamp shared by {len(pins)} readings that can be read alone, at {why} (its "
                 f"series' readings' brightness spreads by {b.spread:.1%}; the thickness's spread over their own lamps "
                 "is in the error bar)")
-        out.append(read_with_shared_lamp(p, bases[i] @ coef, bases[i] @ each.T, options, note, r,
-                                         strays[i] @ stray, strays[i] @ each_stray.T))
+        held[i] = (bases[i] @ coef, bases[i] @ each.T, strays[i] @ stray, strays[i] @ each_stray.T)
+        out.append(read_with_shared_lamp(p, *held[i][:2], options, note, r, *held[i][2:]))
+    for g in groups:
+        if g.ordered:
+            _read_order0(g, out, alone, prepared, bases, strays, held, options)
     return out, lamp
+
+
+def _read_order0(group: SeriesGroup, out: list, alone: list, prepared: list, bases: list, strays: list,
+                 held: dict, options) -> None:
+    """The order-0 readings of a draining series read again, in place, with the lamp and
+    stray light of the series' own first interference maximum (Scheludko 1967,
+    :func:`._first_maximum.first_maximum_lamp`) instead of those the thicker films pin.
+
+    A reading is of order 0 when the series read it (with the held lamp) in the first lobe of
+    ``R`` at every wavelength (:func:`._first_maximum.first_lobe`: phase below 2, no zero of
+    ``R`` in the reading) and it does not pin the lamp. The envelope is taken over the
+    series' readings on the same wavelengths; at least :data:`MIN_PINNING_READINGS` order-0
+    readings must share the stray light's fit. Each is read at the wavelengths where the
+    series passed through the first maximum, its lamp's error from the pinning readings' own
+    lamps and stray light as they differ from the held ones (each alternative lamp times the
+    envelope's over the held one, each alternative stray light moved as the fitted one is)."""
+    first = prepared[group.indices[0]]
+    same = [i for i in group.indices if np.array_equal(prepared[i].wavelength_nm, first.wavelength_nm)]
+    lam, n = first.wavelength_nm, first.n
+    order0 = [i for i in same if i in held and 0.0 < out[i].thickness_nm
+              and np.all(first_lobe(out[i].thickness_nm, lam, n) < 2.0)]
+    if len(order0) < MIN_PINNING_READINGS:
+        return
+    at = {i: k for k, i in enumerate(same)}
+    h0 = held[order0[0]]
+    start = np.linalg.lstsq(strays[order0[0]], h0[2], rcond=None)[0]
+    fm = first_maximum_lamp(lam, n, np.array([prepared[i].y for i in same]),
+                            np.array([out[i].thickness_nm for i in same]), [at[i] for i in order0],
+                            np.array([prepared[i].problem.weight for i in same]), first.problem.reflect, first.grid,
+                            strays[order0[0]], start)
+    if fm is None:
+        return
+    keep = fm.covered
+    lo, hi = float(lam[keep].min()), float(lam[keep].max())
+    note = (f"read as a film of order 0 of its series with the lamp and stray light of the series' own first "
+            f"interference maximum (Scheludko's envelope of {len(same)} readings, {lo:.0f}-{hi:.0f} nm where the "
+            f"film drained through it; stray light fitted to its {len(order0)} order-0 readings)")
+    for i in order0:
+        lamp_i, alts, stray_i, stray_alts = held[i]
+        ratio = fm.lamp / np.where(lamp_i != 0.0, lamp_i, 1.0)
+        p = _covered(prepared[i], keep)
+        prior = out[i]
+        r = read_with_shared_lamp(p, fm.lamp[keep], (alts * ratio[:, None])[keep], options, note, alone[i],
+                                  fm.stray[keep], (stray_alts - stray_i[:, None] + fm.stray[:, None])[keep])
+        r.warnings.append(f"read with the held lamp: {prior.thickness_nm:.1f} nm")
+        out[i] = r
+
+
+def _covered(p, keep: np.ndarray):
+    """The prepared reading ``p`` at the wavelengths ``keep`` only."""
+    reflect, prob = p.problem.reflect, p.problem
+    bg = None if prob.background is None else np.asarray(prob.background)[keep]
+    sub = replace(prob, y=p.y[keep], basis=prob.basis[keep], background=bg, weight=prob.weight[keep],
+                  reflect=lambda d, w: reflect(d, w)[:, keep])
+    return replace(p, wavelength_nm=p.wavelength_nm[keep], y=p.y[keep], n=p.n[keep], problem=sub,
+                   reference=None if p.reference is None else p.reference[keep])
 
 
 #: Pinning readings nearest in time whose lamp reads a film of a long series: the order-1

@@ -141,10 +141,12 @@ def test_isotonic_blocks_pool_the_rises():
 PINS = (600.0, 450.0, 330.0, 250.0)
 
 
-def _divided_series(thickness, seed, *, drift=0.03, tilt=0.02, noise=0.002, stray=0.01, stray_colour=3000.0):
+def _divided_series(thickness, seed, *, drift=0.03, tilt=0.02, noise=0.002, stray=0.01, stray_colour=3000.0,
+                    level=None):
     """Readings of films of ``thickness`` nm in time order (420-800 nm, 1 nm steps), each
     under the 3000 K lamp of ``test_spectrum.py`` whose brightness and colour (a tilt from
-    red to blue) change by one normal draw each of relative size ``drift`` and ``tilt``,
+    red to blue) change by one normal draw each of relative size ``drift`` and ``tilt``
+    (times ``level[k]`` for reading ``k`` when given: a lamp that changes over the series),
     with stray light of the lamp's colour, or of a light of colour temperature
     ``stray_colour`` (room light reaching the spectrometer; the same in every reading) and
     noise growing where the lamp is dim, then divided by the lamp as read once (an
@@ -159,6 +161,7 @@ def _divided_series(thickness, seed, *, drift=0.03, tilt=0.02, noise=0.002, stra
     out = []
     for k, d in enumerate(thickness):
         bright = (1.0 + drift * rng.standard_normal()) * (1.0 + tilt * rng.standard_normal() * u)
+        bright = bright * (1.0 if level is None else level[k])
         raw = bright * lamp(lam) * airy(d, lam, soap_index(lam)) + stray * 0.08 * lamp(lam, stray_colour)
         raw = raw + noise * 0.08 * rng.standard_normal(lam.shape) * np.sqrt(lamp(lam))
         out.append(Spectrum(lam, raw / lamp(lam) / 0.08, path=f"t{k:03d}.xy"))
@@ -236,3 +239,38 @@ def test_a_film_that_thickens_is_not_read_as_draining():
     rise = [r for k, r in enumerate(results) if len(PINS) + 5 <= k <= len(PINS) + 9]
     assert all(not r.ok for r in rise)
     assert any(any("where a draining film thins" in x for x in r.reasons) for r in rise)
+
+
+@pytest.mark.slow
+def test_order0_films_under_a_brighter_lamp_than_the_pins_are_read_by_the_first_maximum():
+    """A lamp-divided series whose lamp is 8 % brighter for its order-0 films than for the
+    four thicker films that pin it (the level of a divided reading's lamp changes over a
+    series: 5-8 % on optifik's spectraVictor2 between order 1 and order 0), with stray light
+    of another colour (5000 K, 0.2 of the first maximum), a lamp steady from one reading to
+    the next (0.5 % brightness and colour) and noise. The film drains from 154 to 70 nm in
+    6 nm steps, through the first maximum at every wavelength of 420-800 nm. Read with the
+    pins' lamp, a film below the maximum (``R ~ d^2``) comes out about 4 % thick (half the
+    lamp's 8 %; near the maximum, where ``R`` is flat in ``d``, the held lamp's colour moves
+    it either way). Read with the series' own first maximum (Scheludko's envelope), the
+    films are right within what the noise and the lamp's steadiness leave: a film's relative
+    error is half its lamp's (``R ~ d^2``), and its lamp's error is its own reading's draw
+    plus the envelope's (one reading's draw), so each film lies within 3 times its
+    statistical error (the reading's noise) and ``drift d`` added in quadrature, the median
+    of the relative errors within ``drift``, and none is called ok and wrong."""
+    from test_spectrum import soap_index
+
+    drift = 0.005
+    thin = tuple(np.arange(154.0, 69.0, -6.0))
+    truth = PINS + thin
+    level = [1.0] * len(PINS) + [1.08] * len(thin)
+    results = _read(truth, 2, drift=drift, tilt=drift, stray=0.2, stray_colour=5000.0, noise=0.002, level=level)
+    lam = np.arange(420.0, 800.0 + 1e-9, 1.0)
+    order0 = [k for k, d in enumerate(truth) if np.all(4.0 * soap_index(lam) * d / lam < 2.0)]
+    assert [truth[k] for k in order0] == list(thin)
+    rel = np.array([results[k].thickness_nm / truth[k] - 1.0 for k in order0])
+    assert abs(float(np.median(rel))) <= drift
+    for k in order0:
+        r, d = results[k], truth[k]
+        assert abs(r.thickness_nm - d) <= 3.0 * np.hypot(r.stderr_statistical_nm, drift * d)
+    assert not [(d, r.thickness_nm) for d, r in zip(truth, results) if _wrong(d, r)]
+    assert all(any("first interference maximum" in w for w in results[k].warnings) for k in order0)

@@ -1,9 +1,11 @@
-"""Where the order-0 readings of optifik's ``spectraVictor2`` get their bias.
+"""Where the order-0 readings of optifik's ``spectraVictor2`` get their bias under a held lamp.
 
-The known order-0 readings (stated 124 -> 82 nm) are read 2-5 % thicker than stated by
-``bubblefit fit-spectrum``, which reads them with the lamp and stray light held from the
-order-1 readings that can be read alone (films of 186-243 nm, earlier in the series). This
-experiment measures what moves that bias, on the readings themselves:
+The known order-0 readings (stated 124 -> 82 nm) read with the lamp and stray light held
+from the order-1 readings that can be read alone (films of 186-243 nm, earlier in the
+series) come out 2-5 % thicker than stated; ``bubblefit fit-spectrum`` reads them instead
+with the series' own first maximum (:mod:`bubblefit.inverse._first_maximum`), and the
+``fit-spectrum defaults`` row of the record is that reading. This experiment measures what
+moves the held lamp's bias, on the readings themselves:
 
 - the stated values' own method: the interferometric (Scheludko) reading of a draining
   film, ``Delta = (I - I_min) / (I_max - I_min)`` with ``I_max(lambda)`` the brightest the

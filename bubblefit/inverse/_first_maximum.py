@@ -118,7 +118,7 @@ def first_maximum_lamp(wavelength_nm: np.ndarray, n: np.ndarray, readings: np.nd
     lobe_max = float(np.min(wavelength_nm / (2.0 * n)))  # the first zero of R at the shortest wavelength
     g = grid[(grid > 0.0) & (grid < lobe_max)]
     r = reflect(g, 0.0)[:, covered]  # (D, C)
-    r_max = np.max(reflect(np.linspace(0.0, lobe_max, 2001), 0.0), axis=0)  # the Airy maximum of the first lobe
+    r_max = np.diag(reflect(wavelength_nm / (4.0 * n), 0.0)).copy()  # R at the first maximum, 4 n d / lambda = 1
     floor = np.min(np.array([_smoothed(y) for y in readings]), axis=0)
     y = readings[order0][:, covered]
     w2 = weights[order0][:, covered] ** 2

@@ -74,7 +74,9 @@ def first_lobe(thickness_nm: float, wavelength_nm: np.ndarray, n: np.ndarray) ->
 
 
 def _smoothed(y: np.ndarray) -> np.ndarray:
-    """The reading through the cubic Savitzky-Golay filter of :data:`SMOOTHING_SAMPLES`."""
+    """The reading through the cubic Savitzky-Golay filter of :data:`SMOOTHING_SAMPLES`
+    (A. Savitzky & M. J. E. Golay, Anal. Chem. 36, 1627 (1964); optifik smooths these readings
+    so before reading them by Scheludko's method)."""
     win = min(SMOOTHING_SAMPLES, len(y) // 2 * 2 - 1)
     return savgol_filter(y, win, 3) if win >= 5 else np.asarray(y, np.float64)
 
@@ -99,7 +101,8 @@ def first_maximum_lamp(wavelength_nm: np.ndarray, n: np.ndarray, readings: np.nd
                        stray_start: np.ndarray) -> FirstMaximum | None:
     """The lamp and stray light of the order-0 readings ``order0`` (indices into ``readings``,
     (K, N), all on ``wavelength_nm``; ``thickness_nm`` (K,) each reading's thickness as the
-    series read it) from the series' first-maximum envelope (see the module).
+    series read it) from the series' first-maximum envelope (see the module: Scheludko 1967,
+    with ``R`` the Airy reflectance of a single film, Born & Wolf 7.6(13)).
 
     ``weights`` (K, N) are the readings' least-squares weights, ``reflect(d, w)`` the Airy
     reflectance (D, N) at their wavelengths, ``grid`` the thicknesses searched,

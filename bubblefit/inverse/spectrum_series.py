@@ -1,5 +1,7 @@
 """A series of readings under one lamp: each read alone, the lamp shared by those that can
-be, the others read with it (:mod:`._shared_lamp` holds the shared lamp's fit).
+be, the others read with it (:mod:`._shared_lamp` holds the shared lamp's fit), and the
+order-0 films of a draining series read with its own first interference maximum
+(:mod:`._first_maximum`, Scheludko's method).
 
 This module sits above both :mod:`.spectrum` (one reading) and :mod:`._shared_lamp` (the
 series' lamp), so that neither of those imports the other.
@@ -44,7 +46,9 @@ def fit_spectrum_series(spectra: list[Spectrum], *, dark=None, reference=None, o
     With at least :data:`MIN_PINNING_READINGS` of them ``ok`` the shared lamp is fitted to
     those, with the instrument's stray light, and every other reading is read again with both
     held (:mod:`._shared_lamp`: only its thickness free); the
-    pinning readings keep their own results. With fewer, every reading keeps its own
+    pinning readings keep their own results; in a series in time order those read in the
+    first lobe of ``R`` (order 0) are then read with the series' own first maximum
+    (:func:`_read_order0`). With fewer, every reading keeps its own
     result and the others get a warning saying why. ``progress(stage, k, n)`` is called
     before each reading of each stage (``"alone"``, then ``"shared lamp"``).
 
@@ -213,7 +217,8 @@ def _read_order0(group: SeriesGroup, out: list, alone: list, prepared: list, bas
 
 
 def _covered(p, keep: np.ndarray):
-    """The prepared reading ``p`` at the wavelengths ``keep`` only."""
+    """The prepared reading ``p`` at the wavelengths ``keep`` only (the same model, eq. of
+    :func:`bubblefit.inverse.spectrum.prepared_problem`, on fewer wavelengths)."""
     reflect, prob = p.problem.reflect, p.problem
     bg = None if prob.background is None else np.asarray(prob.background)[keep]
     sub = replace(prob, y=p.y[keep], basis=prob.basis[keep], background=bg, weight=prob.weight[keep],

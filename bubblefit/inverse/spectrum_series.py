@@ -183,7 +183,10 @@ def _read_order0(group: SeriesGroup, out: list, alone: list, prepared: list, bas
     readings must share the stray light's fit. Each is read at the wavelengths where the
     series passed through the first maximum, its lamp's error from the pinning readings' own
     lamps and stray light as they differ from the held ones (each alternative lamp times the
-    envelope's over the held one, each alternative stray light moved as the fitted one is)."""
+    envelope's over the held one, each alternative stray light moved as the fitted one is),
+    their departures from the envelope's widened by ``sqrt(2)``: the envelope is itself one
+    reading's lamp (the brightest at each wavelength), so the reading's lamp and the
+    envelope's are two draws, whose difference spreads ``sqrt(2)`` times one draw's."""
     first = prepared[group.indices[0]]
     same = [i for i in group.indices if np.array_equal(prepared[i].wavelength_nm, first.wavelength_nm)]
     lam, n = first.wavelength_nm, first.n
@@ -210,10 +213,15 @@ def _read_order0(group: SeriesGroup, out: list, alone: list, prepared: list, bas
         ratio = fm.lamp / np.where(lamp_i != 0.0, lamp_i, 1.0)
         p = _covered(prepared[i], keep)
         prior = out[i]
-        r = read_with_shared_lamp(p, fm.lamp[keep], (alts * ratio[:, None])[keep], options, note, alone[i],
-                                  fm.stray[keep], (stray_alts - stray_i[:, None] + fm.stray[:, None])[keep])
+        lamps = fm.lamp[:, None] + _TWO_DRAWS * (alts * ratio[:, None] - fm.lamp[:, None])
+        strays_k = fm.stray[:, None] + _TWO_DRAWS * (stray_alts - stray_i[:, None])
+        r = read_with_shared_lamp(p, fm.lamp[keep], lamps[keep], options, note, alone[i], fm.stray[keep], strays_k[keep])
         r.warnings.append(f"read with the held lamp: {prior.thickness_nm:.1f} nm")
         out[i] = r
+
+
+#: The spread of the difference of two independent draws over one draw's (see :func:`_read_order0`).
+_TWO_DRAWS = float(np.sqrt(2.0))
 
 
 def _covered(p, keep: np.ndarray):

@@ -34,6 +34,12 @@ the start (centre of the thinnest pixels, ``R`` and ``h0`` from a line in ``r^2`
 Levenberg-Marquardt fits ``(R, cx, cy, h0, g)`` to the colours directly, with standard
 errors from ``sigma^2 (J^T J)^-1``.
 
+With a calibrated response that states its errors, a drainage profile, Newton's rings and
+a map whose order is its drainage profile's carry the order test of
+:mod:`bubblefit.inverse.order_check` (:func:`._planar_lm.fit_order`: the model refitted one
+fringe away, the candidates compared with the response's errors marginalised); a map
+ordered from the black film or a named region takes the reference's order.
+
 References
 ----------
 M. Born and E. Wolf, *Principles of Optics*, 7th ed., sec. 7.5.3 (Newton's rings) and
@@ -624,6 +630,17 @@ def _with_camera_term(fwd, kind: str, model, dref, sin2, sigma, perr: dict, stde
     return perr, stderr, {"thickness_nm": cam}
 
 
+def _profile_order(fwd, y, lum, sin2, view, mask, profile, gain, sigma, lo, hi, high):
+    """The order test (:func:`._planar_lm.fit_order`) of a map whose order is its drainage
+    profile's ``(top, bottom, exponent)`` along ``view.height``: that profile's, fitted
+    for it (:func:`._drainage_plane.fit_drainage`); None without a profile or for a
+    response taken as exact."""
+    if profile is None or fwd.response_error() is None:
+        return None
+    return fit_drainage(fwd, y, lum, sin2, view.height[mask], profile, gain, sigma, lo, hi, mask.shape,
+                        np.flatnonzero(mask.ravel()), high).order
+
+
 def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=None,
                kind: str | None = None, seed: int = 0, clip_high: float = np.inf) -> PlanarResult:
     """Fit a flat film's or a gap's thickness to a linear photo (H, W, 3) (the module's method).
@@ -715,13 +732,9 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         nres = fit_newton(fwd, y, lum, sin2, view, mask, dref, gain, sigma, lo, hi, clip_high)
         params, perr = nres.params, nres.stderr
         dref, model, gain = nres.thickness, nres.model, nres.gain
-        stderr = nres.thickness_stderr
-        order = nres.order
+        stderr, order = nres.thickness_stderr, nres.order
         res = censored_residual(y, model, clip_high, np)
-    if map_profile is not None and fwd.response_error() is not None:
-        # the map's order is its drainage profile's: the profile's order test
-        order = fit_drainage(fwd, y, lum, sin2, view.height[mask], map_profile, gain, sigma, lo, hi, (h, w),
-                             np.flatnonzero(mask.ravel()), clip_high).order
+    order = order or _profile_order(fwd, y, lum, sin2, view, mask, map_profile, gain, sigma, lo, hi, clip_high)
     chi2 = float(np.mean(res ** 2) / sigma ** 2)
     # with each channel's variance sigma^2 + (model_error y)^2, the floor by which a
     # bubble's fit is judged (JudgeSettings.model_error: how much independent renderers
@@ -738,8 +751,7 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     warnings.extend(range_edge_warning(dref, lo, hi, "film"))
     render = _on_image(mask, model, 0.0, 3)
     resid = _on_image(mask, res, 0.0, 3)
-    if order is not None and order.warning() is not None:
-        warnings.append(order.warning())
+    warnings += [w for w in [order and order.warning()] if w]
     ok = not warnings and chi2_floor < 4.0
     if chi2_floor >= 4.0:
         warnings.append(f"the model does not explain the photo (residual {math.sqrt(chi2_floor):.1f} x the noise "

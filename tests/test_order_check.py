@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from bubblefit.inverse._local import LocalSolution
-from bubblefit.inverse.order_check import order_check, order_separation, order_threshold
+from bubblefit.inverse.order_check import neighbouring_orders, order_check, order_separation, order_threshold
 from bubblefit.inverse.response_error import marginal_chi2, response_error
 from test_response_error import LAM, _airy, _modes_csv
 
@@ -141,3 +141,85 @@ def test_a_fit_in_another_order_than_the_best_is_not_determined(tmp_path):
     assert not other.determined and other.alternative_nm == pytest.approx(check.thickness_nm)
     assert other.delta_chi2 == pytest.approx(-check.delta_chi2)
     assert "explains the photo better" in other.warning()
+
+
+def test_neighbouring_orders_move_a_film_and_a_profile_by_one_fringe():
+    """One fringe is ``2 order_separation`` (eq. (8)'s phase changes by ``2 pi``): a
+    constant film moves up and down, a profile moves whole and at its thin end alone, and
+    a start that would leave the searched range is not made."""
+    fringe = 2 * order_separation(1.33)
+    const = neighbouring_orders({"thickness_nm": 150.0, "exposure": 1.0}, ("thickness_nm",), 1.33, 0.0, 2000.0)
+    assert [c["thickness_nm"] for c in const] == pytest.approx([150.0 + fringe])  # 150 - fringe < 0
+    assert all(c["exposure"] == 1.0 for c in const)
+    prof = neighbouring_orders({"top_nm": 900.0, "bottom_nm": 1300.0}, ("top_nm", "bottom_nm"), 1.33, 0.0, 2000.0)
+    got = sorted((c["top_nm"], c["bottom_nm"]) for c in prof)
+    want = sorted([(900 - fringe, 1300 - fringe), (900 - fringe, 1300.0), (900 + fringe, 1300 + fringe),
+                   (900 + fringe, 1300.0)])
+    assert np.array(got) == pytest.approx(np.array(want))
+
+
+H_PROFILE = np.repeat(np.linspace(-1.0, 1.0, H), W).reshape(H, W)  # the film's height over its radius, by row
+
+
+def _profile_photo(top, bottom, rows, resp, gain=1.0):
+    """(H, W, 3) pixels of a drainage profile (docs/design.md, exponent 1) down the rows,
+    each the Airy film of :func:`_pixel`."""
+    d = top + (bottom - top) * (1.0 - H_PROFILE) / 2.0
+    wl = np.stack([np.interp(LAM, rows, resp[:, c]) for c in range(3)], axis=1)
+    f = np.stack([_airy(x) for x in d.ravel()]) @ wl / wl.sum(axis=0)
+    return (gain * E_LIGHT * f + B_LIGHT * (1 - f)).reshape(H, W, 3)
+
+
+def _profile_candidates(rows, resp, top, bottom):
+    """A noise-free draining film and two solves of its profile by Gauss-Newton in (top,
+    bottom, gain): from the truth and from the whole profile one fringe thinner
+    (:func:`neighbouring_orders`)."""
+    photo = _profile_photo(top, bottom, rows, resp)
+
+    def resid(z):
+        return ((_profile_photo(z[0], z[1], rows, resp, z[2]) - photo) / SIGMA).ravel()
+
+    def jac(z):
+        steps = np.array([0.05, 0.05, 1e-4])
+        return np.stack([(resid(z + s * e) - resid(z - s * e)) / (2 * s) for s, e in zip(steps, np.eye(3))], axis=1)
+
+    starts = [{"top_nm": top, "bottom_nm": bottom}]
+    starts += [s for s in neighbouring_orders(starts[0], ("top_nm", "bottom_nm"), 1.33, 0.0, 4000.0)
+               if s["top_nm"] < top and s["bottom_nm"] < bottom]
+    sols = []
+    for s in starts:
+        z = np.array([s["top_nm"], s["bottom_nm"], 1.0])
+        for _ in range(12):
+            z = z - np.linalg.lstsq(jac(z), resid(z), rcond=None)[0]
+        r = resid(z)
+        sols.append(LocalSolution({"top_nm": float(z[0]), "bottom_nm": float(z[1]), "exponent": 1.0,
+                                   "exposure": float(z[2]), "thickness_nm": 500.0}, z, True, False, 12, r, jac(z), {}))
+    return photo, sols
+
+
+@pytest.mark.parametrize("rel, determined", [(0.0005, True), (0.05, False)])
+def test_a_profile_order_admitted_only_within_the_response_errors(tmp_path, rel, determined):
+    """A noise-free film draining from 1490 nm at the top to 1510 nm at the bottom (little
+    range: its colours tell its order no better than a constant film's) and the same
+    profile solved from one fringe thinner: as for a constant film, a response known to
+    0.05 % excludes the neighbouring order and one known to 5 % admits it. The test
+    reads the profile, not the held ``thickness_nm`` the solves' values also carry, and
+    names the alternative by its two ends."""
+    path, resp, _ = _modes_csv(tmp_path, rel, 25.0)
+    rows = np.arange(380.0, 781.0, 5.0)
+    photo, sols = _profile_candidates(rows, resp, 1490.0, 1510.0)
+    alt = (sols[1].values["top_nm"], sols[1].values["bottom_nm"])
+    assert abs(alt[0] - 1490.0) > order_separation(1.33)
+    lev = SimpleNamespace(**{**vars(_level(None, photo[0, 0])), "y": photo, "height": H_PROFILE})
+    check = order_check(response_error(path, "E", 1.33), lev, sols, robust_scale=1e6, n_params=3,
+                        thickness_model="drainage")
+    assert check.parameters == ("top_nm", "bottom_nm")
+    assert check.thickness_nm == pytest.approx((1490.0, 1510.0), abs=0.5)
+    assert check.alternative_nm == pytest.approx(alt)
+    assert check.delta_chi2_plain > order_threshold()
+    assert check.determined is determined
+    if not determined:
+        assert f"the profile from {alt[0]:.0f} nm (top) to {alt[1]:.0f} nm (bottom)" in check.warning()
+    # seen from the alternative's order (a map or a warm start left there): never determined
+    assert not check.at(alt, 1.33).determined
+    assert check.to_json()["thickness_nm"] == list(check.thickness_nm)

@@ -52,7 +52,7 @@ import numpy as np
 from ..errors import ComputationError
 from ..model.thickness import drainage_profile
 from ._options import JudgeSettings
-from ._planar_lm import ModelFit, fit_colours
+from ._planar_lm import ModelFit, fit_colours, fit_order
 from ._uncertainty import widened
 
 __all__ = ["film_height", "search_drainage", "fit_drainage", "drainage_covariance"]
@@ -162,6 +162,9 @@ def fit_drainage(fwd, y, lum, sin2, height, start, gain, sigma, lo, hi, shape, p
         return jnp.exp(t[3]) * lj[:, None] * fwd.rgb(jnp.clip(profile(t), lo, hi), sj)
 
     theta, r, cost, J = fit_colours(model, obs, sigma, high, theta, iters)
+    # the profile's order: its ends one fringe away (bubblefit.inverse.order_check)
+    order = fit_order(fwd, model, lambda t: jnp.clip(profile(t), lo, hi), obs, sigma, high, (theta, r, cost, J),
+                      {"top_nm": 0, "bottom_nm": 1}, sin2, lo, hi, iters)
     a_inv = np.linalg.pinv(J.T @ J)
     chi2 = cost / max(len(r) - 4, 1)
     # the cluster sandwich over blocks of the film, in the photo's (H, W, 3) layout
@@ -195,4 +198,4 @@ def fit_drainage(fwd, y, lum, sin2, height, start, gain, sigma, lo, hi, shape, p
                   "exposure": float(np.exp(t[3]) * cse[3])}
     return ModelFit(params=params, stderr=stderr, thickness=np.clip(d, lo, hi), thickness_stderr=d_se,
                     model=np.asarray(model(theta), np.float64), gain=float(np.exp(t[3])), stderr_scale=scale,
-                    stderr_camera=camera)
+                    stderr_camera=camera, order=order)

@@ -6,7 +6,9 @@ A spherical surface of radius ``R`` touching a flat plate leaves the gap
 parameters ``(R, cx, cy, h0, g)`` are fitted to the pixels' colours by Levenberg-Marquardt,
 started from a per-pixel map: the centre of the thinnest pixels, and ``R``, ``h0`` from a
 straight line of the map against ``r^2`` (``h ~ h0 + r^2 / (2 R)``) where the map is
-below half the searched range.
+below half the searched range. With a calibrated response that states its errors, the
+rings' order (the contact offset's, one fringe either way) is tested
+(:func:`bubblefit.inverse._planar_lm.fit_order`).
 
 References
 ----------
@@ -21,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ComputationError
-from ._planar_lm import ModelFit, fit_colours
+from ._planar_lm import ModelFit, fit_colours, fit_order
 
 __all__ = ["fit_newton", "newton_gap"]
 
@@ -60,7 +62,13 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
         h = jnp.clip(newton_gap(r, jnp.exp(t[0]), t[3]), lo, hi)
         return jnp.exp(t[4]) * lj[:, None] * fwd.rgb(h, sj)
 
+    def gap(t):
+        return jnp.clip(newton_gap(jnp.sqrt((xj - t[1]) ** 2 + (yj - t[2]) ** 2), jnp.exp(t[0]), t[3]), lo, hi)
+
     theta, r, cost, J = fit_colours(model, obs, sigma, high, theta, iters)
+    # the rings' order is the contact offset's: every ring moves with it (bubblefit.inverse.order_check)
+    order = fit_order(fwd, model, gap, obs, sigma, high, (theta, r, cost, J), {"contact_offset_nm": 3}, sin2, lo, hi,
+                      iters)
     dof = max(len(r) - 5, 1)
     cov = np.linalg.pinv(J.T @ J) * (cost / dof)
     t = np.asarray(theta, np.float64)
@@ -77,4 +85,4 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
     stderr = {"radius_mm": radius_um / 1000.0 * float(se[0]), "center_x_um": float(se[1]),
               "center_y_um": float(se[2]), "contact_offset_nm": float(se[3]), "exposure": float(np.exp(t[4]) * se[4])}
     return ModelFit(params=params, stderr=stderr, thickness=h, thickness_stderr=h_se,
-                     model=np.asarray(model(theta), np.float64), gain=float(np.exp(t[4])))
+                     model=np.asarray(model(theta), np.float64), gain=float(np.exp(t[4])), order=order)

@@ -497,8 +497,9 @@ class FitResult:
     #: :mod:`bubblefit.inverse._uncertainty`), or None where the response is taken as exact.
     stderr_camera: dict | None = None
     #: :meth:`bubblefit.inverse.order_check.OrderCheck.to_json`: whether the photo tells the
-    #: film's order with the calibrated response's errors marginalised, or None where not
-    #: tested (a response taken as exact, a warm start, a thickness other than constant).
+    #: film's order (a constant film's, or a drainage profile's, which a map keeps) with the
+    #: calibrated response's errors marginalised, or None where not tested (a response
+    #: taken as exact, a fit without a thickness search).
     order_check: dict | None = None
 
     def to_json(self) -> dict:

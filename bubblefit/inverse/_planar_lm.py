@@ -22,7 +22,7 @@ import numpy as np
 
 from ._censored import censored_residual
 
-__all__ = ["ModelFit", "levenberg_marquardt", "fit_colours"]
+__all__ = ["ModelFit", "levenberg_marquardt", "fit_colours", "fit_order"]
 
 
 @dataclass
@@ -41,6 +41,9 @@ class ModelFit:
     #: each parameter's standard error from a calibrated response's errors alone (in
     #: ``stderr``), or None where the response is taken as exact or it is not computed
     stderr_camera: dict | None = None
+    #: the order test with a calibrated response's errors marginalised (:func:`fit_order`),
+    #: or None where the response is taken as exact
+    order: object | None = None
 
 
 def levenberg_marquardt(resid: Callable, jac: Callable, theta, iters: int = 40, rel_stop: float = 1e-9):
@@ -87,3 +90,44 @@ def fit_colours(model: Callable, obs, sigma: float, high, theta, iters: int = 40
     jac = jax.jit(jax.jacfwd(resid))
     theta, r, cost = levenberg_marquardt(rj, jac, theta, iters)
     return theta, np.asarray(r, np.float64), cost, np.asarray(jac(theta), np.float64)
+
+
+def fit_order(fwd, model: Callable, thickness: Callable, obs, sigma: float, high, fitted: tuple, orders: dict,
+              sin2, lo: float, hi: float, iters: int = 40):
+    """The order test of :mod:`bubblefit.inverse.order_check` for a few-parameter model
+    fitted by :func:`fit_colours`: ``fitted = (theta, residual, cost, jacobian)`` its
+    optimum; ``orders`` maps the order parameters' names (:data:`~bubblefit.inverse.order_check.ORDER_PARAMETERS`)
+    to their indices in ``theta``; ``thickness(theta)`` the pixels' thicknesses (nm).
+    The model is fitted again from each :func:`~bubblefit.inverse.order_check.neighbouring_orders`
+    start within ``[lo, hi]``, each candidate scored by its chi^2 with the response's
+    errors marginalised and taken as exact (:meth:`PlanarForward.marginal_chi2
+    <bubblefit.inverse.planar.PlanarForward.marginal_chi2>`), and the decision made by
+    :func:`~bubblefit.inverse.order_check.compare_orders`, seen from the fit's own order.
+    None for a response taken as exact."""
+    from .order_check import compare_orders, neighbouring_orders
+
+    err = fwd.response_error()
+    if err is None:
+        return None
+    names = tuple(orders)
+    theta = np.asarray(fitted[0], np.float64)
+    key = lambda t: tuple(float(t[orders[n]]) for n in names)  # noqa: E731
+    values = dict(zip(names, key(theta)))
+    fits = [fitted]
+    for start in neighbouring_orders(values, names, err.n_film, lo, hi):
+        t0 = theta.copy()
+        for n in names:
+            t0[orders[n]] = start[n]
+        fits.append(fit_colours(model, obs, sigma, high, jnp.asarray(t0, fitted[0].dtype), iters))
+    scored = []
+    for t, r, cost, jac in fits:
+        colours = np.asarray(model(t), np.float64)
+        d = np.asarray(thickness(t), np.float64)
+        marg = fwd.marginal_chi2(err, jac, r, colours, d, sin2, sigma)
+        plain = fwd.marginal_chi2(None, jac, r, colours, d, sin2, sigma)
+        if np.isfinite(cost) and np.all(np.isfinite(marg)):
+            k = key(np.asarray(t, np.float64))
+            scored.append((k[0] if len(k) == 1 else k, plain[1], marg[1], float(cost)))
+    check = compare_orders(scored, err.n_film, len(fitted[1]), len(theta), names)
+    own = key(theta)
+    return None if check is None else check.at(own[0] if len(own) == 1 else own, err.n_film)

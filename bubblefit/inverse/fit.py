@@ -64,7 +64,7 @@ from ._uncertainty import Uncertainty, uncertainty
 from ._verdict import at_bounds, clamp_to_range, unresolved, verdict
 from ._view import camera_record, fit_view, lens_for, widen_for_view
 from .colour_check import judge_colours
-from .order_check import OrderCheck, order_check
+from .order_check import OrderCheck, neighbouring_orders, order_check, order_parameters
 from .response_error import pixel_thickness_stderr, response_cells, response_error, solve_response_gram
 from ..errors import InputError
 from ..lighting.envmap import EnvMap
@@ -114,17 +114,28 @@ def _searched_start(st: Setup, opts: FitOptions, env, misfit: list | None = None
                                   opts.solver.search_step_nm, opts.solver.candidates)
     best_v, best_c = None, np.inf
     refined = []
-    for s in starts:
+    model = st.search_table.thickness_model
+    err = None if order is None else response_error(st.colour.response, st.colour.illuminant, float(st.vals["n_film"]))
+
+    def refine(s):
+        nonlocal best_v, best_c
         sol = solve_local(lev_s, st.search_table, opts.solver, s, env, max_steps=opts.solver.search_steps,
                           settings=SEARCH_SOLVE)
         refined.append(sol)
         if np.isfinite(sol.cost) and sol.cost < best_c:
             best_v, best_c = sol.values, sol.cost
+
+    for s in starts:
+        refine(s)
+    if err is not None and model != "constant" and best_v is not None:
+        # a profile's starts share one order: the neighbouring orders' from the best
+        for s in neighbouring_orders(best_v, order_parameters(model), err.n_film, *opts.thickness_range):
+            refine(s)
     if misfit is not None:
         misfit.append(_reduced_search_chi2(best_c, lev_s, st))
     if order is not None:
-        err = response_error(st.colour.response, st.colour.illuminant, float(st.vals["n_film"]))
-        order.append(order_check(err, lev_s, refined, float(opts.solver.robust_scale), len(st.search_table.free)))
+        order.append(order_check(err, lev_s, refined, float(opts.solver.robust_scale), len(st.search_table.free),
+                                 model))
     return best_v if best_v is not None else starts[0]
 
 
@@ -200,7 +211,7 @@ def _judge(st: Setup, opts: FitOptions, sol: LocalSolution, notes: list) -> Judg
     cautions are appended to ``notes``."""
     table = st.table
     gram = solve_response_gram(st.colour.response, st.colour.illuminant, float(st.vals["n_film"]), st.lev_fit, sol,
-                               float(opts.solver.robust_scale))  # a calibrated response's own errors (None: exact)
+                               float(opts.solver.robust_scale), table.thickness_model)  # a calibrated response's own errors (None: exact)
     unc = uncertainty(sol, table, st.lev_fit, float(opts.solver.robust_scale), float(opts.judge.model_error),
                       float(opts.judge.thickness_model_error_nm), gram)
     reported, stderr = unc.reported, unc.stderr
@@ -286,8 +297,10 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
                                                 float(judge.model_error), explained, judge.colour_check == "decide",
                                                 response_jac)
     order = judged.order  # does the photo tell the order, the response's errors allowed?
-    if order is not None and np.isfinite(reported.get("thickness_nm", np.nan)):
-        order = order.at(float(reported["thickness_nm"]), float(reported["n_film"]))
+    names = order_parameters(st.table.thickness_model) or ()
+    if order is not None and names and all(np.isfinite(reported.get(n, np.nan)) for n in names):
+        own = tuple(float(reported[n]) for n in names)
+        order = order.at(own[0] if len(own) == 1 else own, float(reported["n_film"]))
     if order is not None and order.warning() is not None:
         ok, warnings = False, warnings + [order.warning()]
     return FitResult(
@@ -327,11 +340,11 @@ def _map_camera_stderr(st: Setup, full, img, thickness_map, stderr_map, camera_s
 
 
 def _warm_order(st: Setup, opts: FitOptions, env) -> OrderCheck | None:
-    """The order test of a warm-started constant fit, which has no candidates of its own:
+    """The order test of a warm-started fit (a constant film or a profile), which has no candidates of its own:
     with a response that states its errors the global search supplies them, and the test
     then judges the warm start's order (:meth:`~bubblefit.inverse.order_check.OrderCheck.at`);
     None otherwise (no search is run)."""
-    if opts.thickness != "constant" or "thickness_nm" not in st.table.free or \
+    if not any(n in st.table.free for n in ("thickness_nm", "top_nm")) or \
             response_error(st.colour.response, st.colour.illuminant, float(st.vals["n_film"])) is None:
         return None
     found = []

@@ -34,6 +34,12 @@ the start (centre of the thinnest pixels, ``R`` and ``h0`` from a line in ``r^2`
 Levenberg-Marquardt fits ``(R, cx, cy, h0, g)`` to the colours directly, with standard
 errors from ``sigma^2 (J^T J)^-1``.
 
+With a calibrated response that states its errors, a drainage profile, Newton's rings and
+a map whose order is its drainage profile's carry the order test of
+:mod:`bubblefit.inverse.order_check` (:func:`._planar_lm.fit_order`: the model refitted one
+fringe away, the candidates compared with the response's errors marginalised); a map
+ordered from the black film or a named region takes the reference's order.
+
 References
 ----------
 M. Born and E. Wolf, *Principles of Optics*, 7th ed., sec. 7.5.3 (Newton's rings) and
@@ -150,6 +156,30 @@ class PlanarForward:
             return coaxial.coaxial_reflectance(d, lam, n, self.na, self.nodes)
         return coaxial.reflectance_at_angles(d, lam, n, jnp.asarray(sin2)[..., None])
 
+    def response_error(self):
+        """The response's stated errors (:func:`~bubblefit.inverse.response_error.response_error`
+        at the film's median index), or None for a response taken as exact."""
+        from .response_error import response_error
+
+        return response_error(self.response, self.lamp, float(np.median(np.asarray(self.n.film))))
+
+    def marginal_chi2(self, err, jac, resid, model, d, sin2, sigma: float) -> tuple[float, float]:
+        """:func:`~bubblefit.inverse.response_error.marginal_chi2` of a few-parameter fit:
+        ``jac`` (P 3, p) and ``resid`` (P 3,) the residual whitened by the noise ``sigma``
+        and its Jacobian, ``model`` (P, 3) the pixels' colours at thicknesses ``d`` (P,)
+        seen at ``sin2`` (P,), through the stack's reflectance; ``err`` None: the response
+        taken as exact."""
+        from .response_error import marginal_chi2
+
+        d, s2 = np.asarray(d, np.float64), np.asarray(sin2, np.float64)
+
+        def refl(i):
+            return np.asarray(self.reflectance(d[i], s2[i], err.wavelengths), np.float64)
+
+        n = len(d)
+        return marginal_chi2(err, jac, resid, np.full((n, 1, 3), 1.0 / sigma), np.asarray(model)[:, None], None,
+                             d[:, None], np.ones((n, 1)), refl)
+
     def camera_covariance(self, jac, model, d, sin2, sigma: float):
         """``(J^T J)^-1 G_R (J^T J)^-1``: a calibrated response's share of a few-parameter
         model's covariance, ``G_R`` from :func:`~bubblefit.inverse.response_error.response_gram`
@@ -212,6 +242,10 @@ class PlanarResult:
     #: (already in ``stderr``; :mod:`bubblefit.inverse.response_error`), or None where the
     #: response is taken as exact or the term is not computed.
     stderr_camera: dict | None = None
+    #: The order test with a calibrated response's errors marginalised
+    #: (:meth:`bubblefit.inverse.order_check.OrderCheck.to_json`) of a drainage profile,
+    #: Newton's rings or a map whose order is its profile's; None otherwise.
+    order_check: dict | None = None
 
     @property
     def residual_rms(self) -> float:
@@ -225,6 +259,7 @@ class PlanarResult:
                 "stderr": self.stderr, "gain": self.gain, "noise_sigma": self.sigma,
                 "reduced_chi2": self.reduced_chi2, "reduced_chi2_floor": self.reduced_chi2_floor,
                 "order_from": self.order_from, "order_hops": self.order_hops, "stderr_camera": self.stderr_camera,
+                "order_check": self.order_check,
                 "thickness_nm": {"min": float(m.min()), "median": float(np.median(m)), "max": float(m.max()),
                                  "median_stderr": float(np.nanmedian(self.thickness_stderr_map))} if m.size else None}
 
@@ -499,11 +534,12 @@ def _drainage_start(cost, grid, view, mask, region, ref_nm, window: float):
 
 def _order_seeds(y, lum, cost, best, grid, mask, region, ref_nm, lo: float, fringe_nm: float, window: float,
                  frame_height=None):
-    """``(seeds, order_from)``: (H, W) thicknesses that fix the interference order (NaN
-    elsewhere): the reference region's, each pixel's best candidate within ``window`` of
-    ``ref_nm``; without one, the black film or contact point; without those, on a framed
-    film under an area light (``frame_height``: each pixel's height along the frame's up
-    direction), its drainage profile."""
+    """``(seeds, order_from, profile)``: (H, W) thicknesses that fix the interference order
+    (NaN elsewhere): the reference region's, each pixel's best candidate within ``window``
+    of ``ref_nm``; without one, the black film or contact point; without those, on a
+    framed film under an area light (``frame_height``: each pixel's height along the
+    frame's up direction), its drainage profile, whose ``(top, bottom, exponent)`` is then
+    ``profile`` (None otherwise: the order is the reference's)."""
     h, w = mask.shape
     seeds = np.full((h, w), np.nan)
     if region is not None:
@@ -515,7 +551,7 @@ def _order_seeds(y, lum, cost, best, grid, mask, region, ref_nm, lo: float, frin
         jj = np.flatnonzero(near)
         pick = grid[jj[np.argmin(cost[sel][:, jj], axis=1)]]
         seeds[inside & mask] = pick
-        return seeds, "reference region"
+        return seeds, "reference region", None
     # A black film or a contact point: pixels that match a film thinner than 0.3
     # fringe (82 nm of air, 62 nm of water at 550 nm: the dark grey end of the colour
     # chart) and are dark (below 0.35 x the median brightness, which a thick film
@@ -524,7 +560,7 @@ def _order_seeds(y, lum, cost, best, grid, mask, region, ref_nm, lo: float, frin
     thin = best <= lo + 0.3 * fringe_nm
     good = cost.min(1) <= np.percentile(cost.min(1), 75)
     pick = thin & good & (bright <= 0.35 * np.median(bright))
-    order_from = "thinnest"
+    order_from, profile = "thinnest", None
     if pick.sum() < 3 and frame_height is not None:
         # A framed film without a black film: the order of its drainage profile along the
         # frame's up direction (a global fit over the whole film, :mod:`._drainage_plane`),
@@ -535,7 +571,8 @@ def _order_seeds(y, lum, cost, best, grid, mask, region, ref_nm, lo: float, frin
         from ..model.thickness import drainage_profile
         from ._drainage_plane import search_drainage
 
-        prof = np.asarray(drainage_profile(frame_height[mask], *search_drainage(cost, grid, frame_height[mask])))
+        profile = search_drainage(cost, grid, frame_height[mask])
+        prof = np.asarray(drainage_profile(frame_height[mask], *profile))
         pick = good & (np.abs(best - prof) <= 0.5 * window)
         order_from = "drainage profile"
     if pick.sum() < 3:
@@ -543,7 +580,7 @@ def _order_seeds(y, lum, cost, best, grid, mask, region, ref_nm, lo: float, frin
                          "point; name a region of known thickness with --reference-region x0,y0,x1,y1=NM")
     flat = seeds.reshape(-1)
     flat[np.flatnonzero(mask.ravel())[pick]] = best[pick]
-    return flat.reshape(h, w), order_from
+    return flat.reshape(h, w), order_from, profile
 
 
 def _exponent_at_edge(exponent: float) -> list[str]:
@@ -593,6 +630,17 @@ def _with_camera_term(fwd, kind: str, model, dref, sin2, sigma, perr: dict, stde
     return perr, stderr, {"thickness_nm": cam}
 
 
+def _profile_order(fwd, y, lum, sin2, view, mask, profile, gain, sigma, lo, hi, high):
+    """The order test (:func:`._planar_lm.fit_order`) of a map whose order is its drainage
+    profile's ``(top, bottom, exponent)`` along ``view.height``: that profile's, fitted
+    for it (:func:`._drainage_plane.fit_drainage`); None without a profile or for a
+    response taken as exact."""
+    if profile is None or fwd.response_error() is None:
+        return None
+    return fit_drainage(fwd, y, lum, sin2, view.height[mask], profile, gain, sigma, lo, hi, mask.shape,
+                        np.flatnonzero(mask.ravel()), high).order
+
+
 def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=None,
                kind: str | None = None, seed: int = 0, clip_high: float = np.inf) -> PlanarResult:
     """Fit a flat film's or a gap's thickness to a linear photo (H, W, 3) (the module's method).
@@ -629,7 +677,7 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     sigma2 = max(float(np.median(cost.min(1))) / 3.0, 1e-10)
     window = 0.3 * fwd.fringe_nm
     warnings: list[str] = []
-    drain_camera = None
+    drain_camera = order = map_profile = None
 
     if kind == "constant":
         gain, dpix = _constant_thickness(y, lum, table, i0, i1, a, grid, fwd.fringe_nm, sigma2, warnings, clip_high)
@@ -641,7 +689,7 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         # must show as a misfit against the noise, not set the noise
         dpix = best.astype(np.float64)
     else:
-        seeds, order_from = _order_seeds(y, lum, cost, best, grid, mask, region, ref_nm, lo, fwd.fringe_nm, window,
+        seeds, order_from, map_profile = _order_seeds(y, lum, cost, best, grid, mask, region, ref_nm, lo, fwd.fringe_nm, window,
                                          view.height if scene.light == "area" else None)
         dmap = _propagate(cost, grid, mask, seeds, window, smooth=3.0 * sigma2 / window ** 2,
                           relax_weight=3.0 * sigma2 / RELAX_NM ** 2)
@@ -675,7 +723,7 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         params, perr = dres.params, dres.stderr
         dref, model, gain = dres.thickness, dres.model, dres.gain
         stderr = dres.thickness_stderr
-        drain_camera = dres.stderr_camera
+        drain_camera, order = dres.stderr_camera, dres.order
         res = censored_residual(y, model, clip_high, np)
         warnings.extend(_exponent_at_edge(params["exponent"]))
     if kind == "newton":
@@ -684,8 +732,9 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         nres = fit_newton(fwd, y, lum, sin2, view, mask, dref, gain, sigma, lo, hi, clip_high)
         params, perr = nres.params, nres.stderr
         dref, model, gain = nres.thickness, nres.model, nres.gain
-        stderr = nres.thickness_stderr
+        stderr, order = nres.thickness_stderr, nres.order
         res = censored_residual(y, model, clip_high, np)
+    order = order or _profile_order(fwd, y, lum, sin2, view, mask, map_profile, gain, sigma, lo, hi, clip_high)
     chi2 = float(np.mean(res ** 2) / sigma ** 2)
     # with each channel's variance sigma^2 + (model_error y)^2, the floor by which a
     # bubble's fit is judged (JudgeSettings.model_error: how much independent renderers
@@ -702,6 +751,7 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     warnings.extend(range_edge_warning(dref, lo, hi, "film"))
     render = _on_image(mask, model, 0.0, 3)
     resid = _on_image(mask, res, 0.0, 3)
+    warnings += [w for w in [order and order.warning()] if w]
     ok = not warnings and chi2_floor < 4.0
     if chi2_floor >= 4.0:
         warnings.append(f"the model does not explain the photo (residual {math.sqrt(chi2_floor):.1f} x the noise "
@@ -711,4 +761,4 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     return PlanarResult(kind=kind, ok=ok, thickness_map=tmap, thickness_stderr_map=smap, render=render, residual=resid,
                         gain=gain, sigma=sigma, params=params, stderr=perr, warnings=warnings, order_hops=hops,
                         reduced_chi2=chi2, reduced_chi2_floor=chi2_floor, order_from=order_from,
-                        stderr_camera=stderr_camera)
+                        stderr_camera=stderr_camera, order_check=None if order is None else order.to_json())

@@ -288,7 +288,7 @@ def response_gram(err: ResponseError | None, jac: np.ndarray, weight: np.ndarray
 
 def marginal_chi2(err: ResponseError | None, jac: np.ndarray, resid: np.ndarray, weight: np.ndarray,
                   render: np.ndarray, background: np.ndarray | None, thickness: np.ndarray,
-                  cos: np.ndarray) -> tuple[float, float]:
+                  cos: np.ndarray, reflectance=None) -> tuple[float, float]:
     """``(chi2, marginal)``: a solve's chi^2 ``r^T r`` and its chi^2 with the response's
     errors marginalised and the fitted parameters re-solved to first order.
 
@@ -302,8 +302,9 @@ def marginal_chi2(err: ResponseError | None, jac: np.ndarray, resid: np.ndarray,
     generalised least squares of ``r`` under the covariance ``I + G G^T``, by the
     Woodbury identity; Press et al., *Numerical Recipes*, 3rd ed., sec. 2.7.3 and 15.4).
     ``jac`` (h w 3, p) and ``resid`` (h w 3,) are the whitened residual's Jacobian and
-    plain residual; the other arguments as :func:`response_gram`'s. Without stated
-    errors (``err`` None) the marginal is the decrement over the parameters alone."""
+    plain residual; the other arguments (``reflectance`` too) as :func:`response_gram`'s.
+    Without stated errors (``err`` None) the marginal is the decrement over the parameters
+    alone."""
     h, w = weight.shape[:2]
     r = np.nan_to_num(np.asarray(resid, np.float64).reshape(h * w, 3))
     jr = np.nan_to_num(np.asarray(jac, np.float64).reshape(h * w, 3, -1))
@@ -316,7 +317,7 @@ def marginal_chi2(err: ResponseError | None, jac: np.ndarray, resid: np.ndarray,
     if err is not None:
         m = err.modes.shape[-1]
         a[p:, p:] = np.eye(k)
-        for i, dy in _whitened_modes(err, weight, render, background, thickness, cos):
+        for i, dy in _whitened_modes(err, weight, render, background, thickness, cos, reflectance):
             for c in range(3):  # channel c's modes move channel c only
                 cols = slice(p + c * m, p + (c + 1) * m)
                 a[:p, cols] += jr[i, c].T @ dy[:, c]
@@ -327,20 +328,22 @@ def marginal_chi2(err: ResponseError | None, jac: np.ndarray, resid: np.ndarray,
     return chi2, chi2 - float(b @ np.linalg.lstsq(a, b, rcond=None)[0])
 
 
-def _solve_images(lev, sol, robust_scale: float):
+def _solve_images(lev, sol, robust_scale: float, thickness_model: str | None = None):
     """``(weight, render, thickness, resid)`` of a solve ``sol`` (a
     :class:`~bubblefit.inverse._local.LocalSolution`) on its level ``lev``: the whitening,
     the render (the photo plus the plain residual), each pixel's thickness (the solve's
     constant film or drainage profile, :func:`bubblefit.model.thickness.drainage_profile`,
     at the pixel's height) and the plain whitened residual (flat); None for a solve with
-    neither."""
+    neither. ``thickness_model`` (``constant``, ``drainage``, ``map``): which of the two
+    the solve fitted (its values hold the other's held start too); None: the constant
+    film where the values have one."""
     import jax.numpy as jnp
 
     from ..model.thickness import drainage_profile
     from ._uncertainty import plain_residual
 
     v = sol.values
-    if "thickness_nm" in v:
+    if "thickness_nm" in v and thickness_model in (None, "constant"):
         thickness = np.full(lev.y.shape[:2], float(v["thickness_nm"]))
     elif all(k in v for k in ("top_nm", "bottom_nm", "exponent")):
         thickness = np.asarray(drainage_profile(jnp.asarray(lev.height), v["top_nm"], v["bottom_nm"], v["exponent"]),
@@ -354,25 +357,28 @@ def _solve_images(lev, sol, robust_scale: float):
     return weight, render, thickness, resid
 
 
-def solve_response_gram(response: str, illuminant: str, n_film: float, lev, sol, robust_scale: float):
+def solve_response_gram(response: str, illuminant: str, n_film: float, lev, sol, robust_scale: float,
+                        thickness_model: str | None = None):
     """:func:`response_gram` of a solve ``sol`` (a :class:`~bubblefit.inverse._local.LocalSolution`)
-    on its level ``lev`` (:func:`_solve_images`); None when the response states no errors."""
+    on its level ``lev`` (:func:`_solve_images`, with its ``thickness_model``); None when
+    the response states no errors."""
     err = response_error(response, illuminant, n_film)
     if err is None or sol.jacobian is None or not sol.jacobian.size:
         return None
-    images = _solve_images(lev, sol, robust_scale)
+    images = _solve_images(lev, sol, robust_scale, thickness_model)
     if images is None:
         return None
     weight, render, thickness, _ = images
     return response_gram(err, sol.jacobian, weight, render, lev.bg, thickness, lev.cos)
 
 
-def solve_marginal_chi2(err: ResponseError | None, lev, sol, robust_scale: float) -> tuple[float, float] | None:
-    """:func:`marginal_chi2` of a solve ``sol`` on its level ``lev`` (:func:`_solve_images`);
-    None for a solve without a Jacobian or a thickness."""
+def solve_marginal_chi2(err: ResponseError | None, lev, sol, robust_scale: float,
+                        thickness_model: str | None = None) -> tuple[float, float] | None:
+    """:func:`marginal_chi2` of a solve ``sol`` on its level ``lev`` (:func:`_solve_images`,
+    with its ``thickness_model``); None for a solve without a Jacobian or a thickness."""
     if sol.jacobian is None or not sol.jacobian.size:
         return None
-    images = _solve_images(lev, sol, robust_scale)
+    images = _solve_images(lev, sol, robust_scale, thickness_model)
     if images is None:
         return None
     weight, render, thickness, resid = images

@@ -1,0 +1,101 @@
+"""The order test of flat films' few-parameter fits (bubblefit.inverse._planar_lm.fit_order):
+a drainage profile and Newton's rings, with a calibrated response's errors marginalised.
+
+The photos are noise-free renders of the package's own flat-film model (``PlanarForward``:
+water on BK7, or Newton's air gap between BK7 glasses, under coaxial light, 16 x 16 pixels
+of 2 um) seen through colour-science's
+Nikon D5100 written as a CSV whose rows have correlated errors (tests/test_response_error.py),
+known to 0.05 % or 5 % of the peak; the fits' whitening is a noise of 0.002. As for a
+constant film (tests/test_order_check.py), a thick film's neighbouring order is admitted
+by the looser response and excluded by the tighter one; a film whose colours run from the
+black film (a contact point, a thin profile) tells its order whatever the response."""
+
+import numpy as np
+import pytest
+
+from test_response_error import _modes_csv
+
+SIGMA = 0.002
+HI = 2000.0
+
+
+def _forward(tmp_path, rel, layers=("air", "water", "bk7"), hi=HI):
+    from bubblefit.inverse.planar import PlanarForward, view_of
+    from bubblefit.model.planar_scene import parse_planar
+
+    path, _, _ = _modes_csv(tmp_path, rel, 25.0)
+    scene = parse_planar({"film": {"shape": "plane", "n": layers[1], "above": layers[0], "below": layers[2],
+                                   "thickness": "constant", "range_nm": [0.0, hi]},
+                          "light": {"type": "coaxial", "na": 0.25, "lamp": "E"},
+                          "camera": {"width": 16, "height": 16, "pixel_um": 2.0, "response": str(path)}})
+    return PlanarForward(scene.stack, scene.lamp, scene.response, scene.na, hi), view_of(scene)
+
+
+@pytest.mark.parametrize("rel, top, bottom, determined", [(0.0005, 1490.0, 1510.0, True),
+                                                          (0.05, 1490.0, 1510.0, False),
+                                                          (0.05, 300.0, 900.0, True)])
+def test_planar_profile_order(tmp_path, rel, top, bottom, determined):
+    """A flat film draining down the frame, fitted as a profile from its own (top,
+    bottom, exponent 1): its neighbouring orders (the whole profile, its thin end) are
+    fitted again and compared; an admitted one is named and the fit's warning says so."""
+    from bubblefit.inverse._drainage_plane import fit_drainage
+    from bubblefit.model.thickness import drainage_profile
+
+    fwd, view = _forward(tmp_path, rel)
+    m = view.mask
+    h, s2, lum = view.height[m], view.sin2[m], view.radiance[m]
+    d = np.asarray(drainage_profile(h, top, bottom, 1.0), np.float64)
+    y = np.asarray(fwd.rgb(d, s2), np.float64) * lum[:, None]
+    res = fit_drainage(fwd, y, lum, s2, h, (top, bottom, 1.0), 1.0, SIGMA, 0.0, HI, m.shape, np.flatnonzero(m.ravel()))
+    check = res.order
+    assert check.parameters == ("top_nm", "bottom_nm")
+    assert check.thickness_nm == pytest.approx((top, bottom), abs=1.0)
+    assert check.delta_chi2_plain > check.threshold  # the response taken as exact excludes it
+    assert check.determined is determined
+    assert (check.warning() is None) is determined
+
+
+def test_newton_rings_order(tmp_path):
+    """Newton's rings (an air gap between BK7 glasses) of a lens touching the plate (a black contact point: fitted by
+    ``fit_newton`` from its per-pixel start) tell their order with a response known to
+    5 %: the contact offset one fringe up leaves a coloured centre no draw of the response
+    darkens. A flatter lens lifted to a 2000 nm gap (pale high-order rings growing by 30 nm
+    over 16 um, no contact: about the optical path of the constant 1500 nm water film of
+    tests/test_order_check.py) in a noisier photo (0.005) is fitted from its truth: its
+    rings one fringe lower or higher are admitted by a response known to 20 % (not by one
+    known to 5 % or 10 %: a draw of the response must move every ring's colour at once), though
+    the response taken as exact excludes them."""
+    import jax.numpy as jnp
+
+    from bubblefit.inverse._newton import fit_newton, newton_gap
+    from bubblefit.inverse._planar_lm import fit_colours, fit_order
+
+    hi = 3000.0  # above the lifted lens's widest gap
+    for h0, growth, sigma, rel, determined in ((0.0, 300.0, SIGMA, 0.05, True), (2000.0, 30.0, 0.005, 0.2, False)):
+        radius = 1000.0 * 16.0**2 / (2 * growth)  # um: the gap grows by ``growth`` nm over 16 um
+        (tmp_path / f"{h0:g}").mkdir()
+        fwd, view = _forward(tmp_path / f"{h0:g}", rel, ("bk7", "air", "bk7"), hi)
+        m = view.mask
+        x, yy, s2, lum = view.x_um[m], view.y_um[m], view.sin2[m], view.radiance[m]
+        gap = np.asarray(newton_gap(jnp.asarray(np.hypot(x - 1.0, yy - 1.0)), radius, h0), np.float64)
+        y = np.asarray(fwd.rgb(gap, s2), np.float64) * lum[:, None]
+        if h0 == 0.0:
+            check = fit_newton(fwd, y, lum, s2, view, m, gap, 1.0, sigma, 0.0, hi).order
+        else:
+            xj, yj, lj, sj = (jnp.asarray(a) for a in (x, yy, lum, s2))
+
+            def gap_of(t):
+                return jnp.clip(newton_gap(jnp.sqrt((xj - t[1]) ** 2 + (yj - t[2]) ** 2), jnp.exp(t[0]), t[3]), 0.0, hi)
+
+            def model(t):
+                return jnp.exp(t[4]) * lj[:, None] * fwd.rgb(gap_of(t), sj)
+
+            theta = jnp.asarray([np.log(radius), 1.0, 1.0, h0, 0.0])
+            fitted = fit_colours(model, jnp.asarray(y), sigma, np.inf, theta)
+            check = fit_order(fwd, model, gap_of, jnp.asarray(y), sigma, np.inf, fitted, {"contact_offset_nm": 3},
+                              s2, 0.0, hi)
+        assert check.parameters == ("contact_offset_nm",)
+        assert check.thickness_nm == pytest.approx(h0, abs=1.0)
+        assert abs(check.alternative_nm - h0) > 0.5 * fwd.fringe_nm
+        assert check.delta_chi2_plain > check.threshold
+        assert check.determined is determined, (h0, check.scored, check.delta_chi2_plain)

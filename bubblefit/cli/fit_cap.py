@@ -47,7 +47,7 @@ def run_cap(args) -> int:
     guard_args(args, inputs=[str(scene.envmap)] if scene.envmap is not None else [], outputs=film_outputs(args))
     with stage("reading the photo and the environment map"):
         photo = read_image(args.photo, dtype=np.float64)
-        env = read_envmap(scene.envmap, scale=scene.env_scale) if scene.envmap is not None else dark_room()
+        env = read_envmap(scene.envmap, scale=scene.env_scale, convention=scene.env_convention) if scene.envmap is not None else dark_room()
     what = (f"a bubble of radius {scene.cap.radius:g} under an area light" if scene.sphere else
             f"a bubble on a dish (cap {scene.cap.height:g} high on a sphere of radius {scene.cap.radius:g}")
     with stage(f"fitting {what}, {kind})" if not scene.sphere else f"fitting {what} ({kind})"):

@@ -40,6 +40,10 @@ def register(sub):
     p.add_argument("--envmap", type=input_file, help="environment map (equirectangular, linear EXR/HDR), aligned "
                                     "with the camera (it looks along -z of the map's frame); required for a bubble, "
                                     "not for a flat film ([film] shape = \"plane\" in the scene)")
+    p.add_argument("--envmap-convention", choices=("mitsuba", "texel-centre"), default=None,
+                   help="where the map's texel rows sit: mitsuba (row i at v = i/(H-1), bubblefit's and Mitsuba 3's) "
+                        "or texel-centre (v = (i+1/2)/H: a map made for Blender or PBRT) [mitsuba; a dish scene's "
+                        "[environment] convention]")
     p.add_argument("--reference-region", metavar="X0,Y0,X1,Y1=NM",
                    help="flat films: a region (pixels, half-open) of known thickness NM that fixes the "
                         "interference order of the map")
@@ -109,13 +113,14 @@ def add_model_options(p) -> None:
                         "ok, with the reason) or warn (the reason only) [decide] (docs/cameras.md)")
 
 
-def load_envmap(path: str):
-    """Read the environment map for a fit (:func:`~bubblefit.model.scene.read_map_file`), refuse
-    a map without light (nothing to fit against) and warn of one stored in integers."""
+def load_envmap(path: str, convention: str | None = None):
+    """Read the environment map for a fit (:func:`~bubblefit.model.scene.read_map_file`, its
+    rows in ``convention``, ``"mitsuba"`` by default), refuse a map without light (nothing
+    to fit against) and warn of one stored in integers."""
     from ..io.images import ImageWarning
     from ..model.scene import read_map_file
 
-    read = read_map_file(path)
+    read = read_map_file(path, convention=convention or "mitsuba")
     env, bits = read.env, read.bit_depth
     if not np.any(np.asarray(env.pixels) > 0):
         raise InputError(f"environment map {path} is black or unreadable")
@@ -285,7 +290,7 @@ def run_bubble(args) -> int:
         photo = read_photo(args.photo, reading, dtype=np.float32)  # the fit's arithmetic is float32
         photo_record = reading_record(photo)
         check_photo_size(photo, args.photo)
-        env = load_envmap(args.envmap)
+        env = load_envmap(args.envmap, args.envmap_convention)
     background = None
     if args.background:
         bimg = read_photo(args.background, reading, dtype=np.float32, what="background")
@@ -306,6 +311,7 @@ def run_bubble(args) -> int:
                      (("envmap", args.envmap), ("background", args.background), ("scene", args.scene),
                       ("calibration", args.calibration))}
     out["photo_reading"] = photo_record
+    out["envmap_convention"] = args.envmap_convention or "mitsuba"
     if args.explain:
         print("effect               state     [setting] reason")
         for d in result.effects:

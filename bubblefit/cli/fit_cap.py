@@ -41,13 +41,15 @@ def run_cap(args) -> int:
         from pathlib import Path
 
         scene = dataclasses.replace(scene, envmap=Path(args.envmap))
+    if getattr(args, "envmap_convention", None):
+        scene = dataclasses.replace(scene, env_convention=args.envmap_convention)
     kind = args.thickness if args.thickness != "constant" or scene.thickness == "constant" else scene.thickness
     if kind not in KINDS:
         raise InputError(f"--thickness {kind} is not available for a cap (use {' or '.join(KINDS)})")
     guard_args(args, inputs=[str(scene.envmap)] if scene.envmap is not None else [], outputs=film_outputs(args))
     with stage("reading the photo and the environment map"):
         photo = read_image(args.photo, dtype=np.float64)
-        env = read_envmap(scene.envmap, scale=scene.env_scale) if scene.envmap is not None else dark_room()
+        env = read_envmap(scene.envmap, scale=scene.env_scale, convention=scene.env_convention) if scene.envmap is not None else dark_room()
     what = (f"a bubble of radius {scene.cap.radius:g} under an area light" if scene.sphere else
             f"a bubble on a dish (cap {scene.cap.height:g} high on a sphere of radius {scene.cap.radius:g}")
     with stage(f"fitting {what}, {kind})" if not scene.sphere else f"fitting {what} ({kind})"):

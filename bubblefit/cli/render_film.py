@@ -50,7 +50,7 @@ def run_film_render(args) -> int:
         raise InputError(f"camera.samples_per_pixel must be a square number (1, 4, 9, ...), got {spp}")
     preview = preview_path(args.output)
     guard_args(args, inputs=[scene.envmap] if scene.envmap is not None else [], outputs=[preview])
-    env = read_envmap(scene.envmap, scale=scene.env_scale) if scene.envmap is not None else dark_room()
+    env = read_envmap(scene.envmap, scale=scene.env_scale, convention=scene.env_convention) if scene.envmap is not None else dark_room()
     cfg = cap_config(scene, scene.thickness, samples_per_pixel=spp)
     t0 = time.perf_counter()
     with stage(f"rendering {scene.camera.width}x{scene.camera.height}"):

@@ -102,6 +102,8 @@ class CapResult(PlanarResult):
     #: (:class:`~._uncertainty.Misfit`), as a bubble's fit reports them.
     outliers: float = float("nan")
     chi2_inliers: float = float("nan")
+    #: Where the environment map's texel rows were read (:data:`~bubblefit.lighting.envmap.CONVENTIONS`).
+    envmap_convention: str = "mitsuba"
 
     def report(self) -> str:
         """The flat films' report, the cap's pixel counts and the light paths its render skips."""
@@ -117,7 +119,7 @@ class CapResult(PlanarResult):
         out = super().to_json()
         out.update(shape=self.shape, pixels_direct=self.pixels_direct, pixels_mirrored=self.pixels_mirrored,
                    outlier_fraction=self.outliers, reduced_chi2_inliers=self.chi2_inliers,
-                   skipped_light_paths=list(self.skipped))
+                   skipped_light_paths=list(self.skipped), envmap_convention=self.envmap_convention)
         if self.traced:
             out["traced_light_paths"] = list(self.traced)
         return out
@@ -357,7 +359,8 @@ def fit_cap(photo: np.ndarray, scene, env, *, kind: str | None = None, clip_high
                      pixels_mirrored=int(mirrored.sum()), shape="sphere" if cfg.area is not None else "cap",
                      skipped=SKIPPED_SPHERE if cfg.area is not None else SKIPPED,
                      traced=TRACED_SPHERE if cfg.area is not None else (), outliers=fit_misfit.outliers,
-                     chi2_inliers=fit_misfit.chi2_inliers, stderr_camera=stderr_camera)
+                     chi2_inliers=fit_misfit.chi2_inliers, stderr_camera=stderr_camera,
+                     envmap_convention=scene.env_convention)
 
 
 def _camera_covariance(scene, jac, weight, fitted, dfront):

@@ -6,6 +6,11 @@ Convention (docs/design.md, identical to Mitsuba 3's ``envmap`` emitter): for a 
 ``v (H - 1)`` (clamped), so row 0 is the zenith and row H-1 the nadir. A scene may rotate
 the map about +y by ``rotation`` radians: a world direction ``w`` reads the map at
 ``R_y(-rotation) w``.
+
+Maps made for renderers that put texel ``(i, j)``'s centre at ``((j + 1/2) / W, (i + 1/2) / H)``
+(Blender, PBRT, Poly Haven's previews: :data:`CONVENTIONS` ``"texel-centre"``) differ from
+these rows by half a texel at the poles; :func:`from_texel_centres` re-expresses such a map
+on this module's rows exactly.
 """
 
 from __future__ import annotations
@@ -33,7 +38,14 @@ __all__ = [
     "texel_footprint",
     "lookup_parallelogram",
     "dark_room",
+    "CONVENTIONS",
+    "from_texel_centres",
 ]
+
+#: Where a map's texel rows sit: ``"mitsuba"``, row ``i`` at ``v = i / (H - 1)`` (this
+#: module's, Mitsuba 3's); ``"texel-centre"``, row ``i`` at ``v = (i + 1/2) / H`` (Blender
+#: Cycles' Environment Texture, PBRT). Columns sit at ``u = (j + 1/2) / W`` in both.
+CONVENTIONS = ("mitsuba", "texel-centre")
 
 
 def _safe_norm_xz(x, z):
@@ -97,6 +109,38 @@ def lookup_uv(pixels: Float[Array, "H W C"], u: Array, v: Array) -> Array:
     top = pixels[y0i, x0i] * (1 - fx) + pixels[y0i, x1i] * fx
     bot = pixels[y1i, x0i] * (1 - fx) + pixels[y1i, x1i] * fx
     return top * (1 - fy) + bot * fy
+
+
+def from_texel_centres(pixels: np.ndarray) -> np.ndarray:
+    """The ``(2H + 1, W)`` map whose bilinear lookup (:func:`lookup_uv`, row ``i'`` at
+    ``v = i' / 2H``) equals, at every direction, the bilinear lookup of the ``(H, W)`` map
+    ``pixels`` read with its texel centres at ``v = (i + 1/2) / H`` (rows clamped at the
+    poles), as Blender Cycles' Environment Texture reads an equirectangular image.
+
+    Odd rows ``2i + 1`` sit at ``v = (i + 1/2) / H``, the texel centres, and hold row ``i``;
+    even rows ``2i`` sit at ``v = i / H``, midway between two centres, and hold the mean of
+    rows ``i - 1`` and ``i`` (the pole rows ``0`` and ``2H`` repeat the first and last row,
+    the texel-centre lookup being constant beyond the outer centres). Between two such
+    rows both lookups are linear in ``v`` with the same end values, so they agree
+    exactly; columns sit at ``(j + 1/2) / W`` in both conventions and are kept.
+
+    References
+    ----------
+    Blender Cycles, ``kernel/camera/projection.h`` (``direction_to_equirectangular``:
+    ``v = 1 - acos(z)/pi``, the image's rows counted from its bottom) and
+    ``kernel/svm/image.h`` (the Environment Texture's bilinear lookup, texel centres at
+    half-integer coordinates); M. Pharr, W. Jakob and
+    G. Humphreys, *Physically Based Rendering*, 3rd ed., sec. 7.8 (texel centres at
+    half-integer coordinates); W. Jakob et al., Mitsuba 3 ``envmap`` emitter (rows at
+    ``v (H - 1)``).
+    """
+    px = np.asarray(pixels, dtype=np.float64)
+    h = px.shape[0]
+    out = np.empty((2 * h + 1, *px.shape[1:]))
+    out[1::2] = px
+    out[2:-1:2] = 0.5 * (px[:-1] + px[1:])
+    out[0], out[-1] = px[0], px[-1]
+    return out
 
 
 def texel_directions(h: int, w: int) -> np.ndarray:

@@ -10,7 +10,10 @@
     reflectance clamped to [0, 1] per RGB channel first, as Blender Cycles' thin film
     shades: for its renders, :class:`~bubblefit.model.cap_render.CapConfig`).
 ``[environment]``
-    ``path`` (an equirectangular map, relative to the scene file), ``rotation_deg``, ``scale``.
+    ``path`` (an equirectangular map, relative to the scene file), ``rotation_deg``, ``scale``,
+    ``convention`` (where the map's texel rows sit: ``"mitsuba"``, the default, or
+    ``"texel-centre"`` for a map made for Blender or PBRT:
+    :data:`~bubblefit.lighting.envmap.CONVENTIONS`).
 ``[camera]``
     ``type = "perspective"`` with ``width``, ``height``, ``origin``, ``target``, ``up``,
     ``fov_deg``; ``response`` (the camera's sensitivities, ``"srgb"`` by default).
@@ -36,6 +39,7 @@ from ..errors import InputError
 from .cap import Cap
 from .geometry import PerspectiveCamera
 from ..lighting.area import Patch, check_light_faces
+from ..lighting.envmap import CONVENTIONS
 from .planar_scene import (_lamp, _num, _read_toml, _vec, film_kind_and_range, is_area_sphere, parse_area_light,
                            parse_cap)
 
@@ -63,6 +67,8 @@ class CapScene:
     #: sphere, its plane at the sphere's bottom.
     sphere: bool = False
     area: Patch | None = None
+    #: Where the map's texel rows sit (:data:`~bubblefit.lighting.envmap.CONVENTIONS`).
+    env_convention: str = "mitsuba"
 
 
 def is_cap_file(path) -> bool:
@@ -128,6 +134,10 @@ def parse_cap_scene(data: dict, base_dir=".") -> CapScene:
         envmap = envmap if envmap.is_absolute() else base / envmap
         if not envmap.is_file():
             raise InputError(f"environment map not found: {envmap}")
+    convention = env.get("convention", "mitsuba") if isinstance(env, dict) else "mitsuba"
+    if convention not in CONVENTIONS:
+        raise InputError(f"environment.convention must be one of {', '.join(map(repr, CONVENTIONS))}, "
+                         f"got {convention!r}")
     if cam.get("type") != "perspective":
         raise InputError(f'a {"bubble" if sphere else "cap"} needs a [camera] type = "perspective" '
                          '(origin, target, up, fov_deg)')
@@ -144,4 +154,4 @@ def parse_cap_scene(data: dict, base_dir=".") -> CapScene:
                     rotation_deg=_num(env, "rotation_deg", "environment", 0.0, -360.0, 360.0),
                     env_scale=_num(env, "scale", "environment", 1.0, 0.0),
                     illuminant=illuminant, response=str(cam.get("response", "srgb")),
-                    film_rgb=film_rgb, sphere=sphere, area=area)
+                    film_rgb=film_rgb, sphere=sphere, area=area, env_convention=convention)

@@ -22,7 +22,7 @@ import numpy as np
 from ..errors import InputError
 from ..optics.dispersion import REFERENCE_WAVELENGTH_NM, Cauchy, refractive_index
 from ..io.images import read_image
-from ..lighting.envmap import EnvMap
+from ..lighting.envmap import CONVENTIONS, EnvMap, from_texel_centres
 from .auto import DEFAULT_TOLERANCE, decide_pixels
 from .bounds import SceneSummary, scene_bounds
 from .effects import ALL_ON_NODES, check_harmonic
@@ -49,9 +49,13 @@ class MapFile:
     bit_depth: int
 
 
-def read_map_file(path, *, scale: float = 1.0) -> MapFile:
+def read_map_file(path, *, scale: float = 1.0, convention: str = "mitsuba") -> MapFile:
     """Read an equirectangular environment map file into a :class:`MapFile`: the
     :class:`~bubblefit.lighting.envmap.EnvMap` and the file's bit depth, from one read.
+    ``convention`` says where the file's texel rows sit
+    (:data:`~bubblefit.lighting.envmap.CONVENTIONS`): ``"texel-centre"`` (a map made for
+    Blender or PBRT) is re-expressed on bubblefit's rows by
+    :func:`~bubblefit.lighting.envmap.from_texel_centres`.
 
     Raises :class:`InputError` (one line) for an unreadable file, a map that is not twice
     as wide as high, or one with fewer than 2 rows.
@@ -66,14 +70,18 @@ def read_map_file(path, *, scale: float = 1.0) -> MapFile:
         raise InputError(f"environment map {path} is {w}x{h}; an equirectangular map must be twice as wide as high")
     if h < 2:
         raise InputError(f"environment map {path} is {w}x{h}; it needs at least 2 rows (4x2 texels)")
+    if convention not in CONVENTIONS:
+        raise InputError(f"environment map convention must be one of {', '.join(CONVENTIONS)}, got {convention!r}")
     check_radiance(path, img.pixels * scale)
-    return MapFile(EnvMap.from_array(img.pixels * scale), int(img.bit_depth))
+    px = img.pixels * scale
+    return MapFile(EnvMap.from_array(from_texel_centres(px) if convention == "texel-centre" else px),
+                   int(img.bit_depth))
 
 
-def read_envmap(path, *, scale: float = 1.0) -> EnvMap:
+def read_envmap(path, *, scale: float = 1.0, convention: str = "mitsuba") -> EnvMap:
     """Read an equirectangular environment map file into an
     :class:`~bubblefit.lighting.envmap.EnvMap` (:func:`read_map_file`'s map)."""
-    return read_map_file(path, scale=scale).env
+    return read_map_file(path, scale=scale, convention=convention).env
 
 
 def shipped_envmap(name: str = "courtyard") -> Path:

@@ -84,6 +84,12 @@ def part_of(case: str, split: dict | None = None) -> str:
     return split.get(case.split(":")[0], {}).get("part", "unassigned")
 
 
+#: Whether the Blender Cycles cases' maps are read at their texel centres (``--envmap-convention
+#: texel-centre``), as Blender rendered them; ``--mitsuba-rows`` reads them on bubblefit's
+#: default rows instead (the scores before the option existed).
+CYCLES_TEXEL_CENTRES = True
+
+
 def runs_dir(out_dir: str) -> str:
     return RUNS_DIR[0] if RUNS_DIR else os.path.join(out_dir, "runs")
 
@@ -198,6 +204,10 @@ def run_fit(case: str, model: str, out_dir: str, calibration: str | None = None,
         # the white the renderer (or camera) integrated under is part of the capture, as the
         # environment map is: Cycles converts its spectra under E
         args += ["--illuminant", truth["illuminant"]]
+    if str(truth.get("renderer", "")).startswith("Blender"):
+        # Blender's Environment Texture reads its texels at their centres, (i + 1/2) / H:
+        # the map's convention is part of the capture, as its file is
+        args += ["--envmap-convention", "texel-centre" if CYCLES_TEXEL_CENTRES else "mitsuba"]
     if (disc_given or truth.get("disc_given")) and truth.get("disc"):
         d = truth["disc"]
         args += ["--disc", f"{d['cx']},{d['cy']},{d['r']}"]
@@ -487,6 +497,9 @@ def run_film(case: str, out_dir: str, fit: str | None = None) -> dict:
     args = [a if a != "scene.toml" else os.path.join(cdir, "scene.toml") for a in truth["fit_args"]]
     if fit in ("constant", "drainage", "map"):
         args += ["--thickness", fit]
+    if "cap" in truth and str(truth.get("renderer", "")).startswith("Blender"):
+        # the dish scenes state their maps' convention; --mitsuba-rows overrides it
+        args += ["--envmap-convention", "texel-centre" if CYCLES_TEXEL_CENTRES else "mitsuba"]
     rc, err, wall = _cli(["fit", os.path.join(cdir, "photo.png"), *args, "-o", prefix, "--json", prefix + ".json"])
     row = {"case": f"{case}:{fit}", "kind": "film", "wall_s": round(wall, 1), "part": part_of(case)}
     if rc != 0:
@@ -678,14 +691,17 @@ def main(argv=None) -> int:
     ap.add_argument("--no-cross", action="store_true", help="skip the fit that is handed another framing's calibration")
     ap.add_argument("--data", help="another folder of cases (and its envmaps/), e.g. make_reference.py --size's; "
                     "its cases are in no part of the split")
+    ap.add_argument("--mitsuba-rows", action="store_true",
+                    help="read the Blender cases' maps on bubblefit's default rows, not at their texel centres")
     ap.add_argument("--part", choices=PARTS, help="only the cases of this part of split.toml")
     ap.add_argument("--runs", help="folder for each fit's JSON and images [OUT/runs]")
     a = ap.parse_args(argv)
     EXTRA_FIT_ARGS[:] = a.fit_args.split()
     RUNS_DIR[:] = [a.runs] if a.runs else []
     ONLY_FITS[:] = [m for m in a.only.split(",") if m]
-    global FIT_TIMEOUT, DATA
+    global FIT_TIMEOUT, DATA, CYCLES_TEXEL_CENTRES
     FIT_TIMEOUT = a.timeout
+    CYCLES_TEXEL_CENTRES = not a.mitsuba_rows
     if a.data:
         DATA = os.path.abspath(a.data)
     if a.merge:

@@ -50,6 +50,9 @@ residual less its 3 x 3 mean (scaled by 9/8: what white noise keeps), the part o
 misfit that changes from pixel to pixel (Monte Carlo noise), and its outliers.
 
     PYTHONPATH=. .venv/bin/python experiments/validation/rough_misfit.py CASE [--only V,...] [--json OUT]
+    ... rough_misfit.py CASE --from-npz OUT_renders.npz --json OUT2   # re-score saved renders
+    ... rough_misfit.py CASE --emulate OUT_renders.npz VARIANT DIR     # a photo from a render, for
+        validate.py --data DIR CASE (fits on Cycles' film without its Monte Carlo noise)
 """
 from __future__ import annotations
 
@@ -292,13 +295,41 @@ def thickness_shift(base: np.ndarray, steps: list, img: np.ndarray, photo, sigma
     return out
 
 
+def emulate(case: str, npz: str, variant: str, out: str) -> str:
+    """A copy of ``case`` under ``out`` (for ``validate.py --data OUT``) whose photo is the
+    saved render ``variant`` (linear, times the true exposure) through the case's own sensor
+    model and seed (make_cycles.py: vio.add_noise_and_quantise, 4000 e- at 1.0, 3 e- read
+    noise, 8-bit sRGB): the photo Cycles would give without its Monte Carlo noise if it
+    rendered as ``variant`` does. The background, truth and scene files are the case's."""
+    import shutil
+
+    t = json.load(open(f"{D}/{case}/truth.json"))
+    dst = os.path.join(out, case)
+    os.makedirs(dst, exist_ok=True)
+    if not os.path.exists(os.path.join(out, "envmaps")):
+        os.symlink(os.path.join(D, "envmaps"), os.path.join(out, "envmaps"))
+    for name in ("background.png", "truth.json", "scene.toml", "thickness_true.exr"):
+        if os.path.exists(f"{D}/{case}/{name}"):
+            shutil.copy(f"{D}/{case}/{name}", dst)
+    rng = np.random.default_rng(t["noise"]["seed"])
+    img = np.clip(np.load(npz)[variant].astype(np.float64), 0, None)
+    vio.write_png8(os.path.join(dst, "photo.png"), None, vio.add_noise_and_quantise(
+        img, rng, t["noise"]["full_well_e_at_1.0"], t["noise"]["read_noise_e"]))
+    return dst
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("case")
     ap.add_argument("--only", default=",".join(VARIANTS))
     ap.add_argument("--json")
     ap.add_argument("--from-npz", help="score the renders an earlier run saved (OUT_renders.npz) instead of rendering")
+    ap.add_argument("--emulate", nargs=3, metavar=("NPZ", "VARIANT", "OUT"),
+                    help="write the case with its photo replaced by a saved render (emulate) and stop")
     a = ap.parse_args(argv)
+    if a.emulate:
+        print(emulate(a.case, *a.emulate))
+        return
     saved = np.load(a.from_npz) if a.from_npz else None
     t = json.load(open(f"{D}/{a.case}/truth.json"))
     fitted = None

@@ -254,10 +254,14 @@ def score(case: str, img: np.ndarray, photo, sigma, used, rho, cos) -> dict:
     chi_hf = np.sum(hf**2 / (var * 8 / 9), axis=-1)
     out.update(chi2_floor_pixel_scale=float(chi_hf[used].sum() / (3 * used.sum())),
                outliers_pixel_scale=float(np.mean(chi_hf[used] > OUTLIER)))
-    chk = colour_check(photo, img, used & (cos > INNER_COS), sigma, model_error=FLOOR)
-    out["colour"] = None if chk is None else {"chi2_per_dof": chk.chi2_per_dof, "limit": chk.threshold_per_dof,
-                                              "chroma_rms": chk.chroma_rms, "kappa": chk.noise_scale,
-                                              "cells": chk.cells}
+    def colour(mask):
+        chk = colour_check(photo, img, mask & (cos > INNER_COS), sigma, model_error=FLOOR)
+        return None if chk is None else {"chi2_per_dof": chk.chi2_per_dof, "limit": chk.threshold_per_dof,
+                                         "chroma_rms": chk.chroma_rms, "kappa": chk.noise_scale, "cells": chk.cells}
+
+    out["colour"] = colour(used)
+    # the statistic over each region alone (its own cells and kappa): where the hue error sits
+    out["colour_by_region"] = {name: colour(used & (rho >= a) & (rho < b)) for name, (a, b) in REGIONS.items()}
     return out
 
 
@@ -324,6 +328,7 @@ def main(argv=None):
     ap.add_argument("--only", default=",".join(VARIANTS))
     ap.add_argument("--json")
     ap.add_argument("--from-npz", help="score the renders an earlier run saved (OUT_renders.npz) instead of rendering")
+    ap.add_argument("--no-shift", action="store_true", help="skip the linearised fit (and its renders)")
     ap.add_argument("--emulate", nargs=3, metavar=("NPZ", "VARIANT", "OUT"),
                     help="write the case with its photo replaced by a saved render (emulate) and stop")
     a = ap.parse_args(argv)
@@ -358,13 +363,13 @@ def main(argv=None):
     print(a.case, "background photo vs background.png chi2 per channel", report["background_noise"]["chi2_rgb"], flush=True)
     # the base (illuminant E, Ward at alpha) and its derivatives, for the shifts
     base = saved["E"].astype(np.float64) if saved is not None else draw(a.case, "E", fitted)
-    cols = jacobian(a.case, t["thickness"]["profile"], base, fitted)
+    cols = {} if a.no_shift else jacobian(a.case, t["thickness"]["profile"], base, fitted)
     names = list(cols)
     thick = [cols[k] for k in names if k != "log_roughness"]
     report["shift_note"] = ("change of each parameter (" + ", ".join(names) + ", then the gain) of a linearised fit "
                             "turning the E render into the variant (thickness_shift); 'with_roughness' frees the "
                             "lobe width too; 'photo' turns it into the photo")
-    shifts = lambda img: {"thickness_only": thickness_shift(base, thick, img, photo, sigma, used),
+    shifts = lambda img: None if a.no_shift else {"thickness_only": thickness_shift(base, thick, img, photo, sigma, used),
                           "with_roughness": thickness_shift(base, [cols[k] for k in names], img, photo, sigma, used)}
     report["photo_shift"] = shifts(photo)
     print("photo shift from E at the truth:", report["photo_shift"], flush=True)

@@ -41,7 +41,7 @@ channel nearby), with the fit's noise model and the 3 % floor, channels the phot
 at black censored: reduced chi^2 with the floor and outliers; per region (centre rho < 0.5,
 mid 0.5-0.8, rim 0.8-0.96) and per channel, the chi^2 and the photo's mean over the
 render's minus 1; and the fit's colour statistic (``inverse.colour_check``, model-error
-0.03 for its outliers, over ``cos > INNER_COS``). The noise: the photo against
+0.03 for its outliers, over ``cos > INNER_COS``), over the disc and over each region alone. The noise: the photo against
 background.png outside the disc (two independent draws of Cycles' Monte Carlo noise and
 the sensor's; chi^2 with twice the noise model's variance, 1 when the noise model holds)
 and ``cycles_colour.noise_excess`` (the residual's high-frequency variance over the sensor

@@ -161,7 +161,9 @@ def fit_chunk(todo: list[tuple[FrameRef, dict | None]], env, options, background
               init: dict | None = None, batch: int = 1) -> list[dict]:
     """Fit the pending frames of one chunk, in order, each warm-started from the last success,
     its thicknesses extrapolated linearly from the two last
-    (:func:`~bubblefit.inverse._parameters.extrapolated`).
+    (:func:`~bubblefit.inverse._parameters.extrapolated`), with the model that success kept
+    (:func:`kept_model`, :func:`_fit_warm`) and, for the default fit, its thickness map
+    (:func:`carried`).
 
     Parameters
     ----------

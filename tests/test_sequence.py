@@ -490,7 +490,7 @@ def test_warm_started_maps_stay_within_the_targets(tmp_path):
     """A short draining film from the independent reference renderer (three 64 px frames of
     ``experiments/bench_sequence_maps.py``, which thin by 10-20 nm a frame), fitted as
     ``fit-sequence --thickness map --maps`` does: the frames after the first keep the model
-    the first one chose and start their maps from its map, and every map meets the
+    the first one chose (or fall back to the full fit, recorded), and every map meets the
     validation targets (``validate.py``: median error within 15 nm, 90 % of the inner disc
     within 15 nm, no order hops)."""
     import sys

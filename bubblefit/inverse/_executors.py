@@ -30,13 +30,21 @@ from ._setup import MAP_START_KEYS
 from .fit import explained, fit_batch, fit_photo
 from ._records import base_record, one_line, result_record, warm_init
 
-__all__ = ["DEFAULT_FIT", "ChunkTask", "fit_chunk", "kept_model", "carried", "LocalExecutor", "DaskExecutor", "local_env",
+__all__ = ["DEFAULT_FIT", "CARRY_MAPS", "ChunkTask", "fit_chunk", "kept_model", "carried", "LocalExecutor", "DaskExecutor", "local_env",
            "SchedulerAddress", "read_security", "local_cluster", "start_client"]
 
 DEFAULT_FIT = "bubblefit.inverse.fit:fit_photo"
 
 
 _WORKER_READY = False
+
+#: Whether a warm-started frame starts its thickness map from its predecessor's map
+#: (:func:`carried`, :func:`bubblefit.inverse._maps.warm_centre`) instead of building it
+#: coarse to fine. Off: on the draining frames of ``experiments/bench_sequence_maps.py``
+#: (reference renderer, 8 frames of 96 px; not validation cases) the carried maps passed
+#: their order hops on and the hops grew (none on frames 1-4, then 3, 4 and 5 on frames
+#: 5-7; 90 % coverage 99.7 % falling to 98.1 %), where maps built coarse to fine had none.
+CARRY_MAPS = False
 
 
 def _worker_setup(jax_settings: dict) -> None:
@@ -162,8 +170,8 @@ def fit_chunk(todo: list[tuple[FrameRef, dict | None]], env, options, background
     """Fit the pending frames of one chunk, in order, each warm-started from the last success,
     its thicknesses extrapolated linearly from the two last
     (:func:`~bubblefit.inverse._parameters.extrapolated`), with the model that success kept
-    (:func:`kept_model`, :func:`_fit_warm`) and, for the default fit, its thickness map
-    (:func:`carried`).
+    (:func:`kept_model`, :func:`_fit_warm`) and, with :data:`CARRY_MAPS` and the default
+    fit, its thickness map (:func:`carried`).
 
     Parameters
     ----------
@@ -201,7 +209,7 @@ def fit_chunk(todo: list[tuple[FrameRef, dict | None]], env, options, background
 
     out = []
     warm, prev, last = init, None, None
-    with_map = fit_function == DEFAULT_FIT  # a map start is fit_photo's (other fits take params)
+    with_map = CARRY_MAPS and fit_function == DEFAULT_FIT  # a map start is fit_photo's (others take params)
 
     def keep(rec):
         nonlocal warm, prev, last

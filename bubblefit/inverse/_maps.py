@@ -21,9 +21,10 @@ little better. A soap film is smooth apart from real features, so the map is bui
    is its data chi^2 plus ``sum over its 4 neighbours q of ((d - d_q) / s)^2``, ``s`` =
    ``MapSettings.smoothness_nm`` times the level's block size (neighbours are that
    far apart), minimised by iterated conditional modes (Besag 1986) in a red-black order;
-   A sequence's warm-started frame skips the pyramid: its map starts from the previous
-   frame's, moved by the change of the fitted drainage profile (:func:`warm_centre`),
-   and only the finest level is refined around it;
+   Given the previous frame of a sequence's map (``start``), the pyramid is skipped: the
+   map starts from it, moved by the change of the fitted drainage profile
+   (:func:`warm_centre`), and only the finest level is refined around it (off in
+   ``fit-sequence``: :data:`bubblefit.inverse._executors.CARRY_MAPS`);
 3. refined below the grid by a parabola through the energy around each pixel's minimum;
    its curvature gives the pixel's standard error (of its posterior: data, prior and
    smoothness with the neighbours held), widened by ``sqrt(max(1, chi2_nu))`` of the

@@ -487,8 +487,9 @@ def test_warm_map_follows_the_profile():
 
 @pytest.mark.slow
 def test_warm_started_maps_stay_within_the_targets(tmp_path):
-    """A short draining film from the independent reference renderer (three 64 px frames of
-    ``experiments/bench_sequence_maps.py``, which thin by 10-20 nm a frame), fitted as
+    """A short draining film from the independent reference renderer (the first three 96 px
+    frames of ``experiments/bench_sequence_maps.py``, 2x2 rays a pixel, which thin by 10-20
+    nm a frame; at 1 ray a pixel its glints leave the photo unexplained), fitted as
     ``fit-sequence --thickness map --maps`` does: the frames after the first keep the model
     the first one chose (or fall back to the full fit, recorded), and every map meets the
     validation targets (``validate.py``: median error within 15 nm, 90 % of the inner disc
@@ -504,12 +505,18 @@ def test_warm_started_maps_stay_within_the_targets(tmp_path):
     import validate
 
     frames = tmp_path / "frames"
-    meta = bench.render_frames(frames, 3, 64, 1)
+    meta = bench.render_frames(frames, 3, 96, 2)
     argv = [*sorted(str(p) for p in frames.glob("frame_*.png")), "--envmap",
             str(Path(validate.DATA) / "envmaps" / "sunset.exr"), "--background", str(frames / "background.png"),
             "--thickness", "map", "--maps", "--fov", "0", "--illuminant", "D65", "--workers", "0"]
     bench.run_pass(argv, tmp_path / "run")
     recs = [json.loads((tmp_path / "run" / "frames" / f"frame_{k:06d}.json").read_text()) for k in range(3)]
-    assert [r.get("model_kept") is not None or "fallback" in r for r in recs] == [False, True, True]
+    from bubblefit.inverse.fit import FitOptions
+
+    ok_chi2 = FitOptions().judge.ok_chi2
+    assert recs[0]["converged"] and recs[0]["chi2_floor"] <= ok_chi2  # the premise: the film is explained
+    for before, rec in zip(recs, recs[1:]):
+        explained = before["converged"] and before["chi2_floor"] <= ok_chi2
+        assert rec.get("model_kept") == before["model"] or "fallback" in rec or not explained
     scores = bench.score(tmp_path / "run", frames, meta)
     assert all(s["meets"] for s in scores), scores

@@ -104,8 +104,9 @@ def yardsticks(mitsuba_python: str) -> dict:
     return out
 
 
-def run_pass(argv: list[str], out: Path) -> list[dict]:
-    """One ``fit-sequence`` pass in this process; per frame: wall and CPU seconds since the last record."""
+def run_pass(argv: list[str], out: Path, frames_limit: int | None = None) -> list[dict]:
+    """One ``fit-sequence`` pass in this process (its first ``frames_limit`` frames, default
+    all); per frame: wall and CPU seconds since the last record."""
     from bubblefit.cli import build_parser
     from bubblefit.cli.fit import build_fit_options, load_envmap
     from bubblefit.cli.fit_sequence import frame_bits
@@ -114,7 +115,7 @@ def run_pass(argv: list[str], out: Path) -> list[dict]:
     from bubblefit.io.images import read_image
 
     args = build_parser().parse_args(["fit-sequence", *argv, "-o", str(out)])
-    frames = discover_frames(args.frames, fps=args.fps)
+    frames = discover_frames(args.frames, fps=args.fps)[:frames_limit]
     options = build_fit_options(args, None, frame_bits(frames), sequence_view(args, frames))
     env = load_envmap(args.envmap)
     background = read_image(args.background).pixels
@@ -128,7 +129,9 @@ def run_pass(argv: list[str], out: Path) -> list[dict]:
         rows.append({"frame": rec.get("frame"), "fit_time_s": round(float(rec.get("fit_time_s", float("nan"))), 3),
                      "wall_s": round(w - clock[0], 3), "cpu_s": round(c - clock[1], 3),
                      "warm_start": rec.get("warm_start"), "fit_ok": rec.get("fit_ok"),
-                     "converged": rec.get("converged"), "message": rec.get("message", "")[:200]})
+                     "converged": rec.get("converged"), "model": rec.get("model"),
+                     "model_kept": rec.get("model_kept"), "fallback": rec.get("fallback"),
+                     "message": rec.get("message", "")[:200]})
         clock[:] = [w, c]
 
     seq = SequenceOptions(workers=0, chunk_size=len(frames), force=True, maps=True, progress=False)
@@ -157,6 +160,9 @@ def main(argv=None) -> int:
     ap.add_argument("--size", type=int, default=96)
     ap.add_argument("--ss", type=int, default=2, help="samples per pixel side of the reference renderer (default 2)")
     ap.add_argument("--fit-args", default="", help="more fit-sequence arguments, e.g. '--model physical'")
+    ap.add_argument("--compile-frames", type=int, default=None,
+                    help="frames of the first pass, which compiles (default all; 2 compile both a searched "
+                         "and a warm-started frame's programs)")
     ap.add_argument("--mitsuba-python", default=str(HERE.parent / ".venv-render" / "bin" / "python"))
     ap.add_argument("--out", default=str(HERE / "results" / "bench_sequence_maps"))
     a = ap.parse_args(argv)
@@ -172,12 +178,13 @@ def main(argv=None) -> int:
     argv_fit = [*sorted(str(p) for p in frames.glob("frame_*.png")), "--envmap", truth_env,
                 "--background", str(frames / "background.png"), "--thickness", "map", "--maps",
                 "--fov", "0", "--illuminant", "D65", "--workers", "0", *a.fit_args.split()]
-    result = {"frames": meta, "fit_args": a.fit_args, "passes": {}}
+    result = {"frames": meta, "fit_args": a.fit_args, "compile_frames": a.compile_frames, "passes": {}}
     for name in ("first", "warm"):
         before = yardsticks(a.mitsuba_python)
         load = os.getloadavg()[0]
-        rows = run_pass(argv_fit, out / "run")
+        rows = run_pass(argv_fit, out / "run", a.compile_frames if name == "first" else None)
         result["passes"][name] = {"load1": round(load, 2), "frames": rows, "yardsticks": before,
+                                  "load1_after": round(os.getloadavg()[0], 2),
                                   "yardsticks_after": yardsticks(a.mitsuba_python)}
         print(name, json.dumps({"load1": load, "wall_s": [r["wall_s"] for r in rows],
                                 "cpu_s": [r["cpu_s"] for r in rows]}), flush=True)

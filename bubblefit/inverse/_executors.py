@@ -15,25 +15,36 @@ from __future__ import annotations
 import hashlib
 import importlib
 import inspect
+import math
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from types import SimpleNamespace
 from typing import Any
 
 from ..errors import InputError
 from ..io.jaxcache import jax_setup
 from ._parameters import extrapolated
 from ._plan import FrameRef, load_frame
-from .fit import fit_batch, fit_photo
+from ._setup import MAP_START_KEYS
+from .fit import explained, fit_batch, fit_photo
 from ._records import base_record, one_line, result_record, warm_init
 
-__all__ = ["DEFAULT_FIT", "ChunkTask", "fit_chunk", "LocalExecutor", "DaskExecutor", "local_env",
+__all__ = ["DEFAULT_FIT", "CARRY_MAPS", "ChunkTask", "fit_chunk", "kept_model", "carried", "LocalExecutor", "DaskExecutor", "local_env",
            "SchedulerAddress", "read_security", "local_cluster", "start_client"]
 
 DEFAULT_FIT = "bubblefit.inverse.fit:fit_photo"
 
 
 _WORKER_READY = False
+
+#: Whether a warm-started frame starts its thickness map from its predecessor's map
+#: (:func:`carried`, :func:`bubblefit.inverse._maps.warm_centre`) instead of building it
+#: coarse to fine. Off: on the draining frames of ``experiments/bench_sequence_maps.py``
+#: (reference renderer, 8 frames of 96 px; not validation cases) the carried maps passed
+#: their order hops on and the hops grew (none on frames 1-4, then 3, 4 and 5 on frames
+#: 5-7; 90 % coverage 99.7 % falling to 98.1 %), where maps built coarse to fine had none.
+CARRY_MAPS = False
 
 
 def _worker_setup(jax_settings: dict) -> None:
@@ -70,6 +81,69 @@ def _fit_one(ref: FrameRef, env, options, init, background, scene, fit_fn) -> di
     return result_record(base, res, time.perf_counter() - t0)
 
 
+def kept_model(options, last: dict | None) -> str | None:
+    """The model a warm-started frame keeps under ``model = "auto"``: the one the previous
+    frame's fit kept, when that model explained its photo (converged, the reduced chi^2
+    with the model-error floor within ``judge.ok_chi2``: :func:`bubblefit.inverse.fit.explained`,
+    the rule by which ``auto`` keeps its first model). The light, exposure, roughness,
+    reflectances and the film's optics do not change between the frames of one film, only
+    its thickness, so neither does the model that explains them; None (``auto`` compares
+    the models again) for another ``model``, or a previous frame that was not explained."""
+    if getattr(options, "model", None) != "auto" or not last or last.get("status") != "ok":
+        return None
+    model = last.get("model")
+    if model not in ("paper", "physical"):
+        return None
+    said = SimpleNamespace(converged=bool(last.get("converged")), chi2_floor=float(last.get("chi2_floor", math.inf)))
+    return model if explained(said, options.judge) else None
+
+
+def _unexplained(rec: dict, options) -> str | None:
+    """Why a frame fitted with a kept model does not pass (None: it does): failed, not
+    converged, or not explained within the floor (:func:`bubblefit.inverse.fit.explained`)."""
+    if rec.get("status") != "ok":
+        return rec.get("message") or "the fit failed"
+    said = SimpleNamespace(converged=bool(rec.get("converged")), chi2_floor=float(rec.get("chi2_floor", math.inf)))
+    if explained(said, options.judge):
+        return None
+    if not said.converged:
+        return "it did not converge"
+    return f"reduced chi^2 with the floor {said.chi2_floor:.3g} > {float(options.judge.ok_chi2):g}"
+
+
+def _fit_warm(ref: FrameRef, env, options, init, last, background, scene, fit_fn) -> dict:
+    """Fit a warm-started frame with the model the previous frame kept (:func:`kept_model`),
+    its map started from the previous frame's (``init``'s ``map``); when that fit does not
+    explain the frame (:func:`_unexplained`), the frame falls back to the full fit under
+    ``auto`` (both models compared, the map built coarse to fine), and its record says so
+    (``fallback``)."""
+    model = kept_model(options, last)
+    if model is None:
+        return _fit_one(ref, env, options, init, background, scene, fit_fn)
+    rec = _fit_one(ref, env, replace(options, model=model), init, background, scene, fit_fn)
+    why = _unexplained(rec, options)
+    if why is None:
+        return dict(rec, model_kept=model)
+    plain = {k: v for k, v in init.items() if k not in MAP_START_KEYS}
+    full = _fit_one(ref, env, options, plain, background, scene, fit_fn)
+    full["fallback"] = (f"the {model} model kept from the previous frame did not explain this frame ({why}); "
+                        "refitted under auto")
+    full["fit_time_s"] = float(full.get("fit_time_s", 0.0)) + float(rec.get("fit_time_s", 0.0))
+    return full
+
+
+def carried(rec: dict, with_map: bool) -> dict | None:
+    """The warm start a record offers its next frame (:func:`~._records.warm_init`), with its
+    thickness map and the drainage profile under it when ``with_map`` and it has one
+    (:data:`~._setup.MAP_START_KEYS`, read by :func:`~._setup.map_start`)."""
+    nxt = warm_init(rec)
+    tmap = rec.get("_thickness_map")
+    prof = [rec.get("params", {}).get(k) for k in ("top_nm", "bottom_nm", "exponent")]
+    if nxt is not None and with_map and tmap is not None and all(v is not None for v in prof):
+        nxt.update(map=tmap, map_profile=tuple(prof))
+    return nxt
+
+
 def _fit_batch(refs: list[FrameRef], env, options, init, previous, background, scene) -> list[dict]:
     """Fit consecutive frames together (:func:`bubblefit.inverse.fit.fit_batch`); one record each.
     If the batched fit raises, the frames are fitted one by one instead."""
@@ -95,7 +169,9 @@ def fit_chunk(todo: list[tuple[FrameRef, dict | None]], env, options, background
               init: dict | None = None, batch: int = 1) -> list[dict]:
     """Fit the pending frames of one chunk, in order, each warm-started from the last success,
     its thicknesses extrapolated linearly from the two last
-    (:func:`~bubblefit.inverse._parameters.extrapolated`).
+    (:func:`~bubblefit.inverse._parameters.extrapolated`), with the model that success kept
+    (:func:`kept_model`, :func:`_fit_warm`) and, with :data:`CARRY_MAPS` and the default
+    fit, its thickness map (:func:`carried`).
 
     Parameters
     ----------
@@ -132,13 +208,14 @@ def fit_chunk(todo: list[tuple[FrameRef, dict | None]], env, options, background
     batched = batch > 1 and warm_start and fit_function == DEFAULT_FIT
 
     out = []
-    warm, prev = init, None
+    warm, prev, last = init, None, None
+    with_map = CARRY_MAPS and fit_function == DEFAULT_FIT  # a map start is fit_photo's (others take params)
 
     def keep(rec):
-        nonlocal warm, prev
-        nxt = warm_init(rec)
+        nonlocal warm, prev, last
+        nxt = carried(rec, with_map)
         if nxt is not None:
-            prev, warm = warm, nxt
+            prev, warm, last = warm, nxt, rec
 
     i = 0
     while i < len(todo):
@@ -153,14 +230,15 @@ def fit_chunk(todo: list[tuple[FrameRef, dict | None]], env, options, background
                 group.append(todo[i + len(group)][0])
         if len(group) >= 2:
             recs = _fit_batch(group, env, options, warm, prev, background, scene)
+        elif warm_start and warm is not None:
+            recs = [_fit_warm(ref, env, options, extrapolated(warm, prev), last, background, scene, fit_fn)]
         else:
-            start = extrapolated(warm, prev) if warm_start and warm is not None else None
-            recs = [_fit_one(ref, env, options, start, background, scene, fit_fn)]
+            recs = [_fit_one(ref, env, options, None, background, scene, fit_fn)]
         for rec in recs:
+            keep(rec)
             if not want_maps:
                 rec.pop("_thickness_map", None)
             out.append(rec)
-            keep(rec)
         i += len(recs)
     return out
 

@@ -21,6 +21,10 @@ little better. A soap film is smooth apart from real features, so the map is bui
    is its data chi^2 plus ``sum over its 4 neighbours q of ((d - d_q) / s)^2``, ``s`` =
    ``MapSettings.smoothness_nm`` times the level's block size (neighbours are that
    far apart), minimised by iterated conditional modes (Besag 1986) in a red-black order;
+   Given the previous frame of a sequence's map (``start``), the pyramid is skipped: the
+   map starts from it, moved by the change of the fitted drainage profile
+   (:func:`warm_centre`), and only the finest level is refined around it (off in
+   ``fit-sequence``: :data:`bubblefit.inverse._executors.CARRY_MAPS`);
 3. refined below the grid by a parabola through the energy around each pixel's minimum;
    its curvature gives the pixel's standard error (of its posterior: data, prior and
    smoothness with the neighbours held), widened by ``sqrt(max(1, chi2_nu))`` of the
@@ -63,7 +67,7 @@ from ._programs import padded
 from ..model.geometry import OrthographicCamera
 from ..model.thickness import drainage_profile
 
-__all__ = ["fit_map", "profile_map", "RenderCosts", "COARSE_RADIUS", "WINDOW_NM"]
+__all__ = ["fit_map", "profile_map", "warm_centre", "RenderCosts", "COARSE_RADIUS", "WINDOW_NM", "WARM_COVER"]
 
 #: Disc radius (pixels) of the pyramid's coarsest level.
 COARSE_RADIUS = 12.0
@@ -236,17 +240,51 @@ def _pyramid(lev: Level) -> list[int]:
     return [2**j for j in range(n, -1, -1)]
 
 
-def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts: FitOptions, env, make_level=None):
+#: Least share of the film's pixels a warm start's map must cover to start the next
+#: frame's map (below it, the map is built coarse to fine): the share of constrained
+#: pixels a sound map has (:func:`fit_map`).
+WARM_COVER = 0.9
+
+
+def warm_centre(lev: Level, prof, start) -> np.ndarray | None:
+    """The previous frame's map moved by the change of the fitted drainage profile, (h, w) nm:
+    ``map_prev + profile(prof) - profile(prof_prev)`` at each pixel's film point, the
+    profile itself where the previous map has no value; None when that map covers less
+    than :data:`WARM_COVER` of the film's pixels.
+
+    ``start = (map_prev, prof_prev)`` (:func:`bubblefit.inverse._setup.map_start`). The
+    profile (eq. of :func:`bubblefit.model.thickness.drainage_profile`) carries the film's
+    drainage between the frames; the map's own features (the map less its profile) are
+    carried from the previous frame, where a film's thickness changes by far less than the
+    ~lambda / (2 n) between interference orders, so the previous map has settled each
+    pixel's order."""
+    tmap, prof0 = start
+    now = profile_map(lev, prof)
+    if tmap.shape != now.shape:
+        return None
+    moved = tmap + now - profile_map(lev, prof0)
+    good = np.isfinite(moved)
+    if not lev.mask.any() or float(np.mean(good[lev.mask])) < WARM_COVER:
+        return None
+    return np.where(good, moved, now)
+
+
+def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts: FitOptions, env, make_level=None,
+            start=None):
     """Per-pixel thickness (h, w), its standard error (h, w), and whether the map is sound.
 
     ``lev`` is the full-resolution level, ``prof`` the fitted drainage profile the map
     starts from, ``opts`` a ``FitOptions``, ``make_level(k)`` the level ``k`` times
-    coarser than ``lev`` (None: no pyramid).
+    coarser than ``lev`` (None: no pyramid). ``start``: a warm start's map and its
+    profile (a sequence's previous frame, :func:`warm_centre`); the pyramid is then
+    skipped and only the finest level is refined around it (the same window and solve
+    as after a coarser level).
     """
     exact = search.exact_paper_search(lev.cfg) and isinstance(lev.cfg.camera, OrthographicCamera)
     hi = opts.thickness_range[1]
     base = {k: v for k, v in vals.items() if k != "map"}
-    blocks = _pyramid(lev) if make_level is not None else [1]
+    warm = None if start is None else warm_centre(lev, prof, start)
+    blocks = _pyramid(lev) if make_level is not None and warm is None else [1]
     prev, prev_map = None, None
     for k in blocks:
         L = lev if k == 1 else make_level(k)
@@ -256,13 +294,13 @@ def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts: FitOption
         costs_of = _PaperCosts(L, table, base, env, hi + WINDOW_NM) if exact else TracedCosts(L, table, base, env)
         s = float(opts.map.smoothness_nm) * k
         prior = profile_map(L, prof).reshape(-1)[sel]
-        if prev is None:
+        if prev is None and warm is None:
             # the drainage profile has settled the interference order: the coarsest level
             # searches within less than half an order of it, with the profile's prior
             best, err, c = _level_map(L, costs_of, prior, s, opts.solver.search_step_nm, WINDOW_NM, prior=prior,
                                       prior_nm=float(opts.map.prior_nm))
         else:
-            centre = _upsample(prev, prev_map, L).reshape(-1)[sel]
+            centre = (warm if warm is not None else _upsample(prev, prev_map, L)).reshape(-1)[sel]
             # the finest level refines within a few coarse steps; the order is settled by then
             grid = opts.solver.search_step_nm
             step, half = (FINE_STEP_NM, 6 * grid) if k == 1 else (grid, WINDOW_NM)

@@ -109,6 +109,12 @@ def result_record(base: dict, res, fit_time_s: float) -> dict:
     chi2 = getattr(res, "reduced_chi2", None)
     if chi2 is not None:
         rec["reduced_chi2"] = _as_float(chi2)
+    floor = getattr(res, "chi2_floor", None)
+    if floor is not None:
+        rec["chi2_floor"] = _as_float(floor)
+    model = getattr(res, "model", None)
+    if isinstance(model, str):
+        rec["model"] = model
     warnings = getattr(res, "warnings", None)
     if warnings:
         rec["warnings"] = [str(w) for w in warnings]

@@ -21,7 +21,7 @@ from ..model.geometry import OrthographicCamera
 from ..model.render import RenderConfig
 from ..optics.dispersion import REFERENCE_WAVELENGTH_NM, Cauchy, refractive_index
 
-__all__ = ["Setup", "setup", "defaults", "colour_settings"]
+__all__ = ["Setup", "setup", "defaults", "colour_settings", "map_start", "MAP_START_KEYS"]
 
 # ---------------------------------------------------------------------------------------
 # Starting values, effects and the parameter table
@@ -222,6 +222,9 @@ class Setup:
     colour: ColourSettings
     #: what the background photo says about the pairing (None without one)
     pair: PairCheck | None = None
+    #: a warm start's thickness map and the drainage profile it was fitted over
+    #: (:func:`map_start`; None: the map is built coarse to fine from the profile)
+    map_start: tuple | None = None
     levels: dict = field(default_factory=dict, repr=False)  # built by :meth:`level`, by (k, cfg, rim)
 
     def level(self, k: int, opts: FitOptions, cfg: RenderConfig | None = None) -> Level:
@@ -418,4 +421,24 @@ def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, d
     pair = check_pair(frame, lev_fit)  # a swapped pair or another scene is refused before any solve
     search_table = replace(table, free=tuple(n for n in table.free if n not in DISC_PARAMETERS))
     return Setup(frame.photo, frame.background, vals, table, search_table, fx, decisions, base_cfg, map_cfg, disc, frame.sigma,
-                 frame.saturated, k_search, lev_fit, frame, warnings, colour, pair)
+                 frame.saturated, k_search, lev_fit, frame, warnings, colour, pair,
+                 map_start=map_start(init, frame.photo.shape[:2]))
+
+
+#: The keys of a warm start (``init``) that carry the previous frame's thickness map: the
+#: map (h, w) in nm and the drainage profile ``(top, bottom, exponent)`` it was fitted over.
+MAP_START_KEYS = ("map", "map_profile")
+
+
+def map_start(init, shape) -> tuple | None:
+    """``(map, profile)`` of a warm start that carries a thickness map of the analysed
+    frame's ``shape`` (:data:`MAP_START_KEYS`), else None. The map starts the next frame's
+    map (:func:`bubblefit.inverse._maps.fit_map`): a film's thickness changes little
+    between the frames of a sequence."""
+    if not init or init.get("map") is None or init.get("map_profile") is None:
+        return None
+    tmap = np.asarray(init["map"], np.float64)
+    prof = tuple(float(v) for v in init["map_profile"])
+    if tmap.shape != tuple(shape) or len(prof) != 3 or not all(math.isfinite(v) for v in prof):
+        return None
+    return tmap, prof

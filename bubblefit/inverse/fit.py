@@ -72,7 +72,7 @@ from ..model.thickness import drainage_profile
 from ..progress import stage
 
 __all__ = ["FitOptions", "FitResult", "NoiseSettings", "MapSettings", "JudgeSettings", "SolverSettings", "ImageSizes",
-           "fit_photo", "fit_batch", "detect_disc", "noise_sigma"]
+           "fit_photo", "fit_batch", "detect_disc", "noise_sigma", "explained"]
 
 #: A warm-started fit whose noise-weighted reduced chi^2 exceeds this is checked against a
 #: global thickness search (see :func:`fit_photo`).
@@ -260,7 +260,7 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     full = st.level(1, opts, st.map_cfg if opts.thickness == "map" else st.base_cfg)
     if opts.thickness == "map":
         dmap, emap, map_ok = fit_map(full, table, new, prof, opts, env,
-                                     make_level=lambda k: st.level(k, opts, st.map_cfg))
+                                     make_level=lambda k: st.level(k, opts, st.map_cfg), start=st.map_start)
         final_vals["map"] = dmap
         thickness_map = np.where(full.inside, dmap, np.nan)
         stderr_map = np.where(full.mask, np.hypot(emap, float(judge.thickness_model_error_nm)), np.nan)
@@ -646,7 +646,7 @@ def _judged_text(r: FitResult) -> str:
     return "failed" if r.status == "failed" else f"{_judged_chi2(r):.3g}"
 
 
-def _explained(r: FitResult, judge: JudgeSettings) -> bool:
+def explained(r: FitResult, judge: JudgeSettings) -> bool:
     """Whether a fit explains its photo: converged, with the reduced chi^2 with the
     model-error floor within ``judge.ok_chi2``."""
     return bool(r.converged) and r.chi2_floor <= float(judge.ok_chi2)
@@ -699,9 +699,9 @@ def _fit_either_model(photo, env, options: FitOptions, background, init, scene, 
                 start = {k: v for k, v in paper.params.items() if np.isfinite(v)} if paper.converged else init
                 started[model] = begin(model, start, SWITCH_SOLVE if start else None)
             solved[model] = _solve_started(started[model], env)
-        if model == order[0] and _explained(solved[model], options.judge):
+        if model == order[0] and explained(solved[model], options.judge):
             made[model] = early = solved[model].report(env)
-            if _explained(early, options.judge):  # its map, when one is made, is sound
+            if explained(early, options.judge):  # its map, when one is made, is sound
                 early.message += f"; model auto: {why}"
                 early.time_s = time.perf_counter() - t0
                 return early

@@ -13,6 +13,14 @@ How the work is cut and where it runs:
   chunk the frames are fitted one after the other, each warm-started from the last
   successful frame before it in the chunk; the first frame of a chunk runs the global
   search.
+- What a warm-started frame reuses (:func:`~._executors.fit_chunk`): only the film's
+  thickness changes between the frames of one film, so under ``model = "auto"`` it fits
+  the model its predecessor kept when that model explained its photo
+  (:func:`~._executors.kept_model`); a frame the kept model does not explain falls back
+  to the full fit, and its record says so (``fallback``). Its thickness map is built
+  coarse to fine as a single photo's is (a map started from the predecessor's,
+  :func:`~bubblefit.inverse._maps.warm_centre`, passed its order hops on:
+  :data:`~._executors.CARRY_MAPS`).
 - One chunk is one Dask task. Tasks run on a ``distributed`` cluster: a local one by
   default (one single-threaded worker process per core, so two workers do not fight
   over the same cores) or an existing one (``scheduler="tcp://host:8786"``). A worker

@@ -86,8 +86,8 @@ def test_decrement_stop_is_within_its_tolerance_of_the_optimum():
 def test_short_rejected_steps_stop_the_solve():
     """Near the optimum a float32 render's rounding makes the cost rise for any step, and
     every trial is rejected: a residual ripple the Jacobian does not see (amplitude 0.03 of
-    a whitened residual, a cost change of order 0.03 * 2 * sqrt(60) ~ 0.5, comparable to
-    the decrement of a fifth of a standard error) stands in for it. With the step rule
+    a whitened residual, a cost change of order 0.03 * 2 * sqrt(60) ~ 0.5, far above the
+    0.04 that a step of a fifth of a standard error lowers it by) stands in for it. With the step rule
     (``step_tolerance``) the solve stops at the first rejection whose next trial is a fifth
     of a standard error long, in fewer steps than the six rejections in a row, at a point
     within a fifth of a standard error (plus the ripple's own pull) of MINPACK's optimum."""

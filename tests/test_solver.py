@@ -83,6 +83,28 @@ def test_decrement_stop_is_within_its_tolerance_of_the_optimum():
     assert np.all(np.abs(mine - ref.x) <= (np.sqrt(tol) + 0.05) * se), (mine - ref.x) / se
 
 
+def test_short_rejected_steps_stop_the_solve():
+    """Near the optimum a float32 render's rounding makes the cost rise for any step, and
+    every trial is rejected: a residual ripple the Jacobian does not see (amplitude 0.03 of
+    a whitened residual, a cost change of order 0.03 * 2 * sqrt(60) ~ 0.5, far above the
+    0.04 that a step of a fifth of a standard error lowers it by) stands in for it. With the step rule
+    (``step_tolerance``) the solve stops at the first rejection whose next trial is a fifth
+    of a standard error long, in fewer steps than the six rejections in a row, at a point
+    within a fifth of a standard error (plus the ripple's own pull) of MINPACK's optimum."""
+    fn0, fn_np = _decay_problem()
+    fn = lambda z, args=None: fn0(z) + jax.lax.stop_gradient(0.03 * jnp.sin(1e5 * z[0] + jnp.arange(60.0)))
+    z0 = [1.0, 0.5, 0.0]
+    tol = 0.04
+    mine, steps, result = _solve(fn, z0, LevenbergMarquardt(rtol=1e-7, atol=1e-9, decrement_tolerance=None,
+                                                            step_tolerance=tol))
+    _, rejections_only, _ = _solve(fn, z0, LevenbergMarquardt(rtol=1e-7, atol=1e-9, decrement_tolerance=None,
+                                                              step_tolerance=None))
+    assert result == optx.RESULTS.successful and steps < rejections_only, (steps, rejections_only)
+    ref = least_squares(fn_np, z0, method="lm", xtol=1e-12, ftol=1e-12)
+    se = np.sqrt(np.diag(np.linalg.inv(ref.jac.T @ ref.jac)) * max(np.sum(ref.fun**2) / (ref.fun.size - 3), 1.0))
+    assert np.all(np.abs(mine - ref.x) <= (np.sqrt(tol) + 0.05) * se), (mine - ref.x) / se
+
+
 def test_linear_problem_reaches_the_normal_equations():
     rng = np.random.default_rng(0)
     a = rng.normal(size=(200, 4)).astype(np.float32)

@@ -61,7 +61,7 @@ _EXPORTS = {
     "bubble_list": "_programs", "solver": "_programs",
     # solve: Levenberg-Marquardt and the local solve
     "LevenbergMarquardt": "_lm", "DenseDampedNewtonDescent": "_lm", "column_jacobian": "_lm",
-    "scaled_decrement": "_lm", "gauss_newton_decrement": "_lm", "robust": "_lm",
+    "scaled_decrement": "_lm", "damped_step_length": "_lm", "gauss_newton_decrement": "_lm", "robust": "_lm",
     "LocalSolution": "_local", "remaining_step": "_local", "improves": "_local",
     # judge: standard errors, the misfit, the verdict
     "Misfit": "_uncertainty", "misfit": "_uncertainty", "held_keys": "_uncertainty",

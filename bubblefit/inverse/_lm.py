@@ -29,7 +29,7 @@ from jaxtyping import Array, Bool, Float, Int
 from ._parameters import PARAMETERS, forward
 
 __all__ = ["DenseDampedNewtonDescent", "LevenbergMarquardt", "column_jacobian", "columns_linearized", "JACOBIANS",
-           "scaled_decrement", "gauss_newton_decrement", "presses_bound", "robust", "MAX_REJECTIONS",
+           "scaled_decrement", "damped_step_length", "gauss_newton_decrement", "presses_bound", "robust", "MAX_REJECTIONS",
            "STOP_DECREMENT", "ROBUST_ASYMPTOTE"]
 
 
@@ -174,9 +174,18 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
       a statistical convergence test: the optimum is within a fifth of a standard error,
       with the parameters' bounds (``free``) as active constraints;
     - ``max_rejections`` rejections in a row (a region 4096 times smaller after six;
-      None: off). How far that point is from the optimum is then measured from its
-      decrement (:func:`remaining_step`), which decides a restart (:func:`solve_local`)
-      and a note in the fit's message.
+      None: off), or, sooner, a rejection after which the next trial step is at most
+      ``step_tolerance`` (default :data:`STOP_DECREMENT`) long in the same covariance (:func:`damped_step_length`):
+      the trust region no longer lets any parameter move by a fifth of its standard
+      error, so the rejections that would follow until ``max_rejections`` cannot move
+      the fit by more (on the 320x320 sunset photo of ``docs/speed.md``, physical model,
+      the six trial steps after the last accepted point were all rejected, each 0.016 long:
+      the decrement left, 0.19, lay along the near-null directions of the roughness and
+      r_d at their bounds, which any damping removes). Both
+      are rules of the solves that stop on rejections (``max_rejections`` not None). How
+      far that point is from the optimum is then measured from its decrement
+      (:func:`remaining_step`), which decides a restart (:func:`solve_local`) and a note
+      in the fit's message.
 
     References
     ----------
@@ -192,6 +201,10 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
     verbose: Callable = _quiet
     max_rejections: int | None = MAX_REJECTIONS
     decrement_tolerance: float | None = STOP_DECREMENT
+    #: After a rejection, the next trial step's squared length in the fit's covariance
+    #: (:func:`damped_step_length`) at or below which the solve stops (None: off; only
+    #: with ``max_rejections``).
+    step_tolerance: float | None = STOP_DECREMENT
     #: The free parameters' names (:data:`~bubblefit.inverse._parameters.PARAMETERS`), in
     #: ``y``'s order: their bounds constrain the decrement (:func:`scaled_decrement`).
     free: tuple = ()
@@ -243,6 +256,9 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
         done = state.terminate
         if self.max_rejections is not None:
             done = done | (state.num_steps_since_acceptance >= self.max_rejections)
+            if self.step_tolerance is not None:
+                short = damped_step_length(state.descent_state, state.f_info.residual, state.y_eval - y)
+                done = done | ((state.num_steps_since_acceptance > 0) & (short <= self.step_tolerance))
         if self.decrement_tolerance is not None:
             done = done | ((state.num_accepted_steps > 0)
                            & (scaled_decrement(state.descent_state, state.f_info.residual, y, self.free)
@@ -341,8 +357,7 @@ def scaled_decrement(dense: _DenseState, residual, z=None, free: tuple = ()) -> 
     """
     r = jnp.ravel(residual)
     n = dense.qt_residual.shape[0]
-    dof = jnp.maximum(jnp.sum(r != 0) - n, 1)
-    scale = jnp.maximum(jnp.sum(r * r) / dof, 1.0)
+    scale = _chi2_scale(r, n)
     if not free:
         return jnp.sum(dense.qt_residual**2) / scale
     rinv = jax.scipy.linalg.solve_triangular(dense.r_factor, jnp.eye(n, dtype=r.dtype), lower=False)
@@ -357,6 +372,26 @@ def scaled_decrement(dense: _DenseState, residual, z=None, free: tuple = ()) -> 
     q2, _ = jnp.linalg.qr(jnp.where(keep, dense.r_factor, 0.0)[:, order])
     proj = q2.T @ dense.qt_residual
     return jnp.sum(jnp.where(jnp.arange(n) < jnp.sum(keep), proj**2, 0.0)) / scale
+
+
+def _chi2_scale(r, n: int):
+    """``max(1, chi2_nu)`` of the flat residual ``r`` with ``n`` free parameters, counted
+    over its non-zero entries (pixels outside the fit have weight 0): the factor that turns
+    ``J^T J`` into the inverse covariance of the fit's parameters (:func:`scaled_decrement`)."""
+    dof = jnp.maximum(jnp.sum(r != 0) - n, 1)
+    return jnp.maximum(jnp.sum(r * r) / dof, 1.0)
+
+
+def damped_step_length(dense: _DenseState, residual, step) -> Float[Array, ""]:
+    """The squared length of ``step`` (in ``z``) in the fit's own covariance at an accepted
+    point (:class:`DenseDampedNewtonDescent`'s factors, its residual ``residual``):
+    ``|J step|^2 / max(1, chi2_nu) = |R step|^2 / max(1, chi2_nu)``, its squared Mahalanobis
+    length, which bounds the square of every parameter's move in its own standard errors
+    (Bard, *Nonlinear Parameter Estimation*, 1974, ch. 7: the confidence region
+    ``dz^T J^T J dz / s^2``). The stopping rule of :class:`LevenbergMarquardt` reads it
+    for the trust region's next trial step after a rejection."""
+    r = jnp.ravel(residual)
+    return jnp.sum((dense.r_factor @ step) ** 2) / _chi2_scale(r, dense.qt_residual.shape[0])
 
 
 def gauss_newton_decrement(r, jac) -> float:

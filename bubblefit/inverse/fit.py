@@ -110,7 +110,8 @@ def _searched_start(st: Setup, opts: FitOptions, env, misfit: list | None = None
     (:func:`~bubblefit.inverse.order_check.order_check`; None when the response states no
     errors)."""
     lev_s = st.level(st.k_search, opts)
-    starts = search.search_starts(lev_s, st.search_table, st.vals, env, opts.thickness_range,
+    rank = _ranking_level(lev_s)
+    starts = search.search_starts(rank, st.search_table, st.vals, env, opts.thickness_range,
                                   opts.solver.search_step_nm, opts.solver.candidates)
     best_v, best_c = None, np.inf
     refined = []
@@ -119,7 +120,7 @@ def _searched_start(st: Setup, opts: FitOptions, env, misfit: list | None = None
 
     def refine(s):
         nonlocal best_v, best_c
-        sol = solve_local(lev_s, st.search_table, opts.solver, s, env, max_steps=opts.solver.search_steps,
+        sol = solve_local(rank, st.search_table, opts.solver, s, env, max_steps=opts.solver.search_steps,
                           settings=SEARCH_SOLVE)
         refined.append(sol)
         if np.isfinite(sol.cost) and sol.cost < best_c:
@@ -131,12 +132,30 @@ def _searched_start(st: Setup, opts: FitOptions, env, misfit: list | None = None
         # a profile's starts share one order: the neighbouring orders' from the best
         for s in neighbouring_orders(best_v, order_parameters(model), err.n_film, *opts.thickness_range):
             refine(s)
+    if rank is not lev_s and best_v is not None:  # the winner refined on the search image as the fit renders it
+        sol = solve_local(lev_s, st.search_table, opts.solver, best_v, env, max_steps=opts.solver.search_steps,
+                          settings=SEARCH_SOLVE)
+        if np.isfinite(sol.cost):
+            best_v, best_c = sol.values, sol.cost
     if misfit is not None:
         misfit.append(_reduced_search_chi2(best_c, lev_s, st))
     if order is not None:
-        order.append(order_check(err, lev_s, refined, float(opts.solver.robust_scale), len(st.search_table.free),
+        order.append(order_check(err, rank, refined, float(opts.solver.robust_scale), len(st.search_table.free),
                                  model))
     return best_v if best_v is not None else starts[0]
+
+
+def _ranking_level(lev_s):
+    """The search image ``lev_s`` on which the global search ranks its candidates: one ray
+    per pixel instead of the pixel footprint (:attr:`~bubblefit.model.render.RenderConfig.pixel_footprint`,
+    ray differentials: Igehy, "Tracing ray differentials", SIGGRAPH 1999). The candidates
+    are colour orders a fringe apart, which the footprint's blur of compact sources (a sun's
+    glints) does not reorder; the winner is then refined with the footprint
+    (:func:`_searched_start`), so the start, its reduced chi^2 and the solves that follow
+    see the model the fit renders."""
+    if not lev_s.cfg.pixel_footprint:
+        return lev_s
+    return replace(lev_s, cfg=replace(lev_s.cfg, pixel_footprint=False))
 
 
 def _reduced_search_chi2(cost: float, lev_s, st: Setup) -> float:

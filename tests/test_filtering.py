@@ -325,12 +325,17 @@ def test_footprint_lookups_are_never_negative():
     assert mirror.min() >= 0.0 and mip.min() >= 0.0, (mirror.min(), mip.min())
 
 
-def test_short_footprints_read_as_one_box():
-    """:func:`~bubblefit.lighting.envmap.lookup_parallelogram` reads a footprint whose
-    longer side is under ``SHORT_TEXELS`` texels as one box (but those among the longest
-    ``PIECES_SHARE``) and every other in its pieces when at most that share of them are
-    long, and every footprint in pieces when more are: each value is then the one or the other reader's own, to float32 rounding of
-    a sum of 16 lookups of a map whose texels reach 2000 times its floor (1e-5 relative)."""
+def test_each_footprint_is_read_by_the_cut_it_needs():
+    """:func:`~bubblefit.lighting.envmap.lookup_parallelogram` reads every footprint with
+    the cut :func:`~bubblefit.lighting.envmap.pieces_needed` gives it, whichever share of
+    a lookup's footprints needs which cut: each value is that cut's own
+    (``_pieces``), to float32 rounding of a sum of up to 16 boxes of 36 texels of a map
+    whose texels reach 2000 times its floor (1e-5 of the footprint's largest cut's
+    value) and of its texel coordinates. A footprint under a texel, or one whose sides lie along the map's axes and
+    fit one box of level 0, needs one box; one 12 texels long diagonal to the axes and a
+    tenth of a texel wide needs 4 pieces along and one across (a single box of its second
+    moments would read a coarser level, two pieces would err by ``(12 / 2)^2 / 24``
+    texels^2, four times the 4 pieces' error; pieces across would not lessen it)."""
     from bubblefit.lighting import envmap as E
 
     pixels, _, _ = _sun_map()
@@ -344,20 +349,32 @@ def test_short_footprints_read_as_one_box():
     dr = rng.normal(size=(m, 3, 2))
     dr -= d[:, :, None] * np.einsum("mc,mck->mk", d, dr)[:, None, :]
     dr /= np.linalg.norm(dr, axis=1, keepdims=True)
+    rungs = E.piece_counts(E.BOX_PROBES, E.BOX_PROBES)
+    assert rungs[0] == (1, 1) and rungs[-1] == (E.BOX_PROBES, E.BOX_PROBES)
+    # a footprint read in a block of others may have its texel coordinates rounded
+    # otherwise (XLA's vectorised and scalar loops): 4 float32 ulps of a column index up to
+    # SUN_W, times the sun's steepest slope, 2000 e^(-1/2) / 0.6 per texel
+    rounding = 4 * np.spacing(np.float32(SUN_W)) * 2000 * np.exp(-0.5) / 0.6
     reader = jax.jit(env.lookup_parallelogram)
-    pieces = jax.jit(lambda r, s: E._pieces(env.atlas, env.shapes, r, s, E.BOX_PROBES, E.BOX_PROBES))
-    box = jax.jit(lambda r, s: E._pieces(env.atlas, env.shapes, r, s, 1, 1))
-    for long_share in (0.3, 0.8):
+    cuts = [jax.jit(lambda r, s, p=p, q=q: E._pieces(env.atlas, env.shapes, r, s, p, q)) for p, q in rungs]
+    for long_share in (0.05, 0.3, 0.9):
         long = rng.random(m) < long_share
-        # short: under a quarter texel of the map's rows along each side; long: 5 to 20
         length = np.where(long, rng.uniform(5, 20, m), rng.uniform(0.0, 0.25, m)) * texel
-        s = dr * length[:, None, None]
-        d32, s32 = jnp.asarray(d, jnp.float32), jnp.asarray(s, jnp.float32)
-        got, all_pieces, one_box = (np.asarray(f(d32, s32)) for f in (reader, pieces, box))
-        close = lambda x: np.all(np.abs(got - x) <= 1e-5 * np.abs(x), axis=-1)
-        if long.mean() > E.PIECES_SHARE:
-            assert close(all_pieces).all()
-        else:  # the long ones in pieces; a short one as one box, or in pieces if the share has room
-            assert close(all_pieces)[long].all() and (close(one_box) | close(all_pieces))[~long].all()
-            assert close(one_box)[~long].mean() >= 1.0 - E.PIECES_SHARE / (1.0 - long.mean()) - 1e-9
-        assert np.abs(all_pieces - one_box)[long].max() > 1e-3 * np.abs(all_pieces).max()  # the two readers differ
+        s32 = jnp.asarray(dr * length[:, None, None], jnp.float32)
+        d32 = jnp.asarray(d, jnp.float32)
+        need = np.asarray(E.pieces_needed(env.shapes, d32, s32, rungs))
+        assert (need[~long] == 0).all()
+        got = np.asarray(reader(d32, s32))
+        each = np.stack([np.asarray(c(d32, s32)) for c in cuts])
+        own = each[need, np.arange(m)]
+        scale = np.abs(each).max(axis=(0, 2))[:, None]
+        assert np.all(np.abs(got - own) <= 1e-5 * scale + rounding)
+    # along the map's axes at the equator: one box; the same length diagonal: 4 pieces
+    r = np.array([[0.0, 0.0, -1.0]] * 2)
+    col = np.pi * 2 / SUN_W  # a column's angle at the equator
+    side = lambda cols, rows: np.array([cols * col, -rows * texel, 0.0])  # du along +x, dv along -y at u = 0
+    straight = np.stack([side(3.0, 0.0), side(0.0, 0.5)], axis=-1)
+    diagonal = np.stack([side(12 / np.sqrt(2), 12 / np.sqrt(2)), side(0.1, -0.1)], axis=-1)
+    need = np.asarray(E.pieces_needed(env.shapes, jnp.asarray(r, jnp.float32),
+                                      jnp.asarray(np.stack([straight, diagonal]), jnp.float32), rungs))
+    assert rungs[need[0]] == (1, 1) and rungs[need[1]] == (E.BOX_PROBES, 1), need

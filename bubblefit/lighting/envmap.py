@@ -281,6 +281,19 @@ def _box_axis(x, width):
     return idx.astype(jnp.int32), wts
 
 
+def _box_level(shapes: tuple, d: Float[Array, "... 3"], wx, wy):
+    """The mip level :func:`lookup_box` reads a box of ``wx x wy`` texels (level 0) centred
+    on ``d`` at: the first where the box's angular extent, ``wx sin(theta)`` columns of
+    ``2 pi / W`` against ``wy`` rows of ``pi / (H - 1)``, is at most :data:`BOX_TEXELS`
+    texels (L. Williams, "Pyramidal parametrics", SIGGRAPH 1983)."""
+    h0, w0 = shapes[0]
+    cos_t = d[..., 1] / jnp.sqrt(jnp.maximum(jnp.sum(d * d, axis=-1), 1e-30))
+    sin_t = jnp.sqrt(jnp.clip(1.0 - cos_t**2, 0.0, 1.0))
+    wx_angle = wx * sin_t * (2.0 * (h0 - 1) / w0)
+    level = jnp.ceil(jnp.log2(jnp.maximum(jnp.maximum(wx_angle, wy) / BOX_TEXELS, 1.0)))
+    return jnp.clip(level, 0, len(shapes) - 1).astype(jnp.int32)
+
+
 def lookup_box(atlas, shapes: tuple, d: Float[Array, "... 3"], widths) -> Float[Array, "... C"]:
     """The mean of the map's bilinear interpolant over a box of ``widths = (wx, wy)`` texels
     of level 0 (..., 2) centred on the directions ``d``: the area average a camera's pixel
@@ -306,11 +319,7 @@ def lookup_box(atlas, shapes: tuple, d: Float[Array, "... 3"], widths) -> Float[
     # blur it along the rows by as much; there it reads the level its size asks for, and
     # the columns it spans beyond BOX_TEXELS of that level (directions closer together
     # than its rows) are left out.
-    cos_t = d[..., 1] / jnp.sqrt(jnp.maximum(jnp.sum(d * d, axis=-1), 1e-30))
-    sin_t = jnp.sqrt(jnp.clip(1.0 - cos_t**2, 0.0, 1.0))
-    wx_angle = wx * sin_t * (2.0 * (h0 - 1) / w0)
-    level = jnp.ceil(jnp.log2(jnp.maximum(jnp.maximum(wx_angle, wy) / BOX_TEXELS, 1.0)))
-    level = jnp.clip(level, 0, len(shapes) - 1).astype(jnp.int32)
+    level = _box_level(shapes, d, wx, wy)
     hs = jnp.asarray([sh[0] for sh in shapes], dtype=jnp.int32)[level]
     ws = jnp.asarray([sh[1] for sh in shapes], dtype=jnp.int32)[level]
     offs = jnp.asarray(np.cumsum([0] + [sh[0] * sh[1] for sh in shapes[:-1]]), dtype=jnp.int32)[level]
@@ -339,34 +348,104 @@ def texel_footprint(r: Float[Array, "N 3"], dr: Float[Array, "N 3 2"], height: i
     ``du = (-z dx + x dz) / (2 pi (x^2 + z^2))`` and ``dv = -dy / (pi sqrt(1 - y^2))``; a
     box is at most the map's width (near the poles, where ``du`` grows without bound).
     """
+    tx, ty = _texel_sides(r, dr, height, width)
+    wx = jnp.sqrt(jnp.sum(tx**2, axis=-1))
+    wy = jnp.sqrt(jnp.sum(ty**2, axis=-1))
+    return jnp.stack([jnp.minimum(wx, width), jnp.minimum(wy, height)], axis=-1)
+
+
+def _texel_sides(r: Float[Array, "N 3"], dr: Float[Array, "N 3 K"], height: int, width: int):
+    """The sides ``dr[:, :, k]`` at ``r`` in texels of a ``height x width`` map: their
+    columns ``du W`` and rows ``dv (H - 1)`` (each (N, K)), with ``du``, ``dv`` the
+    differentials of :func:`direction_to_uv` (:func:`texel_footprint`)."""
     x, y, z = r[:, 0, None], r[:, 1, None], r[:, 2, None]
     rho2 = jnp.maximum(x * x + z * z, 1e-12)
     du = (-z * dr[:, 0] + x * dr[:, 2]) / (2 * jnp.pi * rho2)
     dv = -dr[:, 1] / (jnp.pi * jnp.sqrt(rho2))
-    wx = jnp.sqrt(jnp.sum((du * width) ** 2, axis=-1))
-    wy = jnp.sqrt(jnp.sum((dv * (height - 1)) ** 2, axis=-1))
-    return jnp.stack([jnp.minimum(wx, width), jnp.minimum(wy, height)], axis=-1)
+    return du * width, dv * (height - 1)
 
 
 #: Pieces :func:`lookup_parallelogram` cuts a footprint into along each side by default.
 BOX_PROBES = 4
 
 
-#: Longest footprint side, in texels of level 0, that :func:`lookup_parallelogram` reads as
-#: one box: the bilinear tent's own width, so that one box and the pieces read the same
-#: texels of level 0 and differ by less than the tent's reach.
+#: Longest footprint side, in texels of the level it reads, that one box reads as well as
+#: its pieces whatever its orientation: the bilinear tent's own width, so that the box
+#: spills past the footprint by less than the tent's reach.
 SHORT_TEXELS = 1.0
-#: Share of a lookup's footprints :func:`lookup_parallelogram` reads in pieces when no more
-#: than that share are longer than :data:`SHORT_TEXELS`: static, so a lookup then costs one
-#: box per footprint plus ``PIECES_SHARE`` of its pieces.
-PIECES_SHARE = 0.5
+#: The largest error :func:`pieces_needed` allows a cut coarser than the finest, in
+#: texels^2 of the level read: a box's on a footprint :data:`SHORT_TEXELS` long diagonal
+#: to the map's axes, ``SHORT_TEXELS^2 / 24`` (its correlation ``|A_x A_y| / 12`` with
+#: ``|A_x| = |A_y| = SHORT_TEXELS / sqrt(2)``). Chosen among three on the development
+#: case ref_drain_exp15_studio_persp (its misfit at the true parameters,
+#: experiments/validation/truth_misfit.py): the tent's variance 1/6 left the rim's lamps
+#: wider than the finest cut does.
+SHORT_ERROR = SHORT_TEXELS**2 / 24.0
+
+
+def piece_counts(probes: int, across: int) -> tuple[tuple[int, int], ...]:
+    """The ways :func:`lookup_parallelogram` may cut a footprint, ``(along, across)``,
+    cheapest first, each finer than the one before along both sides: one box, then
+    ``2, 4, ...`` pieces along up to ``probes`` (one across), then ``2, 4, ...`` across up
+    to ``across``."""
+    rungs = [(1, 1)]
+    for side, fixed in ((probes, None), (across, probes)):
+        k = 2
+        while k < side * 2:
+            k = min(k, side)
+            rungs.append((k, 1) if fixed is None else (fixed, k))
+            k *= 2
+    return tuple(dict.fromkeys(rungs))
+
+
+def pieces_needed(shapes: tuple, r: Float[Array, "N 3"], dr: Float[Array, "N 3 2"],
+                  rungs: tuple[tuple[int, int], ...]) -> Array:
+    """For each footprint, the index into ``rungs`` (:func:`piece_counts`) of the fewest
+    pieces that read it as well as the most: the first cut whose pieces' boxes read the
+    same mip level as the finest cut's (:func:`_box_level`) and whose error is at most the
+    finest cut's or a single box's on a footprint :data:`SHORT_TEXELS` long
+    (:data:`SHORT_ERROR`, in texels of that level), whichever is larger.
+
+    The error: a piece with sides ``A / p`` and ``B / q`` (in texels, :func:`_texel_sides`)
+    has the covariance ``(A A^T / p^2 + B B^T / q^2) / 12``; the box of its second moments
+    (:func:`texel_footprint`) has the same variances along the map's axes but no
+    correlation, so for a map of Hessian ``H`` the box's mean differs from the piece's by
+    ``-H_xy S_xy`` to second order, ``S_xy = (A_x A_y / p^2 + B_x B_y / q^2) / 12`` (the
+    first order vanishes: both are centred on the piece). The mean of the pieces' boxes
+    errs by the mean of theirs, which is the same for every piece. A box on the map's
+    axes, or a footprint along one of them, has none; a diagonal one ``|A|^2 / 24``.
+
+    References
+    ----------
+    F. C. Crow, "Summed-area tables for texture mapping", SIGGRAPH 1984 (the box);
+    P. S. Heckbert, "Fundamentals of texture mapping and image warping", M.Sc. thesis,
+    UC Berkeley 1989, sec. 3.5 (a filter's footprint by its second moments).
+    """
+    h0, w0 = shapes[0]
+    long_first = jnp.sum(dr[..., 0] ** 2, axis=-1) >= jnp.sum(dr[..., 1] ** 2, axis=-1)
+    ax, ay = _texel_sides(r, dr, h0, w0)
+    (bx, by) = (jnp.where(long_first, ax[:, 1], ax[:, 0]), jnp.where(long_first, ay[:, 1], ay[:, 0]))
+    (ax, ay) = (jnp.where(long_first, ax[:, 0], ax[:, 1]), jnp.where(long_first, ay[:, 0], ay[:, 1]))
+
+    def cut(p, q):
+        wx = jnp.minimum(jnp.sqrt((ax / p) ** 2 + (bx / q) ** 2), w0)
+        wy = jnp.minimum(jnp.sqrt((ay / p) ** 2 + (by / q) ** 2), h0)
+        return _box_level(shapes, r, wx, wy), jnp.abs(ax * ay / p**2 + bx * by / q**2) / 12.0
+
+    level_top, err_top = cut(*rungs[-1])
+    tolerance = jnp.maximum(err_top, SHORT_ERROR * 4.0 ** level_top)
+    need = jnp.full(r.shape[:1], len(rungs) - 1, jnp.int32)
+    for k in range(len(rungs) - 2, -1, -1):
+        level, err = cut(*rungs[k])
+        need = jnp.where((level <= level_top) & (err <= tolerance), k, need)
+    return need
 
 
 def lookup_parallelogram(atlas, shapes: tuple, r: Float[Array, "N 3"], dr: Float[Array, "N 3 2"],
                          probes: int = BOX_PROBES, across: int = BOX_PROBES) -> Float[Array, "N C"]:
     """The map's mean over the directions ``r + dr (s, t)``, ``s, t`` in ``[-1/2, 1/2]``:
-    the parallelogram cut into ``probes`` equal pieces along its longer side (in angle,
-    ``|dr[:, :, k]|``) and ``across`` along its shorter, each piece read by
+    the parallelogram cut into up to ``probes`` equal pieces along its longer side (in
+    angle, ``|dr[:, :, k]|``) and ``across`` along its shorter, each piece read by
     :func:`lookup_box` over the box of its second moments (:func:`texel_footprint`), and
     the pieces averaged (equal areas of a uniform distribution, so the mean of the
     pieces' means is the whole's).
@@ -378,16 +457,17 @@ def lookup_parallelogram(atlas, shapes: tuple, r: Float[Array, "N 3"], dr: Float
     ``1/probes`` as long, so a footprint up to ``probes * BOX_TEXELS`` texels long is read
     at level 0 along its own width; and the box of a piece's second moments covers more
     than the piece wherever its sides are not the map's axes (a footprint diagonal to
-    them, or sheared), by an area that shrinks with the piece: ``probes x across`` pieces
-    tile the parallelogram as the midpoint rule tiles a pixel's box.
+    them, or sheared), by an error that shrinks with the square of the piece's size:
+    ``probes x across`` pieces tile the parallelogram as the midpoint rule tiles a
+    pixel's box.
 
-    A footprint whose longer side is at most :data:`SHORT_TEXELS` texels of level 0 reads
-    level 0 as one box and as pieces alike, and its box of second moments lies within the
-    bilinear tent's own texel of the parallelogram: it is read as one box. With static
-    shapes the pieces are read for the :data:`PIECES_SHARE` of the footprints that are
-    longest, the rest as one box, whenever no more than that share is longer than
-    :data:`SHORT_TEXELS` (the pixels that miss the bubble have no footprint at all);
-    otherwise every footprint is read in pieces.
+    Each footprint is cut as few times as reads it as well (:func:`pieces_needed`: the
+    same mip level, and an error no larger than the finest cut's or than one box's on a
+    footprint a texel long); a short one, or one along the map's axes, is one box. The shapes being
+    static, the footprints are sorted by the cut they need (:func:`piece_counts`) and
+    each cut reads its own in :data:`CHUNKS` blocks of ``N / CHUNKS`` footprints, a
+    block only where it holds some: a lookup costs about as many boxes as its
+    footprints need, to a block per cut.
 
     References
     ----------
@@ -397,20 +477,36 @@ def lookup_parallelogram(atlas, shapes: tuple, r: Float[Array, "N 3"], dr: Float
     probe's box).
     """
     n = r.shape[0]
-    cap = int(n * PIECES_SHARE)
-    if probes * across < 4 or cap < 1:  # two pieces cost no more than one box and a share of pieces
+    rungs = piece_counts(probes, across)
+    if len(rungs) == 1 or n < 2 * CHUNKS:
         return _pieces(atlas, shapes, r, dr, probes, across)
-    h0, w0 = shapes[0]
-    side = lambda k: jnp.sqrt(jnp.sum(texel_footprint(r, dr[..., k:k + 1], h0, w0) ** 2, axis=-1))
-    length = jax.lax.stop_gradient(jnp.maximum(side(0), side(1)))
+    need = jax.lax.stop_gradient(pieces_needed(shapes, r, dr, rungs))
+    order = jnp.argsort(-need, stable=True)  # the finest cut first
+    chunk = -(-n // CHUNKS)
+    order = jnp.concatenate([order, jnp.full((chunk,), n, order.dtype)])  # a block's end past the last
+    counts = jnp.sum(need[:, None] == jnp.arange(len(rungs))[None, :], axis=0)
+    starts = jnp.cumsum(counts[::-1])[::-1] - counts  # cut k's first sorted position: the finer ones' count
+    out = jnp.zeros((n, atlas.shape[-1]), atlas.dtype)
+    for k, (p, q) in enumerate(rungs):
+        def block(out, j, k=k, p=p, q=q):
+            def read(out):
+                pos = j * chunk + jnp.arange(chunk)
+                idx = jax.lax.dynamic_slice(order, (starts[k] + j * chunk,), (chunk,))
+                idx = jnp.where(pos < counts[k], idx, n)  # past this cut's own: dropped
+                got = _pieces(atlas, shapes, jnp.take(r, idx, axis=0, mode="clip"),
+                              jnp.take(dr, idx, axis=0, mode="clip"), p, q)
+                return out.at[idx].set(got, mode="drop")
 
-    def few(_):
-        out = _pieces(atlas, shapes, r, dr, 1, 1)
-        _, idx = jax.lax.top_k(length, cap)
-        return out.at[idx].set(_pieces(atlas, shapes, r[idx], dr[idx], probes, across))
+            return jax.lax.cond(j * chunk < counts[k], read, lambda o: o, out), None
 
-    return jax.lax.cond(jnp.sum(length > SHORT_TEXELS) <= cap, few,
-                        lambda _: _pieces(atlas, shapes, r, dr, probes, across), None)
+        out, _ = jax.lax.scan(block, out, jnp.arange(CHUNKS))
+    return out
+
+
+#: Blocks a cut of :func:`lookup_parallelogram` reads its footprints in: it reads whole
+#: blocks of ``N / CHUNKS`` footprints, so a lookup costs up to a block per cut more than
+#: its footprints need (speed only).
+CHUNKS = 16
 
 
 def _pieces(atlas, shapes: tuple, r: Float[Array, "N 3"], dr: Float[Array, "N 3 2"],

@@ -60,7 +60,8 @@ __all__ = [
 FilterMethod = Literal["mirror", "window", "mipmap", "full"]
 METHODS: tuple[str, ...] = get_args(FilterMethod)
 MIP_BLUR = 0.5
-#: Pieces each footprint node's cell is read in along its longer side (one across)
+#: Most pieces each footprint node's cell is read in along its longer side (one across;
+#: one box where that reads it as well, :func:`~bubblefit.lighting.envmap.pieces_needed`)
 #: (:func:`~bubblefit.lighting.envmap.lookup_parallelogram`): with 4 nodes per axis a cell
 #: is a quarter of the pixel's footprint, so 2 pieces read a footprint up to 8 x
 #: ``BOX_TEXELS`` long at the map's own level. Chosen on ref_drain_exp15_studio_persp at
@@ -181,8 +182,8 @@ def specular_box(env: EnvMap, n, wo, footprint, *, normalize: bool) -> Float[Arr
     (N, 3, 2), :func:`~bubblefit.model.geometry.slope_footprint`).
 
     A half vector that moves by ``dh`` (normal to ``n``) turns the reflected direction by
-    ``dr = 2 (wo . dh) n + 2 (wo . n) dh``; the parallelogram those span is cut into
-    4 x 4 pieces, each read as the box of its second moments in the map's texels and averaged exactly over the bilinear interpolant
+    ``dr = 2 (wo . dh) n + 2 (wo . n) dh``; the parallelogram those span is cut into up
+    to 4 x 4 pieces (as few as read it as well), each read as the box of its second moments in the map's texels and averaged exactly over the bilinear interpolant
     (:func:`~bubblefit.lighting.envmap.lookup_parallelogram`): no sun between sub-pixel
     samples is missed, none is counted whole, and a footprint many texels long and under
     one wide (near the rim, an internal bounce) is not widened to a coarser mip level's

@@ -641,6 +641,18 @@ def _profile_order(fwd, y, lum, sin2, view, mask, profile, gain, sigma, lo, hi, 
                         np.flatnonzero(mask.ravel()), high).order
 
 
+def _verdict(warnings: list[str], order, chi2_floor: float) -> bool:
+    """Whether a flat film's fit is ``ok``: no warning (the order test's included, which is
+    added to ``warnings``) and a reduced chi^2 with the model-error floor under 4; a larger
+    one adds its own warning."""
+    warnings += [w for w in [order and order.warning()] if w]
+    ok = not warnings and chi2_floor < 4.0
+    if chi2_floor >= 4.0:
+        warnings.append(f"the model does not explain the photo (residual {math.sqrt(chi2_floor):.1f} x the noise "
+                        "and the model error)")
+    return ok
+
+
 def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=None,
                kind: str | None = None, seed: int = 0, clip_high: float = np.inf) -> PlanarResult:
     """Fit a flat film's or a gap's thickness to a linear photo (H, W, 3) (the module's method).
@@ -751,11 +763,7 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     warnings.extend(range_edge_warning(dref, lo, hi, "film"))
     render = _on_image(mask, model, 0.0, 3)
     resid = _on_image(mask, res, 0.0, 3)
-    warnings += [w for w in [order and order.warning()] if w]
-    ok = not warnings and chi2_floor < 4.0
-    if chi2_floor >= 4.0:
-        warnings.append(f"the model does not explain the photo (residual {math.sqrt(chi2_floor):.1f} x the noise "
-                        "and the model error)")
+    ok = _verdict(warnings, order, chi2_floor)
     if not np.isfinite(tmap[mask]).all():
         raise ComputationError("the planar fit produced non-finite thicknesses")
     return PlanarResult(kind=kind, ok=ok, thickness_map=tmap, thickness_stderr_map=smap, render=render, residual=resid,

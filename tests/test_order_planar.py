@@ -1,5 +1,6 @@
 """The order test of flat films' few-parameter fits (bubblefit.inverse._planar_lm.fit_order):
-a drainage profile and Newton's rings, with a calibrated response's errors marginalised.
+a constant film, a drainage profile and Newton's rings, with a calibrated response's errors
+marginalised.
 
 The photos are noise-free renders of the package's own flat-film model (``PlanarForward``:
 water on BK7, or Newton's air gap between BK7 glasses, under coaxial light, 16 x 16 pixels
@@ -99,3 +100,44 @@ def test_newton_rings_order(tmp_path):
         assert abs(check.alternative_nm - h0) > 0.5 * fwd.fringe_nm
         assert check.delta_chi2_plain > check.threshold
         assert check.determined is determined, (h0, check.scored, check.delta_chi2_plain)
+
+
+@pytest.mark.parametrize("rel, determined", [(0.0005, True), (0.05, False)])
+def test_constant_flat_film_order(tmp_path, rel, determined):
+    """A constant 1500 nm water film on BK7 (16 x 16 pixels, its brightest channel at 0.5,
+    Gaussian noise 0.002 drawn with a fixed seed) through ``fit_planar``: the film at one
+    thickness and exposure refitted one fringe thinner and thicker, the candidates compared
+    with the response's errors marginalised, as for a bubble's constant film
+    (tests/test_order_check.py). The response taken as exact excludes the neighbouring
+    order; known to 0.05 % of its peak it still does (the fit is ok, ``order_check``
+    determined), known to 5 % it admits it: ``ok`` false with the order test's line as its
+    only warning (the colour-only "nearly as well" warning is the response taken as
+    exact's)."""
+    from bubblefit.inverse.order_check import order_separation
+    from bubblefit.inverse.planar import fit_planar
+    from bubblefit.model.planar_scene import parse_planar
+
+    d_true = 1500.0
+    path, _, _ = _modes_csv(tmp_path, rel, 25.0)
+    scene = parse_planar({"film": {"shape": "plane", "n": "water", "above": "air", "below": "bk7",
+                                   "thickness": "constant", "range_nm": [0.0, HI]},
+                          "light": {"type": "coaxial", "na": 0.25, "lamp": "E"},
+                          "camera": {"width": 16, "height": 16, "pixel_um": 2.0, "response": path}})
+    fwd, view = _forward(tmp_path, rel)
+    colours = np.asarray(fwd.rgb(np.full(int(view.mask.sum()), d_true), view.sin2[view.mask]), np.float64)
+    noise = np.random.default_rng(0).normal(scale=SIGMA, size=colours.shape)
+    photo = (0.5 * colours / colours.max() + noise).reshape(16, 16, 3)
+    res = fit_planar(photo, scene)
+    check = res.to_json()["order_check"]
+    assert check is not None and check["parameters"] == ["thickness_nm"]
+    assert abs(res.params["thickness_nm"] - d_true) < 3 * res.stderr["thickness_nm"], res.params
+    # the neighbouring order: one fringe (2 order_separation) away, past half a fringe
+    assert abs(check["alternative_nm"] - d_true) > order_separation(1.33)
+    assert check["delta_chi2_plain"] > check["threshold"]  # the response taken as exact excludes it
+    assert check["determined"] is determined, check
+    assert res.ok is determined, res.warnings
+    if determined:
+        assert res.warnings == []
+    else:
+        assert len(res.warnings) == 1 and "admits the neighbouring order" in res.warnings[0], res.warnings
+

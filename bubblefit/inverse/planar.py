@@ -34,11 +34,13 @@ the start (centre of the thinnest pixels, ``R`` and ``h0`` from a line in ``r^2`
 Levenberg-Marquardt fits ``(R, cx, cy, h0, g)`` to the colours directly, with standard
 errors from ``sigma^2 (J^T J)^-1``.
 
-With a calibrated response that states its errors, a drainage profile, Newton's rings and
-a map whose order is its drainage profile's carry the order test of
+With a calibrated response that states its errors, a constant film, a drainage profile,
+Newton's rings and a map whose order is its drainage profile's carry the order test of
 :mod:`bubblefit.inverse.order_check` (:func:`._planar_lm.fit_order`: the model refitted one
 fringe away, the candidates compared with the response's errors marginalised); a map
-ordered from the black film or a named region takes the reference's order.
+ordered from the black film or a named region takes the reference's order. With a
+response taken as exact, a constant film whose colour another order matches within a
+pixel's noise is flagged instead (:func:`_constant_thickness`).
 
 References
 ----------
@@ -243,8 +245,8 @@ class PlanarResult:
     #: response is taken as exact or the term is not computed.
     stderr_camera: dict | None = None
     #: The order test with a calibrated response's errors marginalised
-    #: (:meth:`bubblefit.inverse.order_check.OrderCheck.to_json`) of a drainage profile,
-    #: Newton's rings or a map whose order is its profile's; None otherwise.
+    #: (:meth:`bubblefit.inverse.order_check.OrderCheck.to_json`) of a constant film, a
+    #: drainage profile, Newton's rings or a map whose order is its profile's; None otherwise.
     order_check: dict | None = None
 
     @property
@@ -478,12 +480,14 @@ def _checked_region(scene, view, reference_region, reference_nm, w: int, h: int)
     return region, ref_nm
 
 
-def _constant_thickness(y, lum, table, i0, i1, a, grid, fringe_nm: float, sigma2: float, warnings: list,
+def _constant_thickness(y, lum, table, i0, i1, a, grid, fringe_nm: float, sigma2: float, warnings: list | None,
                         clip_high: float = np.inf):
     """``(gain, thickness per pixel)`` of a film of one thickness: each candidate of ``grid``
     with its own least-squares exposure (``g_j = sum y.T_j / sum |T_j|^2``; the exposure
     found first belongs to one order). Another order that fits nearly as well adds a
-    warning: a near-neutral film whose brightness the unknown exposure absorbs.
+    warning to ``warnings`` (a near-neutral film whose brightness the unknown exposure
+    absorbs); ``warnings`` None: no such warning (a response that states its errors, whose
+    order test, :func:`_constant_order`, decides instead).
 
     Channels clipped at black or white are left out of these sums: a film colour outside
     the gamut records 0 in a channel where the model is negative, and a plain least-squares
@@ -508,7 +512,7 @@ def _constant_thickness(y, lum, table, i0, i1, a, grid, fringe_nm: float, sigma2
     # mismatch of the model (a dispersion law, the lamp: ~1e-3 of the signal against the
     # independent renderer) is common to all pixels and does not average out.
     far = np.abs(grid - grid[j]) > 0.75 * fringe_nm  # past the neighbouring minima of this order
-    if far.any() and (total[far].min() - total[j]) / len(y) < sigma2:
+    if warnings is not None and far.any() and (total[far].min() - total[j]) / len(y) < sigma2:
         alt = grid[far][int(np.argmin(total[far]))]
         warnings.append(f"the colour fits {grid[j]:.0f} nm and {alt:.0f} nm nearly as well (another order); "
                         "name the thickness of a region with --reference-region")
@@ -641,6 +645,28 @@ def _profile_order(fwd, y, lum, sin2, view, mask, profile, gain, sigma, lo, hi, 
                         np.flatnonzero(mask.ravel()), high).order
 
 
+def _constant_order(fwd, y, lum, sin2, thickness: float, gain: float, sigma: float, lo: float, hi: float, high):
+    """The order test (:func:`._planar_lm.fit_order`) of a film of one thickness: the
+    module equation ``y_p = g L_p rgb(d, theta_p)`` with one ``d`` for every pixel, fitted in
+    ``(d, log g)`` by :func:`._planar_lm.fit_colours` from the per-pixel fit's
+    ``thickness`` and exposure ``gain``, then again from one fringe thinner and thicker;
+    None for a response taken as exact."""
+    if fwd.response_error() is None:
+        return None
+    from ._planar_lm import fit_colours, fit_order
+
+    lj, sj, obs = (jnp.asarray(a) for a in (lum, sin2, y))
+
+    def film(t):
+        return jnp.full(sj.shape, jnp.clip(t[0], lo, hi))
+
+    def model(t):
+        return jnp.exp(t[1]) * lj[:, None] * fwd.rgb(film(t), sj)
+
+    fitted = fit_colours(model, obs, sigma, high, jnp.asarray([thickness, np.log(gain)]))
+    return fit_order(fwd, model, film, obs, sigma, high, fitted, {"thickness_nm": 0}, sin2, lo, hi)
+
+
 def _verdict(warnings: list[str], order, chi2_floor: float) -> bool:
     """Whether a flat film's fit is ``ok``: no warning (the order test's included, which is
     added to ``warnings``) and a reduced chi^2 with the model-error floor under 4; a larger
@@ -691,8 +717,9 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     warnings: list[str] = []
     drain_camera = order = map_profile = None
 
-    if kind == "constant":
-        gain, dpix = _constant_thickness(y, lum, table, i0, i1, a, grid, fwd.fringe_nm, sigma2, warnings, clip_high)
+    if kind == "constant":  # the order test decides where the response states its errors
+        gain, dpix = _constant_thickness(y, lum, table, i0, i1, a, grid, fwd.fringe_nm, sigma2,
+                                         warnings if fwd.response_error() is None else None, clip_high)
         order_from = "colour"
     elif kind == "drainage":
         start, order_from = _drainage_start(cost, grid, view, mask, region, ref_nm, window)
@@ -729,6 +756,7 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         birge = max(1.0, float(np.mean(res ** 2) / sigma ** 2))
         perr["thickness_nm"] = float(np.hypot(sigma * np.sqrt(birge / np.sum(jj_)),
                                               JudgeSettings.thickness_model_error_nm))
+        order = _constant_order(fwd, y, lum, sin2, dd, gain, sigma, lo, hi, clip_high)
     if kind == "drainage":
         dres = fit_drainage(fwd, y, lum, sin2, view.height[mask], start, gain, sigma, lo, hi, (h, w),
                             np.flatnonzero(mask.ravel()), clip_high)

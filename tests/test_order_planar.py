@@ -141,3 +141,62 @@ def test_constant_flat_film_order(tmp_path, rel, determined):
     else:
         assert len(res.warnings) == 1 and "admits the neighbouring order" in res.warnings[0], res.warnings
 
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("top, bottom, rel, determined", [(300.0, 900.0, 0.05, True), (1490.0, 1510.0, 0.2, False)])
+def test_planar_drainage_order_through_the_command(tmp_path, top, bottom, rel, determined):
+    """``bubblefit fit PHOTO --scene FILM.toml --thickness drainage`` on a flat water film
+    draining from ``top`` to ``bottom`` down the frame (16 x 16 pixels, a 32-bit EXR of the
+    film's own reflectance, brightest channel about 0.025, with Gaussian noise 0.002 drawn
+    with a fixed seed: the signal-to-noise of the fits above), the scene's response the
+    Nikon CSV with correlated errors (25 nm) of ``rel`` of its peak. The global search finds
+    the profile; the JSON's ``order_check`` compares it with its neighbouring orders.
+
+    The error sizes from the arithmetic. A film draining from 300 to 900 nm spans 2.8
+    fringes (218 nm of water each): the profile one fringe thinner or thicker, whole or at
+    its thin end, changes the sequence of colours along the film, which one draw of the
+    response (the same for every pixel) cannot undo, so even a response known to 5 % leaves
+    it determined. A film from 1490 to 1510 nm has one pale colour: the neighbouring
+    order's best colours miss the photo's by ``delta = sigma sqrt(B dchi2_plain / n)`` rms
+    per value (``n`` values, ``B`` the Birge ratio), a fraction ``delta / peak`` of the
+    brightest channel, and a draw of the response moves every pixel's colour by about
+    ``rel`` of the peak (its errors are fractions of the peak, correlated over a channel's
+    width) at a prior cost of about ``(delta / rel)^2``, under 1 when ``rel > delta / peak``:
+    a response known to 20 % admits the neighbouring order (``ok`` false, the order test's
+    line in the warnings). The test checks that ``delta / peak`` is under ``rel`` before it
+    checks the decision."""
+    import json
+
+    from bubblefit.cli import main
+    from bubblefit.io.images import write_image
+    from bubblefit.model.thickness import drainage_profile
+
+    size = 16
+    fwd, view = _forward(tmp_path, rel)
+    m = view.mask
+    d = np.asarray(drainage_profile(view.height[m], top, bottom, 1.0), np.float64)
+    colours = np.asarray(fwd.rgb(d, view.sin2[m]), np.float64)
+    noise = np.random.default_rng(0).normal(scale=SIGMA, size=colours.shape)
+    write_image(tmp_path / "photo.exr", (colours + noise).reshape(size, size, 3), bit_depth=32)
+    (tmp_path / "film.toml").write_text(
+        '[film]\nshape = "plane"\nn = "water"\nabove = "air"\nbelow = "bk7"\nthickness = "drainage"\n'
+        f'range_nm = [0.0, {HI}]\n[light]\ntype = "coaxial"\nna = 0.25\nlamp = "E"\n'
+        f'[camera]\nwidth = {size}\nheight = {size}\npixel_um = 2.0\nresponse = "{fwd.response}"\n')
+    out = tmp_path / "r.json"
+    assert main(["fit", str(tmp_path / "photo.exr"), "--scene", str(tmp_path / "film.toml"), "--thickness",
+                 "drainage", "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    check = res["order_check"]
+    assert check is not None and check["parameters"] == ["top_nm", "bottom_nm"], res
+    for name, truth in (("top_nm", top), ("bottom_nm", bottom)):
+        assert abs(res["params"][name] - truth) < 3 * res["stderr"][name], res["params"]
+    assert check["delta_chi2_plain"] > check["threshold"]  # the response taken as exact excludes it
+    assert check["determined"] is determined, check
+    said = [w for w in res["warnings"] if "admits the neighbouring order" in w]
+    if determined:
+        assert res["ok"] and not said, res["warnings"]
+    else:
+        delta = res["noise_sigma"] * np.sqrt(check["delta_chi2_plain"] * check["birge_scale"] / (3 * size * size))
+        assert delta / float(colours.max()) < rel, delta
+        assert not res["ok"] and len(said) == 1 and "calibrate the camera" in said[0], res["warnings"]

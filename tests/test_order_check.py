@@ -223,3 +223,38 @@ def test_a_profile_order_admitted_only_within_the_response_errors(tmp_path, rel,
     # seen from the alternative's order (a map or a warm start left there): never determined
     assert not check.at(alt, 1.33).determined
     assert check.to_json()["thickness_nm"] == list(check.thickness_nm)
+
+
+@pytest.mark.slow
+def test_bubble_drainage_order_through_the_fit(small_courtyard, tmp_path):
+    """A bubble draining from 300 nm at the top to 900 nm at the bottom (exponent 1; the
+    48 px photo of tests/helpers.py's ``film_photo``: bubblefit's renderer, 8-bit codes
+    with read and shot noise) rendered through the Nikon CSV's response and fitted by
+    ``bubblefit.fit_photo`` with the drainage profile and that CSV stating correlated
+    errors of 5 % of its peak. The profile spans 2.8 fringes (``580 / (2 n)`` = 218 nm of
+    thickness each): the search's profile moved one fringe, whole or at its thin end,
+    changes the sequence of colours from the top to the bottom of the bubble, which one
+    draw of the response (the same for every pixel) cannot undo. So the JSON's
+    ``order_check`` is determined though the response is known to 5 % only (where a
+    constant 1500 nm film's neighbouring order is admitted, above), and the fit is ok
+    within 3 standard errors of each end."""
+    from bubblefit import FitOptions, fit_photo
+    from bubblefit.capture.view import ORTHOGRAPHIC
+    from bubblefit.inverse import starts
+    from bubblefit.lighting.envmap import EnvMap
+    from helpers import FILM_PHOTO_DISC, film_photo
+
+    path, _, _ = _modes_csv(tmp_path, 0.05, 25.0)
+    env = EnvMap.from_array(small_courtyard)
+    photo, bg = film_photo(env, (300.0, 900.0, 1.0), 7, path, "E")
+    r = fit_photo(photo, env, background=bg, options=FitOptions(
+        disc=FILM_PHOTO_DISC, parameters=starts(t=0.968, roughness=0.04), model="paper", camera_response=path,
+        illuminant="E", view=ORTHOGRAPHIC, thickness="drainage"))
+    check = r.to_json()["order_check"]
+    assert check is not None and check["parameters"] == ["top_nm", "bottom_nm"], check
+    assert check["delta_chi2_plain"] > check["threshold"]  # the response taken as exact excludes it
+    assert check["determined"], check
+    assert check["delta_chi2"] > check["threshold"]
+    assert r.ok, r.warnings
+    for name, truth in (("top_nm", 300.0), ("bottom_nm", 900.0)):
+        assert abs(r.params[name] - truth) < 3 * r.stderr[name], (r.params, r.stderr)

@@ -40,7 +40,8 @@ Variants (``VARIANTS``), each ONE change from ``cycles`` (the tracer as above):
 * ``no_shadowing``: no Smith ratio, and a reflection below the horizon mirrored about the
   mean surface instead of ending the path (the lobe's albedo kept at ``F``);
 * ``no_clamp``: the RGB film not clamped to [0, 1];
-* ``bubblefit_film``: ``film_macro`` and ``airy_exact`` together.
+* ``bubblefit_film``: ``film_macro`` and ``airy_exact`` together;
+* ``macro_no_shadowing``: ``film_macro`` and ``no_shadowing`` together.
 
 For each the photo over the render per channel in rings of the disc radius (pixels a fit
 uses: inside 0.96, no clipped channel), the regions of ``rough_misfit.py`` and its chi^2
@@ -51,7 +52,12 @@ over ``SPLITS`` independent quarters of the samples.
         [--json OUT] [--bubblefit NPZ]
 
 ``--bubblefit NPZ`` adds the rings of the renders a ``rough_misfit.py --json`` run saved
-(bubblefit's model; linear, true exposure not applied), for the same table.
+(bubblefit's model, times the true exposure), for the same table. ``--compare A B ...``
+prints, instead of tracing, ``A / B - 1`` per channel in each ring (sum over the ring's
+used pixels, and the median of the per-pixel ratio) for pairs of saved renders, each
+``FILE.npz:KEY`` or ``photo``:
+
+    ... cycles_rim.py --compare OUT.npz:cycles/OUT.npz:film_macro photo/OUT.npz:cycles
 """
 from __future__ import annotations
 
@@ -75,6 +81,8 @@ REGIONS = {"centre": (0.0, 0.5), "mid": (0.5, 0.8), "rim": (0.8, 0.96)}
 BOUNCES = 8
 SPLITS = 4
 COS_GRID = 8001
+#: the sun's texels: above 2 % of the brightest (as cap_glint_paths.py)
+SUN_LEVEL = 0.02
 
 BASE = dict(film_angle="microfacet", series="belcour3", shadowing=True, clamp=True)
 VARIANTS = {
@@ -84,6 +92,7 @@ VARIANTS = {
     "no_shadowing": dict(shadowing=False),
     "no_clamp": dict(clamp=False),
     "bubblefit_film": dict(film_angle="macro", series="exact"),
+    "macro_no_shadowing": dict(film_angle="macro", shadowing=False),
 }
 
 
@@ -246,6 +255,15 @@ def trace(truth: dict, env: np.ndarray, table, opts: dict, pixels, spp: int, see
     return out
 
 
+def clip_sun(env: np.ndarray) -> np.ndarray:
+    """The map with every texel brighter (sum of RGB) than :data:`SUN_LEVEL` of the
+    brightest scaled down to that level: the sky without the sun, whose rare paths through
+    GGX's long tail are most of a 256-sample render's noise in red."""
+    lum = env.sum(-1, keepdims=True)
+    cap = SUN_LEVEL * lum.max()
+    return env * np.minimum(1.0, cap / np.maximum(lum, 1e-30))
+
+
 # ------------------------------------------------------------------------- scoring
 def rings(photo, model, rho, used):
     """photo / model - 1 per channel in each ring of :data:`RINGS` and each region."""
@@ -261,13 +279,41 @@ def rings(photo, model, rho, used):
     return prof, reg
 
 
+def compare(pairs, photo, rho, used):
+    """Print ``A / B - 1`` per ring and region for saved renders (``FILE.npz:KEY`` or ``photo``)."""
+    load = lambda spec: photo if spec == "photo" else np.load(spec.split(":")[0])[spec.split(":")[1]].astype(np.float64)
+    edges = np.round(np.arange(0.0, 0.961, 0.08), 2)
+    for pair in pairs:
+        left, right = pair.split("/", 1) if pair.count("/") == 1 else _split_pair(pair)
+        x, y = load(left), load(right)
+        print(f"{left} / {right} - 1 (%, R G B): ring sum | median of the pixels' ratio")
+        for lo, hi in list(zip(edges[:-1], edges[1:])) + list(REGIONS.values()):
+            m = used & (rho >= lo) & (rho < hi)
+            s_ = x[m].sum(0) / y[m].sum(0) - 1
+            med = np.median(x[m] / np.maximum(y[m], 1e-9), 0) - 1
+            print(f"   {lo:.2f}-{hi:.2f} ({m.sum():4d} px): " + " ".join(f"{100 * v:+6.2f}" for v in s_) + "  | "
+                  + " ".join(f"{100 * v:+6.2f}" for v in med))
+
+
+def _split_pair(pair):
+    """``A/B`` where A and B may hold slashes (paths): split before the second operand,
+    which starts with ``photo`` or ``/`` (an absolute path)."""
+    for k in range(1, len(pair)):
+        if pair[k - 1] == "/" and (pair[k:] == "photo" or pair[k] == "/"):
+            return pair[:k - 1], pair[k:]
+    raise SystemExit(f"cannot split {pair!r} into A/B")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--spp", type=int, default=64)
     ap.add_argument("--only", default=",".join(VARIANTS))
+    ap.add_argument("--clip-sun", action="store_true",
+                    help="the map's texels above SUN_LEVEL of its brightest scaled down to that level (no sun)")
     ap.add_argument("--rho-min", type=float, default=0.0, help="trace only the pixels at or beyond this radius")
     ap.add_argument("--json")
     ap.add_argument("--save", help="write the tracer's renders (linear, times the exposure) to this .npz")
+    ap.add_argument("--compare", nargs="+", metavar="A/B", help="ring ratios of saved renders (no tracing)")
     ap.add_argument("--bubblefit", help="renders saved by rough_misfit.py --json (OUT_renders.npz)")
     a = ap.parse_args(argv)
     from bubblefit.inverse import noise_sigma, saturation_mask  # scoring only, as rough_misfit.py
@@ -275,6 +321,8 @@ def main(argv=None):
 
     t = json.load(open(f"{vio.DATA}/{CASE}/truth.json"))
     env = vio.read_image(f"{vio.DATA}/{t['envmap']}")[..., :3].astype(np.float64)
+    if a.clip_sun:
+        env = clip_sun(env)
     photo = read_image(f"{vio.DATA}/{CASE}/photo.png").pixels.astype(np.float64)
     sigma = noise_sigma(photo, 2e-3, 2e-4, 8)
     h, w = photo.shape[:2]
@@ -284,6 +332,9 @@ def main(argv=None):
     used = (rho < 0.96) & (rho >= a.rho_min) & ~saturation_mask(photo, 1.0, None)
     traced = (rho < 0.96) & (rho >= a.rho_min)
     pix = np.argwhere(traced)
+    if a.compare:
+        compare(a.compare, photo, rho, used)
+        return
     spec = rr.spectral_setup("E", 1.0)
     report = {"case": CASE, "spp": a.spp, "bounces": BOUNCES, "rings": RINGS.tolist(), "used_pixels": int(used.sum()),
               "note": "photo / model - 1 per channel (R, G, B); mc_error: the spread of the ring's ratio over "

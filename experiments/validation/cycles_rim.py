@@ -378,11 +378,16 @@ def main(argv=None):
               + "; ".join(f"{k} {np.round(100 * np.array(x), 2)}" for k, x in reg.items()), flush=True)
         print("   rings R: " + " ".join(f"{100 * r['photo_over_model_rgb'][0]:+.1f}" for r in prof), flush=True)
         saved_imgs[v] = model.astype(np.float32)
-        if a.save:
-            np.savez_compressed(a.save, **saved_imgs)
-        if a.json:
-            with open(a.json, "w") as fh:
-                json.dump(report, fh, indent=1)
+        write(a.save, a.json, saved_imgs, report)
+
+
+def write(npz: str | None, out: str | None, images: dict, report: dict) -> None:
+    """Save the renders so far (``--save``) and the report (``--json``)."""
+    if npz:
+        np.savez_compressed(npz, **images)
+    if out:
+        with open(out, "w") as fh:
+            json.dump(report, fh, indent=1)
 
 
 if __name__ == "__main__":

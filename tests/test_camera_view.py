@@ -238,3 +238,42 @@ def test_the_python_default_fits_as_the_command_line(tmp_path, small_courtyard):
                    background=read_image(tmp_path / "before.png", dtype=np.float32).pixels, saturated=img.saturated)
     assert FitOptions().model == "auto" and py.model == cli["model"]
     assert abs(py.params["thickness_nm"] - cli["params"]["thickness_nm"]) < 0.01 * cli["stderr"]["thickness_nm"]
+
+
+@pytest.mark.parametrize("disc", [(24.0, 24.0, 20.0), (30.5, 19.0, 14.0)])
+def test_the_divergence_parametrisation_is_smooth_through_orthographic(disc):
+    """u = tan(fov/2) -> rays (capture.view.divergent_rays): at u = 0 the orthographic
+    camera's rays; for u > 0 the rays of perspective_from_disc's pinhole (same directions,
+    each origin on its ray); continuous (a step of 1e-4 in u moves a ray by O(1e-4), in
+    float64) with a finite derivative at u = 0 that agrees with a one-sided difference."""
+    import jax
+    import jax.numpy as jnp
+
+    from bubblefit.model.geometry import OrthographicCamera
+
+    jax.config.update("jax_enable_x64", True)
+    try:
+        W, H = 48, 40
+        rows, cols = np.meshgrid(np.arange(H, dtype=float), np.arange(W, dtype=float), indexing="ij")
+        o0, d0 = V.divergent_rays(0.0, disc, W, H, rows, cols, xp=np)
+        oo, do = OrthographicCamera(W, H, *disc).rays(jnp.asarray(rows), jnp.asarray(cols), (0.0, 0.0, 0.0), 1.0)
+        np.testing.assert_allclose(d0, np.broadcast_to(np.asarray(do), d0.shape), atol=1e-12)
+        np.testing.assert_allclose(o0, np.asarray(oo), atol=1e-9)
+        for fov in (12.0, 34.0, 60.0):
+            u = V.divergence(fov)
+            assert V.fov_of_divergence(u) == pytest.approx(fov)
+            o, d = V.divergent_rays(u, disc, W, H, rows, cols, xp=np)
+            cam, _, _ = V.perspective_from_disc(disc, W, H, fov)
+            po, pd = cam.rays(jnp.asarray(rows), jnp.asarray(cols))
+            np.testing.assert_allclose(d, np.asarray(pd), atol=1e-9)
+            # the origin lies on the pinhole's ray: (o - pinhole) parallel to d
+            rel = o - np.asarray(po)
+            np.testing.assert_allclose(np.cross(rel, d), 0.0, atol=1e-7 * np.linalg.norm(cam.origin))
+        f = lambda u: jnp.concatenate([a.ravel() for a in V.divergent_rays(u, disc, W, H, rows, cols)])
+        jac = np.asarray(jax.jacfwd(f)(0.0))
+        assert np.all(np.isfinite(jac)) and np.abs(jac).max() > 0
+        h = 1e-5
+        np.testing.assert_allclose((np.asarray(f(h)) - np.asarray(f(0.0))) / h, jac, atol=1e-3 * max(1, np.abs(jac).max()))
+        assert np.abs(np.asarray(f(1e-4)) - np.asarray(f(0.0))).max() < 2e-4 * max(1.0, np.abs(jac).max())
+    finally:
+        jax.config.update("jax_enable_x64", False)

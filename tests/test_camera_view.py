@@ -277,3 +277,63 @@ def test_the_divergence_parametrisation_is_smooth_through_orthographic(disc):
         assert np.abs(np.asarray(f(1e-4)) - np.asarray(f(0.0))).max() < 2e-4 * max(1.0, np.abs(jac).max())
     finally:
         jax.config.update("jax_enable_x64", False)
+
+
+def _profiled(u0, s, slope, n_pix=400):
+    """A refit through a view of divergence u whose total chi^2 is the parabola
+    nu + ((u - u0)/s)^2 and whose thickness moves by ``slope`` per unit u (nm): what
+    fit_divergence sees from a photo that fixes the view to s."""
+    from dataclasses import replace
+
+    nu = 3 * n_pix - 1
+
+    def at(u):
+        r = _result({"thickness_nm": 600.0 + slope * u}, {"thickness_nm": 2.0})
+        chi2 = nu + ((u - u0) / s) ** 2 if s else float(nu)
+        return replace(r, chi2_capped=chi2 / nu, pixels_used=n_pix, status="ok")
+
+    return at
+
+
+def test_a_photo_that_fixes_the_view_gets_its_divergence_fitted():
+    """A chi^2 profile exact in u = tan(fov/2): the minimum and its standard error
+    (Delta chi^2 = 1) come back from three refits and one at the minimum; the thickness's
+    error gains (dp/du)^2 var(u); the covariance holds the view; the record says fitted."""
+    from bubblefit.inverse import fit_divergence
+
+    at = _profiled(0.12, 0.03, 50.0)
+    lens = V.assumed_lens(48, 48)
+    tried = []
+
+    def refit(view, start):
+        tried.append(view.fov_deg)
+        assert view.source == "fitted" and "thickness_nm" in start
+        return at(V.divergence(view.fov_deg))
+
+    out = fit_divergence(at(0.0), at(V.divergence(lens.fov_deg)), lens, refit)
+    cam = out.camera
+    assert cam["source"] == "fitted" and cam["kind"] == "perspective"
+    assert cam["fitted_fov_deg"] == pytest.approx(V.fov_of_divergence(0.12), rel=1e-6)
+    u_half = V.divergence(lens.fov_deg) / 2  # the refit nearest the minimum: the Birge ratio's chi^2
+    se_u = 0.03 * math.sqrt(1 + ((u_half - 0.12) / 0.03) ** 2 / (3 * 400 - 1))
+    assert cam["fov_stderr_deg"] == pytest.approx(math.degrees(2 / (1 + 0.12**2)) * se_u, rel=1e-6)
+    assert out.params["thickness_nm"] == pytest.approx(600.0 + 50.0 * 0.12)
+    assert out.stderr["thickness_nm"] == pytest.approx(math.hypot(2.0, 50.0 * se_u), rel=1e-6)
+    assert out.names == ("thickness_nm", "fov_deg") and out.covariance.shape == (2, 2)
+    assert out.covariance[0, 1] == pytest.approx(50.0 * se_u**2 * math.degrees(2 / (1 + 0.12**2)), rel=1e-6)
+    assert len(tried) == 2 and any("divergence fitted" in w for w in out.warnings), (tried, out.warnings)
+
+
+def test_a_flat_profile_falls_back_to_the_widened_errors():
+    """chi^2 the same through every view: the photo does not fix it, so the better of the
+    orthographic and lens fits is kept, widened by their shift (GUM 4.3.7), and the
+    warning says the photo does not fix the view."""
+    from bubblefit.inverse import fit_divergence
+
+    at = _profiled(0.0, 0.0, 30.0)
+    lens = V.assumed_lens(48, 48)
+    u_lens = V.divergence(lens.fov_deg)
+    out = fit_divergence(at(0.0), at(u_lens), lens, lambda view, start: at(V.divergence(view.fov_deg)))
+    assert out.camera["source"] == "assumed" and "divergence_profile" in out.camera
+    assert out.stderr["thickness_nm"] == pytest.approx(math.hypot(2.0, 30.0 * u_lens / math.sqrt(3.0)))
+    assert any("does not fix the view" in w for w in out.warnings), out.warnings

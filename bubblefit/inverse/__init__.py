@@ -52,7 +52,7 @@ _EXPORTS = {
     # set up, and the camera's view
     "Setup": "_setup", "setup": "_setup", "defaults": "_setup", "colour_settings": "_setup",
     "calibrated_illuminant": "_setup", "compact_source": "_setup", "COMPACT_SOURCE_RATIO": "_setup",
-    "fit_view": "_view", "widen_for_view": "_view",
+    "fit_view": "_view", "widen_for_view": "_view", "fit_divergence": "_view", "divergence_profile": "_view",
     "fit_spectral_basis": "_spectral_rule", "quadrature_excess": "_spectral_rule",
     "FIT_SPECTRAL_CANDIDATES": "_spectral_rule", "QUADRATURE_EXCESS": "_spectral_rule",
     # compiled programs: the padded level, its fitted pixels, the renders of a level

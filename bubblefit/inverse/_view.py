@@ -5,21 +5,24 @@ view from an option or the photo's EXIF), else an assumed orthographic one. An a
 view is not silently trusted: :func:`widen_for_view` compares the orthographic fit with the
 same fit through a plausible lens (:func:`~bubblefit.capture.view.assumed_lens`), keeps the
 one that explains the photo better, and adds the difference to each standard error as a
-Type B uncertainty.
+Type B uncertainty. :func:`fit_divergence` first fits the view's divergence
+``u = tan(fov/2)`` from the photo (a 1-D search over warm-started refits, bracketed by
+the two views); only where the photo does not constrain it are the errors widened.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..capture.view import View, assumed_lens, scene_view
+from ..capture.view import MAX_FOV_DEG, View, assumed_lens, divergence, fov_of_divergence, scene_view
 from ..errors import InputError
 from ._options import FitOptions, FitResult
 
-__all__ = ["fit_view", "camera_record", "widen_for_view", "lens_for"]
+__all__ = ["fit_view", "camera_record", "widen_for_view", "lens_for", "fit_divergence", "divergence_profile",
+           "Profile"]
 
 
 def fit_view(options: FitOptions, scene) -> View:
@@ -106,3 +109,158 @@ def widen_for_view(kept: FitResult, other: FitResult, lens: View) -> FitResult:
 def lens_for(photo) -> View:
     """:func:`~bubblefit.capture.view.assumed_lens` of ``photo``'s width and height."""
     return assumed_lens(int(photo.shape[1]), int(photo.shape[0]))
+
+
+def _chi2(r: FitResult) -> float:
+    """A fit's total capped chi^2 with the floor: its ``chi2_capped`` times its degrees of
+    freedom (three channels a pixel, less the free parameters), infinite for a fit that
+    did not converge."""
+    if not r.converged or r.status == "failed" or not math.isfinite(r.chi2_capped):
+        return float("inf")
+    return float(r.chi2_capped) * max(3 * int(r.pixels_used) - len(r.names), 1)
+
+
+@dataclass(frozen=True)
+class Profile:
+    """The view's divergence a photo's chi^2 profile gives (:func:`divergence_profile`).
+
+    Attributes
+    ----------
+    u, stderr : float
+        The fitted divergence ``u = tan(fov/2)`` and its standard error.
+    constrained : bool
+        Whether the photo fixes it: the profile curves upward, its minimum lies in
+        ``[0, max(points)]`` and the standard error is below half that bracket.
+    """
+
+    u: float
+    stderr: float
+    constrained: bool
+
+
+def divergence_profile(us, chi2s, birge: float = 1.0) -> Profile:
+    """The divergence where the parabola through the lowest three of ``(us, chi2s)`` (total
+    chi^2 of refits through each view) is least, and its standard error
+    ``sqrt(2 / chi2'') * birge`` (the curvature of a chi^2 profile, Delta chi^2 = 1,
+    widened by ``birge``, the square root of the reduced chi^2 at the minimum when above 1).
+
+    A minimum below 0 is the orthographic view (``u = 0``, the boundary).
+
+    References
+    ----------
+    W. H. Press et al., *Numerical Recipes*, 3rd ed., 2007, sec. 10.3 (parabolic
+    interpolation) and sec. 15.6.5 (confidence limits from Delta chi^2 = 1 on a profile);
+    R. T. Birge, Phys. Rev. 40, 207 (1932).
+    """
+    pts = sorted((c, u) for u, c in zip(us, chi2s) if math.isfinite(c))
+    if len(pts) < 3:
+        return Profile(float("nan"), float("inf"), False)
+    (c0, u0), (c1, u1), (c2, u2) = pts[:3]
+    a, b, _ = np.polyfit([u0, u1, u2], [c0, c1, c2], 2)
+    span = max(us)
+    if not a > 0:
+        return Profile(float(pts[0][1]), float("inf"), False)
+    u_min = min(max(-b / (2 * a), 0.0), span)
+    se = math.sqrt(2.0 / (2.0 * a)) * max(birge, 1.0)
+    inside = -b / (2 * a) <= span * 1.05
+    return Profile(float(u_min), float(se), bool(inside and se < 0.5 * span))
+
+
+def fit_divergence(ortho: FitResult, lens_fit: FitResult, lens: View, refit) -> FitResult:
+    """The fit through the view's divergence fitted from the photo, when nothing stated the
+    view: ``u = tan(fov/2)`` (:func:`~bubblefit.capture.view.divergence`) profiled over the
+    orthographic fit (``u = 0``), the ``lens`` fit and a refit halfway (``refit(view,
+    start)``: a warm-started fit through ``view``), a fourth beyond the lens when the
+    minimum lies past it, then refitted at the minimum (:func:`divergence_profile`).
+
+    The kept fit's parameters ``p`` are conditional on the view; freeing it adds
+    ``(dp/du)^2 var(u)`` to each variance and ``dp/du var(u)`` as the covariance with the
+    view (the profile's slope from a line through the refits), and the view's ``fov_deg``
+    joins ``names``, with its standard error from ``var(u)`` by ``dfov/du = 2/(1+u^2)``.
+    Where the profile is flat or its minimum is not bracketed, this is
+    :func:`widen_for_view` of the better of the two first fits, and its warning says that
+    the photo does not fix the view.
+
+    References
+    ----------
+    Numerical Recipes, 3rd ed., 2007, sec. 15.6 (profile confidence regions); JCGM
+    100:2008 (GUM) eq. 13 (propagation with correlated inputs).
+    """
+    width_fits = [(0.0, ortho), (divergence(lens.fov_deg), lens_fit)]
+    u_lens = width_fits[1][0]
+    best = min(width_fits, key=lambda p: _chi2(p[1]))[1]
+    start = {k: v for k, v in best.params.items() if math.isfinite(v)}
+
+    def through(u: float) -> FitResult:
+        fov = fov_of_divergence(u)
+        view = View("perspective", fov, "fitted", f"the view's divergence tried at {fov:.1f} degrees across")
+        return refit(view, start)
+
+    fits = width_fits + [(u_lens / 2.0, through(u_lens / 2.0))]
+    birge = lambda: math.sqrt(max([1.0] + [min(f.chi2_capped for _, f in fits if math.isfinite(_chi2(f)))
+                                           if any(math.isfinite(_chi2(f)) for _, f in fits) else 1.0]))
+    prof = divergence_profile([u for u, _ in fits], [_chi2(f) for _, f in fits], birge())
+    u_far = min(2.0 * u_lens, divergence(MAX_FOV_DEG) * 0.5)
+    if math.isfinite(prof.u) and prof.u >= u_lens * 0.999:
+        fits.append((u_far, through(u_far)))
+        prof = divergence_profile([u for u, _ in fits], [_chi2(f) for _, f in fits], birge())
+    lens_better = lens_fit.converged and _chi2(lens_fit) < _chi2(ortho)
+    kept, other = (lens_fit, ortho) if lens_better else (ortho, lens_fit)
+    profile = [[fov_of_divergence(u), float(f.chi2_capped)] for u, f in sorted(fits, key=lambda p: p[0])]
+    if not prof.constrained:
+        out = widen_for_view(kept, other, lens)
+        out.camera = {**(out.camera or {}), "divergence_profile": profile}
+        out.warnings = [w + "; the photo does not fix the view (its chi^2 over the field of view is flat or "
+                        "least outside the views tried)" if w.startswith("the view was not given") else w
+                        for w in out.warnings]
+        return out
+    near = min(fits, key=lambda p: abs(p[0] - prof.u))
+    if abs(near[0] - prof.u) <= 0.25 * prof.stderr and math.isfinite(_chi2(near[1])):
+        u_star, fit = near
+    else:
+        u_star, fit = (0.0, ortho) if prof.u == 0.0 else (prof.u, through(prof.u))
+        if not math.isfinite(_chi2(fit)):
+            u_star, fit = min(fits, key=lambda p: _chi2(p[1]))
+        fits.append((u_star, fit))
+    return _with_fitted_view(fit, u_star, prof.stderr, [p for p in fits if math.isfinite(_chi2(p[1]))], profile)
+
+
+def _with_fitted_view(fit: FitResult, u: float, se_u: float, fits: list, profile: list) -> FitResult:
+    """``fit`` (through the divergence ``u``) with the view's variance ``se_u^2`` propagated
+    into its parameters by the slopes ``dp/du`` of a line through ``fits`` (:func:`fit_divergence`),
+    ``fov_deg`` added to its covariance, and its camera record's source ``fitted``."""
+    out = replace(fit, stderr=dict(fit.stderr), warnings=list(fit.warnings))
+    us = np.array([p[0] for p in fits], float)
+    var_u = se_u**2
+    dfov = math.degrees(2.0 / (1.0 + u * u))  # d fov / d u, degrees
+    slopes = {}
+    for k, e in fit.stderr.items():
+        vals = np.array([p[1].params.get(k, np.nan) for p in fits], float)
+        if e is None or not math.isfinite(e) or not np.all(np.isfinite(vals)) or len(set(us)) < 2:
+            continue
+        slopes[k] = float(np.polyfit(us, vals, 1)[0])
+        out.stderr[k] = math.sqrt(e * e + slopes[k] ** 2 * var_u)
+    fov = fov_of_divergence(u)
+    fov_se = dfov * se_u
+    names = tuple(fit.names)
+    if fit.covariance is not None and len(names):
+        n = len(names)
+        cov = np.zeros((n + 1, n + 1))
+        cov[:n, :n] = np.asarray(fit.covariance, np.float64)
+        s = np.array([slopes.get(nm, 0.0) for nm in names])
+        cov[:n, :n] += np.outer(s, s) * var_u
+        cov[:n, n] = cov[n, :n] = s * var_u * dfov
+        cov[n, n] = fov_se**2
+        out.covariance, out.names = cov, (*names, "fov_deg")
+    if out.thickness_stderr_map is not None and "thickness_nm" in slopes:
+        out.thickness_stderr_map = np.hypot(out.thickness_stderr_map, slopes["thickness_nm"] * se_u)
+    detail = f"the view's divergence fitted from the photo: {fov:.1f} +- {fov_se:.1f} degrees across"
+    cam = {**(fit.camera or {}), "kind": "perspective" if u > 0 else "orthographic", "fov_deg": fov if u > 0 else None,
+           "source": "fitted", "detail": detail, "fov_stderr_deg": fov_se, "fitted_fov_deg": fov,
+           "divergence_profile": profile,
+           "view_uncertainty": {k: abs(v) * se_u for k, v in slopes.items()}}
+    out.camera = cam
+    out.warnings = [w for w in out.warnings if not w.startswith("the view was not given")]
+    out.warnings.append(f"the view was not given (--fov, --focal-length or the photo's EXIF): {detail} (the "
+                        "standard errors include what it changes); give the view if it is known")
+    return out

@@ -62,7 +62,7 @@ from ._parameters import THICKNESSES, extrapolated, parameter_roles, refined_dis
 from ._setup import Setup, defaults, setup
 from ._uncertainty import Uncertainty, uncertainty
 from ._verdict import at_bounds, clamp_to_range, unresolved, verdict
-from ._view import camera_record, fit_view, lens_for, widen_for_view
+from ._view import camera_record, fit_divergence, fit_view, lens_for
 from .colour_check import judge_colours
 from .order_check import OrderCheck, neighbouring_orders, order_check, order_parameters
 from .response_error import pixel_thickness_stderr, response_cells, response_error, solve_response_gram
@@ -387,9 +387,13 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     The camera's view (:func:`~bubblefit.inverse._view.fit_view`) is the scene's, else
     ``options.view`` (a field of view: the pinhole is built from the disc); when neither
     states one, the photo is fitted as orthographic and again through a 50 mm (35 mm
-    terms) lens warm-started from it; the view that explains the photo better (the lower
-    capped reduced chi^2, :func:`_judged_chi2`) is kept, and its standard errors are
-    widened by the shift to the other (:func:`~bubblefit.inverse._view.widen_for_view`;
+    terms) lens warm-started from it, and the view's divergence ``u = tan(fov/2)`` is
+    fitted from the photo by warm-started refits
+    (:func:`~bubblefit.inverse._view.fit_divergence`): the fit at the least chi^2, its
+    standard errors including the view's; where the photo does not fix the view, the
+    view that explains it better (the lower capped reduced chi^2, :func:`_judged_chi2`)
+    is kept and its standard errors are widened by the shift to the other
+    (:func:`~bubblefit.inverse._view.widen_for_view`;
     ``docs/camera-view.md``). With ``options.calibrate_camera`` that fit, made with the
     stated camera response, is then refitted with the response freed
     (:func:`~bubblefit.inverse.self_calibration.self_calibrated`).
@@ -478,9 +482,13 @@ def _fit_views(photo, env, options: FitOptions, background, init, scene, saturat
     start = {k: v for k, v in ortho.params.items() if np.isfinite(v)} if ortho.converged else init
     with stage(f"the same fit through a {lens.fov_deg:.0f} degree lens (the view was not given)"):
         lens_fit = _fit_model(photo, env, replace(options, view=lens), background, start, scene, saturated)
-    # the photo may tell the views apart: keep the one that explains it better
-    lens_better = lens_fit.converged and _judged_chi2(lens_fit) < _judged_chi2(ortho)
-    out = widen_for_view(lens_fit, ortho, lens) if lens_better else widen_for_view(ortho, lens_fit, lens)
+
+    def refit(view, start):
+        with stage(f"the same fit through a {view.fov_deg:.1f} degree view (fitting the view's divergence)"):
+            return _fit_model(photo, env, replace(options, view=view), background, start, scene, saturated)
+
+    # the photo may fix the view: fit its divergence; else keep the better view, errors widened
+    out = fit_divergence(ortho, lens_fit, lens, refit)
     out.time_s = time.perf_counter() - t0
     return out
 

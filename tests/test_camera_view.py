@@ -337,3 +337,36 @@ def test_a_flat_profile_falls_back_to_the_widened_errors():
     assert out.camera["source"] == "assumed" and "divergence_profile" in out.camera
     assert out.stderr["thickness_nm"] == pytest.approx(math.hypot(2.0, 30.0 * u_lens / math.sqrt(3.0)))
     assert any("does not fix the view" in w for w in out.warnings), out.warnings
+
+
+@pytest.mark.slow
+def test_the_view_of_a_perspective_photo_is_fitted(small_courtyard):
+    """A 48 px photo rendered by the package through a 25 degree pinhole (camera 4.6 radii
+    away: the disc 0.42 of the width), with read and shot noise and 8-bit sRGB, fitted with
+    no view stated: the fitted field of view covers 25 degrees within 3 of its standard
+    errors, the thickness the truth within 3 of its, and the record says the view was
+    fitted."""
+    import test_fit as tf
+
+    from bubblefit.inverse import FitOptions, fit_photo
+    from bubblefit.model.scene import Scene, render_scene
+
+    fov, N = 25.0, tf.N
+    u = V.divergence(fov)
+    dist = 1.0 / math.sin(math.atan(0.42 * N * 2 * u / N))  # the sphere subtends the disc's half-angle
+    rng = np.random.default_rng(11)
+    bg = tf._background(rng)
+    scene = Scene.from_dict({"camera": {"type": "perspective", "width": N, "height": N, "origin": [0, 0, dist],
+                                        "target": [0, 0, 0], "up": [0, 1, 0], "fov_deg": fov},
+                             "bubble": {"thickness_nm": 520.0, "t": 0.97, "roughness": 0.06},
+                             "lighting": {"envmap": "unused.exr"}, "effects": {"model": "paper",
+                                                                               "transmission_tint": True}})
+    env = tf._env(small_courtyard)
+    photo = tf._quantise(np.asarray(render_scene(scene, bg, env=env)), rng)
+    # on the axis the outline is the circle of radius f tan(alpha) = 0.42 N: the disc given
+    out = fit_photo(photo, env, options=FitOptions(model="paper", disc=tf.DISC), background=bg)
+    cam = out.camera
+    assert cam["source"] == "fitted", (cam, out.warnings)
+    assert abs(cam["fitted_fov_deg"] - fov) < 3 * cam["fov_stderr_deg"], cam
+    assert abs(out.params["thickness_nm"] - 520.0) < 3 * out.stderr["thickness_nm"], (out.params, out.stderr)
+    assert "fov_deg" in out.names and np.all(np.isfinite(out.covariance))

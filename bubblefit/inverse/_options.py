@@ -277,8 +277,10 @@ class FitOptions:
         option or the photo's EXIF, :func:`~bubblefit.capture.view.resolve_view`). A
         perspective view builds the pinhole camera from the disc
         (:func:`~bubblefit.capture.view.perspective_from_disc`). None, or a view whose
-        source is ``assumed``: orthographic, with the standard errors widened by what a
-        plausible lens changes (:func:`~bubblefit.inverse.fit.fit_photo`). A scene file's
+        source is ``assumed``: the view's divergence fitted from the photo
+        (:func:`~bubblefit.inverse._view.fit_divergence`), else orthographic or a
+        plausible lens with the standard errors widened by what the other changes
+        (:func:`~bubblefit.inverse.fit.fit_photo`). A scene file's
         camera is its own view.
     """
 
@@ -445,10 +447,12 @@ class FitResult:
         forward model was evaluated with (JSON key ``colour``).
     camera : dict or None
         The view fitted (JSON key ``camera``): ``kind``, ``fov_deg``, ``source`` (``option``,
-        ``EXIF``, ``scene`` or ``assumed``), ``detail``; for a perspective camera its
-        ``distance_radii`` (pinhole to the sphere's centre); for an assumed view the lens it
-        was compared with (``compared_fov_deg``) and the standard uncertainty each
-        parameter gained (``view_uncertainty``).
+        ``EXIF``, ``scene``, ``fitted`` or ``assumed``), ``detail``; for a perspective camera its
+        ``distance_radii`` (pinhole to the sphere's centre); for a fitted view
+        ``fitted_fov_deg``, ``fov_stderr_deg`` and the views tried
+        (``divergence_profile``); for an assumed view the lens it was compared with
+        (``compared_fov_deg``); for both the standard uncertainty each parameter gained
+        from the view (``view_uncertainty``).
     """
 
     params: dict

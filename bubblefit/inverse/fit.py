@@ -427,8 +427,9 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
 
     Examples
     --------
-    A photo rendered with a known 600 nm film over a black background, fitted back (about a
-    minute on a first call, which compiles; seconds with a warm cache):
+    A photo rendered with a known 600 nm film over a black background through parallel rays,
+    fitted back with its view stated (about a minute on a first call, which compiles; seconds
+    with a warm cache):
 
     >>> import numpy as np
     >>> import bubblefit as bf
@@ -437,8 +438,9 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     ...     "bubble": {"thickness_nm": 600.0, "t": 0.972, "f": 0.3, "roughness": 0.02},
     ...     "lighting": {"envmap": "courtyard.exr", "background": "black"}})
     >>> photo = np.asarray(bf.render_scene(scene))
+    >>> parallel = bf.resolve_view(fov_deg=0, width=48, height=48)  # rendered with parallel rays
     >>> result = bf.fit_photo(photo, scene.load_envmap(), background=np.zeros_like(photo),
-    ...                       options=bf.FitOptions(disc=(24, 24, 20)))
+    ...                       options=bf.FitOptions(disc=(24, 24, 20), view=parallel))
     >>> result.ok, round(float(result.params["thickness_nm"]))
     (True, 600)
     """

@@ -241,6 +241,80 @@ def test_flat_and_dark_remove_vignetting(tmp_path):
         flat_dark(photo, flat=flat[:-1], flat_path="f.exr")
 
 
+# ----------------------------------------------------------------------------- films read as photos
+
+_GAP_SCENE = """[film]
+shape = "plane"
+n = "air"
+above = "bk7"
+below = "bk7"
+thickness = "newton"
+range_nm = [0.0, 4000.0]
+
+[light]
+type = "coaxial"
+na = 0.1
+lamp = "3200K"
+
+[camera]
+width = 32
+height = 24
+pixel_um = 9.0
+"""
+
+
+def _film_args(tmp_path, photo, *flags):
+    """``fit PHOTO --scene`` (a flat film's scene) parsed as the command line parses it."""
+    from bubblefit.cli import build_parser
+
+    scene = tmp_path / "gap.toml"
+    scene.write_text(_GAP_SCENE)
+    return build_parser().parse_args(["fit", str(photo), "--scene", str(scene), *map(str, flags)])
+
+
+def test_film_photo_read_as_every_camera_file(tmp_path):
+    """A flat film's photo goes through the camera-file reader of every other command: a
+    DNG is developed by LibRaw (not its TIFF thumbnail or first IFD), a 12-bit linear TIFF
+    takes --encoding and its levels, and the JSON record says how the file was read. The
+    reference is :func:`read_photo` itself on the same flags (the same values exactly)."""
+    import tifffile
+
+    from bubblefit.cli.fit_planar import read_film_photo
+
+    pytest.importorskip("rawpy")
+    scene = _scene(24, 32)
+    black, white = 256, 4095
+    _write_dng(tmp_path / "f.dng", np.round(_mosaic(scene) * (white - black) + black), black, white)
+    photo, record = read_film_photo(_film_args(tmp_path, tmp_path / "f.dng", "--raw-white-balance", "none"))
+    assert record["encoding"] == "raw"
+    ref = read_photo(str(tmp_path / "f.dng"), PhotoReading(raw_white_balance="none"))
+    assert np.array_equal(photo.pixels, ref.pixels)
+    black, white = 64, 4095
+    tifffile.imwrite(str(tmp_path / "lin.tif"), np.round(scene * (white - black) + black).astype(np.uint16),
+                     photometric="rgb")
+    photo, record = read_film_photo(_film_args(tmp_path, tmp_path / "lin.tif", "--encoding", "linear",
+                                               "--black-level", black, "--white-level", white))
+    assert record["encoding"] == "linear"
+    assert np.max(np.abs(photo.pixels - scene)) <= 0.5 / (white - black) + 1e-12
+
+
+def test_film_fit_flat_of_another_size_exits_2(tmp_path):
+    """``fit --scene FILM.toml --flat`` reads the flat field (it was not ignored): one of
+    another size is refused in one line, exit 2, nothing written."""
+    from bubblefit.io.images import write_image
+
+    write_image(tmp_path / "p.exr", np.full((24, 32, 3), 0.5), bit_depth=32)
+    write_image(tmp_path / "f.exr", np.full((16, 32, 3), 0.5), bit_depth=32)
+    scene = tmp_path / "gap.toml"
+    scene.write_text(_GAP_SCENE)
+    proc = subprocess.run([sys.executable, "-m", "bubblefit", "fit", str(tmp_path / "p.exr"), "--scene", str(scene),
+                           "--flat", str(tmp_path / "f.exr"), "--json", str(tmp_path / "o.json")],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip().count("\n") == 0 and "flat field" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "o.json").exists()
+
+
 @pytest.mark.slow
 def test_fit_flat_of_another_size_exits_2(tmp_path):
     from bubblefit.io.images import write_image

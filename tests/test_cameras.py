@@ -216,6 +216,23 @@ def test_unsupported_raw_is_one_line(tmp_path):
     assert "\n" not in str(exc.value) and "x.nef" in str(exc.value)
 
 
+def test_raw_without_image_data_is_one_line(tmp_path):
+    """A DNG whose photosites all read one value (image data stripped, as in ExifTool's
+    test DNG, or a file cut short) is refused in one line instead of read as a black photo;
+    a dark frame (the black level plus read noise of a few codes) is read."""
+    pytest.importorskip("rawpy")
+    black, white = 256, 4095
+    _write_dng(tmp_path / "empty.dng", np.zeros((24, 32)), black, white)
+    with pytest.raises(InputError, match="holds no image") as exc:
+        read_photo(str(tmp_path / "empty.dng"))
+    assert "\n" not in str(exc.value)
+    noise = np.random.default_rng(0).normal(0.0, 3.0, (24, 32))
+    _write_dng(tmp_path / "dark.dng", np.round(black + np.abs(noise)), black, white)
+    dark = read_photo(str(tmp_path / "dark.dng"), PhotoReading(raw_white_balance="none"))
+    # demosaicing averages photosites: no pixel above the largest |noise| (under 5 sigma of 768 draws)
+    assert 0.0 <= dark.pixels.min() and dark.pixels.max() <= 5 * 3.0 / (white - black)
+
+
 # ----------------------------------------------------------------------------- flat and dark
 
 

@@ -12,6 +12,7 @@ import struct
 import subprocess
 import sys
 import zlib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -260,33 +261,16 @@ def test_flat_and_dark_remove_vignetting(tmp_path):
 
 # ----------------------------------------------------------------------------- films read as photos
 
-_GAP_SCENE = """[film]
-shape = "plane"
-n = "air"
-above = "bk7"
-below = "bk7"
-thickness = "newton"
-range_nm = [0.0, 4000.0]
-
-[light]
-type = "coaxial"
-na = 0.1
-lamp = "3200K"
-
-[camera]
-width = 32
-height = 24
-pixel_um = 9.0
-"""
+#: A flat film's scene (Newton's rings, 128x128 pixels) of the validation set.
+_GAP_SCENE = (Path(__file__).resolve().parent.parent / "experiments" / "validation" / "data"
+              / "film_newton_bk7_na010" / "scene.toml")
 
 
 def _film_args(tmp_path, photo, *flags):
     """``fit PHOTO --scene`` (a flat film's scene) parsed as the command line parses it."""
     from bubblefit.cli import build_parser
 
-    scene = tmp_path / "gap.toml"
-    scene.write_text(_GAP_SCENE)
-    return build_parser().parse_args(["fit", str(photo), "--scene", str(scene), *map(str, flags)])
+    return build_parser().parse_args(["fit", str(photo), "--scene", str(_GAP_SCENE), *map(str, flags)])
 
 
 def test_film_photo_read_as_every_camera_file(tmp_path):
@@ -299,7 +283,7 @@ def test_film_photo_read_as_every_camera_file(tmp_path):
     from bubblefit.cli.fit_planar import read_film_photo
 
     pytest.importorskip("rawpy")
-    scene = _scene(24, 32)
+    scene = _scene(128, 128)
     black, white = 256, 4095
     _write_dng(tmp_path / "f.dng", np.round(_mosaic(scene) * (white - black) + black), black, white)
     photo, record = read_film_photo(_film_args(tmp_path, tmp_path / "f.dng", "--raw-white-balance", "none"))
@@ -320,11 +304,10 @@ def test_film_fit_flat_of_another_size_exits_2(tmp_path):
     another size is refused in one line, exit 2, nothing written."""
     from bubblefit.io.images import write_image
 
-    write_image(tmp_path / "p.exr", np.full((24, 32, 3), 0.5), bit_depth=32)
-    write_image(tmp_path / "f.exr", np.full((16, 32, 3), 0.5), bit_depth=32)
-    scene = tmp_path / "gap.toml"
-    scene.write_text(_GAP_SCENE)
-    proc = subprocess.run([sys.executable, "-m", "bubblefit", "fit", str(tmp_path / "p.exr"), "--scene", str(scene),
+    write_image(tmp_path / "p.exr", np.full((128, 128, 3), 0.5), bit_depth=32)
+    write_image(tmp_path / "f.exr", np.full((64, 128, 3), 0.5), bit_depth=32)
+    proc = subprocess.run([sys.executable, "-m", "bubblefit", "fit", str(tmp_path / "p.exr"),
+                           "--scene", str(_GAP_SCENE),
                            "--flat", str(tmp_path / "f.exr"), "--json", str(tmp_path / "o.json")],
                           capture_output=True, text=True)
     assert proc.returncode == 2, proc.stderr

@@ -123,7 +123,7 @@ def run_fit(photo: Path, scene: Path, work: Path, tag: str) -> dict:
     js = work / f"{tag}.json"
     proc = subprocess.run([sys.executable, "-m", "bubblefit", "fit", str(photo), "--scene", str(scene),
                            "--json", str(js)], capture_output=True, text=True, cwd=work)
-    rec = {"exit": proc.returncode, "stderr": proc.stderr.strip().splitlines()[-1:] if proc.stderr.strip() else []}
+    rec = {"exit": proc.returncode, "message": proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else ""}
     if proc.returncode == 0:
         out = json.loads(js.read_text())
         rec.update({k: out.get(k) for k in ("ok", "warnings", "params", "stderr", "reduced_chi2",

@@ -5,8 +5,8 @@ close, and its trust-region damping keeps steps inside one colour fringe of the
 thickness; rather than Dogleg because with few parameters its damped solve is as cheap
 and it needs no separate trust-region geometry. The Jacobian is forward-mode (few
 parameters, many residuals), its columns computed by the part of the render their
-parameters reach, by groups or one by one, from the linearisation whose primal is the
-trial point's render (:func:`linearized_jacobian`). The residual is whitened and robust
+parameters reach (:func:`column_jacobian`) or, in the fit's final solve, one by one with
+the render shared (:func:`columns_linearized`). The residual is whitened and robust
 (:func:`robust`). This module holds the numerics only: the programs that run them are
 built in :mod:`._programs`, the solve that asks for them is :mod:`._local`.
 """
@@ -28,8 +28,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from ._parameters import PARAMETERS, forward
 
-__all__ = ["DenseDampedNewtonDescent", "LevenbergMarquardt", "column_jacobian", "columns_linearized", "linearized_jacobian",
-           "JACOBIANS",
+__all__ = ["DenseDampedNewtonDescent", "LevenbergMarquardt", "column_jacobian", "columns_linearized", "JACOBIANS",
            "scaled_decrement", "damped_step_length", "gauss_newton_decrement", "presses_bound", "robust", "MAX_REJECTIONS",
            "STOP_DECREMENT", "ROBUST_ASYMPTOTE"]
 
@@ -153,9 +152,9 @@ def _cauchy(rtol, atol, norm, y, y_diff, f, f_diff):
 class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
     """Levenberg-Marquardt for a flat parameter vector: optimistix' classical trust region
     (``optx.ClassicalTrustRegion``) and Cauchy termination, with the damped Newton step of
-    :class:`DenseDampedNewtonDescent` and a dense forward-mode Jacobian (``jax.jacfwd``,
-    ``jacobian`` when given, or the tangents of ``linearize``'s linearisation: the fit's
-    solves pass :func:`linearized_jacobian`) evaluated at accepted points only.
+    :class:`DenseDampedNewtonDescent` and a dense forward-mode Jacobian (``jax.jacfwd``, or
+    ``jacobian`` when given: the fit's solves pass :func:`column_jacobian`) evaluated at
+    accepted points only.
 
     optimistix' own ``LevenbergMarquardt`` linearises (``jax.linearize``) at every trial
     point and materialises the linearisation for its QR solve at every step: on the
@@ -209,14 +208,9 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
     #: The free parameters' names (:data:`~bubblefit.inverse._parameters.PARAMETERS`), in
     #: ``y``'s order: their bounds constrain the decrement (:func:`scaled_decrement`).
     free: tuple = ()
-    #: ``(y, args) -> J`` of the residual ``fn`` (None: ``jax.jacfwd`` of ``fn``).
+    #: ``(y, args) -> J`` of the residual ``fn`` (None: ``jax.jacfwd`` of ``fn``); the
+    #: solves pass :func:`column_jacobian` of their residual.
     jacobian: Callable | None = None
-    #: ``(y, args) -> (residual, jacobian)``: the residual of ``fn`` (without aux) and a
-    #: function of no arguments that returns its Jacobian, from one linearisation
-    #: (:func:`linearized_jacobian`; the solves pass it). The render at a trial point is
-    #: then the primal of its Jacobian, evaluated at accepted points only; None: ``fn``
-    #: and ``jacobian``.
-    linearize: Callable | None = None
 
     def init(self, fn, y, args, options, f_struct, aux_struct, tags) -> _LMState:
         f_info = optx.FunctionInfo.ResidualJac(
@@ -228,20 +222,17 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
                         num_steps_since_acceptance=jnp.array(0))
 
     def step(self, fn, y, args, options, state: _LMState, tags):
-        if self.linearize is None:
-            residual, aux = fn(state.y_eval, args)
-            if self.jacobian is None:
-                jacobian = lambda: jax.jacfwd(lambda z: fn(z, args)[0])(state.y_eval)
-            else:
-                jacobian = lambda: self.jacobian(state.y_eval, args)
-        else:
-            (residual, jacobian), aux = self.linearize(state.y_eval, args), None
+        residual, aux = fn(state.y_eval, args)
         step_size, accept, search_result, search_state = self.search.step(
             state.first_step, y, state.y_eval, state.f_info, optx.FunctionInfo.Residual(residual),
             state.search_state)
 
         def accepted():
-            f_info = optx.FunctionInfo.ResidualJac(residual, lx.MatrixLinearOperator(jacobian()))
+            if self.jacobian is None:
+                jac = jax.jacfwd(lambda z: fn(z, args)[0])(state.y_eval)
+            else:
+                jac = self.jacobian(state.y_eval, args)
+            f_info = optx.FunctionInfo.ResidualJac(residual, lx.MatrixLinearOperator(jac))
             dense = self.descent.query(state.y_eval, f_info, state.descent_state)
             done = _cauchy(self.rtol, self.atol, self.norm, state.y_eval, state.y_eval - y, residual,
                            residual - state.f_info.residual)
@@ -278,73 +269,64 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
         return y, aux, {}
 
 
-def linearized_jacobian(resid: Callable, groups: tuple, z, args) -> tuple[Float[Array, " m"], Callable]:
-    """``resid(z, args)`` (M,) and a function of no arguments that returns its Jacobian
-    (M, N) in ``z`` (N,), forward mode, from one :func:`jax.linearize` per group of
-    parameters: ``groups`` are tuples of indices into ``z`` (each index once), the
-    parameters outside a group held as constants while its columns are computed, each
-    group's columns its linearisation's tangents along its parameters (``jax.vmap`` over
-    their unit vectors).
-
-    ``resid`` sees ``z`` as a tuple of scalars, so that a group's tangents are symbolic
-    zeros wherever its parameters do not reach and each group's tangents cost only the
-    part of the render downstream of it. The linearisations' primal parts are one
-    computation, which XLA merges: the render runs once, and its value is the residual
-    returned. Inside :class:`LevenbergMarquardt` the primal part is the trial point's
-    render and the tangents are evaluated at accepted points only (a ``lax.cond``
-    branch), so that an accepted step renders once (Griewank & Walther, *Evaluating
-    Derivatives*, 2nd ed., 2008, ch. 3: the tangent mode's cost over the function's)."""
-    zs = tuple(z[i] for i in range(z.shape[0]))
-    residual, tangents = None, []
-    for group in groups:
-        value, lin = jax.linearize(_along(resid, zs, group, args), jnp.stack([zs[i] for i in group]))
-        residual = value if residual is None else residual
-        tangents.append((group, lin))
-
-    def jacobian():
-        columns = {}
-        for group, lin in tangents:
-            jac = jax.vmap(lin)(jnp.eye(len(group), dtype=zs[group[0]].dtype))
-            for k, i in enumerate(group):
-                columns[i] = jac[k]
-        return jnp.stack([columns[i] for i in range(len(zs))], axis=-1)
-
-    return residual, jacobian
-
-
 def column_jacobian(resid: Callable, groups: tuple, z, args) -> Float[Array, "m n"]:
     """The Jacobian of ``resid(z, args)`` (M,) in ``z`` (N,), forward mode, one group of
-    columns at a time (:func:`linearized_jacobian`): ``groups`` are tuples of indices into
-    ``z`` (each index once, :attr:`~bubblefit.inverse._parameters.ParameterTable.jacobian_groups`),
-    the parameters outside a group held as constants while its columns are computed.
+    columns at a time: ``groups`` are tuples of indices into ``z`` (each index once,
+    :attr:`~bubblefit.inverse._parameters.ParameterTable.jacobian_groups`), the parameters
+    outside a group held as constants while its columns are computed.
 
     ``jax.jacfwd`` pushes all N tangents through every operation that any parameter
     reaches: the thickness's tangent through the map's filtered lookups, the roughness's
     through the film's spectra, and the terms' linear weights (``t``, the split, the
-    exposure) through both. By groups each costs only the part of the render downstream of
-    it. On the 64x64 sequence frames of ``experiments/bench_sequence.py`` (paper model;
-    the weights, the roughness and the thickness free) the Jacobian took 22-27 ms against
-    53-65 ms with ``jax.jacfwd`` on one core, equal within 6e-5 of 48."""
-    return linearized_jacobian(resid, groups, z, args)[1]()
+    exposure) through both. Here ``resid`` sees ``z`` as a tuple of scalars, so that a
+    group's tangents are symbolic zeros wherever its parameters do not reach and each group
+    costs only the part of the render downstream of it (XLA merges the groups' copies of the
+    primal). On the 64x64 sequence frames of ``experiments/bench_sequence.py`` (paper
+    model; the weights, the roughness and the thickness free) the Jacobian took 22-27 ms
+    against 53-65 ms on one core, equal within 6e-5 of 48; the two solves of a fit take
+    about 1.4 s longer to compile than with ``jax.jacfwd`` (3.6 s with a column for each
+    of the five parameters, for the same speed).
+    """
+    zs = tuple(z[i] for i in range(z.shape[0]))
+    columns = {}
+    for group in groups:
+        jac = jax.jacfwd(_along(resid, zs, group, args))(jnp.stack([zs[i] for i in group]))
+        for k, i in enumerate(group):
+            columns[i] = jac[:, k]
+    return jnp.stack([columns[i] for i in range(len(zs))], axis=-1)
 
 
 def columns_linearized(resid: Callable, z, args) -> Float[Array, "m n"]:
-    """The Jacobian of ``resid(z, args)`` (M,) in ``z`` (N,) one column at a time
-    (:func:`linearized_jacobian` with every parameter its own group): a parameter whose
-    tangent crosses the map's filtered lookups (the roughness, the disc) costs about one
-    render more, the others less. On the 80x80 level of a 320x320 photo (8 parameters)
-    the Jacobian took 80 ms against 119 ms by groups and the solve 0.36 s against 0.50 s,
-    the same thickness to the last bit; its program compiles longer (5.5 s against 4.2 s
-    alone), which the fit's final solve after a global search hides in the background
-    (``experiments/bench_fit.py --compile-profile``;
-    ``bubblefit.inverse._programs.FINAL_JACOBIAN``)."""
-    return linearized_jacobian(resid, tuple((i,) for i in range(z.shape[0])), z, args)[1]()
+    """The Jacobian of ``resid(z, args)`` (M,) in ``z`` (N,) one column at a time, each
+    the tangent of a :func:`jax.linearize` along its parameter alone (``resid`` sees ``z``
+    as a tuple of scalars, as in :func:`column_jacobian`, so that a column's tangent reaches
+    only the part of the render downstream of its parameter). The linearisations' primal
+    parts are one computation, which XLA merges: the render runs once, and a parameter
+    whose tangent crosses the map's filtered lookups (the roughness, the disc) costs about
+    one render more, the others less.
+
+    The fit's final solve uses it (:func:`solve_local` with ``jacobian="columns"``): on
+    the 80x80 level of a 320x320 photo (8 parameters) the Jacobian took 80 ms against
+    119 ms by groups and the solve 0.36 s against 0.50 s, the same thickness to the last
+    bit (39 ms against 66 ms since the filtered lookups work per vector component, 5.5 s
+    against 4.2 s to compile alone); its longer compile runs in the background during the
+    global search (an empty cache's first fit 22.4 and 20.8 s against 22.4 and 19.9 s by
+    groups). The search's
+    own solve and a warm-started fit's, compiled on the critical path, keep the groups
+    (``experiments/bench_fit.py --compile-profile``; ``bubblefit.inverse._programs.FINAL_JACOBIAN``).
+    """
+    zs = tuple(z[i] for i in range(z.shape[0]))
+    columns = []
+    for i in range(len(zs)):
+        _, tangent = jax.linearize(_along(resid, zs, (i,), args), zs[i][None])
+        columns.append(tangent(jnp.ones((1,), zs[i].dtype)))
+    return jnp.stack(columns, axis=-1)
 
 
 def _along(resid: Callable, zs: tuple, group: tuple, args) -> Callable:
     """``resid`` as a function of the parameters ``group`` (indices into ``zs``, their
     values stacked in that order), the others held at ``zs``: the function whose forward
-    derivative is the group's columns (:func:`linearized_jacobian`)."""
+    derivative is the group's columns (:func:`column_jacobian`, :func:`columns_linearized`)."""
     def along(sub):
         full = list(zs)
         for k, i in enumerate(group):
@@ -354,12 +336,10 @@ def _along(resid: Callable, zs: tuple, group: tuple, args) -> Callable:
     return along
 
 
-#: How a solve linearises its residual (:func:`linearized_jacobian`, the ``linearize`` of
-#: :class:`LevenbergMarquardt`): by groups of parameters (shorter to compile) or by
-#: columns (every parameter its own group, faster to run).
-JACOBIANS = {"groups": lambda resid, table: functools.partial(linearized_jacobian, resid, table.jacobian_groups),
-             "columns": lambda resid, table: functools.partial(linearized_jacobian, resid,
-                                                               tuple((i,) for i in range(len(table.free))))}
+#: How a solve computes its Jacobian: by groups of parameters (:func:`column_jacobian`,
+#: shorter to compile) or by columns (:func:`columns_linearized`, faster to run).
+JACOBIANS = {"groups": lambda resid, table: functools.partial(column_jacobian, resid, table.jacobian_groups),
+             "columns": lambda resid, table: functools.partial(columns_linearized, resid)}
 
 
 def scaled_decrement(dense: _DenseState, residual, z=None, free: tuple = ()) -> Float[Array, ""]:

@@ -215,8 +215,13 @@ class SolveSettings:
 FINAL_SOLVE = SolveSettings(FINAL_JACOBIAN, FINAL_COMPILE, True)
 #: The global search's own short solves (:data:`SEARCH_COMPILE`).
 SEARCH_SOLVE = SolveSettings("groups", SEARCH_COMPILE, True)
-#: A warm-started fit's solve: the groups, XLA's defaults, optimistix' own stopping rule.
-WARM_SOLVE = SolveSettings("groups", (), False)
+#: A warm-started fit's solve (a sequence's frame from its predecessor's values, ``auto``'s
+#: physical solve from the paper model's, a doubtful warm start's second solve): the groups,
+#: XLA's defaults, and the searched fit's stop on rejections and restarts
+#: (:class:`~bubblefit.inverse._lm.LevenbergMarquardt`), rather than optimistix' Cauchy test
+#: alone, which near the optimum spends most of a solve's steps rejected
+#: (:data:`~bubblefit.inverse._lm.STOP_DECREMENT`).
+WARM_SOLVE = SolveSettings("groups", (), True)
 
 
 def final_params(table, vals: dict, opts: FitOptions):

@@ -417,9 +417,17 @@ def prepare_render_bubble(p, lev: Level, env) -> None:
 
 
 def _padded_params(p, lev: Level, cfg: RenderConfig | None):
-    """``lev`` (with ``cfg``) padded, and ``p`` with its disc refinement composed with the level's."""
+    """``lev`` (with ``cfg``) padded, and ``p`` with its disc refinement composed with the
+    level's; a thickness map on ``lev``'s pixels padded as the image is (the padded
+    program reads it at the padded image's flat indices)."""
     pad = padded(replace(lev, cfg=cfg) if cfg is not None else lev)
-    return pad, replace(p, disc=compose_shift(pad.base, np.asarray(p.disc, np.float32)))
+    q = replace(p, disc=compose_shift(pad.base, np.asarray(p.disc, np.float32)))
+    h, w = lev.y.shape[:2]
+    hb, wb = pad.cfg.shape
+    if (pad.cfg.effects.thickness == "map" and jnp.ndim(p.thickness) == 2 and tuple(jnp.shape(p.thickness)) == (h, w)
+            and (hb, wb) != (h, w)):
+        q = replace(q, thickness=jnp.pad(jnp.asarray(p.thickness), ((0, hb - h), (0, wb - w))))
+    return pad, q
 
 
 

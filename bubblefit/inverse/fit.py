@@ -56,7 +56,7 @@ from ._maps import fit_map
 from ._observation import noise_sigma
 from ..capture.circle import detect_disc
 from ._programs import (FINAL_SOLVE, SEARCH_SOLVE, WARM_SOLVE, SolveSettings, batched_solver, final_params,
-                        fitted_pixels, held_values, render_bubble, render_level, reporter, warm_up)
+                        fitted_pixels, held_values, render_bubble, reporter, warm_up)
 from ._options import FitOptions, FitResult, ImageSizes, JudgeSettings, MapSettings, NoiseSettings, SolverSettings
 from ._parameters import THICKNESSES, extrapolated, parameter_roles, refined_disc
 from ._setup import Setup, defaults, setup
@@ -290,8 +290,7 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
             notes.append("the thickness map is not constrained at over 10% of the film's pixels")
     elif opts.thickness == "drainage":
         thickness_map = np.where(full.inside, np.asarray(drainage_profile(jnp.asarray(full.height), *prof)), np.nan)
-    draw = render_level if opts.thickness == "map" else render_bubble
-    img = np.asarray(draw(final_params(table, final_vals, opts), full, env), np.float64)
+    img = np.asarray(render_bubble(final_params(table, final_vals, opts), full, env), np.float64)
     resid_img = st.photo - img
     camera_stderr = unc.camera_stderr
     if opts.thickness == "map" and full.mask.any():  # each pixel's share of a calibrated response's errors

@@ -96,7 +96,7 @@ def rings_period(r2, value, r2_min_period: float) -> tuple[float, float]:
         coef, *_ = np.linalg.lstsq(A * wt[:, None], mean * wt, rcond=None)
         return float(np.sum(((A @ coef - mean) * wt) ** 2)), coef
 
-    lo, hi = np.log(r2_min_period), np.log(max(span, 2.0 * r2_min_period))
+    lo, hi = np.log(r2_min_period), np.log(max(span / 3.0, 2.0 * r2_min_period))  # three fringes at least
     # a fringe across the photo moves by span/P; a fiftieth of one in log P
     n = int(np.clip(50.0 * span / r2_min_period * (hi - lo), 200, 5000))
     grid = np.exp(np.linspace(lo, hi, n))

@@ -115,16 +115,36 @@ def rings_period(r2, value, r2_min_period: float) -> tuple[float, float]:
     return p, float(np.arctan2(-coef[2], coef[1]))
 
 
-def _rings_start(fwd, x, yy, bright, pitch: float, lo: float, hi: float):
+#: Width (pixels) of the Gaussian envelope divided out of the intensity before the rings'
+#: centre and period are sought: it passes fringes narrower than ~2 pi 3 = 19 pixels and
+#: removes the lamp's slow fall-off. Checked on the three real sodium photos of
+#: experiments/real_photos.py (3 and 6 pixels give the same centres; 12 fails on one).
+ENVELOPE_PX = 3.0
+
+
+def _fringes(bright, mask) -> np.ndarray:
+    """The intensity over its local mean minus one (a Gaussian of :data:`ENVELOPE_PX`,
+    normalised over the film's pixels): the fringes without the lamp's envelope."""
+    from scipy import ndimage
+
+    img = np.zeros(mask.shape)
+    img[mask] = bright
+    env = ndimage.gaussian_filter(img, ENVELOPE_PX) / np.maximum(ndimage.gaussian_filter(mask * 1.0, ENVELOPE_PX), 1e-9)
+    return bright / np.maximum(env[mask], 1e-3 * float(np.max(bright))) - 1.0
+
+
+def _rings_start(fwd, x, yy, bright, mask, pitch: float, lo: float, hi: float):
     """``(R um, cx, cy, h0 nm)`` from the rings' circular symmetry and their period in ``r^2``
-    (:func:`rings_centre`, :func:`rings_period`), at the lamp's mean wavelength through
-    the camera (one wavelength for a line lamp), no colour used."""
+    (:func:`rings_centre`, :func:`rings_period`) of the fringes (:func:`_fringes`), at the
+    lamp's mean wavelength through the camera (one wavelength for a line lamp), no colour
+    used; the shortest period sought puts two pixels between rings at the median radius."""
     w = np.asarray(fwd.basis.weights, np.float64).sum(-1)
     lam = float(np.sum(np.asarray(fwd.lam) * w) / np.sum(w))
     n = float(np.asarray(fwd.stack.indices(np.array([lam])).film)[0])
-    cx, cy = rings_centre(x, yy, bright, pitch)
+    value = _fringes(bright, mask)
+    cx, cy = rings_centre(x, yy, value, pitch)
     r2 = (x - cx) ** 2 + (yy - cy) ** 2
-    period, phi = rings_period(r2, bright, 4.0 * pitch * float(np.sqrt(r2.max())))
+    period, phi = rings_period(r2, value, 4.0 * pitch * float(np.median(np.sqrt(r2))))
     radius = period * n / (lam / 1000.0)  # um: P = lambda R / n
     fringe = lam / (2.0 * n)  # phase 4 pi n h0 / lambda + pi = phi (mod 2 pi)
     h0 = ((phi - np.pi) / (2.0 * np.pi) % 1.0) * fringe
@@ -160,7 +180,7 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
         if slope > 0:
             starts.append((1000.0 / (2.0 * slope), cx, cy, float(h0)))  # um: h[nm] = 1000 r^2 / (2 R)
     pitch = float(np.median(np.abs(np.diff(np.unique(np.round(x, 6))))))
-    starts.append(_rings_start(fwd, x, yy, bright, pitch, lo, hi))
+    starts.append(_rings_start(fwd, x, yy, bright, mask, pitch, lo, hi))
     best = None
     for radius, cx, cy, h0 in starts:
         t = jnp.asarray([np.log(radius), cx, cy, h0, 0.0])

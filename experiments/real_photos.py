@@ -119,6 +119,29 @@ def textbook_radius(radius: int) -> tuple[float, float]:
     return float(coef[0]), float(np.sqrt(cov[0, 0]))
 
 
+def rings_start(png: Path, pixel_um: float, stated_mm: float) -> dict:
+    """The fit's colour-free start on the grey photo alone (bubblefit.inverse._newton: the
+    rings' centre of symmetry, their period ``lambda R`` in r^2), sRGB-decoded, at 589.3 nm;
+    and the pixel scale that would make R the stated radius (R scales as the pixel squared)."""
+    from PIL import Image
+
+    from bubblefit.inverse._newton import _fringes, rings_centre, rings_period
+
+    code = np.asarray(Image.open(png), np.float64)[..., 1] / 255.0
+    lin = np.where(code <= 0.04045, code / 12.92, ((code + 0.055) / 1.055) ** 2.4)
+    h, w = lin.shape
+    mask = np.ones((h, w), bool)
+    yy, xx = np.mgrid[0:h, 0:w]
+    x, y = ((xx - w / 2) * pixel_um)[mask], ((yy - h / 2) * pixel_um)[mask]
+    v = _fringes(lin[mask], mask)
+    cx, cy = rings_centre(x, y, v, pixel_um)
+    r2 = (x - cx) ** 2 + (y - cy) ** 2
+    period, _ = rings_period(r2, v, 4.0 * pixel_um * float(np.median(np.sqrt(r2))))
+    radius_mm = period / (SODIUM_NM / 1000.0) / 1000.0
+    return {"radius_mm": radius_mm, "centre_px": [cx / pixel_um + w / 2, cy / pixel_um + h / 2],
+            "pixel_um_for_stated": pixel_um / 2 * float(np.sqrt(stated_mm / radius_mm))}
+
+
 def run_fit(photo: Path, scene: Path, work: Path, tag: str) -> dict:
     js = work / f"{tag}.json"
     proc = subprocess.run([sys.executable, "-m", "bubblefit", "fit", str(photo), "--scene", str(scene),
@@ -137,6 +160,8 @@ def main() -> int:
                     help="a folder holding the ring photos (牛顿环_<R>.jpg) instead of fetching them")
     ap.add_argument("--only", type=int, nargs="*", default=sorted(DIAMETERS))
     ap.add_argument("--work", type=Path, default=Path("real_photos_work"))
+    ap.add_argument("--start-only", action="store_true",
+                    help="only the colour-free start (seconds), merged into the existing record")
     args = ap.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
     sodium_lamp(args.work / "sodium.csv")
@@ -146,16 +171,23 @@ def main() -> int:
         "width = 320\nheight = 240", "width = 640\nheight = 480"))
     (args.work / "grey.toml").write_text(SCENE.format(pixel_um=pixel_um, response='response = "grey.csv"\n'))
     records = []
+    old = {p["stated_radius_mm"]: p for p in json.loads((OUT / "real_photos.json").read_text())["photos"]} \
+        if args.start_only else {}
     for radius in args.only:
         jpg = fetch(radius, args.source, args.work)
         grey_photo(jpg, args.work / f"rings_{radius}_grey.png")
+        start = rings_start(args.work / f"rings_{radius}_grey.png", pixel_um, radius)
+        if args.start_only:
+            records.append({**old[radius], "start": start})
+            print(radius, start)
+            continue
         r_text, se_text = textbook_radius(radius)
         rec = {"photo": f"{RINGS_REPO}@{RINGS_COMMIT[:7]}:{RINGS_DIR}/牛顿环_{radius}.jpg",
                "stated_radius_mm": radius, "pixel_um_binned": pixel_um,
                "textbook_radius_mm": r_text, "textbook_stderr_mm": se_text,
                "colour": run_fit(jpg, args.work / "colour.toml", args.work, f"colour_{radius}"),
                "grey": run_fit(args.work / f"rings_{radius}_grey.png", args.work / "grey.toml", args.work,
-                               f"grey_{radius}")}
+                               f"grey_{radius}"), "start": start}
         records.append(rec)
         print(json.dumps(rec, indent=1, ensure_ascii=False))
     OUT.mkdir(parents=True, exist_ok=True)

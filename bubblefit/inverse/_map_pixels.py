@@ -49,14 +49,19 @@ def _predict(cfg, traced, d):
     return shade_pixels(traced, cfg, films)[0]
 
 
+def _trace(p, cfg, env, bg, r, c, i):
+    """One chunk's rays (:func:`~bubblefit.model.render.trace_pixels`) at pixel rows ``r`` and
+    columns ``c``, with the background photo's pixels ``i`` (flat indices) behind them."""
+    return trace_pixels(p, cfg, env, None if bg is None else bg.reshape(-1, 3)[i], r, c)
+
+
 def _over_chunks(p, cfg, env, bg, rows, cols, idx, per_pixel, y, w, fn):
     """``fn(predict, per_pixel chunk, y chunk, w chunk)`` over the chunks, each chunk's rays
     traced once; ``predict(d)`` the chunk's (N, 3) pixels at front thicknesses ``d`` (N,)."""
 
     def chunk(xs):
         r, c, i, q, yy, ww = xs
-        b = None if bg is None else bg.reshape(-1, 3)[i]
-        traced = trace_pixels(p, cfg, env, b, r, c)
+        traced = _trace(p, cfg, env, bg, r, c, i)
         return fn(lambda d: _predict(cfg, traced, d), q, yy, ww)
 
     return jax.lax.map(chunk, (rows, cols, idx, per_pixel, y, w))
@@ -87,11 +92,7 @@ def _chunk_trace(p, cfg, env, bg, rows, cols, idx):
     """Every chunk's traced rays (:func:`~bubblefit.model.render.trace_pixels`), stacked
     over the chunks: what a level's pixels read that does not depend on the thickness."""
 
-    def chunk(xs):
-        r, c, i = xs
-        return trace_pixels(p, cfg, env, None if bg is None else bg.reshape(-1, 3)[i], r, c)
-
-    return jax.lax.map(chunk, (rows, cols, idx))
+    return jax.lax.map(lambda xs: _trace(p, cfg, env, bg, *xs), (rows, cols, idx))
 
 
 @functools.partial(jax.jit, static_argnames=("cfg",))

@@ -82,7 +82,7 @@ def load_case(case: str):
 #: (label, module, attribute) of the functions timed.
 TIMED = (("setup", "bubblefit.inverse.fit", "setup"), ("search", "bubblefit.inverse.fit", "_searched_start"),
          ("local solve", "bubblefit.inverse.fit", "solve_local"), ("judge (std errors)", "bubblefit.inverse.fit", "_judge"),
-         ("map", "bubblefit.inverse.fit", "fit_map"), ("final render (map)", "bubblefit.inverse.fit", "render_level"),
+         ("map", "bubblefit.inverse.fit", "fit_map"),
          ("final render", "bubblefit.inverse.fit", "render_bubble"),
          ("map: level", "bubblefit.inverse._maps", "_level_map"), ("map: ICM", "bubblefit.inverse._maps", "_icm"),
          ("map: newton", "bubblefit.inverse._maps", "refine"))

@@ -12,6 +12,7 @@ import struct
 import subprocess
 import sys
 import zlib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -216,6 +217,23 @@ def test_unsupported_raw_is_one_line(tmp_path):
     assert "\n" not in str(exc.value) and "x.nef" in str(exc.value)
 
 
+def test_raw_without_image_data_is_one_line(tmp_path):
+    """A DNG whose photosites all read one value (image data stripped, as in ExifTool's
+    test DNG, or a file cut short) is refused in one line instead of read as a black photo;
+    a dark frame (the black level plus read noise of a few codes) is read."""
+    pytest.importorskip("rawpy")
+    black, white = 256, 4095
+    _write_dng(tmp_path / "empty.dng", np.zeros((24, 32)), black, white)
+    with pytest.raises(InputError, match="holds no image") as exc:
+        read_photo(str(tmp_path / "empty.dng"))
+    assert "\n" not in str(exc.value)
+    noise = np.random.default_rng(0).normal(0.0, 3.0, (24, 32))
+    _write_dng(tmp_path / "dark.dng", np.round(black + np.abs(noise)), black, white)
+    dark = read_photo(str(tmp_path / "dark.dng"), PhotoReading(raw_white_balance="none"))
+    # demosaicing averages photosites: no pixel above the largest |noise| (under 5 sigma of 768 draws)
+    assert 0.0 <= dark.pixels.min() and dark.pixels.max() <= 5 * 3.0 / (white - black)
+
+
 # ----------------------------------------------------------------------------- flat and dark
 
 
@@ -239,6 +257,62 @@ def test_flat_and_dark_remove_vignetting(tmp_path):
     assert np.allclose(img.pixels / gain, scene, rtol=2e-6, atol=1e-6)
     with pytest.raises(InputError, match="flat field"):
         flat_dark(photo, flat=flat[:-1], flat_path="f.exr")
+
+
+# ----------------------------------------------------------------------------- films read as photos
+
+#: A flat film's scene (Newton's rings, 128x128 pixels) of the validation set.
+_GAP_SCENE = (Path(__file__).resolve().parent.parent / "experiments" / "validation" / "data"
+              / "film_newton_bk7_na010" / "scene.toml")
+
+
+def _film_args(tmp_path, photo, *flags):
+    """``fit PHOTO --scene`` (a flat film's scene) parsed as the command line parses it."""
+    from bubblefit.cli import build_parser
+
+    return build_parser().parse_args(["fit", str(photo), "--scene", str(_GAP_SCENE), *map(str, flags)])
+
+
+def test_film_photo_read_as_every_camera_file(tmp_path):
+    """A flat film's photo goes through the camera-file reader of every other command: a
+    DNG is developed by LibRaw (not its TIFF thumbnail or first IFD), a 12-bit linear TIFF
+    takes --encoding and its levels, and the JSON record says how the file was read. The
+    reference is :func:`read_photo` itself on the same flags (the same values exactly)."""
+    import tifffile
+
+    from bubblefit.cli.fit_planar import read_film_photo
+
+    pytest.importorskip("rawpy")
+    scene = _scene(128, 128)
+    black, white = 256, 4095
+    _write_dng(tmp_path / "f.dng", np.round(_mosaic(scene) * (white - black) + black), black, white)
+    photo, record = read_film_photo(_film_args(tmp_path, tmp_path / "f.dng", "--raw-white-balance", "none"))
+    assert record["encoding"] == "raw"
+    ref = read_photo(str(tmp_path / "f.dng"), PhotoReading(raw_white_balance="none"))
+    assert np.array_equal(photo.pixels, ref.pixels)
+    black, white = 64, 4095
+    tifffile.imwrite(str(tmp_path / "lin.tif"), np.round(scene * (white - black) + black).astype(np.uint16),
+                     photometric="rgb")
+    photo, record = read_film_photo(_film_args(tmp_path, tmp_path / "lin.tif", "--encoding", "linear",
+                                               "--black-level", black, "--white-level", white))
+    assert record["encoding"] == "linear"
+    assert np.max(np.abs(photo.pixels - scene)) <= 0.5 / (white - black) + 1e-12
+
+
+def test_film_fit_flat_of_another_size_exits_2(tmp_path):
+    """``fit --scene FILM.toml --flat`` reads the flat field (it was not ignored): one of
+    another size is refused in one line, exit 2, nothing written."""
+    from bubblefit.io.images import write_image
+
+    write_image(tmp_path / "p.exr", np.full((128, 128, 3), 0.5), bit_depth=32)
+    write_image(tmp_path / "f.exr", np.full((64, 128, 3), 0.5), bit_depth=32)
+    proc = subprocess.run([sys.executable, "-m", "bubblefit", "fit", str(tmp_path / "p.exr"),
+                           "--scene", str(_GAP_SCENE),
+                           "--flat", str(tmp_path / "f.exr"), "--json", str(tmp_path / "o.json")],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip().count("\n") == 0 and "flat field" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "o.json").exists()
 
 
 @pytest.mark.slow

@@ -116,6 +116,42 @@ def test_diagonal_jacobian_matches_differences(env, level):
     big = np.abs(an) > 0.05 * np.max(np.abs(an))
     # float32 costs of ~1e2 differenced over 0.5 nm: a few percent of the largest slope
     assert np.median(np.abs(fd - an)[big] / np.abs(an[big])) < 0.03
+    # a further call reads the rays its first call traced: a fresh trace's values, to the
+    # same program's rounding
+    r2, j2 = costs.slopes(d + 7.0)
+    r3, j3 = TracedCosts(lev, st.table, vals, env).slopes(d + 7.0)
+    np.testing.assert_allclose(r2, r3, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(j2, j3, rtol=1e-6, atol=1e-6)
+    assert not np.allclose(r2, r)  # the thickness changed the residuals
+
+
+def test_final_render_of_a_map_on_an_unpadded_level(env):
+    """A map's final render on a level whose size is not a padded size (37 x 45, padded to
+    48 x 48) reads each pixel's own thickness: the bubble's pixels alone and the whole
+    padded render both equal the level's own render (float32 rounding of ~1e-6)."""
+    from dataclasses import replace
+
+    import jax.numpy as jnp
+
+    from bubblefit.inverse import Level, render_bubble, render_level
+    from bubblefit.lighting.filtering import FilterConfig
+    from bubblefit.model.effects import Effects
+    from bubblefit.model.geometry import OrthographicCamera
+    from bubblefit.model.render import Params, RenderConfig, render
+    from bubblefit.optics.spectral import spectral_basis
+
+    rng = np.random.default_rng(5)
+    fx = Effects(model="paper", interference="airy", filtering=FilterConfig("mipmap", nodes=2),
+                 spectral=spectral_basis("uniform", 16), thickness="map", background="photo")
+    cfg = RenderConfig(effects=fx, camera=OrthographicCamera(45, 37, 20.3, 17.9, 15.2))
+    bg = rng.uniform(0.1, 0.5, (37, 45, 3)).astype(np.float32)
+    lev = Level(1, cfg, np.zeros((37, 45, 3), np.float32), np.ones((37, 45, 3), np.float32), bg,
+                np.ones((37, 45), bool), np.ones((37, 45), bool), np.ones((37, 45)), np.zeros((37, 45)))
+    tmap = rng.uniform(400.0, 700.0, (37, 45)).astype(np.float32)  # every pixel its own colour
+    p = replace(Params.make(roughness=0.05), thickness=jnp.asarray(tmap))
+    want = np.asarray(render(p, cfg, env, jnp.asarray(bg)))
+    for draw in (render_level, render_bubble):
+        np.testing.assert_allclose(np.asarray(draw(p, lev, env)), want, atol=2e-5)
 
 
 @pytest.mark.slow

@@ -457,10 +457,10 @@ def test_warm_map_follows_the_profile():
     """The next frame's map starts from the previous frame's map moved by the change of the
     fitted drainage profile (the map's own features carried, the profile's drainage
     applied); pixels the previous map lacks take the profile; a map covering under
-    ``WARM_COVER`` of the film starts nothing. A record passes its map and profile on."""
+    ``WARM_COVER`` of the film starts nothing. A start that holds a map and its profile
+    starts the map of a frame of the same size."""
     from types import SimpleNamespace
 
-    from bubblefit.inverse._executors import carried
     from bubblefit.inverse._maps import WARM_COVER, profile_map, warm_centre
     from bubblefit.inverse._setup import map_start
 
@@ -477,11 +477,7 @@ def test_warm_map_follows_the_profile():
     sparse = prev.copy()
     sparse[: int(np.ceil(20 * (1 - WARM_COVER))) + 1] = np.nan  # one row more than the least cover allows
     assert warm_centre(lev, p1, (sparse, p0)) is None
-    rec = {"status": "ok", "converged": True, "init": {"top_nm": 250.0}, "_thickness_map": prev,
-           "params": {"top_nm": 250.0, "bottom_nm": 1000.0, "exponent": 1.2}}
-    nxt = carried(rec, True)
-    assert nxt["map"] is prev and nxt["map_profile"] == p0 and nxt["top_nm"] == 250.0
-    assert "map" not in carried(rec, False)
+    nxt = {"top_nm": 250.0, "map": prev, "map_profile": p0}
     assert map_start(nxt, (20, 20))[1] == p0 and map_start(nxt, (10, 10)) is None
 
 

@@ -260,6 +260,52 @@ def test_bad_illuminant_csv(tmp_path, text):
         spectral.illuminant_spectrum(str(p))
 
 
+def _lines_csv(path, centres, sigma=0.05, step=0.01):
+    """A spectrometer's CSV of Gaussian lines (unit peak) sampled every ``step`` nm."""
+    lam = np.arange(380.0, 780.0 + step / 2, step)
+    power = sum(np.exp(-0.5 * ((lam - c) / sigma) ** 2) for c in centres)
+    np.savetxt(path, np.column_stack([lam, power]), delimiter=",", header="wavelength_nm,power", comments="")
+    return sigma * np.sqrt(2.0 * np.pi)  # each line's power
+
+
+def test_lamp_csv_finer_than_the_grid_keeps_each_lines_power(tmp_path):
+    """Lines 0.05 nm wide (a sodium or mercury lamp read by a spectrometer): each 1 nm
+    sample carries the power of its nanometre. The line at 591.7 nm lies 6 sigma from the
+    nearest grid point (point sampling kept exp(-18) of it); its cell [591.5, 592.5] holds
+    it but the tail beyond 4 sigma (3e-5 of it); the trapezoid rule on a Gaussian sampled
+    at sigma / 5 is exact to far below that."""
+    power = _lines_csv(tmp_path / "lines.csv", [589.0, 591.7])
+    spd = spectral.illuminant_spectrum(str(tmp_path / "lines.csv"))
+    grid = spectral.TABLE_GRID
+    assert abs(spd.sum() - 2 * power) <= 1e-6 * power
+    assert abs(spd[grid == 589.0][0] - power) <= 1e-6 * power
+    assert abs(spd[grid == 592.0][0] - power) <= 4e-5 * power
+
+
+def test_lamp_csv_on_a_coarse_grid_is_its_points(tmp_path):
+    """A CSV sampled every 5 nm along a straight line: the mean over each 1 nm cell of a
+    straight line is its value at the cell's centre, so the grid's values are the line's
+    (to rounding), and zero outside the CSV's range."""
+    lam = np.arange(400.0, 701.0, 5.0)
+    np.savetxt(tmp_path / "ramp.csv", np.column_stack([lam, 0.2 + 0.003 * (lam - 400.0)]), delimiter=",")
+    spd = spectral.illuminant_spectrum(str(tmp_path / "ramp.csv"))
+    grid = spectral.TABLE_GRID
+    inner = (grid > 400.0) & (grid < 700.0)
+    np.testing.assert_allclose(spd[inner], 0.2 + 0.003 * (grid[inner] - 400.0), rtol=1e-12)
+    assert np.all(spd[(grid < 400.0) | (grid > 700.0)] == 0.0)
+
+
+def test_narrow_band_lamp_names_the_dark_channel(tmp_path):
+    """A sodium lamp (589 nm) seen through sRGB's response: blue gets no light (sRGB's blue
+    is negative there); refused in one line that names the channel."""
+    from bubblefit.errors import InputError
+
+    _lines_csv(tmp_path / "na.csv", [588.995, 589.592])
+    with pytest.raises(InputError, match="blue channel") as exc:
+        spectral.channel_density(str(tmp_path / "na.csv"), "srgb")
+    assert "\n" not in str(exc.value) and "red" not in str(exc.value)
+
+
 def test_unknown_names():
     from bubblefit.errors import InputError
 

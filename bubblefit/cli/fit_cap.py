@@ -24,13 +24,12 @@ _SPHERE_ONLY = ("background", "calibration", "t", "disc", "fit_rotation", "refer
 
 def run_cap(args) -> int:
     from ..inverse.cap_fit import fit_cap
-    from ..io.images import read_image
     from ..model.cap_scene import KINDS, load_cap_scene
     from ..lighting.envmap import dark_room
     from ..model.scene import read_envmap
     from ..progress import stage
     from .common import guard_args
-    from .fit_planar import film_outputs, report_film_fit
+    from .fit_planar import film_outputs, read_film_photo, report_film_fit
 
     for name in _SPHERE_ONLY:
         if getattr(args, name, None):
@@ -48,7 +47,7 @@ def run_cap(args) -> int:
         raise InputError(f"--thickness {kind} is not available for a cap (use {' or '.join(KINDS)})")
     guard_args(args, inputs=[str(scene.envmap)] if scene.envmap is not None else [], outputs=film_outputs(args))
     with stage("reading the photo and the environment map"):
-        photo = read_image(args.photo, dtype=np.float64)
+        photo, record = read_film_photo(args)
         env = read_envmap(scene.envmap, scale=scene.env_scale, convention=scene.env_convention) if scene.envmap is not None else dark_room()
     what = (f"a bubble of radius {scene.cap.radius:g} under an area light" if scene.sphere else
             f"a bubble on a dish (cap {scene.cap.height:g} high on a sphere of radius {scene.cap.radius:g}")
@@ -56,4 +55,4 @@ def run_cap(args) -> int:
         result = fit_cap(photo.pixels[..., :3], scene, env, kind=kind,
                          clip_high=np.inf if photo.linear_file else 1.0,
                          bits=None if photo.linear_file else photo.bit_depth)
-    return report_film_fit(args, result)
+    return report_film_fit(args, result, record)

@@ -26,8 +26,9 @@ def film_outputs(args) -> list[str]:
     return outs + [str(preview_path(p)) for p in outs]
 
 
-def report_film_fit(args, result) -> int:
-    """Print a film's fit, write its maps and JSON together (or none), exit as ``--strict`` says."""
+def report_film_fit(args, result, photo_record: dict | None = None) -> int:
+    """Print a film's fit, write its maps and JSON together (or none), exit as ``--strict`` says;
+    ``photo_record``: how the photo was read (:func:`~bubblefit.io.camera_files.reading_record`)."""
     from ..io.atomic import output_set, preview_path
     from ..io.images import write_image
     from ..progress import stage
@@ -36,6 +37,8 @@ def report_film_fit(args, result) -> int:
     print(result.report())
     out = result.to_json()
     out["photo"] = str(args.photo)
+    if photo_record is not None:
+        out["photo_reading"] = photo_record
     with output_set():  # the maps and the JSON replace the earlier ones together, or none does
         if args.output:
             with stage("writing the maps"):
@@ -47,9 +50,19 @@ def report_film_fit(args, result) -> int:
     return 0
 
 
+def read_film_photo(args):
+    """``(photo, record)``: the photo of a film's fit read as every command reads a camera's
+    file (:func:`~bubblefit.io.camera_files.read_photo`: RAW development, ``--encoding``, the
+    levels, ``--flat`` and ``--dark``), and the record of how it was read, for the JSON."""
+    from ..io.camera_files import read_photo, reading_record
+    from .photo_args import photo_reading
+
+    photo = read_photo(args.photo, photo_reading(args), dtype=np.float64)
+    return photo, reading_record(photo)
+
+
 def run_planar(args) -> int:
     from ..inverse.planar import fit_planar
-    from ..io.images import read_image
     from ..model.planar_scene import load_planar, parse_region
     from ..progress import stage
     from .common import guard_args
@@ -64,8 +77,8 @@ def run_planar(args) -> int:
         region, nm = parse_region(args.reference_region, scene.width, scene.height)
     guard_args(args, outputs=film_outputs(args))
     with stage("reading the photo"):
-        photo = read_image(args.photo, dtype=np.float64)
+        photo, record = read_film_photo(args)
     with stage(f"fitting a flat film ({scene.stack.describe()}, {scene.light} light, {kind})"):
         result = fit_planar(photo.pixels[..., :3], scene, reference_region=region, reference_nm=nm, kind=kind,
                             clip_high=np.inf if photo.linear_file else 1.0)
-    return report_film_fit(args, result)
+    return report_film_fit(args, result, record)

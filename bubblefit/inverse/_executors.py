@@ -26,26 +26,16 @@ from ..errors import InputError
 from ..io.jaxcache import jax_setup
 from ._parameters import extrapolated
 from ._plan import FrameRef, load_frame
-from ._setup import MAP_START_KEYS
 from .fit import explained, fit_batch, fit_photo
 from ._records import base_record, one_line, result_record, warm_init
 
-__all__ = ["DEFAULT_FIT", "CARRY_MAPS", "ChunkTask", "fit_chunk", "kept_model", "carried", "LocalExecutor", "DaskExecutor", "local_env",
+__all__ = ["DEFAULT_FIT", "ChunkTask", "fit_chunk", "kept_model", "LocalExecutor", "DaskExecutor", "local_env",
            "SchedulerAddress", "read_security", "local_cluster", "start_client"]
 
 DEFAULT_FIT = "bubblefit.inverse.fit:fit_photo"
 
 
 _WORKER_READY = False
-
-#: Whether a warm-started frame starts its thickness map from its predecessor's map
-#: (:func:`carried`, :func:`bubblefit.inverse._maps.warm_centre`) instead of building it
-#: coarse to fine. Off: on the draining frames of ``experiments/bench_sequence_maps.py``
-#: (reference renderer, 8 frames of 96 px; not validation cases) the carried maps passed
-#: their order hops on and the hops grew (none on frames 1-4, then 3, 4 and 5 on frames
-#: 5-7; 90 % coverage 99.7 % falling to 98.1 %), where maps built coarse to fine had none.
-CARRY_MAPS = False
-
 
 def _worker_setup(jax_settings: dict) -> None:
     """Once per process: the client's JAX settings (compilation cache, float64), through
@@ -112,10 +102,9 @@ def _unexplained(rec: dict, options) -> str | None:
 
 
 def _fit_warm(ref: FrameRef, env, options, init, last, background, scene, fit_fn) -> dict:
-    """Fit a warm-started frame with the model the previous frame kept (:func:`kept_model`),
-    its map started from the previous frame's (``init``'s ``map``); when that fit does not
-    explain the frame (:func:`_unexplained`), the frame falls back to the full fit under
-    ``auto`` (both models compared, the map built coarse to fine), and its record says so
+    """Fit a warm-started frame with the model the previous frame kept (:func:`kept_model`);
+    when that fit does not explain the frame (:func:`_unexplained`), the frame falls back to the full fit under
+    ``auto`` (both models compared), and its record says so
     (``fallback``)."""
     model = kept_model(options, last)
     if model is None:
@@ -124,24 +113,11 @@ def _fit_warm(ref: FrameRef, env, options, init, last, background, scene, fit_fn
     why = _unexplained(rec, options)
     if why is None:
         return dict(rec, model_kept=model)
-    plain = {k: v for k, v in init.items() if k not in MAP_START_KEYS}
-    full = _fit_one(ref, env, options, plain, background, scene, fit_fn)
+    full = _fit_one(ref, env, options, init, background, scene, fit_fn)
     full["fallback"] = (f"the {model} model kept from the previous frame did not explain this frame ({why}); "
                         "refitted under auto")
     full["fit_time_s"] = float(full.get("fit_time_s", 0.0)) + float(rec.get("fit_time_s", 0.0))
     return full
-
-
-def carried(rec: dict, with_map: bool) -> dict | None:
-    """The warm start a record offers its next frame (:func:`~._records.warm_init`), with its
-    thickness map and the drainage profile under it when ``with_map`` and it has one
-    (:data:`~._setup.MAP_START_KEYS`, read by :func:`~._setup.map_start`)."""
-    nxt = warm_init(rec)
-    tmap = rec.get("_thickness_map")
-    prof = [rec.get("params", {}).get(k) for k in ("top_nm", "bottom_nm", "exponent")]
-    if nxt is not None and with_map and tmap is not None and all(v is not None for v in prof):
-        nxt.update(map=tmap, map_profile=tuple(prof))
-    return nxt
 
 
 def _fit_batch(refs: list[FrameRef], env, options, init, previous, background, scene) -> list[dict]:
@@ -170,8 +146,9 @@ def fit_chunk(todo: list[tuple[FrameRef, dict | None]], env, options, background
     """Fit the pending frames of one chunk, in order, each warm-started from the last success,
     its thicknesses extrapolated linearly from the two last
     (:func:`~bubblefit.inverse._parameters.extrapolated`), with the model that success kept
-    (:func:`kept_model`, :func:`_fit_warm`) and, with :data:`CARRY_MAPS` and the default
-    fit, its thickness map (:func:`carried`).
+    (:func:`kept_model`, :func:`_fit_warm`); each frame's thickness map is built coarse to
+    fine, as a single photo's (a map started from the predecessor's passed its order hops
+    on to the next frames).
 
     Parameters
     ----------
@@ -209,11 +186,10 @@ def fit_chunk(todo: list[tuple[FrameRef, dict | None]], env, options, background
 
     out = []
     warm, prev, last = init, None, None
-    with_map = CARRY_MAPS and fit_function == DEFAULT_FIT  # a map start is fit_photo's (others take params)
 
     def keep(rec):
         nonlocal warm, prev, last
-        nxt = carried(rec, with_map)
+        nxt = warm_init(rec)
         if nxt is not None:
             prev, warm, last = warm, nxt, rec
 

@@ -122,7 +122,7 @@ def solve_local(lev: Level, table: ParameterTable, solver: SolverSettings, vals:
     """Levenberg-Marquardt from ``vals`` on ``lev``, with ``solver``'s tolerances, robust scale
     and step limit (``max_steps`` instead, when given). With ``settings.stall`` it stops after
     :data:`~bubblefit.inverse._lm.MAX_REJECTIONS` rejections and restarts while far from
-    the optimum, without it runs optimistix' own stopping rule alone (warm starts);
+    the optimum, without it runs optimistix' own stopping rule alone;
     ``settings`` also says how its Jacobian is computed and how XLA compiles its program
     (:class:`~bubblefit.inverse._programs.SolveSettings`)."""
     stall = settings.stall

@@ -49,14 +49,19 @@ def _predict(cfg, traced, d):
     return shade_pixels(traced, cfg, films)[0]
 
 
+def _trace(p, cfg, env, bg, r, c, i):
+    """One chunk's rays (:func:`~bubblefit.model.render.trace_pixels`) at pixel rows ``r`` and
+    columns ``c``, with the background photo's pixels ``i`` (flat indices) behind them."""
+    return trace_pixels(p, cfg, env, None if bg is None else bg.reshape(-1, 3)[i], r, c)
+
+
 def _over_chunks(p, cfg, env, bg, rows, cols, idx, per_pixel, y, w, fn):
     """``fn(predict, per_pixel chunk, y chunk, w chunk)`` over the chunks, each chunk's rays
     traced once; ``predict(d)`` the chunk's (N, 3) pixels at front thicknesses ``d`` (N,)."""
 
     def chunk(xs):
         r, c, i, q, yy, ww = xs
-        b = None if bg is None else bg.reshape(-1, 3)[i]
-        traced = trace_pixels(p, cfg, env, b, r, c)
+        traced = _trace(p, cfg, env, bg, r, c, i)
         return fn(lambda d: _predict(cfg, traced, d), q, yy, ww)
 
     return jax.lax.map(chunk, (rows, cols, idx, per_pixel, y, w))
@@ -76,14 +81,30 @@ def _chunk_costs(p, cfg, env, bg, rows, cols, idx, cand, y, w2):
     return _over_chunks(p, cfg, env, bg, rows, cols, idx, cand, y, w2, costs)
 
 
+def _slopes(predict, d, y, w):
+    """A chunk's weighted residuals ``w (predict(d) - y)`` and their derivatives in each
+    pixel's own thickness (one forward-mode tangent of ones: the Jacobian is diagonal)."""
+    return jax.jvp(lambda x: w * (predict(x) - y), (d,), (jnp.ones_like(d),))
+
+
 @functools.partial(jax.jit, static_argnames=("cfg",))
-def _chunk_slopes(p, cfg, env, bg, rows, cols, idx, d, y, w):
-    """Weighted residuals and their derivatives in each pixel's own thickness, (steps, chunk, 3) each."""
+def _chunk_trace(p, cfg, env, bg, rows, cols, idx):
+    """Every chunk's traced rays (:func:`~bubblefit.model.render.trace_pixels`), stacked
+    over the chunks: what a level's pixels read that does not depend on the thickness."""
 
-    def slopes(predict, dd, yy, ww):
-        return jax.jvp(lambda x: ww * (predict(x) - yy), (dd,), (jnp.ones_like(dd),))
+    return jax.lax.map(lambda xs: _trace(p, cfg, env, bg, *xs), (rows, cols, idx))
 
-    return _over_chunks(p, cfg, env, bg, rows, cols, idx, d, y, w, slopes)
+
+@functools.partial(jax.jit, static_argnames=("cfg",))
+def _traced_slopes(cfg, traced, d, y, w):
+    """:func:`_slopes` of every chunk from its rays traced once (:func:`_chunk_trace`),
+    (steps, chunk, 3) each: only the film's optics are evaluated."""
+
+    def chunk(xs):
+        tr, dd, yy, ww = xs
+        return _slopes(lambda x: _predict(cfg, tr, x), dd, yy, ww)
+
+    return jax.lax.map(chunk, (traced, d, y, w))
 
 
 class TracedCosts:
@@ -108,6 +129,7 @@ class TracedCosts:
         self.shape = (steps, size)
         self.y = self.pix.y.reshape(steps, size, 3)
         self.w = self.pix.w.reshape(steps, size, 3)
+        self._traced = None  # the level's traced rays, once :meth:`slopes` has traced them
 
     def _spread(self, d: np.ndarray) -> np.ndarray:
         """(..., P) -> (..., steps, chunk), the padding repeating the last pixel."""
@@ -125,10 +147,13 @@ class TracedCosts:
 
     def slopes(self, d: np.ndarray):
         """``(r, j)``, (P, 3) each: the weighted residual of each pixel at thickness ``d`` (P,)
-        and its derivative in that pixel's thickness (the map's diagonal Jacobian)."""
+        and its derivative in that pixel's thickness (the map's diagonal Jacobian). The
+        level's rays are traced at the first call and kept (the light the films read does
+        not depend on the thickness), so each further call evaluates the film's optics only."""
         pix = self.pix
-        r, j = _chunk_slopes(self.p, self.cfg, self.env, self.bg, pix.rows, pix.cols, pix.idx,
-                             jnp.asarray(self._spread(np.maximum(d, 0.0))), self.y, self.w)
+        if self._traced is None:
+            self._traced = _chunk_trace(self.p, self.cfg, self.env, self.bg, pix.rows, pix.cols, pix.idx)
+        r, j = _traced_slopes(self.cfg, self._traced, jnp.asarray(self._spread(np.maximum(d, 0.0))), self.y, self.w)
         return np.asarray(r).reshape(-1, 3)[:self.n], np.asarray(j).reshape(-1, 3)[:self.n]
 
 

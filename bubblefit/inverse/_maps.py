@@ -23,8 +23,9 @@ little better. A soap film is smooth apart from real features, so the map is bui
    far apart), minimised by iterated conditional modes (Besag 1986) in a red-black order;
    Given the previous frame of a sequence's map (``start``), the pyramid is skipped: the
    map starts from it, moved by the change of the fitted drainage profile
-   (:func:`warm_centre`), and only the finest level is refined around it (off in
-   ``fit-sequence``: :data:`bubblefit.inverse._executors.CARRY_MAPS`);
+   (:func:`warm_centre`), and only the finest level is refined around it (a start a
+   caller passes in ``init``; ``fit-sequence`` builds every frame's map coarse to fine,
+   since a carried start passed its order hops on, ``docs/speed.md``);
 3. refined below the grid by a parabola through the energy around each pixel's minimum;
    its curvature gives the pixel's standard error (of its posterior: data, prior and
    smoothness with the neighbours held), widened by ``sqrt(max(1, chi2_nu))`` of the

@@ -22,10 +22,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..errors import ComputationError
 from ._planar_lm import ModelFit, fit_colours, fit_order
 
-__all__ = ["fit_newton", "newton_gap"]
+__all__ = ["fit_newton", "newton_gap", "rings_centre", "rings_period"]
 
 
 def newton_gap(r_um, radius_um, h0_nm):
@@ -35,32 +34,162 @@ def newton_gap(r_um, radius_um, h0_nm):
     return jnp.maximum(1000.0 * sag + h0_nm, 0.0)
 
 
+def _circle_spread(x, y, value, cx: float, cy: float, width: float) -> float:
+    """Within-circle variance of ``value`` about ``(cx, cy)``: the sum over rings of width
+    ``width`` of the squared deviations from each ring's mean (zero for circular symmetry)."""
+    k = (np.hypot(x - cx, y - cy) / width).astype(np.int64)
+    n = np.bincount(k)
+    s1 = np.bincount(k, value)
+    s2 = np.bincount(k, value * value)
+    return float(np.sum(s2) - np.sum(s1 * s1 / np.maximum(n, 1)))
+
+
+def rings_centre(x, y, value, pitch: float, reach: float = 0.75) -> tuple[float, float]:
+    """Centre of the circular symmetry of ``value`` at the points ``(x, y)`` (Newton's rings'
+    contact point, found without colour): the centre that minimises the variance of the
+    intensity along circles (:func:`_circle_spread`), rings ``pitch`` wide (the pixel pitch).
+
+    Searched on a grid that reaches ``reach`` of the photo's extent beyond its edges (a
+    contact point outside the photo), then on grids three times finer around the best
+    point down to a tenth of a pixel. Born and Wolf, *Principles of Optics*, sec. 7.5.3:
+    the fringes of a spherical gap are circles about the contact point."""
+    x, y, value = (np.asarray(a, np.float64) for a in (x, y, value))
+    value = value - value.mean()
+    span = max(float(np.ptp(x)), float(np.ptp(y)))
+    mx, my = 0.5 * (x.max() + x.min()), 0.5 * (y.max() + y.min())
+    half = (0.5 + reach) * span
+    step = span / 24.0
+    best = (mx, my)
+    while step > 0.1 * pitch:
+        offs = np.arange(-half, half + 0.5 * step, step)
+        scores = [(_circle_spread(x, y, value, best[0] + u, best[1] + v, pitch), best[0] + u, best[1] + v)
+                  for u in offs for v in offs]
+        best = min(scores)[1:]
+        half, step = 1.5 * step, step / 3.0
+    return float(best[0]), float(best[1])
+
+
+def rings_period(r2, value, r2_min_period: float) -> tuple[float, float]:
+    """Period ``P`` (in ``r^2``) and phase of monochromatic Newton's rings about a known centre.
+
+    Under one wavelength ``lambda`` the reflected intensity is ``a + b cos(4 pi n h / lambda + pi)``
+    with ``h = h0 + r^2 / (2 R)`` (Born and Wolf, sec. 7.5.3; Hecht, *Optics*, sec. 9.4), so the
+    dark rings' ``r_m^2 = (m lambda / (2 n) - h0) 2 R`` are linear in the order ``m``: the
+    intensity is a sinusoid in ``r^2`` of period ``P = lambda R / n``. ``P`` is the period of
+    the least-squares sinusoid ``a + c cos(2 pi r^2 / P) + s sin(2 pi r^2 / P)`` (a
+    periodogram over ``P`` from ``r2_min_period`` to the largest ``r^2``, steps of a fiftieth
+    of a fringe across the photo, then golden-section refined); returns ``(P, phi)`` with
+    the intensity ``~ a + A cos(2 pi r^2 / P + phi)``, ``A > 0``."""
+    r2, value = np.asarray(r2, np.float64), np.asarray(value, np.float64)
+    span = float(r2.max() - r2.min())
+    # the profile's means in bins a fortieth of the shortest period wide, weighted by count
+    k = ((r2 - r2.min()) / (r2_min_period / 40.0)).astype(np.int64)
+    cnt = np.bincount(k)
+    keep = cnt > 0
+    wt = np.sqrt(cnt[keep])
+    mean = np.bincount(k, value)[keep] / cnt[keep]
+    s2 = np.bincount(k, r2)[keep] / cnt[keep]
+
+    def fit(p):
+        w = 2.0 * np.pi * s2 / p
+        A = np.column_stack([np.ones_like(s2), np.cos(w), np.sin(w)])
+        coef, *_ = np.linalg.lstsq(A * wt[:, None], mean * wt, rcond=None)
+        return float(np.sum(((A @ coef - mean) * wt) ** 2)), coef
+
+    lo, hi = np.log(r2_min_period), np.log(max(span / 3.0, 2.0 * r2_min_period))  # three fringes at least
+    # a fringe across the photo moves by span/P; a fiftieth of one in log P
+    n = int(np.clip(50.0 * span / r2_min_period * (hi - lo), 200, 5000))
+    grid = np.exp(np.linspace(lo, hi, n))
+    costs = np.array([fit(p)[0] for p in grid])
+    i = int(np.argmin(costs))
+    a, b = np.log(grid[max(i - 1, 0)]), np.log(grid[min(i + 1, n - 1)])
+    g = 0.5 * (np.sqrt(5.0) - 1.0)
+    for _ in range(40):  # golden section in log P between the neighbours
+        c, d = b - g * (b - a), a + g * (b - a)
+        if fit(np.exp(c))[0] < fit(np.exp(d))[0]:
+            b = d
+        else:
+            a = c
+    p = float(np.exp(0.5 * (a + b)))
+    coef = fit(p)[1]
+    return p, float(np.arctan2(-coef[2], coef[1]))
+
+
+#: Width (pixels) of the Gaussian envelope divided out of the intensity before the rings'
+#: centre and period are sought: it passes fringes narrower than ~2 pi 3 = 19 pixels and
+#: removes the lamp's slow fall-off. Checked on the three real sodium photos of
+#: experiments/real_photos.py (3 and 6 pixels give the same centres; 12 fails on one).
+ENVELOPE_PX = 3.0
+
+
+def _fringes(bright, mask) -> np.ndarray:
+    """The intensity over its local mean minus one (a Gaussian of :data:`ENVELOPE_PX`,
+    normalised over the film's pixels): the fringes without the lamp's envelope."""
+    from scipy import ndimage
+
+    img = np.zeros(mask.shape)
+    img[mask] = bright
+    env = ndimage.gaussian_filter(img, ENVELOPE_PX) / np.maximum(ndimage.gaussian_filter(mask * 1.0, ENVELOPE_PX), 1e-9)
+    return bright / np.maximum(env[mask], 1e-3 * float(np.max(bright))) - 1.0
+
+
+def _rings_start(fwd, x, yy, bright, mask, pitch: float, lo: float, hi: float):
+    """``(R um, cx, cy, h0 nm)`` from the rings' circular symmetry and their period in ``r^2``
+    (:func:`rings_centre`, :func:`rings_period`) of the fringes (:func:`_fringes`), at the
+    lamp's mean wavelength through the camera (one wavelength for a line lamp), no colour
+    used; the shortest period sought puts two pixels between rings at the median radius."""
+    w = np.asarray(fwd.basis.weights, np.float64).sum(-1)
+    lam = float(np.sum(np.asarray(fwd.lam) * w) / np.sum(w))
+    n = float(np.asarray(fwd.stack.indices(np.array([lam])).film)[0])
+    value = _fringes(bright, mask)
+    cx, cy = rings_centre(x, yy, value, pitch)
+    r2 = (x - cx) ** 2 + (yy - cy) ** 2
+    period, phi = rings_period(r2, value, 4.0 * pitch * float(np.median(np.sqrt(r2))))
+    radius = period * n / (lam / 1000.0)  # um: P = lambda R / n
+    fringe = lam / (2.0 * n)  # phase 4 pi n h0 / lambda + pi = phi (mod 2 pi)
+    h0 = ((phi - np.pi) / (2.0 * np.pi) % 1.0) * fringe
+    h0 = float(np.clip(h0, lo, hi))
+    return radius, cx, cy, h0
+
+
 def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np.inf, iters: int = 40) -> ModelFit:
     """Levenberg-Marquardt fit of ``(R, cx, cy, h0, g)`` (see the module), started from ``dmap``."""
     x = view.x_um[mask]
     yy = view.y_um[mask]
     bright = y.sum(-1) / np.maximum(lum, 1e-9)
-    thin = (dmap <= np.percentile(dmap, 2)) & (bright <= 0.35 * np.median(bright))
-    if thin.sum() < 3:
-        raise ComputationError("no contact point: the photo has no dark centre of Newton's rings")
-    cx, cy = float(x[thin].mean()), float(yy[thin].mean())
-    r2 = (x - cx) ** 2 + (yy - cy) ** 2
-    use = dmap < lo + 0.5 * (hi - lo)
-    for _ in range(4):  # a line in r^2, dropping pixels 3 MADs off it (order hops of the map)
-        A = np.column_stack([np.ones(use.sum()), r2[use]])
-        (h0, slope), *_ = np.linalg.lstsq(A, dmap[use], rcond=None)
-        dev = np.abs(dmap - (h0 + slope * r2))
-        use = use & (dev <= 3.0 * 1.4826 * np.median(dev[use]) + 1.0)
-    if slope <= 0:
-        raise ComputationError("no lens: the gap does not grow away from the thinnest point")
-    radius = 1000.0 / (2.0 * slope)  # um: h[nm] = 1000 r^2 / (2 R)
-    theta = jnp.asarray([np.log(radius), cx, cy, h0, np.log(gain)])
     xj, yj, lj, sj, obs = (jnp.asarray(a) for a in (x, yy, lum, sin2, y))
 
     def model(t):
         r = jnp.sqrt((xj - t[1]) ** 2 + (yj - t[2]) ** 2)
         h = jnp.clip(newton_gap(r, jnp.exp(t[0]), t[3]), lo, hi)
         return jnp.exp(t[4]) * lj[:, None] * fwd.rgb(h, sj)
+
+    # two starts, the colour map's and the rings' symmetry's (no colour: the one that
+    # works under a line lamp); the fit starts from the one whose colours are closer
+    starts = []
+    thin = (dmap <= np.percentile(dmap, 2)) & (bright <= 0.35 * np.median(bright))
+    if thin.sum() >= 3:
+        cx, cy = float(x[thin].mean()), float(yy[thin].mean())
+        r2 = (x - cx) ** 2 + (yy - cy) ** 2
+        use = dmap < lo + 0.5 * (hi - lo)
+        for _ in range(4):  # a line in r^2, dropping pixels 3 MADs off it (order hops of the map)
+            A = np.column_stack([np.ones(use.sum()), r2[use]])
+            (h0, slope), *_ = np.linalg.lstsq(A, dmap[use], rcond=None)
+            dev = np.abs(dmap - (h0 + slope * r2))
+            use = use & (dev <= 3.0 * 1.4826 * np.median(dev[use]) + 1.0)
+        if slope > 0:
+            starts.append((1000.0 / (2.0 * slope), cx, cy, float(h0)))  # um: h[nm] = 1000 r^2 / (2 R)
+    pitch = float(np.median(np.abs(np.diff(np.unique(np.round(x, 6))))))
+    starts.append(_rings_start(fwd, x, yy, bright, mask, pitch, lo, hi))
+    best = None
+    for radius, cx, cy, h0 in starts:
+        t = jnp.asarray([np.log(radius), cx, cy, h0, 0.0])
+        unit = np.asarray(model(t), np.float64)  # the exposure by least squares at each start
+        g = max(float(np.sum(unit * y)) / max(float(np.sum(unit * unit)), 1e-20), 1e-9)
+        cost = float(np.sum((g * unit - y) ** 2))
+        if best is None or cost < best[0]:
+            best = (cost, jnp.asarray([np.log(radius), cx, cy, h0, np.log(g)]))
+    theta = best[1]
 
     def gap(t):
         return jnp.clip(newton_gap(jnp.sqrt((xj - t[1]) ** 2 + (yj - t[2]) ** 2), jnp.exp(t[0]), t[3]), lo, hi)

@@ -215,8 +215,13 @@ class SolveSettings:
 FINAL_SOLVE = SolveSettings(FINAL_JACOBIAN, FINAL_COMPILE, True)
 #: The global search's own short solves (:data:`SEARCH_COMPILE`).
 SEARCH_SOLVE = SolveSettings("groups", SEARCH_COMPILE, True)
-#: A warm-started fit's solve: the groups, XLA's defaults, optimistix' own stopping rule.
-WARM_SOLVE = SolveSettings("groups", (), False)
+#: A warm-started fit's solve (a sequence's frame from its predecessor's values, ``auto``'s
+#: physical solve from the paper model's, a doubtful warm start's second solve): the groups,
+#: XLA's defaults, and the searched fit's stop on rejections and restarts
+#: (:class:`~bubblefit.inverse._lm.LevenbergMarquardt`), rather than optimistix' Cauchy test
+#: alone, which near the optimum spends most of a solve's steps rejected
+#: (:data:`~bubblefit.inverse._lm.STOP_DECREMENT`).
+WARM_SOLVE = SolveSettings("groups", (), True)
 
 
 def final_params(table, vals: dict, opts: FitOptions):
@@ -412,9 +417,17 @@ def prepare_render_bubble(p, lev: Level, env) -> None:
 
 
 def _padded_params(p, lev: Level, cfg: RenderConfig | None):
-    """``lev`` (with ``cfg``) padded, and ``p`` with its disc refinement composed with the level's."""
+    """``lev`` (with ``cfg``) padded, and ``p`` with its disc refinement composed with the
+    level's; a thickness map on ``lev``'s pixels padded as the image is (the padded
+    program reads it at the padded image's flat indices)."""
     pad = padded(replace(lev, cfg=cfg) if cfg is not None else lev)
-    return pad, replace(p, disc=compose_shift(pad.base, np.asarray(p.disc, np.float32)))
+    q = replace(p, disc=compose_shift(pad.base, np.asarray(p.disc, np.float32)))
+    h, w = lev.y.shape[:2]
+    hb, wb = pad.cfg.shape
+    if (pad.cfg.effects.thickness == "map" and jnp.ndim(p.thickness) == 2 and tuple(jnp.shape(p.thickness)) == (h, w)
+            and (hb, wb) != (h, w)):
+        q = replace(q, thickness=jnp.pad(jnp.asarray(p.thickness), ((0, hb - h), (0, wb - w))))
+    return pad, q
 
 
 

@@ -56,7 +56,7 @@ from ._maps import fit_map
 from ._observation import noise_sigma
 from ..capture.circle import detect_disc
 from ._programs import (FINAL_SOLVE, SEARCH_SOLVE, WARM_SOLVE, SolveSettings, batched_solver, final_params,
-                        fitted_pixels, held_values, render_bubble, render_level, reporter, warm_up)
+                        fitted_pixels, held_values, render_bubble, reporter, warm_up)
 from ._options import FitOptions, FitResult, ImageSizes, JudgeSettings, MapSettings, NoiseSettings, SolverSettings
 from ._parameters import THICKNESSES, extrapolated, parameter_roles, refined_disc
 from ._setup import Setup, defaults, setup
@@ -290,8 +290,7 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
             notes.append("the thickness map is not constrained at over 10% of the film's pixels")
     elif opts.thickness == "drainage":
         thickness_map = np.where(full.inside, np.asarray(drainage_profile(jnp.asarray(full.height), *prof)), np.nan)
-    draw = render_level if opts.thickness == "map" else render_bubble
-    img = np.asarray(draw(final_params(table, final_vals, opts), full, env), np.float64)
+    img = np.asarray(render_bubble(final_params(table, final_vals, opts), full, env), np.float64)
     resid_img = st.photo - img
     camera_stderr = unc.camera_stderr
     if opts.thickness == "map" and full.mask.any():  # each pixel's share of a calibrated response's errors
@@ -643,20 +642,12 @@ def _checked_warm_start(st: Setup, opts: FitOptions, env, sol: LocalSolution, se
         return sol
     with stage(f"warm start doubtful ({why}): global search and local fit"):
         second = solve_local(st.lev_fit, st.table, opts.solver, _searched_start(st, opts, env), env,
-                             settings=replace(settings, stall=True))
+                             settings=settings)
     if np.isfinite(second.cost) and (not np.isfinite(sol.cost) or second.cost < sol.cost):
         notes.append(f"warm start rejected ({why}); searched globally")
         return second
     notes.append(f"warm start doubtful ({why}); a global search did not do better")
     return sol
-
-
-#: ``auto``'s physical solve from the paper model's values: a start that is not the
-#: physical model's optimum (its t and r_s are replaced by Fresnel's equations), so it
-#: stops on rejections and restarts as a searched fit's final solve does, rather than by
-#: optimistix' rule alone, which on the validation photos spends most of its steps rejected
-#: near the optimum. The program is the one a doubtful warm start's second solve uses.
-SWITCH_SOLVE = replace(WARM_SOLVE, stall=True)
 
 
 def _judged_chi2(r: FitResult) -> float:
@@ -726,7 +717,7 @@ def _fit_either_model(photo, env, options: FitOptions, background, init, scene, 
                                         "with the floor, capped)"):
             if model not in started:  # the physical model after the paper model's solve, from its values
                 start = {k: v for k, v in paper.params.items() if np.isfinite(v)} if paper.converged else init
-                started[model] = begin(model, start, SWITCH_SOLVE if start else None)
+                started[model] = begin(model, start, WARM_SOLVE if start else None)
             solved[model] = _solve_started(started[model], env)
         if model == order[0] and explained(solved[model], options.judge):
             made[model] = early = solved[model].report(env)
@@ -759,7 +750,7 @@ def _auto_order(started: dict, begin, env) -> tuple[tuple, dict, str]:
         # whether it explains the photo better than the paper model can
         start = {k: float(v) for k, v in begun.start.items() if np.isfinite(v)}
         with stage("physical model on the search image"):
-            started["physical"] = begin("physical", start, SWITCH_SOLVE)
+            started["physical"] = begin("physical", start, WARM_SOLVE)
             raced, reached = _search_chi2(started["physical"], env)
         if raced < begun.search_chi2:
             # the fit image's solve starts where the search image's stopped: a coarser

@@ -20,7 +20,7 @@ How the work is cut and where it runs:
   to the full fit, and its record says so (``fallback``). Its thickness map is built
   coarse to fine as a single photo's is (a map started from the predecessor's,
   :func:`~bubblefit.inverse._maps.warm_centre`, passed its order hops on:
-  :data:`~._executors.CARRY_MAPS`).
+  ``experiments/results/bench_sequence_maps``).
 - One chunk is one Dask task. Tasks run on a ``distributed`` cluster: a local one by
   default (one single-threaded worker process per core, so two workers do not fight
   over the same cores) or an existing one (``scheduler="tcp://host:8786"``). A worker

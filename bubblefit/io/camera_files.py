@@ -113,6 +113,11 @@ def read_raw(path: str, reading: PhotoReading = PhotoReading(), dtype=np.float64
         raise InputError(f"cannot read RAW file {path}: {type(exc).__name__}: {exc}") from None
     with raw:
         try:
+            sites = np.asarray(raw.raw_image_visible)
+            if sites.size == 0 or int(sites.min()) == int(sites.max()):
+                raise InputError(f"RAW file {path} holds no image: every photosite reads "
+                                 f"{int(sites.max()) if sites.size else 'nothing'} (its image data stripped or "
+                                 "the file cut short; a real exposure, even a dark frame, has noise)")
             desc = raw.color_desc.decode(errors="replace")
             wb = np.asarray(raw.camera_whitebalance, dtype=np.float64)
             info = {

@@ -177,9 +177,11 @@ class PerspectiveCamera:
         return jnp.broadcast_to(jnp.asarray(o, dtype=d.dtype), d.shape), d
 
 
+@jax.tree_util.register_dataclass
 @dataclass
 class Hits:
-    """Ray-sphere hits for a batch of rays (all arrays have a leading axis N).
+    """Ray-sphere hits for a batch of rays (all arrays have a leading axis N); a pytree,
+    so that traced rays can be kept between programs (:func:`~bubblefit.model.render.trace_pixels`).
 
     Attributes:
         inside: (N,) True where the ray hits the bubble.

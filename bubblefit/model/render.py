@@ -389,9 +389,12 @@ def _terms(p: Params, cfg: RenderConfig, lam, cos, d0, d1, exits, thick, refl, b
     return _physical_terms(fx, p, opt, refl, d0, d1, exits, thick, bg_rad, photo_bg)
 
 
+@jax.tree_util.register_dataclass
 @dataclass(frozen=True)
 class _Traced:
-    """One chunk's rays and what their films read (:func:`_trace_chunk`), before any film optics."""
+    """One chunk's rays and what their films read (:func:`_trace_chunk`), before any film
+    optics; a pytree, so that a program can return it and another shade it
+    (:func:`trace_pixels`, :func:`shade_pixels`)."""
 
     p: Params  # with the film index per wavelength (:func:`_film_setup`)
     lam: object

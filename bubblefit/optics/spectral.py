@@ -228,7 +228,31 @@ def illuminant_spectrum(illuminant: str) -> np.ndarray:
         raise InputError(f"unknown illuminant {illuminant!r} (D65, E, A, another CIE name, or a CSV "
                          "wavelength_nm,power)")
     data = _read_columns(illuminant, 2, "illuminant")
-    return np.interp(TABLE_GRID, data[:, 0], data[:, 1], left=0.0, right=0.0)
+    return _cell_means(data[:, 0], data[:, 1], TABLE_GRID)
+
+
+def _cell_means(x: np.ndarray, y: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """The mean over each cell ``[g - h/2, g + h/2]`` of the uniform ``grid`` (step ``h``) of
+    the piecewise-linear curve through ``(x, y)`` (zero outside ``[x[0], x[-1]]``), integrated
+    exactly (the trapezoid rule is exact on a piecewise-linear curve whose knots include the
+    cells' edges).
+
+    A lamp's spectrum is weighted by ``integral rho(lambda) I(lambda) dlambda``; on a 1 nm
+    grid each sample must carry the power of its nanometre. A spectrometer's CSV sampled
+    finer than the grid (a sodium or mercury line 0.1 nm wide) keeps each line's power this
+    way; sampled at the grid's points it would keep only what falls on them (a line between
+    two of them is lost). On a CSV sampled at the grid's points or more coarsely the mean
+    differs from the point value only by the curve's bend within a cell.
+    """
+    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+    grid = np.asarray(grid, np.float64)
+    h = float(grid[1] - grid[0])
+    edges = np.append(grid - 0.5 * h, grid[-1] + 0.5 * h)
+    pts = np.union1d(x, edges)
+    vals = np.interp(pts, x, y, left=0.0, right=0.0)
+    inside = (pts[:-1] >= x[0]) & (pts[1:] <= x[-1])
+    area = np.concatenate([[0.0], np.cumsum(np.where(inside, 0.5 * (vals[1:] + vals[:-1]) * np.diff(pts), 0.0))])
+    return np.diff(area[np.searchsorted(pts, edges)]) / h
 
 
 @functools.lru_cache(maxsize=16)
@@ -351,10 +375,14 @@ def channel_density(illuminant: str, response: str) -> np.ndarray:
     """(L, 3) ``rho_c(lambda) I(lambda)`` on ``TABLE_GRID``, zero outside 380-780 nm."""
     inside = ((TABLE_GRID >= LAMBDA_MIN) & (TABLE_GRID <= LAMBDA_MAX))[:, None]
     dens = response_functions(response) * illuminant_spectrum(illuminant)[:, None] * inside
-    if np.any(dens.sum(axis=0) <= 0):
+    dark = [name for name, total in zip(("red", "green", "blue"), dens.sum(axis=0)) if total <= 0]
+    if dark:
         from ..errors import InputError
 
-        raise InputError(f"camera response {response!r} under illuminant {illuminant!r} leaves a channel dark")
+        raise InputError(f"camera response {response!r} under illuminant {illuminant!r} leaves the "
+                         f"{' and '.join(dark)} channel{'s' if len(dark) > 1 else ''} without light: interference "
+                         "colours need a lamp that every channel sees (a narrow-band lamp such as sodium or a laser "
+                         "does not; docs/films.md)")
     return dens
 
 

@@ -279,29 +279,38 @@ def test_the_divergence_parametrisation_is_smooth_through_orthographic(disc):
         jax.config.update("jax_enable_x64", False)
 
 
-def _profiled(u0, s, slope, n_pix=400):
+def _profiled(u0, s, slope, n_pix=400, quartic=None, map_slope=None):
     """A refit through a view of divergence u whose total chi^2 is the parabola
-    nu + ((u - u0)/s)^2 and whose thickness moves by ``slope`` per unit u (nm): what
-    fit_divergence sees from a photo that fixes the view to s."""
+    nu + ((u - u0)/s)^2 (plus ((u - u0)/quartic)^4 when given) and whose thickness moves
+    by ``slope`` per unit u (nm): what fit_divergence sees from a photo that fixes the
+    view to s. With ``map_slope`` (a 2x2 array, nm per unit u) each refit carries a
+    thickness map moving by it and a map of 2 nm errors."""
     from dataclasses import replace
 
     nu = 3 * n_pix - 1
 
     def at(u):
         r = _result({"thickness_nm": 600.0 + slope * u}, {"thickness_nm": 2.0})
-        chi2 = nu + ((u - u0) / s) ** 2 if s else float(nu)
-        return replace(r, chi2_capped=chi2 / nu, pixels_used=n_pix, status="ok")
+        chi2 = nu + ((u - u0) / s) ** 2 + (((u - u0) / quartic) ** 4 if quartic else 0.0) if s else float(nu)
+        r = replace(r, chi2_capped=chi2 / nu, pixels_used=n_pix, status="ok")
+        if map_slope is not None:
+            r = replace(r, thickness_map=600.0 + map_slope * u, thickness_stderr_map=np.full((2, 2), 2.0))
+        return r
 
     return at
 
 
 def test_a_photo_that_fixes_the_view_gets_its_divergence_fitted():
     """A chi^2 profile exact in u = tan(fov/2): the minimum and its standard error
-    (Delta chi^2 = 1) come back from three refits and one at the minimum; the thickness's
-    error gains (dp/du)^2 var(u); the covariance holds the view; the record says fitted."""
+    (Delta chi^2 = 1: the parabola's reduced chi^2 is 1 at its minimum) come back from the
+    bracket and the refits about its minimum (one reused: it lies within a quarter of a
+    standard error of the first interval's end); the thickness's error gains
+    (dp/du)^2 var(u), per pixel for the map; the covariance holds the view; the record
+    says fitted."""
     from bubblefit.inverse import fit_divergence
 
-    at = _profiled(0.12, 0.03, 50.0)
+    slope_map = np.array([[50.0, -20.0], [0.0, 80.0]])
+    at = _profiled(0.12, 0.03, 50.0, map_slope=slope_map)
     lens = V.assumed_lens(48, 48)
     tried = []
 
@@ -314,14 +323,50 @@ def test_a_photo_that_fixes_the_view_gets_its_divergence_fitted():
     cam = out.camera
     assert cam["source"] == "fitted" and cam["kind"] == "perspective"
     assert cam["fitted_fov_deg"] == pytest.approx(V.fov_of_divergence(0.12), rel=1e-6)
-    u_half = V.divergence(lens.fov_deg) / 2  # the refit nearest the minimum: the Birge ratio's chi^2
-    se_u = 0.03 * math.sqrt(1 + ((u_half - 0.12) / 0.03) ** 2 / (3 * 400 - 1))
-    assert cam["fov_stderr_deg"] == pytest.approx(math.degrees(2 / (1 + 0.12**2)) * se_u, rel=1e-6)
+    se_u = 0.03
+    dfov = math.degrees(2 / (1 + 0.12**2))
+    assert cam["fov_stderr_deg"] == pytest.approx(dfov * se_u, rel=1e-6)
+    assert cam["fov_interval_deg"] == pytest.approx([V.fov_of_divergence(0.09), V.fov_of_divergence(0.15)], rel=1e-6)
     assert out.params["thickness_nm"] == pytest.approx(600.0 + 50.0 * 0.12)
     assert out.stderr["thickness_nm"] == pytest.approx(math.hypot(2.0, 50.0 * se_u), rel=1e-6)
+    np.testing.assert_allclose(out.thickness_stderr_map, np.hypot(2.0, slope_map * se_u), rtol=1e-6)
     assert out.names == ("thickness_nm", "fov_deg") and out.covariance.shape == (2, 2)
-    assert out.covariance[0, 1] == pytest.approx(50.0 * se_u**2 * math.degrees(2 / (1 + 0.12**2)), rel=1e-6)
-    assert len(tried) == 2 and any("divergence fitted" in w for w in out.warnings), (tried, out.warnings)
+    assert out.covariance[0, 1] == pytest.approx(50.0 * se_u**2 * dfov, rel=1e-6)
+    # the half lens, the first minimum and the far end of its interval (the near end is the half lens's refit)
+    assert len(tried) == 3 and any("divergence fitted" in w for w in out.warnings), (tried, out.warnings)
+
+
+def test_the_standard_error_is_the_profiles_curvature_near_its_minimum():
+    """A profile steeper away from its minimum than near it (a quartic term, 1 % of the
+    quadratic one at two standard errors, 87 % at the bracket's far point): the parabola
+    through the bracket overstates the curvature, the refits near the minimum do not.
+    Through points within 2 s of the minimum the quartic adds at most 6 (2 s)^2 / q^4 to
+    the parabola's leading coefficient 1/s^2 (the second divided difference of x^4 is
+    x1^2 + x2^2 + x3^2 + x1 x2 + x1 x3 + x2 x3), so the error lies within
+    [s / sqrt(1.06), s], widened by the Birge ratio of the refit at the minimum."""
+    from bubblefit.inverse import divergence_profile, fit_divergence
+
+    s, u0 = 0.01, 0.12
+    q = s * 400**0.25  # (x/q)^4 = 0.01 (x/s)^2 at x = 2 s
+    at = _profiled(u0, s, 50.0, quartic=q)
+    lens = V.assumed_lens(48, 48)
+    u_lens = V.divergence(lens.fov_deg)
+    tried = []
+
+    def refit(view, start):
+        tried.append(V.divergence(view.fov_deg))
+        return at(tried[-1])
+
+    out = fit_divergence(at(0.0), at(u_lens), lens, refit)
+    bracket = [0.0, u_lens / 2, u_lens]
+    coarse = divergence_profile(bracket, [at(u).chi2_capped * (3 * 400 - 1) for u in bracket])
+    se = out.camera["fov_stderr_deg"] / math.degrees(2 / (1 + V.divergence(out.camera["fitted_fov_deg"]) ** 2))
+    near = [u for u in tried if abs(u - u0) <= 2 * s]
+    birge = math.sqrt(min(at(u).chi2_capped for u in near))
+    assert len(near) >= 2, tried
+    assert s / math.sqrt(1.06) * (1 - 1e-6) <= se <= s * birge * (1 + 1e-6), (se, tried)
+    assert coarse.stderr < s / 1.2, coarse  # what the bracket alone would have said
+    assert abs(V.divergence(out.camera["fitted_fov_deg"]) - u0) < 0.25 * s
 
 
 def test_a_flat_profile_falls_back_to_the_widened_errors():

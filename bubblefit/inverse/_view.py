@@ -127,30 +127,39 @@ class Profile:
     Attributes
     ----------
     u, stderr : float
-        The fitted divergence ``u = tan(fov/2)`` and its standard error.
+        The fitted divergence ``u = tan(fov/2)`` and its standard error: the half-width of
+        the interval where the profile's chi^2 lies within ``Delta`` of its least.
     constrained : bool
         Whether the photo fixes it: the profile curves upward, its minimum lies in
         ``[0, max(points)]`` and the standard error is below half that bracket.
+    points : tuple
+        The divergences of the three refits the parabola went through.
     """
 
     u: float
     stderr: float
     constrained: bool
+    points: tuple = ()
 
 
 def divergence_profile(us, chi2s, birge: float = 1.0) -> Profile:
     """The divergence where the parabola through the lowest three of ``(us, chi2s)`` (total
-    chi^2 of refits through each view) is least, and its standard error
-    ``sqrt(2 / chi2'') * birge`` (the curvature of a chi^2 profile, Delta chi^2 = 1,
-    widened by ``birge``, the square root of the reduced chi^2 at the minimum when above 1).
+    chi^2 of refits through each view) is least, and its standard error: the half-width
+    ``sqrt(Delta / a)`` of the interval where the parabola ``a (u - u*)^2 + chi2_min``
+    rises by ``Delta = birge^2`` (``Delta chi^2 = 1`` on a profile, times the reduced
+    chi^2 at the minimum when above 1: the Birge ratio squared).
 
-    A minimum below 0 is the orthographic view (``u = 0``, the boundary).
+    The parabola's curvature is the profile's near its minimum only when the three points
+    lie within about a standard error of it: :func:`fit_divergence` refits there before
+    it reads the interval. A minimum below 0 is the orthographic view (``u = 0``, the
+    boundary).
 
     References
     ----------
     W. H. Press et al., *Numerical Recipes*, 3rd ed., 2007, sec. 10.3 (parabolic
     interpolation) and sec. 15.6.5 (confidence limits from Delta chi^2 = 1 on a profile);
-    R. T. Birge, Phys. Rev. 40, 207 (1932).
+    D. J. Venzon and S. H. Moolgavkar, Appl. Statist. 37, 87 (1988) (profile-likelihood
+    intervals); R. T. Birge, Phys. Rev. 40, 207 (1932).
     """
     pts = sorted((c, u) for u, c in zip(us, chi2s) if math.isfinite(c))
     if len(pts) < 3:
@@ -159,75 +168,112 @@ def divergence_profile(us, chi2s, birge: float = 1.0) -> Profile:
     a, b, _ = np.polyfit([u0, u1, u2], [c0, c1, c2], 2)
     span = max(us)
     if not a > 0:
-        return Profile(float(pts[0][1]), float("inf"), False)
+        return Profile(float(pts[0][1]), float("inf"), False, (u0, u1, u2))
     u_min = min(max(-b / (2 * a), 0.0), span)
-    se = math.sqrt(2.0 / (2.0 * a)) * max(birge, 1.0)
+    se = math.sqrt(1.0 / a) * max(birge, 1.0)
     inside = -b / (2 * a) <= span * 1.05
-    return Profile(float(u_min), float(se), bool(inside and se < 0.5 * span))
+    return Profile(float(u_min), float(se), bool(inside and se < 0.5 * span), (u0, u1, u2))
 
 
 def fit_divergence(ortho: FitResult, lens_fit: FitResult, lens: View, refit) -> FitResult:
     """The fit through the view's divergence fitted from the photo, when nothing stated the
-    view: ``u = tan(fov/2)`` (:func:`~bubblefit.capture.view.divergence`) profiled over the
-    orthographic fit (``u = 0``), the ``lens`` fit and a refit halfway (``refit(view,
-    start)``: a warm-started fit through ``view``), a fourth beyond the lens when the
-    minimum lies past it, then refitted at the minimum (:func:`divergence_profile`).
+    view: ``u = tan(fov/2)`` (:func:`~bubblefit.capture.view.divergence`) profiled by
+    warm-started refits (``refit(view, start)``: the fit through ``view``).
+
+    1. Bracket: the orthographic fit (``u = 0``), the ``lens`` fit and a refit halfway, a
+       fourth beyond the lens when the minimum lies past it; the parabola through the
+       lowest three (:func:`divergence_profile`) gives a first minimum ``u1`` and standard
+       error ``s1``.
+    2. Refine: refits at ``u1`` and ``u1 +- s1`` (the ends of the first interval; ``u = 0``
+       stands for a negative end), so that the parabola through the lowest three reads
+       the profile's curvature near its minimum, not across the bracket; when the
+       refined standard error exceeds twice the step (the three points spanned under half
+       the interval), once more at the new minimum and its interval's ends. The photo is
+       refitted at the last minimum unless a refit lies within a quarter of a standard
+       error of it.
 
     The kept fit's parameters ``p`` are conditional on the view; freeing it adds
     ``(dp/du)^2 var(u)`` to each variance and ``dp/du var(u)`` as the covariance with the
-    view (the profile's slope from a line through the refits), and the view's ``fov_deg``
-    joins ``names``, with its standard error from ``var(u)`` by ``dfov/du = 2/(1+u^2)``.
-    Where the profile is flat or its minimum is not bracketed, this is
-    :func:`widen_for_view` of the better of the two first fits, and its warning says that
-    the photo does not fix the view.
+    view (the slope of a line through the refits the parabola went through), per pixel
+    for a thickness map, and the view's ``fov_deg`` joins ``names``, with its standard
+    error from ``var(u)`` by ``dfov/du = 2/(1+u^2)``. Where the profile is flat or its
+    minimum is not bracketed, this is :func:`widen_for_view` of the better of the two
+    first fits, and its warning says that the photo does not fix the view.
 
     References
     ----------
-    Numerical Recipes, 3rd ed., 2007, sec. 15.6 (profile confidence regions); JCGM
+    Numerical Recipes, 3rd ed., 2007, sec. 15.6 (profile confidence regions); Venzon and
+    Moolgavkar, Appl. Statist. 37, 87 (1988) (profile-likelihood intervals); JCGM
     100:2008 (GUM) eq. 13 (propagation with correlated inputs).
     """
     width_fits = [(0.0, ortho), (divergence(lens.fov_deg), lens_fit)]
     u_lens = width_fits[1][0]
     best = min(width_fits, key=lambda p: _chi2(p[1]))[1]
-    start = {k: v for k, v in best.params.items() if math.isfinite(v)}
+    first = {k: v for k, v in best.params.items() if math.isfinite(v)}
 
     def through(u: float) -> FitResult:
         fov = fov_of_divergence(u)
         view = View("perspective", fov, "fitted", f"the view's divergence tried at {fov:.1f} degrees across")
+        near = [p for p in fits if math.isfinite(_chi2(p[1]))]
+        start = ({k: v for k, v in min(near, key=lambda p: abs(p[0] - u))[1].params.items() if math.isfinite(v)}
+                 if near else first)
         return refit(view, start)
 
-    fits = width_fits + [(u_lens / 2.0, through(u_lens / 2.0))]
-    birge = lambda: math.sqrt(max([1.0] + [min(f.chi2_capped for _, f in fits if math.isfinite(_chi2(f)))
-                                           if any(math.isfinite(_chi2(f)) for _, f in fits) else 1.0]))
-    prof = divergence_profile([u for u, _ in fits], [_chi2(f) for _, f in fits], birge())
+    def profile_now() -> Profile:
+        ok = [f.chi2_capped for _, f in fits if math.isfinite(_chi2(f))]
+        birge = math.sqrt(max([1.0] + ([min(ok)] if ok else [])))
+        return divergence_profile([u for u, _ in fits], [_chi2(f) for _, f in fits], birge)
+
+    def at(u: float, tol: float) -> None:
+        """Refit at ``u`` unless a refit lies within ``tol`` of it (``u <= 0``: the
+        orthographic fit stands for it)."""
+        u = max(u, 0.0)
+        if min(abs(v - u) for v, _ in fits) > tol:
+            fits.append((u, through(u)))
+
+    fits = list(width_fits)
+    fits.append((u_lens / 2.0, through(u_lens / 2.0)))
+    prof = profile_now()
     u_far = min(2.0 * u_lens, divergence(MAX_FOV_DEG) * 0.5)
     if math.isfinite(prof.u) and prof.u >= u_lens * 0.999:
         fits.append((u_far, through(u_far)))
-        prof = divergence_profile([u for u, _ in fits], [_chi2(f) for _, f in fits], birge())
+        prof = profile_now()
+    for _ in range(2):
+        if not prof.constrained:
+            break
+        step = prof.stderr
+        for u in (prof.u, prof.u - step, prof.u + step):
+            at(u, 0.25 * step)
+        prof = profile_now()
+        if not prof.stderr > 2.0 * step:
+            break
     lens_better = lens_fit.converged and _chi2(lens_fit) < _chi2(ortho)
     kept, other = (lens_fit, ortho) if lens_better else (ortho, lens_fit)
-    profile = [[fov_of_divergence(u), float(f.chi2_capped)] for u, f in sorted(fits, key=lambda p: p[0])]
     if not prof.constrained:
         out = widen_for_view(kept, other, lens)
-        out.camera = {**(out.camera or {}), "divergence_profile": profile}
+        out.camera = {**(out.camera or {}), "divergence_profile": _profile_record(fits)}
         out.warnings = [w + "; the photo does not fix the view (its chi^2 over the field of view is flat or "
                         "least outside the views tried)" if w.startswith("the view was not given") else w
                         for w in out.warnings]
         return out
-    near = min(fits, key=lambda p: abs(p[0] - prof.u))
-    if abs(near[0] - prof.u) <= 0.25 * prof.stderr and math.isfinite(_chi2(near[1])):
-        u_star, fit = near
-    else:
-        u_star, fit = (0.0, ortho) if prof.u == 0.0 else (prof.u, through(prof.u))
-        if not math.isfinite(_chi2(fit)):
-            u_star, fit = min(fits, key=lambda p: _chi2(p[1]))
-        fits.append((u_star, fit))
-    return _with_fitted_view(fit, u_star, prof.stderr, [p for p in fits if math.isfinite(_chi2(p[1]))], profile)
+    at(prof.u, 0.25 * prof.stderr)
+    again = profile_now()  # with the refit at the minimum among the lowest three
+    prof = again if again.constrained else prof
+    u_star, fit = min(((u, f) for u, f in fits if math.isfinite(_chi2(f))), key=lambda p: abs(p[0] - prof.u))
+    used = [p for p in fits if any(p[0] == v for v in prof.points) and math.isfinite(_chi2(p[1]))]
+    return _with_fitted_view(fit, u_star, prof.stderr, used, _profile_record(fits))
+
+
+def _profile_record(fits: list) -> list:
+    """The JSON's ``divergence_profile``: ``[fov_deg, capped reduced chi^2]`` of each view
+    tried, in order of the field of view."""
+    return [[fov_of_divergence(u), float(f.chi2_capped)] for u, f in sorted(fits, key=lambda p: p[0])]
 
 
 def _with_fitted_view(fit: FitResult, u: float, se_u: float, fits: list, profile: list) -> FitResult:
     """``fit`` (through the divergence ``u``) with the view's variance ``se_u^2`` propagated
-    into its parameters by the slopes ``dp/du`` of a line through ``fits`` (:func:`fit_divergence`),
+    into its parameters, and per pixel into its thickness map's errors, by the slopes
+    ``dp/du`` of lines through ``fits`` (the refits near the minimum, :func:`fit_divergence`),
     ``fov_deg`` added to its covariance, and its camera record's source ``fitted``."""
     out = replace(fit, stderr=dict(fit.stderr), warnings=list(fit.warnings))
     us = np.array([p[0] for p in fits], float)
@@ -252,11 +298,22 @@ def _with_fitted_view(fit: FitResult, u: float, se_u: float, fits: list, profile
         cov[:n, n] = cov[n, :n] = s * var_u * dfov
         cov[n, n] = fov_se**2
         out.covariance, out.names = cov, (*names, "fov_deg")
-    if out.thickness_stderr_map is not None and "thickness_nm" in slopes:
-        out.thickness_stderr_map = np.hypot(out.thickness_stderr_map, slopes["thickness_nm"] * se_u)
+    if out.thickness_stderr_map is not None:
+        maps = [p[1].thickness_map for p in fits]
+        if len(set(us)) >= 2 and all(m is not None and np.shape(m) == np.shape(out.thickness_stderr_map)
+                                     for m in maps):
+            # per pixel: the slope of the least-squares line through the refits' maps
+            du = us - us.mean()
+            slope_map = np.tensordot(du / np.sum(du * du), np.stack([np.asarray(m, np.float64) for m in maps]), 1)
+            slope_map = np.where(np.isfinite(slope_map), slope_map, slopes.get("thickness_nm", 0.0))
+            out.thickness_stderr_map = np.hypot(out.thickness_stderr_map, slope_map * se_u)
+        elif "thickness_nm" in slopes:
+            out.thickness_stderr_map = np.hypot(out.thickness_stderr_map, slopes["thickness_nm"] * se_u)
+    lo, hi = max(u - se_u, 0.0), u + se_u
     detail = f"the view's divergence fitted from the photo: {fov:.1f} +- {fov_se:.1f} degrees across"
     cam = {**(fit.camera or {}), "kind": "perspective" if u > 0 else "orthographic", "fov_deg": fov if u > 0 else None,
            "source": "fitted", "detail": detail, "fov_stderr_deg": fov_se, "fitted_fov_deg": fov,
+           "fov_interval_deg": [fov_of_divergence(lo), fov_of_divergence(hi)],
            "divergence_profile": profile,
            "view_uncertainty": {k: abs(v) * se_u for k, v in slopes.items()}}
     out.camera = cam

@@ -449,8 +449,9 @@ class FitResult:
         The view fitted (JSON key ``camera``): ``kind``, ``fov_deg``, ``source`` (``option``,
         ``EXIF``, ``scene``, ``fitted`` or ``assumed``), ``detail``; for a perspective camera its
         ``distance_radii`` (pinhole to the sphere's centre); for a fitted view
-        ``fitted_fov_deg``, ``fov_stderr_deg`` and the views tried
-        (``divergence_profile``); for an assumed view the lens it was compared with
+        ``fitted_fov_deg``, ``fov_stderr_deg``, the interval where the chi^2 profile lies
+        within the Birge-widened ``Delta chi^2 = 1`` of its least (``fov_interval_deg``)
+        and the views tried (``divergence_profile``); for an assumed view the lens it was compared with
         (``compared_fov_deg``); for both the standard uncertainty each parameter gained
         from the view (``view_uncertainty``).
     """

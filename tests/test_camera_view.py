@@ -336,6 +336,29 @@ def test_a_photo_that_fixes_the_view_gets_its_divergence_fitted():
     assert len(tried) == 3 and any("divergence fitted" in w for w in out.warnings), (tried, out.warnings)
 
 
+def test_near_parallel_rays_the_orthographic_fit_stands_for_the_intervals_near_end():
+    """A minimum a third of a standard error above u = 0: the refit at the interval's near
+    end (below 0) is the orthographic fit's, the parabola through u = 0 and the refits
+    about the minimum is still the exact profile, and the interval stops at parallel rays."""
+    from bubblefit.inverse import fit_divergence
+
+    at = _profiled(0.01, 0.03, 50.0)
+    lens = V.assumed_lens(48, 48)
+    tried = []
+
+    def refit(view, start):
+        tried.append(V.divergence(view.fov_deg))
+        return at(tried[-1])
+
+    out = fit_divergence(at(0.0), at(V.divergence(lens.fov_deg)), lens, refit)
+    cam = out.camera
+    assert cam["source"] == "fitted" and all(u > 0 for u in tried), tried
+    assert V.divergence(cam["fitted_fov_deg"]) == pytest.approx(0.01, rel=1e-6)
+    assert cam["fov_stderr_deg"] == pytest.approx(math.degrees(2 / (1 + 0.01**2)) * 0.03, rel=1e-6)
+    assert cam["fov_interval_deg"][0] == 0.0
+    assert out.stderr["thickness_nm"] == pytest.approx(math.hypot(2.0, 50.0 * 0.03), rel=1e-6)
+
+
 def test_the_standard_error_is_the_profiles_curvature_near_its_minimum():
     """A profile steeper away from its minimum than near it (a quartic term, 1 % of the
     quadratic one at two standard errors, 87 % at the bracket's far point): the parabola

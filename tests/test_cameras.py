@@ -741,6 +741,53 @@ def test_colour_check_noise_shared_by_neighbours():
     assert 2.0 < np.mean(scales) < 5.0, np.mean(scales)
 
 
+def _thick_film_path(h=48, w=48, thickness=1500.0, n=1.33):
+    """The optical path ``2 n d cos t`` (nm) over :func:`_smooth_colours`' disc of a constant
+    film seen orthographically (``sin(theta_i) = r / R``; Snell: ``sin t = sin(theta_i) / n``)."""
+    y, x = np.mgrid[0:h, 0:w]
+    s2 = np.clip(((x - w / 2) ** 2 + (y - h / 2) ** 2) / (0.42 * w) ** 2, 0.0, 1.0)
+    return 2.0 * n * thickness * np.sqrt(1.0 - s2 / n**2)
+
+
+def test_colour_check_cells_follow_the_optical_path():
+    """A hue error that turns with the film's optical path (period 500 nm, as a response's
+    error at 500 nm does) over a 1500 nm film's disc, whose path changes by up to ~100 nm
+    per pixel: the 6 x 6 grid's outer cells each span a fringe and average it towards
+    zero, the cells split by the path (``PATH_BIN``, 95 nm: each part keeps at least
+    sinc(95 / 500) = 0.94 of it) keep it. Its amplitude, one noise sigma per pixel, gives
+    a non-centrality (the statistic less its degrees of freedom) of up to 0.94^2 N
+    (N ~ 1390 pixels; at least half of N asserted: parts under 4 pixels are left out, and
+    the estimate's deviation is ~70) over about 2 x 150 degrees of freedom, a statistic
+    over 3 times the threshold on every draw, and more than twice what the grid's 32
+    cells keep (only its central cells, where the path changes slowly, hold the error). The right render with the path split follows the chi^2 law (parts of 4 or
+    more pixels, each mean whitened by its exact covariance): mean 1 within 0.05 (its
+    deviation over 100 photos ~0.01) and at most 2 false alarms in 100 (0.1 expected)."""
+    from bubblefit.inverse.colour_check import PATH_BIN, colour_check
+
+    assert PATH_BIN == 95.0
+    truth, mask = _smooth_colours()
+    path = _thick_film_path()
+    sigma = np.array([0.004, 0.004, 0.004]) * np.ones_like(truth)
+    u = np.array([1.0, -1.0, 0.0]) / np.sqrt(2.0)           # two directions orthogonal to grey
+    v = np.array([1.0, 1.0, -2.0]) / np.sqrt(6.0)
+    turn = 2 * np.pi * path / 500.0
+    error = 0.004 * (np.cos(turn)[..., None] * u + np.sin(turn)[..., None] * v)
+    values, fails = [], 0
+    for seed in range(100):
+        noise = sigma * np.random.default_rng(seed).normal(size=truth.shape)
+        c = colour_check(truth + noise, truth, mask, sigma, floor=0.0, chroma_floor=0.0, path=path)
+        values.append(c.chi2_per_dof)
+        fails += not c.consistent
+        if seed < 5:
+            split = colour_check(truth + error + noise, truth, mask, sigma, floor=0.0, chroma_floor=0.0, path=path)
+            grid = colour_check(truth + error + noise, truth, mask, sigma, floor=0.0, chroma_floor=0.0)
+            assert not split.consistent and split.chi2_per_dof > 3.0 * split.threshold_per_dof, split
+            kept = [(c.chi2_per_dof - 1.0) * 2 * c.cells for c in (split, grid)]  # non-centralities
+            assert kept[0] > 0.5 * mask.sum() and kept[0] > 2.0 * kept[1], (kept, split, grid)
+    assert abs(np.mean(values) - 1.0) < 0.05, np.mean(values)
+    assert fails <= 2, fails
+
+
 def _draining_film_colours(camera: str, lamp: str | None = None, n: int = 64):
     """Closed-form colours of a draining film seen by a measured camera, written here
     independently of the package: the Airy reflectance of a free film in air at normal

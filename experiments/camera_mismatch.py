@@ -34,7 +34,7 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
 sys.path.insert(0, os.path.dirname(__file__))
 from helpers import FILM_PHOTO_DISC as DISC, film_photo  # noqa: E402
-from calibrated_camera import airy, sensitivities  # noqa: E402  (the same calibration)
+from calibrated_camera import airy, courtyard, sensitivities  # noqa: E402  (the same calibration)
 
 CAMERAS = {"Nikon": "Nikon 5100 (NPL)", "Sigma": "Sigma SDMerill (NPL)"}
 SEEDS = {300.0: 31, 600.0: 32, 1000.0: 33, 1300.0: 34, 1500.0: 35}
@@ -102,8 +102,6 @@ def main():
     from bubblefit.capture.view import ORTHOGRAPHIC
     from bubblefit.inverse import starts
     from bubblefit.inverse.fit import FitOptions, fit_photo
-    from bubblefit.io.images import read_image
-    from bubblefit.lighting.envmap import EnvMap, downsample
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--cases", default="Sigma:Nikon:film:1500,Nikon:Nikon:film:1500,Nikon:Sigma:film:1500")
@@ -112,20 +110,13 @@ def main():
     ap.add_argument("--csv-dir", help="keep the calibrated CSVs here")
     ap.add_argument("--redraw", type=int, default=0, help="noise draws per case against the saved fits (--arrays)")
     a = ap.parse_args()
-    px = read_image("bubblefit/data/courtyard.exr").pixels
-    while px.shape[0] > 64:
-        px = downsample(px)
-    env = EnvMap.from_array(px)
+    env = courtyard()
     folder = a.csv_dir or tempfile.mkdtemp()
     os.makedirs(folder, exist_ok=True)
     if a.arrays:
         os.makedirs(a.arrays, exist_ok=True)
     if a.redraw:
-        rows = [redraw(case, a.arrays, a.redraw, env) for case in a.cases.split(",")]
-        if a.json:
-            with open(a.json, "w") as fh:
-                json.dump(rows, fh, indent=1)
-        return
+        return save([redraw(case, a.arrays, a.redraw, env) for case in a.cases.split(",")], a.json)
     seen = {}
     judge = fitmod.judge_colours
 
@@ -161,8 +152,13 @@ def main():
               f"{(row['thickness'] - t) / se:+.1f} SE) ok={r.ok!s:5} colour {col.get('chi2_per_dof', float('nan')):.2f}"
               f"/{col.get('threshold_per_dof', float('nan')):.2f} (cells {col.get('cells')}) order "
               f"{order.get('delta_chi2', float('nan')):.1f} ({row['time_s']:.0f} s)", flush=True)
-    if a.json:
-        with open(a.json, "w") as fh:
+    save(rows, a.json)
+
+
+def save(rows: list, path: str | None):
+    """Write ``rows`` as JSON to ``path`` (nothing when None)."""
+    if path:
+        with open(path, "w") as fh:
             json.dump(rows, fh, indent=1)
 
 

@@ -6,9 +6,12 @@ leaves hues the stated response cannot reach. Brightness errors (the light's str
 the lobe's shape, the rim) are common to all channels, so this test looks only at the
 residual's *chromatic* part and only at what is *coherent* over a patch of the film. A
 grid of :data:`GRID` x :data:`GRID` cells is laid on the disc's inner part
-(:data:`INNER_COS`; the rim is left to the chi^2); in cell ``b`` of ``n_b`` pixels, with
-``P_b`` the (2, 3) orthonormal basis of the plane orthogonal to the cell's mean rendered
-colour, the statistic's terms are
+(:data:`INNER_COS`; the rim is left to the chi^2), and each cell is split into parts whose
+pixels' film has the same optical path ``2 n d cos t`` to within :data:`PATH_BIN` (the
+hue error of a wrong response turns with the path, and a thick film's cell spans a fringe
+of it: averaged over the whole cell, it cancels). In part ``b`` of ``n_b`` pixels (a
+"cell" below), with ``P_b`` the (2, 3) orthonormal basis of the plane orthogonal to its
+mean rendered colour, the statistic's terms are
 
 ``m_b = P_b mean_i(photo_i - render_i)``, the cell's mean chromatic residual;
 ``C_b = P_b diag(sum_i sigma_i^2) P_b^T / n_b^2``, its covariance under the fit's own noise

@@ -73,6 +73,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._uncertainty import OUTLIER_CHI2
+from ..optics.spectral import LAMBDA_MIN
 
 __all__ = ["ColourCheck", "colour_check", "judge_colours", "neighbour_scale", "noise_scale", "CHROMA_FLOOR",
            "CHROMA_REL", "FALSE_ALARM", "GRID", "INNER_COS", "MIN_PART_PIXELS", "PATH_BIN", "SHARED_BELOW"]
@@ -122,7 +123,7 @@ MIN_PIXELS = 12
 #: longer wavelengths. A cell of a thick film's disc spans a fringe or more (a 1500 nm
 #: film's path changes by about 110 nm per pixel at 0.8 of a 20 px radius, orthographic),
 #: over which such an error averages to nearly nothing; split by path, each part keeps it.
-PATH_BIN = 95.0
+PATH_BIN = LAMBDA_MIN / 4.0
 
 #: Fewest pixels of one optical-path bin in a cell to enter the test as a part of its own:
 #: a Bayer quad (2 x 2 pixels), the fewest whose mean holds a photosite of every colour, as

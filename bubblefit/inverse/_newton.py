@@ -6,8 +6,11 @@ A spherical surface of radius ``R`` touching a flat plate leaves the gap
 parameters ``(R, cx, cy, h0, g)`` are fitted to the pixels' colours by Levenberg-Marquardt,
 started from a per-pixel map: the centre of the thinnest pixels, and ``R``, ``h0`` from a
 straight line of the map against ``r^2`` (``h ~ h0 + r^2 / (2 R)``) where the map is
-below half the searched range. With a calibrated response that states its errors, the
-rings' order (the contact offset's, one fringe either way) is tested
+below half the searched range (:func:`colour_start`); where that map is ambiguous (one
+wavelength: every dark ring looks like the contact point), also from the rings' symmetry
+and period without colour (:func:`rings_centre`, :func:`rings_period`). With a calibrated
+response that states its errors, the rings' order (the contact offset's, one fringe either
+way) is tested
 (:func:`bubblefit.inverse._planar_lm.fit_order`).
 
 References
@@ -24,7 +27,7 @@ import numpy as np
 
 from ._planar_lm import ModelFit, fit_colours, fit_order
 
-__all__ = ["fit_newton", "newton_gap", "rings_centre", "rings_period"]
+__all__ = ["colour_start", "fit_newton", "newton_gap", "rings_centre", "rings_period"]
 
 
 def newton_gap(r_um, radius_um, h0_nm):
@@ -152,6 +155,42 @@ def _rings_start(fwd, x, yy, bright, mask, pitch: float, lo: float, hi: float):
     return radius, cx, cy, h0
 
 
+#: Share of the map's pixels (in the lower half of the searched range) within a tenth of a
+#: fringe of the colour start's line in ``r^2`` above which that start is unambiguous and
+#: the colour-free one is not sought. A map of the right orders lies on the line within its
+#: noise (nanometres; a tenth of a fringe is 27 nm in air) save its order hops; a map under
+#: one wavelength folds every fringe onto the first and leaves about half its pixels near
+#: any line. Development cases: film_newton_bk7_na010 (0.96 of its pixels) and the 850 mm
+#: sodium photo of experiments/real_photos.py (0.49).
+UNAMBIGUOUS_SHARE = 0.75
+
+
+def colour_start(x, yy, dmap, bright, lo: float, hi: float, fringe_nm: float):
+    """``((R um, cx, cy, h0 nm) or None, unambiguous)``: the start from the per-pixel map
+    ``dmap``: the centre of its thinnest dark pixels, and ``R``, ``h0`` from a straight
+    line of the map against ``r^2`` (``h ~ h0 + r^2 / (2 R)``, Born and Wolf sec. 7.5.3)
+    where the map is below half the searched range, dropping pixels 3 MADs off it (order
+    hops of the map); unambiguous when :data:`UNAMBIGUOUS_SHARE` of those pixels lie
+    within a tenth of a fringe (``fringe_nm``) of the line."""
+    x, yy, dmap, bright = (np.asarray(a, np.float64) for a in (x, yy, dmap, bright))
+    thin = (dmap <= np.percentile(dmap, 2)) & (bright <= 0.35 * np.median(bright))
+    if thin.sum() < 3:
+        return None, False
+    cx, cy = float(x[thin].mean()), float(yy[thin].mean())
+    r2 = (x - cx) ** 2 + (yy - cy) ** 2
+    below = dmap < lo + 0.5 * (hi - lo)
+    use = below.copy()
+    for _ in range(4):
+        A = np.column_stack([np.ones(use.sum()), r2[use]])
+        (h0, slope), *_ = np.linalg.lstsq(A, dmap[use], rcond=None)
+        dev = np.abs(dmap - (h0 + slope * r2))
+        use = use & (dev <= 3.0 * 1.4826 * np.median(dev[use]) + 1.0)
+    if slope <= 0:
+        return None, False
+    share = float(np.mean(dev[below] <= 0.1 * fringe_nm))
+    return (1000.0 / (2.0 * slope), cx, cy, float(h0)), share >= UNAMBIGUOUS_SHARE  # um: h[nm] = 1000 r^2 / (2 R)
+
+
 def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np.inf, iters: int = 40) -> ModelFit:
     """Levenberg-Marquardt fit of ``(R, cx, cy, h0, g)`` (see the module), started from ``dmap``."""
     x = view.x_um[mask]
@@ -165,22 +204,13 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
         return jnp.exp(t[4]) * lj[:, None] * fwd.rgb(h, sj)
 
     # two starts, the colour map's and the rings' symmetry's (no colour: the one that
-    # works under a line lamp); the fit starts from the one whose colours are closer
-    starts = []
-    thin = (dmap <= np.percentile(dmap, 2)) & (bright <= 0.35 * np.median(bright))
-    if thin.sum() >= 3:
-        cx, cy = float(x[thin].mean()), float(yy[thin].mean())
-        r2 = (x - cx) ** 2 + (yy - cy) ** 2
-        use = dmap < lo + 0.5 * (hi - lo)
-        for _ in range(4):  # a line in r^2, dropping pixels 3 MADs off it (order hops of the map)
-            A = np.column_stack([np.ones(use.sum()), r2[use]])
-            (h0, slope), *_ = np.linalg.lstsq(A, dmap[use], rcond=None)
-            dev = np.abs(dmap - (h0 + slope * r2))
-            use = use & (dev <= 3.0 * 1.4826 * np.median(dev[use]) + 1.0)
-        if slope > 0:
-            starts.append((1000.0 / (2.0 * slope), cx, cy, float(h0)))  # um: h[nm] = 1000 r^2 / (2 R)
-    pitch = float(np.median(np.abs(np.diff(np.unique(np.round(x, 6))))))
-    starts.append(_rings_start(fwd, x, yy, bright, mask, pitch, lo, hi))
+    # works under a line lamp); the fit starts from the one whose colours are closer. The
+    # second is sought only where the first is ambiguous (:func:`colour_start`).
+    start, unambiguous = colour_start(x, yy, dmap, bright, lo, hi, fwd.fringe_nm)
+    starts = [] if start is None else [start]
+    if not unambiguous:
+        pitch = float(np.median(np.abs(np.diff(np.unique(np.round(x, 6))))))
+        starts.append(_rings_start(fwd, x, yy, bright, mask, pitch, lo, hi))
     best = None
     for radius, cx, cy, h0 in starts:
         t = jnp.asarray([np.log(radius), cx, cy, h0, 0.0])

@@ -27,7 +27,7 @@ import numpy as np
 
 from ._planar_lm import ModelFit, fit_colours, fit_order
 
-__all__ = ["colour_start", "fit_newton", "newton_gap", "rings_centre", "rings_period"]
+__all__ = ["colour_start", "fit_newton", "lost_rings_warning", "newton_gap", "rings_centre", "rings_period"]
 
 
 def newton_gap(r_um, radius_um, h0_nm):
@@ -137,7 +137,7 @@ def _fringes(bright, mask) -> np.ndarray:
 
 
 def _rings_start(fwd, x, yy, bright, mask, pitch: float, lo: float, hi: float):
-    """``(R um, cx, cy, h0 nm)`` from the rings' circular symmetry and their period in ``r^2``
+    """``(R um, cx, cy, h0 nm, fringe nm)`` from the rings' circular symmetry and their period in ``r^2``
     (:func:`rings_centre`, :func:`rings_period`) of the fringes (:func:`_fringes`), at the
     lamp's mean wavelength through the camera (one wavelength for a line lamp), no colour
     used; the shortest period sought puts two pixels between rings at the median radius."""
@@ -152,7 +152,7 @@ def _rings_start(fwd, x, yy, bright, mask, pitch: float, lo: float, hi: float):
     fringe = lam / (2.0 * n)  # phase 4 pi n h0 / lambda + pi = phi (mod 2 pi)
     h0 = ((phi - np.pi) / (2.0 * np.pi) % 1.0) * fringe
     h0 = float(np.clip(h0, lo, hi))
-    return radius, cx, cy, h0
+    return radius, cx, cy, h0, fringe
 
 
 #: Share of the map's pixels (in the lower half of the searched range) within a tenth of a
@@ -191,6 +191,29 @@ def colour_start(x, yy, dmap, bright, lo: float, hi: float, fringe_nm: float):
     return (1000.0 / (2.0 * slope), cx, cy, float(h0)), share >= UNAMBIGUOUS_SHARE  # um: h[nm] = 1000 r^2 / (2 R)
 
 
+#: Ratio of the fitted gap's span across the photo to that of the rings' period without
+#: colour (either way) past which the fit is taken to have lost the rings: a fit that found
+#: them moves R, and the span, by the start's few per cent (2 % on the three sodium photos
+#: of experiments/real_photos.py against their ring diameters); one that ran to a flat gap
+#: keeps a fraction of a fringe of tens.
+LOST_RINGS_RATIO = 2.0
+
+
+def lost_rings_warning(start_span_nm: float, fitted_span_nm: float, fringe_nm: float, start_radius_um: float,
+                       fitted_radius_um: float) -> str | None:
+    """A warning where the fitted gap spans :data:`LOST_RINGS_RATIO` times fewer (or more)
+    fringes across the photo than the rings' period without colour says (the gap
+    ``h = h0 + r^2 / (2 R)``, Born and Wolf sec. 7.5.3, across the photo's pixels, in
+    fringes of ``fringe_nm``); None where they agree."""
+    ratio = fitted_span_nm / max(start_span_nm, 1e-9)
+    if 1.0 / LOST_RINGS_RATIO <= ratio <= LOST_RINGS_RATIO:
+        return None
+    return (f"the fitted lens (R = {fitted_radius_um / 1000.0:.4g} mm) spans {fitted_span_nm / fringe_nm:.1f} fringes "
+            f"across the photo where its rings' period without colour spans {start_span_nm / fringe_nm:.1f} "
+            f"(R = {start_radius_um / 1000.0:.4g} mm): the fit lost the rings (fringes fainter than the model's, "
+            "from stray light or the lamp's fall-off, are fitted better by a nearly uniform gap); R is not the lens's")
+
+
 def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np.inf, iters: int = 40) -> ModelFit:
     """Levenberg-Marquardt fit of ``(R, cx, cy, h0, g)`` (see the module), started from ``dmap``."""
     x = view.x_um[mask]
@@ -208,9 +231,11 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
     # second is sought only where the first is ambiguous (:func:`colour_start`).
     start, unambiguous = colour_start(x, yy, dmap, bright, lo, hi, fwd.fringe_nm)
     starts = [] if start is None else [start]
+    rings = None
     if not unambiguous:
         pitch = float(np.median(np.abs(np.diff(np.unique(np.round(x, 6))))))
-        starts.append(_rings_start(fwd, x, yy, bright, mask, pitch, lo, hi))
+        rings = _rings_start(fwd, x, yy, bright, mask, pitch, lo, hi)
+        starts.append(rings[:4])
     best = None
     for radius, cx, cy, h0 in starts:
         t = jnp.asarray([np.log(radius), cx, cy, h0, 0.0])
@@ -243,5 +268,12 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
               "contact_offset_nm": float(t[3]), "exposure": float(np.exp(t[4]))}
     stderr = {"radius_mm": radius_um / 1000.0 * float(se[0]), "center_x_um": float(se[1]),
               "center_y_um": float(se[2]), "contact_offset_nm": float(se[3]), "exposure": float(np.exp(t[4]) * se[4])}
+    warnings = []
+    if rings is not None:  # the gap across the photo, fitted and from the rings' period without colour
+        r2s = (x - rings[1]) ** 2 + (yy - rings[2]) ** 2
+        lost = lost_rings_warning(1000.0 * float(np.ptp(r2s)) / (2.0 * rings[0]), float(np.ptp(h)), rings[4],
+                                  rings[0], radius_um)
+        warnings += [lost] if lost else []
     return ModelFit(params=params, stderr=stderr, thickness=h, thickness_stderr=h_se,
-                     model=np.asarray(model(theta), np.float64), gain=float(np.exp(t[4])), order=order)
+                     model=np.asarray(model(theta), np.float64), gain=float(np.exp(t[4])), order=order,
+                     warnings=warnings)

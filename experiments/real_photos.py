@@ -156,6 +156,23 @@ def run_fit(photo: Path, scene: Path, work: Path, tag: str) -> dict:
     return rec
 
 
+def ring_spans(rec: dict) -> dict:
+    """The gap's span across the binned photo (320x240), in fringes of 589.3 nm in air, of
+    the colour-free start (its centre and R; the rings' period) and of the full fit (its
+    parameters; the gap ``h = max(R - sqrt(R^2 - r^2) + h0, 0)``): the figures of the fit's
+    lost-rings warning (bubblefit.inverse._newton.lost_rings_warning)."""
+    pitch, fringe = rec["pixel_um_binned"], SODIUM_NM / 2.0 / 1.000277
+    xs, ys = np.meshgrid(np.arange(320), np.arange(240))
+    s, g = rec["start"], rec["grey"]["params"]
+    # the start's centre in pixels; the fit's in um from the photo's corner (pixel centres at +0.5)
+    r2s = ((xs - s["centre_px"][0]) ** 2 + (ys - s["centre_px"][1]) ** 2) * pitch ** 2
+    start = 1000.0 * float(np.ptp(r2s)) / (2.0 * s["radius_mm"] * 1000.0)
+    r2f = ((xs + 0.5) * pitch - g["center_x_um"]) ** 2 + ((ys + 0.5) * pitch - g["center_y_um"]) ** 2
+    rf = g["radius_mm"] * 1000.0
+    fit = np.maximum(1000.0 * r2f / (rf + np.sqrt(rf * rf - r2f)) + g["contact_offset_nm"], 0.0)
+    return {"start": start / fringe, "fit": float(np.ptp(fit)) / fringe}
+
+
 def _recorded() -> dict:
     """The records in ``real_photos.json`` by stated radius (empty without one)."""
     path = OUT / "real_photos.json"
@@ -201,6 +218,9 @@ def main() -> int:
     old = _recorded()  # read again: the photos not run keep their records (one photo at a time: --only R)
     new = {r["stated_radius_mm"]: r for r in records}
     records = [new.get(r, old.get(r)) for r in sorted(set(old) | set(new))]
+    for rec in records:
+        if rec.get("grey", {}).get("params"):
+            rec["spans_fringes"] = ring_spans(rec)
     (OUT / "real_photos.json").write_text(json.dumps({"script": "experiments/real_photos.py", "photos": records},
                                                      indent=1, ensure_ascii=False) + "\n")
     return 0

@@ -349,8 +349,9 @@ def scaled_decrement(dense: _DenseState, residual, z=None, free: tuple = ()) -> 
     have weight 0): the squared length of the step left, in the fit's own covariance.
 
     With the point ``z`` and the names ``free`` of its parameters, the bounds are active
-    constraints as in :func:`remaining_step`: a parameter within one standard error of a
-    finite bound whose step points at it is left out, and the decrement is the projection
+    constraints as in :func:`remaining_step` (:func:`presses_bound`): a parameter within one
+    standard error of a finite bound whose step points at it, or reaches beyond its
+    coordinate's linearisation away from it, is left out, and the decrement is the projection
     of ``Q^T r`` on the columns of ``R`` left (a roughness at the mirror, its step
     pointing below zero, no longer keeps the solve from stopping). From the QR factors, in
     the solve's own precision.

@@ -49,13 +49,22 @@ def airy(d, n=1.33):
     return f * s2 / (1 + f * s2)
 
 
+def courtyard():
+    """The courtyard map shipped with bubblefit, halved down to 64 rows: the photos' light."""
+    from bubblefit.io.images import read_image
+    from bubblefit.lighting.envmap import EnvMap, downsample
+
+    px = read_image("bubblefit/data/courtyard.exr").pixels
+    while px.shape[0] > 64:
+        px = downsample(px)
+    return EnvMap.from_array(px)
+
+
 def main():
     from bubblefit.capture.camera_calibration import chart_reflectances, fit_response
     from bubblefit.capture.view import ORTHOGRAPHIC
     from bubblefit.inverse.fit import FitOptions, fit_photo
     from bubblefit.inverse import starts
-    from bubblefit.io.images import read_image
-    from bubblefit.lighting.envmap import EnvMap, downsample
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--thickness", default="300,800,1500")
@@ -70,10 +79,7 @@ def main():
     d = np.linspace(0.0, 2000.0, 81)
     _, refl = chart_reflectances()
     data = {"film": airy(d), "chart": refl}
-    px = read_image("bubblefit/data/courtyard.exr").pixels
-    while px.shape[0] > 64:
-        px = downsample(px)
-    env = EnvMap.from_array(px)
+    env = courtyard()
     tmp = a.keep or tempfile.mkdtemp()
     os.makedirs(tmp, exist_ok=True)
     rows, arrays = [], {}

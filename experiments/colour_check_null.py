@@ -51,8 +51,10 @@ class Recorder:
 
         def wrapped(ok, warnings, photo, render, mask, cos, sigma, model_error=0.0, *rest):
             out = self._orig(ok, warnings, photo, render, mask, cos, sigma, model_error, *rest)
+            path = rest[3] if len(rest) > 3 else None  # the film's optical path (splits the cells)
             self.calls.append((dict(photo=np.asarray(photo), render=np.asarray(render), mask=np.asarray(mask),
-                                    cos=np.asarray(cos), sigma=np.asarray(sigma), model_error=float(model_error)),
+                                    cos=np.asarray(cos), sigma=np.asarray(sigma), model_error=float(model_error),
+                                    **({} if path is None else {"path": np.asarray(path)})),
                                out[2]))
             return out
 
@@ -344,7 +346,8 @@ def table(out):
         arr = np.load(os.path.join(out, f[:-5] + ".npz"))
         mask = arr["mask"] & (arr["cos"] > INNER_COS)
         me = float(arr["model_error"]) if "model_error" in arr else 0.03  # JudgeSettings.model_error's default
-        c = colour_check(arr["photo"], arr["render"], mask, arr["sigma"], model_error=me)
+        path = arr["path"] if "path" in arr else None  # cells split by the optical path where saved
+        c = colour_check(arr["photo"], arr["render"], mask, arr["sigma"], model_error=me, path=path)
         plain = c.chi2_per_dof  # the response taken as exact
         if (meta.get("fit_record") or {}).get("response_errors"):
             # a calibrated response: the fit's check held its errors (not saved here), so its record stands

@@ -38,6 +38,7 @@ import argparse
 import json
 import subprocess
 import sys
+import time
 import urllib.request
 from pathlib import Path
 
@@ -144,14 +145,38 @@ def rings_start(png: Path, pixel_um: float, stated_mm: float) -> dict:
 
 def run_fit(photo: Path, scene: Path, work: Path, tag: str) -> dict:
     js = work / f"{tag}.json"
+    t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, "-m", "bubblefit", "fit", str(photo), "--scene", str(scene),
                            "--json", str(js)], capture_output=True, text=True, cwd=work)
-    rec = {"exit": proc.returncode, "message": proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else ""}
+    rec = {"exit": proc.returncode, "seconds": round(time.perf_counter() - t0, 1), "message": proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else ""}
     if proc.returncode == 0:
         out = json.loads(js.read_text())
         rec.update({k: out.get(k) for k in ("ok", "warnings", "params", "stderr", "reduced_chi2",
                                             "reduced_chi2_floor", "order_hops")})
     return rec
+
+
+def ring_spans(rec: dict) -> dict:
+    """The gap's span across the binned photo (320x240), in fringes of 589.3 nm in air, of
+    the colour-free start (its centre and R; the rings' period) and of the full fit (its
+    parameters; the gap ``h = max(R - sqrt(R^2 - r^2) + h0, 0)``): the figures of the fit's
+    lost-rings warning (bubblefit.inverse._newton.lost_rings_warning)."""
+    pitch, fringe = rec["pixel_um_binned"], SODIUM_NM / 2.0 / 1.000277
+    xs, ys = np.meshgrid(np.arange(320), np.arange(240))
+    s, g = rec["start"], rec["grey"]["params"]
+    # the start's centre in pixels; the fit's in um from the photo's corner (pixel centres at +0.5)
+    r2s = ((xs - s["centre_px"][0]) ** 2 + (ys - s["centre_px"][1]) ** 2) * pitch ** 2
+    start = 1000.0 * float(np.ptp(r2s)) / (2.0 * s["radius_mm"] * 1000.0)
+    r2f = ((xs + 0.5) * pitch - g["center_x_um"]) ** 2 + ((ys + 0.5) * pitch - g["center_y_um"]) ** 2
+    rf = g["radius_mm"] * 1000.0
+    fit = np.maximum(1000.0 * r2f / (rf + np.sqrt(rf * rf - r2f)) + g["contact_offset_nm"], 0.0)
+    return {"start": start / fringe, "fit": float(np.ptp(fit)) / fringe}
+
+
+def _recorded() -> dict:
+    """The records in ``real_photos.json`` by stated radius (empty without one)."""
+    path = OUT / "real_photos.json"
+    return {p["stated_radius_mm"]: p for p in json.loads(path.read_text())["photos"]} if path.exists() else {}
 
 
 def main() -> int:
@@ -171,8 +196,7 @@ def main() -> int:
         "width = 320\nheight = 240", "width = 640\nheight = 480"))
     (args.work / "grey.toml").write_text(SCENE.format(pixel_um=pixel_um, response='response = "grey.csv"\n'))
     records = []
-    old = {p["stated_radius_mm"]: p for p in json.loads((OUT / "real_photos.json").read_text())["photos"]} \
-        if args.start_only else {}
+    old = _recorded()
     for radius in args.only:
         jpg = fetch(radius, args.source, args.work)
         grey_photo(jpg, args.work / f"rings_{radius}_grey.png")
@@ -191,6 +215,12 @@ def main() -> int:
         records.append(rec)
         print(json.dumps(rec, indent=1, ensure_ascii=False))
     OUT.mkdir(parents=True, exist_ok=True)
+    old = _recorded()  # read again: the photos not run keep their records (one photo at a time: --only R)
+    new = {r["stated_radius_mm"]: r for r in records}
+    records = [new.get(r, old.get(r)) for r in sorted(set(old) | set(new))]
+    for rec in records:
+        if rec.get("grey", {}).get("params"):
+            rec["spans_fringes"] = ring_spans(rec)
     (OUT / "real_photos.json").write_text(json.dumps({"script": "experiments/real_photos.py", "photos": records},
                                                      indent=1, ensure_ascii=False) + "\n")
     return 0

@@ -6,8 +6,11 @@ A spherical surface of radius ``R`` touching a flat plate leaves the gap
 parameters ``(R, cx, cy, h0, g)`` are fitted to the pixels' colours by Levenberg-Marquardt,
 started from a per-pixel map: the centre of the thinnest pixels, and ``R``, ``h0`` from a
 straight line of the map against ``r^2`` (``h ~ h0 + r^2 / (2 R)``) where the map is
-below half the searched range. With a calibrated response that states its errors, the
-rings' order (the contact offset's, one fringe either way) is tested
+below half the searched range (:func:`colour_start`); where that map is ambiguous (one
+wavelength: every dark ring looks like the contact point), also from the rings' symmetry
+and period without colour (:func:`rings_centre`, :func:`rings_period`). With a calibrated
+response that states its errors, the rings' order (the contact offset's, one fringe either
+way) is tested
 (:func:`bubblefit.inverse._planar_lm.fit_order`).
 
 References
@@ -24,7 +27,7 @@ import numpy as np
 
 from ._planar_lm import ModelFit, fit_colours, fit_order
 
-__all__ = ["fit_newton", "newton_gap", "rings_centre", "rings_period"]
+__all__ = ["colour_start", "fit_newton", "lost_rings_warning", "newton_gap", "rings_centre", "rings_period"]
 
 
 def newton_gap(r_um, radius_um, h0_nm):
@@ -134,7 +137,7 @@ def _fringes(bright, mask) -> np.ndarray:
 
 
 def _rings_start(fwd, x, yy, bright, mask, pitch: float, lo: float, hi: float):
-    """``(R um, cx, cy, h0 nm)`` from the rings' circular symmetry and their period in ``r^2``
+    """``(R um, cx, cy, h0 nm, fringe nm)`` from the rings' circular symmetry and their period in ``r^2``
     (:func:`rings_centre`, :func:`rings_period`) of the fringes (:func:`_fringes`), at the
     lamp's mean wavelength through the camera (one wavelength for a line lamp), no colour
     used; the shortest period sought puts two pixels between rings at the median radius."""
@@ -149,7 +152,66 @@ def _rings_start(fwd, x, yy, bright, mask, pitch: float, lo: float, hi: float):
     fringe = lam / (2.0 * n)  # phase 4 pi n h0 / lambda + pi = phi (mod 2 pi)
     h0 = ((phi - np.pi) / (2.0 * np.pi) % 1.0) * fringe
     h0 = float(np.clip(h0, lo, hi))
-    return radius, cx, cy, h0
+    return radius, cx, cy, h0, fringe
+
+
+#: Share of the map's pixels (in the lower half of the searched range) within a tenth of a
+#: fringe of the colour start's line in ``r^2`` above which that start is unambiguous and
+#: the colour-free one is not sought. A map of the right orders lies on the line within its
+#: noise (nanometres; a tenth of a fringe is 27 nm in air) save its order hops; a map under
+#: one wavelength folds every fringe onto the first and leaves about half its pixels near
+#: any line. Development cases: film_newton_bk7_na010 (0.96 of its pixels) and the 850 mm
+#: sodium photo of experiments/real_photos.py (0.49).
+UNAMBIGUOUS_SHARE = 0.75
+
+
+def colour_start(x, yy, dmap, bright, lo: float, hi: float, fringe_nm: float):
+    """``((R um, cx, cy, h0 nm) or None, unambiguous)``: the start from the per-pixel map
+    ``dmap``: the centre of its thinnest dark pixels, and ``R``, ``h0`` from a straight
+    line of the map against ``r^2`` (``h ~ h0 + r^2 / (2 R)``, Born and Wolf sec. 7.5.3)
+    where the map is below half the searched range, dropping pixels 3 MADs off it (order
+    hops of the map); unambiguous when :data:`UNAMBIGUOUS_SHARE` of those pixels lie
+    within a tenth of a fringe (``fringe_nm``) of the line."""
+    x, yy, dmap, bright = (np.asarray(a, np.float64) for a in (x, yy, dmap, bright))
+    thin = (dmap <= np.percentile(dmap, 2)) & (bright <= 0.35 * np.median(bright))
+    if thin.sum() < 3:
+        return None, False
+    cx, cy = float(x[thin].mean()), float(yy[thin].mean())
+    r2 = (x - cx) ** 2 + (yy - cy) ** 2
+    below = dmap < lo + 0.5 * (hi - lo)
+    use = below.copy()
+    for _ in range(4):
+        A = np.column_stack([np.ones(use.sum()), r2[use]])
+        (h0, slope), *_ = np.linalg.lstsq(A, dmap[use], rcond=None)
+        dev = np.abs(dmap - (h0 + slope * r2))
+        use = use & (dev <= 3.0 * 1.4826 * np.median(dev[use]) + 1.0)
+    if slope <= 0:
+        return None, False
+    share = float(np.mean(dev[below] <= 0.1 * fringe_nm))
+    return (1000.0 / (2.0 * slope), cx, cy, float(h0)), share >= UNAMBIGUOUS_SHARE  # um: h[nm] = 1000 r^2 / (2 R)
+
+
+#: Ratio of the fitted gap's span across the photo to that of the rings' period without
+#: colour (either way) past which the fit is taken to have lost the rings: a fit that found
+#: them moves R, and the span, by the start's few per cent (2 % on the three sodium photos
+#: of experiments/real_photos.py against their ring diameters); one that ran to a flat gap
+#: keeps a fraction of a fringe of tens.
+LOST_RINGS_RATIO = 2.0
+
+
+def lost_rings_warning(start_span_nm: float, fitted_span_nm: float, fringe_nm: float, start_radius_um: float,
+                       fitted_radius_um: float) -> str | None:
+    """A warning where the fitted gap spans :data:`LOST_RINGS_RATIO` times fewer (or more)
+    fringes across the photo than the rings' period without colour says (the gap
+    ``h = h0 + r^2 / (2 R)``, Born and Wolf sec. 7.5.3, across the photo's pixels, in
+    fringes of ``fringe_nm``); None where they agree."""
+    ratio = fitted_span_nm / max(start_span_nm, 1e-9)
+    if 1.0 / LOST_RINGS_RATIO <= ratio <= LOST_RINGS_RATIO:
+        return None
+    return (f"the fitted lens (R = {fitted_radius_um / 1000.0:.4g} mm) spans {fitted_span_nm / fringe_nm:.1f} fringes "
+            f"across the photo where its rings' period without colour spans {start_span_nm / fringe_nm:.1f} "
+            f"(R = {start_radius_um / 1000.0:.4g} mm): the fit lost the rings (fringes fainter than the model's, "
+            "from stray light or the lamp's fall-off, are fitted better by a nearly uniform gap); R is not the lens's")
 
 
 def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np.inf, iters: int = 40) -> ModelFit:
@@ -165,22 +227,15 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
         return jnp.exp(t[4]) * lj[:, None] * fwd.rgb(h, sj)
 
     # two starts, the colour map's and the rings' symmetry's (no colour: the one that
-    # works under a line lamp); the fit starts from the one whose colours are closer
-    starts = []
-    thin = (dmap <= np.percentile(dmap, 2)) & (bright <= 0.35 * np.median(bright))
-    if thin.sum() >= 3:
-        cx, cy = float(x[thin].mean()), float(yy[thin].mean())
-        r2 = (x - cx) ** 2 + (yy - cy) ** 2
-        use = dmap < lo + 0.5 * (hi - lo)
-        for _ in range(4):  # a line in r^2, dropping pixels 3 MADs off it (order hops of the map)
-            A = np.column_stack([np.ones(use.sum()), r2[use]])
-            (h0, slope), *_ = np.linalg.lstsq(A, dmap[use], rcond=None)
-            dev = np.abs(dmap - (h0 + slope * r2))
-            use = use & (dev <= 3.0 * 1.4826 * np.median(dev[use]) + 1.0)
-        if slope > 0:
-            starts.append((1000.0 / (2.0 * slope), cx, cy, float(h0)))  # um: h[nm] = 1000 r^2 / (2 R)
-    pitch = float(np.median(np.abs(np.diff(np.unique(np.round(x, 6))))))
-    starts.append(_rings_start(fwd, x, yy, bright, mask, pitch, lo, hi))
+    # works under a line lamp); the fit starts from the one whose colours are closer. The
+    # second is sought only where the first is ambiguous (:func:`colour_start`).
+    start, unambiguous = colour_start(x, yy, dmap, bright, lo, hi, fwd.fringe_nm)
+    starts = [] if start is None else [start]
+    rings = None
+    if not unambiguous:
+        pitch = float(np.median(np.abs(np.diff(np.unique(np.round(x, 6))))))
+        rings = _rings_start(fwd, x, yy, bright, mask, pitch, lo, hi)
+        starts.append(rings[:4])
     best = None
     for radius, cx, cy, h0 in starts:
         t = jnp.asarray([np.log(radius), cx, cy, h0, 0.0])
@@ -213,5 +268,12 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
               "contact_offset_nm": float(t[3]), "exposure": float(np.exp(t[4]))}
     stderr = {"radius_mm": radius_um / 1000.0 * float(se[0]), "center_x_um": float(se[1]),
               "center_y_um": float(se[2]), "contact_offset_nm": float(se[3]), "exposure": float(np.exp(t[4]) * se[4])}
+    warnings = []
+    if rings is not None:  # the gap across the photo, fitted and from the rings' period without colour
+        r2s = (x - rings[1]) ** 2 + (yy - rings[2]) ** 2
+        lost = lost_rings_warning(1000.0 * float(np.ptp(r2s)) / (2.0 * rings[0]), float(np.ptp(h)), rings[4],
+                                  rings[0], radius_um)
+        warnings += [lost] if lost else []
     return ModelFit(params=params, stderr=stderr, thickness=h, thickness_stderr=h_se,
-                     model=np.asarray(model(theta), np.float64), gain=float(np.exp(t[4])), order=order)
+                     model=np.asarray(model(theta), np.float64), gain=float(np.exp(t[4])), order=order,
+                     warnings=warnings)

@@ -14,7 +14,7 @@ J. SIAM 11, 431-441 (1963).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import jax
 import jax.numpy as jnp
@@ -44,6 +44,8 @@ class ModelFit:
     #: the order test with a calibrated response's errors marginalised (:func:`fit_order`),
     #: or None where the response is taken as exact
     order: object | None = None
+    #: the model's own warnings (Newton's rings: a fit that lost the rings)
+    warnings: list = field(default_factory=list)
 
 
 def levenberg_marquardt(resid: Callable, jac: Callable, theta, iters: int = 40, rel_stop: float = 1e-9):

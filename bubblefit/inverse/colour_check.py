@@ -6,9 +6,12 @@ leaves hues the stated response cannot reach. Brightness errors (the light's str
 the lobe's shape, the rim) are common to all channels, so this test looks only at the
 residual's *chromatic* part and only at what is *coherent* over a patch of the film. A
 grid of :data:`GRID` x :data:`GRID` cells is laid on the disc's inner part
-(:data:`INNER_COS`; the rim is left to the chi^2); in cell ``b`` of ``n_b`` pixels, with
-``P_b`` the (2, 3) orthonormal basis of the plane orthogonal to the cell's mean rendered
-colour, the statistic's terms are
+(:data:`INNER_COS`; the rim is left to the chi^2), and each cell is split into parts whose
+pixels' film has the same optical path ``2 n d cos t`` to within :data:`PATH_BIN` (the
+hue error of a wrong response turns with the path, and a thick film's cell spans a fringe
+of it: averaged over the whole cell, it cancels). In part ``b`` of ``n_b`` pixels (a
+"cell" below), with ``P_b`` the (2, 3) orthonormal basis of the plane orthogonal to its
+mean rendered colour, the statistic's terms are
 
 ``m_b = P_b mean_i(photo_i - render_i)``, the cell's mean chromatic residual;
 ``C_b = P_b diag(sum_i sigma_i^2) P_b^T / n_b^2``, its covariance under the fit's own noise
@@ -70,9 +73,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._uncertainty import OUTLIER_CHI2
+from ..optics.spectral import LAMBDA_MIN
 
 __all__ = ["ColourCheck", "colour_check", "judge_colours", "neighbour_scale", "noise_scale", "CHROMA_FLOOR",
-           "CHROMA_REL", "FALSE_ALARM", "GRID", "INNER_COS", "SHARED_BELOW"]
+           "CHROMA_REL", "FALSE_ALARM", "GRID", "INNER_COS", "MIN_PART_PIXELS", "PATH_BIN", "SHARED_BELOW"]
 
 #: Chromatic model error allowed per cell, as a fraction of the cell's brightness ``|render|``.
 #: From fits with the right camera only (experiments/colour_check_null.py: 48 px photos
@@ -108,6 +112,23 @@ INNER_COS = 0.6
 
 #: Fewest pixels a cell needs to enter the test (its scatter estimate needs a few).
 MIN_PIXELS = 12
+
+#: Width (nm) of the optical-path bins that split each cell (``colour_check``'s ``path``):
+#: a quarter of the shortest wavelength's fringe, ``LAMBDA_MIN / 4``
+#: (:data:`bubblefit.optics.spectral.LAMBDA_MIN`). A response's hue error at a pixel is a
+#: function of the film's reflectance spectrum there, and so of its optical path
+#: ``x = 2 n d cos t`` (eq. (8)'s phase, :func:`bubblefit.optics.film.optical_path`); its
+#: part at wavelength ``lambda`` turns as ``cos(2 pi x / lambda)``, and a mean over a bin of
+#: width ``w`` keeps ``sinc(w / lambda)`` of it: 0.90 at 380 nm for ``w = 95``, more at
+#: longer wavelengths. A cell of a thick film's disc spans a fringe or more (a 1500 nm
+#: film's path changes by about 110 nm per pixel at 0.8 of a 20 px radius, orthographic),
+#: over which such an error averages to nearly nothing; split by path, each part keeps it.
+PATH_BIN = LAMBDA_MIN / 4.0
+
+#: Fewest pixels of one optical-path bin in a cell to enter the test as a part of its own:
+#: a Bayer quad (2 x 2 pixels), the fewest whose mean holds a photosite of every colour, as
+#: the photosite shares (1/4, 1/2, 1/4) of a demosaiced photo's noise assume.
+MIN_PART_PIXELS = 4
 
 
 @dataclass(frozen=True)
@@ -156,9 +177,25 @@ def _plane(c: np.ndarray) -> np.ndarray:
     return np.stack([u, np.cross(c, u)])
 
 
+def _cell_terms(e: np.ndarray, v: np.ndarray, rend: np.ndarray, floor: float, chroma_floor: float, jac):
+    """One cell's terms of :func:`colour_check` (module docstring) from its pixels' residuals
+    ``e``, noise variances ``v`` and renders ``rend`` (n, 3), and ``jac``, the (3, K) change of
+    its mean render per unit of the response's error coefficients (None: none): ``(m_b, C_b,
+    F_b, brightness, P_b jac)``."""
+    n = e.shape[0]
+    mean = rend.mean(axis=0)
+    p = _plane(mean / np.linalg.norm(mean))
+    noise = (p * v.sum(axis=0)) @ p.T / n**2       # covariance of the mean chromatic residual
+    bright = float(np.linalg.norm(rend, axis=1).mean())
+    chroma = float(np.linalg.norm(mean - mean.mean()))  # the part orthogonal to grey (1, 1, 1)
+    model = 0.5 * ((floor * bright) ** 2 + (chroma_floor * chroma) ** 2) * np.eye(2)
+    return (e @ p.T).mean(axis=0), noise, model, bright, None if jac is None else p @ jac
+
+
 def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma: np.ndarray, *,
                  model_error: float | None = None, floor: float = CHROMA_FLOOR, chroma_floor: float = CHROMA_REL, grid: int = GRID,
-                 false_alarm: float = FALSE_ALARM, response_jac=None) -> ColourCheck | None:
+                 false_alarm: float = FALSE_ALARM, response_jac=None, path: np.ndarray | None = None,
+                 path_bin: float | None = None) -> ColourCheck | None:
     """Test whether ``render`` explains the hues of ``photo`` over the pixels of ``mask``,
     each pixel's channels having the noise standard deviation ``sigma`` (the fit's noise
     model, :func:`~bubblefit.inverse._observation.noise_sigma`); module docstring. Pixels
@@ -199,6 +236,12 @@ def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma:
     cy = np.minimum((ys - y0) * grid // max(y1 - y0, 1), grid - 1)
     cx = np.minimum((xs - x0) * grid // max(x1 - x0, 1), grid - 1)
     cell = cy * grid + cx
+    path_bin = PATH_BIN if path_bin is None else float(path_bin)
+    if path is None:
+        part = np.zeros(ys.size, np.int64)
+    else:  # the optical-path bin of each pixel (PATH_BIN); pixels without a path form their own
+        x = np.broadcast_to(np.asarray(path, np.float64), photo.shape[:2])[ys, xs]
+        part = np.where(np.isfinite(x), np.floor(np.where(np.isfinite(x), x, 0.0) / path_bin), -1).astype(np.int64)
     cells = []
     white = np.full(photo.shape[:2] + (2,), np.nan)  # detrended chromatic residual / its predicted sigma
     for b in np.unique(cell):
@@ -209,17 +252,16 @@ def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma:
         mean = rend[sel].mean(axis=0)
         p = _plane(mean / np.linalg.norm(mean))
         ep = e[sel] @ p.T                                   # (n, 2) chromatic residuals
-        noise = (p * v[sel].sum(axis=0)) @ p.T / n**2       # covariance of their mean
         # the scatter about a plane in (x, y), whitened: for the 2 x 2 block means (_block_scale)
         x = np.stack([np.ones(n), ys[sel] - ys[sel].mean(), xs[sel] - xs[sel].mean()], axis=1)
         fitted = x @ np.linalg.lstsq(x, ep, rcond=None)[0]
         per = np.sqrt(0.5 * np.einsum("ij,nj,ij->n", p, v[sel], p) * (n - 3) / n)
         white[ys[sel], xs[sel]] = (ep - fitted) / per[:, None]
-        bright = float(np.linalg.norm(rend[sel], axis=1).mean())
-        chroma = float(np.linalg.norm(mean - mean.mean()))  # the part orthogonal to grey (1, 1, 1)
-        model = 0.5 * ((floor * bright) ** 2 + (chroma_floor * chroma) ** 2) * np.eye(2)
-        shared = None if response_jac is None else p @ response_jac(ys[sel], xs[sel])  # (2, K)
-        cells.append((ep.mean(axis=0), noise, model, bright, shared))
+        for q in np.unique(part[sel]):  # the cell's pixels of one optical-path bin
+            sub = sel[part[sel] == q]
+            if sub.size >= MIN_PART_PIXELS:
+                cells.append(_cell_terms(e[sub], v[sub], rend[sub], floor, chroma_floor,
+                                         None if response_jac is None else response_jac(ys[sub], xs[sub])))
     if len(cells) < 2:
         return None
     kappa = noise_scale(photo, render, var, use, white)
@@ -307,7 +349,8 @@ def _block_scale(white: np.ndarray, k: int = 2) -> float:
 
 
 def judge_colours(ok: bool, warnings: list, photo, render, mask, cos, sigma, model_error: float = 0.0,
-                  explained: bool = True, decide: bool = True, response_jac=None) -> tuple[bool, list, dict | None]:
+                  explained: bool = True, decide: bool = True, response_jac=None,
+                  path=None) -> tuple[bool, list, dict | None]:
     """The fit's verdict with the colour test added: ``(ok, warnings, record)``. The test
     (:func:`colour_check`) runs over the fitted pixels ``mask`` whose front film's ``cos``
     (cosine of incidence) exceeds :data:`INNER_COS`, with the fit's noise ``sigma`` and
@@ -315,9 +358,10 @@ def judge_colours(ok: bool, warnings: list, photo, render, mask, cos, sigma, mod
     add the warning of :meth:`ColourCheck.warning` (worded for a photo the model does not
     ``explained`` as a whole, as the verdict found) and, with ``decide`` true
     (``JudgeSettings.colour_check == "decide"``), make the fit not ``ok``. ``response_jac``:
-    the calibrated response's own errors (:func:`colour_check`)."""
+    the calibrated response's own errors (:func:`colour_check`); ``path``: the fitted film's
+    optical path per pixel (nm), which splits the cells (:data:`PATH_BIN`; None: not split)."""
     check = colour_check(photo, render, np.asarray(mask, bool) & (np.asarray(cos) > INNER_COS), sigma,
-                         model_error=model_error, response_jac=response_jac)
+                         model_error=model_error, response_jac=response_jac, path=path)
     if check is None:
         return ok, warnings, None
     why = check.warning(explained)

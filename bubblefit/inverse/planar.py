@@ -773,6 +773,7 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         params, perr = nres.params, nres.stderr
         dref, model, gain = nres.thickness, nres.model, nres.gain
         stderr, order = nres.thickness_stderr, nres.order
+        warnings.extend(nres.warnings)
         res = censored_residual(y, model, clip_high, np)
     order = order or _profile_order(fwd, y, lum, sin2, view, mask, map_profile, gain, sigma, lo, hi, clip_high)
     chi2 = float(np.mean(res ** 2) / sigma ** 2)

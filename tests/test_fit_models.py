@@ -447,6 +447,9 @@ class _Run:
 
 
 _EXPLAINS, _MISFITS, _WORSE = (True, 1.0, 1.0), (True, 9.0, 6.0), (True, 20.0, 12.0)
+# a misfit in a few pixels (glints): above the limit of 3 with the floor, within it capped
+# at an outlier's share per pixel
+_LOCAL = (True, 7.2, 0.5)
 
 
 @pytest.mark.parametrize("search,raced,fits,kept,events", [
@@ -465,6 +468,11 @@ _EXPLAINS, _MISFITS, _WORSE = (True, 1.0, 1.0), (True, 9.0, 6.0), (True, 20.0, 1
     (50.0, 10.0, {"paper": _MISFITS, "physical": _EXPLAINS}, "physical",
      [("start", "paper", None, None), ("start", "physical", ("thickness_nm",), True), ("search image", "physical"),
       ("solve", "physical"), ("report", "physical")]),
+    # ... or explains it up to a local misfit (capped at an outlier's share per pixel, the
+    # measure the final comparison reads): the paper model lost on the search image already
+    (50.0, 10.0, {"paper": _WORSE, "physical": _LOCAL}, "physical",
+     [("start", "paper", None, None), ("start", "physical", ("thickness_nm",), True), ("search image", "physical"),
+      ("solve", "physical"), ("report", "physical")]),
     # ... else the paper model's solve follows and the two are compared
     (50.0, 10.0, {"paper": _MISFITS, "physical": _WORSE}, "paper",
      [("start", "paper", None, None), ("start", "physical", ("thickness_nm",), True), ("search image", "physical"),
@@ -476,6 +484,11 @@ _EXPLAINS, _MISFITS, _WORSE = (True, 1.0, 1.0), (True, 9.0, 6.0), (True, 20.0, 1
     (50.0, 60.0, {"paper": _EXPLAINS, "physical": _EXPLAINS}, "paper",
      [("start", "paper", None, None), ("start", "physical", ("thickness_nm",), True), ("search image", "physical"),
       ("solve", "paper"), ("report", "paper")]),
+    # the paper model first by default keeps the uncapped rule: a local misfit is no reason
+    # not to solve the physical model
+    (1.5, None, {"paper": _LOCAL, "physical": _MISFITS}, "paper",
+     [("start", "paper", None, None), ("solve", "paper"), ("start", "physical", ("thickness_nm",), True),
+      ("solve", "physical"), ("report", "paper")]),
     # a warm start (no search): the paper model first
     (None, None, {"paper": _MISFITS, "physical": _WORSE}, "paper",
      [("start", "paper", ("thickness_nm",), None), ("solve", "paper"),
@@ -485,8 +498,9 @@ def test_auto_solves_its_models_in_the_order_its_rules_give(monkeypatch, search,
     """``auto`` (``_fit_either_model``): the paper model first unless its global search
     leaves the search image unexplained (reduced chi^2 above ``WARM_START_CHI2``) and the
     physical model's short solve there does better; the first model's fit is kept when it
-    explains the photo, else the other model is solved and the lower capped reduced
-    chi^2 kept. Each model is solved and reported at most once. The physical model solved
+    explains the photo (the physical model solved first also when its capped reduced
+    chi^2 is within the limit), else the other model is solved and the lower capped
+    reduced chi^2 kept. Each model is solved and reported at most once. The physical model solved
     first starts on the fit image where its short solve on the search image stopped."""
     run = _Run(monkeypatch, search, raced, fits)
     res = run.fit(init={"thickness_nm": 400.0} if search is None else None)

@@ -173,3 +173,37 @@ def test_physical_map_recovered(env, photo):
     assert np.median(err) <= 15.0
     assert np.mean(err <= 15.0) >= 0.9
     assert np.all(res.thickness_stderr_map[used] > 0)
+
+
+def test_map_programs_through_the_store(env, level, tmp_path, monkeypatch):
+    """The map's programs through the executable store (a command's process loads them
+    instead of tracing the film's optics again): compiled and saved by a first
+    :class:`TracedCosts`, read back from the files by a second, with the plain programs'
+    values (one program, compiled afresh: float32 rounding at most)."""
+    from bubblefit.io import executables
+    from bubblefit.io.jaxcache import private_folder
+    from bubblefit.inverse import TracedCosts, profile_map
+    from bubblefit.inverse import _map_pixels
+
+    st, lev, vals = level
+    sel = lev.mask.reshape(-1)
+    d = profile_map(lev, (300.0, 900.0, 1.0)).reshape(-1)[sel] + 10.0
+    cand = np.stack([d, d + 20.0])
+    plain = TracedCosts(lev, st.table, vals, env)
+    want_c, (want_r, want_j) = plain(cand), plain.slopes(d)
+    folder = tmp_path / "cache" / "executables"
+    assert private_folder(folder) is None
+    monkeypatch.setattr(executables, "ENABLED", True)
+    monkeypatch.setattr(executables, "_folder", lambda: folder)
+    loads, load = [], executables._load
+    monkeypatch.setattr(executables, "_load", lambda path, args: (loads.append(path.name), load(path, args))[1])
+    for run in ("saved", "loaded"):
+        _map_pixels._stored_programs.cache_clear()  # a new process's programs
+        costs = TracedCosts(lev, st.table, vals, env)
+        got_c, (got_r, got_j) = costs(cand), costs.slopes(d)
+        np.testing.assert_allclose(got_c, want_c, rtol=1e-5, atol=1e-4)
+        np.testing.assert_allclose(got_r, want_r, rtol=1e-5, atol=1e-5)
+        np.testing.assert_allclose(got_j, want_j, rtol=1e-5, atol=1e-5)
+        assert len(list(folder.glob("*.bin"))) == 3, run  # the costs, the trace and the slopes
+    assert len(loads) == 3, loads  # the second read all three from their files
+    _map_pixels._stored_programs.cache_clear()

@@ -27,6 +27,7 @@ import numpy as np
 from ._observation import Level
 from ._parameters import ParameterTable
 from ._programs import fitted_pixels
+from ..io.executables import stored
 from ..model.geometry import compose_shift
 from ..model.render import shade_pixels, trace_pixels
 from ..model.thickness import thickness_at
@@ -107,6 +108,33 @@ def _traced_slopes(cfg, traced, d, y, w):
     return jax.lax.map(chunk, (traced, d, y, w))
 
 
+@functools.lru_cache(maxsize=16)
+def _stored_programs(cfg):
+    """``(costs, trace, slopes)``: :func:`_chunk_costs`, :func:`_chunk_trace` (its output
+    as the list of its leaves) and :func:`_traced_slopes` (taking that list) for ``cfg``
+    through the executable store (:func:`bubblefit.io.executables.stored`): a new process
+    loads the map's programs instead of tracing and lowering the film's optics again."""
+
+    def structure(p, env, bg, rows, cols, idx):
+        """The tree of :func:`_chunk_trace`'s output (only traced when a program is compiled)."""
+        return jax.tree_util.tree_structure(jax.eval_shape(
+            lambda *a: _chunk_trace(a[0], cfg, *a[1:]), p, env, bg, rows, cols, idx))
+
+    def slopes(p, env, bg, rows, cols, idx, leaves, d, y, w):
+        traced = jax.tree_util.tree_unflatten(structure(p, env, bg, rows, cols, idx), leaves)
+        return _traced_slopes(cfg, traced, d, y, w)
+
+    def costs(p, env, bg, rows, cols, idx, cand, y, w2):
+        return _chunk_costs(p, cfg, env, bg, rows, cols, idx, cand, y, w2)
+
+    def trace(p, env, bg, rows, cols, idx):
+        return jax.tree_util.tree_leaves(_chunk_trace(p, cfg, env, bg, rows, cols, idx))
+
+    return (stored(jax.jit(costs), "inverse._map_pixels.costs", cfg),
+            stored(jax.jit(trace), "inverse._map_pixels.trace", cfg),
+            stored(jax.jit(slopes), "inverse._map_pixels.slopes", cfg))
+
+
 class TracedCosts:
     """Per-pixel data chi^2 of a level's map at any thicknesses, its rays traced once per call.
 
@@ -141,8 +169,8 @@ class TracedCosts:
         """(G, P) chi^2 of candidate thicknesses ``d`` (G, P)."""
         cand = np.moveaxis(self._spread(np.maximum(d, 0.0)), 0, 1)  # (steps, G, chunk)
         pix = self.pix
-        out = _chunk_costs(self.p, self.cfg, self.env, self.bg, pix.rows, pix.cols, pix.idx, jnp.asarray(cand),
-                           self.y, self.w * self.w)
+        out = _stored_programs(self.cfg)[0](self.p, self.env, self.bg, pix.rows, pix.cols, pix.idx, jnp.asarray(cand),
+                                            self.y, self.w * self.w)
         return np.moveaxis(np.asarray(out), 1, 0).reshape(d.shape[0], -1)[:, :self.n]
 
     def slopes(self, d: np.ndarray):
@@ -151,9 +179,11 @@ class TracedCosts:
         level's rays are traced at the first call and kept (the light the films read does
         not depend on the thickness), so each further call evaluates the film's optics only."""
         pix = self.pix
+        _, trace, slopes = _stored_programs(self.cfg)
+        args = (self.p, self.env, self.bg, pix.rows, pix.cols, pix.idx)
         if self._traced is None:
-            self._traced = _chunk_trace(self.p, self.cfg, self.env, self.bg, pix.rows, pix.cols, pix.idx)
-        r, j = _traced_slopes(self.cfg, self._traced, jnp.asarray(self._spread(np.maximum(d, 0.0))), self.y, self.w)
+            self._traced = trace(*args)
+        r, j = slopes(*args, self._traced, jnp.asarray(self._spread(np.maximum(d, 0.0))), self.y, self.w)
         return np.asarray(r).reshape(-1, 3)[:self.n], np.asarray(j).reshape(-1, 3)[:self.n]
 
 

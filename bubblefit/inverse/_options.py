@@ -201,8 +201,9 @@ class FitOptions:
         line): the paper model's global search, then the model that explains the search
         image better solved first (the physical one from the search's start) and, when
         it does not explain the photo (reduced chi^2 with the model-error floor above
-        ``judge.ok_chi2``), the other one; the fit that explains the photo better is
-        returned (:func:`bubblefit.inverse.fit.fit_photo`).
+        ``judge.ok_chi2``; for the physical model solved first, that reduced chi^2 with
+        each pixel's share capped at an outlier's above it), the other one; the fit that
+        explains the photo better is returned (:func:`bubblefit.inverse.fit.fit_photo`).
     fit_rotation : bool
         Also fit the environment's rotation about +y.
     free_split : bool

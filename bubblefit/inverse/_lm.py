@@ -349,9 +349,8 @@ def scaled_decrement(dense: _DenseState, residual, z=None, free: tuple = ()) -> 
     have weight 0): the squared length of the step left, in the fit's own covariance.
 
     With the point ``z`` and the names ``free`` of its parameters, the bounds are active
-    constraints as in :func:`remaining_step` (:func:`presses_bound`): a parameter within one
-    standard error of a finite bound whose step points at it, or reaches beyond its
-    coordinate's linearisation away from it, is left out, and the decrement is the projection
+    constraints as in :func:`remaining_step`: a parameter within one standard error of a
+    finite bound whose step points at it is left out, and the decrement is the projection
     of ``Q^T r`` on the columns of ``R`` left (a roughness at the mirror, its step
     pointing below zero, no longer keeps the solve from stopping). From the QR factors, in
     the solve's own precision.
@@ -414,28 +413,11 @@ def gauss_newton_decrement(r, jac) -> float:
 def presses_bound(name: str, v, slope, step, se, sign=np.sign):
     """Whether parameter ``name`` at value ``v`` (``slope = d v / d z``) is an active
     constraint of the Gauss-Newton ``step`` (in ``z``): within ``se`` (one standard error
-    in ``z``) of a finite bound, with a step that points at the bound, or one whose
-    linear move of the value, ``|slope step|``, is longer than the value's distance from
-    the bound. The coordinates that keep a value off its bound (log, softplus, logistic;
-    :data:`~bubblefit.inverse._parameters.PARAMETERS`) are exponential in ``z`` there, so
-    the first-order model from which the step is computed, ``v + slope dz``, holds only
-    while ``|slope dz| < |v - b|`` (``|dz| < 1`` for a log coordinate): a longer step lies
-    along a near-null direction that the model does not describe and that any damping of
-    the step removes (a mirror's roughness, 1.8e-5 with a standard error of 0.175, asks
-    for ``dz`` of thousands), so the solve cannot take it and its decrement does not
-    measure how far the solve is from its optimum. The rule of :func:`remaining_step`
+    in ``z``) of a finite bound its step points at. The rule of :func:`remaining_step`
     (numpy, float64) and of :func:`scaled_decrement` (jnp, in the solve; ``sign`` is
-    ``jnp.sign`` there).
-
-    References
-    ----------
-    J. Nocedal & S. J. Wright, *Numerical Optimization*, 2nd ed. (2006), ch. 4 (a
-    model's step is trusted only within the region where the model holds) and ch. 16.6
-    (active constraints at bounds).
-    """
+    ``jnp.sign`` there)."""
     out = False
     for b in PARAMETERS[name].bounds:
         if math.isfinite(b):
-            beyond = abs(slope * step) > abs(v - b)
-            out = out | (((sign(slope * step) == sign(b - v)) | beyond) & (abs(v - b) <= abs(slope) * se))
+            out = out | ((sign(slope * step) == sign(b - v)) & (abs(v - b) <= abs(slope) * se))
     return out

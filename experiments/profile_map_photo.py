@@ -18,7 +18,6 @@ import argparse
 import json
 import sys
 import time
-from collections import defaultdict
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -36,27 +35,9 @@ import bubblefit.inverse._maps as M
 import bubblefit.inverse._map_pixels as MP
 import bubblefit.inverse._local as L
 
-T = defaultdict(lambda: [0.0, 0.0, 0])
+from stage_timer import T, solve_costs, timed_solver, wrap  # noqa: E402
+
 SOLVES = []
-
-
-def wrap(mod, name, label=None):
-    """Replace ``mod.name`` by a function that adds its wall and CPU seconds to ``T[label]``."""
-    f = getattr(mod, name)
-    label = label or name
-
-    def g(*a, **k):
-        t0, c0 = time.perf_counter(), time.process_time()
-        try:
-            return f(*a, **k)
-        finally:
-            e = T[label]
-            e[0] += time.perf_counter() - t0
-            e[1] += time.process_time() - c0
-            e[2] += 1
-    setattr(mod, name, g)
-
-
 _solve_local = F.solve_local
 
 
@@ -73,72 +54,20 @@ def _kept_solve_local(*a, **k):
 
 
 F.solve_local = _kept_solve_local
-for n in ("setup", "_searched_start", "_judge", "fit_map", "render_bubble", "_report"):
-    if hasattr(F, n):
-        wrap(F, n)
-for n in ("_level_map", "refine", "_icm"):
-    wrap(M, n, "maps." + n)
-wrap(MP.TracedCosts, "__init__", "TracedCosts.init")
-wrap(MP.TracedCosts, "__call__", "TracedCosts.call (candidate costs)")
-wrap(MP.TracedCosts, "slopes", "TracedCosts.slopes (Gauss-Newton pass)")
+#: (module or class, attribute, label) of the functions timed
+TIMED = [(F, n, n) for n in ("setup", "_searched_start", "_judge", "fit_map", "render_bubble", "_report")]
+TIMED += [(M, n, "maps." + n) for n in ("_level_map", "refine", "_icm")]
+TIMED += [(MP.TracedCosts, "__init__", "TracedCosts.init"), (MP.TracedCosts, "__call__", "TracedCosts.call (candidate costs)"),
+          (MP.TracedCosts, "slopes", "TracedCosts.slopes (Gauss-Newton pass)")]
+for owner, name, label in TIMED:
+    wrap(owner, name, label)
 _stored = L.stored_solver
+L.stored_solver = timed_solver(_stored)
 
-
-def stored(*key):
-    """The stored solve, each LM run timed (its outputs brought to the host)."""
-    s = _stored(*key)
-
-    def run(*a):
-        t0, c0 = time.perf_counter(), time.process_time()
-        out = [np.asarray(x) for x in s(*a)]
-        e = T["solver program (one LM run)"]
-        e[0] += time.perf_counter() - t0
-        e[1] += time.process_time() - c0
-        e[2] += 1
-        return out
-    return run
-
-
-L.stored_solver = stored
-
-from bench_map import DATA, load_case  # noqa: E402
 import bench_map  # noqa: E402
 import validate  # noqa: E402
 from bubblefit.inverse.fit import FitOptions, fit_photo  # noqa: E402
 from bubblefit.capture.view import resolve_view  # noqa: E402
-
-
-def costs(entry) -> dict:
-    """One local solve taken apart: wall and CPU seconds of a render of its fitted pixels
-    (the residual), of its Jacobian by groups and of its stored LM run, at its start, each
-    the median of 3 calls after the first (which compiles or loads)."""
-    import jax
-    import jax.numpy as jnp
-
-    import bubblefit.inverse._programs as P
-    from bubblefit.inverse._lm import JACOBIANS
-
-    a, k = entry["args"], entry["kwargs"]
-    lev, table, solver, vals, env_ = a[:5]
-    max_steps = a[5] if len(a) > 5 else k.get("max_steps")
-    settings = k.get("settings", P.SolveSettings())
-    key, args, _ = P.solve_program(lev, table, solver, vals, env_, max_steps, settings)
-    _, resid = P.solver(*key)
-    z = jnp.asarray(table.unconstrained(vals), jnp.float32)
-    jac = jax.jit(JACOBIANS["groups"](resid, table))
-    run_ = _stored(*key)
-    out = {"groups": [list(g) for g in table.jacobian_groups]}
-    for name, fn in (("render", lambda: resid(z, args)), ("jacobian_groups", lambda: jac(z, args)),
-                     ("lm_run", lambda: run_(z, args))):
-        jax.block_until_ready(fn())
-        t = []
-        for _ in range(3):
-            t0, c0 = time.perf_counter(), time.process_time()
-            jax.block_until_ready(fn())
-            t.append((time.perf_counter() - t0, time.process_time() - c0))
-        out[name] = {"wall_s": round(float(np.median([x for x, _ in t])), 3),
-                     "cpu_s": round(float(np.median([y for _, y in t])), 3)}
-    return out
 
 
 def main():
@@ -182,7 +111,7 @@ def main():
         rows.append(row)
     result = {"case": a.case, "runs": rows}
     if not a.no_costs and SOLVES:
-        result["costs"] = [dict(s["row"], **costs(s)) for s in SOLVES if s["row"]["pixels"] > 0][-1:]
+        result["costs"] = [dict(s["row"], **solve_costs(s["args"], s["kwargs"], _stored)) for s in SOLVES[-1:]]
         print(json.dumps(result["costs"]), flush=True)
     Path(a.out).write_text(json.dumps(result, indent=1))
 

@@ -23,7 +23,8 @@ What is run, for each ring photo with a stated radius:
    255 on most of the photo, blue is at the 8-bit floor), binned 2x2 (25.9 um pixels), a
    response CSV of three equal flat channels, so every channel is the one 589 nm
    intensity; the ``newton`` model of docs/films.md (air gap between BK7 glasses,
-   coaxial light, NA 0.02).
+   coaxial light, NA 0.02), with its default stray reflectance fitted (``stray = "fit"``:
+   light that does not interfere).
 3. The yardstick on the same photo: the textbook line ``D_k^2 = 4 k lambda R + c`` through
    the students' ring diameters (k = 5..14, lambda = 589.3 nm), least squares, its slope's
    standard error from the residuals.

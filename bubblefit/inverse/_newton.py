@@ -27,7 +27,7 @@ import numpy as np
 
 from ._planar_lm import ModelFit, fit_colours, fit_order
 
-__all__ = ["colour_start", "fit_newton", "lost_rings_warning", "newton_gap", "rings_centre", "rings_period"]
+__all__ = ["STRAY_DEFAULT", "colour_start", "fit_newton", "lost_rings_warning", "newton_gap", "rings_centre", "rings_period"]
 
 
 def newton_gap(r_um, radius_um, h0_nm):
@@ -214,17 +214,54 @@ def lost_rings_warning(start_span_nm: float, fitted_span_nm: float, fringe_nm: f
             "from stray light or the lamp's fall-off, are fitted better by a nearly uniform gap); R is not the lens's")
 
 
-def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np.inf, iters: int = 40) -> ModelFit:
-    """Levenberg-Marquardt fit of ``(R, cx, cy, h0, g)`` (see the module), started from ``dmap``."""
+#: What the ``newton`` model does with light that does not interfere (``stray`` of the
+#: scene's ``[film]``): ``"fit"`` (a free grey reflectance ``>= 0``) or a number (that
+#: reflectance, fixed; 0: none).
+STRAY_DEFAULT = "fit"
+
+
+def _linear_exposure(unit, white, y, fit_stray: bool) -> tuple[float, float]:
+    """``(g, b)`` minimising ``|g (unit + b white) - y|^2`` (the model's exposure and stray
+    reflectance are linear in ``(g, g b)``: least squares), ``b`` held at 0 where it is not
+    fitted or would be negative (a reflectance), ``g > 0``."""
+    u, w_, yv = (np.asarray(a, np.float64).ravel() for a in (unit, white, y))
+    if fit_stray:
+        (g, c), *_ = np.linalg.lstsq(np.column_stack([u, w_]), yv, rcond=None)
+        if g > 0 and c >= 0:
+            return float(g), float(c / g)
+    return max(float(u @ yv) / max(float(u @ u), 1e-20), 1e-9), 0.0
+
+
+def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np.inf, iters: int = 40,
+               stray=STRAY_DEFAULT) -> ModelFit:
+    """Levenberg-Marquardt fit of ``(R, cx, cy, h0, g)`` (see the module), started from ``dmap``,
+    and of the stray reflectance ``b`` where ``stray == "fit"``.
+
+    The pixel's colour is ``g L rgb(R(h) + b)`` (:meth:`~bubblefit.inverse.planar.PlanarForward.rgb`):
+    ``b`` is the grey reflectance of the light that reaches the camera without interfering
+    (the lens's top and the plate's bottom reflect about 4 % each by Fresnel, nearly flat in
+    wavelength: grey; scatter), added in intensity (Born and Wolf, sec. 7.5.1). The rings'
+    maxima and minima fix ``g`` and ``b`` apart. Fitted, ``b`` is bounded at 0: a fit that
+    takes it below is refitted with ``b = 0``, which is reported with the unbounded fit's
+    standard error. A number fixes ``b``."""
+    fit_stray = stray == "fit"
+    b_fixed = 0.0 if fit_stray else float(stray)
     x = view.x_um[mask]
     yy = view.y_um[mask]
     bright = y.sum(-1) / np.maximum(lum, 1e-9)
     xj, yj, lj, sj, obs = (jnp.asarray(a) for a in (x, yy, lum, sin2, y))
 
-    def model(t):
-        r = jnp.sqrt((xj - t[1]) ** 2 + (yj - t[2]) ** 2)
-        h = jnp.clip(newton_gap(r, jnp.exp(t[0]), t[3]), lo, hi)
-        return jnp.exp(t[4]) * lj[:, None] * fwd.rgb(h, sj)
+    def make_model(free: bool):
+        def model(t):
+            r = jnp.sqrt((xj - t[1]) ** 2 + (yj - t[2]) ** 2)
+            h = jnp.clip(newton_gap(r, jnp.exp(t[0]), t[3]), lo, hi)
+            return jnp.exp(t[4]) * lj[:, None] * fwd.rgb(h, sj, t[5] if free else b_fixed)
+
+        return model
+
+    model = make_model(fit_stray)
+    zero = jnp.zeros(sj.shape)
+    white = np.asarray(lj[:, None] * (fwd.rgb(zero, sj, 1.0) - fwd.rgb(zero, sj)), np.float64)  # rgb of b = 1
 
     # two starts, the colour map's and the rings' symmetry's (no colour: the one that
     # works under a line lamp); the fit starts from the one whose colours are closer. The
@@ -237,23 +274,38 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
         rings = _rings_start(fwd, x, yy, bright, mask, pitch, lo, hi)
         starts.append(rings[:4])
     best = None
+    film_only = make_model(False) if b_fixed == 0.0 else None
     for radius, cx, cy, h0 in starts:
         t = jnp.asarray([np.log(radius), cx, cy, h0, 0.0])
-        unit = np.asarray(model(t), np.float64)  # the exposure by least squares at each start
-        g = max(float(np.sum(unit * y)) / max(float(np.sum(unit * unit)), 1e-20), 1e-9)
-        cost = float(np.sum((g * unit - y) ** 2))
+        # the film's colours at unit exposure, the stray light added (fixed) or fitted with
+        # the exposure by least squares at each start
+        unit = np.asarray((film_only or model)(t), np.float64)
+        g, b = _linear_exposure(unit, white, y, fit_stray)
+        cost = float(np.sum((g * (unit + b * white) - y) ** 2))
         if best is None or cost < best[0]:
-            best = (cost, jnp.asarray([np.log(radius), cx, cy, h0, np.log(g)]))
-    theta = best[1]
+            best = (cost, [np.log(radius), cx, cy, h0, np.log(g)] + ([b] if fit_stray else []))
+    theta = jnp.asarray(best[1])
 
     def gap(t):
         return jnp.clip(newton_gap(jnp.sqrt((xj - t[1]) ** 2 + (yj - t[2]) ** 2), jnp.exp(t[0]), t[3]), lo, hi)
 
     theta, r, cost, J = fit_colours(model, obs, sigma, high, theta, iters)
+    # a grey photo (three equal channels) measures each pixel once, not three times: its
+    # residuals come in identical threes, and sigma^2 (J^T J)^-1 counted over all of them
+    # is 1/3 of the covariance (sigma^2 estimated over the pixels, the normal matrix over
+    # one channel's rows)
+    copies = 3 if np.array_equal(y[:, 0], y[:, 1]) and np.array_equal(y[:, 1], y[:, 2]) else 1
+    b_se = None
+    if fit_stray and float(theta[5]) < 0.0:  # a reflectance: at its bound, refitted without it
+        dof = max(len(r) // copies - len(theta), 1)
+        b_se = float(np.sqrt(max(float(np.linalg.pinv(J.T @ J)[5, 5]) * cost / dof, 0.0)))
+        fit_stray, b_fixed = False, 0.0
+        model = make_model(False)
+        theta, r, cost, J = fit_colours(model, obs, sigma, high, theta[:5], iters)
     # the rings' order is the contact offset's: every ring moves with it (bubblefit.inverse.order_check)
     order = fit_order(fwd, model, gap, obs, sigma, high, (theta, r, cost, J), {"contact_offset_nm": 3}, sin2, lo, hi,
                       iters)
-    dof = max(len(r) - 5, 1)
+    dof = max(len(r) // copies - len(theta), 1)
     cov = np.linalg.pinv(J.T @ J) * (cost / dof)
     t = np.asarray(theta, np.float64)
     radius_um = float(np.exp(t[0]))
@@ -268,6 +320,8 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
               "contact_offset_nm": float(t[3]), "exposure": float(np.exp(t[4]))}
     stderr = {"radius_mm": radius_um / 1000.0 * float(se[0]), "center_x_um": float(se[1]),
               "center_y_um": float(se[2]), "contact_offset_nm": float(se[3]), "exposure": float(np.exp(t[4]) * se[4])}
+    params["stray_reflectance"] = float(t[5]) if fit_stray else b_fixed
+    stderr["stray_reflectance"] = float(se[5]) if fit_stray else (b_se if b_se is not None else 0.0)
     warnings = []
     if rings is not None:  # the gap across the photo, fitted and from the rings' period without colour
         r2s = (x - rings[1]) ** 2 + (yy - rings[2]) ** 2

@@ -32,7 +32,9 @@ Newton's rings (``thickness = "newton"``): a lens of radius ``R`` on a plate lea
 ``h(r) = R - sqrt(R^2 - r^2) + h0`` around the contact point ``(cx, cy)``; the map gives
 the start (centre of the thinnest pixels, ``R`` and ``h0`` from a line in ``r^2``) and
 Levenberg-Marquardt fits ``(R, cx, cy, h0, g)`` to the colours directly, with standard
-errors from ``sigma^2 (J^T J)^-1``.
+errors from ``sigma^2 (J^T J)^-1``; with them, by default, a grey reflectance ``b >= 0``
+added to the gap's, the light of the other surfaces that does not interfere
+(``y_p = g L_p rgb(R(h_p) + b)``; :func:`._newton.fit_newton`).
 
 With a calibrated response that states its errors, a constant film, a drainage profile,
 Newton's rings and a map whose order is its drainage profile's carry the order test of
@@ -144,9 +146,15 @@ class PlanarForward:
         #: Fringe spacing at 550 nm (nm of thickness), for the order window.
         self.fringe_nm = 550.0 / (2.0 * float(dispersion.refractive_index(stack.film, 550.0)))
 
-    def rgb(self, d, sin2):
-        """(..., 3) colour of thickness ``d`` seen at ``sin2`` (ignored under coaxial light)."""
-        return spectral.integrate(self.reflectance(d, sin2), self.basis)
+    def rgb(self, d, sin2, stray=0.0):
+        """(..., 3) colour of thickness ``d`` seen at ``sin2`` (ignored under coaxial light),
+        with ``stray`` (a grey reflectance, scalar) added to the film's: the light of the
+        other surfaces that reaches the camera without interfering with the film's two
+        beams (a lens's top, a plate's bottom, scatter), summed in intensity (Born and Wolf,
+        *Principles of Optics*, sec. 7.5.1: beams without a fixed phase relation add their
+        intensities; sec. 7.5.3, Newton's rings as the interference of the gap's two
+        reflections)."""
+        return spectral.integrate(self.reflectance(d, sin2) + stray, self.basis)
 
     def reflectance(self, d, sin2, lam=None):
         """(..., L) the stack's reflectance at thickness ``d`` seen at ``sin2`` (ignored under
@@ -728,10 +736,22 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         # must show as a misfit against the noise, not set the noise
         dpix = best.astype(np.float64)
     else:
-        seeds, order_from, map_profile = _order_seeds(y, lum, cost, best, grid, mask, region, ref_nm, lo, fwd.fringe_nm, window,
-                                         view.height if scene.light == "area" else None)
-        dmap = _propagate(cost, grid, mask, seeds, window, smooth=3.0 * sigma2 / window ** 2,
-                          relax_weight=3.0 * sigma2 / RELAX_NM ** 2)
+        try:
+            seeds, order_from, map_profile = _order_seeds(y, lum, cost, best, grid, mask, region, ref_nm, lo,
+                                                          fwd.fringe_nm, window,
+                                                          view.height if scene.light == "area" else None)
+        except InputError:
+            if kind != "newton":
+                raise
+            # rings whose dark fringes light that does not interfere fills in show no dark
+            # contact point; the rings' model needs none (its start is then the rings'
+            # symmetry and period, :func:`._newton.fit_newton`): each pixel's best match
+            seeds = None
+        if seeds is None:
+            dmap, order_from = _on_image(mask, best.astype(np.float64), np.nan), "rings"
+        else:
+            dmap = _propagate(cost, grid, mask, seeds, window, smooth=3.0 * sigma2 / window ** 2,
+                              relax_weight=3.0 * sigma2 / RELAX_NM ** 2)
         dpix = dmap[mask]
         if not np.all(np.isfinite(dpix)):
             warnings.append(f"{int((~np.isfinite(dpix)).sum())} film pixels are not connected to the reference")
@@ -767,9 +787,11 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         res = censored_residual(y, model, clip_high, np)
         warnings.extend(_exponent_at_edge(params["exponent"]))
     if kind == "newton":
-        from ._newton import fit_newton
+        from ._newton import STRAY_DEFAULT, fit_newton
 
-        nres = fit_newton(fwd, y, lum, sin2, view, mask, dref, gain, sigma, lo, hi, clip_high)
+        # the scene's stray light where it names the newton model, else the model's default
+        stray = scene.stray if scene.thickness == "newton" else STRAY_DEFAULT
+        nres = fit_newton(fwd, y, lum, sin2, view, mask, dref, gain, sigma, lo, hi, clip_high, stray=stray)
         params, perr = nres.params, nres.stderr
         dref, model, gain = nres.thickness, nres.model, nres.gain
         stderr, order = nres.thickness_stderr, nres.order

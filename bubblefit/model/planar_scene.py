@@ -12,6 +12,11 @@ film or a gap is described by
     or a contact point: the darkest first-order pixels), or a region and value given as
     ``reference_region = [x0, y0, x1, y1]`` and ``reference_nm``. For a perspective camera
     the plane's ``center``, ``normal``, ``up`` and ``size`` (width, height) in scene units.
+    ``stray`` (``"newton"`` only): the grey reflectance of the light that reaches the camera
+    without interfering (the lens's top, the plate's bottom, scatter), ``"fit"`` (the
+    default: a free parameter ``>= 0``, which the rings' maxima and minima fix) or a number
+    in [0, 1] (fixed; 0: none). The other models take none: under one thickness or a map
+    it is not told apart from the thickness.
 ``[light]``
     ``type = "coaxial"`` with ``na`` (the objective's numerical aperture) and ``lamp``
     (``"D65"``, ``"3200K"``, a CSV ``wavelength_nm,power``); or ``type = "area"`` with
@@ -58,6 +63,7 @@ class PlanarScene:
     reference: str = "thinnest"
     reference_region: tuple | None = None   # (x0, y0, x1, y1) pixels, half-open
     reference_nm: float | None = None
+    stray: object = "fit"                   # "fit" or a fixed grey reflectance (newton only)
     na: float = 0.0
     pixel_um: float = 1.0
     camera: object | None = None            # PerspectiveCamera for an area light
@@ -196,6 +202,23 @@ def _lamp(value, base: Path, where: str) -> str:
     return str(path)
 
 
+def _stray(f: dict, kind: str):
+    """``[film] stray``: ``"fit"`` or a fixed reflectance in [0, 1] for ``"newton"``; 0 for
+    the other models, which refuse any other value in one line."""
+    value = f.get("stray", "fit" if kind == "newton" else 0.0)
+    if kind != "newton":
+        if value != 0:
+            raise InputError(f'film.stray applies to thickness = "newton" only (got {value!r} for "{kind}": under '
+                             "one thickness or a per-pixel map, light that does not interfere is not told apart from "
+                             "the thickness)")
+        return 0.0
+    if value == "fit":
+        return value
+    if isinstance(value, str):
+        raise InputError(f'film.stray must be "fit" or a number in [0, 1], got {value!r}')
+    return _num(f, "stray", "film", None, 0.0, 1.0)
+
+
 def parse_planar(data: dict, base_dir: str | os.PathLike = ".") -> PlanarScene:
     """The :class:`PlanarScene` of a parsed scene file; one-line errors for bad values."""
     from .geometry import PerspectiveCamera
@@ -212,13 +235,14 @@ def parse_planar(data: dict, base_dir: str | os.PathLike = ".") -> PlanarScene:
     if "reference_region" in f:
         region = tuple(int(v) for v in _vec(f, "reference_region", "film", 4))
         ref_nm = _num(f, "reference_nm", "film", None, 0.0, 20000.0)
+    stray = _stray(f, kind)
     width = int(_num(cam, "width", "camera", 256, 1, 16384))
     height = int(_num(cam, "height", "camera", 256, 1, 16384))
     response = cam.get("response", "srgb")
     lamp = _lamp(light.get("lamp", "D65"), base, "light.lamp")
     common = dict(stack=stack, lamp=lamp, response=response, width=width, height=height, thickness=kind,
                   thickness_range=(lo, hi), reference="region" if region else str(f.get("reference", "thinnest")),
-                  reference_region=region, reference_nm=ref_nm)
+                  reference_region=region, reference_nm=ref_nm, stray=stray)
     if common["reference"] not in ("thinnest", "region"):
         raise InputError(f'film.reference must be "thinnest" or a reference_region, got {f.get("reference")!r}')
     if light["type"] == "coaxial":

@@ -107,6 +107,7 @@ for i in range(n_done, n_done + n_new):
            "model": rec.get("model"), "model_kept": rec.get("model_kept"), "fallback": rec.get("fallback"),
            "message": rec.get("message", "")[:300], "chi2_floor": rec.get("chi2_floor"),
            "params": {k: round(v, 3) for k, v in rec.get("params", {}).items()},
+           "disc": (rec.get("init") or {}).get("disc"),
            "stages": {k: [round(v[0], 2), round(v[1], 2), v[2]] for k, v in sorted(T.items(), key=lambda kv: -kv[1][0])},
            "map": score}
     print(json.dumps(row), flush=True)

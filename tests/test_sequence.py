@@ -158,6 +158,42 @@ def test_warm_starts_carry_the_thickness_on():
     assert abs(guess - d[3]) < 0.03 * abs(d[2] - d[3])
 
 
+def test_warm_starts_carry_the_refined_disc_on():
+    """A frame whose fit refined its disc hands the refined disc (pixels) on in its warm
+    start, and the next frame's refinement starts there: :func:`disc_start` inverts
+    :func:`refined_disc` to the rounding of its pixels (0.0005 px over a 38 px radius); a
+    move beyond the refinement's range, or no disc, starts nothing. A disc that was not
+    refined is not handed on."""
+    from bubblefit.inverse import base_record, disc_start, refined_disc, result_record
+    from bubblefit.inverse._parameters import DISC_LIMIT, DISC_PARAMETERS
+    from bubblefit.inverse.sequence import FrameRef
+
+    found = (49.64, 48.01, 38.03)
+    moves = {"disc_x": 0.0074, "disc_y": -0.0021, "disc_r": 0.0097}
+    refined, _ = refined_disc(found, dict(moves), {})
+    start = disc_start(found, refined)
+    assert set(start) == set(DISC_PARAMETERS)
+    for name in DISC_PARAMETERS:
+        assert abs(start[name] - moves[name]) <= 0.0005 / found[2] * (1 + 1e-9)
+    assert disc_start(found, (found[0] + 1.01 * DISC_LIMIT * found[2], found[1], found[2])) == {}
+    assert disc_start(found, None) == {} and disc_start(found, (1.0, 2.0)) == {}
+
+    class Result:
+        params = {"top_nm": 240.0}
+        stderr = {"top_nm": 0.7}
+        converged = True
+        disc = refined
+        disc_stderr = {"cx": 0.01, "cy": 0.01, "r": 0.01}
+
+    class Given(Result):
+        disc_stderr = None
+
+    base = base_record(FrameRef(0, "a.png", 0.0), None)
+    rec = result_record(base, Result(), 1.0)
+    assert rec["init"] == {"top_nm": 240.0, "disc": list(refined)} and "disc" not in rec["params"]
+    assert "disc" not in result_record(base, Given(), 1.0)["init"]
+
+
 @pytest.mark.slow
 def test_failed_frame_recorded(runs):
     res = runs[1]

@@ -37,7 +37,7 @@ from ..model.modes import ThicknessKind
 from ..model.render import NO_PROFILE, Params
 
 __all__ = ["Parameter", "PARAMETERS", "ParameterTable", "ParameterRole", "parameter_roles", "ParameterSetting",
-           "parse_setting", "starts", "ALIASES", "STARTS", "THICK_UNIT", "THICKNESSES", "DISC_PARAMETERS", "forward", "inverse", "value_and_slope", "refined_disc", "extrapolated"]
+           "parse_setting", "starts", "ALIASES", "STARTS", "THICK_UNIT", "THICKNESSES", "DISC_PARAMETERS", "forward", "inverse", "value_and_slope", "refined_disc", "disc_start", "extrapolated"]
 
 #: nm per unit of the unconstrained thickness coordinate.
 THICK_UNIT = 100.0
@@ -262,6 +262,24 @@ def refined_disc(disc: tuple, reported: dict, stderr: dict, model_error: float =
     px = lambda e: None if e is None else round(math.hypot(float(e), model_error) * r, 3)
     new = (round(cx + sx * r, 3), round(cy + sy * r, 3), round(r * (1.0 + sr), 3))
     return new, {"cx": px(ex), "cy": px(ey), "r": px(er)}
+
+
+def disc_start(disc: tuple, refined) -> dict:
+    """The disc's refinement (``disc_x``, ``disc_y``, ``disc_r``) that moves ``disc``
+    ``(cx, cy, r)`` onto ``refined`` (a disc in pixels, as :func:`refined_disc` reports it):
+    ``((cx' - cx) / r, (cy' - cy) / r, r' / r - 1)``, the inverse of :func:`refined_disc`
+    (the refinement of :meth:`~bubblefit.model.geometry.OrthographicCamera.rays`). A
+    sequence's frame starts its disc where its predecessor's fit left it. Empty when
+    ``refined`` is not a disc or a move lies outside the refinement's range (``DISC_LIMIT``)."""
+    try:
+        cx, cy, r = (float(v) for v in disc)
+        rx, ry, rr = (float(v) for v in refined)
+    except (TypeError, ValueError):
+        return {}
+    if not (r > 0 and all(math.isfinite(v) for v in (cx, cy, r, rx, ry, rr))):
+        return {}
+    out = dict(zip(DISC_PARAMETERS, ((rx - cx) / r, (ry - cy) / r, rr / r - 1.0)))
+    return out if all(abs(v) < DISC_LIMIT for v in out.values()) else {}
 
 
 #: What a fit did with a reported parameter (:class:`ParameterRole`).

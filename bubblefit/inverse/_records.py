@@ -103,6 +103,9 @@ def result_record(base: dict, res, fit_time_s: float) -> dict:
     )
     if not all(math.isfinite(v) for v in params.values()):
         rec["converged"] = False
+    disc = getattr(res, "disc", None)
+    if disc is not None and getattr(res, "disc_stderr", None) is not None:  # refined: the next frame's start
+        rec["init"] = dict(rec["init"], disc=[float(v) for v in disc])
     fit_ok = getattr(res, "ok", None)
     if fit_ok is not None:
         rec["fit_ok"] = bool(fit_ok)

@@ -12,7 +12,7 @@ from ..capture.view import perspective_from_disc
 from ._observation import Frame, Level, analysis_frame, make_level, resolve_disc, saturation_mask
 from ._pair import LUMINANCE, PairCheck, check_pair
 from ._options import ColourSettings, FitOptions
-from ._parameters import ALIASES, DISC_PARAMETERS, ParameterTable, THICKNESS_PARAMETERS
+from ._parameters import ALIASES, DISC_PARAMETERS, ParameterTable, THICKNESS_PARAMETERS, disc_start
 from ..errors import InputError
 from ..lighting.envmap import EnvMap, downsample
 from ..model.bounds import SceneSummary
@@ -410,6 +410,8 @@ def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, d
                            dispersion=colour.n_film if isinstance(colour.n_film, Cauchy) else None,
                            samples_per_pixel=colour.samples_per_pixel, pixel_footprint=footprint)
     table = _table(opts, fx, held0, fit_disc)
+    if fit_disc and init and init.get("disc") is not None and all(n in table.free for n in DISC_PARAMETERS):
+        vals.update(disc_start(disc, init["disc"]))  # a warm start's disc: where the last fit refined it
     # a map is fitted after a drainage profile: the local fits render the profile
     base_cfg = replace(map_cfg, effects=replace(fx, thickness=table.thickness_model))
     k_fit = opts.sizes.downsample or max(1, math.ceil(max(H, W) / opts.sizes.fit))

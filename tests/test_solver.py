@@ -156,12 +156,34 @@ def test_scaled_decrement_is_the_gauss_newton_drop():
     assert np.all(np.asarray(step0) == 0.0)
 
 
-def test_bounded_decrement_drops_a_parameter_pressing_on_its_bound():
+#: The bounded decrement's cases: the third free parameter, its value, the scale of its
+#: column (0.02: a standard error in ``z`` of about 2.5, within one of its bound for
+#: either coordinate; 1.0: about 0.05, well measured), its Gauss-Newton step in ``z``,
+#: and whether it is left out.
+BOUND_CASES = (
+    # a roughness (log, bound 0, plausible up to 1) at 1e-4: a step below zero; a step
+    # to 1e-4 e^12 = 16, past its plausible range, which no damping lets the solve
+    # take; a step to 1e-4 e^3 = 2e-3 within it (longer than the first-order reach
+    # |slope dz| < v, and still a step the solve takes); a well-measured roughness
+    ("roughness", 1e-4, 0.02, -3.0, True), ("roughness", 1e-4, 0.02, 12.0, True),
+    ("roughness", 1e-4, 0.02, 3.0, False), ("roughness", 1e-4, 1.0, -3.0, False),
+    ("roughness", 1e-4, 1.0, 12.0, False),
+    # a specular share (logistic, bounds 0 and 1, plausible 1e-3 to 1 - 1e-3) driven to
+    # 1e-6: its step back to sigmoid(-13.8 + 13) = 0.31 is one the solve takes; one to
+    # sigmoid(11.2) = 0.99999, past the plausible range, and one toward 0 are not
+    ("split", 1e-6, 0.02, 13.0, False), ("split", 1e-6, 0.02, 25.0, True), ("split", 1e-6, 0.02, -3.0, True),
+)
+
+
+@pytest.mark.parametrize("name, value, col, dz, dropped", BOUND_CASES)
+def test_bounded_decrement_drops_a_parameter_pressing_on_its_bound(name, value, col, dz, dropped):
     """With the parameters' names and point, the in-solve decrement treats the bounds as
-    remaining_step (numpy, float64) does: a roughness (log transform, bound 0) known to
-    worse than 100 % whose Gauss-Newton step points below zero is left out, and the
-    decrement is then that of the other columns; a well-measured roughness, or a step
-    pointing away from zero, keeps it."""
+    remaining_step (numpy, float64) does: a parameter within one standard error of a
+    bound whose Gauss-Newton step points at the bound, or whose exact move ``v(z + dz)`` passes
+    the far end of its plausible range, is left out, and the decrement is then that of the
+    other columns; a well-measured parameter, or a step that lands inside the plausible
+    range, keeps it. The residual is built with an exact Gauss-Newton step, so each case's
+    step is the one named."""
     from bubblefit.inverse import gauss_newton_decrement
     from bubblefit.inverse import LocalSolution, remaining_step
     from bubblefit.inverse import inverse
@@ -169,22 +191,27 @@ def test_bounded_decrement_drops_a_parameter_pressing_on_its_bound():
     rng = np.random.default_rng(5)
     base_jac = rng.normal(size=(400, 3))
     base = rng.normal(size=400)
-    free = ("thickness_nm", "t", "roughness")
-    z = np.array([inverse("thickness_nm", 700.0), inverse("t", 0.97), inverse("roughness", 1e-4)])
-    for col, sign, dropped in ((0.02, 1.0, True), (1.0, 1.0, False), (0.02, -1.0, False)):
-        jac = base_jac * np.array([1.0, 1.0, col])  # col 0.02: the roughness poorly constrained
-        r = base + sign * 3.0 * jac[:, 2] / col  # its Gauss-Newton step: -3 (toward 0) or +3 in z
-        got = float(_decrement_and_steps(jnp.asarray(r, jnp.float32), jnp.asarray(jac, jnp.float32),
-                                         jnp.asarray(z, jnp.float32), free)[0])
-        chi2_nu = np.sum(r**2) / (r.size - 3)
-        want = remaining_step(LocalSolution({}, z, True, False, 1, r, jac, {}), chi2_nu, free)
-        assert got == pytest.approx(want, rel=2e-3, abs=1e-6), (col, sign)
-        full = gauss_newton_decrement(r, jac) / max(1.0, chi2_nu)
-        if dropped:
-            assert want == pytest.approx(gauss_newton_decrement(r, jac[:, :2]) / max(1.0, chi2_nu), rel=1e-9)
-            assert got < 0.1 * full
-        else:
-            assert got == pytest.approx(full, rel=2e-3)
+    free = ("thickness_nm", "t", name)
+    z = np.array([inverse("thickness_nm", 700.0), inverse("t", 0.97), inverse(name, value)])
+    jac = base_jac * np.array([1.0, 1.0, col])
+    # a residual whose Gauss-Newton step is exactly (0.1, -0.2, dz): the part of ``base``
+    # outside the columns' span, less the columns times that step
+    step = np.array([0.1, -0.2, dz])
+    r = base - jac @ np.linalg.lstsq(jac, base, rcond=None)[0] - jac @ step
+    got = float(_decrement_and_steps(jnp.asarray(r, jnp.float32), jnp.asarray(jac, jnp.float32),
+                                     jnp.asarray(z, jnp.float32), free)[0])
+    chi2_nu = np.sum(r**2) / (r.size - 3)
+    want = remaining_step(LocalSolution({}, z, True, False, 1, r, jac, {}), chi2_nu, free)
+    # float32 factors of a column scaled by 0.02: the decrement to a few parts in 1e3
+    assert got == pytest.approx(want, rel=2e-3, abs=1e-6)
+    full = gauss_newton_decrement(r, jac) / max(1.0, chi2_nu)
+    if dropped:
+        others = gauss_newton_decrement(r, jac[:, :2]) / max(1.0, chi2_nu)
+        assert want == pytest.approx(others, rel=1e-9)
+        # the parameter's share of the full decrement, (dz / se_z)^2 >= 1.4, is gone
+        assert full - got > 0.5
+    else:
+        assert got == pytest.approx(full, rel=2e-3)
 
 
 def test_vmapped_solve_matches_one_by_one():

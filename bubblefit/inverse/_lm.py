@@ -349,10 +349,12 @@ def scaled_decrement(dense: _DenseState, residual, z=None, free: tuple = ()) -> 
     have weight 0): the squared length of the step left, in the fit's own covariance.
 
     With the point ``z`` and the names ``free`` of its parameters, the bounds are active
-    constraints as in :func:`remaining_step`: a parameter within one standard error of a
-    finite bound whose step points at it is left out, and the decrement is the projection
+    constraints as in :func:`remaining_step` (:func:`presses_bound`): a parameter within
+    one standard error of a finite bound whose step points at it, or carries it past the
+    far end of its plausible range, is left out, and the decrement is the projection
     of ``Q^T r`` on the columns of ``R`` left (a roughness at the mirror, its step
-    pointing below zero, no longer keeps the solve from stopping). From the QR factors, in
+    pointing below zero or to a roughness of thousands, no longer keeps the solve from
+    stopping). From the QR factors, in
     the solve's own precision.
     """
     r = jnp.ravel(residual)
@@ -366,7 +368,8 @@ def scaled_decrement(dense: _DenseState, residual, z=None, free: tuple = ()) -> 
     keep = []
     for i, name in enumerate(free):
         v, slope = jax.jvp(functools.partial(forward, name), (z[i],), (jnp.ones_like(z[i]),))
-        keep.append(~jnp.asarray(presses_bound(name, v, slope, step[i], se_z[i], jnp.sign)))
+        moved = forward(name, z[i] + step[i])
+        keep.append(~jnp.asarray(presses_bound(name, v, slope, step[i], se_z[i], moved, jnp.sign)))
     keep = jnp.stack(keep)
     order = jnp.argsort(~keep, stable=True)  # the columns kept first, the dropped ones zero after them
     q2, _ = jnp.linalg.qr(jnp.where(keep, dense.r_factor, 0.0)[:, order])
@@ -410,14 +413,36 @@ def gauss_newton_decrement(r, jac) -> float:
         return float("nan")
 
 
-def presses_bound(name: str, v, slope, step, se, sign=np.sign):
+def presses_bound(name: str, v, slope, step, se, moved, sign=np.sign):
     """Whether parameter ``name`` at value ``v`` (``slope = d v / d z``) is an active
     constraint of the Gauss-Newton ``step`` (in ``z``): within ``se`` (one standard error
-    in ``z``) of a finite bound its step points at. The rule of :func:`remaining_step`
-    (numpy, float64) and of :func:`scaled_decrement` (jnp, in the solve; ``sign`` is
-    ``jnp.sign`` there)."""
+    in ``z``) of a finite bound, with a step that points at the bound, or one that carries
+    the value past the far end of its plausible range (:data:`~bubblefit.inverse._parameters.PARAMETERS`),
+    judged by ``moved``, the exact value ``v(z + step)`` through the parameter's transform.
+
+    The coordinates that keep a value off its bound (log, softplus, logistic) are
+    exponential in ``z`` there, so a poorly measured value at its bound may ask for a step
+    along a near-null direction of any length: a mirror's roughness at 1.8e-5 asked for
+    ``dz`` of thousands, a roughness of ``exp(3857)``, which no damping of the step lets
+    the solve take and whose decrement does not say how far the solve is from its
+    optimum. A step of the same coordinate back into the plausible range (a specular share
+    driven to 1e-6 whose step returns it to 0.3, ``dz`` about 13) is one the solve takes,
+    and keeps it going: the value's exact move, not its first-order move
+    ``slope step``, tells the two apart. The rule of :func:`remaining_step` (numpy,
+    float64; ``moved`` from :func:`~bubblefit.inverse._parameters.value_and_slope`) and of
+    :func:`scaled_decrement` (jnp, in the solve; ``moved`` from
+    :func:`~bubblefit.inverse._parameters.forward`, ``sign`` is ``jnp.sign``).
+
+    References
+    ----------
+    J. Nocedal & S. J. Wright, *Numerical Optimization*, 2nd ed. (2006), ch. 16.6 (active
+    constraints at bounds) and ch. 4 (a step is trusted only where the model that gave it
+    holds).
+    """
+    (lower, upper), (low, high) = PARAMETERS[name].bounds, PARAMETERS[name].plausible
     out = False
-    for b in PARAMETERS[name].bounds:
+    # each bound with whether the exact move passes the plausible range's end away from it
+    for b, beyond in ((lower, moved > high), (upper, moved < low)):
         if math.isfinite(b):
-            out = out | ((sign(slope * step) == sign(b - v)) & (abs(v - b) <= abs(slope) * se))
+            out = out | (((sign(slope * step) == sign(b - v)) | beyond) & (abs(v - b) <= abs(slope) * se))
     return out

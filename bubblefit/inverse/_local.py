@@ -74,7 +74,9 @@ def remaining_step(sol: LocalSolution, chi2_nu: float, free: tuple) -> float:
     ``sol`` (:func:`gauss_newton_decrement` over
     ``max(1, chi2_nu)``), with the bounds of the parameters' domains as active
     constraints: a parameter within one standard error of a finite bound (``r_d`` at 0)
-    whose step points at it is left out, since the step would take it beyond."""
+    whose step points at it is left out, since the step would take it beyond, and so is
+    one whose step carries it past the far end of its plausible range (a roughness at the
+    mirror asking for ``exp(dz)`` of thousands; :func:`~bubblefit.inverse._lm.presses_bound`)."""
     jac, r = sol.jacobian, sol.residual
     keep = list(range(jac.shape[1]))
     if free and jac.size:
@@ -86,7 +88,8 @@ def remaining_step(sol: LocalSolution, chi2_nu: float, free: tuple) -> float:
         se_z = np.sqrt(np.abs(np.diag(a_inv)) * max(1.0, chi2_nu))
         for i, name in enumerate(free):
             v, slope = value_and_slope(name, sol.z[i])
-            if presses_bound(name, v, slope, step[i], se_z[i], np.sign):
+            moved = value_and_slope(name, sol.z[i] + step[i])[0]
+            if presses_bound(name, v, slope, step[i], se_z[i], moved, np.sign):
                 keep.remove(i)
     return gauss_newton_decrement(r, jac[:, keep]) / max(1.0, chi2_nu)
 

@@ -350,11 +350,11 @@ def scaled_decrement(dense: _DenseState, residual, z=None, free: tuple = ()) -> 
 
     With the point ``z`` and the names ``free`` of its parameters, the bounds are active
     constraints as in :func:`remaining_step` (:func:`presses_bound`): a parameter within
-    one standard error of a finite bound whose step points at it, or carries it past the
-    far end of its plausible range, is left out, and the decrement is the projection
-    of ``Q^T r`` on the columns of ``R`` left (a roughness at the mirror, its step
-    pointing below zero or to a roughness of thousands, no longer keeps the solve from
-    stopping). From the QR factors, in
+    one standard error of a finite bound whose step points at it, or reaches beyond its
+    coordinate's linearisation away from it while within one standard error, is left
+    out, and the decrement is the projection of ``Q^T r`` on the columns of ``R`` left (a
+    roughness at the mirror, its step pointing below zero or asking for ``exp(3857)``
+    within its noise, no longer keeps the solve from stopping). From the QR factors, in
     the solve's own precision.
     """
     r = jnp.ravel(residual)
@@ -368,8 +368,7 @@ def scaled_decrement(dense: _DenseState, residual, z=None, free: tuple = ()) -> 
     keep = []
     for i, name in enumerate(free):
         v, slope = jax.jvp(functools.partial(forward, name), (z[i],), (jnp.ones_like(z[i]),))
-        moved = forward(name, z[i] + step[i])
-        keep.append(~jnp.asarray(presses_bound(name, v, slope, step[i], se_z[i], moved, jnp.sign)))
+        keep.append(~jnp.asarray(presses_bound(name, v, slope, step[i], se_z[i], jnp.sign)))
     keep = jnp.stack(keep)
     order = jnp.argsort(~keep, stable=True)  # the columns kept first, the dropped ones zero after them
     q2, _ = jnp.linalg.qr(jnp.where(keep, dense.r_factor, 0.0)[:, order])
@@ -413,36 +412,39 @@ def gauss_newton_decrement(r, jac) -> float:
         return float("nan")
 
 
-def presses_bound(name: str, v, slope, step, se, moved, sign=np.sign):
+def presses_bound(name: str, v, slope, step, se, sign=np.sign):
     """Whether parameter ``name`` at value ``v`` (``slope = d v / d z``) is an active
     constraint of the Gauss-Newton ``step`` (in ``z``): within ``se`` (one standard error
-    in ``z``) of a finite bound, with a step that points at the bound, or one that carries
-    the value past the far end of its plausible range (:data:`~bubblefit.inverse._parameters.PARAMETERS`),
-    judged by ``moved``, the exact value ``v(z + step)`` through the parameter's transform.
+    in ``z``) of a finite bound, with a step that points at the bound, or a step away from
+    it that reaches beyond its coordinate's linearisation, ``|slope step| > |v - b|``,
+    while it is no longer than one standard error, ``|step| <= se``.
 
-    The coordinates that keep a value off its bound (log, softplus, logistic) are
-    exponential in ``z`` there, so a poorly measured value at its bound may ask for a step
-    along a near-null direction of any length: a mirror's roughness at 1.8e-5 asked for
-    ``dz`` of thousands, a roughness of ``exp(3857)``, which no damping of the step lets
-    the solve take and whose decrement does not say how far the solve is from its
-    optimum. A step of the same coordinate back into the plausible range (a specular share
-    driven to 1e-6 whose step returns it to 0.3, ``dz`` about 13) is one the solve takes,
-    and keeps it going: the value's exact move, not its first-order move
-    ``slope step``, tells the two apart. The rule of :func:`remaining_step` (numpy,
-    float64; ``moved`` from :func:`~bubblefit.inverse._parameters.value_and_slope`) and of
-    :func:`scaled_decrement` (jnp, in the solve; ``moved`` from
-    :func:`~bubblefit.inverse._parameters.forward`, ``sign`` is ``jnp.sign``).
+    The coordinates that keep a value off its bound (log, softplus, logistic;
+    :data:`~bubblefit.inverse._parameters.PARAMETERS`) are exponential in ``z`` there, so
+    the first-order model ``v + slope dz`` from which the step is computed holds only
+    while ``|slope dz| < |v - b|``. Beyond it the step's length says nothing the solve can
+    act on, and its significance ``|dz| / se`` (the same in every coordinate to first
+    order: ``|slope dz| / |slope se|``, the step in the value's own standard errors)
+    tells whether the data ask for it at all: a mirror's roughness at 1.8e-5 with a
+    standard error of 0.175 asks for ``dz = 3857``, 0.4 standard errors, a move the data
+    do not resolve from the bound, whose decrement kept the solve going for steps that
+    moved the fit by less than a fifth of a standard error; a specular share driven to
+    ``1 - 1e-6`` whose step back to 0.74 is 34 standard errors is a move the data demand,
+    and the solve that keeps it reaches it. The rule of :func:`remaining_step` (numpy,
+    float64) and of :func:`scaled_decrement` (jnp, in the solve; ``sign`` is ``jnp.sign``
+    there).
 
     References
     ----------
     J. Nocedal & S. J. Wright, *Numerical Optimization*, 2nd ed. (2006), ch. 16.6 (active
-    constraints at bounds) and ch. 4 (a step is trusted only where the model that gave it
-    holds).
+    constraints at bounds) and ch. 4 (a model's step is trusted only where the model
+    holds); Y. Bard, *Nonlinear Parameter Estimation* (1974), ch. 7 (a parameter's
+    standard error from ``(J^T J)^-1``).
     """
-    (lower, upper), (low, high) = PARAMETERS[name].bounds, PARAMETERS[name].plausible
     out = False
-    # each bound with whether the exact move passes the plausible range's end away from it
-    for b, beyond in ((lower, moved > high), (upper, moved < low)):
+    for b in PARAMETERS[name].bounds:
         if math.isfinite(b):
-            out = out | (((sign(slope * step) == sign(b - v)) | beyond) & (abs(v - b) <= abs(slope) * se))
+            toward = sign(slope * step) == sign(b - v)
+            unresolved = (abs(slope * step) > abs(v - b)) & (abs(step) <= se)
+            out = out | ((toward | unresolved) & (abs(v - b) <= abs(slope) * se))
     return out

@@ -75,8 +75,9 @@ def remaining_step(sol: LocalSolution, chi2_nu: float, free: tuple) -> float:
     ``max(1, chi2_nu)``), with the bounds of the parameters' domains as active
     constraints: a parameter within one standard error of a finite bound (``r_d`` at 0)
     whose step points at it is left out, since the step would take it beyond, and so is
-    one whose step carries it past the far end of its plausible range (a roughness at the
-    mirror asking for ``exp(dz)`` of thousands; :func:`~bubblefit.inverse._lm.presses_bound`)."""
+    one whose step away from it reaches beyond its coordinate's linearisation while within
+    one standard error: a move the data do not resolve from the bound (a roughness at
+    the mirror; :func:`~bubblefit.inverse._lm.presses_bound`)."""
     jac, r = sol.jacobian, sol.residual
     keep = list(range(jac.shape[1]))
     if free and jac.size:
@@ -88,8 +89,7 @@ def remaining_step(sol: LocalSolution, chi2_nu: float, free: tuple) -> float:
         se_z = np.sqrt(np.abs(np.diag(a_inv)) * max(1.0, chi2_nu))
         for i, name in enumerate(free):
             v, slope = value_and_slope(name, sol.z[i])
-            moved = value_and_slope(name, sol.z[i] + step[i])[0]
-            if presses_bound(name, v, slope, step[i], se_z[i], moved, np.sign):
+            if presses_bound(name, v, slope, step[i], se_z[i], np.sign):
                 keep.remove(i)
     return gauss_newton_decrement(r, jac[:, keep]) / max(1.0, chi2_nu)
 

@@ -353,8 +353,8 @@ def scaled_decrement(dense: _DenseState, residual, z=None, free: tuple = ()) -> 
     one standard error of a finite bound whose step points at it, or reaches beyond its
     coordinate's linearisation away from it while within one standard error, is left
     out, and the decrement is the projection of ``Q^T r`` on the columns of ``R`` left (a
-    roughness at the mirror, its step pointing below zero or asking for ``exp(3857)``
-    within its noise, no longer keeps the solve from stopping). From the QR factors, in
+    roughness at the mirror, its step pointing below zero or asking for thousands in
+    ``z`` within its noise, no longer keeps the solve from stopping). From the QR factors, in
     the solve's own precision.
     """
     r = jnp.ravel(residual)
@@ -425,12 +425,12 @@ def presses_bound(name: str, v, slope, step, se, sign=np.sign):
     while ``|slope dz| < |v - b|``. Beyond it the step's length says nothing the solve can
     act on, and its significance ``|dz| / se`` (the same in every coordinate to first
     order: ``|slope dz| / |slope se|``, the step in the value's own standard errors)
-    tells whether the data ask for it at all: a mirror's roughness at 1.8e-5 with a
-    standard error of 0.175 asks for ``dz = 3857``, 0.4 standard errors, a move the data
-    do not resolve from the bound, whose decrement kept the solve going for steps that
-    moved the fit by less than a fifth of a standard error; a specular share driven to
-    ``1 - 1e-6`` whose step back to 0.74 is 34 standard errors is a move the data demand,
-    and the solve that keeps it reaches it. The rule of :func:`remaining_step` (numpy,
+    tells whether the data ask for it at all: a mirror's roughness at 1.8e-5 asks for
+    ``dz`` of about 6300 at 0.83 standard errors, a move the data do not resolve from
+    the bound, whose decrement kept the solve going for steps that moved the fit by less
+    than a fifth of a standard error; a specular share driven to ``1 - 1e-6`` whose step
+    back (to 0.74 at first order) is 34 standard errors is a move the data demand, and
+    the solve that keeps it reaches it. The rule of :func:`remaining_step` (numpy,
     float64) and of :func:`scaled_decrement` (jnp, in the solve; ``sign`` is ``jnp.sign``
     there).
 

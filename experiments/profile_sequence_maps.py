@@ -21,7 +21,6 @@ import json
 import sys
 import tempfile
 import time
-from collections import defaultdict
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -38,25 +37,7 @@ import bubblefit.inverse._maps as M
 import bubblefit.inverse._map_pixels as MP
 import bubblefit.inverse._local as L
 
-T = defaultdict(lambda: [0.0, 0.0, 0])
-
-
-def wrap(mod, name, label=None):
-    """Replace ``mod.name`` by a function that adds its wall and CPU seconds to ``T[label]``."""
-    f = getattr(mod, name)
-    label = label or name
-
-    def g(*a, **k):
-        t0, c0 = time.perf_counter(), time.process_time()
-        try:
-            return f(*a, **k)
-        finally:
-            e = T[label]
-            e[0] += time.perf_counter() - t0
-            e[1] += time.process_time() - c0
-            e[2] += 1
-    setattr(mod, name, g)
-
+from stage_timer import T, solve_costs, timed_solver, wrap  # noqa: E402
 
 LAST_SOLVE = {}
 _solve_local = F.solve_local
@@ -80,25 +61,7 @@ wrap(MP.TracedCosts, "__call__", "TracedCosts.call")
 wrap(MP.TracedCosts, "slopes", "TracedCosts.slopes")
 wrap(L, "remaining_step", "local.remaining_step")
 _stored = L.stored_solver
-
-
-def stored(*key):
-    """The stored solve, each LM run timed (its outputs brought to the host)."""
-    s = _stored(*key)
-
-    def run(*a):
-        t0, c0 = time.perf_counter(), time.process_time()
-        out = s(*a)
-        out = [np.asarray(x) for x in out]
-        e = T["solver program (one LM run)"]
-        e[0] += time.perf_counter() - t0
-        e[1] += time.process_time() - c0
-        e[2] += 1
-        return out
-    return run
-
-
-L.stored_solver = stored
+L.stored_solver = timed_solver(_stored)
 
 from bubblefit.cli import build_parser
 from bubblefit.cli.fit import build_fit_options, load_envmap
@@ -153,35 +116,9 @@ for i in range(n_done, n_done + n_new):
 
 
 def costs() -> dict:
-    """The last frame's solve: wall and CPU seconds of one render of its fitted pixels (the
-    residual), of its Jacobian by groups, and of its stored LM run, each the median of 3
-    calls after the first (which compiles or loads)."""
-    import jax
-    import jax.numpy as jnp
-
-    import bubblefit.inverse._programs as P
-    from bubblefit.inverse._lm import JACOBIANS
-
-    lev, table, solver, vals, env_ = LAST_SOLVE["args"][:5]
-    max_steps = LAST_SOLVE["args"][5] if len(LAST_SOLVE["args"]) > 5 else LAST_SOLVE["kwargs"].get("max_steps")
-    settings = LAST_SOLVE["kwargs"].get("settings", P.SolveSettings())
-    key, args, px = P.solve_program(lev, table, solver, vals, env_, max_steps, settings)
-    _, resid = P.solver(*key)
-    z = jnp.asarray(table.unconstrained(vals), jnp.float32)
-    jac = jax.jit(JACOBIANS["groups"](resid, table))
-    run_ = _stored(*key)
-    out = {"fitted_pixels": int(lev.mask.sum()), "free": list(table.free), "groups": table.jacobian_groups}
-    for name, fn in (("render", lambda: resid(z, args)), ("jacobian_groups", lambda: jac(z, args)),
-                     ("lm_run", lambda: run_(z, args))):
-        jax.block_until_ready(fn())
-        t = []
-        for _ in range(3):
-            t0, c0 = time.perf_counter(), time.process_time()
-            jax.block_until_ready(fn())
-            t.append((time.perf_counter() - t0, time.process_time() - c0))
-        out[name] = {"wall_s": round(float(np.median([a for a, _ in t])), 3),
-                     "cpu_s": round(float(np.median([b for _, b in t])), 3)}
-    return out
+    """The last frame's solve: a render of its fitted pixels, its Jacobian by groups and its
+    LM run, timed alone (:func:`stage_timer.solve_costs`)."""
+    return solve_costs(LAST_SOLVE["args"], LAST_SOLVE["kwargs"], _stored)
 
 
 result = {"frames": rows}

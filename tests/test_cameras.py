@@ -827,6 +827,32 @@ def test_colour_check_cells_follow_the_optical_path():
     assert fails <= 2, fails
 
 
+def test_the_verdict_splits_the_cells_by_the_fitted_films_path():
+    """``judge_colours`` given the fitted film (a 1500 nm thickness, n 1.33) splits the
+    check's cells by its optical path at each pixel's cosine, as :func:`colour_check` does
+    given that path (the same parts, the same statistic), so a hue error that turns with
+    the path is caught by every caller that states its film (the fit with a stated
+    response and the fit that frees it); without the film the cells are not split."""
+    from bubblefit.inverse.colour_check import INNER_COS, colour_check, judge_colours
+
+    truth, mask = _smooth_colours()
+    h, w = mask.shape
+    y, x = np.mgrid[0:h, 0:w]
+    cos = np.sqrt(1.0 - np.clip(((x - w / 2) ** 2 + (y - h / 2) ** 2) / (0.42 * w) ** 2, 0.0, 1.0))
+    path = _thick_film_path()
+    sigma = 0.004 * np.ones_like(truth)
+    turn = 2 * np.pi * path / 500.0
+    u, v = np.array([1.0, -1.0, 0.0]) / np.sqrt(2.0), np.array([1.0, 1.0, -2.0]) / np.sqrt(6.0)
+    photo = truth + 0.004 * (np.cos(turn)[..., None] * u + np.sin(turn)[..., None] * v)
+    photo = photo + sigma * np.random.default_rng(3).normal(size=truth.shape)
+    ok, warnings, record = judge_colours(True, [], photo, truth, mask, cos, sigma, thickness=1500.0, n_film=1.33)
+    direct = colour_check(photo, truth, mask & (cos > INNER_COS), sigma, path=path)
+    assert record["cells"] == direct.cells and record["chi2_per_dof"] == pytest.approx(direct.chi2_per_dof, rel=1e-6)
+    assert not ok and not record["consistent"], record
+    _, _, unsplit = judge_colours(True, [], photo, truth, mask, cos, sigma)
+    assert unsplit["cells"] < record["cells"], (unsplit, record)
+
+
 def _draining_film_colours(camera: str, lamp: str | None = None, n: int = 64):
     """Closed-form colours of a draining film seen by a measured camera, written here
     independently of the package: the Airy reflectance of a free film in air at normal

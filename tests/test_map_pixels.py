@@ -125,6 +125,37 @@ def test_diagonal_jacobian_matches_differences(env, level):
     assert not np.allclose(r2, r)  # the thickness changed the residuals
 
 
+class _UphillSlopes:
+    """Per-pixel residuals ``r_p = d_p - 500`` (nm) with the sign of their slope reversed, so
+    that every Gauss-Newton step goes uphill and is rejected: the number of passes counted."""
+
+    def __init__(self):
+        self.calls = 0
+
+    def slopes(self, d):
+        self.calls += 1
+        r = np.repeat((np.asarray(d, np.float64) - 500.0)[:, None], 3, axis=1)
+        return r, -np.ones_like(r)
+
+
+def test_refine_stops_where_the_next_trial_would_repeat_a_rejected_one():
+    """A rejected step at small damping (1e-3 of the curvature) is repeated by a fourfold
+    damping to within 3e-3 of itself: below REFINE_TOL_NM for steps under ~70 nm, so the
+    solve stops after one trial instead of spending REFINE_STEPS passes on the same step,
+    and keeps its start."""
+    from bubblefit.inverse._map_pixels import REFINE_STEPS, refine
+    from bubblefit.inverse._maps import _neighbours
+
+    mask = np.ones((4, 4), bool)
+    nb = _neighbours(mask)[0]
+    centre = np.full(16, 510.0)  # 10 nm from the minimum: the uphill step is ~10 nm
+    costs = _UphillSlopes()
+    d, err, chi = refine(costs, centre, nb, 8.0, 24.0)
+    assert costs.calls == 2 < REFINE_STEPS + 1
+    np.testing.assert_array_equal(d, centre)
+    np.testing.assert_allclose(chi, 3 * 10.0**2)
+
+
 def test_final_render_of_a_map_on_an_unpadded_level(env):
     """A map's final render on a level whose size is not a padded size (37 x 45, padded to
     48 x 48) reads each pixel's own thickness: the bubble's pixels alone and the whole

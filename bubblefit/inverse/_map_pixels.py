@@ -218,7 +218,10 @@ def refine(costs: TracedCosts, centre: np.ndarray, nb: np.ndarray, s: float, hal
     summed once per pair). Its Gauss-Newton matrix is the data's diagonal (each pixel's
     thickness moves its own pixel only: :meth:`TracedCosts.slopes`) plus the prior's
     sparse Laplacian, solved by conjugate gradients; thicknesses stay within ``half`` of
-    ``centre``, so that the interference order the coarser levels settled is kept.
+    ``centre``, so that the interference order the coarser levels settled is kept. It
+    stops at an accepted step that moves no pixel by :data:`REFINE_TOL_NM`, and at a
+    rejected one whose next damping would change no pixel's step by that much (the next
+    trial would repeat it).
 
     Returns ``(map (P,), stderr (P,), data chi^2 (P,))``; the standard error from the
     curvature of each pixel's energy with its neighbours held, ``E'' = 2 / sigma^2``, as the
@@ -256,6 +259,12 @@ def refine(costs: TracedCosts, centre: np.ndarray, nb: np.ndarray, s: float, hal
             if moved < REFINE_TOL_NM:
                 break
         else:
+            # Raised fourfold, the damping scales each pixel's step by about
+            # (1 + lam) / (1 + 4 lam) (its curvature's diagonal dominating): while that moves
+            # no pixel by REFINE_TOL_NM, the next trial repeats the rejected one and is
+            # rejected again, so the solve stops at its last accepted point
+            if float(np.max(np.abs(delta), initial=0.0)) * 3.0 * lam / (1.0 + 4.0 * lam) < REFINE_TOL_NM:
+                break
             lam *= 4.0
     cnt = has.sum(axis=1)
     curv = np.sum(j * j, axis=1) + cnt * inv_s2  # E''/2 of each pixel, neighbours held

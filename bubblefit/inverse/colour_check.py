@@ -73,6 +73,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._uncertainty import OUTLIER_CHI2
+from ..optics.film import optical_path
 from ..optics.spectral import LAMBDA_MIN
 
 __all__ = ["ColourCheck", "colour_check", "judge_colours", "neighbour_scale", "noise_scale", "CHROMA_FLOOR",
@@ -350,7 +351,7 @@ def _block_scale(white: np.ndarray, k: int = 2) -> float:
 
 def judge_colours(ok: bool, warnings: list, photo, render, mask, cos, sigma, model_error: float = 0.0,
                   explained: bool = True, decide: bool = True, response_jac=None,
-                  path=None) -> tuple[bool, list, dict | None]:
+                  thickness=None, n_film: float | None = None) -> tuple[bool, list, dict | None]:
     """The fit's verdict with the colour test added: ``(ok, warnings, record)``. The test
     (:func:`colour_check`) runs over the fitted pixels ``mask`` whose front film's ``cos``
     (cosine of incidence) exceeds :data:`INNER_COS`, with the fit's noise ``sigma`` and
@@ -358,8 +359,14 @@ def judge_colours(ok: bool, warnings: list, photo, render, mask, cos, sigma, mod
     add the warning of :meth:`ColourCheck.warning` (worded for a photo the model does not
     ``explained`` as a whole, as the verdict found) and, with ``decide`` true
     (``JudgeSettings.colour_check == "decide"``), make the fit not ``ok``. ``response_jac``:
-    the calibrated response's own errors (:func:`colour_check`); ``path``: the fitted film's
-    optical path per pixel (nm), which splits the cells (:data:`PATH_BIN`; None: not split)."""
+    the calibrated response's own errors (:func:`colour_check`); ``thickness`` (nm, a value
+    or a per-pixel map) and ``n_film``: the fitted film, whose optical path ``2 n d cos t``
+    (:func:`~bubblefit.optics.film.optical_path`) at each pixel's ``cos`` splits the cells
+    (:data:`PATH_BIN`; None: not split)."""
+    path = None
+    if thickness is not None and n_film is not None:
+        path = np.asarray(optical_path(np.asarray(thickness, np.float64), float(n_film),
+                                       np.clip(np.asarray(cos, np.float64), 0.0, 1.0)))
     check = colour_check(photo, render, np.asarray(mask, bool) & (np.asarray(cos) > INNER_COS), sigma,
                          model_error=model_error, response_jac=response_jac, path=path)
     if check is None:

@@ -69,7 +69,6 @@ from .response_error import pixel_thickness_stderr, response_cells, response_err
 from ..errors import InputError
 from ..lighting.envmap import EnvMap
 from ..model.thickness import drainage_profile
-from ..optics.film import optical_path
 from ..progress import stage
 
 __all__ = ["FitOptions", "FitResult", "NoiseSettings", "MapSettings", "JudgeSettings", "SolverSettings", "ImageSizes",
@@ -312,11 +311,9 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     thick = thickness_map if thickness_map is not None else reported["thickness_nm"]
     response_jac = response_cells(st.colour.response, st.colour.illuminant, reported["n_film"], img, st.background,
                                   thick, full.cos)  # a calibrated response's own errors (None: exact)
-    path = np.asarray(optical_path(np.asarray(thick, np.float64), reported["n_film"],
-                                   np.clip(np.asarray(full.cos, np.float64), 0.0, 1.0)))  # splits the check's cells
     ok, warnings, colour_record = judge_colours(ok, warnings, st.photo, img, full.mask, full.cos, sigma,
                                                 float(judge.model_error), explained, judge.colour_check == "decide",
-                                                response_jac, path)
+                                                response_jac, thick, reported["n_film"])
     order = judged.order  # does the photo tell the order, the response's errors allowed?
     names = order_parameters(st.table.thickness_model) or ()
     if order is not None and names and all(np.isfinite(reported.get(n, np.nan)) for n in names):

@@ -547,9 +547,6 @@ def self_calibrated(first, photo, env, options, background, scene, saturated):
     ok = ok and cal.rank.determined
     share = opts.noise.photosite_share
     sigma = st.sigma if share is None else st.sigma / np.sqrt(np.asarray(share))
-    ok, warnings, colour_record = judge_colours(ok, warnings, st.photo, img, m, full.cos, sigma,
-                                                float(opts.judge.model_error), mis.chi2_floor <= float(opts.judge.ok_chi2),
-                                                opts.judge.colour_check == "decide")
     # the joint fit's values as the fit reports them; standard errors for the fitted names
     # (a value derived from them, e.g. r_d and r_s from the split, has none here)
     params, stderr = dict(first.params), dict(first.stderr)
@@ -566,6 +563,13 @@ def self_calibrated(first, photo, env, options, background, scene, saturated):
     if "top_nm" in cal.values:
         prof = (params["top_nm"], params["bottom_nm"], params["exponent"])
         thickness_map = np.where(full.inside, np.asarray(drainage_profile(jnp.asarray(full.height), *prof)), np.nan)
+    # the check's cells split by the joint fit's optical path, as the fit with a stated
+    # response splits them (bubblefit.inverse.colour_check.PATH_BIN)
+    thick = thickness_map if thickness_map is not None else params.get("thickness_nm", np.nan)
+    ok, warnings, colour_record = judge_colours(ok, warnings, st.photo, img, m, full.cos, sigma,
+                                                float(opts.judge.model_error), mis.chi2_floor <= float(opts.judge.ok_chi2),
+                                                opts.judge.colour_check == "decide", thickness=thick,
+                                                n_film=float(vals["n_film"]))
     record = cal.to_json()
     record["stated_response_fit"] = {"ok": bool(first.ok), "params": {k: float(v) for k, v in first.params.items()},
                                      "colour_check": first.colour_check, "warnings": list(first.warnings)}

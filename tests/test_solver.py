@@ -156,12 +156,36 @@ def test_scaled_decrement_is_the_gauss_newton_drop():
     assert np.all(np.asarray(step0) == 0.0)
 
 
-def test_bounded_decrement_drops_a_parameter_pressing_on_its_bound():
+#: The bounded decrement's cases: the third free parameter, its value, the scale of its
+#: column (0.02: a standard error ``se`` in ``z`` of 2.6 or more, within one of its bound
+#: for either coordinate; 1.0: about 0.05, well measured), its Gauss-Newton step in units
+#: of ``se`` (so its significance), and whether it is left out.
+BOUND_CASES = (
+    # a roughness (log, bound 0) at 1e-4: a step toward zero; a step away of 0.6 se,
+    # dz >= 1.6, beyond the reach |slope dz| < v of its first-order model and not resolved
+    # from the bound; a step away of 0.2 se, dz about 0.5, within that reach; a step away
+    # of 3 se, one the data ask for; a well-measured roughness either way
+    ("roughness", 1e-4, 0.02, -0.5, True), ("roughness", 1e-4, 0.02, 0.6, True),
+    ("roughness", 1e-4, 0.02, 0.2, False), ("roughness", 1e-4, 0.02, 3.0, False),
+    ("roughness", 1e-4, 1.0, -0.5, False), ("roughness", 1e-4, 1.0, 3.0, False),
+    # a specular share (logistic, bounds 0 and 1) driven to 1 - 1e-6: a step back of 3 se
+    # (dz about -8, beyond the reach |slope dz| < 1 - v of its first-order model, and one
+    # the data ask for); one of 0.6 se, not resolved from the bound; one toward 1
+    ("split", 1 - 1e-6, 0.02, -3.0, False), ("split", 1 - 1e-6, 0.02, -0.6, True),
+    ("split", 1 - 1e-6, 0.02, 0.5, True),
+)
+
+
+@pytest.mark.parametrize("name, value, col, k, dropped", BOUND_CASES)
+def test_bounded_decrement_drops_a_parameter_pressing_on_its_bound(name, value, col, k, dropped):
     """With the parameters' names and point, the in-solve decrement treats the bounds as
-    remaining_step (numpy, float64) does: a roughness (log transform, bound 0) known to
-    worse than 100 % whose Gauss-Newton step points below zero is left out, and the
-    decrement is then that of the other columns; a well-measured roughness, or a step
-    pointing away from zero, keeps it."""
+    remaining_step (numpy, float64) does: a parameter within one standard error of a
+    bound whose Gauss-Newton step points at the bound, or reaches away from it beyond its
+    coordinate's first-order model while within one standard error, is left out, and the
+    decrement is then that of the other columns; a well-measured parameter, a step within
+    the first-order model, or a step of several standard errors away (the data ask for
+    it, however far it reaches) keeps it. The residual is built with an exact
+    Gauss-Newton step, so each case's step is the one named."""
     from bubblefit.inverse import gauss_newton_decrement
     from bubblefit.inverse import LocalSolution, remaining_step
     from bubblefit.inverse import inverse
@@ -169,22 +193,31 @@ def test_bounded_decrement_drops_a_parameter_pressing_on_its_bound():
     rng = np.random.default_rng(5)
     base_jac = rng.normal(size=(400, 3))
     base = rng.normal(size=400)
-    free = ("thickness_nm", "t", "roughness")
-    z = np.array([inverse("thickness_nm", 700.0), inverse("t", 0.97), inverse("roughness", 1e-4)])
-    for col, sign, dropped in ((0.02, 1.0, True), (1.0, 1.0, False), (0.02, -1.0, False)):
-        jac = base_jac * np.array([1.0, 1.0, col])  # col 0.02: the roughness poorly constrained
-        r = base + sign * 3.0 * jac[:, 2] / col  # its Gauss-Newton step: -3 (toward 0) or +3 in z
-        got = float(_decrement_and_steps(jnp.asarray(r, jnp.float32), jnp.asarray(jac, jnp.float32),
-                                         jnp.asarray(z, jnp.float32), free)[0])
-        chi2_nu = np.sum(r**2) / (r.size - 3)
-        want = remaining_step(LocalSolution({}, z, True, False, 1, r, jac, {}), chi2_nu, free)
-        assert got == pytest.approx(want, rel=2e-3, abs=1e-6), (col, sign)
-        full = gauss_newton_decrement(r, jac) / max(1.0, chi2_nu)
-        if dropped:
-            assert want == pytest.approx(gauss_newton_decrement(r, jac[:, :2]) / max(1.0, chi2_nu), rel=1e-9)
-            assert got < 0.1 * full
-        else:
-            assert got == pytest.approx(full, rel=2e-3)
+    free = ("thickness_nm", "t", name)
+    z = np.array([inverse("thickness_nm", 700.0), inverse("t", 0.97), inverse(name, value)])
+    jac = base_jac * np.array([1.0, 1.0, col])
+    # the parameter's standard error in z without the factor max(1, chi2_nu) >= 1, which
+    # the residual below keeps under 1.1 (its steps add at most 3^2 to a chi^2 of ~397)
+    se0 = np.sqrt(np.linalg.inv(jac.T @ jac)[2, 2])
+    # a residual whose Gauss-Newton step is exactly (0.1, -0.2, k se0): the part of
+    # ``base`` outside the columns' span, less the columns times that step
+    step = np.array([0.1, -0.2, k * se0])
+    r = base - jac @ np.linalg.lstsq(jac, base, rcond=None)[0] - jac @ step
+    got = float(_decrement_and_steps(jnp.asarray(r, jnp.float32), jnp.asarray(jac, jnp.float32),
+                                     jnp.asarray(z, jnp.float32), free)[0])
+    chi2_nu = np.sum(r**2) / (r.size - 3)
+    assert chi2_nu < 1.1
+    want = remaining_step(LocalSolution({}, z, True, False, 1, r, jac, {}), chi2_nu, free)
+    # float32 factors of a column scaled by 0.02: the decrement to a few parts in 1e3
+    assert got == pytest.approx(want, rel=2e-3, abs=1e-6)
+    full = gauss_newton_decrement(r, jac) / max(1.0, chi2_nu)
+    if dropped:
+        others = gauss_newton_decrement(r, jac[:, :2]) / max(1.0, chi2_nu)
+        assert want == pytest.approx(others, rel=1e-9)
+        # the parameter's share of the full decrement, k^2 / max(1, chi2_nu) >= 0.22, is gone
+        assert full - got > 0.2
+    else:
+        assert got == pytest.approx(full, rel=2e-3)
 
 
 def test_vmapped_solve_matches_one_by_one():

@@ -74,7 +74,10 @@ def remaining_step(sol: LocalSolution, chi2_nu: float, free: tuple) -> float:
     ``sol`` (:func:`gauss_newton_decrement` over
     ``max(1, chi2_nu)``), with the bounds of the parameters' domains as active
     constraints: a parameter within one standard error of a finite bound (``r_d`` at 0)
-    whose step points at it is left out, since the step would take it beyond."""
+    whose step points at it is left out, since the step would take it beyond, and so is
+    one whose step away from it reaches beyond its coordinate's linearisation while within
+    one standard error: a move the data do not resolve from the bound (a roughness at
+    the mirror; :func:`~bubblefit.inverse._lm.presses_bound`)."""
     jac, r = sol.jacobian, sol.residual
     keep = list(range(jac.shape[1]))
     if free and jac.size:

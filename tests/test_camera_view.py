@@ -336,6 +336,20 @@ def _profiled(u0, s, slope, n_pix=400, quartic=None, map_slope=None, linear_belo
     return at
 
 
+def _divergence_fit(at, lens):
+    """fit_divergence of the profile ``at`` (:func:`_profiled`) bracketed by ``lens``; the
+    result and the divergences it refitted at, in order."""
+    from bubblefit.inverse import fit_divergence
+
+    tried = []
+
+    def refit(view, start):
+        tried.append(V.divergence(view.fov_deg))
+        return at(tried[-1])
+
+    return fit_divergence(at(0.0), at(V.divergence(lens.fov_deg)), lens, refit), tried
+
+
 def test_a_photo_that_fixes_the_view_gets_its_divergence_fitted():
     """A chi^2 profile exact in u = tan(fov/2): the minimum and its standard error
     (Delta chi^2 = 1: the parabola's reduced chi^2 is 1 at its minimum) come back from the
@@ -376,17 +390,10 @@ def test_near_parallel_rays_the_orthographic_fit_stands_for_the_intervals_near_e
     """A minimum a third of a standard error above u = 0: the refit at the interval's near
     end (below 0) is the orthographic fit's, the parabola through u = 0 and the refits
     about the minimum is still the exact profile, and the interval stops at parallel rays."""
-    from bubblefit.inverse import fit_divergence
 
     at = _profiled(0.01, 0.03, 50.0)
     lens = V.assumed_lens(48, 48)
-    tried = []
-
-    def refit(view, start):
-        tried.append(V.divergence(view.fov_deg))
-        return at(tried[-1])
-
-    out = fit_divergence(at(0.0), at(V.divergence(lens.fov_deg)), lens, refit)
+    out, tried = _divergence_fit(at, lens)
     cam = out.camera
     assert cam["source"] == "fitted" and all(u > 0 for u in tried), tried
     assert V.divergence(cam["fitted_fov_deg"]) == pytest.approx(0.01, rel=1e-6)
@@ -403,20 +410,14 @@ def test_the_standard_error_is_the_profiles_curvature_near_its_minimum():
     the parabola's leading coefficient 1/s^2 (the second divided difference of x^4 is
     x1^2 + x2^2 + x3^2 + x1 x2 + x1 x3 + x2 x3), so the error lies within
     [s / sqrt(1.06), s], widened by the Birge ratio of the refit at the minimum."""
-    from bubblefit.inverse import divergence_profile, fit_divergence
+    from bubblefit.inverse import divergence_profile
 
     s, u0 = 0.01, 0.12
     q = s * 400**0.25  # (x/q)^4 = 0.01 (x/s)^2 at x = 2 s
     at = _profiled(u0, s, 50.0, quartic=q)
     lens = V.assumed_lens(48, 48)
     u_lens = V.divergence(lens.fov_deg)
-    tried = []
-
-    def refit(view, start):
-        tried.append(V.divergence(view.fov_deg))
-        return at(tried[-1])
-
-    out = fit_divergence(at(0.0), at(u_lens), lens, refit)
+    out, tried = _divergence_fit(at, lens)
     bracket = [0.0, u_lens / 2, u_lens]
     coarse = divergence_profile(bracket, [at(u).chi2_capped * (3 * 400 - 1) for u in bracket])
     se = out.camera["fov_stderr_deg"] / math.degrees(2 / (1 + V.divergence(out.camera["fitted_fov_deg"]) ** 2))
@@ -494,19 +495,12 @@ def test_a_minimum_past_the_lens_steeper_above_than_below_is_fitted():
     neighbours bracket the minimum; the refits about it lie in the parabolic part, so the
     fitted view and its standard error are the parabola's: u0 and s (Delta chi^2 = 1,
     the reduced chi^2 1 at the minimum)."""
-    from bubblefit.inverse import fit_divergence
 
     u0, s = V.divergence(40.0), 0.01
     at = _profiled(u0, s, 50.0, linear_below=0.1)
     lens = V.assumed_lens(176, 144)
     u_lens = V.divergence(lens.fov_deg)
-    tried = []
-
-    def refit(view, start):
-        tried.append(V.divergence(view.fov_deg))
-        return at(tried[-1])
-
-    out = fit_divergence(at(0.0), at(u_lens), lens, refit)
+    out, tried = _divergence_fit(at, lens)
     bracket = sorted([(at(u).chi2_capped, u) for u in (0.0, u_lens / 2, u_lens, tried[1])])
     assert [u for _, u in bracket[:3]] == [u_lens, u_lens / 2, 0.0], bracket  # the old reading's three
     assert all(u >= u0 - 0.1 for u in tried[2:]), tried

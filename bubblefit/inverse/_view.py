@@ -130,49 +130,61 @@ class Profile:
         The fitted divergence ``u = tan(fov/2)`` and its standard error: the half-width of
         the interval where the profile's chi^2 lies within ``Delta`` of its least.
     constrained : bool
-        Whether the photo fixes it: the profile curves upward, its minimum lies in
-        ``[0, max(points)]`` and the standard error is below half that bracket.
+        Whether the photo fixes it: the least point has a neighbour on either side in
+        ``u`` (or lies at the orthographic boundary ``u = 0``), the parabola through them
+        curves upward and the standard error is below half the span of the views tried.
     points : tuple
         The divergences of the three refits the parabola went through.
+    above : bool
+        Whether the least point is the largest divergence tried: the minimum may lie
+        beyond the views tried.
     """
 
     u: float
     stderr: float
     constrained: bool
     points: tuple = ()
+    above: bool = False
 
 
 def divergence_profile(us, chi2s, birge: float = 1.0) -> Profile:
-    """The divergence where the parabola through the lowest three of ``(us, chi2s)`` (total
-    chi^2 of refits through each view) is least, and its standard error: the half-width
-    ``sqrt(Delta / a)`` of the interval where the parabola ``a (u - u*)^2 + chi2_min``
-    rises by ``Delta = birge^2`` (``Delta chi^2 = 1`` on a profile, times the reduced
-    chi^2 at the minimum when above 1: the Birge ratio squared).
+    """The divergence where the parabola through the least of ``(us, chi2s)`` (total chi^2
+    of refits through each view) and its two neighbours in ``u`` is least, and its
+    standard error: the half-width ``sqrt(Delta / a)`` of the interval where the parabola
+    ``a (u - u*)^2 + chi2_min`` rises by ``Delta = birge^2`` (``Delta chi^2 = 1`` on a
+    profile, times the reduced chi^2 at the minimum when above 1: the Birge ratio squared).
 
-    The parabola's curvature is the profile's near its minimum only when the three points
-    lie within about a standard error of it: :func:`fit_divergence` refits there before
-    it reads the interval. A minimum below 0 is the orthographic view (``u = 0``, the
-    boundary).
+    The least point and its neighbours on either side bracket the profile's minimum
+    (golden-section bracketing, Numerical Recipes sec. 10.1). When the least point is the
+    largest ``u`` tried, the parabola goes through it and its two lower neighbours and the
+    minimum is not bracketed: not constrained (``above``; :func:`fit_divergence` then
+    extends the bracket). When it is ``u = 0``, the orthographic boundary closes the
+    bracket: the parabola goes through it and its two upper neighbours, and a minimum
+    below 0 is the orthographic view. The parabola's curvature is the profile's near its
+    minimum only when the three points lie within about a standard error of it:
+    :func:`fit_divergence` refits there before it reads the interval.
 
     References
     ----------
-    W. H. Press et al., *Numerical Recipes*, 3rd ed., 2007, sec. 10.3 (parabolic
-    interpolation) and sec. 15.6.5 (confidence limits from Delta chi^2 = 1 on a profile);
-    D. J. Venzon and S. H. Moolgavkar, Appl. Statist. 37, 87 (1988) (profile-likelihood
-    intervals); R. T. Birge, Phys. Rev. 40, 207 (1932).
+    W. H. Press et al., *Numerical Recipes*, 3rd ed., 2007, sec. 10.1 (bracketing a
+    minimum), sec. 10.3 (parabolic interpolation) and sec. 15.6.5 (confidence limits from
+    Delta chi^2 = 1 on a profile); D. J. Venzon and S. H. Moolgavkar, Appl. Statist. 37,
+    87 (1988) (profile-likelihood intervals); R. T. Birge, Phys. Rev. 40, 207 (1932).
     """
-    pts = sorted((c, u) for u, c in zip(us, chi2s) if math.isfinite(c))
+    pts = sorted((u, c) for u, c in zip(us, chi2s) if math.isfinite(c))
     if len(pts) < 3:
         return Profile(float("nan"), float("inf"), False)
-    (c0, u0), (c1, u1), (c2, u2) = pts[:3]
+    i = min(range(len(pts)), key=lambda k: (pts[k][1], pts[k][0]))
+    j = min(max(i - 1, 0), len(pts) - 3)  # the least point and its neighbours; at an end, the end's three
+    (u0, c0), (u1, c1), (u2, c2) = pts[j:j + 3]
+    above = i == len(pts) - 1 and pts[i][0] > 0
     a, b, _ = np.polyfit([u0, u1, u2], [c0, c1, c2], 2)
-    span = max(us)
+    span = max(u for u, _ in pts)
     if not a > 0:
-        return Profile(float(pts[0][1]), float("inf"), False, (u0, u1, u2))
+        return Profile(float(pts[i][0]), float("inf"), False, (u0, u1, u2), above)
     u_min = min(max(-b / (2 * a), 0.0), span)
     se = math.sqrt(1.0 / a) * max(birge, 1.0)
-    inside = -b / (2 * a) <= span * 1.05
-    return Profile(float(u_min), float(se), bool(inside and se < 0.5 * span), (u0, u1, u2))
+    return Profile(float(u_min), float(se), bool(not above and se < 0.5 * span), (u0, u1, u2), above)
 
 
 def fit_divergence(ortho: FitResult, lens_fit: FitResult, lens: View, refit) -> FitResult:
@@ -181,12 +193,12 @@ def fit_divergence(ortho: FitResult, lens_fit: FitResult, lens: View, refit) -> 
     warm-started refits (``refit(view, start)``: the fit through ``view``).
 
     1. Bracket: the orthographic fit (``u = 0``), the ``lens`` fit and a refit halfway, a
-       fourth beyond the lens when the minimum lies past it; the parabola through the
-       lowest three (:func:`divergence_profile`) gives a first minimum ``u1`` and standard
-       error ``s1``.
+       fourth at twice the lens's ``u`` when the lens's fit is the least; the parabola
+       through the least point and its two neighbours in ``u`` (:func:`divergence_profile`)
+       gives a first minimum ``u1`` and standard error ``s1``.
     2. Refine: refits at ``u1`` and ``u1 +- s1`` (the ends of the first interval; ``u = 0``
-       stands for a negative end), so that the parabola through the lowest three reads
-       the profile's curvature near its minimum, not across the bracket; when the
+       stands for a negative end), so that the parabola through the least point and its
+       neighbours reads the profile's curvature near its minimum, not across the bracket; when the
        refined standard error exceeds twice the step (the three points spanned under half
        the interval), once more at the new minimum and its interval's ends. The photo is
        refitted at the last minimum unless a refit lies within a quarter of a standard
@@ -235,7 +247,7 @@ def fit_divergence(ortho: FitResult, lens_fit: FitResult, lens: View, refit) -> 
     fits.append((u_lens / 2.0, through(u_lens / 2.0)))
     prof = profile_now()
     u_far = min(2.0 * u_lens, divergence(MAX_FOV_DEG) * 0.5)
-    if math.isfinite(prof.u) and prof.u >= u_lens * 0.999:
+    if prof.above:
         fits.append((u_far, through(u_far)))
         prof = profile_now()
     for _ in range(2):
@@ -257,7 +269,7 @@ def fit_divergence(ortho: FitResult, lens_fit: FitResult, lens: View, refit) -> 
                         for w in out.warnings]
         return out
     at(prof.u, 0.25 * prof.stderr)
-    again = profile_now()  # with the refit at the minimum among the lowest three
+    again = profile_now()  # with the refit at the minimum beside its neighbours
     prof = again if again.constrained else prof
     u_star, fit = min(((u, f) for u, f in fits if math.isfinite(_chi2(f))), key=lambda p: abs(p[0] - prof.u))
     used = [p for p in fits if any(p[0] == v for v in prof.points) and math.isfinite(_chi2(p[1]))]

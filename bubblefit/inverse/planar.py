@@ -687,6 +687,34 @@ def _verdict(warnings: list[str], order, chi2_floor: float) -> bool:
     return ok
 
 
+def _map_start(kind, scene, view, y, lum, cost, best, grid, region, ref_nm, fringe_nm, window, sigma2, warnings):
+    """A thickness map's (or Newton's rings') per-pixel start: ``(dpix, order_from,
+    map_profile)``. The order comes from the reference region or the film's own profile
+    (:func:`_order_seeds`) and is carried to every pixel by :func:`_propagate` along the
+    film's continuity; rings whose dark fringes stray light fills in show no dark contact
+    point and start from each pixel's best match (the rings' model, :func:`._newton.fit_newton`,
+    finds its own start from their symmetry and period). Pixels the propagation does not
+    reach keep their best match, with a warning appended to ``warnings``."""
+    mask = view.mask
+    try:
+        seeds, order_from, map_profile = _order_seeds(y, lum, cost, best, grid, mask, region, ref_nm, grid[0],
+                                                      fringe_nm, window, view.height if scene.light == "area" else None)
+    except InputError:
+        if kind != "newton":
+            raise
+        seeds, map_profile = None, None
+    if seeds is None:
+        dmap, order_from = _on_image(mask, best.astype(np.float64), np.nan), "rings"
+    else:
+        dmap = _propagate(cost, grid, mask, seeds, window, smooth=3.0 * sigma2 / window ** 2,
+                          relax_weight=3.0 * sigma2 / RELAX_NM ** 2)
+    dpix = dmap[mask]
+    if not np.all(np.isfinite(dpix)):
+        warnings.append(f"{int((~np.isfinite(dpix)).sum())} film pixels are not connected to the reference")
+        dpix = np.where(np.isfinite(dpix), dpix, best)
+    return dpix, order_from, map_profile
+
+
 def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=None,
                kind: str | None = None, seed: int = 0, clip_high: float = np.inf) -> PlanarResult:
     """Fit a flat film's or a gap's thickness to a linear photo (H, W, 3) (the module's method).
@@ -736,26 +764,8 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         # must show as a misfit against the noise, not set the noise
         dpix = best.astype(np.float64)
     else:
-        try:
-            seeds, order_from, map_profile = _order_seeds(y, lum, cost, best, grid, mask, region, ref_nm, lo,
-                                                          fwd.fringe_nm, window,
-                                                          view.height if scene.light == "area" else None)
-        except InputError:
-            if kind != "newton":
-                raise
-            # rings whose dark fringes light that does not interfere fills in show no dark
-            # contact point; the rings' model needs none (its start is then the rings'
-            # symmetry and period, :func:`._newton.fit_newton`): each pixel's best match
-            seeds = None
-        if seeds is None:
-            dmap, order_from = _on_image(mask, best.astype(np.float64), np.nan), "rings"
-        else:
-            dmap = _propagate(cost, grid, mask, seeds, window, smooth=3.0 * sigma2 / window ** 2,
-                              relax_weight=3.0 * sigma2 / RELAX_NM ** 2)
-        dpix = dmap[mask]
-        if not np.all(np.isfinite(dpix)):
-            warnings.append(f"{int((~np.isfinite(dpix)).sum())} film pixels are not connected to the reference")
-            dpix = np.where(np.isfinite(dpix), dpix, best)
+        dpix, order_from, map_profile = _map_start(kind, scene, view, y, lum, cost, best, grid, region, ref_nm,
+                                                   fwd.fringe_nm, window, sigma2, warnings)
 
     dref, jj_, model = _refine(fwd, y, lum, sin2, dpix, gain, lo, hi, clip_high)
     # exposure by least squares on the refined thickness, then refine once more

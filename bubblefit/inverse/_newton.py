@@ -26,8 +26,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._planar_lm import ModelFit, fit_colours, fit_order
+from ..model.planar_scene import STRAY_DEFAULT
 
-__all__ = ["STRAY_DEFAULT", "colour_start", "fit_newton", "lost_rings_warning", "newton_gap", "rings_centre", "rings_period"]
+__all__ = ["colour_start", "fit_newton", "lost_rings_warning", "newton_gap", "rings_centre", "rings_period"]
 
 
 def newton_gap(r_um, radius_um, h0_nm):
@@ -212,12 +213,6 @@ def lost_rings_warning(start_span_nm: float, fitted_span_nm: float, fringe_nm: f
             f"across the photo where its rings' period without colour spans {start_span_nm / fringe_nm:.1f} "
             f"(R = {start_radius_um / 1000.0:.4g} mm): the fit lost the rings (fringes fainter than the model's, "
             "from stray light or the lamp's fall-off, are fitted better by a nearly uniform gap); R is not the lens's")
-
-
-#: What the ``newton`` model does with light that does not interfere (``stray`` of the
-#: scene's ``[film]``): ``"fit"`` (a free grey reflectance ``>= 0``) or a number (that
-#: reflectance, fixed; 0: none).
-STRAY_DEFAULT = "fit"
 
 
 def _linear_exposure(unit, white, y, fit_stray: bool) -> tuple[float, float]:

@@ -62,6 +62,7 @@ import numpy as np
 
 from ..errors import ComputationError, InputError
 from ..lighting import coaxial
+from ..model.planar_scene import STRAY_DEFAULT
 from ..optics import dispersion, spectral
 from ._censored import BLACK_CLIP, censored_residual
 from ._drainage_plane import EXPONENT_RANGE, film_height, fit_drainage
@@ -797,7 +798,7 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         res = censored_residual(y, model, clip_high, np)
         warnings.extend(_exponent_at_edge(params["exponent"]))
     if kind == "newton":
-        from ._newton import STRAY_DEFAULT, fit_newton
+        from ._newton import fit_newton
 
         # the scene's stray light where it names the newton model, else the model's default
         stray = scene.stray if scene.thickness == "newton" else STRAY_DEFAULT

@@ -42,10 +42,16 @@ from ..lighting.area import Patch, check_light_faces
 from ..lighting.coaxial import Stack
 from ..optics import dispersion
 
-__all__ = ["PlanarScene", "film_kind_and_range", "scene_fit", "is_area_sphere", "is_planar", "load_planar",
+__all__ = ["PlanarScene", "STRAY_DEFAULT", "film_kind_and_range", "scene_fit", "is_area_sphere", "is_planar", "load_planar",
            "parse_area_light", "parse_cap", "parse_planar", "parse_region"]
 
 THICKNESS_KINDS = ("map", "newton", "constant", "drainage")
+
+
+#: What the ``newton`` model does with light that does not interfere (``[film] stray``):
+#: ``"fit"`` (a free grey reflectance ``>= 0``) or a number (that reflectance, fixed; 0:
+#: none). The scene's default and :func:`bubblefit.inverse._newton.fit_newton`'s.
+STRAY_DEFAULT = "fit"
 
 
 @dataclass(frozen=True)
@@ -63,7 +69,7 @@ class PlanarScene:
     reference: str = "thinnest"
     reference_region: tuple | None = None   # (x0, y0, x1, y1) pixels, half-open
     reference_nm: float | None = None
-    stray: object = "fit"                   # "fit" or a fixed grey reflectance (newton only)
+    stray: object = STRAY_DEFAULT           # "fit" or a fixed grey reflectance (newton only)
     na: float = 0.0
     pixel_um: float = 1.0
     camera: object | None = None            # PerspectiveCamera for an area light
@@ -205,7 +211,7 @@ def _lamp(value, base: Path, where: str) -> str:
 def _stray(f: dict, kind: str):
     """``[film] stray``: ``"fit"`` or a fixed reflectance in [0, 1] for ``"newton"``; 0 for
     the other models, which refuse any other value in one line."""
-    value = f.get("stray", "fit" if kind == "newton" else 0.0)
+    value = f.get("stray", STRAY_DEFAULT if kind == "newton" else 0.0)
     if kind != "newton":
         if value != 0:
             raise InputError(f'film.stray applies to thickness = "newton" only (got {value!r} for "{kind}": under '

@@ -13,8 +13,9 @@ the reasons (the colour check's statistic and the order test's difference).
 inputs of the response's Jacobian. ``--redraw N`` then fits nothing: for each case it draws
 the photo's noise ``N`` times again (tests/helpers.py's film_noise on the noise-free render)
 and tests each draw against the render the fit kept (not refitted: a refit absorbs a little
-of each draw), with the colour check's cells split by the optical path (the fit's) and
-without (``path`` None): how often each flags the case.
+of each draw), with the fit's colour check (its cells split by the optical path and the
+path's bins pooled over the film, ``pooled``) and with the grid's cells alone (``path``
+None): how often each flags the case.
 
 Usage: ``PYTHONPATH=. python experiments/camera_mismatch.py --cases "Sigma:Nikon:film:1500,Nikon:Nikon:film:1500"
 [--json OUT] [--arrays DIR] [--redraw N]``; a case is ``photo camera:calibrated camera:source:thickness``.
@@ -36,7 +37,8 @@ sys.path.insert(0, os.path.dirname(__file__))
 from helpers import FILM_PHOTO_DISC as DISC, film_photo  # noqa: E402
 from calibrated_camera import airy, courtyard, sensitivities  # noqa: E402  (the same calibration)
 
-CAMERAS = {"Nikon": "Nikon 5100 (NPL)", "Sigma": "Sigma SDMerill (NPL)"}
+CAMERAS = {"Nikon": "Nikon 5100 (NPL)", "Sigma": "Sigma SDMerill (NPL)",
+           "sRGB": "srgb"}  # sRGB: the CIE 1931 observer through the sRGB matrix, photos only
 SEEDS = {300.0: 31, 600.0: 32, 1000.0: 33, 1300.0: 34, 1500.0: 35}
 
 
@@ -85,7 +87,7 @@ def redraw(case: str, folder: str, draws: int, env) -> dict:
     out = {"case": case, "thickness": d, "cells": {}, "grid": [], "path": []}
     for _ in range(draws):
         photo = film_noise(clean, rng)
-        for name, kw in (("grid", {}), ("path", {"path": path})):
+        for name, kw in (("grid", {}), ("path", {"path": path, "pooled": True})):
             c = colour_check(photo, z["render"], use, z["sigma"], response_jac=None if jac is None else cached, **kw)
             out[name].append(c.chi2_per_dof / c.threshold_per_dof)
             out["cells"][name] = c.cells

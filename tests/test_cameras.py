@@ -846,11 +846,46 @@ def test_the_verdict_splits_the_cells_by_the_fitted_films_path():
     photo = truth + 0.004 * (np.cos(turn)[..., None] * u + np.sin(turn)[..., None] * v)
     photo = photo + sigma * np.random.default_rng(3).normal(size=truth.shape)
     ok, warnings, record = judge_colours(True, [], photo, truth, mask, cos, sigma, thickness=1500.0, n_film=1.33)
-    direct = colour_check(photo, truth, mask & (cos > INNER_COS), sigma, path=path)
+    direct = colour_check(photo, truth, mask & (cos > INNER_COS), sigma, path=path, pooled=True)
     assert record["cells"] == direct.cells and record["chi2_per_dof"] == pytest.approx(direct.chi2_per_dof, rel=1e-6)
+    assert record["partition"] == direct.partition
     assert not ok and not record["consistent"], record
     _, _, unsplit = judge_colours(True, [], photo, truth, mask, cos, sigma)
-    assert unsplit["cells"] < record["cells"], (unsplit, record)
+    split = colour_check(photo, truth, mask & (cos > INNER_COS), sigma, path=path)
+    assert unsplit["partition"] == "cells" and unsplit["cells"] < split.cells, (unsplit, split)
+
+
+def test_colour_check_pools_each_path_over_the_film():
+    """``pooled``: a constant film's hue error is a function of its optical path alone, so
+    the path's bins pooled over the whole film keep it (each bin of 95 nm keeps at least
+    sinc(95 / 500) = 0.94 of an error of period 500 nm) and hold it in about 2 x 15
+    degrees of freedom (the 1500 nm film's path spans ~1360 nm) instead of the ~2 x 150
+    of the grid's cells split by path. An error of 0.35 noise sigma per pixel over
+    N ~ 1280 pixels has a non-centrality of up to 0.94^2 0.35^2 N ~ 140: against 30
+    degrees of freedom (threshold ~2.1 per degree at 5e-4) the pooled statistic reads
+    ~5.7 per degree, against 300 (threshold ~1.3) the split ~1.5; so the pooled partition
+    is reported, over twice its threshold, and the check fails on every draw. The right
+    render: the union of the two partitions, each at half the false-alarm rate, fails at
+    most at the rate 1e-3 (0.1 of 100 expected; at most 2)."""
+    from bubblefit.inverse.colour_check import colour_check
+
+    truth, mask = _smooth_colours()
+    path = _thick_film_path()
+    sigma = 0.004 * np.ones_like(truth)
+    u, v = np.array([1.0, -1.0, 0.0]) / np.sqrt(2.0), np.array([1.0, 1.0, -2.0]) / np.sqrt(6.0)
+    turn = 2 * np.pi * path / 500.0
+    error = 0.35 * 0.004 * (np.cos(turn)[..., None] * u + np.sin(turn)[..., None] * v)
+    fails = 0
+    for seed in range(100):
+        noise = sigma * np.random.default_rng(seed).normal(size=truth.shape)
+        fails += not colour_check(truth + noise, truth, mask, sigma, floor=0.0, chroma_floor=0.0, path=path,
+                                  pooled=True).consistent
+        if seed < 5:
+            c = colour_check(truth + error + noise, truth, mask, sigma, floor=0.0, chroma_floor=0.0, path=path,
+                             pooled=True)
+            assert not c.consistent and c.partition == "path" and c.chi2_per_dof > 2.0 * c.threshold_per_dof, c
+            assert 10 <= c.cells <= 20, c
+    assert fails <= 2, fails
 
 
 def _draining_film_colours(camera: str, lamp: str | None = None, n: int = 64):

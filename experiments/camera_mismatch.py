@@ -15,7 +15,8 @@ the photo's noise ``N`` times again (tests/helpers.py's film_noise on the noise-
 and tests each draw against the render the fit kept (not refitted: a refit absorbs a little
 of each draw), with the fit's colour check (its cells split by the optical path and the
 path's bins pooled over the film, ``pooled``) and with the grid's cells alone (``path``
-None): how often each flags the case.
+None): how often each flags the case; ``--refit lowest:K`` (or ``first:K``) then fits the
+draws the check passes first (or the first ``K``) again, to ``--refit-json``.
 
 Usage: ``PYTHONPATH=. python experiments/camera_mismatch.py --cases "Sigma:Nikon:film:1500,Nikon:Nikon:film:1500"
 [--json OUT] [--arrays DIR] [--redraw N]``; a case is ``photo camera:calibrated camera:source:thickness``.
@@ -99,6 +100,40 @@ def redraw(case: str, folder: str, draws: int, env) -> dict:
     return out
 
 
+def refit(case: str, csv: str, which: str, record: dict, env) -> list:
+    """Fit again (as :func:`main` does) the noise draws of ``case`` that :func:`redraw`
+    drew (the same generator, seeded 2000): ``which`` ``lowest:K``, the ``K`` with the
+    lowest fit's-check statistic in ``record`` (those the check passes first), or
+    ``first:K``, the first ``K``. A refit absorbs a little of each draw: the fit's own
+    verdict and thickness on the photos the redraws only tested."""
+    from helpers import film_noise
+    from bubblefit.capture.view import ORTHOGRAPHIC
+    from bubblefit.inverse import starts
+    from bubblefit.inverse.fit import FitOptions, fit_photo
+
+    photo_cam, _, _, t = case.split(":")
+    t = float(t)
+    how, k = which.split(":")
+    idx = list(range(int(k))) if how == "first" else [int(i) for i in np.argsort(record["path"])[:int(k)]]
+    clean, _ = film_photo(env, t, SEEDS[t], CAMERAS[photo_cam], "E", noise=False)
+    _, bg = film_photo(env, t, SEEDS[t], CAMERAS[photo_cam], "E")
+    rng = np.random.default_rng(2000)
+    draws = [film_noise(clean, rng) for _ in range(max(idx) + 1)]
+    rows = []
+    for i in idx:
+        r = fit_photo(draws[i], env, background=bg, options=FitOptions(
+            disc=DISC, parameters=starts(t=0.968, roughness=0.04), model="paper", camera_response=csv,
+            illuminant="E", view=ORTHOGRAPHIC))
+        col, order = r.colour_check or {}, r.order_check or {}
+        rows.append(dict(case=case, draw=i, redraw_statistic=record["path"][i], truth=t,
+                         thickness=r.params["thickness_nm"], stderr=r.stderr.get("thickness_nm"),
+                         stderr_camera=(r.stderr_camera or {}).get("thickness_nm"), ok=r.ok, colour=col, order=order))
+        print(f"{case:28s} draw {i:3d} -> {rows[-1]['thickness']:7.1f} nm (SE {rows[-1]['stderr']:.2f}) ok={r.ok!s:5} "
+              f"colour {col.get('chi2_per_dof', float('nan')):.2f}/{col.get('threshold_per_dof', float('nan')):.2f} "
+              f"({col.get('partition')}) order {order.get('delta_chi2', float('nan')):.1f}", flush=True)
+    return rows
+
+
 def main():
     import bubblefit.inverse.fit as fitmod
     from bubblefit.capture.view import ORTHOGRAPHIC
@@ -111,6 +146,9 @@ def main():
     ap.add_argument("--arrays", help="save each fit's colour-check inputs to DIR/<case>.npz")
     ap.add_argument("--csv-dir", help="keep the calibrated CSVs here")
     ap.add_argument("--redraw", type=int, default=0, help="noise draws per case against the saved fits (--arrays)")
+    ap.add_argument("--refit", help="with --redraw: fit again its draws 'lowest:K' (the K the check passes first) "
+                    "or 'first:K'; written to --refit-json")
+    ap.add_argument("--refit-json")
     a = ap.parse_args()
     env = courtyard()
     folder = a.csv_dir or tempfile.mkdtemp()
@@ -118,7 +156,12 @@ def main():
     if a.arrays:
         os.makedirs(a.arrays, exist_ok=True)
     if a.redraw:
-        return save([redraw(case, a.arrays, a.redraw, env) for case in a.cases.split(",")], a.json)
+        records = [redraw(case, a.arrays, a.redraw, env) for case in a.cases.split(",")]
+        save(records, a.json)
+        if a.refit:
+            save([row for rec in records for row in refit(rec["case"], calibrate(rec["case"].split(":")[1], folder)[
+                rec["case"].split(":")[2]], a.refit, rec, env)], a.refit_json)
+        return None
     seen = {}
     judge = fitmod.judge_colours
 

@@ -347,7 +347,7 @@ def table(out):
         mask = arr["mask"] & (arr["cos"] > INNER_COS)
         me = float(arr["model_error"]) if "model_error" in arr else 0.03  # JudgeSettings.model_error's default
         path = arr["path"] if "path" in arr else None  # cells split by the optical path where saved
-        c = colour_check(arr["photo"], arr["render"], mask, arr["sigma"], model_error=me, path=path)
+        c = colour_check(arr["photo"], arr["render"], mask, arr["sigma"], model_error=me, path=path, pooled=path is not None)
         plain = c.chi2_per_dof  # the response taken as exact
         if (meta.get("fit_record") or {}).get("response_errors"):
             # a calibrated response: the fit's check held its errors (not saved here), so its record stands
@@ -355,7 +355,7 @@ def table(out):
         k = kind(meta)
         rows.append(dict(case=meta["name"], kind=k, right=meta["right"], truth=meta.get("truth"),
                          thickness=meta.get("thickness"), statistic=c.chi2_per_dof, threshold=c.threshold_per_dof,
-                         cells=c.cells, noise_scale=c.noise_scale, consistent=c.consistent,
+                         cells=c.cells, partition=c.partition, noise_scale=c.noise_scale, consistent=c.consistent,
                          reduced_chi2=meta.get("chi2"), statistic_response_exact=plain))
         fitted = np.round(np.atleast_1d(meta.get("thickness") if meta.get("thickness") is not None else np.nan), 1)
         print(f"{meta['name']:48s} {k:10s} truth {meta.get('truth')!s:>20} fit {fitted!s:>24} stat "

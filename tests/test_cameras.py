@@ -644,9 +644,10 @@ def test_another_cameras_film_calibration_is_not_ok(small_courtyard):
     patches first) reads about 1656 nm, 0.7 of a fringe off and no order error, with a
     1.5 nm error bar. Its hue error turns with the optical path, which a 6 x 6 cell of this
     disc spans a fringe of: the colour check's parts split by the path
-    (``colour_check.PATH_BIN``) see it, and the fit is not ok with the camera's warning
-    (docs/cameras.md: 85 of 100 noise draws of this photo flagged, 15 with the cells alone;
-    this draw among them, 1.45 against 1.32)."""
+    (``colour_check.PATH_BIN``) and its path bins pooled over the film see it, and the fit
+    is not ok with the camera's warning (docs/cameras.md: 95 of 100 noise draws of this
+    photo flagged, 15 with the cells alone; this draw among them, flagged by both
+    partitions, each near 1.08 of its threshold)."""
     import tempfile
 
     from bubblefit.capture.camera_calibration import fit_response
@@ -671,7 +672,7 @@ def test_another_cameras_film_calibration_is_not_ok(small_courtyard):
             illuminant="E", view=ORTHOGRAPHIC))
     check = r.colour_check
     assert abs(r.params["thickness_nm"] - 1500.0) > 10 * r.stderr["thickness_nm"], (r.params, r.stderr)
-    assert not r.ok and not check["consistent"] and check["cells"] > 64, (check, r.warnings)
+    assert not r.ok and not check["consistent"], (check, r.warnings)
     assert any("camera response" in w and "calibrate-camera" in w for w in r.warnings), r.warnings
 
 

@@ -9,6 +9,8 @@ a Gaussian spot of the lamp is one.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from test_newton_stray import PITCH_UM, _scene_data
@@ -94,3 +96,35 @@ def test_rings_under_a_lamp_spot(tmp_path):
     assert not flat.ok
     assert any("lost the rings" in w_ for w_ in flat.warnings)
     assert not 1.0 / LOST_RINGS_RATIO < flat.params["radius_mm"] / (radius_um / 1000.0) < LOST_RINGS_RATIO
+
+
+def test_flat_field_turns_the_automatic_envelope_off(tmp_path, monkeypatch):
+    """``fit --scene RINGS.toml --flat FLAT``: the photo divided by its flat field has the
+    lamp's envelope divided out, so the scene's ``envelope = "auto"`` reaches the fit as
+    ``"none"``; without ``--flat`` it stays ``"auto"``. (The fit itself is replaced by one
+    that records the scene it is given.)"""
+    import bubblefit.inverse.planar as planar
+    from bubblefit.cli import build_parser
+    from bubblefit.cli.fit_planar import run_planar
+    from bubblefit.io.images import write_image
+
+    gap_scene = (Path(__file__).resolve().parent.parent / "experiments" / "validation" / "data"
+                 / "film_newton_bk7_na010" / "scene.toml")
+    write_image(tmp_path / "p.exr", np.full((128, 128, 3), 0.4), bit_depth=32)
+    write_image(tmp_path / "f.exr", np.full((128, 128, 3), 0.8), bit_depth=32)
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def record(photo, scene, **kwargs):
+        seen.append(scene.envelope)
+        raise Stop
+
+    monkeypatch.setattr(planar, "fit_planar", record)
+    for flags in ((), ("--flat", tmp_path / "f.exr")):
+        args = build_parser().parse_args(["fit", str(tmp_path / "p.exr"), "--scene", str(gap_scene),
+                                          *map(str, flags)])
+        with pytest.raises(Stop):
+            run_planar(args)
+    assert seen == ["auto", "none"]

@@ -24,13 +24,15 @@ What is run, for each ring photo with a stated radius:
    response CSV of three equal flat channels, so every channel is the one 589 nm
    intensity; the ``newton`` model of docs/films.md (air gap between BK7 glasses,
    coaxial light, NA 0.02), with its default stray reflectance fitted (``stray = "fit"``:
-   light that does not interfere).
+   light that does not interfere) and its default lamp envelope (``envelope = "auto"``:
+   the lamp's fall-off across the field, fitted where the rings span enough fringes).
 3. The yardstick on the same photo: the textbook line ``D_k^2 = 4 k lambda R + c`` through
    the students' ring diameters (k = 5..14, lambda = 589.3 nm), least squares, its slope's
    standard error from the residuals.
 
-Run: ``python experiments/real_photos.py [--from DIR] [--only 1000]`` (about 15 min per
-photo on the 2-core machine).
+Run: ``python experiments/real_photos.py [--from DIR] [--only 1000] [--range-nm 20000]``
+(4-7 min per photo on the 2-core machine; with ``--range-nm 20000`` 6 min and 12 GB of
+memory).
 """
 
 from __future__ import annotations
@@ -65,7 +67,7 @@ n = "air"
 above = "bk7"
 below = "bk7"
 thickness = "newton"
-range_nm = [0.0, 4000.0]
+range_nm = [0.0, {range_hi:.1f}]
 
 [light]
 type = "coaxial"
@@ -149,7 +151,10 @@ def run_fit(photo: Path, scene: Path, work: Path, tag: str) -> dict:
     t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, "-m", "bubblefit", "fit", str(photo), "--scene", str(scene),
                            "--json", str(js)], capture_output=True, text=True, cwd=work)
-    rec = {"exit": proc.returncode, "seconds": round(time.perf_counter() - t0, 1), "message": proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else ""}
+    message = proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else ""
+    for folder in {str(work.resolve()), str(work)}:  # the record names files as the work folder holds them
+        message = message.replace(folder.rstrip("/") + "/", "")
+    rec = {"exit": proc.returncode, "seconds": round(time.perf_counter() - t0, 1), "message": message}
     if proc.returncode == 0:
         out = json.loads(js.read_text())
         rec.update({k: out.get(k) for k in ("ok", "warnings", "params", "stderr", "reduced_chi2",
@@ -174,9 +179,18 @@ def ring_spans(rec: dict) -> dict:
     return {"start": start / fringe, "fit": float(np.ptp(fit)) / fringe}
 
 
-def _recorded() -> dict:
-    """The records in ``real_photos.json`` by stated radius (empty without one)."""
-    path = OUT / "real_photos.json"
+#: The scene's searched range's top (nm): the default; another (``--range-nm``) writes its
+#: records beside, in ``real_photos_range<HI>.json``.
+RANGE_NM = 4000.0
+
+
+def _record_path(range_hi: float) -> Path:
+    return OUT / ("real_photos.json" if range_hi == RANGE_NM else f"real_photos_range{range_hi:g}.json")
+
+
+def _recorded(range_hi: float = RANGE_NM) -> dict:
+    """The records in :func:`_record_path` by stated radius (empty without one)."""
+    path = _record_path(range_hi)
     return {p["stated_radius_mm"]: p for p in json.loads(path.read_text())["photos"]} if path.exists() else {}
 
 
@@ -186,6 +200,9 @@ def main() -> int:
                     help="a folder holding the ring photos (牛顿环_<R>.jpg) instead of fetching them")
     ap.add_argument("--only", type=int, nargs="*", default=sorted(DIAMETERS))
     ap.add_argument("--work", type=Path, default=Path("real_photos_work"))
+    ap.add_argument("--range-nm", type=float, default=RANGE_NM,
+                    help="the top of the scene's searched gap range (nm); the model's gap is clipped there. "
+                         "Beyond 4000 the record goes to real_photos_range<HI>.json (20000: 12 GB peak memory)")
     ap.add_argument("--start-only", action="store_true",
                     help="only the colour-free start (seconds), merged into the existing record")
     args = ap.parse_args()
@@ -193,17 +210,17 @@ def main() -> int:
     sodium_lamp(args.work / "sodium.csv")
     (args.work / "grey.csv").write_text("wavelength_nm,r,g,b\n" + "".join(f"{l},1,1,1\n" for l in range(380, 781, 5)))
     pixel_um = 2 * MM_PER_PX * 1000.0
-    (args.work / "colour.toml").write_text(SCENE.format(pixel_um=pixel_um / 2, response="").replace(
+    (args.work / "colour.toml").write_text(SCENE.format(pixel_um=pixel_um / 2, response="", range_hi=args.range_nm).replace(
         "width = 320\nheight = 240", "width = 640\nheight = 480"))
-    (args.work / "grey.toml").write_text(SCENE.format(pixel_um=pixel_um, response='response = "grey.csv"\n'))
+    (args.work / "grey.toml").write_text(SCENE.format(pixel_um=pixel_um, response='response = "grey.csv"\n', range_hi=args.range_nm))
     records = []
-    old = _recorded()
+    old = _recorded(args.range_nm)
     for radius in args.only:
         jpg = fetch(radius, args.source, args.work)
         grey_photo(jpg, args.work / f"rings_{radius}_grey.png")
         start = rings_start(args.work / f"rings_{radius}_grey.png", pixel_um, radius)
         if args.start_only:
-            records.append({**old[radius], "start": start})
+            records.append({**old.get(radius, {}), "start": start})
             print(radius, start)
             continue
         r_text, se_text = textbook_radius(radius)
@@ -216,13 +233,13 @@ def main() -> int:
         records.append(rec)
         print(json.dumps(rec, indent=1, ensure_ascii=False))
     OUT.mkdir(parents=True, exist_ok=True)
-    old = _recorded()  # read again: the photos not run keep their records (one photo at a time: --only R)
+    old = _recorded(args.range_nm)  # read again: the photos not run keep their records (one photo at a time: --only R)
     new = {r["stated_radius_mm"]: r for r in records}
     records = [new.get(r, old.get(r)) for r in sorted(set(old) | set(new))]
     for rec in records:
         if rec.get("grey", {}).get("params"):
             rec["spans_fringes"] = ring_spans(rec)
-    (OUT / "real_photos.json").write_text(json.dumps({"script": "experiments/real_photos.py", "photos": records},
+    _record_path(args.range_nm).write_text(json.dumps({"script": "experiments/real_photos.py", "photos": records},
                                                      indent=1, ensure_ascii=False) + "\n")
     return 0
 

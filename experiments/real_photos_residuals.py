@@ -14,7 +14,9 @@ linear once the gap is given, ``photo ~ E (g R(h) + c)`` (``c = g b``):
   intensity, Born and Wolf sec. 7.5.1);
 * ``E`` = 1 (a uniform lamp, the ``newton`` model's) or the lamp's envelope: ``exp`` of a
   quadratic in the pixel coordinates fitted to the log of the photo's local mean (a
-  Gaussian of 8 pixels, wider than the fringes): a Gaussian spot of the lamp.
+  Gaussian of 8 pixels, wider than the fringes): a Gaussian spot of the lamp; or the
+  envelope the full fit found with the rings (``fitted``,
+  :func:`bubblefit.inverse._newton.lamp_envelope` of its coefficients).
 
 Run after ``experiments/real_photos.py`` (which writes the grey photos into its work
 folder): ``python experiments/real_photos_residuals.py [--work real_photos_work]``; writes
@@ -70,6 +72,7 @@ def _mse(refl, env, lin, keep, stray: bool) -> tuple[float, float]:
 
 
 def main() -> int:
+    from bubblefit.inverse._newton import ENVELOPE_TERMS, envelope_coordinates, lamp_envelope
     from bubblefit.optics import dispersion
     from bubblefit.optics.film import airy_reflectance
 
@@ -95,6 +98,10 @@ def main() -> int:
         yy, xx = np.mgrid[0:h, 0:w]
         x, y = (xx + 0.5) * pitch, (yy + 0.5) * pitch
         envs = {"uniform": np.ones_like(lin), "envelope": _envelope(lin)}
+        g = rec.get("grey", {}).get("params")
+        if g and g.get("envelope_ratio", 1.0) != 1.0:  # the full fit's own lamp envelope
+            u, v = envelope_coordinates(x.ravel(), y.ravel())
+            envs["fitted"] = np.asarray(lamp_envelope(u, v, [g[k] for k in ENVELOPE_TERMS]), np.float64).reshape(h, w)
         row = {"stated_radius_mm": rec["stated_radius_mm"], "photo_variance": float(lin[keep].var()),
                "envelope_max_over_min": float(envs["envelope"].max() / envs["envelope"].min()), "fits": []}
         s = rec["start"]
@@ -108,7 +115,6 @@ def main() -> int:
                                for h0 in np.arange(0.0, 0.5 * SODIUM_NM, 5.0))  # r2 um^2 / R mm = nm
                     row["fits"].append({"gap": what, "radius_mm": radius_mm, "lamp": env_name, "stray": stray,
                                         "mse": best[0], "b": best[1], "h0_nm": best[2]})
-        g = rec.get("grey", {}).get("params")
         if g:
             rf = g["radius_mm"] * 1000.0
             r2f = (x - g["center_x_um"]) ** 2 + (y - g["center_y_um"]) ** 2

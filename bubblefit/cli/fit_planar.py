@@ -9,6 +9,8 @@ previews with a colour bar in nm), ``PREFIX_render.exr`` and ``PREFIX_residual.e
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ..errors import ComputationError, InputError
@@ -78,6 +80,8 @@ def run_planar(args) -> int:
     guard_args(args, outputs=film_outputs(args))
     with stage("reading the photo"):
         photo, record = read_film_photo(args)
+    if getattr(args, "flat", None) and scene.envelope == "auto":
+        scene = replace(scene, envelope="none")  # the flat field has divided the lamp's envelope out
     with stage(f"fitting a flat film ({scene.stack.describe()}, {scene.light} light, {kind})"):
         result = fit_planar(photo.pixels[..., :3], scene, reference_region=region, reference_nm=nm, kind=kind,
                             clip_high=np.inf if photo.linear_file else 1.0)

@@ -8,7 +8,9 @@ started from a per-pixel map: the centre of the thinnest pixels, and ``R``, ``h0
 straight line of the map against ``r^2`` (``h ~ h0 + r^2 / (2 R)``) where the map is
 below half the searched range (:func:`colour_start`); where that map is ambiguous (one
 wavelength: every dark ring looks like the contact point), also from the rings' symmetry
-and period without colour (:func:`rings_centre`, :func:`rings_period`). With a calibrated
+and period without colour (:func:`rings_centre`, :func:`rings_period`). With them, a grey
+stray reflectance (light that does not interfere) and the lamp's smooth envelope across the
+field (:func:`lamp_envelope`) where the rings span enough fringes to fix it. With a calibrated
 response that states its errors, the rings' order (the contact offset's, one fringe either
 way) is tested
 (:func:`bubblefit.inverse._planar_lm.fit_order`).
@@ -26,9 +28,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._planar_lm import ModelFit, fit_colours, fit_order
-from ..model.planar_scene import STRAY_DEFAULT
+from ..model.planar_scene import ENVELOPE_DEFAULT, STRAY_DEFAULT
 
-__all__ = ["colour_start", "fit_newton", "lost_rings_warning", "newton_gap", "rings_centre", "rings_period"]
+__all__ = ["ENVELOPE_TERMS", "colour_start", "envelope_coordinates", "fit_newton", "lamp_envelope",
+           "lost_rings_warning", "newton_gap", "rings_centre", "rings_period"]
 
 
 def newton_gap(r_um, radius_um, h0_nm):
@@ -126,15 +129,67 @@ def rings_period(r2, value, r2_min_period: float) -> tuple[float, float]:
 ENVELOPE_PX = 3.0
 
 
-def _fringes(bright, mask) -> np.ndarray:
-    """The intensity over its local mean minus one (a Gaussian of :data:`ENVELOPE_PX`,
-    normalised over the film's pixels): the fringes without the lamp's envelope."""
+def _local_mean(bright, mask, width: float) -> np.ndarray:
+    """The film pixels' local mean of ``bright``: a Gaussian of ``width`` pixels normalised
+    over the film's pixels (a normalised convolution: pixels outside the film do not count)."""
     from scipy import ndimage
 
     img = np.zeros(mask.shape)
     img[mask] = bright
-    env = ndimage.gaussian_filter(img, ENVELOPE_PX) / np.maximum(ndimage.gaussian_filter(mask * 1.0, ENVELOPE_PX), 1e-9)
-    return bright / np.maximum(env[mask], 1e-3 * float(np.max(bright))) - 1.0
+    return (ndimage.gaussian_filter(img, width) / np.maximum(ndimage.gaussian_filter(mask * 1.0, width), 1e-9))[mask]
+
+
+def _fringes(bright, mask) -> np.ndarray:
+    """The intensity over its local mean minus one (:func:`_local_mean`, a Gaussian of
+    :data:`ENVELOPE_PX`): the fringes without the lamp's envelope."""
+    return bright / np.maximum(_local_mean(bright, mask, ENVELOPE_PX), 1e-3 * float(np.max(bright))) - 1.0
+
+
+#: Names of the lamp envelope's coefficients (:func:`lamp_envelope`), in the fit's order.
+ENVELOPE_TERMS = ("envelope_x", "envelope_y", "envelope_xx", "envelope_xy", "envelope_yy")
+
+#: Fewest fringes the rings' gap must span across the photo for ``envelope = "auto"`` to
+#: fit the lamp's envelope with them. The envelope's quadratic has three coefficients
+#: along each line across the photo; the fringes' maxima (where the gap's reflectance is
+#: the same, ``R_max + b``) sample the lamp there, so three maxima along the line, three
+#: fringes, fix it apart from the gap; with fewer a gap sloping across a fraction of a
+#: fringe mimics the lamp's fall-off (the sodium photos of experiments/real_photos.py: a
+#: flat gap of 0.8 fringes fitted their fall-off).
+ENVELOPE_MIN_FRINGES = 3.0
+
+#: Width (pixels) of the local mean whose log the envelope's start is fitted to: wider than
+#: most fringes (1.5-20 pixels on the sodium photos of experiments/real_photos.py, their
+#: development cases), so that the mean holds the lamp and the fringes' mean reflectance.
+ENVELOPE_START_PX = 8.0
+
+
+def envelope_coordinates(x, y) -> tuple[np.ndarray, np.ndarray]:
+    """``(u, v)``: the film pixels' positions ``(x, y)`` about the photo's centre in units of
+    half its larger side (``u, v`` within [-1, 1]), the coordinates of :func:`lamp_envelope`."""
+    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+    half = 0.5 * max(float(np.ptp(x)), float(np.ptp(y)), 1e-12)
+    return (x - 0.5 * (x.max() + x.min())) / half, (y - 0.5 * (y.max() + y.min())) / half
+
+
+def lamp_envelope(u, v, coef):
+    """The lamp's relative irradiance across the field, ``E = exp(c1 u + c2 v + c3 u^2 +
+    c4 u v + c5 v^2)`` at :func:`envelope_coordinates` ``(u, v)`` (1 at the centre: the
+    exposure holds its scale). A Gaussian spot of the lamp, or a flat field's vignetting,
+    to second order in log (a smooth flat-field model; the two-beam intensity
+    ``I = E (R1 + R2 + 2 sqrt(R1 R2) cos delta)`` of Born and Wolf, *Principles of Optics*,
+    sec. 7.5, with ``E`` the lamp's irradiance where the pixel sees the film)."""
+    return jnp.exp(coef[0] * u + coef[1] * v + coef[2] * u * u + coef[3] * u * v + coef[4] * v * v)
+
+
+def _envelope_start(bright, mask, u, v) -> np.ndarray:
+    """The envelope's coefficients (:func:`lamp_envelope`) nearest, by least squares, the log
+    of the photo's local mean (:func:`_local_mean`, :data:`ENVELOPE_START_PX`), its
+    constant left to the exposure: where the fringes are many, their mean reflectance is
+    the same everywhere and the local mean follows the lamp."""
+    mean = _local_mean(bright, mask, ENVELOPE_START_PX)
+    a = np.column_stack([np.ones_like(u), u, v, u * u, u * v, v * v])
+    coef, *_ = np.linalg.lstsq(a, np.log(np.maximum(mean, 1e-3 * max(float(np.max(mean)), 1e-12))), rcond=None)
+    return coef[1:]
 
 
 def _rings_start(fwd, x, yy, bright, mask, pitch: float, lo: float, hi: float):
@@ -228,33 +283,44 @@ def _linear_exposure(unit, white, y, fit_stray: bool) -> tuple[float, float]:
 
 
 def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np.inf, iters: int = 40,
-               stray=STRAY_DEFAULT) -> ModelFit:
+               stray=STRAY_DEFAULT, envelope=ENVELOPE_DEFAULT) -> ModelFit:
     """Levenberg-Marquardt fit of ``(R, cx, cy, h0, g)`` (see the module), started from ``dmap``,
-    and of the stray reflectance ``b`` where ``stray == "fit"``.
+    of the stray reflectance ``b`` where ``stray == "fit"``, and of the lamp's envelope
+    where ``envelope`` says so.
 
-    The pixel's colour is ``g L rgb(R(h) + b)`` (:meth:`~bubblefit.inverse.planar.PlanarForward.rgb`):
+    The pixel's colour is ``g E(x, y) L rgb(R(h) + b)`` (:meth:`~bubblefit.inverse.planar.PlanarForward.rgb`):
     ``b`` is the grey reflectance of the light that reaches the camera without interfering
     (the lens's top and the plate's bottom reflect about 4 % each by Fresnel, nearly flat in
     wavelength: grey; scatter), added in intensity (Born and Wolf, sec. 7.5.1). The rings'
     maxima and minima fix ``g`` and ``b`` apart. Fitted, ``b`` is bounded at 0: a fit that
     takes it below is refitted with ``b = 0``, which is reported with the unbounded fit's
-    standard error. A number fixes ``b``."""
+    standard error. A number fixes ``b``.
+
+    ``E`` (:func:`lamp_envelope`, five coefficients :data:`ENVELOPE_TERMS`) is the lamp's
+    irradiance across the field, shared by the interfering and the stray light (one lamp):
+    ``"fit"`` fits it, ``"none"`` holds it at 1, ``"auto"`` fits it where the start's gap
+    spans :data:`ENVELOPE_MIN_FRINGES` fringes across the photo (then the fringes' maxima
+    and minima fix it apart from the gap). Its start is :func:`_envelope_start`.
+    ``envelope_ratio`` in the parameters is ``E``'s largest over its least value on the film."""
     fit_stray = stray == "fit"
     b_fixed = 0.0 if fit_stray else float(stray)
     x = view.x_um[mask]
     yy = view.y_um[mask]
     bright = y.sum(-1) / np.maximum(lum, 1e-9)
-    xj, yj, lj, sj, obs = (jnp.asarray(a) for a in (x, yy, lum, sin2, y))
+    u, v = envelope_coordinates(x, yy)
+    xj, yj, lj, sj, obs, uj, vj = (jnp.asarray(a) for a in (x, yy, lum, sin2, y, u, v))
 
-    def make_model(free: bool):
+    def make_model(free: bool, env: bool):
+        ie = 6 if free else 5  # the envelope's coefficients after the exposure (and b)
+
         def model(t):
             r = jnp.sqrt((xj - t[1]) ** 2 + (yj - t[2]) ** 2)
             h = jnp.clip(newton_gap(r, jnp.exp(t[0]), t[3]), lo, hi)
-            return jnp.exp(t[4]) * lj[:, None] * fwd.rgb(h, sj, t[5] if free else b_fixed)
+            out = jnp.exp(t[4]) * lj[:, None] * fwd.rgb(h, sj, t[5] if free else b_fixed)
+            return out * lamp_envelope(uj, vj, t[ie:ie + len(ENVELOPE_TERMS)])[:, None] if env else out
 
         return model
 
-    model = make_model(fit_stray)
     zero = jnp.zeros(sj.shape)
     white = np.asarray(lj[:, None] * (fwd.rgb(zero, sj, 1.0) - fwd.rgb(zero, sj)), np.float64)  # rgb of b = 1
 
@@ -268,18 +334,25 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
         pitch = float(np.median(np.abs(np.diff(np.unique(np.round(x, 6))))))
         rings = _rings_start(fwd, x, yy, bright, mask, pitch, lo, hi)
         starts.append(rings[:4])
+    env0 = _envelope_start(bright, mask, u, v) if envelope != "none" else np.zeros(len(ENVELOPE_TERMS))
+    e0 = np.asarray(lamp_envelope(u, v, env0), np.float64)[:, None]
     best = None
-    film_only = make_model(False) if b_fixed == 0.0 else None
+    film_only = make_model(False, False)  # the film's colours, b fixed (0 where it is fitted)
     for radius, cx, cy, h0 in starts:
         t = jnp.asarray([np.log(radius), cx, cy, h0, 0.0])
-        # the film's colours at unit exposure, the stray light added (fixed) or fitted with
-        # the exposure by least squares at each start
-        unit = np.asarray((film_only or model)(t), np.float64)
-        g, b = _linear_exposure(unit, white, y, fit_stray)
-        cost = float(np.sum((g * (unit + b * white) - y) ** 2))
+        span = float(np.ptp(np.asarray(newton_gap(jnp.sqrt((xj - cx) ** 2 + (yj - cy) ** 2), radius, h0))))
+        env = envelope == "fit" or (envelope == "auto" and span >= ENVELOPE_MIN_FRINGES * fwd.fringe_nm)
+        # the film's colours at unit exposure (under the envelope's start), the stray light
+        # added (fixed) or fitted with the exposure by least squares at each start
+        e = e0 if env else 1.0
+        unit = np.asarray(film_only(t), np.float64) * e
+        g, b = _linear_exposure(unit, white * e, y, fit_stray)
+        cost = float(np.sum((g * (unit + b * white * e) - y) ** 2))
         if best is None or cost < best[0]:
-            best = (cost, [np.log(radius), cx, cy, h0, np.log(g)] + ([b] if fit_stray else []))
-    theta = jnp.asarray(best[1])
+            best = (cost, [np.log(radius), cx, cy, h0, np.log(g)] + ([b] if fit_stray else [])
+                    + (list(env0) if env else []), env)
+    theta, env_on = jnp.asarray(best[1]), best[2]
+    model = make_model(fit_stray, env_on)
 
     def gap(t):
         return jnp.clip(newton_gap(jnp.sqrt((xj - t[1]) ** 2 + (yj - t[2]) ** 2), jnp.exp(t[0]), t[3]), lo, hi)
@@ -295,8 +368,8 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
         dof = max(len(r) // copies - len(theta), 1)
         b_se = float(np.sqrt(max(float(np.linalg.pinv(J.T @ J)[5, 5]) * cost / dof, 0.0)))
         fit_stray, b_fixed = False, 0.0
-        model = make_model(False)
-        theta, r, cost, J = fit_colours(model, obs, sigma, high, theta[:5], iters)
+        model = make_model(False, env_on)
+        theta, r, cost, J = fit_colours(model, obs, sigma, high, jnp.concatenate([theta[:5], theta[6:]]), iters)
     # the rings' order is the contact offset's: every ring moves with it (bubblefit.inverse.order_check)
     order = fit_order(fwd, model, gap, obs, sigma, high, (theta, r, cost, J), {"contact_offset_nm": 3}, sin2, lo, hi,
                       iters)
@@ -317,6 +390,18 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
               "center_y_um": float(se[2]), "contact_offset_nm": float(se[3]), "exposure": float(np.exp(t[4]) * se[4])}
     params["stray_reflectance"] = float(t[5]) if fit_stray else b_fixed
     stderr["stray_reflectance"] = float(se[5]) if fit_stray else (b_se if b_se is not None else 0.0)
+    ie = 6 if fit_stray else 5
+    for k, name in enumerate(ENVELOPE_TERMS):
+        params[name] = float(t[ie + k]) if env_on else 0.0
+        stderr[name] = float(se[ie + k]) if env_on else 0.0
+    params["envelope_ratio"], stderr["envelope_ratio"] = 1.0, 0.0
+    if env_on:  # max E / min E, its error from the coefficients' covariance (log E is linear in them)
+        basis = np.column_stack([u, v, u * u, u * v, v * v])
+        log_e = basis @ t[ie:ie + len(ENVELOPE_TERMS)]
+        d = basis[int(np.argmax(log_e))] - basis[int(np.argmin(log_e))]
+        c = cov[ie:ie + len(ENVELOPE_TERMS), ie:ie + len(ENVELOPE_TERMS)]
+        params["envelope_ratio"] = float(np.exp(np.ptp(log_e)))
+        stderr["envelope_ratio"] = params["envelope_ratio"] * float(np.sqrt(max(float(d @ c @ d), 0.0)))
     warnings = []
     if rings is not None:  # the gap across the photo, fitted and from the rings' period without colour
         r2s = (x - rings[1]) ** 2 + (yy - rings[2]) ** 2

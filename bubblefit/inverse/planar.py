@@ -33,8 +33,9 @@ Newton's rings (``thickness = "newton"``): a lens of radius ``R`` on a plate lea
 the start (centre of the thinnest pixels, ``R`` and ``h0`` from a line in ``r^2``) and
 Levenberg-Marquardt fits ``(R, cx, cy, h0, g)`` to the colours directly, with standard
 errors from ``sigma^2 (J^T J)^-1``; with them, by default, a grey reflectance ``b >= 0``
-added to the gap's, the light of the other surfaces that does not interfere
-(``y_p = g L_p rgb(R(h_p) + b)``; :func:`._newton.fit_newton`).
+added to the gap's, the light of the other surfaces that does not interfere, and where the
+rings span enough fringes the lamp's smooth envelope ``E`` across the field
+(``y_p = g E_p L_p rgb(R(h_p) + b)``; :func:`._newton.fit_newton`).
 
 With a calibrated response that states its errors, a constant film, a drainage profile,
 Newton's rings and a map whose order is its drainage profile's carry the order test of
@@ -62,7 +63,7 @@ import numpy as np
 
 from ..errors import ComputationError, InputError
 from ..lighting import coaxial
-from ..model.planar_scene import STRAY_DEFAULT
+from ..model.planar_scene import ENVELOPE_DEFAULT, STRAY_DEFAULT
 from ..optics import dispersion, spectral
 from ._censored import BLACK_CLIP, censored_residual
 from ._drainage_plane import EXPONENT_RANGE, film_height, fit_drainage
@@ -800,9 +801,11 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     if kind == "newton":
         from ._newton import fit_newton
 
-        # the scene's stray light where it names the newton model, else the model's default
-        stray = scene.stray if scene.thickness == "newton" else STRAY_DEFAULT
-        nres = fit_newton(fwd, y, lum, sin2, view, mask, dref, gain, sigma, lo, hi, clip_high, stray=stray)
+        # the scene's stray light and lamp envelope where it names the newton model, else the model's defaults
+        named = scene.thickness == "newton"
+        nres = fit_newton(fwd, y, lum, sin2, view, mask, dref, gain, sigma, lo, hi, clip_high,
+                          stray=scene.stray if named else STRAY_DEFAULT,
+                          envelope=scene.envelope if named else ENVELOPE_DEFAULT)
         params, perr = nres.params, nres.stderr
         dref, model, gain = nres.thickness, nres.model, nres.gain
         stderr, order = nres.thickness_stderr, nres.order

@@ -19,7 +19,11 @@ film or a gap is described by
     it is not told apart from the thickness.
 ``[light]``
     ``type = "coaxial"`` with ``na`` (the objective's numerical aperture) and ``lamp``
-    (``"D65"``, ``"3200K"``, a CSV ``wavelength_nm,power``); or ``type = "area"`` with
+    (``"D65"``, ``"3200K"``, a CSV ``wavelength_nm,power``); ``envelope`` (``"newton"``
+    only): the lamp's irradiance across the field, ``"auto"`` (the default: a smooth
+    envelope fitted with the rings where they span enough fringes across the photo to fix
+    it, :data:`bubblefit.inverse._newton.ENVELOPE_MIN_FRINGES`), ``"fit"`` (always) or
+    ``"none"`` (a uniform lamp, or a photo already divided by its flat field); or ``type = "area"`` with
     ``shape`` (``"rect"``/``"disc"``), ``center``, ``normal``, ``up``, ``size``,
     ``radiance`` and ``lamp``.
 ``[camera]``
@@ -42,7 +46,7 @@ from ..lighting.area import Patch, check_light_faces
 from ..lighting.coaxial import Stack
 from ..optics import dispersion
 
-__all__ = ["PlanarScene", "STRAY_DEFAULT", "film_kind_and_range", "scene_fit", "is_area_sphere", "is_planar", "load_planar",
+__all__ = ["ENVELOPE_CHOICES", "ENVELOPE_DEFAULT", "PlanarScene", "STRAY_DEFAULT", "film_kind_and_range", "scene_fit", "is_area_sphere", "is_planar", "load_planar",
            "parse_area_light", "parse_cap", "parse_planar", "parse_region"]
 
 THICKNESS_KINDS = ("map", "newton", "constant", "drainage")
@@ -52,6 +56,14 @@ THICKNESS_KINDS = ("map", "newton", "constant", "drainage")
 #: ``"fit"`` (a free grey reflectance ``>= 0``) or a number (that reflectance, fixed; 0:
 #: none). The scene's default and :func:`bubblefit.inverse._newton.fit_newton`'s.
 STRAY_DEFAULT = "fit"
+
+#: What the ``newton`` model does with the lamp's irradiance across the field (``[light]
+#: envelope``): ``"auto"`` (fitted where the rings span enough fringes to fix it),
+#: ``"fit"`` or ``"none"`` (uniform). The scene's default and
+#: :func:`bubblefit.inverse._newton.fit_newton`'s; ``fit-planar --flat`` turns ``"auto"``
+#: to ``"none"`` (the flat field has divided the lamp out).
+ENVELOPE_DEFAULT = "auto"
+ENVELOPE_CHOICES = ("auto", "fit", "none")
 
 
 @dataclass(frozen=True)
@@ -70,6 +82,7 @@ class PlanarScene:
     reference_region: tuple | None = None   # (x0, y0, x1, y1) pixels, half-open
     reference_nm: float | None = None
     stray: object = STRAY_DEFAULT           # "fit" or a fixed grey reflectance (newton only)
+    envelope: str = ENVELOPE_DEFAULT        # the lamp across the field: "auto" | "fit" | "none" (newton only)
     na: float = 0.0
     pixel_um: float = 1.0
     camera: object | None = None            # PerspectiveCamera for an area light
@@ -225,6 +238,20 @@ def _stray(f: dict, kind: str):
     return _num(f, "stray", "film", None, 0.0, 1.0)
 
 
+def _envelope(light: dict, kind: str) -> str:
+    """``[light] envelope``: one of :data:`ENVELOPE_CHOICES` for ``"newton"``; ``"none"`` for
+    the other models, which refuse any other value in one line."""
+    value = light.get("envelope", ENVELOPE_DEFAULT if kind == "newton" else "none")
+    if kind != "newton":
+        if value != "none":
+            raise InputError(f'light.envelope applies to thickness = "newton" only (got {value!r} for "{kind}": under '
+                             "one thickness or a per-pixel map, the lamp's fall-off is not told apart from the film)")
+        return "none"
+    if value not in ENVELOPE_CHOICES:
+        raise InputError(f'light.envelope must be one of {", ".join(map(repr, ENVELOPE_CHOICES))}, got {value!r}')
+    return value
+
+
 def parse_planar(data: dict, base_dir: str | os.PathLike = ".") -> PlanarScene:
     """The :class:`PlanarScene` of a parsed scene file; one-line errors for bad values."""
     from .geometry import PerspectiveCamera
@@ -248,7 +275,7 @@ def parse_planar(data: dict, base_dir: str | os.PathLike = ".") -> PlanarScene:
     lamp = _lamp(light.get("lamp", "D65"), base, "light.lamp")
     common = dict(stack=stack, lamp=lamp, response=response, width=width, height=height, thickness=kind,
                   thickness_range=(lo, hi), reference="region" if region else str(f.get("reference", "thinnest")),
-                  reference_region=region, reference_nm=ref_nm, stray=stray)
+                  reference_region=region, reference_nm=ref_nm, stray=stray, envelope=_envelope(light, kind))
     if common["reference"] not in ("thinnest", "region"):
         raise InputError(f'film.reference must be "thinnest" or a reference_region, got {f.get("reference")!r}')
     if light["type"] == "coaxial":

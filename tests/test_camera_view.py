@@ -541,3 +541,71 @@ def test_the_view_of_a_perspective_photo_is_fitted(small_courtyard):
     assert abs(cam["fitted_fov_deg"] - fov) < 3 * cam["fov_stderr_deg"], cam
     assert abs(out.params["thickness_nm"] - 520.0) < 3 * out.stderr["thickness_nm"], (out.params, out.stderr)
     assert "fov_deg" in out.names and np.all(np.isfinite(out.covariance))
+
+
+def _smoothed_noise(rng, h, w, kernel):
+    """White noise of ``(h, w)`` convolved with ``kernel`` (no wrap: cut from a larger field)."""
+    kh, kw = kernel.shape
+    z = rng.standard_normal((h + kh, w + kw))
+    f = np.fft.irfft2(np.fft.rfft2(z) * np.fft.rfft2(kernel, s=z.shape), s=z.shape)
+    return f[kh:, kw:]
+
+
+def _summed_variance(rho, radius, n):
+    """Bartlett's large-sample variance of the sample autocorrelation summed over the lags
+    within ``radius`` (rings rounded as correlation_area rounds them), ``n`` data:
+    ``(2/n) sum_{k,k' in W} (rho * rho)(k - k')`` (M. S. Bartlett 1946), with ``rho`` the
+    true autocorrelation on a lag grid centred at its middle."""
+    c = np.array(rho.shape) // 2
+    yy, xx = np.indices(rho.shape)
+    win = (np.rint(np.hypot(yy - c[0], xx - c[1])) <= radius).astype(float)
+    s = [2 * d for d in rho.shape]
+    auto = lambda a: np.fft.irfft2(np.abs(np.fft.rfft2(a, s=s)) ** 2, s=s)
+    return 2.0 / n * float(np.sum(auto(rho) * auto(win)))
+
+
+@pytest.mark.parametrize("shared", [False, True])
+def test_the_correlation_area_of_a_field_of_known_correlation(shared):
+    """A residual field of white noise smoothed by a Gaussian kernel K (width 2 px) has the
+    autocorrelation K * K / sum K^2, whose sum over lags is (sum K)^2 / sum K^2 (50.3 px):
+    correlation_area gives it within 4 of its sampling errors (Bartlett's variance of the
+    summed sample autocorrelation over the lags summed, plus the truncated tail). Three
+    independent channels give that area (their cross terms vanish; the estimate averages
+    three); one field in all three channels gives three times it (each datum has two
+    copies). White noise gives 1."""
+    from bubblefit.inverse._uncertainty import correlation_area
+
+    rng = np.random.default_rng(7)
+    h, w, width = 160, 200, 2.0
+    r = np.arange(-8, 9)
+    k1 = np.exp(-(r**2) / (2 * width**2))
+    kernel = np.outer(k1, k1)
+    area = kernel.sum() ** 2 / np.sum(kernel**2)
+    rho = np.fft.fftshift(np.fft.irfft2(np.abs(np.fft.rfft2(kernel, s=(34, 34))) ** 2, s=(34, 34)))
+    rho /= rho.max()
+    if shared:
+        one = _smoothed_noise(rng, h, w, kernel)
+        field, factor, copies = np.repeat(one[..., None], 3, axis=-1), 3.0, 1
+    else:
+        field, factor, copies = np.stack([_smoothed_noise(rng, h, w, kernel) for _ in range(3)], -1), 1.0, 3
+    got, radius = correlation_area(field, np.ones(field.shape, bool))
+    yy, xx = np.indices(rho.shape)
+    tail = float(rho[np.rint(np.hypot(yy - 17, xx - 17)) > radius].sum())
+    sd = factor * math.sqrt(_summed_variance(rho, radius, h * w) / copies)
+    assert radius >= 3, radius
+    assert abs(got - factor * area) < 4 * sd + factor * tail, (got, factor * area, sd, radius)
+    white, k_white = correlation_area(rng.standard_normal((h, w, 3)), np.ones((h, w, 3), bool))
+    assert abs(white - 1.0) < 4 * math.sqrt(_summed_variance(np.pad([[1.0]], 16), k_white, h * w) / 3) + 1e-9
+
+
+def test_a_correlated_residual_widens_the_views_error():
+    """divergence_profile with a correlation area A: Delta chi^2 = A (n data carry the
+    information of n / A independent ones), so the standard error is sqrt(A) times the
+    independent one; an area below 1 never narrows it."""
+    from bubblefit.inverse import divergence_profile
+
+    us, chi2 = [0.0, 0.1, 0.2], [400.0, 100.0, 400.0]  # 3e4 (u - 0.1)^2 + 100
+    base = divergence_profile(us, chi2)
+    assert base.stderr == pytest.approx(1 / math.sqrt(3e4), rel=1e-9)
+    assert divergence_profile(us, chi2, area=25.0).stderr == pytest.approx(5 * base.stderr, rel=1e-9)
+    assert divergence_profile(us, chi2, area=0.5).stderr == pytest.approx(base.stderr, rel=1e-9)

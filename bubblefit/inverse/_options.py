@@ -440,6 +440,10 @@ class FitResult:
     stderr_scale : float
         The largest factor a noise-only standard error was widened by for misfit (the
         Birge ratio or the cluster-robust sandwich, :mod:`bubblefit.inverse._uncertainty`).
+    correlation_area : float
+        Data (pixels times channels) per independent datum of the fitted level's residual
+        (:func:`~bubblefit.inverse._uncertainty.correlation_area`; 1: independent); a
+        fitted view's standard error is widened by its square root.
     frame : tuple or None
         ``(x0, y0, k)``: the fit's images cover the photo from pixel ``(x0, y0)`` in blocks
         of ``k`` pixels (None: the whole photo at its own resolution).
@@ -490,6 +494,7 @@ class FitResult:
     disc_model_error: float = float("nan")
     roles: tuple = ()
     stderr_scale: float = 1.0
+    correlation_area: float = 1.0
     frame: tuple | None = None
     colour: ColourSettings | None = None
     camera: dict | None = None

@@ -147,12 +147,16 @@ class Profile:
     above: bool = False
 
 
-def divergence_profile(us, chi2s, birge: float = 1.0) -> Profile:
+def divergence_profile(us, chi2s, birge: float = 1.0, area: float = 1.0) -> Profile:
     """The divergence where the parabola through the least of ``(us, chi2s)`` (total chi^2
     of refits through each view) and its two neighbours in ``u`` is least, and its
     standard error: the half-width ``sqrt(Delta / a)`` of the interval where the parabola
-    ``a (u - u*)^2 + chi2_min`` rises by ``Delta = birge^2`` (``Delta chi^2 = 1`` on a
-    profile, times the reduced chi^2 at the minimum when above 1: the Birge ratio squared).
+    ``a (u - u*)^2 + chi2_min`` rises by ``Delta = birge^2 area`` (``Delta chi^2 = 1`` on a
+    profile, times the reduced chi^2 at the minimum when above 1: the Birge ratio squared;
+    times the residual's correlation area when above 1: the chi^2 counts each pixel's
+    channels as independent, and ``n`` data correlated over ``area`` of them carry the
+    information of ``n / area`` independent ones, Bayley and Hammersley 1946,
+    :func:`~bubblefit.inverse._uncertainty.correlation_area`).
 
     The least point and its neighbours on either side bracket the profile's minimum
     (golden-section bracketing, Numerical Recipes sec. 10.1). When the least point is the
@@ -169,7 +173,9 @@ def divergence_profile(us, chi2s, birge: float = 1.0) -> Profile:
     W. H. Press et al., *Numerical Recipes*, 3rd ed., 2007, sec. 10.1 (bracketing a
     minimum), sec. 10.3 (parabolic interpolation) and sec. 15.6.5 (confidence limits from
     Delta chi^2 = 1 on a profile); D. J. Venzon and S. H. Moolgavkar, Appl. Statist. 37,
-    87 (1988) (profile-likelihood intervals); R. T. Birge, Phys. Rev. 40, 207 (1932).
+    87 (1988) (profile-likelihood intervals); R. T. Birge, Phys. Rev. 40, 207 (1932);
+    G. V. Bayley and J. M. Hammersley, J. R. Statist. Soc. Suppl. 8(2), 184 (1946)
+    (the effective number of independent observations).
     """
     pts = sorted((u, c) for u, c in zip(us, chi2s) if math.isfinite(c))
     if len(pts) < 3:
@@ -183,7 +189,7 @@ def divergence_profile(us, chi2s, birge: float = 1.0) -> Profile:
     if not a > 0:
         return Profile(float(pts[i][0]), float("inf"), False, (u0, u1, u2), above)
     u_min = min(max(-b / (2 * a), 0.0), span)
-    se = math.sqrt(1.0 / a) * max(birge, 1.0)
+    se = math.sqrt(max(area, 1.0) / a) * max(birge, 1.0)
     return Profile(float(u_min), float(se), bool(not above and se < 0.5 * span), (u0, u1, u2), above)
 
 
@@ -208,7 +214,10 @@ def fit_divergence(ortho: FitResult, lens_fit: FitResult, lens: View, refit) -> 
     ``(dp/du)^2 var(u)`` to each variance and ``dp/du var(u)`` as the covariance with the
     view (the slope of a line through the refits the parabola went through), per pixel
     for a thickness map, and the view's ``fov_deg`` joins ``names``, with its standard
-    error from ``var(u)`` by ``dfov/du = 2/(1+u^2)``. Where the profile is flat or its
+    error from ``var(u)`` by ``dfov/du = 2/(1+u^2)``. The standard error of ``u`` counts
+    the residual's spatial correlation (the least refit's ``correlation_area``,
+    :func:`divergence_profile`); the parameters' own errors already do (the cluster-robust
+    sandwich, :mod:`bubblefit.inverse._uncertainty`). Where the profile is flat or its
     minimum is not bracketed, this is :func:`widen_for_view` of the better of the two
     first fits, and its warning says that the photo does not fix the view.
 
@@ -232,9 +241,11 @@ def fit_divergence(ortho: FitResult, lens_fit: FitResult, lens: View, refit) -> 
         return refit(view, start)
 
     def profile_now() -> Profile:
-        ok = [f.chi2_capped for _, f in fits if math.isfinite(_chi2(f))]
-        birge = math.sqrt(max([1.0] + ([min(ok)] if ok else [])))
-        return divergence_profile([u for u, _ in fits], [_chi2(f) for _, f in fits], birge)
+        ok = [f for _, f in fits if math.isfinite(_chi2(f))]
+        least = min(ok, key=_chi2) if ok else None
+        birge = math.sqrt(max(1.0, least.chi2_capped if least is not None else 1.0))
+        area = float(least.correlation_area) if least is not None and math.isfinite(least.correlation_area) else 1.0
+        return divergence_profile([u for u, _ in fits], [_chi2(f) for _, f in fits], birge, area)
 
     def at(u: float, tol: float) -> None:
         """Refit at ``u`` unless a refit lies within ``tol`` of it (``u <= 0``: the
@@ -326,7 +337,7 @@ def _with_fitted_view(fit: FitResult, u: float, se_u: float, fits: list, profile
     cam = {**(fit.camera or {}), "kind": "perspective" if u > 0 else "orthographic", "fov_deg": fov if u > 0 else None,
            "source": "fitted", "detail": detail, "fov_stderr_deg": fov_se, "fitted_fov_deg": fov,
            "fov_interval_deg": [fov_of_divergence(lo), fov_of_divergence(hi)],
-           "divergence_profile": profile,
+           "divergence_profile": profile, "correlation_area": float(fit.correlation_area),
            "view_uncertainty": {k: abs(v) * se_u for k, v in slopes.items()}}
     out.camera = cam
     out.warnings = [w for w in out.warnings if not w.startswith("the view was not given")]

@@ -552,3 +552,59 @@ def test_warm_started_maps_stay_within_the_targets(tmp_path):
         assert rec.get("model_kept") == before["model"] or "fallback" in rec or not explained
     scores = bench.score(tmp_path / "run", frames, meta)
     assert all(s["meets"] for s in scores), scores
+
+
+def test_profile_from_a_map_and_its_standard_errors():
+    """The drainage profile fitted to a map by variable projection comes back from a map
+    that is the profile plus independent Gaussian noise of the map's stated standard
+    errors, and its standard errors are honest: over independent noise draws the errors'
+    z-scores have unit spread (the spread of a sample standard deviation of n draws is
+    about 1 / sqrt(2 n): the bounds are 4 of those)."""
+    from types import SimpleNamespace
+
+    from bubblefit.inverse._maps import profile_from_map, profile_map
+
+    n = 40
+    h = np.linspace(-1.0, 1.0, n)[:, None] * np.ones((1, n))
+    lev = SimpleNamespace(height=h, mask=np.ones((n, n), bool))
+    truth = (230.0, 960.0, 1.2)
+    clean = profile_map(lev, truth)
+    sigma = np.full((n, n), 4.0)
+    rng = np.random.default_rng(5)
+    draws = 100
+    z = []
+    for _ in range(draws):
+        got, err = profile_from_map(lev, clean + sigma * rng.standard_normal((n, n)), sigma, (240.0, 980.0, 1.0))
+        z.append([(g - t) / err[name] for g, t, name in zip(got, truth, ("top_nm", "bottom_nm", "exponent"))])
+    z = np.asarray(z)
+    spread = z.std(axis=0)
+    bound = 4.0 / np.sqrt(2 * draws)
+    assert np.all(np.abs(spread - 1.0) < bound), spread
+    assert np.all(np.abs(z.mean(axis=0)) < 4.0 / np.sqrt(draws)), z.mean(axis=0)
+    held, err = profile_from_map(lev, clean, sigma, truth, free=("top_nm", "bottom_nm"))
+    assert held[2] == truth[2] and "exponent" not in err
+    np.testing.assert_allclose(held[:2], truth[:2], atol=1e-6)
+
+
+def test_carried_globals_fall_back_as_often_as_the_f_test_allows():
+    """A frame whose global parameters did not move keeps them (its map's reduced chi^2
+    over the reference's is F-distributed) in ``1 - GLOBALS_TEST_ALPHA`` of draws, within
+    4 binomial standard errors; a frame whose misfit grew by 20 % over thousands of
+    degrees of freedom (9 standard errors of the ratio, sqrt(2/dof + 2/dof_ref) = 0.022) always
+    falls back."""
+    from bubblefit.inverse._uncertainty import Misfit
+    from bubblefit.inverse.fit import GLOBALS_TEST_ALPHA, _globals_moved
+
+    rng = np.random.default_rng(3)
+    dof, dof_ref, draws = 8000, 9000, 2000
+    model_error = 0.9  # a common floor: it cancels in the ratio
+    ref = model_error * rng.chisquare(dof_ref, draws) / dof_ref
+    now = model_error * rng.chisquare(dof, draws) / dof
+
+    def moved(c, r):
+        return _globals_moved(Misfit(c, c, c, 0.0, c), dof, {"chi2_floor": r, "dof": dof_ref})
+
+    rate = np.mean([moved(c, r) for c, r in zip(now, ref)])
+    assert abs(rate - GLOBALS_TEST_ALPHA) < 4 * np.sqrt(GLOBALS_TEST_ALPHA * (1 - GLOBALS_TEST_ALPHA) / draws)
+    assert all(moved(1.2 * c, r) for c, r in zip(now[:200], ref[:200]))
+    assert moved(float("nan"), 0.9)

@@ -134,7 +134,12 @@ def misfit(sol: LocalSolution, lev: Level, robust_scale: float, model_error: flo
     share capped at :data:`OUTLIER_CHI2` (a truncated quadratic loss: no pixel moves it by
     more than an outlier's worth; ``auto`` compares models by it). The degrees of freedom
     of the inliers are their count less the free parameters, as for the whole."""
-    r = plain_residual(sol.residual, robust_scale).reshape(lev.y.shape)
+    return residual_misfit(plain_residual(sol.residual, robust_scale).reshape(lev.y.shape), lev, model_error, n_free)
+
+
+def residual_misfit(r: np.ndarray, lev: Level, model_error: float, n_free: int) -> Misfit:
+    """The :class:`Misfit` (:func:`misfit`) of a whitened plain residual ``r`` (h, w, 3) on ``lev``
+    with ``n_free`` fitted values."""
     w = lev.w.astype(np.float64)
     used = w > 0
     dof = max(int(used.sum()) - n_free, 1)

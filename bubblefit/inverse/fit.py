@@ -46,13 +46,14 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, replace
+from types import SimpleNamespace
 
 import jax.numpy as jnp
 import numpy as np
 
 from . import search
 from ._local import DECREMENT_TOLERANCE, LocalSolution, remaining_step, solution_from, solve_local
-from ._maps import fit_map
+from ._maps import PROFILE_NAMES, fit_map, profile_from_map
 from ._observation import noise_sigma
 from ..capture.circle import detect_disc
 from ._programs import (FINAL_SOLVE, SEARCH_SOLVE, WARM_SOLVE, SolveSettings, batched_solver, final_params,
@@ -60,7 +61,7 @@ from ._programs import (FINAL_SOLVE, SEARCH_SOLVE, WARM_SOLVE, SolveSettings, ba
 from ._options import FitOptions, FitResult, ImageSizes, JudgeSettings, MapSettings, NoiseSettings, SolverSettings
 from ._parameters import THICKNESSES, extrapolated, parameter_roles, refined_disc
 from ._setup import Setup, defaults, setup
-from ._uncertainty import Uncertainty, uncertainty
+from ._uncertainty import Misfit, Uncertainty, residual_misfit, uncertainty
 from ._verdict import at_bounds, clamp_to_range, unresolved, verdict
 from ._view import camera_record, fit_divergence, fit_view, lens_for
 from .colour_check import judge_colours
@@ -266,9 +267,12 @@ def _exposure_doubts(st: Setup, opts: FitOptions, env, full, reported: dict) -> 
 
 
 def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgement, notes: list,
-            t_start: float) -> FitResult:
+            t_start: float, made: tuple | None = None, carried: dict | None = None) -> FitResult:
     """The thickness map (``--thickness map``), the full-resolution render, the verdict and
-    the :class:`FitResult` of a judged solve."""
+    the :class:`FitResult` of a judged solve. ``made``: the map, its standard errors, its
+    soundness and the render already made (:func:`_carried_map_fit`); ``carried``: the
+    global parameters' record a warm-started map carries on (None: this solve's own,
+    :func:`_carried_record`)."""
     table, unc = st.table, judged.uncertainty
     judge = opts.judge
     reported, stderr = dict(judged.reported), dict(judged.stderr)
@@ -278,8 +282,9 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     prof = None if opts.thickness == "constant" else (new["top_nm"], new["bottom_nm"], new["exponent"])
     full = st.level(1, opts, st.map_cfg if opts.thickness == "map" else st.base_cfg)
     if opts.thickness == "map":
-        dmap, emap, map_ok = fit_map(full, table, new, prof, opts, env,
-                                     make_level=lambda k: st.level(k, opts, st.map_cfg), start=st.map_start)
+        dmap, emap, map_ok = made[:3] if made is not None else \
+            fit_map(full, table, new, prof, opts, env, make_level=lambda k: st.level(k, opts, st.map_cfg),
+                    start=st.map_start)
         final_vals["map"] = dmap
         thickness_map = np.where(full.inside, dmap, np.nan)
         stderr_map = np.where(full.mask, np.hypot(emap, float(judge.thickness_model_error_nm)), np.nan)
@@ -290,8 +295,11 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
             notes.append("the thickness map is not constrained at over 10% of the film's pixels")
     elif opts.thickness == "drainage":
         thickness_map = np.where(full.inside, np.asarray(drainage_profile(jnp.asarray(full.height), *prof)), np.nan)
-    img = np.asarray(render_bubble(final_params(table, final_vals, opts), full, env), np.float64)
+    img = made[3] if made is not None else \
+        np.asarray(render_bubble(final_params(table, final_vals, opts), full, env), np.float64)
     resid_img = st.photo - img
+    if opts.thickness == "map" and full.mask.any():
+        carried = carried or _carried_record(judged, reported, stderr, *_map_misfit(full, resid_img, opts))
     camera_stderr = unc.camera_stderr
     if opts.thickness == "map" and full.mask.any():  # each pixel's share of a calibrated response's errors
         camera_stderr, stderr_map = _map_camera_stderr(st, full, img, thickness_map, stderr_map, camera_stderr)
@@ -336,8 +344,101 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
         frame=None if st.frame.whole else (st.frame.x0, st.frame.y0, st.frame.k), colour=st.colour,
         camera=None if opts.view is None else camera_record(opts.view, st.base_cfg.camera),
         colour_check=colour_record, stderr_camera=camera_stderr,
-        order_check=None if order is None else order.to_json(),
+        order_check=None if order is None else order.to_json(), carried=carried,
     )
+
+
+#: Per-frame false-alarm probability of the test that a sequence's global parameters have
+#: not moved (:func:`_globals_moved`): the share of frames whose globals did not move that
+#: still fall back to the full solve (a cost in time only, never in accuracy).
+GLOBALS_TEST_ALPHA = 0.01
+
+
+def _map_misfit(full, resid_img: np.ndarray, opts: FitOptions) -> tuple[Misfit, int]:
+    """The :class:`~bubblefit.inverse._uncertainty.Misfit` of a thickness map's
+    full-resolution render (one thickness fitted per pixel, so ``2 N`` degrees of freedom
+    over ``N`` pixels of 3 channels) and its degrees of freedom."""
+    r = np.where(full.w > 0, resid_img * full.w, 0.0)
+    n_free = int(full.mask.sum())
+    return residual_misfit(r, full, float(opts.judge.model_error), n_free), max(int((full.w > 0).sum()) - n_free, 1)
+
+
+def _carried_record(judged: Judgement, reported: dict, stderr: dict, fit: Misfit, dof: int) -> dict:
+    """What a solve of the global parameters passes on to the next frames of a sequence
+    (JSON): its map's reduced chi^2 with the floor and degrees of freedom (the reference of
+    :func:`_globals_moved`), its reported keys, their standard errors (the profile's and
+    the map's excepted: each frame fits its own) and the disc's; ``frames``: frames since."""
+    own = set(PROFILE_NAMES) | {"thickness_nm"}
+    return {"chi2_floor": float(fit.chi2_floor), "dof": int(dof), "keys": list(reported),
+            "stderr": {k: (None if v is None else float(v)) for k, v in stderr.items() if k not in own},
+            "disc_stderr": judged.disc_stderr, "frames": 0}
+
+
+def _globals_moved(fit: Misfit, dof: int, carried: dict) -> bool:
+    """Whether a map fitted with the global parameters held at a previous solve's values
+    explains its frame worse than that solve's map explained its own: the ratio of the two
+    reduced chi^2 (with the model-error floor, so the model error common to both frames
+    cancels) is F-distributed with ``(dof, dof_ref)`` degrees of freedom when the globals
+    have not moved (the ratio of two independent chi^2 over their degrees of freedom;
+    Snedecor's F), so they have moved beyond the noise when it exceeds the F
+    distribution's ``1 - GLOBALS_TEST_ALPHA`` quantile."""
+    from scipy.stats import f as f_dist
+
+    ref, dof_ref = float(carried["chi2_floor"]), int(carried["dof"])
+    if not (np.isfinite(fit.chi2_floor) and np.isfinite(ref) and ref > 0):
+        return True
+    return bool(fit.chi2_floor / ref > f_dist.ppf(1.0 - GLOBALS_TEST_ALPHA, dof, dof_ref))
+
+
+def _carried_map_fit(started: Started, env, init: dict) -> tuple[FitResult | None, str | None]:
+    """A sequence's warm-started thickness map with the global parameters carried, the
+    ``(result, None)``; ``(None, why)`` where the full solve must run.
+
+    Block coordinate descent (variable projection in the sense of Golub and Pereyra
+    1973): the globals (exposure, light, reflectances, roughness, disc) are held at the
+    last full solve's values (``init["carried"]``, :func:`_carried_record`); the map, the
+    main unknown, is built coarse to fine as a solved frame's (:func:`~._maps.fit_map`,
+    from the warm start's extrapolated profile); the drainage profile is then fitted to the
+    map (:func:`~._maps.profile_from_map`). The globals keep the standard errors of the
+    solve that fitted them (they are its values); the map and the profile have their own.
+    The frame falls back to the full solve when the map's misfit says the globals moved
+    (:func:`_globals_moved`) or the map is not sound."""
+    st, opts = started.setup, started.options
+    carried = init.get("carried") if init else None
+    if not (started.warm and opts.thickness == "map" and isinstance(carried, dict)):
+        return None, None
+    table = st.table
+    vals = dict(st.vals)
+    prof = tuple(float(vals[n]) for n in PROFILE_NAMES)
+    with stage("thickness map, the global parameters carried"):
+        full = st.level(1, opts, st.map_cfg)
+        if not full.mask.any():
+            return None, "no film pixels"
+        dmap, emap, map_ok = fit_map(full, table, vals, prof, opts, env,
+                                     make_level=lambda k: st.level(k, opts, st.map_cfg), start=st.map_start)
+        new_prof, prof_err = profile_from_map(full, dmap, emap, prof, tuple(n for n in PROFILE_NAMES if n in table.free))
+        vals.update(zip(PROFILE_NAMES, new_prof))
+        img = np.asarray(render_bubble(final_params(table, dict(vals, map=dmap), opts), full, env), np.float64)
+        fit, dof = _map_misfit(full, st.photo - img, opts)
+    if not map_ok:
+        return None, "its map with the carried global parameters is not sound"
+    if _globals_moved(fit, dof, carried):
+        return None, (f"its map's reduced chi^2 {fit.chi2_floor:.3g} exceeds the F test's bound on "
+                      f"{float(carried['chi2_floor']):.3g} of the solve it carries from")
+    reported = {k: float(init[k]) if init.get(k) is not None else float("nan") for k in carried["keys"]}
+    reported.update({n: float(v) for n, v in zip(PROFILE_NAMES, new_prof) if n in reported})
+    stderr = {k: carried["stderr"].get(k) for k in reported}
+    stderr.update({n: e for n, e in prof_err.items() if n in reported})
+    disc_err = carried.get("disc_stderr")
+    disc = tuple(float(v) for v in init["disc"]) if disc_err and init.get("disc") is not None else st.disc
+    unc = Uncertainty(reported, stderr, (), np.zeros((0, 0)), fit, 1.0, True, None)
+    judged = Judgement(unc, reported, stderr, disc, disc_err if disc is not st.disc else None, "converged", True, [])
+    frames = int(carried.get("frames", 0)) + 1
+    notes = [f"global parameters carried from the solve {frames} frame(s) before (its map's misfit F test passed)"]
+    sol = SimpleNamespace(values=vals, steps=0)
+    res = _report(st, env, opts, sol, judged, notes, started.t_start, made=(dmap, emap, map_ok, img),
+                  carried=dict(carried, frames=frames))
+    return res, None
 
 
 def _map_camera_stderr(st: Setup, full, img, thickness_map, stderr_map, camera_stderr):
@@ -628,8 +729,17 @@ def _solve_started(started: Started, env) -> Solved:
 
 def _fit_one(photo, env, options: FitOptions, background, init, scene, saturated) -> FitResult:
     """The stages of one model's fit through ``options.view`` (:func:`_start_one`, then
-    :func:`_solve_started` and the report)."""
-    return _solve_started(_start_one(photo, env, options, background, init, scene, saturated), env).report(env)
+    :func:`_solve_started` and the report); a sequence's warm-started map whose start
+    carries a solve's global parameters first tries them held (:func:`_carried_map_fit`)."""
+    started = _start_one(photo, env, options, background, init, scene, saturated)
+    quick, why = _carried_map_fit(started, env, init)
+    if quick is not None:
+        return quick
+    res = _solve_started(started, env).report(env)
+    if why:
+        note = f"global parameters solved again: {why}"
+        res = replace(res, message=note if res.message == "converged" else f"{res.message}; {note}")
+    return res
 
 
 def _checked_warm_start(st: Setup, opts: FitOptions, env, sol: LocalSolution, settings: SolveSettings,

@@ -586,25 +586,35 @@ def test_profile_from_a_map_and_its_standard_errors():
     np.testing.assert_allclose(held[:2], truth[:2], atol=1e-6)
 
 
-def test_carried_globals_fall_back_as_often_as_the_f_test_allows():
-    """A frame whose global parameters did not move keeps them (its map's reduced chi^2
-    over the reference's is F-distributed) in ``1 - GLOBALS_TEST_ALPHA`` of draws, within
-    4 binomial standard errors; a frame whose misfit grew by 20 % over thousands of
-    degrees of freedom (9 standard errors of the ratio, sqrt(2/dof + 2/dof_ref) = 0.022) always
-    falls back."""
+def test_exposure_score_test_and_step():
+    """With the map held, the exposure's closed-form step on a render affine in the exposure
+    (``B + E A``) recovers a moved exposure to within its stated standard error's 4, and
+    a frame whose exposure did not move takes the step (score statistic over the chi^2
+    quantile of 1 degree of freedom) in ``EXPOSURE_TEST_ALPHA`` of noise draws, within 4
+    binomial standard errors."""
+    from types import SimpleNamespace
+
+    from scipy.stats import chi2
+
     from bubblefit.inverse._uncertainty import Misfit
-    from bubblefit.inverse.fit import GLOBALS_TEST_ALPHA, _globals_moved
+    from bubblefit.inverse.fit import EXPOSURE_TEST_ALPHA, FitOptions, _exposure_step
 
-    rng = np.random.default_rng(3)
-    dof, dof_ref, draws = 8000, 9000, 2000
-    model_error = 0.9  # a common floor: it cancels in the ratio
-    ref = model_error * rng.chisquare(dof_ref, draws) / dof_ref
-    now = model_error * rng.chisquare(dof, draws) / dof
-
-    def moved(c, r):
-        return _globals_moved(Misfit(c, c, c, 0.0, c), dof, {"chi2_floor": r, "dof": dof_ref})
-
-    rate = np.mean([moved(c, r) for c, r in zip(now, ref)])
-    assert abs(rate - GLOBALS_TEST_ALPHA) < 4 * np.sqrt(GLOBALS_TEST_ALPHA * (1 - GLOBALS_TEST_ALPHA) / draws)
-    assert all(moved(1.2 * c, r) for c, r in zip(now[:200], ref[:200]))
-    assert moved(float("nan"), 0.9)
+    rng = np.random.default_rng(7)
+    shape = (30, 30, 3)
+    a_true, b = rng.uniform(0.2, 0.8, shape), rng.uniform(0.0, 0.2, shape)
+    sigma = 0.01
+    opts = FitOptions()
+    e0 = 0.6
+    lev = SimpleNamespace(w=np.full(shape, 1.0 / sigma), y=b + e0 * a_true)
+    floor = np.sqrt(sigma**2 + (float(opts.judge.model_error) * lev.y) ** 2)
+    one = Misfit(1.0, 1.0, 1.0, 0.0, 1.0)
+    img, half = b + e0 * a_true, b + 0.5 * e0 * a_true
+    draws, hits = 1000, 0
+    for _ in range(draws):
+        photo = img + floor * rng.standard_normal(shape)
+        hits += _exposure_step(lev, photo, img, half, e0, opts, one)[1] > chi2.ppf(1 - EXPOSURE_TEST_ALPHA, 1)
+    rate = hits / draws
+    assert abs(rate - EXPOSURE_TEST_ALPHA) < 4 * np.sqrt(EXPOSURE_TEST_ALPHA * (1 - EXPOSURE_TEST_ALPHA) / draws)
+    photo = b + 0.62 * a_true + floor * rng.standard_normal(shape)
+    step, z2, err = _exposure_step(lev, photo, img, half, e0, opts, one)
+    assert abs(e0 + step - 0.62) < 4 * err and z2 > chi2.ppf(1 - EXPOSURE_TEST_ALPHA, 1)

@@ -50,6 +50,7 @@ from types import SimpleNamespace
 
 import jax.numpy as jnp
 import numpy as np
+from scipy.stats import chi2 as chi2_dist
 
 from . import search
 from ._local import DECREMENT_TOLERANCE, LocalSolution, remaining_step, solution_from, solve_local
@@ -348,10 +349,10 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     )
 
 
-#: Per-frame false-alarm probability of the test that a sequence's global parameters have
-#: not moved (:func:`_globals_moved`): the share of frames whose globals did not move that
-#: still fall back to the full solve (a cost in time only, never in accuracy).
-GLOBALS_TEST_ALPHA = 0.01
+#: Per-frame false-alarm probability of the score test that a sequence's exposure has not
+#: moved (:func:`_exposure_step`): the share of frames whose exposure did not move that
+#: still take its closed-form step and a second map.
+EXPOSURE_TEST_ALPHA = 0.01
 
 
 def _map_misfit(full, resid_img: np.ndarray, opts: FitOptions) -> tuple[Misfit, int]:
@@ -365,76 +366,104 @@ def _map_misfit(full, resid_img: np.ndarray, opts: FitOptions) -> tuple[Misfit, 
 
 def _carried_record(judged: Judgement, reported: dict, stderr: dict, fit: Misfit, dof: int) -> dict:
     """What a solve of the global parameters passes on to the next frames of a sequence
-    (JSON): its map's reduced chi^2 with the floor and degrees of freedom (the reference of
-    :func:`_globals_moved`), its reported keys, their standard errors (the profile's and
-    the map's excepted: each frame fits its own) and the disc's; ``frames``: frames since."""
+    (JSON): its map's reduced chi^2 with the floor and degrees of freedom, its reported
+    keys, their standard errors (the profile's and the map's excepted: each frame fits its
+    own) and the disc's; ``frames``: frames since."""
     own = set(PROFILE_NAMES) | {"thickness_nm"}
     return {"chi2_floor": float(fit.chi2_floor), "dof": int(dof), "keys": list(reported),
             "stderr": {k: (None if v is None else float(v)) for k, v in stderr.items() if k not in own},
             "disc_stderr": judged.disc_stderr, "frames": 0}
 
 
-def _globals_moved(fit: Misfit, dof: int, carried: dict) -> bool:
-    """Whether a map fitted with the global parameters held at a previous solve's values
-    explains its frame worse than that solve's map explained its own: the ratio of the two
-    reduced chi^2 (with the model-error floor, so the model error common to both frames
-    cancels) is F-distributed with ``(dof, dof_ref)`` degrees of freedom when the globals
-    have not moved (the ratio of two independent chi^2 over their degrees of freedom;
-    Snedecor's F), so they have moved beyond the noise when it exceeds the F
-    distribution's ``1 - GLOBALS_TEST_ALPHA`` quantile."""
-    from scipy.stats import f as f_dist
+def _exposure_step(full, photo, img, img_half, exposure: float, opts: FitOptions, fit: Misfit) -> tuple[float, float, float]:
+    """The exposure's closed-form Gauss-Newton step with the map held, its score statistic
+    and its standard error: ``(step, z2, stderr)``.
 
-    ref, dof_ref = float(carried["chi2_floor"]), int(carried["dof"])
-    if not (np.isfinite(fit.chi2_floor) and np.isfinite(ref) and ref > 0):
-        return True
-    return bool(fit.chi2_floor / ref > f_dist.ppf(1.0 - GLOBALS_TEST_ALPHA, dof, dof_ref))
+    The render is affine in the exposure (eq. 1's reflected terms scale with it; the
+    transmitted background photo does not, a map's background does), so ``a = (img -
+    img_half) / (E / 2)`` is its exact column, from the render at half the exposure. With residual
+    ``r`` and column ``a`` whitened by each pixel's noise and model-error floor, the step
+    is ``a.r / a.a`` (variable projection: the linear parameter solved for the others
+    held, Golub and Pereyra 1973) and ``z2 = (a.r)^2 / (a.a chi2_floor)`` is Rao's score
+    statistic, chi^2 with one degree of freedom when the exposure has not moved (the
+    misfit's Birge ratio scales the variance, as for the standard errors); its standard
+    error ``sqrt(chi2_floor / a.a)``."""
+    used = full.w > 0
+    var = 1.0 / np.where(used, full.w, 1.0) ** 2 + (float(opts.judge.model_error) * np.clip(full.y, 0, None)) ** 2
+    wf = np.where(used, 1.0 / np.sqrt(var), 0.0)
+    a = (img - img_half) / (0.5 * exposure) * wf
+    r = (photo - img) * wf
+    aa, ar = float(np.sum(a * a)), float(np.sum(a * r))
+    s2 = max(float(fit.chi2_floor), 1.0)
+    if not aa > 0:
+        return 0.0, 0.0, float("nan")
+    return ar / aa, ar * ar / (aa * s2), math.sqrt(s2 / aa)
 
 
 def _carried_map_fit(started: Started, env, init: dict) -> tuple[FitResult | None, str | None]:
     """A sequence's warm-started thickness map with the global parameters carried, the
     ``(result, None)``; ``(None, why)`` where the full solve must run.
 
-    Block coordinate descent (variable projection in the sense of Golub and Pereyra
-    1973): the globals (exposure, light, reflectances, roughness, disc) are held at the
-    last full solve's values (``init["carried"]``, :func:`_carried_record`); the map, the
-    main unknown, is built coarse to fine as a solved frame's (:func:`~._maps.fit_map`,
-    from the warm start's extrapolated profile); the drainage profile is then fitted to the
-    map (:func:`~._maps.profile_from_map`). The globals keep the standard errors of the
-    solve that fitted them (they are its values); the map and the profile have their own.
-    The frame falls back to the full solve when the map's misfit says the globals moved
-    (:func:`_globals_moved`) or the map is not sound."""
+    Block coordinate descent (variable projection, Golub and Pereyra 1973): the globals
+    (light, reflectances, roughness, disc, exposure) are held at the last full solve's
+    values (``init["carried"]``, :func:`_carried_record`); the map, the main unknown, is
+    built coarse to fine as a solved frame's (:func:`~._maps.fit_map`, from the warm
+    start's extrapolated profile). The exposure then gets its closed-form step when its
+    score test says it moved (:func:`_exposure_step`, :data:`EXPOSURE_TEST_ALPHA`), and the
+    map is fitted once more at the new exposure. The drainage profile is fitted to the
+    map (:func:`~._maps.profile_from_map`). The held globals keep the standard errors of
+    the solve that fitted them (they are its values); a stepped exposure has the larger of
+    that and its step's; the map and the profile have their own. The frame falls back to
+    the full solve when the map is not sound or the kept model does not explain the frame
+    with the map (its reduced chi^2 with the floor above ``judge.ok_chi2``, the rule by
+    which a fit is explained)."""
     st, opts = started.setup, started.options
     carried = init.get("carried") if init else None
-    if not (started.warm and opts.thickness == "map" and isinstance(carried, dict)):
+    if not (started.warm and opts.thickness == "map" and isinstance(carried, dict) and "exposure" in st.table.free):
         return None, None
     table = st.table
     vals = dict(st.vals)
     prof = tuple(float(vals[n]) for n in PROFILE_NAMES)
+    make = lambda k: st.level(k, opts, st.map_cfg)
+    render = lambda v, m: np.asarray(render_bubble(final_params(table, dict(v, map=m), opts), full, env), np.float64)
+    exposure_err = (carried.get("stderr") or {}).get("exposure")
     with stage("thickness map, the global parameters carried"):
         full = st.level(1, opts, st.map_cfg)
         if not full.mask.any():
             return None, "no film pixels"
-        dmap, emap, map_ok = fit_map(full, table, vals, prof, opts, env,
-                                     make_level=lambda k: st.level(k, opts, st.map_cfg), start=st.map_start)
+        dmap, emap, map_ok = fit_map(full, table, vals, prof, opts, env, make_level=make, start=st.map_start)
+        img = render(vals, dmap)
+        fit, dof = _map_misfit(full, st.photo - img, opts)
+        e = float(vals["exposure"])
+        step, z2, step_err = _exposure_step(full, st.photo, img, render(dict(vals, exposure=0.5 * e), dmap), e, opts, fit)
+        moved = z2 > chi2_dist.ppf(1.0 - EXPOSURE_TEST_ALPHA, 1)
+        if moved and np.isfinite(step) and e + step > 0:
+            vals["exposure"] = e + step
+            exposure_err = max(float(exposure_err or 0.0), step_err)
+            dmap, emap, map_ok = fit_map(full, table, vals, prof, opts, env, make_level=make, start=st.map_start)
         new_prof, prof_err = profile_from_map(full, dmap, emap, prof, tuple(n for n in PROFILE_NAMES if n in table.free))
         vals.update(zip(PROFILE_NAMES, new_prof))
-        img = np.asarray(render_bubble(final_params(table, dict(vals, map=dmap), opts), full, env), np.float64)
+        img = render(vals, dmap)
         fit, dof = _map_misfit(full, st.photo - img, opts)
     if not map_ok:
         return None, "its map with the carried global parameters is not sound"
-    if _globals_moved(fit, dof, carried):
-        return None, (f"its map's reduced chi^2 {fit.chi2_floor:.3g} exceeds the F test's bound on "
-                      f"{float(carried['chi2_floor']):.3g} of the solve it carries from")
+    if not fit.chi2_floor <= float(opts.judge.ok_chi2):
+        return None, (f"its map with the carried global parameters leaves a reduced chi^2 with the floor of "
+                      f"{fit.chi2_floor:.3g} > {float(opts.judge.ok_chi2):g}")
     reported = {k: float(init[k]) if init.get(k) is not None else float("nan") for k in carried["keys"]}
     reported.update({n: float(v) for n, v in zip(PROFILE_NAMES, new_prof) if n in reported})
+    reported["exposure"] = float(vals["exposure"])
     stderr = {k: carried["stderr"].get(k) for k in reported}
     stderr.update({n: e for n, e in prof_err.items() if n in reported})
+    stderr["exposure"] = exposure_err
     disc_err = carried.get("disc_stderr")
     disc = tuple(float(v) for v in init["disc"]) if disc_err and init.get("disc") is not None else st.disc
     unc = Uncertainty(reported, stderr, (), np.zeros((0, 0)), fit, 1.0, True, None)
     judged = Judgement(unc, reported, stderr, disc, disc_err if disc is not st.disc else None, "converged", True, [])
     frames = int(carried.get("frames", 0)) + 1
-    notes = [f"global parameters carried from the solve {frames} frame(s) before (its map's misfit F test passed)"]
+    notes = [f"global parameters carried from the solve {frames} frame(s) before"
+             + (f"; the exposure stepped by {step:.3g} (score test z^2 = {z2:.3g})" if moved else
+                f" (the exposure's score test z^2 = {z2:.3g})")]
     sol = SimpleNamespace(values=vals, steps=0)
     res = _report(st, env, opts, sol, judged, notes, started.t_start, made=(dmap, emap, map_ok, img),
                   carried=dict(carried, frames=frames))

@@ -65,6 +65,7 @@ from ._observation import Level
 from ._options import FitOptions
 from ._parameters import ParameterTable
 from ._programs import padded
+from ._uncertainty import sandwich_block, widened
 from ..model.geometry import OrthographicCamera
 from ..model.thickness import drainage_profile
 
@@ -342,8 +343,10 @@ def profile_from_map(lev: Level, dmap: np.ndarray, emap: np.ndarray, prof, free=
     whose variables separate", SIAM J. Numer. Anal. 10(2), 1973): the two linear values by
     weighted least squares for each exponent, the exponent by a bounded 1-D search of the
     projected residual, weights ``1 / emap^2`` over the pixels the map constrains. The
-    standard errors are the delta method's from the full Jacobian at the optimum, widened by
-    ``sqrt(max(1, chi2_nu))`` as the global parameters' are (Birge ratio). Names not in
+    standard errors are the delta method's from the full Jacobian at the optimum, each
+    variance the larger of the Birge ratio's and the cluster sandwich's over blocks of
+    pixels, as the global parameters' are (:func:`~._uncertainty.widened`: a map's
+    neighbouring pixels share their errors). Names not in
     ``free`` are held at ``prof`` (no standard error)."""
     from scipy.optimize import minimize_scalar
 
@@ -376,9 +379,15 @@ def profile_from_map(lev: Level, dmap: np.ndarray, emap: np.ndarray, prof, free=
             "exponent": (bottom - top) * np.where(x > 0, xe * np.log(np.where(x > 0, x, 1.0)), 0.0)}
     names = [n for n in PROFILE_NAMES if n in free]
     jac = np.stack([cols[n] for n in names], axis=1) * w[:, None]
+    resid = (d - (top + (bottom - top) * xe)) * w
     chi2_nu = cost / max(x.size - len(names), 1)
     try:
-        cov = np.linalg.inv(jac.T @ jac) * max(1.0, chi2_nu)
+        a_inv = np.linalg.inv(jac.T @ jac)
+        # neighbouring pixels of a map share their errors (the smoothness prior, the model
+        # error): each variance is the larger of the Birge ratio's and the cluster sandwich's
+        full_jac, full_r = np.zeros((ok.size, len(names))), np.zeros(ok.size)
+        full_jac[ok.reshape(-1)], full_r[ok.reshape(-1)] = jac, resid
+        cov, _ = widened(a_inv * max(1.0, chi2_nu), a_inv, full_jac, full_r, ok.shape + (1,), sandwich_block(lev))
         err = {n: float(math.sqrt(cov[k, k])) if cov[k, k] >= 0 else float("nan") for k, n in enumerate(names)}
     except np.linalg.LinAlgError:
         err = {n: float("nan") for n in names}

@@ -192,9 +192,14 @@ BLOCKS_PER_RADIUS = 6
 def _widest(cov_birge: np.ndarray, a_inv: np.ndarray, jac, r, lev: Level):
     """Each parameter's larger variance of the Birge and sandwich estimates, with the
     sandwich's correlations; and the largest widening over the noise-only errors."""
-    radius = float(lev.cfg.camera.disc()[2]) if hasattr(lev.cfg.camera, "disc") else min(lev.y.shape[:2]) / 2
-    block = max(3, int(round(radius / BLOCKS_PER_RADIUS)))
-    return widened(cov_birge, a_inv, jac, r, lev.y.shape, block)
+    return widened(cov_birge, a_inv, jac, r, lev.y.shape, sandwich_block(lev))
+
+
+def sandwich_block(lev: Level) -> int:
+    """Side in pixels of the cluster sandwich's square blocks on ``lev``: the disc's radius
+    over :data:`BLOCKS_PER_RADIUS`, at least 3 (module docstring)."""
+    radius = float(lev.cfg.camera.disc()[2]) if hasattr(lev.cfg.camera, "disc") else min(lev.mask.shape[:2]) / 2
+    return max(3, int(round(radius / BLOCKS_PER_RADIUS)))
 
 
 def widened(cov_birge: np.ndarray, a_inv: np.ndarray, jac, r, shape: tuple, block: int):

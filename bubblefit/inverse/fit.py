@@ -349,12 +349,6 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     )
 
 
-#: The drainage profile's thicknesses, linear in the profile (:func:`~._maps.profile_from_map`):
-#: a carried frame fits them to its map; its exponent, a shape, is carried with the globals
-#: (fitted to the map as well, it drifted 0.05 from the solved 1.20 over four frames of
-#: ``experiments/bench_sequence_maps.py``, the top 10 nm with it).
-LINEAR_PROFILE = ("top_nm", "bottom_nm")
-
 #: Per-frame false-alarm probability of the score test that a sequence's exposure has not
 #: moved (:func:`_exposure_step`): the share of frames whose exposure did not move that
 #: still take its closed-form step and a second map.
@@ -373,9 +367,9 @@ def _map_misfit(full, resid_img: np.ndarray, opts: FitOptions) -> tuple[Misfit, 
 def _carried_record(judged: Judgement, reported: dict, stderr: dict, fit: Misfit, dof: int) -> dict:
     """What a solve of the global parameters passes on to the next frames of a sequence
     (JSON): its map's reduced chi^2 with the floor and degrees of freedom, its reported
-    keys, their standard errors (the profile's thicknesses' and the map's excepted: each
-    frame fits its own) and the disc's; ``frames``: frames since."""
-    own = {"top_nm", "bottom_nm", "thickness_nm"}
+    keys, their standard errors (the profile's and the map's excepted: each frame fits its
+    own) and the disc's; ``frames``: frames since."""
+    own = set(PROFILE_NAMES) | {"thickness_nm"}
     return {"chi2_floor": float(fit.chi2_floor), "dof": int(dof), "keys": list(reported),
             "stderr": {k: (None if v is None else float(v)) for k, v in stderr.items() if k not in own},
             "disc_stderr": judged.disc_stderr, "frames": 0}
@@ -416,9 +410,9 @@ def _carried_map_fit(started: Started, env, init: dict) -> tuple[FitResult | Non
     built coarse to fine as a solved frame's (:func:`~._maps.fit_map`, from the warm
     start's extrapolated profile). The exposure then gets its closed-form step when its
     score test says it moved (:func:`_exposure_step`, :data:`EXPOSURE_TEST_ALPHA`), and the
-    map is fitted once more at the new exposure. The drainage profile's thicknesses are
-    fitted to the map (:func:`~._maps.profile_from_map`; the exponent is held with the
-    globals, :data:`LINEAR_PROFILE`). The held globals keep the standard errors of
+    map is fitted once more at the new exposure. The drainage profile is fitted to the
+    map (:func:`~._maps.profile_from_map`: the rear film reads it, and a profile held
+    with the globals tinted the film beyond the colour check). The held globals keep the standard errors of
     the solve that fitted them (they are its values); a stepped exposure has the larger of
     that and its step's; the map and the profile have their own. The frame falls back to
     the full solve when the map is not sound, the kept model does not explain the frame
@@ -449,7 +443,7 @@ def _carried_map_fit(started: Started, env, init: dict) -> tuple[FitResult | Non
             vals["exposure"] = e + step
             exposure_err = max(float(exposure_err or 0.0), step_err)
             dmap, emap, map_ok = fit_map(full, table, vals, prof, opts, env, make_level=make, start=st.map_start)
-        new_prof, prof_err = profile_from_map(full, dmap, emap, prof, tuple(n for n in LINEAR_PROFILE if n in table.free))
+        new_prof, prof_err = profile_from_map(full, dmap, emap, prof, tuple(n for n in PROFILE_NAMES if n in table.free))
         vals.update(zip(PROFILE_NAMES, new_prof))
         img = render(vals, dmap)
         fit, dof = _map_misfit(full, st.photo - img, opts)

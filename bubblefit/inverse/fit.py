@@ -412,9 +412,9 @@ def _carried_map_fit(started: Started, env, init: dict) -> tuple[FitResult | Non
     score test says it moved (:func:`_exposure_step`, :data:`EXPOSURE_TEST_ALPHA`), and the
     map is fitted once more at the new exposure. The drainage profile is fitted to the
     map (:func:`~._maps.profile_from_map`: the rear film reads it, and a profile held
-    with the globals tinted the film beyond the colour check). The held globals keep the standard errors of
-    the solve that fitted them (they are its values); a stepped exposure has the larger of
-    that and its step's; the map and the profile have their own. The frame falls back to
+    with the globals tinted the film beyond the colour check). The held globals keep the
+    standard errors of the solve that fitted them (they are its values); a stepped
+    exposure has the larger of that and its step's; the map and the profile have their own. The frame falls back to
     the full solve when the map is not sound, the kept model does not explain the frame
     with the map (its reduced chi^2 with the floor above ``judge.ok_chi2``, the rule by
     which a fit is explained) or its verdict is not ok (e.g. the colour check: held

@@ -552,3 +552,70 @@ def test_warm_started_maps_stay_within_the_targets(tmp_path):
         assert rec.get("model_kept") == before["model"] or "fallback" in rec or not explained
     scores = bench.score(tmp_path / "run", frames, meta)
     assert all(s["meets"] for s in scores), scores
+
+
+def test_profile_from_a_map_and_its_standard_errors():
+    """The drainage profile fitted to a map by variable projection comes back from a map
+    that is the profile plus independent Gaussian noise of the map's stated standard
+    errors, and its standard errors are honest: over independent noise draws the errors'
+    z-scores have unit spread (the spread of a sample standard deviation of n draws is
+    about 1 / sqrt(2 n): the bounds are 4 of those; the larger of two estimates of each
+    variance widens them a little)."""
+    from types import SimpleNamespace
+
+    from bubblefit.inverse._maps import profile_from_map, profile_map
+
+    n = 40
+    h = np.linspace(-1.0, 1.0, n)[:, None] * np.ones((1, n))
+    lev = SimpleNamespace(height=h, mask=np.ones((n, n), bool), cfg=SimpleNamespace(camera=None))
+    truth = (230.0, 960.0, 1.2)
+    clean = profile_map(lev, truth)
+    sigma = np.full((n, n), 4.0)
+    rng = np.random.default_rng(5)
+    draws = 100
+    z = []
+    for _ in range(draws):
+        got, err = profile_from_map(lev, clean + sigma * rng.standard_normal((n, n)), sigma, (240.0, 980.0, 1.0))
+        z.append([(g - t) / err[name] for g, t, name in zip(got, truth, ("top_nm", "bottom_nm", "exponent"))])
+    z = np.asarray(z)
+    spread = z.std(axis=0)
+    bound = 4.0 / np.sqrt(2 * draws)
+    assert np.all(np.abs(spread - 1.0) < bound), spread
+    assert np.all(np.abs(z.mean(axis=0)) < 4.0 / np.sqrt(draws)), z.mean(axis=0)
+    held, err = profile_from_map(lev, clean, sigma, truth, free=("top_nm", "bottom_nm"))
+    assert held[2] == truth[2] and "exponent" not in err
+    np.testing.assert_allclose(held[:2], truth[:2], atol=1e-6)
+
+
+def test_exposure_score_test_and_step():
+    """With the map held, the exposure's closed-form step on a render affine in the exposure
+    (``B + E A``) recovers a moved exposure to within its stated standard error's 4, and
+    a frame whose exposure did not move takes the step (score statistic over the chi^2
+    quantile of 1 degree of freedom) in ``EXPOSURE_TEST_ALPHA`` of noise draws, within 4
+    binomial standard errors."""
+    from types import SimpleNamespace
+
+    from scipy.stats import chi2
+
+    from bubblefit.inverse._uncertainty import Misfit
+    from bubblefit.inverse.fit import EXPOSURE_TEST_ALPHA, FitOptions, _exposure_step
+
+    rng = np.random.default_rng(7)
+    shape = (30, 30, 3)
+    a_true, b = rng.uniform(0.2, 0.8, shape), rng.uniform(0.0, 0.2, shape)
+    sigma = 0.01
+    opts = FitOptions()
+    e0 = 0.6
+    lev = SimpleNamespace(w=np.full(shape, 1.0 / sigma), y=b + e0 * a_true)
+    floor = np.sqrt(sigma**2 + (float(opts.judge.model_error) * lev.y) ** 2)
+    one = Misfit(1.0, 1.0, 1.0, 0.0, 1.0)
+    img, half = b + e0 * a_true, b + 0.5 * e0 * a_true
+    draws, hits = 1000, 0
+    for _ in range(draws):
+        photo = img + floor * rng.standard_normal(shape)
+        hits += _exposure_step(lev, photo, img, half, e0, opts, one)[1] > chi2.ppf(1 - EXPOSURE_TEST_ALPHA, 1)
+    rate = hits / draws
+    assert abs(rate - EXPOSURE_TEST_ALPHA) < 4 * np.sqrt(EXPOSURE_TEST_ALPHA * (1 - EXPOSURE_TEST_ALPHA) / draws)
+    photo = b + 0.62 * a_true + floor * rng.standard_normal(shape)
+    step, z2, err = _exposure_step(lev, photo, img, half, e0, opts, one)
+    assert abs(e0 + step - 0.62) < 4 * err and z2 > chi2.ppf(1 - EXPOSURE_TEST_ALPHA, 1)

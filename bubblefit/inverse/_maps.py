@@ -65,10 +65,11 @@ from ._observation import Level
 from ._options import FitOptions
 from ._parameters import ParameterTable
 from ._programs import padded
+from ._uncertainty import sandwich_block, widened
 from ..model.geometry import OrthographicCamera
 from ..model.thickness import drainage_profile
 
-__all__ = ["fit_map", "profile_map", "warm_centre", "RenderCosts", "COARSE_RADIUS", "WINDOW_NM", "WARM_COVER"]
+__all__ = ["fit_map", "profile_map", "profile_from_map", "PROFILE_NAMES", "warm_centre", "RenderCosts", "COARSE_RADIUS", "WINDOW_NM", "WARM_COVER"]
 
 #: Disc radius (pixels) of the pyramid's coarsest level.
 COARSE_RADIUS = 12.0
@@ -325,3 +326,69 @@ def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts: FitOption
     emap = np.where(lev.mask, emap, np.nan)
     sound = bool(np.mean(np.isfinite(emap[lev.mask])) > 0.9) if lev.mask.any() else False
     return dmap, emap, sound
+
+
+#: The drainage profile's parameters, in the order of :func:`profile_map`'s ``prof``.
+PROFILE_NAMES = ("top_nm", "bottom_nm", "exponent")
+
+
+def profile_from_map(lev: Level, dmap: np.ndarray, emap: np.ndarray, prof, free=PROFILE_NAMES):
+    """The drainage profile that fits a thickness map best, and its standard errors:
+    ``((top, bottom, exponent), {name: stderr})``.
+
+    The profile ``d(y) = top + (bottom - top) x^e``, ``x = (1 - y) / 2``
+    (:func:`bubblefit.model.thickness.drainage_profile`) is linear in ``top`` and ``bottom``
+    for a fixed exponent, so it is fitted by variable projection (G. H. Golub and V.
+    Pereyra, "The differentiation of pseudo-inverses and nonlinear least squares problems
+    whose variables separate", SIAM J. Numer. Anal. 10(2), 1973): the two linear values by
+    weighted least squares for each exponent, the exponent by a bounded 1-D search of the
+    projected residual, weights ``1 / emap^2`` over the pixels the map constrains. The
+    standard errors are the delta method's from the full Jacobian at the optimum, each
+    variance the larger of the Birge ratio's and the cluster sandwich's over blocks of
+    pixels, as the global parameters' are (:func:`~._uncertainty.widened`: a map's
+    neighbouring pixels share their errors). Names not in
+    ``free`` are held at ``prof`` (no standard error)."""
+    from scipy.optimize import minimize_scalar
+
+    top0, bottom0, e0 = (float(v) for v in prof)
+    ok = lev.mask & np.isfinite(dmap) & np.isfinite(emap) & (emap > 0)
+    x = np.clip((1.0 - np.asarray(lev.height, np.float64)[ok]) * 0.5, 0.0, 1.0)
+    d, w = np.asarray(dmap, np.float64)[ok], 1.0 / np.asarray(emap, np.float64)[ok]
+    lin = [n for n in PROFILE_NAMES[:2] if n in free]
+    if x.size <= len(lin) + 1 or not lin:
+        return (top0, bottom0, e0), {}
+
+    def linear(e):
+        xe = np.where(x > 0, x ** e, 0.0)
+        cols = {"top_nm": 1.0 - xe, "bottom_nm": xe}
+        held = d - sum(v * cols[n] for n, v in zip(PROFILE_NAMES[:2], (top0, bottom0)) if n not in lin)
+        a = np.stack([cols[n] for n in lin], axis=1) * w[:, None]
+        coef, *_ = np.linalg.lstsq(a, held * w, rcond=None)
+        vals = dict(zip(PROFILE_NAMES[:2], (top0, bottom0)), **dict(zip(lin, coef)))
+        r = (held - (a / w[:, None]) @ coef) * w
+        return vals, float(r @ r)
+
+    e = e0
+    if "exponent" in free:
+        e = float(minimize_scalar(lambda s: linear(s)[1], bounds=(0.1 * e0, 10.0 * e0), method="bounded",
+                                  options={"xatol": 1e-4}).x)
+    vals, cost = linear(e)
+    top, bottom = vals["top_nm"], vals["bottom_nm"]
+    xe = np.where(x > 0, x ** e, 0.0)
+    cols = {"top_nm": 1.0 - xe, "bottom_nm": xe,
+            "exponent": (bottom - top) * np.where(x > 0, xe * np.log(np.where(x > 0, x, 1.0)), 0.0)}
+    names = [n for n in PROFILE_NAMES if n in free]
+    jac = np.stack([cols[n] for n in names], axis=1) * w[:, None]
+    resid = (d - (top + (bottom - top) * xe)) * w
+    chi2_nu = cost / max(x.size - len(names), 1)
+    try:
+        a_inv = np.linalg.inv(jac.T @ jac)
+        # neighbouring pixels of a map share their errors (the smoothness prior, the model
+        # error): each variance is the larger of the Birge ratio's and the cluster sandwich's
+        full_jac, full_r = np.zeros((ok.size, len(names))), np.zeros(ok.size)
+        full_jac[ok.reshape(-1)], full_r[ok.reshape(-1)] = jac, resid
+        cov, _ = widened(a_inv * max(1.0, chi2_nu), a_inv, full_jac, full_r, ok.shape + (1,), sandwich_block(lev))
+        err = {n: float(math.sqrt(cov[k, k])) if cov[k, k] >= 0 else float("nan") for k, n in enumerate(names)}
+    except np.linalg.LinAlgError:
+        err = {n: float("nan") for n in names}
+    return (top, bottom, e), err

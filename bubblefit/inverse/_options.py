@@ -503,6 +503,11 @@ class FitResult:
     #: :meth:`bubblefit.inverse.self_calibration.SelfCalibration.to_json` with the stated
     #: response's fit, or None without ``FitOptions.calibrate_camera``.
     camera_calibration: dict | None = None
+    #: A thickness map's global parameters as a sequence's next frame may carry them
+    #: (``fit.py``'s ``_carried_record``: the map's reduced chi^2 with the floor and its
+    #: degrees of freedom, the reported keys, their standard errors, the disc's, ``frames``
+    #: since they were solved), or None.
+    carried: dict | None = None
     #: The share of each standard error that is the calibrated camera response's: the
     #: standard error from the response's stated errors alone (included in ``stderr``;
     #: :mod:`bubblefit.inverse._uncertainty`), or None where the response is taken as exact.

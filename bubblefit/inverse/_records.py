@@ -106,6 +106,11 @@ def result_record(base: dict, res, fit_time_s: float) -> dict:
     disc = getattr(res, "disc", None)
     if disc is not None and getattr(res, "disc_stderr", None) is not None:  # refined: the next frame's start
         rec["init"] = dict(rec["init"], disc=[float(v) for v in disc])
+    carried = getattr(res, "carried", None)
+    if isinstance(carried, dict):  # a map's global parameters, for the next frame to hold
+        rec["init"] = dict(rec["init"], carried=carried)
+        if carried.get("frames"):
+            rec["globals_carried_frames"] = int(carried["frames"])
     fit_ok = getattr(res, "ok", None)
     if fit_ok is not None:
         rec["fit_ok"] = bool(fit_ok)

@@ -136,7 +136,12 @@ def misfit(sol: LocalSolution, lev: Level, robust_scale: float, model_error: flo
     share capped at :data:`OUTLIER_CHI2` (a truncated quadratic loss: no pixel moves it by
     more than an outlier's worth; ``auto`` compares models by it). The degrees of freedom
     of the inliers are their count less the free parameters, as for the whole."""
-    r = plain_residual(sol.residual, robust_scale).reshape(lev.y.shape)
+    return residual_misfit(plain_residual(sol.residual, robust_scale).reshape(lev.y.shape), lev, model_error, n_free)
+
+
+def residual_misfit(r: np.ndarray, lev: Level, model_error: float, n_free: int) -> Misfit:
+    """The :class:`Misfit` (:func:`misfit`) of a whitened plain residual ``r`` (h, w, 3) on ``lev``
+    with ``n_free`` fitted values."""
     w = lev.w.astype(np.float64)
     used = w > 0
     dof = max(int(used.sum()) - n_free, 1)
@@ -261,9 +266,14 @@ BLOCKS_PER_RADIUS = 6
 def _widest(cov_birge: np.ndarray, a_inv: np.ndarray, jac, r, lev: Level):
     """Each parameter's larger variance of the Birge and sandwich estimates, with the
     sandwich's correlations; and the largest widening over the noise-only errors."""
-    radius = float(lev.cfg.camera.disc()[2]) if hasattr(lev.cfg.camera, "disc") else min(lev.y.shape[:2]) / 2
-    block = max(3, int(round(radius / BLOCKS_PER_RADIUS)))
-    return widened(cov_birge, a_inv, jac, r, lev.y.shape, block)
+    return widened(cov_birge, a_inv, jac, r, lev.y.shape, sandwich_block(lev))
+
+
+def sandwich_block(lev: Level) -> int:
+    """Side in pixels of the cluster sandwich's square blocks on ``lev``: the disc's radius
+    over :data:`BLOCKS_PER_RADIUS`, at least 3 (module docstring)."""
+    radius = float(lev.cfg.camera.disc()[2]) if hasattr(lev.cfg.camera, "disc") else min(lev.mask.shape[:2]) / 2
+    return max(3, int(round(radius / BLOCKS_PER_RADIUS)))
 
 
 def widened(cov_birge: np.ndarray, a_inv: np.ndarray, jac, r, shape: tuple, block: int):

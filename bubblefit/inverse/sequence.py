@@ -20,7 +20,12 @@ How the work is cut and where it runs:
   to the full fit, and its record says so (``fallback``). Its thickness map is built
   coarse to fine as a single photo's is (a map started from the predecessor's,
   :func:`~bubblefit.inverse._maps.warm_centre`, passed its order hops on:
-  ``experiments/results/bench_sequence_maps``).
+  ``experiments/results/bench_sequence_maps``). A warm-started map holds the global
+  parameters (exposure, light, reflectances, roughness, disc) at the values of the last
+  frame that solved them, with that solve's standard errors, fits its map and then the
+  drainage profile to the map; it solves them again when its map's misfit over that
+  solve's fails an F test (``fit._carried_map_fit``). The first frame of every chunk runs
+  the full fit, so the globals are solved at least every ``chunk_size`` frames.
 - One chunk is one Dask task. Tasks run on a ``distributed`` cluster: a local one by
   default (one single-threaded worker process per core, so two workers do not fight
   over the same cores) or an existing one (``scheduler="tcp://host:8786"``). A worker

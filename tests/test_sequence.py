@@ -598,7 +598,8 @@ def test_exposure_score_test_and_step():
     from scipy.stats import chi2
 
     from bubblefit.inverse._uncertainty import Misfit
-    from bubblefit.inverse.fit import EXPOSURE_TEST_ALPHA, FitOptions, _exposure_step
+    from bubblefit.inverse import FitOptions
+    from bubblefit.inverse._carried import EXPOSURE_TEST_ALPHA, exposure_step
 
     rng = np.random.default_rng(7)
     shape = (30, 30, 3)
@@ -613,9 +614,9 @@ def test_exposure_score_test_and_step():
     draws, hits = 1000, 0
     for _ in range(draws):
         photo = img + floor * rng.standard_normal(shape)
-        hits += _exposure_step(lev, photo, img, half, e0, opts, one)[1] > chi2.ppf(1 - EXPOSURE_TEST_ALPHA, 1)
+        hits += exposure_step(lev, photo, img, half, e0, opts, one)[1] > chi2.ppf(1 - EXPOSURE_TEST_ALPHA, 1)
     rate = hits / draws
     assert abs(rate - EXPOSURE_TEST_ALPHA) < 4 * np.sqrt(EXPOSURE_TEST_ALPHA * (1 - EXPOSURE_TEST_ALPHA) / draws)
     photo = b + 0.62 * a_true + floor * rng.standard_normal(shape)
-    step, z2, err = _exposure_step(lev, photo, img, half, e0, opts, one)
+    step, z2, err = exposure_step(lev, photo, img, half, e0, opts, one)
     assert abs(e0 + step - 0.62) < 4 * err and z2 > chi2.ppf(1 - EXPOSURE_TEST_ALPHA, 1)

@@ -504,7 +504,7 @@ class FitResult:
     #: response's fit, or None without ``FitOptions.calibrate_camera``.
     camera_calibration: dict | None = None
     #: A thickness map's global parameters as a sequence's next frame may carry them
-    #: (``fit.py``'s ``_carried_record``: the map's reduced chi^2 with the floor and its
+    #: (``_carried.carried_record``: the map's reduced chi^2 with the floor and its
     #: degrees of freedom, the reported keys, their standard errors, the disc's, ``frames``
     #: since they were solved), or None.
     carried: dict | None = None

@@ -50,11 +50,11 @@ from types import SimpleNamespace
 
 import jax.numpy as jnp
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
 
 from . import search
 from ._local import DECREMENT_TOLERANCE, LocalSolution, remaining_step, solution_from, solve_local
-from ._maps import PROFILE_NAMES, fit_map, profile_from_map
+from ._carried import carried_map, carried_record, map_misfit
+from ._maps import PROFILE_NAMES, fit_map
 from ._observation import noise_sigma
 from ..capture.circle import detect_disc
 from ._programs import (FINAL_SOLVE, SEARCH_SOLVE, WARM_SOLVE, SolveSettings, batched_solver, final_params,
@@ -62,7 +62,7 @@ from ._programs import (FINAL_SOLVE, SEARCH_SOLVE, WARM_SOLVE, SolveSettings, ba
 from ._options import FitOptions, FitResult, ImageSizes, JudgeSettings, MapSettings, NoiseSettings, SolverSettings
 from ._parameters import THICKNESSES, extrapolated, parameter_roles, refined_disc
 from ._setup import Setup, defaults, setup
-from ._uncertainty import Misfit, Uncertainty, residual_misfit, uncertainty
+from ._uncertainty import Uncertainty, uncertainty
 from ._verdict import at_bounds, clamp_to_range, unresolved, verdict
 from ._view import camera_record, fit_divergence, fit_view, lens_for
 from .colour_check import judge_colours
@@ -273,7 +273,7 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     the :class:`FitResult` of a judged solve. ``made``: the map, its standard errors, its
     soundness and the render already made (:func:`_carried_map_fit`); ``carried``: the
     global parameters' record a warm-started map carries on (None: this solve's own,
-    :func:`_carried_record`)."""
+    :func:`~._carried.carried_record`)."""
     table, unc = st.table, judged.uncertainty
     judge = opts.judge
     reported, stderr = dict(judged.reported), dict(judged.stderr)
@@ -300,7 +300,7 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
         np.asarray(render_bubble(final_params(table, final_vals, opts), full, env), np.float64)
     resid_img = st.photo - img
     if opts.thickness == "map" and full.mask.any():
-        carried = carried or _carried_record(judged, reported, stderr, *_map_misfit(full, resid_img, opts))
+        carried = carried or carried_record(judged.disc_stderr, reported, stderr, *map_misfit(full, resid_img, opts))
     camera_stderr = unc.camera_stderr
     if opts.thickness == "map" and full.mask.any():  # each pixel's share of a calibrated response's errors
         camera_stderr, stderr_map = _map_camera_stderr(st, full, img, thickness_map, stderr_map, camera_stderr)
@@ -350,126 +350,39 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     )
 
 
-#: Per-frame false-alarm probability of the score test that a sequence's exposure has not
-#: moved (:func:`_exposure_step`): the share of frames whose exposure did not move that
-#: still take its closed-form step and a second map.
-EXPOSURE_TEST_ALPHA = 0.01
-
-
-def _map_misfit(full, resid_img: np.ndarray, opts: FitOptions) -> tuple[Misfit, int]:
-    """The :class:`~bubblefit.inverse._uncertainty.Misfit` of a thickness map's
-    full-resolution render (one thickness fitted per pixel, so ``2 N`` degrees of freedom
-    over ``N`` pixels of 3 channels) and its degrees of freedom."""
-    r = np.where(full.w > 0, resid_img * full.w, 0.0)
-    n_free = int(full.mask.sum())
-    return residual_misfit(r, full, float(opts.judge.model_error), n_free), max(int((full.w > 0).sum()) - n_free, 1)
-
-
-def _carried_record(judged: Judgement, reported: dict, stderr: dict, fit: Misfit, dof: int) -> dict:
-    """What a solve of the global parameters passes on to the next frames of a sequence
-    (JSON): its map's reduced chi^2 with the floor and degrees of freedom, its reported
-    keys, their standard errors (the profile's and the map's excepted: each frame fits its
-    own) and the disc's; ``frames``: frames since."""
-    own = set(PROFILE_NAMES) | {"thickness_nm"}
-    return {"chi2_floor": float(fit.chi2_floor), "dof": int(dof), "keys": list(reported),
-            "stderr": {k: (None if v is None else float(v)) for k, v in stderr.items() if k not in own},
-            "disc_stderr": judged.disc_stderr, "frames": 0}
-
-
-def _exposure_step(full, photo, img, img_half, exposure: float, opts: FitOptions, fit: Misfit) -> tuple[float, float, float]:
-    """The exposure's closed-form Gauss-Newton step with the map held, its score statistic
-    and its standard error: ``(step, z2, stderr)``.
-
-    The render is affine in the exposure (eq. 1's reflected terms scale with it; the
-    transmitted background photo does not, a map's background does), so ``a = (img -
-    img_half) / (E / 2)`` is its exact column, from the render at half the exposure. With residual
-    ``r`` and column ``a`` whitened by each pixel's noise and model-error floor, the step
-    is ``a.r / a.a`` (variable projection: the linear parameter solved for the others
-    held, Golub and Pereyra 1973) and ``z2 = (a.r)^2 / (a.a chi2_floor)`` is Rao's score
-    statistic, chi^2 with one degree of freedom when the exposure has not moved (the
-    misfit's Birge ratio scales the variance, as for the standard errors); its standard
-    error ``sqrt(chi2_floor / a.a)``."""
-    used = full.w > 0
-    var = 1.0 / np.where(used, full.w, 1.0) ** 2 + (float(opts.judge.model_error) * np.clip(full.y, 0, None)) ** 2
-    wf = np.where(used, 1.0 / np.sqrt(var), 0.0)
-    a = (img - img_half) / (0.5 * exposure) * wf
-    r = (photo - img) * wf
-    aa, ar = float(np.sum(a * a)), float(np.sum(a * r))
-    s2 = max(float(fit.chi2_floor), 1.0)
-    if not aa > 0:
-        return 0.0, 0.0, float("nan")
-    return ar / aa, ar * ar / (aa * s2), math.sqrt(s2 / aa)
-
-
 def _carried_map_fit(started: Started, env, init: dict) -> tuple[FitResult | None, str | None]:
-    """A sequence's warm-started thickness map with the global parameters carried, the
-    ``(result, None)``; ``(None, why)`` where the full solve must run.
-
-    Block coordinate descent (variable projection, Golub and Pereyra 1973): the globals
-    (light, reflectances, roughness, disc, exposure) are held at the last full solve's
-    values (``init["carried"]``, :func:`_carried_record`); the map, the main unknown, is
-    built coarse to fine as a solved frame's (:func:`~._maps.fit_map`, from the warm
-    start's extrapolated profile). The exposure then gets its closed-form step when its
-    score test says it moved (:func:`_exposure_step`, :data:`EXPOSURE_TEST_ALPHA`), and the
-    map is fitted once more at the new exposure. The drainage profile is fitted to the
-    map (:func:`~._maps.profile_from_map`: the rear film reads it, and a profile held
-    with the globals tinted the film beyond the colour check). The held globals keep the
-    standard errors of the solve that fitted them (they are its values); a stepped
-    exposure has the larger of that and its step's; the map and the profile have their own. The frame falls back to
-    the full solve when the map is not sound, the kept model does not explain the frame
-    with the map (its reduced chi^2 with the floor above ``judge.ok_chi2``, the rule by
-    which a fit is explained) or its verdict is not ok (e.g. the colour check: held
-    globals that moved tint the film)."""
+    """A sequence's warm-started thickness map with the global parameters carried
+    (:func:`~._carried.carried_map`, block coordinate descent), the ``(result, None)``;
+    ``(None, why)`` where the full solve must run. The held globals keep the standard
+    errors of the solve that fitted them (they are its values); a stepped exposure has the
+    larger of that and its step's; the map and the profile have their own. A frame whose
+    verdict is not ok with the globals held (e.g. the colour check: held globals that
+    moved tint the film) goes to the full solve too."""
     st, opts = started.setup, started.options
     carried = init.get("carried") if init else None
     if not (started.warm and opts.thickness == "map" and isinstance(carried, dict) and "exposure" in st.table.free):
         return None, None
-    table = st.table
-    vals = dict(st.vals)
-    prof = tuple(float(vals[n]) for n in PROFILE_NAMES)
-    make = lambda k: st.level(k, opts, st.map_cfg)
-    render = lambda v, m: np.asarray(render_bubble(final_params(table, dict(v, map=m), opts), full, env), np.float64)
-    exposure_err = (carried.get("stderr") or {}).get("exposure")
-    with stage("thickness map, the global parameters carried"):
-        full = st.level(1, opts, st.map_cfg)
-        if not full.mask.any():
-            return None, "no film pixels"
-        dmap, emap, map_ok = fit_map(full, table, vals, prof, opts, env, make_level=make, start=st.map_start)
-        img = render(vals, dmap)
-        fit, dof = _map_misfit(full, st.photo - img, opts)
-        e = float(vals["exposure"])
-        step, z2, step_err = _exposure_step(full, st.photo, img, render(dict(vals, exposure=0.5 * e), dmap), e, opts, fit)
-        moved = z2 > chi2_dist.ppf(1.0 - EXPOSURE_TEST_ALPHA, 1)
-        if moved and np.isfinite(step) and e + step > 0:
-            vals["exposure"] = e + step
-            exposure_err = max(float(exposure_err or 0.0), step_err)
-            dmap, emap, map_ok = fit_map(full, table, vals, prof, opts, env, make_level=make, start=st.map_start)
-        new_prof, prof_err = profile_from_map(full, dmap, emap, prof, tuple(n for n in PROFILE_NAMES if n in table.free))
-        vals.update(zip(PROFILE_NAMES, new_prof))
-        img = render(vals, dmap)
-        fit, dof = _map_misfit(full, st.photo - img, opts)
-    if not map_ok:
-        return None, "its map with the carried global parameters is not sound"
-    if not fit.chi2_floor <= float(opts.judge.ok_chi2):
-        return None, (f"its map with the carried global parameters leaves a reduced chi^2 with the floor of "
-                      f"{fit.chi2_floor:.3g} > {float(opts.judge.ok_chi2):g}")
+    cm = carried_map(st, opts, env, carried)
+    if isinstance(cm, str):
+        return None, cm
+    vals = cm.values
     reported = {k: float(init[k]) if init.get(k) is not None else float("nan") for k in carried["keys"]}
-    reported.update({n: float(v) for n, v in zip(PROFILE_NAMES, new_prof) if n in reported})
+    reported.update({n: float(vals[n]) for n in PROFILE_NAMES if n in reported})
     reported["exposure"] = float(vals["exposure"])
     stderr = {k: carried["stderr"].get(k) for k in reported}
-    stderr.update({n: e for n, e in prof_err.items() if n in reported})
-    stderr["exposure"] = exposure_err
+    stderr.update({n: e for n, e in cm.profile_stderr.items() if n in reported})
+    stderr["exposure"] = cm.exposure_stderr
     disc_err = carried.get("disc_stderr")
     disc = tuple(float(v) for v in init["disc"]) if disc_err and init.get("disc") is not None else st.disc
-    unc = Uncertainty(reported, stderr, (), np.zeros((0, 0)), fit, 1.0, True, None)
+    unc = Uncertainty(reported, stderr, (), np.zeros((0, 0)), cm.misfit, 1.0, True, None)
     judged = Judgement(unc, reported, stderr, disc, disc_err if disc is not st.disc else None, "converged", True, [])
     frames = int(carried.get("frames", 0)) + 1
     notes = [f"global parameters carried from the solve {frames} frame(s) before"
-             + (f"; the exposure stepped by {step:.3g} (score test z^2 = {z2:.3g})" if moved else
-                f" (the exposure's score test z^2 = {z2:.3g})")]
+             + (f"; the exposure stepped by {cm.exposure_step:.3g} (score test z^2 = {cm.exposure_z2:.3g})"
+                if cm.exposure_moved else f" (the exposure's score test z^2 = {cm.exposure_z2:.3g})")]
     sol = SimpleNamespace(values=vals, steps=0)
-    res = _report(st, env, opts, sol, judged, notes, started.t_start, made=(dmap, emap, map_ok, img),
-                  carried=dict(carried, frames=frames))
+    res = _report(st, env, opts, sol, judged, notes, started.t_start,
+                  made=(cm.thickness_map, cm.map_stderr, True, cm.render), carried=dict(carried, frames=frames))
     if not res.ok:
         return None, "with the carried global parameters the fit is not ok: " + "; ".join(res.warnings)[:300]
     return res, None

@@ -1,0 +1,140 @@
+"""A sequence's warm frame with the global parameters carried (block coordinate descent).
+
+A drainage video's frames share their light, reflectances, roughness and disc; what changes
+frame to frame is the film. A warm-started thickness map therefore holds the global
+parameters at the last full solve's values and solves the map, the main unknown, alone
+(variable projection, Golub and Pereyra 1973): :func:`carried_map` builds the map coarse
+to fine (:func:`~bubblefit.inverse._maps.fit_map`), steps the exposure in closed form where
+its score test says it moved (:func:`exposure_step`) and fits the drainage profile to the
+map (:func:`~bubblefit.inverse._maps.profile_from_map`). The fit assembles its result from
+the :class:`CarriedMap`, or runs the full solve where :func:`carried_map` says why not.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import chi2 as chi2_dist
+
+from ._maps import PROFILE_NAMES, fit_map, profile_from_map
+from ._options import FitOptions
+from ._programs import final_params, render_bubble
+from ._uncertainty import Misfit, residual_misfit
+from ..progress import stage
+
+__all__ = ["EXPOSURE_TEST_ALPHA", "CarriedMap", "carried_map", "carried_record", "exposure_step", "map_misfit"]
+
+#: Per-frame false-alarm probability of the score test that a sequence's exposure has not
+#: moved (:func:`exposure_step`): the share of frames whose exposure did not move that
+#: still take its closed-form step and a second map.
+EXPOSURE_TEST_ALPHA = 0.01
+
+
+def map_misfit(full, resid_img: np.ndarray, opts: FitOptions) -> tuple[Misfit, int]:
+    """The :class:`~bubblefit.inverse._uncertainty.Misfit` of a thickness map's
+    full-resolution render (one thickness fitted per pixel, so ``2 N`` degrees of freedom
+    over ``N`` pixels of 3 channels) and its degrees of freedom."""
+    r = np.where(full.w > 0, resid_img * full.w, 0.0)
+    n_free = int(full.mask.sum())
+    return residual_misfit(r, full, float(opts.judge.model_error), n_free), max(int((full.w > 0).sum()) - n_free, 1)
+
+
+def carried_record(disc_stderr, reported: dict, stderr: dict, fit: Misfit, dof: int) -> dict:
+    """What a solve of the global parameters passes on to the next frames of a sequence
+    (JSON): its map's reduced chi^2 with the floor and degrees of freedom, its reported
+    keys, their standard errors (the profile's and the map's excepted: each frame fits its
+    own) and the disc's; ``frames``: frames since."""
+    own = set(PROFILE_NAMES) | {"thickness_nm"}
+    return {"chi2_floor": float(fit.chi2_floor), "dof": int(dof), "keys": list(reported),
+            "stderr": {k: (None if v is None else float(v)) for k, v in stderr.items() if k not in own},
+            "disc_stderr": disc_stderr, "frames": 0}
+
+
+def exposure_step(full, photo, img, img_half, exposure: float, opts: FitOptions, fit: Misfit) -> tuple[float, float, float]:
+    """The exposure's closed-form Gauss-Newton step with the map held, its score statistic
+    and its standard error: ``(step, z2, stderr)``.
+
+    The render is affine in the exposure (eq. 1's reflected terms scale with it; the
+    transmitted background photo does not, a map's background does), so ``a = (img -
+    img_half) / (E / 2)`` is its exact column, from the render at half the exposure. With residual
+    ``r`` and column ``a`` whitened by each pixel's noise and model-error floor, the step
+    is ``a.r / a.a`` (variable projection: the linear parameter solved for the others
+    held, Golub and Pereyra 1973) and ``z2 = (a.r)^2 / (a.a chi2_floor)`` is Rao's score
+    statistic, chi^2 with one degree of freedom when the exposure has not moved (the
+    misfit's Birge ratio scales the variance, as for the standard errors); its standard
+    error ``sqrt(chi2_floor / a.a)``."""
+    used = full.w > 0
+    var = 1.0 / np.where(used, full.w, 1.0) ** 2 + (float(opts.judge.model_error) * np.clip(full.y, 0, None)) ** 2
+    wf = np.where(used, 1.0 / np.sqrt(var), 0.0)
+    a = (img - img_half) / (0.5 * exposure) * wf
+    r = (photo - img) * wf
+    aa, ar = float(np.sum(a * a)), float(np.sum(a * r))
+    s2 = max(float(fit.chi2_floor), 1.0)
+    if not aa > 0:
+        return 0.0, 0.0, float("nan")
+    return ar / aa, ar * ar / (aa * s2), math.sqrt(s2 / aa)
+
+
+@dataclass(frozen=True)
+class CarriedMap:
+    """A warm frame's map with the global parameters carried: the values (globals held,
+    exposure possibly stepped, profile fitted to the map), the map and its per-pixel
+    standard errors, its full-resolution render and misfit, the profile's and the
+    exposure's standard errors, and the exposure's score test."""
+
+    values: dict
+    thickness_map: np.ndarray
+    map_stderr: np.ndarray
+    render: np.ndarray
+    misfit: Misfit
+    profile_stderr: dict
+    exposure_stderr: float | None
+    exposure_step: float
+    exposure_z2: float
+    exposure_moved: bool
+
+
+def carried_map(st, opts: FitOptions, env, carried: dict) -> CarriedMap | str:
+    """The warm frame's map with the globals held at the last full solve's values
+    (``carried``, :func:`carried_record`), or why the full solve must run instead.
+
+    The map is built coarse to fine as a solved frame's (from the warm start's
+    extrapolated profile); the exposure then gets its closed-form step when its score test
+    says it moved (:func:`exposure_step`, :data:`EXPOSURE_TEST_ALPHA`), and the map is fitted
+    once more at the new exposure. The drainage profile is fitted to the map (the rear
+    film reads it, and a profile held with the globals tinted the film beyond the colour
+    check). The frame goes to the full solve when the map is not sound, or the kept model
+    does not explain the frame with the map (its reduced chi^2 with the floor above
+    ``judge.ok_chi2``, the rule by which a fit is explained)."""
+    table = st.table
+    vals = dict(st.vals)
+    prof = tuple(float(vals[n]) for n in PROFILE_NAMES)
+    make = lambda k: st.level(k, opts, st.map_cfg)
+    exposure_err = (carried.get("stderr") or {}).get("exposure")
+    with stage("thickness map, the global parameters carried"):
+        full = st.level(1, opts, st.map_cfg)
+        if not full.mask.any():
+            return "no film pixels"
+        render = lambda v, m: np.asarray(render_bubble(final_params(table, dict(v, map=m), opts), full, env), np.float64)
+        dmap, emap, map_ok = fit_map(full, table, vals, prof, opts, env, make_level=make, start=st.map_start)
+        img = render(vals, dmap)
+        fit, _ = map_misfit(full, st.photo - img, opts)
+        e = float(vals["exposure"])
+        step, z2, step_err = exposure_step(full, st.photo, img, render(dict(vals, exposure=0.5 * e), dmap), e, opts, fit)
+        moved = bool(z2 > chi2_dist.ppf(1.0 - EXPOSURE_TEST_ALPHA, 1))
+        if moved and np.isfinite(step) and e + step > 0:
+            vals["exposure"] = e + step
+            exposure_err = max(float(exposure_err or 0.0), step_err)
+            dmap, emap, map_ok = fit_map(full, table, vals, prof, opts, env, make_level=make, start=st.map_start)
+        new_prof, prof_err = profile_from_map(full, dmap, emap, prof, tuple(n for n in PROFILE_NAMES if n in table.free))
+        vals.update(zip(PROFILE_NAMES, new_prof))
+        img = render(vals, dmap)
+        fit, _ = map_misfit(full, st.photo - img, opts)
+    if not map_ok:
+        return "its map with the carried global parameters is not sound"
+    if not fit.chi2_floor <= float(opts.judge.ok_chi2):
+        return (f"its map with the carried global parameters leaves a reduced chi^2 with the floor of "
+                f"{fit.chi2_floor:.3g} > {float(opts.judge.ok_chi2):g}")
+    return CarriedMap(vals, dmap, emap, img, fit, dict(prof_err), exposure_err, float(step), float(z2), moved)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from test_newton_stray import PITCH_UM, _scene_data
+from test_newton_stray import PITCH_UM, _box_rings, _scene_data
 
 
 def test_pixel_mean_of_two_beam_fringes_is_the_box_sinc():
@@ -58,9 +58,6 @@ def _rings_photo(tmp_path, radius_um, h0, stray, n_sub=8, size=48):
     """A grey photo of Newton's rings rendered by averaging each pixel's ``n_sub`` x ``n_sub``
     sub-pixel centres (the midpoint rule of the pixel's box, independent of the model's
     Gauss-Legendre points), Gaussian noise 0.01 per pixel and 8-bit steps."""
-    import jax.numpy as jnp
-
-    from bubblefit.inverse._newton import newton_gap
     from bubblefit.inverse.planar import PlanarForward, view_of
     from bubblefit.model.planar_scene import parse_planar
 
@@ -68,13 +65,7 @@ def _rings_photo(tmp_path, radius_um, h0, stray, n_sub=8, size=48):
     view = view_of(scene)
     fwd = PlanarForward(scene.stack, scene.lamp, scene.response, scene.na, 4000.0)
     cx, cy = 0.5 * size * PITCH_UM, 0.5 * size * PITCH_UM
-    sub = (np.arange(n_sub) + 0.5) / n_sub - 0.5
-    lin = 0.0
-    for sx in sub:
-        for sy in sub:
-            r = np.hypot(view.x_um + sx * PITCH_UM - cx, view.y_um + sy * PITCH_UM - cy)
-            gap = newton_gap(jnp.asarray(r), radius_um, h0)
-            lin = lin + np.asarray(fwd.rgb(gap, np.zeros_like(r), stray), np.float64) / n_sub ** 2
+    lin = _box_rings(fwd, view, cx, cy, radius_um, h0, stray, n_sub)
     lin = lin * 0.8 / lin.max()
     noise = np.random.default_rng(3).normal(0.0, 0.01, lin.shape[:2])[..., None]
     photo = np.round(np.clip(lin + noise, 0.0, 1.0) * 255.0) / 255.0

@@ -29,7 +29,7 @@ def test_pixel_mean_of_two_beam_fringes_is_the_box_sinc():
     gx, gy = slope * np.cos(ang), slope * np.sin(ang) / np.sqrt(2.0)
 
     def colour(hs):
-        return jnp.repeat(jnp.cos(2.0 * jnp.pi * hs / fringe)[..., None], 3, -1)
+        return jnp.repeat(jnp.cos(2.0 * jnp.pi * hs / fringe)[:, None], 3, -1)
 
     mean = np.asarray(pixel_mean(colour, jnp.asarray(h), jnp.asarray(gx), jnp.asarray(gy), pitch, -1e9, 1e9))
     k = 2.0 * np.pi / fringe  # phase per nm of gap

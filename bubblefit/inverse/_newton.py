@@ -63,7 +63,7 @@ _NODES, _WEIGHTS = np.polynomial.legendre.leggauss(PIXEL_NODES)
 def pixel_mean(colour, h, gx, gy, pitch_um: float, lo: float, hi: float):
     """The mean of ``colour(gap)`` over each pixel's square (side ``pitch_um`` on the film)
     where the gap varies linearly across it: ``h`` (P,) at the pixel's centre, ``(gx, gy)``
-    (P,) its gradient (nm per um); ``colour`` maps gaps (P, K) to colours (P, K, 3).
+    (P,) its gradient (nm per um); ``colour`` maps gaps (P,) to colours (P, 3).
 
     The camera integrates the light over its pixel's box aperture: the image is the scene
     convolved with ``rect(x/p) rect(y/p)``, whose transfer function is ``sinc(f_x p)
@@ -74,11 +74,11 @@ def pixel_mean(colour, h, gx, gy, pitch_um: float, lo: float, hi: float):
     approach the pixel pitch. The Airy sum's harmonics fall each by its own sinc; the mean
     is taken here by the pixel's :data:`PIXEL_NODES` x :data:`PIXEL_NODES` Gauss-Legendre
     points, which holds for any stack (each point's gap clipped to ``[lo, hi]``)."""
-    half = 0.5 * pitch_um * jnp.asarray(_NODES)
-    offsets = (gx[:, None, None] * half[None, :, None] + gy[:, None, None] * half[None, None, :])
-    hs = jnp.clip(h[:, None] + offsets.reshape(h.shape[0], -1), lo, hi)
-    w = jnp.asarray(np.outer(_WEIGHTS, _WEIGHTS).ravel() / 4.0)
-    return jnp.einsum("pkc,k->pc", colour(hs), w)
+    total = 0.0
+    for a, wa in zip(0.5 * pitch_um * _NODES, _WEIGHTS):  # one point at a time: memory as one render's
+        for b, wb in zip(0.5 * pitch_um * _NODES, _WEIGHTS):
+            total = total + (0.25 * wa * wb) * colour(jnp.clip(h + a * gx + b * gy, lo, hi))
+    return total
 
 
 #: Fewest pixels per fringe the fit models: below 2 (Nyquist), the sampled rings alias
@@ -374,7 +374,7 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
             gx, gy = newton_gap_gradient(dx, dy, jnp.exp(t[0]))
             b = t[5] if free else b_fixed
             # the film's reflectance averaged over each pixel's box (the camera's aperture)
-            out = jnp.exp(t[4]) * lk[:, None] * pixel_mean(lambda hs: fwd.rgb(hs, sk[:, None], b), h, gx, gy,
+            out = jnp.exp(t[4]) * lk[:, None] * pixel_mean(lambda hs: fwd.rgb(hs, sk, b), h, gx, gy,
                                                             pitch, lo, hi)
             return out * lamp_envelope(uk, vk, t[ie:ie + len(ENVELOPE_TERMS)])[:, None] if env else out
 

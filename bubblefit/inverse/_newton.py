@@ -415,8 +415,8 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
     aliased = aliased_pixels(gx0, gy0, pitch, fwd.fringe_nm)
     notes = []
     if aliased.any():
-        notes.append(f"the rings are aliased on {aliased.mean():.1%} of the film (fringes under {MIN_FRINGE_PX:g} "
-                     "pixels apart, from the start's lens): those pixels are left out of the fit")
+        notes.append(f"the rings are aliased on {int(aliased.sum())} of the film's {len(aliased)} pixels (fringes "
+                     f"under {MIN_FRINGE_PX:g} pixels apart, from the start's lens): those pixels are left out of the fit")
     keep = ~aliased
     if keep.sum() < 2 * (len(theta) + 1):
         keep = every

@@ -61,10 +61,8 @@ def test_rings_under_a_lamp_spot(tmp_path):
     experiments/real_photos.py fall by more), Gaussian noise 0.01 and 8-bit steps. With the
     envelope (the scene's default, ``"auto"``: six fringes) the fit finds R, b and the
     envelope's fall-off within 3 of their standard errors (the noise's 99.7 %) and is ``ok``;
-    without it (``envelope = "none"``) the lamp's fall-off is fitted by a gap sloping across
-    a fraction of a fringe: not ``ok``, the lost-rings warning, and R off by more than the
-    factor of that warning."""
-    from bubblefit.inverse._newton import LOST_RINGS_RATIO
+    without it (``envelope = "none"``) the rings under a uniform lamp do not explain the
+    photo: not ``ok``, and R off by more than 3 of its standard errors."""
     from bubblefit.inverse.planar import PlanarForward, fit_planar, view_of
     from bubblefit.model.planar_scene import parse_planar
 
@@ -91,8 +89,7 @@ def test_rings_under_a_lamp_spot(tmp_path):
     flat = fit_planar(photo, parse_planar(_with_envelope(_scene_data(tmp_path), "none"), tmp_path), clip_high=1.0)
     assert flat.params["envelope_ratio"] == 1.0
     assert not flat.ok
-    assert any("lost the rings" in w_ for w_ in flat.warnings)
-    assert not 1.0 / LOST_RINGS_RATIO < flat.params["radius_mm"] / (radius_um / 1000.0) < LOST_RINGS_RATIO
+    assert abs(flat.params["radius_mm"] - radius_um / 1000.0) > 3.0 * flat.stderr["radius_mm"]
 
 
 def test_flat_field_turns_the_automatic_envelope_off(tmp_path, monkeypatch):

@@ -86,7 +86,8 @@ def test_colour_start_of_a_folded_map_is_ambiguous(fold):
 def test_white_light_fit_skips_the_colour_free_start(monkeypatch):
     """A white-light render of Newton's rings (the package's own flat-film model: an air gap
     between BK7 glasses, lamp E, sRGB, 16 x 16 pixels of 2 um, the gap growing by 300 nm
-    over 16 um as in tests/test_order_planar.py) started from its own map: the colour start
+    over 16 um as in tests/test_order_planar.py, each pixel's colour its mean over the pixel
+as the model's) started from its own map: the colour start
     is unambiguous, so the fit does not seek the colour-free one and still finds R."""
     import jax.numpy as jnp
 
@@ -108,7 +109,10 @@ def test_white_light_fit_skips_the_colour_free_start(monkeypatch):
     x, yy, s2, lum = view.x_um[m], view.y_um[m], view.sin2[m], view.radiance[m]
     radius = 1000.0 * 16.0**2 / (2 * 300.0)  # um
     gap = np.asarray(newton.newton_gap(jnp.asarray(np.hypot(x - 1.0, yy - 1.0)), radius, 0.0), np.float64)
-    y = np.asarray(fwd.rgb(gap, s2), np.float64) * lum[:, None]
+    gx, gy = newton.newton_gap_gradient(jnp.asarray(x - 1.0), jnp.asarray(yy - 1.0), radius)
+    # each pixel's mean colour over its 2 um box (the model's own)
+    y = np.asarray(newton.pixel_mean(lambda hs: fwd.rgb(hs, jnp.asarray(s2)), jnp.asarray(gap), gx, gy,
+                                     2.0, 0.0, hi), np.float64) * lum[:, None]
     res = newton.fit_newton(fwd, y, lum, s2, view, m, gap, 1.0, 0.002, 0.0, hi)
     # noise-free photo from the same model: R to float32's precision in the model's colours
     assert res.params["radius_mm"] * 1000.0 == pytest.approx(radius, rel=1e-3)

@@ -29,6 +29,24 @@ def _scene_data(tmp_path, stray=None, kind="newton", width=64, height=48):
             "camera": {"width": width, "height": height, "pixel_um": PITCH_UM, "response": str(tmp_path / "grey.csv")}}
 
 
+def _box_rings(fwd, view, cx, cy, radius_um, h0, stray, n_sub=8):
+    """(H, W, 3) linear colours of Newton's rings about ``(cx, cy)``, each pixel the mean of
+    its ``n_sub`` x ``n_sub`` sub-pixel centres (the midpoint rule of the pixel's box: the
+    camera integrates over its pixel, independent of the model's Gauss-Legendre points)."""
+    import jax.numpy as jnp
+
+    from bubblefit.inverse._newton import newton_gap
+
+    sub = (np.arange(n_sub) + 0.5) / n_sub - 0.5
+    lin = 0.0
+    for sx in sub:
+        for sy in sub:
+            r = np.hypot(view.x_um + sx * PITCH_UM - cx, view.y_um + sy * PITCH_UM - cy)
+            gap = newton_gap(jnp.asarray(r), radius_um, h0)
+            lin = lin + np.asarray(fwd.rgb(gap, np.zeros_like(r), stray), np.float64) / n_sub ** 2
+    return lin
+
+
 def test_stray_scene_key(tmp_path):
     """``[film] stray``: fitted by default for Newton's rings, a number fixes it, the other
     models refuse it in one line (under one thickness it is not told apart from the thickness)."""
@@ -64,15 +82,12 @@ def test_linear_exposure_and_stray():
 def test_rings_with_stray_light(tmp_path):
     """A 64x48 grey photo of Newton's rings under sodium light (lens R = 60 mm on BK7, six
     fringes, rings 3.8 pixels wide at the photo's edge) with a grey stray reflectance of 0.2
-    added (2.5 times the gap's mean Airy reflectance 0.081, which leaves fringes of 0.20
+    added (each pixel's mean over its box; 2.5 times the gap's mean Airy reflectance 0.081, which leaves fringes of 0.20
     of the mean, rms, about the 0.18 of the real sodium photos of
     experiments/real_photos.py), Gaussian noise 0.01 and 8-bit steps. The model with the
     stray term finds R and b within 3 of their standard errors (the noise's 99.7 %); the
     model without it (``stray = 0``), which must darken the rings to zero, is not ``ok``
     and misses R by more than 3 of its own standard errors."""
-    import jax.numpy as jnp
-
-    from bubblefit.inverse._newton import newton_gap
     from bubblefit.inverse.planar import PlanarForward, fit_planar, view_of
     from bubblefit.model.planar_scene import parse_planar
 
@@ -80,9 +95,7 @@ def test_rings_with_stray_light(tmp_path):
     scene = parse_planar(_scene_data(tmp_path), tmp_path)
     view = view_of(scene)
     fwd = PlanarForward(scene.stack, scene.lamp, scene.response, scene.na, 4000.0)
-    r = np.hypot(view.x_um - 0.4 * scene.width * PITCH_UM, view.y_um - 0.55 * scene.height * PITCH_UM)
-    gap = np.asarray(newton_gap(jnp.asarray(r), radius_um, h0), np.float64)
-    lin = np.asarray(fwd.rgb(gap, np.zeros_like(gap), stray), np.float64)
+    lin = _box_rings(fwd, view, 0.4 * scene.width * PITCH_UM, 0.55 * scene.height * PITCH_UM, radius_um, h0, stray)
     lin *= 0.8 / lin.max()
     noise = np.random.default_rng(0).normal(0.0, 0.01, lin.shape[:2])[..., None]  # one grey value per pixel
     photo = np.round(np.clip(lin + noise, 0.0, 1.0) * 255.0) / 255.0

@@ -30,8 +30,9 @@ import numpy as np
 from ._planar_lm import ModelFit, fit_colours, fit_order
 from ..model.planar_scene import ENVELOPE_DEFAULT, STRAY_DEFAULT
 
-__all__ = ["ENVELOPE_TERMS", "colour_start", "envelope_coordinates", "fit_newton", "lamp_envelope",
-           "lost_rings_warning", "newton_gap", "rings_centre", "rings_period"]
+__all__ = ["ENVELOPE_TERMS", "PIXEL_NODES", "aliased_pixels", "colour_start", "envelope_coordinates", "fit_newton",
+           "lamp_envelope", "lost_rings_warning", "newton_gap", "newton_gap_gradient", "pixel_mean", "rings_centre",
+           "rings_period"]
 
 
 def newton_gap(r_um, radius_um, h0_nm):
@@ -39,6 +40,57 @@ def newton_gap(r_um, radius_um, h0_nm):
     r2 = jnp.minimum(r_um * r_um, 0.999999 * radius_um * radius_um)
     sag = r2 / (radius_um + jnp.sqrt(radius_um * radius_um - r2))  # = R - sqrt(R^2 - r^2), without cancellation
     return jnp.maximum(1000.0 * sag + h0_nm, 0.0)
+
+
+def newton_gap_gradient(dx_um, dy_um, radius_um):
+    """``(dh/dx, dh/dy)`` (nm per um) of :func:`newton_gap` at ``(dx, dy)`` from the contact
+    point: ``dh/dr = r / sqrt(R^2 - r^2)`` (``~ r / R`` near contact; Born and Wolf sec.
+    7.5.3), along ``(dx, dy) / r``."""
+    r2 = jnp.minimum(dx_um * dx_um + dy_um * dy_um, 0.999999 * radius_um * radius_um)
+    slope = 1000.0 / jnp.sqrt(radius_um * radius_um - r2)
+    return dx_um * slope, dy_um * slope
+
+
+#: Gauss-Legendre nodes per axis of a pixel's box in :func:`pixel_mean`: 3 integrate a
+#: polynomial of degree 5 in the gap exactly; on the two-beam term ``cos(delta)`` whose
+#: phase spans ``+-pi/2`` per axis (fringes 2 pixels apart, the finest the fit keeps,
+#: :func:`aliased_pixels`) the rule's mean is 0.6374 against the box's ``sinc(pi/2) =
+#: 0.6366``, 1e-3 of the fringe's amplitude.
+PIXEL_NODES = 3
+_NODES, _WEIGHTS = np.polynomial.legendre.leggauss(PIXEL_NODES)
+
+
+def pixel_mean(colour, h, gx, gy, pitch_um: float, lo: float, hi: float):
+    """The mean of ``colour(gap)`` over each pixel's square (side ``pitch_um`` on the film)
+    where the gap varies linearly across it: ``h`` (P,) at the pixel's centre, ``(gx, gy)``
+    (P,) its gradient (nm per um); ``colour`` maps gaps (P,) to colours (P, 3).
+
+    The camera integrates the light over its pixel's box aperture: the image is the scene
+    convolved with ``rect(x/p) rect(y/p)``, whose transfer function is ``sinc(f_x p)
+    sinc(f_y p)`` (J. W. Goodman, *Introduction to Fourier Optics*, 3rd ed., sec. 2.1 and
+    Table 2.1, rect <-> sinc; sec. 6.2's detector aperture). For a two-beam film of phase
+    ``delta`` linear across the pixel, ``<cos delta> = cos(delta_c) sinc(g_x p/2) sinc(g_y p/2)``
+    (``g = grad delta``, ``sinc x = sin x / x``): the fringes' visibility falls as they
+    approach the pixel pitch. The Airy sum's harmonics fall each by its own sinc; the mean
+    is taken here by the pixel's :data:`PIXEL_NODES` x :data:`PIXEL_NODES` Gauss-Legendre
+    points, which holds for any stack (each point's gap clipped to ``[lo, hi]``)."""
+    total = 0.0
+    for a, wa in zip(0.5 * pitch_um * _NODES, _WEIGHTS):  # one point at a time: memory as one render's
+        for b, wb in zip(0.5 * pitch_um * _NODES, _WEIGHTS):
+            total = total + (0.25 * wa * wb) * colour(jnp.clip(h + a * gx + b * gy, lo, hi))
+    return total
+
+
+#: Fewest pixels per fringe the fit models: below 2 (Nyquist), the sampled rings alias
+#: (Goodman, *Introduction to Fourier Optics*, sec. 2.4, the sampling theorem).
+MIN_FRINGE_PX = 2.0
+
+
+def aliased_pixels(gx, gy, pitch_um: float, fringe_nm: float) -> np.ndarray:
+    """Pixels whose fringes repeat in fewer than :data:`MIN_FRINGE_PX` pixels: the gap
+    changes by more than ``fringe_nm / MIN_FRINGE_PX`` across one pixel (``|grad h| p``)."""
+    slope = np.hypot(np.asarray(gx, np.float64), np.asarray(gy, np.float64))
+    return slope * pitch_um > fringe_nm / MIN_FRINGE_PX
 
 
 def _circle_spread(x, y, value, cx: float, cy: float, width: float) -> float:
@@ -309,15 +361,22 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
     bright = y.sum(-1) / np.maximum(lum, 1e-9)
     u, v = envelope_coordinates(x, yy)
     xj, yj, lj, sj, obs, uj, vj = (jnp.asarray(a) for a in (x, yy, lum, sin2, y, u, v))
+    pitch = float(np.median(np.abs(np.diff(np.unique(np.round(x, 6))))))
+    every = np.ones(len(x), bool)
 
-    def make_model(free: bool, env: bool):
+    def make_model(free: bool, env: bool, keep=every):
         ie = 6 if free else 5  # the envelope's coefficients after the exposure (and b)
+        xk, yk, lk, sk, uk, vk = (a[keep] for a in (xj, yj, lj, sj, uj, vj))
 
         def model(t):
-            r = jnp.sqrt((xj - t[1]) ** 2 + (yj - t[2]) ** 2)
-            h = jnp.clip(newton_gap(r, jnp.exp(t[0]), t[3]), lo, hi)
-            out = jnp.exp(t[4]) * lj[:, None] * fwd.rgb(h, sj, t[5] if free else b_fixed)
-            return out * lamp_envelope(uj, vj, t[ie:ie + len(ENVELOPE_TERMS)])[:, None] if env else out
+            dx, dy = xk - t[1], yk - t[2]
+            h = jnp.clip(newton_gap(jnp.sqrt(dx * dx + dy * dy), jnp.exp(t[0]), t[3]), lo, hi)
+            gx, gy = newton_gap_gradient(dx, dy, jnp.exp(t[0]))
+            b = t[5] if free else b_fixed
+            # the film's reflectance averaged over each pixel's box (the camera's aperture)
+            out = jnp.exp(t[4]) * lk[:, None] * pixel_mean(lambda hs: fwd.rgb(hs, sk, b), h, gx, gy,
+                                                            pitch, lo, hi)
+            return out * lamp_envelope(uk, vk, t[ie:ie + len(ENVELOPE_TERMS)])[:, None] if env else out
 
         return model
 
@@ -331,7 +390,6 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
     starts = [] if start is None else [start]
     rings = None
     if not unambiguous:
-        pitch = float(np.median(np.abs(np.diff(np.unique(np.round(x, 6))))))
         rings = _rings_start(fwd, x, yy, bright, mask, pitch, lo, hi)
         starts.append(rings[:4])
     env0 = _envelope_start(bright, mask, u, v) if envelope != "none" else np.zeros(len(ENVELOPE_TERMS))
@@ -352,12 +410,24 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
             best = (cost, [np.log(radius), cx, cy, h0, np.log(g)] + ([b] if fit_stray else [])
                     + (list(env0) if env else []), env)
     theta, env_on = jnp.asarray(best[1]), best[2]
-    model = make_model(fit_stray, env_on)
+    # rings finer than two pixels alias: left out of the fit (the start's lens says where)
+    gx0, gy0 = newton_gap_gradient(xj - theta[1], yj - theta[2], jnp.exp(theta[0]))
+    aliased = aliased_pixels(gx0, gy0, pitch, fwd.fringe_nm)
+    notes = []
+    if aliased.any():
+        notes.append(f"the rings are aliased on {int(aliased.sum())} of the film's {len(aliased)} pixels (fringes "
+                     f"under {MIN_FRINGE_PX:g} pixels apart, from the start's lens): those pixels are left out of the fit")
+    keep = ~aliased
+    if keep.sum() < 2 * (len(theta) + 1):
+        keep = every
+    obs_k, sin2_k = obs[keep], np.asarray(sin2)[keep]
+    model = make_model(fit_stray, env_on, keep)
+    xk, yk = xj[keep], yj[keep]
 
     def gap(t):
-        return jnp.clip(newton_gap(jnp.sqrt((xj - t[1]) ** 2 + (yj - t[2]) ** 2), jnp.exp(t[0]), t[3]), lo, hi)
+        return jnp.clip(newton_gap(jnp.sqrt((xk - t[1]) ** 2 + (yk - t[2]) ** 2), jnp.exp(t[0]), t[3]), lo, hi)
 
-    theta, r, cost, J = fit_colours(model, obs, sigma, high, theta, iters)
+    theta, r, cost, J = fit_colours(model, obs_k, sigma, high, theta, iters)
     # a grey photo (three equal channels) measures each pixel once, not three times: its
     # residuals come in identical threes, and sigma^2 (J^T J)^-1 counted over all of them
     # is 1/3 of the covariance (sigma^2 estimated over the pixels, the normal matrix over
@@ -368,11 +438,11 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
         dof = max(len(r) // copies - len(theta), 1)
         b_se = float(np.sqrt(max(float(np.linalg.pinv(J.T @ J)[5, 5]) * cost / dof, 0.0)))
         fit_stray, b_fixed = False, 0.0
-        model = make_model(False, env_on)
-        theta, r, cost, J = fit_colours(model, obs, sigma, high, jnp.concatenate([theta[:5], theta[6:]]), iters)
+        model = make_model(False, env_on, keep)
+        theta, r, cost, J = fit_colours(model, obs_k, sigma, high, jnp.concatenate([theta[:5], theta[6:]]), iters)
     # the rings' order is the contact offset's: every ring moves with it (bubblefit.inverse.order_check)
-    order = fit_order(fwd, model, gap, obs, sigma, high, (theta, r, cost, J), {"contact_offset_nm": 3}, sin2, lo, hi,
-                      iters)
+    order = fit_order(fwd, model, gap, obs_k, sigma, high, (theta, r, cost, J), {"contact_offset_nm": 3}, sin2_k, lo,
+                      hi, iters)
     dof = max(len(r) // copies - len(theta), 1)
     cov = np.linalg.pinv(J.T @ J) * (cost / dof)
     t = np.asarray(theta, np.float64)
@@ -409,5 +479,5 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
                                   rings[0], radius_um)
         warnings += [lost] if lost else []
     return ModelFit(params=params, stderr=stderr, thickness=h, thickness_stderr=h_se,
-                     model=np.asarray(model(theta), np.float64), gain=float(np.exp(t[4])), order=order,
-                     warnings=warnings)
+                     model=np.asarray(make_model(fit_stray, env_on)(theta), np.float64), gain=float(np.exp(t[4])),
+                     order=order, warnings=warnings, notes=notes, fitted=keep)

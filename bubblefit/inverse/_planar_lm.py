@@ -46,6 +46,10 @@ class ModelFit:
     order: object | None = None
     #: the model's own warnings (Newton's rings: a fit that lost the rings)
     warnings: list = field(default_factory=list)
+    #: what the fit says that does not make it wrong (Newton's rings: where they alias)
+    notes: list = field(default_factory=list)
+    #: the film pixels the model was fitted to (P,), or None for all of them
+    fitted: np.ndarray | None = None
 
 
 def levenberg_marquardt(resid: Callable, jac: Callable, theta, iters: int = 40, rel_stop: float = 1e-9):

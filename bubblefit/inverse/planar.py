@@ -258,6 +258,9 @@ class PlanarResult:
     #: (:meth:`bubblefit.inverse.order_check.OrderCheck.to_json`) of a constant film, a
     #: drainage profile, Newton's rings or a map whose order is its profile's; None otherwise.
     order_check: dict | None = None
+    #: What the fit says that does not make it wrong (Newton's rings aliased beyond the
+    #: pixels' Nyquist limit, left out of the fit and of the chi-squared).
+    notes: list = field(default_factory=list)
 
     @property
     def residual_rms(self) -> float:
@@ -271,7 +274,7 @@ class PlanarResult:
                 "stderr": self.stderr, "gain": self.gain, "noise_sigma": self.sigma,
                 "reduced_chi2": self.reduced_chi2, "reduced_chi2_floor": self.reduced_chi2_floor,
                 "order_from": self.order_from, "order_hops": self.order_hops, "stderr_camera": self.stderr_camera,
-                "order_check": self.order_check,
+                "order_check": self.order_check, "notes": self.notes,
                 "thickness_nm": {"min": float(m.min()), "median": float(np.median(m)), "max": float(m.max()),
                                  "median_stderr": float(np.nanmedian(self.thickness_stderr_map))} if m.size else None}
 
@@ -283,7 +286,8 @@ class PlanarResult:
                          f"median standard error {j['median_stderr']:.2f} nm)")
         lines.append(f"ok: {'yes' if self.ok else 'no'}; reduced chi^2 {self.reduced_chi2:.3g} "
                      f"({self.reduced_chi2_floor:.3g} with the model-error floor); "
-                     f"order hops {self.order_hops}" + ("; " + "; ".join(self.warnings) if self.warnings else ""))
+                     f"order hops {self.order_hops}" + ("; " + "; ".join(self.warnings) if self.warnings else "")
+                     + ("; note: " + "; ".join(self.notes) if self.notes else ""))
         return "\n".join(lines)
 
 
@@ -753,7 +757,8 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     sigma2 = max(float(np.median(cost.min(1))) / 3.0, 1e-10)
     window = 0.3 * fwd.fringe_nm
     warnings: list[str] = []
-    drain_camera = order = map_profile = None
+    drain_camera = order = map_profile = fitted = None
+    notes: list[str] = []
 
     if kind == "constant":  # the order test decides where the response states its errors
         gain, dpix = _constant_thickness(y, lum, table, i0, i1, a, grid, fwd.fringe_nm, sigma2,
@@ -810,13 +815,16 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         dref, model, gain = nres.thickness, nres.model, nres.gain
         stderr, order = nres.thickness_stderr, nres.order
         warnings.extend(nres.warnings)
+        notes, fitted = nres.notes, nres.fitted
         res = censored_residual(y, model, clip_high, np)
     order = order or _profile_order(fwd, y, lum, sin2, view, mask, map_profile, gain, sigma, lo, hi, clip_high)
-    chi2 = float(np.mean(res ** 2) / sigma ** 2)
+    # the pixels the model was fitted to (Newton's rings: not where they alias)
+    rf, yf = (res, y) if fitted is None else (res[fitted], y[fitted])
+    chi2 = float(np.mean(rf ** 2) / sigma ** 2)
     # with each channel's variance sigma^2 + (model_error y)^2, the floor by which a
     # bubble's fit is judged (JudgeSettings.model_error: how much independent renderers
     # differ on the same film); ``ok`` is judged by this one
-    chi2_floor = float(np.mean(res ** 2 / (sigma ** 2 + (JudgeSettings.model_error * y) ** 2)))
+    chi2_floor = float(np.mean(rf ** 2 / (sigma ** 2 + (JudgeSettings.model_error * yf) ** 2)))
     stderr_camera = drain_camera if kind == "drainage" else None
     if kind in ("constant", "map"):
         perr, stderr, stderr_camera = _with_camera_term(fwd, kind, model, dref, sin2, sigma, perr, stderr)
@@ -834,4 +842,5 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     return PlanarResult(kind=kind, ok=ok, thickness_map=tmap, thickness_stderr_map=smap, render=render, residual=resid,
                         gain=gain, sigma=sigma, params=params, stderr=perr, warnings=warnings, order_hops=hops,
                         reduced_chi2=chi2, reduced_chi2_floor=chi2_floor, order_from=order_from,
-                        stderr_camera=stderr_camera, order_check=None if order is None else order.to_json())
+                        stderr_camera=stderr_camera, order_check=None if order is None else order.to_json(),
+                        notes=notes)

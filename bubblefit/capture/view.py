@@ -25,6 +25,7 @@ from typing import Literal
 import numpy as np
 
 from ..errors import InputError
+from ..model.geometry import disc_angles, divergent_rays
 
 __all__ = ["View", "ViewKind", "ViewSource", "ASSUMED_FOCAL_35MM", "FULL_FRAME_DIAGONAL_MM", "fov_from_focal",
            "fov_from_35mm", "view_from_exif", "resolve_view", "assumed_lens", "outline_axes",
@@ -282,48 +283,6 @@ def perspective_from_disc(disc: tuple, width: int, height: int, fov_deg: float, 
     return camera, (0.0, 0.0, 0.0), float(radius)
 
 
-def _atan_over(z, xp):
-    """``atan(z) / z``, 1 at ``z = 0`` (smooth there: its series ``1 - z^2/3``)."""
-    small = xp.abs(z) < 1e-3
-    zs = xp.where(small, 1.0, z)
-    return xp.where(small, 1.0 - z * z / 3.0, xp.arctan(zs) / zs)
-
-
-def _sin_over(z, xp):
-    """``sin(z) / z``, 1 at ``z = 0`` (series ``1 - z^2/6``)."""
-    small = xp.abs(z) < 1e-3
-    zs = xp.where(small, 1.0, z)
-    return xp.where(small, 1.0 - z * z / 6.0, xp.sin(zs) / zs)
-
-
-def _disc_scaled(rho, r, g, xp):
-    """``(theta / g, alpha / g)`` of :func:`disc_angles`: finite and smooth through ``g = 0``,
-    where they are ``(rho, r)``."""
-    a = r
-    for _ in range(3):
-        sp, sm = (rho + a) * _atan_over((rho + a) * g, xp), (rho - a) * _atan_over((rho - a) * g, xp)
-        th, al = (sp + sm) / 2.0, (sp - sm) / 2.0
-        ratio = xp.sqrt(xp.maximum(xp.cos(th * g) ** 2 - xp.sin(al * g) ** 2, 1e-12)) / xp.cos(al * g)
-        a = 2.0 * r / (1.0 + ratio)
-    return th, al
-
-
-def disc_angles(rho, r, g, xp=np):
-    """``(theta, alpha)``: the direction of a sphere's centre off the optical axis and the
-    half-angle it subtends (radians), seen through a pinhole of inverse focal length ``g``
-    (1/pixels) as a disc of radius ``r`` whose centre lies ``rho`` pixels from the principal
-    point: :func:`outline_axes` inverted in closed form (:func:`perspective_from_disc`
-    gives the steps). ``xp``: ``numpy`` or ``jax.numpy`` (differentiable in ``g``).
-
-    References
-    ----------
-    R. Hartley and A. Zisserman, *Multiple View Geometry in Computer Vision*, 2nd ed., 2004,
-    sec. 8.3 (the outline's cone); I. Kasa, IEEE Trans. Instrum. Meas. 25(1), 1976.
-    """
-    th, al = _disc_scaled(rho, r, g, xp)
-    return th * g, al * g
-
-
 def divergence(fov_deg: float | None) -> float:
     """The view's divergence ``u = tan(fov / 2)`` of a horizontal field of view (0 for an
     orthographic view, ``fov_deg`` None or 0): the half-width of the image plane at unit
@@ -335,53 +294,6 @@ def fov_of_divergence(u: float) -> float:
     """The horizontal field of view (degrees) of the divergence ``u``: ``2 atan(u)``
     (:func:`divergence` inverted)."""
     return math.degrees(2.0 * math.atan(float(u)))
-
-
-def divergent_rays(u, disc: tuple, width: int, height: int, rows, cols, xp=None):
-    """``(origins, directions)`` of the rays through pixels ``rows``, ``cols`` of a
-    ``width x height`` photo whose view has the divergence ``u = tan(fov/2)``
-    (:func:`divergence`), the sphere (radius 1 at the origin) seen as ``disc``: smooth in
-    ``u`` through the orthographic view (``u = 0``), where they are
-    :class:`~bubblefit.model.geometry.OrthographicCamera`'s rays.
-
-    For ``u > 0`` the rays are those of :func:`perspective_from_disc`'s pinhole, each
-    origin moved along its ray to 4 radii before the ray's closest approach to the
-    sphere's centre. With ``g = 2u / W`` (the inverse focal length in pixels), a pixel's
-    direction is ``d = (q g, -1) / |(q g, -1)|`` (``q``: its offset from the principal
-    point, +y up) and the pinhole lies at ``-D c`` (``c = (sin theta e, -cos theta)``
-    toward the centre, ``D = 1 / sin alpha``, :func:`disc_angles`), so the moved origin is
-    ``-(c - (c.d) d) / sin alpha - 4 d``. Written with ``theta / g``, ``alpha / g`` and
-    ``sin(x)/x`` every term is finite at ``g = 0``, where it is ``((q - rho e) / r, 4)``,
-    the orthographic ray's origin. ``xp``: ``numpy`` or ``jax.numpy`` (default), which
-    differentiates through ``u``.
-
-    References
-    ----------
-    R. Hartley and A. Zisserman, *Multiple View Geometry in Computer Vision*, 2nd ed., 2004,
-    sec. 6.1 (the pinhole; the orthographic camera as its limit at infinity, sec. 6.3).
-    """
-    if xp is None:
-        import jax.numpy as xp
-    cx, cy, r = (float(v) for v in disc)
-    g = 2.0 * u / width
-    ux, uy = cx - width / 2.0, height / 2.0 - cy
-    rho = math.hypot(ux, uy)
-    ex, ey = (ux / rho, uy / rho) if rho > 0 else (1.0, 0.0)
-    th_g, al_g = _disc_scaled(rho, r, g, xp)
-    th = th_g * g
-    s_al = al_g * _sin_over(al_g * g, xp)  # sin(alpha) / g
-    s_th = th_g * _sin_over(th_g * g, xp)  # sin(theta) / g
-    qx = xp.asarray(cols, dtype=float) + 0.5 - width / 2.0
-    qy = height / 2.0 - (xp.asarray(rows, dtype=float) + 0.5)
-    n = xp.sqrt(1.0 + g * g * (qx * qx + qy * qy))
-    d = xp.stack([qx * g / n, qy * g / n, -xp.ones_like(qx) / n], axis=-1)
-    cd = (s_th * g * g * (ex * qx + ey * qy) + xp.cos(th)) / n  # c . d
-    # (c - (c.d) d) / sin(alpha), term by term divided by g
-    px = (s_th * ex - cd * qx / n) / s_al
-    py = (s_th * ey - cd * qy / n) / s_al
-    pz = (-xp.cos(th) * g * (qx * qx + qy * qy) + s_th * g * (ex * qx + ey * qy)) / (n * n) / s_al
-    origins = -xp.stack([px, py, pz], axis=-1) - 4.0 * d
-    return origins, d
 
 
 def scene_view(scene) -> View | None:

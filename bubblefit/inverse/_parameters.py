@@ -231,7 +231,8 @@ class ParameterTable:
                 if model == "map" and all(n in vals for n in ("top_nm", "bottom_nm", "exponent"))
                 else f32(jnp.asarray(NO_PROFILE)))
         return Params(f32(t), f32(r_d), f32(r_s), f32(vals["roughness"]), f32(th), f32(vals["n_film"]),
-                      f32(vals["exposure"]), f32(vals["rotation_deg"] * (math.pi / 180.0)), disc, prof)
+                      f32(vals["exposure"]), f32(vals["rotation_deg"] * (math.pi / 180.0)), disc, prof,
+                      f32(vals.get("divergence", 0.0)))
 
     def reported(self, vals: dict) -> dict:
         """The JSON's parameters (jnp scalars) from values."""

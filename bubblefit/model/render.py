@@ -50,7 +50,7 @@ from ..optics import film, spectral
 from ..optics.dispersion import Cauchy, index_offset
 from .effects import Effects
 from .modes import COLOURED
-from .geometry import (OrthographicCamera, PerspectiveCamera, internal_bounce, intersect_sphere,
+from .geometry import (DivergentCamera, OrthographicCamera, PerspectiveCamera, internal_bounce, intersect_sphere,
                        pixel_offsets, slope_footprint)
 from .thickness import thickness_at
 
@@ -88,6 +88,9 @@ class Params:
             show, take the map's value at their pixel changed by the profile between the
             heights (:func:`~bubblefit.model.thickness.thickness_at`); NaN (the default,
             :data:`NO_PROFILE`): the map's value at their pixel. Unused by the other kinds.
+        view: the divergence ``u = tan(fov/2)`` of a
+            :class:`~bubblefit.model.geometry.DivergentCamera`'s view (0: parallel rays);
+            unused by the other cameras.
     """
 
     t: Array
@@ -100,10 +103,12 @@ class Params:
     rotation: Array
     disc: Array
     profile: Array
+    view: Array
 
     @staticmethod
     def make(t=0.972, r_d=None, r_s=None, f=0.3, roughness=0.01, thickness=500.0, n_film=1.4,
-             exposure=1.0, rotation=0.0, disc=(0.0, 0.0, 0.0), profile=NO_PROFILE, dtype=jnp.float32) -> "Params":
+             exposure=1.0, rotation=0.0, disc=(0.0, 0.0, 0.0), profile=NO_PROFILE, view=0.0,
+             dtype=jnp.float32) -> "Params":
         """Parameters with eq. (14): ``r_d + r_s = 1 - t`` and ``f = r_d / r_s`` unless both given.
 
         Examples
@@ -118,7 +123,7 @@ class Params:
             r_d = (1.0 - t) - r_s
         cast = lambda v: jnp.asarray(v, dtype=dtype)
         return Params(cast(t), cast(r_d), cast(r_s), cast(roughness), cast(thickness), cast(n_film),
-                      cast(exposure), cast(rotation), cast(disc), cast(profile))
+                      cast(exposure), cast(rotation), cast(disc), cast(profile), cast(view))
 
 
 @dataclass(frozen=True)
@@ -126,7 +131,7 @@ class RenderConfig:
     """Everything static about a render (hashable: it is part of the compiled program)."""
 
     effects: Effects
-    camera: OrthographicCamera | PerspectiveCamera = OrthographicCamera()
+    camera: OrthographicCamera | PerspectiveCamera | DivergentCamera = OrthographicCamera()
     center: tuple = (0.0, 0.0, 0.0)
     radius: float = 1.0
     point_lights: tuple = ()
@@ -407,9 +412,12 @@ class _Traced:
 
 def _camera_rays(cfg: RenderConfig, p: Params, rows, cols):
     """``(origins, directions)`` (N, 3) of the camera's rays through the pixel coordinates
-    ``rows``, ``cols`` (an orthographic camera's disc moved by ``p.disc``)."""
+    ``rows``, ``cols`` (an orthographic camera's disc moved by ``p.disc``; a divergent
+    camera's view of divergence ``p.view``)."""
     if isinstance(cfg.camera, OrthographicCamera):
         o, d = cfg.camera.rays(rows, cols, cfg.center, cfg.radius, p.disc)
+    elif isinstance(cfg.camera, DivergentCamera):
+        o, d = cfg.camera.rays(rows, cols, cfg.center, cfg.radius, p.view)
     else:
         o, d = cfg.camera.rays(rows, cols, cfg.center, cfg.radius)
     return o, jnp.broadcast_to(d, o.shape)

@@ -349,6 +349,45 @@ def test_a_traced_view_renders_as_the_pinhole_of_that_view(x64, small_courtyard,
     assert render._cache_size() == compiled + 3
 
 
+def test_a_traced_view_hits_and_traces_as_the_pinhole_of_that_view(small_courtyard):
+    """front_hits and the effect footprint's trace (model.footprint) take a divergent
+    camera's view as data: at 20, 40 and 67.6 degrees their hits are the pinhole's
+    (float32: the pinhole's hit rounds ``b^2 - |o|^2 + 1`` at ``|o|^2 = D^2``, D up to 10
+    radii, so the incidence cosines agree to a few eps D^2 / cos; which pixels hit may
+    differ only where the ray grazes, cos < 1e-2), through one program each for every view."""
+    from bubblefit.lighting.envmap import EnvMap
+    from bubblefit.model import geometry as G
+    from bubblefit.model.footprint import footprint, jitted_trace
+
+    W, H, disc = 32, 24, (16.0, 12.0, 9.0)
+    cam = G.DivergentCamera(W, H, *disc)
+    env = EnvMap.from_array(small_courtyard)
+    common = dict(model="physical", roughness=0.05, env=env, rotation=0.0, lights=(), background=None,
+                  background_kind="envmap", thickness_kind="constant", thickness_values=640.0)
+    sizes = []
+    for fov in (20.0, 40.0, 67.6):
+        u = V.divergence(fov)
+        pin, center, radius = V.perspective_from_disc(disc, W, H, fov)
+        got = [np.asarray(a) for a in G.front_hits(cam, center, radius, u)]
+        want = [np.asarray(a) for a in G.front_hits(pin, center, radius)]
+        graze = np.minimum(got[1], want[1]) < 1e-2
+        assert np.all((got[0] == want[0]) | graze) and got[0].sum() > 0
+        far = ~graze & got[0]
+        bound = 16 * np.finfo(np.float32).eps * np.dot(pin.origin, pin.origin) / want[1][far]
+        assert np.all(np.abs(got[1][far] - want[1][far]) <= bound)
+        fp = footprint(camera=cam, center=center, radius=radius, view=u, **common)
+        fq = footprint(camera=pin, center=center, radius=radius, **common)
+        both = np.intersect1d(fp.pixels, fq.pixels)
+        a, b = fp.cos[np.searchsorted(fp.pixels, both)], fq.cos[np.searchsorted(fq.pixels, both)]
+        ok = np.minimum(a, b) > 1e-2
+        assert np.all(np.abs(a[ok] - b[ok]) <= 16 * np.finfo(np.float32).eps * np.dot(pin.origin, pin.origin) / b[ok])
+        sizes.append(G._front_hits._cache_size())
+    # the pinholes compile a program each; the divergent camera's is the first view's
+    assert sizes[2] - sizes[0] == 2
+    trace = jitted_trace(cam, (0.0, 0.0, 0.0), 1.0, "physical", (), "envmap", "constant")
+    assert trace._cache_size() == 1
+
+
 def _profiled(u0, s, slope, n_pix=400, quartic=None, map_slope=None, linear_below=None):
     """A refit through a view of divergence u whose total chi^2 is the parabola
     nu + ((u - u0)/s)^2 (plus ((u - u0)/quartic)^4 when given) and whose thickness moves

@@ -36,7 +36,7 @@ from ..lighting.filtering import FilterConfig, specular
 from ..lighting.point_lights import lights_radiance
 from .bounds import MAX_BOUNCES
 from .effects import Effects
-from .geometry import hit_pixels, intersect_sphere
+from .geometry import DivergentCamera, hit_pixels, intersect_sphere
 from .modes import Model, ThicknessKind
 from .render import (NO_PROFILE, RenderConfig, film_footprints, film_names,
                      shading_points)
@@ -115,16 +115,17 @@ def _probe(model: Model) -> Effects:
 
 @functools.partial(jax.jit, static_argnames=("camera", "center", "radius", "model", "lights", "background_kind",
                                              "thickness_kind"))
-def _trace(env, background, roughness, rotation, thickness_values, profile, pix, *, camera, center, radius, model, lights,
-           background_kind, thickness_kind):
+def _trace(env, background, roughness, rotation, thickness_values, profile, pix, view, *, camera, center, radius, model,
+           lights, background_kind, thickness_kind):
     """The films of the pixels ``pix`` (flat indices; the renderer's own geometry) and what
-    they read, in one program."""
+    they read, in one program; ``view``: a divergent camera's divergence (data)."""
     w = camera.width
     rows, cols = jnp.divmod(pix, w)
     rows, cols = rows.astype(jnp.float32), cols.astype(jnp.float32)
 
     def rays(r, c):
-        o, d = camera.rays(r, c, center, radius)
+        o, d = camera.rays(r, c, center, radius, view) if isinstance(camera, DivergentCamera) else \
+            camera.rays(r, c, center, radius)
         return o, jnp.broadcast_to(d, o.shape)
 
     o, d = rays(rows, cols)
@@ -160,13 +161,13 @@ def _trace(env, background, roughness, rotation, thickness_values, profile, pix,
 
 
 def trace_function(camera, center, radius, model, lights, background_kind, thickness_kind) -> Callable:
-    """``(env, roughness, rotation, values, profile, pix) -> dict``: :func:`_trace` with
+    """``(env, roughness, rotation, values, profile, pix, view) -> dict``: :func:`_trace` with
     these static settings bound (not compiled: the caller jits it, or stores it,
     :func:`bubblefit.model.programs.stored_trace`)."""
     statics = dict(camera=camera, center=center, radius=radius, model=model, lights=lights,
                    background_kind=background_kind, thickness_kind=thickness_kind)
-    return lambda env, roughness, rotation, values, profile, pix: _trace(env, None, roughness, rotation, values,
-                                                                          profile, pix, **statics)
+    return lambda env, roughness, rotation, values, profile, pix, view: _trace(env, None, roughness, rotation, values,
+                                                                                profile, pix, view, **statics)
 
 
 @functools.lru_cache(maxsize=16)
@@ -184,9 +185,11 @@ def _first_pixels(v: np.ndarray, n: int) -> np.ndarray:
 def footprint(*, camera, center, radius: float, model: Model, roughness: float, env: EnvMap | None,
               rotation: float, lights: tuple, background: np.ndarray | None, background_kind: str,
               thickness_kind: ThicknessKind, thickness_values, thickness_profile=NO_PROFILE,
-              programs: Callable = jitted_trace) -> Footprint:
+              programs: Callable = jitted_trace, view: float = 0.0) -> Footprint:
     """The :class:`Footprint` of a scene (see the module docstring); ``thickness_profile``:
-    the drainage profile under a thickness map (:attr:`~bubblefit.model.render.Params.profile`).
+    the drainage profile under a thickness map (:attr:`~bubblefit.model.render.Params.profile`);
+    ``view``: a :class:`~bubblefit.model.geometry.DivergentCamera`'s divergence
+    (:attr:`~bubblefit.model.render.Params.view`), the trace's data.
     ``programs(camera, center, radius, model, lights, background_kind, thickness_kind)``
     gives the compiled trace (:func:`jitted_trace`, or the stored
     :func:`bubblefit.model.programs.stored_trace`)."""
@@ -194,12 +197,12 @@ def footprint(*, camera, center, radius: float, model: Model, roughness: float, 
     trace = programs(camera, tuple(center), float(radius), model, tuple(lights), background_kind, thickness_kind)
     # Only the pixels on the bubble are traced, padded to a multiple of PIXEL_BUCKET so that
     # scenes of one size share their compiled program.
-    idx = hit_pixels(camera, tuple(center), float(radius))
+    idx = hit_pixels(camera, tuple(center), float(radius), float(view))
     npx = idx.size
     pix = np.full(max(PIXEL_BUCKET, -(-npx // PIXEL_BUCKET) * PIXEL_BUCKET), idx[-1] if npx else 0, np.int32)
     pix[:npx] = idx
     res = trace(env, np.float32(a), np.float32(rotation), np.asarray(thickness_values, dtype=np.float32),
-                np.asarray(thickness_profile, dtype=np.float32), pix)
+                np.asarray(thickness_profile, dtype=np.float32), pix, np.float32(view))
     res = {k: _first_pixels(np.asarray(v, dtype=np.float64), npx) for k, v in res.items()}
     names = tuple(film_names(_probe(model)))
     nf = len(names)

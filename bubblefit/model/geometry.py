@@ -348,34 +348,41 @@ def intersect_sphere(o: Float[Array, "N 3"], d: Float[Array, "N 3"], center, rad
     return Hits(inside=inside, cos=cos, p0=p0, n0=local0, p1=p1, n1=local1, d=d, local0=local0, local1=local1)
 
 
-def front_hits(camera, center: tuple, radius: float):
+def front_hits(camera, center: tuple, radius: float, view: float = 0.0):
     """``(inside, cos, local0)`` of :func:`intersect_sphere` for the ray through every pixel
     centre of ``camera`` (row-major, ``height x width`` rays). An orthographic camera's disc,
-    the centre and the radius are the program's data, so that one program serves every
-    disc of a size (a fit's levels, each photo's own disc)."""
+    a divergent camera's view ``view`` (its divergence ``u = tan(fov/2)``,
+    :class:`DivergentCamera`), the centre and the radius are the program's data, so that
+    one program serves every disc of a size (a fit's levels, each photo's own disc) and
+    every view of a divergent camera."""
     disc = None
     if isinstance(camera, OrthographicCamera):
         disc = jnp.asarray(camera.disc(), jnp.float32)
         camera = OrthographicCamera(camera.width, camera.height)
-    return _front_hits(camera, disc, jnp.asarray(center, jnp.float32), jnp.asarray(radius, jnp.float32))
+    return _front_hits(camera, disc, jnp.asarray(center, jnp.float32), jnp.asarray(radius, jnp.float32),
+                       jnp.asarray(view, jnp.float32))
 
 
 @functools.partial(jax.jit, static_argnames=("camera",))
-def _front_hits(camera, disc, center, radius):
+def _front_hits(camera, disc, center, radius, view):
     rows, cols = jnp.divmod(jnp.arange(camera.height * camera.width), camera.width)
-    if disc is None:
-        o, d = camera.rays(rows.astype(jnp.float32), cols.astype(jnp.float32), center, radius)
+    rows, cols = rows.astype(jnp.float32), cols.astype(jnp.float32)
+    if disc is not None:
+        o, d = camera.rays(rows, cols, center, radius, disc=disc)
+    elif isinstance(camera, DivergentCamera):
+        o, d = camera.rays(rows, cols, center, radius, view)
     else:
-        o, d = camera.rays(rows.astype(jnp.float32), cols.astype(jnp.float32), center, radius, disc=disc)
+        o, d = camera.rays(rows, cols, center, radius)
     hits = intersect_sphere(o, jnp.broadcast_to(d, o.shape), center, radius)
     return hits.inside, hits.cos, hits.local0
 
 
 @functools.lru_cache(maxsize=8)
-def hit_pixels(camera, center: tuple, radius: float) -> np.ndarray:
-    """Flat indices (numpy) of the pixels whose centre ray hits the sphere (:func:`front_hits`),
-    kept per camera: the footprint of ``auto`` and the renderer's regions read the same set."""
-    idx = np.flatnonzero(np.asarray(front_hits(camera, center, radius)[0]))
+def hit_pixels(camera, center: tuple, radius: float, view: float = 0.0) -> np.ndarray:
+    """Flat indices (numpy) of the pixels whose centre ray hits the sphere (:func:`front_hits`,
+    through a divergent camera's view ``view``), kept per camera: the footprint of ``auto``
+    and the renderer's regions read the same set."""
+    idx = np.flatnonzero(np.asarray(front_hits(camera, center, radius, view)[0]))
     idx.flags.writeable = False
     return idx
 

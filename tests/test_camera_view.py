@@ -388,6 +388,43 @@ def test_a_traced_view_hits_and_traces_as_the_pinhole_of_that_view(small_courtya
     assert trace._cache_size() == 1
 
 
+def test_a_traced_view_renders_by_regions(small_courtyard):
+    """model.regions through a divergent camera: the plan's image at a view (the bubble's
+    pixels through that view, shaded from the footprint traced through it, or traced
+    afresh) is the whole-image render at that view: traced, to rtol 2e-5 (the same float32
+    values, summed in other chunks); shaded from the footprint, whose rays another program
+    traced, to 1e-4 of the image's largest value (a few float32 ulps in a hit's cosine,
+    times ``d colour / d cos``, which grows as 1 / cos toward the outline). A footprint
+    traced through another view is not used."""
+    import jax.numpy as jnp
+
+    from bubblefit.lighting.envmap import EnvMap
+    from bubblefit.model.effects import Effects
+    from bubblefit.model.footprint import footprint
+    from bubblefit.model.geometry import DivergentCamera
+    from bubblefit.model.regions import lit_usable, render_plan
+    from bubblefit.model.render import Params, RenderConfig, render
+    from bubblefit.optics.spectral import spectral_basis
+
+    W, H, disc = 32, 24, (16.0, 12.0, 9.0)
+    env = EnvMap.from_array(small_courtyard)
+    fx = Effects(model="physical", interference="airy", spectral=spectral_basis("harmonic", 8), bounces=1)
+    cfg = RenderConfig(effects=fx, camera=DivergentCamera(W, H, *disc), chunk=256, pixel_footprint=False)
+    fps = {}
+    for fov in (20.0, 67.6):
+        u = V.divergence(fov)
+        p = Params.make(roughness=0.05, thickness=640.0, view=u)
+        fps[fov] = footprint(camera=cfg.camera, center=(0.0, 0.0, 0.0), radius=1.0, model="physical", roughness=0.05,
+                             env=env, rotation=0.0, lights=(), background=None, background_kind="envmap",
+                             thickness_kind="constant", thickness_values=np.float32(640.0), view=u)
+        assert lit_usable(fps[fov], p, cfg)
+        whole = np.asarray(render(p, cfg, env))
+        np.testing.assert_allclose(render_plan(p, [(cfg, None)], env), whole, rtol=2e-5, atol=2e-6)
+        lit = render_plan(p, [(cfg, None)], env, footprint=fps[fov])
+        np.testing.assert_allclose(lit, whole, rtol=0, atol=1e-4 * whole.max())
+    assert not lit_usable(fps[20.0], Params.make(roughness=0.05, thickness=640.0, view=V.divergence(67.6)), cfg)
+
+
 def _profiled(u0, s, slope, n_pix=400, quartic=None, map_slope=None, linear_below=None):
     """A refit through a view of divergence u whose total chi^2 is the parabola
     nu + ((u - u0)/s)^2 (plus ((u - u0)/quartic)^4 when given) and whose thickness moves

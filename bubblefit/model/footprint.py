@@ -80,6 +80,8 @@ class Footprint:
             the map's rotation, the thickness field's values).
         environment, lights: whether ``spec`` and ``irr`` hold the map's light and the
             point lights' light.
+        view: the divergence of a divergent camera's view it was traced through
+            (:attr:`~bubblefit.model.render.Params.view`).
 
     The same rays, lookups (with the pixel footprints) and films as the renderer's at
     ``samples_per_pixel = 1``, so
@@ -102,6 +104,7 @@ class Footprint:
     thickness: np.ndarray | None = None
     environment: bool = False
     lights: bool = False
+    view: float = 0.0
 
     @property
     def count(self) -> int:
@@ -222,7 +225,7 @@ def footprint(*, camera, center, radius: float, model: Model, roughness: float, 
     return Footprint(pixels=idx, shape=(camera.height, camera.width), films=names, cos=res["cos"],
                      d0=res["d0"], d1=res["d1"], dq=res.get("dq", np.zeros((0, npx))), spec=spec, irr=irr, bg=bg,
                      roughness=a, rotation=float(rotation), thickness=np.asarray(thickness_values, dtype=np.float64),
-                     environment=env is not None, lights=bool(lights))
+                     environment=env is not None, lights=bool(lights), view=float(view))
 
 
 def filter_key(conf: FilterConfig) -> str:

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..lighting.envmap import EnvMap
 from .footprint import filter_key
-from .geometry import OrthographicCamera, hit_pixels
+from .geometry import DivergentCamera, OrthographicCamera, hit_pixels
 from .render import (Params, RenderConfig, chunk_size, film_names, pixel_chunks, render, render_pixels,
                      shade_lit)
 
@@ -76,7 +76,7 @@ def lit_usable(fp, p: Params, cfg: RenderConfig) -> bool:
     """Whether ``cfg``'s pixels can be shaded from the footprint ``fp``: its rays and lookups
     are the ones this render would trace (one ray per pixel read at its centre direction, as the footprint's trace
     reads it: no pixel footprint; the camera's own disc, a filter ``fp`` measured, the same parameters and the same
-    lights)."""
+    lights; a divergent camera's view)."""
     fx = cfg.effects
     if fp is None or cfg.samples_per_pixel != 1 or cfg.pixel_footprint or filter_key(fx.filtering) not in fp.spec:
         return False
@@ -92,6 +92,7 @@ def lit_usable(fp, p: Params, cfg: RenderConfig) -> bool:
     # a footprint does not record the profile under a map: shade from it only when there is none
     no_profile = fx.thickness != "map" or bool(np.isnan(np.asarray(p.profile)[0]))
     return (same(p.roughness, fp.roughness) and same(p.rotation, fp.rotation) and no_profile
+            and (not isinstance(cfg.camera, DivergentCamera) or same(p.view, fp.view))
             and same(np.asarray(p.thickness).ravel(), np.asarray(fp.thickness).ravel()))
 
 
@@ -124,13 +125,14 @@ def _backdrop(cfg: RenderConfig) -> RenderConfig:
     return dataclasses.replace(cfg, effects=off, dispersion=None)
 
 
-def bubble_pixels(cfg: RenderConfig) -> np.ndarray:
+def bubble_pixels(cfg: RenderConfig, view: float = 0.0) -> np.ndarray:
     """Flat indices of the pixels the bubble can touch: those whose centre ray hits it
-    (:func:`~bubblefit.model.geometry.hit_pixels`), grown by one pixel, which covers the
-    sub-pixel rays of ``samples_per_pixel`` and the rounding at the rim."""
+    (:func:`~bubblefit.model.geometry.hit_pixels`, through a divergent camera's view
+    ``view``, :attr:`~bubblefit.model.render.Params.view`), grown by one pixel, which
+    covers the sub-pixel rays of ``samples_per_pixel`` and the rounding at the rim."""
     h, w = cfg.shape
     inside = np.zeros(h * w, dtype=bool)
-    inside[hit_pixels(cfg.camera, tuple(cfg.center), float(cfg.radius))] = True
+    inside[hit_pixels(cfg.camera, tuple(cfg.center), float(cfg.radius), float(view))] = True
     inside = inside.reshape(h, w)
     grown = inside.copy()
     grown[1:] |= inside[:-1]
@@ -166,7 +168,7 @@ def render_plan(p: Params, parts, env: EnvMap | None, background=None, *, footpr
     if np.any(np.asarray(p.disc) != 0) and isinstance(cfg0.camera, OrthographicCamera):
         covered = np.arange(h * w)  # a shifted disc: the camera's own disc does not bound it
     else:
-        covered = bubble_pixels(cfg0)
+        covered = bubble_pixels(cfg0, float(p.view))
     named = [np.asarray(px, dtype=np.int64).ravel() for _, px in parts[1:] if px is not None and len(px)]
     rest = np.setdiff1d(covered, np.concatenate(named)) if named else covered
     for cfg, pixels in [(cfg0, rest)] + [(c, px) for c, px in parts[1:]]:

@@ -425,6 +425,19 @@ def test_a_traced_view_renders_by_regions(small_courtyard):
     assert not lit_usable(fps[20.0], Params.make(roughness=0.05, thickness=640.0, view=V.divergence(67.6)), cfg)
 
 
+def test_a_divergent_cameras_record_gives_the_pinholes_distance():
+    """camera_record of a DivergentCamera at a view: the distance (sphere radii) of the
+    pinhole perspective_from_disc places for that view (to float64 rounding)."""
+    from bubblefit.inverse._view import camera_record
+    from bubblefit.model.geometry import DivergentCamera
+
+    for disc, fov in [((16.0, 12.0, 9.0), 20.0), ((30.5, 19.0, 14.0), 67.6)]:
+        pin, _, _ = V.perspective_from_disc(disc, 48, 40, fov)
+        view = V.View("perspective", fov, "fitted")
+        got = camera_record(view, DivergentCamera(48, 40, *disc))["distance_radii"]
+        assert got == pytest.approx(camera_record(view, pin)["distance_radii"], rel=1e-12)
+
+
 def _profiled(u0, s, slope, n_pix=400, quartic=None, map_slope=None, linear_below=None):
     """A refit through a view of divergence u whose total chi^2 is the parabola
     nu + ((u - u0)/s)^2 (plus ((u - u0)/quartic)^4 when given) and whose thickness moves

@@ -17,8 +17,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..capture.view import MAX_FOV_DEG, View, assumed_lens, divergence, fov_of_divergence, scene_view
+from ..capture.view import MAX_FOV_DEG, View, assumed_lens, disc_angles, divergence, fov_of_divergence, scene_view
 from ..errors import InputError
+from ..model.geometry import DivergentCamera
 from ._options import FitOptions, FitResult
 
 __all__ = ["fit_view", "camera_record", "widen_for_view", "lens_for", "fit_divergence", "divergence_profile",
@@ -42,11 +43,19 @@ def fit_view(options: FitOptions, scene) -> View:
 
 def camera_record(view: View, camera) -> dict:
     """The JSON's ``camera``: the view's record (:meth:`~bubblefit.capture.view.View.to_json`)
-    and, for a pinhole, its distance to the sphere's centre in sphere radii."""
+    and, for a pinhole, its distance to the sphere's centre in sphere radii: the pinhole's
+    origin's, or for a :class:`~bubblefit.model.geometry.DivergentCamera` ``1 / sin(alpha)``
+    of the half-angle its disc subtends in that view (:func:`~bubblefit.capture.view.disc_angles`,
+    as :func:`~bubblefit.capture.view.perspective_from_disc` places the pinhole)."""
     out = view.to_json()
     origin = getattr(camera, "origin", None)
     if view.kind == "perspective" and origin is not None:
         out["distance_radii"] = float(np.linalg.norm(np.asarray(origin, float)))
+    elif view.kind == "perspective" and isinstance(camera, DivergentCamera):
+        cx, cy, r = camera.disc()
+        rho = math.hypot(cx - camera.width / 2.0, camera.height / 2.0 - cy)
+        _, alpha = disc_angles(rho, r, 2.0 * divergence(view.fov_deg) / camera.width)
+        out["distance_radii"] = 1.0 / math.sin(float(alpha))
     return out
 
 

@@ -24,7 +24,7 @@ from ..capture.circle import detect_disc
 from ..capture.disc import NO_BUBBLE_CONTRAST, NO_BUBBLE_SPREAD, Disc, bubble_contrast, change_spread, find_disc
 from ..errors import InputError
 from ..io.images import srgb_encode, srgb_slope
-from ..model.geometry import OrthographicCamera, front_hits
+from ..model.geometry import DivergentCamera, OrthographicCamera, front_hits
 from ..model.render import RenderConfig
 
 __all__ = ["Level", "Frame", "noise_sigma", "saturation_mask", "make_level", "film_geometry",
@@ -165,27 +165,28 @@ def analysis_frame(photo, background, saturated, disc, opts: FitOptions) -> Fram
 
 
 def _camera_at(camera, k: int, h: int, w: int):
-    if isinstance(camera, OrthographicCamera):
+    if isinstance(camera, (OrthographicCamera, DivergentCamera)):
         cx, cy, r = camera.disc()
-        return OrthographicCamera(w, h, cx / k, cy / k, r / k)
+        return type(camera)(w, h, cx / k, cy / k, r / k)
     return replace(camera, width=w, height=h)
 
 
-def film_geometry(cfg: RenderConfig):
-    """``(inside, cos, height)`` (h, w) of the front film under each pixel of ``cfg``'s camera."""
+def film_geometry(cfg: RenderConfig, view: float = 0.0):
+    """``(inside, cos, height)`` (h, w) of the front film under each pixel of ``cfg``'s camera
+    (a divergent camera's through the view ``view``, :attr:`~bubblefit.model.render.Params.view`)."""
     h, w = cfg.shape
-    inside, cos, local0 = front_hits(cfg.camera, tuple(cfg.center), float(cfg.radius))
+    inside, cos, local0 = front_hits(cfg.camera, tuple(cfg.center), float(cfg.radius), view)
     return np.asarray(inside).reshape(h, w), np.asarray(cos).reshape(h, w), np.asarray(local0)[:, 1].reshape(h, w)
 
 
-def make_level(k, base_cfg, photo, sigma, bg, saturated, rim: float, bg_sigma=None) -> Level:
+def make_level(k, base_cfg, photo, sigma, bg, saturated, rim: float, bg_sigma=None, view: float = 0.0) -> Level:
     """The :class:`Level` ``k`` times smaller than ``photo`` (block means; variances of the
     mean; a block with a clipped pixel is dropped), fitting pixels with ``rho < rim``;
     ``bg_sigma`` is the background photo's noise (as ``sigma``)."""
     H, W = photo.shape[:2]
     h, w = H // k, W // k
     cfg = replace(base_cfg, camera=_camera_at(base_cfg.camera, k, h, w))
-    inside, cos, height = film_geometry(cfg)
+    inside, cos, height = film_geometry(cfg, view)
     cos_min = math.sqrt(max(0.0, 1.0 - rim**2))
     y = _block(photo, k, h, w)
     var = _block(sigma**2, k, h, w) / (k * k)

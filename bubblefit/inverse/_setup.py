@@ -8,7 +8,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..capture.view import perspective_from_disc
+from ..capture.view import divergence, perspective_from_disc
 from ._observation import Frame, Level, analysis_frame, make_level, resolve_disc, saturation_mask
 from ._pair import LUMINANCE, PairCheck, check_pair
 from ._options import ColourSettings, FitOptions
@@ -17,7 +17,7 @@ from ..errors import InputError
 from ..lighting.envmap import EnvMap, downsample
 from ..model.bounds import SceneSummary
 from ..model.effects import Decision, check_harmonic, resolve
-from ..model.geometry import OrthographicCamera
+from ..model.geometry import DivergentCamera, OrthographicCamera
 from ..model.render import RenderConfig
 from ..optics.dispersion import REFERENCE_WAVELENGTH_NM, Cauchy, refractive_index
 
@@ -233,7 +233,7 @@ class Setup:
         key = (k, cfg or self.base_cfg, float(opts.rim))
         if key not in self.levels:
             self.levels[key] = make_level(k, key[1], self.photo, self.sigma, self.background, self.saturated, key[2],
-                                          self.frame.bg_sigma)
+                                          self.frame.bg_sigma, float(self.vals.get("divergence", 0.0)))
         return self.levels[key]
 
 
@@ -368,6 +368,14 @@ def _disc(scene, opts: FitOptions, photo, background) -> tuple[tuple, list, bool
     return disc, warnings, (given is None) if opts.fit_disc is None else bool(opts.fit_disc)
 
 
+#: The sources of a view that a fit varies (:func:`~bubblefit.inverse._view.fit_divergence`
+#: refits the photo through views of these sources): rendered through a
+#: :class:`~bubblefit.model.geometry.DivergentCamera` whose divergence is the held value
+#: ``divergence`` (:attr:`~bubblefit.model.render.Params.view`), data to the compiled
+#: programs, not a part of them. A stated view renders through its pinhole.
+VARIED_VIEWS = ("fitted", "assumed")
+
+
 def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, decided=None) -> Setup:
     """Validate the inputs, decide the effects (unless ``decided`` gives ``(fx, decisions)``),
     lay out the parameters and build the photo's fit level."""
@@ -378,7 +386,11 @@ def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, d
     disc, warnings, fit_disc = (None, [], False) if persp else _disc(scene, opts, photo, background)
     if persp is None and opts.view is not None and opts.view.kind == "perspective":
         # the pinhole the field of view and the disc fix; the sphere's rays then need no disc
-        persp = perspective_from_disc(disc, photo.shape[1], photo.shape[0], opts.view.fov_deg)
+        if opts.view.source in VARIED_VIEWS:  # one compiled program for every view tried
+            persp = DivergentCamera(photo.shape[1], photo.shape[0], *disc), (0.0, 0.0, 0.0), 1.0
+            vals["divergence"] = divergence(opts.view.fov_deg)
+        else:
+            persp = perspective_from_disc(disc, photo.shape[1], photo.shape[0], opts.view.fov_deg)
         disc, fit_disc = None, False
     if saturated_in is not None and np.shape(saturated_in) != photo.shape[:2]:
         raise InputError(f"the saturation mask is {np.shape(saturated_in)}, the photo is "
@@ -417,7 +429,7 @@ def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, d
     k_fit = opts.sizes.downsample or max(1, math.ceil(max(H, W) / opts.sizes.fit))
     k_search = max(k_fit, math.ceil(max(H, W) / opts.sizes.search))
     lev_fit = make_level(k_fit, base_cfg, frame.photo, frame.sigma, frame.background, frame.saturated, opts.rim,
-                         frame.bg_sigma)
+                         frame.bg_sigma, float(vals.get("divergence", 0.0)))
     if lev_fit.mask.sum() < 10:
         raise InputError("fewer than 10 usable pixels on the bubble (disc too small, or saturated)")
     pair = check_pair(frame, lev_fit)  # a swapped pair or another scene is refused before any solve

@@ -223,6 +223,12 @@ def envelope_coordinates(x, y) -> tuple[np.ndarray, np.ndarray]:
     return (x - 0.5 * (x.max() + x.min())) / half, (y - 0.5 * (y.max() + y.min())) / half
 
 
+def envelope_basis(u, v, xp=np):
+    """The columns ``(u, v, u^2, u v, v^2)`` of the envelope's log (:func:`lamp_envelope`,
+    :data:`ENVELOPE_TERMS`) at :func:`envelope_coordinates` ``(u, v)``: shape ``(N, 5)``."""
+    return xp.stack([u, v, u * u, u * v, v * v], axis=-1)
+
+
 def lamp_envelope(u, v, coef):
     """The lamp's relative irradiance across the field, ``E = exp(c1 u + c2 v + c3 u^2 +
     c4 u v + c5 v^2)`` at :func:`envelope_coordinates` ``(u, v)`` (1 at the centre: the
@@ -230,7 +236,7 @@ def lamp_envelope(u, v, coef):
     to second order in log (a smooth flat-field model; the two-beam intensity
     ``I = E (R1 + R2 + 2 sqrt(R1 R2) cos delta)`` of Born and Wolf, *Principles of Optics*,
     sec. 7.5, with ``E`` the lamp's irradiance where the pixel sees the film)."""
-    return jnp.exp(coef[0] * u + coef[1] * v + coef[2] * u * u + coef[3] * u * v + coef[4] * v * v)
+    return jnp.exp(envelope_basis(u, v, jnp) @ jnp.asarray(coef))
 
 
 def _envelope_start(bright, mask, u, v) -> np.ndarray:
@@ -239,7 +245,7 @@ def _envelope_start(bright, mask, u, v) -> np.ndarray:
     constant left to the exposure: where the fringes are many, their mean reflectance is
     the same everywhere and the local mean follows the lamp."""
     mean = _local_mean(bright, mask, ENVELOPE_START_PX)
-    a = np.column_stack([np.ones_like(u), u, v, u * u, u * v, v * v])
+    a = np.column_stack([np.ones_like(u), envelope_basis(u, v)])
     coef, *_ = np.linalg.lstsq(a, np.log(np.maximum(mean, 1e-3 * max(float(np.max(mean)), 1e-12))), rcond=None)
     return coef[1:]
 
@@ -334,6 +340,58 @@ def _linear_exposure(unit, white, y, fit_stray: bool) -> tuple[float, float]:
     return max(float(u @ yv) / max(float(u @ u), 1e-20), 1e-9), 0.0
 
 
+def _best_start(starts, film_only, fringe_nm: float, xj, yj, y, white, env0, e0, envelope: str, fit_stray: bool):
+    """``(theta, envelope on)``: of the starts ``(R um, cx, cy, h0)``, the one whose colours
+    are nearest the photo, with the exposure (and the stray reflectance where it is fitted)
+    by least squares at each (:func:`_linear_exposure`) under the envelope's start ``env0``
+    (``e0``: its values at the film's pixels) where the envelope is fitted there (:data:`ENVELOPE_MIN_FRINGES` for ``"auto"``).
+    ``film_only``: the film's colours at unit exposure, ``b`` fixed; ``white``: the colour of
+    ``b = 1``."""
+    best = None
+    for radius, cx, cy, h0 in starts:
+        t = jnp.asarray([np.log(radius), cx, cy, h0, 0.0])
+        span = float(np.ptp(np.asarray(newton_gap(jnp.sqrt((xj - cx) ** 2 + (yj - cy) ** 2), radius, h0))))
+        env = envelope == "fit" or (envelope == "auto" and span >= ENVELOPE_MIN_FRINGES * fringe_nm)
+        e = e0 if env else 1.0
+        unit = np.asarray(film_only(t), np.float64) * e
+        g, b = _linear_exposure(unit, white * e, y, fit_stray)
+        cost = float(np.sum((g * (unit + b * white * e) - y) ** 2))
+        if best is None or cost < best[0]:
+            best = (cost, [np.log(radius), cx, cy, h0, np.log(g)] + ([b] if fit_stray else [])
+                    + (list(env0) if env else []), env)
+    return jnp.asarray(best[1]), best[2]
+
+
+def _reported(t, cov, u, v, fit_stray: bool, b_fixed: float, b_se, env_on: bool) -> tuple[dict, dict]:
+    """The Newton fit's reported values and standard errors from its parameters ``t``
+    (``log R``, centre, contact offset, ``log g``, then ``b`` where fitted and the
+    envelope's coefficients where fitted) and their covariance: ``R`` in mm, the exposure,
+    the stray reflectance (``b_se``: the unbounded fit's error of a ``b`` held at its bound),
+    the envelope's coefficients and its ratio ``max E / min E`` over the film (log E is
+    linear in the coefficients: its error from their covariance)."""
+    se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    radius_um = float(np.exp(t[0]))
+    params = {"radius_mm": radius_um / 1000.0, "center_x_um": float(t[1]), "center_y_um": float(t[2]),
+              "contact_offset_nm": float(t[3]), "exposure": float(np.exp(t[4]))}
+    stderr = {"radius_mm": radius_um / 1000.0 * float(se[0]), "center_x_um": float(se[1]),
+              "center_y_um": float(se[2]), "contact_offset_nm": float(se[3]), "exposure": float(np.exp(t[4]) * se[4])}
+    params["stray_reflectance"] = float(t[5]) if fit_stray else b_fixed
+    stderr["stray_reflectance"] = float(se[5]) if fit_stray else (b_se if b_se is not None else 0.0)
+    ie = 6 if fit_stray else 5
+    for k, name in enumerate(ENVELOPE_TERMS):
+        params[name] = float(t[ie + k]) if env_on else 0.0
+        stderr[name] = float(se[ie + k]) if env_on else 0.0
+    params["envelope_ratio"], stderr["envelope_ratio"] = 1.0, 0.0
+    if env_on:
+        basis = envelope_basis(u, v)
+        log_e = basis @ t[ie:ie + len(ENVELOPE_TERMS)]
+        d = basis[int(np.argmax(log_e))] - basis[int(np.argmin(log_e))]
+        c = cov[ie:ie + len(ENVELOPE_TERMS), ie:ie + len(ENVELOPE_TERMS)]
+        params["envelope_ratio"] = float(np.exp(np.ptp(log_e)))
+        stderr["envelope_ratio"] = params["envelope_ratio"] * float(np.sqrt(max(float(d @ c @ d), 0.0)))
+    return params, stderr
+
+
 def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np.inf, iters: int = 40,
                stray=STRAY_DEFAULT, envelope=ENVELOPE_DEFAULT) -> ModelFit:
     """Levenberg-Marquardt fit of ``(R, cx, cy, h0, g)`` (see the module), started from ``dmap``,
@@ -394,22 +452,8 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
         starts.append(rings[:4])
     env0 = _envelope_start(bright, mask, u, v) if envelope != "none" else np.zeros(len(ENVELOPE_TERMS))
     e0 = np.asarray(lamp_envelope(u, v, env0), np.float64)[:, None]
-    best = None
-    film_only = make_model(False, False)  # the film's colours, b fixed (0 where it is fitted)
-    for radius, cx, cy, h0 in starts:
-        t = jnp.asarray([np.log(radius), cx, cy, h0, 0.0])
-        span = float(np.ptp(np.asarray(newton_gap(jnp.sqrt((xj - cx) ** 2 + (yj - cy) ** 2), radius, h0))))
-        env = envelope == "fit" or (envelope == "auto" and span >= ENVELOPE_MIN_FRINGES * fwd.fringe_nm)
-        # the film's colours at unit exposure (under the envelope's start), the stray light
-        # added (fixed) or fitted with the exposure by least squares at each start
-        e = e0 if env else 1.0
-        unit = np.asarray(film_only(t), np.float64) * e
-        g, b = _linear_exposure(unit, white * e, y, fit_stray)
-        cost = float(np.sum((g * (unit + b * white * e) - y) ** 2))
-        if best is None or cost < best[0]:
-            best = (cost, [np.log(radius), cx, cy, h0, np.log(g)] + ([b] if fit_stray else [])
-                    + (list(env0) if env else []), env)
-    theta, env_on = jnp.asarray(best[1]), best[2]
+    theta, env_on = _best_start(starts, make_model(False, False), fwd.fringe_nm, xj, yj, y, white, env0, e0,
+                                envelope, fit_stray)
     # rings finer than two pixels alias: left out of the fit (the start's lens says where)
     gx0, gy0 = newton_gap_gradient(xj - theta[1], yj - theta[2], jnp.exp(theta[0]))
     aliased = aliased_pixels(gx0, gy0, pitch, fwd.fringe_nm)
@@ -447,31 +491,13 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
     cov = np.linalg.pinv(J.T @ J) * (cost / dof)
     t = np.asarray(theta, np.float64)
     radius_um = float(np.exp(t[0]))
-    se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     rr = np.sqrt((x - t[1]) ** 2 + (yy - t[2]) ** 2)
     h = np.asarray(newton_gap(jnp.asarray(rr), radius_um, t[3]))
     # standard error of h(r) from the covariance of (log R, cx, cy, h0)
     hj = jax.jacfwd(lambda q: newton_gap(jnp.sqrt((xj - q[1]) ** 2 + (yj - q[2]) ** 2), jnp.exp(q[0]), q[3]))(theta)
     hj = np.asarray(hj, np.float64)
     h_se = np.sqrt(np.clip(np.einsum("pi,ij,pj->p", hj, cov, hj), 0.0, None))
-    params = {"radius_mm": radius_um / 1000.0, "center_x_um": float(t[1]), "center_y_um": float(t[2]),
-              "contact_offset_nm": float(t[3]), "exposure": float(np.exp(t[4]))}
-    stderr = {"radius_mm": radius_um / 1000.0 * float(se[0]), "center_x_um": float(se[1]),
-              "center_y_um": float(se[2]), "contact_offset_nm": float(se[3]), "exposure": float(np.exp(t[4]) * se[4])}
-    params["stray_reflectance"] = float(t[5]) if fit_stray else b_fixed
-    stderr["stray_reflectance"] = float(se[5]) if fit_stray else (b_se if b_se is not None else 0.0)
-    ie = 6 if fit_stray else 5
-    for k, name in enumerate(ENVELOPE_TERMS):
-        params[name] = float(t[ie + k]) if env_on else 0.0
-        stderr[name] = float(se[ie + k]) if env_on else 0.0
-    params["envelope_ratio"], stderr["envelope_ratio"] = 1.0, 0.0
-    if env_on:  # max E / min E, its error from the coefficients' covariance (log E is linear in them)
-        basis = np.column_stack([u, v, u * u, u * v, v * v])
-        log_e = basis @ t[ie:ie + len(ENVELOPE_TERMS)]
-        d = basis[int(np.argmax(log_e))] - basis[int(np.argmin(log_e))]
-        c = cov[ie:ie + len(ENVELOPE_TERMS), ie:ie + len(ENVELOPE_TERMS)]
-        params["envelope_ratio"] = float(np.exp(np.ptp(log_e)))
-        stderr["envelope_ratio"] = params["envelope_ratio"] * float(np.sqrt(max(float(d @ c @ d), 0.0)))
+    params, stderr = _reported(t, cov, u, v, fit_stray, b_fixed, b_se, env_on)
     warnings = []
     if rings is not None:  # the gap across the photo, fitted and from the rings' period without colour
         r2s = (x - rings[1]) ** 2 + (yy - rings[2]) ** 2

@@ -53,7 +53,7 @@ import numpy as np
 
 from . import search
 from ._local import DECREMENT_TOLERANCE, LocalSolution, remaining_step, solution_from, solve_local
-from ._carried import carried_map, carried_record, map_misfit
+from ._carried import CarriedMap, carried_map, carried_record, map_misfit
 from ._maps import PROFILE_NAMES, fit_map
 from ._observation import noise_sigma
 from ..capture.circle import detect_disc
@@ -268,10 +268,10 @@ def _exposure_doubts(st: Setup, opts: FitOptions, env, full, reported: dict) -> 
 
 
 def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgement, notes: list,
-            t_start: float, made: tuple | None = None, carried: dict | None = None) -> FitResult:
+            t_start: float, made: CarriedMap | None = None, carried: dict | None = None) -> FitResult:
     """The thickness map (``--thickness map``), the full-resolution render, the verdict and
-    the :class:`FitResult` of a judged solve. ``made``: the map, its standard errors, its
-    soundness and the render already made (:func:`_carried_map_fit`); ``carried``: the
+    the :class:`FitResult` of a judged solve. ``made``: the sound map, its standard errors
+    and the render a carried frame already made (:func:`_carried_map_fit`); ``carried``: the
     global parameters' record a warm-started map carries on (None: this solve's own,
     :func:`~._carried.carried_record`)."""
     table, unc = st.table, judged.uncertainty
@@ -283,7 +283,7 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     prof = None if opts.thickness == "constant" else (new["top_nm"], new["bottom_nm"], new["exponent"])
     full = st.level(1, opts, st.map_cfg if opts.thickness == "map" else st.base_cfg)
     if opts.thickness == "map":
-        dmap, emap, map_ok = made[:3] if made is not None else \
+        dmap, emap, map_ok = (made.thickness_map, made.map_stderr, True) if made is not None else \
             fit_map(full, table, new, prof, opts, env, make_level=lambda k: st.level(k, opts, st.map_cfg),
                     start=st.map_start)
         final_vals["map"] = dmap
@@ -296,7 +296,7 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
             notes.append("the thickness map is not constrained at over 10% of the film's pixels")
     elif opts.thickness == "drainage":
         thickness_map = np.where(full.inside, np.asarray(drainage_profile(jnp.asarray(full.height), *prof)), np.nan)
-    img = made[3] if made is not None else \
+    img = made.render if made is not None else \
         np.asarray(render_bubble(final_params(table, final_vals, opts), full, env), np.float64)
     resid_img = st.photo - img
     if opts.thickness == "map" and full.mask.any():
@@ -382,7 +382,7 @@ def _carried_map_fit(started: Started, env, init: dict) -> tuple[FitResult | Non
                 if cm.exposure_moved else f" (the exposure's score test z^2 = {cm.exposure_z2:.3g})")]
     sol = SimpleNamespace(values=vals, steps=0)
     res = _report(st, env, opts, sol, judged, notes, started.t_start,
-                  made=(cm.thickness_map, cm.map_stderr, True, cm.render), carried=dict(carried, frames=frames))
+                  made=cm, carried=dict(carried, frames=frames))
     if not res.ok:
         return None, "with the carried global parameters the fit is not ok: " + "; ".join(res.warnings)[:300]
     return res, None

@@ -721,6 +721,29 @@ def _map_start(kind, scene, view, y, lum, cost, best, grid, region, ref_nm, frin
     return dpix, order_from, map_profile
 
 
+def _refined_with_exposure(fwd, y, lum, sin2, dpix, gain: float, lo: float, hi: float, clip_high: float):
+    """``(thickness, J^T J per pixel, model, exposure)``: each pixel's thickness refined
+    (:func:`_refine`), the exposure by least squares on it over the channels not clipped,
+    then each pixel refined once more at that exposure."""
+    dref, _, model = _refine(fwd, y, lum, sin2, dpix, gain, lo, hi, clip_high)
+    unit = model / gain
+    seen = (y > BLACK_CLIP) & (y < clip_high)
+    gain = float(np.sum((y * unit)[seen]) / max(float(np.sum((unit * unit)[seen])), 1e-20))
+    dref, jj_, model = _refine(fwd, y, lum, sin2, dref, gain, lo, hi, clip_high)
+    return dref, jj_, model, gain
+
+
+def _reduced_chi2(res, y, sigma: float, fitted=None) -> tuple[float, float]:
+    """The reduced chi^2 of the residual ``res`` over the pixels the model was fitted to
+    (``fitted``; Newton's rings: not where they alias), and with each channel's variance
+    ``sigma^2 + (model_error y)^2``, the floor by which a bubble's fit is judged
+    (``JudgeSettings.model_error``: how much independent renderers differ on the same
+    film); ``ok`` is judged by the second."""
+    rf, yf = (res, y) if fitted is None else (res[fitted], y[fitted])
+    chi2 = float(np.mean(rf ** 2) / sigma ** 2)
+    return chi2, float(np.mean(rf ** 2 / (sigma ** 2 + (JudgeSettings.model_error * yf) ** 2)))
+
+
 def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=None,
                kind: str | None = None, seed: int = 0, clip_high: float = np.inf) -> PlanarResult:
     """Fit a flat film's or a gap's thickness to a linear photo (H, W, 3) (the module's method).
@@ -774,12 +797,7 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         dpix, order_from, map_profile = _map_start(kind, scene, view, y, lum, cost, best, grid, region, ref_nm,
                                                    fwd.fringe_nm, window, sigma2, warnings)
 
-    dref, jj_, model = _refine(fwd, y, lum, sin2, dpix, gain, lo, hi, clip_high)
-    # exposure by least squares on the refined thickness, then refine once more
-    unit = model / gain
-    seen = (y > BLACK_CLIP) & (y < clip_high)  # the exposure from the channels not clipped
-    gain = float(np.sum((y * unit)[seen]) / max(float(np.sum((unit * unit)[seen])), 1e-20))
-    dref, jj_, model = _refine(fwd, y, lum, sin2, dref, gain, lo, hi, clip_high)
+    dref, jj_, model, gain = _refined_with_exposure(fwd, y, lum, sin2, dpix, gain, lo, hi, clip_high)
     res = censored_residual(y, model, clip_high, np)
     sigma = _noise_sigma(res)
     stderr = sigma / np.sqrt(np.maximum(jj_, 1e-20))
@@ -818,13 +836,7 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         notes, fitted = nres.notes, nres.fitted
         res = censored_residual(y, model, clip_high, np)
     order = order or _profile_order(fwd, y, lum, sin2, view, mask, map_profile, gain, sigma, lo, hi, clip_high)
-    # the pixels the model was fitted to (Newton's rings: not where they alias)
-    rf, yf = (res, y) if fitted is None else (res[fitted], y[fitted])
-    chi2 = float(np.mean(rf ** 2) / sigma ** 2)
-    # with each channel's variance sigma^2 + (model_error y)^2, the floor by which a
-    # bubble's fit is judged (JudgeSettings.model_error: how much independent renderers
-    # differ on the same film); ``ok`` is judged by this one
-    chi2_floor = float(np.mean(rf ** 2 / (sigma ** 2 + (JudgeSettings.model_error * yf) ** 2)))
+    chi2, chi2_floor = _reduced_chi2(res, y, sigma, fitted)
     stderr_camera = drain_camera if kind == "drainage" else None
     if kind in ("constant", "map"):
         perr, stderr, stderr_camera = _with_camera_term(fwd, kind, model, dref, sin2, sigma, perr, stderr)

@@ -51,11 +51,17 @@ def _kept_solve_local(*a, **k):
 
 F.solve_local = _kept_solve_local
 for n in ("setup", "solve_local", "_judge", "fit_map", "render_bubble", "judge_colours", "response_cells",
-          "_exposure_doubts", "_map_camera_stderr", "_warm_order", "_checked_warm_start", "_report"):
+          "_exposure_doubts", "_map_camera_stderr", "_warm_order", "_checked_warm_start", "_report", "carried_map", "_start_one"):
     if hasattr(F, n):
         wrap(F, n)
-for n in ("_level_map", "refine", "profile_map"):
+for n in ("_level_map", "refine", "profile_map", "profile_from_map"):
     wrap(M, n, "maps." + n)
+import bubblefit.inverse._carried as C  # noqa: E402
+
+for n in ("carried_map", "fit_map", "render_bubble", "exposure_step", "map_misfit", "profile_from_map"):
+    wrap(C, n, "carried." + n)
+if hasattr(F, "_carried_map_fit"):
+    wrap(F, "_carried_map_fit")
 wrap(MP.TracedCosts, "__init__", "TracedCosts.init")
 wrap(MP.TracedCosts, "__call__", "TracedCosts.call")
 wrap(MP.TracedCosts, "slopes", "TracedCosts.slopes")

@@ -238,3 +238,29 @@ def test_map_programs_through_the_store(env, level, tmp_path, monkeypatch):
         assert len(list(folder.glob("*.bin"))) == 3, run  # the costs, the trace and the slopes
     assert len(loads) == 3, loads  # the second read all three from their files
     _map_pixels._stored_programs.cache_clear()
+
+
+def test_traced_pixels_equal_the_render_and_its_exposure_column(env, level):
+    """The map's pixels from its traced rays, at another exposure and drainage profile than
+    traced (neither changes the rays), equal the whole render's at the fitted pixels, and
+    their exposure derivative the render's exact column (the render is affine in the
+    exposure: eq. 11's reflected terms scale with it, the transmitted background photo does
+    not), float32 rounding apart."""
+    from bubblefit.inverse import TracedCosts, profile_map
+    from bubblefit.inverse._programs import final_params, render_bubble
+
+    st, lev, vals = level
+    opts = _opts(thickness="map", model="physical")
+    sel = lev.mask.reshape(-1)
+    costs = TracedCosts(lev, st.table, vals, env)
+    moved = dict(vals, exposure=1.3 * float(vals["exposure"]), top_nm=320.0, bottom_nm=880.0, exponent=1.1)
+    dmap = profile_map(lev, (320.0, 880.0, 1.1)) + 12.0
+    img, col = costs.pixels(dmap.reshape(-1)[sel], st.table, moved)
+    render = lambda v: np.asarray(render_bubble(final_params(st.table, dict(v, map=dmap), opts), lev, env), np.float64)
+    whole = render(moved).reshape(-1, 3)[sel]
+    e = float(moved["exposure"])
+    column = (whole - render(dict(moved, exposure=0.5 * e)).reshape(-1, 3)[sel]) / (0.5 * e)
+    # float32 pixels of order 1 through two programs (a few ulps of their ~1e2 summed terms)
+    np.testing.assert_allclose(img, whole, rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(col, column, rtol=1e-3, atol=1e-4)
+    assert not np.allclose(img, render(vals).reshape(-1, 3)[sel], atol=1e-3)  # the values changed the pixels

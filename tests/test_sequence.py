@@ -610,13 +610,13 @@ def test_exposure_score_test_and_step():
     lev = SimpleNamespace(w=np.full(shape, 1.0 / sigma), y=b + e0 * a_true)
     floor = np.sqrt(sigma**2 + (float(opts.judge.model_error) * lev.y) ** 2)
     one = Misfit(1.0, 1.0, 1.0, 0.0, 1.0)
-    img, half = b + e0 * a_true, b + 0.5 * e0 * a_true
+    img = b + e0 * a_true  # its column, the derivative in the exposure, is a_true
     draws, hits = 1000, 0
     for _ in range(draws):
         photo = img + floor * rng.standard_normal(shape)
-        hits += exposure_step(lev, photo, img, half, e0, opts, one)[1] > chi2.ppf(1 - EXPOSURE_TEST_ALPHA, 1)
+        hits += exposure_step(lev, photo, img, a_true, opts, one)[1] > chi2.ppf(1 - EXPOSURE_TEST_ALPHA, 1)
     rate = hits / draws
     assert abs(rate - EXPOSURE_TEST_ALPHA) < 4 * np.sqrt(EXPOSURE_TEST_ALPHA * (1 - EXPOSURE_TEST_ALPHA) / draws)
     photo = b + 0.62 * a_true + floor * rng.standard_normal(shape)
-    step, z2, err = exposure_step(lev, photo, img, half, e0, opts, one)
+    step, z2, err = exposure_step(lev, photo, img, a_true, opts, one)
     assert abs(e0 + step - 0.62) < 4 * err and z2 > chi2.ppf(1 - EXPOSURE_TEST_ALPHA, 1)

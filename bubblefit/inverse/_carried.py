@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
+from ._map_pixels import TracedCosts
 from ._maps import PROFILE_NAMES, fit_map, profile_from_map
 from ._options import FitOptions
 from ._programs import final_params, render_bubble
@@ -52,13 +53,13 @@ def carried_record(disc_stderr, reported: dict, stderr: dict, fit: Misfit, dof: 
             "disc_stderr": disc_stderr, "frames": 0}
 
 
-def exposure_step(full, photo, img, img_half, exposure: float, opts: FitOptions, fit: Misfit) -> tuple[float, float, float]:
+def exposure_step(full, photo, img, column, opts: FitOptions, fit: Misfit) -> tuple[float, float, float]:
     """The exposure's closed-form Gauss-Newton step with the map held, its score statistic
     and its standard error: ``(step, z2, stderr)``.
 
     The render is affine in the exposure (eq. 1's reflected terms scale with it; the
-    transmitted background photo does not, a map's background does), so ``a = (img -
-    img_half) / (E / 2)`` is its exact column, from the render at half the exposure. With residual
+    transmitted background photo does not, a map's background does), so its derivative in
+    the exposure, ``column`` ``a`` (h, w, 3), is its exact column. With residual
     ``r`` and column ``a`` whitened by each pixel's noise and model-error floor, the step
     is ``a.r / a.a`` (variable projection: the linear parameter solved for the others
     held, Golub and Pereyra 1973) and ``z2 = (a.r)^2 / (a.a chi2_floor)`` is Rao's score
@@ -68,13 +69,35 @@ def exposure_step(full, photo, img, img_half, exposure: float, opts: FitOptions,
     used = full.w > 0
     var = 1.0 / np.where(used, full.w, 1.0) ** 2 + (float(opts.judge.model_error) * np.clip(full.y, 0, None)) ** 2
     wf = np.where(used, 1.0 / np.sqrt(var), 0.0)
-    a = (img - img_half) / (0.5 * exposure) * wf
+    a = column * wf
     r = (photo - img) * wf
     aa, ar = float(np.sum(a * a)), float(np.sum(a * r))
     s2 = max(float(fit.chi2_floor), 1.0)
     if not aa > 0:
         return 0.0, 0.0, float("nan")
     return ar / aa, ar * ar / (aa * s2), math.sqrt(s2 / aa)
+
+
+def _shaded(full, kept: list, table, vals: dict, dmap: np.ndarray, opts: FitOptions, env) -> tuple[np.ndarray, np.ndarray]:
+    """``(img, column)`` (h, w, 3): the map ``dmap``'s render at ``vals`` and its derivative
+    in the exposure (eq. 11 and the physical series scale the reflected terms by it), over
+    the fitted pixels (0 elsewhere, where :func:`map_misfit` and :func:`exposure_step` read
+    nothing). From the map's finest level's traced rays (``kept``, :func:`fit_map`): only
+    the film's optics are evaluated, with one forward-mode tangent in the exposure
+    (:meth:`~bubblefit.inverse._map_pixels.TracedCosts.pixels`); without them (the paper
+    model's exact candidates), two renders, the column their difference from half the
+    exposure (the render is affine in it)."""
+    if kept and isinstance(kept[-1], TracedCosts):
+        costs = kept[-1]
+        flat = costs.pix.flat
+        vals_p, col_p = costs.pixels(np.asarray(dmap, np.float64).reshape(-1)[flat], table, vals)
+        img, column = np.zeros(full.y.shape), np.zeros(full.y.shape)
+        img.reshape(-1, 3)[flat], column.reshape(-1, 3)[flat] = vals_p, col_p
+        return img, column
+    render = lambda v: np.asarray(render_bubble(final_params(table, dict(v, map=dmap), opts), full, env), np.float64)
+    e = float(vals["exposure"])
+    img = render(vals)
+    return img, (img - render(dict(vals, exposure=0.5 * e))) / (0.5 * e)
 
 
 @dataclass(frozen=True)
@@ -102,8 +125,9 @@ def carried_map(st, opts: FitOptions, env, carried: dict) -> CarriedMap | str:
 
     The map is built coarse to fine as a solved frame's (from the warm start's
     extrapolated profile); the exposure then gets its closed-form step when its score test
-    says it moved (:func:`exposure_step`, :data:`EXPOSURE_TEST_ALPHA`), and the map is fitted
-    once more at the new exposure. The drainage profile is fitted to the map (the rear
+    says it moved (:func:`exposure_step`, :data:`EXPOSURE_TEST_ALPHA`; the map's pixels and
+    the exposure's column are shaded from the rays its finest level traced, :func:`_shaded`),
+    and the map is refined once more at the new exposure, at full resolution from itself. The drainage profile is fitted to the map (the rear
     film reads it, and a profile held with the globals tinted the film beyond the colour
     check). The frame goes to the full solve when the map is not sound, or the kept model
     does not explain the frame with the map (its reduced chi^2 with the floor above
@@ -118,16 +142,19 @@ def carried_map(st, opts: FitOptions, env, carried: dict) -> CarriedMap | str:
         if not full.mask.any():
             return "no film pixels"
         render = lambda v, m: np.asarray(render_bubble(final_params(table, dict(v, map=m), opts), full, env), np.float64)
-        dmap, emap, map_ok = fit_map(full, table, vals, prof, opts, env, make_level=make, start=st.map_start)
-        img = render(vals, dmap)
+        kept = []
+        dmap, emap, map_ok = fit_map(full, table, vals, prof, opts, env, make_level=make, start=st.map_start, kept=kept)
+        img, column = _shaded(full, kept, table, vals, dmap, opts, env)
         fit, _ = map_misfit(full, st.photo - img, opts)
         e = float(vals["exposure"])
-        step, z2, step_err = exposure_step(full, st.photo, img, render(dict(vals, exposure=0.5 * e), dmap), e, opts, fit)
+        step, z2, step_err = exposure_step(full, st.photo, img, column, opts, fit)
         moved = bool(z2 > chi2_dist.ppf(1.0 - EXPOSURE_TEST_ALPHA, 1))
         if moved and np.isfinite(step) and e + step > 0:
             vals["exposure"] = e + step
             exposure_err = max(float(exposure_err or 0.0), step_err)
-            dmap, emap, map_ok = fit_map(full, table, vals, prof, opts, env, make_level=make, start=st.map_start)
+            # the exposure moved the colours, not the interference order the coarse levels
+            # settled: the map is refined at full resolution from itself (:func:`fit_map`'s start)
+            dmap, emap, map_ok = fit_map(full, table, vals, prof, opts, env, make_level=make, start=(dmap, prof))
         new_prof, prof_err = profile_from_map(full, dmap, emap, prof, tuple(n for n in PROFILE_NAMES if n in table.free))
         vals.update(zip(PROFILE_NAMES, new_prof))
         img = render(vals, dmap)

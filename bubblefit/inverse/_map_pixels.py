@@ -108,10 +108,28 @@ def _traced_slopes(cfg, traced, d, y, w):
     return jax.lax.map(chunk, (traced, d, y, w))
 
 
+@functools.partial(jax.jit, static_argnames=("cfg",))
+def _traced_pixels(cfg, traced, d, exposure, profile):
+    """Every chunk's pixels (steps, chunk, 3) at front thicknesses ``d`` (steps, chunk) from
+    its rays traced once (:func:`_chunk_trace`), with the exposure and the drainage profile
+    ``exposure``, ``profile`` (the rays and the light they read depend on neither: eq. (11)
+    and the physical series scale the reflected terms by the exposure, and the rear film
+    reads the profile, :func:`bubblefit.model.thickness.thickness_at`), and their
+    derivative in the exposure (one forward-mode tangent)."""
+
+    def chunk(xs):
+        tr, dd = xs
+        at = lambda e: _predict(cfg, [replace(t, p=replace(t.p, exposure=e, profile=profile)) for t in tr], dd)
+        return jax.jvp(at, (exposure,), (jnp.ones_like(exposure),))
+
+    return jax.lax.map(chunk, (traced, d))
+
+
 @functools.lru_cache(maxsize=16)
 def _stored_programs(cfg):
-    """``(costs, trace, slopes)``: :func:`_chunk_costs`, :func:`_chunk_trace` (its output
-    as the list of its leaves) and :func:`_traced_slopes` (taking that list) for ``cfg``
+    """``(costs, trace, slopes, pixels)``: :func:`_chunk_costs`, :func:`_chunk_trace` (its
+    output as the list of its leaves), :func:`_traced_slopes` and :func:`_traced_pixels`
+    (taking that list) for ``cfg``
     through the executable store (:func:`bubblefit.io.executables.stored`): a new process
     loads the map's programs instead of tracing and lowering the film's optics again."""
 
@@ -124,6 +142,10 @@ def _stored_programs(cfg):
         traced = jax.tree_util.tree_unflatten(structure(p, env, bg, rows, cols, idx), leaves)
         return _traced_slopes(cfg, traced, d, y, w)
 
+    def pixels(p, env, bg, rows, cols, idx, leaves, d, exposure, profile):
+        traced = jax.tree_util.tree_unflatten(structure(p, env, bg, rows, cols, idx), leaves)
+        return _traced_pixels(cfg, traced, d, exposure, profile)
+
     def costs(p, env, bg, rows, cols, idx, cand, y, w2):
         return _chunk_costs(p, cfg, env, bg, rows, cols, idx, cand, y, w2)
 
@@ -132,7 +154,8 @@ def _stored_programs(cfg):
 
     return (stored(jax.jit(costs), "inverse._map_pixels.costs", cfg),
             stored(jax.jit(trace), "inverse._map_pixels.trace", cfg),
-            stored(jax.jit(slopes), "inverse._map_pixels.slopes", cfg))
+            stored(jax.jit(slopes), "inverse._map_pixels.slopes", cfg),
+            stored(jax.jit(pixels), "inverse._map_pixels.pixels", cfg))
 
 
 class TracedCosts:
@@ -179,12 +202,29 @@ class TracedCosts:
         level's rays are traced at the first call and kept (the light the films read does
         not depend on the thickness), so each further call evaluates the film's optics only."""
         pix = self.pix
-        _, trace, slopes = _stored_programs(self.cfg)
+        _, trace, slopes, _ = _stored_programs(self.cfg)
         args = (self.p, self.env, self.bg, pix.rows, pix.cols, pix.idx)
         if self._traced is None:
             self._traced = trace(*args)
         r, j = slopes(*args, self._traced, jnp.asarray(self._spread(np.maximum(d, 0.0))), self.y, self.w)
         return np.asarray(r).reshape(-1, 3)[:self.n], np.asarray(j).reshape(-1, 3)[:self.n]
+
+
+    def pixels(self, d: np.ndarray, table: ParameterTable, vals: dict) -> tuple[np.ndarray, np.ndarray]:
+        """``(img, column)``, (P, 3) each: the level's pixels at thicknesses ``d`` (P,) with
+        the exposure and the drainage profile of ``vals`` (the other values as traced), and
+        their derivative in the exposure, from the rays :meth:`slopes` traced (traced here
+        if not yet): a render of the fitted pixels without tracing them again."""
+        pix = self.pix
+        _, trace, _, pixels = _stored_programs(self.cfg)
+        args = (self.p, self.env, self.bg, pix.rows, pix.cols, pix.idx)
+        if self._traced is None:
+            self._traced = trace(*args)
+        h, w = self.pix.padded.cfg.shape
+        base = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k != "map"}
+        q = table.render_params(dict(base, map=jnp.zeros((h, w), jnp.float32)), "map")
+        img, col = pixels(*args, self._traced, jnp.asarray(self._spread(np.maximum(d, 0.0))), q.exposure, q.profile)
+        return (np.asarray(img, np.float64).reshape(-1, 3)[:self.n], np.asarray(col, np.float64).reshape(-1, 3)[:self.n])
 
 
 #: Most Gauss-Newton steps of :func:`refine` (each one forward-mode pass over the level).

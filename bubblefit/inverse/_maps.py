@@ -272,7 +272,7 @@ def warm_centre(lev: Level, prof, start) -> np.ndarray | None:
 
 
 def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts: FitOptions, env, make_level=None,
-            start=None):
+            start=None, kept: list | None = None):
     """Per-pixel thickness (h, w), its standard error (h, w), and whether the map is sound.
 
     ``lev`` is the full-resolution level, ``prof`` the fitted drainage profile the map
@@ -280,7 +280,9 @@ def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts: FitOption
     coarser than ``lev`` (None: no pyramid). ``start``: a warm start's map and its
     profile (a sequence's previous frame, :func:`warm_centre`); the pyramid is then
     skipped and only the finest level is refined around it (the same window and solve
-    as after a coarser level).
+    as after a coarser level). ``kept``: a list the finest level's costs
+    (:class:`~bubblefit.inverse._map_pixels.TracedCosts`, its rays traced) are appended to,
+    for the caller to shade the map's pixels without tracing them again.
     """
     exact = search.exact_paper_search(lev.cfg) and isinstance(lev.cfg.camera, OrthographicCamera)
     hi = opts.thickness_range[1]
@@ -312,6 +314,8 @@ def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts: FitOption
                 best, err, c = refine(costs_of, centre, _neighbours(L.mask)[0], s, half)
             else:
                 best, err, c = _level_map(L, costs_of, centre, s, step, half)
+        if k == 1 and kept is not None:
+            kept.append(costs_of)
         m = np.full(L.mask.shape, np.nan)
         m.reshape(-1)[sel] = best
         prev, prev_map = L, m

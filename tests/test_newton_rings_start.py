@@ -111,8 +111,8 @@ as the model's) started from its own map: the colour start
     gap = np.asarray(newton.newton_gap(jnp.asarray(np.hypot(x - 1.0, yy - 1.0)), radius, 0.0), np.float64)
     gx, gy = newton.newton_gap_gradient(jnp.asarray(x - 1.0), jnp.asarray(yy - 1.0), radius)
     # each pixel's mean colour over its 2 um box (the model's own)
-    y = np.asarray(newton.pixel_mean(lambda hs: fwd.rgb(hs, jnp.asarray(s2)), jnp.asarray(gap), gx, gy,
-                                     2.0, 0.0, hi), np.float64) * lum[:, None]
+    y = np.asarray(newton.pixel_mean(fwd, jnp.asarray(gap), jnp.asarray(s2), 0.0, gx, gy, 2.0, 0.0, hi),
+                   np.float64) * lum[:, None]
     res = newton.fit_newton(fwd, y, lum, s2, view, m, gap, 1.0, 0.002, 0.0, hi)
     # noise-free photo from the same model: R to float32's precision in the model's colours
     assert res.params["radius_mm"] * 1000.0 == pytest.approx(radius, rel=1e-3)

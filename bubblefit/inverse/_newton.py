@@ -30,7 +30,7 @@ import numpy as np
 from ._planar_lm import ModelFit, fit_colours, fit_order
 from ..model.planar_scene import ENVELOPE_DEFAULT, STRAY_DEFAULT
 
-__all__ = ["ENVELOPE_TERMS", "PIXEL_NODES", "aliased_pixels", "colour_start", "envelope_coordinates", "fit_newton",
+__all__ = ["ENVELOPE_TERMS", "aliased_pixels", "colour_start", "envelope_coordinates", "fit_newton",
            "lamp_envelope", "lost_rings_warning", "newton_gap", "newton_gap_gradient", "pixel_mean", "rings_centre",
            "rings_period"]
 
@@ -51,19 +51,11 @@ def newton_gap_gradient(dx_um, dy_um, radius_um):
     return dx_um * slope, dy_um * slope
 
 
-#: Gauss-Legendre nodes per axis of a pixel's box in :func:`pixel_mean`: 3 integrate a
-#: polynomial of degree 5 in the gap exactly; on the two-beam term ``cos(delta)`` whose
-#: phase spans ``+-pi/2`` per axis (fringes 2 pixels apart, the finest the fit keeps,
-#: :func:`aliased_pixels`) the rule's mean is 0.6374 against the box's ``sinc(pi/2) =
-#: 0.6366``, 1e-3 of the fringe's amplitude.
-PIXEL_NODES = 3
-_NODES, _WEIGHTS = np.polynomial.legendre.leggauss(PIXEL_NODES)
-
-
-def pixel_mean(colour, h, gx, gy, pitch_um: float, lo: float, hi: float):
-    """The mean of ``colour(gap)`` over each pixel's square (side ``pitch_um`` on the film)
-    where the gap varies linearly across it: ``h`` (P,) at the pixel's centre, ``(gx, gy)``
-    (P,) its gradient (nm per um); ``colour`` maps gaps (P,) to colours (P, 3).
+def pixel_mean(fwd, h, sin2, stray, gx, gy, pitch_um: float, lo: float, hi: float):
+    """The mean colour (P, 3) of the gap's reflectance over each pixel's square (side
+    ``pitch_um`` on the film) where the gap varies linearly across it: ``h`` (P,) at the
+    pixel's centre, ``(gx, gy)`` (P,) its gradient (nm per um), seen at ``sin2`` with the
+    stray reflectance ``stray`` (:meth:`~bubblefit.inverse.planar.PlanarForward.rgb`).
 
     The camera integrates the light over its pixel's box aperture: the image is the scene
     convolved with ``rect(x/p) rect(y/p)``, whose transfer function is ``sinc(f_x p)
@@ -71,14 +63,43 @@ def pixel_mean(colour, h, gx, gy, pitch_um: float, lo: float, hi: float):
     Table 2.1, rect <-> sinc; sec. 6.2's detector aperture). For a two-beam film of phase
     ``delta`` linear across the pixel, ``<cos delta> = cos(delta_c) sinc(g_x p/2) sinc(g_y p/2)``
     (``g = grad delta``, ``sinc x = sin x / x``): the fringes' visibility falls as they
-    approach the pixel pitch. The Airy sum's harmonics fall each by its own sinc; the mean
-    is taken here by the pixel's :data:`PIXEL_NODES` x :data:`PIXEL_NODES` Gauss-Legendre
-    points, which holds for any stack (each point's gap clipped to ``[lo, hi]``)."""
-    total = 0.0
-    for a, wa in zip(0.5 * pitch_um * _NODES, _WEIGHTS):  # one point at a time: memory as one render's
-        for b, wb in zip(0.5 * pitch_um * _NODES, _WEIGHTS):
-            total = total + (0.25 * wa * wb) * colour(jnp.clip(h + a * gx + b * gy, lo, hi))
-    return total
+    approach the pixel pitch. The Airy sum's harmonics fall each by its own sinc, in closed
+    form (:func:`bubblefit.optics.film.box_airy_reflectance`): one evaluation per pixel.
+    Where the gap is held at ``lo`` or ``hi`` (the contact's flat, the range's end) the
+    pixel is taken as flat."""
+    inside = (h > lo) & (h < hi)
+    sx = jnp.where(inside, gx * pitch_um, 0.0)
+    sy = jnp.where(inside, gy * pitch_um, 0.0)
+    colour = _per_pixel(lambda hh, ax, ay, b: fwd.rgb(hh, sin2, b[..., None], span=(ax, ay)))
+    return colour(h, sx, sy, jnp.broadcast_to(stray, jnp.shape(h)))
+
+
+def _per_pixel(colour):
+    """``colour(h, sx, sy, b)`` (P,) x 4 -> (P, 3) with the forward derivative of a function
+    whose pixels depend each on its own four values alone: the Jacobian of the
+    pixels' colours is diagonal in the pixels, so each pixel's four partial derivatives
+    (one forward pass per input, batched; the stray ``b`` enters linearly and its pass
+    touches only the sum) times the inputs' tangents is the derivative along any tangent.
+    A fit's ``jax.jacfwd`` then costs four passes through the reflectance whatever the
+    number of its parameters, rather than one per parameter (the chain rule; A. Griewank
+    and A. Walther, *Evaluating Derivatives*, 2nd ed., SIAM 2008, sec. 3.1)."""
+
+    @jax.custom_jvp
+    def f(h, sx, sy, b):
+        return colour(h, sx, sy, b)
+
+    @f.defjvp
+    def f_jvp(primals, tangents):
+        h, sx, sy, b = primals
+        one, zero = jnp.ones_like(h), jnp.zeros_like(h)
+        basis = (jnp.stack([one, zero, zero]), jnp.stack([zero, one, zero]), jnp.stack([zero, zero, one]))
+        out, parts = jax.vmap(lambda th, tx, ty: jax.jvp(lambda a, c, d: colour(a, c, d, b), (h, sx, sy),
+                                                        (th, tx, ty)), out_axes=(None, 0))(*basis)
+        _, db = jax.jvp(lambda bb: colour(h, sx, sy, bb), (b,), (one,))
+        tan = parts[0] * tangents[0][:, None] + parts[1] * tangents[1][:, None] + parts[2] * tangents[2][:, None]
+        return out, tan + db * tangents[3][:, None]
+
+    return f
 
 
 #: Fewest pixels per fringe the fit models: below 2 (Nyquist), the sampled rings alias
@@ -432,8 +453,7 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
             gx, gy = newton_gap_gradient(dx, dy, jnp.exp(t[0]))
             b = t[5] if free else b_fixed
             # the film's reflectance averaged over each pixel's box (the camera's aperture)
-            out = jnp.exp(t[4]) * lk[:, None] * pixel_mean(lambda hs: fwd.rgb(hs, sk, b), h, gx, gy,
-                                                            pitch, lo, hi)
+            out = jnp.exp(t[4]) * lk[:, None] * pixel_mean(fwd, h, sk, b, gx, gy, pitch, lo, hi)
             return out * lamp_envelope(uk, vk, t[ie:ie + len(ENVELOPE_TERMS)])[:, None] if env else out
 
         return model

@@ -148,25 +148,30 @@ class PlanarForward:
         #: Fringe spacing at 550 nm (nm of thickness), for the order window.
         self.fringe_nm = 550.0 / (2.0 * float(dispersion.refractive_index(stack.film, 550.0)))
 
-    def rgb(self, d, sin2, stray=0.0):
+    def rgb(self, d, sin2, stray=0.0, span=None):
         """(..., 3) colour of thickness ``d`` seen at ``sin2`` (ignored under coaxial light),
         with ``stray`` (a grey reflectance, scalar) added to the film's: the light of the
         other surfaces that reaches the camera without interfering with the film's two
         beams (a lens's top, a plate's bottom, scatter), summed in intensity (Born and Wolf,
         *Principles of Optics*, sec. 7.5.1: beams without a fixed phase relation add their
         intensities; sec. 7.5.3, Newton's rings as the interference of the gap's two
-        reflections)."""
-        return spectral.integrate(self.reflectance(d, sin2) + stray, self.basis)
+        reflections). ``span``: the mean over a pixel's box, as in :meth:`reflectance`."""
+        return spectral.integrate(self.reflectance(d, sin2, span=span) + stray, self.basis)
 
-    def reflectance(self, d, sin2, lam=None):
+    def reflectance(self, d, sin2, lam=None, span=None):
         """(..., L) the stack's reflectance at thickness ``d`` seen at ``sin2`` (ignored under
-        coaxial light), at the basis's wavelengths or at ``lam`` (nm)."""
+        coaxial light), at the basis's wavelengths or at ``lam`` (nm). ``span`` ``(span_x,
+        span_y)`` shaped like ``d``: the thickness's change across each pixel's box along its
+        two sides (nm), whose mean over the box is taken
+        (:func:`~bubblefit.lighting.coaxial.reflectance_at_angles`); None: at ``d``."""
         d = jnp.asarray(d)[..., None]
+        if span is not None:
+            span = tuple(jnp.asarray(s)[..., None] for s in span)
         n = self.n if lam is None else self.stack.indices(np.asarray(lam))
         lam = self.lam if lam is None else jnp.asarray(lam)
         if self.na > 0:
-            return coaxial.coaxial_reflectance(d, lam, n, self.na, self.nodes)
-        return coaxial.reflectance_at_angles(d, lam, n, jnp.asarray(sin2)[..., None])
+            return coaxial.coaxial_reflectance(d, lam, n, self.na, self.nodes, span)
+        return coaxial.reflectance_at_angles(d, lam, n, jnp.asarray(sin2)[..., None], span)
 
     def response_error(self):
         """The response's stated errors (:func:`~bubblefit.inverse.response_error.response_error`

@@ -77,18 +77,23 @@ class StackIndices:
 
 
 def reflectance_at_angles(thickness: ArrayLike, wavelength: ArrayLike, n: StackIndices,
-                          sin2_air: ArrayLike) -> Float[Array, "..."]:
+                          sin2_air: ArrayLike, span=None) -> Float[Array, "..."]:
     """Unpolarised reflectance of the stack for light that left air at ``sin^2(theta_air)``.
 
     The angle in the medium above follows from Snell's law across a parallel face
     (``n0 sin(theta_0) = sin(theta_air)``); the film's reflectance is the three-media Airy
     sum of :func:`bubblefit.optics.film.airy_reflectance`, s and p averaged (unpolarised
     lamp). Broadcasts ``thickness``, ``wavelength`` (last axis, like the indices) and
-    ``sin2_air``.
+    ``sin2_air``. ``span`` ``(span_x, span_y)`` (nm, broadcasting like ``thickness``): the
+    thickness's change across a pixel's box along its two sides, whose mean over the box
+    is taken (:func:`bubblefit.optics.film.box_airy_reflectance`); None: the point's.
     """
     cos0 = jnp.sqrt(jnp.clip(1.0 - sin2_air / jnp.asarray(n.above) ** 2, 0.0, 1.0))
-    return film.airy_reflectance(thickness, wavelength, jnp.asarray(n.film), cos0,
-                                 n_above=jnp.asarray(n.above), n_below=jnp.asarray(n.below)).mean(-1)
+    media = dict(n_above=jnp.asarray(n.above), n_below=jnp.asarray(n.below))
+    if span is not None:
+        return film.box_airy_reflectance(thickness, wavelength, jnp.asarray(n.film), cos0, span[0], span[1],
+                                         **media).mean(-1)
+    return film.airy_reflectance(thickness, wavelength, jnp.asarray(n.film), cos0, **media).mean(-1)
 
 
 def cone_quadrature(na: float, nodes: int) -> tuple[np.ndarray, np.ndarray]:
@@ -121,23 +126,23 @@ def cone_nodes_needed(max_thickness_nm: float, na: float, n_film_min: float, lam
 
 
 def coaxial_reflectance(thickness: ArrayLike, wavelength: ArrayLike, n: StackIndices, na: float,
-                        nodes: int) -> Float[Array, "..."]:
+                        nodes: int, span=None) -> Float[Array, "..."]:
     """The stack's reflectance averaged over an objective's cone (the module's equation).
 
     ``thickness`` broadcasts against ``wavelength`` (the last axis); returns the
     unpolarised, cos-weighted cone average of :func:`reflectance_at_angles`. The nodes are
     summed in order by one loop (``jax.lax.scan``), so that the program has one copy of the
     film's reflectance whatever the number of nodes; each weight is taken in the
-    reflectance's precision.
+    reflectance's precision. ``span``: a pixel's box, as in :func:`reflectance_at_angles`.
     """
     u, w = cone_quadrature(na, nodes)
     u, w = jnp.asarray(u), jnp.asarray(w)
 
     def add(out, node):
         uk, wk = node
-        r = reflectance_at_angles(thickness, wavelength, n, uk)
+        r = reflectance_at_angles(thickness, wavelength, n, uk, span)
         return out + wk.astype(r.dtype) * r, None
 
-    like = jax.eval_shape(lambda: reflectance_at_angles(thickness, wavelength, n, u[0]))
+    like = jax.eval_shape(lambda: reflectance_at_angles(thickness, wavelength, n, u[0], span))
     out, _ = jax.lax.scan(add, jnp.zeros(like.shape, like.dtype), (u, w))
     return out

@@ -79,6 +79,19 @@ def load_case(case: str):
     return photo, env, bg, kw, truth
 
 
+
+def case_options(case: str, thickness: str, model: str = "auto"):
+    """:func:`load_case` with the FitOptions of ``bubblefit fit --thickness THICKNESS --model
+    MODEL`` as the staged runs call it: an orthographic case's view stated (``--fov 0``, as
+    validate.py states it). Returns photo, map, background, options and truth."""
+    from bubblefit.capture.view import resolve_view
+    from bubblefit.inverse.fit import FitOptions
+
+    photo, env, bg, kw, truth = load_case(case)
+    if truth.get("camera", {}).get("type") == "orthographic":
+        kw["view"] = resolve_view(fov_deg=0, width=photo.pixels.shape[1], height=photo.pixels.shape[0])
+    return photo, env, bg, FitOptions(thickness=thickness, model=model, **kw), truth
+
 #: (label, module, attribute) of the functions timed.
 TIMED = (("setup", "bubblefit.inverse.fit", "setup"), ("search", "bubblefit.inverse.fit", "_searched_start"),
          ("local solve", "bubblefit.inverse.fit", "solve_local"), ("judge (std errors)", "bubblefit.inverse.fit", "_judge"),

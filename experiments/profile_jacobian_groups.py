@@ -37,26 +37,13 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import bench_map  # noqa: E402
+from stage_timer import keep_solves  # noqa: E402
 import bubblefit.inverse._programs as P  # noqa: E402
 import bubblefit.inverse.fit as F  # noqa: E402
-from bubblefit.capture.view import resolve_view  # noqa: E402
 from bubblefit.inverse._lm import _along, column_jacobian, columns_linearized  # noqa: E402
 from bubblefit.inverse._parameters import PARAMETERS  # noqa: E402
 
-SOLVES = []
-_solve_local = F.solve_local
-
-
-def _kept(*a, **k):
-    """solve_local, its arguments, steps and CPU seconds kept."""
-    c0 = time.process_time()
-    sol = _solve_local(*a, **k)
-    SOLVES.append({"args": a, "kwargs": k, "row": {"free": list(a[1].free), "pixels": int(a[0].mask.sum()),
-                                                   "steps": int(sol.steps), "cpu_s": round(time.process_time() - c0, 2)}})
-    return sol
-
-
-F.solve_local = _kept
+SOLVES = keep_solves(F)
 
 
 def timeit(fn) -> dict:
@@ -97,9 +84,7 @@ def main():
     a = ap.parse_args()
     if a.data:
         bench_map.DATA = Path(a.data).resolve()
-    photo, env, bg, kw, _ = bench_map.load_case(a.case)
-    view = resolve_view(fov_deg=0, width=photo.pixels.shape[1], height=photo.pixels.shape[0])
-    opts = F.FitOptions(thickness=a.thickness, model=a.model, view=view, **kw)
+    photo, env, bg, opts, _ = bench_map.case_options(a.case, a.thickness, a.model)
     c0 = time.process_time()
     r = F.fit_photo(photo.pixels, env, options=opts, background=bg)
     out = {"case": a.case, "thickness": a.thickness, "fit_cpu_s": round(time.process_time() - c0, 2),

@@ -35,25 +35,9 @@ import bubblefit.inverse._maps as M
 import bubblefit.inverse._map_pixels as MP
 import bubblefit.inverse._local as L
 
-from stage_timer import T, solve_costs, timed_solver, wrap  # noqa: E402
+from stage_timer import T, keep_solves, solve_costs, timed_solver, wrap  # noqa: E402
 
-SOLVES = []
-_solve_local = F.solve_local
-
-
-def _kept_solve_local(*a, **k):
-    """solve_local, timed, with its arguments, steps and image size kept."""
-    t0, c0 = time.perf_counter(), time.process_time()
-    sol = _solve_local(*a, **k)
-    lev = a[0]
-    SOLVES.append({"args": a, "kwargs": k, "row": {
-        "pixels": int(lev.mask.sum()), "shape": list(lev.mask.shape), "free": list(a[1].free),
-        "steps": int(sol.steps), "cost": float(sol.cost), "wall_s": round(time.perf_counter() - t0, 3),
-        "cpu_s": round(time.process_time() - c0, 3)}})
-    return sol
-
-
-F.solve_local = _kept_solve_local
+SOLVES = keep_solves(F)
 #: (module or class, attribute, label) of the functions timed
 TIMED = [(F, n, n) for n in ("setup", "_searched_start", "_judge", "fit_map", "render_bubble", "_report")]
 TIMED += [(M, n, "maps." + n) for n in ("_level_map", "refine", "_icm")]
@@ -66,8 +50,7 @@ L.stored_solver = timed_solver(_stored)
 
 import bench_map  # noqa: E402
 import validate  # noqa: E402
-from bubblefit.inverse.fit import FitOptions, fit_photo  # noqa: E402
-from bubblefit.capture.view import resolve_view  # noqa: E402
+from bubblefit.inverse.fit import fit_photo  # noqa: E402
 
 
 def main():
@@ -81,9 +64,7 @@ def main():
     a = ap.parse_args()
     if a.data:
         bench_map.DATA = Path(a.data).resolve()
-    photo, env, bg, kw, truth = bench_map.load_case(a.case)
-    view = resolve_view(fov_deg=0, width=photo.pixels.shape[1], height=photo.pixels.shape[0])
-    opts = FitOptions(thickness="map", model=a.model, view=view, **kw)
+    photo, env, bg, opts, truth = bench_map.case_options(a.case, "map", a.model)
     true_map = None
     tpath = bench_map.DATA / a.case / "thickness_true.exr"
     if tpath.exists():

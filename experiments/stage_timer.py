@@ -32,6 +32,26 @@ def wrap(mod, name, label=None):
     setattr(mod, name, g)
 
 
+def keep_solves(fit_module) -> list:
+    """Replace ``fit_module.solve_local`` by a function that appends each local solve's
+    arguments (``args``, ``kwargs``) and a ``row`` (pixels, level shape, free parameters, LM
+    steps, final cost, wall and CPU seconds) to the returned list."""
+    solves = []
+    solve_local = fit_module.solve_local
+
+    def kept(*a, **k):
+        t0, c0 = time.perf_counter(), time.process_time()
+        sol = solve_local(*a, **k)
+        lev = a[0]
+        solves.append({"args": a, "kwargs": k, "row": {
+            "pixels": int(lev.mask.sum()), "shape": list(lev.mask.shape), "free": list(a[1].free),
+            "steps": int(sol.steps), "cost": float(sol.cost), "wall_s": round(time.perf_counter() - t0, 3),
+            "cpu_s": round(time.process_time() - c0, 3)}})
+        return sol
+    fit_module.solve_local = kept
+    return solves
+
+
 def timed_solver(stored_solver):
     """``stored_solver`` (:func:`bubblefit.inverse._local.stored_solver`) whose solves each
     add one LM run, its outputs brought to the host, to ``T``."""

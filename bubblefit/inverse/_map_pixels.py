@@ -201,29 +201,26 @@ class TracedCosts:
         and its derivative in that pixel's thickness (the map's diagonal Jacobian). The
         level's rays are traced at the first call and kept (the light the films read does
         not depend on the thickness), so each further call evaluates the film's optics only."""
-        pix = self.pix
-        _, trace, slopes, _ = _stored_programs(self.cfg)
-        args = (self.p, self.env, self.bg, pix.rows, pix.cols, pix.idx)
-        if self._traced is None:
-            self._traced = trace(*args)
-        r, j = slopes(*args, self._traced, jnp.asarray(self._spread(np.maximum(d, 0.0))), self.y, self.w)
+        r, j = _stored_programs(self.cfg)[2](*self._traced_args(), jnp.asarray(self._spread(np.maximum(d, 0.0))), self.y, self.w)
         return np.asarray(r).reshape(-1, 3)[:self.n], np.asarray(j).reshape(-1, 3)[:self.n]
 
+    def _traced_args(self) -> tuple:
+        """The level's render arguments and its rays, traced at the first call and kept."""
+        pix = self.pix
+        args = (self.p, self.env, self.bg, pix.rows, pix.cols, pix.idx)
+        if self._traced is None:
+            self._traced = _stored_programs(self.cfg)[1](*args)
+        return (*args, self._traced)
 
     def pixels(self, d: np.ndarray, table: ParameterTable, vals: dict) -> tuple[np.ndarray, np.ndarray]:
         """``(img, column)``, (P, 3) each: the level's pixels at thicknesses ``d`` (P,) with
         the exposure and the drainage profile of ``vals`` (the other values as traced), and
         their derivative in the exposure, from the rays :meth:`slopes` traced (traced here
         if not yet): a render of the fitted pixels without tracing them again."""
-        pix = self.pix
-        _, trace, _, pixels = _stored_programs(self.cfg)
-        args = (self.p, self.env, self.bg, pix.rows, pix.cols, pix.idx)
-        if self._traced is None:
-            self._traced = trace(*args)
         h, w = self.pix.padded.cfg.shape
         base = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k != "map"}
         q = table.render_params(dict(base, map=jnp.zeros((h, w), jnp.float32)), "map")
-        img, col = pixels(*args, self._traced, jnp.asarray(self._spread(np.maximum(d, 0.0))), q.exposure, q.profile)
+        img, col = _stored_programs(self.cfg)[3](*self._traced_args(), jnp.asarray(self._spread(np.maximum(d, 0.0))), q.exposure, q.profile)
         return (np.asarray(img, np.float64).reshape(-1, 3)[:self.n], np.asarray(col, np.float64).reshape(-1, 3)[:self.n])
 
 

@@ -217,7 +217,8 @@ def fit_divergence(ortho: FitResult, lens_fit: FitResult, lens: View, refit) -> 
        refined standard error exceeds twice the step (the three points spanned under half
        the interval), once more at the new minimum and its interval's ends. The photo is
        refitted at the last minimum unless a refit lies within a quarter of a standard
-       error of it.
+       error of it; the profile is read once more with that refit, and the refit nearest
+       its minimum is kept (its view is the one reported).
 
     The kept fit's parameters ``p`` are conditional on the view; freeing it adds
     ``(dp/du)^2 var(u)`` to each variance and ``dp/du var(u)`` as the covariance with the

@@ -36,7 +36,7 @@ from ..lighting.filtering import FilterConfig, specular
 from ..lighting.point_lights import lights_radiance
 from .bounds import MAX_BOUNCES
 from .effects import Effects
-from .geometry import DivergentCamera, hit_pixels, intersect_sphere
+from .geometry import hit_pixels, intersect_sphere
 from .modes import Model, ThicknessKind
 from .render import (NO_PROFILE, RenderConfig, film_footprints, film_names,
                      shading_points)
@@ -127,8 +127,7 @@ def _trace(env, background, roughness, rotation, thickness_values, profile, pix,
     rows, cols = rows.astype(jnp.float32), cols.astype(jnp.float32)
 
     def rays(r, c):
-        o, d = camera.rays(r, c, center, radius, view) if isinstance(camera, DivergentCamera) else \
-            camera.rays(r, c, center, radius)
+        o, d = camera.rays(r, c, center, radius, view=view)
         return o, jnp.broadcast_to(d, o.shape)
 
     o, d = rays(rows, cols)

@@ -114,9 +114,10 @@ class OrthographicCamera:
         r = 0.4 * min(self.width, self.height) if self.r is None else self.r
         return float(cx), float(cy), float(r)
 
-    def rays(self, rows: Array, cols: Array, center, radius, shift=None, disc=None):
+    def rays(self, rows: Array, cols: Array, center, radius, shift=None, disc=None, view=0.0):
         """``(origins, direction)`` of the rays through pixels ``rows``, ``cols``; ``disc``
-        (``(cx, cy, r)``, may be traced) stands for :meth:`disc`'s values."""
+        (``(cx, cy, r)``, may be traced) stands for :meth:`disc`'s values. ``view`` (a
+        :class:`DivergentCamera`'s divergence) is not read: parallel rays have none."""
         cx, cy, r = self.disc() if disc is None else disc
         x = (cols + 0.5 - cx) / r
         y = -(rows + 0.5 - cy) / r
@@ -170,7 +171,10 @@ class PerspectiveCamera:
         up = np.cross(right, fwd)
         return o, fwd, right, up
 
-    def rays(self, rows: Array, cols: Array, center=None, radius=None):
+    def rays(self, rows: Array, cols: Array, center=None, radius=None, view=0.0):
+        """``(origin, directions)`` of the pinhole's rays through pixels ``rows``, ``cols``;
+        ``view`` (a :class:`DivergentCamera`'s divergence) is not read: the pinhole's field
+        of view is its own."""
         o, fwd, right, up = self.basis()
         tan_half = math.tan(math.radians(self.fov_deg) / 2)
         x = (2 * (cols + 0.5) / self.width - 1) * tan_half
@@ -367,12 +371,8 @@ def front_hits(camera, center: tuple, radius: float, view: float = 0.0):
 def _front_hits(camera, disc, center, radius, view):
     rows, cols = jnp.divmod(jnp.arange(camera.height * camera.width), camera.width)
     rows, cols = rows.astype(jnp.float32), cols.astype(jnp.float32)
-    if disc is not None:
-        o, d = camera.rays(rows, cols, center, radius, disc=disc)
-    elif isinstance(camera, DivergentCamera):
-        o, d = camera.rays(rows, cols, center, radius, view)
-    else:
-        o, d = camera.rays(rows, cols, center, radius)
+    o, d = camera.rays(rows, cols, center, radius, disc=disc) if disc is not None else \
+        camera.rays(rows, cols, center, radius, view=view)
     hits = intersect_sphere(o, jnp.broadcast_to(d, o.shape), center, radius)
     return hits.inside, hits.cos, hits.local0
 

@@ -416,10 +416,8 @@ def _camera_rays(cfg: RenderConfig, p: Params, rows, cols):
     camera's view of divergence ``p.view``)."""
     if isinstance(cfg.camera, OrthographicCamera):
         o, d = cfg.camera.rays(rows, cols, cfg.center, cfg.radius, p.disc)
-    elif isinstance(cfg.camera, DivergentCamera):
-        o, d = cfg.camera.rays(rows, cols, cfg.center, cfg.radius, p.view)
     else:
-        o, d = cfg.camera.rays(rows, cols, cfg.center, cfg.radius)
+        o, d = cfg.camera.rays(rows, cols, cfg.center, cfg.radius, view=p.view)
     return o, jnp.broadcast_to(d, o.shape)
 
 

@@ -31,14 +31,17 @@ What is run, for each ring photo with a stated radius:
    standard error from the residuals.
 
 Run: ``python experiments/real_photos.py [--from DIR] [--only 1000] [--range-nm 20000]``
-(4-7 min per photo on the 2-core machine; with ``--range-nm 20000`` 6 min and 12 GB of
-memory).
+(minutes per photo on the 2-core machine: each fit's ``seconds``, ``cpu_seconds`` and
+``peak_rss_mb`` are in its record). ``--range-nm`` is the top of the scene's ``range_nm``,
+which bounds the per-pixel map the fit starts from (its table of every 2 nm at every
+pixel: the memory grows with it); the lens's gap is not held within it.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import resource
 import subprocess
 import sys
 import time
@@ -149,12 +152,18 @@ def rings_start(png: Path, pixel_um: float, stated_mm: float) -> dict:
 def run_fit(photo: Path, scene: Path, work: Path, tag: str) -> dict:
     js = work / f"{tag}.json"
     t0 = time.perf_counter()
+    cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     proc = subprocess.run([sys.executable, "-m", "bubblefit", "fit", str(photo), "--scene", str(scene),
                            "--json", str(js)], capture_output=True, text=True, cwd=work)
     message = proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else ""
     for folder in {str(work.resolve()), str(work)}:  # the record names files as the work folder holds them
         message = message.replace(folder.rstrip("/") + "/", "")
-    rec = {"exit": proc.returncode, "seconds": round(time.perf_counter() - t0, 1), "message": message}
+    cpu = resource.getrusage(resource.RUSAGE_CHILDREN)
+    # the largest resident memory of the script's fits so far: this fit's where it is the
+    # largest (one photo at a time, its colour fit refused in seconds, its grey fit after)
+    rec = {"exit": proc.returncode, "seconds": round(time.perf_counter() - t0, 1),
+           "cpu_seconds": round(cpu.ru_utime + cpu.ru_stime - cpu0.ru_utime - cpu0.ru_stime, 1),
+           "peak_rss_mb": round(cpu.ru_maxrss / 1024.0), "message": message}
     if proc.returncode == 0:
         out = json.loads(js.read_text())
         rec.update({k: out.get(k) for k in ("ok", "warnings", "params", "stderr", "reduced_chi2",
@@ -179,8 +188,8 @@ def ring_spans(rec: dict) -> dict:
     return {"start": start / fringe, "fit": float(np.ptp(fit)) / fringe}
 
 
-#: The scene's searched range's top (nm): the default; another (``--range-nm``) writes its
-#: records beside, in ``real_photos_range<HI>.json``.
+#: The top (nm) of the scene's searched range, which bounds the per-pixel start's map: the
+#: default; another (``--range-nm``) writes its records beside, in ``real_photos_range<HI>.json``.
 RANGE_NM = 4000.0
 
 
@@ -201,8 +210,9 @@ def main() -> int:
     ap.add_argument("--only", type=int, nargs="*", default=sorted(DIAMETERS))
     ap.add_argument("--work", type=Path, default=Path("real_photos_work"))
     ap.add_argument("--range-nm", type=float, default=RANGE_NM,
-                    help="the top of the scene's searched gap range (nm); the model's gap is clipped there. "
-                         "Beyond 4000 the record goes to real_photos_range<HI>.json (20000: 12 GB peak memory)")
+                    help="the top of the scene's searched gap range (nm), which bounds the per-pixel map the fit "
+                         "starts from (its memory grows with it; the lens's gap is not held within it). Another "
+                         "than 4000 writes its record to real_photos_range<HI>.json")
     ap.add_argument("--start-only", action="store_true",
                     help="only the colour-free start (seconds), merged into the existing record")
     args = ap.parse_args()

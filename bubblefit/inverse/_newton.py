@@ -276,7 +276,7 @@ def _rings_start(fwd, x, yy, bright, mask, pitch: float, lo: float, hi: float):
     (:func:`rings_centre`, :func:`rings_period`) of the fringes (:func:`_fringes`), at the
     lamp's mean wavelength through the camera (one wavelength for a line lamp), no colour
     used; the shortest period sought puts two pixels between rings at the median radius."""
-    w = np.asarray(fwd.basis.weights, np.float64).sum(-1)
+    w = np.asarray(fwd.weights, np.float64).sum(-1)
     lam = float(np.sum(np.asarray(fwd.lam) * w) / np.sum(w))
     n = float(np.asarray(fwd.stack.indices(np.array([lam])).film)[0])
     value = _fringes(bright, mask)
@@ -432,7 +432,12 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
     ``"fit"`` fits it, ``"none"`` holds it at 1, ``"auto"`` fits it where the start's gap
     spans :data:`ENVELOPE_MIN_FRINGES` fringes across the photo (then the fringes' maxima
     and minima fix it apart from the gap). Its start is :func:`_envelope_start`.
-    ``envelope_ratio`` in the parameters is ``E``'s largest over its least value on the film."""
+    ``envelope_ratio`` in the parameters is ``E``'s largest over its least value on the film.
+
+    ``[lo, hi]``, the searched range, bounds the per-pixel map ``dmap`` (the colour start)
+    and the contact offset's neighbouring orders; the lens's gap is held at ``lo`` only
+    (a pressed lens's flat): past ``hi`` it is the lens's, through the forward
+    :meth:`~bubblefit.inverse.planar.PlanarForward.reaching` the start lens's largest gap."""
     fit_stray = stray == "fit"
     b_fixed = 0.0 if fit_stray else float(stray)
     x = view.x_um[mask]
@@ -449,17 +454,14 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
 
         def model(t):
             dx, dy = xk - t[1], yk - t[2]
-            h = jnp.clip(newton_gap(jnp.sqrt(dx * dx + dy * dy), jnp.exp(t[0]), t[3]), lo, hi)
+            h = jnp.maximum(newton_gap(jnp.sqrt(dx * dx + dy * dy), jnp.exp(t[0]), t[3]), lo)
             gx, gy = newton_gap_gradient(dx, dy, jnp.exp(t[0]))
             b = t[5] if free else b_fixed
             # the film's reflectance averaged over each pixel's box (the camera's aperture)
-            out = jnp.exp(t[4]) * lk[:, None] * pixel_mean(fwd, h, sk, b, gx, gy, pitch, lo, hi)
+            out = jnp.exp(t[4]) * lk[:, None] * pixel_mean(fwd, h, sk, b, gx, gy, pitch, lo, np.inf)
             return out * lamp_envelope(uk, vk, t[ie:ie + len(ENVELOPE_TERMS)])[:, None] if env else out
 
         return model
-
-    zero = jnp.zeros(sj.shape)
-    white = np.asarray(lj[:, None] * (fwd.rgb(zero, sj, 1.0) - fwd.rgb(zero, sj)), np.float64)  # rgb of b = 1
 
     # two starts, the colour map's and the rings' symmetry's (no colour: the one that
     # works under a line lamp); the fit starts from the one whose colours are closer. The
@@ -470,10 +472,17 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
     if not unambiguous:
         rings = _rings_start(fwd, x, yy, bright, mask, pitch, lo, hi)
         starts.append(rings[:4])
+    zero = jnp.zeros(sj.shape)
+    white = np.asarray(lj[:, None] * (fwd.rgb(zero, sj, 1.0) - fwd.rgb(zero, sj)), np.float64)  # rgb of b = 1
     env0 = _envelope_start(bright, mask, u, v) if envelope != "none" else np.zeros(len(ENVELOPE_TERMS))
     e0 = np.asarray(lamp_envelope(u, v, env0), np.float64)[:, None]
     theta, env_on = _best_start(starts, make_model(False, False), fwd.fringe_nm, xj, yj, y, white, env0, e0,
                                 envelope, fit_stray)
+    # the lens's gap is not held within the searched range [lo, hi] (that bounds the
+    # per-pixel map, the colour start): it is the lens's wherever the photo reaches, and
+    # the forward resolves it up to the start's largest gap on the photo
+    fwd = fwd.reaching(float(jnp.max(newton_gap(jnp.sqrt((xj - theta[1]) ** 2 + (yj - theta[2]) ** 2),
+                                                jnp.exp(theta[0]), theta[3]))))
     # rings finer than two pixels alias: left out of the fit (the start's lens says where)
     gx0, gy0 = newton_gap_gradient(xj - theta[1], yj - theta[2], jnp.exp(theta[0]))
     aliased = aliased_pixels(gx0, gy0, pitch, fwd.fringe_nm)
@@ -489,7 +498,7 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
     xk, yk = xj[keep], yj[keep]
 
     def gap(t):
-        return jnp.clip(newton_gap(jnp.sqrt((xk - t[1]) ** 2 + (yk - t[2]) ** 2), jnp.exp(t[0]), t[3]), lo, hi)
+        return jnp.maximum(newton_gap(jnp.sqrt((xk - t[1]) ** 2 + (yk - t[2]) ** 2), jnp.exp(t[0]), t[3]), lo)
 
     theta, r, cost, J = fit_colours(model, obs_k, sigma, high, theta, iters)
     # a grey photo (three equal channels) measures each pixel once, not three times: its

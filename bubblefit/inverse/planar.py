@@ -85,6 +85,11 @@ RELAX_NM = 15.0
 #: Spectral samples of the fitting basis: 5 nm bins, fine enough for fringes 50 nm wide
 #: (a 3 um air gap at 550 nm).
 SPECTRAL_SAMPLES = 80
+#: Optical thickness ``n d`` (nm) whose fringes :data:`SPECTRAL_SAMPLES` resolve: at 550 nm
+#: the fringes of ``n d`` are ``550^2 / (2 n d)`` nm apart in wavelength (Born and Wolf,
+#: *Principles of Optics*, sec. 7.5.3), 50 nm at 3000 nm, ten bins of 5 nm.
+#: :meth:`PlanarForward.reaching` narrows the bins in proportion beyond it.
+SPECTRAL_REACH_NM = 3000.0
 
 
 @dataclass(frozen=True)
@@ -136,13 +141,21 @@ def view_of(scene) -> PlanarView:
 class PlanarForward:
     """``rgb(d, sin2)``: the film's colour under the scene's lamp and camera (module equation)."""
 
-    def __init__(self, stack: coaxial.Stack, lamp: str, response: str, na: float, max_nm: float):
-        self.basis = spectral.spectral_basis("uniform", SPECTRAL_SAMPLES, illuminant=lamp, response=response)
+    def __init__(self, stack: coaxial.Stack, lamp: str, response: str, na: float, max_nm: float,
+                 samples: int = SPECTRAL_SAMPLES):
+        self.basis = spectral.spectral_basis("uniform", samples, illuminant=lamp, response=response)
         self.stack, self.lamp, self.response = stack, lamp, response
-        lam = self.basis.wavelengths
+        # the wavelengths the lamp lights and the camera sees: the others weigh 0 in every
+        # channel and add nothing to the colour (a line lamp lights a few of the bins)
+        lit = np.any(np.asarray(self.basis.weights) != 0.0, axis=1)
+        lam = self.basis.wavelengths[lit]
+        #: (K, 3) the RGB weights of the lit wavelengths :attr:`lam` (the basis's rows).
+        self.weights = np.asarray(self.basis.weights)[lit]
         self.lam = jnp.asarray(lam)
         self.n = stack.indices(lam)
         self.na = float(na)
+        #: The thickness (nm) up to which the cone's nodes and the spectral bins suffice.
+        self.max_nm = float(max_nm)
         n_min = float(np.min(self.n.film))
         self.nodes = coaxial.cone_nodes_needed(max_nm, self.na, n_min) if self.na > 0 else 1
         #: Fringe spacing at 550 nm (nm of thickness), for the order window.
@@ -156,7 +169,21 @@ class PlanarForward:
         *Principles of Optics*, sec. 7.5.1: beams without a fixed phase relation add their
         intensities; sec. 7.5.3, Newton's rings as the interference of the gap's two
         reflections). ``span``: the mean over a pixel's box, as in :meth:`reflectance`."""
-        return spectral.integrate(self.reflectance(d, sin2, span=span) + stray, self.basis)
+        return spectral.integrate(self.reflectance(d, sin2, span=span) + stray, self)  # the lit rows' weights
+
+    def reaching(self, max_nm: float) -> "PlanarForward":
+        """The same forward for thicknesses up to ``max_nm``: the cone's nodes
+        (:func:`~bubblefit.lighting.coaxial.cone_nodes_needed`) and spectral bins narrowed
+        in proportion to the optical thickness beyond :data:`SPECTRAL_REACH_NM` (a tenth of
+        a fringe at 550 nm each; at most the reference basis's
+        :data:`~bubblefit.optics.spectral.REFERENCE_SAMPLES`); itself where it already
+        reaches ``max_nm``."""
+        if max_nm <= self.max_nm:
+            return self
+        optical = float(np.max(np.asarray(self.n.film))) * max_nm
+        samples = int(min(spectral.REFERENCE_SAMPLES,
+                          max(SPECTRAL_SAMPLES, math.ceil(SPECTRAL_SAMPLES * optical / SPECTRAL_REACH_NM))))
+        return PlanarForward(self.stack, self.lamp, self.response, self.na, max_nm, samples)
 
     def reflectance(self, d, sin2, lam=None, span=None):
         """(..., L) the stack's reflectance at thickness ``d`` seen at ``sin2`` (ignored under
@@ -850,7 +877,8 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     hops = _hops(tmap, window) if kind == "map" else 0
     if hops:
         warnings.append(f"{hops} neighbouring pixel pairs differ by more than {window:.0f} nm (possible order hops)")
-    warnings.extend(range_edge_warning(dref, lo, hi, "film"))
+    if kind != "newton":  # the lens's gap is not held within the range (:func:`._newton.fit_newton`)
+        warnings.extend(range_edge_warning(dref, lo, hi, "film"))
     render = _on_image(mask, model, 0.0, 3)
     resid = _on_image(mask, res, 0.0, 3)
     ok = _verdict(warnings, order, chi2_floor)

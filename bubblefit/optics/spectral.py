@@ -603,7 +603,9 @@ def spectral_basis(method: SpectralMethod = "uniform", samples: int = 30, illumi
 
 
 def integrate(spectrum: Float[Array, "... K"], basis: SpectralBasis) -> Float[Array, "... 3"]:
-    """Linear sRGB of a reflectance spectrum sampled at ``basis.wavelengths``."""
+    """Linear sRGB of a reflectance spectrum sampled at ``basis.wavelengths`` (``basis``: a
+    :class:`SpectralBasis`, or anything whose ``weights`` (K, 3) are the RGB weights of the
+    spectrum's K samples)."""
     import jax.numpy as jnp
 
     spectrum = jnp.asarray(spectrum)

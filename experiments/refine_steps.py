@@ -22,7 +22,6 @@ from bubblefit.io.jaxcache import jax_setup
 
 jax_setup()
 
-import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import bubblefit.inverse._map_pixels as MP  # noqa: E402
@@ -34,48 +33,28 @@ LOG = []
 
 def refine_steps(costs, centre, nb, s, half):
     """:func:`bubblefit.inverse._map_pixels.refine` (Levenberg-Marquardt damped Gauss-Newton
-    on the map's energy; Levenberg 1944, Marquardt 1963) for ``STEPS`` trial steps, every
-    step's sizes recorded."""
-    inv_s2 = 1.0 / float(s) ** 2
-    nbj = jnp.asarray(nb, jnp.int32)
+    on the map's energy; Levenberg 1944, Marquardt 1963) for ``STEPS`` trial steps with no
+    stopping test, every step's sizes recorded."""
     has = nb >= 0
     edge = has.sum(axis=1) < 4
-
-    def energy(d, r):
-        dn = np.where(has, d[np.where(has, nb, 0)], d[:, None])
-        return float(np.sum(r * r) + 0.5 * inv_s2 * np.sum((d[:, None] - dn) ** 2))
-
     lo, hi = np.maximum(centre - half, 0.0), centre + half
-    d = centre.astype(np.float64)
-    r, j = costs.slopes(d)
-    e, lam, steps = energy(d, r), 1e-3, []
-    for it in range(STEPS):
-        g = 2.0 * np.sum(r * j, axis=1) + 2.0 * inv_s2 * np.asarray(MP._laplacian(jnp.asarray(d), nbj, jnp.asarray(has)))
-        hdiag = 2.0 * np.sum(j * j, axis=1)
-        delta = np.asarray(MP._damped_step(jnp.asarray(g, jnp.float32), jnp.asarray(hdiag, jnp.float32), nbj,
-                                           jnp.float32(lam), jnp.float32(inv_s2)), np.float64)
-        trial = np.clip(d + delta, lo, hi)
-        r2, j2 = costs.slopes(trial)
-        e2 = energy(trial, r2)
+    steps = []
+
+    def record(d, trial, hdiag, lam, e, e2):
         dh = np.abs(trial - d)
         big = dh > MP.REFINE_TOL_NM
         at_bound = (trial <= lo + 1e-6) | (trial >= hi - 1e-6)
         top = int(np.argmax(dh))
-        steps.append({"step": it, "damping": lam, "energy": round(e, 4), "energy_trial": round(e2, 4),
+        steps.append({"step": len(steps), "damping": lam, "energy": round(e, 4), "energy_trial": round(e2, 4),
                       "accepted": bool(e2 <= e), "pixels": int(d.size), "max_nm": round(float(dh.max()), 5),
                       **{f"p{q}_nm": round(float(np.percentile(dh, q)), 5) for q in (50, 90, 99, 99.9)},
                       "over_tol": int(big.sum()), "over_tol_on_edge": int((big & edge).sum()),
                       "over_tol_at_bound": int((big & at_bound).sum()), "largest_pixel": top,
                       "curvature_largest": round(float(hdiag[top]), 5), "curvature_median": round(float(np.median(hdiag)), 5)})
-        if e2 <= e:
-            d, r, j, e, lam = trial, r2, j2, e2, max(lam / 3.0, 1e-6)
-        else:
-            lam *= 4.0
+
+    out = MP.refine(costs, centre, nb, s, half, steps=STEPS, stop=False, observe=record)
     LOG.append(steps)
-    cnt = has.sum(axis=1)
-    curv = np.sum(j * j, axis=1) + cnt * inv_s2
-    err = np.where(curv > 0, 1.0 / np.sqrt(np.where(curv > 0, curv, 1.0)), np.nan)
-    return d, err, np.sum(r * r, axis=1)
+    return out
 
 
 M.refine = refine_steps

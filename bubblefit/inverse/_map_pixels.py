@@ -261,7 +261,8 @@ def _damped_step(g, hdiag, nb, lam, inv_s2):
     return delta
 
 
-def refine(costs: TracedCosts, centre: np.ndarray, nb: np.ndarray, s: float, half: float):
+def refine(costs: TracedCosts, centre: np.ndarray, nb: np.ndarray, s: float, half: float, *,
+           steps: int = REFINE_STEPS, stop: bool = True, observe=None):
     """Per-pixel Gauss-Newton (Levenberg-Marquardt damped) on the map's energy from ``centre`` (P,).
 
     The energy is the data chi^2 of every pixel plus ``sum over neighbour pairs ((d_p -
@@ -277,6 +278,11 @@ def refine(costs: TracedCosts, centre: np.ndarray, nb: np.ndarray, s: float, hal
     those where Gauss-Newton's curvature (``2 J^T J``, without the residual's own
     curvature) overstates the energy's: their steps shrink by a few per cent a step, so no
     step limit would see them settle, and the rest of the map would wait on them.
+
+    ``steps``: most trial steps; ``stop=False`` runs them all (no stopping test);
+    ``observe(d, trial, hdiag, lam, e, e2)``, if given, sees every trial (the point, the
+    trial point, the curvature's diagonal, the damping, the energies at both), as
+    ``experiments/refine_steps.py`` records them.
 
     Returns ``(map (P,), stderr (P,), data chi^2 (P,))``; the standard error from the
     curvature of each pixel's energy with its neighbours held, ``E'' = 2 / sigma^2``, as the
@@ -300,7 +306,7 @@ def refine(costs: TracedCosts, centre: np.ndarray, nb: np.ndarray, s: float, hal
     r, j = costs.slopes(d)
     e = energy(d, r)
     lam = 1e-3
-    for _ in range(REFINE_STEPS):
+    for _ in range(steps):
         g = 2.0 * np.sum(r * j, axis=1) + 2.0 * inv_s2 * np.asarray(_laplacian(jnp.asarray(d), nbj, jnp.asarray(has)))
         hdiag = 2.0 * np.sum(j * j, axis=1)
         delta = np.asarray(_damped_step(jnp.asarray(g, jnp.float32), jnp.asarray(hdiag, jnp.float32), nbj,
@@ -308,17 +314,19 @@ def refine(costs: TracedCosts, centre: np.ndarray, nb: np.ndarray, s: float, hal
         trial = np.clip(d + delta, lo, hi)
         r2, j2 = costs.slopes(trial)
         e2 = energy(trial, r2)
+        if observe is not None:
+            observe(d, trial, hdiag, lam, e, e2)
         if e2 <= e:
             moved = _step_size(trial - d)
             d, r, j, e, lam = trial, r2, j2, e2, max(lam / 3.0, 1e-6)
-            if moved < REFINE_TOL_NM:
+            if stop and moved < REFINE_TOL_NM:
                 break
         else:
             # Raised fourfold, the damping scales each pixel's step by about
             # (1 + lam) / (1 + 4 lam) (its curvature's diagonal dominating): while that changes
             # the steps by less than REFINE_TOL_NM, the next trial repeats the rejected one
             # and is rejected again, so the solve stops at its last accepted point
-            if _step_size(delta) * 3.0 * lam / (1.0 + 4.0 * lam) < REFINE_TOL_NM:
+            if stop and _step_size(delta) * 3.0 * lam / (1.0 + 4.0 * lam) < REFINE_TOL_NM:
                 break
             lam *= 4.0
     cnt = has.sum(axis=1)

@@ -245,7 +245,8 @@ def test_traced_pixels_equal_the_render_and_its_exposure_column(env, level):
     traced (neither changes the rays), equal the whole render's at the fitted pixels, and
     their exposure derivative the render's exact column (the render is affine in the
     exposure: eq. 11's reflected terms scale with it, the transmitted background photo does
-    not), float32 rounding apart."""
+    not), float32 rounding apart; and the render that takes them as known and renders only
+    the rest of the bubble equals the whole render everywhere."""
     from bubblefit.inverse import TracedCosts, profile_map
     from bubblefit.inverse._programs import final_params, render_bubble
 
@@ -257,10 +258,13 @@ def test_traced_pixels_equal_the_render_and_its_exposure_column(env, level):
     dmap = profile_map(lev, (320.0, 880.0, 1.1)) + 12.0
     img, col = costs.pixels(dmap.reshape(-1)[sel], st.table, moved)
     render = lambda v: np.asarray(render_bubble(final_params(st.table, dict(v, map=dmap), opts), lev, env), np.float64)
-    whole = render(moved).reshape(-1, 3)[sel]
+    full = render(moved)
+    whole = full.reshape(-1, 3)[sel]
     e = float(moved["exposure"])
     column = (whole - render(dict(moved, exposure=0.5 * e)).reshape(-1, 3)[sel]) / (0.5 * e)
     # float32 pixels of order 1 through two programs (a few ulps of their ~1e2 summed terms)
     np.testing.assert_allclose(img, whole, rtol=1e-4, atol=1e-5)
     np.testing.assert_allclose(col, column, rtol=1e-3, atol=1e-4)
     assert not np.allclose(img, render(vals).reshape(-1, 3)[sel], atol=1e-3)  # the values changed the pixels
+    rest = render_bubble(final_params(st.table, dict(moved, map=dmap), opts), lev, env, (np.flatnonzero(sel), img))
+    np.testing.assert_allclose(np.asarray(rest, np.float64), full, rtol=1e-4, atol=1e-5)

@@ -620,3 +620,30 @@ def test_exposure_score_test_and_step():
     photo = b + 0.62 * a_true + floor * rng.standard_normal(shape)
     step, z2, err = exposure_step(lev, photo, img, a_true, opts, one)
     assert abs(e0 + step - 0.62) < 4 * err and z2 > chi2.ppf(1 - EXPOSURE_TEST_ALPHA, 1)
+
+
+def test_held_frames_take_the_effects_decided_for_the_same_values(monkeypatch):
+    """A sequence's frames that start from the same values over the same map take the
+    effects their first frame decided (the films are not bounded again); another starting
+    value or another map is decided anew."""
+    import bubblefit.inverse._setup as S
+    from bubblefit.inverse.fit import FitOptions
+    from bubblefit.lighting.envmap import EnvMap
+
+    calls = []
+
+    def counted(summary, settings, *, thickness_kind, tolerance):
+        calls.append(summary.t)
+        return ("effects", [f"decision {len(calls)}"])
+
+    monkeypatch.setattr(S, "resolve", counted)
+    monkeypatch.setattr(S, "_DECIDED", {})
+    opts = FitOptions()
+    vals, _ = S.defaults(None, None, opts)
+    env = EnvMap.from_array(np.full((8, 16, 3), 0.25))
+    first = S._decide(opts, vals, env, None, {}, None, ())
+    again = S._decide(opts, dict(vals), env, None, {}, None, ())
+    assert again == first and len(calls) == 1
+    S._decide(opts, dict(vals, t=vals["t"] * 0.5), env, None, {}, None, ())
+    S._decide(opts, vals, EnvMap.from_array(np.full((8, 16, 3), 0.25)), None, {}, None, ())
+    assert len(calls) == 3

@@ -100,6 +100,21 @@ def _shaded(full, kept: list, table, vals: dict, dmap: np.ndarray, opts: FitOpti
     return img, (img - render(dict(vals, exposure=0.5 * e))) / (0.5 * e)
 
 
+def _final_render(full, kept: list, table, vals: dict, dmap: np.ndarray, opts: FitOptions, env) -> np.ndarray:
+    """The map ``dmap``'s full-resolution render at ``vals`` (eq. 11 or the physical series,
+    :func:`~bubblefit.inverse._programs.render_bubble`), its fitted pixels shaded from the
+    rays the map's finest level traced (``kept``, :func:`fit_map`; the exposure and the
+    drainage profile of ``vals`` replace those they were traced at,
+    :meth:`~bubblefit.inverse._map_pixels.TracedCosts.pixels`) and only the rest of the
+    bubble rendered; without them (the paper model's exact candidates) a whole render."""
+    known = None
+    if kept and isinstance(kept[-1], TracedCosts):
+        costs = kept[-1]
+        flat = costs.pix.flat
+        known = (flat, costs.pixels(np.asarray(dmap, np.float64).reshape(-1)[flat], table, vals)[0])
+    return np.asarray(render_bubble(final_params(table, dict(vals, map=dmap), opts), full, env, known), np.float64)
+
+
 @dataclass(frozen=True)
 class CarriedMap:
     """A warm frame's map with the global parameters carried: the values (globals held,
@@ -141,7 +156,6 @@ def carried_map(st, opts: FitOptions, env, carried: dict) -> CarriedMap | str:
         full = st.level(1, opts, st.map_cfg)
         if not full.mask.any():
             return "no film pixels"
-        render = lambda v, m: np.asarray(render_bubble(final_params(table, dict(v, map=m), opts), full, env), np.float64)
         kept = []
         dmap, emap, map_ok = fit_map(full, table, vals, prof, opts, env, make_level=make, start=st.map_start, kept=kept)
         img, column = _shaded(full, kept, table, vals, dmap, opts, env)
@@ -157,7 +171,7 @@ def carried_map(st, opts: FitOptions, env, carried: dict) -> CarriedMap | str:
             dmap, emap, map_ok = fit_map(full, table, vals, prof, opts, env, make_level=make, start=(dmap, prof))
         new_prof, prof_err = profile_from_map(full, dmap, emap, prof, tuple(n for n in PROFILE_NAMES if n in table.free))
         vals.update(zip(PROFILE_NAMES, new_prof))
-        img = render(vals, dmap)
+        img = _final_render(full, kept, table, vals, dmap, opts, env)
         fit, _ = map_misfit(full, st.photo - img, opts)
     if not map_ok:
         return "its map with the carried global parameters is not sound"

@@ -3,6 +3,7 @@ camera and the observation at the fit's resolution (:func:`setup`)."""
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field, replace
 
@@ -102,7 +103,26 @@ def _decide(opts: FitOptions, vals, env, bg, settings, camera, lights):
         min_cos=math.sqrt(max(0.0, 1 - opts.rim**2)), env_pixels=envpx,
         env_irradiance_peak=float(np.max(np.asarray(env.irradiance))),
     )
-    return resolve(summary, settings, thickness_kind=opts.thickness, tolerance=float(settings.get("tolerance", 1e-3)))
+    tolerance = float(settings.get("tolerance", 1e-3))
+    # the decision is a function of the summary's values, the map and the settings: a
+    # sequence's frames that hold the same values (every frame that carries the global
+    # parameters) take the decision their first frame made instead of bounding the films
+    # again (about a tenth of such a frame's CPU time)
+    key = (repr(summary), id(env), json.dumps(settings, sort_keys=True, default=repr), opts.thickness, tolerance)
+    made = _DECIDED.get(key)
+    if made is None or made[0] is not env:
+        made = (env, resolve(summary, settings, thickness_kind=opts.thickness, tolerance=tolerance))
+        while len(_DECIDED) >= _DECIDED_KEPT:
+            _DECIDED.pop(next(iter(_DECIDED)))
+        _DECIDED[key] = made
+    fx, decisions = made[1]
+    return fx, list(decisions)
+
+
+#: The last :data:`_DECIDED_KEPT` decisions of :func:`_decide` by their inputs (the map held
+#: with its decision, so that its ``id`` names it while it is kept); the oldest goes first.
+_DECIDED: dict = {}
+_DECIDED_KEPT = 4
 
 
 #: A map holds a compact bright source (a sun, a lamp, city lights), whose glints one ray

@@ -248,7 +248,7 @@ def _next_divergence(pts: list, prof: Profile, xs: list) -> float | None:
     sign = 1.0 if u >= x else -1.0
     short, long_ = (below, above) if sign > 0 else (above, below)
     if long_ > 3.0 * s and long_ > 2.0 * short:
-        d = max(abs(u - x), short, 1.618 * abs(moved) if moved * sign > 0 else 0.0)
+        d = max(abs(u - x), short, 2.0 * s, 1.618 * abs(moved) if moved * sign > 0 and near > 0.25 * s else 0.0)
         u = x + sign * min(d, GOLDEN * long_) if d > abs(u - x) else u
     return u
 

@@ -686,6 +686,33 @@ def test_a_skewed_profile_is_minimised_to_its_minimum_and_curvature():
     assert out.params["thickness_nm"] == pytest.approx(850.0 + 40.0 * V.divergence(cam["refit_fov_deg"]))
 
 
+def test_a_profile_that_does_not_settle_stops_at_the_cap_and_says_so():
+    """A profile whose minimum jumps by 0.8 s further each refit (a parabola about
+    u0 +- 0.8 s n at the n-th refit): no parabola's minimum ever gets a refit within
+    s / 4 that agrees, so the refits stop at the cap (MAX_REFINE after the bracket's), a
+    warning says the view's profile did not converge, and the view's standard error is at
+    least the distance from the reported view to the kept refit's."""
+    from dataclasses import replace
+
+    from bubblefit.inverse._view import MAX_REFINE
+
+    u0, s, n_pix = V.divergence(30.0), 0.005, 400
+    nu = 3 * n_pix - 1
+    calls = []
+
+    def at(u):
+        calls.append(u)
+        c = u0 + 0.8 * s * len(calls) * (-1) ** len(calls)
+        r = _result({"thickness_nm": 600.0 + 50.0 * u}, {"thickness_nm": 2.0})
+        return replace(r, chi2_capped=(nu + ((u - c) / s) ** 2) / nu, pixels_used=n_pix, status="ok")
+
+    out, tried = _divergence_fit(at, V.assumed_lens(48, 48))
+    cam = out.camera
+    assert len(tried) == 2 + MAX_REFINE and any("did not converge" in w for w in out.warnings), (tried, out.warnings)
+    u, u_kept = V.divergence(cam["fitted_fov_deg"]), V.divergence(cam["refit_fov_deg"])
+    assert cam["fov_stderr_deg"] >= math.degrees(2 / (1 + u * u)) * abs(u - u_kept) * (1 - 1e-9)
+
+
 @pytest.mark.slow
 def test_the_view_of_a_perspective_photo_is_fitted(small_courtyard):
     """A 48 px photo rendered by the package through a 25 degree pinhole (camera 4.6 radii

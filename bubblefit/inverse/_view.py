@@ -218,12 +218,13 @@ def _next_divergence(pts: list, prof: Profile, xs: list) -> float | None:
     bracket ``(a, b)`` of the least point ``x`` (its neighbours; ``u = 0`` closes it at
     the orthographic boundary): while no refit lies within ``s / 4`` of ``u*``, a refit at
     ``u*``; once one does, at ``u* -+ 2 s`` (``-+ s`` when a refit lies within ``s / 4``
-    of that) on the side whose parabola point lies beyond ``3 s``. A step toward the long
-    side of a lopsided bracket (one side over twice the other and over ``3 s``), where a
-    parabola through it creeps in from that side, goes at least as far as the short side
-    (a mirror of it) and, while the least point keeps moving that way, 1.618 times its last
-    move (the golden ratio's growth, sec. 10.1), never past the golden section of the long
-    side (eq. 10.2.2). ``xs`` holds the least point of each call (appended to here)."""
+    of that, else the golden section of that side, eq. 10.2.2) on the side whose parabola
+    point lies beyond ``3 s``. A step toward the long side of a lopsided bracket (one side
+    over twice the other and over ``3 s``), where a parabola through it creeps in from
+    that side, goes at least as far as the short side (a mirror of it) and ``2 s`` and,
+    while ``u*`` has no refit and the least point keeps moving that way, 1.618 times its
+    last move (the golden ratio's growth, sec. 10.1), never past the golden section of
+    the long side. ``xs`` holds the least point of each call (appended to here)."""
     m, s = prof.u, prof.stderr
     us = [u for u, _ in pts]
     near = min(abs(u - m) for u in us)
@@ -263,15 +264,17 @@ def fit_divergence(ortho: FitResult, lens_fit: FitResult, lens: View, refit) -> 
        fourth at twice the lens's ``u`` when the lens's fit is the least; the least point
        and its neighbours in ``u`` bracket the minimum (:func:`divergence_profile`).
     2. Minimise: the parabola through the least point and its two neighbours reads a
-       minimum ``u*`` and standard error ``s``; refit one view at a time
-       (:func:`_next_divergence`): at ``u*`` while no refit lies within ``s / 4`` of it
-       (a golden-section step of the bracket instead where the parabola does not close
-       in), then at ``u* -+ s`` on the side whose parabola point lies beyond ``3 s``,
-       until a refit lies within ``s / 4`` of ``u*`` and the parabola's three points within
-       ``3 s`` of it, so that its curvature (and ``s``) is the profile's near its minimum,
-       not across the bracket. After :data:`MAX_REFINE` refits it stops; a warning says
-       the view's profile did not converge, and ``s`` is widened in quadrature by the
-       distance from ``u*`` to the kept refit.
+       minimum ``u*`` and standard error ``s``; the photo is refitted one view at a time
+       (:func:`_next_divergence`, Brent's safeguarded parabolic steps): at ``u*`` while no
+       refit lies within ``s / 4`` of it, then at ``u* -+ 2 s`` on the side whose parabola
+       point lies beyond ``3 s``, a step toward the long side of a lopsided bracket going
+       further (at least the short side's length and ``2 s``, growing by the golden ratio
+       while the least point keeps moving that way, at most the long side's golden
+       section), until a refit lies within ``s / 4`` of ``u*`` and the parabola's three
+       points within ``3 s`` of it: its curvature (and ``s``) is then the profile's near
+       its minimum, not across the bracket. After :data:`MAX_REFINE` refits it stops; a
+       warning says the view's profile did not converge, and ``s`` is widened in
+       quadrature by the distance from ``u*`` to the kept refit.
     3. The view reported is the last ``u*``, with standard error ``s``; the fit kept is the
        refit nearest it (within ``s / 4`` when converged: the parameters at the minimum
        differ from its by at most a quarter of what the view's error adds to theirs).

@@ -174,8 +174,8 @@ def divergence_profile(us, chi2s, birge: float = 1.0, area: float = 1.0) -> Prof
     extends the bracket). When it is ``u = 0``, the orthographic boundary closes the
     bracket: the parabola goes through it and its two upper neighbours, and a minimum
     below 0 is the orthographic view. The parabola's curvature is the profile's near its
-    minimum only when the three points lie within about a standard error of it:
-    :func:`fit_divergence` refits there before it reads the interval.
+    minimum only when the three points lie within a few standard errors of it:
+    :func:`fit_divergence` refits until they lie within three before it reads the interval.
 
     References
     ----------

@@ -647,6 +647,72 @@ def test_a_minimum_past_the_lens_steeper_above_than_below_is_fitted():
     assert cam["fov_stderr_deg"] == pytest.approx(math.degrees(2 / (1 + u0**2)) * s, rel=1e-6)
 
 
+def test_a_skewed_profile_is_minimised_to_its_minimum_and_curvature():
+    """A profile that is a parabola only near its minimum: excess chi^2
+    g(d) = k^2 tanh^2(d / k) in d = (u - u0) / s (k = 20 below the minimum, 40 above: it
+    levels off, as the capped chi^2 does, at 400 and 1600, so the bracket's points, tens
+    of s away, are far from a parabola and lopsided), plus a convergence noise of at most
+    eps = 1e-3 on each refit's chi^2, on a photo that fixes the view to s = 0.002 (0.23
+    degrees at 35). Near the minimum g = d^2 - (2/3) d^4 / k^2 + ..., so over the
+    parabola's points (within 3 s of its minimum, the refit nearest within s / 4) its
+    second divided difference lies within 1 -+ (36 / k^2 + delta), delta = 48 eps the
+    noise's with the points s / 4 apart at the least, and the standard error within
+    [s / sqrt(1 + delta), s / sqrt(1 - 36 / k^2 - delta)]; the vertex, where
+    2 d + P(g - d^2)'(d) = 0, lies within (|g'| + 6 |g''| / 2 + delta) / 2 <= 0.41 s of
+    the minimum (|g'| <= 8 d^3 / (3 k^2), |g''| / 2 <= 4 d^2 / k^2 at d = 3). The view
+    reported is that vertex, not a refit's."""
+    from dataclasses import replace
+
+    u0, s, n_pix, eps = V.divergence(35.0), 0.002, 4000, 1e-3
+    nu = 3 * n_pix - 1
+    rng = np.random.default_rng(1)
+
+    def at(u):
+        d = (u - u0) / s
+        k = 20.0 if d < 0 else 40.0
+        chi2 = nu + k * k * math.tanh(d / k) ** 2 + rng.uniform(-eps, eps)
+        r = _result({"thickness_nm": 850.0 + 40.0 * u}, {"thickness_nm": 0.6})
+        return replace(r, chi2_capped=chi2 / nu, pixels_used=n_pix, status="ok")
+
+    out, tried = _divergence_fit(at, V.assumed_lens(600, 400))
+    cam = out.camera
+    u = V.divergence(cam["fitted_fov_deg"])
+    se = cam["fov_stderr_deg"] / math.degrees(2 / (1 + u * u))
+    delta = 48 * eps
+    assert cam["source"] == "fitted" and not any("did not converge" in w for w in out.warnings), out.warnings
+    assert s / math.sqrt(1 + delta) <= se <= s / math.sqrt(1 - 36 / 20**2 - delta), (se / s, tried)
+    assert abs(u - u0) <= 0.41 * s, ((u - u0) / s, tried)
+    assert min(abs(t - u) for t in tried) <= 0.25 * se and len(tried) <= 3 + 13, tried
+    assert out.params["thickness_nm"] == pytest.approx(850.0 + 40.0 * V.divergence(cam["refit_fov_deg"]))
+
+
+def test_a_profile_that_does_not_settle_stops_at_the_cap_and_says_so():
+    """A profile whose minimum jumps by 0.8 s further each refit (a parabola about
+    u0 +- 0.8 s n at the n-th refit): no parabola's minimum ever gets a refit within
+    s / 4 that agrees, so the refits stop at the cap (MAX_REFINE after the bracket's), a
+    warning says the view's profile did not converge, and the view's standard error is at
+    least the distance from the reported view to the kept refit's."""
+    from dataclasses import replace
+
+    from bubblefit.inverse._view import MAX_REFINE
+
+    u0, s, n_pix = V.divergence(30.0), 0.005, 400
+    nu = 3 * n_pix - 1
+    calls = []
+
+    def at(u):
+        calls.append(u)
+        c = u0 + 0.8 * s * len(calls) * (-1) ** len(calls)
+        r = _result({"thickness_nm": 600.0 + 50.0 * u}, {"thickness_nm": 2.0})
+        return replace(r, chi2_capped=(nu + ((u - c) / s) ** 2) / nu, pixels_used=n_pix, status="ok")
+
+    out, tried = _divergence_fit(at, V.assumed_lens(48, 48))
+    cam = out.camera
+    assert len(tried) == 2 + MAX_REFINE and any("did not converge" in w for w in out.warnings), (tried, out.warnings)
+    u, u_kept = V.divergence(cam["fitted_fov_deg"]), V.divergence(cam["refit_fov_deg"])
+    assert cam["fov_stderr_deg"] >= math.degrees(2 / (1 + u * u)) * abs(u - u_kept) * (1 - 1e-9)
+
+
 @pytest.mark.slow
 def test_the_view_of_a_perspective_photo_is_fitted(small_courtyard):
     """A 48 px photo rendered by the package through a 25 degree pinhole (camera 4.6 radii

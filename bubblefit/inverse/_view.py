@@ -174,8 +174,8 @@ def divergence_profile(us, chi2s, birge: float = 1.0, area: float = 1.0) -> Prof
     extends the bracket). When it is ``u = 0``, the orthographic boundary closes the
     bracket: the parabola goes through it and its two upper neighbours, and a minimum
     below 0 is the orthographic view. The parabola's curvature is the profile's near its
-    minimum only when the three points lie within about a standard error of it:
-    :func:`fit_divergence` refits there before it reads the interval.
+    minimum only when the three points lie within a few standard errors of it:
+    :func:`fit_divergence` refits until they lie within three before it reads the interval.
 
     References
     ----------
@@ -202,23 +202,82 @@ def divergence_profile(us, chi2s, birge: float = 1.0, area: float = 1.0) -> Prof
     return Profile(float(u_min), float(se), bool(not above and se < 0.5 * span), (u0, u1, u2), above)
 
 
+#: Refits :func:`fit_divergence` makes after the bracket before it stops, converged or not.
+MAX_REFINE = 13
+#: The golden section's smaller fraction, (3 - sqrt 5) / 2 (Numerical Recipes eq. 10.2.2).
+GOLDEN = 0.3819660112501051
+
+
+def _next_divergence(pts: list, prof: Profile, xs: list) -> float | None:
+    """The next divergence to refit at in :func:`fit_divergence`'s minimisation of the
+    profile ``pts`` (sorted ``(u, chi2)``, finite), whose parabola ``prof`` reads the
+    minimum ``u*`` and standard error ``s``; None when it has converged: a refit lies
+    within ``s / 4`` of ``u*`` and the parabola's three points within ``3 s`` of it.
+
+    A safeguarded parabolic step (Brent's method, Numerical Recipes sec. 10.3) in the
+    bracket ``(a, b)`` of the least point ``x`` (its neighbours; ``u = 0`` closes it at
+    the orthographic boundary): while no refit lies within ``s / 4`` of ``u*``, a refit at
+    ``u*``; once one does, at ``u* -+ 2 s`` (``-+ s`` when a refit lies within ``s / 4``
+    of that, else the golden section of that side, eq. 10.2.2) on the side whose parabola
+    point lies beyond ``3 s``. A step toward the long side of a lopsided bracket (one side
+    over twice the other and over ``3 s``), where a parabola through it creeps in from
+    that side, goes at least as far as the short side (a mirror of it) and ``2 s`` and,
+    while ``u*`` has no refit and the least point keeps moving that way, 1.618 times its
+    last move (the golden ratio's growth, sec. 10.1), never past the golden section of
+    the long side. ``xs`` holds the least point of each call (appended to here)."""
+    m, s = prof.u, prof.stderr
+    us = [u for u, _ in pts]
+    near = min(abs(u - m) for u in us)
+    lo = [p for p in prof.points if p < m - 3.0 * s]
+    hi = [p for p in prof.points if p > m + 3.0 * s]
+    if near <= 0.25 * s and not lo and not hi:
+        return None
+    i = min(range(len(pts)), key=lambda k: (pts[k][1], pts[k][0]))
+    x = us[i]
+    below = x - us[i - 1] if i > 0 else 0.0
+    above = us[i + 1] - x if i + 1 < len(us) else 0.0
+    xs.append(x)
+    moved = xs[-1] - xs[-2] if len(xs) >= 2 else 0.0
+    if near > 0.25 * s:
+        u = m
+    else:
+        side = -1.0 if lo and (not hi or m - min(lo) >= max(hi) - m) else 1.0
+        u = next((m + side * k * s for k in (2.0, 1.0)
+                  if m + side * k * s > 0 and min(abs(v - m - side * k * s) for v in us) > 0.25 * s), None)
+        if u is None:
+            return x + side * GOLDEN * (below if side < 0 else above)
+    sign = 1.0 if u >= x else -1.0
+    short, long_ = (below, above) if sign > 0 else (above, below)
+    if long_ > 3.0 * s and long_ > 2.0 * short:
+        d = max(abs(u - x), short, 2.0 * s, 1.618 * abs(moved) if moved * sign > 0 and near > 0.25 * s else 0.0)
+        u = x + sign * min(d, GOLDEN * long_) if d > abs(u - x) else u
+    return u
+
+
 def fit_divergence(ortho: FitResult, lens_fit: FitResult, lens: View, refit) -> FitResult:
     """The fit through the view's divergence fitted from the photo, when nothing stated the
     view: ``u = tan(fov/2)`` (:func:`~bubblefit.capture.view.divergence`) profiled by
-    warm-started refits (``refit(view, start)``: the fit through ``view``).
+    warm-started refits (``refit(view, start)``: the fit through ``view``, started from the
+    refit nearest it), the profile's minimum found by Brent's method.
 
     1. Bracket: the orthographic fit (``u = 0``), the ``lens`` fit and a refit halfway, a
-       fourth at twice the lens's ``u`` when the lens's fit is the least; the parabola
-       through the least point and its two neighbours in ``u`` (:func:`divergence_profile`)
-       gives a first minimum ``u1`` and standard error ``s1``.
-    2. Refine: refits at ``u1`` and ``u1 +- s1`` (the ends of the first interval; ``u = 0``
-       stands for a negative end), so that the parabola through the least point and its
-       neighbours reads the profile's curvature near its minimum, not across the bracket; when the
-       refined standard error exceeds twice the step (the three points spanned under half
-       the interval), once more at the new minimum and its interval's ends. The photo is
-       refitted at the last minimum unless a refit lies within a quarter of a standard
-       error of it; the profile is read once more with that refit, and the refit nearest
-       its minimum is kept (its view is the one reported).
+       fourth at twice the lens's ``u`` when the lens's fit is the least; the least point
+       and its neighbours in ``u`` bracket the minimum (:func:`divergence_profile`).
+    2. Minimise: the parabola through the least point and its two neighbours reads a
+       minimum ``u*`` and standard error ``s``; the photo is refitted one view at a time
+       (:func:`_next_divergence`, Brent's safeguarded parabolic steps): at ``u*`` while no
+       refit lies within ``s / 4`` of it, then at ``u* -+ 2 s`` on the side whose parabola
+       point lies beyond ``3 s``, a step toward the long side of a lopsided bracket going
+       further (at least the short side's length and ``2 s``, growing by the golden ratio
+       while the least point keeps moving that way, at most the long side's golden
+       section), until a refit lies within ``s / 4`` of ``u*`` and the parabola's three
+       points within ``3 s`` of it: its curvature (and ``s``) is then the profile's near
+       its minimum, not across the bracket. After :data:`MAX_REFINE` refits it stops; a
+       warning says the view's profile did not converge, and ``s`` is widened in
+       quadrature by the distance from ``u*`` to the kept refit.
+    3. The view reported is the last ``u*``, with standard error ``s``; the fit kept is the
+       refit nearest it (within ``s / 4`` when converged: the parameters at the minimum
+       differ from its by at most a quarter of what the view's error adds to theirs).
 
     The kept fit's parameters ``p`` are conditional on the view; freeing it adds
     ``(dp/du)^2 var(u)`` to each variance and ``dp/du var(u)`` as the covariance with the
@@ -233,9 +292,10 @@ def fit_divergence(ortho: FitResult, lens_fit: FitResult, lens: View, refit) -> 
 
     References
     ----------
-    Numerical Recipes, 3rd ed., 2007, sec. 15.6 (profile confidence regions); Venzon and
-    Moolgavkar, Appl. Statist. 37, 87 (1988) (profile-likelihood intervals); JCGM
-    100:2008 (GUM) eq. 13 (propagation with correlated inputs).
+    Numerical Recipes, 3rd ed., 2007, sec. 10.2 (golden section), sec. 10.3 (Brent's
+    parabolic interpolation, safeguarded) and sec. 15.6 (profile confidence regions);
+    Venzon and Moolgavkar, Appl. Statist. 37, 87 (1988) (profile-likelihood intervals);
+    JCGM 100:2008 (GUM) eq. 13 (propagation with correlated inputs).
     """
     width_fits = [(0.0, ortho), (divergence(lens.fov_deg), lens_fit)]
     u_lens = width_fits[1][0]
@@ -257,13 +317,6 @@ def fit_divergence(ortho: FitResult, lens_fit: FitResult, lens: View, refit) -> 
         area = float(least.correlation_area) if least is not None and math.isfinite(least.correlation_area) else 1.0
         return divergence_profile([u for u, _ in fits], [_chi2(f) for _, f in fits], birge, area)
 
-    def at(u: float, tol: float) -> None:
-        """Refit at ``u`` unless a refit lies within ``tol`` of it (``u <= 0``: the
-        orthographic fit stands for it)."""
-        u = max(u, 0.0)
-        if min(abs(v - u) for v, _ in fits) > tol:
-            fits.append((u, through(u)))
-
     fits = list(width_fits)
     fits.append((u_lens / 2.0, through(u_lens / 2.0)))
     prof = profile_now()
@@ -271,30 +324,36 @@ def fit_divergence(ortho: FitResult, lens_fit: FitResult, lens: View, refit) -> 
     if prof.above:
         fits.append((u_far, through(u_far)))
         prof = profile_now()
-    for _ in range(2):
-        if not prof.constrained:
+    good, converged, steps, refits = None, False, [], 0
+    while prof.constrained:
+        good = prof
+        pts = sorted((u, _chi2(f)) for u, f in fits if math.isfinite(_chi2(f)))
+        u = _next_divergence(pts, prof, steps)
+        converged = u is None
+        if converged or refits == MAX_REFINE:
             break
-        step = prof.stderr
-        for u in (prof.u, prof.u - step, prof.u + step):
-            at(u, 0.25 * step)
+        fits.append((u, through(u)))
+        refits += 1
         prof = profile_now()
-        if not prof.stderr > 2.0 * step:
-            break
     lens_better = lens_fit.converged and _chi2(lens_fit) < _chi2(ortho)
     kept, other = (lens_fit, ortho) if lens_better else (ortho, lens_fit)
-    if not prof.constrained:
+    if good is None:
         out = widen_for_view(kept, other, lens)
         out.camera = {**(out.camera or {}), "divergence_profile": _profile_record(fits)}
         out.warnings = [w + "; the photo does not fix the view (its chi^2 over the field of view is flat or "
                         "least outside the views tried)" if w.startswith("the view was not given") else w
                         for w in out.warnings]
         return out
-    at(prof.u, 0.25 * prof.stderr)
-    again = profile_now()  # with the refit at the minimum beside its neighbours
-    prof = again if again.constrained else prof
-    u_star, fit = min(((u, f) for u, f in fits if math.isfinite(_chi2(f))), key=lambda p: abs(p[0] - prof.u))
-    used = [p for p in fits if any(p[0] == v for v in prof.points) and math.isfinite(_chi2(p[1]))]
-    return _with_fitted_view(fit, u_star, prof.stderr, used, _profile_record(fits))
+    u_fit, fit = min(((u, f) for u, f in fits if math.isfinite(_chi2(f))), key=lambda p: abs(p[0] - good.u))
+    se = good.stderr if converged else math.hypot(good.stderr, u_fit - good.u)
+    used = [p for p in fits if any(p[0] == v for v in good.points) and math.isfinite(_chi2(p[1]))]
+    out = _with_fitted_view(fit, good.u, se, used, _profile_record(fits), u_fit)
+    if not converged:
+        out.warnings.append(f"the view's chi^2 profile did not converge in {MAX_REFINE} refits (the refits nearest "
+                            f"its minimum lie more than a quarter or three of its standard errors from it): the "
+                            f"view's standard error is widened by the distance to the kept refit, "
+                            f"{fov_of_divergence(u_fit):.2f} degrees across")
+    return out
 
 
 def _profile_record(fits: list) -> list:
@@ -303,8 +362,10 @@ def _profile_record(fits: list) -> list:
     return [[fov_of_divergence(u), float(f.chi2_capped)] for u, f in sorted(fits, key=lambda p: p[0])]
 
 
-def _with_fitted_view(fit: FitResult, u: float, se_u: float, fits: list, profile: list) -> FitResult:
-    """``fit`` (through the divergence ``u``) with the view's variance ``se_u^2`` propagated
+def _with_fitted_view(fit: FitResult, u: float, se_u: float, fits: list, profile: list,
+                      u_fit: float | None = None) -> FitResult:
+    """``fit`` (the refit through ``u_fit``, nearest the profile's minimum ``u``; ``u`` when
+    not given) reported at the divergence ``u`` with the view's variance ``se_u^2`` propagated
     into its parameters, and per pixel into its thickness map's errors, by the slopes
     ``dp/du`` of lines through ``fits`` (the refits near the minimum, :func:`fit_divergence`),
     ``fov_deg`` added to its covariance, and its camera record's source ``fitted``."""
@@ -347,6 +408,7 @@ def _with_fitted_view(fit: FitResult, u: float, se_u: float, fits: list, profile
     cam = {**(fit.camera or {}), "kind": "perspective" if u > 0 else "orthographic", "fov_deg": fov if u > 0 else None,
            "source": "fitted", "detail": detail, "fov_stderr_deg": fov_se, "fitted_fov_deg": fov,
            "fov_interval_deg": [fov_of_divergence(lo), fov_of_divergence(hi)],
+           "refit_fov_deg": fov_of_divergence(u if u_fit is None else u_fit),
            "divergence_profile": profile, "correlation_area": float(fit.correlation_area),
            "view_uncertainty": {k: abs(v) * se_u for k, v in slopes.items()}}
     out.camera = cam

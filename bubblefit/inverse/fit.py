@@ -436,9 +436,9 @@ def fit_photo(photo: np.ndarray, env: EnvMap, *, options: FitOptions = FitOption
     states one, the photo is fitted as orthographic and again through a 50 mm (35 mm
     terms) lens warm-started from it, and the view's divergence ``u = tan(fov/2)`` is
     fitted from the photo by warm-started refits
-    (:func:`~bubblefit.inverse._view.fit_divergence`: a bracket, then refits about its
-    minimum for the profile's curvature there): the fit at the least chi^2, its standard
-    errors including the view's; where the photo does not fix the view, the
+    (:func:`~bubblefit.inverse._view.fit_divergence`: a bracket, then refits that minimise
+    the chi^2 profile until its parabola reads the curvature near the minimum): the view at
+    that minimum and the refit nearest it, its standard errors including the view's; where the photo does not fix the view, the
     view that explains it better (the lower capped reduced chi^2, :func:`_judged_chi2`)
     is kept and its standard errors are widened by the shift to the other
     (:func:`~bubblefit.inverse._view.widen_for_view`;

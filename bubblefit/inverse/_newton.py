@@ -413,6 +413,18 @@ def _reported(t, cov, u, v, fit_stray: bool, b_fixed: float, b_se, env_on: bool)
     return params, stderr
 
 
+def _lens_gap(theta, cov, x, y) -> tuple[np.ndarray, np.ndarray]:
+    """The fitted lens's gap :func:`newton_gap` at the film's pixels ``(x, y)`` (um) and its
+    standard error, ``sqrt(j C j^T)`` with ``j`` the gap's gradient in ``(log R, cx, cy, h0)``
+    (``theta``'s first four) and ``C`` their covariance (GUM, JCGM 100:2008, eq. 13)."""
+    t = np.asarray(theta, np.float64)
+    h = np.asarray(newton_gap(jnp.asarray(np.sqrt((x - t[1]) ** 2 + (y - t[2]) ** 2)), float(np.exp(t[0])), t[3]))
+    xj, yj = jnp.asarray(x), jnp.asarray(y)
+    hj = jax.jacfwd(lambda q: newton_gap(jnp.sqrt((xj - q[1]) ** 2 + (yj - q[2]) ** 2), jnp.exp(q[0]), q[3]))(theta)
+    hj = np.asarray(hj, np.float64)
+    return h, np.sqrt(np.clip(np.einsum("pi,ij,pj->p", hj, cov, hj), 0.0, None))
+
+
 def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np.inf, iters: int = 40,
                stray=STRAY_DEFAULT, envelope=ENVELOPE_DEFAULT) -> ModelFit:
     """Levenberg-Marquardt fit of ``(R, cx, cy, h0, g)`` (see the module), started from ``dmap``,
@@ -520,12 +532,7 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
     cov = np.linalg.pinv(J.T @ J) * (cost / dof)
     t = np.asarray(theta, np.float64)
     radius_um = float(np.exp(t[0]))
-    rr = np.sqrt((x - t[1]) ** 2 + (yy - t[2]) ** 2)
-    h = np.asarray(newton_gap(jnp.asarray(rr), radius_um, t[3]))
-    # standard error of h(r) from the covariance of (log R, cx, cy, h0)
-    hj = jax.jacfwd(lambda q: newton_gap(jnp.sqrt((xj - q[1]) ** 2 + (yj - q[2]) ** 2), jnp.exp(q[0]), q[3]))(theta)
-    hj = np.asarray(hj, np.float64)
-    h_se = np.sqrt(np.clip(np.einsum("pi,ij,pj->p", hj, cov, hj), 0.0, None))
+    h, h_se = _lens_gap(theta, cov, x, yy)
     params, stderr = _reported(t, cov, u, v, fit_stray, b_fixed, b_se, env_on)
     warnings = []
     if rings is not None:  # the gap across the photo, fitted and from the rings' period without colour

@@ -78,6 +78,19 @@ def exposure_step(full, photo, img, column, opts: FitOptions, fit: Misfit) -> tu
     return ar / aa, ar * ar / (aa * s2), math.sqrt(s2 / aa)
 
 
+def _from_traced_rays(kept: list, table, vals: dict, dmap: np.ndarray):
+    """``(flat, values, column)`` of the map ``dmap``'s fitted pixels shaded at ``vals`` from
+    the rays its finest level traced (``kept``'s last, :func:`fit_map`;
+    :meth:`~bubblefit.inverse._map_pixels.TracedCosts.pixels`: the pixels' flat indices,
+    their values and their derivative in the exposure), or None without such rays (the
+    paper model's exact candidates)."""
+    if not (kept and isinstance(kept[-1], TracedCosts)):
+        return None
+    costs = kept[-1]
+    flat = costs.pix.flat
+    return (flat, *costs.pixels(np.asarray(dmap, np.float64).reshape(-1)[flat], table, vals))
+
+
 def _shaded(full, kept: list, table, vals: dict, dmap: np.ndarray, opts: FitOptions, env) -> tuple[np.ndarray, np.ndarray]:
     """``(img, column)`` (h, w, 3): the map ``dmap``'s render at ``vals`` and its derivative
     in the exposure (eq. 11 and the physical series scale the reflected terms by it), over
@@ -87,10 +100,9 @@ def _shaded(full, kept: list, table, vals: dict, dmap: np.ndarray, opts: FitOpti
     (:meth:`~bubblefit.inverse._map_pixels.TracedCosts.pixels`); without them (the paper
     model's exact candidates), two renders, the column their difference from half the
     exposure (the render is affine in it)."""
-    if kept and isinstance(kept[-1], TracedCosts):
-        costs = kept[-1]
-        flat = costs.pix.flat
-        vals_p, col_p = costs.pixels(np.asarray(dmap, np.float64).reshape(-1)[flat], table, vals)
+    traced = _from_traced_rays(kept, table, vals, dmap)
+    if traced is not None:
+        flat, vals_p, col_p = traced
         img, column = np.zeros(full.y.shape), np.zeros(full.y.shape)
         img.reshape(-1, 3)[flat], column.reshape(-1, 3)[flat] = vals_p, col_p
         return img, column
@@ -107,11 +119,8 @@ def _final_render(full, kept: list, table, vals: dict, dmap: np.ndarray, opts: F
     drainage profile of ``vals`` replace those they were traced at,
     :meth:`~bubblefit.inverse._map_pixels.TracedCosts.pixels`) and only the rest of the
     bubble rendered; without them (the paper model's exact candidates) a whole render."""
-    known = None
-    if kept and isinstance(kept[-1], TracedCosts):
-        costs = kept[-1]
-        flat = costs.pix.flat
-        known = (flat, costs.pixels(np.asarray(dmap, np.float64).reshape(-1)[flat], table, vals)[0])
+    traced = _from_traced_rays(kept, table, vals, dmap)
+    known = None if traced is None else traced[:2]
     return np.asarray(render_bubble(final_params(table, dict(vals, map=dmap), opts), full, env, known), np.float64)
 
 

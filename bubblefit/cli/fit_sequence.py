@@ -39,8 +39,8 @@ def register(sub):
     p.add_argument("--thickness", choices=THICKNESS_KINDS, default="constant",
                    help="thickness model of each frame (default: constant)")
     p.add_argument("--model", choices=MODEL_CHOICES, default=None,
-                   help="forward model, as in `fit` (default: the scene's, else auto: the paper model, then the "
-                        "physical one when the paper model does not explain a frame, at up to twice the time)")
+                   help="forward model, as in `fit` (default: the scene's, else auto: the model that explains the "
+                        "paper model's search image better first, the other one when it does not explain a frame)")
     p.add_argument("--disc", metavar="CX,CY,R",
                    help="the bubble's disc in pixels (default: from --calibration, else detected on the first frame)")
     p.add_argument("--thickness-range", metavar="MIN,MAX", default="50,2000",

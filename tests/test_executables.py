@@ -42,6 +42,7 @@ SCRIPT = textwrap.dedent("""
     a = jnp.arange(16.0).reshape(4, 4) / 10 + jnp.eye(4)
     if sys.argv[3] == "prepare":  # compiled in the background, then called
         fn.prepare(a, jnp.zeros((4, 4)))
+        print(f"pending {len(fn.pending)}", file=sys.stderr)
     res = fn(a, jnp.ones((4, 4)))
     print(json.dumps({k: jnp.asarray(v).tolist() for k, v in res.items()}))
     print(f"compiled {len(compiles)}", file=sys.stderr)
@@ -79,7 +80,8 @@ def test_a_new_process_loads_the_program_and_gets_the_same_numbers(tmp_path):
 
 def test_a_prepared_program_is_compiled_once_in_the_background(tmp_path):
     """``prepare`` compiles (and stores) the program in the background thread; the call
-    with arguments of the same shapes runs it: traced once, the same numbers, one file."""
+    with arguments of the same shapes runs it: traced once, the same numbers, one file. In
+    a new process ``prepare`` leaves the stored program to the call, which loads it."""
     cache = tmp_path / "cache"
     plain, _, _ = _run(tmp_path / "plain", 0.5, "plain")
     _, _, compiled = _run(tmp_path / "store", 0.5, "store")
@@ -87,8 +89,9 @@ def test_a_prepared_program_is_compiled_once_in_the_background(tmp_path):
     assert traced == 1 and len(list((cache / "executables").glob("*.bin"))) == 1
     # the call took the background's program: none left waiting, none compiled twice
     assert _LAST_STDERR[0].count("waiting 0") == 1 and compiled_prepared == compiled
-    second, traced, _ = _run(cache, 0.5, "prepare")  # a new process: loaded from the store
-    assert traced == 0
+    assert _LAST_STDERR[0].count("pending 1") == 1  # under way in the background
+    second, traced, _ = _run(cache, 0.5, "prepare")  # a new process: loaded from the store by the call
+    assert traced == 0 and _LAST_STDERR[0].count("pending 0") == 1  # nothing loaded ahead
     for res in (first, second):
         np.testing.assert_array_equal(res["x"], plain["x"])
         np.testing.assert_array_equal(res["s"], plain["s"])

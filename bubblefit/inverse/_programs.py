@@ -331,7 +331,7 @@ def solve_program(lev: Level, table: ParameterTable, solver: SolverSettings, val
 
 def prepare_local(lev: Level, table: ParameterTable, solver: SolverSettings, vals: dict, env, max_steps=None,
                   settings: SolveSettings = SolveSettings()) -> None:
-    """Start compiling (or loading) the program of :func:`~bubblefit.inverse._local.solve_local` with these arguments
+    """Start compiling (unless stored: its call loads it) the program of :func:`~bubblefit.inverse._local.solve_local` with these arguments
     in the background (:meth:`bubblefit.io.executables.Stored.prepare`): a fit calls it for
     its final solve before the global search, whose own programs compile meanwhile. Only
     the shapes of ``vals`` and the level count; without the executable store (library
@@ -341,7 +341,7 @@ def prepare_local(lev: Level, table: ParameterTable, solver: SolverSettings, val
 
 
 def prepare_reporter(table: ParameterTable, vals: dict) -> None:
-    """Start compiling (or loading) :func:`reporter`'s programs in the background, for a
+    """Start compiling (unless stored: its call loads it) :func:`reporter`'s programs in the background, for a
     solution of ``table`` held at ``vals`` (the standard errors, :mod:`._uncertainty`)."""
     z, fixed = table.unconstrained(vals), held_values(table, vals)
     for program in reporter(table):
@@ -362,7 +362,7 @@ def render_level(p, lev: Level, env, cfg: RenderConfig | None = None, terms: boo
 
 
 def prepare_render_level(p, lev: Level, env, cfg: RenderConfig | None = None, terms: bool = False) -> None:
-    """Start compiling (or loading) :func:`render_level`'s program for these arguments in
+    """Start compiling (unless stored: its call loads it) :func:`render_level`'s program for these arguments in
     the background (:func:`~bubblefit.model.programs.prepare_loaded`); only their shapes count."""
     pad, p = _padded_params(p, lev, cfg)
     prepare_loaded(p, pad.cfg, env, pad.bg, terms=terms)
@@ -417,7 +417,7 @@ def render_bubble(p, lev: Level, env, known: tuple[np.ndarray, np.ndarray] | Non
 
 
 def prepare_render_bubble(p, lev: Level, env) -> None:
-    """Start compiling (or loading) :func:`render_bubble`'s program in the background: for
+    """Start compiling (unless stored: its call loads it) :func:`render_bubble`'s program in the background: for
     the list of ``p``'s disc (a refined disc whose list pads to another length compiles
     its own)."""
     pad, px, q = bubble_list(p, lev)
@@ -443,7 +443,7 @@ def _padded_params(p, lev: Level, cfg: RenderConfig | None):
 
 
 def warm_up(st, opts: FitOptions, env, settings: SolveSettings) -> None:
-    """Start compiling (or loading) in the background the programs a fit that searches
+    """Start compiling (unless stored: its call loads it) in the background the programs a fit that searches
     globally runs after its search: the final solve (``settings``), the final render
     (unless a thickness map is fitted: its render compiles after the map) and the
     standard errors' (:func:`prepare_local`, :func:`prepare_render_bubble`,

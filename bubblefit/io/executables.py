@@ -35,10 +35,11 @@ Files live in ``executables/`` of the compilation cache's folder (at most
 :data:`MAX_BYTES`). The store is used in processes that called
 :func:`~bubblefit.io.jaxcache.jax_setup` (the command line and its workers).
 
-A program needed later can be started ahead (:meth:`Stored.prepare`): it is loaded or
-compiled in a background thread (:data:`COMPILE_THREADS` of them) while the caller goes
-on, and the call with arguments of the same shapes waits for it (the fit prepares its
-final solve, its final render and its standard errors' programs before the global search).
+A program needed later can be started ahead (:meth:`Stored.prepare`): unless the store
+holds it already (then its call loads it), it is compiled in a background thread
+(:data:`COMPILE_THREADS` of them) while the caller goes on, and the call with arguments
+of the same shapes waits for it (the fit prepares its final solve, its final render and
+its standard errors' programs before the global search).
 
 Two things XLA:CPU needs, found by running it: an executable is serialised from a fresh
 compile (one that the persistent cache loaded loses its fused kernels, and JAX's in-memory
@@ -376,16 +377,25 @@ class Stored:
         return self._first_run(key, fn, path, args)
 
     def prepare(self, *args) -> None:
-        """Load or compile the program for arguments shaped as ``args`` in a background
-        thread (:func:`_compile_thread`), unless it is loaded or under way; the
-        call with such arguments then waits for it instead of compiling again. Where the
-        store is off (:data:`ENABLED`: library calls) the program is compiled, not stored,
-        and JAX's own cache serves as usual. A failed compile is raised by that call, as it
-        would have been."""
+        """Compile the program for arguments shaped as ``args`` in a background thread
+        (:func:`_compile_thread`), unless it is loaded, under way or already in the store;
+        the call with such arguments then waits for it instead of compiling again. A
+        stored program is left to its call, which loads it: a prepared program may never
+        be called (``auto``'s paper model, prepared before its search, is not solved when
+        the physical model solved first is kept), and loading one costs CPU whichever
+        thread does it (XLA rebuilds the program from its HLO: 1.7-2.2 s of CPU for the
+        13.7 MB final solve of docs/speed.md's 320x320 photo, on 2 shared cores), whereas
+        the head start only hides a compile's wait. Where the store is off
+        (:data:`ENABLED`: library calls) the program is compiled, not stored, and JAX's own
+        cache serves as usual. A failed compile is raised by that call, as it would have
+        been."""
         if self.static_bytes is None:
             return
         try:  # only ever a head start: arguments it cannot key, or a process shutting down, skip it
             key = _key(self.name, self.static_bytes, args)
+            folder = _folder() if _enabled() else None
+            if folder is not None and os.path.lexists(folder / f"{key}.bin"):
+                return  # stored: its call loads it, if the caller gets that far
             with _LOCK:
                 if key in self.loaded or key in self.pending:
                     return

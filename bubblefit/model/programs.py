@@ -68,7 +68,7 @@ def render_loaded(p: Params, cfg: RenderConfig, env: EnvMap | None, background=N
 
 def prepare_loaded(p: Params, cfg: RenderConfig, env: EnvMap | None, background=None, *, terms: bool = False,
                    pixels=None):
-    """Start compiling (or loading) :func:`render_loaded`'s program for these arguments in
+    """Start compiling (unless stored: its call loads it) :func:`render_loaded`'s program for these arguments in
     the background (:meth:`bubblefit.io.executables.Stored.prepare`): a later
     :func:`render_loaded` with arguments of the same shapes waits for it instead of
     compiling. Only the shapes of the arguments count."""

@@ -70,6 +70,7 @@ from .order_check import OrderCheck, neighbouring_orders, order_check, order_par
 from .response_error import pixel_thickness_stderr, response_cells, response_error, solve_response_gram
 from ..errors import InputError
 from ..lighting.envmap import EnvMap
+from ..model.modes import GREY
 from ..model.thickness import drainage_profile
 from ..progress import stage
 
@@ -638,6 +639,9 @@ def _start_one(photo, env, options: FitOptions, background, init, scene, saturat
             warm_up(st, opts, env, settings)  # the final solve's programs compile during the search
         with stage("global thickness search"):
             start = _searched_start(st, opts, env, chi2, order)
+    elif not warm and "exposure" in st.table.free and st.lev_fit.cfg.effects.interference in GREY:
+        # a grey film: no thickness search sets the camera gain, its least-squares value does
+        start = dict(st.vals, exposure=search.grey_exposure(st.level(st.k_search, opts), st.table, st.vals, env))
     else:
         start = st.vals
     return Started(st, opts, start, settings, warm, searches, chi2[0] if chi2 else None, t_start,

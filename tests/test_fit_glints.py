@@ -9,6 +9,8 @@ fixed texel size does not depend on the resolution the map was stored at.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -120,3 +122,46 @@ def test_the_footprint_lookup_has_a_finite_roughness_derivative_at_a_mirror():
     a0, h = 0.05, 1e-3
     fd = (float(total(jnp.float32(a0 + h))) - float(total(jnp.float32(a0 - h)))) / (2 * h)
     assert float(slope(jnp.float32(a0))) == pytest.approx(fd, rel=0.05, abs=1e-3)
+
+
+def test_ok_reads_the_photo_at_its_own_resolution():
+    """``ok`` reads the final render against the photo's own pixels (``photo_misfit``). A
+    model error common to neighbouring pixels, half a pixel's noise here, adds 0.25 to the
+    photo's reduced chi^2 (1.25), but 0.25 k^2 on a level of k x k block means, whose noise
+    is k times smaller (2.0 for k = 2): a solve's level can call unexplained a photo that
+    its noise explains. Tolerances: 5 standard deviations of a reduced chi^2 of n data
+    (sqrt(2 / n) times its expectation, at most). A channel clipped at black costs nothing
+    while the model lies below it, as in the solves."""
+    from bubblefit.inverse._censored import BLACK_CLIP
+    from bubblefit.inverse._observation import Level
+    from bubblefit.inverse._uncertainty import photo_misfit, residual_misfit
+
+    rng = np.random.default_rng(3)
+    h = w = 64
+    sigma, bias = 0.01, 0.005
+    truth = np.full((h, w, 3), 0.3)
+    photo = truth + sigma * rng.standard_normal(truth.shape)
+    render = truth + bias
+    ones = np.ones((h, w), bool)
+
+    def level(k, y):
+        m = ones[::k, ::k]
+        return Level(k, None, y, np.full(y.shape, k / sigma), None, m, m, np.ones(m.shape), np.zeros(m.shape))
+
+    full = photo_misfit(level(1, photo), render, 0.0, 1)
+    expect = 1 + (bias / sigma) ** 2
+    assert abs(full.chi2_nu - expect) < 5 * expect * math.sqrt(2 / photo.size), full
+    blocks = photo.reshape(h // 2, 2, w // 2, 2, 3).mean(axis=(1, 3))
+    lev2 = level(2, blocks)
+    coarse = residual_misfit((blocks - render[::2, ::2]) * lev2.w, lev2, 0.0, 1)
+    expect2 = 1 + 4 * (bias / sigma) ** 2
+    assert abs(coarse.chi2_nu - expect2) < 5 * expect2 * math.sqrt(2 / blocks.size), coarse
+
+    clipped = photo.copy()
+    clipped[..., 0] = BLACK_CLIP / 2   # red clipped at black everywhere
+    below = render.copy()
+    below[..., 0] = -0.2                # an interference colour outside the gamut
+    lev = level(1, clipped)
+    censored = photo_misfit(lev, below, 0.0, 1)
+    plain = residual_misfit(np.where(np.arange(3) == 0, 0.0, (clipped - below) * lev.w), lev, 0.0, 1)
+    assert censored.chi2_nu == pytest.approx(plain.chi2_nu, rel=1e-12)

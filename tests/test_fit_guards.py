@@ -57,3 +57,31 @@ def test_a_photo_without_a_bubble_is_refused_without_a_background_photo():
         resolve_disc(photo, None, FitOptions())
     disc, warn = resolve_disc(photo, None, FitOptions(disc=(64.0, 48.0, 30.0)), given=(64.0, 48.0, 30.0))
     assert disc == (64.0, 48.0, 30.0) and warn == []
+
+
+def test_a_grey_film_starts_from_its_least_squares_exposure():
+    """A film rendered without interference (a thick film) has no thickness search to set
+    the camera gain, and the local solve from a gain 2.5 times off did not move at all
+    (every step rejected). The start is the gain's least-squares value, exact for a render
+    that is affine in it: on a noise-free photo at gain 2.5 it is 2.5 to float32's rounding
+    of the render (relative 1e-5), with a background photo (not scaled by the gain) and
+    with the map as the background (scaled)."""
+    import bubblefit as bf
+    from bubblefit.inverse import FitOptions
+    from bubblefit.inverse._setup import setup
+    from bubblefit.inverse.search import grey_exposure
+
+    for background in ("photo", "env"):
+        scene = bf.Scene.from_dict({
+            "camera": {"width": 40, "height": 40, "disc": [20, 20, 15]},
+            "bubble": {"thickness_nm": 600.0, "t": 0.972, "f": 0.3, "roughness": 0.02},
+            "lighting": {"envmap": "courtyard.exr", "background": "black" if background == "photo" else "envmap"},
+            "effects": {"interference": "off"}})
+        env = scene.load_envmap()
+        photo = 2.5 * np.asarray(bf.render_scene(scene), np.float64)
+        back = np.zeros_like(photo) if background == "photo" else None
+        opts = FitOptions(disc=(20, 20, 15), view=bf.resolve_view(fov_deg=0, width=40, height=40),
+                          effects=(("interference", "off"),), model="paper")
+        st = setup(photo, env, opts, back, None, scene, None)
+        got = grey_exposure(st.level(1, opts), st.table, dict(st.vals, exposure=1.0), env)
+        assert got == pytest.approx(2.5, rel=1e-4), (background, got)

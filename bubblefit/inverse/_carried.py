@@ -22,7 +22,7 @@ from ._map_pixels import TracedCosts
 from ._maps import PROFILE_NAMES, fit_map, profile_from_map
 from ._options import FitOptions
 from ._programs import final_params, render_bubble
-from ._uncertainty import Misfit, residual_misfit
+from ._uncertainty import Misfit, photo_misfit
 from ..progress import stage
 
 __all__ = ["EXPOSURE_TEST_ALPHA", "CarriedMap", "carried_map", "carried_record", "exposure_step", "map_misfit"]
@@ -33,13 +33,12 @@ __all__ = ["EXPOSURE_TEST_ALPHA", "CarriedMap", "carried_map", "carried_record",
 EXPOSURE_TEST_ALPHA = 0.01
 
 
-def map_misfit(full, resid_img: np.ndarray, opts: FitOptions) -> tuple[Misfit, int]:
-    """The :class:`~bubblefit.inverse._uncertainty.Misfit` of a thickness map's
-    full-resolution render (one thickness fitted per pixel, so ``2 N`` degrees of freedom
-    over ``N`` pixels of 3 channels) and its degrees of freedom."""
-    r = np.where(full.w > 0, resid_img * full.w, 0.0)
+def map_misfit(full, img: np.ndarray, opts: FitOptions) -> tuple[Misfit, int]:
+    """The :func:`~bubblefit.inverse._uncertainty.photo_misfit` of a thickness map's
+    full-resolution render ``img`` (one thickness fitted per pixel, so ``2 N`` degrees of
+    freedom over ``N`` pixels of 3 channels) and its degrees of freedom."""
     n_free = int(full.mask.sum())
-    return residual_misfit(r, full, float(opts.judge.model_error), n_free), max(int((full.w > 0).sum()) - n_free, 1)
+    return photo_misfit(full, img, float(opts.judge.model_error), n_free), max(int((full.w > 0).sum()) - n_free, 1)
 
 
 def carried_record(disc_stderr, reported: dict, stderr: dict, fit: Misfit, dof: int) -> dict:
@@ -168,7 +167,7 @@ def carried_map(st, opts: FitOptions, env, carried: dict) -> CarriedMap | str:
         kept = []
         dmap, emap, map_ok = fit_map(full, table, vals, prof, opts, env, make_level=make, start=st.map_start, kept=kept)
         img, column = _shaded(full, kept, table, vals, dmap, opts, env)
-        fit, _ = map_misfit(full, st.photo - img, opts)
+        fit, _ = map_misfit(full, img, opts)
         e = float(vals["exposure"])
         step, z2, step_err = exposure_step(full, st.photo, img, column, opts, fit)
         moved = bool(z2 > chi2_dist.ppf(1.0 - EXPOSURE_TEST_ALPHA, 1))
@@ -181,7 +180,7 @@ def carried_map(st, opts: FitOptions, env, carried: dict) -> CarriedMap | str:
         new_prof, prof_err = profile_from_map(full, dmap, emap, prof, tuple(n for n in PROFILE_NAMES if n in table.free))
         vals.update(zip(PROFILE_NAMES, new_prof))
         img = _final_render(full, kept, table, vals, dmap, opts, env)
-        fit, _ = map_misfit(full, st.photo - img, opts)
+        fit, _ = map_misfit(full, img, opts)
     if not map_ok:
         return "its map with the carried global parameters is not sound"
     if not fit.chi2_floor <= float(opts.judge.ok_chi2):

@@ -8,13 +8,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
 from ..errors import InputError
 from ..model.modes import MODEL_CHOICES, THICKNESS_KINDS, Model, ModelChoice, ThicknessKind, in_words
 from ._parameters import ParameterSetting
+
+if TYPE_CHECKING:
+    from ._uncertainty import Misfit
 
 __all__ = ["ThicknessModel", "ForwardModel", "ModelChoice", "FitStatus", "FitOptions", "FitResult", "ColourSettings",
            "NoiseSettings", "MapSettings",
@@ -428,7 +431,10 @@ class FitResult:
     warnings : list
         Each reason ``ok`` is False (and other cautions), in words.
     chi2_floor : float
-        Reduced chi^2 with the model-error floor (``JudgeSettings.model_error``).
+        Reduced chi^2 with the model-error floor (``JudgeSettings.model_error``) of the
+        final render against the photo's own pixels (full resolution; ``reduced_chi2``,
+        the inliers, outliers and the capped figure likewise): what ``ok`` reads
+        (:func:`~bubblefit.inverse._uncertainty.photo_misfit`).
     chi2_inliers : float
         The same over the pixels that are not outliers (JSON ``reduced_chi2_inliers``).
     outliers : float
@@ -436,10 +442,15 @@ class FitResult:
         :data:`~bubblefit.inverse._uncertainty.OUTLIER_CHI2`).
     chi2_capped : float
         The reduced chi^2 with the floor, each pixel's share capped at an outlier's (JSON
-        ``reduced_chi2_capped``): what ``model = "auto"`` compares.
+        ``reduced_chi2_capped``): what ``model = "auto"`` compares (the two models' solves
+        by their ``solve_misfit``'s, a model it keeps unsolved the other by this one).
     stderr_scale : float
         The largest factor a noise-only standard error was widened by for misfit (the
         Birge ratio or the cluster-robust sandwich, :mod:`bubblefit.inverse._uncertainty`).
+    solve_misfit : Misfit or None
+        The same figures on the level the solve ran (``pixels_used`` pixels, block-averaged
+        where the photo is larger than the fit's size; JSON ``solve_misfit``): the standard
+        errors' widening and a fitted view's chi^2 profile read them.
     correlation_area : float
         Data (pixels times channels) per independent datum of the fitted level's residual
         (:func:`~bubblefit.inverse._uncertainty.correlation_area`; 1: independent); a
@@ -494,6 +505,7 @@ class FitResult:
     disc_model_error: float = float("nan")
     roles: tuple = ()
     stderr_scale: float = 1.0
+    solve_misfit: Misfit | None = None
     correlation_area: float = 1.0
     frame: tuple | None = None
     colour: ColourSettings | None = None
@@ -547,6 +559,12 @@ class FitResult:
             "thickness_model_error_nm": float(self.thickness_model_error_nm),
             "disc_model_error": None if not np.isfinite(self.disc_model_error) else float(self.disc_model_error),
             "stderr_scale": float(self.stderr_scale),
+            "solve_misfit": None if self.solve_misfit is None else {
+                "reduced_chi2": float(self.solve_misfit.chi2_nu),
+                "reduced_chi2_floor": float(self.solve_misfit.chi2_floor),
+                "reduced_chi2_inliers": float(self.solve_misfit.chi2_inliers),
+                "outlier_fraction": float(self.solve_misfit.outliers),
+                "reduced_chi2_capped": float(self.solve_misfit.chi2_capped)},
             "pixels_used": int(self.pixels_used),
             "time_s": float(self.time_s),
             "thickness": self.thickness_model,

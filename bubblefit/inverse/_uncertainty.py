@@ -59,12 +59,13 @@ from dataclasses import dataclass
 import jax.numpy as jnp
 import numpy as np
 
+from ._censored import censored_residual
 from ._local import LocalSolution
 from ._observation import Level
 from ._parameters import PARAMETERS, ParameterTable
 from ._programs import reporter
 
-__all__ = ["Uncertainty", "uncertainty", "Misfit", "misfit", "held_keys", "OUTLIER_CHI2", "widened",
+__all__ = ["Uncertainty", "uncertainty", "Misfit", "misfit", "photo_misfit", "held_keys", "OUTLIER_CHI2", "widened",
            "correlation_area"]
 
 #: A pixel whose chi^2 with the model-error floor, summed over its three channels, exceeds
@@ -137,6 +138,19 @@ def misfit(sol: LocalSolution, lev: Level, robust_scale: float, model_error: flo
     more than an outlier's worth; ``auto`` compares models by it). The degrees of freedom
     of the inliers are their count less the free parameters, as for the whole."""
     return residual_misfit(plain_residual(sol.residual, robust_scale).reshape(lev.y.shape), lev, model_error, n_free)
+
+
+def photo_misfit(lev: Level, render: np.ndarray, model_error: float, n_free: int) -> Misfit:
+    """The :class:`Misfit` of ``render`` (h, w, 3) on ``lev`` with ``n_free`` fitted
+    values: its residual censored where the sensor clipped at black
+    (:func:`~bubblefit.inverse._censored.censored_residual`, as the solves read it) and
+    whitened by each pixel's noise. On the level of block size 1 this is the misfit of the
+    photo as the camera took it, each of its pixels integrated over its own footprint,
+    which ``ok`` reads: a solve on a block-averaged level sees each block's noise divided
+    by the block's side, so a model error below a pixel's noise (the box a pixel's
+    footprint is read as) can weigh there several times what it weighs in the photo."""
+    r = np.asarray(censored_residual(lev.y, render, np.inf, np), np.float64)
+    return residual_misfit(np.where(lev.w > 0, r * lev.w, 0.0), lev, model_error, n_free)
 
 
 def residual_misfit(r: np.ndarray, lev: Level, model_error: float, n_free: int) -> Misfit:

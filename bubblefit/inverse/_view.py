@@ -121,12 +121,13 @@ def lens_for(photo) -> View:
 
 
 def _chi2(r: FitResult) -> float:
-    """A fit's total capped chi^2 with the floor: its ``chi2_capped`` times its degrees of
-    freedom (three channels a pixel, less the free parameters), infinite for a fit that
-    did not converge."""
-    if not r.converged or r.status == "failed" or not math.isfinite(r.chi2_capped):
+    """A fit's total capped chi^2 with the floor on the level its solve ran: its
+    ``solve_misfit.chi2_capped`` times its degrees of freedom (three channels a pixel of
+    ``pixels_used``, less the free parameters), infinite for a fit that did not converge."""
+    capped = r.solve_misfit.chi2_capped if r.solve_misfit is not None else r.chi2_capped
+    if not r.converged or r.status == "failed" or not math.isfinite(capped):
         return float("inf")
-    return float(r.chi2_capped) * max(3 * int(r.pixels_used) - len(r.names), 1)
+    return float(capped) * max(3 * int(r.pixels_used) - len(r.names), 1)
 
 
 @dataclass(frozen=True)

@@ -62,7 +62,7 @@ from ._programs import (FINAL_SOLVE, SEARCH_SOLVE, WARM_SOLVE, SolveSettings, ba
 from ._options import FitOptions, FitResult, ImageSizes, JudgeSettings, MapSettings, NoiseSettings, SolverSettings
 from ._parameters import THICKNESSES, extrapolated, parameter_roles, refined_disc
 from ._setup import Setup, defaults, setup
-from ._uncertainty import Uncertainty, uncertainty
+from ._uncertainty import Uncertainty, photo_misfit, uncertainty
 from ._verdict import at_bounds, clamp_to_range, unresolved, verdict
 from ._view import camera_record, fit_divergence, fit_view, lens_for
 from .colour_check import judge_colours
@@ -70,6 +70,7 @@ from .order_check import OrderCheck, neighbouring_orders, order_check, order_par
 from .response_error import pixel_thickness_stderr, response_cells, response_error, solve_response_gram
 from ..errors import InputError
 from ..lighting.envmap import EnvMap
+from ..model.modes import GREY
 from ..model.thickness import drainage_profile
 from ..progress import stage
 
@@ -299,8 +300,15 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     img = made.render if made is not None else \
         np.asarray(render_bubble(final_params(table, final_vals, opts), full, env), np.float64)
     resid_img = st.photo - img
-    if opts.thickness == "map" and full.mask.any():
-        carried = carried or carried_record(judged.disc_stderr, reported, stderr, *map_misfit(full, resid_img, opts))
+    # ``ok`` reads the photo as the camera took it: the final render against every pixel
+    # (:func:`photo_misfit`); the solve's own level gave the standard errors' widening
+    if opts.thickness == "map" and full.mask.any() and made is not None:
+        seen = made.misfit  # the carried frame's map already judged its final render
+    elif opts.thickness == "map" and full.mask.any():
+        seen, map_dof = map_misfit(full, img, opts)
+        carried = carried or carried_record(judged.disc_stderr, reported, stderr, seen, map_dof)
+    else:
+        seen = photo_misfit(full, img, float(judge.model_error), len(unc.names))
     camera_stderr = unc.camera_stderr
     if opts.thickness == "map" and full.mask.any():  # each pixel's share of a calibrated response's errors
         camera_stderr, stderr_map = _map_camera_stderr(st, full, img, thickness_map, stderr_map, camera_stderr)
@@ -310,13 +318,13 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     reported["n_film"] = float(st.vals["n_film"])
     bounds = judged.bounds + _exposure_doubts(st, opts, env, full, reported)
     ok, warnings = verdict(converged=bool(converged), disc_found=True, bound_warnings=bounds,
-                           misfit=unc.misfit, ok_chi2=float(judge.ok_chi2), model_error=float(judge.model_error),
+                           misfit=seen, ok_chi2=float(judge.ok_chi2), model_error=float(judge.model_error),
                            notes=st.warnings, swap_possible=st.pair is not None and st.pair.swap_possible)
     disc_stderr = judged.disc_stderr
     # can the stated camera response produce the photo's colours? (bubblefit.inverse.colour_check)
     share = opts.noise.photosite_share
     sigma = st.sigma if share is None else st.sigma / np.sqrt(np.asarray(share))
-    explained = bool(unc.misfit.chi2_floor <= float(judge.ok_chi2))  # as the verdict judges it
+    explained = bool(seen.chi2_floor <= float(judge.ok_chi2))  # as the verdict judges it
     thick = thickness_map if thickness_map is not None else reported["thickness_nm"]
     response_jac = response_cells(st.colour.response, st.colour.illuminant, reported["n_film"], img, st.background,
                                   thick, full.cos)  # a calibrated response's own errors (None: exact)
@@ -335,10 +343,10 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
         message="; ".join(notes) if notes else "converged", iterations=sol.steps, residual_rms=rms,
         time_s=time.perf_counter() - t_start, effects=st.decisions, render=img, residual=resid_img,
         thickness_map=thickness_map, thickness_stderr_map=stderr_map, disc=judged.disc, disc_stderr=disc_stderr,
-        thickness_model=opts.thickness, model=opts.model, reduced_chi2=unc.misfit.chi2_nu,
+        thickness_model=opts.thickness, model=opts.model, reduced_chi2=seen.chi2_nu,
         pixels_used=int(st.lev_fit.mask.sum()), status=status, names=unc.names, covariance=unc.covariance,
-        ok=ok, warnings=warnings, chi2_floor=unc.misfit.chi2_floor, chi2_inliers=unc.misfit.chi2_inliers,
-        outliers=unc.misfit.outliers, chi2_capped=unc.misfit.chi2_capped,
+        ok=ok, warnings=warnings, chi2_floor=seen.chi2_floor, chi2_inliers=seen.chi2_inliers,
+        outliers=seen.outliers, chi2_capped=seen.chi2_capped, solve_misfit=unc.misfit,
         correlation_area=unc.misfit.correlation_area, model_error=float(judge.model_error),
         thickness_model_error_nm=float(judge.thickness_model_error_nm),
         disc_model_error=float(opts.disc_model_error) if disc_stderr is not None else float("nan"),
@@ -638,6 +646,9 @@ def _start_one(photo, env, options: FitOptions, background, init, scene, saturat
             warm_up(st, opts, env, settings)  # the final solve's programs compile during the search
         with stage("global thickness search"):
             start = _searched_start(st, opts, env, chi2, order)
+    elif not warm and "exposure" in st.table.free and st.lev_fit.cfg.effects.interference in GREY:
+        # a grey film: no thickness search sets the camera gain, its least-squares value does
+        start = dict(st.vals, exposure=search.grey_exposure(st.level(st.k_search, opts), st.table, st.vals, env))
     else:
         start = st.vals
     return Started(st, opts, start, settings, warm, searches, chi2[0] if chi2 else None, t_start,

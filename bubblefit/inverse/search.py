@@ -55,7 +55,7 @@ from ..optics.film import paper_tinted_transmission
 __all__ = ["phi_table", "phi_rgb", "paper_candidates", "thickness_grid", "local_minima", "score_global",
            "score_pixels", "pixel_costs", "best_profile", "PROFILE_EXPONENTS", "candidates", "search_starts",
            "unlit_terms", "paper_pixel_candidates", "render_candidates", "profile_from_pixels", "PaperPhi",
-           "exact_paper_search"]
+           "exact_paper_search", "grey_exposure"]
 
 #: Step of the optical-path table, nm (the colour varies on scales of ~100 nm).
 X_STEP = 0.5
@@ -322,6 +322,30 @@ def unlit_terms(lev, table: ParameterTable, vals: dict, env):
     m = (terms.get("front", zero) + terms.get("rear", zero)).reshape(-1, 3)[sel]
     c = terms.get("background", zero).reshape(-1, 3)[sel]
     return m, c
+
+
+def grey_exposure(lev, table: ParameterTable, vals: dict, env) -> float:
+    """The exposure's weighted least-squares value on ``lev`` with every other parameter at
+    ``vals``, for a film rendered without interference colours (``off`` or ``incoherent``,
+    where no thickness search sets it): the render is affine in the camera gain (eq. 1's
+    reflected terms scale with it, a background photo does not; the map's background
+    does), so with the terms ``M``, ``C`` rendered at gain 1 it is
+    ``sum w^2 M (y - C) / sum w^2 M^2`` (the linear parameter solved for the others held:
+    variable projection, G. H. Golub and V. Pereyra, SIAM J. Numer. Anal. 10, 413, 1973).
+    ``vals["exposure"]`` where the photo gives no positive value."""
+    fx = lev.cfg.effects
+    v = {k: jnp.asarray(x, jnp.float32) for k, x in dict(vals, exposure=1.0, thickness_nm=0.0).items() if k != "map"}
+    _, terms = render_level(table.render_params(v, "constant"), lev, env, cfg=lev.cfg, terms=True)
+    zero = np.zeros(lev.y.shape, np.float32)
+    sel = lev.mask.reshape(-1)
+    m = (np.asarray(terms.get("front", zero)) + np.asarray(terms.get("rear", zero))).reshape(-1, 3)[sel]
+    c = np.asarray(terms.get("background", zero)).reshape(-1, 3)[sel]
+    if fx.background != "photo":
+        m, c = m + c, np.zeros_like(c)
+    y = np.asarray(lev.y, np.float64).reshape(-1, 3)[sel]
+    w2 = np.asarray(lev.w, np.float64).reshape(-1, 3)[sel] ** 2
+    num, den = float(np.sum(w2 * m * (y - c))), float(np.sum(w2 * m * m))
+    return num / den if den > 0 and num > 0 else float(vals["exposure"])
 
 
 def paper_pixel_candidates(grid, phi: PaperPhi, m, c, t: float, r_s: float):

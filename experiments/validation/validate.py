@@ -179,6 +179,18 @@ def map_metrics(fit_map: np.ndarray, true_map: np.ndarray, disc: dict) -> dict:
             "order_hops": hops}
 
 
+def _scene_camera(cdir: str, fit_args: list) -> bool:
+    """Whether the case's fit arguments name a scene file with a ``[camera]`` table."""
+    import tomllib
+
+    scenes = [a for a in fit_args if a.endswith(".toml")]
+    for name in scenes:
+        with open(os.path.join(cdir, name), "rb") as fh:
+            if "camera" in tomllib.load(fh):
+                return True
+    return False
+
+
 def run_fit(case: str, model: str, out_dir: str, calibration: str | None = None, tag: str | None = None,
             disc_given: bool = False) -> dict:
     """Fit one case with one thickness model through the CLI and score it."""
@@ -195,10 +207,11 @@ def run_fit(case: str, model: str, out_dir: str, calibration: str | None = None,
             "--background", os.path.join(cdir, "background.png"), "--thickness", model, "--json", js, "-o", stem]
     fa = list(truth.get("fit_args", []))
     args += [os.path.join(cdir, a) if a.endswith((".toml", ".json")) else a for a in fa]
-    if truth.get("camera", {}).get("type") == "orthographic" and not {"--scene", "--fov"} & set(fa):
+    if truth.get("camera", {}).get("type") == "orthographic" and "--fov" not in fa and not _scene_camera(cdir, fa):
         # an orthographic photo is fitted with its view stated, as a user who knows the
-        # camera states it (--fov 0); the perspective photos name theirs in scene.toml, and
-        # the *_nocam cases are fitted without one on purpose
+        # camera states it (--fov 0), also beside a scene file that does not describe the
+        # camera; the perspective photos name theirs in scene.toml, and the *_nocam cases
+        # are fitted without one on purpose
         args += ["--fov", "0"]
     if truth.get("illuminant") in ("D65", "E", "A"):
         # the white the renderer (or camera) integrated under is part of the capture, as the

@@ -309,12 +309,13 @@ def best_profile(cost: np.ndarray, grid: np.ndarray, height: np.ndarray,
 # ---------------------------------------------------------------------------------------
 
 
-def unlit_terms(lev, table: ParameterTable, vals: dict, env):
+def unlit_terms(lev, table: ParameterTable, vals: dict, env, cfg=None):
     """``(M, C)`` (P, 3) over the fitted pixels of ``lev``: the reflected radiance of both
     films rendered with interference off at ``vals`` (gain included) and the transmitted
-    background (the module docstring's ``F(x) M + C``)."""
+    background (the module docstring's ``F(x) M + C``); ``cfg``: a configuration to render
+    them with instead (a grey film's own, :func:`grey_exposure`)."""
     fx = lev.cfg.effects
-    off = replace(lev.cfg, effects=replace(fx, interference="off", spectral=None, thickness="constant"))
+    off = cfg or replace(lev.cfg, effects=replace(fx, interference="off", spectral=None, thickness="constant"))
     v = {k: jnp.asarray(x, jnp.float32) for k, x in dict(vals, thickness_nm=0.0).items() if k != "map"}
     _, terms = render_level(table.render_params(v, "constant"), lev, env, cfg=off, terms=True)
     zero = np.zeros(lev.y.shape, np.float32)
@@ -333,14 +334,9 @@ def grey_exposure(lev, table: ParameterTable, vals: dict, env) -> float:
     ``sum w^2 M (y - C) / sum w^2 M^2`` (the linear parameter solved for the others held:
     variable projection, G. H. Golub and V. Pereyra, SIAM J. Numer. Anal. 10, 413, 1973).
     ``vals["exposure"]`` where the photo gives no positive value."""
-    fx = lev.cfg.effects
-    v = {k: jnp.asarray(x, jnp.float32) for k, x in dict(vals, exposure=1.0, thickness_nm=0.0).items() if k != "map"}
-    _, terms = render_level(table.render_params(v, "constant"), lev, env, cfg=lev.cfg, terms=True)
-    zero = np.zeros(lev.y.shape, np.float32)
+    m, c = (np.asarray(a, np.float64) for a in unlit_terms(lev, table, dict(vals, exposure=1.0), env, cfg=lev.cfg))
     sel = lev.mask.reshape(-1)
-    m = (np.asarray(terms.get("front", zero)) + np.asarray(terms.get("rear", zero))).reshape(-1, 3)[sel]
-    c = np.asarray(terms.get("background", zero)).reshape(-1, 3)[sel]
-    if fx.background != "photo":
+    if lev.cfg.effects.background != "photo":
         m, c = m + c, np.zeros_like(c)
     y = np.asarray(lev.y, np.float64).reshape(-1, 3)[sel]
     w2 = np.asarray(lev.w, np.float64).reshape(-1, 3)[sel] ** 2

@@ -308,7 +308,8 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
         seen, map_dof = map_misfit(full, img, opts)
         carried = carried or carried_record(judged.disc_stderr, reported, stderr, seen, map_dof)
     else:
-        seen = photo_misfit(full, img, float(judge.model_error), len(unc.names))
+        # its correlation area is not read: a fitted view's comes from the solve's level
+        seen = photo_misfit(full, img, float(judge.model_error), len(unc.names), correlation=False)
     camera_stderr = unc.camera_stderr
     if opts.thickness == "map" and full.mask.any():  # each pixel's share of a calibrated response's errors
         camera_stderr, stderr_map = _map_camera_stderr(st, full, img, thickness_map, stderr_map, camera_stderr)

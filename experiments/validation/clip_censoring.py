@@ -45,6 +45,7 @@ def analyse(fit_json: str, case: str) -> dict:
     dist = ndi.distance_transform_edt(~clipped)
 
     def score(censored):
+        """Reduced chi^2 with the floor, pixels and outliers inside 0.96 r outside ``censored``."""
         u = (rho < 0.96) & ~censored
         return {"reduced_chi2_floor": round(float(chi[u].sum() / max(3 * u.sum() - 3, 1)), 2), "pixels": int(u.sum()),
                 "outliers_pct": round(float(100 * (u & (chi > 30)).sum() / max(u.sum(), 1)), 2)}

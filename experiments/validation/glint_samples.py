@@ -66,6 +66,7 @@ def bubblefit(truth, **kw):
 
 
 def main(out, spp=4096):
+    """Render both, split bubblefit's render into glints and write each glint's sums and centroids to ``out``."""
     truth = json.load(open(os.path.join(D, CASE, "truth.json")))
     imgs = {"bubblefit_footprint": bubblefit(truth, pixel_footprint=True),
             "bubblefit_16rays": bubblefit(truth, pixel_footprint=False, samples_per_pixel=16),

@@ -215,6 +215,26 @@ def run(name, cam, maph, sigma, spp_m):
     return out
 
 
+def convention_shifts():
+    """The sub-pixel shift ``s`` and gain ``g`` with ``X(p) = g B(p + s)`` between each renderer's
+    mirror sphere in data/conventions/ (``X``: Mitsuba's, Cycles') and bubblefit's lookup of
+    the same sphere (``B``, check_conventions.py), by linearised least squares
+    (Lucas & Kanade 1981: ``X = g B + g s . grad B``) inside 0.9 of the disc."""
+    conv = os.path.join(vio.DATA, "conventions")
+    out = {}
+    for kind in ("ortho", "persp"):
+        b = vio.read_image(os.path.join(conv, f"bubblefit_lookup_mirror_{kind}.exr"))[..., :3].mean(-1)
+        gy, gx = np.gradient(b)
+        yy, xx = np.mgrid[0:b.shape[0], 0:b.shape[1]] + 0.5
+        radius = 50.0 if kind == "ortho" else math.sqrt((b > 0).sum() / math.pi)
+        m = np.hypot(xx - b.shape[1] / 2, yy - b.shape[0] / 2) < 0.9 * radius
+        for r in ("mitsuba", "cycles"):
+            x = vio.read_image(os.path.join(conv, f"{r}_mirror_{kind}.exr"))[..., :3].mean(-1)
+            g, sx, sy = np.linalg.lstsq(np.stack([b[m], gx[m], gy[m]], -1), x[m], rcond=None)[0]
+            out[f"{r}_{kind}"] = {"gain": round(float(g), 4), "shift_px_xy": [round(float(sx / g), 3), round(float(sy / g), 3)]}
+    return out
+
+
 CONFIGS = {
     "ortho160_map128": (dict(type="ortho", w=160, h=160, disc=[72.0, 84.0, 52.0]), 128, 0.03, 256),
     "ortho160_map512": (dict(type="ortho", w=160, h=160, disc=[72.0, 84.0, 52.0]), 512, 0.03, 256),
@@ -225,8 +245,12 @@ CONFIGS = {
 
 if __name__ == "__main__":
     outp = sys.argv[1]
-    names = sys.argv[2:] or list(CONFIGS)
+    names = sys.argv[2:] or list(CONFIGS) + ["conventions"]
     res = []
+    if "conventions" in names:
+        names.remove("conventions")
+        res.append({"name": "conventions", "mirror_sphere_shifts": convention_shifts()})
+        print(res[-1])
     for n in names:
         cam, mh, sg, spp = CONFIGS[n]
         res.append(run(n, cam, mh, sg, spp))

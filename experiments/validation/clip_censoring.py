@@ -8,7 +8,8 @@ of the fit's disc, outside the clipped pixels grown by a cross, the fit's rule b
 its 3 x 3 block), split by the Euclidean distance to the
 nearest clipped pixel (any channel at 0.995, the fit's level): 1.41 (the diagonal
 neighbours), 2, up to 3, 3-5, 5-10 and beyond. Then the reduced chi^2 and outliers of the same render with the clipped pixels grown by
-the cross, by the 3 x 3 block (``saturation_mask`` now), and by discs of radius 2 and 3 px.
+the cross, by the 3 x 3 block (``saturation_mask`` now), and by discs of radius 2 and 3 px;
+and the light each of the render's glints holds in the render and in the photo.
 
     PYTHONPATH=. .venv/bin/python experiments/validation/clip_censoring.py FIT.json CASE [FIT.json CASE ...]
 """
@@ -67,7 +68,34 @@ def analyse(fit_json: str, case: str) -> dict:
             "disc_r2": score(dist <= 2.01), "disc_r3": score(dist <= 3.01)}
 
 
+def glints(fit_json: str, case: str) -> list[dict]:
+    """The fitted render's glints (connected pixels over the clip level inside 0.96 r,
+    grown by 3 px) with the light each holds above its 9 x 9 median, in the render and in
+    the photo, and how many of the photo's pixels there are clipped."""
+    res = json.load(open(fit_json))
+    truth = json.load(open(os.path.join(D, case, "truth.json")))
+    photo = read_image(os.path.join(D, case, "photo.png")).pixels
+    model = read_image(res["outputs"]["render"]).pixels[..., :3]
+    disc = res.get("disc") or truth["disc"]
+    h, w = photo.shape[:2]
+    jj, ii = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    inside = np.hypot(jj - disc["cx"], ii - disc["cy"]) < 0.96 * disc["r"]
+    m, p = model.max(-1), photo.max(-1)
+    em, ep = np.clip(m - ndi.median_filter(m, 9), 0, None), np.clip(p - ndi.median_filter(p, 9), 0, None)
+    lab, n = ndi.label(ndi.binary_dilation((m > 1.0) & inside, np.ones((3, 3), bool)))
+    out = []
+    for k in range(1, n + 1):
+        reg = ndi.binary_dilation(lab == k, np.ones((3, 3), bool), iterations=2) & inside
+        s = float(em[reg].sum())
+        out.append({"centroid_xy": [round(float((em * jj)[reg].sum() / s), 1), round(float((em * ii)[reg].sum() / s), 1)],
+                    "pixels": int(reg.sum()), "model_sum": round(s, 2), "model_peak": round(float(m[reg].max()), 2),
+                    "photo_sum": round(float(ep[reg].sum()), 2), "photo_clipped": int((p[reg] >= LEVEL).sum())})
+    return sorted(out, key=lambda g: -g["model_sum"])
+
+
 if __name__ == "__main__":
     args = sys.argv[1:]
     for fit_json, case in zip(args[0::2], args[1::2]):
-        print(json.dumps(analyse(fit_json, case)))
+        row = analyse(fit_json, case)
+        row["glints"] = glints(fit_json, case)
+        print(json.dumps(row))

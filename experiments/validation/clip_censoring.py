@@ -30,15 +30,19 @@ D = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data")
 LEVEL = 0.995
 
 
-def analyse(fit_json: str, case: str) -> dict:
-    """The split of ``fit_json``'s photo-level chi^2 by distance to the clipped pixels."""
+def _load(fit_json: str, case: str):
+    """``(fit, photo, render, (jj, ii) pixel centres, disc)`` of a fit's JSON and its case."""
     res = json.load(open(fit_json))
     truth = json.load(open(os.path.join(D, case, "truth.json")))
     photo = read_image(os.path.join(D, case, "photo.png")).pixels
     model = read_image(res["outputs"]["render"]).pixels[..., :3]
-    disc = res.get("disc") or truth["disc"]
     h, w = photo.shape[:2]
-    jj, ii = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    return res, photo, model, np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5), res.get("disc") or truth["disc"]
+
+
+def analyse(fit_json: str, case: str) -> dict:
+    """The split of ``fit_json``'s photo-level chi^2 by distance to the clipped pixels."""
+    res, photo, model, (jj, ii), disc = _load(fit_json, case)
     rho = np.hypot(jj - disc["cx"], ii - disc["cy"]) / disc["r"]
     clipped = np.max(photo, -1) >= LEVEL
     sigma = noise_sigma(photo, 2e-3, 2e-4, 8)
@@ -72,13 +76,7 @@ def glints(fit_json: str, case: str) -> list[dict]:
     """The fitted render's glints (connected pixels over the clip level inside 0.96 r,
     grown by 3 px) with the light each holds above its 9 x 9 median, in the render and in
     the photo, and how many of the photo's pixels there are clipped."""
-    res = json.load(open(fit_json))
-    truth = json.load(open(os.path.join(D, case, "truth.json")))
-    photo = read_image(os.path.join(D, case, "photo.png")).pixels
-    model = read_image(res["outputs"]["render"]).pixels[..., :3]
-    disc = res.get("disc") or truth["disc"]
-    h, w = photo.shape[:2]
-    jj, ii = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    res, photo, model, (jj, ii), disc = _load(fit_json, case)
     inside = np.hypot(jj - disc["cx"], ii - disc["cy"]) < 0.96 * disc["r"]
     m, p = model.max(-1), photo.max(-1)
     em, ep = np.clip(m - ndi.median_filter(m, 9), 0, None), np.clip(p - ndi.median_filter(p, 9), 0, None)

@@ -165,3 +165,41 @@ def test_ok_reads_the_photo_at_its_own_resolution():
     censored = photo_misfit(lev, below, 0.0, 1)
     plain = residual_misfit(np.where(np.arange(3) == 0, 0.0, (clipped - below) * lev.w), lev, 0.0, 1)
     assert censored.chi2_nu == pytest.approx(plain.chi2_nu, rel=1e-12)
+
+
+def test_a_clipped_pixel_is_censored_with_every_pixel_the_demosaic_spreads_it_into():
+    """A fit leaves out a clipped pixel and the pixels a camera's demosaic fills from its
+    photosite: the block found here by raising one photosite of a Bayer mosaic through the
+    RAW reader's bilinear demosaic, the diagonal neighbours included (a cross would keep
+    the four diagonal ones)."""
+    from types import SimpleNamespace
+
+    from bubblefit.inverse import saturation_mask
+    from bubblefit.io.camera_files import _develop_bayer
+    from bubblefit.io.encoding import PhotoReading
+
+    n = 9
+    cfa = np.array([[0, 1], [3, 2]])[np.arange(n)[:, None] % 2, np.arange(n)[None, :] % 2]  # RGGB
+    reading = PhotoReading(raw_white_balance="none")
+    wb = np.ones(4)
+
+    def develop(vals):
+        raw = SimpleNamespace(raw_image_visible=vals, raw_colors_visible=cfa, black_level_per_channel=[0, 0, 0, 0],
+                              white_level=1000, color_matrix=np.eye(3, 4))
+        return _develop_bayer(raw, "RGBG", wb, reading)[0]
+
+    flat = np.full((n, n), 400.0)
+    for site in [(4, 4), (4, 5), (5, 5)]:  # a red, a green and a blue photosite
+        bright = flat.copy()
+        bright[site] = 1000.0  # clipped
+        spread = np.any(develop(bright) != develop(flat), axis=-1)
+        photo = np.full((n, n, 3), 0.4)
+        photo[site] = 1.0
+        censored = saturation_mask(photo, 0.995, None)
+        # every pixel the photosite reaches is censored, and nothing a pixel farther
+        assert not np.any(spread & ~censored), site
+        assert censored.sum() == 9 and spread.sum() >= 5, site
+    # the red photosite reaches all eight neighbours (its blue and green neighbours' red)
+    bright = flat.copy()
+    bright[4, 4] = 1000.0
+    assert np.any(develop(bright) != develop(flat), axis=-1)[3:6, 3:6].all()

@@ -23,6 +23,7 @@ from ._pair import FRAME_SHARE, frame_mismatch
 from ..capture.circle import detect_disc
 from ..capture.disc import NO_BUBBLE_CONTRAST, NO_BUBBLE_SPREAD, Disc, bubble_contrast, change_spread, find_disc
 from ..errors import InputError
+from ..io.camera_files import CLIP_NEIGHBOURS
 from ..io.images import srgb_encode, srgb_slope
 from ..model.geometry import DivergentCamera, OrthographicCamera, front_hits
 from ..model.render import RenderConfig
@@ -52,14 +53,16 @@ def noise_sigma(photo: np.ndarray, read: float, shot: float, bits: int | None) -
 
 def saturation_mask(photo: np.ndarray, level: float, given: np.ndarray | None) -> np.ndarray:
     """(H, W) clipped pixels: any channel at or above ``level`` (for files whose maximum
-    is 1), or in ``given``, dilated by one pixel (a clipped pixel's neighbours bleed)."""
+    is 1), or in ``given``, grown by :data:`~bubblefit.io.camera_files.CLIP_NEIGHBOURS`: a camera's
+    demosaic spreads a clipped photosite into its eight neighbours, the diagonal ones
+    included."""
     H, W = photo.shape[:2]
     sat = (np.max(photo, axis=-1) >= level) if np.nanmax(photo) <= 1.0 + 1e-6 else np.zeros((H, W), bool)
     if given is not None:
         if np.shape(given) != (H, W):
             raise InputError(f"the saturation mask is {np.shape(given)}, the photo is {W}x{H}")
         sat = sat | np.asarray(given, bool)
-    return ndi.binary_dilation(sat) if sat.any() else sat
+    return ndi.binary_dilation(sat, structure=CLIP_NEIGHBOURS) if sat.any() else sat
 
 
 @dataclass

@@ -71,6 +71,8 @@ def test_a_new_process_loads_the_program_and_gets_the_same_numbers(tmp_path):
     assert traced == 1
     first, traced, _ = _run(cache, 0.5, "store")  # compiles afresh and stores the executable
     assert traced == 1 and len(list((cache / "executables").glob("*.bin"))) == 1
+    # stored without the traced operations' names (HLO metadata), which a load would parse
+    assert b"jit(f)/" not in next((cache / "executables").glob("*.bin")).read_bytes()
     second, traced, _ = _run(cache, 0.5, "store")  # loads it: no tracing
     assert traced == 0
     for res in (first, second):

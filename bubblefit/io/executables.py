@@ -47,6 +47,10 @@ cache hands back such a one when the process already called the function plainly
 store's compile carries :data:`FRESH_COMPILE`), and the LAPACK
 kernels are initialised before a loaded program runs (JAX does it while lowering, which a
 loaded program skips).
+
+The store compiles a program without its source locations (:func:`_strip_locations`):
+XLA would keep each instruction's traced name and source line in the executable, about
+two fifths of the file, which every load parses again and no computation reads.
 """
 
 from __future__ import annotations
@@ -73,7 +77,8 @@ __all__ = ["Stored", "stored", "source_digest"]
 
 #: Folder, under the compilation cache's, that holds the stored executables.
 FOLDER = "executables"
-#: Most bytes the folder keeps (a fit's solve is 2-3 MB); the least recently used go first.
+#: Most bytes the folder keeps (a fit's solves of a 320x320 photo are 1.2-8.5 MB); the least
+#: recently used go first.
 MAX_BYTES = 512 * 2**20
 #: Background threads that :meth:`Stored.prepare` compiles in. Two: a fit prepares its final
 #: solve and its final render, and with one thread the render's compile queued behind the
@@ -90,7 +95,8 @@ MAGIC = b"bubblefit-executable\n"
 FORMAT = 1
 #: Length of the store's key (:func:`_secret`).
 SECRET_BYTES = 32
-#: Largest file the store reads (a fit's solve is 2-3 MB): a larger one is not its own.
+#: Largest file the store reads (a fit's solves of a 320x320 photo are 1.2-8.5 MB): a larger
+#: one is not its own.
 MAX_FILE_BYTES = 256 * 2**20
 #: An XLA option at its default value (embedding the HLO text in the executable, off),
 #: passed to the store's compiles: the program is the same, but the option is part of the
@@ -383,8 +389,8 @@ class Stored:
         stored program is left to its call, which loads it: a prepared program may never
         be called (``auto``'s paper model, prepared before its search, is not solved when
         the physical model solved first is kept), and loading one costs CPU whichever
-        thread does it (XLA rebuilds the program from its HLO: 1.7-2.2 s of CPU for the
-        13.7 MB final solve of docs/speed.md's 320x320 photo, on 2 shared cores), whereas
+        thread does it (XLA rebuilds the program from its HLO: 1.6-1.9 s of CPU for the
+        8.5 MB final solve of docs/speed.md's 320x320 photo, on 2 shared cores), whereas
         the head start only hides a compile's wait. Where the store is off
         (:data:`ENABLED`: library calls) the program is compiled, not stored, and JAX's own
         cache serves as usual. A failed compile is raised by that call, as it would have
@@ -441,6 +447,24 @@ def _compile(jitted: Callable, args: tuple) -> tuple[Callable, None]:
     return jitted.lower(*args).compile(), None
 
 
+def _strip_locations(lowered) -> None:
+    """Drop the source locations from ``lowered``'s module (MLIR's ``strip-debuginfo`` pass)
+    before the store compiles it. XLA turns each operation's location into the metadata of
+    its HLO instruction (the traced function's name stack and source line), which the
+    serialised executable keeps and a load parses again: the physical local solve of a
+    320x320 photo is 6.1 MB without them and 10.7 MB with them (38 thousand names).
+    Metadata is debugging information only: the compiled program is the same. A module
+    that cannot be reached or stripped is compiled as it is."""
+    try:
+        from jax._src.lib.mlir import passmanager
+
+        module = lowered._lowering._hlo
+        with module.context:
+            passmanager.PassManager.parse("builtin.module(strip-debuginfo)").run(module.operation)
+    except Exception:
+        pass
+
+
 def _fetch(jitted: Callable, key: str, args: tuple) -> tuple[Callable, Path | None]:
     """The executable for ``key`` and the file it was read from: from disk, else compiled
     (and saved when it can be; the path is then None)."""
@@ -459,7 +483,9 @@ def _fetch(jitted: Callable, key: str, args: tuple) -> tuple[Callable, Path | No
     # would hand back the program a plain call of ``jitted`` already loaded from the
     # persistent cache (:data:`FRESH_COMPILE` makes the compile's key new).
     with _persistent_cache(False):
-        compiled = jitted.lower(*args).compile(compiler_options=dict(FRESH_COMPILE))
+        lowered = jitted.lower(*args)
+        _strip_locations(lowered)
+        compiled = lowered.compile(compiler_options=dict(FRESH_COMPILE))
     try:
         _save(path, compiled)
         _prune(path.parent)

@@ -101,10 +101,12 @@ def test_a_grey_film_starts_from_its_least_squares_exposure():
 def test_the_local_solve_leaves_a_start_far_off_in_the_gain():
     """From gain 1 on the grey film at gain 2.5 (no least-squares start), the local solve
     reaches 2.5: every residual is then far out on the pseudo-Huber's linear arm, where
-    the robust residual's Gauss-Newton step is twice the plain one, and each of its trial
-    steps was rejected until the solve stopped where it started. It ends within the
-    statistical stop's fifth of a standard error of the gain (the photo is noise-free, so
-    that error is the noise model's), plus float32's rounding of the render (1e-5)."""
+    the robust residual's Gauss-Newton step is twice the plain one (and the plain one,
+    linear in the log of the gain, overshoots too), so the trust region rejects the first
+    eight trial steps; six rejections in a row had stopped the solve where it started. It
+    ends within the statistical stop's fifth of a standard error of the gain (the photo is
+    noise-free, so that error is the noise model's), plus float32's rounding of the render
+    (1e-5)."""
     from bubblefit.inverse._lm import STOP_DECREMENT
     from bubblefit.inverse._local import solve_local
 

@@ -266,7 +266,7 @@ def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_st
         return robust(-censored_residual(y, img) * w, robust_scale).reshape(-1)
 
     lm = LevenbergMarquardt(rtol=rtol, atol=atol, max_rejections=max_rejections, free=table.free,
-                            jacobian=JACOBIANS[jacobian](resid, table), robust_scale=robust_scale)
+                            jacobian=JACOBIANS[jacobian](resid, table))
 
     @functools.partial(jax.jit, compiler_options=dict(compile_options) or None)
     def solve(z0, args):

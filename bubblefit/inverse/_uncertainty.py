@@ -42,7 +42,7 @@ parameter the photo ties to the disc inherits it: with the disc moved by ``dd`` 
 the others' optimum moves by ``S dd``, ``S = A^-1[:, disc] (A^-1[disc, disc])^-1``
 (:func:`disc_type_b`). A drainage profile's top, read where the film meets the rim, gets
 the most: on the development case ref_drain_lin_city_ortho_offc (split.toml; a 52 px disc
-fitted on 3 x 3 block means) the disc's 0.2 % adds 1.46 nm to the top's 0.96 nm. There the
+fitted on 3 x 3 block means) the disc's 0.2 % adds 1.45 nm to the top's 0.97 nm. There the
 refined radius was 0.175 px (0.34 %) short and the top 4.2 nm high; with the true disc held
 the top came within 1.2 nm, and with 2 x 2 rays per pixel of the solve's level (each pixel
 a block mean of the photo, rendered by one ray at its centre) within 0.9 nm, the radius

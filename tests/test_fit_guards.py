@@ -3,6 +3,9 @@ the disc detector finds no bubble."""
 
 from __future__ import annotations
 
+import functools
+import math
+
 import numpy as np
 import pytest
 from scipy import ndimage as ndi
@@ -59,29 +62,58 @@ def test_a_photo_without_a_bubble_is_refused_without_a_background_photo():
     assert disc == (64.0, 48.0, 30.0) and warn == []
 
 
-def test_a_grey_film_starts_from_its_least_squares_exposure():
-    """A film rendered without interference (a thick film) has no thickness search to set
-    the camera gain, and the local solve from a gain 2.5 times off did not move at all
-    (every step rejected). The start is the gain's least-squares value, exact for a render
-    that is affine in it: on a noise-free photo at gain 2.5 it is 2.5 to float32's rounding
-    of the render (relative 1e-5), with a background photo (not scaled by the gain) and
-    with the map as the background (scaled)."""
+@functools.lru_cache(maxsize=2)
+def _grey_film(background: str):
+    """A 40 x 40 film rendered without interference (a thick film) at camera gain 2.5,
+    noise-free, over a background photo (black, not scaled by the gain: ``"photo"``) or
+    the map (scaled: ``"env"``): ``(setup, options, env)`` of its fit."""
     import bubblefit as bf
     from bubblefit.inverse import FitOptions
     from bubblefit.inverse._setup import setup
+
+    scene = bf.Scene.from_dict({
+        "camera": {"width": 40, "height": 40, "disc": [20, 20, 15]},
+        "bubble": {"thickness_nm": 600.0, "t": 0.972, "f": 0.3, "roughness": 0.02},
+        "lighting": {"envmap": "courtyard.exr", "background": "black" if background == "photo" else "envmap"},
+        "effects": {"interference": "off"}})
+    env = scene.load_envmap()
+    photo = 2.5 * np.asarray(bf.render_scene(scene), np.float64)
+    back = np.zeros_like(photo) if background == "photo" else None
+    opts = FitOptions(disc=(20, 20, 15), view=bf.resolve_view(fov_deg=0, width=40, height=40),
+                      effects=(("interference", "off"),), model="paper")
+    return setup(photo, env, opts, back, None, scene, None), opts, env
+
+
+def test_a_grey_film_starts_from_its_least_squares_exposure():
+    """A film rendered without interference (a thick film) has no thickness search to set
+    the camera gain. The start is the gain's least-squares value, exact for a render
+    that is affine in it: on a noise-free photo at gain 2.5 it is 2.5 to float32's rounding
+    of the render (relative 1e-5), with a background photo (not scaled by the gain) and
+    with the map as the background (scaled)."""
     from bubblefit.inverse.search import grey_exposure
 
     for background in ("photo", "env"):
-        scene = bf.Scene.from_dict({
-            "camera": {"width": 40, "height": 40, "disc": [20, 20, 15]},
-            "bubble": {"thickness_nm": 600.0, "t": 0.972, "f": 0.3, "roughness": 0.02},
-            "lighting": {"envmap": "courtyard.exr", "background": "black" if background == "photo" else "envmap"},
-            "effects": {"interference": "off"}})
-        env = scene.load_envmap()
-        photo = 2.5 * np.asarray(bf.render_scene(scene), np.float64)
-        back = np.zeros_like(photo) if background == "photo" else None
-        opts = FitOptions(disc=(20, 20, 15), view=bf.resolve_view(fov_deg=0, width=40, height=40),
-                          effects=(("interference", "off"),), model="paper")
-        st = setup(photo, env, opts, back, None, scene, None)
+        st, opts, env = _grey_film(background)
         got = grey_exposure(st.level(1, opts), st.table, dict(st.vals, exposure=1.0), env)
         assert got == pytest.approx(2.5, rel=1e-4), (background, got)
+
+
+def test_the_local_solve_leaves_a_start_far_off_in_the_gain():
+    """From gain 1 on the grey film at gain 2.5 (no least-squares start), the local solve
+    reaches 2.5: every residual is then far out on the pseudo-Huber's linear arm, where
+    the robust residual's Gauss-Newton step is twice the plain one (and the plain one,
+    linear in the log of the gain, overshoots too), so the trust region rejects the first
+    eight trial steps; six rejections in a row had stopped the solve where it started. It
+    ends within the statistical stop's fifth of a standard error of the gain (the photo is
+    noise-free, so that error is the noise model's), plus float32's rounding of the render
+    (1e-5)."""
+    from bubblefit.inverse._lm import STOP_DECREMENT
+    from bubblefit.inverse._local import solve_local
+
+    st, opts, env = _grey_film("photo")
+    assert st.table.free == ("exposure",)
+    sol = solve_local(st.lev_fit, st.table, opts.solver, dict(st.vals, exposure=1.0), env)
+    gain = sol.values["exposure"]
+    jac = sol.jacobian
+    se = gain * math.sqrt(float(np.linalg.inv(jac.T @ jac)[0, 0]))  # the log coordinate's error times d gain / d z
+    assert sol.successful and abs(gain - 2.5) <= math.sqrt(STOP_DECREMENT) * se + 2.5e-5, (gain, se, sol.steps)

@@ -224,21 +224,52 @@ def test_zero_roughness_is_the_mirror_not_a_bound(small_courtyard):
     assert len(beyond) == 1 and "lies outside its plausible range [0, 1]" in beyond[0]
 
 
-def test_refined_disc_in_pixels_with_its_model_error():
-    """The refinement's shifts are in radii; the disc and its errors come back in pixels,
-    the model error (in radii) added in quadrature to the noise's."""
+def test_refined_disc_in_pixels():
+    """The refinement's shifts are in radii; the disc and its errors (the covariance's,
+    Type B term included) come back in pixels."""
     from bubblefit.inverse import refined_disc
 
     reported = {"disc_x": 0.01, "disc_y": -0.02, "disc_r": 0.005, "thickness_nm": 500.0}
-    stderr = {"disc_x": 0.0015, "disc_y": float("nan"), "disc_r": 0.0, "thickness_nm": 1.0}
-    disc, se = refined_disc((10.0, 20.0, 50.0), reported, stderr, model_error=0.002)
+    stderr = {"disc_x": 0.0015, "disc_y": float("nan"), "disc_r": 0.002, "thickness_nm": 1.0}
+    disc, se = refined_disc((10.0, 20.0, 50.0), reported, stderr)
     assert disc == (10.5, 19.0, 50.25)
-    assert se["cx"] == pytest.approx(np.hypot(0.0015, 0.002) * 50, abs=1e-3)
+    assert se["cx"] == pytest.approx(0.0015 * 50, abs=1e-3)
     assert se["r"] == pytest.approx(0.1) and np.isnan(se["cy"])
     assert set(reported) == {"thickness_nm"} and set(stderr) == {"thickness_nm"}
-    assert refined_disc((10.0, 20.0, 50.0), {"thickness_nm": 500.0}, {}, 0.002) == ((10.0, 20.0, 50.0), None)
+    assert refined_disc((10.0, 20.0, 50.0), {"thickness_nm": 500.0}, {}) == ((10.0, 20.0, 50.0), None)
 
 
+def test_a_disc_type_b_error_reaches_what_the_disc_moves():
+    """A linear least-squares problem in (top, disc_r, exposure) whose top and radius
+    trade off (a drainage profile read near the rim): the disc's Type B variance that
+    :func:`disc_type_b` adds is the disc's ``model_error^2`` on the disc itself, the
+    square of the move of each other parameter's optimum when the disc is held
+    ``model_error`` away (solved here directly), and nothing for a parameter that does not
+    see the disc."""
+    from bubblefit.inverse._parameters import value_and_slope
+    from bubblefit.inverse._uncertainty import disc_type_b
+
+    rng = np.random.default_rng(4)
+    m = 400
+    u = rng.normal(size=m)
+    jac = np.stack([u, 0.8 * u + 0.6 * rng.normal(size=m), np.zeros(m)], axis=1)
+    jac[: m // 2, 2] = 1.0  # the exposure sees other pixels only
+    jac[: m // 2, :2] = 0.0
+    y = rng.normal(size=m)
+    free = ("top_nm", "disc_r", "exposure")
+    z = np.array([3.0, 0.1, 0.2])
+    me = 0.002
+    a_inv = np.linalg.inv(jac.T @ jac)
+    added = disc_type_b(a_inv, free, z, me)
+    dz = me / value_and_slope("disc_r", z[1])[1]  # the disc's Type B error in its coordinate
+    best = np.linalg.lstsq(jac, y, rcond=None)[0]
+    others = [0, 2]
+    held = np.linalg.lstsq(jac[:, others], y - jac[:, 1] * (best[1] + dz), rcond=None)[0]
+    move = held - best[others]
+    np.testing.assert_allclose(np.sqrt(np.diag(added)[others]), np.abs(move), rtol=1e-9, atol=1e-12)
+    assert np.abs(move[0]) > 0.5 * dz and added[2, 2] == pytest.approx(0.0, abs=1e-20)
+    assert added[1, 1] == pytest.approx(dz ** 2, rel=1e-12)
+    assert not disc_type_b(a_inv, ("top_nm", "t", "exposure"), z, me).any()
 def test_outliers_are_told_apart_from_a_misfit():
     """A few pixels far off (a glint the render point-samples) against a misfit spread over
     the film: the reduced chi^2 of the rest, the outliers' share and the capped figure,

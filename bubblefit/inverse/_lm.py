@@ -173,8 +173,12 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
       covariance (:func:`scaled_decrement`, default :data:`STOP_DECREMENT`; None: off),
       a statistical convergence test: the optimum is within a fifth of a standard error,
       with the parameters' bounds (``free``) as active constraints;
-    - ``max_rejections`` rejections in a row (a region 4096 times smaller after six;
-      None: off), or, sooner, a rejection after which the next trial step is at most
+    - ``max_rejections`` rejections in a row once the solve has left its start (a region
+      4096 times smaller after six; None: off; before the first move the trust region is
+      still shrinking from the undamped step to the start's scale: from a camera gain 2.5
+      times off, on a grey film, the first step accepted was the ninth, at a damping of
+      6.6e4 against ``J^T J`` = 5.0e4, and six rejections had stopped the solve at its
+      start), or, sooner, a rejection after which the next trial step is at most
       ``step_tolerance`` (default :data:`STOP_DECREMENT`) long in the same covariance (:func:`damped_step_length`):
       the trust region no longer lets any parameter move by a fifth of its standard
       error, so the rejections that would follow until ``max_rejections`` cannot move
@@ -255,7 +259,10 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
     def terminate(self, fn, y, args, options, state: _LMState, tags):
         done = state.terminate
         if self.max_rejections is not None:
-            done = done | (state.num_steps_since_acceptance >= self.max_rejections)
+            # the start is the first accepted point: before a second, rejections are the
+            # trust region shrinking to the start's scale, which the step rule bounds
+            moved = (state.num_accepted_steps > 1) | (self.step_tolerance is None)
+            done = done | (moved & (state.num_steps_since_acceptance >= self.max_rejections))
             if self.step_tolerance is not None:
                 short = damped_step_length(state.descent_state, state.f_info.residual, state.y_eval - y)
                 done = done | ((state.num_steps_since_acceptance > 0) & (short <= self.step_tolerance))

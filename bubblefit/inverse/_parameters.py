@@ -249,18 +249,18 @@ class ParameterTable:
         return out
 
 
-def refined_disc(disc: tuple, reported: dict, stderr: dict, model_error: float = 0.0) -> tuple[tuple, dict | None]:
+def refined_disc(disc: tuple, reported: dict, stderr: dict) -> tuple[tuple, dict | None]:
     """``(disc, disc_stderr)`` in pixels: ``disc`` ``(cx, cy, r)`` moved by the fitted
     ``disc_x``, ``disc_y``, ``disc_r`` (removed from ``reported`` and ``stderr``), and
-    their standard errors, each with ``model_error`` (in radii) added in quadrature (a
-    Type B term, ``FitOptions.disc_model_error``); ``(disc, None)`` when the disc was not
-    fitted."""
+    their standard errors (in radii, with the Type B term ``FitOptions.disc_model_error``
+    that the covariance holds, :func:`~bubblefit.inverse._uncertainty.disc_type_b`);
+    ``(disc, None)`` when the disc was not fitted."""
     if disc is None or not any(n in reported for n in DISC_PARAMETERS):
         return disc, None
     cx, cy, r = disc
     sx, sy, sr = (float(reported.pop(n, 0.0)) for n in DISC_PARAMETERS)
     ex, ey, er = (stderr.pop(n, None) for n in DISC_PARAMETERS)
-    px = lambda e: None if e is None else round(math.hypot(float(e), model_error) * r, 3)
+    px = lambda e: None if e is None else round(float(e) * r, 3)
     new = (round(cx + sx * r, 3), round(cy + sy * r, 3), round(r * (1.0 + sr), 3))
     return new, {"cx": px(ex), "cy": px(ey), "r": px(er)}
 

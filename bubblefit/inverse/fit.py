@@ -235,9 +235,9 @@ def _judge(st: Setup, opts: FitOptions, sol: LocalSolution, notes: list) -> Judg
     gram = solve_response_gram(st.colour.response, st.colour.illuminant, float(st.vals["n_film"]), st.lev_fit, sol,
                                float(opts.solver.robust_scale), table.thickness_model)  # a calibrated response's own errors (None: exact)
     unc = uncertainty(sol, table, st.lev_fit, float(opts.solver.robust_scale), float(opts.judge.model_error),
-                      float(opts.judge.thickness_model_error_nm), gram)
+                      float(opts.judge.thickness_model_error_nm), gram, float(opts.disc_model_error))
     reported, stderr = unc.reported, unc.stderr
-    disc, disc_stderr = refined_disc(st.disc, reported, stderr, float(opts.disc_model_error))
+    disc, disc_stderr = refined_disc(st.disc, reported, stderr)
     status, converged = _status_notes(sol, unc.finite, unc.misfit.chi2_nu, notes, table.free)
     solved = reported
     reported, outside = clamp_to_range(solved, table, opts.thickness_range, THICKNESSES)

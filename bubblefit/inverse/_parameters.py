@@ -185,9 +185,9 @@ def plausible_box(free: tuple) -> tuple[tuple, tuple]:
     ``split = 1 - 1e-7`` the slope ``d split / d z`` is 1e-7, the parameter's column of the
     Jacobian vanishes, and no damped step brings it back (the demo's drainage fit
     left it there, f = 1e-6 for a true 0.3, at a robust chi^2 of 13216 against the
-    interior optimum's 11904). At the box's ends the slope is that of the plausible range's ends (1e-3
-    for the split), which the solve still resolves, and a value there is reported as
-    sitting at a bound (:func:`~bubblefit.inverse._verdict.at_bounds`).
+    interior optimum's 11904). At the box's ends the slope is that of the plausible
+    range's ends (1e-3 for the split), which the solve still resolves, and a value there
+    is reported as sitting at a bound (:func:`~bubblefit.inverse._verdict.at_bounds`).
 
     References
     ----------

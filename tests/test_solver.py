@@ -220,6 +220,46 @@ def test_bounded_decrement_drops_a_parameter_pressing_on_its_bound(name, value, 
         assert got == pytest.approx(full, rel=2e-3)
 
 
+def test_a_saturated_share_comes_back_from_its_bound():
+    """A specular share started at 1 - 1e-6 (where the start's inverse transform clamps
+    it; the logistic's slope there is 1e-6) with its gain, the demo's pair of correlated
+    weights: the projected solve starts it at the end of its plausible range, where the
+    slope is 1e-3, and reaches MINPACK's optimum within the decrement stop's fifth of a
+    standard error; without the projection the share's column of the Jacobian vanishes
+    and the solve stops beside the bound, the gain off by many standard errors."""
+    from bubblefit.inverse import inverse, plausible_box
+
+    rng = np.random.default_rng(5)
+    x = np.linspace(0.0, 1.0, 80)
+    a, b, sigma = 1.0 + np.cos(6.0 * x), 0.5 + x, 0.01
+    y = 2.0 * (0.77 * a + 0.23 * b) + rng.normal(0.0, sigma, x.size)
+    a32, b32, y32 = (jnp.asarray(v, jnp.float32) for v in (a, b, y))
+
+    def fn(z, args=None):
+        s, g = jax.nn.sigmoid(z[0]), jnp.exp(z[1])
+        return (g * (s * a32 + (1.0 - s) * b32) - y32) / sigma
+
+    model = lambda v: (v[1] * (v[0] * a + (1.0 - v[0]) * b) - y) / sigma
+    ref = least_squares(model, [0.5, 1.0], method="lm", xtol=1e-12, ftol=1e-12)
+    se = np.sqrt(np.diag(np.linalg.inv(ref.jac.T @ ref.jac)) * max(np.sum(ref.fun**2) / (x.size - 2), 1.0))
+    free = ("split", "exposure")
+    z0 = [inverse("split", 1.0), inverse("exposure", 1.0)]
+    solver = LevenbergMarquardt(rtol=1e-5, atol=1e-6, free=free)
+    z, _, result = _solve(fn, z0, solver)
+    got = np.array([1.0 / (1.0 + np.exp(-z[0])), np.exp(z[1])])
+    assert result == optx.RESULTS.successful
+    assert z0[0] > plausible_box(free)[1][0]  # the start lies beyond the box
+    # within sqrt(0.04) standard errors of the optimum, plus float32's share
+    assert np.all(np.abs(got - ref.x) <= (np.sqrt(0.04) + 0.05) * se), (got - ref.x) / se
+
+    class Unprojected(LevenbergMarquardt):
+        def project(self, y):
+            return y
+
+    z, _, _ = _solve(fn, z0, Unprojected(rtol=1e-5, atol=1e-6, free=free))
+    assert abs(np.exp(z[1]) - ref.x[1]) > 10 * se[1]  # the stall the projection removes
+
+
 def test_vmapped_solve_matches_one_by_one():
     """fit_batch vmaps the solve over frames: lax.cond turns into a select there, and the
     result must still be each frame's own solve."""

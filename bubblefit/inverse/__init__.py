@@ -48,7 +48,7 @@ _EXPORTS = {
     # the parameters: described once, one fit's table, their roles, a user's settings
     "PARAMETERS": "_parameters", "Parameter": "_parameters", "ParameterTable": "_parameters",
     "ParameterSetting": "_parameters", "parse_setting": "_parameters", "starts": "_parameters", "parameter_roles": "_parameters",
-    "refined_disc": "_parameters", "disc_start": "_parameters", "extrapolated": "_parameters", "inverse": "_parameters",
+    "refined_disc": "_parameters", "disc_start": "_parameters", "extrapolated": "_parameters", "inverse": "_parameters", "plausible_box": "_parameters",
     # set up, and the camera's view
     "Setup": "_setup", "setup": "_setup", "defaults": "_setup", "colour_settings": "_setup",
     "calibrated_illuminant": "_setup", "compact_source": "_setup", "COMPACT_SOURCE_RATIO": "_setup",

@@ -26,7 +26,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Float, Int
 
-from ._parameters import PARAMETERS, forward
+from ._parameters import PARAMETERS, forward, plausible_box
 
 __all__ = ["DenseDampedNewtonDescent", "LevenbergMarquardt", "column_jacobian", "columns_linearized", "JACOBIANS",
            "scaled_decrement", "damped_step_length", "gauss_newton_decrement", "presses_bound", "robust", "MAX_REJECTIONS",
@@ -163,6 +163,12 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
     --profile-solver). Here a trial point costs one render and an accepted one a
     Jacobian; the iterates are the same.
 
+    Every trial point is projected onto the box of the free parameters' plausible ranges
+    (:meth:`project`): a logistic or log coordinate stepped far past that range saturates,
+    its Jacobian column vanishes, and the solve can neither return nor resolve it (the
+    demo's drainage fit took the split from 0.994 to 1 - 1e-7 in one near-Gauss-Newton
+    step of its thickness search and kept it there).
+
     Near the optimum a float32 render changes its loss by more than the quadratic model
     predicts for tiny steps, so every proposal is rejected and the trust region shrinks
     by 4 per step until the Cauchy test is met: 20-35 steps on the photos of
@@ -216,11 +222,23 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
     #: solves pass :func:`column_jacobian` of their residual.
     jacobian: Callable | None = None
 
+    def project(self, y):
+        """``y`` projected onto the box of the free parameters' plausible ranges
+        (:func:`~bubblefit.inverse._parameters.plausible_box`; no box without ``free``):
+        every trial point, the start's included, so that no logistic or log coordinate
+        saturates where its slope vanishes. The trust region's ratio is taken with the
+        projected step (optimistix' ``ClassicalTrustRegion`` reads ``y_eval - y``), the
+        projected Levenberg-Marquardt method of Kanzow, Yamashita & Fukushima (2004)."""
+        if not self.free:
+            return y
+        lo, hi = plausible_box(self.free)
+        return jnp.clip(y, jnp.asarray(lo, y.dtype), jnp.asarray(hi, y.dtype))
+
     def init(self, fn, y, args, options, f_struct, aux_struct, tags) -> _LMState:
         f_info = optx.FunctionInfo.ResidualJac(
             jnp.zeros(f_struct.shape, f_struct.dtype),
             lx.MatrixLinearOperator(jnp.zeros((f_struct.size, jnp.size(y)), f_struct.dtype)))
-        return _LMState(first_step=jnp.array(True), y_eval=y, search_state=self.search.init(y, f_info),
+        return _LMState(first_step=jnp.array(True), y_eval=self.project(y), search_state=self.search.init(y, f_info),
                         f_info=f_info, descent_state=self.descent.init(y, f_info), terminate=jnp.array(False),
                         result=optx.RESULTS.successful, num_steps=jnp.array(0), num_accepted_steps=jnp.array(0),
                         num_steps_since_acceptance=jnp.array(0))
@@ -250,7 +268,8 @@ class LevenbergMarquardt(optx.AbstractLeastSquaresSolver):
                      loss=("Loss on this step", 0.5 * jnp.sum(residual**2)), step_size=("Step size", step_size))
         y_descent, descent_result = self.descent.step(step_size, dense)
         result = optx.RESULTS.where(search_result == optx.RESULTS.successful, descent_result, search_result)
-        new = _LMState(first_step=jnp.array(False), y_eval=y + y_descent, search_state=search_state, f_info=f_info,
+        new = _LMState(first_step=jnp.array(False), y_eval=self.project(y + y_descent), search_state=search_state,
+                       f_info=f_info,
                        descent_state=dense, terminate=done, result=result, num_steps=state.num_steps + 1,
                        num_accepted_steps=state.num_accepted_steps + jnp.where(accept, 1, 0),
                        num_steps_since_acceptance=jnp.where(accept, 0, state.num_steps_since_acceptance + 1))

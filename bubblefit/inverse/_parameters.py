@@ -37,7 +37,7 @@ from ..model.modes import ThicknessKind
 from ..model.render import NO_PROFILE, Params
 
 __all__ = ["Parameter", "PARAMETERS", "ParameterTable", "ParameterRole", "parameter_roles", "ParameterSetting",
-           "parse_setting", "starts", "ALIASES", "STARTS", "THICK_UNIT", "THICKNESSES", "DISC_PARAMETERS", "forward", "inverse", "value_and_slope", "refined_disc", "disc_start", "extrapolated"]
+           "parse_setting", "starts", "ALIASES", "STARTS", "THICK_UNIT", "THICKNESSES", "DISC_PARAMETERS", "forward", "inverse", "plausible_box", "value_and_slope", "refined_disc", "disc_start", "extrapolated"]
 
 #: nm per unit of the unconstrained thickness coordinate.
 THICK_UNIT = 100.0
@@ -173,6 +173,37 @@ def inverse(name: str, v) -> float:
         v = min(max(v / DISC_LIMIT, -0.999), 0.999)
         return math.atanh(v) * (DISC_LIMIT / DISC_UNIT)
     return v
+
+
+def plausible_box(free: tuple) -> tuple[tuple, tuple]:
+    """``(lo, hi)``: for each parameter of ``free``, the unconstrained coordinates of the
+    ends of its ``plausible`` range, ``-inf``/``inf`` where the range is open or ends at
+    the transform's own bound (a roughness at 0, the mirror). The local solve projects
+    its trial points onto this box (:class:`~bubblefit.inverse._lm.LevenbergMarquardt`).
+
+    A logistic or log coordinate moved far past its plausible range saturates: at
+    ``split = 1 - 1e-7`` the slope ``d split / d z`` is 1e-7, the parameter's column of the
+    Jacobian vanishes, and no damped step brings it back (the demo's drainage fit
+    left it there, f = 1e-6 for a true 0.3, at a robust chi^2 of 13216 against the
+    interior optimum's 11904). At the box's ends the slope is that of the plausible
+    range's ends (1e-3 for the split), which the solve still resolves, and a value there
+    is reported as sitting at a bound (:func:`~bubblefit.inverse._verdict.at_bounds`).
+
+    References
+    ----------
+    C. Kanzow, N. Yamashita & M. Fukushima, "Levenberg-Marquardt methods with strong
+    local convergence properties for solving nonlinear equations with convex
+    constraints", *J. Comput. Appl. Math.* 172 (2004), 375-397 (the projected LM step).
+    """
+    lo, hi = [], []
+    for name in free:
+        p = PARAMETERS[name]
+        ends = []
+        for end, bound, inf in zip(p.plausible, p.bounds, (-math.inf, math.inf)):
+            ends.append(inf if not math.isfinite(end) or end == bound else inverse(name, end))
+        lo.append(ends[0])
+        hi.append(ends[1])
+    return tuple(lo), tuple(hi)
 
 
 @dataclass(frozen=True)

@@ -61,7 +61,8 @@ def make(name: str, c: dict) -> None:
         scene = newton_scene(c)
         truth = {"radius_mm": c["radius_mm"], "center_px": list(c["center"]), "pixel_um": c["pixel_um"],
                  "na": c["na"], "media": list(c["media"]), "lamp": c["lamp"],
-                 "gap": "h(r) = R - sqrt(R^2 - r^2), r = pixel_um x distance to the centre (pixel centres +0.5)"}
+                 "gap": "h(r) = R - sqrt(R^2 - r^2), r = pixel_um x distance to the centre (pixel centres +0.5)",
+                 "pixel": "the mean colour over the pixel's square, 16 x 16 points"}
     else:
         d, rgb, _ = rf.drainage_area_case(c["size"], c["top_nm"], c["bottom_nm"], c["exponent"], c["lamp"],
                                           c["n_film"])

@@ -270,6 +270,8 @@ def test_a_disc_type_b_error_reaches_what_the_disc_moves():
     assert np.abs(move[0]) > 0.5 * dz and added[2, 2] == pytest.approx(0.0, abs=1e-20)
     assert added[1, 1] == pytest.approx(dz ** 2, rel=1e-12)
     assert not disc_type_b(a_inv, ("top_nm", "t", "exposure"), z, me).any()
+
+
 def test_outliers_are_told_apart_from_a_misfit():
     """A few pixels far off (a glint the render point-samples) against a misfit spread over
     the film: the reduced chi^2 of the rest, the outliers' share and the capped figure,

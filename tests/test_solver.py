@@ -368,4 +368,3 @@ def test_a_restart_that_accepted_no_step_is_not_repeated(monkeypatch, restarts_m
     assert len(calls) == runs
     assert sol.steps == 12 + 7 * (runs - 1)
     assert np.array_equal(sol.z, np.full(2, float(runs if restarts_move else 1)))  # where the last run ended
-

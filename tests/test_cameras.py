@@ -208,6 +208,29 @@ def test_dng_bayer_mosaic_matches_the_scene(tmp_path):
     assert np.allclose(ratio / ratio[1], [2.0, 1.0, 1.25], rtol=0.01), ratio
 
 
+def test_a_clipped_raw_photosite_is_censored_with_its_block_once(tmp_path):
+    """A photosite at the white level, read from a DNG through the Bayer reader, is marked
+    alone (its own pixel), and the fit's censoring grows it once by the bilinear demosaic's
+    3 x 3 block: every pixel the demosaic fills from it is left out, and no pixel farther
+    (a second growth would censor a 5 x 5 block)."""
+    pytest.importorskip("rawpy")
+    from bubblefit.inverse import saturation_mask
+
+    black, white = 256, 4095
+    smooth = _mosaic(_scene(32, 32)) * (white - black) + black
+    bright = smooth.copy()
+    bright[16, 16] = white  # a red photosite of the RGGB mosaic, clipped
+    _write_dng(tmp_path / "smooth.dng", np.round(smooth), black, white)
+    _write_dng(tmp_path / "clip.dng", np.round(bright), black, white)
+    reading = PhotoReading(raw_white_balance="none")
+    base, img = read_photo(str(tmp_path / "smooth.dng"), reading), read_photo(str(tmp_path / "clip.dng"), reading)
+    assert np.argwhere(img.saturated).tolist() == [[16, 16]]
+    spread = np.any(np.abs(img.pixels - base.pixels) > 1e-6, axis=-1)
+    censored = saturation_mask(img.pixels, 2.0, img.saturated)  # the level above every pixel: the reader's mask alone
+    assert not np.any(spread & ~censored)
+    assert np.argwhere(censored).tolist() == [[r, c] for r in (15, 16, 17) for c in (15, 16, 17)]
+
+
 def test_unsupported_raw_is_one_line(tmp_path):
     pytest.importorskip("rawpy")
     bad = tmp_path / "x.nef"

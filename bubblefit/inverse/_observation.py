@@ -23,7 +23,6 @@ from ._pair import FRAME_SHARE, frame_mismatch
 from ..capture.circle import detect_disc
 from ..capture.disc import NO_BUBBLE_CONTRAST, NO_BUBBLE_SPREAD, Disc, bubble_contrast, change_spread, find_disc
 from ..errors import InputError
-from ..io.camera_files import CLIP_NEIGHBOURS
 from ..io.images import srgb_encode, srgb_slope
 from ..model.geometry import DivergentCamera, OrthographicCamera, front_hits
 from ..model.render import RenderConfig
@@ -51,11 +50,21 @@ def noise_sigma(photo: np.ndarray, read: float, shot: float, bits: int | None) -
     return np.sqrt(var)
 
 
+#: The pixels a clipped photosite spoils: its 3 x 3 block. Bilinear demosaicking fills a
+#: Bayer mosaic's missing red and blue from the diagonal neighbours as well as the
+#: row's and column's (the kernel ``[[1, 2, 1], [2, 4, 2], [1, 2, 1]] / 4``; Gunturk et
+#: al., "Demosaicking: color filter array interpolation", IEEE Signal Processing
+#: Magazine 22(1), 2005), so a clipped photosite leaves a wrong value in each of its
+#: eight neighbours.
+CLIP_NEIGHBOURS = np.ones((3, 3), bool)
+
+
 def saturation_mask(photo: np.ndarray, level: float, given: np.ndarray | None) -> np.ndarray:
     """(H, W) clipped pixels: any channel at or above ``level`` (for files whose maximum
-    is 1), or in ``given``, grown by :data:`~bubblefit.io.camera_files.CLIP_NEIGHBOURS`: a camera's
-    demosaic spreads a clipped photosite into its eight neighbours, the diagonal ones
-    included."""
+    is 1), or in ``given`` (a reader's pixels at the file's white level, or whose own RAW
+    photosite reached it: :attr:`bubblefit.io.images.Image.saturated`), grown once by
+    :data:`CLIP_NEIGHBOURS`: a demosaic spreads a clipped photosite into its eight
+    neighbours, the diagonal ones included."""
     H, W = photo.shape[:2]
     sat = (np.max(photo, axis=-1) >= level) if np.nanmax(photo) <= 1.0 + 1e-6 else np.zeros((H, W), bool)
     if given is not None:

@@ -155,21 +155,14 @@ def read_raw(path: str, reading: PhotoReading = PhotoReading(), dtype=np.float64
                  metadata={"raw": info}, encoding=EncodingChoice("raw", why, 0.0, 1.0))
 
 
-#: The pixels a clipped photosite spoils: its 3 x 3 block. Bilinear demosaicking fills a
-#: Bayer mosaic's missing red and blue from the diagonal neighbours as well as the
-#: row's and column's (the kernel ``[[1, 2, 1], [2, 4, 2], [1, 2, 1]] / 4``; Gunturk et
-#: al., "Demosaicking: color filter array interpolation", IEEE Signal Processing
-#: Magazine 22(1), 2005), so a clipped photosite leaves a wrong value in each of its
-#: eight neighbours. A fit censors a clipped pixel's block
-#: (:func:`bubblefit.inverse.saturation_mask`).
-CLIP_NEIGHBOURS = np.ones((3, 3), bool)
-
 def _develop_bayer(raw, desc: str, wb: np.ndarray, reading: PhotoReading):
     """``(pixels, saturated, share)`` of a Bayer sensor: levels, white balance, bilinear
-    demosaic, and the colour matrix when asked (:func:`read_raw`); ``share`` is the fraction
+    demosaic, and the colour matrix when asked (:func:`read_raw`); ``saturated`` marks the
+    pixels whose own photosite reached the white level (a fit grows it by the demosaic's
+    block, :data:`bubblefit.inverse._observation.CLIP_NEIGHBOURS`); ``share`` is the fraction
     of the photosites that measure each of R, G, B (1/4, 1/2, 1/4 for a Bayer mosaic): an
     average over ``n`` demosaiced pixels holds the noise of ``share * n`` photosites only."""
-    from scipy.ndimage import binary_dilation, convolve
+    from scipy.ndimage import convolve
 
     vals = np.asarray(raw.raw_image_visible, dtype=np.float64)
     cfa = np.asarray(raw.raw_colors_visible)
@@ -187,7 +180,7 @@ def _develop_bayer(raw, desc: str, wb: np.ndarray, reading: PhotoReading):
         num = convolve(norm * mask, kernel, mode="mirror")
         den = convolve(mask, kernel, mode="mirror")
         out[..., c] = np.where(mask > 0, norm, num / np.maximum(den, 1e-12))
-    saturated = binary_dilation(vals >= white, structure=CLIP_NEIGHBOURS)
+    saturated = vals >= white
     if reading.raw_colour == "srgb":
         out = out @ np.asarray(raw.color_matrix, np.float64)[:, :3].T
     share = [float(np.mean(channel == c)) for c in range(3)]

@@ -177,7 +177,8 @@ class Image:
         bit_depth: 8, 16 or 32 (float) as stored in the file.
         linear_file: True when the file held linear values (EXR, HDR, float TIFF).
         saturated: (H, W) bool, pixels where any channel reached the file's maximum
-            code value (meaningful for integer files only).
+            code value, or, in a Bayer RAW file, whose own photosite reached the white
+            level (meaningful for integer and RAW files only).
         metadata: the file's attributes (EXIF and others) as a dict of strings/numbers.
         alpha_dropped: True when an alpha channel was present and ignored.
         was_gray: True when the file had one channel that was replicated to three.

@@ -28,7 +28,7 @@ The parameters are found in two steps:
    (censored residuals, :mod:`._censored`), whitened by the noise of the per-pixel fit.
 
 Standard errors: ``(J^T J)^-1`` widened by the larger of the Birge ratio and the cluster
-sandwich over blocks of the film (:func:`._uncertainty.widened`, as for a bubble), plus
+sandwich over blocks of the film (:func:`._uncertainty.widened_over_film`, as for a bubble), plus
 the thickness model error of :class:`~bubblefit.inverse._options.JudgeSettings` taken
 independently at the film's top, bottom and middle height and carried to the parameters
 (:func:`drainage_covariance`: the ends get it in quadrature, the exponent what the middle's
@@ -53,7 +53,7 @@ from ..errors import ComputationError
 from ..model.thickness import drainage_profile
 from ._options import JudgeSettings
 from ._planar_lm import ModelFit, fit_colours, fit_order
-from ._uncertainty import widened
+from ._uncertainty import widened_over_film
 
 __all__ = ["film_height", "search_drainage", "fit_drainage", "drainage_covariance"]
 
@@ -65,9 +65,6 @@ HEIGHT_BINS = 96
 EXPONENTS = (0.5, 0.7, 0.85, 1.0, 1.2, 1.4, 1.7, 2.0, 2.5, 3.0)
 #: Step (nm) of the searched ends: a few candidates across a minimum of the colour cost.
 END_STEP_NM = 6.0
-#: Blocks of the cluster sandwich across the film's smaller extent in pixels: 12, as the
-#: bubble's 6 per disc radius (:data:`._uncertainty.BLOCKS_PER_RADIUS`).
-BLOCKS_ACROSS = 12
 #: Range of the exponent kept by the refinement.
 EXPONENT_RANGE = (0.2, 5.0)
 
@@ -167,16 +164,8 @@ def fit_drainage(fwd, y, lum, sin2, height, start, gain, sigma, lo, hi, shape, p
                       {"top_nm": 0, "bottom_nm": 1}, sin2, lo, hi, iters)
     a_inv = np.linalg.pinv(J.T @ J)
     chi2 = cost / max(len(r) - 4, 1)
-    # the cluster sandwich over blocks of the film, in the photo's (H, W, 3) layout
-    h, w = shape
-    full_j = np.zeros((h * w, 3, J.shape[1]))
-    full_r = np.zeros((h * w, 3))
-    full_j[pixels] = J.reshape(-1, 3, J.shape[1])
-    full_r[pixels] = r.reshape(-1, 3)
-    rows, cols = np.divmod(pixels, w)
-    block = max(3, int(round(min(np.ptp(rows) + 1, np.ptp(cols) + 1) / BLOCKS_ACROSS)))
-    cov, scale = widened(max(1.0, chi2) * a_inv, a_inv, full_j.reshape(-1, J.shape[1]), full_r.ravel(),
-                         (h, w, 3), block)
+    # the cluster sandwich over blocks of the film
+    cov, scale = widened_over_film(max(1.0, chi2) * a_inv, a_inv, J, r, pixels, shape)
     t = np.asarray(theta, np.float64)
     cov[:3, :3] += drainage_covariance(t[0], t[1], float(np.exp(np.clip(t[2], elo, ehi))))
     d = np.asarray(profile(theta), np.float64)

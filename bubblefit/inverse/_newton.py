@@ -28,6 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._planar_lm import ModelFit, fit_colours, fit_order
+from ._uncertainty import widened_over_film
 from ..model.planar_scene import ENVELOPE_DEFAULT, STRAY_DEFAULT
 
 __all__ = ["ENVELOPE_TERMS", "aliased_pixels", "colour_start", "envelope_coordinates", "fit_newton",
@@ -529,7 +530,11 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
     order = fit_order(fwd, model, gap, obs_k, sigma, high, (theta, r, cost, J), {"contact_offset_nm": 3}, sin2_k, lo,
                       hi, iters)
     dof = max(len(r) // copies - len(theta), 1)
-    cov = np.linalg.pinv(J.T @ J) * (cost / dof)
+    a_inv = np.linalg.pinv(J.T @ J)
+    # the misfit's scatter (Birge), or where a model error is smooth across the photo (a
+    # gap that is not one sphere, rings that are not circles) the cluster sandwich over
+    # blocks of the film, whichever is wider (bubblefit.inverse._uncertainty)
+    cov, _ = widened_over_film(a_inv * (cost / dof), a_inv, J, r, np.flatnonzero(mask)[keep], mask.shape)
     t = np.asarray(theta, np.float64)
     radius_um = float(np.exp(t[0]))
     h, h_se = _lens_gap(theta, cov, x, yy)

@@ -78,6 +78,7 @@ from ._parameters import DISC_PARAMETERS, PARAMETERS, ParameterTable, value_and_
 from ._programs import reporter
 
 __all__ = ["Uncertainty", "uncertainty", "Misfit", "misfit", "photo_misfit", "held_keys", "OUTLIER_CHI2", "widened",
+           "widened_over_film",
            "correlation_area", "disc_type_b"]
 
 #: A pixel whose chi^2 with the model-error floor, summed over its three channels, exceeds
@@ -312,15 +313,43 @@ def widened(cov_birge: np.ndarray, a_inv: np.ndarray, jac, r, shape: tuple, bloc
     """Each parameter's larger variance of the Birge estimate ``cov_birge`` and the cluster
     sandwich over square blocks of ``block`` pixels (``jac``, ``r`` in the (h, w, 3)
     layout of ``shape``), with the sandwich's correlations; and the largest widening over
-    the noise-only errors ``a_inv`` (module docstring)."""
+    the noise-only errors ``a_inv`` (module docstring). A parameter the residual does not
+    depend on (a zero column of ``jac``: ``a_inv`` a pseudo-inverse with a zero diagonal
+    there) keeps its zero variance."""
     sand = a_inv @ _cluster_sandwich(jac, r, shape, block) @ a_inv
-    d_b, d_s = np.diag(cov_birge), np.diag(sand)
-    if not (np.all(np.isfinite(sand)) and np.all(d_s > 0)):
-        return cov_birge, float(np.sqrt(np.max(d_b / np.diag(a_inv))))
-    var = np.maximum(d_b, d_s)
-    corr = sand / np.sqrt(np.outer(d_s, d_s))
+    d_a, d_b, d_s = np.diag(a_inv), np.diag(cov_birge), np.diag(sand)
+    live = d_a > 0
+    if not live.any():
+        return cov_birge, 1.0
+    if not (np.all(np.isfinite(sand)) and np.all(d_s[live] > 0)):
+        return cov_birge, float(np.sqrt(np.max(d_b[live] / d_a[live])))
+    var = np.where(live, np.maximum(d_b, d_s), 0.0)
+    sd = np.sqrt(np.where(live, d_s, 1.0))
+    corr = np.where(np.outer(live, live), sand / np.outer(sd, sd), 0.0)
     cov = corr * np.sqrt(np.outer(var, var))
-    return cov, float(np.sqrt(np.max(var / np.diag(a_inv))))
+    return cov, float(np.sqrt(np.max(var[live] / d_a[live])))
+
+
+#: Blocks of the cluster sandwich across a flat film's smaller extent in pixels: 12, as the
+#: bubble's :data:`BLOCKS_PER_RADIUS` per disc radius.
+BLOCKS_ACROSS = 12
+
+
+def widened_over_film(cov_birge: np.ndarray, a_inv: np.ndarray, jac: np.ndarray, r: np.ndarray, pixels: np.ndarray,
+                      shape: tuple) -> tuple[np.ndarray, float]:
+    """:func:`widened` for a fit of a flat film's pixels: ``jac`` (3P, p) and ``r`` (3P,)
+    hold the three channels of the pixels at the flat indices ``pixels`` (P,) of an image
+    of ``shape`` (H, W), in that order; the sandwich's blocks are the film's smaller extent
+    in pixels over :data:`BLOCKS_ACROSS` (at least 3)."""
+    h, w = shape[:2]
+    p = jac.shape[1]
+    full_j = np.zeros((h * w, 3, p))
+    full_r = np.zeros((h * w, 3))
+    full_j[pixels] = np.asarray(jac).reshape(-1, 3, p)
+    full_r[pixels] = np.asarray(r).reshape(-1, 3)
+    rows, cols = np.divmod(np.asarray(pixels), w)
+    block = max(3, int(round(min(np.ptp(rows) + 1, np.ptp(cols) + 1) / BLOCKS_ACROSS)))
+    return widened(cov_birge, a_inv, full_j.reshape(-1, p), full_r.ravel(), (h, w, 3), block)
 
 
 def disc_type_b(a_inv: np.ndarray, free: tuple, z, model_error: float) -> np.ndarray:

@@ -55,12 +55,12 @@ MIN_SUPPORT = 0.5
 MIN_SUPPORT_EDGES = 0.7
 #: Largest fraction of a disc's rim beyond which the change may go on, with a background
 #: photo (:func:`bubblefit.capture.rim.change_beyond`). Outside its outline a bubble is
-#: its background photo: noise alone leaves 0.02 % of the rim (``BEYOND_LEVEL``), and the
+#: its background photo: noise alone leaves 0.2 % of the rim (``BEYOND_LEVEL``), and the
 #: rest is for something else that changed against the bubble (a wand, a hair). A circle
 #: nested in the bubble (a fringe, the edge of a reflection or of the transmitted
-#: background) has the film beyond a third to all of its rim (the demo's scene with the
+#: background) has the film beyond about two thirds of its rim (the demo's scene with the
 #: bright wall behind the bubble, ``experiments/disc_detection.py --demo-sizes``); the
-#: outlines of the validation set have at most 1.2 %.
+#: outlines of the validation set have at most 0.8 %.
 MAX_BEYOND = 0.05
 #: Smallest disc radius searched, pixels.
 MIN_RADIUS = 4.0

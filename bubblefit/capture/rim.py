@@ -21,7 +21,8 @@ from ..errors import InputError
 from .circle import kasa_circle_fit
 
 __all__ = ["Evidence", "bilinear", "rim_support", "change_beyond", "refine_rim", "roundness", "N_RAYS", "MIN_JUMP",
-           "BEYOND_ARC", "BEYOND_LEVEL", "TEXTURE_FACTOR"]
+           "BEYOND_GAP", "BEYOND_ARC", "BEYOND_LEVEL", "BEYOND_LEAK",
+           "TEXTURE_FACTOR"]
 
 #: What the rim is seen in: a change map against a background photo, or the photo's edges.
 Evidence = Literal["change", "edges"]
@@ -30,16 +31,21 @@ Evidence = Literal["change", "edges"]
 N_RAYS = 256
 #: Smallest jump across the rim, in noise units, for a ray to support a circle.
 MIN_JUMP = 4.0
-#: Length of the patch along the rim, in pixels, and the mean of a change map over it and
-#: 3-8 px outside a circle, in noise units, above which the change goes on beyond the
-#: circle (:func:`change_beyond`). Where nothing changed, the map is the norm of three
-#: smoothed noise channels (a chi distribution, mean 1.60); the mean of such a patch is
-#: 1.59 with a standard deviation of 0.21 and exceeds 2.5 at 0.02 % of the rim (white
-#: noise, 4608 rays on circles of radius 10 to 160 px). A film beyond it that changes the
-#: photo by 0.8 of the pixel noise per channel exceeds it over a third to a half of the rim
-#: (``tests/test_disc.py``).
+#: Patch beyond a circle where the change map says whether the change goes on
+#: (:func:`change_beyond`): from ``BEYOND_GAP`` to 8 px outside it and ``BEYOND_ARC`` px
+#: along it, far enough out that a sharp rim's own step has faded (by 5 px, a step blurred
+#: by 2 px in all, the change map's smoothing of 1 px and 1.7 px of the photo's own, keeps
+#: 0.6 % of its jump). Where nothing changed, the map is the norm of three smoothed noise
+#: channels (a chi distribution, mean 1.60) and the patch's mean is 1.59 with a standard
+#: deviation of 0.25: above ``BEYOND_LEVEL`` at 0.2 % of the rim (white noise, 4608 rays
+#: on circles of radius 10 to 160 px).
+BEYOND_GAP = 5.0
 BEYOND_ARC = 8.0
 BEYOND_LEVEL = 2.5
+#: Share of a rim's jump that its blurred step leaves 5-8 px outside it (the mean there of
+#: ``1 - Phi(d / 2.5)``: the change map's smoothing and 2.3 px of the photo's own blur),
+#: taken off the patch's mean: a bright rim's tail is not film beyond it.
+BEYOND_LEAK = 0.007
 #: Without a background photo, the rim's step or line must exceed this many times the
 #: median of the same evidence at other radii along the ray (the texture) to support it.
 TEXTURE_FACTOR = 2.0
@@ -84,18 +90,19 @@ def bilinear(fields: np.ndarray, y: np.ndarray, x: np.ndarray) -> np.ndarray:
     return top * (1.0 - fy) + bottom * fy
 
 
-def _change_bands(fields: np.ndarray, circle) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per ray, the mean of a change map 1.5-6 px inside the circle and 3-8 px outside it
-    (noise units), and the mask of rays inside the image."""
+def _change_bands(fields: np.ndarray, circle, beyond: float = 3.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per ray, the mean of a change map 1.5-6 px inside the circle and ``beyond``-8 px
+    outside it (noise units), and the mask of rays inside the image."""
     off = np.arange(-6.0, 8.01, 0.5)
     s, ok = _rays(fields, circle, off)
-    return s[0][:, off <= -1.5].mean(axis=1), s[0][:, off >= 3].mean(axis=1), ok
+    return s[0][:, off <= -1.5].mean(axis=1), s[0][:, off >= beyond].mean(axis=1), ok
 
 
 def change_beyond(fields: np.ndarray, circle) -> float:
     """Fraction of a circle's rim beyond which the change goes on: rays inside the image
-    where the change map's mean over a patch 3-8 px outside the circle and ``BEYOND_ARC``
-    px along it exceeds ``BEYOND_LEVEL``.
+    where the change map's mean over a patch ``BEYOND_GAP``-8 px outside the circle and
+    ``BEYOND_ARC`` px along it, less ``BEYOND_LEAK`` times its mean 1.5-6 px inside (the
+    tail of the rim's own blurred step), exceeds ``BEYOND_LEVEL``.
 
     Outside a bubble's outline the photo is its background photo, so on the outline this
     is the noise's share but for what else changed against the bubble; a circle nested in
@@ -109,13 +116,14 @@ def change_beyond(fields: np.ndarray, circle) -> float:
     circle : (cx, cy, r)
         Array coordinates (pixel centres at integers).
     """
-    _, outer, ok = _change_bands(fields, circle)
+    inner, outer, ok = _change_bands(fields, circle, BEYOND_GAP)
     if not ok.any():
         return 0.0
+    excess = outer - BEYOND_LEAK * np.maximum(inner, 0.0)  # less what the rim's own blurred step leaves there
     k = max(1, int(round(BEYOND_ARC / (2.0 * math.pi * max(circle[2], 1e-9) / outer.size))))
     box = np.ones(k)
     wrap = lambda a: np.concatenate([a[-k:], a, a[:k]])  # noqa: E731  (the rim is closed)
-    total = np.convolve(wrap(np.where(ok, outer, 0.0)), box, mode="same")[k:-k]
+    total = np.convolve(wrap(np.where(ok, excess, 0.0)), box, mode="same")[k:-k]
     count = np.convolve(wrap(ok.astype(float)), box, mode="same")[k:-k]
     patch = total / np.maximum(count, 1.0)
     return float(np.mean(patch[ok] > BEYOND_LEVEL))

@@ -202,6 +202,31 @@ def test_something_not_round_is_not_a_bubble(courtyard_pixels):
     assert "round" in d.reason
 
 
+@pytest.mark.parametrize("film", [0.8, 1.0])
+def test_an_edge_inside_a_faint_bubble_is_not_its_outline(film):
+    """A bubble over a dark sky whose film changes the photo by ``film`` times the pixel
+    noise per channel (its rim's jump stays below the support's bar), with a bright round
+    reflection inside it, tangent to its outline at the bottom (0.6 of its radius). The
+    reflection's edge is a round, fully supported circle 0.4 r = 15 px off the outline; it
+    must not be declared found, since the film goes on beyond it: the detector returns the
+    outline (within 1.5 px, its accuracy on the photos above) or refuses."""
+    rng = np.random.default_rng(11)
+    n, sigma, sky = 96, 0.01, 0.04
+    cx, cy, r = 48.3, 47.4, 38.4
+    x = (np.arange(n * SS)[None, :] + 0.5) / SS
+    y = (np.arange(n * SS)[:, None] + 0.5) / SS
+    film_px = np.hypot(x - cx, y - cy) < r
+    lamp = film_px & (np.hypot(x - cx, y - (cy + 0.4 * r)) < 0.6 * r)
+    clean = (sky + sigma * (film * film_px + 8.0 * lamp)).reshape(n, SS, n, SS).mean(axis=(1, 3))
+    photo = clean[..., None] + rng.normal(0.0, sigma, (n, n, 3))
+    background = sky + rng.normal(0.0, sigma, (n, n, 3))
+    d = find_disc(photo, background, sigma=np.full((n, n), sigma))
+    if d.found:
+        _check(d, cx, cy, r)
+    else:
+        assert d.reason and np.isnan(d.r)
+
+
 def test_tiny_and_flat_images_are_not_found():
     assert not find_disc(np.full((8, 8, 3), 0.5)).found
     rng = np.random.default_rng(1)

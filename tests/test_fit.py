@@ -352,6 +352,22 @@ def test_calibration_disc_is_checked_against_the_photo():
         assert len(warn) == 1 and why in warn[0]
 
 
+def test_a_guessed_disc_never_replaces_the_calibrations(monkeypatch):
+    """Where the detector does not find the rim, the simpler detector's guess (a disc with
+    a note) neither replaces the calibration's disc nor is fitted on another frame."""
+    from bubblefit.capture.disc import Disc
+    from bubblefit.errors import InputError
+    from bubblefit.inverse import _observation, resolve_disc
+
+    guess = Disc(10.0, 12.0, 6.0, True, reason="the bubble's rim is not clear; the disc comes from the simpler detector")
+    monkeypatch.setattr(_observation, "_detect", lambda *a: guess)
+    photo = np.full((N, N, 3), 0.3)
+    disc, warn = resolve_disc(photo, None, _opts(disc=None, calibration_disc=DISC, calibration_size=(N, N)))
+    assert disc == DISC and len(warn) == 1 and "could not be checked" in warn[0]
+    with pytest.raises(InputError, match="--disc"):
+        resolve_disc(photo, None, _opts(disc=None, calibration_disc=DISC, calibration_size=(2 * N, N)))
+
+
 def test_large_photo_is_cropped_to_the_bubble():
     """A photo larger than ``ImageSizes.analysis`` is analysed as a crop around the bubble,
     block-averaged to at most that size, with the disc mapped back to the photo's pixels."""

@@ -20,7 +20,9 @@ from scipy import ndimage as ndi
 from ..errors import InputError
 from .circle import kasa_circle_fit
 
-__all__ = ["Evidence", "bilinear", "rim_support", "refine_rim", "roundness", "N_RAYS", "MIN_JUMP", "TEXTURE_FACTOR"]
+__all__ = ["Evidence", "bilinear", "rim_support", "rim_blur", "change_beyond", "refine_rim", "roundness", "N_RAYS",
+           "MIN_JUMP", "BEYOND_GAP", "BEYOND_BLURS", "BEYOND_ARC", "BEYOND_LEVEL", "BEYOND_LEAK",
+           "TEXTURE_FACTOR"]
 
 #: What the rim is seen in: a change map against a background photo, or the photo's edges.
 Evidence = Literal["change", "edges"]
@@ -29,6 +31,22 @@ Evidence = Literal["change", "edges"]
 N_RAYS = 256
 #: Smallest jump across the rim, in noise units, for a ray to support a circle.
 MIN_JUMP = 4.0
+#: Patch beyond a circle where the change map says whether the change goes on
+#: (:func:`change_beyond`): 3 px deep and ``BEYOND_ARC`` px along the circle, from
+#: ``BEYOND_GAP`` px or ``BEYOND_BLURS`` rim widths outside it, whichever is further
+#: (a step blurred by a Gaussian keeps 3e-5 of its jump 4 standard deviations out: a
+#: bright rim's tail is not film beyond it). Where nothing changed, the map is the norm of
+#: three smoothed noise channels (a chi distribution, mean 1.60) and the patch's mean is
+#: 1.59 with a standard deviation of 0.25: above ``BEYOND_LEVEL`` at 0.2 % of the rim
+#: (white noise, 4608 rays on circles of radius 10 to 160 px).
+BEYOND_GAP = 5.0
+BEYOND_BLURS = 4.0
+BEYOND_ARC = 8.0
+BEYOND_LEVEL = 2.5
+#: Share of a rim's jump taken off the patch's mean all the same: a thin bright rim (a
+#: Fresnel line) falls more steeply than its jump says, so its width is underestimated;
+#: 0.007 is the mean 5-8 px out of ``1 - Phi(d / 2.5)``, a step blurred by 2.5 px in all.
+BEYOND_LEAK = 0.007
 #: Without a background photo, the rim's step or line must exceed this many times the
 #: median of the same evidence at other radii along the ray (the texture) to support it.
 TEXTURE_FACTOR = 2.0
@@ -73,6 +91,64 @@ def bilinear(fields: np.ndarray, y: np.ndarray, x: np.ndarray) -> np.ndarray:
     return top * (1.0 - fy) + bottom * fy
 
 
+def _change_bands(fields: np.ndarray, circle) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per ray, the mean of a change map 1.5-6 px inside the circle and 3-8 px outside it
+    (noise units), and the mask of rays inside the image."""
+    off = np.arange(-6.0, 8.01, 0.5)
+    s, ok = _rays(fields, circle, off)
+    return s[0][:, off <= -1.5].mean(axis=1), s[0][:, off >= 3].mean(axis=1), ok
+
+
+def rim_blur(fields: np.ndarray, circle) -> float:
+    """Width (standard deviation, px) of a circle's rim in a change map: the median, over
+    the rays whose jump (:func:`_change_bands`) exceeds ``MIN_JUMP``, of the jump over
+    ``sqrt(2 pi)`` times the steepest fall within 3 px of the circle (a step blurred by a
+    Gaussian of standard deviation ``s`` falls at most by ``jump / (sqrt(2 pi) s)`` per
+    pixel); 1 px (the change map's own smoothing) where no ray has such a jump."""
+    off = np.arange(-6.0, 8.01, 0.5)
+    s, ok = _rays(fields, circle, off)
+    jump = s[0][:, off <= -1.5].mean(axis=1) - s[0][:, off >= 3].mean(axis=1)
+    fall = np.max(-np.gradient(s[0], 0.5, axis=1)[:, np.abs(off) <= 3.0], axis=1)
+    use = ok & (jump > MIN_JUMP) & (fall > 0)
+    if not use.any():
+        return 1.0
+    return float(np.median(jump[use] / (math.sqrt(2.0 * math.pi) * fall[use])))
+
+
+def change_beyond(fields: np.ndarray, circle) -> float:
+    """Fraction of a circle's rim beyond which the change goes on: rays inside the image
+    where the change map's mean over a patch 3 px deep and ``BEYOND_ARC`` px along the
+    circle, from ``BEYOND_GAP`` px or ``BEYOND_BLURS`` rim widths (:func:`rim_blur`) outside
+    it, whichever is further (where the rim's own blurred step has faded), less
+    ``BEYOND_LEAK`` times its mean 1.5-6 px inside, exceeds ``BEYOND_LEVEL``.
+
+    Outside a bubble's outline the photo is its background photo, so on the outline this
+    is the noise's share but for what else changed against the bubble; a circle nested in
+    the bubble (an interference fringe, the edge of a reflection or of the background's
+    transmitted image) has the film beyond it.
+
+    Parameters
+    ----------
+    fields : (1, H, W) float
+        The change map (:func:`bubblefit.capture.disc.change_map`, noise units).
+    circle : (cx, cy, r)
+        Array coordinates (pixel centres at integers).
+    """
+    gap = max(BEYOND_GAP, BEYOND_BLURS * rim_blur(fields, circle))
+    s, ok = _rays(fields, circle, np.concatenate([np.arange(-6.0, -1.49, 0.5), np.arange(gap, gap + 3.01, 0.5)]))
+    if not ok.any():
+        return 0.0
+    inner, outer = s[0][:, :10].mean(axis=1), s[0][:, 10:].mean(axis=1)
+    outer = outer - BEYOND_LEAK * np.maximum(inner, 0.0)  # a bright rim's tail is not film beyond it
+    k = max(1, int(round(BEYOND_ARC / (2.0 * math.pi * max(circle[2], 1e-9) / outer.size))))
+    box = np.ones(k)
+    wrap = lambda a: np.concatenate([a[-k:], a, a[:k]])  # noqa: E731  (the rim is closed)
+    total = np.convolve(wrap(np.where(ok, outer, 0.0)), box, mode="same")[k:-k]
+    count = np.convolve(wrap(ok.astype(float)), box, mode="same")[k:-k]
+    patch = total / np.maximum(count, 1.0)
+    return float(np.mean(patch[ok] > BEYOND_LEVEL))
+
+
 def _jumps(fields: np.ndarray, circle, mode: Evidence, noise: float) -> tuple[np.ndarray, np.ndarray]:
     """Per ray, the jump of the evidence across the circle in noise units, and validity.
 
@@ -83,10 +159,7 @@ def _jumps(fields: np.ndarray, circle, mode: Evidence, noise: float) -> tuple[np
     scale of such steps in the photo.
     """
     if mode == "change":
-        off = np.arange(-6.0, 8.01, 0.5)
-        s, ok = _rays(fields, circle, off)
-        inner = s[0][:, (off >= -6) & (off <= -1.5)].mean(axis=1)
-        outer = s[0][:, off >= 3].mean(axis=1)
+        inner, outer, ok = _change_bands(fields, circle)
         # the difference must end at the rim: at least half of it gone outside
         return np.where(outer < 0.5 * inner, inner - outer, 0.0), ok
     span = max(8.0, 0.3 * circle[2])

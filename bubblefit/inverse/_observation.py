@@ -308,7 +308,8 @@ def _resolve_disc(photo, background, opts: FitOptions, given=None) -> tuple[tupl
     found in it is the same (:data:`DISC_AGREEMENT`) or, with a background photo, the
     calibration's disc outlines the change between the pair at least as well
     (:func:`bubble_contrast`, within 20%); otherwise the disc found is used and a warning
-    says why. With neither, the disc is found; a photo whose rim
+    says why; a disc that only the simpler detector guessed (a ``reason`` noted) never
+    replaces it. With neither, the disc is found; a photo whose rim
     :func:`~bubblefit.capture.disc.find_disc` does not find (no bubble, or only the simpler
     detector's guess) raises :class:`InputError` (:meth:`~bubblefit.capture.disc.Disc.refusal`
     and :data:`GIVE_DISC`).
@@ -326,6 +327,8 @@ def _resolve_disc(photo, background, opts: FitOptions, given=None) -> tuple[tupl
     if other_frame:
         if not found.found:
             raise InputError(found.reason)
+        if found.reason:  # only the simpler detector's guess
+            raise InputError(f"{found.refusal()}; {GIVE_DISC}")
         cw, ch = opts.calibration_size
         return (found.cx, found.cy, found.r), [
             f"the calibration's disc was found in a {cw}x{ch} frame and the photo is {W}x{H}: "
@@ -338,6 +341,9 @@ def _resolve_disc(photo, background, opts: FitOptions, given=None) -> tuple[tupl
         if found.contrast == found.contrast:  # a background photo says: no bubble
             raise InputError(found.reason)
         return tuple(cal), ["the calibration's disc could not be checked against the photo (no disc found in it)"]
+    if found.reason:  # only the simpler detector's guess: it cannot overrule the calibration
+        return tuple(cal), ["the calibration's disc could not be checked against the photo (no rim of a bubble is "
+                            "clear in it)"]
     if _agrees(cal, (found.cx, found.cy, found.r)):
         return tuple(cal), []
     if sig is not None:

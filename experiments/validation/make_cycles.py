@@ -25,12 +25,14 @@ through internal bounces is then a few path samples, each many times the clip le
 films' reflect-or-transmit choice is sampled, and a mirror film cannot be connected to the
 sun by light sampling), so the photo's glints are not the pixel integral a camera records.
 --spp N gives the photo (not the background, which has no film) N samples per pixel;
---adaptive-threshold T turns on Cycles' adaptive sampling for it (at least SPP samples, at
-most N, stopping a pixel when its noise estimate is below T). --data DIR writes the case
+--adaptive-threshold T turns on Cycles' adaptive sampling for it (at least --min-spp samples,
+SPP by default, at most N, stopping a pixel when its noise estimate is below T). A glint
+that no sample reaches in the first samples looks converged to adaptive sampling, so
+faint glints need --min-spp high enough for a few samples to reach them. --data DIR writes the case
 folders under DIR instead of data/ (the maps are still read from data/envmaps/). The
 settings used go into the case's truth.json.
 
-    python make_cycles.py [mirror] [cases | CASE ...] [--spp N] [--adaptive-threshold T] [--data DIR]
+    python make_cycles.py [mirror] [cases | CASE ...] [--spp N] [--adaptive-threshold T [--min-spp M]] [--data DIR]
 """
 
 from __future__ import annotations
@@ -309,10 +311,10 @@ def thickness_truth(cam: rr.Camera, th: rr.Thickness):
     return tm.reshape(H, W)
 
 
-def make_cases(names=None, data=None, spp=None, adaptive_threshold=None):
+def make_cases(names=None, data=None, spp=None, adaptive_threshold=None, min_spp=None):
     """Render each case (or those named) into DATA/<case>/; spp and adaptive_threshold, when
     given, set the photo's sampling (see the module's docstring), else the case's own
-    (photo_spp, photo_adaptive_threshold; SPP fixed by default)."""
+    (photo_spp, photo_adaptive_threshold, photo_min_spp; SPP fixed by default)."""
     for name, c in CASES.items():
         if names and name not in names:
             continue
@@ -330,7 +332,8 @@ def make_cases(names=None, data=None, spp=None, adaptive_threshold=None):
         sc.cycles.seed = 2
         photo_spp = spp or c.get("photo_spp", SPP)
         thr = adaptive_threshold if adaptive_threshold is not None else c.get("photo_adaptive_threshold")
-        photo_sampling = sampling(sc, photo_spp, thr)
+        min_photo = min_spp or c.get("photo_min_spp", SPP)
+        photo_sampling = sampling(sc, photo_spp, thr, min_photo)
         photo = render_to_array(sc, os.path.join("/tmp", name + "_photo.exr"))
         secs = time.time() - t0
         expo = 0.9 / float(np.percentile(photo, 99.5))
@@ -354,7 +357,7 @@ def make_cases(names=None, data=None, spp=None, adaptive_threshold=None):
             "renderer": f"Blender {bpy.app.version_string} Cycles (CPU), box filter 1 px, denoiser off; "
                         f"photo {photo_sampling}, background {SPP} spp",
             "sampling": {"photo_samples": photo_spp, "photo_adaptive_threshold": thr,
-                         "photo_adaptive_min_samples": SPP if thr is not None else None,
+                         "photo_adaptive_min_samples": min_photo if thr is not None else None,
                          "background_samples": SPP, "seed_photo": 2, "seed_background": 1},
             "renderer_version": f"bpy {bpy.app.version_string}",
             "render_seconds": round(secs, 1),
@@ -392,6 +395,7 @@ def main(argv=None):
     ap.add_argument("jobs", nargs="*", help="mirror, cases or case names (default: mirror and cases)")
     ap.add_argument("--spp", type=int, help=f"the photo's samples per pixel (most, with adaptive sampling; default the case's, {SPP})")
     ap.add_argument("--adaptive-threshold", type=float, help="Cycles' adaptive sampling for the photo, at least SPP samples")
+    ap.add_argument("--min-spp", type=int, help=f"the photo's fewest samples per pixel with adaptive sampling [{SPP}]")
     ap.add_argument("--data", help="write the case folders under this folder (default data/)")
     a = ap.parse_args(argv)
     jobs = a.jobs or ["mirror", "cases"]
@@ -402,10 +406,12 @@ def main(argv=None):
         ap.error(f"--spp must be at least {SPP}")
     if a.adaptive_threshold is not None and a.adaptive_threshold <= 0:
         ap.error("--adaptive-threshold must be positive")
+    if a.min_spp is not None and (a.adaptive_threshold is None or not SPP <= a.min_spp <= (a.spp or SPP)):
+        ap.error(f"--min-spp needs --adaptive-threshold and lies between {SPP} and --spp")
     if "mirror" in jobs:
         make_mirror()
     if "cases" in jobs or any(j in CASES for j in jobs):
-        make_cases([j for j in jobs if j in CASES] or None, data=a.data, spp=a.spp, adaptive_threshold=a.adaptive_threshold)
+        make_cases([j for j in jobs if j in CASES] or None, data=a.data, spp=a.spp, adaptive_threshold=a.adaptive_threshold, min_spp=a.min_spp)
 
 
 if __name__ == "__main__":

@@ -11,7 +11,9 @@ neighbours), 2, up to 3, 3-5, 5-10 and beyond. Then the reduced chi^2 and outlie
 the cross, by the 3 x 3 block (``saturation_mask`` now), and by discs of radius 2 and 3 px;
 and the light each of the render's glints holds in the render and in the photo.
 
-    PYTHONPATH=. .venv/bin/python experiments/validation/clip_censoring.py FIT.json CASE [FIT.json CASE ...]
+    PYTHONPATH=. .venv/bin/python experiments/validation/clip_censoring.py [--data DIR] FIT.json CASE [FIT.json CASE ...]
+
+--data reads the cases from another folder of cases (as validate.py's --data) instead of data/.
 """
 
 from __future__ import annotations
@@ -93,6 +95,12 @@ def glints(fit_json: str, case: str) -> list[dict]:
 
 if __name__ == "__main__":
     args = sys.argv[1:]
+    if args[:1] == ["--data"]:
+        if len(args) < 2 or not os.path.isdir(args[1]):
+            sys.exit(f"clip_censoring.py: --data needs a folder of cases, got {args[1:2]}")
+        D, args = os.path.abspath(args[1]), args[2:]
+    if not args or len(args) % 2:
+        sys.exit("clip_censoring.py: give pairs FIT.json CASE")
     for fit_json, case in zip(args[0::2], args[1::2]):
         row = analyse(fit_json, case)
         row["glints"] = glints(fit_json, case)

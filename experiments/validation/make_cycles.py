@@ -20,7 +20,19 @@ averages s and p polarisation at each surface hit (unpolarised light after every
 not carried per polarisation through the path); the film is integrated spectrally and
 converted to RGB under illuminant E (not D65); Monte Carlo noise (denoiser off).
 
-    python make_cycles.py [mirror] [cases]        # default: both
+Sampling. By default each image gets SPP = 256 samples per pixel. A glint of the sun reached
+through internal bounces is then a few path samples, each many times the clip level (the
+films' reflect-or-transmit choice is sampled, and a mirror film cannot be connected to the
+sun by light sampling), so the photo's glints are not the pixel integral a camera records.
+--spp N gives the photo (not the background, which has no film) N samples per pixel;
+--adaptive-threshold T turns on Cycles' adaptive sampling for it (at least --min-spp samples,
+SPP by default, at most N, stopping a pixel when its noise estimate is below T). A glint
+that no sample reaches in the first samples looks converged to adaptive sampling, so
+faint glints need --min-spp high enough for a few samples to reach them. --data DIR writes the case
+folders under DIR instead of data/ (the maps are still read from data/envmaps/). The
+settings used go into the case's truth.json.
+
+    python make_cycles.py [mirror] [cases | CASE ...] [--spp N] [--adaptive-threshold T [--min-spp M]] [--data DIR]
 """
 
 from __future__ import annotations
@@ -53,8 +65,7 @@ def reset(width, height, spp):
     sc = bpy.context.scene
     sc.render.engine = "CYCLES"
     sc.cycles.device = "CPU"
-    sc.cycles.samples = spp
-    sc.cycles.use_adaptive_sampling = False
+    sampling(sc, spp)
     sc.cycles.use_denoising = False
     sc.cycles.seed = 1
     sc.cycles.pixel_filter_type = "BOX"
@@ -83,6 +94,19 @@ def reset(width, height, spp):
     sc.render.image_settings.color_depth = "32"
     sc.render.image_settings.exr_codec = "ZIP"
     return sc
+
+
+def sampling(sc, spp, adaptive_threshold=None, min_samples=SPP):
+    """Samples per pixel: fixed (adaptive_threshold None) or Cycles' adaptive sampling between
+    min_samples and spp (Blender 5.0 manual, Render > Cycles > Sampling: Noise Threshold, Min
+    and Max Samples). Returns the setting as a sentence for truth.json."""
+    sc.cycles.samples = spp
+    sc.cycles.use_adaptive_sampling = adaptive_threshold is not None
+    if adaptive_threshold is None:
+        return f"{spp} spp"
+    sc.cycles.adaptive_threshold = float(adaptive_threshold)
+    sc.cycles.adaptive_min_samples = int(min_samples)
+    return f"adaptive sampling, threshold {adaptive_threshold:g}, {min_samples}-{spp} spp"
 
 
 def world(sc, envmap_path):
@@ -287,11 +311,14 @@ def thickness_truth(cam: rr.Camera, th: rr.Thickness):
     return tm.reshape(H, W)
 
 
-def make_cases(names=None):
+def make_cases(names=None, data=None, spp=None, adaptive_threshold=None, min_spp=None):
+    """Render each case (or those named) into DATA/<case>/; spp and adaptive_threshold, when
+    given, set the photo's sampling (see the module's docstring), else the case's own
+    (photo_spp, photo_adaptive_threshold, photo_min_spp; SPP fixed by default)."""
     for name, c in CASES.items():
         if names and name not in names:
             continue
-        out = os.path.join(vio.DATA, name)
+        out = os.path.join(data or vio.DATA, name)
         os.makedirs(out, exist_ok=True)
         cam = c["camera"]
         env = os.path.join(vio.ENVMAPS, c["envmap"] + ".exr")
@@ -303,6 +330,10 @@ def make_cases(names=None):
         rough = float(c.get("roughness", 0.0))
         sphere(sc, bubble_material(c["thickness"], roughness=rough))
         sc.cycles.seed = 2
+        photo_spp = spp or c.get("photo_spp", SPP)
+        thr = adaptive_threshold if adaptive_threshold is not None else c.get("photo_adaptive_threshold")
+        min_photo = min_spp or c.get("photo_min_spp", SPP)
+        photo_sampling = sampling(sc, photo_spp, thr, min_photo)
         photo = render_to_array(sc, os.path.join("/tmp", name + "_photo.exr"))
         secs = time.time() - t0
         expo = 0.9 / float(np.percentile(photo, 99.5))
@@ -323,7 +354,11 @@ def make_cases(names=None):
             fit_args = ["--scene", "scene.toml"]
         truth = {
             "case": name, "kind": "positive",
-            "renderer": f"Blender {bpy.app.version_string} Cycles (CPU), {SPP} spp, box filter 1 px, denoiser off",
+            "renderer": f"Blender {bpy.app.version_string} Cycles (CPU), box filter 1 px, denoiser off; "
+                        f"photo {photo_sampling}, background {SPP} spp",
+            "sampling": {"photo_samples": photo_spp, "photo_adaptive_threshold": thr,
+                         "photo_adaptive_min_samples": min_photo if thr is not None else None,
+                         "background_samples": SPP, "seed_photo": 2, "seed_background": 1},
             "renderer_version": f"bpy {bpy.app.version_string}",
             "render_seconds": round(secs, 1),
             "camera": cam.describe(), "disc": {"cx": cx, "cy": cy, "r": r}, "disc_given": False,
@@ -353,9 +388,31 @@ def make_cases(names=None):
         print(f"{name}: {secs:.1f} s, exposure {expo:.4g}", flush=True)
 
 
-if __name__ == "__main__":
-    jobs = sys.argv[1:] or ["mirror", "cases"]
+def main(argv=None):
+    """Command line: the jobs named (mirror spheres, the cases) with the photos' sampling options."""
+    import argparse
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("jobs", nargs="*", help="mirror, cases or case names (default: mirror and cases)")
+    ap.add_argument("--spp", type=int, help=f"the photo's samples per pixel (most, with adaptive sampling; default the case's, {SPP})")
+    ap.add_argument("--adaptive-threshold", type=float, help="Cycles' adaptive sampling for the photo, at least SPP samples")
+    ap.add_argument("--min-spp", type=int, help=f"the photo's fewest samples per pixel with adaptive sampling [{SPP}]")
+    ap.add_argument("--data", help="write the case folders under this folder (default data/)")
+    a = ap.parse_args(argv)
+    jobs = a.jobs or ["mirror", "cases"]
+    bad = [j for j in jobs if j not in ("mirror", "cases", *CASES)]
+    if bad:
+        ap.error(f"unknown job or case: {', '.join(bad)}")
+    if a.spp is not None and a.spp < SPP:
+        ap.error(f"--spp must be at least {SPP}")
+    if a.adaptive_threshold is not None and a.adaptive_threshold <= 0:
+        ap.error("--adaptive-threshold must be positive")
+    if a.min_spp is not None and (a.adaptive_threshold is None or not SPP <= a.min_spp <= (a.spp or SPP)):
+        ap.error(f"--min-spp needs --adaptive-threshold and lies between {SPP} and --spp")
     if "mirror" in jobs:
         make_mirror()
     if "cases" in jobs or any(j in CASES for j in jobs):
-        make_cases([j for j in jobs if j in CASES] or None)
+        make_cases([j for j in jobs if j in CASES] or None, data=a.data, spp=a.spp, adaptive_threshold=a.adaptive_threshold, min_spp=a.min_spp)
+
+
+if __name__ == "__main__":
+    main()

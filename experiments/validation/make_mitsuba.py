@@ -10,7 +10,14 @@ limit). Outputs:
   ../../tests/data/probes/*                          mirror balls for `bubblefit envmap`
   data/conventions/mitsuba_mirror_*.exr              mirror spheres for check_conventions.py
 
-    python make_mitsuba.py [cal] [mts] [probes] [mirror]     # default: all
+The thick bubbles' photos get 256 samples per pixel by default. A glint of the sun reached
+through internal bounces is then a few path samples, each many times the clip level (the
+slab's reflect-or-transmit choice is sampled), so the photo's glints are not the pixel
+integral a camera records; --spp N renders the photo (not the background, which has no
+film) with N samples per pixel, the same seed. --data DIR writes the case folders under DIR
+instead of data/. The settings used go into the case's truth.json.
+
+    python make_mitsuba.py [cal] [mts | CASE ...] [probes] [mirror] [--spp N] [--data DIR]   # default: all
 """
 
 from __future__ import annotations
@@ -166,13 +173,22 @@ def envmap_emitter(name):
     return {"type": "envmap", "filename": os.path.join(vio.ENVMAPS, name + ".exr")}
 
 
-def make_mts():
-    cases = {
-        "mts_thick_courtyard_persp": dict(envmap="courtyard", kind="persp", w=176, h=144, spp=256),
-        "mts_thick_sunrise_ortho": dict(envmap="sunrise", kind="ortho", w=160, h=160, spp=256),
-    }
-    for name, c in cases.items():
-        out = os.path.join(vio.DATA, name)
+MTS_SPP = 256
+MTS_CASES = {
+    "mts_thick_courtyard_persp": dict(envmap="courtyard", kind="persp", w=176, h=144),
+    "mts_thick_sunrise_ortho": dict(envmap="sunrise", kind="ortho", w=160, h=160),
+}
+
+
+def make_mts(names=None, data=None, spp=None):
+    """Render the thick bubbles (or those named) into DATA/<case>/; spp, when given, is the
+    photo's samples per pixel (else the case's photo_spp, MTS_SPP by default)."""
+    for name, c in MTS_CASES.items():
+        if names and name not in names:
+            continue
+        c = dict(c, spp=MTS_SPP)
+        photo_spp = spp or c.get("photo_spp", MTS_SPP)
+        out = os.path.join(data or vio.DATA, name)
         os.makedirs(out, exist_ok=True)
         w, h = c["w"], c["h"]
         if c["kind"] == "persp":
@@ -196,6 +212,7 @@ def make_mts():
         back = render(scene)
         scene["bubble"] = bubble()
         cam["sampler"]["seed"] = 3
+        cam["sampler"]["sample_count"] = photo_spp
         photo = render(scene)
         secs = time.time() - t0
         expo = 0.9 / float(np.percentile(photo, 99.5))
@@ -211,7 +228,9 @@ def make_mts():
             fh.write("\n".join(scene_toml))
         truth = {
             "case": name, "kind": "positive",
-            "renderer": f"Mitsuba {mi.__version__} scalar_rgb, path tracer max_depth 24, {c['spp']} spp, box filter",
+            "renderer": f"Mitsuba {mi.__version__} scalar_rgb, path tracer max_depth 24, box filter; "
+                        f"photo {photo_spp} spp, background {c['spp']} spp",
+            "sampling": {"photo_samples": photo_spp, "background_samples": c["spp"], "seed_photo": 3, "seed_background": 0},
             "renderer_version": mi.__version__,
             "bubble": {"center": [0, 0, 0], "radius": 1.0, "n_film": N_FILM, "bsdf": "thindielectric"},
             "camera": camd, "disc": disc, "disc_given": False,
@@ -309,7 +328,31 @@ def make_mirror():
         print("mirror", cam)
 
 
-if __name__ == "__main__":
-    jobs = sys.argv[1:] or ["mirror", "cal", "mts", "probes"]
+def main(argv=None):
+    """Command line: the jobs named (calibration pairs, thick bubbles, probes, mirror spheres)."""
+    import argparse
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("jobs", nargs="*", help="cal, mts, probes, mirror or thick-bubble case names (default: all)")
+    ap.add_argument("--spp", type=int, help=f"the thick bubbles' photo samples per pixel (default the case's, {MTS_SPP})")
+    ap.add_argument("--data", help="write the thick bubbles' case folders under this folder (default data/)")
+    a = ap.parse_args(argv)
+    jobs = a.jobs or ["mirror", "cal", "mts", "probes"]
+    bad = [j for j in jobs if j not in ("cal", "mts", "probes", "mirror", *MTS_CASES)]
+    if bad:
+        ap.error(f"unknown job or case: {', '.join(bad)}")
+    if a.spp is not None and a.spp < MTS_SPP:
+        ap.error(f"--spp must be at least {MTS_SPP}")
     for j in jobs:
-        {"cal": make_cal, "mts": make_mts, "probes": make_probes, "mirror": make_mirror}[j]()
+        if j in MTS_CASES:
+            continue
+        if j == "mts":
+            make_mts(data=a.data, spp=a.spp)
+        else:
+            {"cal": make_cal, "probes": make_probes, "mirror": make_mirror}[j]()
+    named = [j for j in jobs if j in MTS_CASES]
+    if named:
+        make_mts(named, data=a.data, spp=a.spp)
+
+
+if __name__ == "__main__":
+    main()

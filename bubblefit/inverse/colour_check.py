@@ -30,9 +30,11 @@ degrees of freedom; the colours are inconsistent when ``T`` exceeds the law's
 optical-path bin over the whole film: a constant film's hue error from a wrong response
 is a function of the path alone, the same in every cell, and one mean per bin holds it in
 far fewer degrees of freedom (about 2 x 9 on a 1500 nm film's 48 px disc against 2 x 110
-parts); the two partitions are tested each at half the false-alarm rate (Bonferroni), and
-the colours are inconsistent when either fails. ``kappa >= 1`` guards the noise model
-(:func:`noise_scale`): the ratio of the chromatic part of each pixel's residual minus the
+parts). For a constant film it also runs a score test (:func:`_score_verdict`): whether the
+stated response needs a smooth change (12 directions) beyond its stated errors, the
+thickness profiled out, over the cells' parts. The members are tested each at an equal
+share of the false-alarm rate (Bonferroni), and the colours are inconsistent when any fails.
+``kappa >= 1`` guards the noise model (:func:`noise_scale`): the ratio of the chromatic part of each pixel's residual minus the
 mean of its four neighbours' to what the noise model predicts for it, pooled over the
 film (hundreds of pixels, so it adds little tail). A hue error that follows the film's
 thickness varies over several pixels and cancels in that difference; noise does not. (The
@@ -383,8 +385,15 @@ def _score_verdict(cells: list, kappa: float, false_alarm: float, shared: bool) 
     hypotheses concerning several parameters", Proc. Cambridge Phil. Soc. 44, 1948;
     Breusch & Pagan, Econometrica 47, 1979): the parts' mean chromatic residuals ``m``
     have, under the stated response, the covariance ``Sigma = blockdiag(kappa C_b + F_b) +
-    G G^T`` (the response's stated errors ``G`` with ``shared``: their one draw is the
-    prior, and only a change beyond it is tested). With ``L L^T = Sigma``, ``z = L^-1 m``
+    G G^T + tau^2 D D^T`` (the response's stated errors ``G`` with ``shared``: their one
+    draw is the prior, and only a change beyond it is tested). The last term is the
+    model-error floors' share: a floor does not average down over the pixels of a part,
+    nor over the parts (another renderer's hue error is coherent over the film, and a smooth
+    change of the response can mimic it), so besides each part's own floor ``F_b`` the
+    null holds one shared draw along the directions, of the size that moves the mean part's
+    hue by its floor, ``tau^2 = mean_b tr F_b / mean_b tr(D_b D_b^T)`` (``D_b`` projected
+    on the chromatic plane; zero without floors): the test asks for a change of the
+    response beyond its stated errors and beyond what the floors allow. With ``L L^T = Sigma``, ``z = L^-1 m``
     and ``X = L^-1 [N, D]``, the statistic is the part of ``|z|^2`` that the columns of
     ``D`` explain beyond those of ``N``, ``|Q_D^T z|^2`` with ``Q_D`` an orthonormal basis
     of ``L^-1 D``'s part orthogonal to ``L^-1 N``: the score ``D'^T Sigma^-1 m`` in the
@@ -400,10 +409,14 @@ def _score_verdict(cells: list, kappa: float, false_alarm: float, shared: bool) 
     if shared:
         g = np.concatenate([c[4] for c in cells])
         sigma = sigma + g @ g.T
+    dirs = np.concatenate([c[5][0] for c in cells])
+    reach = np.mean([np.sum(c[5][0] ** 2) for c in cells])
+    if reach > 0:  # the floors' shared draw along the directions
+        sigma = sigma + np.mean([np.trace(c[2]) for c in cells]) / reach * dirs @ dirs.T
     low = cholesky(sigma, lower=True)
     z = solve_triangular(low, m, lower=True)
     nuis = solve_triangular(low, np.concatenate([c[5][1] for c in cells]), lower=True)
-    dirs = solve_triangular(low, np.concatenate([c[5][0] for c in cells]), lower=True)
+    dirs = solve_triangular(low, dirs, lower=True)
 
     def unit(a):  # the columns scaled to unit norm, empty ones left out
         norm = np.linalg.norm(a, axis=0)

@@ -241,7 +241,8 @@ def test_score_test_of_the_response():
     """The colour check's score test along smooth changes of the response
     (``response_score_cells``: Legendre degrees 1-4 of each channel's response, the
     thickness profiled out) on a 32 px wedge of pale thick film (1300 -> 1700 nm) seen by
-    the Nikon over a grey background, 0.1 % noise per channel, the floors off. With the
+    the Nikon over a grey background, 0.1 % noise per channel, the floors off (and with them
+    their shared draw along the directions). With the
     right render each part's mean chromatic residual is exactly normal with the covariance
     the check gives it, so the statistic follows chi^2 with 12 degrees of freedom: over 30
     draws its mean lies within 4 of its deviations (sqrt(2 * 12 / 30) = 0.89) of 12, and

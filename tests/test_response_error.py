@@ -235,3 +235,68 @@ def test_pixel_thickness_error_against_monte_carlo(tmp_path, d0):
                                  np.array([d0]), np.ones(1), np.full((1, 3), 1.0 / sigma))
     assert got[0] > 0.5  # nanometres: the test is not of zeros
     assert np.std(fitted) == pytest.approx(got[0], rel=0.15), (np.std(fitted), got[0])
+
+
+def test_score_test_of_the_response():
+    """The colour check's score test along smooth changes of the response
+    (``response_score_cells``: Legendre degrees 1-4 of each channel's response, the
+    thickness profiled out) on a 32 px wedge of pale thick film (1300 -> 1700 nm) seen by
+    the Nikon over a grey background, 0.1 % noise per channel, the floors off (and with them
+    their shared draw along the directions). With the
+    right render each part's mean chromatic residual is exactly normal with the covariance
+    the check gives it, so the statistic follows chi^2 with 12 degrees of freedom: over 30
+    draws its mean lies within 4 of its deviations (sqrt(2 * 12 / 30) = 0.89) of 12, and
+    no draw exceeds its share of the threshold (1e-3 / 3: 0.01 alarms expected; one
+    allowed). A film read 3 nm off (a few of a fit's standard errors) moves the hues along
+    the thickness, which the test profiles out: the same law, where without that nuisance
+    the test fires (its noise-free statistic about 130, ten times the 12 it adds to).
+    A response changed smoothly by 60 % of itself at the ends of the range (red tilted up,
+    green curved, blue tilted down) moves the hue by about 0.3 noise sigmas per pixel,
+    which the directions hold (a non-centrality of about 100 against a threshold of 36:
+    its deviation ~21), and the test fires on every draw."""
+    from bubblefit.inverse.colour_check import GRID, _tests
+    from bubblefit.inverse.response_error import response_score_cells
+
+    h = w = 32
+    thick = 1300.0 + 400.0 * np.mgrid[:h, :w][1] / w
+    e_light, b_light = np.array([0.9, 1.0, 0.8]), np.array([0.2, 0.3, 0.25])
+
+    def render(resp, t):
+        f = (np.stack([_airy(v) for v in t.ravel()]) @ resp / resp.sum(axis=0)).reshape(h, w, 3)
+        return e_light * f + b_light * (1 - f)
+
+    nik = _nikon(LAM)
+    x = (LAM - 580.0) / 200.0
+    truth = render(nik, thick)
+    wrong = render(nik * (1 + 0.6 * np.stack([x, 1.5 * x**2 - 0.5, -x], axis=1)), thick)
+    off = render(nik, thick + 3.0)
+    bg = np.broadcast_to(b_light, truth.shape).copy()
+    sigma = np.full(truth.shape, 0.001)
+    kept = {}
+    full = response_score_cells(CAMERA, "E", 1.33, truth, bg, thick, np.ones((h, w)))
+
+    def score(ys, xs):  # the parts repeat between draws
+        key = (ys.tobytes(), xs.tobytes())
+        if key not in kept:
+            kept[key] = full(ys, xs)
+        return kept[key]
+
+    def bare(ys, xs):  # the same directions, no nuisance
+        return score(ys, xs)[0], np.zeros((ys.size, 3, 1))
+
+    def test(photo, jac=score):
+        got = _tests(photo, truth, np.ones((h, w), bool), sigma, model_error=None, floor=0.0, chroma_floor=0.0,
+                     grid=GRID, false_alarm=1e-3, response_jac=None, path=2 * 1.33 * thick, path_bin=None,
+                     pooled=True, score_jac=jac)
+        return next(c for c in got if c.partition == "response")
+
+    rng = np.random.default_rng(4)
+    for centre in (truth, off):
+        got = [test(centre + sigma * rng.normal(size=truth.shape)) for _ in range(30)]
+        stat = np.array([c.chi2_per_dof * c.dof for c in got])
+        assert got[0].dof == 12 and abs(stat.mean() - 12) < 4 * np.sqrt(2 * 12 / 30), stat.mean()
+        assert sum(not c.consistent for c in got) <= 1, stat.max()
+    assert not test(off, bare).consistent
+    for _ in range(3):
+        c = test(wrong + sigma * rng.normal(size=truth.shape))
+        assert not c.consistent and c.dof == 12, c

@@ -30,9 +30,11 @@ degrees of freedom; the colours are inconsistent when ``T`` exceeds the law's
 optical-path bin over the whole film: a constant film's hue error from a wrong response
 is a function of the path alone, the same in every cell, and one mean per bin holds it in
 far fewer degrees of freedom (about 2 x 9 on a 1500 nm film's 48 px disc against 2 x 110
-parts); the two partitions are tested each at half the false-alarm rate (Bonferroni), and
-the colours are inconsistent when either fails. ``kappa >= 1`` guards the noise model
-(:func:`noise_scale`): the ratio of the chromatic part of each pixel's residual minus the
+parts). For a constant film it also runs a score test (:func:`_score_verdict`): whether the
+stated response needs a smooth change (12 directions) beyond its stated errors, the
+thickness profiled out, over the cells' parts. The members are tested each at an equal
+share of the false-alarm rate (Bonferroni), and the colours are inconsistent when any fails.
+``kappa >= 1`` guards the noise model (:func:`noise_scale`): the ratio of the chromatic part of each pixel's residual minus the
 mean of its four neighbours' to what the noise model predicts for it, pooled over the
 film (hundreds of pixels, so it adds little tail). A hue error that follows the film's
 thickness varies over several pixels and cancels in that difference; noise does not. (The
@@ -148,7 +150,9 @@ class ColourCheck:
     chroma_rms: float        # RMS over cells of |mean chromatic residual| / |mean render| (a fraction)
     noise_scale: float = 1.0  # kappa: the photo's scatter over the noise model's, at least 1
     response_errors: bool = False  # whether the response's own stated errors are in the null
-    partition: str = "cells"  # the parts reported: "cells" (the grid's, split by path) or "path" (the film's path bins)
+    partition: str = "cells"  # the parts reported: "cells" (the grid's, split by path), "path" (the film's path
+    # bins) or "response" (the score test along smooth changes of the response over the cells' parts)
+    dof: int = 0              # the statistic's degrees of freedom
 
     def warning(self, explained: bool = True) -> str | None:
         """One line for the fit's warnings when the colours are inconsistent, else None;
@@ -157,9 +161,15 @@ class ColourCheck:
         suspect."""
         if self.consistent:
             return None
-        what = (f"a hue error of {self.chroma_rms:.1%} coherent over the film (chromatic chi^2/dof "
-                f"{self.chi2_per_dof:.3g} over {self.cells} {'patches' if self.partition == 'cells' else 'optical-path bins'}, "
-                f"at most {self.threshold_per_dof:.3g} expected)")
+        if self.partition == "response":
+            what = (f"a hue error of {self.chroma_rms:.1%} that a smooth change of the response beyond its stated errors "
+                    f"explains (score chi^2/dof {self.chi2_per_dof:.3g} along {self.dof} changes of the response over "
+                    f"{self.cells} patches, at most {self.threshold_per_dof:.3g} expected)")
+        else:
+            what = (f"a hue error of {self.chroma_rms:.1%} coherent over the film (chromatic chi^2/dof "
+                    f"{self.chi2_per_dof:.3g} over {self.cells} "
+                    f"{'patches' if self.partition == 'cells' else 'optical-path bins'}, "
+                    f"at most {self.threshold_per_dof:.3g} expected)")
         if not explained:
             return (f"the hues are not explained either: {what}; with the model missing the photo as a whole, the "
                     "camera response (--camera-response, bubblefit calibrate-camera) and --encoding are suspects "
@@ -175,7 +185,7 @@ class ColourCheck:
         return {"consistent": self.consistent, "chi2_per_dof": self.chi2_per_dof,
                 "threshold_per_dof": self.threshold_per_dof, "cells": self.cells, "chroma_rms": self.chroma_rms,
                 "noise_scale": self.noise_scale, "response_errors": self.response_errors, "partition": self.partition,
-                "decides": bool(decides)}
+                "dof": self.dof, "decides": bool(decides)}
 
 
 def _plane(c: np.ndarray) -> np.ndarray:
@@ -186,11 +196,12 @@ def _plane(c: np.ndarray) -> np.ndarray:
     return np.stack([u, np.cross(c, u)])
 
 
-def _cell_terms(e: np.ndarray, v: np.ndarray, rend: np.ndarray, floor: float, chroma_floor: float, jac):
+def _cell_terms(e: np.ndarray, v: np.ndarray, rend: np.ndarray, floor: float, chroma_floor: float, jac, score=None):
     """One cell's terms of :func:`colour_check` (module docstring) from its pixels' residuals
-    ``e``, noise variances ``v`` and renders ``rend`` (n, 3), and ``jac``, the (3, K) change of
-    its mean render per unit of the response's error coefficients (None: none): ``(m_b, C_b,
-    F_b, brightness, P_b jac)``."""
+    ``e``, noise variances ``v`` and renders ``rend`` (n, 3), ``jac``, the (3, K) change of
+    its mean render per unit of the response's error coefficients (None: none), and
+    ``score``, the pair ``(D, N)`` of the score test's directions and nuisances (None: none):
+    ``(m_b, C_b, F_b, brightness, P_b jac, (P_b D, P_b N))``."""
     n = e.shape[0]
     mean = rend.mean(axis=0)
     p = _plane(mean / np.linalg.norm(mean))
@@ -198,13 +209,14 @@ def _cell_terms(e: np.ndarray, v: np.ndarray, rend: np.ndarray, floor: float, ch
     bright = float(np.linalg.norm(rend, axis=1).mean())
     chroma = float(np.linalg.norm(mean - mean.mean()))  # the part orthogonal to grey (1, 1, 1)
     model = 0.5 * ((floor * bright) ** 2 + (chroma_floor * chroma) ** 2) * np.eye(2)
-    return (e @ p.T).mean(axis=0), noise, model, bright, None if jac is None else p @ jac
+    return ((e @ p.T).mean(axis=0), noise, model, bright, None if jac is None else p @ jac,
+            None if score is None else (p @ score[0], p @ score[1]))
 
 
 def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma: np.ndarray, *,
                  model_error: float | None = None, floor: float = CHROMA_FLOOR, chroma_floor: float = CHROMA_REL, grid: int = GRID,
                  false_alarm: float = FALSE_ALARM, response_jac=None, path: np.ndarray | None = None,
-                 path_bin: float | None = None, pooled: bool = False) -> ColourCheck | None:
+                 path_bin: float | None = None, pooled: bool = False, score_jac=None) -> ColourCheck | None:
     """Test whether ``render`` explains the hues of ``photo`` over the pixels of ``mask``,
     each pixel's channels having the noise standard deviation ``sigma`` (the fit's noise
     model, :func:`~bubblefit.inverse._observation.noise_sigma`); module docstring. Pixels
@@ -227,8 +239,28 @@ def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma:
     alone, so pooling each bin over the film keeps it and averages the noise over every
     pixel of that path), each at ``false_alarm / 2`` (Bonferroni: the union's false-alarm
     rate is at most the sum), and the partition with the larger statistic over its
-    threshold is returned (``partition``). ``None`` when fewer than two cells have
-    :data:`MIN_PIXELS` pixels."""
+    threshold is returned (``partition``). ``score_jac`` (:func:`bubblefit.inverse.response_error.response_score_cells`):
+    a function of a part's pixel rows and columns giving ``(D, N)``, the change of its mean
+    render per unit of each of a few smooth changes of the response and of each nuisance the
+    fit adjusts in the hue; the score test along them (:func:`_score_verdict`) is then one
+    more member of the union, every member at ``false_alarm`` over their number.
+    ``None`` when fewer than two cells have :data:`MIN_PIXELS` pixels."""
+    tests = _tests(photo, render, mask, sigma, model_error=model_error, floor=floor, chroma_floor=chroma_floor,
+                   grid=grid, false_alarm=false_alarm, response_jac=response_jac, path=path, path_bin=path_bin,
+                   pooled=pooled, score_jac=score_jac)
+    if not tests:
+        return None
+    worse = max(tests, key=lambda c: c.chi2_per_dof / c.threshold_per_dof)
+    return replace(worse, consistent=all(c.consistent for c in tests))
+
+
+def _tests(photo, render, mask, sigma, *, model_error, floor, chroma_floor, grid, false_alarm, response_jac, path,
+           path_bin, pooled, score_jac) -> list:
+    """The members of :func:`colour_check`'s union (its arguments), each a
+    :class:`ColourCheck` at its share of ``false_alarm``: the grid's cells (split by
+    ``path``), with ``pooled`` the path's bins over the film, with ``score_jac`` the score
+    test over the cells' parts; empty when fewer than two cells have :data:`MIN_PIXELS`
+    pixels."""
     photo = np.asarray(photo, np.float64)
     render = np.asarray(render, np.float64)
     var = np.asarray(sigma, np.float64) ** 2 * np.ones_like(photo)
@@ -241,7 +273,7 @@ def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma:
         use &= ~(chi > OUTLIER_CHI2)
     ys, xs = np.nonzero(use)
     if ys.size < 2 * MIN_PIXELS:
-        return None
+        return []
     e, v, rend = photo[ys, xs] - render[ys, xs], var[ys, xs], render[ys, xs]
     y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
     cy = np.minimum((ys - y0) * grid // max(y1 - y0, 1), grid - 1)
@@ -253,7 +285,7 @@ def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma:
     else:  # the optical-path bin of each pixel (PATH_BIN); pixels without a path form their own
         x = np.broadcast_to(np.asarray(path, np.float64), photo.shape[:2])[ys, xs]
         part = np.where(np.isfinite(x), np.floor(np.where(np.isfinite(x), x, 0.0) / path_bin), -1).astype(np.int64)
-    cells = []
+    subs = []  # the cells' parts: indices of their pixels
     white = np.full(photo.shape[:2] + (2,), np.nan)  # detrended chromatic residual / its predicted sigma
     for b in np.unique(cell):
         sel = np.nonzero(cell == b)[0]
@@ -271,25 +303,44 @@ def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma:
         for q in np.unique(part[sel]):  # the cell's pixels of one optical-path bin
             sub = sel[part[sel] == q]
             if sub.size >= MIN_PART_PIXELS:
-                cells.append(_cell_terms(e[sub], v[sub], rend[sub], floor, chroma_floor,
-                                         None if response_jac is None else response_jac(ys[sub], xs[sub])))
-    if len(cells) < 2:
-        return None
+                subs.append(sub)
+    if len(subs) < 2:
+        return []
+    scores = [None] * len(subs) if score_jac is None else _part_means(score_jac, ys, xs, subs)
+    cells = [_cell_terms(e[sub], v[sub], rend[sub], floor, chroma_floor,
+                         None if response_jac is None else response_jac(ys[sub], xs[sub]), score)
+             for sub, score in zip(subs, scores)]
     kappa = noise_scale(photo, render, var, use, white)
-    if not (pooled and path is not None):
-        return _verdict(cells, kappa, false_alarm, response_jac is not None)
     bins = []  # the path's bins over the whole film
-    for q in np.unique(part):
+    for q in np.unique(part) if pooled and path is not None else ():
         sub = np.nonzero(part == q)[0]
         if sub.size >= MIN_PART_PIXELS:
             bins.append(_cell_terms(e[sub], v[sub], rend[sub], floor, chroma_floor,
                                     None if response_jac is None else response_jac(ys[sub], xs[sub])))
-    split = _verdict(cells, kappa, 0.5 * false_alarm, response_jac is not None)
-    if len(bins) < 2:
-        return split
-    whole = _verdict(bins, kappa, 0.5 * false_alarm, response_jac is not None, "path")
-    worse = max((split, whole), key=lambda c: c.chi2_per_dof / c.threshold_per_dof)
-    return replace(worse, consistent=split.consistent and whole.consistent)
+    members = 1 + (pooled and path is not None) + (score_jac is not None)
+    shared = response_jac is not None
+    out = [_verdict(cells, kappa, false_alarm / members, shared)]
+    if len(bins) >= 2:
+        out.append(_verdict(bins, kappa, false_alarm / members, shared, "path"))
+    if score_jac is not None:
+        score = _score_verdict(cells, kappa, false_alarm / members, shared)
+        out += [] if score is None else [score]
+    return out
+
+
+def _part_means(score_jac, ys, xs, subs: list) -> list:
+    """``[(D_b, N_b)]``: the means over each part's pixels (``subs``, indices into ``ys``,
+    ``xs``; at most :data:`bubblefit.inverse.response_error.MAX_PIXELS` of each, evenly
+    strided) of ``score_jac``'s per-pixel directions and nuisances, from one call over all
+    of them."""
+    from .response_error import MAX_PIXELS
+
+    take = [sub if sub.size <= MAX_PIXELS else sub[np.linspace(0, sub.size - 1, MAX_PIXELS).astype(int)]
+            for sub in subs]
+    every = np.concatenate(take)
+    d, n = score_jac(ys[every], xs[every])
+    ends = np.cumsum([t.size for t in take])[:-1]
+    return [(a.mean(axis=0), b.mean(axis=0)) for a, b in zip(np.split(d, ends), np.split(n, ends))]
 
 
 def _verdict(cells: list, kappa: float, false_alarm: float, shared: bool, partition: str = "cells") -> ColourCheck:
@@ -302,11 +353,11 @@ def _verdict(cells: list, kappa: float, false_alarm: float, shared: bool, partit
     # the same function without scipy.stats' import (0.4 s of CPU in every fit's process)
     from scipy.special import chdtri
 
-    stat = sum(float(m @ np.linalg.solve(kappa * c + f, m)) for m, c, f, _, _ in cells)
+    stat = sum(float(m @ np.linalg.solve(kappa * c + f, m)) for m, c, f, _, _, _ in cells)
     if shared:  # the shared response's draw, by the Woodbury identity
         k = cells[0][4].shape[1]
         u, inner = np.zeros(k), np.eye(k)
-        for m, c, f, _, g in cells:
+        for m, c, f, _, g, _ in cells:
             cg = np.linalg.solve(kappa * c + f, g)  # C_b^-1 G_b
             u += cg.T @ m
             inner += g.T @ cg
@@ -314,9 +365,80 @@ def _verdict(cells: list, kappa: float, false_alarm: float, shared: bool, partit
     dof = 2 * len(cells)
     thr = float(chdtri(dof, false_alarm)) / dof
     value = stat / dof
-    rel = [float(np.linalg.norm(m)) / bright for m, _, _, bright, _ in cells]
+    rel = [float(np.linalg.norm(m)) / bright for m, _, _, bright, _, _ in cells]
     return ColourCheck(bool(value <= thr), value, thr, len(cells), float(np.sqrt(np.mean(np.square(rel)))), kappa,
-                       shared, partition)
+                       shared, partition, dof)
+
+
+#: Size under which a singular value of the score test's whitened directions counts as none
+#: (:func:`_score_verdict`): their columns are scaled to unit norm first (before the
+#: nuisances are projected out), so this bounds their conditioning, far above float64's
+#: rounding (1e-16).
+SCORE_RCOND = 1e-6
+
+
+def _score_verdict(cells: list, kappa: float, false_alarm: float, shared: bool) -> ColourCheck | None:
+    """The score (Lagrange multiplier) test that the camera response needs a change along
+    the directions ``D`` that :func:`_cell_terms` carries in each part (a few smooth changes
+    of the response, :func:`bubblefit.inverse.response_error.response_score_cells`), with
+    the fit's nuisances ``N`` profiled out (Rao, "Large sample tests of statistical
+    hypotheses concerning several parameters", Proc. Cambridge Phil. Soc. 44, 1948;
+    Breusch & Pagan, Econometrica 47, 1979): the parts' mean chromatic residuals ``m``
+    have, under the stated response, the covariance ``Sigma = blockdiag(kappa C_b + F_b) +
+    G G^T + tau^2 D D^T`` (the response's stated errors ``G`` with ``shared``: their one
+    draw is the prior, and only a change beyond it is tested). The last term is the
+    model-error floors' share: a floor does not average down over the pixels of a part,
+    nor over the parts (another renderer's hue error is coherent over the film, and a smooth
+    change of the response can mimic it), so besides each part's own floor ``F_b`` the
+    null holds one shared draw along the directions, of the size that moves the mean part's
+    hue by its floor, ``tau^2 = mean_b tr F_b / mean_b tr(D_b D_b^T)`` (``D_b`` projected
+    on the chromatic plane; zero without floors): the test asks for a change of the
+    response beyond its stated errors and beyond what the floors allow. With ``L L^T = Sigma``, ``z = L^-1 m``
+    and ``X = L^-1 [N, D]``, the statistic is the part of ``|z|^2`` that the columns of
+    ``D`` explain beyond those of ``N``, ``|Q_D^T z|^2`` with ``Q_D`` an orthonormal basis
+    of ``L^-1 D``'s part orthogonal to ``L^-1 N``: the score ``D'^T Sigma^-1 m`` in the
+    inverse of its information, a chi^2 law with as many degrees of freedom as ``Q_D``
+    has columns (Mardia, Kent & Bibby, 1979, thm. 2.5.2). None without directions."""
+    from scipy.linalg import block_diag, cholesky, solve_triangular
+    from scipy.special import chdtri
+
+    if any(c[5] is None for c in cells):
+        return None
+    m = np.concatenate([c[0] for c in cells])
+    sigma = block_diag(*[kappa * c[1] + c[2] for c in cells])
+    if shared:
+        g = np.concatenate([c[4] for c in cells])
+        sigma = sigma + g @ g.T
+    dirs = np.concatenate([c[5][0] for c in cells])
+    reach = np.mean([np.sum(c[5][0] ** 2) for c in cells])
+    if reach > 0:  # the floors' shared draw along the directions
+        sigma = sigma + np.mean([np.trace(c[2]) for c in cells]) / reach * dirs @ dirs.T
+    low = cholesky(sigma, lower=True)
+    z = solve_triangular(low, m, lower=True)
+    nuis = solve_triangular(low, np.concatenate([c[5][1] for c in cells]), lower=True)
+    dirs = solve_triangular(low, dirs, lower=True)
+
+    def unit(a):  # the columns scaled to unit norm, empty ones left out
+        norm = np.linalg.norm(a, axis=0)
+        return a[:, norm > 0] / norm[norm > 0]
+
+    def basis(a):  # orthonormal columns spanning a's (unit columns: SCORE_RCOND bounds their conditioning)
+        if a.shape[1] == 0:
+            return a
+        u, sv, _ = np.linalg.svd(a, full_matrices=False)
+        return u[:, sv > SCORE_RCOND]
+
+    qn = basis(unit(nuis))
+    dirs = unit(dirs)
+    qd = basis(dirs - qn @ (qn.T @ dirs))
+    dof = qd.shape[1]
+    if dof == 0:
+        return None
+    stat = float(np.sum((qd.T @ z) ** 2))
+    thr = float(chdtri(dof, false_alarm)) / dof
+    rel = [float(np.linalg.norm(c[0])) / c[3] for c in cells]
+    return ColourCheck(bool(stat / dof <= thr), stat / dof, thr, len(cells), float(np.sqrt(np.mean(np.square(rel)))),
+                       kappa, shared, "response", dof)
 
 
 def _planes(c: np.ndarray) -> np.ndarray:
@@ -387,7 +509,7 @@ def _block_scale(white: np.ndarray, k: int = 2) -> float:
 
 def judge_colours(ok: bool, warnings: list, photo, render, mask, cos, sigma, model_error: float = 0.0,
                   explained: bool = True, decide: bool = True, response_jac=None,
-                  thickness=None, n_film: float | None = None) -> tuple[bool, list, dict | None]:
+                  thickness=None, n_film: float | None = None, score_jac=None) -> tuple[bool, list, dict | None]:
     """The fit's verdict with the colour test added: ``(ok, warnings, record)``. The test
     (:func:`colour_check`) runs over the fitted pixels ``mask`` whose front film's ``cos``
     (cosine of incidence) exceeds :data:`INNER_COS`, with the fit's noise ``sigma`` and
@@ -398,13 +520,15 @@ def judge_colours(ok: bool, warnings: list, photo, render, mask, cos, sigma, mod
     the calibrated response's own errors (:func:`colour_check`); ``thickness`` (nm, a value
     or a per-pixel map) and ``n_film``: the fitted film, whose optical path ``2 n d cos t``
     (:func:`~bubblefit.optics.film.optical_path`) at each pixel's ``cos`` splits the cells
-    (:data:`PATH_BIN`; None: not split)."""
+    (:data:`PATH_BIN`; None: not split). ``score_jac``: the score test's directions and
+    nuisances (:func:`bubblefit.inverse.response_error.response_score_cells`; None: no score
+    test), one more member of :func:`colour_check`'s union."""
     path = None
     if thickness is not None and n_film is not None:
         path = np.asarray(optical_path(np.asarray(thickness, np.float64), float(n_film),
                                        np.clip(np.asarray(cos, np.float64), 0.0, 1.0)))
     check = colour_check(photo, render, np.asarray(mask, bool) & (np.asarray(cos) > INNER_COS), sigma,
-                         model_error=model_error, response_jac=response_jac, path=path, pooled=True)
+                         model_error=model_error, response_jac=response_jac, path=path, pooled=True, score_jac=score_jac)
     if check is None:
         return ok, warnings, None
     why = check.warning(explained)

@@ -67,7 +67,8 @@ from ._verdict import at_bounds, clamp_to_range, unresolved, verdict
 from ._view import camera_record, fit_divergence, fit_view, lens_for
 from .colour_check import judge_colours
 from .order_check import OrderCheck, neighbouring_orders, order_check, order_parameters
-from .response_error import pixel_thickness_stderr, response_cells, response_error, solve_response_gram
+from .response_error import (pixel_thickness_stderr, response_cells, response_error, response_score_cells,
+                             solve_response_gram)
 from ..errors import InputError
 from ..lighting.envmap import EnvMap
 from ..model.modes import GREY
@@ -329,9 +330,13 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     thick = thickness_map if thickness_map is not None else reported["thickness_nm"]
     response_jac = response_cells(st.colour.response, st.colour.illuminant, reported["n_film"], img, st.background,
                                   thick, full.cos)  # a calibrated response's own errors (None: exact)
+    # the score test along smooth changes of the response: a constant film's (its nuisance, the
+    # thickness, is then one number; drainage profiles and maps are not tested this way)
+    score_jac = response_score_cells(st.colour.response, st.colour.illuminant, reported["n_film"], img,
+                                     st.background, thick, full.cos) if st.table.thickness_model == "constant" else None
     ok, warnings, colour_record = judge_colours(ok, warnings, st.photo, img, full.mask, full.cos, sigma,
                                                 float(judge.model_error), explained, judge.colour_check == "decide",
-                                                response_jac, thick, reported["n_film"])
+                                                response_jac, thick, reported["n_film"], score_jac)
     order = judged.order  # does the photo tell the order, the response's errors allowed?
     names = order_parameters(st.table.thickness_model) or ()
     if order is not None and names and all(np.isfinite(reported.get(n, np.nan)) for n in names):

@@ -48,7 +48,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ResponseError", "response_error", "response_cells", "response_gram", "solve_response_gram", "marginal_chi2",
+__all__ = ["ResponseError", "response_error", "response_cells", "response_perturbation", "response_score_cells", "response_gram", "solve_response_gram", "marginal_chi2",
            "solve_marginal_chi2", "pixel_thickness_stderr", "pixel_thickness_shifts", "MAX_PIXELS"]
 
 #: Pixels per cell the mean Jacobian is taken over (evenly strided): the Jacobian follows
@@ -91,11 +91,25 @@ class ResponseError:
         refl = self.reflectance(thickness, cos) if refl is None else np.asarray(refl, np.float64)
         total = self.density.sum(axis=0)                         # (3,)
         f = self.shares(refl)                                    # (n, 3) the film's reflected share per channel
-        proj = refl @ self.hats                                  # (n, L)
-        dfdx = (proj[:, None, :] - f[:, :, None] * self.hats.sum(axis=0)[None, None, :]) / total[None, :, None]
+        move = np.einsum("gl,lcm->gcm", self.hats, self.modes)   # (G, 3, M) each mode's change of w_k on the grid
+        dfdx = (np.einsum("ng,gcm->ncm", refl, move) - f[:, :, None] * move.sum(axis=0)[None]) / total[None, :, None]
         bg = 0.0 if background is None else np.asarray(background, np.float64)
         dydf = (np.asarray(render, np.float64) - bg) / np.maximum(f, 1e-9)
-        return dydf[:, :, None] * np.einsum("ncl,lcm->ncm", dfdx, self.modes)
+        return dydf[:, :, None] * dfdx
+
+    def thickness_slope(self, render, background, thickness, cos, reflectance=None) -> np.ndarray:
+        """(n, 3) ``dy / dd``: each pixel's change of its render per nm of its film's
+        thickness, ``(dy / df) (df / dd)`` (module docstring; the shares ``f`` of
+        :meth:`shares` differenced over :data:`THICKNESS_STEP_NM`), at ``thickness`` (n,) nm
+        seen at ``cos`` (n,); ``reflectance(d)``: the film's reflectance (n, G) at
+        thicknesses ``d`` where it is not a film in air (default: :meth:`reflectance`)."""
+        d = np.asarray(thickness, np.float64)
+        refl = (lambda x: self.reflectance(x, cos)) if reflectance is None else reflectance
+        f = self.shares(refl(d))
+        dfdd = (self.shares(refl(d + THICKNESS_STEP_NM)) - self.shares(refl(d - THICKNESS_STEP_NM))) / (
+            2 * THICKNESS_STEP_NM)
+        bg = 0.0 if background is None else np.asarray(background, np.float64)
+        return (np.asarray(render, np.float64) - bg) / np.maximum(f, 1e-9) * dfdd
 
     def cell_jacobian(self, render, background, thickness, cos) -> np.ndarray:
         """(3, 3 M): how a cell's mean render moves per unit of each channel's mode
@@ -174,6 +188,74 @@ def response_cells(response: str, illuminant: str, n_film: float, render: np.nda
     return jac
 
 
+#: Highest degree of the Legendre polynomials in wavelength (over 380-780 nm) by which the
+#: colour check's score test (:func:`response_score_cells`) lets each channel's response
+#: change, relative to itself: degrees 1 to this (degree 0, the channel's scale, the white
+#: balance takes back), three channels, so ``3 * SCORE_DEGREE`` directions.
+SCORE_DEGREE = 4
+
+
+def response_perturbation(response: str, illuminant: str, n_film: float, degree: int = SCORE_DEGREE) -> ResponseError:
+    """A :class:`ResponseError` whose "modes" are smooth relative changes of ``response``:
+    channel ``k``'s response ``rho_k(lambda)`` times the Legendre polynomial ``P_m(x)``,
+    ``x = (2 lambda - 780 - 380) / (780 - 380)``, ``m = 1 .. degree`` (Abramowitz & Stegun
+    22.2.10), on the fine grid (its rows are the grid's own samples, so its hat functions
+    are the lamp alone); for :func:`response_score_cells`. Any response (a named camera,
+    sRGB, a CSV with or without errors)."""
+    from numpy.polynomial import legendre
+
+    from ..optics.spectral import (LAMBDA_MAX, LAMBDA_MIN, TABLE_GRID, channel_density, illuminant_spectrum,
+                                   response_functions)
+
+    inside = (TABLE_GRID >= LAMBDA_MIN) & (TABLE_GRID <= LAMBDA_MAX)
+    lam = TABLE_GRID[inside]
+    x = (2.0 * lam - LAMBDA_MAX - LAMBDA_MIN) / (LAMBDA_MAX - LAMBDA_MIN)
+    poly = np.stack([legendre.legval(x, np.eye(degree + 1)[m]) for m in range(1, degree + 1)], axis=-1)  # (G, K)
+    rho = response_functions(response)[inside]                                                          # (G, 3)
+    return ResponseError(lam, np.diag(illuminant_spectrum(illuminant)[inside]), channel_density(illuminant, response)[inside],
+                         rho[:, :, None] * poly[:, None, :], float(n_film))
+
+
+def response_score_cells(response: str, illuminant: str, n_film: float, render: np.ndarray,
+                         background: np.ndarray | None, thickness: np.ndarray, cos: np.ndarray,
+                         degree: int = SCORE_DEGREE):
+    """For the colour check's score test (:func:`bubblefit.inverse.colour_check.colour_check`'s
+    ``score_jac``): a function of pixel rows and columns (n,) giving ``(D, N)``: ``D``
+    (n, 3, 3 ``degree``) each pixel's change of its render per unit of each smooth relative
+    change of the response (:func:`response_perturbation`, through
+    :meth:`ResponseError.jacobian`; channel ``k``'s changes in columns ``k degree`` to
+    ``(k + 1) degree``, moving channel ``k`` only), and ``N`` (n, 3, 3) per unit of the
+    nuisance the fit adjusts in the hue, the film's thickness: the thickness slope
+    (:meth:`ResponseError.thickness_slope`) times 1, ``v`` and ``v^2`` with ``v`` the
+    pixel's row from the image's middle over half its height (a constant film, and to
+    second order a profile in height). Over images ``render``, ``background`` (None: none),
+    ``thickness`` (nm) and ``cos``; computed in blocks of :data:`_GRAM_BLOCK` pixels, the
+    last one padded (one compiled shape for every photo)."""
+    err = response_perturbation(response, illuminant, n_film, degree)
+    h = np.shape(render)[0]
+    thickness = np.broadcast_to(np.asarray(thickness, np.float64), np.shape(render)[:2])
+    render = np.asarray(render, np.float64)
+    cos = np.asarray(cos, np.float64)
+
+    def jac(ys, xs):
+        n = np.size(ys)
+        dirs, nuis = np.zeros((n, 3, 3 * degree)), np.zeros((n, 3, 3))
+        for lo in range(0, n, _GRAM_BLOCK):
+            i = np.arange(lo, lo + _GRAM_BLOCK).clip(max=n - 1)  # the last block padded with its last pixel
+            y, x = ys[i], xs[i]
+            bg = None if background is None else np.asarray(background, np.float64)[y, x]
+            d, c, r = thickness[y, x], cos[y, x], render[y, x]
+            move = err.jacobian(r, bg, d, c, refl=err.reflectance(d, c))       # (b, 3, degree)
+            v = ((y - 0.5 * (h - 1)) / (0.5 * h))[:, None, None] ** np.arange(3)
+            keep = slice(0, min(_GRAM_BLOCK, n - lo))
+            for k in range(3):
+                dirs[lo:lo + _GRAM_BLOCK, k, k * degree:(k + 1) * degree] = move[keep, k]
+            nuis[lo:lo + _GRAM_BLOCK] = (err.thickness_slope(r, bg, d, c)[:, :, None] * v)[keep]
+        return np.nan_to_num(dirs), np.nan_to_num(nuis)
+
+    return jac
+
+
 #: Pixels per block of :func:`response_gram` (bounds its memory: a block holds its pixels'
 #: derivatives along every mode, 3 M floats each).
 _GRAM_BLOCK = 2048
@@ -217,14 +299,10 @@ def pixel_thickness_shifts(err: ResponseError | None, render: np.ndarray, backgr
     d = np.asarray(thickness, np.float64)
     cs = np.asarray(cos, np.float64)
     refl = (lambda x: err.reflectance(x, cs)) if reflectance is None else reflectance
-    r0 = refl(d)
-    bg = 0.0 if background is None else np.asarray(background, np.float64)
     y = np.asarray(render, np.float64)
-    f = err.shares(r0)
-    dfdd = (err.shares(refl(d + THICKNESS_STEP_NM)) - err.shares(refl(d - THICKNESS_STEP_NM))) / (2 * THICKNESS_STEP_NM)
     wt = np.asarray(weight, np.float64)
-    j = wt * (y - bg) / np.maximum(f, 1e-9) * dfdd                                       # (n, 3)
-    g = err.jacobian(y, background, d, cs, refl=r0) * wt[:, :, None]                   # (n, 3, M)
+    j = wt * err.thickness_slope(y, background, d, cs, refl)                            # (n, 3)
+    g = err.jacobian(y, background, d, cs, refl=refl(d)) * wt[:, :, None]              # (n, 3, M)
     jj = np.sum(j * j, axis=1)
     return -j[:, :, None] * g / np.maximum(jj, 1e-300)[:, None, None], jj
 

@@ -435,3 +435,13 @@ def test_the_installed_jaxlib_takes_the_flag_that_jax_setup_adds(tmp_path):
     known = version is not None and first <= version <= last
     assert (jaxcache.ynn_fusion_setting(flags) == "") == known
     assert float(value) == float(sum(i * i for i in range(8)))  # integers: exact in float32
+
+
+def test_the_jaxlib_version_is_read_without_importing_it(monkeypatch):
+    """The version read from the installed wheel's folder is the one its metadata gives."""
+    from importlib import metadata
+
+    from bubblefit.io import jaxcache
+
+    monkeypatch.delitem(sys.modules, "jaxlib")  # as before JAX is imported
+    assert jaxcache._jaxlib_version() == metadata.version("jaxlib")

@@ -55,10 +55,27 @@ def _version_tuple(version: str) -> tuple[int, ...] | None:
 
 
 def _jaxlib_version() -> str | None:
-    """The installed jaxlib's version, read without importing it; None when it is not installed."""
+    """The installed jaxlib's version, read without importing it; None when it is not installed.
+
+    The version is the name of the package's ``jaxlib-VERSION.dist-info`` folder beside it
+    (PEP 427's layout of an installed wheel; ``importlib.metadata`` finds the same by
+    reading every installed package's metadata, 25 ms of CPU at each command's start)."""
     jaxlib = sys.modules.get("jaxlib")
     if jaxlib is not None and getattr(jaxlib, "__version__", None):
         return jaxlib.__version__
+    import glob
+    import importlib.util
+
+    try:
+        spec = importlib.util.find_spec("jaxlib")
+    except (ImportError, ValueError):
+        return None
+    if spec is None:
+        return None
+    for place in spec.submodule_search_locations or ():
+        found = glob.glob(os.path.join(glob.escape(os.path.dirname(place)), "jaxlib-*.dist-info"))
+        if len(found) == 1:
+            return os.path.basename(found[0])[len("jaxlib-"):-len(".dist-info")]
     from importlib import metadata
 
     try:

@@ -92,6 +92,10 @@ def case_options(case: str, thickness: str, model: str = "auto"):
         kw["view"] = resolve_view(fov_deg=0, width=photo.pixels.shape[1], height=photo.pixels.shape[0])
     return photo, env, bg, FitOptions(thickness=thickness, model=model, **kw), truth
 
+#: ``XLA_FLAGS`` before this process's :func:`bubblefit.io.jaxcache.jax_setup` (which may add
+#: to it), for the commands that ``--staged`` runs.
+_XLA_FLAGS: str | None = None
+
 #: (label, module, attribute) of the functions timed.
 TIMED = (("setup", "bubblefit.inverse.fit", "setup"), ("search", "bubblefit.inverse.fit", "_searched_start"),
          ("local solve", "bubblefit.inverse.fit", "solve_local"), ("judge (std errors)", "bubblefit.inverse.fit", "_judge"),
@@ -368,6 +372,11 @@ def staged(cases: list[str], fit_args: list[str], out: Path, repeats: int, mitsu
     code = code or [str(HERE.parent)]
     envs = [dict(os.environ, BUBBLEFIT_VERBOSE="1", PYTHONPATH=c) for c in code]
     for env in envs:
+        # XLA_FLAGS as this script found it: its own jax_setup may have added flags that each
+        # checkout's command sets (or not) for itself
+        env.pop("XLA_FLAGS", None)
+        if _XLA_FLAGS is not None:
+            env["XLA_FLAGS"] = _XLA_FLAGS
         env.pop("BUBBLEFIT_QUIET", None)
         # an installed package's modules are byte-compiled: without this every process
         # would compile the package's sources again (1.3 s of a loaded render's 23 s)
@@ -457,6 +466,8 @@ def main(argv=None):
         DATA = Path(a.data).resolve()
     from bubblefit.io.jaxcache import jax_setup
 
+    global _XLA_FLAGS
+    _XLA_FLAGS = os.environ.get("XLA_FLAGS")
     jax_setup()  # the persistent compilation cache of the command line (BUBBLEFIT_CACHE_DIR)
     if a.staged:
         staged(a.staged, (a.fit_args or "").split(), Path(a.out), a.repeats, a.mitsuba_python,

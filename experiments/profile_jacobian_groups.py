@@ -4,7 +4,9 @@ Fits one photo of a folder of cases (``--data``, as ``experiments/bench_map.py``
 the case's map, background photo and illuminant, no stated view) as ``bubblefit fit`` does
 (default ``auto``, ``--thickness``), keeping every local solve's arguments; then takes the
 costliest solve (the physical model's local fit) at its start and times, each jitted alone,
-median CPU and wall milliseconds of 3 calls after the first (which compiles):
+median CPU and wall milliseconds of 3 calls after the first, with each program's compile CPU
+seconds and HLO instruction count (``--compile final``: compiled with the final solve's
+XLA options, :data:`bubblefit.inverse._programs.FINAL_COMPILE`, as the fit compiles it):
 
 - a render of its fitted pixels (the residual);
 - each group of :attr:`~bubblefit.inverse._parameters.ParameterTable.jacobian_groups`
@@ -46,6 +48,23 @@ from bubblefit.inverse._parameters import PARAMETERS  # noqa: E402
 SOLVES = keep_solves(F)
 
 
+#: XLA's compiler options of the timed programs (``--compile``): XLA's defaults, or the
+#: final solve's (:data:`bubblefit.inverse._programs.FINAL_COMPILE`).
+COMPILE = {"default": (), "final": P.FINAL_COMPILE}
+_OPTIONS: list = [()]
+
+
+def jitted(fn, *args) -> tuple:
+    """``fn`` compiled for ``args`` with the chosen compiler options (``--compile``): the
+    callable, its compile CPU seconds and its optimized program's HLO instruction count."""
+    c0 = time.process_time()
+    compiled = jax.jit(fn).lower(*args).compile(compiler_options=dict(_OPTIONS[0]) or None)
+    cpu = time.process_time() - c0
+    text = compiled.as_text() or ""
+    n = sum(1 for line in text.splitlines() if " = " in line and not line.lstrip().startswith(("HloModule", "//")))
+    return compiled, {"compile_cpu_s": round(cpu, 2), "hlo_instructions": n}
+
+
 def timeit(fn) -> dict:
     """CPU seconds of the first call, median wall and CPU milliseconds of the next 3."""
     c0 = time.process_time()
@@ -81,7 +100,10 @@ def main():
     ap.add_argument("out")
     ap.add_argument("--data", default=None)
     ap.add_argument("--model", default="auto")
+    ap.add_argument("--compile", choices=sorted(COMPILE), default="default",
+                    help="XLA's compiler options of the timed programs (final: the final solve's)")
     a = ap.parse_args()
+    _OPTIONS[0] = COMPILE[a.compile]
     if a.data:
         bench_map.DATA = Path(a.data).resolve()
     photo, env, bg, opts, _ = bench_map.case_options(a.case, a.thickness, a.model)
@@ -99,25 +121,26 @@ def main():
     _, resid = P.solver(*key)
     z = jnp.asarray(table.unconstrained(vals), jnp.float32)
     res = {"solve": s["row"], "groups": [[table.free[i] for i in g] for g in table.jacobian_groups]}
-    rj = jax.jit(resid)
-    res["render"] = timeit(lambda: rj(z, args))
+    res["compile"] = a.compile
+    rj, info = jitted(resid, z, args)
+    res["render"] = dict(timeit(lambda: rj(z, args)), **info)
     for g in table.jacobian_groups:
-        f = jax.jit(lambda z, args, g=g: jax.jacfwd(_along(resid, tuple(z[i] for i in range(z.shape[0])), g, args))(
-            jnp.stack([z[i] for i in g])))
-        res["group " + ",".join(table.free[i] for i in g)] = timeit(lambda: f(z, args))
+        f, info = jitted(lambda z, args, g=g: jax.jacfwd(_along(resid, tuple(z[i] for i in range(z.shape[0])), g, args))(
+            jnp.stack([z[i] for i in g])), z, args)
+        res["group " + ",".join(table.free[i] for i in g)] = dict(timeit(lambda: f(z, args)), **info)
         print(json.dumps(res), flush=True)
     ref = None
     for name, groups in groupings(table).items():
-        cj = jax.jit(lambda z, args, groups=groups: column_jacobian(resid, groups, z, args))
-        res[name] = dict(timeit(lambda: cj(z, args)), groups=[[table.free[i] for i in g] for g in groups])
+        cj, info = jitted(lambda z, args, groups=groups: column_jacobian(resid, groups, z, args), z, args)
+        res[name] = dict(timeit(lambda: cj(z, args)), **info, groups=[[table.free[i] for i in g] for g in groups])
         jac = cj(z, args)
         ref = jac if ref is None else ref
         res[name]["max_abs_diff"] = float(jnp.max(jnp.abs(jac - ref)))
         print(json.dumps(res), flush=True)
     for name, fn in (("columns (columns_linearized)", lambda z, args: columns_linearized(resid, z, args)),
                      ("one jax.jacfwd", lambda z, args: jax.jacfwd(lambda zz: resid(zz, args))(z))):
-        f = jax.jit(fn)
-        res[name] = timeit(lambda: f(z, args))
+        f, info = jitted(fn, z, args)
+        res[name] = dict(timeit(lambda: f(z, args)), **info)
         res[name]["max_abs_diff"] = float(jnp.max(jnp.abs(f(z, args) - ref)))
         print(json.dumps(res), flush=True)
     out["costs"] = res

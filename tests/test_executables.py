@@ -362,3 +362,86 @@ def test_unreadable_jax_cache_entries_are_replaced_and_write_errors_said_once(tm
         compilation_cache.put_executable_and_time("k", "m", None, None, 0)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no space left on device" in err[0]
+
+
+def _version(parts) -> str:
+    return ".".join(str(p) for p in parts)
+
+
+def test_the_ynn_fusions_are_turned_off_only_for_a_known_jaxlib_and_never_over_the_users_flag(monkeypatch):
+    """XLA aborts the process on a flag its jaxlib does not know: the flag is added for the
+    versions in the known range only, once, never over the user's own value of it, and not
+    after JAX's backend read the flags."""
+    from jax._src import xla_bridge
+
+    from bubblefit.io import jaxcache
+
+    first, last = jaxcache.YNN_FLAG_JAXLIB
+    outside = [_version(last[:-1] + (last[-1] + 1,)), _version((last[0] + 1,) + last[1:]),
+               _version(last) + ".dev20260101", "not-a-version"]
+    if first[-1] > 0:
+        outside.append(_version(first[:-1] + (first[-1] - 1,)))
+    monkeypatch.setattr(xla_bridge, "backends_are_initialized", lambda: False)
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false")
+    for version in outside:
+        assert not jaxcache.ynn_fusions_off(version)
+        assert os.environ["XLA_FLAGS"] == "--xla_cpu_multi_thread_eigen=false"
+    for version in (first, last):
+        monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false")
+        assert jaxcache.ynn_fusions_off(_version(version))
+        assert jaxcache.ynn_fusions_off(_version(version))  # a second call adds nothing
+        assert os.environ["XLA_FLAGS"] == f"--xla_cpu_multi_thread_eigen=false {jaxcache.YNN_FLAG}="
+        assert jaxcache.ynn_fusion_setting() == ""
+    users = f"{jaxcache.YNN_FLAG}=reduce"
+    monkeypatch.setenv("XLA_FLAGS", users)
+    assert not jaxcache.ynn_fusions_off(_version(first)) and os.environ["XLA_FLAGS"] == users
+    monkeypatch.delenv("XLA_FLAGS")
+    monkeypatch.setattr(xla_bridge, "backends_are_initialized", lambda: True)
+    assert not jaxcache.ynn_fusions_off(_version(first)) and "XLA_FLAGS" not in os.environ
+    assert jaxcache.ynn_fusion_setting(f"{jaxcache.YNN_FLAG}=a {jaxcache.YNN_FLAG}=") == ""
+    assert jaxcache.ynn_fusion_setting("--xla_other=1") is None
+
+
+def test_the_fusion_setting_is_part_of_the_stores_key(monkeypatch):
+    """A program compiled with XLA:CPU's YNNPACK fusions is never loaded as one without."""
+    from bubblefit.io import executables
+    from bubblefit.io.jaxcache import YNN_FLAG
+
+    keys = set()
+    for flags in (None, f"{YNN_FLAG}=", f"{YNN_FLAG}=reduce"):
+        if flags is None:
+            monkeypatch.delenv("XLA_FLAGS", raising=False)
+        else:
+            monkeypatch.setenv("XLA_FLAGS", flags)
+        keys.add(executables._key("f", b"", (np.ones(2, np.float32),)))
+    assert len(keys) == 3
+
+
+def test_the_installed_jaxlib_takes_the_flag_that_jax_setup_adds(tmp_path):
+    """A fresh process with :func:`jax_setup` runs with the flag in XLA_FLAGS (when its
+    jaxlib is a known one) and computes a reduction right (XLA would abort on an unknown flag)."""
+    script = ("import os, sys; from bubblefit.io import jaxcache; jaxcache.jax_setup(sys.argv[1]); "
+              "import jax.numpy as jnp, jax; print(os.environ.get('XLA_FLAGS', ''), '|', "
+              "float(jax.jit(lambda x: jnp.sum(x * x))(jnp.arange(8.0))))")
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    out = subprocess.run([sys.executable, "-c", script, str(tmp_path / "cache")], capture_output=True,
+                         text=True, timeout=120, env=env)
+    assert out.returncode == 0, out.stderr[-2000:]
+    flags, value = out.stdout.strip().rsplit("|", 1)
+    from bubblefit.io import jaxcache
+
+    version = jaxcache._version_tuple(jaxcache._jaxlib_version() or "")
+    first, last = jaxcache.YNN_FLAG_JAXLIB
+    known = version is not None and first <= version <= last
+    assert (jaxcache.ynn_fusion_setting(flags) == "") == known
+    assert float(value) == float(sum(i * i for i in range(8)))  # integers: exact in float32
+
+
+def test_the_jaxlib_version_is_read_without_importing_it(monkeypatch):
+    """The version read from the installed wheel's folder is the one its metadata gives."""
+    from importlib import metadata
+
+    from bubblefit.io import jaxcache
+
+    monkeypatch.delitem(sys.modules, "jaxlib")  # as before JAX is imported
+    assert jaxcache._jaxlib_version() == metadata.version("jaxlib")

@@ -11,7 +11,8 @@ without tracing:
 - what the function is: a name and the static values it closes over (the render
   configuration, the parameter table, the solver's settings), serialised for the key only;
 - the code it runs: a digest of every ``.py`` file of the bubblefit package, and the
-  versions of JAX and jaxlib, the backend and the float64 flag;
+  versions of JAX and jaxlib, the backend, the float64 flag and the XLA:CPU fusions chosen
+  (:func:`bubblefit.io.jaxcache.ynn_fusion_setting`);
 - what it is called with: the arguments' tree structure, shapes and dtypes.
 
 A change to any of them is a new key, so a stale program is never run.
@@ -71,7 +72,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from .atomic import os_reason
-from .jaxcache import jax_settings, private_folder, store_enabled, warn_once
+from .jaxcache import jax_settings, private_folder, store_enabled, warn_once, ynn_fusion_setting
 
 __all__ = ["Stored", "stored", "source_digest"]
 
@@ -154,7 +155,8 @@ def _key(name: str, static_bytes: bytes, args: tuple) -> str:
     leaves, tree = jax.tree_util.tree_flatten(args)
     h = hashlib.sha256()
     for part in (name, source_digest(), jax.__version__, jaxlib.__version__, jax.default_backend(),
-                 str(jax.devices()[0].device_kind), str(bool(jax.config.jax_enable_x64)), str(tree)):
+                 str(jax.devices()[0].device_kind), str(bool(jax.config.jax_enable_x64)),
+                 f"ynn={ynn_fusion_setting()}", str(tree)):
         h.update(part.encode())
         h.update(b"\0")
     h.update(static_bytes)

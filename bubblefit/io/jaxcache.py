@@ -11,6 +11,12 @@ XLA's C++ log (e.g. the "slow compile" alarm) goes to stderr unless
 ``TF_CPP_MIN_LOG_LEVEL`` is set before the library loads; :func:`jax_setup` sets it to
 errors-only-if-fatal (``3``) unless the user chose a level, so that the user sees only
 bubblefit's own lines (docs/design.md, "Command line").
+
+XLA:CPU hands small reductions to YNNPACK, one fusion each; the fit's programs run faster
+and load faster without them (docs/speed-profile.md), so :func:`jax_setup` turns them off
+for the whole process (:func:`ynn_fusions_off`) where the installed jaxlib is one known to
+accept the flag. XLA aborts the process on a flag it does not know, so another jaxlib
+runs with XLA's defaults, and a setting of the flag in the user's ``XLA_FLAGS`` is kept.
 """
 
 from __future__ import annotations
@@ -20,13 +26,115 @@ import os
 import sys
 import threading
 
-__all__ = ["default_cache_dir", "jax_setup", "jax_settings", "private_folder", "store_enabled", "warn_once"]
+__all__ = ["default_cache_dir", "jax_setup", "jax_settings", "private_folder", "store_enabled", "warn_once",
+           "ynn_fusion_setting", "ynn_fusions_off"]
 
 #: Every compiled program goes into the cache (seconds of compile time below which one
 #: would not). A fit builds ~160 small programs (geometry, tables, bounds) that compile in
 #: 10-30 ms each but load in ~5 ms: with a threshold of 0.2 s a warm 320x320 fit spent
 #: 3.5 s recompiling them; with 0 it spends 0.9 s loading everything.
 MIN_COMPILE_TIME_S = 0.0
+
+
+#: XLA's flag that chooses which fusions XLA:CPU hands to YNNPACK (empty: none).
+YNN_FLAG = "--xla_cpu_experimental_ynn_fusion_type"
+#: The jaxlib versions (first, last; inclusive) known to accept :data:`YNN_FLAG`: the ones
+#: the fit was measured and validated with. XLA reads ``XLA_FLAGS`` when JAX creates its
+#: backend and aborts the process on a flag it does not know, so the flag is never set for
+#: a jaxlib outside this range.
+YNN_FLAG_JAXLIB = ((0, 10, 2), (0, 10, 2))
+
+
+def _version_tuple(version: str) -> tuple[int, ...] | None:
+    """``"0.10.2"`` as ``(0, 10, 2)``; None for a version that is not plain numbers (a
+    development build, ``0.10.3.dev20260101``: not one known)."""
+    try:
+        return tuple(int(part) for part in version.split("."))
+    except ValueError:
+        return None
+
+
+def _jaxlib_version() -> str | None:
+    """The installed jaxlib's version, read without importing it; None when it is not installed.
+
+    The version is the name of the package's ``jaxlib-VERSION.dist-info`` folder beside it
+    (PEP 427's layout of an installed wheel; ``importlib.metadata`` finds the same by
+    reading every installed package's metadata, 25 ms of CPU at each command's start)."""
+    jaxlib = sys.modules.get("jaxlib")
+    if jaxlib is not None and getattr(jaxlib, "__version__", None):
+        return jaxlib.__version__
+    import glob
+    import importlib.util
+
+    try:
+        spec = importlib.util.find_spec("jaxlib")
+    except (ImportError, ValueError):
+        return None
+    if spec is None:
+        return None
+    for place in spec.submodule_search_locations or ():
+        found = glob.glob(os.path.join(glob.escape(os.path.dirname(place)), "jaxlib-*.dist-info"))
+        if len(found) == 1:
+            return os.path.basename(found[0])[len("jaxlib-"):-len(".dist-info")]
+    from importlib import metadata
+
+    try:
+        return metadata.version("jaxlib")
+    except metadata.PackageNotFoundError:
+        return None
+
+
+def ynn_fusion_setting(xla_flags: str | None = None) -> str | None:
+    """The value ``XLA_FLAGS`` (or ``xla_flags``) gives :data:`YNN_FLAG`; None when it does
+    not set it.
+
+    References
+    ----------
+    XLA's flag parser (``tsl/util/command_line_flags.cc``) sets the flags in the order
+    given, so of a flag given twice the last value holds; a flag without ``=`` is a
+    boolean's ``true``.
+    """
+    flags = os.environ.get("XLA_FLAGS", "") if xla_flags is None else xla_flags
+    value = None
+    for flag in flags.split():
+        name, eq, rest = flag.partition("=")
+        if name == YNN_FLAG:
+            value = rest if eq else "true"
+    return value
+
+
+def ynn_fusions_off(jaxlib_version: str | None = None) -> bool:
+    """Add ``--xla_cpu_experimental_ynn_fusion_type=`` (no reduction handed to YNNPACK) to
+    ``XLA_FLAGS``; True when the process runs without those fusions.
+
+    Nothing changes when ``XLA_FLAGS`` already sets the flag (the user's value, or this
+    function's in a parent process, is kept), when the installed jaxlib (or
+    ``jaxlib_version``) is not in :data:`YNN_FLAG_JAXLIB`, or when JAX's backend exists
+    already (XLA read its flags then: a change would only make JAX's cache key and the
+    store's disagree with the programs).
+
+    References
+    ----------
+    XLA's ``DebugOptions.xla_cpu_experimental_ynn_fusion_type`` (xla/xla.proto); the
+    measurements in docs/speed-profile.md.
+    """
+    current = ynn_fusion_setting()
+    if current is not None:
+        return current == ""
+    version = _version_tuple(jaxlib_version or _jaxlib_version() or "")
+    first, last = YNN_FLAG_JAXLIB
+    if version is None or not first <= version <= last:
+        return False
+    if "jax" in sys.modules:
+        try:
+            from jax._src import xla_bridge
+
+            if xla_bridge.backends_are_initialized():
+                return False
+        except Exception:  # cannot tell whether XLA read its flags: leave them
+            return False
+    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {YNN_FLAG}=".strip()
+    return True
 
 
 def default_cache_dir() -> str:
@@ -119,8 +227,9 @@ def warn_once(topic: str, message: str) -> None:
 
 
 def jax_setup(cache_dir: str | None = None, *, enable_x64: bool | None = None, quiet: bool = True) -> dict:
-    """Configure this process's JAX: persistent compilation cache, float64, quiet logs, and
-    the store of compiled executables (:mod:`bubblefit.io.executables`) turned on.
+    """Configure this process's JAX: persistent compilation cache, float64, quiet logs,
+    XLA:CPU without its YNNPACK fusions (:func:`ynn_fusions_off`), and the store of compiled
+    executables (:mod:`bubblefit.io.executables`) turned on.
 
     Parameters
     ----------
@@ -141,6 +250,7 @@ def jax_setup(cache_dir: str | None = None, *, enable_x64: bool | None = None, q
     """
     if quiet:
         _quiet_logs()
+    ynn_fusions_off()
     global _STORE_ON
     _STORE_ON = True
     cache = (cache_dir or os.environ.get("BUBBLEFIT_CACHE_DIR") or os.environ.get("JAX_COMPILATION_CACHE_DIR")

@@ -368,12 +368,10 @@ def _version(parts) -> str:
     return ".".join(str(p) for p in parts)
 
 
-def test_the_ynn_fusions_are_turned_off_only_for_a_known_jaxlib_and_never_over_the_users_flag(monkeypatch):
-    """XLA aborts the process on a flag its jaxlib does not know: the flag is added for the
-    versions in the known range only, once, never over the user's own value of it, and not
-    after JAX's backend read the flags."""
-    from jax._src import xla_bridge
-
+def test_the_ynn_option_is_given_only_for_a_known_jaxlib_and_never_over_the_users_flag(monkeypatch):
+    """The solves' option that turns XLA:CPU's YNNPACK fusions off is given for the jaxlib
+    versions in the known range only (an experimental option another jaxlib may lack), and
+    not when the user's ``XLA_FLAGS`` sets the flag (their choice holds for every program)."""
     from bubblefit.io import jaxcache
 
     first, last = jaxcache.YNN_FLAG_JAXLIB
@@ -381,23 +379,14 @@ def test_the_ynn_fusions_are_turned_off_only_for_a_known_jaxlib_and_never_over_t
                _version(last) + ".dev20260101", "not-a-version"]
     if first[-1] > 0:
         outside.append(_version(first[:-1] + (first[-1] - 1,)))
-    monkeypatch.setattr(xla_bridge, "backends_are_initialized", lambda: False)
     monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false")
     for version in outside:
-        assert not jaxcache.ynn_fusions_off(version)
-        assert os.environ["XLA_FLAGS"] == "--xla_cpu_multi_thread_eigen=false"
+        assert jaxcache.ynn_fusions_off_option(version) == ()
     for version in (first, last):
-        monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false")
-        assert jaxcache.ynn_fusions_off(_version(version))
-        assert jaxcache.ynn_fusions_off(_version(version))  # a second call adds nothing
-        assert os.environ["XLA_FLAGS"] == f"--xla_cpu_multi_thread_eigen=false {jaxcache.YNN_FLAG}="
-        assert jaxcache.ynn_fusion_setting() == ""
-    users = f"{jaxcache.YNN_FLAG}=reduce"
-    monkeypatch.setenv("XLA_FLAGS", users)
-    assert not jaxcache.ynn_fusions_off(_version(first)) and os.environ["XLA_FLAGS"] == users
-    monkeypatch.delenv("XLA_FLAGS")
-    monkeypatch.setattr(xla_bridge, "backends_are_initialized", lambda: True)
-    assert not jaxcache.ynn_fusions_off(_version(first)) and "XLA_FLAGS" not in os.environ
+        assert jaxcache.ynn_fusions_off_option(_version(version)) == (("xla_cpu_experimental_ynn_fusion_type", ""),)
+    monkeypatch.setenv("XLA_FLAGS", f"{jaxcache.YNN_FLAG}=reduce")
+    assert jaxcache.ynn_fusions_off_option(_version(first)) == ()
+    assert os.environ["XLA_FLAGS"] == f"{jaxcache.YNN_FLAG}=reduce"  # nothing is written
     assert jaxcache.ynn_fusion_setting(f"{jaxcache.YNN_FLAG}=a {jaxcache.YNN_FLAG}=") == ""
     assert jaxcache.ynn_fusion_setting("--xla_other=1") is None
 
@@ -417,24 +406,30 @@ def test_the_fusion_setting_is_part_of_the_stores_key(monkeypatch):
     assert len(keys) == 3
 
 
-def test_the_installed_jaxlib_takes_the_flag_that_jax_setup_adds(tmp_path):
-    """A fresh process with :func:`jax_setup` runs with the flag in XLA_FLAGS (when its
-    jaxlib is a known one) and computes a reduction right (XLA would abort on an unknown flag)."""
-    script = ("import os, sys; from bubblefit.io import jaxcache; jaxcache.jax_setup(sys.argv[1]); "
-              "import jax.numpy as jnp, jax; print(os.environ.get('XLA_FLAGS', ''), '|', "
-              "float(jax.jit(lambda x: jnp.sum(x * x))(jnp.arange(8.0))))")
-    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
-    out = subprocess.run([sys.executable, "-c", script, str(tmp_path / "cache")], capture_output=True,
-                         text=True, timeout=120, env=env)
-    assert out.returncode == 0, out.stderr[-2000:]
-    flags, value = out.stdout.strip().rsplit("|", 1)
+def test_the_installed_jaxlib_takes_the_solves_option():
+    """With the installed jaxlib a known one, a row reduction that XLA:CPU hands to YNNPACK
+    by default hands it nothing when compiled with the solves' options
+    (:data:`bubblefit.inverse._programs.FINAL_COMPILE`), and both compute it exactly."""
+    import jax
+    import jax.numpy as jnp
+
+    from bubblefit.inverse._programs import FINAL_COMPILE
     from bubblefit.io import jaxcache
 
-    version = jaxcache._version_tuple(jaxcache._jaxlib_version() or "")
-    first, last = jaxcache.YNN_FLAG_JAXLIB
-    known = version is not None and first <= version <= last
-    assert (jaxcache.ynn_fusion_setting(flags) == "") == known
-    assert float(value) == float(sum(i * i for i in range(8)))  # integers: exact in float32
+    option = jaxcache.ynn_fusions_off_option()
+    if not option:
+        pytest.skip("the installed jaxlib is not one the option is known for")
+    assert set(option) <= set(FINAL_COMPILE)
+    x = jnp.tile(jnp.arange(8.0), (512, 8))  # (512, 64): a row reduction XLA:CPU hands to YNNPACK by default
+
+    def rows(v):
+        return jnp.sum(v * v, axis=1)
+
+    default = jax.jit(rows).lower(x).compile()
+    compiled = jax.jit(rows, compiler_options=dict(FINAL_COMPILE)).lower(x).compile()
+    assert "ynn" in default.as_text().lower() and "ynn" not in compiled.as_text().lower()
+    expected = 8.0 * sum(i * i for i in range(8))  # integers: exact in float32
+    assert np.all(np.asarray(compiled(x)) == expected) and np.all(np.asarray(default(x)) == expected)
 
 
 def test_the_jaxlib_version_is_read_without_importing_it(monkeypatch):

@@ -32,6 +32,7 @@ from ._observation import Level
 from ._options import FitOptions, SolverSettings
 from ._parameters import ParameterTable
 from ..io.executables import stored
+from ..io.jaxcache import ynn_fusions_off_option
 from ..model.geometry import OrthographicCamera, canonical_frame, compose_shift
 from ..model.programs import prepare_loaded, render_loaded
 from ..model.render import RenderConfig, render_pixels
@@ -193,8 +194,12 @@ FINAL_JACOBIAN = "columns"
 #: 13.7-13.9 s with level 1 alone, 11.9-12.2 s with the older emitters for the search's
 #: solve (and :data:`~bubblefit.model.programs.TERMS_COMPILE`), and 10.5-11.0 s with them
 #: for both solves (18.4-19.2 s of CPU against 24.8-25.3 s); the warm fit 0.86-0.87 s,
-#: 0.87-0.96 s and 0.89-0.91 s.
-FINAL_COMPILE = (("xla_backend_optimization_level", 1), ("xla_cpu_use_fusion_emitters", False))
+#: 0.87-0.96 s and 0.89-0.91 s. Both are compiled without XLA:CPU's YNNPACK reduction
+#: fusions where the jaxlib is a known one (:func:`~bubblefit.io.jaxcache.ynn_fusions_off_option`):
+#: their local solve runs faster without them, while a sequence's per-pixel map programs,
+#: which keep XLA's defaults, ran slower without them (docs/speed-profile.md).
+FINAL_COMPILE = ((("xla_backend_optimization_level", 1), ("xla_cpu_use_fusion_emitters", False))
+                 + ynn_fusions_off_option())
 
 
 SEARCH_COMPILE = FINAL_COMPILE
@@ -216,12 +221,14 @@ FINAL_SOLVE = SolveSettings(FINAL_JACOBIAN, FINAL_COMPILE, True)
 #: The global search's own short solves (:data:`SEARCH_COMPILE`).
 SEARCH_SOLVE = SolveSettings("groups", SEARCH_COMPILE, True)
 #: A warm-started fit's solve (a sequence's frame from its predecessor's values, ``auto``'s
-#: physical solve from the paper model's, a doubtful warm start's second solve): the groups,
-#: XLA's defaults, and the searched fit's stop on rejections and restarts
+#: physical solve from the paper model's or the search image's, a doubtful warm start's
+#: second solve): the groups, XLA's defaults but for the YNNPACK fusions
+#: (:func:`~bubblefit.io.jaxcache.ynn_fusions_off_option`, as :data:`FINAL_COMPILE`), and
+#: the searched fit's stop on rejections and restarts
 #: (:class:`~bubblefit.inverse._lm.LevenbergMarquardt`), rather than optimistix' Cauchy test
 #: alone, which near the optimum spends most of a solve's steps rejected
 #: (:data:`~bubblefit.inverse._lm.STOP_DECREMENT`).
-WARM_SOLVE = SolveSettings("groups", (), True)
+WARM_SOLVE = SolveSettings("groups", ynn_fusions_off_option(), True)
 
 
 def final_params(table, vals: dict, opts: FitOptions):

@@ -12,11 +12,11 @@ XLA's C++ log (e.g. the "slow compile" alarm) goes to stderr unless
 errors-only-if-fatal (``3``) unless the user chose a level, so that the user sees only
 bubblefit's own lines (docs/design.md, "Command line").
 
-XLA:CPU hands small reductions to YNNPACK, one fusion each; the fit's programs run faster
-and load faster without them (docs/speed-profile.md), so :func:`jax_setup` turns them off
-for the whole process (:func:`ynn_fusions_off`) where the installed jaxlib is one known to
-accept the flag. XLA aborts the process on a flag it does not know, so another jaxlib
-runs with XLA's defaults, and a setting of the flag in the user's ``XLA_FLAGS`` is kept.
+XLA:CPU hands small reductions to YNNPACK, one fusion each; a fit's local solves run
+faster without them, and a sequence's per-pixel map programs slower (docs/speed-profile.md),
+so the solves' programs are compiled with :func:`ynn_fusions_off_option` where the installed
+jaxlib is one known to accept it; every other program keeps XLA's defaults, and a setting of
+the flag in the user's ``XLA_FLAGS`` is kept for all of them.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ import sys
 import threading
 
 __all__ = ["default_cache_dir", "jax_setup", "jax_settings", "private_folder", "store_enabled", "warn_once",
-           "ynn_fusion_setting", "ynn_fusions_off"]
+           "ynn_fusion_setting", "ynn_fusions_off_option"]
 
 #: Every compiled program goes into the cache (seconds of compile time below which one
 #: would not). A fit builds ~160 small programs (geometry, tables, bounds) that compile in
@@ -39,9 +39,9 @@ MIN_COMPILE_TIME_S = 0.0
 #: XLA's flag that chooses which fusions XLA:CPU hands to YNNPACK (empty: none).
 YNN_FLAG = "--xla_cpu_experimental_ynn_fusion_type"
 #: The jaxlib versions (first, last; inclusive) known to accept :data:`YNN_FLAG`: the ones
-#: the fit was measured and validated with. XLA reads ``XLA_FLAGS`` when JAX creates its
-#: backend and aborts the process on a flag it does not know, so the flag is never set for
-#: a jaxlib outside this range.
+#: the fit was measured and validated with. The option is an experimental one of XLA's
+#: ``DebugOptions``, which another jaxlib may not have (or may read otherwise), so it is
+#: never given to a jaxlib outside this range.
 YNN_FLAG_JAXLIB = ((0, 10, 2), (0, 10, 2))
 
 
@@ -103,38 +103,24 @@ def ynn_fusion_setting(xla_flags: str | None = None) -> str | None:
     return value
 
 
-def ynn_fusions_off(jaxlib_version: str | None = None) -> bool:
-    """Add ``--xla_cpu_experimental_ynn_fusion_type=`` (no reduction handed to YNNPACK) to
-    ``XLA_FLAGS``; True when the process runs without those fusions.
-
-    Nothing changes when ``XLA_FLAGS`` already sets the flag (the user's value, or this
-    function's in a parent process, is kept), when the installed jaxlib (or
-    ``jaxlib_version``) is not in :data:`YNN_FLAG_JAXLIB`, or when JAX's backend exists
-    already (XLA read its flags then: a change would only make JAX's cache key and the
-    store's disagree with the programs).
+def ynn_fusions_off_option(jaxlib_version: str | None = None) -> tuple:
+    """XLA's compiler option that hands no fusion to YNNPACK, ``(("xla_cpu_experimental_ynn_fusion_type",
+    ""),)``, for a program's ``compiler_options``; ``()`` when the installed jaxlib (or
+    ``jaxlib_version``) is not in :data:`YNN_FLAG_JAXLIB`, or when ``XLA_FLAGS`` sets the
+    flag (the user's choice then holds for every program).
 
     References
     ----------
     XLA's ``DebugOptions.xla_cpu_experimental_ynn_fusion_type`` (xla/xla.proto); the
     measurements in docs/speed-profile.md.
     """
-    current = ynn_fusion_setting()
-    if current is not None:
-        return current == ""
+    if ynn_fusion_setting() is not None:
+        return ()
     version = _version_tuple(jaxlib_version or _jaxlib_version() or "")
     first, last = YNN_FLAG_JAXLIB
     if version is None or not first <= version <= last:
-        return False
-    if "jax" in sys.modules:
-        try:
-            from jax._src import xla_bridge
-
-            if xla_bridge.backends_are_initialized():
-                return False
-        except Exception:  # cannot tell whether XLA read its flags: leave them
-            return False
-    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {YNN_FLAG}=".strip()
-    return True
+        return ()
+    return ((YNN_FLAG.lstrip("-"), ""),)
 
 
 def default_cache_dir() -> str:
@@ -227,9 +213,8 @@ def warn_once(topic: str, message: str) -> None:
 
 
 def jax_setup(cache_dir: str | None = None, *, enable_x64: bool | None = None, quiet: bool = True) -> dict:
-    """Configure this process's JAX: persistent compilation cache, float64, quiet logs,
-    XLA:CPU without its YNNPACK fusions (:func:`ynn_fusions_off`), and the store of compiled
-    executables (:mod:`bubblefit.io.executables`) turned on.
+    """Configure this process's JAX: persistent compilation cache, float64, quiet logs, and
+    the store of compiled executables (:mod:`bubblefit.io.executables`) turned on.
 
     Parameters
     ----------
@@ -250,7 +235,6 @@ def jax_setup(cache_dir: str | None = None, *, enable_x64: bool | None = None, q
     """
     if quiet:
         _quiet_logs()
-    ynn_fusions_off()
     global _STORE_ON
     _STORE_ON = True
     cache = (cache_dir or os.environ.get("BUBBLEFIT_CACHE_DIR") or os.environ.get("JAX_COMPILATION_CACHE_DIR")

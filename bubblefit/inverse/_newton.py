@@ -426,6 +426,18 @@ def _lens_gap(theta, cov, x, y) -> tuple[np.ndarray, np.ndarray]:
     return h, np.sqrt(np.clip(np.einsum("pi,ij,pj->p", hj, cov, hj), 0.0, None))
 
 
+def _covariance(J, r, cost: float, copies: int, pixels: np.ndarray, shape: tuple) -> np.ndarray:
+    """The parameters' covariance at the optimum (``J``, ``r`` the whitened Jacobian and
+    residual of ``pixels``, flat indices into an image of ``shape``; ``copies`` 3 for a grey
+    photo, whose channels repeat each pixel): the misfit's scatter (the Birge ratio, over
+    the pixels' own degrees of freedom) or, where a model error runs smoothly across the
+    photo (a gap that is not one sphere, rings that are not circles), the cluster sandwich
+    over blocks of the film, whichever is wider (:func:`._uncertainty.widened_over_film`)."""
+    dof = max(len(r) // copies - J.shape[1], 1)
+    a_inv = np.linalg.pinv(J.T @ J)
+    return widened_over_film(a_inv * (cost / dof), a_inv, J, r, pixels, shape)[0]
+
+
 def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np.inf, iters: int = 40,
                stray=STRAY_DEFAULT, envelope=ENVELOPE_DEFAULT) -> ModelFit:
     """Levenberg-Marquardt fit of ``(R, cx, cy, h0, g)`` (see the module), started from ``dmap``,
@@ -529,12 +541,7 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
     # the rings' order is the contact offset's: every ring moves with it (bubblefit.inverse.order_check)
     order = fit_order(fwd, model, gap, obs_k, sigma, high, (theta, r, cost, J), {"contact_offset_nm": 3}, sin2_k, lo,
                       hi, iters)
-    dof = max(len(r) // copies - len(theta), 1)
-    a_inv = np.linalg.pinv(J.T @ J)
-    # the misfit's scatter (Birge), or where a model error is smooth across the photo (a
-    # gap that is not one sphere, rings that are not circles) the cluster sandwich over
-    # blocks of the film, whichever is wider (bubblefit.inverse._uncertainty)
-    cov, _ = widened_over_film(a_inv * (cost / dof), a_inv, J, r, np.flatnonzero(mask)[keep], mask.shape)
+    cov = _covariance(J, r, cost, copies, np.flatnonzero(mask)[keep], mask.shape)
     t = np.asarray(theta, np.float64)
     radius_um = float(np.exp(t[0]))
     h, h_se = _lens_gap(theta, cov, x, yy)

@@ -91,12 +91,16 @@ def bilinear(fields: np.ndarray, y: np.ndarray, x: np.ndarray) -> np.ndarray:
     return top * (1.0 - fy) + bottom * fy
 
 
-def _change_bands(fields: np.ndarray, circle) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+#: Offsets (px) along each ray at which a change map is read across a circle.
+_BAND_OFFSETS = np.arange(-6.0, 8.01, 0.5)
+
+
+def _change_bands(fields: np.ndarray, circle) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per ray, the mean of a change map 1.5-6 px inside the circle and 3-8 px outside it
-    (noise units), and the mask of rays inside the image."""
-    off = np.arange(-6.0, 8.01, 0.5)
-    s, ok = _rays(fields, circle, off)
-    return s[0][:, off <= -1.5].mean(axis=1), s[0][:, off >= 3].mean(axis=1), ok
+    (noise units), the mask of rays inside the image, and the map along each ray at
+    :data:`_BAND_OFFSETS`."""
+    s, ok = _rays(fields, circle, _BAND_OFFSETS)
+    return s[0][:, _BAND_OFFSETS <= -1.5].mean(axis=1), s[0][:, _BAND_OFFSETS >= 3].mean(axis=1), ok, s[0]
 
 
 def rim_blur(fields: np.ndarray, circle) -> float:
@@ -105,10 +109,9 @@ def rim_blur(fields: np.ndarray, circle) -> float:
     ``sqrt(2 pi)`` times the steepest fall within 3 px of the circle (a step blurred by a
     Gaussian of standard deviation ``s`` falls at most by ``jump / (sqrt(2 pi) s)`` per
     pixel); 1 px (the change map's own smoothing) where no ray has such a jump."""
-    off = np.arange(-6.0, 8.01, 0.5)
-    s, ok = _rays(fields, circle, off)
-    jump = s[0][:, off <= -1.5].mean(axis=1) - s[0][:, off >= 3].mean(axis=1)
-    fall = np.max(-np.gradient(s[0], 0.5, axis=1)[:, np.abs(off) <= 3.0], axis=1)
+    inner, outer, ok, along = _change_bands(fields, circle)
+    jump = inner - outer
+    fall = np.max(-np.gradient(along, 0.5, axis=1)[:, np.abs(_BAND_OFFSETS) <= 3.0], axis=1)
     use = ok & (jump > MIN_JUMP) & (fall > 0)
     if not use.any():
         return 1.0
@@ -159,7 +162,7 @@ def _jumps(fields: np.ndarray, circle, mode: Evidence, noise: float) -> tuple[np
     scale of such steps in the photo.
     """
     if mode == "change":
-        inner, outer, ok = _change_bands(fields, circle)
+        inner, outer, ok, _ = _change_bands(fields, circle)
         # the difference must end at the rim: at least half of it gone outside
         return np.where(outer < 0.5 * inner, inner - outer, 0.0), ok
     span = max(8.0, 0.3 * circle[2])

@@ -53,3 +53,48 @@ def test_supersampled_edge_equals_box_average_of_larger_render():
 def test_samples_per_pixel_must_be_square():
     with pytest.raises(InputError, match="square"):
         _scene(8, 8, (4, 4, 3), 8)
+
+
+def test_solve_renders_the_rim_blocks_as_the_photo_averages_them():
+    """A photo's block is the mean of its pixels: a disc rendered 3 times finer and
+    block-averaged, fitted on the blocks with the disc free, gives back its radius.
+
+    The local solve renders the blocks at the rim with 3 x 3 rays
+    (``inverse._programs.solve_pixels``), the very points the finer render samples at
+    its pixel centres (``pixel_offsets(9)``: offsets -1/3, 0, 1/3 of a block), so only
+    the point-sampled inner blocks and float32 arithmetic separate model and photo. The
+    refined radius must lie well inside the disc's Type B error, which a fit states as
+    ``FitOptions.disc_model_error`` of the radius; one ray per block sets it 0.18 px
+    (0.5 % of the radius) short, more than twice that.
+    """
+    import jax.numpy as jnp
+    from scipy import ndimage as ndi
+
+    from bubblefit.inverse._local import solve_local
+    from bubblefit.inverse._observation import make_level
+    from bubblefit.inverse._options import FitOptions, SolverSettings
+    from bubblefit.inverse._parameters import ParameterTable
+    from bubblefit.lighting.envmap import EnvMap
+    from bubblefit.lighting.filtering import FilterConfig
+    from bubblefit.model.effects import Effects
+    from bubblefit.model.geometry import OrthographicCamera
+    from bubblefit.model.render import RenderConfig, render
+    from bubblefit.optics.spectral import spectral_basis
+
+    k, w, h, disc = 3, 36, 32, (17.3, 15.6, 12.4)  # the blocks; the photo k times finer
+    rng = np.random.default_rng(5)
+    env = EnvMap.from_array(ndi.gaussian_filter(rng.uniform(0.2, 1.0, (32, 64, 3)), (2, 2, 0)).astype(np.float32))
+    bg = ndi.gaussian_filter(rng.uniform(0.1, 0.5, (k * h, k * w, 3)), (4, 4, 0)).astype(np.float32)
+    fx = Effects(model="physical", interference="airy", filtering=FilterConfig("mirror"), diffuse=False,
+                 spectral=spectral_basis("uniform", 8), background="photo")
+    fine = RenderConfig(effects=fx, camera=OrthographicCamera(k * w, k * h, *(k * v for v in disc)))
+    truth = dict(t=0.972, split=1.0, roughness=0.0, thickness_nm=420.0, exposure=1.0, rotation_deg=0.0,
+                 n_film=1.4, f=0.0, disc_x=0.0, disc_y=0.0, disc_r=0.0)
+    table = ParameterTable(free=("disc_x", "disc_y", "disc_r"))
+    params = table.render_params({n: jnp.float32(v) for n, v in truth.items()})
+    photo = np.asarray(render(params, fine, env, jnp.asarray(bg)), np.float64)
+    lev = make_level(k, fine, photo, np.full(photo.shape, 0.004), bg, np.zeros(photo.shape[:2], bool), 0.96)
+    sol = solve_local(lev, table, SolverSettings(), truth, env)
+    radius = k * disc[2]
+    error_px = sol.values["disc_r"] * radius
+    assert abs(error_px) < 0.5 * FitOptions().disc_model_error * radius, error_px

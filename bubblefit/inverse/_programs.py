@@ -25,6 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
+from scipy import ndimage as ndi
 
 from ._censored import censored_residual
 from ._lm import JACOBIANS, MAX_REJECTIONS, LevenbergMarquardt, robust
@@ -41,7 +42,8 @@ __all__ = ["solver", "stored_solver", "batched_solver", "reporter", "held_values
            "prepare_local", "prepare_reporter", "render_level", "prepare_render_level", "render_bubble",
            "prepare_render_bubble", "final_params", "SolveSettings", "FINAL_SOLVE", "SEARCH_SOLVE", "WARM_SOLVE",
            "FINAL_JACOBIAN", "FINAL_COMPILE", "SEARCH_COMPILE", "warm_up", "Padded", "padded", "unpadded",
-           "padded_size", "Pixels", "fitted_pixels", "pixel_bucket", "bubble_list"]
+           "padded_size", "Pixels", "fitted_pixels", "pixel_bucket", "bubble_list", "SolvePixels", "solve_pixels",
+           "rim_blocks", "RIM_SAMPLES", "RIM_BAND"]
 
 
 # ---------------------------------------------------------------------------------------
@@ -165,6 +167,96 @@ def fitted_pixels(lev: Level, chunk: int, mask: np.ndarray | None = None, *, who
                   jnp.asarray(wt, jnp.float32), flat)
 
 
+#: Rays per block (``s x s`` stratified, :func:`~bubblefit.model.geometry.pixel_offsets`)
+#: that a local solve renders for the blocks at the bubble's rim (:func:`solve_pixels`).
+RIM_SAMPLES = 9
+#: The rim's blocks (:func:`rim_blocks`): a fitted block whose centre lies within this many
+#: blocks of the nearest block centre off the bubble.
+RIM_BAND = 2.5
+
+
+def rim_blocks(lev: Level, band: float = RIM_BAND) -> np.ndarray:
+    """(h, w) bool: the fitted blocks of ``lev`` at the bubble's rim, those whose centre
+    lies within ``band`` blocks of the nearest block whose centre ray misses the bubble
+    (the Euclidean distance transform of ``lev.inside``; a frame's edge is not a rim).
+
+    A block of the photo is the mean of its pixels, each the light a camera's pixel
+    collects over its area: the box filter of :func:`~bubblefit.model.geometry.pixel_offsets`.
+    One ray at the block's centre stands for that mean where the light changes slowly
+    across the block; towards the rim the incidence cosine ``cos = sqrt(1 - rho^2)``
+    changes ever faster (``d cos / d rho = -rho / cos``), and with it the film's path
+    ``2 n d cos(theta_t)``, its Fresnel reflectance and its drainage thickness, so the
+    centre ray's value departs from the block's mean by the second-order term
+    ``f'' h^2 / 24`` of a block ``h`` wide, which grows as ``1 / cos^3``. These blocks
+    are chosen from the level's starting disc, so that the solve's lists keep their
+    shapes (and its compiled program) while the disc is refined within a block or two.
+    """
+    inside = np.asarray(lev.inside, bool)
+    if inside.all():  # no block off the bubble: no rim in the frame
+        return np.zeros(inside.shape, bool)
+    return np.asarray(lev.mask, bool) & (ndi.distance_transform_edt(inside) <= band)
+
+
+@dataclass
+class SolvePixels:
+    """A local solve's fitted pixels in lists (:func:`solve_pixels`), each rendered with
+    its own rays per pixel: ``parts`` (:class:`Pixels` of one padded level) and
+    ``samples``, the rays per pixel of each. The residual lists the parts one after the
+    other, each padded as :func:`fitted_pixels` pads it."""
+
+    parts: tuple
+    samples: tuple
+
+    @property
+    def padded(self) -> Padded:
+        return self.parts[0].padded
+
+    @property
+    def y(self) -> jnp.ndarray:
+        return jnp.concatenate([q.y for q in self.parts])
+
+    @property
+    def w(self) -> jnp.ndarray:
+        return jnp.concatenate([q.w for q in self.parts])
+
+    @property
+    def lists(self) -> tuple:
+        """``((rows, cols, idx), ...)`` of the parts, as the solve's program takes them."""
+        return tuple((q.rows, q.cols, q.idx) for q in self.parts)
+
+    @property
+    def flat(self) -> np.ndarray:
+        return np.concatenate([q.flat for q in self.parts])
+
+    def scatter(self, lev: Level, a) -> np.ndarray:
+        """``a`` (numpy), a flat residual over the parts' lists in turn (:meth:`Pixels.scatter`
+        of each), as the flat residual ``(h w 3, ...)`` of ``lev`` (0 at the pixels not fitted)."""
+        a = np.asarray(a)
+        out, start = None, 0
+        for q in self.parts:
+            n = 3 * int(np.prod(q.rows.shape))
+            part = q.scatter(lev, a[start:start + n])
+            out = part if out is None else out + part
+            start += n
+        return out
+
+
+def solve_pixels(lev: Level, chunk: int, rim_samples: int = RIM_SAMPLES) -> SolvePixels:
+    """The fitted pixels of ``lev`` as a local solve renders them: the blocks at the rim
+    (:func:`rim_blocks`) with ``s x s`` rays each, ``s^2 = max(rim_samples, the level's
+    samples_per_pixel)``, so that their model is the mean over the block's area that the
+    photo's block holds (the box filter of the camera's pixels), and the others with the
+    level's rays per pixel; one list (:func:`fitted_pixels`) where one of the two is
+    empty, or with ``rim_samples`` 0."""
+    own = int(lev.cfg.samples_per_pixel)
+    fine = max(int(rim_samples), own)
+    rim = rim_blocks(lev) if rim_samples and fine > own else np.zeros(lev.mask.shape, bool)
+    inner = np.asarray(lev.mask, bool) & ~rim
+    if not rim.any() or not inner.any():
+        return SolvePixels((fitted_pixels(lev, chunk),), (fine if rim.any() else own,))
+    return SolvePixels((fitted_pixels(lev, chunk, inner), fitted_pixels(lev, chunk, rim)), (own, fine))
+
+
 # ---------------------------------------------------------------------------------------
 # The programs
 # ---------------------------------------------------------------------------------------
@@ -214,12 +306,15 @@ class SolveSettings:
     jacobian: str = "groups"
     compile_options: tuple = ()
     stall: bool = True
+    #: rays per block at the rim (:func:`solve_pixels`; 0: the level's rays everywhere)
+    rim_samples: int = RIM_SAMPLES
 
 
 #: The final solve after a global search (:data:`FINAL_JACOBIAN`, :data:`FINAL_COMPILE`).
 FINAL_SOLVE = SolveSettings(FINAL_JACOBIAN, FINAL_COMPILE, True)
-#: The global search's own short solves (:data:`SEARCH_COMPILE`).
-SEARCH_SOLVE = SolveSettings("groups", SEARCH_COMPILE, True)
+#: The global search's own short solves (:data:`SEARCH_COMPILE`): they hold the disc and
+#: only start the final solve, which renders the rim's blocks with their area's rays.
+SEARCH_SOLVE = SolveSettings("groups", SEARCH_COMPILE, True, 0)
 #: A warm-started fit's solve (a sequence's frame from its predecessor's values, ``auto``'s
 #: physical solve from the paper model's or the search image's, a doubtful warm start's
 #: second solve): the groups, XLA's defaults but for the YNNPACK fusions
@@ -240,13 +335,17 @@ def final_params(table, vals: dict, opts: FitOptions):
 
 @functools.lru_cache(maxsize=64)
 def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_steps: int, rtol: float, atol: float,
-           max_rejections: int | None = MAX_REJECTIONS, jacobian: str = "groups", compile_options: tuple = ()):
+           max_rejections: int | None = MAX_REJECTIONS, jacobian: str = "groups", compile_options: tuple = (),
+           samples: tuple | None = None):
     """Jitted ``solve(z0, args) -> (z, ok, maxed, steps, residual, J)`` and ``resid``
     (``jacobian``: a key of :data:`JACOBIANS`; ``compile_options``: XLA's compiler options
-    for the solve's program as ``(name, value)`` pairs, ``()`` for XLA's defaults).
+    for the solve's program as ``(name, value)`` pairs, ``()`` for XLA's defaults;
+    ``samples``: the rays per pixel of each list, None for one list at ``cfg``'s).
 
-    ``args = (fixed, env, background, background_sigma, photo, weights, base, (rows, cols, idx))``: the
-    fitted pixels of a padded level (:func:`fitted_pixels`);
+    ``args = (fixed, env, background, background_sigma, photo, weights, base, ((rows, cols, idx), ...))``:
+    the fitted pixels of a padded level in one list (:func:`fitted_pixels`) or in lists
+    rendered with ``samples`` rays per pixel each (:func:`solve_pixels`), the photo and
+    weights of the lists one after the other;
     the residual is ``robust((render - photo) * weights)`` over them, censored where the photo
     clipped a channel at black (:func:`~bubblefit.inverse._censored.censored_residual`: a film's
     colour outside the camera's gamut has a negative channel, which the photo records as 0;
@@ -257,18 +356,21 @@ def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_st
     (:func:`~bubblefit.model.geometry.compose_shift`).
     """
 
+    cfgs = (cfg,) if samples is None else tuple(replace(cfg, samples_per_pixel=int(s)) for s in samples)
+
     def resid(z, args):
-        fixed, env, bg, bg_sigma, y, w, base, (rows, cols, idx) = args
+        fixed, env, bg, bg_sigma, y, w, base, lists = args
         p = replace((q := table.render_params(table.values(z, fixed))), disc=compose_shift(base, q.disc))
+        draw = lambda b: jnp.concatenate([render_pixels(p, c, env, b, *px) for c, px in zip(cfgs, lists)])
         if bg_sigma is None:
-            img = render_pixels(p, cfg, env, bg, rows, cols, idx)
+            img = draw(bg)
         else:
             # The background photo is a measurement too (errors in variables): each pixel's
             # variance is the photo's plus the background's noise carried by the model's
             # own transmission dI/dL_b at the current parameters (Deming's weighting, the
             # profile likelihood of the unknown true background), so that t is not pulled
             # low by a noisy regressor and its error bar includes the background's share.
-            img, carried = jax.jvp(lambda b: render_pixels(p, cfg, env, b, rows, cols, idx), (bg,), (bg_sigma,))
+            img, carried = jax.jvp(draw, (bg,), (bg_sigma,))
             w = w * jax.lax.rsqrt(1.0 + (w * carried) ** 2)
         return robust(-censored_residual(y, img) * w, robust_scale).reshape(-1)
 
@@ -327,12 +429,12 @@ def solve_program(lev: Level, table: ParameterTable, solver: SolverSettings, val
     """``(key, args, pixels)``: the key of :func:`~bubblefit.inverse._local.solve_local`'s solve for ``lev``
     (:func:`solver`'s arguments) and the arguments it takes besides the start (the held
     ``vals`` and the level's fitted pixels)."""
-    px = fitted_pixels(lev, lev.cfg.chunk)
+    px = solve_pixels(lev, lev.cfg.chunk, settings.rim_samples)
     pad = px.padded
     key = (pad.cfg, table, float(solver.robust_scale), int(max_steps or solver.max_steps), float(solver.rtol),
            float(solver.atol), MAX_REJECTIONS if settings.stall else None, settings.jacobian,
-           tuple(settings.compile_options))
-    args = (held_values(table, vals), env, pad.bg, pad.bg_sigma, px.y, px.w, pad.base, (px.rows, px.cols, px.idx))
+           tuple(settings.compile_options), px.samples)
+    args = (held_values(table, vals), env, pad.bg, pad.bg_sigma, px.y, px.w, pad.base, px.lists)
     return key, args, px
 
 

@@ -98,3 +98,61 @@ def test_solve_renders_the_rim_blocks_as_the_photo_averages_them():
     radius = k * disc[2]
     error_px = sol.values["disc_r"] * radius
     assert abs(error_px) < 0.5 * FitOptions().disc_model_error * radius, error_px
+
+
+def test_solve_rays_in_one_list_equal_each_part_rendered_with_its_own_rays():
+    """The local solve renders every block's rays in one list (``solve_pixels``' rays,
+    ``render_pixels`` with each ray's count) and averages them per block (``block_means``):
+    the same values as each part rendered with its own ``samples_per_pixel``, the pixel
+    footprint of a rim ray (1/3 of its block per axis) included. Only float32 rounding of
+    sums of 9 terms of order 1 separates them."""
+    import jax.numpy as jnp
+    from dataclasses import replace
+    from scipy import ndimage as ndi
+
+    from bubblefit.inverse._observation import make_level
+    from bubblefit.inverse._programs import block_means, solve_pixels
+    from bubblefit.lighting.envmap import EnvMap
+    from bubblefit.lighting.filtering import FilterConfig
+    from bubblefit.model.effects import Effects
+    from bubblefit.model.geometry import OrthographicCamera
+    from bubblefit.model.render import Params, RenderConfig, render_pixels
+    from bubblefit.optics.spectral import spectral_basis
+
+    k, w, h = 3, 14, 12
+    rng = np.random.default_rng(3)
+    env = EnvMap.from_array(ndi.gaussian_filter(rng.uniform(0.2, 1.0, (32, 64, 3)), (1, 1, 0)).astype(np.float32))
+    bg = rng.uniform(0.1, 0.5, (k * h, k * w, 3)).astype(np.float32)
+    fx = Effects(model="physical", interference="airy", filtering=FilterConfig("mirror"), diffuse=False,
+                 spectral=spectral_basis("uniform", 4), background="photo")
+    cfg = RenderConfig(effects=fx, camera=OrthographicCamera(k * w, k * h, 20.0, 17.5, 15.0), pixel_footprint=True)
+    photo = np.full((k * h, k * w, 3), 0.3)
+    lev = make_level(k, cfg, photo, np.full(photo.shape, 0.004), bg, np.zeros(photo.shape[:2], bool), 0.96)
+    px = solve_pixels(lev, 64, 9, rule="box")
+    assert px.samples == (1, 9) and px.rays[0].shape[0] > 1  # two parts, several chunks
+    pad, p = px.padded, Params.make(thickness=420.0, roughness=0.0)
+    one = block_means(render_pixels(p, replace(pad.cfg, samples_per_pixel=1), env, pad.bg, *px.rays), px.layout)
+    parts = [render_pixels(p, replace(pad.cfg, samples_per_pixel=s), env, pad.bg, q.rows, q.cols, q.idx)
+             for q, s in zip(px.parts, px.samples)]
+    np.testing.assert_allclose(np.asarray(one), np.concatenate(parts), rtol=0, atol=1e-6)
+    # not vacuous: the rim's centre rays differ from their blocks' means
+    q = px.parts[1]
+    centre = render_pixels(p, pad.cfg, env, pad.bg, q.rows, q.cols, q.idx)
+    assert np.abs(np.asarray(centre) - parts[1]).max() > 100 * 1e-6
+
+
+def test_gauss_offsets_average_a_cubic_over_the_box_exactly():
+    """The 2 x 2 Gauss-Legendre rule (``gauss_offsets(4)``) gives the box averages of
+    ``x^2`` (1/12), ``x^2 y^2`` (1/144) and ``x^3`` (0) to float64 rounding; the 3 x 3
+    stratified centres give ``x^2`` as ``(1 - 1/9) / 12``, the curvature term they leave."""
+    from bubblefit.model.geometry import gauss_offsets
+
+    o, w = gauss_offsets(4)
+    assert o.shape == (4, 2) and abs(w.sum() - 1.0) < 1e-15
+    y, x = o[:, 0], o[:, 1]
+    np.testing.assert_allclose([w @ x**2, w @ (x**2 * y**2), w @ x**3, w @ x], [1 / 12, 1 / 144, 0.0, 0.0],
+                               rtol=1e-13, atol=1e-16)
+    s = pixel_offsets(9)[:, 1]
+    np.testing.assert_allclose(np.mean(s**2), (1 - 1 / 9) / 12, rtol=1e-13)
+    with pytest.raises(ValueError):
+        gauss_offsets(8)

@@ -97,7 +97,7 @@ def remaining_step(sol: LocalSolution, chi2_nu: float, free: tuple) -> float:
 def solution_from(table: ParameterTable, vals: dict, z, ok, maxed, steps, r, jac, fixed,
                   lev: Level | None = None, pixels: Pixels | SolvePixels | None = None) -> LocalSolution:
     """A :class:`LocalSolution` from a solver's raw outputs (numpy, float64); with ``lev``
-    and ``pixels`` (one list, or a solve's lists), the residual and Jacobian over its fitted
+    and ``pixels`` (one list, or a solve's blocks in parts), the residual and Jacobian over its fitted
     pixels as the level's flat residual."""
     z = np.asarray(z, np.float64)
     if lev is not None:

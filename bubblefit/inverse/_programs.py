@@ -34,7 +34,7 @@ from ._options import FitOptions, SolverSettings
 from ._parameters import ParameterTable
 from ..io.executables import stored
 from ..io.jaxcache import ynn_fusions_off_option
-from ..model.geometry import OrthographicCamera, canonical_frame, compose_shift
+from ..model.geometry import OrthographicCamera, canonical_frame, compose_shift, gauss_offsets, pixel_offsets
 from ..model.programs import prepare_loaded, render_loaded
 from ..model.render import RenderConfig, render_pixels
 
@@ -43,7 +43,7 @@ __all__ = ["solver", "stored_solver", "batched_solver", "reporter", "held_values
            "prepare_render_bubble", "final_params", "SolveSettings", "FINAL_SOLVE", "SEARCH_SOLVE", "WARM_SOLVE",
            "FINAL_JACOBIAN", "FINAL_COMPILE", "SEARCH_COMPILE", "warm_up", "Padded", "padded", "unpadded",
            "padded_size", "Pixels", "fitted_pixels", "pixel_bucket", "bubble_list", "SolvePixels", "solve_pixels",
-           "rim_blocks", "RIM_SAMPLES", "RIM_BAND"]
+           "block_means", "rim_blocks", "RIM_SAMPLES", "RIM_BAND", "RIM_RULE"]
 
 
 # ---------------------------------------------------------------------------------------
@@ -167,8 +167,8 @@ def fitted_pixels(lev: Level, chunk: int, mask: np.ndarray | None = None, *, who
                   jnp.asarray(wt, jnp.float32), flat)
 
 
-#: Rays per block (``s x s`` stratified, :func:`~bubblefit.model.geometry.pixel_offsets`)
-#: that a local solve renders for the blocks at the bubble's rim (:func:`solve_pixels`).
+#: Rays per block (``s x s``, placed by :data:`RIM_RULE`) that a local solve renders for
+#: the blocks at the bubble's rim (:func:`solve_pixels`).
 RIM_SAMPLES = 9
 #: The rim's blocks (:func:`rim_blocks`): a fitted block whose centre lies within this many
 #: blocks of the nearest block centre off the bubble.
@@ -199,13 +199,23 @@ def rim_blocks(lev: Level, band: float = RIM_BAND) -> np.ndarray:
 
 @dataclass
 class SolvePixels:
-    """A local solve's fitted pixels in lists (:func:`solve_pixels`), each rendered with
-    its own rays per pixel: ``parts`` (:class:`Pixels` of one padded level) and
-    ``samples``, the rays per pixel of each. The residual lists the parts one after the
-    other, each padded as :func:`fitted_pixels` pads it."""
+    """A local solve's fitted blocks and the rays it renders for them (:func:`solve_pixels`):
+    ``parts``, the blocks in lists (:class:`Pixels` of one padded level, each padded as
+    :func:`fitted_pixels` pads it), ``samples``, the rays per block of each part, and
+    ``rays``, what the solve renders: ``(rows, cols, idx, samples)`` (steps, chunk), every
+    block's rays in one list, part after part and block after block, the fractional pixel
+    coordinates of its :func:`~bubblefit.model.geometry.pixel_offsets`, its flat index and
+    its ray count, as :func:`~bubblefit.model.render.render_pixels` reads them (the list
+    padded by repeating its last ray), or the one part's ``(rows, cols, idx)``. The
+    residual lists the parts' blocks one after the other."""
 
     parts: tuple
     samples: tuple
+    rays: tuple
+    #: ``((blocks, weights of a block's rays), ...)`` of the parts: :func:`block_means`'
+    #: static reduction of ``rays``, part of the solve's program key; None where ``rays`` is the
+    #: one part's own list (:func:`fitted_pixels`), rendered with the level's rays per pixel.
+    layout: tuple | None
 
     @property
     def padded(self) -> Padded:
@@ -220,41 +230,84 @@ class SolvePixels:
         return jnp.concatenate([q.w for q in self.parts])
 
     @property
-    def lists(self) -> tuple:
-        """``((rows, cols, idx), ...)`` of the parts, as the solve's program takes them."""
-        return tuple((q.rows, q.cols, q.idx) for q in self.parts)
-
-    @property
     def flat(self) -> np.ndarray:
         return np.concatenate([q.flat for q in self.parts])
 
     def scatter(self, lev: Level, a) -> np.ndarray:
-        """``a`` (numpy), a flat residual over the parts' lists in turn (:meth:`Pixels.scatter`
+        """``a`` (numpy), a flat residual over the parts' blocks in turn (:meth:`Pixels.scatter`
         of each), as the flat residual ``(h w 3, ...)`` of ``lev`` (0 at the pixels not fitted)."""
         a = np.asarray(a)
         out, start = None, 0
         for q in self.parts:
-            n = 3 * int(np.prod(q.rows.shape))
-            part = q.scatter(lev, a[start:start + n])
+            n = int(np.prod(q.rows.shape))
+            part = q.scatter(lev, a[start:start + 3 * n])
             out = part if out is None else out + part
-            start += n
+            start += 3 * n
         return out
 
 
-def solve_pixels(lev: Level, chunk: int, rim_samples: int = RIM_SAMPLES) -> SolvePixels:
+def block_means(img, layout: tuple):
+    """The blocks' values (B, 3) from their rays' radiance ``img`` (R, 3), laid out as
+    :attr:`SolvePixels.layout` says (``(blocks, weights of a block's rays)`` part after
+    part; rays past them pad the list): each block the weighted sum of its rays, the
+    quadrature of the block's box average (:func:`~bubblefit.model.geometry.pixel_offsets`,
+    :func:`~bubblefit.model.geometry.gauss_offsets`), by fixed reshapes."""
+    out, start = [], 0
+    for n, weights in layout:
+        k = len(weights)
+        part = img[start:start + n * k]
+        out.append(part if k == 1 else jnp.einsum("nkc,k->nc", part.reshape(n, k, 3), jnp.asarray(weights, img.dtype)))
+        start += n * k
+    return jnp.concatenate(out) if len(out) > 1 else out[0]
+
+
+#: The rim blocks' quadrature (:func:`solve_pixels`): ``gauss``
+#: (:func:`~bubblefit.model.geometry.gauss_offsets`) or ``box``, the stratified centres of
+#: :func:`~bubblefit.model.geometry.pixel_offsets`.
+RIM_RULE = "box"
+
+
+def solve_pixels(lev: Level, chunk: int, rim_samples: int = RIM_SAMPLES, band: float = RIM_BAND,
+                 rule: str = RIM_RULE) -> SolvePixels:
     """The fitted pixels of ``lev`` as a local solve renders them: the blocks at the rim
-    (:func:`rim_blocks`) with ``s x s`` rays each, ``s^2 = max(rim_samples, the level's
-    samples_per_pixel)``, so that their model is the mean over the block's area that the
-    photo's block holds (the box filter of the camera's pixels), and the others with the
-    level's rays per pixel; one list (:func:`fitted_pixels`) where one of the two is
-    empty, or with ``rim_samples`` 0."""
+    (:func:`rim_blocks` within ``band``) with ``s x s`` rays each, ``s^2 = max(rim_samples,
+    the level's samples_per_pixel)``, placed and weighted by ``rule`` (:data:`RIM_RULE`), so
+    that their model is the mean over the block's area that the photo's block holds (the
+    box filter of the camera's pixels), and the others with the level's rays per pixel
+    (stratified, as :func:`~bubblefit.model.render.render` samples a pixel); one part
+    (:func:`fitted_pixels`) where one of the two is empty, or with ``rim_samples`` 0. All
+    the rays form one list of at most ``chunk`` rays a step, so that the solve renders them
+    in one pass."""
     own = int(lev.cfg.samples_per_pixel)
     fine = max(int(rim_samples), own)
-    rim = rim_blocks(lev) if rim_samples and fine > own else np.zeros(lev.mask.shape, bool)
+    rim = rim_blocks(lev, band) if rim_samples and fine > own else np.zeros(lev.mask.shape, bool)
     inner = np.asarray(lev.mask, bool) & ~rim
     if not rim.any() or not inner.any():
-        return SolvePixels((fitted_pixels(lev, chunk),), (fine if rim.any() else own,))
-    return SolvePixels((fitted_pixels(lev, chunk, inner), fitted_pixels(lev, chunk, rim)), (own, fine))
+        parts, samples = (fitted_pixels(lev, chunk),), (fine if rim.any() else own,)
+    else:
+        parts, samples = (fitted_pixels(lev, chunk, inner), fitted_pixels(lev, chunk, rim)), (own, fine)
+    if samples == (own,):  # every block with the level's own rays: its plain list
+        return SolvePixels(parts, samples, (parts[0].rows, parts[0].cols, parts[0].idx), None)
+    rows, cols, idx, count, layout = [], [], [], [], []
+    for q, k in zip(parts, samples):
+        if k == own or rule == "box":
+            off, weights = pixel_offsets(k), np.full(k, 1.0 / k)
+        else:
+            off, weights = gauss_offsets(k)
+        r, c, i = (np.asarray(a).reshape(-1) for a in (q.rows, q.cols, q.idx))
+        rows.append((r[:, None] + off[None, :, 0]).reshape(-1))
+        cols.append((c[:, None] + off[None, :, 1]).reshape(-1))
+        idx.append(np.repeat(i, k))
+        count.append(np.full(r.size * k, k))
+        layout.append((r.size, tuple(float(x) for x in weights)))
+    n = sum(a.size for a in rows)
+    steps = -(-n // chunk)
+    size = -(-n // steps)
+    take = np.minimum(np.arange(steps * size), n - 1)
+    as_list = lambda a, dt: jnp.asarray(np.concatenate(a)[take].reshape(steps, size), dt)
+    rays = (as_list(rows, jnp.float32), as_list(cols, jnp.float32), as_list(idx, jnp.int32),
+            as_list(count, jnp.float32))
+    return SolvePixels(parts, samples, rays, tuple(layout))
 
 
 # ---------------------------------------------------------------------------------------
@@ -308,6 +361,10 @@ class SolveSettings:
     stall: bool = True
     #: rays per block at the rim (:func:`solve_pixels`; 0: the level's rays everywhere)
     rim_samples: int = RIM_SAMPLES
+    #: the rim's width in blocks (:func:`rim_blocks`)
+    rim_band: float = RIM_BAND
+    #: the rim rays' quadrature (:data:`RIM_RULE`)
+    rim_rule: str = RIM_RULE
 
 
 #: The final solve after a global search (:data:`FINAL_JACOBIAN`, :data:`FINAL_COMPILE`).
@@ -336,16 +393,17 @@ def final_params(table, vals: dict, opts: FitOptions):
 @functools.lru_cache(maxsize=64)
 def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_steps: int, rtol: float, atol: float,
            max_rejections: int | None = MAX_REJECTIONS, jacobian: str = "groups", compile_options: tuple = (),
-           samples: tuple | None = None):
+           layout: tuple | None = None):
     """Jitted ``solve(z0, args) -> (z, ok, maxed, steps, residual, J)`` and ``resid``
     (``jacobian``: a key of :data:`JACOBIANS`; ``compile_options``: XLA's compiler options
     for the solve's program as ``(name, value)`` pairs, ``()`` for XLA's defaults;
-    ``samples``: the rays per pixel of each list, None for one list at ``cfg``'s).
+    ``layout``: the blocks and their rays' weights in a ray list, :attr:`SolvePixels.layout`).
 
-    ``args = (fixed, env, background, background_sigma, photo, weights, base, ((rows, cols, idx), ...))``:
-    the fitted pixels of a padded level in one list (:func:`fitted_pixels`) or in lists
-    rendered with ``samples`` rays per pixel each (:func:`solve_pixels`), the photo and
-    weights of the lists one after the other;
+    ``args = (fixed, env, background, background_sigma, photo, weights, base, (rows, cols, idx))``: the
+    fitted pixels of a padded level (:func:`fitted_pixels`), each rendered with ``cfg``'s
+    rays; with ``layout``, ``(rows, cols, idx, samples)``, a solve's rays
+    (:attr:`SolvePixels.rays`), rendered in one pass and averaged over each block
+    (:func:`block_means`);
     the residual is ``robust((render - photo) * weights)`` over them, censored where the photo
     clipped a channel at black (:func:`~bubblefit.inverse._censored.censored_residual`: a film's
     colour outside the camera's gamut has a negative channel, which the photo records as 0;
@@ -356,12 +414,14 @@ def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_st
     (:func:`~bubblefit.model.geometry.compose_shift`).
     """
 
-    cfgs = (cfg,) if samples is None else tuple(replace(cfg, samples_per_pixel=int(s)) for s in samples)
+    ray_cfg = cfg if layout is None else replace(cfg, samples_per_pixel=1)
 
     def resid(z, args):
-        fixed, env, bg, bg_sigma, y, w, base, lists = args
+        fixed, env, bg, bg_sigma, y, w, base, rays = args
         p = replace((q := table.render_params(table.values(z, fixed))), disc=compose_shift(base, q.disc))
-        draw = lambda b: jnp.concatenate([render_pixels(p, c, env, b, *px) for c, px in zip(cfgs, lists)])
+        draw = lambda b: render_pixels(p, ray_cfg, env, b, *rays)
+        if layout is not None:
+            draw = lambda b, draw=draw: block_means(draw(b), layout)
         if bg_sigma is None:
             img = draw(bg)
         else:
@@ -429,12 +489,12 @@ def solve_program(lev: Level, table: ParameterTable, solver: SolverSettings, val
     """``(key, args, pixels)``: the key of :func:`~bubblefit.inverse._local.solve_local`'s solve for ``lev``
     (:func:`solver`'s arguments) and the arguments it takes besides the start (the held
     ``vals`` and the level's fitted pixels)."""
-    px = solve_pixels(lev, lev.cfg.chunk, settings.rim_samples)
+    px = solve_pixels(lev, lev.cfg.chunk, settings.rim_samples, settings.rim_band, settings.rim_rule)
     pad = px.padded
     key = (pad.cfg, table, float(solver.robust_scale), int(max_steps or solver.max_steps), float(solver.rtol),
            float(solver.atol), MAX_REJECTIONS if settings.stall else None, settings.jacobian,
-           tuple(settings.compile_options), px.samples)
-    args = (held_values(table, vals), env, pad.bg, pad.bg_sigma, px.y, px.w, pad.base, px.lists)
+           tuple(settings.compile_options), px.layout)
+    args = (held_values(table, vals), env, pad.bg, pad.bg_sigma, px.y, px.w, pad.base, px.rays)
     return key, args, px
 
 

@@ -920,7 +920,7 @@ def fit_batch(photos, env: EnvMap, *, options: FitOptions = FitOptions(), backgr
                            None)
     out = solve(jnp.asarray(np.stack(z0), jnp.float32),
                 (fixed, env, pad.bg, pad.bg_sigma, jnp.stack([x.y for x in pxs]), jnp.stack([x.w for x in pxs]), pad.base,
-                 ((pxs[0].rows, pxs[0].cols, pxs[0].idx),)))
+                 (pxs[0].rows, pxs[0].cols, pxs[0].idx)))
     outs = [np.asarray(x) for x in out]
     share = (time.perf_counter() - t_start) / len(photos)  # each frame's part of the batch
     results = []

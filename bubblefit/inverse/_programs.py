@@ -169,10 +169,14 @@ def fitted_pixels(lev: Level, chunk: int, mask: np.ndarray | None = None, *, who
 
 #: Rays per block (``s x s``, placed by :data:`RIM_RULE`) that a local solve renders for
 #: the blocks at the bubble's rim (:func:`solve_pixels`).
-RIM_SAMPLES = 9
+RIM_SAMPLES = 4
 #: The rim's blocks (:func:`rim_blocks`): a fitted block whose centre lies within this many
 #: blocks of the nearest block centre off the bubble.
 RIM_BAND = 2.5
+#: The rim blocks' quadrature (:func:`solve_pixels`): ``gauss``
+#: (:func:`~bubblefit.model.geometry.gauss_offsets`: exact for a radiance cubic across the
+#: block) or ``box``, the stratified centres of :func:`~bubblefit.model.geometry.pixel_offsets`.
+RIM_RULE = "gauss"
 
 
 def rim_blocks(lev: Level, band: float = RIM_BAND) -> np.ndarray:
@@ -259,12 +263,6 @@ def block_means(img, layout: tuple):
         out.append(part if k == 1 else jnp.einsum("nkc,k->nc", part.reshape(n, k, 3), jnp.asarray(weights, img.dtype)))
         start += n * k
     return jnp.concatenate(out) if len(out) > 1 else out[0]
-
-
-#: The rim blocks' quadrature (:func:`solve_pixels`): ``gauss``
-#: (:func:`~bubblefit.model.geometry.gauss_offsets`) or ``box``, the stratified centres of
-#: :func:`~bubblefit.model.geometry.pixel_offsets`.
-RIM_RULE = "box"
 
 
 def solve_pixels(lev: Level, chunk: int, rim_samples: int = RIM_SAMPLES, band: float = RIM_BAND,

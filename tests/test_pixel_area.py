@@ -59,10 +59,11 @@ def test_solve_renders_the_rim_blocks_as_the_photo_averages_them():
     """A photo's block is the mean of its pixels: a disc rendered 3 times finer and
     block-averaged, fitted on the blocks with the disc free, gives back its radius.
 
-    The local solve renders the blocks at the rim with 3 x 3 rays
-    (``inverse._programs.solve_pixels``), the very points the finer render samples at
-    its pixel centres (``pixel_offsets(9)``: offsets -1/3, 0, 1/3 of a block), so only
-    the point-sampled inner blocks and float32 arithmetic separate model and photo. The
+    The local solve renders the blocks at the rim with the 2 x 2 Gauss-Legendre rule
+    (``inverse._programs.solve_pixels``, ``gauss_offsets(4)``), which averages the
+    radiance's curvature across a block exactly; the photo's blocks here are means of
+    3 x 3 point samples, another rule, and the disc's edge crosses a few blocks, so model
+    and photo still differ a little (0.015 px in the radius). The
     refined radius must lie well inside the disc's Type B error, which a fit states as
     ``FitOptions.disc_model_error`` of the radius; one ray per block sets it 0.18 px
     (0.5 % of the radius) short, more than twice that.

@@ -400,8 +400,8 @@ def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_st
     ``args = (fixed, env, background, background_sigma, photo, weights, base, (rows, cols, idx))``: the
     fitted pixels of a padded level (:func:`fitted_pixels`), each rendered with ``cfg``'s
     rays; with ``layout``, ``(rows, cols, idx, samples)``, a solve's rays
-    (:attr:`SolvePixels.rays`), rendered in one pass and averaged over each block
-    (:func:`block_means`);
+    (:attr:`SolvePixels.rays`), rendered in one pass and summed per block with their
+    weights (:func:`block_means`);
     the residual is ``robust((render - photo) * weights)`` over them, censored where the photo
     clipped a channel at black (:func:`~bubblefit.inverse._censored.censored_residual`: a film's
     colour outside the camera's gamut has a negative channel, which the photo records as 0;

@@ -477,12 +477,11 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
     start = {"t": 0.9, "split": 0.7, "roughness": 0.05, "exposure": 1.1, "thickness_nm": 640.0, "disc_x": 0.01,
              "disc_y": -0.02, "disc_r": 0.03}
     lev.y = np.asarray(render_level(Params.make(thickness=655.0, roughness=0.04), lev, env), np.float32)
-    # the solve's rays: the rim's blocks with 3 x 3 rays each, the others with one, in one list
+    # the solve's rays: the rim's blocks with 2 x 2 (Gauss) rays each, the others with one, in one list
     lev.inside = np.hypot(np.arange(45) + 0.5 - 20.3, (np.arange(37) + 0.5 - 17.9)[:, None]) < 15.2
     px = solve_pixels(lev, 256)
-    assert px.samples == (1, 9) and 0 < px.parts[1].flat.size < px.flat.size
-    assert px.rays[0].size >= sum(n * len(w) for n, w in px.layout)
-    _, resid = solver(px.padded.cfg, table, 3.0, 20, 1e-5, 1e-6, layout=px.layout)
+    assert px.samples == 4 and px.flat.size < px.rays[0].size < 4 * px.flat.size
+    _, resid = solver(px.padded.cfg, table, 3.0, 20, 1e-5, 1e-6, rim=(px.samples, "gauss"))
     z = table.unconstrained(start)
     fixed = {"n_film": jnp.float32(1.33), "rotation_deg": jnp.float32(0.0)}
     # with the background photo's noise (0.01, a 8-bit photo's order) widening the weights

@@ -204,108 +204,86 @@ def rim_blocks(lev: Level, band: float = RIM_BAND) -> np.ndarray:
 @dataclass
 class SolvePixels:
     """A local solve's fitted blocks and the rays it renders for them (:func:`solve_pixels`):
-    ``parts``, the blocks in lists (:class:`Pixels` of one padded level, each padded as
-    :func:`fitted_pixels` pads it), ``samples``, the rays per block of each part, and
-    ``rays``, what the solve renders: ``(rows, cols, idx, samples)`` (steps, chunk), every
-    block's rays in one list, part after part and block after block, the fractional pixel
-    coordinates of its :func:`~bubblefit.model.geometry.pixel_offsets`, its flat index and
-    its ray count, as :func:`~bubblefit.model.render.render_pixels` reads them (the list
-    padded by repeating its last ray), or the one part's ``(rows, cols, idx)``. The
-    residual lists the parts' blocks one after the other."""
+    ``pixels``, the blocks (:class:`Pixels`, one list as :func:`fitted_pixels` pads it),
+    ``samples``, the rays of a rim block, and ``rays``, what the solve renders:
+    ``(rows, cols, idx, samples, block, weight)`` (steps, chunk), every block's rays in one
+    list, each at the fractional pixel coordinates of its block's quadrature, with its flat
+    pixel index, its block's ray count, its block's place in ``pixels`` and its weight
+    there (:func:`block_means`; the list padded to :func:`pixel_bucket` by rays of weight
+    0), or, with ``samples`` None, ``pixels``' own ``(rows, cols, idx)``."""
 
-    parts: tuple
-    samples: tuple
+    pixels: Pixels
+    samples: int | None
     rays: tuple
-    #: ``((blocks, weights of a block's rays), ...)`` of the parts: :func:`block_means`'
-    #: static reduction of ``rays``, part of the solve's program key; None where ``rays`` is the
-    #: one part's own list (:func:`fitted_pixels`), rendered with the level's rays per pixel.
-    layout: tuple | None
 
     @property
     def padded(self) -> Padded:
-        return self.parts[0].padded
+        return self.pixels.padded
 
     @property
     def y(self) -> jnp.ndarray:
-        return jnp.concatenate([q.y for q in self.parts])
+        return self.pixels.y
 
     @property
     def w(self) -> jnp.ndarray:
-        return jnp.concatenate([q.w for q in self.parts])
+        return self.pixels.w
 
     @property
     def flat(self) -> np.ndarray:
-        return np.concatenate([q.flat for q in self.parts])
+        return self.pixels.flat
 
     def scatter(self, lev: Level, a) -> np.ndarray:
-        """``a`` (numpy), a flat residual over the parts' blocks in turn (:meth:`Pixels.scatter`
-        of each), as the flat residual ``(h w 3, ...)`` of ``lev`` (0 at the pixels not fitted)."""
-        a = np.asarray(a)
-        out, start = None, 0
-        for q in self.parts:
-            n = int(np.prod(q.rows.shape))
-            part = q.scatter(lev, a[start:start + 3 * n])
-            out = part if out is None else out + part
-            start += 3 * n
-        return out
+        """:meth:`Pixels.scatter` of the blocks."""
+        return self.pixels.scatter(lev, a)
 
 
-def block_means(img, layout: tuple):
-    """The blocks' values (B, 3) from their rays' radiance ``img`` (R, 3), laid out as
-    :attr:`SolvePixels.layout` says (``(blocks, weights of a block's rays)`` part after
-    part; rays past them pad the list): each block the weighted sum of its rays, the
-    quadrature of the block's box average (:func:`~bubblefit.model.geometry.pixel_offsets`,
-    :func:`~bubblefit.model.geometry.gauss_offsets`), by fixed reshapes."""
-    out, start = [], 0
-    for n, weights in layout:
-        k = len(weights)
-        part = img[start:start + n * k]
-        out.append(part if k == 1 else jnp.einsum("nkc,k->nc", part.reshape(n, k, 3), jnp.asarray(weights, img.dtype)))
-        start += n * k
-    return jnp.concatenate(out) if len(out) > 1 else out[0]
+def block_means(img, block, weight, blocks: int):
+    """The blocks' values (``blocks``, 3) from their rays' radiance ``img`` (R, 3): each
+    block the sum of its rays' radiance times their weights (``block``, ``weight`` (R,),
+    :attr:`SolvePixels.rays`), the quadrature of the block's box average
+    (:func:`~bubblefit.model.geometry.pixel_offsets`,
+    :func:`~bubblefit.model.geometry.gauss_offsets`), a segment sum of a fixed length."""
+    return jax.ops.segment_sum(img * weight[:, None], block, num_segments=blocks)
 
 
 def solve_pixels(lev: Level, chunk: int, rim_samples: int = RIM_SAMPLES, band: float = RIM_BAND,
                  rule: str = RIM_RULE) -> SolvePixels:
     """The fitted pixels of ``lev`` as a local solve renders them: the blocks at the rim
-    (:func:`rim_blocks` within ``band``) with ``s x s`` rays each, ``s^2 = max(rim_samples,
-    the level's samples_per_pixel)``, placed and weighted by ``rule`` (:data:`RIM_RULE`), so
-    that their model is the mean over the block's area that the photo's block holds (the
-    box filter of the camera's pixels), and the others with the level's rays per pixel
-    (stratified, as :func:`~bubblefit.model.render.render` samples a pixel); one part
-    (:func:`fitted_pixels`) where one of the two is empty, or with ``rim_samples`` 0. All
-    the rays form one list of at most ``chunk`` rays a step, so that the solve renders them
-    in one pass."""
-    own = int(lev.cfg.samples_per_pixel)
-    fine = max(int(rim_samples), own)
-    rim = rim_blocks(lev, band) if rim_samples and fine > own else np.zeros(lev.mask.shape, bool)
-    inner = np.asarray(lev.mask, bool) & ~rim
-    if not rim.any() or not inner.any():
-        parts, samples = (fitted_pixels(lev, chunk),), (fine if rim.any() else own,)
-    else:
-        parts, samples = (fitted_pixels(lev, chunk, inner), fitted_pixels(lev, chunk, rim)), (own, fine)
-    if samples == (own,):  # every block with the level's own rays: its plain list
-        return SolvePixels(parts, samples, (parts[0].rows, parts[0].cols, parts[0].idx), None)
-    rows, cols, idx, count, layout = [], [], [], [], []
-    for q, k in zip(parts, samples):
-        if k == own or rule == "box":
-            off, weights = pixel_offsets(k), np.full(k, 1.0 / k)
-        else:
-            off, weights = gauss_offsets(k)
-        r, c, i = (np.asarray(a).reshape(-1) for a in (q.rows, q.cols, q.idx))
-        rows.append((r[:, None] + off[None, :, 0]).reshape(-1))
-        cols.append((c[:, None] + off[None, :, 1]).reshape(-1))
-        idx.append(np.repeat(i, k))
-        count.append(np.full(r.size * k, k))
-        layout.append((r.size, tuple(float(x) for x in weights)))
-    n = sum(a.size for a in rows)
+    (:func:`rim_blocks` within ``band``) with ``s x s`` rays each, ``s^2 = rim_samples``,
+    placed and weighted by ``rule`` (:data:`RIM_RULE`), so that their model is the mean over
+    the block's area that the photo's block holds (the box filter of the camera's pixels),
+    and the others with one ray at the centre; the level's own list (:func:`fitted_pixels`)
+    where there is no rim, with ``rim_samples`` 0, or where the level takes several rays per
+    pixel itself. All the rays form one list, its length rounded up as
+    :func:`pixel_bucket` rounds the blocks' (so that the solve's program serves the disc
+    while it moves within the band), of at most ``chunk`` rays a step, rendered in one pass."""
+    px = fitted_pixels(lev, chunk)
+    rim = rim_blocks(lev, band) if rim_samples > 1 and lev.cfg.samples_per_pixel == 1 else None
+    if rim is None or not rim.any():
+        return SolvePixels(px, None, (px.rows, px.cols, px.idx))
+    off, wts = gauss_offsets(rim_samples) if rule == "gauss" else (
+        pixel_offsets(rim_samples), np.full(rim_samples, 1.0 / rim_samples))
+    r, c, i = (np.asarray(a).reshape(-1) for a in (px.rows, px.cols, px.idx))
+    at_rim = np.zeros(r.size, bool)
+    at_rim[: px.flat.size] = rim.reshape(-1)[px.flat]
+    k = np.where(at_rim, rim_samples, 1)
+    block = np.repeat(np.arange(r.size), k)
+    first = np.cumsum(k) - k  # each block's first ray
+    j = np.arange(block.size) - first[block]  # a ray's place among its block's
+    rim_ray = at_rim[block]
+    rows = r[block] + np.where(rim_ray, off[j % rim_samples, 0], 0.0)
+    cols = c[block] + np.where(rim_ray, off[j % rim_samples, 1], 0.0)
+    weight = np.where(rim_ray, wts[j % rim_samples], 1.0)
+    n = pixel_bucket(block.size)
     steps = -(-n // chunk)
     size = -(-n // steps)
-    take = np.minimum(np.arange(steps * size), n - 1)
-    as_list = lambda a, dt: jnp.asarray(np.concatenate(a)[take].reshape(steps, size), dt)
-    rays = (as_list(rows, jnp.float32), as_list(cols, jnp.float32), as_list(idx, jnp.int32),
-            as_list(count, jnp.float32))
-    return SolvePixels(parts, samples, rays, tuple(layout))
+    take = np.minimum(np.arange(steps * size), block.size - 1)
+    pad = np.arange(steps * size) >= block.size  # rays that pad the list: weight 0
+    as_list = lambda a, dt: jnp.asarray(np.asarray(a)[take].reshape(steps, size), dt)
+    rays = (as_list(rows, jnp.float32), as_list(cols, jnp.float32), as_list(i[block], jnp.int32),
+            as_list(k[block], jnp.float32), as_list(block, jnp.int32),
+            jnp.asarray(np.where(pad, 0.0, weight[take]).reshape(steps, size), jnp.float32))
+    return SolvePixels(px, int(rim_samples), rays)
 
 
 # ---------------------------------------------------------------------------------------
@@ -391,15 +369,16 @@ def final_params(table, vals: dict, opts: FitOptions):
 @functools.lru_cache(maxsize=64)
 def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_steps: int, rtol: float, atol: float,
            max_rejections: int | None = MAX_REJECTIONS, jacobian: str = "groups", compile_options: tuple = (),
-           layout: tuple | None = None):
+           rim: tuple | None = None):
     """Jitted ``solve(z0, args) -> (z, ok, maxed, steps, residual, J)`` and ``resid``
     (``jacobian``: a key of :data:`JACOBIANS`; ``compile_options``: XLA's compiler options
     for the solve's program as ``(name, value)`` pairs, ``()`` for XLA's defaults;
-    ``layout``: the blocks and their rays' weights in a ray list, :attr:`SolvePixels.layout`).
+    ``rim``: ``(rays per rim block, rule)`` where the blocks at the rim take several rays,
+    :func:`solve_pixels`).
 
     ``args = (fixed, env, background, background_sigma, photo, weights, base, (rows, cols, idx))``: the
     fitted pixels of a padded level (:func:`fitted_pixels`), each rendered with ``cfg``'s
-    rays; with ``layout``, ``(rows, cols, idx, samples)``, a solve's rays
+    rays; with ``rim``, ``(rows, cols, idx, samples, block, weight)``, a solve's rays
     (:attr:`SolvePixels.rays`), rendered in one pass and summed per block with their
     weights (:func:`block_means`);
     the residual is ``robust((render - photo) * weights)`` over them, censored where the photo
@@ -412,14 +391,13 @@ def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_st
     (:func:`~bubblefit.model.geometry.compose_shift`).
     """
 
-    ray_cfg = cfg if layout is None else replace(cfg, samples_per_pixel=1)
-
     def resid(z, args):
         fixed, env, bg, bg_sigma, y, w, base, rays = args
         p = replace((q := table.render_params(table.values(z, fixed))), disc=compose_shift(base, q.disc))
-        draw = lambda b: render_pixels(p, ray_cfg, env, b, *rays)
-        if layout is not None:
-            draw = lambda b, draw=draw: block_means(draw(b), layout)
+        draw = lambda b: render_pixels(p, cfg, env, b, *rays)
+        if rim is not None:
+            draw = lambda b: block_means(render_pixels(p, cfg, env, b, *rays[:4]), rays[4].reshape(-1),
+                                         rays[5].reshape(-1), y.shape[0])
         if bg_sigma is None:
             img = draw(bg)
         else:
@@ -491,7 +469,7 @@ def solve_program(lev: Level, table: ParameterTable, solver: SolverSettings, val
     pad = px.padded
     key = (pad.cfg, table, float(solver.robust_scale), int(max_steps or solver.max_steps), float(solver.rtol),
            float(solver.atol), MAX_REJECTIONS if settings.stall else None, settings.jacobian,
-           tuple(settings.compile_options), px.layout)
+           tuple(settings.compile_options), None if px.samples is None else (px.samples, settings.rim_rule))
     args = (held_values(table, vals), env, pad.bg, pad.bg_sigma, px.y, px.w, pad.base, px.rays)
     return key, args, px
 

@@ -209,8 +209,9 @@ class SolvePixels:
     ``(rows, cols, idx, samples, block, weight)`` (steps, chunk), every block's rays in one
     list, each at the fractional pixel coordinates of its block's quadrature, with its flat
     pixel index, its block's ray count, its block's place in ``pixels`` and its weight
-    there (:func:`block_means`; the list padded to :func:`pixel_bucket` by rays of weight
-    0), or, with ``samples`` None, ``pixels``' own ``(rows, cols, idx)``."""
+    there (:func:`block_means`; the blocks that pad ``pixels`` take no ray, and the list is
+    padded to :func:`pixel_bucket` by rays of weight 0), or, with ``samples`` None,
+    ``pixels``' own ``(rows, cols, idx)``."""
 
     pixels: Pixels
     samples: int | None
@@ -266,7 +267,7 @@ def solve_pixels(lev: Level, chunk: int, rim_samples: int = RIM_SAMPLES, band: f
     r, c, i = (np.asarray(a).reshape(-1) for a in (px.rows, px.cols, px.idx))
     at_rim = np.zeros(r.size, bool)
     at_rim[: px.flat.size] = rim.reshape(-1)[px.flat]
-    k = np.where(at_rim, rim_samples, 1)
+    k = np.where(at_rim, rim_samples, 1) * (np.arange(r.size) < px.flat.size)  # no ray for the padding blocks
     block = np.repeat(np.arange(r.size), k)
     first = np.cumsum(k) - k  # each block's first ray
     j = np.arange(block.size) - first[block]  # a ray's place among its block's

@@ -97,15 +97,16 @@ class ResponseError:
         dydf = (np.asarray(render, np.float64) - bg) / np.maximum(f, 1e-9)
         return dydf[:, :, None] * dfdx
 
-    def thickness_slope(self, render, background, thickness, cos, reflectance=None) -> np.ndarray:
+    def thickness_slope(self, render, background, thickness, cos, reflectance=None, at=None) -> np.ndarray:
         """(n, 3) ``dy / dd``: each pixel's change of its render per nm of its film's
         thickness, ``(dy / df) (df / dd)`` (module docstring; the shares ``f`` of
         :meth:`shares` differenced over :data:`THICKNESS_STEP_NM`), at ``thickness`` (n,) nm
         seen at ``cos`` (n,); ``reflectance(d)``: the film's reflectance (n, G) at
-        thicknesses ``d`` where it is not a film in air (default: :meth:`reflectance`)."""
+        thicknesses ``d`` where it is not a film in air (default: :meth:`reflectance`);
+        ``at``: that reflectance at ``thickness`` where the caller already holds it."""
         d = np.asarray(thickness, np.float64)
         refl = (lambda x: self.reflectance(x, cos)) if reflectance is None else reflectance
-        f = self.shares(refl(d))
+        f = self.shares(refl(d) if at is None else at)
         dfdd = (self.shares(refl(d + THICKNESS_STEP_NM)) - self.shares(refl(d - THICKNESS_STEP_NM))) / (
             2 * THICKNESS_STEP_NM)
         bg = 0.0 if background is None else np.asarray(background, np.float64)
@@ -245,12 +246,13 @@ def response_score_cells(response: str, illuminant: str, n_film: float, render: 
             y, x = ys[i], xs[i]
             bg = None if background is None else np.asarray(background, np.float64)[y, x]
             d, c, r = thickness[y, x], cos[y, x], render[y, x]
-            move = err.jacobian(r, bg, d, c, refl=err.reflectance(d, c))       # (b, 3, degree)
+            refl = err.reflectance(d, c)
+            move = err.jacobian(r, bg, d, c, refl=refl)                        # (b, 3, degree)
             v = ((y - 0.5 * (h - 1)) / (0.5 * h))[:, None, None] ** np.arange(3)
             keep = slice(0, min(_GRAM_BLOCK, n - lo))
             for k in range(3):
                 dirs[lo:lo + _GRAM_BLOCK, k, k * degree:(k + 1) * degree] = move[keep, k]
-            nuis[lo:lo + _GRAM_BLOCK] = (err.thickness_slope(r, bg, d, c)[:, :, None] * v)[keep]
+            nuis[lo:lo + _GRAM_BLOCK] = (err.thickness_slope(r, bg, d, c, at=refl)[:, :, None] * v)[keep]
         return np.nan_to_num(dirs), np.nan_to_num(nuis)
 
     return jac

@@ -204,6 +204,9 @@ def drainage(folder: str, draws: int, degree: int, seed: int, only: str | None =
                    "noise_free_response_chi2": None if free is None else free.chi2_per_dof * free.dof,
                    "own_photo_response_chi2": None if own is None else own.chi2_per_dof * own.dof}
             rows.append(summary(out, got, old))
+    if only and len(rows) < len(only.split(",")):
+        raise SystemExit(f"response_score.py: --drainage names a film it does not make (made: "
+                         f"{', '.join(r['case'] for r in rows) or 'none'})")
     return rows
 
 

@@ -77,8 +77,8 @@ def test_draining_film_from_blender_cycles(out_dir):
     converged (adaptive sampling, 8192-32768 samples per pixel: the pixel integral a camera
     records, not a few Monte Carlo samples): the drainage ends within 20 / 30 nm and 3
     stated standard errors (the issue's targets), and the physical model explains the
-    photo within its noise and the model-error floor, its glints included. The fit is
-    still not ``ok``, for the hues alone: Cycles 5.0.1 evaluates the thin film in RGB and
+    photo within its noise and the model-error floor, its glints included. Where the fit
+    is not ``ok`` it is for the hues alone: Cycles 5.0.1 evaluates the thin film in RGB and
     clamps each channel at every hit (experiments/validation/cycles_colour.py), a hue
     error coherent over the film that the colour check names."""
     from bubblefit.inverse._options import JudgeSettings
@@ -88,7 +88,8 @@ def test_draining_film_from_blender_cycles(out_dir):
     assert not row["refused"], row.get("message")
     assert row["pass"], row
     assert row["model_kept"] == "physical" and row["chi2_floor"] <= ok_chi2, row
-    assert row["ok"] is False and "cannot produce the photo's colours" in row["warnings"], row
+    # what may still make it not ok is the hue alone (the colour check's warning)
+    assert row["ok"] or "cannot produce the photo's colours" in row["warnings"], row
     assert "does not explain the photo" not in row["warnings"], row
 
 

@@ -13,6 +13,7 @@ front film's thickness at each image pixel, with the drainage profile under it,
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 

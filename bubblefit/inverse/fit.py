@@ -331,9 +331,10 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     response_jac = response_cells(st.colour.response, st.colour.illuminant, reported["n_film"], img, st.background,
                                   thick, full.cos)  # a calibrated response's own errors (None: exact)
     # the score test along smooth changes of the response, the film's thickness profiled out: a
-    # constant film's (one number), a drainage profile's (its free parameters); maps are not tested this way
+    # constant film's (one number), a drainage profile's (its free parameters); maps are not tested
+    # this way (a map's thickness is free per pixel, which the profile's columns do not hold)
     score_jac = None
-    if st.table.thickness_model in ("constant", "drainage"):
+    if opts.thickness != "map" and st.table.thickness_model in ("constant", "drainage"):
         free = [k for k, name in enumerate(PROFILE_NAMES) if name in st.table.free]
         nuisance = None if prof is None else np.asarray(drainage_gradient(full.height, *prof), np.float64)[..., free]
         score_jac = response_score_cells(st.colour.response, st.colour.illuminant, reported["n_film"], img,

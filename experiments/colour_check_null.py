@@ -11,7 +11,7 @@ incidence, the noise model's sigma) to an ``.npz`` per case, and prints the chec
 statistic, its threshold and its verdict.
 
 Usage: ``PYTHONPATH=. python experiments/colour_check_null.py --out DIR
-[--cases films,drainage,sigma,raw,demo,val,calibrated]``; ``--table [--json OUT]``
+[--cases films,drainage,sigma,raw,demo,val,calibrated,maps]``; ``--table [--json OUT]``
 recomputes the table from the saved arrays (no fitting); ``--null DRAWS [--json OUT]``
 draws the noise of the right-camera synthetic photos again (:func:`null_draws`).
 """
@@ -122,24 +122,24 @@ def _fit_case(out, rec, name, photo, bg, env, resp, bits, **kw):
     r = fit_photo(photo, env, background=bg, options=FitOptions(
         disc=DISC, parameters=starts(t=0.968, roughness=0.04), model="paper", view=ORTHOGRAPHIC, camera_response=resp,
         illuminant="D65" if resp == "srgb" else "E", noise=NoiseSettings(bits=8 if bits == 8 else None), **kw))
-    keys = ("top_nm", "bottom_nm", "exponent") if kw.get("thickness") == "drainage" else ("thickness_nm",)
+    keys = ("top_nm", "bottom_nm", "exponent") if kw.get("thickness") in ("drainage", "map") else ("thickness_nm",)
     fitted = [r.params[k] for k in keys]
     return r, fitted, time.perf_counter() - t0
 
 
-def run_drainage(out, rec, cases=DRAINAGE):
-    """Draining films (:data:`DRAINAGE`) fitted with the drainage profile through the
-    right response and wrong ones."""
+def run_drainage(out, rec, cases=DRAINAGE, thickness="drainage"):
+    """Draining films (:data:`DRAINAGE`) fitted with the drainage profile (``thickness``
+    ``"map"``: with a thickness map over it) through the right response and wrong ones."""
     from helpers import film_photo
 
     env, _ = _env()
     for prof, seed, cam, ill, bits, responses in cases:
         photo, bg = film_photo(env, prof, seed, cam, ill, quantised=bits)
         for resp in responses:
-            name = f"drain{prof[0]:.0f}-{prof[1]:.0f}s{seed}_{cam.split()[0].lower()}{ill}{bits}_as_{resp.split()[0].lower()}"
+            name = f"{'map' if thickness == 'map' else 'drain'}{prof[0]:.0f}-{prof[1]:.0f}s{seed}_{cam.split()[0].lower()}{ill}{bits}_as_{resp.split()[0].lower()}"
             if os.path.exists(os.path.join(out, name + ".json")):
                 continue
-            r, fitted, dt = _fit_case(out, rec, name, photo, bg, env, resp, bits, thickness="drainage")
+            r, fitted, dt = _fit_case(out, rec, name, photo, bg, env, resp, bits, thickness=thickness)
             rec.save(out, name, resp == cam, dict(truth=list(prof), thickness=fitted, ok=r.ok, chi2=r.reduced_chi2,
                                                    warnings=r.warnings, time_s=dt))
             print(name, fitted, r.ok, r.colour_check, f"{dt:.0f} s", flush=True)
@@ -371,7 +371,8 @@ def table(out):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", required=True)
-    ap.add_argument("--cases", default="films,drainage,sigma,raw,demo,val,calibrated")
+    ap.add_argument("--cases", default="films,drainage,sigma,raw,demo,val,calibrated",
+                    help="comma-separated; also maps: the draining films fitted with a thickness map")
     ap.add_argument("--thickness", default=",".join(f"{t:.0f}" for t in THICKNESSES))
     ap.add_argument("--val", default=",".join(VAL_CASES))
     ap.add_argument("--table", action="store_true")
@@ -399,6 +400,8 @@ def main():
             run_films(a.out, rec, ts, (NIKON, "srgb", SIGMA))
         elif case == "drainage":
             run_drainage(a.out, rec)
+        elif case == "maps":
+            run_drainage(a.out, rec, thickness="map")
         elif case == "sigma":
             run_films(a.out, rec, *SIGMA_FILMS, camera=SIGMA, seed0=61, name="sigmafilm{d:.0f}_as_{resp}")
         elif case == "calibrated":

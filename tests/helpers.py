@@ -159,6 +159,20 @@ def film_photo(env, thickness, seed: int, response: str = "srgb", illuminant: st
     return film_noise(img, rng, quantised), film_noise(bg, rng, quantised)
 
 
+def kept_per_pixels(fn):
+    """``fn(ys, xs)`` kept per pixel set: the colour check's parts repeat between noise
+    draws of one photo, and their Jacobians with them."""
+    kept = {}
+
+    def get(ys, xs):
+        key = (np.asarray(ys).tobytes(), np.asarray(xs).tobytes())
+        if key not in kept:
+            kept[key] = fn(ys, xs)
+        return kept[key]
+
+    return get
+
+
 def film_noise(img, rng: np.random.Generator, quantised: bool | int = True):
     """:func:`film_photo`'s noise on a noise-free render ``img``: read and shot noise, then
     8-bit sRGB codes (``quantised`` True or 8), 16-bit linear codes (16) or none (False)."""

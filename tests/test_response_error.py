@@ -7,6 +7,7 @@ against the package's linear propagation."""
 
 import numpy as np
 import pytest
+from helpers import kept_per_pixels
 
 from bubblefit.inverse.colour_check import colour_check
 from bubblefit.inverse.response_error import response_cells, response_error
@@ -17,10 +18,11 @@ ROWS = np.arange(380.0, 781.0, 5.0)
 LAM = np.arange(380.0, 781.0, 1.0)
 
 
-def _nikon(rows):
+def _nikon(rows, camera=CAMERA):
+    """colour-science's measured sensitivities of ``camera`` (default the Nikon) at ``rows``, each channel's peak 1."""
     import colour
 
-    ms = colour.MSDS_CAMERA_SENSITIVITIES[CAMERA]
+    ms = colour.MSDS_CAMERA_SENSITIVITIES[camera]
     s = np.stack([np.interp(rows, ms.wavelengths, ms.values[:, c], left=0, right=0) for c in range(3)], axis=1)
     return s / s.max(axis=0)
 
@@ -237,6 +239,28 @@ def test_pixel_thickness_error_against_monte_carlo(tmp_path, d0):
     assert np.std(fitted) == pytest.approx(got[0], rel=0.15), (np.std(fitted), got[0])
 
 
+#: The lamp's and the background's light of the score tests' films (``y = E f + B (1 - f)``).
+E_LIGHT, B_LIGHT = np.array([0.9, 1.0, 0.8]), np.array([0.2, 0.3, 0.25])
+
+
+def _film(resp, thick):
+    """The paper model's pixel ``E f + B (1 - f)`` of films of ``thick`` (h, w) nm at normal
+    incidence through the response ``resp`` (on :data:`LAM`), white-balanced."""
+    f = (np.stack([_airy(v) for v in np.ravel(thick)]) @ resp / resp.sum(axis=0)).reshape(*np.shape(thick), 3)
+    return E_LIGHT * f + B_LIGHT * (1 - f)
+
+
+def _score_member(photo, render, thick, sigma, jac):
+    """The score test's member of the colour check's union (floors off, no stated errors)
+    on ``photo`` against ``render``, parts split by the optical path ``2 n d``."""
+    from bubblefit.inverse.colour_check import GRID, _tests
+
+    got = _tests(photo, render, np.ones(render.shape[:2], bool), sigma, model_error=None, floor=0.0,
+                 chroma_floor=0.0, grid=GRID, false_alarm=1e-3, response_jac=None, path=2 * 1.33 * thick,
+                 path_bin=None, pooled=True, score_jac=jac)
+    return next(c for c in got if c.partition == "response")
+
+
 def test_score_test_of_the_response():
     """The colour check's score test along smooth changes of the response
     (``response_score_cells``: Legendre degrees 1-4 of each channel's response, the
@@ -254,41 +278,24 @@ def test_score_test_of_the_response():
     green curved, blue tilted down) moves the hue by about 0.3 noise sigmas per pixel,
     which the directions hold (a non-centrality of about 100 against a threshold of 36:
     its deviation ~21), and the test fires on every draw."""
-    from bubblefit.inverse.colour_check import GRID, _tests
     from bubblefit.inverse.response_error import response_score_cells
 
     h = w = 32
     thick = 1300.0 + 400.0 * np.mgrid[:h, :w][1] / w
-    e_light, b_light = np.array([0.9, 1.0, 0.8]), np.array([0.2, 0.3, 0.25])
-
-    def render(resp, t):
-        f = (np.stack([_airy(v) for v in t.ravel()]) @ resp / resp.sum(axis=0)).reshape(h, w, 3)
-        return e_light * f + b_light * (1 - f)
-
     nik = _nikon(LAM)
     x = (LAM - 580.0) / 200.0
-    truth = render(nik, thick)
-    wrong = render(nik * (1 + 0.6 * np.stack([x, 1.5 * x**2 - 0.5, -x], axis=1)), thick)
-    off = render(nik, thick + 3.0)
-    bg = np.broadcast_to(b_light, truth.shape).copy()
+    truth = _film(nik, thick)
+    wrong = _film(nik * (1 + 0.6 * np.stack([x, 1.5 * x**2 - 0.5, -x], axis=1)), thick)
+    off = _film(nik, thick + 3.0)
+    bg = np.broadcast_to(B_LIGHT, truth.shape).copy()
     sigma = np.full(truth.shape, 0.001)
-    kept = {}
-    full = response_score_cells(CAMERA, "E", 1.33, truth, bg, thick, np.ones((h, w)))
-
-    def score(ys, xs):  # the parts repeat between draws
-        key = (ys.tobytes(), xs.tobytes())
-        if key not in kept:
-            kept[key] = full(ys, xs)
-        return kept[key]
+    score = kept_per_pixels(response_score_cells(CAMERA, "E", 1.33, truth, bg, thick, np.ones((h, w))))
 
     def bare(ys, xs):  # the same directions, no nuisance
         return score(ys, xs)[0], np.zeros((ys.size, 3, 1))
 
     def test(photo, jac=score):
-        got = _tests(photo, truth, np.ones((h, w), bool), sigma, model_error=None, floor=0.0, chroma_floor=0.0,
-                     grid=GRID, false_alarm=1e-3, response_jac=None, path=2 * 1.33 * thick, path_bin=None,
-                     pooled=True, score_jac=jac)
-        return next(c for c in got if c.partition == "response")
+        return _score_member(photo, truth, thick, sigma, jac)
 
     rng = np.random.default_rng(4)
     for centre in (truth, off):
@@ -299,4 +306,48 @@ def test_score_test_of_the_response():
     assert not test(off, bare).consistent
     for _ in range(3):
         c = test(wrong + sigma * rng.normal(size=truth.shape))
+        assert not c.consistent and c.dof == 12, c
+
+
+def test_score_test_of_a_drainage_profile():
+    """The score test on a draining film, its nuisances the drainage profile's three
+    parameters (``response_score_cells``' ``nuisance``: ``drainage_gradient`` at each
+    pixel's height): a 32 px film ``200 + 1000 ((1 - y) / 2)^2.5`` nm seen by the Nikon,
+    0.1 % noise per channel, the floors off. The fit's profile is taken off the photo's by
+    (5 nm, 5 nm, 0.05) in (top, bottom, exponent), -2.4 to +5.0 nm over the film: the
+    photo is the render moved along that change (its central difference, so that what is
+    left beyond first order is third order, about 1e-4 of the move), which the profile's
+    nuisance profiles out: the statistic follows chi^2 with 12 degrees of freedom, its mean
+    over 20 draws within 4 deviations (sqrt(2 * 12 / 20) = 1.1) of 12, at most one alarm
+    (1e-3 / 3 each: 0.007 expected). A constant film's nuisance (1, v, v^2 of the row)
+    cannot follow the exponent's ``x^2.5 ln x``, and its noise-free statistic (about 70)
+    exceeds the threshold of 36. The same film seen by the Sigma and tested with the
+    Nikon's response is flagged on every draw (a hue error of several % of the colour,
+    hundreds of noise sigmas per part)."""
+    from bubblefit.inverse.response_error import response_score_cells
+    from bubblefit.model.thickness import drainage_gradient, drainage_profile
+
+    h = w = 32
+    height = np.broadcast_to((1 - 2 * (np.arange(h) + 0.5) / h)[:, None], (h, w))
+    prof = (200.0, 1200.0, 2.5)
+    thick = np.asarray(drainage_profile(height, *prof), np.float64)
+    grad = np.asarray(drainage_gradient(height, *prof), np.float64)
+    nik = _nikon(LAM)
+    truth = _film(nik, thick)
+    move = grad @ np.array([5.0, 5.0, 0.05])
+    off = truth + 0.5 * (_film(nik, thick + move) - _film(nik, thick - move))
+    other = _film(_nikon(LAM, "Sigma SDMerill (NPL)"), thick)
+    bg = np.broadcast_to(B_LIGHT, truth.shape).copy()
+    sigma = np.full(truth.shape, 0.001)
+    profile = kept_per_pixels(response_score_cells(CAMERA, "E", 1.33, truth, bg, thick, np.ones((h, w)), nuisance=grad))
+    constant = response_score_cells(CAMERA, "E", 1.33, truth, bg, thick, np.ones((h, w)))
+
+    rng = np.random.default_rng(5)
+    got = [_score_member(off + sigma * rng.normal(size=truth.shape), truth, thick, sigma, profile) for _ in range(20)]
+    stat = np.array([c.chi2_per_dof * c.dof for c in got])
+    assert got[0].dof == 12 and abs(stat.mean() - 12) < 4 * np.sqrt(2 * 12 / 20), stat.mean()
+    assert sum(not c.consistent for c in got) <= 1, stat.max()
+    assert not _score_member(off, truth, thick, sigma, constant).consistent
+    for _ in range(2):
+        c = _score_member(other + sigma * rng.normal(size=truth.shape), truth, thick, sigma, profile)
         assert not c.consistent and c.dof == 12, c

@@ -73,17 +73,24 @@ def test_constant_film_case(out_dir):
 @pytest.mark.slow
 def test_draining_film_from_blender_cycles(out_dir):
     """A film draining from 150 nm at the top to 900 nm at the bottom, path traced by
-    Blender Cycles in a perspective view of a map with the sun in it: the drainage ends
-    within 20 / 30 nm and 3 stated standard errors (the issue's targets). The sun's glints,
-    which one ray per pixel point-samples, are outliers (a few % of the pixels) that carry
-    the plain reduced chi^2 to about 70: compared by it, ``auto`` kept the paper model and
-    its top 45 nm off. The fit is not ``ok`` (the glints are not explained) and its warning
-    says the misfit is local."""
+    Blender Cycles in a perspective view of a map with the sun in it, the photo's glints
+    converged (adaptive sampling, 8192-32768 samples per pixel: the pixel integral a camera
+    records, not a few Monte Carlo samples): the drainage ends within 20 / 30 nm and 3
+    stated standard errors (the issue's targets), and the physical model explains the
+    photo within its noise and the model-error floor, its glints included. Where the fit
+    is not ``ok`` it is for the hues alone: Cycles 5.0.1 evaluates the thin film in RGB and
+    clamps each channel at every hit (experiments/validation/cycles_colour.py), a hue
+    error coherent over the film that the colour check names."""
+    from bubblefit.inverse._options import JudgeSettings
+
+    ok_chi2 = JudgeSettings().ok_chi2
     row = validate.run_fit("cyc_drain_lin_sunrise_persp", "drainage", out_dir)
     assert not row["refused"], row.get("message")
     assert row["pass"], row
-    assert row["model_kept"] == "physical" and 0 < row["outliers"] <= 0.1 and row["chi2_inliers"] <= 3.0, row
-    assert row["ok"] is False and "the misfit is local" in row["warnings"], row
+    assert row["model_kept"] == "physical" and row["chi2_floor"] <= ok_chi2, row
+    # what may still make it not ok is the hue alone (the colour check's warning)
+    assert row["ok"] or "cannot produce the photo's colours" in row["warnings"], row
+    assert "does not explain the photo" not in row["warnings"], row
 
 
 @pytest.mark.slow

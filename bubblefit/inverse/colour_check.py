@@ -30,9 +30,10 @@ degrees of freedom; the colours are inconsistent when ``T`` exceeds the law's
 optical-path bin over the whole film: a constant film's hue error from a wrong response
 is a function of the path alone, the same in every cell, and one mean per bin holds it in
 far fewer degrees of freedom (about 2 x 9 on a 1500 nm film's 48 px disc against 2 x 110
-parts). For a constant film it also runs a score test (:func:`_score_verdict`): whether the
-stated response needs a smooth change (12 directions) beyond its stated errors, the
-thickness profiled out, over the cells' parts. The members are tested each at an equal
+parts). For a constant film or a drainage profile it also runs a score test
+(:func:`_score_verdict`): whether the stated response needs a smooth change (12 directions)
+beyond its stated errors, the thickness (or the profile's parameters) profiled out, over
+the cells' parts. The members are tested each at an equal
 share of the false-alarm rate (Bonferroni), and the colours are inconsistent when any fails.
 ``kappa >= 1`` guards the noise model (:func:`noise_scale`): the ratio of the chromatic part of each pixel's residual minus the
 mean of its four neighbours' to what the noise model predicts for it, pooled over the

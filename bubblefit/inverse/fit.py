@@ -72,7 +72,7 @@ from .response_error import (pixel_thickness_stderr, response_cells, response_er
 from ..errors import InputError
 from ..lighting.envmap import EnvMap
 from ..model.modes import GREY
-from ..model.thickness import drainage_profile
+from ..model.thickness import drainage_gradient, drainage_profile
 from ..progress import stage
 
 __all__ = ["FitOptions", "FitResult", "NoiseSettings", "MapSettings", "JudgeSettings", "SolverSettings", "ImageSizes",
@@ -330,10 +330,15 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     thick = thickness_map if thickness_map is not None else reported["thickness_nm"]
     response_jac = response_cells(st.colour.response, st.colour.illuminant, reported["n_film"], img, st.background,
                                   thick, full.cos)  # a calibrated response's own errors (None: exact)
-    # the score test along smooth changes of the response: a constant film's (its nuisance, the
-    # thickness, is then one number; drainage profiles and maps are not tested this way)
-    score_jac = response_score_cells(st.colour.response, st.colour.illuminant, reported["n_film"], img,
-                                     st.background, thick, full.cos) if st.table.thickness_model == "constant" else None
+    # the score test along smooth changes of the response, the film's thickness profiled out: a
+    # constant film's (one number), a drainage profile's (its free parameters); maps are not tested
+    # this way (a map's thickness is free per pixel, which the profile's columns do not hold)
+    score_jac = None
+    if opts.thickness != "map" and st.table.thickness_model in ("constant", "drainage"):
+        free = [k for k, name in enumerate(PROFILE_NAMES) if name in st.table.free]
+        nuisance = None if prof is None else np.asarray(drainage_gradient(full.height, *prof), np.float64)[..., free]
+        score_jac = response_score_cells(st.colour.response, st.colour.illuminant, reported["n_film"], img,
+                                         st.background, thick, full.cos, nuisance=nuisance)
     ok, warnings, colour_record = judge_colours(ok, warnings, st.photo, img, full.mask, full.cos, sigma,
                                                 float(judge.model_error), explained, judge.colour_check == "decide",
                                                 response_jac, thick, reported["n_film"], score_jac)

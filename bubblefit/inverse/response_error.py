@@ -97,15 +97,16 @@ class ResponseError:
         dydf = (np.asarray(render, np.float64) - bg) / np.maximum(f, 1e-9)
         return dydf[:, :, None] * dfdx
 
-    def thickness_slope(self, render, background, thickness, cos, reflectance=None) -> np.ndarray:
+    def thickness_slope(self, render, background, thickness, cos, reflectance=None, at=None) -> np.ndarray:
         """(n, 3) ``dy / dd``: each pixel's change of its render per nm of its film's
         thickness, ``(dy / df) (df / dd)`` (module docstring; the shares ``f`` of
         :meth:`shares` differenced over :data:`THICKNESS_STEP_NM`), at ``thickness`` (n,) nm
         seen at ``cos`` (n,); ``reflectance(d)``: the film's reflectance (n, G) at
-        thicknesses ``d`` where it is not a film in air (default: :meth:`reflectance`)."""
+        thicknesses ``d`` where it is not a film in air (default: :meth:`reflectance`);
+        ``at``: that reflectance at ``thickness`` where the caller already holds it."""
         d = np.asarray(thickness, np.float64)
         refl = (lambda x: self.reflectance(x, cos)) if reflectance is None else reflectance
-        f = self.shares(refl(d))
+        f = self.shares(refl(d) if at is None else at)
         dfdd = (self.shares(refl(d + THICKNESS_STEP_NM)) - self.shares(refl(d - THICKNESS_STEP_NM))) / (
             2 * THICKNESS_STEP_NM)
         bg = 0.0 if background is None else np.asarray(background, np.float64)
@@ -218,39 +219,45 @@ def response_perturbation(response: str, illuminant: str, n_film: float, degree:
 
 def response_score_cells(response: str, illuminant: str, n_film: float, render: np.ndarray,
                          background: np.ndarray | None, thickness: np.ndarray, cos: np.ndarray,
-                         degree: int = SCORE_DEGREE):
+                         degree: int = SCORE_DEGREE, nuisance: np.ndarray | None = None):
     """For the colour check's score test (:func:`bubblefit.inverse.colour_check.colour_check`'s
     ``score_jac``): a function of pixel rows and columns (n,) giving ``(D, N)``: ``D``
     (n, 3, 3 ``degree``) each pixel's change of its render per unit of each smooth relative
     change of the response (:func:`response_perturbation`, through
     :meth:`ResponseError.jacobian`; channel ``k``'s changes in columns ``k degree`` to
-    ``(k + 1) degree``, moving channel ``k`` only), and ``N`` (n, 3, 3) per unit of the
-    nuisance the fit adjusts in the hue, the film's thickness: the thickness slope
-    (:meth:`ResponseError.thickness_slope`) times 1, ``v`` and ``v^2`` with ``v`` the
-    pixel's row from the image's middle over half its height (a constant film, and to
-    second order a profile in height). Over images ``render``, ``background`` (None: none),
-    ``thickness`` (nm) and ``cos``; computed in blocks of :data:`_GRAM_BLOCK` pixels, the
-    last one padded (one compiled shape for every photo)."""
+    ``(k + 1) degree``, moving channel ``k`` only), and ``N`` (n, 3, P) per unit of the
+    nuisances the fit adjusts in the hue, through the film's thickness: the thickness slope
+    (:meth:`ResponseError.thickness_slope`) times the thickness's change per unit of each.
+    ``nuisance`` (h, w, P): that change at each pixel, e.g. a drainage profile's per unit of
+    its free parameters (:func:`bubblefit.model.thickness.drainage_gradient` at the pixel's
+    height); None: 1, ``v`` and ``v^2`` with ``v`` the pixel's row from the image's middle
+    over half its height (a constant film, and to second order a profile in height). Over
+    images ``render``, ``background`` (None: none), ``thickness`` (nm) and ``cos``; computed
+    in blocks of :data:`_GRAM_BLOCK` pixels, the last one padded (one compiled shape for
+    every photo)."""
     err = response_perturbation(response, illuminant, n_film, degree)
     h = np.shape(render)[0]
+    nuisance = None if nuisance is None else np.asarray(nuisance, np.float64)
     thickness = np.broadcast_to(np.asarray(thickness, np.float64), np.shape(render)[:2])
     render = np.asarray(render, np.float64)
     cos = np.asarray(cos, np.float64)
 
     def jac(ys, xs):
         n = np.size(ys)
-        dirs, nuis = np.zeros((n, 3, 3 * degree)), np.zeros((n, 3, 3))
+        dirs, nuis = np.zeros((n, 3, 3 * degree)), np.zeros((n, 3, 3 if nuisance is None else nuisance.shape[-1]))
         for lo in range(0, n, _GRAM_BLOCK):
             i = np.arange(lo, lo + _GRAM_BLOCK).clip(max=n - 1)  # the last block padded with its last pixel
             y, x = ys[i], xs[i]
             bg = None if background is None else np.asarray(background, np.float64)[y, x]
             d, c, r = thickness[y, x], cos[y, x], render[y, x]
-            move = err.jacobian(r, bg, d, c, refl=err.reflectance(d, c))       # (b, 3, degree)
-            v = ((y - 0.5 * (h - 1)) / (0.5 * h))[:, None, None] ** np.arange(3)
+            refl = err.reflectance(d, c)
+            move = err.jacobian(r, bg, d, c, refl=refl)                        # (b, 3, degree)
+            v = ((y - 0.5 * (h - 1)) / (0.5 * h))[:, None, None] ** np.arange(3) if nuisance is None else \
+                nuisance[y, x][:, None, :]
             keep = slice(0, min(_GRAM_BLOCK, n - lo))
             for k in range(3):
                 dirs[lo:lo + _GRAM_BLOCK, k, k * degree:(k + 1) * degree] = move[keep, k]
-            nuis[lo:lo + _GRAM_BLOCK] = (err.thickness_slope(r, bg, d, c)[:, :, None] * v)[keep]
+            nuis[lo:lo + _GRAM_BLOCK] = (err.thickness_slope(r, bg, d, c, at=refl)[:, :, None] * v)[keep]
         return np.nan_to_num(dirs), np.nan_to_num(nuis)
 
     return jac

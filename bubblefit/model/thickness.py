@@ -13,12 +13,13 @@ front film's thickness at each image pixel, with the drainage profile under it,
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
 from .modes import ThicknessKind
 
-__all__ = ["thickness_at", "drainage_profile"]
+__all__ = ["thickness_at", "drainage_profile", "drainage_gradient"]
 
 
 def drainage_profile(y: Array, top, bottom, exponent) -> Array:
@@ -27,6 +28,18 @@ def drainage_profile(y: Array, top, bottom, exponent) -> Array:
     pos = x > 0
     powed = jnp.where(pos, jnp.exp(exponent * jnp.log(jnp.where(pos, x, 1.0))), 0.0)
     return top + (bottom - top) * powed
+
+
+def drainage_gradient(y: Array, top, bottom, exponent) -> Array:
+    """``(..., 3)``: the change of the drainage profile (docs/design.md,
+    :func:`drainage_profile`) at heights ``y`` per unit of ``top``, ``bottom`` and
+    ``exponent`` (``1 - x^e``, ``x^e`` and ``(bottom - top) x^e ln x`` with
+    ``x = (1 - y) / 2``), by forward-mode differentiation of that function itself."""
+    import jax
+
+    y = jnp.asarray(y, jnp.float32)
+    args = tuple(jnp.asarray(v, jnp.float32) for v in (top, bottom, exponent))
+    return jax.jacfwd(lambda p: drainage_profile(y, *p))(jnp.stack(args))
 
 
 def thickness_at(kind: ThicknessKind, values: Array, local: Array, pixel: Array, profile: Array | None = None,

@@ -1,17 +1,18 @@
 """The sun's glints of the Mitsuba thick-film photo (mts_thick_sunrise_ortho): where they
 land and how much light they hold, in bubblefit's render and in Mitsuba's at 256 samples
-per pixel (the photo's own render: same seed, same scene) and at more samples.
+per pixel (the photo's seed and scene; the photo itself takes 32768 samples, make_mitsuba.py)
+and at more samples.
 
 Mitsuba's path tracer picks reflection or transmission at each film with the slab's
 probabilities (``thindielectric``), so a path that reaches the sun after internal
 bounces is sampled with the probability of its branch choices and carries the sun's
 whole radiance divided by the samples: at 256 samples one such sample adds about
-``L_sun * exposure / 256`` (80 here in the photo's linear units, where 1 clips), and a
+``L_sun * exposure / 256`` (about 80 here in the photo's linear units, where 1 clips), and a
 pixel whose expected value is a few times the clip level holds 0, 1 or 2 of them.
 For each glint (connected pixels where bubblefit's render exceeds 3, grown by 3 pixels)
 this prints the light above the local median (sum), its centroid and its peak for
 bubblefit (pixel footprint; 16 rays per pixel) at the true disc and exposure, and for
-Mitsuba at 256 samples (the photo) and at SPP samples (another seed).
+Mitsuba at 256 samples (the photo's seed) and at SPP samples (another seed).
 
     PYTHONPATH=. .venv/bin/python experiments/validation/glint_samples.py OUT.json [SPP]
 """

@@ -10,11 +10,13 @@ limit). Outputs:
   ../../tests/data/probes/*                          mirror balls for `bubblefit envmap`
   data/conventions/mitsuba_mirror_*.exr              mirror spheres for check_conventions.py
 
-The thick bubbles' photos get 256 samples per pixel by default. A glint of the sun reached
-through internal bounces is then a few path samples, each many times the clip level (the
-slab's reflect-or-transmit choice is sampled), so the photo's glints are not the pixel
-integral a camera records; --spp N renders the photo (not the background, which has no
-film) with N samples per pixel, the same seed. --data DIR writes the case folders under DIR
+The thick bubbles' photos get 256 samples per pixel unless their case says otherwise. A glint
+of the sun reached through internal bounces is then a few path samples, each many times the
+clip level (the slab's reflect-or-transmit choice is sampled), so the photo's glints are not
+the pixel integral a camera records; the sunrise bubble (mts_thick_sunrise_ortho), whose sun
+glints through the slab, therefore renders its photo with 32768 samples per pixel
+(photo_spp in MTS_CASES). --spp N renders the photo (not the background, which has no film)
+of every thick bubble rendered with N samples per pixel, the same seed. --data DIR writes the case folders under DIR
 instead of data/. The settings used go into the case's truth.json.
 
     python make_mitsuba.py [cal] [mts | CASE ...] [probes] [mirror] [--spp N] [--data DIR]   # default: all
@@ -176,7 +178,7 @@ def envmap_emitter(name):
 MTS_SPP = 256
 MTS_CASES = {
     "mts_thick_courtyard_persp": dict(envmap="courtyard", kind="persp", w=176, h=144),
-    "mts_thick_sunrise_ortho": dict(envmap="sunrise", kind="ortho", w=160, h=160),
+    "mts_thick_sunrise_ortho": dict(envmap="sunrise", kind="ortho", w=160, h=160, photo_spp=32768),
 }
 
 

@@ -408,7 +408,7 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
     from dataclasses import replace
 
     from bubblefit.inverse import column_jacobian, solver
-    from bubblefit.inverse import Level, fitted_pixels, padded, padded_size, pixel_bucket
+    from bubblefit.inverse import Level, fitted_pixels, padded, padded_size, pixel_bucket, solve_pixels
     from bubblefit.inverse import render_level
     from bubblefit.model.geometry import compose_shift
     from bubblefit.inverse.fit import fit_photo
@@ -477,14 +477,17 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
     start = {"t": 0.9, "split": 0.7, "roughness": 0.05, "exposure": 1.1, "thickness_nm": 640.0, "disc_x": 0.01,
              "disc_y": -0.02, "disc_r": 0.03}
     lev.y = np.asarray(render_level(Params.make(thickness=655.0, roughness=0.04), lev, env), np.float32)
-    px = fitted_pixels(lev, 256)
-    _, resid = solver(px.padded.cfg, table, 3.0, 20, 1e-5, 1e-6)
+    # the solve's rays: the rim's blocks with 2 x 2 (Gauss) rays each, the others with one, in one list
+    lev.inside = np.hypot(np.arange(45) + 0.5 - 20.3, (np.arange(37) + 0.5 - 17.9)[:, None]) < 15.2
+    px = solve_pixels(lev, 256)
+    assert px.samples == 4 and px.flat.size < px.rays[0].size < 4 * px.flat.size
+    _, resid = solver(px.padded.cfg, table, 3.0, 20, 1e-5, 1e-6, rim=(px.samples, "gauss"))
     z = table.unconstrained(start)
     fixed = {"n_film": jnp.float32(1.33), "rotation_deg": jnp.float32(0.0)}
     # with the background photo's noise (0.01, a 8-bit photo's order) widening the weights
     # through the model's transmission: its Jacobian too is jax.jacfwd's
     bg_sigma = 0.01 * jnp.ones_like(px.padded.bg)
-    args = (fixed, env, px.padded.bg, bg_sigma, px.y, px.w, px.padded.base, (px.rows, px.cols, px.idx))
+    args = (fixed, env, px.padded.bg, bg_sigma, px.y, px.w, px.padded.base, px.rays)
     want = np.asarray(jax.jacfwd(resid)(z, args))
     assert table.jacobian_groups == ((0, 1, 3), (2,), (4,), (5, 6, 7))  # weights, light, film, disc
     got = np.asarray(jax.jit(lambda z, a: column_jacobian(resid, table.jacobian_groups, z, a))(z, args))

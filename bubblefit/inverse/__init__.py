@@ -58,7 +58,7 @@ _EXPORTS = {
     # compiled programs: the padded level, its fitted pixels, the renders of a level
     "padded": "_programs", "padded_size": "_programs", "fitted_pixels": "_programs",
     "pixel_bucket": "_programs", "render_level": "_programs", "render_bubble": "_programs",
-    "bubble_list": "_programs", "solver": "_programs",
+    "bubble_list": "_programs", "solver": "_programs", "solve_pixels": "_programs", "rim_blocks": "_programs",
     # solve: Levenberg-Marquardt and the local solve
     "LevenbergMarquardt": "_lm", "DenseDampedNewtonDescent": "_lm", "column_jacobian": "_lm",
     "scaled_decrement": "_lm", "damped_step_length": "_lm", "gauss_newton_decrement": "_lm", "robust": "_lm",

@@ -15,7 +15,7 @@ from ._lm import gauss_newton_decrement, presses_bound
 from ._observation import Level
 from ._parameters import ParameterTable, value_and_slope
 from ._options import SolverSettings
-from ._programs import Pixels, SolveSettings, solve_program, stored_solver
+from ._programs import Pixels, SolvePixels, SolveSettings, solve_program, stored_solver
 
 __all__ = ["LocalSolution", "remaining_step", "solve_local", "cost", "solution_from", "improves",
            "DECREMENT_TOLERANCE", "MAX_RESTARTS"]
@@ -95,9 +95,10 @@ def remaining_step(sol: LocalSolution, chi2_nu: float, free: tuple) -> float:
 
 
 def solution_from(table: ParameterTable, vals: dict, z, ok, maxed, steps, r, jac, fixed,
-                  lev: Level | None = None, pixels: Pixels | None = None) -> LocalSolution:
+                  lev: Level | None = None, pixels: Pixels | SolvePixels | None = None) -> LocalSolution:
     """A :class:`LocalSolution` from a solver's raw outputs (numpy, float64); with ``lev``
-    and ``pixels``, the residual and Jacobian over its fitted pixels as the level's flat residual."""
+    and ``pixels`` (one list, or a solve's blocks in parts), the residual and Jacobian over its fitted
+    pixels as the level's flat residual."""
     z = np.asarray(z, np.float64)
     if lev is not None:
         r, jac = pixels.scatter(lev, r), pixels.scatter(lev, jac)

@@ -25,6 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
+from scipy import ndimage as ndi
 
 from ._censored import censored_residual
 from ._lm import JACOBIANS, MAX_REJECTIONS, LevenbergMarquardt, robust
@@ -33,7 +34,7 @@ from ._options import FitOptions, SolverSettings
 from ._parameters import ParameterTable
 from ..io.executables import stored
 from ..io.jaxcache import ynn_fusions_off_option
-from ..model.geometry import OrthographicCamera, canonical_frame, compose_shift
+from ..model.geometry import OrthographicCamera, canonical_frame, compose_shift, gauss_offsets, pixel_offsets
 from ..model.programs import prepare_loaded, render_loaded
 from ..model.render import RenderConfig, render_pixels
 
@@ -41,7 +42,8 @@ __all__ = ["solver", "stored_solver", "batched_solver", "reporter", "held_values
            "prepare_local", "prepare_reporter", "render_level", "prepare_render_level", "render_bubble",
            "prepare_render_bubble", "final_params", "SolveSettings", "FINAL_SOLVE", "SEARCH_SOLVE", "WARM_SOLVE",
            "FINAL_JACOBIAN", "FINAL_COMPILE", "SEARCH_COMPILE", "warm_up", "Padded", "padded", "unpadded",
-           "padded_size", "Pixels", "fitted_pixels", "pixel_bucket", "bubble_list"]
+           "padded_size", "Pixels", "fitted_pixels", "pixel_bucket", "bubble_list", "SolvePixels", "solve_pixels",
+           "block_means", "rim_blocks", "RIM_SAMPLES", "RIM_BAND", "RIM_RULE"]
 
 
 # ---------------------------------------------------------------------------------------
@@ -165,6 +167,126 @@ def fitted_pixels(lev: Level, chunk: int, mask: np.ndarray | None = None, *, who
                   jnp.asarray(wt, jnp.float32), flat)
 
 
+#: Rays per block (``s x s``, placed by :data:`RIM_RULE`) that a local solve renders for
+#: the blocks at the bubble's rim (:func:`solve_pixels`).
+RIM_SAMPLES = 4
+#: The rim's blocks (:func:`rim_blocks`): a fitted block whose centre lies within this many
+#: blocks of the nearest block centre off the bubble.
+RIM_BAND = 2.5
+#: The rim blocks' quadrature (:func:`solve_pixels`): ``gauss``
+#: (:func:`~bubblefit.model.geometry.gauss_offsets`: exact for a radiance cubic across the
+#: block) or ``box``, the stratified centres of :func:`~bubblefit.model.geometry.pixel_offsets`.
+RIM_RULE = "gauss"
+
+
+def rim_blocks(lev: Level, band: float = RIM_BAND) -> np.ndarray:
+    """(h, w) bool: the fitted blocks of ``lev`` at the bubble's rim, those whose centre
+    lies within ``band`` blocks of the nearest block whose centre ray misses the bubble
+    (the Euclidean distance transform of ``lev.inside``; a frame's edge is not a rim).
+
+    A block of the photo is the mean of its pixels, each the light a camera's pixel
+    collects over its area: the box filter of :func:`~bubblefit.model.geometry.pixel_offsets`.
+    One ray at the block's centre stands for that mean where the light changes slowly
+    across the block; towards the rim the incidence cosine ``cos = sqrt(1 - rho^2)``
+    changes ever faster (``d cos / d rho = -rho / cos``), and with it the film's path
+    ``2 n d cos(theta_t)``, its Fresnel reflectance and its drainage thickness, so the
+    centre ray's value departs from the block's mean by the second-order term
+    ``f'' h^2 / 24`` of a block ``h`` wide, which grows as ``1 / cos^3``. These blocks
+    are chosen from the level's starting disc, so that the solve's lists keep their
+    shapes (and its compiled program) while the disc is refined within a block or two.
+    """
+    inside = np.asarray(lev.inside, bool)
+    if inside.all():  # no block off the bubble: no rim in the frame
+        return np.zeros(inside.shape, bool)
+    return np.asarray(lev.mask, bool) & (ndi.distance_transform_edt(inside) <= band)
+
+
+@dataclass
+class SolvePixels:
+    """A local solve's fitted blocks and the rays it renders for them (:func:`solve_pixels`):
+    ``pixels``, the blocks (:class:`Pixels`, one list as :func:`fitted_pixels` pads it),
+    ``samples``, the rays of a rim block, and ``rays``, what the solve renders:
+    ``(rows, cols, idx, samples, block, weight)`` (steps, chunk), every block's rays in one
+    list, each at the fractional pixel coordinates of its block's quadrature, with its flat
+    pixel index, its block's ray count, its block's place in ``pixels`` and its weight
+    there (:func:`block_means`; the blocks that pad ``pixels`` take no ray, and the list is
+    padded to :func:`pixel_bucket` by rays of weight 0), or, with ``samples`` None,
+    ``pixels``' own ``(rows, cols, idx)``."""
+
+    pixels: Pixels
+    samples: int | None
+    rays: tuple
+
+    @property
+    def padded(self) -> Padded:
+        return self.pixels.padded
+
+    @property
+    def y(self) -> jnp.ndarray:
+        return self.pixels.y
+
+    @property
+    def w(self) -> jnp.ndarray:
+        return self.pixels.w
+
+    @property
+    def flat(self) -> np.ndarray:
+        return self.pixels.flat
+
+    def scatter(self, lev: Level, a) -> np.ndarray:
+        """:meth:`Pixels.scatter` of the blocks."""
+        return self.pixels.scatter(lev, a)
+
+
+def block_means(img, block, weight, blocks: int):
+    """The blocks' values (``blocks``, 3) from their rays' radiance ``img`` (R, 3): each
+    block the sum of its rays' radiance times their weights (``block``, ``weight`` (R,),
+    :attr:`SolvePixels.rays`), the quadrature of the block's box average
+    (:func:`~bubblefit.model.geometry.pixel_offsets`,
+    :func:`~bubblefit.model.geometry.gauss_offsets`), a segment sum of a fixed length."""
+    return jax.ops.segment_sum(img * weight[:, None], block, num_segments=blocks)
+
+
+def solve_pixels(lev: Level, chunk: int, rim_samples: int = RIM_SAMPLES, band: float = RIM_BAND,
+                 rule: str = RIM_RULE) -> SolvePixels:
+    """The fitted pixels of ``lev`` as a local solve renders them: the blocks at the rim
+    (:func:`rim_blocks` within ``band``) with ``s x s`` rays each, ``s^2 = rim_samples``,
+    placed and weighted by ``rule`` (:data:`RIM_RULE`), so that their model is the mean over
+    the block's area that the photo's block holds (the box filter of the camera's pixels),
+    and the others with one ray at the centre; the level's own list (:func:`fitted_pixels`)
+    where there is no rim, with ``rim_samples`` 0, or where the level takes several rays per
+    pixel itself. All the rays form one list, its length rounded up as
+    :func:`pixel_bucket` rounds the blocks' (so that the solve's program serves the disc
+    while it moves within the band), of at most ``chunk`` rays a step, rendered in one pass."""
+    px = fitted_pixels(lev, chunk)
+    rim = rim_blocks(lev, band) if rim_samples > 1 and lev.cfg.samples_per_pixel == 1 else None
+    if rim is None or not rim.any():
+        return SolvePixels(px, None, (px.rows, px.cols, px.idx))
+    off, wts = gauss_offsets(rim_samples) if rule == "gauss" else (
+        pixel_offsets(rim_samples), np.full(rim_samples, 1.0 / rim_samples))
+    r, c, i = (np.asarray(a).reshape(-1) for a in (px.rows, px.cols, px.idx))
+    at_rim = np.zeros(r.size, bool)
+    at_rim[: px.flat.size] = rim.reshape(-1)[px.flat]
+    k = np.where(at_rim, rim_samples, 1) * (np.arange(r.size) < px.flat.size)  # no ray for the padding blocks
+    block = np.repeat(np.arange(r.size), k)
+    first = np.cumsum(k) - k  # each block's first ray
+    j = np.arange(block.size) - first[block]  # a ray's place among its block's
+    rim_ray = at_rim[block]
+    rows = r[block] + np.where(rim_ray, off[j % rim_samples, 0], 0.0)
+    cols = c[block] + np.where(rim_ray, off[j % rim_samples, 1], 0.0)
+    weight = np.where(rim_ray, wts[j % rim_samples], 1.0)
+    n = pixel_bucket(block.size)
+    steps = -(-n // chunk)
+    size = -(-n // steps)
+    take = np.minimum(np.arange(steps * size), block.size - 1)
+    pad = np.arange(steps * size) >= block.size  # rays that pad the list: weight 0
+    as_list = lambda a, dt: jnp.asarray(np.asarray(a)[take].reshape(steps, size), dt)
+    rays = (as_list(rows, jnp.float32), as_list(cols, jnp.float32), as_list(i[block], jnp.int32),
+            as_list(k[block], jnp.float32), as_list(block, jnp.int32),
+            jnp.asarray(np.where(pad, 0.0, weight[take]).reshape(steps, size), jnp.float32))
+    return SolvePixels(px, int(rim_samples), rays)
+
+
 # ---------------------------------------------------------------------------------------
 # The programs
 # ---------------------------------------------------------------------------------------
@@ -214,12 +336,19 @@ class SolveSettings:
     jacobian: str = "groups"
     compile_options: tuple = ()
     stall: bool = True
+    #: rays per block at the rim (:func:`solve_pixels`; 0: the level's rays everywhere)
+    rim_samples: int = RIM_SAMPLES
+    #: the rim's width in blocks (:func:`rim_blocks`)
+    rim_band: float = RIM_BAND
+    #: the rim rays' quadrature (:data:`RIM_RULE`)
+    rim_rule: str = RIM_RULE
 
 
 #: The final solve after a global search (:data:`FINAL_JACOBIAN`, :data:`FINAL_COMPILE`).
 FINAL_SOLVE = SolveSettings(FINAL_JACOBIAN, FINAL_COMPILE, True)
-#: The global search's own short solves (:data:`SEARCH_COMPILE`).
-SEARCH_SOLVE = SolveSettings("groups", SEARCH_COMPILE, True)
+#: The global search's own short solves (:data:`SEARCH_COMPILE`): they hold the disc and
+#: only start the final solve, which renders the rim's blocks with their area's rays.
+SEARCH_SOLVE = SolveSettings("groups", SEARCH_COMPILE, True, 0)
 #: A warm-started fit's solve (a sequence's frame from its predecessor's values, ``auto``'s
 #: physical solve from the paper model's or the search image's, a doubtful warm start's
 #: second solve): the groups, XLA's defaults but for the YNNPACK fusions
@@ -240,13 +369,19 @@ def final_params(table, vals: dict, opts: FitOptions):
 
 @functools.lru_cache(maxsize=64)
 def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_steps: int, rtol: float, atol: float,
-           max_rejections: int | None = MAX_REJECTIONS, jacobian: str = "groups", compile_options: tuple = ()):
+           max_rejections: int | None = MAX_REJECTIONS, jacobian: str = "groups", compile_options: tuple = (),
+           rim: tuple | None = None):
     """Jitted ``solve(z0, args) -> (z, ok, maxed, steps, residual, J)`` and ``resid``
     (``jacobian``: a key of :data:`JACOBIANS`; ``compile_options``: XLA's compiler options
-    for the solve's program as ``(name, value)`` pairs, ``()`` for XLA's defaults).
+    for the solve's program as ``(name, value)`` pairs, ``()`` for XLA's defaults;
+    ``rim``: ``(rays per rim block, rule)`` where the blocks at the rim take several rays,
+    :func:`solve_pixels`).
 
     ``args = (fixed, env, background, background_sigma, photo, weights, base, (rows, cols, idx))``: the
-    fitted pixels of a padded level (:func:`fitted_pixels`);
+    fitted pixels of a padded level (:func:`fitted_pixels`), each rendered with ``cfg``'s
+    rays; with ``rim``, ``(rows, cols, idx, samples, block, weight)``, a solve's rays
+    (:attr:`SolvePixels.rays`), rendered in one pass and summed per block with their
+    weights (:func:`block_means`);
     the residual is ``robust((render - photo) * weights)`` over them, censored where the photo
     clipped a channel at black (:func:`~bubblefit.inverse._censored.censored_residual`: a film's
     colour outside the camera's gamut has a negative channel, which the photo records as 0;
@@ -258,17 +393,21 @@ def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_st
     """
 
     def resid(z, args):
-        fixed, env, bg, bg_sigma, y, w, base, (rows, cols, idx) = args
+        fixed, env, bg, bg_sigma, y, w, base, rays = args
         p = replace((q := table.render_params(table.values(z, fixed))), disc=compose_shift(base, q.disc))
+        draw = lambda b: render_pixels(p, cfg, env, b, *rays)
+        if rim is not None:
+            draw = lambda b: block_means(render_pixels(p, cfg, env, b, *rays[:4]), rays[4].reshape(-1),
+                                         rays[5].reshape(-1), y.shape[0])
         if bg_sigma is None:
-            img = render_pixels(p, cfg, env, bg, rows, cols, idx)
+            img = draw(bg)
         else:
             # The background photo is a measurement too (errors in variables): each pixel's
             # variance is the photo's plus the background's noise carried by the model's
             # own transmission dI/dL_b at the current parameters (Deming's weighting, the
             # profile likelihood of the unknown true background), so that t is not pulled
             # low by a noisy regressor and its error bar includes the background's share.
-            img, carried = jax.jvp(lambda b: render_pixels(p, cfg, env, b, rows, cols, idx), (bg,), (bg_sigma,))
+            img, carried = jax.jvp(draw, (bg,), (bg_sigma,))
             w = w * jax.lax.rsqrt(1.0 + (w * carried) ** 2)
         return robust(-censored_residual(y, img) * w, robust_scale).reshape(-1)
 
@@ -327,12 +466,12 @@ def solve_program(lev: Level, table: ParameterTable, solver: SolverSettings, val
     """``(key, args, pixels)``: the key of :func:`~bubblefit.inverse._local.solve_local`'s solve for ``lev``
     (:func:`solver`'s arguments) and the arguments it takes besides the start (the held
     ``vals`` and the level's fitted pixels)."""
-    px = fitted_pixels(lev, lev.cfg.chunk)
+    px = solve_pixels(lev, lev.cfg.chunk, settings.rim_samples, settings.rim_band, settings.rim_rule)
     pad = px.padded
     key = (pad.cfg, table, float(solver.robust_scale), int(max_steps or solver.max_steps), float(solver.rtol),
            float(solver.atol), MAX_REJECTIONS if settings.stall else None, settings.jacobian,
-           tuple(settings.compile_options))
-    args = (held_values(table, vals), env, pad.bg, pad.bg_sigma, px.y, px.w, pad.base, (px.rows, px.cols, px.idx))
+           tuple(settings.compile_options), None if px.samples is None else (px.samples, settings.rim_rule))
+    args = (held_values(table, vals), env, pad.bg, pad.bg_sigma, px.y, px.w, pad.base, px.rays)
     return key, args, px
 
 

@@ -31,6 +31,7 @@ __all__ = [
     "hit_pixels",
     "internal_bounce",
     "pixel_offsets",
+    "gauss_offsets",
     "canonical_frame",
     "compose_shift",
     "slope_footprint",
@@ -55,8 +56,26 @@ def pixel_offsets(samples_per_pixel: int) -> np.ndarray:
     return np.stack([dy.ravel(), dx.ravel()], axis=-1)
 
 
+def gauss_offsets(samples_per_pixel: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(offsets (S, 2), weights (S,))`` of the ``s x s`` Gauss-Legendre product rule over
+    the pixel's box (``S = s^2``): the nodes ``x_k / 2`` of the ``s``-point rule on
+    ``[-1, 1]`` along rows and columns, the weights ``w_k w_l / 4`` (summing to 1). The
+    weighted sum of the rays is the box average of a radiance that is a polynomial of
+    degree ``2 s - 1`` in each axis, exactly (Abramowitz and Stegun, *Handbook of
+    Mathematical Functions*, 25.4.29); :func:`pixel_offsets`' ``s x s`` stratified centres
+    are exact to degree 1 and take ``1 - 1/s^2`` of the curvature term ``f'' h^2 / 24``.
+    ``s = 2``: the nodes ``+-1 / (2 sqrt 3)``, equal weights.
+    """
+    s = math.isqrt(int(samples_per_pixel))
+    if s < 1 or s * s != samples_per_pixel:
+        raise ValueError(f"samples per pixel must be a square number (1, 4, 9, 16, ...), got {samples_per_pixel}")
+    x, w = np.polynomial.legendre.leggauss(s)
+    dy, dx = np.meshgrid(x / 2, x / 2, indexing="ij")
+    return np.stack([dy.ravel(), dx.ravel()], axis=-1), np.outer(w, w).ravel() / 4
+
+
 def slope_footprint(directions, rows: Array, cols: Array, n: Float[Array, "N 3"], wo: Float[Array, "N 3"],
-                    samples_per_pixel: int = 1) -> Float[Array, "N 3 2"]:
+                    samples_per_pixel=1) -> Float[Array, "N 3 2"]:
     """The pixel's footprint in the half vector's slope space: ``(N, 3, 2)``, the two
     tangent vectors ``J`` at each normal ``n`` along which the half vectors of the pixel's
     rays move from one side of the pixel (or sub-pixel) box to the other: the box's rays
@@ -71,7 +90,8 @@ def slope_footprint(directions, rows: Array, cols: Array, n: Float[Array, "N 3"]
     ``h = normalize(wo + r)`` that moves by ``(I - n n^T) dr / (2 n.wo)`` (at the pixel's
     centre ``h = n`` and ``|wo + r| = 2 n.wo``). A sub-pixel ray of
     ``samples_per_pixel = s^2`` covers ``1/s`` of the pixel per axis:
-    ``J = [dh/drow, dh/dcol] / s``.
+    ``J = [dh/drow, dh/dcol] / s``. ``samples_per_pixel`` is one count for all rays, or
+    each ray's own (N,), where a list mixes rays of pixels sampled differently.
 
     The footprint is a smoothing scale, not a parameter of the fit: it is returned
     through ``stop_gradient``, so a Jacobian does not differentiate it.
@@ -85,7 +105,8 @@ def slope_footprint(directions, rows: Array, cols: Array, n: Float[Array, "N 3"]
     _, dr_row = jax.jvp(directions, (rows, cols), (one, zero))
     _, dr_col = jax.jvp(directions, (rows, cols), (zero, one))
     cos = jnp.sum(n * wo, axis=-1, keepdims=True)
-    scale = 1.0 / (2.0 * jnp.maximum(cos, 1e-3) * math.sqrt(samples_per_pixel))
+    s = math.sqrt(samples_per_pixel) if np.isscalar(samples_per_pixel) else jnp.sqrt(samples_per_pixel)[:, None]
+    scale = 1.0 / (2.0 * jnp.maximum(cos, 1e-3) * s)
     tangent = lambda v: (v - n * jnp.sum(n * v, axis=-1, keepdims=True)) * scale
     return jax.lax.stop_gradient(jnp.stack([tangent(dr_row), tangent(dr_col)], axis=-1))
 

@@ -421,12 +421,13 @@ def _camera_rays(cfg: RenderConfig, p: Params, rows, cols):
     return o, jnp.broadcast_to(d, o.shape)
 
 
-def film_footprints(fx: Effects, cfg: RenderConfig, rays, rows, cols, films):
+def film_footprints(fx: Effects, cfg: RenderConfig, rays, rows, cols, films, samples=None):
     """The pixel footprint in slope space of every film of ``films`` (as
     :func:`shading_points` returns them for the rays ``rays(rows, cols)``), (F N, 3, 2) in
     their order, or None when ``cfg.pixel_footprint`` is off: the differentials of each film's reflected direction
     across the pixel (:func:`~bubblefit.model.geometry.slope_footprint`), through the same
-    rays, hits and internal bounces."""
+    rays, hits and internal bounces; each ray covers ``1 / s`` of its pixel per axis,
+    ``s^2`` = ``samples`` (N,), the rays of its pixel, or ``cfg.samples_per_pixel``."""
     if not cfg.pixel_footprint or not films:
         return None
 
@@ -435,14 +436,16 @@ def film_footprints(fx: Effects, cfg: RenderConfig, rays, rows, cols, films):
         hits = intersect_sphere(o, d, cfg.center, cfg.radius)
         return jnp.concatenate([reflect(f[2], f[1]) for f in shading_points(fx, cfg, hits, d)[0]])
 
+    spp = cfg.samples_per_pixel if samples is None else jnp.tile(jnp.asarray(samples, rows.dtype), len(films))
     return slope_footprint(directions, rows, cols, jnp.concatenate([f[1] for f in films]),
-                           jnp.concatenate([f[2] for f in films]), cfg.samples_per_pixel)
+                           jnp.concatenate([f[2] for f in films]), spp)
 
 
-def _trace_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols) -> _Traced:
+def _trace_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, samples=None) -> _Traced:
     """Trace one chunk of pixels and read the light of every film this scene shades (the
     filtered map, the point lights, the background: the photo's pixels ``bg`` (N, 3) of the
-    chunk): all of a render that does not depend on the film's thickness."""
+    chunk): all of a render that does not depend on the film's thickness (``samples``:
+    each ray's pixel's ray count, for its footprint, :func:`film_footprints`)."""
     fx = cfg.effects
     dtype = p.t.dtype
     rows, cols = rows.astype(dtype), cols.astype(dtype)
@@ -459,7 +462,7 @@ def _trace_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols) -> _
         nn = len(films)
         s_all, d_all = _reflected(env, fx, cfg, p, jnp.concatenate([f[1] for f in films]),
                                   jnp.concatenate([f[2] for f in films]), normalize=fx.model == "physical",
-                                  footprint=film_footprints(fx, cfg, rays, rows, cols, films))
+                                  footprint=film_footprints(fx, cfg, rays, rows, cols, films, samples))
         split = lambda x: jnp.split(x, nn) if jnp.ndim(x) else [x] * nn
         refl = dict(zip([f[0] for f in films], zip(split(s_all), split(d_all))))
     return _Traced(p, lam, hits, d, exits, refl, bg_rad)
@@ -520,12 +523,13 @@ def shade_pixels(traced: list[_Traced], cfg: RenderConfig, films):
     return pixel / n, {k: v / n for k, v in terms.items()}
 
 
-def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx):
-    """Radiance (N, 3) of one chunk of pixels, and a dict of the model's terms."""
+def _shade_chunk(p: Params, cfg: RenderConfig, env: EnvMap, bg, rows, cols, idx, samples=None):
+    """Radiance (N, 3) of one chunk of pixels (or rays: ``samples`` as :func:`_trace_chunk`),
+    and a dict of the model's terms."""
     fx = cfg.effects
     if fx.background == "photo":
         bg = bg.reshape(-1, 3)[idx]
-    tr = _trace_chunk(p, cfg, env, bg, rows, cols)
+    tr = _trace_chunk(p, cfg, env, bg, rows, cols, samples)
     hits = tr.hits
     thick = lambda local: thickness_at(fx.thickness, tr.p.thickness, local, idx, tr.p.profile, hits.local0)
     d0 = thickness_at(fx.thickness, tr.p.thickness, hits.local0, idx)
@@ -635,18 +639,19 @@ def pixel_chunks(cfg: RenderConfig, pixels=None):
     return rows.reshape(steps, chunk), cols.reshape(steps, chunk), idx.reshape(steps, chunk), npix
 
 
-def _map_chunks(p: Params, cfg: RenderConfig, env, bg, rows, cols, idx):
+def _map_chunks(p: Params, cfg: RenderConfig, env, bg, rows, cols, idx, samples=None):
     offsets = jnp.asarray(pixel_offsets(cfg.samples_per_pixel), dtype=p.t.dtype)
 
     def body(xs):
-        r, c, i = xs
+        r, c, i, s = xs
         if cfg.samples_per_pixel == 1:
-            return _shade_chunk(p, cfg, env, bg, r, c, i)
+            return _shade_chunk(p, cfg, env, bg, r, c, i, s)
         # Box filter: the mean over stratified sub-pixel rays, one pass per offset.
         shade = lambda o: _shade_chunk(p, cfg, env, bg, r.astype(o.dtype) + o[0], c.astype(o.dtype) + o[1], i)
         return jax.tree_util.tree_map(lambda v: jnp.mean(v, axis=0), jax.lax.map(shade, offsets))
 
-    return jax.lax.map(body, (jnp.asarray(rows), jnp.asarray(cols), jnp.asarray(idx)))
+    return jax.lax.map(body, (jnp.asarray(rows), jnp.asarray(cols), jnp.asarray(idx),
+                              None if samples is None else jnp.asarray(samples)))
 
 
 def render_terms(p: Params, cfg: RenderConfig, env: EnvMap | None, background=None):
@@ -668,11 +673,17 @@ def render(p: Params, cfg: RenderConfig, env: EnvMap | None, background=None) ->
 
 
 @functools.partial(jax.jit, static_argnames=("cfg",))
-def render_pixels(p: Params, cfg: RenderConfig, env: EnvMap | None, background, rows, cols, idx):
+def render_pixels(p: Params, cfg: RenderConfig, env: EnvMap | None, background, rows, cols, idx, samples=None):
     """Radiance (N, 3) of the pixels ``rows``, ``cols`` (flat indices ``idx``), given in
     chunks (steps, chunk) as :func:`pixel_chunks` makes them: :func:`render`'s values at
-    those pixels, for a fit that compares some of an image's pixels only."""
+    those pixels, for a fit that compares some of an image's pixels only.
+
+    With ``samples`` (steps, chunk), ``cfg.samples_per_pixel`` 1 and fractional ``rows``,
+    ``cols``, an entry is one ray of the pixel ``idx`` among ``samples`` of its own
+    (:func:`~bubblefit.model.geometry.pixel_offsets`), its footprint ``1 / sqrt(samples)``
+    of the pixel per axis: a list whose pixels take different numbers of rays, whose means
+    the caller takes (the box filter of :func:`render`'s sub-pixel rays)."""
     bg = None if background is None else jnp.asarray(background, dtype=p.t.dtype)
-    return _map_chunks(p, cfg, env, bg, rows, cols, idx)[0].reshape(-1, 3)
+    return _map_chunks(p, cfg, env, bg, rows, cols, idx, samples)[0].reshape(-1, 3)
 
 

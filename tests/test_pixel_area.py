@@ -56,8 +56,9 @@ def test_samples_per_pixel_must_be_square():
 
 
 def test_solve_renders_the_rim_blocks_as_the_photo_averages_them():
-    """A photo's block is the mean of its pixels: a disc rendered 3 times finer and
-    block-averaged, fitted on the blocks with the disc free, gives back its radius.
+    """A photo's block is the mean of its pixels: a draining film's disc rendered 3 times
+    finer and block-averaged, fitted on the blocks with the disc free, gives back its
+    radius (a constant film's solve keeps one ray a block: ``solve_program``).
 
     The local solve renders the blocks at the rim with the 2 x 2 Gauss-Legendre rule
     (``inverse._programs.solve_pixels``, ``gauss_offsets(4)``), which averages the
@@ -87,11 +88,11 @@ def test_solve_renders_the_rim_blocks_as_the_photo_averages_them():
     env = EnvMap.from_array(ndi.gaussian_filter(rng.uniform(0.2, 1.0, (32, 64, 3)), (2, 2, 0)).astype(np.float32))
     bg = ndi.gaussian_filter(rng.uniform(0.1, 0.5, (k * h, k * w, 3)), (4, 4, 0)).astype(np.float32)
     fx = Effects(model="physical", interference="airy", filtering=FilterConfig("mirror"), diffuse=False,
-                 spectral=spectral_basis("uniform", 8), background="photo")
+                 spectral=spectral_basis("uniform", 8), background="photo", thickness="drainage")
     fine = RenderConfig(effects=fx, camera=OrthographicCamera(k * w, k * h, *(k * v for v in disc)))
-    truth = dict(t=0.972, split=1.0, roughness=0.0, thickness_nm=420.0, exposure=1.0, rotation_deg=0.0,
-                 n_film=1.4, f=0.0, disc_x=0.0, disc_y=0.0, disc_r=0.0)
-    table = ParameterTable(free=("disc_x", "disc_y", "disc_r"))
+    truth = dict(t=0.972, split=1.0, roughness=0.0, thickness_nm=420.0, top_nm=300.0, bottom_nm=600.0,
+                 exponent=1.0, exposure=1.0, rotation_deg=0.0, n_film=1.4, f=0.0, disc_x=0.0, disc_y=0.0, disc_r=0.0)
+    table = ParameterTable(free=("disc_x", "disc_y", "disc_r"), thickness_model="drainage")
     params = table.render_params({n: jnp.float32(v) for n, v in truth.items()})
     photo = np.asarray(render(params, fine, env, jnp.asarray(bg)), np.float64)
     lev = make_level(k, fine, photo, np.full(photo.shape, 0.004), bg, np.zeros(photo.shape[:2], bool), 0.96)

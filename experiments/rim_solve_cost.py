@@ -13,6 +13,11 @@ imported from DIR: the compile CPU (trace, lower, XLA) and HLO instruction count
 solve's program, and the CPU of 3 runs of it; ``@SAMPLES,BAND,RULE`` sets the rim's rays,
 band and quadrature (``SolveSettings.rim_samples``, ``rim_band``, ``rim_rule``) where the
 checkout has them.
+
+The capture is a pickle of bubblefit's own objects (the level, table, map), made by
+``capture`` for ``measure`` on the same machine: it is written readable by its owner
+alone, and ``measure`` reads only a file it finds so (a pickle runs code when loaded;
+never give it a file from elsewhere).
 """
 from __future__ import annotations
 
@@ -55,7 +60,7 @@ def capture(case: str, out: str) -> None:
         sys.exit(f"capture: the fit of {case} ended with code {code} and {len(kept)} final solves")
     a, k, values = kept[-1]
     lev, table, solver, _, env = a[:5]
-    with open(out, "wb") as fh:
+    with open(os.open(out, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600), "wb") as fh:
         pickle.dump({"case": case, "lev": lev, "table": table, "solver": solver, "env": env,
                      "values": values, "settings": k.get("settings")}, fh)
     print(f"kept the final solve of {case}: {int(lev.mask.sum())} fitted blocks, free {table.free}")
@@ -69,6 +74,9 @@ def one(pkl: str, move_nm: float, rim: str | None) -> dict:
 
     import bubblefit.inverse._programs as P
 
+    st = os.stat(pkl)
+    if st.st_uid != os.getuid() or st.st_mode & 0o077:
+        sys.exit(f"measure: {pkl} is not a capture of this user's alone (owner only, mode 600); not loaded")
     with open(pkl, "rb") as fh:
         d = pickle.load(fh)
     lev, table, env = d["lev"], d["table"], d["env"]

@@ -141,6 +141,16 @@ def pixel_bucket(n: int) -> int:
     return min(top, -(-n // step) * step)
 
 
+def _chunked(count: int, n: int, chunk: int) -> tuple[int, int, np.ndarray]:
+    """``(steps, size, take)``: a list of ``count`` entries padded to ``n`` (at least
+    ``count``) and split into ``steps`` equal chunks of ``size <= chunk`` (the list stays
+    about ``n`` long); ``take`` (steps size,) indexes the entries, the padding repeating
+    the last one."""
+    steps = -(-n // chunk)
+    size = -(-n // steps)
+    return steps, size, np.minimum(np.arange(steps * size), max(count - 1, 0))
+
+
 def fitted_pixels(lev: Level, chunk: int, mask: np.ndarray | None = None, *, whole_chunks: bool = False) -> Pixels:
     """The pixels of ``lev`` a fit compares (its mask, or ``mask``), listed in the padded level
     (:func:`padded`): their count rounded up to :func:`pixel_bucket`, or with
@@ -155,9 +165,7 @@ def fitted_pixels(lev: Level, chunk: int, mask: np.ndarray | None = None, *, who
         n = max(1, -(-flat.size // chunk)) * chunk
     else:
         n = pixel_bucket(flat.size)
-    steps = -(-n // chunk)
-    size = -(-n // steps)  # equal chunks of at most ``chunk``: the list stays about n long
-    take = np.minimum(np.arange(steps * size), max(flat.size - 1, 0))
+    steps, size, take = _chunked(flat.size, n, chunk)
     rows, cols = np.divmod(flat[take], w)
     keep = (np.arange(steps * size) < flat.size)[:, None]
     y = np.where(keep, lev.y.reshape(-1, 3)[flat[take]], 0.0)
@@ -281,10 +289,7 @@ def solve_pixels(lev: Level, chunk: int, rim_samples: int = RIM_SAMPLES, band: f
     rows = r[block] + np.where(rim_ray, off[j % rim_samples, 0], 0.0)
     cols = c[block] + np.where(rim_ray, off[j % rim_samples, 1], 0.0)
     weight = np.where(rim_ray, wts[j % rim_samples], 1.0)
-    n = pixel_bucket(block.size)
-    steps = -(-n // chunk)
-    size = -(-n // steps)
-    take = np.minimum(np.arange(steps * size), block.size - 1)
+    steps, size, take = _chunked(block.size, pixel_bucket(block.size), chunk)
     pad = np.arange(steps * size) >= block.size  # rays that pad the list: weight 0
     as_list = lambda a, dt: jnp.asarray(np.asarray(a)[take].reshape(steps, size), dt)
     rays = (as_list(rows, jnp.float32), as_list(cols, jnp.float32), as_list(i[block], jnp.int32),

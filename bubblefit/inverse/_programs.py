@@ -406,8 +406,9 @@ def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_st
     def resid(z, args):
         fixed, env, bg, bg_sigma, y, w, base, rays = args
         p = replace((q := table.render_params(table.values(z, fixed))), disc=compose_shift(base, q.disc))
-        draw = lambda b: render_pixels(p, cfg, env, b, *rays)
-        if rim is not None:
+        if rim is None:
+            draw = lambda b: render_pixels(p, cfg, env, b, *rays)
+        else:
             draw = lambda b: block_means(render_pixels(p, cfg, env, b, *rays[:4]), rays[4].reshape(-1),
                                          rays[5].reshape(-1), y.shape[0])
         if bg_sigma is None:

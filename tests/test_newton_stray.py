@@ -110,3 +110,57 @@ def test_rings_with_stray_light(tmp_path):
     assert old.params["stray_reflectance"] == 0.0
     assert not old.ok
     assert abs(old.params["radius_mm"] - radius_um / 1000.0) > 3.0 * old.stderr["radius_mm"]
+
+
+def test_neighbour_noise_of_a_grey_photo():
+    """A grey photo's noise from neighbouring pixels (:func:`bubblefit.inverse.planar._neighbour_sigma`):
+    a film's smooth fringes (periods of 30-40 pixels) plus Gaussian noise of 0.02, over a
+    disc. The neighbours' difference leaves of the fringes at most a quarter of their
+    Laplacian, ``0.25 * 0.3 * ((2 pi / 40)^2 + (2 pi / 30)^2) = 0.0052``, so without noise
+    the estimate stays under ``1.4826 * 0.0052 / sqrt(5/4)``; that adds at most 7 % of 0.02
+    in quadrature, and the median absolute deviation of ~2800 differences, each sharing
+    pixels with its four neighbours, has a relative standard error under 4 %: the noisy
+    estimate is within 15 % of 0.02. Fewer than 20 usable pixels give None."""
+    from bubblefit.inverse.planar import _neighbour_sigma
+
+    yy, xx = np.mgrid[:64, :64].astype(float)
+    mask = (xx - 31.5) ** 2 + (yy - 31.5) ** 2 < 30.0 ** 2
+    fringes = 0.4 + 0.3 * np.sin(2 * np.pi * xx / 40.0) * np.cos(2 * np.pi * yy / 30.0)
+    noisy = fringes + np.random.default_rng(3).normal(0.0, 0.02, fringes.shape)
+    sigma = _neighbour_sigma(np.repeat(noisy[..., None], 3, axis=-1), mask)
+    assert sigma == pytest.approx(0.02, rel=0.15)
+    lap = 0.25 * 0.3 * ((2 * np.pi / 40.0) ** 2 + (2 * np.pi / 30.0) ** 2)
+    assert _neighbour_sigma(np.repeat(fringes[..., None], 3, axis=-1), mask) < 1.4826 * lap / np.sqrt(1.25)
+    tiny = np.zeros_like(mask)
+    tiny[10:14, 10:14] = True
+    assert _neighbour_sigma(np.repeat(noisy[..., None], 3, axis=-1), tiny) is None
+
+
+@pytest.mark.slow
+def test_grey_rings_without_stray_light(tmp_path):
+    """Newton's rings as :func:`test_rings_with_stray_light`'s, with no stray light: the
+    grey photo's one reading a pixel leaves each pixel's own thickness no residual, so the
+    noise is read from neighbouring pixels. The fit states the photo's noise, 0.01 with the
+    8-bit step's 1/255/sqrt(12) added in quadrature (0.01006), within 15 % (the estimate's
+    own scatter is under 4 %), its reduced chi^2 is that of noise (within 0.3 of 1), it is
+    ``ok``, R is within 3 standard errors, and the stray reflectance, which the fit takes
+    below its bound of 0, is reported at 0 with the unbounded fit's positive error."""
+    from bubblefit.inverse.planar import PlanarForward, fit_planar, view_of
+    from bubblefit.model.planar_scene import parse_planar
+
+    radius_um, h0 = 60000.0, 30.0
+    scene = parse_planar(_scene_data(tmp_path), tmp_path)
+    view = view_of(scene)
+    fwd = PlanarForward(scene.stack, scene.lamp, scene.response, scene.na, 4000.0)
+    lin = _box_rings(fwd, view, 0.4 * scene.width * PITCH_UM, 0.55 * scene.height * PITCH_UM, radius_um, h0, 0.0)
+    lin *= 0.8 / lin.max()
+    noise = np.random.default_rng(0).normal(0.0, 0.01, lin.shape[:2])[..., None]
+    photo = np.round(np.clip(lin + noise, 0.0, 1.0) * 255.0) / 255.0
+
+    res = fit_planar(photo, scene, clip_high=1.0)
+    assert res.sigma == pytest.approx(np.hypot(0.01, 1.0 / 255.0 / np.sqrt(12.0)), rel=0.15)
+    assert abs(res.reduced_chi2 - 1.0) < 0.3
+    assert res.ok, res.warnings
+    assert abs(res.params["radius_mm"] - radius_um / 1000.0) < 3.0 * res.stderr["radius_mm"]
+    assert res.params["stray_reflectance"] == 0.0
+    assert 0.0 < res.stderr["stray_reflectance"] < 1e-3

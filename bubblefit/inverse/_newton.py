@@ -533,8 +533,8 @@ def fit_newton(fwd, y, lum, sin2, view, mask, dmap, gain, sigma, lo, hi, high=np
     copies = 3 if np.array_equal(y[:, 0], y[:, 1]) and np.array_equal(y[:, 1], y[:, 2]) else 1
     b_se = None
     if fit_stray and float(theta[5]) < 0.0:  # a reflectance: at its bound, refitted without it
-        dof = max(len(r) // copies - len(theta), 1)
-        b_se = float(np.sqrt(max(float(np.linalg.pinv(J.T @ J)[5, 5]) * cost / dof, 0.0)))
+        b_se = float(np.sqrt(max(float(_covariance(J, r, cost, copies, np.flatnonzero(mask)[keep], mask.shape)[5, 5]),
+                                 0.0)))
         fit_stray, b_fixed = False, 0.0
         model = make_model(False, env_on, keep)
         theta, r, cost, J = fit_colours(model, obs_k, sigma, high, jnp.concatenate([theta[:5], theta[6:]]), iters)

@@ -507,6 +507,28 @@ def _noise_sigma(res: np.ndarray) -> float:
     return float(max(1.4826 * np.median(np.abs(res - np.median(res))), 1e-6))
 
 
+def _neighbour_sigma(image: np.ndarray, mask: np.ndarray) -> float | None:
+    """The noise of a grey photo's pixels from differences between neighbours: at every film
+    pixel whose four neighbours are film pixels too, ``d = e - mean(e of the 4 neighbours)``
+    of the (H, W, 3) ``image`` ``e`` (channel 0: a grey photo's channels are one reading),
+    and ``sigma = 1.4826 MAD(d) / sqrt(5/4)``, the variance of ``d`` being ``(1 + 4/16)``
+    times a pixel's for noise independent between pixels. A signal that is smooth over a
+    few pixels cancels in ``d`` to first order (a Laplacian: J. Immerkaer, "Fast noise
+    variance estimation", Computer Vision and Image Understanding 64(2), 1996; the median
+    keeps it robust to the pixels where it does not, as for
+    :func:`bubblefit.inverse.colour_check.neighbour_scale`). None with fewer than 20 such
+    pixels. A grey photo needs it: each pixel's own thickness reproduces its one reading
+    exactly, so the residuals of :func:`_noise_sigma` hold no noise."""
+    inner = np.zeros_like(mask)
+    inner[1:-1, 1:-1] = mask[1:-1, 1:-1] & mask[:-2, 1:-1] & mask[2:, 1:-1] & mask[1:-1, :-2] & mask[1:-1, 2:]
+    ys, xs = np.nonzero(inner)
+    if ys.size < 20:
+        return None
+    e = np.asarray(image, np.float64)[..., 0]
+    d = e[ys, xs] - 0.25 * (e[ys - 1, xs] + e[ys + 1, xs] + e[ys, xs - 1] + e[ys, xs + 1])
+    return float(max(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(1.25), 1e-6))
+
+
 def _hops(dmap: np.ndarray, limit: float) -> int:
     """Neighbour pairs whose thickness differs by more than ``limit`` nm (order hops)."""
     a = np.abs(np.diff(dmap, axis=0))
@@ -831,7 +853,11 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
 
     dref, jj_, model, gain = _refined_with_exposure(fwd, y, lum, sin2, dpix, gain, lo, hi, clip_high)
     res = censored_residual(y, model, clip_high, np)
-    sigma = _noise_sigma(res)
+    # a grey photo (one reading a pixel: a monochrome camera, a sodium lamp through a grey
+    # response) leaves each pixel's own thickness no residual: its noise is read from the
+    # photo's neighbouring pixels instead, and from the fitted model's residual below
+    grey = bool(np.array_equal(y[:, 0], y[:, 1]) and np.array_equal(y[:, 1], y[:, 2]))
+    sigma = (_neighbour_sigma(np.asarray(photo, np.float64), mask) if grey else None) or _noise_sigma(res)
     stderr = sigma / np.sqrt(np.maximum(jj_, 1e-20))
     params, perr = {}, {}
     if kind == "constant":
@@ -868,6 +894,8 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
         notes, fitted = nres.notes, nres.fitted
         res = censored_residual(y, model, clip_high, np)
     order = order or _profile_order(fwd, y, lum, sin2, view, mask, map_profile, gain, sigma, lo, hi, clip_high)
+    if grey and kind != "map":  # the model's residual: the film's signal and a smooth misfit cancel
+        sigma = _neighbour_sigma(_on_image(mask, res, 0.0, 3), mask) or sigma
     chi2, chi2_floor = _reduced_chi2(res, y, sigma, fitted)
     stderr_camera = drain_camera if kind == "drainage" else None
     if kind in ("constant", "map"):

@@ -194,3 +194,33 @@ def test_constant_film_on_glass_under_coaxial_light(d_true):
     assert res.ok, res.warnings
     assert abs(res.params["thickness_nm"] - d_true) < 5.0, res.params
     assert abs(res.gain / exposure - 1) < 0.03
+
+
+@pytest.mark.slow
+def test_flat_film_noise_and_map_errors_count_the_fitted_thickness():
+    """A 40x40 colour photo of a constant 430 nm water film on BK7 (reference_films.py, NA
+    0.25, 3200 K) with Gaussian noise of 0.01 per channel, fitted as a map: each pixel's
+    own thickness takes one of its three readings' degrees of freedom, so the residuals
+    alone read about 0.8 of the noise. The fit states the noise within 10 % (the median of
+    1600 squared residuals, chi^2 of 2 degrees of freedom, has a relative standard error
+    of 3 %, 1.5 % on sigma), a reduced chi^2 within 0.15 of 1 (its scatter 2.5 %, plus
+    sigma's), and per-pixel standard errors that the map's errors fill: their RMS in
+    standard errors within 0.12 of 1 (1600 draws: 2 %, plus sigma's)."""
+    sys.path.insert(0, str(ROOT / "experiments" / "validation"))
+    import reference_films as rf
+
+    from bubblefit.inverse.planar import fit_planar
+    from bubblefit.model.planar_scene import parse_planar
+
+    d_true, sigma = 430.0, 0.01
+    rgb = rf.coaxial_rgb(np.full((40, 40), d_true), "3200K", ("air", "water", "bk7"), 0.25)
+    photo = 0.6 * rgb / rgb.max() + np.random.default_rng(1).normal(0.0, sigma, rgb.shape)
+    scene = parse_planar({"film": {"shape": "plane", "n": "water", "above": "air", "below": "bk7",
+                                   "thickness": "map", "range_nm": [0.0, 1600.0]},
+                          "light": {"type": "coaxial", "na": 0.25, "lamp": "3200K"},
+                          "camera": {"width": 40, "height": 40, "pixel_um": 2.0}})
+    res = fit_planar(photo, scene, reference_region=(0, 0, 8, 8), reference_nm=d_true)
+    assert res.sigma == pytest.approx(sigma, rel=0.10)
+    assert abs(res.reduced_chi2 - 1.0) < 0.15
+    z = (res.thickness_map - d_true) / res.thickness_stderr_map
+    assert abs(float(np.sqrt(np.nanmean(z ** 2))) - 1.0) < 0.12

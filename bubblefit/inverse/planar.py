@@ -502,9 +502,37 @@ def _refine(fwd: PlanarForward, y, lum, sin2, d, gain, lo, hi, high=np.inf, iter
     return tuple(np.concatenate([o[k] for o in out]) for k in range(3))
 
 
-def _noise_sigma(res: np.ndarray) -> float:
-    """Per-channel noise from the residuals: 1.4826 x their median absolute deviation."""
-    return float(max(1.4826 * np.median(np.abs(res - np.median(res))), 1e-6))
+def _recorded(y: np.ndarray, high: float) -> np.ndarray:
+    """(n, 3) which readings the sensor recorded: neither clipped at black (``BLACK_CLIP``)
+    nor at white (``high``): the censored channels carry no measure of the noise."""
+    return (y > BLACK_CLIP) & (y < high)
+
+
+#: Median of chi^2 with 1 and 2 degrees of freedom (2 ln 2 for 2).
+_CHI2_MEDIAN = {1: 0.454936423119573, 2: 2.0 * math.log(2.0)}
+
+
+def _noise_sigma(res: np.ndarray, y: np.ndarray, high: float) -> float:
+    """Per-channel noise ``sigma`` from the residuals ``res`` (n, 3) of each pixel's own best
+    thickness, over the photo's readings ``y`` (n, 3) that the sensor recorded
+    (:func:`_recorded`): ``k`` recorded readings less one fitted thickness leave a residual
+    whose squared length is ``sigma^2`` times a chi^2 of ``k - 1`` degrees of freedom,
+    whatever the thickness's slope (the residual of a linear least-squares fit projects the
+    noise; Seber & Lee, *Linear Regression Analysis*, 2nd ed., thm. 3.5). So ``sigma^2`` is
+    the median of ``|r_p|^2`` over the pixels with the commonest ``k`` (3, or 2 where a
+    channel is clipped on most of the film) over that chi^2's median, robust to the
+    outliers a median ignores. The residuals' per-channel spread alone would read
+    ``sqrt(2/3)`` of it or less: the fitted thickness takes up a third of the noise. With
+    fewer than 20 such pixels, 1.4826 times the residuals' median absolute deviation."""
+    r = np.asarray(res, np.float64)
+    rec = _recorded(np.asarray(y, np.float64), high)
+    k = rec.sum(axis=-1)
+    counts = {dof: int(np.count_nonzero(k == dof + 1)) for dof in _CHI2_MEDIAN}
+    dof = max(counts, key=counts.get)
+    if counts[dof] < 20:
+        return float(max(1.4826 * np.median(np.abs(r - np.median(r))), 1e-6))
+    sq = np.sum(np.where(rec, r, 0.0) ** 2, axis=-1)[k == dof + 1]
+    return float(max(np.sqrt(np.median(sq) / _CHI2_MEDIAN[dof]), 1e-6))
 
 
 def _neighbour_sigma(image: np.ndarray, mask: np.ndarray) -> float | None:
@@ -787,15 +815,21 @@ def _refined_with_exposure(fwd, y, lum, sin2, dpix, gain: float, lo: float, hi: 
     return dref, jj_, model, gain
 
 
-def _reduced_chi2(res, y, sigma: float, fitted=None) -> tuple[float, float]:
+def _reduced_chi2(res, y, sigma: float, fitted=None, per_pixel: bool = False,
+                  high: float = np.inf) -> tuple[float, float]:
     """The reduced chi^2 of the residual ``res`` over the pixels the model was fitted to
     (``fitted``; Newton's rings: not where they alias), and with each channel's variance
     ``sigma^2 + (model_error y)^2``, the floor by which a bubble's fit is judged
     (``JudgeSettings.model_error``: how much independent renderers differ on the same
-    film); ``ok`` is judged by the second."""
+    film); ``ok`` is judged by the second. Both are over the degrees of freedom: the
+    readings the sensor recorded (:func:`_recorded`, clip ``high``; at least one a pixel:
+    a pixel's censored residual still counts), less one a pixel where ``per_pixel`` (a
+    thickness fitted at every pixel: a map, and the constant film's per-pixel refinement)."""
     rf, yf = (res, y) if fitted is None else (res[fitted], y[fitted])
-    chi2 = float(np.mean(rf ** 2) / sigma ** 2)
-    return chi2, float(np.mean(rf ** 2 / (sigma ** 2 + (JudgeSettings.model_error * yf) ** 2)))
+    k = np.maximum(np.sum(_recorded(yf, high), axis=-1), 1)
+    dof = max(float(np.sum(k - 1 if per_pixel else k)), 1.0)
+    chi2 = float(np.sum(rf ** 2) / sigma ** 2 / dof)
+    return chi2, float(np.sum(rf ** 2 / (sigma ** 2 + (JudgeSettings.model_error * yf) ** 2)) / dof)
 
 
 def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=None,
@@ -857,7 +891,8 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     # response) leaves each pixel's own thickness no residual: its noise is read from the
     # photo's neighbouring pixels instead, and from the fitted model's residual below
     grey = bool(np.array_equal(y[:, 0], y[:, 1]) and np.array_equal(y[:, 1], y[:, 2]))
-    sigma = (_neighbour_sigma(np.asarray(photo, np.float64), mask) if grey else None) or _noise_sigma(res)
+    sigma = ((_neighbour_sigma(np.asarray(photo, np.float64), mask) if grey else None)
+             or _noise_sigma(res, y, clip_high))
     stderr = sigma / np.sqrt(np.maximum(jj_, 1e-20))
     params, perr = {}, {}
     if kind == "constant":
@@ -896,7 +931,8 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
     order = order or _profile_order(fwd, y, lum, sin2, view, mask, map_profile, gain, sigma, lo, hi, clip_high)
     if grey and kind != "map":  # the model's residual: the film's signal and a smooth misfit cancel
         sigma = _neighbour_sigma(_on_image(mask, res, 0.0, 3), mask) or sigma
-    chi2, chi2_floor = _reduced_chi2(res, y, sigma, fitted)
+    chi2, chi2_floor = _reduced_chi2(res, y, sigma, fitted, per_pixel=kind in ("constant", "map") and not grey,
+                                     high=clip_high)
     stderr_camera = drain_camera if kind == "drainage" else None
     if kind in ("constant", "map"):
         perr, stderr, stderr_camera = _with_camera_term(fwd, kind, model, dref, sin2, sigma, perr, stderr)

@@ -172,8 +172,10 @@ def test_cli_flags_parse_and_win_over_the_scene(env, tmp_path, monkeypatch):
     assert (kw["illuminant"], kw["camera_response"], kw["samples_per_pixel"], kw["film_rgb"]) == ("E", CAMERA, 4,
                                                                                                    "clamped")
     assert kw["n_film"] == Cauchy(tuple(SOAP))
-    args = build_parser().parse_args(["fit-sequence", "p.png", "--envmap", "e.exr", "-o", "out", "--n-film", "water"])
+    args = build_parser().parse_args(["fit-sequence", "p.png", "--envmap", "e.exr", "-o", "out", "--n-film", "water",
+                                      "--film-rgb", "clamped"])
     assert fit_option_values(args)["n_film"].coefficients[0] == pytest.approx(1.31984)
+    assert fit_option_values(args)["film_rgb"] == "clamped"
     # through `bubblefit fit`: the flags reach fit_photo and override the scene
     photo, envfile, scene = tmp_path / "p.exr", tmp_path / "e.exr", tmp_path / "s.toml"
     write_image(photo, np.full((N, N, 3), 0.3))
@@ -227,7 +229,8 @@ def test_render_film_rgb_option_reaches_the_scene(tmp_path, monkeypatch):
 @pytest.mark.parametrize("bad", [["--samples-per-pixel", "3"], ["--samples-per-pixel", "x"],
                                  ["--illuminant", "no_such_light"], ["--camera-response", "Canon 5D"],
                                  ["--n-film", "0.5"], ["--n-film", "glass"], ["--cauchy", "1.3"],
-                                 ["--cauchy", "a,b"], ["--n-film", "1.33", "--cauchy", "1.3,3000"]])
+                                 ["--cauchy", "a,b"], ["--n-film", "1.33", "--cauchy", "1.3,3000"],
+                                 ["--film-rgb", "srgb"]])
 @pytest.mark.parametrize("command", ["fit", "fit-sequence"])
 def test_cli_bad_flags_are_one_line(command, bad, tmp_path, capsys):
     from bubblefit.io.images import write_image

@@ -4,7 +4,9 @@ For every case folder under data/ (or the names given; --quick for a small subse
 runs bubblefit through its command line exactly as a user would (`python -m bubblefit
 fit ...` / `calibrate ...`), reads the JSON it writes and compares it with the case's
 truth.json. The capture's illuminant (truth.json ``illuminant``: D65 for the reference
-renderer, E for Cycles) is passed as ``--illuminant``, as a user states their camera's.
+renderer, E for Cycles) is passed as ``--illuminant``, as a user states their camera's;
+a Blender Cycles photo's floating bubble is fitted with ``--film-rgb clamped`` (each film's
+colour formed as Cycles' thin film forms it) unless ``--spectral-film`` is given.
 It prints a table and writes results.csv, results.json and validation.png to
 --out (default experiments/results/validation/).
 

@@ -80,7 +80,7 @@ def test_fit_uses_the_scenes_camera_light_and_dispersion(env):
     assert matched.params["n_film"] == pytest.approx(n_d, abs=1e-6)
     col = matched.to_json()["colour"]
     assert col == {"illuminant": "E", "response": CAMERA, "white_balance": "illuminant",
-                   "n_film": "soap", "dispersive": True, "samples_per_pixel": 1}
+                   "n_film": "soap", "dispersive": True, "samples_per_pixel": 1, "film_rgb": "spectral"}
     assert plain.to_json()["colour"]["illuminant"] == "D65" and not plain.to_json()["colour"]["dispersive"]
 
 
@@ -122,6 +122,15 @@ def test_settings_reach_every_render_config(env):
     assert (b.illuminant, b.response, b.white_balance) == ("A", "srgb", (1.5, 1.0, 2.0))
     assert st.base_cfg.samples_per_pixel == 9 and st.base_cfg.dispersion is None
     assert st.vals["n_film"] == pytest.approx(1.36)
+    assert st.base_cfg.film_rgb == "spectral" and not any("film_rgb" in w for w in st.warnings)
+    # the film coloured as Cycles colours it: the scene's [film] film_rgb, or the option
+    st, opts = _setup(env, film_rgb="clamped", model="physical")
+    for cfg in (st.base_cfg, st.map_cfg, st.lev_fit.cfg, st.level(st.k_search, opts).cfg):
+        assert cfg.film_rgb == "clamped"
+    assert st.colour.to_json()["film_rgb"] == "clamped" and not any("film_rgb" in w for w in st.warnings)
+    scene.data["film"] = {"film_rgb": "clamped"}   # the scene's, under the paper model, which ignores it
+    st, _ = _setup(env, scene)
+    assert st.base_cfg.film_rgb == "clamped" and any("film_rgb clamped is ignored" in w for w in st.warnings)
 
 
 def test_fast_candidates_equal_rendered_ones_with_colour_and_dispersion(env):
@@ -146,7 +155,8 @@ def test_fast_candidates_equal_rendered_ones_with_colour_and_dispersion(env):
 # --------------------------------------------------------------------------------------
 # the command line
 # --------------------------------------------------------------------------------------
-FLAGS = ["--illuminant", "E", "--camera-response", CAMERA, "--cauchy", "1.324188,3102.06", "--samples-per-pixel", "4"]
+FLAGS = ["--illuminant", "E", "--camera-response", CAMERA, "--cauchy", "1.324188,3102.06", "--samples-per-pixel", "4",
+         "--film-rgb", "clamped"]
 
 
 def test_cli_flags_parse_and_win_over_the_scene(env, tmp_path, monkeypatch):
@@ -159,16 +169,19 @@ def test_cli_flags_parse_and_win_over_the_scene(env, tmp_path, monkeypatch):
 
     args = build_parser().parse_args(["fit", "p.png", "--envmap", "e.exr", *FLAGS])
     kw = fit_option_values(args)
-    assert (kw["illuminant"], kw["camera_response"], kw["samples_per_pixel"]) == ("E", CAMERA, 4)
+    assert (kw["illuminant"], kw["camera_response"], kw["samples_per_pixel"], kw["film_rgb"]) == ("E", CAMERA, 4,
+                                                                                                   "clamped")
     assert kw["n_film"] == Cauchy(tuple(SOAP))
-    args = build_parser().parse_args(["fit-sequence", "p.png", "--envmap", "e.exr", "-o", "out", "--n-film", "water"])
+    args = build_parser().parse_args(["fit-sequence", "p.png", "--envmap", "e.exr", "-o", "out", "--n-film", "water",
+                                      "--film-rgb", "clamped"])
     assert fit_option_values(args)["n_film"].coefficients[0] == pytest.approx(1.31984)
+    assert fit_option_values(args)["film_rgb"] == "clamped"
     # through `bubblefit fit`: the flags reach fit_photo and override the scene
     photo, envfile, scene = tmp_path / "p.exr", tmp_path / "e.exr", tmp_path / "s.toml"
     write_image(photo, np.full((N, N, 3), 0.3))
     write_image(envfile, np.full((8, 16, 3), 0.5))
     scene.write_text('[camera]\nwidth = 48\nheight = 48\nresponse = "srgb"\nsamples_per_pixel = 9\n'
-                     '[lighting]\nilluminant = "A"\n[bubble]\nn_film = 1.33\n')
+                     '[lighting]\nilluminant = "A"\n[bubble]\nn_film = 1.33\n[film]\nfilm_rgb = "spectral"\n')
     seen = {}
 
     class Stop(Exception):
@@ -182,12 +195,42 @@ def test_cli_flags_parse_and_win_over_the_scene(env, tmp_path, monkeypatch):
     main(["fit", str(photo), "--envmap", str(envfile), "--scene", str(scene), *FLAGS])  # stops in fake_fit
     c = seen["colour"]
     assert (c.illuminant, c.response, c.samples_per_pixel, c.n_film) == ("E", CAMERA, 4, Cauchy(tuple(SOAP)))
+    assert c.film_rgb == "clamped"
+
+
+def test_render_film_rgb_option_reaches_the_scene(tmp_path, monkeypatch):
+    """``render --film-rgb`` sets the scene's [film] film_rgb, which every part of the
+    scene's plan renders with; a bad value in the scene file is one line."""
+    import bubblefit.model.scene as scene_module
+    from bubblefit.cli import main
+    from bubblefit.errors import InputError
+
+    scene = tmp_path / "s.toml"
+    scene.write_text('[camera]\nwidth = 16\nheight = 16\n[lighting]\nenvmap = "courtyard.exr"\n'
+                     '[effects]\nmodel = "physical"\n')
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def fake_render(s, **_):
+        seen["film_rgb"] = s.film_rgb
+        raise Stop
+
+    monkeypatch.setattr(scene_module, "render_scene", fake_render)
+    for flags, want in (([], "spectral"), (["--film-rgb", "clamped"], "clamped")):
+        main(["render", str(scene), "-o", str(tmp_path / "out.exr"), *flags])  # stops in fake_render
+        assert seen.pop("film_rgb") == want
+    scene.write_text('[film]\nfilm_rgb = "srgb"\n')
+    with pytest.raises(InputError, match="film.film_rgb"):
+        scene_module.load_scene(scene)
 
 
 @pytest.mark.parametrize("bad", [["--samples-per-pixel", "3"], ["--samples-per-pixel", "x"],
                                  ["--illuminant", "no_such_light"], ["--camera-response", "Canon 5D"],
                                  ["--n-film", "0.5"], ["--n-film", "glass"], ["--cauchy", "1.3"],
-                                 ["--cauchy", "a,b"], ["--n-film", "1.33", "--cauchy", "1.3,3000"]])
+                                 ["--cauchy", "a,b"], ["--n-film", "1.33", "--cauchy", "1.3,3000"],
+                                 ["--film-rgb", "srgb"]])
 @pytest.mark.parametrize("command", ["fit", "fit-sequence"])
 def test_cli_bad_flags_are_one_line(command, bad, tmp_path, capsys):
     from bubblefit.io.images import write_image

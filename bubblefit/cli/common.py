@@ -18,7 +18,7 @@ from ..io.atomic import write_json
 
 __all__ = ["parse_floats", "guard_outputs", "guard_args", "scene_inputs", "folder_files", "write_json",
            "input_file", "output_file", "output_folder", "InputFile", "OutputFile", "OutputFolder",
-           "model_option_values"]
+           "model_option_values", "add_film_rgb_option"]
 
 PathLike = str | os.PathLike
 
@@ -254,6 +254,16 @@ def add_colour_options(parser) -> None:
                              "or a CSV wavelength_nm,r,g,b; white-balanced to the illuminant")
 
 
+def add_film_rgb_option(parser) -> None:
+    """``--film-rgb``: how the physical model colours each film
+    (:attr:`~bubblefit.model.render.RenderConfig.film_rgb`)."""
+    parser.add_argument("--film-rgb", choices=("spectral", "clamped"), default=None,
+                        help="how the physical model colours each film: spectral (the physics a camera sees) or "
+                             "clamped (each film's RGB reflectance clamped to [0, 1] before the bounces, as Blender "
+                             "Cycles' thin film in the Principled BSDF shades it: for renders made by Cycles, not "
+                             "photographs); the paper model ignores it [the scene's [film] film_rgb, else spectral]")
+
+
 def colour_option(value: str | None, named, option: str) -> str | None:
     """An option's illuminant/response: a name as is, a file as an absolute path."""
     import os
@@ -304,7 +314,7 @@ def write_fit_images(prefix: str, result, write_image, preview_path) -> dict:
 
 
 def model_option_values(args) -> dict:
-    """``illuminant``, ``camera_response``, ``n_film`` and ``samples_per_pixel`` of
+    """``illuminant``, ``camera_response``, ``n_film``, ``samples_per_pixel`` and ``film_rgb`` of
     :class:`~bubblefit.inverse.fit.FitOptions` from the flags of
     :func:`~bubblefit.cli.fit.add_model_options` (None where not given: the scene's then
     apply), checked before any photo is read, and ``judge`` with ``--colour-check``."""
@@ -323,4 +333,5 @@ def model_option_values(args) -> dict:
         samples_per_pixel(spp, "--samples-per-pixel")
     return dict(illuminant=ill, camera_response=resp, n_film=film_index(args.n_film, args.cauchy, None),
                 samples_per_pixel=spp, pixel_footprint=getattr(args, "pixel_footprint", None),
+                film_rgb=getattr(args, "film_rgb", None),
                 judge=JudgeSettings(colour_check=getattr(args, "colour_check", "decide")))

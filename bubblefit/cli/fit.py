@@ -95,12 +95,13 @@ def register(sub):
 def add_model_options(p) -> None:
     """The forward model's light, camera and film options of ``fit`` and ``fit-sequence``:
     ``--illuminant``, ``--camera-response`` (as ``render``), ``--n-film``/``--cauchy`` (as
-    ``chart``) and ``--samples-per-pixel``; each overrides the scene's value; and
+    ``chart``), ``--samples-per-pixel`` and ``--film-rgb``; each overrides the scene's value; and
     ``--colour-check``, what a failed test of the camera response does."""
-    from .common import add_colour_options, add_index_options
+    from .common import add_colour_options, add_film_rgb_option, add_index_options
 
     add_colour_options(p)
     add_index_options(p, default="the scene's, else 1.4")
+    add_film_rgb_option(p)
     p.add_argument("--samples-per-pixel", type=int, default=None, metavar="N",
                    help="rays per rendered pixel, a square number (1, 4, 9, ...): each pixel is the mean over its "
                         "area; default the scene's [camera] samples_per_pixel, else 1")

@@ -42,6 +42,8 @@ def run_cap(args) -> int:
         scene = dataclasses.replace(scene, envmap=Path(args.envmap))
     if getattr(args, "envmap_convention", None):
         scene = dataclasses.replace(scene, env_convention=args.envmap_convention)
+    if getattr(args, "film_rgb", None):
+        scene = dataclasses.replace(scene, film_rgb=args.film_rgb)
     kind = args.thickness if args.thickness != "constant" or scene.thickness == "constant" else scene.thickness
     if kind not in KINDS:
         raise InputError(f"--thickness {kind} is not available for a cap (use {' or '.join(KINDS)})")

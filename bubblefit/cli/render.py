@@ -24,9 +24,10 @@ def register(sub):
     p.add_argument("--json", metavar="PATH", type=output_file, help="write timing and effect decisions as JSON")
     p.add_argument("--preview-exposure", type=float, default=None,
                    help="exposure of the PNG preview (default: automatic, the 99.5th percentile maps to 0.9)")
-    from .common import add_colour_options
+    from .common import add_colour_options, add_film_rgb_option
 
     add_colour_options(p)
+    add_film_rgb_option(p)
     p.set_defaults(func=run)
 
 
@@ -58,6 +59,8 @@ def run(args) -> int:
         scene.data.setdefault("lighting", {})["illuminant"] = ill
     if resp is not None:
         scene.data.setdefault("camera", {})["response"] = resp
+    if args.film_rgb is not None:
+        scene.data.setdefault("film", {})["film_rgb"] = args.film_rgb
     preview = preview_path(args.output)
     guard_args(args, inputs=scene_inputs(scene), outputs=[preview])
     t0 = time.perf_counter()

@@ -9,6 +9,8 @@ box-filter each pixel. ``--explain`` prints the light paths the render traces an
 
 from __future__ import annotations
 
+import dataclasses
+
 import time
 
 import numpy as np
@@ -44,6 +46,8 @@ def run_film_render(args) -> int:
             raise InputError(f"--{name.replace('_', '-')} does not apply to a scene with a [film] table "
                              "(give the illuminant as [light] lamp or [lighting] illuminant)")
     scene = load_cap_scene(args.scene)
+    if getattr(args, "film_rgb", None):
+        scene = dataclasses.replace(scene, film_rgb=args.film_rgb)
     values = film_values(args.scene, scene.thickness)
     spp = int(_num(_read_toml(args.scene).get("camera", {}), "samples_per_pixel", "camera", 4, 1, 64))
     if round(spp ** 0.5) ** 2 != spp:

@@ -265,6 +265,12 @@ class FitOptions:
     samples_per_pixel : int or None
         Rays per rendered pixel (a square number, :class:`~bubblefit.model.render.RenderConfig`);
         None: the scene's ``[camera] samples_per_pixel``, else 1.
+    film_rgb : str or None
+        How the physical model colours each film
+        (:attr:`~bubblefit.model.render.RenderConfig.film_rgb`): ``"spectral"`` (the physics
+        a camera sees) or ``"clamped"`` (each film's RGB reflectance clamped to [0, 1], as
+        Blender Cycles' thin film shades: for its renders, not photographs); None: the
+        scene's ``[film] film_rgb``, else ``"spectral"``. The paper model ignores it.
     calibrate_camera : bool
         Free the camera response's coefficients (the spectral lobes' weights) together with
         the film, after the fit with the stated response, and report them with their
@@ -310,6 +316,7 @@ class FitOptions:
     white_balance: str | tuple | None = None
     n_film: object = None
     samples_per_pixel: int | None = None
+    film_rgb: str | None = None
     pixel_footprint: bool | None = None
     calibrate_camera: bool = False
     parameters: tuple = ()
@@ -329,6 +336,8 @@ class FitOptions:
             object.__setattr__(self, "white_balance", white_balance(self.white_balance, "white_balance"))
         if self.samples_per_pixel is not None:
             samples_per_pixel(self.samples_per_pixel, "samples_per_pixel")
+        if self.film_rgb not in (None, "spectral", "clamped"):
+            raise InputError(f"film_rgb must be spectral or clamped, got {self.film_rgb!r}")
         for setting in self.parameters:
             if not isinstance(setting, ParameterSetting):
                 raise InputError(f"parameters must be ParameterSetting records, got {setting!r}")
@@ -351,13 +360,15 @@ class ColourSettings:
     """How the fit's forward model turns a film into pixel values, beyond its parameters:
     the illuminant, the camera's response and white balance (:mod:`bubblefit.optics.spectral`),
     the film's index law (:mod:`bubblefit.optics.dispersion`; ``Params.n_film`` carries its
-    value at 589.3 nm) and the rays per pixel (:class:`~bubblefit.model.render.RenderConfig`)."""
+    value at 589.3 nm), the rays per pixel and how the physical model colours each film
+    (:class:`~bubblefit.model.render.RenderConfig`, ``film_rgb``)."""
 
     illuminant: str = "D65"
     response: str = "srgb"
     white_balance: object = "illuminant"
     n_film: object = 1.4
     samples_per_pixel: int = 1
+    film_rgb: str = "spectral"
 
     @property
     def default_colour(self) -> bool:
@@ -371,7 +382,7 @@ class ColourSettings:
         return {"illuminant": self.illuminant, "response": self.response,
                 "white_balance": wb if isinstance(wb, str) else [float(g) for g in wb],
                 "n_film": describe(self.n_film), "dispersive": isinstance(self.n_film, Cauchy),
-                "samples_per_pixel": int(self.samples_per_pixel)}
+                "samples_per_pixel": int(self.samples_per_pixel), "film_rgb": self.film_rgb}
 
 
 def _clean(d: dict) -> dict:

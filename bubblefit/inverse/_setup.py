@@ -316,11 +316,12 @@ def calibrated_illuminant(response: str, illuminant: str, stated: bool) -> str:
 
 
 def colour_settings(scene, opts: FitOptions, n_film: float) -> ColourSettings:
-    """The illuminant, camera response, white balance, index law and rays per pixel of the
-    fit: each from ``opts`` when given (the command line), else from the scene
-    (:meth:`~bubblefit.model.scene.Scene.colour`, ``[bubble] n_film``, ``[camera]
-    samples_per_pixel``), else the defaults (D65, sRGB, ``illuminant``, the constant
-    ``n_film``, 1). Names and files are checked here (one-line :class:`InputError`)."""
+    """The illuminant, camera response, white balance, index law, rays per pixel and film
+    colouring of the fit: each from ``opts`` when given (the command line), else from the
+    scene (:meth:`~bubblefit.model.scene.Scene.colour`, ``[bubble] n_film``, ``[camera]
+    samples_per_pixel``, ``[film] film_rgb``), else the defaults (D65, sRGB, ``illuminant``,
+    the constant ``n_film``, 1, ``spectral``). Names and files are checked here (one-line
+    :class:`InputError`)."""
     from ..optics import spectral
 
     ill, resp, wb = scene.colour() if scene is not None else ("D65", "srgb", "illuminant")
@@ -337,7 +338,8 @@ def colour_settings(scene, opts: FitOptions, n_film: float) -> ColourSettings:
     spp = opts.samples_per_pixel
     if spp is None:
         spp = scene.samples_per_pixel if scene is not None else 1
-    return ColourSettings(ill, resp, wb, law, int(spp))
+    film_rgb = opts.film_rgb or (scene.film_rgb if scene is not None else "spectral")
+    return ColourSettings(ill, resp, wb, law, int(spp), film_rgb)
 
 
 def _quadrature(opts: FitOptions, vals: dict, colour: ColourSettings, bounces: int):
@@ -422,6 +424,9 @@ def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, d
     # The one place the fit's colour, dispersion and pixel sampling enter: every render
     # (search, local solves, map, final image) starts from these configurations.
     colour = colour_settings(scene, opts, vals["n_film"])
+    if colour.film_rgb != "spectral" and opts.model == "paper":
+        warnings = [*warnings, f"film_rgb {colour.film_rgb} is ignored: the paper model (eq. 11) colours its "
+                               "films with eq. (10)'s factor"]
     if decided is None:
         settings, quadrature = _settings(scene, opts), None
         if "spectral" not in settings:  # the quadrature the films of the searched range need
@@ -440,7 +445,8 @@ def setup(photo, env, opts: FitOptions, background, init, scene, saturated_in, d
     decisions = [*(d for d in decisions if d.effect != "pixel footprint"), Decision("pixel footprint", footprint, why)]
     map_cfg = RenderConfig(effects=fx, camera=camera, center=center, radius=radius, point_lights=tuple(lights),
                            dispersion=colour.n_film if isinstance(colour.n_film, Cauchy) else None,
-                           samples_per_pixel=colour.samples_per_pixel, pixel_footprint=footprint)
+                           samples_per_pixel=colour.samples_per_pixel, pixel_footprint=footprint,
+                           film_rgb=colour.film_rgb)
     table = _table(opts, fx, held0, fit_disc)
     if fit_disc and init and init.get("disc") is not None and all(n in table.free for n in DISC_PARAMETERS):
         vals.update(disc_start(disc, init["disc"]))  # a warm start's disc: where the last fit refined it

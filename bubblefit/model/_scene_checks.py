@@ -32,6 +32,7 @@ SCHEMA = {
                 "front_reflection": (str, bool), "rear_reflection": (str, bool), "transmission": (str, bool),
                 "transmission_tint": (str, bool), "diffuse": (str, bool), "bounces": (str, int),
                 "tolerance": float, "nodes": int, "window": int, "level": int},
+    "film": {"shape": str, "film_rgb": str},
 }
 THICKNESS_KEYS = {"profile": str, "top_nm": float, "bottom_nm": float, "exponent": float, "path": str,
                    "value_nm": float}
@@ -108,6 +109,11 @@ def check_values(scene) -> None:
                 value_range(f"bubble.thickness.{k}", th[k], 0.0, 1e6)
         if prof == "map" and "path" not in th:
             raise InputError("bubble.thickness.profile = \"map\" needs bubble.thickness.path")
+    f = scene.table("film")
+    if f.get("shape", "sphere") != "sphere":
+        raise InputError(f'film.shape = {f["shape"]!r} is not a bubble in an environment map (use "sphere")')
+    if f.get("film_rgb", "spectral") not in ("spectral", "clamped"):
+        raise InputError(f'film.film_rgb must be "spectral" or "clamped", got {f["film_rgb"]!r}')
     c = scene.table("camera")
     ctype = c.get("type", "orthographic")
     if ctype not in ("orthographic", "perspective"):

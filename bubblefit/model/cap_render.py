@@ -54,9 +54,11 @@ across the light's outline (:func:`~bubblefit.lighting.area.patch_coverage`, an
 approximation stated there). The light sits in front of the map and does not hide it;
 the bubble casts no shadow on it and it is not seen in a liquid.
 
-``film_rgb = "clamped"`` (:class:`CapConfig`) takes each film's reflectance to RGB and
-clamps it to [0, 1] before the series (:func:`_clamped_series`), as Blender Cycles' thin
-film shades; the default integrates the series per wavelength (the physics).
+``film_rgb = "clamped"`` (:class:`CapConfig`, its render configuration's
+:attr:`~bubblefit.model.render.RenderConfig.film_rgb`) takes each film's reflectance to RGB
+and clamps it to [0, 1] before the series (:func:`~bubblefit.model.render.clamped_series`),
+as Blender Cycles' thin film shades; the default integrates the series per wavelength
+(the physics).
 
 References
 ----------
@@ -68,7 +70,7 @@ Optics*, 7th ed., sec. 1.5.2 (Fresnel's formulae); the paper, eqs. (2), (10), (1
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import jax
 import jax.numpy as jnp
@@ -79,7 +81,7 @@ from ..lighting.filtering import reflect
 from ..optics import dispersion, film
 from .cap import Cap
 from .geometry import internal_bounce, intersect_sphere, pixel_offsets
-from .render import (Params, RenderConfig, _background, _camera_rays, _Film, _film_setup, _reflected, _terms,
+from .render import (Params, RenderConfig, _background, _camera_rays, _film_setup, _reflected, _terms,
                      pixel_chunks, shading_points)
 from .thickness import drainage_profile
 
@@ -125,11 +127,6 @@ class CapConfig:
     render: RenderConfig
     plane_y: float
     n_liquid: float
-    #: ``"spectral"``: the physical series per wavelength and polarisation, integrated to
-    #: RGB at the end (:func:`~bubblefit.model.render._terms`); ``"clamped"``: each film's
-    #: reflectance integrated to RGB and clamped to [0, 1] per channel first, the series
-    #: then taken in RGB (:func:`_clamped_series`), as Blender Cycles' thin film shades.
-    film_rgb: str = "spectral"
     #: False: no liquid at all, a whole bubble floating free (``plane_y`` then only sets the
     #: drainage profile's foot at the sphere's bottom: the sphere's own profile).
     liquid: bool = True
@@ -140,16 +137,19 @@ class CapConfig:
     @staticmethod
     def of(cfg: RenderConfig, cap: Cap, film_rgb: str = "spectral") -> "CapConfig":
         n = float(dispersion.refractive_index(cap.liquid, dispersion.REFERENCE_WAVELENGTH_NM))
-        if film_rgb not in ("spectral", "clamped"):
-            raise ValueError(f"film_rgb must be 'spectral' or 'clamped', got {film_rgb!r}")
-        return CapConfig(cfg, float(cap.plane_y), n, film_rgb)
+        return CapConfig(replace(cfg, film_rgb=film_rgb), float(cap.plane_y), n)
 
     @staticmethod
     def sphere(cfg: RenderConfig, area: Patch | None = None, film_rgb: str = "spectral") -> "CapConfig":
         """A whole bubble (the sphere of ``cfg``, no liquid), lit by ``area`` and the map."""
-        if film_rgb not in ("spectral", "clamped"):
-            raise ValueError(f"film_rgb must be 'spectral' or 'clamped', got {film_rgb!r}")
-        return CapConfig(cfg, float(cfg.center[1]) - float(cfg.radius), 1.0, film_rgb, liquid=False, area=area)
+        return CapConfig(replace(cfg, film_rgb=film_rgb), float(cfg.center[1]) - float(cfg.radius), 1.0,
+                         liquid=False, area=area)
+
+    @property
+    def film_rgb(self) -> str:
+        """The films' colour, spectral or clamped per channel (:attr:`RenderConfig.film_rgb
+        <bubblefit.model.render.RenderConfig>`, :func:`~bubblefit.model.render.clamped_series`)."""
+        return self.render.film_rgb
 
 
 def liquid_reflectance(cos, n_liquid: float):
@@ -286,10 +286,7 @@ def _shade(cfg: CapConfig, p: Params, env, rows, cols):
     d0 = _thickness(cfg, p.thickness, hits.local0)
     d1 = _thickness(cfg, p.thickness, jnp.where(below[:, None], foot_wall, hits.local1))
     thick = lambda local: _thickness(cfg, p.thickness, local)
-    if cfg.film_rgb == "clamped":
-        terms = _clamped_series(p, r, lam, hits.cos, d0, d1, exits, thick, refl, bg_rad)
-    else:
-        terms = _terms(p, r, lam, hits.cos, d0, d1, exits, thick, refl, bg_rad)
+    terms = _terms(p, r, lam, hits.cos, d0, d1, exits, thick, refl, bg_rad)
     total = jnp.zeros_like(bg_rad)
     for v in terms.values():
         total = total + v
@@ -318,33 +315,6 @@ def area_light_hits(cfg: CapConfig, rows, cols) -> tuple[np.ndarray, np.ndarray]
     rear = patch_coverage(cfg.area, c + cfg.render.radius * hits.n1, reflect(-d, -hits.n1)) > 0.5
     on = np.asarray(on)
     return on & np.asarray(front), on & np.asarray(rear)
-
-
-def _clamped_series(p: Params, cfg: RenderConfig, lam, cos, d0, d1, exits, thick, refl, bg_rad) -> dict:
-    """The physical series of :func:`~bubblefit.model.render._physical_terms` with each film's
-    reflectance first averaged over polarisations, integrated to RGB and clamped to [0, 1]
-    per channel, ``R = clip(rgb(R(lambda)))``, and the series taken per channel: front
-    ``R_0 S_0``, background ``(1 - R_0)(1 - R_1) L_b``, bounces
-    ``(1 - R_0) R_1 ... R_k (1 - R_(k+1)) S_k``. A film whose colour lies outside the
-    camera's gamut then reflects nothing in that channel, as Blender Cycles' thin film
-    (its Fresnel term is an RGB triple in [0, 1] that each path samples) shades it."""
-    fx = cfg.effects
-    opt = _Film(fx, p, cos, lam, d0)
-    rgb_r = lambda d: jnp.clip(opt.rgb(jnp.mean(opt.reflectance(d), axis=-1)), 0.0, 1.0)
-    r0 = rgb_r(d0)
-    one = fx.thickness == "constant"
-    r1 = r0 if one else rgb_r(d1)
-    terms = {"front": p.exposure * r0 * refl["front"][0],
-             "background": p.exposure * (1.0 - r0) * (1.0 - r1) * bg_rad}
-    if fx.rear_reflection and fx.bounces > 0:
-        path = (1.0 - r0) * r1
-        rear = jnp.zeros_like(bg_rad)
-        for k, nq in enumerate(exits, start=1):
-            r_q = r0 if one else rgb_r(thick(nq))
-            rear = rear + path * (1.0 - r_q) * refl[f"bounce{k}"][0]
-            path = path * r_q
-        terms["rear"] = p.exposure * rear
-    return terms
 
 
 def _map(cfg: CapConfig, p: Params, env, rows, cols):

@@ -55,13 +55,16 @@ from .geometry import (DivergentCamera, OrthographicCamera, PerspectiveCamera, i
 from .thickness import thickness_at
 
 __all__ = ["Params", "RenderConfig", "render", "render_terms", "render_pixels", "render_pixels_at", "shade_lit",
-           "trace_pixels", "shade_pixels",
+           "trace_pixels", "shade_pixels", "clamped_series", "FILM_RGB",
            "paper_terms", "film_footprints", "pixel_chunks", "chunk_size", "film_names", "shading_points",
            "TRACE_COUNTS", "PointLight"]
 
 #: No drainage profile under a thickness map (:attr:`Params.profile`): every film of a
 #: pixel takes the map's value there.
 NO_PROFILE = (float("nan"),) * 3
+
+#: The choices of :attr:`RenderConfig.film_rgb`.
+FILM_RGB = ("spectral", "clamped")
 
 #: How many times each term of the model has been traced (for tests of ``effects``).
 TRACE_COUNTS: collections.Counter = collections.Counter()
@@ -149,6 +152,17 @@ class RenderConfig:
     #: a render does so when asked (docs/validation-split.md: its effect and cost on the
     #: sunny photos).
     pixel_footprint: bool = False
+    #: How the ``physical`` model turns each film's reflectance into colour (the ``paper``
+    #: model ignores it): ``"spectral"``, the series per wavelength and polarisation
+    #: integrated to RGB at the end (:func:`_physical_terms`, the physics a camera sees), or
+    #: ``"clamped"``, each film's reflectance integrated to RGB and clamped to [0, 1] per
+    #: channel first and the series taken in RGB (:func:`clamped_series`), as Blender
+    #: Cycles' thin film (Principled BSDF) shades: for fitting renders made by it.
+    film_rgb: str = "spectral"
+
+    def __post_init__(self):
+        if self.film_rgb not in FILM_RGB:
+            raise ValueError(f"film_rgb must be 'spectral' or 'clamped', got {self.film_rgb!r}")
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -370,6 +384,42 @@ def _physical_terms(fx: Effects, p: Params, opt: "_Film", refl: dict, d0, d1, ex
     return terms
 
 
+def clamped_series(fx: Effects, p: Params, opt: "_Film", refl: dict, d0, d1, exits, thick, bg_rad,
+                   photo_bg: bool) -> dict:
+    """The physical series of :func:`_physical_terms` with each film's reflectance first
+    averaged over polarisations, integrated to RGB and clamped to [0, 1] per channel,
+    ``R = clip(rgb(R(lambda)))``, and the series taken per channel: front ``R_0 S_0`` (plus
+    the diffuse ``r_d E / pi``), background ``(1 - R_0)(1 - R_1) L_b``, bounces
+    ``(1 - R_0) R_1 ... R_k (1 - R_(k+1)) S_k``. A film whose colour lies outside the
+    camera's gamut then reflects nothing in that channel, as Blender Cycles' thin film
+    shades it: its Fresnel term is an RGB triple in [0, 1] (s and p averaged) that each
+    path samples (Blender 5.0 manual, Principled BSDF, "Thin Film"; A. Belcour and
+    P. Barla, ACM TOG 36(4), 2017, the thin-film Fresnel term Cycles evaluates)."""
+    _count("clamped_film")
+    rgb_r = lambda d: jnp.clip(opt.rgb(jnp.mean(opt.reflectance(d), axis=-1)), 0.0, 1.0)
+    one = fx.thickness == "constant"
+    r0 = rgb_r(d0)
+    r1 = r0 if one else rgb_r(d1)
+    terms = {}
+    if fx.front_reflection:
+        s, dif = refl["front"]
+        terms["front"] = p.exposure * (r0 * s + dif)
+    if fx.transmission:
+        terms["background"] = (1.0 if photo_bg else p.exposure) * (1.0 - r0) * (1.0 - r1) * bg_rad
+    if fx.rear_reflection and fx.bounces > 0:
+        path = (1.0 - r0) * r1
+        rear = jnp.zeros_like(bg_rad)
+        for k, nq in enumerate(exits, start=1):
+            r_q = r0 if one else rgb_r(thick(nq))
+            s, dif = refl[f"bounce{k}"]
+            rear = rear + path * (1.0 - r_q) * s
+            if k == 1 and fx.diffuse:
+                rear = rear + (1.0 - r0) * (1.0 - r_q) * dif
+            path = path * r_q
+        terms["rear"] = p.exposure * rear
+    return terms
+
+
 def _film_setup(p: Params, cfg: RenderConfig):
     """``(p, lam)``: the parameters with the film index per wavelength when the film
     disperses, and the basis' wavelengths (None for a grey film or the harmonic basis)."""
@@ -385,12 +435,15 @@ def _film_setup(p: Params, cfg: RenderConfig):
 
 
 def _terms(p: Params, cfg: RenderConfig, lam, cos, d0, d1, exits, thick, refl, bg_rad) -> dict:
-    """The model's terms (eq. 11, or the physical series) from the films' geometry and light."""
+    """The model's terms (eq. 11, or the physical series: spectral, or clamped per channel
+    as :attr:`RenderConfig.film_rgb` says) from the films' geometry and light."""
     fx = cfg.effects
     opt = _Film(fx, p, cos, lam, d0)
     photo_bg = fx.background == "photo"
     if fx.model == "paper":
         return paper_terms(fx, p, opt, refl, d0, d1, bg_rad, photo_bg)
+    if cfg.film_rgb == "clamped":
+        return clamped_series(fx, p, opt, refl, d0, d1, exits, thick, bg_rad, photo_bg)
     return _physical_terms(fx, p, opt, refl, d0, d1, exits, thick, bg_rad, photo_bg)
 
 

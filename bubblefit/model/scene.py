@@ -199,6 +199,12 @@ class Scene:
         return law if isinstance(law, Cauchy) else None
 
     @property
+    def film_rgb(self) -> str:
+        """How the physical model colours each film (``[film] film_rgb``, default
+        ``"spectral"``; :attr:`RenderConfig.film_rgb <bubblefit.model.render.RenderConfig>`)."""
+        return self.table("film").get("film_rgb", "spectral")
+
+    @property
     def samples_per_pixel(self) -> int:
         """Rays per pixel (``[camera] samples_per_pixel``, default 1)."""
         return int(self.table("camera").get("samples_per_pixel", 1))
@@ -305,7 +311,7 @@ class Scene:
                 fx = dataclasses.replace(fx, spectral=fx.spectral.with_colour(*colour))
             cfg = RenderConfig(effects=fx, camera=camera, center=self.center, radius=self.radius,
                                point_lights=lights, chunk=chunk,
-                               dispersion=law, samples_per_pixel=spp)
+                               dispersion=law, samples_per_pixel=spp, film_rgb=self.film_rgb)
             parts.append((cfg, pixels))
         return parts, decisions, fp
 

@@ -4,7 +4,9 @@ For every case folder under data/ (or the names given; --quick for a small subse
 runs bubblefit through its command line exactly as a user would (`python -m bubblefit
 fit ...` / `calibrate ...`), reads the JSON it writes and compares it with the case's
 truth.json. The capture's illuminant (truth.json ``illuminant``: D65 for the reference
-renderer, E for Cycles) is passed as ``--illuminant``, as a user states their camera's.
+renderer, E for Cycles) is passed as ``--illuminant``, as a user states their camera's;
+a Blender Cycles photo's floating bubble is fitted with ``--film-rgb clamped`` (each film's
+colour formed as Cycles' thin film forms it) unless ``--spectral-film`` is given.
 It prints a table and writes results.csv, results.json and validation.png to
 --out (default experiments/results/validation/).
 
@@ -88,6 +90,9 @@ def part_of(case: str, split: dict | None = None) -> str:
 #: texel-centre``), as Blender rendered them; ``--mitsuba-rows`` reads them on bubblefit's
 #: default rows instead (the scores before the option existed).
 CYCLES_TEXEL_CENTRES = True
+#: Whether the Blender Cycles cases are fitted with the film coloured as Cycles colours it
+#: (``--film-rgb clamped``); ``--spectral-film`` fits them with the spectral film instead.
+CYCLES_FILM_RGB = True
 
 
 def runs_dir(out_dir: str) -> str:
@@ -221,6 +226,10 @@ def run_fit(case: str, model: str, out_dir: str, calibration: str | None = None,
         # Blender's Environment Texture reads its texels at their centres, (i + 1/2) / H:
         # the map's convention is part of the capture, as its file is
         args += ["--envmap-convention", "texel-centre" if CYCLES_TEXEL_CENTRES else "mitsuba"]
+        if CYCLES_FILM_RGB:
+            # Cycles' thin film clamps each film's RGB reflectance to [0, 1] before its
+            # bounces: how the renderer formed the film's colour is part of the capture
+            args += ["--film-rgb", "clamped"]
     if (disc_given or truth.get("disc_given")) and truth.get("disc"):
         d = truth["disc"]
         args += ["--disc", f"{d['cx']},{d['cy']},{d['r']}"]
@@ -706,15 +715,18 @@ def main(argv=None) -> int:
                     "its cases are in no part of the split")
     ap.add_argument("--mitsuba-rows", action="store_true",
                     help="read the Blender cases' maps on bubblefit's default rows, not at their texel centres")
+    ap.add_argument("--spectral-film", action="store_true",
+                    help="fit the Blender cases' films with the spectral film, not clamped as Cycles colours them")
     ap.add_argument("--part", choices=PARTS, help="only the cases of this part of split.toml")
     ap.add_argument("--runs", help="folder for each fit's JSON and images [OUT/runs]")
     a = ap.parse_args(argv)
     EXTRA_FIT_ARGS[:] = a.fit_args.split()
     RUNS_DIR[:] = [a.runs] if a.runs else []
     ONLY_FITS[:] = [m for m in a.only.split(",") if m]
-    global FIT_TIMEOUT, DATA, CYCLES_TEXEL_CENTRES
+    global FIT_TIMEOUT, DATA, CYCLES_TEXEL_CENTRES, CYCLES_FILM_RGB
     FIT_TIMEOUT = a.timeout
     CYCLES_TEXEL_CENTRES = not a.mitsuba_rows
+    CYCLES_FILM_RGB = not a.spectral_film
     if a.data:
         DATA = os.path.abspath(a.data)
     if a.merge:

@@ -73,8 +73,9 @@ class ResponseError:
     def reflectance(self, thickness: np.ndarray, cos: np.ndarray) -> np.ndarray:
         """(n, G) the Airy reflectance of a film in air (Born & Wolf eq. 7.6(13), both
         polarisations averaged) of ``thickness`` (n,) nm seen at ``cos`` (n,), on the grid."""
-        return np.asarray(_airy()(np.asarray(thickness, np.float64)[:, None], self.wavelengths[None, :],
-                                  self.n_film, np.asarray(cos, np.float64)[:, None])).mean(axis=-1)
+        both = np.asarray(_airy()(np.asarray(thickness, np.float64)[:, None], self.wavelengths[None, :],
+                                  self.n_film, np.asarray(cos, np.float64)[:, None]))
+        return (both[..., 0] + both[..., 1]) / 2  # their mean (numpy's strided mean over the pair is slow)
 
     def shares(self, refl: np.ndarray) -> np.ndarray:
         """(n, 3) ``f_k = sum_l w_k R / sum_l w_k``: the reflected share per channel of a
@@ -353,8 +354,11 @@ def tabulated_terms(err: ResponseError, thickness: np.ndarray, cos: np.ndarray):
     some pixel's stencil reads) and interpolated to each pixel (:func:`_cubic_stencil`;
     linear in the reflectance, so each term's interpolation is that of its reflectance).
     Where the table would hold as many nodes as there are pixels, they are evaluated at the
-    pixels. The reflectances are computed in blocks of :data:`_GRAM_BLOCK`, the last one
-    padded (one compiled shape for every photo). NaN where the thickness is not finite."""
+    pixels. In float64 (a node's rounding, unlike a pixel's, does not average out over a
+    cell), in blocks of :data:`_GRAM_BLOCK`, the last one padded (one compiled shape for
+    every photo). NaN where the thickness is not finite."""
+    import jax
+
     d = np.asarray(thickness, np.float64)
     c = np.asarray(cos, np.float64)
     n = d.size
@@ -363,31 +367,38 @@ def tabulated_terms(err: ResponseError, thickness: np.ndarray, cos: np.ndarray):
     out = np.full((n, 3 + 3 * m + 3), np.nan)
     if not good.any():
         return out[:, :3], out[:, 3:3 + 3 * m].reshape(n, 3, m), out[:, 3 + 3 * m:]
-    x = _optical_path(d[good], err.n_film, c[good])
-    px, pc = _axis(x, TABLE_PATH_STEP_NM), _axis(c[good], TABLE_COS_STEP)
-    fx, wx = _cubic_stencil(x, *px)
-    fc, wc = _cubic_stencil(c[good], *pc)
-    kx, kc = wx.shape[1], wc.shape[1]
-    node = (fx[:, None, None] + np.arange(kx)[None, :, None]) * pc[2] + fc[:, None, None] + np.arange(kc)[None, None, :]
-    used, where = np.unique(node.reshape(-1), return_inverse=True)
-    if used.size < good.sum():
-        nc = pc[0] + pc[1] * (used % pc[2])
-        nd = (px[0] + px[1] * (used // pc[2])) / _optical_path(np.ones_like(nc), err.n_film, nc)  # path per nm
-    else:
-        nc, nd = c[good], d[good]
-    table = np.empty((nd.size, out.shape[1]))
-    for lo in range(0, nd.size, _GRAM_BLOCK):
-        i = np.arange(lo, lo + _GRAM_BLOCK).clip(max=nd.size - 1)  # the last block padded with its last node
-        refl = lambda t: err.reflectance(t, nc[i])  # noqa: E731
-        f, fm = err.spectral_terms(refl(nd[i]))
-        keep = slice(0, min(_GRAM_BLOCK, nd.size - lo))
-        table[lo:lo + _GRAM_BLOCK] = np.concatenate([f, fm.reshape(-1, 3 * m), err.share_slope(nd[i], refl)],
-                                                    axis=1)[keep]
-    if used.size < good.sum():
-        weights = (wx[:, :, None] * wc[:, None, :]).reshape(-1, kx * kc)
-        out[good] = np.einsum("nk,nkt->nt", weights, table[where.reshape(-1, kx * kc)])
-    else:
-        out[good] = table
+    with jax.enable_x64(True):  # in float64: a node's rounding is shared by every pixel it serves
+        x = _optical_path(d[good], err.n_film, c[good])
+        px, pc = _axis(x, TABLE_PATH_STEP_NM), _axis(c[good], TABLE_COS_STEP)
+        fx, wx = _cubic_stencil(x, *px)
+        fc, wc = _cubic_stencil(c[good], *pc)
+        kx, kc = wx.shape[1], wc.shape[1]
+        node = (fx[:, None, None] + np.arange(kx)[None, :, None]) * pc[2] + fc[:, None, None] + np.arange(kc)
+        mark = np.zeros(px[2] * pc[2], bool)
+        mark[node.reshape(-1)] = True
+        used = np.flatnonzero(mark)
+        tabled = used.size < good.sum()
+        if tabled:
+            nc = pc[0] + pc[1] * (used % pc[2])
+            nd = (px[0] + px[1] * (used // pc[2])) / _optical_path(np.ones_like(nc), err.n_film, nc)  # path per nm
+        else:
+            nc, nd = c[good], d[good]
+        values = np.empty((nd.size, out.shape[1]))
+        for lo in range(0, nd.size, _GRAM_BLOCK):
+            i = np.arange(lo, lo + _GRAM_BLOCK).clip(max=nd.size - 1)  # the last block padded with its last node
+            refl = lambda t: err.reflectance(t, nc[i])  # noqa: E731
+            f, fm = err.spectral_terms(refl(nd[i]))
+            keep = slice(0, min(_GRAM_BLOCK, nd.size - lo))
+            values[lo:lo + _GRAM_BLOCK] = np.concatenate([f, fm.reshape(-1, 3 * m), err.share_slope(nd[i], refl)],
+                                                         axis=1)[keep]
+    if tabled:
+        table = np.zeros((mark.size, out.shape[1]))
+        table[used] = values
+        values = np.zeros((node.shape[0], out.shape[1]))
+        for j in range(kx):
+            for k in range(kc):
+                values += (wx[:, j] * wc[:, k])[:, None] * table[node[:, j, k]]
+    out[good] = values
     return out[:, :3], out[:, 3:3 + 3 * m].reshape(n, 3, m), out[:, 3 + 3 * m:]
 
 

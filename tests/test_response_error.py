@@ -351,3 +351,30 @@ def test_score_test_of_a_drainage_profile():
     for _ in range(2):
         c = _score_member(other + sigma * rng.normal(size=truth.shape), truth, thick, sigma, profile)
         assert not c.consistent and c.dof == 12, c
+
+
+@pytest.mark.parametrize("n_film", [1.33, 1.5])
+def test_tabulated_terms_against_direct(n_film):
+    """The score test's spectral terms interpolated from the table in (optical path,
+    cosine) (``tabulated_terms``) against the same terms evaluated at each pixel, both in
+    float64, over 6000 pixels of films 300-700 nm thick seen at cosines 0.6-1 (a draining
+    film's range; its table holds fewer nodes, at most 3,800, than there are pixels) and of
+    one 380 nm film: each term's largest error, relative to its
+    largest size over the pixels, stays within the bound its steps were chosen for
+    (``TABLE_PATH_STEP_NM``: 1.4e-5 of the fringes' amplitude along the path, plus
+    ``TABLE_COS_STEP``: 3.4e-6 of the reflectance along the cosine), taken as 2e-5."""
+    import jax
+
+    from bubblefit.inverse.response_error import response_perturbation, tabulated_terms
+
+    err = response_perturbation(CAMERA, "E", n_film)
+    rng = np.random.default_rng(7)
+    cos = rng.uniform(0.6, 1.0, 6000)
+    with jax.enable_x64(True):
+        for d in (rng.uniform(300.0, 700.0, 6000), np.full(6000, 380.0)):
+            direct = (*err.spectral_terms(err.reflectance(d, cos)), err.share_slope(d, lambda t: err.reflectance(t, cos)))
+            table = tabulated_terms(err, d, cos)
+            for got, want in zip(table, direct):
+                got, want = got.reshape(d.size, -1), want.reshape(d.size, -1)
+                rel = np.max(np.abs(got - want), axis=0) / np.max(np.abs(want), axis=0)
+                assert rel.max() < 2e-5, rel.max()

@@ -48,7 +48,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ResponseError", "response_error", "response_cells", "response_perturbation", "response_score_cells", "response_gram", "solve_response_gram", "marginal_chi2",
+__all__ = ["ResponseError", "response_error", "response_cells", "response_perturbation", "response_score_cells", "tabulated_terms", "response_gram", "solve_response_gram", "marginal_chi2",
            "solve_marginal_chi2", "pixel_thickness_stderr", "pixel_thickness_shifts", "MAX_PIXELS"]
 
 #: Pixels per cell the mean Jacobian is taken over (evenly strided): the Jacobian follows
@@ -73,42 +73,65 @@ class ResponseError:
     def reflectance(self, thickness: np.ndarray, cos: np.ndarray) -> np.ndarray:
         """(n, G) the Airy reflectance of a film in air (Born & Wolf eq. 7.6(13), both
         polarisations averaged) of ``thickness`` (n,) nm seen at ``cos`` (n,), on the grid."""
-        return np.asarray(_airy()(np.asarray(thickness, np.float64)[:, None], self.wavelengths[None, :],
-                                  self.n_film, np.asarray(cos, np.float64)[:, None])).mean(axis=-1)
+        both = np.asarray(_airy()(np.asarray(thickness, np.float64)[:, None], self.wavelengths[None, :],
+                                  self.n_film, np.asarray(cos, np.float64)[:, None]))
+        return (both[..., 0] + both[..., 1]) / 2  # their mean (numpy's strided mean over the pair is slow)
 
     def shares(self, refl: np.ndarray) -> np.ndarray:
         """(n, 3) ``f_k = sum_l w_k R / sum_l w_k``: the reflected share per channel of a
         reflectance ``refl`` (n, G) on the grid (module docstring)."""
         return np.asarray(refl, np.float64) @ self.density / self.density.sum(axis=0)
 
+    def moves(self) -> np.ndarray:
+        """(G, 3, M) each mode's change of ``w_k = rho_k I`` on the grid (module docstring)."""
+        return np.einsum("gl,lcm->gcm", self.hats, self.modes)
+
+    def spectral_terms(self, refl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(f, fm)``: the linear functionals of a reflectance ``refl`` (n, G) that
+        :meth:`jacobian` reads: the shares ``f`` (n, 3) of :meth:`shares` and
+        ``fm = sum_l R move_kml`` (n, 3, M) over the grid, with ``move`` of :meth:`moves`."""
+        refl = np.asarray(refl, np.float64)
+        return self.shares(refl), np.einsum("ng,gcm->ncm", refl, self.moves())
+
+    def share_slope(self, thickness: np.ndarray, reflectance) -> np.ndarray:
+        """(n, 3) ``df / dd``: the shares of :meth:`shares` per nm of the film's thickness,
+        their central difference over :data:`THICKNESS_STEP_NM` of the reflectance
+        ``reflectance(d)`` (n, G) at thicknesses ``d`` (n,) nm."""
+        d = np.asarray(thickness, np.float64)
+        return (self.shares(reflectance(d + THICKNESS_STEP_NM)) - self.shares(reflectance(d - THICKNESS_STEP_NM))) / (
+            2 * THICKNESS_STEP_NM)
+
     def jacobian(self, render: np.ndarray, background: np.ndarray | None, thickness: np.ndarray,
-                 cos: np.ndarray, refl: np.ndarray | None = None) -> np.ndarray:
+                 cos: np.ndarray, refl: np.ndarray | None = None, terms=None) -> np.ndarray:
         """(n, 3, M): each pixel's change of its render ``(n, 3)`` along each error mode of
         each channel's response (one standard deviation), at the pixel's film ``thickness``
         (n,) nm seen at ``cos`` (n,) (cosine of incidence); ``refl`` (n, G): the film's
         reflectance on the grid where it is not a film in air (:meth:`reflectance`), e.g. a
-        film on a substrate."""
-        refl = self.reflectance(thickness, cos) if refl is None else np.asarray(refl, np.float64)
+        film on a substrate; ``terms``: its :meth:`spectral_terms` where the caller holds
+        them (then ``refl`` is not read)."""
+        if terms is None:
+            refl = self.reflectance(thickness, cos) if refl is None else refl
+            terms = self.spectral_terms(refl)
+        f, fm = terms                                            # (n, 3) the film's reflected share per channel
         total = self.density.sum(axis=0)                         # (3,)
-        f = self.shares(refl)                                    # (n, 3) the film's reflected share per channel
-        move = np.einsum("gl,lcm->gcm", self.hats, self.modes)   # (G, 3, M) each mode's change of w_k on the grid
-        dfdx = (np.einsum("ng,gcm->ncm", refl, move) - f[:, :, None] * move.sum(axis=0)[None]) / total[None, :, None]
+        dfdx = (fm - f[:, :, None] * self.moves().sum(axis=0)[None]) / total[None, :, None]
         bg = 0.0 if background is None else np.asarray(background, np.float64)
         dydf = (np.asarray(render, np.float64) - bg) / np.maximum(f, 1e-9)
         return dydf[:, :, None] * dfdx
 
-    def thickness_slope(self, render, background, thickness, cos, reflectance=None, at=None) -> np.ndarray:
+    def thickness_slope(self, render, background, thickness, cos, reflectance=None, at=None, terms=None) -> np.ndarray:
         """(n, 3) ``dy / dd``: each pixel's change of its render per nm of its film's
-        thickness, ``(dy / df) (df / dd)`` (module docstring; the shares ``f`` of
-        :meth:`shares` differenced over :data:`THICKNESS_STEP_NM`), at ``thickness`` (n,) nm
-        seen at ``cos`` (n,); ``reflectance(d)``: the film's reflectance (n, G) at
-        thicknesses ``d`` where it is not a film in air (default: :meth:`reflectance`);
-        ``at``: that reflectance at ``thickness`` where the caller already holds it."""
-        d = np.asarray(thickness, np.float64)
-        refl = (lambda x: self.reflectance(x, cos)) if reflectance is None else reflectance
-        f = self.shares(refl(d) if at is None else at)
-        dfdd = (self.shares(refl(d + THICKNESS_STEP_NM)) - self.shares(refl(d - THICKNESS_STEP_NM))) / (
-            2 * THICKNESS_STEP_NM)
+        thickness, ``(dy / df) (df / dd)`` (module docstring; ``df / dd`` of
+        :meth:`share_slope`), at ``thickness`` (n,) nm seen at ``cos`` (n,);
+        ``reflectance(d)``: the film's reflectance (n, G) at thicknesses ``d`` where it is
+        not a film in air (default: :meth:`reflectance`); ``at``: that reflectance at
+        ``thickness`` where the caller already holds it; ``terms``: ``(f, df / dd)`` where
+        the caller holds them (then neither is read)."""
+        if terms is None:
+            d = np.asarray(thickness, np.float64)
+            refl = (lambda x: self.reflectance(x, cos)) if reflectance is None else reflectance
+            terms = self.shares(refl(d) if at is None else at), self.share_slope(d, refl)
+        f, dfdd = terms
         bg = 0.0 if background is None else np.asarray(background, np.float64)
         return (np.asarray(render, np.float64) - bg) / np.maximum(f, 1e-9) * dfdd
 
@@ -232,9 +255,8 @@ def response_score_cells(response: str, illuminant: str, n_film: float, render: 
     its free parameters (:func:`bubblefit.model.thickness.drainage_gradient` at the pixel's
     height); None: 1, ``v`` and ``v^2`` with ``v`` the pixel's row from the image's middle
     over half its height (a constant film, and to second order a profile in height). Over
-    images ``render``, ``background`` (None: none), ``thickness`` (nm) and ``cos``; computed
-    in blocks of :data:`_GRAM_BLOCK` pixels, the last one padded (one compiled shape for
-    every photo)."""
+    images ``render``, ``background`` (None: none), ``thickness`` (nm) and ``cos``; the
+    film's spectral terms interpolated from :func:`tabulated_terms`."""
     err = response_perturbation(response, illuminant, n_film, degree)
     h = np.shape(render)[0]
     nuisance = None if nuisance is None else np.asarray(nuisance, np.float64)
@@ -243,24 +265,141 @@ def response_score_cells(response: str, illuminant: str, n_film: float, render: 
     cos = np.asarray(cos, np.float64)
 
     def jac(ys, xs):
-        n = np.size(ys)
-        dirs, nuis = np.zeros((n, 3, 3 * degree)), np.zeros((n, 3, 3 if nuisance is None else nuisance.shape[-1]))
-        for lo in range(0, n, _GRAM_BLOCK):
-            i = np.arange(lo, lo + _GRAM_BLOCK).clip(max=n - 1)  # the last block padded with its last pixel
-            y, x = ys[i], xs[i]
-            bg = None if background is None else np.asarray(background, np.float64)[y, x]
-            d, c, r = thickness[y, x], cos[y, x], render[y, x]
-            refl = err.reflectance(d, c)
-            move = err.jacobian(r, bg, d, c, refl=refl)                        # (b, 3, degree)
-            v = ((y - 0.5 * (h - 1)) / (0.5 * h))[:, None, None] ** np.arange(3) if nuisance is None else \
-                nuisance[y, x][:, None, :]
-            keep = slice(0, min(_GRAM_BLOCK, n - lo))
-            for k in range(3):
-                dirs[lo:lo + _GRAM_BLOCK, k, k * degree:(k + 1) * degree] = move[keep, k]
-            nuis[lo:lo + _GRAM_BLOCK] = (err.thickness_slope(r, bg, d, c, at=refl)[:, :, None] * v)[keep]
+        bg = None if background is None else np.asarray(background, np.float64)[ys, xs]
+        d, c, r = thickness[ys, xs], cos[ys, xs], render[ys, xs]
+        f, fm, dfdd = tabulated_terms(err, d, c)
+        move = err.jacobian(r, bg, d, c, terms=(f, fm))                      # (n, 3, degree)
+        dirs = np.zeros((np.size(ys), 3, 3 * degree))
+        for k in range(3):
+            dirs[:, k, k * degree:(k + 1) * degree] = move[:, k]
+        v = ((ys - 0.5 * (h - 1)) / (0.5 * h))[:, None, None] ** np.arange(3) if nuisance is None else \
+            nuisance[ys, xs][:, None, :]
+        nuis = err.thickness_slope(r, bg, d, c, terms=(f, dfdd))[:, :, None] * v
         return np.nan_to_num(dirs), np.nan_to_num(nuis)
 
     return jac
+
+
+#: Steps of :func:`tabulated_terms`' table: in the optical path ``x = 2 n d cos t`` (nm)
+#: and in the cosine of incidence. A film's reflectance depends on ``x`` through the phase
+#: ``2 pi x / lambda`` (eq. 8) and on the cosine, at a fixed path, only through the Fresnel
+#: reflectances ``R1`` (Born & Wolf eq. 1.5(21a)). Cubic (four-point Lagrange)
+#: interpolation errs by at most ``max|omega| h^4 / 4! max|F^(4)|`` (Abramowitz & Stegun
+#: 25.2.2; ``max|omega|`` = 9/16 on a middle interval, 1.0 on an end one). Along the path
+#: ``|F^(4)| <= (2 pi / lambda_min)^4 a_4 A``, ``A`` the fringes' amplitude and ``a_4 =
+#: sum_j j^4 q^(j-1)`` over the Airy sum's harmonics, whose ratio ``q = (sqrt(1 + F') - 1) /
+#: (sqrt(1 + F') + 1)`` with ``F' = 4 R1 / (1 - R1)^2`` is 0.09 at ``R1 = 0.1`` (the larger
+#: Fresnel reflectance at a cosine of 0.6, the colour check's inner limit), so ``a_4 <=
+#: 3.4``: at 6 nm, ``h 2 pi / 380 nm = 0.099``, the error is at most 3.4 x 0.099^4 / 24 =
+#: 1.4e-5 of ``A``. Along the cosine, over ``[0.6, 1]`` and indices 1.33-1.5, ``|d^4 R1 /
+#: d cos^4| <= 39`` (both polarisations, differenced on a 1e-3 grid) and ``dR / dR1 <= 4 (1 +
+#: R1) / (1 - R1)^3 <= 5.5``, so ``|F^(4)| <~ 210`` and at 0.025 the error is at most 210 x
+#: 0.025^4 / 24 = 3.4e-6 of the reflectance: below float32's rounding of the direct
+#: evaluation's thickness slope (its central difference over 1 nm loses four digits).
+#: tests/test_response_error.py checks the table against the direct evaluation.
+TABLE_PATH_STEP_NM = 6.0
+TABLE_COS_STEP = 0.025
+
+
+def _cubic_stencil(x: np.ndarray, lo: float, step: float, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(first, weights)``: the first of the four nodes ``lo + i step`` (``i < count``) whose
+    cubic Lagrange polynomial interpolates at ``x`` (n,) (the interval's own two and one on
+    each side; at the ends the four end nodes), and their (n, 4) weights (Abramowitz &
+    Stegun 25.2.13). One node: weight 1."""
+    if count == 1:
+        return np.zeros(x.shape, np.int64), np.ones(x.shape + (1,))
+    first = np.clip(np.floor((x - lo) / step).astype(np.int64) - 1, 0, count - 4)
+    t = (x - lo) / step - first                            # in [0, 3]: the nodes at 0, 1, 2, 3
+    return first, np.stack([-(t - 1) * (t - 2) * (t - 3) / 6, t * (t - 2) * (t - 3) / 2,
+                            -t * (t - 1) * (t - 3) / 2, t * (t - 1) * (t - 2) / 6], axis=-1)
+
+
+def _axis(x: np.ndarray, step: float) -> tuple[float, float, int]:
+    """``(lo, step, count)``: evenly spaced nodes over ``x``'s range at most ``step`` apart,
+    at least four of them (one where the range is a point)."""
+    lo, hi = float(x.min()), float(x.max())
+    if hi <= lo:
+        return lo, 1.0, 1
+    count = max(4, int(np.ceil((hi - lo) / step)) + 1)
+    return lo, (hi - lo) / (count - 1), count
+
+
+@functools.cache
+def _path_program():
+    """:func:`bubblefit.optics.film.optical_path`, compiled (one program for every block)."""
+    import jax
+
+    from ..optics.film import optical_path
+
+    return jax.jit(optical_path)
+
+
+def _optical_path(thickness: np.ndarray, n_film: float, cos: np.ndarray) -> np.ndarray:
+    """(n,) :func:`bubblefit.optics.film.optical_path` of films ``thickness`` (n,) nm seen at
+    ``cos`` (n,), in blocks of :data:`_GRAM_BLOCK` (the last one padded: one compiled shape
+    for every photo, where the eager operations would each compile for every length)."""
+    out = np.empty(np.size(thickness))
+    for lo in range(0, out.size, _GRAM_BLOCK):
+        i = np.arange(lo, lo + _GRAM_BLOCK).clip(max=out.size - 1)
+        out[lo:lo + _GRAM_BLOCK] = np.asarray(_path_program()(thickness[i], n_film, cos[i]))[:min(_GRAM_BLOCK, out.size - lo)]
+    return out
+
+
+def tabulated_terms(err: ResponseError, thickness: np.ndarray, cos: np.ndarray):
+    """``(f, fm, df / dd)`` at pixels of film ``thickness`` (n,) nm seen at ``cos`` (n,): the
+    film-in-air reflectance's (:meth:`ResponseError.reflectance`) linear functionals of
+    :meth:`ResponseError.spectral_terms` and :meth:`ResponseError.share_slope`, evaluated
+    on the nodes of a table in the optical path (:func:`bubblefit.optics.film.optical_path`)
+    and the cosine (:data:`TABLE_PATH_STEP_NM`, :data:`TABLE_COS_STEP`; only the nodes
+    some pixel's stencil reads) and interpolated to each pixel (:func:`_cubic_stencil`;
+    linear in the reflectance, so each term's interpolation is that of its reflectance).
+    Where the table would hold as many nodes as there are pixels, they are evaluated at the
+    pixels. In float64 (a node's rounding, unlike a pixel's, does not average out over a
+    cell), in blocks of :data:`_GRAM_BLOCK`, the last one padded (one compiled shape for
+    every photo). NaN where the thickness is not finite."""
+    import jax
+
+    d = np.asarray(thickness, np.float64)
+    c = np.asarray(cos, np.float64)
+    n = d.size
+    good = np.isfinite(d) & np.isfinite(c)
+    m = err.modes.shape[-1]
+    out = np.full((n, 3 + 3 * m + 3), np.nan)
+    if not good.any():
+        return out[:, :3], out[:, 3:3 + 3 * m].reshape(n, 3, m), out[:, 3 + 3 * m:]
+    with jax.enable_x64(True):  # in float64: a node's rounding is shared by every pixel it serves
+        x = _optical_path(d[good], err.n_film, c[good])
+        px, pc = _axis(x, TABLE_PATH_STEP_NM), _axis(c[good], TABLE_COS_STEP)
+        fx, wx = _cubic_stencil(x, *px)
+        fc, wc = _cubic_stencil(c[good], *pc)
+        kx, kc = wx.shape[1], wc.shape[1]
+        node = (fx[:, None, None] + np.arange(kx)[None, :, None]) * pc[2] + fc[:, None, None] + np.arange(kc)
+        mark = np.zeros(px[2] * pc[2], bool)
+        mark[node.reshape(-1)] = True
+        used = np.flatnonzero(mark)
+        tabled = used.size < good.sum()
+        if tabled:
+            nc = pc[0] + pc[1] * (used % pc[2])
+            nd = (px[0] + px[1] * (used // pc[2])) / _optical_path(np.ones_like(nc), err.n_film, nc)  # path per nm
+        else:
+            nc, nd = c[good], d[good]
+        values = np.empty((nd.size, out.shape[1]))
+        for lo in range(0, nd.size, _GRAM_BLOCK):
+            i = np.arange(lo, lo + _GRAM_BLOCK).clip(max=nd.size - 1)  # the last block padded with its last node
+            refl = lambda t: err.reflectance(t, nc[i])  # noqa: E731
+            f, fm = err.spectral_terms(refl(nd[i]))
+            keep = slice(0, min(_GRAM_BLOCK, nd.size - lo))
+            values[lo:lo + _GRAM_BLOCK] = np.concatenate([f, fm.reshape(-1, 3 * m), err.share_slope(nd[i], refl)],
+                                                         axis=1)[keep]
+    if tabled:
+        table = np.zeros((mark.size, out.shape[1]))
+        table[used] = values
+        values = np.zeros((node.shape[0], out.shape[1]))
+        for j in range(kx):
+            for k in range(kc):
+                values += (wx[:, j] * wc[:, k])[:, None] * table[node[:, j, k]]
+    out[good] = values
+    return out[:, :3], out[:, 3:3 + 3 * m].reshape(n, 3, m), out[:, 3 + 3 * m:]
 
 
 #: Pixels per block of :func:`response_gram` (bounds its memory: a block holds its pixels'

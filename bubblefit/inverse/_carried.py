@@ -25,7 +25,7 @@ from ._programs import final_params, render_bubble
 from ._uncertainty import Misfit, photo_misfit
 from ..progress import stage
 
-__all__ = ["EXPOSURE_TEST_ALPHA", "CarriedMap", "carried_map", "carried_record", "exposure_step", "map_misfit"]
+__all__ = ["EXPOSURE_TEST_ALPHA", "CarriedMap", "carried_map", "carried_record", "exposure_step", "final_map_render", "map_misfit"]
 
 #: Per-frame false-alarm probability of the score test that a sequence's exposure has not
 #: moved (:func:`exposure_step`): the share of frames whose exposure did not move that
@@ -111,7 +111,7 @@ def _shaded(full, kept: list, table, vals: dict, dmap: np.ndarray, opts: FitOpti
     return img, (img - render(dict(vals, exposure=0.5 * e))) / (0.5 * e)
 
 
-def _final_render(full, kept: list, table, vals: dict, dmap: np.ndarray, opts: FitOptions, env) -> np.ndarray:
+def final_map_render(full, kept: list, table, vals: dict, dmap: np.ndarray, opts: FitOptions, env) -> np.ndarray:
     """The map ``dmap``'s full-resolution render at ``vals`` (eq. 11 or the physical series,
     :func:`~bubblefit.inverse._programs.render_bubble`), its fitted pixels shaded from the
     rays the map's finest level traced (``kept``, :func:`fit_map`; the exposure and the
@@ -179,7 +179,7 @@ def carried_map(st, opts: FitOptions, env, carried: dict) -> CarriedMap | str:
             dmap, emap, map_ok = fit_map(full, table, vals, prof, opts, env, make_level=make, start=(dmap, prof))
         new_prof, prof_err = profile_from_map(full, dmap, emap, prof, tuple(n for n in PROFILE_NAMES if n in table.free))
         vals.update(zip(PROFILE_NAMES, new_prof))
-        img = _final_render(full, kept, table, vals, dmap, opts, env)
+        img = final_map_render(full, kept, table, vals, dmap, opts, env)
         fit, _ = map_misfit(full, img, opts)
     if not map_ok:
         return "its map with the carried global parameters is not sound"

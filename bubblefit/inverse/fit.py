@@ -53,7 +53,7 @@ import numpy as np
 
 from . import search
 from ._local import DECREMENT_TOLERANCE, LocalSolution, remaining_step, solution_from, solve_local
-from ._carried import CarriedMap, carried_map, carried_record, map_misfit
+from ._carried import CarriedMap, carried_map, carried_record, final_map_render, map_misfit
 from ._maps import PROFILE_NAMES, fit_map
 from ._observation import noise_sigma
 from ..capture.circle import detect_disc
@@ -284,10 +284,11 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
     final_vals, thickness_map, stderr_map = dict(new), None, None
     prof = None if opts.thickness == "constant" else (new["top_nm"], new["bottom_nm"], new["exponent"])
     full = st.level(1, opts, st.map_cfg if opts.thickness == "map" else st.base_cfg)
+    kept = []  # the map's finest level's traced rays, which the final render shades its pixels from
     if opts.thickness == "map":
         dmap, emap, map_ok = (made.thickness_map, made.map_stderr, True) if made is not None else \
             fit_map(full, table, new, prof, opts, env, make_level=lambda k: st.level(k, opts, st.map_cfg),
-                    start=st.map_start)
+                    start=st.map_start, kept=kept)
         final_vals["map"] = dmap
         thickness_map = np.where(full.inside, dmap, np.nan)
         stderr_map = np.where(full.mask, np.hypot(emap, float(judge.thickness_model_error_nm)), np.nan)
@@ -298,8 +299,12 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
             notes.append("the thickness map is not constrained at over 10% of the film's pixels")
     elif opts.thickness == "drainage":
         thickness_map = np.where(full.inside, np.asarray(drainage_profile(jnp.asarray(full.height), *prof)), np.nan)
-    img = made.render if made is not None else \
-        np.asarray(render_bubble(final_params(table, final_vals, opts), full, env), np.float64)
+    if made is not None:
+        img = made.render
+    elif opts.thickness == "map":
+        img = final_map_render(full, kept, table, new, final_vals["map"], opts, env)
+    else:
+        img = np.asarray(render_bubble(final_params(table, final_vals, opts), full, env), np.float64)
     resid_img = st.photo - img
     # ``ok`` reads the photo as the camera took it: the final render against every pixel
     # (:func:`photo_misfit`); the solve's own level gave the standard errors' widening

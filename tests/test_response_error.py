@@ -378,3 +378,37 @@ def test_tabulated_terms_against_direct(n_film):
                 got, want = got.reshape(d.size, -1), want.reshape(d.size, -1)
                 rel = np.max(np.abs(got - want), axis=0) / np.max(np.abs(want), axis=0)
                 assert rel.max() < 2e-5, rel.max()
+
+
+def test_score_floor_draw_does_not_depend_on_the_directions_units():
+    """The score test's statistic is the part of the whitened residual that the directions'
+    span explains, so it does not depend on their units; its null must not either. The
+    floors' shared draw along the directions (``_score_verdict``) is spread evenly over
+    them, each scaled by its own reach: scaling one direction by 1e6 and another by 1e-6 in
+    every part (as an sRGB film's red share crossing zero scales the red channel's
+    directions) leaves the statistic the same to rounding (float64's 2.2e-16 times the
+    covariance's condition number, times 100 for the Cholesky and SVD steps). With one
+    ``tau^2`` for all directions the draw would go to the scaled-up one alone, and the
+    statistic on this residual, which follows every direction, grows tenfold (13 to 138 per
+    degree of freedom)."""
+    from bubblefit.inverse.colour_check import _score_verdict
+
+    rng = np.random.default_rng(11)
+    parts, k = 40, 6
+    dirs = rng.normal(size=(parts, 2, k)) * np.linspace(1.0, 2.0, parts)[:, None, None]
+    nuis = rng.normal(size=(parts, 2, 1))
+    noise = np.eye(2) * 1e-6
+    floor = np.eye(2) * 4e-6       # the floors larger than the noise: the shared draw matters
+    coef = rng.normal(size=k) * 2e-3
+    mean = np.einsum("bij,j->bi", dirs, coef) + rng.normal(size=(parts, 2)) * 1e-3
+
+    def cells(d):
+        return [(mean[b], noise, floor, 1.0, None, (d[b], nuis[b])) for b in range(parts)]
+
+    base = _score_verdict(cells(dirs), 1.0, 1e-3, False)
+    scaled = dirs * np.array([1e6, 1e-6, 1, 1, 1, 1])
+    got = _score_verdict(cells(scaled), 1.0, 1e-3, False)
+    sigma = np.kron(np.eye(parts), noise + floor) + np.concatenate(dirs) @ np.concatenate(dirs).T * 4e-6 / k
+    tol = 100 * 2.2e-16 * np.linalg.cond(sigma)
+    assert got.dof == base.dof == k
+    assert abs(got.chi2_per_dof - base.chi2_per_dof) <= tol * base.chi2_per_dof, (got.chi2_per_dof, base.chi2_per_dof)

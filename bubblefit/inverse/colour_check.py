@@ -392,9 +392,16 @@ def _score_verdict(cells: list, kappa: float, false_alarm: float, shared: bool) 
     nor over the parts (another renderer's hue error is coherent over the film, and a smooth
     change of the response can mimic it), so besides each part's own floor ``F_b`` the
     null holds one shared draw along the directions, of the size that moves the mean part's
-    hue by its floor, ``tau^2 = mean_b tr F_b / mean_b tr(D_b D_b^T)`` (``D_b`` projected
-    on the chromatic plane; zero without floors): the test asks for a change of the
-    response beyond its stated errors and beyond what the floors allow. With ``L L^T = Sigma``, ``z = L^-1 m``
+    hue by its floor, spread evenly over the ``K`` directions that move it:
+    ``tau_k^2 = mean_b tr F_b / (K mean_b |D_bk|^2)`` for direction ``k`` (``D_bk`` its
+    column of ``D_b``, projected on the chromatic plane; zero without floors), so that
+    ``sum_k tau_k^2 mean_b |D_bk|^2 = mean_b tr F_b`` and each direction alone moves the
+    mean part by its floor over ``sqrt(K)``, whatever the directions' units (the statistic
+    does not depend on them, and neither does its null: one ``tau^2`` for all would hand
+    the floors' draw to the directions of the largest reach, as on an sRGB film whose red
+    share crosses zero, where the red channel's directions are 10^7 times the others' in size):
+    the test asks for a change of the response beyond its stated errors and beyond what
+    the floors allow. With ``L L^T = Sigma``, ``z = L^-1 m``
     and ``X = L^-1 [N, D]``, the statistic is the part of ``|z|^2`` that the columns of
     ``D`` explain beyond those of ``N``, ``|Q_D^T z|^2`` with ``Q_D`` an orthonormal basis
     of ``L^-1 D``'s part orthogonal to ``L^-1 N``: the score ``D'^T Sigma^-1 m`` in the
@@ -411,9 +418,12 @@ def _score_verdict(cells: list, kappa: float, false_alarm: float, shared: bool) 
         g = np.concatenate([c[4] for c in cells])
         sigma = sigma + g @ g.T
     dirs = np.concatenate([c[5][0] for c in cells])
-    reach = np.mean([np.sum(c[5][0] ** 2) for c in cells])
-    if reach > 0:  # the floors' shared draw along the directions
-        sigma = sigma + np.mean([np.trace(c[2]) for c in cells]) / reach * dirs @ dirs.T
+    reach = np.mean([np.sum(c[5][0] ** 2, axis=0) for c in cells], axis=0)  # mean_b |D_bk|^2 per direction
+    moved = reach > 0
+    if moved.any():  # the floors' shared draw along the directions, evenly over those that move the hue
+        tau2 = np.where(moved, np.mean([np.trace(c[2]) for c in cells]) / (moved.sum() * np.where(moved, reach, 1.0)),
+                        0.0)
+        sigma = sigma + (dirs * tau2) @ dirs.T
     low = cholesky(sigma, lower=True)
     z = solve_triangular(low, m, lower=True)
     nuis = solve_triangular(low, np.concatenate([c[5][1] for c in cells]), lower=True)

@@ -557,6 +557,19 @@ def _neighbour_sigma(image: np.ndarray, mask: np.ndarray) -> float | None:
     return float(max(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(1.25), 1e-6))
 
 
+def _photo_noise(photo: np.ndarray, mask: np.ndarray, y: np.ndarray, res: np.ndarray,
+                 high: float) -> tuple[bool, float]:
+    """``(grey, sigma)``: whether the photo is grey (its film pixels' three channels equal: a
+    monochrome camera, a sodium lamp through a grey response) and its noise. A grey photo's
+    one reading a pixel leaves each pixel's own thickness no residual, so its noise is read
+    from neighbouring pixels (:func:`_neighbour_sigma`, on the photo here; :func:`fit_planar`
+    reads it again on the fitted model's residual); a colour photo's from the residuals
+    ``res`` of each pixel's own thickness (:func:`_noise_sigma`, clip ``high``)."""
+    grey = bool(np.array_equal(y[:, 0], y[:, 1]) and np.array_equal(y[:, 1], y[:, 2]))
+    sigma = (_neighbour_sigma(np.asarray(photo, np.float64), mask) if grey else None) or _noise_sigma(res, y, high)
+    return grey, sigma
+
+
 def _hops(dmap: np.ndarray, limit: float) -> int:
     """Neighbour pairs whose thickness differs by more than ``limit`` nm (order hops)."""
     a = np.abs(np.diff(dmap, axis=0))
@@ -887,12 +900,7 @@ def fit_planar(photo: np.ndarray, scene, *, reference_region=None, reference_nm=
 
     dref, jj_, model, gain = _refined_with_exposure(fwd, y, lum, sin2, dpix, gain, lo, hi, clip_high)
     res = censored_residual(y, model, clip_high, np)
-    # a grey photo (one reading a pixel: a monochrome camera, a sodium lamp through a grey
-    # response) leaves each pixel's own thickness no residual: its noise is read from the
-    # photo's neighbouring pixels instead, and from the fitted model's residual below
-    grey = bool(np.array_equal(y[:, 0], y[:, 1]) and np.array_equal(y[:, 1], y[:, 2]))
-    sigma = ((_neighbour_sigma(np.asarray(photo, np.float64), mask) if grey else None)
-             or _noise_sigma(res, y, clip_high))
+    grey, sigma = _photo_noise(photo, mask, y, res, clip_high)
     stderr = sigma / np.sqrt(np.maximum(jj_, 1e-20))
     params, perr = {}, {}
     if kind == "constant":

@@ -339,10 +339,19 @@ def _optical_path(thickness: np.ndarray, n_film: float, cos: np.ndarray) -> np.n
     ``cos`` (n,), in blocks of :data:`_GRAM_BLOCK` (the last one padded: one compiled shape
     for every photo, where the eager operations would each compile for every length)."""
     out = np.empty(np.size(thickness))
-    for lo in range(0, out.size, _GRAM_BLOCK):
-        i = np.arange(lo, lo + _GRAM_BLOCK).clip(max=out.size - 1)
-        out[lo:lo + _GRAM_BLOCK] = np.asarray(_path_program()(thickness[i], n_film, cos[i]))[:min(_GRAM_BLOCK, out.size - lo)]
+    for rows, i, keep in _padded_blocks(out.size):
+        out[rows] = np.asarray(_path_program()(thickness[i], n_film, cos[i]))[keep]
     return out
+
+
+def _padded_blocks(n: int):
+    """Yields ``(rows, index, keep)`` over ``n`` items in blocks of :data:`_GRAM_BLOCK`:
+    the block's slice of the output, its item indices with the last block padded by its
+    last item (one compiled shape for every length), and the slice of a block's result
+    that holds real items."""
+    for lo in range(0, n, _GRAM_BLOCK):
+        yield (slice(lo, lo + _GRAM_BLOCK), np.arange(lo, lo + _GRAM_BLOCK).clip(max=n - 1),
+               slice(0, min(_GRAM_BLOCK, n - lo)))
 
 
 def tabulated_terms(err: ResponseError, thickness: np.ndarray, cos: np.ndarray):
@@ -384,13 +393,11 @@ def tabulated_terms(err: ResponseError, thickness: np.ndarray, cos: np.ndarray):
         else:
             nc, nd = c[good], d[good]
         values = np.empty((nd.size, out.shape[1]))
-        for lo in range(0, nd.size, _GRAM_BLOCK):
-            i = np.arange(lo, lo + _GRAM_BLOCK).clip(max=nd.size - 1)  # the last block padded with its last node
+        for rows, i, keep in _padded_blocks(nd.size):  # the last block padded with its last node
             refl = lambda t: err.reflectance(t, nc[i])  # noqa: E731
             f, fm = err.spectral_terms(refl(nd[i]))
-            keep = slice(0, min(_GRAM_BLOCK, nd.size - lo))
-            values[lo:lo + _GRAM_BLOCK] = np.concatenate([f, fm.reshape(-1, 3 * m), err.share_slope(nd[i], refl)],
-                                                         axis=1)[keep]
+            values[rows] = np.concatenate([f, fm.reshape(-1, 3 * m), err.share_slope(nd[i], refl)],
+                                           axis=1)[keep]
     if tabled:
         table = np.zeros((mark.size, out.shape[1]))
         table[used] = values

@@ -46,7 +46,7 @@ from jaxtyping import Array, Float
 from ..lighting.envmap import EnvMap, rotate_y
 from ..lighting.filtering import irradiance, reflect, specular
 from ..lighting.point_lights import PointLight, lights_radiance
-from ..optics import film, spectral
+from ..optics import brdf, film, spectral
 from ..optics.dispersion import Cauchy, index_offset
 from .effects import Effects
 from .modes import COLOURED
@@ -394,9 +394,18 @@ def clamped_series(fx: Effects, p: Params, opt: "_Film", refl: dict, d0, d1, exi
     camera's gamut then reflects nothing in that channel, as Blender Cycles' thin film
     shades it: its Fresnel term is an RGB triple in [0, 1] (s and p averaged) that each
     path samples (Blender 5.0 manual, Principled BSDF, "Thin Film"; A. Belcour and
-    P. Barla, ACM TOG 36(4), 2017, the thin-film Fresnel term Cycles evaluates)."""
+    P. Barla, ACM TOG 36(4), 2017, the thin-film Fresnel term Cycles evaluates). On a rough
+    film Cycles evaluates it at each sampled facet's angle, so ``R`` is the mean of the
+    clamped colours over the lobe's visible facets (:func:`~bubblefit.optics.brdf.facet_cosines`;
+    microfacet theory's ``F(w_i . h)``, Walter et al. 2007, eq. 20)."""
     _count("clamped_film")
-    rgb_r = lambda d: jnp.clip(opt.rgb(jnp.mean(opt.reflectance(d), axis=-1)), 0.0, 1.0)
+    # Cycles samples a facet of the rough lobe and evaluates the film at its angle, w_i . h,
+    # then clamps (bsdf_microfacet.h, fresnel_iridescence): the mean of the clamped colours
+    # over the visible facets of the lobe (brdf.facet_cosines; at a mirror, the film itself).
+    cos_nodes, weights = brdf.facet_cosines(opt.cos, p.roughness)
+    facets = [_Film(fx, p, c, opt.lam, d0) for c in cos_nodes]
+    rgb_r = lambda d: sum(w[:, None] * jnp.clip(f.rgb(jnp.mean(f.reflectance(d), axis=-1)), 0.0, 1.0)
+                          for f, w in zip(facets, weights))
     one = fx.thickness == "constant"
     r0 = rgb_r(d0)
     r1 = r0 if one else rgb_r(d1)

@@ -21,9 +21,13 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike
 
-__all__ = ["ward_lobe", "ward", "tan2_half_angle", "half_vector_weight"]
+__all__ = ["ward_lobe", "ward", "tan2_half_angle", "half_vector_weight", "facet_cosines"]
 
 _TINY = 1e-12
+# Three-point Gauss-Hermite rule for a standard normal variable: nodes 0, +-sqrt(3),
+# weights 2/3, 1/6, 1/6 (exact for polynomials up to degree 5; Abramowitz & Stegun 25.4.46).
+_GH3_NODES = (0.0, 3.0 ** 0.5, -(3.0 ** 0.5))
+_GH3_WEIGHTS = (2.0 / 3.0, 1.0 / 6.0, 1.0 / 6.0)
 # Lower bound of sqrt(cos th_i cos th_r): Ward's lobe is singular at grazing angles.
 _MIN_SQRT_COS = 1e-4
 
@@ -68,3 +72,31 @@ def half_vector_weight(cos_i: ArrayLike, cos_r: ArrayLike, o_dot_h: ArrayLike, c
     above = (cos_i > 0) & (jnp.asarray(cos_r) > 0)
     root = jnp.sqrt(jnp.maximum(jnp.where(above, cos_i * cos_r, 1.0), _MIN_SQRT_COS**2))
     return jnp.where(above, cos_i * o_dot_h * jnp.asarray(cos_h) ** 3 / root, 0.0)
+
+
+def facet_cosines(cos_i: ArrayLike, a: ArrayLike) -> tuple[list[Array], list[Array]]:
+    """The incidence cosines ``w_i . h`` on the microfacets of eq. (1)'s lobe that a ray at
+    ``cos_i`` (N,) to the mean surface sees, and their weights: three nodes (lists of
+    three (N,) arrays) for the mean over visible facets of a function of ``w_i . h``, such
+    as a thin film's Fresnel term in a microfacet BRDF, ``F(w_i . h)`` (Walter et al.,
+    EGSR 2007, eq. 20), which Blender Cycles evaluates per sampled facet.
+
+    Ward's lobe is a Gaussian in slope space (module docstring): each slope component
+    is normal with variance ``a^2 / 2``. A facet of slopes ``(p, q)``, ``p`` in the plane
+    of incidence, has ``w_i . h = (cos_i + p sin_i) / sqrt(1 + p^2 + q^2)`` and shows the
+    ray the projected area ``cos_i + p sin_i`` per unit of the mean surface, so the
+    visible facets (Heitz, JCGT 3(2), 2014, the distribution of visible normals without
+    masking) weigh each slope by ``max(1 + p tan_i, 0)``. ``p`` is integrated with the
+    three-point Gauss-Hermite rule and ``q`` through its mean square (``q^2 -> a^2 / 2``,
+    a second-order term). At ``a = 0`` every node is ``cos_i``: the mean is the function
+    at the mean surface's angle."""
+    c = jnp.clip(jnp.asarray(cos_i), 1e-6, 1.0)
+    s = jnp.sqrt(jnp.maximum(1.0 - c * c, 0.0))
+    sigma = jnp.asarray(a) / jnp.sqrt(2.0)
+    cos_nodes, weights = [], []
+    for z, w in zip(_GH3_NODES, _GH3_WEIGHTS):
+        slope = sigma * z
+        cos_nodes.append(jnp.clip((c + slope * s) / jnp.sqrt(1.0 + slope * slope + sigma * sigma), 1e-6, 1.0))
+        weights.append(w * jnp.maximum(c + slope * s, 0.0))
+    total = sum(weights)
+    return cos_nodes, [w / total for w in weights]

@@ -125,6 +125,34 @@ def test_diagonal_jacobian_matches_differences(env, level):
     assert not np.allclose(r2, r)  # the thickness changed the residuals
 
 
+def test_kept_rays_read_at_another_exposure_and_profile(env, level):
+    """A level traced before at the same values but the exposure and the drainage profile
+    reads the kept rays (no second trace), and its slopes and costs equal those of a fresh
+    trace at its own values: the rays and the light they read depend on neither, so both
+    run the same program on the same numbers (float32 rounding of ~1e-6 at most)."""
+    import bubblefit.inverse._map_pixels as MP
+    from bubblefit.inverse import TracedCosts, profile_map
+
+    st, lev, vals = level
+    sel = lev.mask.reshape(-1)
+    d = profile_map(lev, (300.0, 900.0, 1.0)).reshape(-1)[sel] + 10.0
+    first = TracedCosts(lev, st.table, vals, env)
+    r0, _ = first.slopes(d)
+    other = dict(vals, exposure=0.8 * float(vals["exposure"]), top_nm=280.0, bottom_nm=950.0)
+    kept = TracedCosts(lev, st.table, other, env)
+    r_kept, j_kept = kept.slopes(d)
+    c_kept = kept(d[None])
+    assert kept._traced is first._traced
+    MP._TRACES.clear()
+    fresh = TracedCosts(lev, st.table, other, env)
+    r, j = fresh.slopes(d)
+    assert fresh._traced is not first._traced
+    np.testing.assert_allclose(r_kept, r, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(j_kept, j, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(c_kept, fresh(d[None]), rtol=1e-6, atol=1e-5)
+    assert not np.allclose(r, r0, rtol=1e-3)  # the exposure and the profile moved the residuals
+
+
 class _UphillSlopes:
     """Per-pixel residuals ``r_p = d_p - 500`` (nm) with the sign of their slope reversed, so
     that every Gauss-Newton step goes uphill and is rejected: the number of passes counted."""
@@ -229,7 +257,8 @@ def test_map_programs_through_the_store(env, level, tmp_path, monkeypatch):
     loads, load = [], executables._load
     monkeypatch.setattr(executables, "_load", lambda path, args: (loads.append(path.name), load(path, args))[1])
     for run in ("saved", "loaded"):
-        _map_pixels._stored_programs.cache_clear()  # a new process's programs
+        _map_pixels._stored_programs.cache_clear()  # a new process's programs and no kept rays
+        _map_pixels._TRACES.clear()
         costs = TracedCosts(lev, st.table, vals, env)
         got_c, (got_r, got_j) = costs(cand), costs.slopes(d)
         np.testing.assert_allclose(got_c, want_c, rtol=1e-5, atol=1e-4)
@@ -238,6 +267,7 @@ def test_map_programs_through_the_store(env, level, tmp_path, monkeypatch):
         assert len(list(folder.glob("*.bin"))) == 3, run  # the costs, the trace and the slopes
     assert len(loads) == 3, loads  # the second read all three from their files
     _map_pixels._stored_programs.cache_clear()
+    _map_pixels._TRACES.clear()
 
 
 def test_traced_pixels_equal_the_render_and_its_exposure_column(env, level):

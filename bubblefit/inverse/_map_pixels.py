@@ -161,9 +161,9 @@ def _stored_programs(cfg):
             stored(jax.jit(pixels), "inverse._map_pixels.pixels", cfg))
 
 
-#: How many levels' traced rays are kept (:func:`_kept_trace`), the last traced first: a
-#: sequence's frame that holds the global parameters traces each level of its pyramid at
-#: the values the frame before it traced them at.
+#: How many levels' traced rays are kept (:func:`_kept_trace`), the last read first: a
+#: sequence's frame that holds the global parameters reads every level of its pyramid from
+#: the frame before it, which traced them at the same values.
 KEPT_TRACES = 4
 _TRACES: list = []
 
@@ -179,8 +179,9 @@ def _kept_trace(cfg, args: tuple):
     fields = tuple(f for f in p.__dataclass_fields__ if f not in ("exposure", "profile"))
     key = (cfg, tuple(np.asarray(getattr(p, f)).tobytes() for f in fields),
            *(None if a is None else np.asarray(a).tobytes() for a in args[2:]))
-    for k, e, leaves in _TRACES:
+    for i, (k, e, leaves) in enumerate(_TRACES):
         if e is env and k == key:
+            _TRACES.insert(0, _TRACES.pop(i))
             return leaves
     leaves = _stored_programs(cfg)[1](*args)
     _TRACES.insert(0, (key, env, leaves))

@@ -125,6 +125,34 @@ def test_diagonal_jacobian_matches_differences(env, level):
     assert not np.allclose(r2, r)  # the thickness changed the residuals
 
 
+def test_kept_rays_read_at_another_exposure_and_profile(env, level):
+    """A level traced before at the same values but the exposure and the drainage profile
+    reads the kept rays (no second trace), and its slopes and costs equal those of a fresh
+    trace at its own values: the rays and the light they read depend on neither, so both
+    run the same program on the same numbers (float32 rounding of ~1e-6 at most)."""
+    import bubblefit.inverse._map_pixels as MP
+    from bubblefit.inverse import TracedCosts, profile_map
+
+    st, lev, vals = level
+    sel = lev.mask.reshape(-1)
+    d = profile_map(lev, (300.0, 900.0, 1.0)).reshape(-1)[sel] + 10.0
+    first = TracedCosts(lev, st.table, vals, env)
+    r0, _ = first.slopes(d)
+    other = dict(vals, exposure=0.8 * float(vals["exposure"]), top_nm=280.0, bottom_nm=950.0)
+    kept = TracedCosts(lev, st.table, other, env)
+    r_kept, j_kept = kept.slopes(d)
+    c_kept = kept(d[None])
+    assert kept._traced is first._traced
+    MP._TRACES.clear()
+    fresh = TracedCosts(lev, st.table, other, env)
+    r, j = fresh.slopes(d)
+    assert fresh._traced is not first._traced
+    np.testing.assert_allclose(r_kept, r, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(j_kept, j, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(c_kept, fresh(d[None]), rtol=1e-6, atol=1e-5)
+    assert not np.allclose(r, r0, rtol=1e-3)  # the exposure and the profile moved the residuals
+
+
 class _UphillSlopes:
     """Per-pixel residuals ``r_p = d_p - 500`` (nm) with the sign of their slope reversed, so
     that every Gauss-Newton step goes uphill and is rejected: the number of passes counted."""
@@ -154,6 +182,38 @@ def test_refine_stops_where_the_next_trial_would_repeat_a_rejected_one():
     assert costs.calls == 2 < REFINE_STEPS + 1
     np.testing.assert_array_equal(d, centre)
     np.testing.assert_allclose(chi, 3 * 10.0**2)
+
+
+class _CurvedSlopes:
+    """Per-pixel residuals ``(x, x^2 / 20 - 2, 0)``, ``x = d_p - t_p`` (nm): chi^2 =
+    ``x^2 + (x^2 / 20 - 2)^2`` has its minimum at ``x = 0`` with curvature 1.6, where
+    Gauss-Newton's ``2 J^T J`` is 2, so Gauss-Newton alone contracts the error by only
+    ``1 - 1.6 / 2 = 0.2`` a step."""
+
+    def __init__(self, t):
+        self.t, self.calls = t, 0
+
+    def slopes(self, d):
+        self.calls += 1
+        x = np.asarray(d, np.float64) - self.t
+        return np.stack([x, x * x / 20.0 - 2.0, 0.0 * x], 1), np.stack([np.ones_like(x), x / 10.0, 0.0 * x], 1)
+
+
+def test_refine_takes_each_pixels_secant_curvature():
+    """Started 8 nm off, the per-pixel solve stops (its quantile step under REFINE_TOL_NM)
+    with every pixel within 0.01 nm of its minimum: with Gauss-Newton's curvature alone the
+    error left after a last step of up to 0.2 nm is 0.2 / (1 - 0.2) of it, up to 0.05 nm;
+    the secant of each pixel's gradient converges superlinearly. No pass is spent on a
+    rejected step (one pass per accepted step and one at the start)."""
+    from bubblefit.inverse._map_pixels import REFINE_STEPS, refine
+    from bubblefit.inverse._maps import _neighbours
+
+    nb = _neighbours(np.ones((6, 6), bool))[0]
+    t = 500.0 + np.random.default_rng(1).uniform(-3.0, 3.0, 36)
+    costs = _CurvedSlopes(t)
+    d, err, chi = refine(costs, t + 8.0, nb, 1e3, 24.0)  # a smoothness scale far above the steps
+    assert np.abs(d - t).max() < 0.01
+    assert costs.calls <= REFINE_STEPS
 
 
 def test_final_render_of_a_map_on_an_unpadded_level(env):
@@ -229,7 +289,8 @@ def test_map_programs_through_the_store(env, level, tmp_path, monkeypatch):
     loads, load = [], executables._load
     monkeypatch.setattr(executables, "_load", lambda path, args: (loads.append(path.name), load(path, args))[1])
     for run in ("saved", "loaded"):
-        _map_pixels._stored_programs.cache_clear()  # a new process's programs
+        _map_pixels._stored_programs.cache_clear()  # a new process's programs and no kept rays
+        _map_pixels._TRACES.clear()
         costs = TracedCosts(lev, st.table, vals, env)
         got_c, (got_r, got_j) = costs(cand), costs.slopes(d)
         np.testing.assert_allclose(got_c, want_c, rtol=1e-5, atol=1e-4)
@@ -238,6 +299,7 @@ def test_map_programs_through_the_store(env, level, tmp_path, monkeypatch):
         assert len(list(folder.glob("*.bin"))) == 3, run  # the costs, the trace and the slopes
     assert len(loads) == 3, loads  # the second read all three from their files
     _map_pixels._stored_programs.cache_clear()
+    _map_pixels._TRACES.clear()
 
 
 def test_traced_pixels_equal_the_render_and_its_exposure_column(env, level):

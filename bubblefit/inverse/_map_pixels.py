@@ -56,30 +56,33 @@ def _trace(p, cfg, env, bg, r, c, i):
     return trace_pixels(p, cfg, env, None if bg is None else bg.reshape(-1, 3)[i], r, c)
 
 
-def _over_chunks(p, cfg, env, bg, rows, cols, idx, per_pixel, y, w, fn):
-    """``fn(predict, per_pixel chunk, y chunk, w chunk)`` over the chunks, each chunk's rays
-    traced once; ``predict(d)`` the chunk's (N, 3) pixels at front thicknesses ``d`` (N,)."""
-
-    def chunk(xs):
-        r, c, i, q, yy, ww = xs
-        traced = _trace(p, cfg, env, bg, r, c, i)
-        return fn(lambda d: _predict(cfg, traced, d), q, yy, ww)
-
-    return jax.lax.map(chunk, (rows, cols, idx, per_pixel, y, w))
+def _at(traced, exposure, profile):
+    """Traced rays (:func:`_chunk_trace`) with the exposure and the drainage profile
+    ``exposure``, ``profile`` in place of those they were traced at: the rays and the light
+    they read depend on neither (eq. (11) and the physical series scale the reflected terms
+    by the exposure; the rear film reads the profile,
+    :func:`bubblefit.model.thickness.thickness_at`)."""
+    return [replace(t, p=replace(t.p, exposure=exposure, profile=profile)) for t in traced]
 
 
 @functools.partial(jax.jit, static_argnames=("cfg",))
-def _chunk_costs(p, cfg, env, bg, rows, cols, idx, cand, y, w2):
-    """(steps, G, chunk) data chi^2 of candidates ``cand`` (steps, G, chunk)."""
+def _traced_costs(cfg, traced, cand, y, w2, exposure, profile):
+    """(steps, G, chunk) data chi^2 of candidates ``cand`` (steps, G, chunk) from every
+    chunk's rays traced once (:func:`_chunk_trace`), at the exposure and the drainage
+    profile ``exposure``, ``profile`` (:func:`_at`): only the film's optics are evaluated
+    per candidate."""
 
-    def costs(predict, th, yy, ww):
+    def chunk(xs):
+        tr, th, yy, ww = xs
+        tr = _at(tr, exposure, profile)
+
         def at(d):
-            res = predict(d) - yy
+            res = _predict(cfg, tr, d) - yy
             return jnp.sum(ww * res * res, axis=-1)
 
         return jax.lax.map(at, th)
 
-    return _over_chunks(p, cfg, env, bg, rows, cols, idx, cand, y, w2, costs)
+    return jax.lax.map(chunk, (traced, cand, y, w2))
 
 
 def _slopes(predict, d, y, w):
@@ -97,13 +100,14 @@ def _chunk_trace(p, cfg, env, bg, rows, cols, idx):
 
 
 @functools.partial(jax.jit, static_argnames=("cfg",))
-def _traced_slopes(cfg, traced, d, y, w):
-    """:func:`_slopes` of every chunk from its rays traced once (:func:`_chunk_trace`),
+def _traced_slopes(cfg, traced, d, y, w, exposure, profile):
+    """:func:`_slopes` of every chunk from its rays traced once (:func:`_chunk_trace`), at
+    the exposure and the drainage profile ``exposure``, ``profile`` (:func:`_at`),
     (steps, chunk, 3) each: only the film's optics are evaluated."""
 
     def chunk(xs):
         tr, dd, yy, ww = xs
-        return _slopes(lambda x: _predict(cfg, tr, x), dd, yy, ww)
+        return _slopes(lambda x: _predict(cfg, _at(tr, exposure, profile), x), dd, yy, ww)
 
     return jax.lax.map(chunk, (traced, d, y, w))
 
@@ -112,14 +116,12 @@ def _traced_slopes(cfg, traced, d, y, w):
 def _traced_pixels(cfg, traced, d, exposure, profile):
     """Every chunk's pixels (steps, chunk, 3) at front thicknesses ``d`` (steps, chunk) from
     its rays traced once (:func:`_chunk_trace`), with the exposure and the drainage profile
-    ``exposure``, ``profile`` (the rays and the light they read depend on neither: eq. (11)
-    and the physical series scale the reflected terms by the exposure, and the rear film
-    reads the profile, :func:`bubblefit.model.thickness.thickness_at`), and their
-    derivative in the exposure (one forward-mode tangent)."""
+    ``exposure``, ``profile`` (:func:`_at`), and their derivative in the exposure (one
+    forward-mode tangent)."""
 
     def chunk(xs):
         tr, dd = xs
-        at = lambda e: _predict(cfg, [replace(t, p=replace(t.p, exposure=e, profile=profile)) for t in tr], dd)
+        at = lambda e: _predict(cfg, _at(tr, e, profile), dd)
         return jax.jvp(at, (exposure,), (jnp.ones_like(exposure),))
 
     return jax.lax.map(chunk, (traced, d))
@@ -127,9 +129,9 @@ def _traced_pixels(cfg, traced, d, exposure, profile):
 
 @functools.lru_cache(maxsize=16)
 def _stored_programs(cfg):
-    """``(costs, trace, slopes, pixels)``: :func:`_chunk_costs`, :func:`_chunk_trace` (its
+    """``(costs, trace, slopes, pixels)``: :func:`_traced_costs`, :func:`_chunk_trace` (its
     output as the list of its leaves), :func:`_traced_slopes` and :func:`_traced_pixels`
-    (taking that list) for ``cfg``
+    (the others taking that list) for ``cfg``
     through the executable store (:func:`bubblefit.io.executables.stored`): a new process
     loads the map's programs instead of tracing and lowering the film's optics again."""
 
@@ -140,14 +142,15 @@ def _stored_programs(cfg):
 
     def slopes(p, env, bg, rows, cols, idx, leaves, d, y, w):
         traced = jax.tree_util.tree_unflatten(structure(p, env, bg, rows, cols, idx), leaves)
-        return _traced_slopes(cfg, traced, d, y, w)
+        return _traced_slopes(cfg, traced, d, y, w, p.exposure, p.profile)
 
     def pixels(p, env, bg, rows, cols, idx, leaves, d, exposure, profile):
         traced = jax.tree_util.tree_unflatten(structure(p, env, bg, rows, cols, idx), leaves)
         return _traced_pixels(cfg, traced, d, exposure, profile)
 
-    def costs(p, env, bg, rows, cols, idx, cand, y, w2):
-        return _chunk_costs(p, cfg, env, bg, rows, cols, idx, cand, y, w2)
+    def costs(p, env, bg, rows, cols, idx, leaves, cand, y, w2):
+        traced = jax.tree_util.tree_unflatten(structure(p, env, bg, rows, cols, idx), leaves)
+        return _traced_costs(cfg, traced, cand, y, w2, p.exposure, p.profile)
 
     def trace(p, env, bg, rows, cols, idx):
         return jax.tree_util.tree_leaves(_chunk_trace(p, cfg, env, bg, rows, cols, idx))
@@ -158,8 +161,37 @@ def _stored_programs(cfg):
             stored(jax.jit(pixels), "inverse._map_pixels.pixels", cfg))
 
 
+#: How many levels' traced rays are kept (:func:`_kept_trace`), the last read first: a
+#: sequence's frame that holds the global parameters reads every level of its pyramid from
+#: the frame before it, which traced them at the same values.
+KEPT_TRACES = 4
+_TRACES: list = []
+
+
+def _kept_trace(cfg, args: tuple):
+    """The leaves of :func:`_chunk_trace` at the render arguments ``args = (p, env, bg, rows,
+    cols, idx)``, traced once and kept (the last :data:`KEPT_TRACES`): the rays and the light
+    they read depend on every value but the exposure and the drainage profile (:func:`_at`,
+    which the programs that read the rays put in place), so a level traced at the same
+    values otherwise (a sequence's frames that hold the global parameters, a frame's map
+    refined again after its exposure's step) reads the kept rays."""
+    p, env = args[0], args[1]
+    fields = tuple(f for f in p.__dataclass_fields__ if f not in ("exposure", "profile"))
+    key = (cfg, tuple(np.asarray(getattr(p, f)).tobytes() for f in fields),
+           *(None if a is None else np.asarray(a).tobytes() for a in args[2:]))
+    for i, (k, e, leaves) in enumerate(_TRACES):
+        if e is env and k == key:
+            _TRACES.insert(0, _TRACES.pop(i))
+            return leaves
+    leaves = _stored_programs(cfg)[1](*args)
+    _TRACES.insert(0, (key, env, leaves))
+    del _TRACES[KEPT_TRACES:]
+    return leaves
+
+
 class TracedCosts:
-    """Per-pixel data chi^2 of a level's map at any thicknesses, its rays traced once per call.
+    """Per-pixel data chi^2 of a level's map at any thicknesses, its rays traced once (and
+    kept, :func:`_kept_trace`).
 
     ``vals`` the fitted values (exposure, profile under the map, ...); the photo's
     background (``lev.bg``) enters as the renderer takes it. Calling with ``d`` (G, P)
@@ -180,7 +212,7 @@ class TracedCosts:
         self.shape = (steps, size)
         self.y = self.pix.y.reshape(steps, size, 3)
         self.w = self.pix.w.reshape(steps, size, 3)
-        self._traced = None  # the level's traced rays, once :meth:`slopes` has traced them
+        self._traced = None  # the level's traced rays, once a call has traced them
 
     def _spread(self, d: np.ndarray) -> np.ndarray:
         """(..., P) -> (..., steps, chunk), the padding repeating the last pixel."""
@@ -191,9 +223,7 @@ class TracedCosts:
     def __call__(self, d: np.ndarray) -> np.ndarray:
         """(G, P) chi^2 of candidate thicknesses ``d`` (G, P)."""
         cand = np.moveaxis(self._spread(np.maximum(d, 0.0)), 0, 1)  # (steps, G, chunk)
-        pix = self.pix
-        out = _stored_programs(self.cfg)[0](self.p, self.env, self.bg, pix.rows, pix.cols, pix.idx, jnp.asarray(cand),
-                                            self.y, self.w * self.w)
+        out = _stored_programs(self.cfg)[0](*self._traced_args(), jnp.asarray(cand), self.y, self.w * self.w)
         return np.moveaxis(np.asarray(out), 1, 0).reshape(d.shape[0], -1)[:, :self.n]
 
     def slopes(self, d: np.ndarray):
@@ -205,11 +235,13 @@ class TracedCosts:
         return np.asarray(r).reshape(-1, 3)[:self.n], np.asarray(j).reshape(-1, 3)[:self.n]
 
     def _traced_args(self) -> tuple:
-        """The level's render arguments and its rays, traced at the first call and kept."""
+        """The level's render arguments and its rays, traced at the first call and kept
+        (:func:`_kept_trace`: a level traced before at the same values but the exposure and
+        the drainage profile reads its rays from there)."""
         pix = self.pix
         args = (self.p, self.env, self.bg, pix.rows, pix.cols, pix.idx)
         if self._traced is None:
-            self._traced = _stored_programs(self.cfg)[1](*args)
+            self._traced = _kept_trace(self.cfg, args)
         return (*args, self._traced)
 
     def pixels(self, d: np.ndarray, table: ParameterTable, vals: dict) -> tuple[np.ndarray, np.ndarray]:
@@ -261,23 +293,44 @@ def _damped_step(g, hdiag, nb, lam, inv_s2):
     return delta
 
 
+def _secant_curvature(d, d2, g, g2, hgn):
+    """Each pixel's curvature of its data chi^2 along its last accepted step, ``(g2 - g) /
+    (d2 - d)`` (the secant in one variable, Dennis and Schnabel 1983, 2.6: each pixel's
+    chi^2 depends on its own thickness only, so the secant of its gradient ``g = 2 r.j`` is
+    that pixel's own curvature), where the step moved the pixel by at least
+    :data:`SECANT_MIN_NM` and the secant is positive; at least a quarter of the Gauss-Newton
+    curvature ``hgn`` (``2 J^T J``); NaN elsewhere (Gauss-Newton's is taken there)."""
+    s = d2 - d
+    ok = np.abs(s) >= SECANT_MIN_NM
+    c = np.where(ok, (g2 - g) / np.where(ok, s, 1.0), np.nan)
+    return np.where(ok & (c > 0), np.maximum(c, 0.25 * hgn), np.nan)
+
+
+#: Least step of a pixel (nm) whose secant gives its curvature (:func:`_secant_curvature`):
+#: the float32 gradient's rounding (~1e-6 of chi^2 ~ 1e1 per pixel) over 0.01 nm is ~1e-3 of
+#: a pixel's curvature (~0.1 per nm^2).
+SECANT_MIN_NM = 0.01
+
+
 def refine(costs: TracedCosts, centre: np.ndarray, nb: np.ndarray, s: float, half: float, *,
            steps: int = REFINE_STEPS, stop: bool = True, observe=None):
-    """Per-pixel Gauss-Newton (Levenberg-Marquardt damped) on the map's energy from ``centre`` (P,).
+    """Per-pixel Newton (Levenberg-Marquardt damped) on the map's energy from ``centre`` (P,).
 
     The energy is the data chi^2 of every pixel plus ``sum over neighbour pairs ((d_p -
     d_q) / s)^2`` (the smoothness prior of :mod:`._maps`' iterated conditional modes,
-    summed once per pair). Its Gauss-Newton matrix is the data's diagonal (each pixel's
-    thickness moves its own pixel only: :meth:`TracedCosts.slopes`) plus the prior's
-    sparse Laplacian, solved by conjugate gradients; thicknesses stay within ``half`` of
-    ``centre``, so that the interference order the coarser levels settled is kept. It
-    stops at an accepted step that moves the pixels, at the quantile
+    summed once per pair). Its Hessian is the data's diagonal (each pixel's thickness moves
+    its own pixel only: :meth:`TracedCosts.slopes`) plus the prior's sparse Laplacian,
+    solved by conjugate gradients; thicknesses stay within ``half`` of ``centre``, so that
+    the interference order the coarser levels settled is kept. The data's diagonal is
+    Gauss-Newton's ``2 J^T J`` on the first step; after an accepted step it is each pixel's
+    secant curvature along that step (:func:`_secant_curvature`, which includes the
+    residual's own curvature that Gauss-Newton leaves out, so the pixels whose ``2 J^T J``
+    overstates their energy's curvature take their full step), Gauss-Newton's where the
+    secant is not defined. A rejected step taken with secant curvatures is tried again with
+    Gauss-Newton's. It stops at an accepted step that moves the pixels, at the quantile
     :data:`REFINE_QUANTILE` of their step sizes, by less than :data:`REFINE_TOL_NM`, and at a
-    rejected one whose next damping would change their steps (at that quantile) by less
-    than that (the next trial would repeat it). The few pixels beyond the quantile are
-    those where Gauss-Newton's curvature (``2 J^T J``, without the residual's own
-    curvature) overstates the energy's: their steps shrink by a few per cent a step, so no
-    step limit would see them settle, and the rest of the map would wait on them.
+    rejected Gauss-Newton one whose next damping would change their steps (at that quantile)
+    by less than that (the next trial would repeat it).
 
     ``steps``: most trial steps; ``stop=False`` runs them all (no stopping test);
     ``observe(d, trial, hdiag, lam, e, e2)``, if given, sees every trial (the point, the
@@ -285,13 +338,15 @@ def refine(costs: TracedCosts, centre: np.ndarray, nb: np.ndarray, s: float, hal
     ``experiments/refine_steps.py`` records them.
 
     Returns ``(map (P,), stderr (P,), data chi^2 (P,))``; the standard error from the
-    curvature of each pixel's energy with its neighbours held, ``E'' = 2 / sigma^2``, as the
-    grid's parabola gives it.
+    Gauss-Newton curvature of each pixel's energy with its neighbours held, ``E'' = 2 /
+    sigma^2``, as the grid's parabola gives it.
 
     References
     ----------
     K. Levenberg, Q. Appl. Math. 2, 164 (1944); D. Marquardt, J. SIAM 11, 431 (1963);
-    M. Hestenes and E. Stiefel, J. Res. NBS 49, 409 (1952) (conjugate gradients).
+    M. Hestenes and E. Stiefel, J. Res. NBS 49, 409 (1952) (conjugate gradients);
+    J. E. Dennis and R. B. Schnabel, Numerical Methods for Unconstrained Optimization and
+    Nonlinear Equations (1983), 2.6 (the secant method).
     """
     inv_s2 = 1.0 / float(s) ** 2
     nbj = jnp.asarray(nb, jnp.int32)
@@ -305,10 +360,12 @@ def refine(costs: TracedCosts, centre: np.ndarray, nb: np.ndarray, s: float, hal
     d = centre.astype(np.float64)
     r, j = costs.slopes(d)
     e = energy(d, r)
+    gdata, hgn = 2.0 * np.sum(r * j, axis=1), 2.0 * np.sum(j * j, axis=1)
+    secant = None  # each pixel's curvature along the last accepted step (NaN: Gauss-Newton's)
     lam = 1e-3
     for _ in range(steps):
-        g = 2.0 * np.sum(r * j, axis=1) + 2.0 * inv_s2 * np.asarray(_laplacian(jnp.asarray(d), nbj, jnp.asarray(has)))
-        hdiag = 2.0 * np.sum(j * j, axis=1)
+        g = gdata + 2.0 * inv_s2 * np.asarray(_laplacian(jnp.asarray(d), nbj, jnp.asarray(has)))
+        hdiag = hgn if secant is None else np.where(np.isfinite(secant), secant, hgn)
         delta = np.asarray(_damped_step(jnp.asarray(g, jnp.float32), jnp.asarray(hdiag, jnp.float32), nbj,
                                         jnp.float32(lam), jnp.float32(inv_s2)), np.float64)
         trial = np.clip(d + delta, lo, hi)
@@ -318,9 +375,13 @@ def refine(costs: TracedCosts, centre: np.ndarray, nb: np.ndarray, s: float, hal
             observe(d, trial, hdiag, lam, e, e2)
         if e2 <= e:
             moved = _step_size(trial - d)
-            d, r, j, e, lam = trial, r2, j2, e2, max(lam / 3.0, 1e-6)
+            g2, h2 = 2.0 * np.sum(r2 * j2, axis=1), 2.0 * np.sum(j2 * j2, axis=1)
+            secant = _secant_curvature(d, trial, gdata, g2, h2)
+            d, r, j, e, gdata, hgn, lam = trial, r2, j2, e2, g2, h2, max(lam / 3.0, 1e-6)
             if stop and moved < REFINE_TOL_NM:
                 break
+        elif secant is not None:
+            secant = None  # the secant's step is tried again with Gauss-Newton's curvature
         else:
             # Raised fourfold, the damping scales each pixel's step by about
             # (1 + lam) / (1 + 4 lam) (its curvature's diagonal dominating): while that changes

@@ -40,7 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ..optics.brdf import half_vector_weight, ward_lobe
+from ..optics.brdf import half_vector_weight, slope_nodes, ward_lobe
 from .envmap import EnvMap, direction_to_uv, texel_directions, texel_solid_angles
 
 __all__ = [
@@ -143,37 +143,6 @@ def mip_footprint_level(slope_width, texel_angle: float):
     the level is ``log2`` of that width over the texel angle of level 0.
     """
     return jnp.log2(jnp.maximum(MIP_BLUR * 2.0 * slope_width / texel_angle, 1e-30))
-
-
-#: Half-width (in units of ``a``) of the uniform slope grid used for more than 4 nodes; the
-#: square [-2.5, 2.5]^2 holds all but 8e-4 of the Gaussian's mass.
-UNIFORM_EXTENT = 2.5
-
-
-def slope_nodes(nodes: int):
-    """Nodes ``x`` and weights (sum 1) for ``exp(-x^2)`` per axis, and each node's width.
-
-    Up to 4 nodes: Gauss-Hermite (the best few-node rule for a smooth integrand). The width
-    of node j is the spacing to its neighbours (the outer nodes stand for wider cells); for
-    one node it is ``sqrt(6)``, the box with the Gaussian's variance 1/2.
-    More nodes: the midpoint rule on a uniform grid over ``[-UNIFORM_EXTENT, UNIFORM_EXTENT]``
-    with weights ``exp(-x^2)``. Its cells shrink like ``1/nodes`` (Gauss-Hermite's central
-    spacing only like ``1/sqrt(nodes)``), so with each node prefiltered over its cell a
-    map with a sun converges much faster (measured in tests/test_filtering.py).
-    """
-    if nodes > 4:
-        step = 2.0 * UNIFORM_EXTENT / nodes
-        x = -UNIFORM_EXTENT + (np.arange(nodes) + 0.5) * step
-        w = np.exp(-x * x)
-        return x, w / w.sum(), np.full(nodes, step)
-    x, w = np.polynomial.hermite.hermgauss(nodes)
-    if nodes == 1:
-        width = np.array([math.sqrt(6.0)])
-    else:
-        mid = 0.5 * (x[1:] + x[:-1])
-        edges = np.concatenate([[2 * x[0] - mid[0]], mid, [2 * x[-1] - mid[-1]]])
-        width = np.diff(edges)
-    return x, w / w.sum(), width
 
 
 def specular_box(env: EnvMap, n, wo, footprint, *, normalize: bool) -> Float[Array, "N 3"]:

@@ -36,7 +36,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..io.executables import stored
-from ..lighting.filtering import mip_footprint_level, slope_nodes
+from ..lighting.filtering import mip_footprint_level
+from ..optics.brdf import slope_nodes
 from ..optics import film
 from ..optics.spectral import LAMBDA_MIN, SpectralBasis, harmonic_weights
 from .modes import GREY, Interference, Model

@@ -176,14 +176,13 @@ def fitted_pixels(lev: Level, chunk: int, mask: np.ndarray | None = None, *, who
     w, wb = lev.y.shape[1], pad.cfg.shape[1]
     flat = np.flatnonzero((lev.mask if mask is None else mask).reshape(-1))
     if even_chunks:
-        steps, size = _even_chunks(flat.size, chunk)
-        take = np.minimum(np.arange(steps * size), max(flat.size - 1, 0))
+        steps, chunk = _even_chunks(flat.size, chunk)
+        n = steps * chunk
+    elif whole_chunks:  # a program per chunk serves every count
+        n = max(1, -(-flat.size // chunk)) * chunk
     else:
-        if whole_chunks:  # a program per chunk serves every count
-            n = max(1, -(-flat.size // chunk)) * chunk
-        else:
-            n = pixel_bucket(flat.size)
-        steps, size, take = _chunked(flat.size, n, chunk)
+        n = pixel_bucket(flat.size)
+    steps, size, take = _chunked(flat.size, n, chunk)
     rows, cols = np.divmod(flat[take], w)
     keep = (np.arange(steps * size) < flat.size)[:, None]
     y = np.where(keep, lev.y.reshape(-1, 3)[flat[take]], 0.0)

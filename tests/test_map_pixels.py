@@ -216,6 +216,41 @@ def test_refine_takes_each_pixels_secant_curvature():
     assert costs.calls <= REFINE_STEPS
 
 
+def test_map_levels_chunked_evenly():
+    """A map level's pixel list (:class:`TracedCosts`' chunks): the fewest chunks of at most
+    CHUNK pixels, each the bucket of its share (at most a quarter over it, or 64), so a level
+    of 1030 pixels renders 3 x 384 instead of 3 x 512; the list holds the mask's pixels in
+    order, the padding repeating the last with weight 0; and one (steps, size) serves every
+    count within a chunk count and a bucket (at most four sizes per chunk count)."""
+    from bubblefit.inverse import Level, fitted_pixels
+    from bubblefit.inverse._map_pixels import CHUNK
+    from bubblefit.model.geometry import OrthographicCamera
+    from bubblefit.model.effects import Effects
+    from bubblefit.model.render import RenderConfig
+
+    h = w = 80
+    cfg = RenderConfig(effects=Effects(model="paper"), camera=OrthographicCamera(w, h, w / 2, h / 2, 30.0))
+    shapes = {}
+    for n in (1, 63, 64, 65, 511, 512, 513, 1030, 1200, 2974, 4152, 4160, 6399):
+        mask = np.zeros(h * w, bool)
+        mask[np.random.default_rng(n).choice(h * w, n, replace=False)] = True
+        mask = mask.reshape(h, w)
+        one = np.ones((h, w, 3), np.float32)
+        lev = Level(1, cfg, one, one * mask[..., None], None, mask, mask, np.ones((h, w)), np.zeros((h, w)))
+        px = fitted_pixels(lev, CHUNK, even_chunks=True)
+        steps, size = px.rows.shape
+        share = -(-n // steps)
+        assert size <= CHUNK and steps == -(-n // CHUNK)  # the fewest chunks of at most CHUNK
+        assert share <= size <= max(1.25 * share, 64)
+        rows, cols = np.asarray(px.rows).reshape(-1), np.asarray(px.cols).reshape(-1)
+        np.testing.assert_array_equal(rows[:n] * w + cols[:n], np.flatnonzero(mask))
+        wt = np.asarray(px.w).reshape(-1, 3)
+        assert np.all(wt[:n] == 1.0) and np.all(wt[n:] == 0.0)
+        shapes.setdefault(steps, set()).add(size)
+    assert shapes[3] == {384, 448}  # 1030 and 1200: shares 344 and 400, buckets of 64 up to 512
+    assert all(len(v) <= 4 for v in shapes.values())
+
+
 def test_final_render_of_a_map_on_an_unpadded_level(env):
     """A map's final render on a level whose size is not a padded size (37 x 45, padded to
     48 x 48) reads each pixel's own thickness: the bubble's pixels alone and the whole

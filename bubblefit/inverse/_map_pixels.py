@@ -199,7 +199,7 @@ class TracedCosts:
     """
 
     def __init__(self, lev: Level, table: ParameterTable, vals: dict, env):
-        self.pix = fitted_pixels(lev, CHUNK, whole_chunks=True)
+        self.pix = fitted_pixels(lev, CHUNK, even_chunks=True)
         pad = self.pix.padded
         self.cfg = replace(pad.cfg, effects=replace(lev.cfg.effects, thickness="map"))
         base = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k != "map"}

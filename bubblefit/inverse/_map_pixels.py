@@ -360,7 +360,9 @@ def refine(costs: TracedCosts, centre: np.ndarray, nb: np.ndarray, s: float, hal
     d = centre.astype(np.float64)
     r, j = costs.slopes(d)
     e = energy(d, r)
-    gdata, hgn = 2.0 * np.sum(r * j, axis=1), 2.0 * np.sum(j * j, axis=1)
+    # each pixel's data gradient 2 r.j and Gauss-Newton curvature 2 j.j
+    data_terms = lambda r, j: (2.0 * np.sum(r * j, axis=1), 2.0 * np.sum(j * j, axis=1))
+    gdata, hgn = data_terms(r, j)
     secant = None  # each pixel's curvature along the last accepted step (NaN: Gauss-Newton's)
     lam = 1e-3
     for _ in range(steps):
@@ -375,7 +377,7 @@ def refine(costs: TracedCosts, centre: np.ndarray, nb: np.ndarray, s: float, hal
             observe(d, trial, hdiag, lam, e, e2)
         if e2 <= e:
             moved = _step_size(trial - d)
-            g2, h2 = 2.0 * np.sum(r2 * j2, axis=1), 2.0 * np.sum(j2 * j2, axis=1)
+            g2, h2 = data_terms(r2, j2)
             secant = _secant_curvature(d, trial, gdata, g2, h2)
             d, r, j, e, gdata, hgn, lam = trial, r2, j2, e2, g2, h2, max(lam / 3.0, 1e-6)
             if stop and moved < REFINE_TOL_NM:
@@ -391,6 +393,6 @@ def refine(costs: TracedCosts, centre: np.ndarray, nb: np.ndarray, s: float, hal
                 break
             lam *= 4.0
     cnt = has.sum(axis=1)
-    curv = np.sum(j * j, axis=1) + cnt * inv_s2  # E''/2 of each pixel, neighbours held
+    curv = 0.5 * hgn + cnt * inv_s2  # E''/2 of each pixel, neighbours held
     err = np.where(curv > 0, 1.0 / np.sqrt(np.where(curv > 0, curv, 1.0)), np.nan)
     return d, err, np.sum(r * r, axis=1)

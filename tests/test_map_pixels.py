@@ -125,6 +125,23 @@ def test_diagonal_jacobian_matches_differences(env, level):
     assert not np.allclose(r2, r)  # the thickness changed the residuals
 
 
+def test_costs_at_a_few_pixels_equal_the_levels(env, level):
+    """The costs of a few of a level's pixels, their rays traced on their own
+    (:meth:`TracedCosts.at`, AT_CHUNK at a time: 70 pixels take two calls), equal the whole
+    level's at those pixels: a pixel's rays do not depend on the others' (the same
+    programs' float32 rounding on other chunk lengths)."""
+    from bubblefit.inverse import TracedCosts, profile_map
+    from bubblefit.inverse._map_pixels import AT_CHUNK
+
+    st, lev, vals = level
+    sel = lev.mask.reshape(-1)
+    d = profile_map(lev, (300.0, 900.0, 1.0)).reshape(-1)[sel]
+    cand = d[None] + np.array([-60.0, -20.0, 0.0, 35.0])[:, None]  # the batch of the tests above
+    costs = TracedCosts(lev, st.table, vals, env)
+    cols = np.sort(np.random.default_rng(3).choice(d.size, AT_CHUNK + 6, replace=False))
+    np.testing.assert_allclose(costs.at(cand[:, cols], cols), costs(cand)[:, cols], rtol=1e-5, atol=1e-4)
+
+
 def test_kept_rays_read_at_another_exposure_and_profile(env, level):
     """A level traced before at the same values but the exposure and the drainage profile
     reads the kept rays (no second trace), and its slopes and costs equal those of a fresh
@@ -214,6 +231,50 @@ def test_refine_takes_each_pixels_secant_curvature():
     d, err, chi = refine(costs, t + 8.0, nb, 1e3, 24.0)  # a smoothness scale far above the steps
     assert np.abs(d - t).max() < 0.01
     assert costs.calls <= REFINE_STEPS
+
+
+class _WellCosts:
+    """Per-pixel data chi^2 ``3 ((d - t_p) / 4)^2`` (one minimum per pixel, at ``t_p``),
+    with :meth:`~bubblefit.inverse._map_pixels.TracedCosts.at`'s call for a few pixels;
+    the pixels each call scores are kept."""
+
+    def __init__(self, t):
+        self.t, self.scored = t, []
+
+    def __call__(self, d):
+        self.scored.append(np.arange(d.shape[1]))
+        return 3.0 * ((d - self.t) / 4.0) ** 2
+
+    def at(self, d, cols):
+        self.scored.append(cols)
+        return 3.0 * ((d - self.t[cols]) / 4.0) ** 2
+
+
+def test_narrow_coarse_level_chooses_as_the_full_grid():
+    """The coarse level scored first within +-24 nm of the prior (a held frame's
+    ``narrow``): where each pixel's energy has one minimum, the map, its standard errors and
+    costs equal the full grid's exactly (the same candidates and costs), a feature 50 nm
+    off the prior has its pixels (and those ICM drew to the window's edge) scored over the
+    whole grid, and the rest only within the window."""
+    from bubblefit.inverse._maps import _level_map
+
+    h = w = 12
+    mask = np.ones((h, w), bool)
+    ii, jj = np.mgrid[0:h, 0:w]
+    t = 500.0 + 0.8 * (ii - jj) + np.where((ii - 4) ** 2 + (jj - 6) ** 2 <= 4, 50.0, 0.0)
+    t = t.reshape(-1)
+    prior = np.full(t.size, 500.0)
+    lev = type("L", (), {"mask": mask})
+    full = _level_map(lev, _WellCosts(t), prior, 8.0, 4.0, 80.0, prior=prior, prior_nm=150.0)
+    costs = _WellCosts(t)
+    narrow = _level_map(lev, costs, prior, 8.0, 4.0, 80.0, prior=prior, prior_nm=150.0, first=24.0)
+    for a, b in zip(narrow, full):
+        np.testing.assert_array_equal(a, b)
+    whole = np.concatenate(costs.scored[1:])
+    feature = np.flatnonzero(t > 530.0)
+    assert np.isin(feature, whole).all()  # every feature pixel scored over the whole grid
+    assert whole.size < 0.5 * t.size  # the rest within the window only
+    assert np.all(full[0][feature] - prior[feature] > 24.0)  # the feature's map lies beyond the window
 
 
 def test_map_levels_chunked_evenly():

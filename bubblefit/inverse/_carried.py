@@ -147,7 +147,8 @@ def carried_map(st, opts: FitOptions, env, carried: dict) -> CarriedMap | str:
     (``carried``, :func:`carried_record`), or why the full solve must run instead.
 
     The map is built coarse to fine as a solved frame's (from the warm start's
-    extrapolated profile); the exposure then gets its closed-form step when its score test
+    extrapolated profile, whose coarsest level scores first only the candidates near it:
+    :func:`fit_map`'s ``narrow``); the exposure then gets its closed-form step when its score test
     says it moved (:func:`exposure_step`, :data:`EXPOSURE_TEST_ALPHA`; the map's pixels and
     the exposure's column are shaded from the rays its finest level traced, :func:`_shaded`),
     and the map is refined once more at the new exposure, at full resolution from itself. The drainage profile is fitted to the map (the rear
@@ -165,7 +166,8 @@ def carried_map(st, opts: FitOptions, env, carried: dict) -> CarriedMap | str:
         if not full.mask.any():
             return "no film pixels"
         kept = []
-        dmap, emap, map_ok = fit_map(full, table, vals, prof, opts, env, make_level=make, start=st.map_start, kept=kept)
+        dmap, emap, map_ok = fit_map(full, table, vals, prof, opts, env, make_level=make, start=st.map_start, kept=kept,
+                                     narrow=True)
         img, column = _shaded(full, kept, table, vals, dmap, opts, env)
         fit, _ = map_misfit(full, img, opts)
         e = float(vals["exposure"])

@@ -36,6 +36,9 @@ __all__ = ["TracedCosts", "refine", "CHUNK", "REFINE_STEPS", "REFINE_TOL_NM", "R
 
 #: Pixels per traced chunk (the renderer's chunks are of this order).
 CHUNK = 512
+#: Pixels per call of :meth:`TracedCosts.at` (the least
+#: :func:`~bubblefit.inverse._programs.pixel_bucket`: one chunk's programs serve every count).
+AT_CHUNK = 64
 
 
 def _predict(cfg, traced, d):
@@ -196,10 +199,13 @@ class TracedCosts:
     ``vals`` the fitted values (exposure, profile under the map, ...); the photo's
     background (``lev.bg``) enters as the renderer takes it. Calling with ``d`` (G, P)
     (``P`` the level's mask pixels, in the order of ``lev.mask.reshape(-1)``) gives (G, P).
+    ``mask``: the pixels compared, if not the level's (:meth:`at`).
     """
 
-    def __init__(self, lev: Level, table: ParameterTable, vals: dict, env):
-        self.pix = fitted_pixels(lev, CHUNK, even_chunks=True)
+    def __init__(self, lev: Level, table: ParameterTable, vals: dict, env, mask: np.ndarray | None = None):
+        self._args = (lev, table, vals, env)
+        self._keep = mask is None  # a level's rays are kept (:func:`_kept_trace`), a few pixels' are not
+        self.pix = fitted_pixels(lev, CHUNK, mask, even_chunks=True)
         pad = self.pix.padded
         self.cfg = replace(pad.cfg, effects=replace(lev.cfg.effects, thickness="map"))
         base = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k != "map"}
@@ -226,6 +232,20 @@ class TracedCosts:
         out = _stored_programs(self.cfg)[0](*self._traced_args(), jnp.asarray(cand), self.y, self.w * self.w)
         return np.moveaxis(np.asarray(out), 1, 0).reshape(d.shape[0], -1)[:, :self.n]
 
+    def at(self, d: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """(G, len(cols)) chi^2 of candidate thicknesses ``d`` (G, len(cols)) at the level's
+        pixels ``cols`` alone (indices into its ``P``, ascending): those pixels' rays traced
+        on their own (not kept), :data:`AT_CHUNK` at a time, so that one program of each
+        ``G`` serves every count."""
+        lev = self._args[0]
+        flat = np.flatnonzero(lev.mask.reshape(-1))[np.asarray(cols)]
+        out = np.empty(d.shape, np.float32)
+        for s in range(0, flat.size, AT_CHUNK):
+            mask = np.zeros(lev.mask.size, bool)
+            mask[flat[s:s + AT_CHUNK]] = True
+            out[:, s:s + AT_CHUNK] = TracedCosts(*self._args, mask=mask.reshape(lev.mask.shape))(d[:, s:s + AT_CHUNK])
+        return out
+
     def slopes(self, d: np.ndarray):
         """``(r, j)``, (P, 3) each: the weighted residual of each pixel at thickness ``d`` (P,)
         and its derivative in that pixel's thickness (the map's diagonal Jacobian). The
@@ -241,7 +261,7 @@ class TracedCosts:
         pix = self.pix
         args = (self.p, self.env, self.bg, pix.rows, pix.cols, pix.idx)
         if self._traced is None:
-            self._traced = _kept_trace(self.cfg, args)
+            self._traced = _kept_trace(self.cfg, args) if self._keep else _stored_programs(self.cfg)[1](*args)
         return (*args, self._traced)
 
     def pixels(self, d: np.ndarray, table: ParameterTable, vals: dict) -> tuple[np.ndarray, np.ndarray]:

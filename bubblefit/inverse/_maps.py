@@ -13,7 +13,10 @@ little better. A soap film is smooth apart from real features, so the map is bui
    first, has settled the interference order, so the coarsest level searches a window
    of +-:data:`WINDOW_NM` (less than half an order) around it, with a Gaussian prior of
    ``MapSettings.prior_nm`` towards it; each finer level searches the same window
-   around the coarser map, so no pixel can take a neighbouring order. (Scoring every
+   around the coarser map, so no pixel can take a neighbouring order (a sequence's frame
+   that holds the global parameters scores first only the finest level's window of the
+   profile extrapolated from the frames before, and the rest at the pixels whose choice
+   reaches its edge: :func:`fit_map`'s ``narrow``). (Scoring every
    thickness of the range on the coarsest level let a model error between renderers pick
    the next order in whole regions: on independent photos 50% of the film was off by
    one order: development cases ref_drain_lin_courtyard, ref_drain_lin_city, ref_bump_sunrise, cyc_drain_lin_sunrise in experiments/validation/split.toml.)
@@ -76,6 +79,9 @@ COARSE_RADIUS = 12.0
 #: Half-width of the search window around the coarser level's map (nm): under half the
 #: ~200 nm between interference orders of green light in a film of n = 1.4.
 WINDOW_NM = 80.0
+#: Half-width of the finest level's window around the coarser map, in steps of the
+#: coarse grid (``SolverSettings.search_step_nm``).
+FINE_HALF_STEPS = 6
 #: Step of the finest level's grid (nm).
 FINE_STEP_NM = 2.0
 #: Sweeps of iterated conditional modes per level.
@@ -201,20 +207,43 @@ def _upsample(coarse: Level, cmap: np.ndarray, fine: Level) -> np.ndarray:
     return ndi.map_coordinates(filled, coords, order=1, mode="nearest")
 
 
-def _level_map(lev, costs_of, centre, s, step, half, prior=None, prior_nm=None):
+def _level_map(lev, costs_of, centre, s, step, half, prior=None, prior_nm=None, first=None):
     """One pyramid level: candidates ``centre +- half`` in ``step`` around each pixel's
     ``centre`` (P,), a Gaussian prior of width ``prior_nm`` around ``prior`` (P,) if given,
     ICM, and the sub-grid parabola.
+
+    ``first``: score first only the candidates within ``+-first`` of the centre (``costs_of``
+    then has :meth:`~bubblefit.inverse._map_pixels.TracedCosts.at`); a pixel whose start
+    (its best candidate with the prior) or whose ICM choice lies next to a candidate not
+    scored has all its candidates scored, and the choice is made again, until none does:
+    a choice inside the window then has its neighbouring candidates and those of its start
+    scored, as the full grid would (a minimum the window holds, not necessarily the
+    global one of a pixel whose energy has another minimum outside it).
     Returns ``(map over the mask, stderr, data chi^2 at the optimum)``."""
     nb, parity = _neighbours(lev.mask)
     offs = np.arange(-half, half + 1e-9, step)
     d = np.maximum(centre[None, :] + offs[:, None], 0.0)
     extra = 0.0 if prior is None else ((d - prior[None, :]) / prior_nm) ** 2
-    cost = costs_of(d)
-    energy0 = cost + extra
-    # start from each pixel's best candidate with the prior, or from the coarser map (offset 0)
-    start = np.argmin(energy0, axis=0) if prior is not None else np.full(d.shape[1], d.shape[0] // 2)
-    pick = _icm(d, energy0, nb, parity, s, start)
+    inner = np.ones(offs.size, bool) if first is None else np.abs(offs) <= first + 1e-9
+    cost = np.full(d.shape, np.inf)
+    cost[inner] = costs_of(d[inner])
+    while True:
+        energy0 = cost + extra
+        # start from each pixel's best candidate with the prior, or from the coarser map (offset 0)
+        start = np.argmin(energy0, axis=0) if prior is not None else np.full(d.shape[1], d.shape[0] // 2)
+        pick = _icm(d, energy0, nb, parity, s, start)
+        if inner.all():
+            break
+        # the pixels whose start or choice lies next to a candidate not scored
+        unscored = np.pad(~np.isfinite(cost), ((1, 1), (0, 0)))
+        cols = np.arange(d.shape[1])
+        edge = np.zeros(d.shape[1], bool)
+        for k in (start, pick):
+            edge |= unscored[k, cols] | unscored[k + 2, cols]
+        more = np.flatnonzero(edge)
+        if more.size == 0:
+            break
+        cost[np.ix_(~inner, more)] = costs_of.at(d[~inner][:, more], more)
     # the parabola through the full energy (data + smoothness, neighbours fixed) at pick -1, 0, +1
     cols = np.arange(d.shape[1])
     cur = d[pick, cols]
@@ -272,7 +301,7 @@ def warm_centre(lev: Level, prof, start) -> np.ndarray | None:
 
 
 def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts: FitOptions, env, make_level=None,
-            start=None, kept: list | None = None):
+            start=None, kept: list | None = None, narrow: bool = False):
     """Per-pixel thickness (h, w), its standard error (h, w), and whether the map is sound.
 
     ``lev`` is the full-resolution level, ``prof`` the fitted drainage profile the map
@@ -282,7 +311,12 @@ def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts: FitOption
     skipped and only the finest level is refined around it (the same window and solve
     as after a coarser level). ``kept``: a list the finest level's costs
     (:class:`~bubblefit.inverse._map_pixels.TracedCosts`, its rays traced) are appended to,
-    for the caller to shade the map's pixels without tracing them again.
+    for the caller to shade the map's pixels without tracing them again. ``narrow``: the
+    profile ``prof`` is already close to the map (a sequence's frame that holds the global
+    parameters, its profile extrapolated from the frames before): the coarsest level of a
+    traced map scores first only the candidates within the finest level's window of it
+    (:data:`FINE_HALF_STEPS` grid steps), and the rest at the pixels whose choice reaches
+    the window's edge (:func:`_level_map`'s ``first``).
     """
     exact = search.exact_paper_search(lev.cfg) and isinstance(lev.cfg.camera, OrthographicCamera)
     hi = opts.thickness_range[1]
@@ -301,13 +335,15 @@ def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts: FitOption
         if prev is None and warm is None:
             # the drainage profile has settled the interference order: the coarsest level
             # searches within less than half an order of it, with the profile's prior
-            best, err, c = _level_map(L, costs_of, prior, s, opts.solver.search_step_nm, WINDOW_NM, prior=prior,
-                                      prior_nm=float(opts.map.prior_nm))
+            grid = opts.solver.search_step_nm
+            first = FINE_HALF_STEPS * grid if narrow and not exact else None
+            best, err, c = _level_map(L, costs_of, prior, s, grid, WINDOW_NM, prior=prior,
+                                      prior_nm=float(opts.map.prior_nm), first=first)
         else:
             centre = (warm if warm is not None else _upsample(prev, prev_map, L)).reshape(-1)[sel]
             # the finest level refines within a few coarse steps; the order is settled by then
             grid = opts.solver.search_step_nm
-            step, half = (FINE_STEP_NM, 6 * grid) if k == 1 else (grid, WINDOW_NM)
+            step, half = (FINE_STEP_NM, FINE_HALF_STEPS * grid) if k == 1 else (grid, WINDOW_NM)
             if k == 1 and not exact and FINE_SOLVE == "newton":
                 # each pixel's thickness moves its own pixel only: Gauss-Newton with a diagonal
                 # Jacobian and the smoothness prior's sparse Laplacian, not a grid of renders

@@ -801,6 +801,33 @@ def test_the_correlation_area_of_a_field_of_known_correlation(shared):
     assert abs(white - 1.0) < 4 * math.sqrt(_summed_variance(np.pad([[1.0]], 16), k_white, h * w) / 3) + 1e-9
 
 
+def test_the_pair_counts_of_a_mask_are_counted_once():
+    """Two residuals over one mask (a disc, a corner of it left out in one channel) count
+    the mask's pairs once (the second reads them), with the areas of a fresh count; the
+    counts are whole pairs: at lag 0 each channel pair's shared entries, and nowhere more
+    than the mask holds."""
+    from bubblefit.inverse import _uncertainty as U
+
+    rng = np.random.default_rng(5)
+    ii, jj = np.mgrid[0:40, 0:48]
+    used = np.repeat((((ii - 20) ** 2 + (jj - 24) ** 2) < 17**2)[..., None], 3, axis=2)
+    used[:8, :8, 1] = False
+    fields = [rng.standard_normal(used.shape) for _ in range(2)]
+    U._pair_counts.cache_clear()
+    fresh = []
+    for f in fields:
+        fresh.append(U.correlation_area(f, used))
+        U._pair_counts.cache_clear()
+    got = [U.correlation_area(f, used) for f in fields]
+    assert got == fresh
+    assert U._pair_counts.cache_info().hits == 1
+    pairs = U._pair_counts(used.shape, np.packbits(used).tobytes())
+    lag0 = np.einsum("hwa,hwb->ab", used.astype(float), used.astype(float))
+    np.testing.assert_array_equal(pairs[0, 0], lag0)
+    assert pairs.max() == lag0.max()
+    U._pair_counts.cache_clear()
+
+
 def test_a_correlated_residual_widens_the_views_error():
     """divergence_profile with a correlation area A: Delta chi^2 = A (n data carry the
     information of n / A independent ones), so the standard error is sqrt(A) times the

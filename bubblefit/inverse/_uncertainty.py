@@ -65,6 +65,7 @@ still use every pixel.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -197,14 +198,28 @@ def residual_misfit(r: np.ndarray, lev: Level, model_error: float, n_free: int, 
 
 def _correlations(x: np.ndarray, m: np.ndarray) -> np.ndarray:
     """``(c, c, 2h, 2w)``: the mean product ``<x_a(p) x_b(p + lag)>`` over the pairs of
-    used pixels ``m`` at each lag (FFT with zero padding; wrapped lags, 0 where no pair)."""
+    used pixels ``m`` at each lag (FFT with zero padding; wrapped lags, 0 where no pair;
+    the pair counts :func:`_pair_counts`)."""
     h, w, _ = x.shape
     fx = np.fft.rfft2(x, s=(2 * h, 2 * w), axes=(0, 1))
-    fm = np.fft.rfft2(m, s=(2 * h, 2 * w), axes=(0, 1))
     prod = np.fft.irfft2(np.conj(fx)[..., :, None] * fx[..., None, :], s=(2 * h, 2 * w), axes=(0, 1))
-    pairs = np.fft.irfft2(np.conj(fm)[..., :, None] * fm[..., None, :], s=(2 * h, 2 * w), axes=(0, 1))
-    pairs = np.rint(pairs)
+    pairs = _pair_counts(m.shape, np.packbits(np.asarray(m, bool)).tobytes())
     return np.moveaxis(np.where(pairs > 0.5, prod / np.maximum(pairs, 1.0), 0.0), (2, 3), (0, 1))
+
+
+@functools.lru_cache(maxsize=4)
+def _pair_counts(shape: tuple, packed: bytes) -> np.ndarray:
+    """``(2h, 2w, c, c)``: the number of pairs of used entries ``(a at p, b at p + lag)`` at
+    each lag of the mask (``shape`` (h, w, c), its entries packed by ``np.packbits``), the
+    autocorrelation of the mask by FFT with zero padding (Wiener-Khinchin), rounded to
+    whole pairs. It depends on the mask alone, so the residuals of one mask (a sequence's
+    frames that hold the disc, a frame's two misfits) count its pairs once (read-only)."""
+    h, w, _ = shape
+    m = np.unpackbits(np.frombuffer(packed, np.uint8), count=int(np.prod(shape))).reshape(shape).astype(np.float64)
+    fm = np.fft.rfft2(m, s=(2 * h, 2 * w), axes=(0, 1))
+    pairs = np.rint(np.fft.irfft2(np.conj(fm)[..., :, None] * fm[..., None, :], s=(2 * h, 2 * w), axes=(0, 1)))
+    pairs.flags.writeable = False
+    return pairs
 
 
 def correlation_area(field: np.ndarray, used: np.ndarray) -> tuple[float, int]:

@@ -74,7 +74,7 @@ from typing import Any, Callable
 from .atomic import os_reason
 from .jaxcache import jax_settings, private_folder, store_enabled, warn_once, ynn_fusion_setting
 
-__all__ = ["Stored", "stored", "source_digest"]
+__all__ = ["Stored", "deferred", "stored", "source_digest"]
 
 #: Folder, under the compilation cache's, that holds the stored executables.
 FOLDER = "executables"
@@ -426,6 +426,35 @@ class Stored:
             return self.jitted(*args)
         self.loaded[key] = fn
         return out
+
+
+class _Deferred:
+    """A jitted function that :func:`deferred` builds at its first call or lowering."""
+
+    def __init__(self, make: Callable[[], Callable]):
+        self.make, self.built = make, None
+
+    def function(self) -> Callable:
+        if self.built is None:
+            self.built = self.make()
+        return self.built
+
+    def __call__(self, *args):
+        return self.function()(*args)
+
+    def lower(self, *args):
+        return self.function().lower(*args)
+
+
+def deferred(make: Callable[[], Callable]) -> Callable:
+    """A jitted function for :func:`stored` that ``make()`` builds where it is first called
+    or lowered, not before: a program the store holds is loaded and run without it, so
+    what only its tracing needs (the local solves' optimistix, equinox and lineax, about
+    0.25 s of CPU to import: :mod:`bubblefit.inverse._lm_solver`) is never imported by a
+    process whose programs are all stored. ``make`` may run in a compile thread
+    (:meth:`Stored.prepare`) as well as the caller's: it must give the same function
+    whichever calls it (a cached builder)."""
+    return _Deferred(make)
 
 
 def stored(jitted: Callable, name: str, static: Any) -> Stored:

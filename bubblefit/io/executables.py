@@ -74,7 +74,7 @@ from typing import Any, Callable
 from .atomic import os_reason
 from .jaxcache import jax_settings, private_folder, store_enabled, warn_once, ynn_fusion_setting
 
-__all__ = ["Stored", "deferred", "stored", "source_digest"]
+__all__ = ["Stored", "deferred", "stored", "source_digest", "wait_for_compiles"]
 
 #: Folder, under the compilation cache's, that holds the stored executables.
 FOLDER = "executables"
@@ -464,6 +464,15 @@ def stored(jitted: Callable, name: str, static: Any) -> Stored:
     determine, with the source, everything the function closes over. Call it with
     concrete arrays, not under a transformation (use ``jitted`` there)."""
     return Stored(jitted, name, static)
+
+
+def wait_for_compiles() -> None:
+    """Wait until the compile threads (:meth:`Stored.prepare`) have finished their work,
+    the programs they compiled stored: what the interpreter's exit would wait for
+    (:func:`bubblefit.cli.main` ends a command's process without that exit)."""
+    if _compile_thread.cache_info().currsize:
+        _compile_thread().shutdown(wait=True)
+        _compile_thread.cache_clear()
 
 
 @functools.lru_cache(maxsize=1)

@@ -435,14 +435,17 @@ class _Deferred:
         self.make, self.built = make, None
 
     def function(self) -> Callable:
+        """The jitted function, built by ``make()`` at the first need."""
         if self.built is None:
             self.built = self.make()
         return self.built
 
     def __call__(self, *args):
+        """The jitted function called (a plain call: the store is off or fell back)."""
         return self.function()(*args)
 
     def lower(self, *args):
+        """The jitted function lowered for ``args`` (a compile: :func:`_fetch`, :func:`_compile`)."""
         return self.function().lower(*args)
 
 

@@ -340,13 +340,14 @@ def stage(name, **k):
         rec[i] = (depth, name, round(time.perf_counter() - t0, 3), round(time.process_time() - c0, 3))
 
 progress.stage = stage
-from bubblefit.cli import main
-rc = 1
-try:
-    rc = main(sys.argv[1:])
-finally:
+
+def report():
     print("STAGES_JSON " + json.dumps({"stages": [r for r in rec if r], "cpu_s": time.process_time()}), file=sys.stderr)
-sys.exit(rc)
+
+import atexit
+atexit.register(report)  # the process's last words, however the command ends it
+from bubblefit.cli import main
+sys.exit(main())  # as the ``bubblefit`` script calls it: the command line is sys.argv[1:]
 """
 
 

@@ -1002,3 +1002,37 @@ def test_a_disc_with_300_digits_is_one_short_line(how, files, tmp_path, capsys):
     rc, _, err = run_cli(capsys, ["fit", files["photo"], "--envmap", files["env"], *extra])
     line = assert_one_line_error(rc, err)
     assert rc == 2 and len(line) < 300 and "000000000000" not in line, line
+
+
+_END_SCRIPT = """
+import atexit, sys, threading
+from bubblefit import cli
+atexit.register(lambda: print(" exit handler", flush=True))
+print("buffered", end="")  # still in stdout's buffer when the process is ended
+if sys.argv[1] == "thread":  # another thread at work: left to the interpreter's own exit
+    done = threading.Event()
+    worker = threading.Thread(target=done.wait)
+    worker.start()
+    cli._end_process(3)
+    print(" returned", end="")
+    done.set()
+    sys.exit(4)
+cli._end_process(3)
+print(" after the end")
+"""
+
+
+@pytest.mark.parametrize("mode", ["alone", "thread"])
+def test_a_process_ended_by_the_command_line_keeps_its_exit_status_output_and_handlers(mode):
+    """:func:`bubblefit.cli._end_process` (``fit`` and ``render`` run as the process's entry):
+    the status it is given, stdout flushed, the ``atexit`` handlers run, nothing after it;
+    with another thread at work it returns and the interpreter ends as usual."""
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-c", _END_SCRIPT, mode], capture_output=True, text=True, timeout=120)
+    assert r.stderr == ""
+    if mode == "alone":
+        assert (r.returncode, r.stdout) == (3, "buffered exit handler\n")
+    else:
+        assert (r.returncode, r.stdout) == (4, "buffered returned exit handler\n")

@@ -39,6 +39,9 @@ SCRIPT = textwrap.dedent("""
     fn = jax.jit(f)
     if sys.argv[3] in ("store", "prepare"):
         fn = executables.stored(fn, "test.f", (scale,))
+    if sys.argv[3] == "deferred":  # the jitted function built only where it is called or lowered
+        fn = executables.stored(executables.deferred(lambda: print("built", file=sys.stderr) or jax.jit(f)),
+                                "test.f", (scale,))
     a = jnp.arange(16.0).reshape(4, 4) / 10 + jnp.eye(4)
     if sys.argv[3] == "prepare":  # compiled in the background, then called
         fn.prepare(a, jnp.zeros((4, 4)))
@@ -73,8 +76,8 @@ def test_a_new_process_loads_the_program_and_gets_the_same_numbers(tmp_path):
     assert traced == 1 and len(list((cache / "executables").glob("*.bin"))) == 1
     # stored without the traced operations' names (HLO metadata), which a load would parse
     assert b"jit(f)/" not in next((cache / "executables").glob("*.bin")).read_bytes()
-    second, traced, _ = _run(cache, 0.5, "store")  # loads it: no tracing
-    assert traced == 0
+    second, traced, _ = _run(cache, 0.5, "deferred")  # loads it: no tracing, and a deferred function never built
+    assert traced == 0 and "built" not in _LAST_STDERR[0]
     for res in (first, second):
         np.testing.assert_array_equal(res["x"], plain["x"])
         np.testing.assert_array_equal(res["s"], plain["s"])

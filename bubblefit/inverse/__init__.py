@@ -60,7 +60,7 @@ _EXPORTS = {
     "pixel_bucket": "_programs", "render_level": "_programs", "render_bubble": "_programs",
     "bubble_list": "_programs", "solver": "_programs", "solve_pixels": "_programs", "rim_blocks": "_programs",
     # solve: Levenberg-Marquardt and the local solve
-    "LevenbergMarquardt": "_lm", "DenseDampedNewtonDescent": "_lm", "column_jacobian": "_lm",
+    "LevenbergMarquardt": "_lm_solver", "DenseDampedNewtonDescent": "_lm_solver", "column_jacobian": "_lm",
     "scaled_decrement": "_lm", "damped_step_length": "_lm", "gauss_newton_decrement": "_lm", "robust": "_lm",
     "LocalSolution": "_local", "remaining_step": "_local", "improves": "_local",
     # judge: standard errors, the misfit, the verdict

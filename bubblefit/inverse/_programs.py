@@ -24,15 +24,14 @@ from dataclasses import dataclass, replace
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 from scipy import ndimage as ndi
 
 from ._censored import censored_residual
-from ._lm import JACOBIANS, MAX_REJECTIONS, LevenbergMarquardt, robust
+from ._lm import JACOBIANS, MAX_REJECTIONS, robust
 from ._observation import Level
 from ._options import FitOptions, SolverSettings
 from ._parameters import ParameterTable
-from ..io.executables import stored
+from ..io.executables import deferred, stored
 from ..io.jaxcache import ynn_fusions_off_option
 from ..model.geometry import OrthographicCamera, canonical_frame, compose_shift, gauss_offsets, pixel_offsets
 from ..model.programs import prepare_loaded, render_loaded
@@ -440,6 +439,11 @@ def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_st
             w = w * jax.lax.rsqrt(1.0 + (w * carried) ** 2)
         return robust(-censored_residual(y, img) * w, robust_scale).reshape(-1)
 
+    # imported here, where a solve is traced: a stored solve runs without them (:mod:`._lm_solver`)
+    import optimistix as optx
+
+    from ._lm_solver import LevenbergMarquardt
+
     lm = LevenbergMarquardt(rtol=rtol, atol=atol, max_rejections=max_rejections, free=table.free,
                             jacobian=JACOBIANS[jacobian](resid, table))
 
@@ -462,7 +466,7 @@ def solver(cfg: RenderConfig, table: ParameterTable, robust_scale: float, max_st
 def stored_solver(*key):
     """:func:`solver`'s ``solve`` through the executable store (:func:`bubblefit.io.executables.stored`):
     a new process loads the compiled solve instead of tracing it again."""
-    return stored(solver(*key)[0], "inverse._programs.solver", key)
+    return stored(deferred(lambda: solver(*key)[0]), "inverse._programs.solver", key)
 
 
 @functools.lru_cache(maxsize=16)

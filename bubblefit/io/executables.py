@@ -74,7 +74,7 @@ from typing import Any, Callable
 from .atomic import os_reason
 from .jaxcache import jax_settings, private_folder, store_enabled, warn_once, ynn_fusion_setting
 
-__all__ = ["Stored", "stored", "source_digest"]
+__all__ = ["Stored", "deferred", "stored", "source_digest", "wait_for_compiles"]
 
 #: Folder, under the compilation cache's, that holds the stored executables.
 FOLDER = "executables"
@@ -428,6 +428,38 @@ class Stored:
         return out
 
 
+class _Deferred:
+    """A jitted function that :func:`deferred` builds at its first call or lowering."""
+
+    def __init__(self, make: Callable[[], Callable]):
+        self.make, self.built = make, None
+
+    def function(self) -> Callable:
+        """The jitted function, built by ``make()`` at the first need."""
+        if self.built is None:
+            self.built = self.make()
+        return self.built
+
+    def __call__(self, *args):
+        """The jitted function called (a plain call: the store is off or fell back)."""
+        return self.function()(*args)
+
+    def lower(self, *args):
+        """The jitted function lowered for ``args`` (a compile: :func:`_fetch`, :func:`_compile`)."""
+        return self.function().lower(*args)
+
+
+def deferred(make: Callable[[], Callable]) -> Callable:
+    """A jitted function for :func:`stored` that ``make()`` builds where it is first called
+    or lowered, not before: a program the store holds is loaded and run without it, so
+    what only its tracing needs (the local solves' optimistix, equinox and lineax, about
+    0.25 s of CPU to import: :mod:`bubblefit.inverse._lm_solver`) is never imported by a
+    process whose programs are all stored. ``make`` may run in a compile thread
+    (:meth:`Stored.prepare`) as well as the caller's: it must give the same function
+    whichever calls it (a cached builder)."""
+    return _Deferred(make)
+
+
 def stored(jitted: Callable, name: str, static: Any) -> Stored:
     """``jitted`` (a :func:`jax.jit` function called with arrays only) through the store:
     the first call with a new key loads its executable from disk, or compiles and saves it;
@@ -435,6 +467,15 @@ def stored(jitted: Callable, name: str, static: Any) -> Stored:
     determine, with the source, everything the function closes over. Call it with
     concrete arrays, not under a transformation (use ``jitted`` there)."""
     return Stored(jitted, name, static)
+
+
+def wait_for_compiles() -> None:
+    """Wait until the compile threads (:meth:`Stored.prepare`) have finished their work,
+    the programs they compiled stored: what the interpreter's exit would wait for
+    (:func:`bubblefit.cli.main` ends a command's process without that exit)."""
+    if _compile_thread.cache_info().currsize:
+        _compile_thread().shutdown(wait=True)
+        _compile_thread.cache_clear()
 
 
 @functools.lru_cache(maxsize=1)

@@ -443,3 +443,29 @@ def test_the_jaxlib_version_is_read_without_importing_it(monkeypatch):
 
     monkeypatch.delitem(sys.modules, "jaxlib")  # as before JAX is imported
     assert jaxcache._jaxlib_version() == metadata.version("jaxlib")
+
+
+def test_pruning_skips_files_another_process_removed(tmp_path, monkeypatch):
+    """Two processes sharing the store prune it at once: a file listed by one and removed by
+    the other before it is read must not stop the pruning (nor be reported as a failed write),
+    and the oldest files still present go first until the folder fits its limit."""
+    from pathlib import Path
+
+    from bubblefit.io import executables
+
+    sizes = [100, 100, 100]
+    paths = []
+    for k, size in enumerate(sizes):
+        p = tmp_path / f"p{k}.bin"
+        p.write_bytes(b"x" * size)
+        os.utime(p, (1000.0 + k, 1000.0 + k))  # p0 is the least recently used
+        paths.append(p)
+    gone = tmp_path / "gone.bin"  # listed, but removed before it is read
+    listing = Path.glob
+
+    def glob_with_a_vanished_file(self, pattern):
+        return [gone] + list(listing(self, pattern))
+
+    monkeypatch.setattr(Path, "glob", glob_with_a_vanished_file)
+    executables._prune(tmp_path, limit_bytes=150)
+    assert [p.exists() for p in paths] == [False, False, True]

@@ -624,11 +624,20 @@ def _persistent_cache(on: bool):
 
 
 def _prune(folder: Path, limit_bytes: int = MAX_BYTES) -> None:
-    """Delete the least recently used executables while the folder holds over ``limit_bytes``."""
-    files = sorted(folder.glob("*.bin"), key=lambda p: p.stat().st_atime)
-    total = sum(p.stat().st_size for p in files)
-    for old in files:
+    """Delete the least recently used executables while the folder holds over ``limit_bytes``.
+    Another process sharing the store may prune it at the same time: a file that is gone
+    when it is read or removed is skipped, not an error."""
+    entries = []
+    for p in folder.glob("*.bin"):
+        try:
+            st = p.stat()
+        except FileNotFoundError:  # removed by another process since the listing
+            continue
+        entries.append((st.st_atime, st.st_size, p))
+    entries.sort(key=lambda e: e[0])
+    total = sum(size for _, size, _ in entries)
+    for _, size, old in entries:
         if total <= limit_bytes:
             break
-        total -= old.stat().st_size
+        total -= size
         old.unlink(missing_ok=True)

@@ -298,7 +298,7 @@ def test_map_levels_chunked_evenly():
         mask = mask.reshape(h, w)
         one = np.ones((h, w, 3), np.float32)
         lev = Level(1, cfg, one, one * mask[..., None], None, mask, mask, np.ones((h, w)), np.zeros((h, w)))
-        px = fitted_pixels(lev, CHUNK, even_chunks=True)
+        px = fitted_pixels(lev, CHUNK, layout="even")
         steps, size = px.rows.shape
         share = -(-n // steps)
         assert size <= CHUNK and steps == -(-n // CHUNK)  # the fewest chunks of at most CHUNK

@@ -205,7 +205,7 @@ class TracedCosts:
     def __init__(self, lev: Level, table: ParameterTable, vals: dict, env, mask: np.ndarray | None = None):
         self._args = (lev, table, vals, env)
         self._keep = mask is None  # a level's rays are kept (:func:`_kept_trace`), a few pixels' are not
-        self.pix = fitted_pixels(lev, CHUNK, mask, even_chunks=True)
+        self.pix = fitted_pixels(lev, CHUNK, mask, layout="even")
         pad = self.pix.padded
         self.cfg = replace(pad.cfg, effects=replace(lev.cfg.effects, thickness="map"))
         base = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k != "map"}

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, replace
+from typing import Literal
 
 import jax
 import jax.numpy as jnp
@@ -161,26 +162,28 @@ def _even_chunks(count: int, chunk: int) -> tuple[int, int]:
     return steps, min(chunk, pixel_bucket(-(-int(count) // steps)))
 
 
-def fitted_pixels(lev: Level, chunk: int, mask: np.ndarray | None = None, *, whole_chunks: bool = False,
-                  even_chunks: bool = False) -> Pixels:
+def fitted_pixels(lev: Level, chunk: int, mask: np.ndarray | None = None, *,
+                  layout: Literal["bucket", "whole", "even"] = "bucket") -> Pixels:
     """The pixels of ``lev`` a fit compares (its mask, or ``mask``), listed in the padded level
-    (:func:`padded`): their count rounded up to :func:`pixel_bucket`, or with
-    ``whole_chunks`` to a multiple of ``chunk``, the list padded by repeating its last pixel
-    with weight 0, and split into chunks of at most ``chunk``. With ``even_chunks`` the list
-    takes the fewest chunks of at most ``chunk`` (as ``whole_chunks``), each of the length
-    :func:`pixel_bucket` gives its share of the pixels (:func:`_even_chunks`).
+    (:func:`padded`), the list padded by repeating its last pixel with weight 0 and split into
+    chunks of at most ``chunk``. The padded count (``layout``): ``"bucket"``, the pixels'
+    count rounded up to :func:`pixel_bucket`; ``"whole"``, a multiple of ``chunk`` (a program
+    per chunk serves every count); ``"even"``, the fewest chunks of at most ``chunk``, each of
+    the length :func:`pixel_bucket` gives its share of the pixels (:func:`_even_chunks`).
     A solve renders these alone: on a disc that fills 55 % of its level, about half the
     pixels of the padded image."""
     pad = padded(lev)
     w, wb = lev.y.shape[1], pad.cfg.shape[1]
     flat = np.flatnonzero((lev.mask if mask is None else mask).reshape(-1))
-    if even_chunks:
+    if layout == "even":
         steps, chunk = _even_chunks(flat.size, chunk)
         n = steps * chunk
-    elif whole_chunks:  # a program per chunk serves every count
+    elif layout == "whole":
         n = max(1, -(-flat.size // chunk)) * chunk
-    else:
+    elif layout == "bucket":
         n = pixel_bucket(flat.size)
+    else:
+        raise ValueError(f"unknown pixel layout {layout!r}")
     steps, size, take = _chunked(flat.size, n, chunk)
     rows, cols = np.divmod(flat[take], w)
     keep = (np.arange(steps * size) < flat.size)[:, None]

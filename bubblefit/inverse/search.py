@@ -397,7 +397,7 @@ def _candidates_generic(lev, table: ParameterTable, vals: dict, grid: np.ndarray
     the fitted pixels: the rays and the map's light traced once, the film's optics per
     thickness (:func:`~bubblefit.model.render.render_pixels_at`), in blocks of
     :data:`CANDIDATE_PIXELS` pixels and :data:`CANDIDATE_THICKNESSES` thicknesses."""
-    pix = fitted_pixels(lev, CANDIDATE_PIXELS, whole_chunks=True)
+    pix = fitted_pixels(lev, CANDIDATE_PIXELS, layout="whole")
     cfg = replace(pix.padded.cfg, effects=replace(lev.cfg.effects, thickness="constant"))
     base = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k != "map"}
     p = table.render_params(dict(base, exposure=jnp.float32(1.0), thickness_nm=jnp.float32(0.0)), "constant")

@@ -41,7 +41,17 @@ Variants (``VARIANTS``), each ONE change from ``cycles`` (the tracer as above):
   mean surface instead of ending the path (the lobe's albedo kept at ``F``);
 * ``no_clamp``: the RGB film not clamped to [0, 1];
 * ``bubblefit_film``: ``film_macro`` and ``airy_exact`` together;
-* ``macro_no_shadowing``: ``film_macro`` and ``no_shadowing`` together.
+* ``macro_no_shadowing``: ``film_macro`` and ``no_shadowing`` together;
+* ``decorrelated``: the film at a second facet drawn independently of the one that
+  reflects (the mean of the film times the mean of the light, not the mean of products);
+* ``ggx_no_shadowing``: no Smith ratio, the paths below the horizon kept (mirrored);
+* ``ward``: the facets drawn from Ward's lobe (Gaussian slopes of variance ``a^2 / 2`` per
+  component, paper eq. 1, ``a`` = GGX's alpha) and weighted by their visible area
+  (:func:`ward_facet`), no Smith ratio (bubblefit's normalised lobe); ``ward_decorrelated``
+  the same with the film at an independent Ward facet (bubblefit's model:
+  ``--film-rgb clamped``);
+* ``ggx_dir_ward_film`` / ``ward_dir_ggx_film``: the directions from GGX's facets and the
+  film at an independent Ward facet, or the other way round.
 
 For each the photo over the render per channel in rings of the disc radius (pixels a fit
 uses: inside 0.96, no clipped channel), the regions of ``rough_misfit.py`` and its chi^2
@@ -84,7 +94,7 @@ COS_GRID = 8001
 #: the sun's texels: above 2 % of the brightest (as cap_glint_paths.py)
 SUN_LEVEL = 0.02
 
-BASE = dict(film_angle="microfacet", series="belcour3", shadowing=True, clamp=True)
+BASE = dict(facets="ggx", film_angle="microfacet", series="belcour3", shadowing=True, clamp=True)
 VARIANTS = {
     "cycles": {},
     "film_macro": dict(film_angle="macro"),
@@ -93,6 +103,12 @@ VARIANTS = {
     "no_clamp": dict(clamp=False),
     "bubblefit_film": dict(film_angle="macro", series="exact"),
     "macro_no_shadowing": dict(film_angle="macro", shadowing=False),
+    "decorrelated": dict(film_angle="independent"),
+    "ggx_no_shadowing": dict(shadowing=False),
+    "ward": dict(facets="ward", shadowing=False),
+    "ward_decorrelated": dict(facets="ward", shadowing=False, film_angle="independent"),
+    "ggx_dir_ward_film": dict(film_angle="independent_ward"),
+    "ward_dir_ggx_film": dict(facets="ward", shadowing=False, film_angle="independent_ggx"),
 }
 
 
@@ -171,6 +187,17 @@ def frame(n: np.ndarray):
     return x, np.cross(n, x)
 
 
+def ward_facet(wi_l: np.ndarray, alpha: float, rng) -> tuple[np.ndarray, np.ndarray]:
+    """A facet of Ward's lobe (paper eq. 1: slopes Gaussian, variance ``alpha^2 / 2`` per
+    component) in the local frame, and its weight as a visible facet: its projected area
+    seen from ``wi`` per unit of the mean surface, ``max(wi . h, 0) / (h_z cos_i)`` (Heitz,
+    JCGT 3(2), 2014, the distribution of visible normals; mean 1 over the slopes)."""
+    s = rng.normal(0.0, alpha / np.sqrt(2.0), (len(wi_l), 2))
+    h = np.stack([-s[:, 0], -s[:, 1], np.ones(len(wi_l))], -1)
+    h /= np.linalg.norm(h, axis=-1, keepdims=True)
+    return h, np.maximum(np.sum(h * wi_l, -1), 0.0) / (h[:, 2] * wi_l[:, 2])
+
+
 # ------------------------------------------------------------------------- the world
 def env_blender(env: np.ndarray, d: np.ndarray) -> np.ndarray:
     """Bilinear map lookup at Blender's texel centres (row i at v = (i + 1/2)/H, column j at
@@ -223,10 +250,24 @@ def trace(truth: dict, env: np.ndarray, table, opts: dict, pixels, spp: int, see
                 cos_ni = np.sum(nrm * wi, -1)
                 tx, ty = frame(nrm)
                 wl = np.stack([np.sum(tx * wi, -1), np.sum(ty * wi, -1), cos_ni], -1)
-                hl = ggx_vndf(wl, alpha, rng.random(len(idx)), rng.random(len(idx)))
+                if opts["facets"] == "ward":
+                    hl, vis = ward_facet(wl, alpha, rng)
+                else:
+                    hl, vis = ggx_vndf(wl, alpha, rng.random(len(idx)), rng.random(len(idx))), np.ones(len(idx))
                 h = hl[:, :1] * tx + hl[:, 1:2] * ty + hl[:, 2:] * nrm
                 cos_hi = np.sum(h * wi, -1)
-                f = film_rgb(table, cos_hi if opts["film_angle"] == "microfacet" else cos_ni)
+                angle = opts["film_angle"]
+                if angle == "independent":
+                    angle = "independent_" + opts["facets"]
+                if angle == "independent_ward":          # the film at a second, independent facet
+                    h2, vis2 = ward_facet(wl, alpha, rng)
+                    vis = vis * vis2
+                elif angle == "independent_ggx":
+                    h2 = ggx_vndf(wl, alpha, rng.random(len(idx)), rng.random(len(idx)))
+                if angle.startswith("independent"):
+                    f = film_rgb(table, np.clip(np.sum(h2 * wl, -1), 0, 1))
+                else:
+                    f = film_rgb(table, cos_hi if angle == "microfacet" else cos_ni)
                 pr = np.clip(f.mean(-1), 1e-6, 1 - 1e-6)
                 refl = rng.random(len(idx)) < pr
                 wo = 2.0 * cos_hi[:, None] * h - wi
@@ -242,7 +283,7 @@ def trace(truth: dict, env: np.ndarray, table, opts: dict, pixels, spp: int, see
                     wo = np.where(below[:, None], mirror, wo)
                     keep = np.ones(len(idx), bool)
                 w = np.where(refl[:, None], f / pr[:, None] * g[:, None], (1 - f) / (1 - pr)[:, None])
-                thr = thr * w
+                thr = thr * w * vis[:, None]
                 nd = np.where(refl[:, None], wo, dv)
                 escape = (front == refl) & keep
                 inside = (front != refl) & keep

@@ -35,7 +35,11 @@ variant says otherwise. Each variant changes ONE thing:
 * ``E_cycles_all_nosun``: ``E_cycles_all`` on the map without its sun
   (``cycles_rim.clip_sun``), to compare with ``cycles_rim.py --clip-sun``;
 * ``E_cycles_walter``: ``E_cycles_all`` with each lobe node weighted as a microfacet BRDF
-  weighs it (:func:`walter_weights`) instead of by Ward's eq. (1).
+  weighs it (:func:`walter_weights`) instead of by Ward's eq. (1);
+* ``E_clamped``: the fit's ``--film-rgb clamped`` (the clamped RGB film averaged over Ward's
+  visible facets, ``model.render.clamped_series``) with the map at Blender's texel centres;
+* ``E_clamped_ggx_facets``: ``E_clamped`` with the film averaged over GGX's visible facets
+  instead (:func:`ggx_facets`; the lobe stays Ward's).
 
 Each variant also gives the thickness change a linearised fit would make to turn the ``E``
 render into it (:func:`thickness_shift`), and the photo's.
@@ -140,6 +144,53 @@ def walter_weights():
         jax.clear_caches()
 
 
+#: GGX facet quadrature of :func:`ggx_facets`: Gauss-Legendre nodes in ``u1``, midpoints in ``u2``
+GGX_FACET_NODES = (16, 4)
+
+
+@contextlib.contextmanager
+def ggx_facets(alpha: float, nodes: tuple = GGX_FACET_NODES):
+    """Within the block ``--film-rgb clamped`` averages its film over the visible facets of
+    GGX's distribution of width ``alpha`` (Walter et al. 2007, eq. 33), as Blender Cycles
+    draws them, instead of Ward's (``optics.brdf.facet_cosines``). Heitz's map of the unit
+    square onto the visible normals (JCGT 7(4), 2018, sections 3-4: the view stretched by
+    ``alpha``, a disc point ``(t1, t2)`` of radius ``sqrt(u1)`` and angle ``2 pi u2`` warped
+    towards the view, lifted onto the hemisphere and unstretched) is uniform in ``(u1, u2)``,
+    so a product rule in ``(u1, u2)`` (Gauss-Legendre in ``u1``; midpoints in the angle over
+    the half the film is even in) gives the nodes ``w_i . h`` and their weights."""
+    import jax
+    import jax.numpy as jnp
+    from bubblefit.optics import brdf
+
+    ward = brdf.facet_cosines
+    x, wx = np.polynomial.legendre.leggauss(nodes[0])
+    angles = (np.arange(nodes[1]) + 0.5) / nodes[1] * np.pi - np.pi / 2
+
+    def ggx(cos_i, _width):
+        c = jnp.clip(jnp.asarray(cos_i), 1e-6, 1.0)
+        s = jnp.sqrt(jnp.maximum(1.0 - c * c, 0.0))
+        norm = jnp.sqrt((alpha * s) ** 2 + c * c)
+        vx, vz = alpha * s / norm, c / norm        # the stretched view; T1 = y, T2 = (-vz, 0, vx)
+        cos_nodes, weights = [], []
+        for u1, w1 in zip(0.5 * (x + 1.0), 0.5 * wx):
+            for phi in angles:
+                t1, t2 = np.sqrt(u1) * np.cos(phi), np.sqrt(u1) * np.sin(phi)
+                t2 = 0.5 * (1.0 - vz) * np.sqrt(1.0 - t1 * t1) + 0.5 * (1.0 + vz) * t2
+                up = jnp.sqrt(jnp.maximum(1.0 - t1 * t1 - t2 * t2, 0.0))
+                hx, hy, hz = alpha * (up * vx - t2 * vz), alpha * t1, jnp.maximum(up * vz + t2 * vx, 0.0)
+                cos_nodes.append(jnp.clip((hx * s + hz * c) / jnp.sqrt(hx * hx + hy * hy + hz * hz), 1e-6, 1.0))
+                weights.append(jnp.full_like(c, w1 / nodes[1]))
+        return cos_nodes, weights
+
+    jax.clear_caches()
+    brdf.facet_cosines = ggx
+    try:
+        yield
+    finally:
+        brdf.facet_cosines = ward
+        jax.clear_caches()
+
+
 @contextlib.contextmanager
 def rgb_film(basis, clamp: bool):
     """Cycles' RGB film per hit (``cycles_colour.film_mode("cycles_rgb")``) with the
@@ -235,6 +286,8 @@ SETTINGS = {
     "E_cycles_all": dict(film="rgb_clamp", lobe="ggx", rows="blender"),
     "E_cycles_all_nosun": dict(film="rgb_clamp", lobe="ggx", rows="blender", sun="clipped"),
     "E_cycles_walter": dict(film="rgb_clamp", lobe="ggx", rows="blender", weights="walter"),
+    "E_clamped": dict(film="clamped", rows="blender"),
+    "E_clamped_ggx_facets": dict(film="clamped", rows="blender", facets="ggx"),
 }
 VARIANTS = tuple(SETTINGS)
 
@@ -243,7 +296,7 @@ def draw(case: str, variant: str, fitted_roughness: float | None, shift: dict | 
          rough_scale: float = 1.0) -> np.ndarray:
     """bubblefit's linear render of ``case`` at its true parameters under ``variant``
     (the thickness parameters moved by ``shift``, the lobe widths times ``rough_scale``)."""
-    s = {"ill": "E", "film": None, "lobe": "ward", "rows": "bubblefit", "weights": "ward", "sun": "kept",
+    s = {"ill": "E", "film": None, "lobe": "ward", "rows": "bubblefit", "weights": "ward", "sun": "kept", "facets": "ward",
          **SETTINGS[variant]}
     t = json.load(open(f"{D}/{case}/truth.json"))
     env_path = f"{D}/{t['envmap']}"
@@ -268,6 +321,10 @@ def draw(case: str, variant: str, fitted_roughness: float | None, shift: dict | 
         basis = cfg.effects.spectral
         cfg = dataclasses.replace(cfg, effects=dataclasses.replace(cfg.effects, spectral=cc._ChannelBasis(basis)))
         film = rgb_film(basis, s["film"] == "rgb_clamp")
+    elif s["film"] == "clamped":
+        cfg = dataclasses.replace(cfg, film_rgb="clamped")
+        if s["facets"] == "ggx":
+            film = ggx_facets(alpha)
     weights = walter_weights() if s["weights"] == "walter" else contextlib.nullcontext()
     with film, weights:
         imgs = [np.asarray(render(dataclasses.replace(p, roughness=np.float32(a)), cfg, env, bg)) for a in widths]

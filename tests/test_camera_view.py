@@ -4,6 +4,7 @@ pinhole projection of a sphere."""
 
 from __future__ import annotations
 
+import collections
 import json
 import math
 from pathlib import Path
@@ -801,11 +802,11 @@ def test_the_correlation_area_of_a_field_of_known_correlation(shared):
     assert abs(white - 1.0) < 4 * math.sqrt(_summed_variance(np.pad([[1.0]], 16), k_white, h * w) / 3) + 1e-9
 
 
-def test_the_pair_counts_of_a_mask_are_counted_once():
+def test_the_pair_counts_of_a_mask_are_counted_once(monkeypatch):
     """Two residuals over one mask (a disc, a corner of it left out in one channel) count
     the mask's pairs once (the second reads them), with the areas of a fresh count; the
     counts are whole pairs: at lag 0 each channel pair's shared entries, and nowhere more
-    than the mask holds."""
+    than the mask holds. Counts larger than the kept bytes are counted afresh each time."""
     from bubblefit.inverse import _uncertainty as U
 
     rng = np.random.default_rng(5)
@@ -813,19 +814,24 @@ def test_the_pair_counts_of_a_mask_are_counted_once():
     used = np.repeat((((ii - 20) ** 2 + (jj - 24) ** 2) < 17**2)[..., None], 3, axis=2)
     used[:8, :8, 1] = False
     fields = [rng.standard_normal(used.shape) for _ in range(2)]
-    U._pair_counts.cache_clear()
+    monkeypatch.setattr(U, "_PAIRS", collections.OrderedDict())
     fresh = []
     for f in fields:
         fresh.append(U.correlation_area(f, used))
-        U._pair_counts.cache_clear()
+        U._PAIRS.clear()
     got = [U.correlation_area(f, used) for f in fields]
     assert got == fresh
-    assert U._pair_counts.cache_info().hits == 1
-    pairs = U._pair_counts(used.shape, np.packbits(used).tobytes())
+    key = np.packbits(used).tobytes()
+    pairs = U._pair_counts(used.shape, key)
+    assert len(U._PAIRS) == 1 and pairs is U._pair_counts(used.shape, key)
     lag0 = np.einsum("hwa,hwb->ab", used.astype(float), used.astype(float))
     np.testing.assert_array_equal(pairs[0, 0], lag0)
     assert pairs.max() == lag0.max()
-    U._pair_counts.cache_clear()
+    monkeypatch.setattr(U, "_PAIRS", collections.OrderedDict())
+    monkeypatch.setattr(U, "PAIR_CACHE_BYTES", pairs.nbytes - 1)
+    again = U._pair_counts(used.shape, key)
+    assert len(U._PAIRS) == 0 and again is not pairs
+    np.testing.assert_array_equal(again, pairs)
 
 
 def test_a_correlated_residual_widens_the_views_error():

@@ -171,8 +171,9 @@ def carried_map(st, opts: FitOptions, env, carried: dict) -> CarriedMap | str:
         fit, _ = map_misfit(full, img, opts)
         e = float(vals["exposure"])
         step, z2, step_err = exposure_step(full, st.photo, img, column, opts, fit)
-        # the chi-square law's upper quantile with one degree of freedom, from scipy.special:
-        # scipy.stats' import costs every fit's process about 0.6 s of CPU
+        # the chi-square law's upper quantile with one degree of freedom, from scipy.special,
+        # as the colour and order checks read theirs: scipy.stats would be imported (with the
+        # optimize, spatial and interpolate modules it pulls in) by every fit's process
         from scipy.special import chdtri
 
         moved = bool(z2 > float(chdtri(1, EXPOSURE_TEST_ALPHA)))

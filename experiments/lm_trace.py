@@ -26,8 +26,8 @@ import numpy as np
 
 import bubblefit.inverse._local as local_module
 from bubblefit.cli import main
-from bubblefit.inverse._lm import (JACOBIANS, LevenbergMarquardt, damped_step_length, presses_bound,
-                                   scaled_decrement)
+from bubblefit.inverse._lm import JACOBIANS, damped_step_length, presses_bound, scaled_decrement
+from bubblefit.inverse._lm_solver import LevenbergMarquardt
 from bubblefit.inverse._parameters import value_and_slope
 from bubblefit.inverse._programs import solver
 

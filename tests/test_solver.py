@@ -1,4 +1,4 @@
-"""The local solver (:class:`bubblefit.inverse._lm.LevenbergMarquardt`) against
+"""The local solver (:class:`bubblefit.inverse._lm_solver.LevenbergMarquardt`) against
 independent least-squares codes: MINPACK's Levenberg-Marquardt (through
 ``scipy.optimize.least_squares``), optimistix' own ``LevenbergMarquardt``, and the normal
 equations of a linear problem."""

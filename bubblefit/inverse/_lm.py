@@ -9,8 +9,8 @@ parameters reach (:func:`column_jacobian`) or, in the fit's final solve, one by 
 the render shared (:func:`columns_linearized`). The residual is whitened and robust
 (:func:`robust`). This module holds the numerics only: the programs that run them are
 built in :mod:`._programs`, the solve that asks for them is :mod:`._local`; the
-trust-region solver itself, which subclasses optimistix' (:class:`LevenbergMarquardt`,
-:class:`DenseDampedNewtonDescent`), is in :mod:`._lm_solver`, imported where a solve is
+trust-region solver itself, which subclasses optimistix' (:class:`~._lm_solver.LevenbergMarquardt`,
+:class:`~._lm_solver.DenseDampedNewtonDescent`), is in :mod:`._lm_solver`, imported where a solve is
 traced: a process whose solves the executable store holds does not import optimistix,
 equinox or lineax (about 0.25 s of CPU).
 """
@@ -28,23 +28,9 @@ from jaxtyping import Array, Float
 
 from ._parameters import PARAMETERS, forward
 
-__all__ = ["DenseDampedNewtonDescent", "LevenbergMarquardt", "column_jacobian", "columns_linearized", "JACOBIANS",
+__all__ = ["column_jacobian", "columns_linearized", "JACOBIANS",
            "scaled_decrement", "damped_step_length", "gauss_newton_decrement", "presses_bound", "robust", "MAX_REJECTIONS",
            "STOP_DECREMENT", "ROBUST_ASYMPTOTE"]
-
-#: The names :mod:`._lm_solver` defines, which this module hands out at their first use.
-_SOLVER_NAMES = ("DenseDampedNewtonDescent", "LevenbergMarquardt")
-
-
-def __getattr__(name: str):
-    """:data:`_SOLVER_NAMES` from :mod:`._lm_solver`, imported then (PEP 562's module
-    ``__getattr__``)."""
-    if name in _SOLVER_NAMES:
-        from . import _lm_solver
-
-        return getattr(_lm_solver, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
 
 #: ``|r| / scale`` beyond which :func:`robust` takes its asymptote: far below the square
 #: root of float32's largest value (1.8e19), where ``(r / scale)^2`` overflows, and far
@@ -73,7 +59,7 @@ def robust(r, scale):
 
 
 #: Consecutive rejected steps after which the solve stops at its last accepted point
-#: (:class:`LevenbergMarquardt`).
+#: (:class:`~._lm_solver.LevenbergMarquardt`).
 MAX_REJECTIONS = 6
 
 
@@ -161,7 +147,7 @@ JACOBIANS = {"groups": lambda resid, table: functools.partial(column_jacobian, r
 
 def scaled_decrement(dense, residual, z=None, free: tuple = ()) -> Float[Array, ""]:
     """The Gauss-Newton decrement ``r^T J (J^T J)^-1 J^T r = |Q^T r|^2`` of an accepted
-    point (:class:`DenseDampedNewtonDescent`'s factors) over ``max(1, chi2_nu)``, the
+    point (:class:`~._lm_solver.DenseDampedNewtonDescent`'s factors) over ``max(1, chi2_nu)``, the
     reduced chi^2 counted over the residual's non-zero entries (pixels outside the fit
     have weight 0): the squared length of the step left, in the fit's own covariance.
 
@@ -203,11 +189,11 @@ def _chi2_scale(r, n: int):
 
 def damped_step_length(dense, residual, step) -> Float[Array, ""]:
     """The squared length of ``step`` (in ``z``) in the fit's own covariance at an accepted
-    point (:class:`DenseDampedNewtonDescent`'s factors, its residual ``residual``):
+    point (:class:`~._lm_solver.DenseDampedNewtonDescent`'s factors, its residual ``residual``):
     ``|J step|^2 / max(1, chi2_nu) = |R step|^2 / max(1, chi2_nu)``, its squared Mahalanobis
     length, which bounds the square of every parameter's move in its own standard errors
     (Bard, *Nonlinear Parameter Estimation*, 1974, ch. 7: the confidence region
-    ``dz^T J^T J dz / s^2``). The stopping rule of :class:`LevenbergMarquardt` reads it
+    ``dz^T J^T J dz / s^2``). The stopping rule of :class:`~._lm_solver.LevenbergMarquardt` reads it
     for the trust region's next trial step after a rejection."""
     r = jnp.ravel(residual)
     return jnp.sum((dense.r_factor @ step) ** 2) / _chi2_scale(r, dense.qt_residual.shape[0])

@@ -580,7 +580,7 @@ class FitResult:
             "time_s": float(self.time_s),
             "thickness": self.thickness_model,
             "model": self.model,
-            "solver": "bubblefit.inverse._lm.LevenbergMarquardt (optimistix trust region)",
+            "solver": "bubblefit.inverse._lm_solver.LevenbergMarquardt (optimistix trust region)",
             "disc": None if self.disc is None else {"cx": self.disc[0], "cy": self.disc[1], "r": self.disc[2]},
             "disc_stderr": None if self.disc_stderr is None else _clean(self.disc_stderr),
             "covariance": cov,

@@ -179,7 +179,7 @@ def plausible_box(free: tuple) -> tuple[tuple, tuple]:
     """``(lo, hi)``: for each parameter of ``free``, the unconstrained coordinates of the
     ends of its ``plausible`` range, ``-inf``/``inf`` where the range is open or ends at
     the transform's own bound (a roughness at 0, the mirror). The local solve projects
-    its trial points onto this box (:class:`~bubblefit.inverse._lm.LevenbergMarquardt`).
+    its trial points onto this box (:class:`~bubblefit.inverse._lm_solver.LevenbergMarquardt`).
 
     A logistic or log coordinate moved far past its plausible range saturates: at
     ``split = 1 - 1e-7`` the slope ``d split / d z`` is 1e-7, the parameter's column of the

@@ -384,7 +384,7 @@ SEARCH_SOLVE = SolveSettings("groups", SEARCH_COMPILE, True, 0)
 #: second solve): the groups, XLA's defaults but for the YNNPACK fusions
 #: (:func:`~bubblefit.io.jaxcache.ynn_fusions_off_option`, as :data:`FINAL_COMPILE`), and
 #: the searched fit's stop on rejections and restarts
-#: (:class:`~bubblefit.inverse._lm.LevenbergMarquardt`), rather than optimistix' Cauchy test
+#: (:class:`~bubblefit.inverse._lm_solver.LevenbergMarquardt`), rather than optimistix' Cauchy test
 #: alone, which near the optimum spends most of a solve's steps rejected
 #: (:data:`~bubblefit.inverse._lm.STOP_DECREMENT`).
 WARM_SOLVE = SolveSettings("groups", ynn_fusions_off_option(), True)

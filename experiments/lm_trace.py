@@ -6,7 +6,7 @@ parameters press a bound (:func:`bubblefit.inverse._lm.presses_bound`).
 Runs the command line in this process with the solves' compiled programs
 (:func:`bubblefit.inverse._programs.stored_solver`) wrapped: each call runs as the fit
 runs it, and then again step by step, eagerly, with the same
-:class:`~bubblefit.inverse._lm.LevenbergMarquardt` (its ``init``, ``step`` and
+:class:`~bubblefit.inverse._lm_solver.LevenbergMarquardt` (its ``init``, ``step`` and
 ``terminate``; Moré 1978), whose steps are recorded. The fit's own output is unchanged.
 Writes ``TRACE`` (JSON, one entry per solve call; default ``lm_trace.json``):
 

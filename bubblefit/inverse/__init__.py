@@ -14,7 +14,8 @@ The fit of one photograph runs in stages, each in its own module:
 - :mod:`._uncertainty`: covariance and standard errors.
 - :mod:`._maps`: per-pixel thickness maps.
 - :mod:`._verdict`: whether a fit can be trusted (``ok``) and why not.
-- :mod:`._options`: :class:`FitOptions` and :class:`FitResult`.
+- :mod:`._options`: :class:`FitOptions`, what a fit is told.
+- :mod:`._result`: :class:`FitResult`, what it returns.
 - :mod:`.fit`: the orchestrators :func:`fit_photo` and :func:`fit_batch`.
 - :mod:`.sequence`: a video of a draining bubble, frame by frame, locally or on Dask
   (its planning, executors, record store and tables in ``_plan``, ``_executors``,
@@ -34,7 +35,7 @@ import importlib
 # (its tests and benchmarks call them), the modules that hold them are not.
 _EXPORTS = {
     # entry points and their records
-    "FitOptions": "_options", "FitResult": "_options", "FitStatus": "_options", "ForwardModel": "_options",
+    "FitOptions": "_options", "FitResult": "_result", "FitStatus": "_result", "ForwardModel": "_options",
     "NoiseSettings": "_options", "MapSettings": "_options", "JudgeSettings": "_options", "ImageSizes": "_options",
     "SolverSettings": "_options",
     "ThicknessModel": "_options", "fit_batch": "fit", "fit_photo": "fit", "SequenceOptions": "sequence",

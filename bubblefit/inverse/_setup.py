@@ -12,7 +12,8 @@ import numpy as np
 from ..capture.view import divergence, perspective_from_disc
 from ._observation import Frame, Level, analysis_frame, make_level, resolve_disc, saturation_mask
 from ._pair import LUMINANCE, PairCheck, check_pair
-from ._options import ColourSettings, FitOptions
+from ._options import FitOptions
+from ._result import ColourSettings
 from ._parameters import ALIASES, DISC_PARAMETERS, ParameterTable, THICKNESS_PARAMETERS, disc_start
 from ..errors import InputError
 from ..lighting.envmap import EnvMap, downsample

@@ -20,7 +20,8 @@ import numpy as np
 from ..capture.view import MAX_FOV_DEG, View, assumed_lens, disc_angles, divergence, fov_of_divergence, scene_view
 from ..errors import InputError
 from ..model.geometry import DivergentCamera
-from ._options import FitOptions, FitResult
+from ._options import FitOptions
+from ._result import FitResult
 
 __all__ = ["fit_view", "camera_record", "widen_for_view", "lens_for", "fit_divergence", "divergence_profile",
            "Profile"]

@@ -59,7 +59,8 @@ from ._observation import noise_sigma
 from ..capture.circle import detect_disc
 from ._programs import (FINAL_SOLVE, SEARCH_SOLVE, WARM_SOLVE, SolveSettings, batched_solver, final_params,
                         fitted_pixels, held_values, render_bubble, reporter, warm_up)
-from ._options import FitOptions, FitResult, ImageSizes, JudgeSettings, MapSettings, NoiseSettings, SolverSettings
+from ._options import FitOptions, ImageSizes, JudgeSettings, MapSettings, NoiseSettings, SolverSettings
+from ._result import FitResult
 from ._parameters import THICKNESSES, extrapolated, parameter_roles, refined_disc
 from ._setup import Setup, defaults, setup
 from ._uncertainty import Uncertainty, photo_misfit, uncertainty

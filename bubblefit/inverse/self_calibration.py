@@ -504,7 +504,7 @@ def _misfit(r_white: np.ndarray, y: np.ndarray, wgt: np.ndarray, model_error: fl
 def self_calibrated(first, photo, env, options, background, scene, saturated):
     """The fit ``first`` (made with the stated response) refitted with the response freed
     (:func:`calibrate_in_fit`), on the same disc and view: a
-    :class:`~bubblefit.inverse._options.FitResult` whose params, standard errors, render and
+    :class:`~bubblefit.inverse._result.FitResult` whose params, standard errors, render and
     verdict are the joint fit's, with ``camera_calibration`` holding the coefficients, their
     covariance, the rank test and the stated response's fit (``stated_response_fit``). Not
     ``ok`` when the photo does not determine the response (:func:`degeneracy`), the joint

@@ -63,7 +63,7 @@ def scale(samples) -> list[dict]:
     import jax.numpy as jnp
 
     import bubblefit.inverse.planar as planar
-    from bubblefit.lighting import coaxial
+    from bubblefit.optics import coaxial
 
     sys.path.insert(0, str(ROOT / "experiments" / "validation"))
     import reference_films as rf

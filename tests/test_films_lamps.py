@@ -10,7 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bubblefit.lighting import area, coaxial
+from bubblefit.lighting import area
+from bubblefit.optics import coaxial
 from bubblefit.optics import spectral
 
 tmm = pytest.importorskip("tmm")

@@ -6,7 +6,7 @@ The forward model of a pixel ``p`` on the film is
 
 with ``R`` the film's reflectance between its two media (the three-media Airy sum,
 :func:`bubblefit.optics.film.airy_reflectance`), averaged over the objective's cone for
-coaxial light (:mod:`bubblefit.lighting.coaxial`) or taken at the pixel's angle under an
+coaxial light (:mod:`bubblefit.optics.coaxial`) or taken at the pixel's angle under an
 area light (:mod:`bubblefit.lighting.area`, radiance ``L_p``), integrated to the camera's
 RGB under the lamp (:mod:`bubblefit.optics.spectral`), and ``g`` the unknown exposure.
 
@@ -62,7 +62,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import ComputationError, InputError
-from ..lighting import coaxial
+from ..optics import coaxial
 from ..model.planar_scene import ENVELOPE_DEFAULT, STRAY_DEFAULT
 from ..optics import dispersion, spectral
 from ._censored import BLACK_CLIP, censored_residual
@@ -173,7 +173,7 @@ class PlanarForward:
 
     def reaching(self, max_nm: float) -> "PlanarForward":
         """The same forward for thicknesses up to ``max_nm``: the cone's nodes
-        (:func:`~bubblefit.lighting.coaxial.cone_nodes_needed`) and spectral bins narrowed
+        (:func:`~bubblefit.optics.coaxial.cone_nodes_needed`) and spectral bins narrowed
         in proportion to the optical thickness beyond :data:`SPECTRAL_REACH_NM` (a tenth of
         a fringe at 550 nm each; at most the reference basis's
         :data:`~bubblefit.optics.spectral.REFERENCE_SAMPLES`); itself where it already
@@ -190,7 +190,7 @@ class PlanarForward:
         coaxial light), at the basis's wavelengths or at ``lam`` (nm). ``span`` ``(span_x,
         span_y)`` shaped like ``d``: the thickness's change across each pixel's box along its
         two sides (nm), whose mean over the box is taken
-        (:func:`~bubblefit.lighting.coaxial.reflectance_at_angles`); None: at ``d``."""
+        (:func:`~bubblefit.optics.coaxial.reflectance_at_angles`); None: at ``d``."""
         d = jnp.asarray(d)[..., None]
         if span is not None:
             span = tuple(jnp.asarray(s)[..., None] for s in span)

@@ -43,7 +43,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..lighting.area import Patch, check_light_faces
-from ..lighting.coaxial import Stack
+from ..optics.coaxial import Stack
 from ..optics import dispersion
 
 __all__ = ["ENVELOPE_CHOICES", "ENVELOPE_DEFAULT", "PlanarScene", "STRAY_DEFAULT", "film_kind_and_range", "scene_fit", "is_area_sphere", "is_planar", "load_planar",

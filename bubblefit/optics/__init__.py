@@ -5,6 +5,8 @@
 - :mod:`.spectral`: spectra to linear sRGB (CIE 1931 2 degree observer, an illuminant).
 - :mod:`.chart`: interference colour against thickness.
 - :mod:`.dispersion`: the film's index against wavelength (Cauchy laws, presets).
+- :mod:`.coaxial`: a flat film between media, and its reflectance averaged over an
+  objective's cone of coaxial light.
 """
 
 from . import brdf, chart, dispersion, film, spectral

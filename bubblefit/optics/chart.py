@@ -37,7 +37,7 @@ def interference_colours(thickness_nm, *, angle_deg: float = 0.0, model: str = "
     three-media Airy sum (``airy`` only); the light comes from ``above``, which it entered
     from air at ``angle_deg`` through a face parallel to the film;
     ``na > 0`` averages over an objective's cone of illumination instead of one angle
-    (:func:`bubblefit.lighting.coaxial.coaxial_reflectance`).
+    (:func:`bubblefit.optics.coaxial.coaxial_reflectance`).
 
     Examples
     --------
@@ -64,7 +64,7 @@ def interference_colours(thickness_nm, *, angle_deg: float = 0.0, model: str = "
     if media and model != "airy":
         raise ValueError("media around the film and an objective's aperture need the airy model")
     if media:
-        from ..lighting import coaxial
+        from . import coaxial
 
         stack = coaxial.Stack(above if above is not None else "air", film_spec, below if below is not None else "air")
         n = stack.indices(basis.wavelengths)

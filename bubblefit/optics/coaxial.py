@@ -38,7 +38,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from ..errors import InputError
-from ..optics import dispersion, film
+from . import dispersion, film
 
 __all__ = ["Stack", "StackIndices", "cone_quadrature", "cone_nodes_needed", "coaxial_reflectance",
            "reflectance_at_angles"]

@@ -788,7 +788,8 @@ def test_colour_check_type_b_offset():
     statistic along ``s_b`` is ``(s_b^T C^-1 s_b) / (1 + s_b^T C^-1 s_b) < 1`` and the
     component across it keeps the null law, about 1 per degree of freedom in all. Twice
     the offset is not (about 4 along it: 2.5 per degree of freedom, over the limit near
-    1.5). A zero offset leaves the statistic as it was."""
+    1.5). A zero offset leaves the statistic as it was; several sources add their outer
+    products."""
     from bubblefit.inverse.colour_check import colour_check
 
     truth, mask = _smooth_colours()
@@ -806,6 +807,15 @@ def test_colour_check_type_b_offset():
             assert abs(held.offset_rms - alone.chroma_rms) < 0.002, (held.offset_rms, alone.chroma_rms)
         far = colour_check(truth + 2 * shift + noise, truth, mask, sigma, offset=shift)
         assert not far.consistent, far
+        # independent sources stack, each its own outer product: a second source across the
+        # first (more green) lets the photo hold both offsets; a zero source changes nothing
+        green = truth * np.array([0.0, 0.02, 0.0])
+        both = truth + shift + green + noise
+        assert not colour_check(both, truth, mask, sigma, offset=shift).consistent
+        assert colour_check(both, truth, mask, sigma, offset=np.stack([shift, green])).consistent
+        two = colour_check(far_photo := truth + 2 * shift + noise, truth, mask, sigma,
+                           offset=np.stack([shift, np.zeros_like(shift)]))
+        assert two.chi2_per_dof == colour_check(far_photo, truth, mask, sigma, offset=shift).chi2_per_dof
         same = colour_check(truth + noise, truth, mask, sigma, offset=np.zeros_like(truth))
         plain = colour_check(truth + noise, truth, mask, sigma)
         assert same.chi2_per_dof == plain.chi2_per_dof and same.offset_rms == 0.0 and plain.offset_rms is None

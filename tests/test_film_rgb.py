@@ -236,33 +236,61 @@ def test_ggx_facets_are_part_of_the_programs_key():
     assert np.abs(imgs[0] - imgs[1]).max() < 1e-12
 
 
-def test_facet_offset_only_for_a_rough_clamped_film(monkeypatch):
-    """The colour check's Type B offset of the facets (``colour_check.facet_offset``) costs
-    one render, with GGX's facets, and only where the model averages the film over facets
-    (the clamped film) and the film is rougher than ``FACET_MIRROR``; else it is None and
-    nothing is rendered."""
+def test_microfacet_offsets_only_for_a_rough_clamped_film(monkeypatch):
+    """The colour check's Type B offsets of the microfacet distribution
+    (``colour_check.microfacet_offsets``) are rendered only where the model averages the
+    film over facets (the clamped film) and the film is rougher than ``FACET_MIRROR``; else
+    they are None and nothing is rendered. Two sources: one render with GGX's facets at the
+    fitted width, and GGX's lobe as the mean of renders at its Ward scale mixture's widths
+    (``brdf.ggx_ward_widths``), each less the fit's render."""
     import dataclasses
     from types import SimpleNamespace
 
     from bubblefit.inverse import _programs
-    from bubblefit.inverse.colour_check import FACET_MIRROR, facet_offset
+    from bubblefit.inverse.colour_check import FACET_MIRROR, GGX_LOBE_WIDTHS, microfacet_offsets
+    from bubblefit.optics.brdf import ggx_ward_widths
 
     calls = []
-    monkeypatch.setattr(_programs, "render_bubble", lambda p, lev, env: calls.append(lev.cfg.facets) or np.ones((2, 2, 3)))
 
+    def fake(p, lev, env):  # a render whose value is its lobe width (0.5 with GGX's facets)
+        calls.append((lev.cfg.facets, float(p.roughness)))
+        return np.full((2, 2, 3), 0.5 if lev.cfg.facets == "ggx" else float(p.roughness))
+
+    monkeypatch.setattr(_programs, "render_bubble", fake)
     fx = Effects(model="physical")
-    rough = SimpleNamespace(roughness=np.float32(0.03))
-    mirror = SimpleNamespace(roughness=np.float32(0.5 * FACET_MIRROR))
+    rough = Params.make(thickness=700.0, roughness=0.03)
+    mirror = dataclasses.replace(rough, roughness=np.float32(0.5 * FACET_MIRROR))
+
     @dataclasses.dataclass
-    class Lev:  # the one field of a fit's Level that facet_offset reads
+    class Lev:  # the one field of a fit's Level that microfacet_offsets reads
         cfg: RenderConfig
 
     spectral = Lev(RenderConfig(effects=fx))
     clamped = Lev(RenderConfig(effects=fx, film_rgb="clamped"))
     paper = Lev(RenderConfig(effects=Effects(model="paper"), film_rgb="clamped"))
-    assert facet_offset(rough, spectral, None, None) is None
-    assert facet_offset(rough, paper, None, None) is None
-    assert facet_offset(mirror, clamped, None, None) is None
+    assert microfacet_offsets(rough, spectral, None, None) is None
+    assert microfacet_offsets(rough, paper, None, None) is None
+    assert microfacet_offsets(mirror, clamped, None, None) is None
     assert calls == []
     base = np.full((2, 2, 3), 0.25)
-    assert np.array_equal(facet_offset(rough, clamped, None, base), np.full((2, 2, 3), 0.75)) and calls == ["ggx"]
+    out = microfacet_offsets(rough, clamped, None, base)
+    widths = ggx_ward_widths(0.03, GGX_LOBE_WIDTHS)
+    assert out.shape == (2, 2, 2, 3) and [c[0] for c in calls] == ["ggx"] + ["ward"] * GGX_LOBE_WIDTHS
+    assert np.allclose([c[1] for c in calls[1:]], widths, rtol=1e-6)
+    assert np.allclose(out[0], 0.25) and np.allclose(out[1], np.mean(widths.astype(np.float32)) - 0.25)
+
+
+def test_ggx_ward_widths_are_ggx_slopes():
+    """The equal-weight mixture of Ward's slope Gaussians at ``brdf.ggx_ward_widths`` is
+    GGX's slope law (a Student t with 2 degrees of freedom): the share of slopes beyond
+    ``r`` is ``alpha^2 / (alpha^2 + r^2)`` for GGX (closed form) and ``mean_k
+    exp(-r^2 / a_k^2)`` for the mixture; with 200 mid-quantile widths they agree within
+    1 / (2 * 200) (the quantile rule's step in ``w``'s probability) out to 5 alpha."""
+    from bubblefit.optics.brdf import ggx_ward_widths
+
+    alpha, k = 0.03, 200
+    a = ggx_ward_widths(alpha, k)
+    r = alpha * np.linspace(0.0, 5.0, 51)
+    mix = np.exp(-(r[:, None] / a) ** 2).mean(axis=1)
+    assert np.abs(mix - alpha**2 / (alpha**2 + r**2)).max() < 1.0 / (2 * k)
+    assert np.isclose(ggx_ward_widths(alpha, 6).max(), alpha / np.sqrt(-np.log(11 / 12)))

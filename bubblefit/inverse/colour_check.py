@@ -25,9 +25,10 @@ and whose effect the model itself can compute at the fitted values (a Type B eva
 JCGM 100:2008 "Guide to the expression of uncertainty in measurement", sec. 4.3): ``s_b =
 P_b mean_i(alt_i - render_i)``, the part's chromatic offset between the render with the
 nuisance's other choice and the fit's render, an offset of unknown sign that the part's
-pixels share. The one such nuisance is the rough film's microfacet distribution
-(:func:`facet_offset`): the paper's lobe is Ward's, and a real film's roughness is neither
-Ward's nor GGX's.
+pixels share, one such term per independent source. The one such nuisance is the rough
+film's microfacet distribution (:func:`microfacet_offsets`: GGX's facets under the film and
+GGX's lobe, each against Ward's): the paper's lobe is Ward's, and a real film's roughness
+is neither Ward's nor GGX's.
 
 Under the hypothesis that the colours are explained, each ``m_b`` is a centred normal
 vector with covariance ``C_b`` (plus at most ``F_b``), so
@@ -91,9 +92,9 @@ from ._uncertainty import OUTLIER_CHI2
 from ..optics.film import optical_path
 from ..optics.spectral import LAMBDA_MIN
 
-__all__ = ["ColourCheck", "colour_check", "judge_colours", "neighbour_scale", "noise_scale", "facet_offset",
-           "CHROMA_FLOOR",
-           "CHROMA_REL", "FALSE_ALARM", "GRID", "INNER_COS", "MIN_PART_PIXELS", "PATH_BIN", "SHARED_BELOW"]
+__all__ = ["ColourCheck", "colour_check", "judge_colours", "neighbour_scale", "noise_scale", "microfacet_offsets",
+           "CHROMA_FLOOR", "CHROMA_REL", "FACET_MIRROR", "GGX_LOBE_WIDTHS", "FALSE_ALARM", "GRID", "INNER_COS",
+           "MIN_PART_PIXELS", "PATH_BIN", "SHARED_BELOW"]
 
 #: Chromatic model error allowed per cell, as a fraction of the cell's brightness ``|render|``.
 #: From fits with the right camera only (experiments/colour_check_null.py: 48 px photos
@@ -217,9 +218,10 @@ def _cell_terms(e: np.ndarray, v: np.ndarray, rend: np.ndarray, floor: float, ch
     ``e``, noise variances ``v`` and renders ``rend`` (n, 3), ``jac``, the (3, K) change of
     its mean render per unit of the response's error coefficients (None: none),
     ``score``, the pair ``(D, N)`` of the score test's directions and nuisances (None: none),
-    and ``offset``, its pixels' Type B offsets (n, 3) (None: none):
-    ``(m_b, C_b, F_b, brightness, P_b jac, (P_b D, P_b N), floors, |s_b|)``, ``F_b`` with
-    ``s_b s_b^T`` and ``floors`` without it."""
+    and ``offset``, its pixels' Type B offsets (K, n, 3), one row per independent source
+    (None: none): ``(m_b, C_b, F_b, brightness, P_b jac, (P_b D, P_b N), floors, |s_b|)``,
+    ``F_b`` with ``sum_k s_bk s_bk^T`` and ``floors`` without it, ``|s_b|`` the root of
+    that sum's trace."""
     n = e.shape[0]
     mean = rend.mean(axis=0)
     p = _plane(mean / np.linalg.norm(mean))
@@ -227,8 +229,8 @@ def _cell_terms(e: np.ndarray, v: np.ndarray, rend: np.ndarray, floor: float, ch
     bright = float(np.linalg.norm(rend, axis=1).mean())
     chroma = float(np.linalg.norm(mean - mean.mean()))  # the part orthogonal to grey (1, 1, 1)
     floors = 0.5 * ((floor * bright) ** 2 + (chroma_floor * chroma) ** 2) * np.eye(2)
-    s = np.zeros(2) if offset is None else p @ offset.mean(axis=0)
-    return ((e @ p.T).mean(axis=0), noise, floors + np.outer(s, s), bright, None if jac is None else p @ jac,
+    s = np.zeros((1, 2)) if offset is None else offset.mean(axis=1) @ p.T  # (K, 2): each source's s_bk
+    return ((e @ p.T).mean(axis=0), noise, floors + s.T @ s, bright, None if jac is None else p @ jac,
             None if score is None else (p @ score[0], p @ score[1]), floors, float(np.linalg.norm(s)))
 
 
@@ -264,8 +266,9 @@ def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma:
     render per unit of each of a few smooth changes of the response and of each nuisance the
     fit adjusts in the hue; the score test along them (:func:`_score_verdict`) is then one
     more member of the union, every member at ``false_alarm`` over their number.
-    ``offset`` (H, W, 3): a Type B offset per pixel (module docstring; :func:`facet_offset`),
-    whose part means' outer products join each part's floor ``F_b`` in every member.
+    ``offset`` (H, W, 3), or (K, H, W, 3) for K independent sources: Type B offsets per
+    pixel (module docstring; :func:`microfacet_offsets`), whose part means' outer products
+    join each part's floor ``F_b`` in every member.
     ``None`` when fewer than two cells have :data:`MIN_PIXELS` pixels."""
     tests = _tests(photo, render, mask, sigma, model_error=model_error, floor=floor, chroma_floor=chroma_floor,
                    grid=grid, false_alarm=false_alarm, response_jac=response_jac, path=path, path_bin=path_bin,
@@ -297,7 +300,7 @@ def _tests(photo, render, mask, sigma, *, model_error, floor, chroma_floor, grid
     if ys.size < 2 * MIN_PIXELS:
         return []
     e, v, rend = photo[ys, xs] - render[ys, xs], var[ys, xs], render[ys, xs]
-    shift = None if offset is None else np.asarray(offset, np.float64)[ys, xs]
+    shift = None if offset is None else np.asarray(offset, np.float64).reshape((-1,) + photo.shape)[:, ys, xs]
     y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
     cy = np.minimum((ys - y0) * grid // max(y1 - y0, 1), grid - 1)
     cx = np.minimum((xs - x0) * grid // max(x1 - x0, 1), grid - 1)
@@ -332,7 +335,7 @@ def _tests(photo, render, mask, sigma, *, model_error, floor, chroma_floor, grid
     scores = [None] * len(subs) if score_jac is None else _part_means(score_jac, ys, xs, subs)
     cells = [_cell_terms(e[sub], v[sub], rend[sub], floor, chroma_floor,
                          None if response_jac is None else response_jac(ys[sub], xs[sub]), score,
-                         None if shift is None else shift[sub])
+                         None if shift is None else shift[:, sub])
              for sub, score in zip(subs, scores)]
     kappa = noise_scale(photo, render, var, use, white)
     bins = []  # the path's bins over the whole film
@@ -341,7 +344,7 @@ def _tests(photo, render, mask, sigma, *, model_error, floor, chroma_floor, grid
         if sub.size >= MIN_PART_PIXELS:
             bins.append(_cell_terms(e[sub], v[sub], rend[sub], floor, chroma_floor,
                                     None if response_jac is None else response_jac(ys[sub], xs[sub]), None,
-                                    None if shift is None else shift[sub]))
+                                    None if shift is None else shift[:, sub]))
     members = 1 + (pooled and path is not None) + (score_jac is not None)
     shared = response_jac is not None
     out = [_verdict(cells, kappa, false_alarm / members, shared)]
@@ -551,38 +554,57 @@ def _block_scale(white: np.ndarray, k: int = 2) -> float:
     return k * k * float(np.mean(blocks.mean(axis=(1, 3))[whole] ** 2))
 
 
-#: Roughness below which the film counts as a mirror for :func:`facet_offset`: Ward's and
-#: GGX's visible facets (the same density ``1 / (pi a^2)`` at the mirror direction) differ
+#: Roughness below which the film counts as a mirror for :func:`microfacet_offsets`: Ward's
+#: and GGX's visible facets (the same density ``1 / (pi a^2)`` at the mirror direction) differ
 #: in ``w_i . h`` at second order in ``a``, and ``a^2`` here is 2^-24, the float32 render's
 #: rounding, so the two renders could not differ: no extra render, no term.
 FACET_MIRROR = 2.0**-12
 
+#: Ward widths of the GGX lobe's scale mixture in :func:`microfacet_offsets`
+#: (:func:`~bubblefit.optics.brdf.ggx_ward_widths`).
+GGX_LOBE_WIDTHS = 6
 
-def facet_offset(params, lev, env, base: np.ndarray) -> np.ndarray | None:
-    """The Type B offset of the microfacet distribution (module docstring) per pixel of the
+
+def microfacet_offsets(params, lev, env, base: np.ndarray) -> np.ndarray | None:
+    """The Type B offsets of the microfacet distribution (module docstring) per pixel of the
     level ``lev`` (:class:`~bubblefit.inverse._observation.Level`) at the fitted render
-    parameters ``params``: the render with the clamped film averaged over GGX's visible
-    facets (:attr:`~bubblefit.model.render.RenderConfig.facets` ``"ggx"``, width ``alpha``
-    = the fitted roughness) less ``base``, the fit's render there, whose film is averaged
-    over Ward's (H, W, 3): one extra render. A nuisance the
-    fit does not free: Blender Cycles draws GGX's facets, the paper's lobe is Ward's
-    (eq. 1), a real film's roughness is neither. None where the model does not average the
-    film over facets (the spectral film, the paper model) or the film is a mirror
-    (roughness under :data:`FACET_MIRROR`): no render is made. The term has no constant of
-    its own; it was built because the development case cyc_const700_sunset_ortho_rough (a
-    Cycles render of a rough 700 nm film, fitted right) failed the check without it
-    (experiments/validation/split.toml; docs/validation-split.md)."""
+    parameters ``params``, two sources (2, H, W, 3), each less ``base``, the fit's render
+    there (Ward's lobe of width ``a`` = the fitted roughness, the clamped film averaged over
+    its visible facets):
+
+    * the facets: the render with the clamped film averaged over GGX's visible facets
+      (:attr:`~bubblefit.model.render.RenderConfig.facets` ``"ggx"``) of width ``alpha =
+      a``, the width at which the two slope laws have the same density at the mirror
+      direction (one render);
+    * the lobe: GGX's lobe of width ``a`` as the mean of the model's renders at the Ward
+      widths of its Gaussian scale mixture (:func:`~bubblefit.optics.brdf.ggx_ward_widths`,
+      :data:`GGX_LOBE_WIDTHS` renders, one program: the render is linear in the lobe; each
+      width's film over its own facets).
+
+    A nuisance the fit does not free: Blender Cycles draws GGX's lobe and facets, the
+    paper's lobe is Ward's (eq. 1), a real film's roughness is neither. None where the
+    model does not average the film over facets (the spectral film, the paper model) or
+    the film is a mirror (roughness under :data:`FACET_MIRROR`): no render is made. The
+    term has no constant of its own; it was built because the development case
+    cyc_const700_sunset_ortho_rough (a Cycles render of a rough 700 nm film, fitted right)
+    failed the check without it (experiments/validation/split.toml;
+    docs/validation-split.md)."""
     from dataclasses import replace as swap
 
+    from ..optics.brdf import ggx_ward_widths
     from ._programs import render_bubble
 
     cfg = lev.cfg
     if cfg.film_rgb != "clamped" or cfg.effects.model != "physical":
         return None
-    if not float(np.asarray(params.roughness)) > FACET_MIRROR:
+    a = float(np.asarray(params.roughness))
+    if not a > FACET_MIRROR:
         return None
-    ggx = np.asarray(render_bubble(params, swap(lev, cfg=swap(cfg, facets="ggx")), env), np.float64)
-    return ggx - np.asarray(base, np.float64)
+    base = np.asarray(base, np.float64)
+    facets = np.asarray(render_bubble(params, swap(lev, cfg=swap(cfg, facets="ggx")), env), np.float64)
+    lobe = np.mean([np.asarray(render_bubble(swap(params, roughness=np.asarray(w, np.float32)), lev, env), np.float64)
+                    for w in ggx_ward_widths(a, GGX_LOBE_WIDTHS)], axis=0)
+    return np.stack([facets - base, lobe - base])
 
 
 def judge_colours(ok: bool, warnings: list, photo, render, mask, cos, sigma, model_error: float = 0.0,
@@ -602,7 +624,7 @@ def judge_colours(ok: bool, warnings: list, photo, render, mask, cos, sigma, mod
     (:data:`PATH_BIN`; None: not split). ``score_jac``: the score test's directions and
     nuisances (:func:`bubblefit.inverse.response_error.response_score_cells`; None: no score
     test), one more member of :func:`colour_check`'s union. ``offset``: the Type B offsets
-    per pixel (:func:`facet_offset`; None: none)."""
+    per pixel (:func:`microfacet_offsets`; None: none)."""
     path = None
     if thickness is not None and n_film is not None:
         path = np.asarray(optical_path(np.asarray(thickness, np.float64), float(n_film),

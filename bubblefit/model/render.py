@@ -168,7 +168,7 @@ class RenderConfig:
     #: ``alpha`` = the roughness (:func:`~bubblefit.optics.brdf.ggx_facet_cosines`: the two
     #: slope laws have the same density ``1 / (pi a^2)`` at the mirror direction), as Blender
     #: Cycles draws them; a fit renders it once to bound the hue the choice moves
-    #: (:func:`bubblefit.inverse.colour_check.facet_offset`).
+    #: (:func:`bubblefit.inverse.colour_check.microfacet_offsets`).
     facets: str = "ward"
 
     def __post_init__(self):

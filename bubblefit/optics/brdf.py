@@ -25,7 +25,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike
 
 __all__ = ["ward_lobe", "ward", "tan2_half_angle", "half_vector_weight", "slope_nodes", "facet_cosines",
-           "ggx_facet_cosines", "GGX_FACET_NODES"]
+           "ggx_facet_cosines", "ggx_ward_widths", "GGX_FACET_NODES"]
 
 _TINY = 1e-12
 # Lower bound of sqrt(cos th_i cos th_r): Ward's lobe is singular at grazing angles.
@@ -181,3 +181,16 @@ def ggx_facet_cosines(cos_i: ArrayLike, alpha: ArrayLike, nodes: tuple = GGX_FAC
     length = jnp.sqrt(jnp.maximum(hx * hx + hy * hy + hz * hz, _TINY))
     cos_nodes = jnp.clip((hx * s + hz * c) / length, 1e-6, 1.0)
     return cos_nodes, jnp.asarray(weights / weights.sum(), dtype=cos_nodes.dtype)
+
+
+def ggx_ward_widths(alpha: float, k: int) -> np.ndarray:
+    """Widths of ``k`` Ward lobes whose equal-weight mean is GGX's slope distribution of
+    width ``alpha``: ``(1 + |s|^2/alpha^2)^-2 / (pi alpha^2)`` (Walter et al. 2007, eq. 33, in
+    slope space) is a bivariate Student t with 2 degrees of freedom, a Gaussian scale
+    mixture ``s | w ~ N(0, alpha^2 / (2 w))``, ``w ~ Exp(1)`` (D. F. Andrews & C. L.
+    Mallows, "Scale mixtures of normal distributions", JRSS B 36, 1974), i.e. of Ward lobes
+    (``N(0, a^2 / 2)`` in slope space, module docstring) of ``a = alpha / sqrt(w)``; ``w``
+    at the mid-quantiles ``-ln((j + 1/2) / k)`` of Exp(1). The widest is ``alpha /
+    sqrt(-ln(1 - 1/(2k)))`` (3.4 alpha for 6): the mixture stops short of GGX's tail."""
+    u = (np.arange(k) + 0.5) / k
+    return float(alpha) / np.sqrt(-np.log(u))

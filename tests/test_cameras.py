@@ -780,6 +780,47 @@ def test_colour_check_sees_hue_not_brightness_noise_or_glints():
         assert colour_check(glint, truth, mask, sigma, model_error=0.03).consistent
 
 
+def test_colour_check_type_b_offset():
+    """A nuisance's Type B offset ``s_b`` (the model's render with the nuisance's other
+    choice less its own) joins each part's floor as ``s_b s_b^T``. A photo whose hue differs
+    from the render by exactly that offset (2 % more red: 0.004-0.02 of chroma, which fails
+    alone, as above), in either sign, is then consistent: by Sherman-Morrison a part's
+    statistic along ``s_b`` is ``(s_b^T C^-1 s_b) / (1 + s_b^T C^-1 s_b) < 1`` and the
+    component across it keeps the null law, about 1 per degree of freedom in all. Twice
+    the offset is not (about 4 along it: 2.5 per degree of freedom, over the limit near
+    1.5). A zero offset leaves the statistic as it was; several sources add their outer
+    products."""
+    from bubblefit.inverse.colour_check import colour_check
+
+    truth, mask = _smooth_colours()
+    sigma = 0.01 * truth
+    shift = truth * np.array([0.02, 0.0, 0.0])
+    for seed in range(5):
+        noise = sigma * np.random.default_rng(seed).normal(size=truth.shape)
+        for sign in (1.0, -1.0):
+            photo = truth + sign * shift + noise
+            alone = colour_check(photo, truth, mask, sigma)
+            held = colour_check(photo, truth, mask, sigma, offset=shift)
+            assert not alone.consistent and held.consistent, (alone, held)
+            # the offset measured as the residual is: their RMS agree within the noise of a
+            # ~25 px mean (0.01 / 5 of the brightness)
+            assert abs(held.offset_rms - alone.chroma_rms) < 0.002, (held.offset_rms, alone.chroma_rms)
+        far = colour_check(truth + 2 * shift + noise, truth, mask, sigma, offset=shift)
+        assert not far.consistent, far
+        # independent sources stack, each its own outer product: a second source across the
+        # first (more green) lets the photo hold both offsets; a zero source changes nothing
+        green = truth * np.array([0.0, 0.02, 0.0])
+        both = truth + shift + green + noise
+        assert not colour_check(both, truth, mask, sigma, offset=shift).consistent
+        assert colour_check(both, truth, mask, sigma, offset=np.stack([shift, green])).consistent
+        two = colour_check(far_photo := truth + 2 * shift + noise, truth, mask, sigma,
+                           offset=np.stack([shift, np.zeros_like(shift)]))
+        assert two.chi2_per_dof == colour_check(far_photo, truth, mask, sigma, offset=shift).chi2_per_dof
+        same = colour_check(truth + noise, truth, mask, sigma, offset=np.zeros_like(truth))
+        plain = colour_check(truth + noise, truth, mask, sigma)
+        assert same.chi2_per_dof == plain.chi2_per_dof and same.offset_rms == 0.0 and plain.offset_rms is None
+
+
 def test_colour_check_noise_shared_by_neighbours():
     """Noise drawn once per 2 x 2 block of pixels holds, in a mean over n pixels, the noise
     of about n/4 independent ones, while each pixel's scatter is the stated sigma: taken as

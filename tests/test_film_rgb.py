@@ -162,3 +162,135 @@ def test_rough_clamped_film_is_the_mean_over_visible_facets():
     # across a clamp the integrand has a kink, which three nodes follow only roughly (4 % of
     # the mirror film's error here): the facets' mean must still take most of that error away
     assert err[~smooth].max() < 0.25 * off[~smooth].max()
+
+
+def _ggx_visible_mean(f, cos_v, alpha):
+    """The mean of ``f(w_i . h)`` over GGX's visible normals (Heitz, JCGT 3(2), 2014, eq. 2:
+    ``max(w_i . h, 0) D(h) / ((1 + Lambda(w_i)) cos_v)``, ``D`` Walter et al. 2007's eq. 33,
+    ``Lambda`` Smith's for GGX, Heitz 2014 eq. 72) by scipy's adaptive ``dblquad`` over
+    the normal's polar and azimuthal angles (the half ``phi`` in [0, pi], doubled), split at
+    ``5 alpha`` where the lobe's peak ends."""
+    from scipy.integrate import dblquad
+
+    sin_v = np.sqrt(1.0 - cos_v**2)
+
+    def g(phi, th):
+        vh = sin_v * np.sin(th) * np.cos(phi) + cos_v * np.cos(th)
+        if vh <= 0.0:
+            return 0.0
+        d = 1.0 / (np.pi * alpha**2 * np.cos(th) ** 4 * (1.0 + np.tan(th) ** 2 / alpha**2) ** 2)
+        return f(vh) * vh * d * np.sin(th)
+
+    lam = 0.5 * (np.sqrt(1.0 + alpha**2 * (sin_v / cos_v) ** 2) - 1.0)
+    edge = 5.0 * alpha
+    total = sum(dblquad(g, a, b, 0.0, np.pi, epsabs=0.0, epsrel=1e-6)[0] for a, b in ((0.0, edge), (edge, np.pi / 2)))
+    return 2.0 * total / ((1.0 + lam) * cos_v)
+
+
+def test_ggx_visible_facets_against_an_independent_quadrature():
+    """``brdf.ggx_facet_cosines`` (Heitz 2018's map of the unit square, Gauss-Legendre in
+    ``sqrt(1 - u1)`` x midpoints in the angle) against scipy's adaptive quadrature of GGX's
+    visible-normal density over the hemisphere, at the rough Cycles case's width (alpha =
+    0.0225) and two cosines. The density's normalisation is checked by ``f = 1`` (the
+    quadrature's own tolerance, 1e-6 relative, times ten); a smooth ``f = (w_i . h)^4`` to
+    1e-4 (the rule converges geometrically on an analytic integrand: 1.4e-5 at worst
+    measured); and a 700 nm film's first harmonic clipped at 0 (the clamped film's kink),
+    which the rule must hold to a quarter of what separates GGX's visible facets from
+    Ward's (``brdf.facet_cosines``), the difference a fit's Type B term is built from
+    (measured: 0.07 and 0.01 of it). At ``alpha = 0`` every node is the ray's own cosine."""
+    from bubblefit.optics import brdf
+
+    alpha = 0.0225
+    film = lambda x: max(0.0, np.cos(2.0 * np.pi * 2.0 * 1.33 * 700.0 * x / 620.0))
+    for cos_v in (0.9, 0.5):
+        nodes, w = (np.asarray(a, np.float64) for a in brdf.ggx_facet_cosines(np.array([cos_v]), alpha))
+        ward_c, ward_w = brdf.facet_cosines(np.array([cos_v]), alpha)
+        rule = lambda f: float(np.vectorize(f)(nodes[:, 0]) @ w)
+        if cos_v == 0.5:
+            assert abs(_ggx_visible_mean(lambda x: 1.0, cos_v, alpha) - 1.0) < 1e-5
+        assert abs(rule(lambda x: x**4) - _ggx_visible_mean(lambda x: x**4, cos_v, alpha)) < 1e-4
+        ref = _ggx_visible_mean(film, cos_v, alpha)
+        ward = sum(float(b[0]) * film(float(a[0])) for a, b in zip(ward_c, ward_w))
+        assert abs(rule(film) - ref) < 0.25 * abs(ward - ref), (rule(film), ref, ward)
+    c0, _ = brdf.ggx_facet_cosines(np.array([0.3, 0.8]), 0.0)
+    assert np.allclose(np.asarray(c0), [0.3, 0.8], atol=1e-6)
+
+
+def test_ggx_facets_are_part_of_the_programs_key():
+    """The render with GGX's facets is another program (and stored one); at a mirror it is
+    the model's render; a bad value is refused."""
+    from bubblefit.io.executables import _static_bytes
+
+    fx = Effects(model="physical")
+    a, b = RenderConfig(effects=fx, film_rgb="clamped"), RenderConfig(effects=fx, film_rgb="clamped", facets="ggx")
+    assert a != b and _static_bytes(a) != _static_bytes(b)
+    with pytest.raises(ValueError, match="facets"):
+        RenderConfig(effects=fx, facets="beckmann")
+    basis = spectral_basis("uniform", 48)
+    fx = Effects(model="physical", interference="airy", diffuse=False, filtering=FilterConfig("mirror"),
+                 spectral=basis, bounces=BOUNCES)
+    p = Params.make(thickness=700.0, n_film=N_FILM, roughness=0.0, r_d=0.0, r_s=0.05, dtype=jnp.float64)
+    env = EnvMap.constant(1.0, height=8, dtype=jnp.float64)
+    imgs = [np.asarray(render(p, RenderConfig(effects=fx, camera=CAM, chunk=W * W, film_rgb="clamped", facets=f),
+                              env)) for f in ("ward", "ggx")]
+    assert np.abs(imgs[0] - imgs[1]).max() < 1e-12
+
+
+def test_microfacet_offsets_only_for_a_rough_clamped_film(monkeypatch):
+    """The colour check's Type B offsets of the microfacet distribution
+    (``colour_check.microfacet_offsets``) are rendered only where the model averages the
+    film over facets (the clamped film) and the film is rougher than ``FACET_MIRROR``; else
+    they are None and nothing is rendered. Two sources: one render with GGX's facets at the
+    fitted width, and GGX's lobe as the mean of renders at its Ward scale mixture's widths
+    (``brdf.ggx_ward_widths``), each less the fit's render."""
+    import dataclasses
+    from types import SimpleNamespace
+
+    from bubblefit.inverse import _programs
+    from bubblefit.inverse.colour_check import FACET_MIRROR, GGX_LOBE_WIDTHS, microfacet_offsets
+    from bubblefit.optics.brdf import ggx_ward_widths
+
+    calls = []
+
+    def fake(p, lev, env):  # a render whose value is its lobe width (0.5 with GGX's facets)
+        calls.append((lev.cfg.facets, float(p.roughness)))
+        return np.full((2, 2, 3), 0.5 if lev.cfg.facets == "ggx" else float(p.roughness))
+
+    monkeypatch.setattr(_programs, "render_bubble", fake)
+    fx = Effects(model="physical")
+    rough = Params.make(thickness=700.0, roughness=0.03)
+    mirror = dataclasses.replace(rough, roughness=np.float32(0.5 * FACET_MIRROR))
+
+    @dataclasses.dataclass
+    class Lev:  # the one field of a fit's Level that microfacet_offsets reads
+        cfg: RenderConfig
+
+    spectral = Lev(RenderConfig(effects=fx))
+    clamped = Lev(RenderConfig(effects=fx, film_rgb="clamped"))
+    paper = Lev(RenderConfig(effects=Effects(model="paper"), film_rgb="clamped"))
+    assert microfacet_offsets(rough, spectral, None, None) is None
+    assert microfacet_offsets(rough, paper, None, None) is None
+    assert microfacet_offsets(mirror, clamped, None, None) is None
+    assert calls == []
+    base = np.full((2, 2, 3), 0.25)
+    out = microfacet_offsets(rough, clamped, None, base)
+    widths = ggx_ward_widths(0.03, GGX_LOBE_WIDTHS)
+    assert out.shape == (2, 2, 2, 3) and [c[0] for c in calls] == ["ggx"] + ["ward"] * GGX_LOBE_WIDTHS
+    assert np.allclose([c[1] for c in calls[1:]], widths, rtol=1e-6)
+    assert np.allclose(out[0], 0.25) and np.allclose(out[1], np.mean(widths.astype(np.float32)) - 0.25)
+
+
+def test_ggx_ward_widths_are_ggx_slopes():
+    """The equal-weight mixture of Ward's slope Gaussians at ``brdf.ggx_ward_widths`` is
+    GGX's slope law (a Student t with 2 degrees of freedom): the share of slopes beyond
+    ``r`` is ``alpha^2 / (alpha^2 + r^2)`` for GGX (closed form) and ``mean_k
+    exp(-r^2 / a_k^2)`` for the mixture; with 200 mid-quantile widths they agree within
+    1 / (2 * 200) (the quantile rule's step in ``w``'s probability) out to 5 alpha."""
+    from bubblefit.optics.brdf import ggx_ward_widths
+
+    alpha, k = 0.03, 200
+    a = ggx_ward_widths(alpha, k)
+    r = alpha * np.linspace(0.0, 5.0, 51)
+    mix = np.exp(-(r[:, None] / a) ** 2).mean(axis=1)
+    assert np.abs(mix - alpha**2 / (alpha**2 + r**2)).max() < 1.0 / (2 * k)
+    assert np.isclose(ggx_ward_widths(alpha, 6).max(), alpha / np.sqrt(-np.log(11 / 12)))

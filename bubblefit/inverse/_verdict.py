@@ -14,7 +14,7 @@ glints of the sun or of a lamp leave where the model renders them coarser than t
 integrated them (one ray per pixel, or the pixel footprint's boxes). Such a fit
 stays not ``ok``: on independent photos the share of outliers did not tell a glint from a
 biased model apart (0.1-3.2 % on the development part's right fits with the sun, studio
-lamps or a bright city map in view, but 20 % on the test part's rough constant Cycles film
+lamps or a bright city map in view, but 20 % on the rough constant Cycles film
 fitted within 0.4 nm; 10 % on the paper model's biased courtyard drainage profile;
 experiments/validation/split.toml, docs/trust.md).
 

@@ -20,7 +20,15 @@ model (``sigma_i`` per pixel and channel: read, shot and quantisation noise,
 per-channel noise (the chromatic plane of a pale film is far from isotropic);
 ``F_b``, a chromatic model-error floor that does not average down: :data:`CHROMA_FLOOR`
 of the cell's brightness and :data:`CHROMA_REL` of its chroma, split over the plane's two
-components.
+components, plus ``s_b s_b^T`` for each nuisance of the model that the fit does not free
+and whose effect the model itself can compute at the fitted values (a Type B evaluation,
+JCGM 100:2008 "Guide to the expression of uncertainty in measurement", sec. 4.3): ``s_b =
+P_b mean_i(alt_i - render_i)``, the part's chromatic offset between the render with the
+nuisance's other choice and the fit's render, an offset of unknown sign that the part's
+pixels share, one such term per independent source. The one such nuisance is the rough
+film's microfacet distribution (:func:`microfacet_offsets`: GGX's facets under the film and
+GGX's lobe, each against Ward's): the paper's lobe is Ward's, and a real film's roughness
+is neither Ward's nor GGX's.
 
 Under the hypothesis that the colours are explained, each ``m_b`` is a centred normal
 vector with covariance ``C_b`` (plus at most ``F_b``), so
@@ -84,8 +92,9 @@ from ._uncertainty import OUTLIER_CHI2
 from ..optics.film import optical_path
 from ..optics.spectral import LAMBDA_MIN
 
-__all__ = ["ColourCheck", "colour_check", "judge_colours", "neighbour_scale", "noise_scale", "CHROMA_FLOOR",
-           "CHROMA_REL", "FALSE_ALARM", "GRID", "INNER_COS", "MIN_PART_PIXELS", "PATH_BIN", "SHARED_BELOW"]
+__all__ = ["ColourCheck", "colour_check", "judge_colours", "neighbour_scale", "noise_scale", "microfacet_offsets",
+           "CHROMA_FLOOR", "CHROMA_REL", "FACET_MIRROR", "GGX_LOBE_WIDTHS", "FALSE_ALARM", "GRID", "INNER_COS",
+           "MIN_PART_PIXELS", "PATH_BIN", "SHARED_BELOW"]
 
 #: Chromatic model error allowed per cell, as a fraction of the cell's brightness ``|render|``.
 #: From fits with the right camera only (experiments/colour_check_null.py: 48 px photos
@@ -154,6 +163,9 @@ class ColourCheck:
     partition: str = "cells"  # the parts reported: "cells" (the grid's, split by path), "path" (the film's path
     # bins) or "response" (the score test along smooth changes of the response over the cells' parts)
     dof: int = 0              # the statistic's degrees of freedom
+    #: RMS over the parts of |s_b| / |mean render|, the Type B offsets in F_b (module
+    #: docstring; None: none given)
+    offset_rms: float | None = None
 
     def warning(self, explained: bool = True) -> str | None:
         """One line for the fit's warnings when the colours are inconsistent, else None;
@@ -183,10 +195,13 @@ class ColourCheck:
     def to_json(self, decides: bool = True) -> dict:
         """The record of the fit's JSON; ``decides``: whether a failure makes the fit not
         ``ok`` (``JudgeSettings.colour_check``)."""
-        return {"consistent": self.consistent, "chi2_per_dof": self.chi2_per_dof,
-                "threshold_per_dof": self.threshold_per_dof, "cells": self.cells, "chroma_rms": self.chroma_rms,
-                "noise_scale": self.noise_scale, "response_errors": self.response_errors, "partition": self.partition,
-                "dof": self.dof, "decides": bool(decides)}
+        out = {"consistent": self.consistent, "chi2_per_dof": self.chi2_per_dof,
+               "threshold_per_dof": self.threshold_per_dof, "cells": self.cells, "chroma_rms": self.chroma_rms,
+               "noise_scale": self.noise_scale, "response_errors": self.response_errors, "partition": self.partition,
+               "dof": self.dof, "decides": bool(decides)}
+        if self.offset_rms is not None:
+            out["offset_rms"] = self.offset_rms
+        return out
 
 
 def _plane(c: np.ndarray) -> np.ndarray:
@@ -197,27 +212,33 @@ def _plane(c: np.ndarray) -> np.ndarray:
     return np.stack([u, np.cross(c, u)])
 
 
-def _cell_terms(e: np.ndarray, v: np.ndarray, rend: np.ndarray, floor: float, chroma_floor: float, jac, score=None):
+def _cell_terms(e: np.ndarray, v: np.ndarray, rend: np.ndarray, floor: float, chroma_floor: float, jac, score=None,
+                offset=None):
     """One cell's terms of :func:`colour_check` (module docstring) from its pixels' residuals
     ``e``, noise variances ``v`` and renders ``rend`` (n, 3), ``jac``, the (3, K) change of
-    its mean render per unit of the response's error coefficients (None: none), and
-    ``score``, the pair ``(D, N)`` of the score test's directions and nuisances (None: none):
-    ``(m_b, C_b, F_b, brightness, P_b jac, (P_b D, P_b N))``."""
+    its mean render per unit of the response's error coefficients (None: none),
+    ``score``, the pair ``(D, N)`` of the score test's directions and nuisances (None: none),
+    and ``offset``, its pixels' Type B offsets (K, n, 3), one row per independent source
+    (None: none): ``(m_b, C_b, F_b, brightness, P_b jac, (P_b D, P_b N), floors, |s_b|)``,
+    ``F_b`` with ``sum_k s_bk s_bk^T`` and ``floors`` without it, ``|s_b|`` the root of
+    that sum's trace."""
     n = e.shape[0]
     mean = rend.mean(axis=0)
     p = _plane(mean / np.linalg.norm(mean))
     noise = (p * v.sum(axis=0)) @ p.T / n**2       # covariance of the mean chromatic residual
     bright = float(np.linalg.norm(rend, axis=1).mean())
     chroma = float(np.linalg.norm(mean - mean.mean()))  # the part orthogonal to grey (1, 1, 1)
-    model = 0.5 * ((floor * bright) ** 2 + (chroma_floor * chroma) ** 2) * np.eye(2)
-    return ((e @ p.T).mean(axis=0), noise, model, bright, None if jac is None else p @ jac,
-            None if score is None else (p @ score[0], p @ score[1]))
+    floors = 0.5 * ((floor * bright) ** 2 + (chroma_floor * chroma) ** 2) * np.eye(2)
+    s = np.zeros((1, 2)) if offset is None else offset.mean(axis=1) @ p.T  # (K, 2): each source's s_bk
+    return ((e @ p.T).mean(axis=0), noise, floors + s.T @ s, bright, None if jac is None else p @ jac,
+            None if score is None else (p @ score[0], p @ score[1]), floors, float(np.linalg.norm(s)))
 
 
 def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma: np.ndarray, *,
                  model_error: float | None = None, floor: float = CHROMA_FLOOR, chroma_floor: float = CHROMA_REL, grid: int = GRID,
                  false_alarm: float = FALSE_ALARM, response_jac=None, path: np.ndarray | None = None,
-                 path_bin: float | None = None, pooled: bool = False, score_jac=None) -> ColourCheck | None:
+                 path_bin: float | None = None, pooled: bool = False, score_jac=None,
+                 offset: np.ndarray | None = None) -> ColourCheck | None:
     """Test whether ``render`` explains the hues of ``photo`` over the pixels of ``mask``,
     each pixel's channels having the noise standard deviation ``sigma`` (the fit's noise
     model, :func:`~bubblefit.inverse._observation.noise_sigma`); module docstring. Pixels
@@ -245,10 +266,13 @@ def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma:
     render per unit of each of a few smooth changes of the response and of each nuisance the
     fit adjusts in the hue; the score test along them (:func:`_score_verdict`) is then one
     more member of the union, every member at ``false_alarm`` over their number.
+    ``offset`` (H, W, 3), or (K, H, W, 3) for K independent sources: Type B offsets per
+    pixel (module docstring; :func:`microfacet_offsets`), whose part means' outer products
+    join each part's floor ``F_b`` in every member.
     ``None`` when fewer than two cells have :data:`MIN_PIXELS` pixels."""
     tests = _tests(photo, render, mask, sigma, model_error=model_error, floor=floor, chroma_floor=chroma_floor,
                    grid=grid, false_alarm=false_alarm, response_jac=response_jac, path=path, path_bin=path_bin,
-                   pooled=pooled, score_jac=score_jac)
+                   pooled=pooled, score_jac=score_jac, offset=offset)
     if not tests:
         return None
     worse = max(tests, key=lambda c: c.chi2_per_dof / c.threshold_per_dof)
@@ -256,7 +280,7 @@ def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma:
 
 
 def _tests(photo, render, mask, sigma, *, model_error, floor, chroma_floor, grid, false_alarm, response_jac, path,
-           path_bin, pooled, score_jac) -> list:
+           path_bin, pooled, score_jac, offset=None) -> list:
     """The members of :func:`colour_check`'s union (its arguments), each a
     :class:`ColourCheck` at its share of ``false_alarm``: the grid's cells (split by
     ``path``), with ``pooled`` the path's bins over the film, with ``score_jac`` the score
@@ -276,6 +300,7 @@ def _tests(photo, render, mask, sigma, *, model_error, floor, chroma_floor, grid
     if ys.size < 2 * MIN_PIXELS:
         return []
     e, v, rend = photo[ys, xs] - render[ys, xs], var[ys, xs], render[ys, xs]
+    shift = None if offset is None else np.asarray(offset, np.float64).reshape((-1,) + photo.shape)[:, ys, xs]
     y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
     cy = np.minimum((ys - y0) * grid // max(y1 - y0, 1), grid - 1)
     cx = np.minimum((xs - x0) * grid // max(x1 - x0, 1), grid - 1)
@@ -309,7 +334,8 @@ def _tests(photo, render, mask, sigma, *, model_error, floor, chroma_floor, grid
         return []
     scores = [None] * len(subs) if score_jac is None else _part_means(score_jac, ys, xs, subs)
     cells = [_cell_terms(e[sub], v[sub], rend[sub], floor, chroma_floor,
-                         None if response_jac is None else response_jac(ys[sub], xs[sub]), score)
+                         None if response_jac is None else response_jac(ys[sub], xs[sub]), score,
+                         None if shift is None else shift[:, sub])
              for sub, score in zip(subs, scores)]
     kappa = noise_scale(photo, render, var, use, white)
     bins = []  # the path's bins over the whole film
@@ -317,7 +343,8 @@ def _tests(photo, render, mask, sigma, *, model_error, floor, chroma_floor, grid
         sub = np.nonzero(part == q)[0]
         if sub.size >= MIN_PART_PIXELS:
             bins.append(_cell_terms(e[sub], v[sub], rend[sub], floor, chroma_floor,
-                                    None if response_jac is None else response_jac(ys[sub], xs[sub])))
+                                    None if response_jac is None else response_jac(ys[sub], xs[sub]), None,
+                                    None if shift is None else shift[:, sub]))
     members = 1 + (pooled and path is not None) + (score_jac is not None)
     shared = response_jac is not None
     out = [_verdict(cells, kappa, false_alarm / members, shared)]
@@ -326,7 +353,14 @@ def _tests(photo, render, mask, sigma, *, model_error, floor, chroma_floor, grid
     if score_jac is not None:
         score = _score_verdict(cells, kappa, false_alarm / members, shared)
         out += [] if score is None else [score]
+    if offset is not None:  # the Type B offsets' size beside the residual's (ColourCheck.offset_rms)
+        out = [replace(c, offset_rms=_offset_rms(cells if c.partition != "path" else bins)) for c in out]
     return out
+
+
+def _offset_rms(parts: list) -> float:
+    """RMS over ``parts`` (:func:`_cell_terms`' tuples) of ``|s_b| / brightness``."""
+    return float(np.sqrt(np.mean([(c[7] / c[3]) ** 2 for c in parts])))
 
 
 def _part_means(score_jac, ys, xs, subs: list) -> list:
@@ -354,11 +388,11 @@ def _verdict(cells: list, kappa: float, false_alarm: float, shared: bool, partit
     # the same function without scipy.stats' import (0.4 s of CPU in every fit's process)
     from scipy.special import chdtri
 
-    stat = sum(float(m @ np.linalg.solve(kappa * c + f, m)) for m, c, f, _, _, _ in cells)
+    stat = sum(float(c[0] @ np.linalg.solve(kappa * c[1] + c[2], c[0])) for c in cells)
     if shared:  # the shared response's draw, by the Woodbury identity
         k = cells[0][4].shape[1]
         u, inner = np.zeros(k), np.eye(k)
-        for m, c, f, _, g, _ in cells:
+        for m, c, f, _, g, *_ in cells:
             cg = np.linalg.solve(kappa * c + f, g)  # C_b^-1 G_b
             u += cg.T @ m
             inner += g.T @ cg
@@ -366,7 +400,7 @@ def _verdict(cells: list, kappa: float, false_alarm: float, shared: bool, partit
     dof = 2 * len(cells)
     thr = float(chdtri(dof, false_alarm)) / dof
     value = stat / dof
-    rel = [float(np.linalg.norm(m)) / bright for m, _, _, bright, _, _ in cells]
+    rel = [float(np.linalg.norm(c[0])) / c[3] for c in cells]
     return ColourCheck(bool(value <= thr), value, thr, len(cells), float(np.sqrt(np.mean(np.square(rel)))), kappa,
                        shared, partition, dof)
 
@@ -393,7 +427,9 @@ def _score_verdict(cells: list, kappa: float, false_alarm: float, shared: bool) 
     change of the response can mimic it), so besides each part's own floor ``F_b`` the
     null holds one shared draw along the directions, of the size that moves the mean part's
     hue by its floor, spread evenly over the ``K`` directions that move it:
-    ``tau_k^2 = mean_b tr F_b / (K mean_b |D_bk|^2)`` for direction ``k`` (``D_bk`` its
+    ``tau_k^2 = mean_b tr F_b / (K mean_b |D_bk|^2)`` (the constant floors only: a Type B
+    offset ``s_b s_b^T`` is the model's own computed pattern, held in ``F_b`` of the first
+    term) for direction ``k`` (``D_bk`` its
     column of ``D_b``, projected on the chromatic plane; zero without floors), so that
     ``sum_k tau_k^2 mean_b |D_bk|^2 = mean_b tr F_b`` and each direction alone moves the
     mean part by its floor over ``sqrt(K)``, whatever the directions' units (the statistic
@@ -421,7 +457,7 @@ def _score_verdict(cells: list, kappa: float, false_alarm: float, shared: bool) 
     reach = np.mean([np.sum(c[5][0] ** 2, axis=0) for c in cells], axis=0)  # mean_b |D_bk|^2 per direction
     moved = reach > 0
     if moved.any():  # the floors' shared draw along the directions, evenly over those that move the hue
-        tau2 = np.where(moved, np.mean([np.trace(c[2]) for c in cells]) / (moved.sum() * np.where(moved, reach, 1.0)),
+        tau2 = np.where(moved, np.mean([np.trace(c[6]) for c in cells]) / (moved.sum() * np.where(moved, reach, 1.0)),
                         0.0)
         sigma = sigma + (dirs * tau2) @ dirs.T
     low = cholesky(sigma, lower=True)
@@ -518,9 +554,63 @@ def _block_scale(white: np.ndarray, k: int = 2) -> float:
     return k * k * float(np.mean(blocks.mean(axis=(1, 3))[whole] ** 2))
 
 
+#: Roughness below which the film counts as a mirror for :func:`microfacet_offsets`: Ward's
+#: and GGX's visible facets (the same density ``1 / (pi a^2)`` at the mirror direction) differ
+#: in ``w_i . h`` at second order in ``a``, and ``a^2`` here is 2^-24, the float32 render's
+#: rounding, so the two renders could not differ: no extra render, no term.
+FACET_MIRROR = 2.0**-12
+
+#: Ward widths of the GGX lobe's scale mixture in :func:`microfacet_offsets`
+#: (:func:`~bubblefit.optics.brdf.ggx_ward_widths`).
+GGX_LOBE_WIDTHS = 6
+
+
+def microfacet_offsets(params, lev, env, base: np.ndarray) -> np.ndarray | None:
+    """The Type B offsets of the microfacet distribution (module docstring) per pixel of the
+    level ``lev`` (:class:`~bubblefit.inverse._observation.Level`) at the fitted render
+    parameters ``params``, two sources (2, H, W, 3), each less ``base``, the fit's render
+    there (Ward's lobe of width ``a`` = the fitted roughness, the clamped film averaged over
+    its visible facets):
+
+    * the facets: the render with the clamped film averaged over GGX's visible facets
+      (:attr:`~bubblefit.model.render.RenderConfig.facets` ``"ggx"``) of width ``alpha =
+      a``, the width at which the two slope laws have the same density at the mirror
+      direction (one render);
+    * the lobe: GGX's lobe of width ``a`` as the mean of the model's renders at the Ward
+      widths of its Gaussian scale mixture (:func:`~bubblefit.optics.brdf.ggx_ward_widths`,
+      :data:`GGX_LOBE_WIDTHS` renders, one program: the render is linear in the lobe; each
+      width's film over its own facets).
+
+    A nuisance the fit does not free: Blender Cycles draws GGX's lobe and facets, the
+    paper's lobe is Ward's (eq. 1), a real film's roughness is neither. None where the
+    model does not average the film over facets (the spectral film, the paper model) or
+    the film is a mirror (roughness under :data:`FACET_MIRROR`): no render is made. The
+    term has no constant of its own; it was built because the development case
+    cyc_const700_sunset_ortho_rough (a Cycles render of a rough 700 nm film, fitted right)
+    failed the check without it (experiments/validation/split.toml;
+    docs/validation-split.md)."""
+    from dataclasses import replace as swap
+
+    from ..optics.brdf import ggx_ward_widths
+    from ._programs import render_bubble
+
+    cfg = lev.cfg
+    if cfg.film_rgb != "clamped" or cfg.effects.model != "physical":
+        return None
+    a = float(np.asarray(params.roughness))
+    if not a > FACET_MIRROR:
+        return None
+    base = np.asarray(base, np.float64)
+    facets = np.asarray(render_bubble(params, swap(lev, cfg=swap(cfg, facets="ggx")), env), np.float64)
+    lobe = np.mean([np.asarray(render_bubble(swap(params, roughness=np.asarray(w, np.float32)), lev, env), np.float64)
+                    for w in ggx_ward_widths(a, GGX_LOBE_WIDTHS)], axis=0)
+    return np.stack([facets - base, lobe - base])
+
+
 def judge_colours(ok: bool, warnings: list, photo, render, mask, cos, sigma, model_error: float = 0.0,
                   explained: bool = True, decide: bool = True, response_jac=None,
-                  thickness=None, n_film: float | None = None, score_jac=None) -> tuple[bool, list, dict | None]:
+                  thickness=None, n_film: float | None = None, score_jac=None,
+                  offset: np.ndarray | None = None) -> tuple[bool, list, dict | None]:
     """The fit's verdict with the colour test added: ``(ok, warnings, record)``. The test
     (:func:`colour_check`) runs over the fitted pixels ``mask`` whose front film's ``cos``
     (cosine of incidence) exceeds :data:`INNER_COS`, with the fit's noise ``sigma`` and
@@ -533,13 +623,15 @@ def judge_colours(ok: bool, warnings: list, photo, render, mask, cos, sigma, mod
     (:func:`~bubblefit.optics.film.optical_path`) at each pixel's ``cos`` splits the cells
     (:data:`PATH_BIN`; None: not split). ``score_jac``: the score test's directions and
     nuisances (:func:`bubblefit.inverse.response_error.response_score_cells`; None: no score
-    test), one more member of :func:`colour_check`'s union."""
+    test), one more member of :func:`colour_check`'s union. ``offset``: the Type B offsets
+    per pixel (:func:`microfacet_offsets`; None: none)."""
     path = None
     if thickness is not None and n_film is not None:
         path = np.asarray(optical_path(np.asarray(thickness, np.float64), float(n_film),
                                        np.clip(np.asarray(cos, np.float64), 0.0, 1.0)))
     check = colour_check(photo, render, np.asarray(mask, bool) & (np.asarray(cos) > INNER_COS), sigma,
-                         model_error=model_error, response_jac=response_jac, path=path, pooled=True, score_jac=score_jac)
+                         model_error=model_error, response_jac=response_jac, path=path, pooled=True, score_jac=score_jac,
+                         offset=offset)
     if check is None:
         return ok, warnings, None
     why = check.warning(explained)

@@ -66,7 +66,7 @@ from ._setup import Setup, defaults, setup
 from ._uncertainty import Uncertainty, photo_misfit, uncertainty
 from ._verdict import at_bounds, clamp_to_range, unresolved, verdict
 from ._view import camera_record, fit_divergence, fit_view, lens_for
-from .colour_check import judge_colours
+from .colour_check import judge_colours, microfacet_offsets
 from .order_check import OrderCheck, neighbouring_orders, order_check, order_parameters
 from .response_error import (pixel_thickness_stderr, response_cells, response_error, response_score_cells,
                              solve_response_gram)
@@ -345,9 +345,12 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
         nuisance = None if prof is None else np.asarray(drainage_gradient(full.height, *prof), np.float64)[..., free]
         score_jac = response_score_cells(st.colour.response, st.colour.illuminant, reported["n_film"], img,
                                          st.background, thick, full.cos, nuisance=nuisance)
+    # the microfacet distribution, a nuisance the fit does not free: its Type B offsets, from
+    # renders with GGX's facets and lobe at the fitted values (None for a mirror or the spectral film)
+    offset = microfacet_offsets(final_params(table, final_vals, opts), full, env, img)
     ok, warnings, colour_record = judge_colours(ok, warnings, st.photo, img, full.mask, full.cos, sigma,
                                                 float(judge.model_error), explained, judge.colour_check == "decide",
-                                                response_jac, thick, reported["n_film"], score_jac)
+                                                response_jac, thick, reported["n_film"], score_jac, offset)
     order = judged.order  # does the photo tell the order, the response's errors allowed?
     names = order_parameters(st.table.thickness_model) or ()
     if order is not None and names and all(np.isfinite(reported.get(n, np.nan)) for n in names):

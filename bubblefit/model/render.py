@@ -66,6 +66,9 @@ NO_PROFILE = (float("nan"),) * 3
 #: The choices of :attr:`RenderConfig.film_rgb`.
 FILM_RGB = ("spectral", "clamped")
 
+#: The choices of :attr:`RenderConfig.facets`.
+FACETS = ("ward", "ggx")
+
 #: How many times each term of the model has been traced (for tests of ``effects``).
 TRACE_COUNTS: collections.Counter = collections.Counter()
 
@@ -159,10 +162,20 @@ class RenderConfig:
     #: channel first and the series taken in RGB (:func:`clamped_series`), as Blender
     #: Cycles' thin film (Principled BSDF) shades: for fitting renders made by it.
     film_rgb: str = "spectral"
+    #: Whose microfacets the ``clamped`` film is averaged over on a rough film
+    #: (:func:`clamped_series`): ``"ward"``, the visible facets of eq. (1)'s lobe
+    #: (:func:`~bubblefit.optics.brdf.facet_cosines`, the model), or ``"ggx"``, GGX's of width
+    #: ``alpha`` = the roughness (:func:`~bubblefit.optics.brdf.ggx_facet_cosines`: the two
+    #: slope laws have the same density ``1 / (pi a^2)`` at the mirror direction), as Blender
+    #: Cycles draws them; a fit renders it once to bound the hue the choice moves
+    #: (:func:`bubblefit.inverse.colour_check.microfacet_offsets`).
+    facets: str = "ward"
 
     def __post_init__(self):
         if self.film_rgb not in FILM_RGB:
             raise ValueError(f"film_rgb must be 'spectral' or 'clamped', got {self.film_rgb!r}")
+        if self.facets not in FACETS:
+            raise ValueError(f"facets must be 'ward' or 'ggx', got {self.facets!r}")
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -385,7 +398,7 @@ def _physical_terms(fx: Effects, p: Params, opt: "_Film", refl: dict, d0, d1, ex
 
 
 def clamped_series(fx: Effects, p: Params, opt: "_Film", refl: dict, d0, d1, exits, thick, bg_rad,
-                   photo_bg: bool) -> dict:
+                   photo_bg: bool, facets: str = "ward") -> dict:
     """The physical series of :func:`_physical_terms` with each film's reflectance first
     averaged over polarisations, integrated to RGB and clamped to [0, 1] per channel,
     ``R = clip(rgb(R(lambda)))``, and the series taken per channel: front ``R_0 S_0`` (plus
@@ -397,15 +410,27 @@ def clamped_series(fx: Effects, p: Params, opt: "_Film", refl: dict, d0, d1, exi
     P. Barla, ACM TOG 36(4), 2017, the thin-film Fresnel term Cycles evaluates). On a rough
     film Cycles evaluates it at each sampled facet's angle, so ``R`` is the mean of the
     clamped colours over the lobe's visible facets (:func:`~bubblefit.optics.brdf.facet_cosines`;
-    microfacet theory's ``F(w_i . h)``, Walter et al. 2007, eq. 20)."""
+    microfacet theory's ``F(w_i . h)``, Walter et al. 2007, eq. 20); ``facets = "ggx"``
+    averages it over GGX's visible facets instead (:attr:`RenderConfig.facets`,
+    :func:`~bubblefit.optics.brdf.ggx_facet_cosines`), their nodes taken in a loop."""
     _count("clamped_film")
     # Cycles samples a facet of the rough lobe and evaluates the film at its angle, w_i . h,
     # then clamps (bsdf_microfacet.h, fresnel_iridescence): the mean of the clamped colours
     # over the visible facets of the lobe (brdf.facet_cosines; at a mirror, the film itself).
-    cos_nodes, weights = brdf.facet_cosines(opt.cos, p.roughness)
-    facets = [_Film(fx, p, c, opt.lam, d0) for c in cos_nodes]
-    rgb_r = lambda d: sum(w[:, None] * jnp.clip(f.rgb(jnp.mean(f.reflectance(d), axis=-1)), 0.0, 1.0)
-                          for f, w in zip(facets, weights))
+    clamped = lambda f, d: jnp.clip(f.rgb(jnp.mean(f.reflectance(d), axis=-1)), 0.0, 1.0)
+    if facets == "ggx":
+        cos_nodes, weights = brdf.ggx_facet_cosines(opt.cos, p.roughness)
+
+        def rgb_r(d):
+            def node(total, cw):
+                return total + cw[1] * clamped(_Film(fx, p, cw[0], opt.lam, d0), d), None
+
+            zero = jnp.zeros(opt.cos.shape + (3,), opt.cos.dtype)
+            return jax.lax.scan(node, zero, (cos_nodes, weights))[0]
+    else:
+        cos_nodes, weights = brdf.facet_cosines(opt.cos, p.roughness)
+        films = [_Film(fx, p, c, opt.lam, d0) for c in cos_nodes]
+        rgb_r = lambda d: sum(w[:, None] * clamped(f, d) for f, w in zip(films, weights))
     one = fx.thickness == "constant"
     r0 = rgb_r(d0)
     r1 = r0 if one else rgb_r(d1)
@@ -452,7 +477,7 @@ def _terms(p: Params, cfg: RenderConfig, lam, cos, d0, d1, exits, thick, refl, b
     if fx.model == "paper":
         return paper_terms(fx, p, opt, refl, d0, d1, bg_rad, photo_bg)
     if cfg.film_rgb == "clamped":
-        return clamped_series(fx, p, opt, refl, d0, d1, exits, thick, bg_rad, photo_bg)
+        return clamped_series(fx, p, opt, refl, d0, d1, exits, thick, bg_rad, photo_bg, cfg.facets)
     return _physical_terms(fx, p, opt, refl, d0, d1, exits, thick, bg_rad, photo_bg)
 
 

@@ -94,11 +94,11 @@ REGIONS = {"centre": (0.0, 0.5), "mid": (0.5, 0.8), "rim": (0.8, 0.96)}
 
 
 def ggx_ward_widths(alpha: float, k: int = GGX_NODES) -> np.ndarray:
-    """Ward widths whose equal-weight mean is GGX's slope distribution of ``alpha``: the
-    Gaussian scale mixture of a bivariate t with 2 degrees of freedom (module docstring),
-    ``a_k = alpha / sqrt(w_k)`` at the mid-quantiles ``w_k = -ln((k + 1/2)/K)`` of Exp(1)."""
-    u = (np.arange(k) + 0.5) / k
-    return alpha / np.sqrt(-np.log(u))
+    """Ward widths whose equal-weight mean is GGX's slope distribution of ``alpha``
+    (:func:`bubblefit.optics.brdf.ggx_ward_widths`, ``k`` of them)."""
+    from bubblefit.optics.brdf import ggx_ward_widths as widths
+
+    return widths(alpha, k)
 
 
 def blender_rows(pixels: np.ndarray) -> np.ndarray:

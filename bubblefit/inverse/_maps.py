@@ -44,7 +44,9 @@ several rays trace each level's rays once and evaluate the film's optics per can
 per candidate, gives the same costs), and their finest level is refined by a per-pixel
 Gauss-Newton solve instead of a grid (:func:`bubblefit.inverse._map_pixels.refine`,
 :data:`FINE_SOLVE`): the map's Jacobian is diagonal, and the smoothness prior's sparse
-Laplacian is solved by conjugate gradients.
+Laplacian is solved by conjugate gradients; its trials read each pixel's colour from a
+polynomial in its thickness over its window
+(:class:`~bubblefit.inverse._map_pixels.WindowPolynomials`).
 
 References
 ----------

@@ -187,7 +187,7 @@ def test_window_polynomials_equal_the_slopes(env, level):
     centre = profile_map(lev, (300.0, 900.0, 1.0)).reshape(-1)[sel] + 10.0
     lo, hi = window(centre, 24.0)
     costs = TracedCosts(lev, st.table, vals, env)
-    poly = costs.window(lo, hi)
+    poly = costs.window_polynomials(lo, hi)
     d = lo + np.random.default_rng(5).uniform(0.0, 1.0, centre.size) * (hi - lo)
     r, j = costs.slopes(d)
     r_p, j_p = poly.slopes(d)

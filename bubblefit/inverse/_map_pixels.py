@@ -32,7 +32,8 @@ from ..model.geometry import compose_shift
 from ..model.render import shade_pixels, trace_pixels
 from ..model.thickness import thickness_at
 
-__all__ = ["TracedCosts", "WindowCosts", "WindowPolynomials", "WINDOW_NODES", "window", "refine", "CHUNK", "REFINE_STEPS", "REFINE_TOL_NM", "REFINE_QUANTILE"]
+__all__ = ["TracedCosts", "WindowCosts", "WindowPolynomials", "WINDOW_NODES", "window", "refine", "CHUNK", "REFINE_STEPS",
+           "REFINE_TOL_NM", "REFINE_QUANTILE"]
 
 #: Pixels per traced chunk (the renderer's chunks are of this order).
 CHUNK = 512
@@ -289,7 +290,7 @@ class TracedCosts:
                                                  exposure, profile)
         return (np.asarray(img, np.float64).reshape(-1, 3)[:self.n], np.asarray(col, np.float64).reshape(-1, 3)[:self.n])
 
-    def window(self, lo: np.ndarray, hi: np.ndarray) -> "WindowPolynomials":
+    def window_polynomials(self, lo: np.ndarray, hi: np.ndarray) -> "WindowPolynomials":
         """Each pixel's colour over its thicknesses ``[lo, hi]`` (P,) as a polynomial
         (:class:`WindowPolynomials`), at this level's values."""
         return WindowPolynomials(self, lo, hi)
@@ -402,7 +403,7 @@ class WindowCosts:
     holds), the others shaded (candidates outside a window, and :meth:`at`)."""
 
     def __init__(self, costs: TracedCosts, lo: np.ndarray, hi: np.ndarray):
-        self.costs, self.polynomials = costs, costs.window(lo, hi)
+        self.costs, self.polynomials = costs, costs.window_polynomials(lo, hi)
 
     def __call__(self, d: np.ndarray) -> np.ndarray:
         """(G, P) chi^2 of candidate thicknesses ``d`` (G, P)."""

@@ -365,7 +365,7 @@ def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts: FitOption
                     poly = fine.at(float(costs_of.p.exposure))
                     lo, hi = np.maximum(lo, poly.lo), np.minimum(hi, poly.hi)
                 else:
-                    poly = costs_of.window(lo, hi)
+                    poly = costs_of.window_polynomials(lo, hi)
                 costs_of.polynomials = poly
                 best, err, c = refine(poly, centre, _neighbours(L.mask)[0], s, half, bounds=(lo, hi))
             else:

@@ -182,7 +182,10 @@ def carried_map(st, opts: FitOptions, env, carried: dict) -> CarriedMap | str:
             exposure_err = max(float(exposure_err or 0.0), step_err)
             # the exposure moved the colours, not the interference order the coarse levels
             # settled: the map is refined at full resolution from itself (:func:`fit_map`'s start)
-            dmap, emap, map_ok = fit_map(full, table, vals, prof, opts, env, make_level=make, start=(dmap, prof))
+            # from the polynomials of each pixel's colour the first map was refined on, at the
+            # new exposure (the colours are affine in it: no shading of the film again)
+            dmap, emap, map_ok = fit_map(full, table, vals, prof, opts, env, make_level=make, start=(dmap, prof),
+                                         fine=getattr(kept[-1], "polynomials", None) if kept else None)
         new_prof, prof_err = profile_from_map(full, dmap, emap, prof, tuple(n for n in PROFILE_NAMES if n in table.free))
         vals.update(zip(PROFILE_NAMES, new_prof))
         img = final_map_render(full, kept, table, vals, dmap, opts, env)

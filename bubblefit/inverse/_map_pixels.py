@@ -32,7 +32,8 @@ from ..model.geometry import compose_shift
 from ..model.render import shade_pixels, trace_pixels
 from ..model.thickness import thickness_at
 
-__all__ = ["TracedCosts", "refine", "CHUNK", "REFINE_STEPS", "REFINE_TOL_NM", "REFINE_QUANTILE"]
+__all__ = ["TracedCosts", "WindowCosts", "WindowPolynomials", "WINDOW_NODES", "window", "refine", "CHUNK", "REFINE_STEPS",
+           "REFINE_TOL_NM", "REFINE_QUANTILE"]
 
 #: Pixels per traced chunk (the renderer's chunks are of this order).
 CHUNK = 512
@@ -219,6 +220,9 @@ class TracedCosts:
         self.y = self.pix.y.reshape(steps, size, 3)
         self.w = self.pix.w.reshape(steps, size, 3)
         self._traced = None  # the level's traced rays, once a call has traced them
+        #: the :class:`WindowPolynomials` the finest level's map was refined on (set by
+        #: :func:`~bubblefit.inverse._maps.fit_map`), for a second refinement at another exposure
+        self.polynomials = None
 
     def _spread(self, d: np.ndarray) -> np.ndarray:
         """(..., P) -> (..., steps, chunk), the padding repeating the last pixel."""
@@ -268,12 +272,150 @@ class TracedCosts:
         """``(img, column)``, (P, 3) each: the level's pixels at thicknesses ``d`` (P,) with
         the exposure and the drainage profile of ``vals`` (the other values as traced), and
         their derivative in the exposure, from the rays :meth:`slopes` traced (traced here
-        if not yet): a render of the fitted pixels without tracing them again."""
+        if not yet): a render of the fitted pixels without tracing them again. Read from
+        the :attr:`polynomials` the level's map was refined on where they hold ``d`` and
+        were made at the drainage profile of ``vals`` (the exposure is read from their
+        column: :meth:`WindowPolynomials.pixels`)."""
         h, w = self.pix.padded.cfg.shape
         base = {k: jnp.asarray(v, jnp.float32) for k, v in vals.items() if k != "map"}
         q = table.render_params(dict(base, map=jnp.zeros((h, w), jnp.float32)), "map")
-        img, col = _stored_programs(self.cfg)[3](*self._traced_args(), jnp.asarray(self._spread(np.maximum(d, 0.0))), q.exposure, q.profile)
+        poly = self.polynomials
+        if poly is not None and poly.holds(d, q.profile):
+            return poly.at(float(q.exposure)).pixels(d)
+        return self._shaded(d, q.exposure, q.profile)
+
+    def _shaded(self, d: np.ndarray, exposure, profile) -> tuple[np.ndarray, np.ndarray]:
+        """``(img, column)`` of :meth:`pixels` at the render's own ``exposure`` and ``profile``."""
+        img, col = _stored_programs(self.cfg)[3](*self._traced_args(), jnp.asarray(self._spread(np.maximum(d, 0.0))),
+                                                 exposure, profile)
         return (np.asarray(img, np.float64).reshape(-1, 3)[:self.n], np.asarray(col, np.float64).reshape(-1, 3)[:self.n])
+
+    def window_polynomials(self, lo: np.ndarray, hi: np.ndarray) -> "WindowPolynomials":
+        """Each pixel's colour over its thicknesses ``[lo, hi]`` (P,) as a polynomial
+        (:class:`WindowPolynomials`), at this level's values."""
+        return WindowPolynomials(self, lo, hi)
+
+
+#: Chebyshev nodes of each pixel's window in :class:`WindowPolynomials` (a polynomial of
+#: degree one less). The film's colours vary with the phase ``4 pi n d cos(theta_t) /
+#: lambda``: at 380 nm and n = 1.4 a fringe spans at least 136 nm of thickness, so over a
+#: window of +-24 nm (``_maps.FINE_HALF_STEPS`` coarse steps) a fringe ``cos(omega d)`` has
+#: ``omega h <= 1.11`` and its interpolant's error is about ``2 J_7(1.11) ~ 6e-6`` of its
+#: amplitude (Trefethen 2013, ch. 8); the Airy sum's second harmonic and the bounces'
+#: products (fringes of 68 nm, ``omega h = 2.2``) have under 0.03 of the amplitude and
+#: ``2 J_7(2.2) ~ 8e-4`` of it. On held frames of the 96 px sequence of
+#: ``experiments/bench_sequence_maps.py`` (4152 pixels, 30 thicknesses each across the
+#: window) the weighted residual's error was at most 2.2e-3 of the noise (99th percentile
+#: 1.2e-4) with 7 nodes, 0.074 with 5 and 6e-4 (float32 rounding) with 9 or more.
+WINDOW_NODES = 7
+
+
+def window(centre: np.ndarray, half: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(lo, hi)``: the thicknesses within ``half`` of ``centre`` (P,), none below 0 (nm)."""
+    return np.maximum(centre - half, 0.0), centre + half
+
+
+class WindowPolynomials:
+    """Each pixel's colour as a polynomial in its own thickness over its window ``[lo, hi]``
+    (P,): the colours at the window's :data:`WINDOW_NODES` Chebyshev points (of the first
+    kind) and their Chebyshev series through them (Trefethen, Approximation Theory and
+    Approximation Practice, 2013, ch. 3-4), from the level's rays traced once
+    (:meth:`TracedCosts.pixels`).
+
+    A map pixel's colour depends on its own thickness only, smoothly (the module
+    docstring; :data:`WINDOW_NODES` bounds the interpolant's error), so the per-pixel
+    solve's residuals and diagonal Jacobian at any thicknesses of the window are read from
+    the series (:meth:`slopes`) instead of a forward-mode pass of the film's optics each
+    trial: :data:`WINDOW_NODES` shadings of the film's optics without a thickness tangent
+    in all. The colours are affine in the exposure (eq. 11 and the physical series scale
+    the reflected terms by it, the transmitted background photo is not), so the series of
+    their exposure derivative gives the colours at any exposure exactly (:meth:`at`).
+    """
+
+    def __init__(self, costs: TracedCosts, lo: np.ndarray, hi: np.ndarray, nodes: int = WINDOW_NODES):
+        self.lo, self.hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+        self._mid, self._half = 0.5 * (self.lo + self.hi), np.maximum(0.5 * (self.hi - self.lo), 1e-9)
+        self.exposure = float(costs.p.exposure)
+        self.profile = np.asarray(costs.p.profile)
+        j = np.arange(nodes) + 0.5
+        x = np.cos(np.pi * j / nodes)  # the nodes on [-1, 1]
+        shaded = [costs._shaded(self._mid + self._half * xk, costs.p.exposure, costs.p.profile) for xk in x]
+        img, col = (np.stack([s[i] for s in shaded]) for i in (0, 1))  # (nodes, P, 3)
+        # the discrete cosine transform of the values gives the series' coefficients
+        m = (2.0 / nodes) * np.cos(np.pi * np.outer(np.arange(nodes), j) / nodes)
+        m[0] *= 0.5
+        self._c, self._a = np.einsum("kj,jpc->kpc", m, img), np.einsum("kj,jpc->kpc", m, col)
+        self.y = np.asarray(costs.y, np.float64).reshape(-1, 3)[:costs.n]
+        self.w = np.asarray(costs.w, np.float64).reshape(-1, 3)[:costs.n]
+
+    def at(self, exposure: float) -> "WindowPolynomials":
+        """The same pixels' polynomials at another ``exposure`` (the colours are affine in it)."""
+        out = object.__new__(WindowPolynomials)
+        out.__dict__.update(self.__dict__)
+        out._c, out.exposure = self._c + (float(exposure) - self.exposure) * self._a, float(exposure)
+        return out
+
+    def holds(self, d: np.ndarray, profile) -> bool:
+        """Whether the polynomials give the pixels at thicknesses ``d`` (P,) with the
+        drainage profile ``profile`` (the rear film reads it): made at that profile, and
+        every ``d`` within its pixel's window."""
+        d = np.asarray(d, np.float64)
+        return (d.shape == self.lo.shape and np.array_equal(self.profile, np.asarray(profile))
+                and bool(np.all((d >= self.lo) & (d <= self.hi))))
+
+    def _chebyshev(self, d: np.ndarray):
+        """``(T, U)``: lists of the Chebyshev polynomials ``T_k`` and ``U_(k-1)`` (P, 1) at
+        ``d`` (P,) mapped onto [-1, 1] from each pixel's window, ``k`` up to the degree
+        (``U_(-1) = 0``; ``T_k' = k U_(k-1)``)."""
+        t = np.clip((np.asarray(d, np.float64) - self._mid) / self._half, -1.0, 1.0)[:, None]
+        T, U = [np.ones_like(t), t], [np.zeros_like(t), np.ones_like(t)]
+        for _ in range(2, self._c.shape[0]):
+            T.append(2.0 * t * T[-1] - T[-2])
+            U.append(2.0 * t * U[-1] - U[-2])
+        return T, U
+
+    def colours(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(colour, derivative)`` (P, 3) each: the pixels' colours at thicknesses ``d`` (P,)
+        within their windows and their derivatives in the thickness (per nm)."""
+        T, U = self._chebyshev(d)
+        f = sum(c * tk for c, tk in zip(self._c, T))
+        g = sum(k * c * uk for k, (c, uk) in enumerate(zip(self._c, U)))
+        return f, g / self._half[:, None]
+
+    def pixels(self, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(img, column)`` of :meth:`TracedCosts.pixels` at thicknesses ``d`` (P,) within the
+        windows: the pixels and their derivative in the exposure."""
+        T, _ = self._chebyshev(d)
+        return sum(c * tk for c, tk in zip(self._c, T)), sum(a * tk for a, tk in zip(self._a, T))
+
+    def slopes(self, d: np.ndarray):
+        """:meth:`TracedCosts.slopes` from the polynomials: ``(r, j)``, (P, 3) each, the
+        weighted residual at thicknesses ``d`` (P,) within the windows and its derivative in
+        each pixel's own thickness."""
+        f, g = self.colours(d)
+        return self.w * (f - self.y), self.w * g
+
+
+class WindowCosts:
+    """:class:`TracedCosts`' per-pixel data chi^2, the candidates within each pixel's window
+    ``[lo, hi]`` (P,) read from the window's polynomials (:class:`WindowPolynomials`:
+    :data:`WINDOW_NODES` shadings of the film's optics, however many candidates the window
+    holds), the others shaded (candidates outside a window, and :meth:`at`)."""
+
+    def __init__(self, costs: TracedCosts, lo: np.ndarray, hi: np.ndarray):
+        self.costs, self.polynomials = costs, costs.window_polynomials(lo, hi)
+
+    def __call__(self, d: np.ndarray) -> np.ndarray:
+        """(G, P) chi^2 of candidate thicknesses ``d`` (G, P)."""
+        d = np.maximum(np.asarray(d, np.float64), 0.0)
+        poly = self.polynomials
+        if not np.all((d >= poly.lo) & (d <= poly.hi)):
+            return self.costs(d)
+        return np.stack([np.sum(poly.slopes(row)[0] ** 2, axis=1) for row in d])
+
+    def at(self, d: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """:meth:`TracedCosts.at`."""
+        return self.costs.at(d, cols)
 
 
 #: Most Gauss-Newton steps of :func:`refine` (each one forward-mode pass over the level).
@@ -332,8 +474,8 @@ def _secant_curvature(d, d2, g, g2, hgn):
 SECANT_MIN_NM = 0.01
 
 
-def refine(costs: TracedCosts, centre: np.ndarray, nb: np.ndarray, s: float, half: float, *,
-           steps: int = REFINE_STEPS, stop: bool = True, observe=None):
+def refine(costs, centre: np.ndarray, nb: np.ndarray, s: float, half: float, *,
+           steps: int = REFINE_STEPS, stop: bool = True, observe=None, bounds: tuple | None = None):
     """Per-pixel Newton (Levenberg-Marquardt damped) on the map's energy from ``centre`` (P,).
 
     The energy is the data chi^2 of every pixel plus ``sum over neighbour pairs ((d_p -
@@ -352,10 +494,15 @@ def refine(costs: TracedCosts, centre: np.ndarray, nb: np.ndarray, s: float, hal
     rejected Gauss-Newton one whose next damping would change their steps (at that quantile)
     by less than that (the next trial would repeat it).
 
+    ``costs`` gives the residuals and their diagonal Jacobian at any thicknesses of the
+    window (``slopes(d)``): a :class:`TracedCosts` (a forward-mode pass of the film's optics
+    a call) or its :class:`WindowPolynomials` over the window (:func:`window`; what
+    :func:`~bubblefit.inverse._maps.fit_map` passes).
     ``steps``: most trial steps; ``stop=False`` runs them all (no stopping test);
     ``observe(d, trial, hdiag, lam, e, e2)``, if given, sees every trial (the point, the
     trial point, the curvature's diagonal, the damping, the energies at both), as
-    ``experiments/refine_steps.py`` records them.
+    ``experiments/refine_steps.py`` records them. ``bounds``: ``(lo, hi)`` (P,) the
+    thicknesses stay within instead of ``half`` of ``centre``.
 
     Returns ``(map (P,), stderr (P,), data chi^2 (P,))``; the standard error from the
     Gauss-Newton curvature of each pixel's energy with its neighbours held, ``E'' = 2 /
@@ -376,7 +523,7 @@ def refine(costs: TracedCosts, centre: np.ndarray, nb: np.ndarray, s: float, hal
         dn = np.where(has, d[np.where(has, nb, 0)], d[:, None])
         return float(np.sum(r * r) + 0.5 * inv_s2 * np.sum((d[:, None] - dn) ** 2))
 
-    lo, hi = np.maximum(centre - half, 0.0), centre + half
+    lo, hi = window(centre, half) if bounds is None else bounds
     d = centre.astype(np.float64)
     r, j = costs.slopes(d)
     e = energy(d, r)

@@ -44,7 +44,9 @@ several rays trace each level's rays once and evaluate the film's optics per can
 per candidate, gives the same costs), and their finest level is refined by a per-pixel
 Gauss-Newton solve instead of a grid (:func:`bubblefit.inverse._map_pixels.refine`,
 :data:`FINE_SOLVE`): the map's Jacobian is diagonal, and the smoothness prior's sparse
-Laplacian is solved by conjugate gradients.
+Laplacian is solved by conjugate gradients; its trials read each pixel's colour from a
+polynomial in its thickness over its window
+(:class:`~bubblefit.inverse._map_pixels.WindowPolynomials`).
 
 References
 ----------
@@ -63,7 +65,7 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from . import search
-from ._map_pixels import TracedCosts, refine
+from ._map_pixels import TracedCosts, WindowCosts, WindowPolynomials, refine, window
 from ._observation import Level
 from ._options import FitOptions
 from ._parameters import ParameterTable
@@ -301,7 +303,7 @@ def warm_centre(lev: Level, prof, start) -> np.ndarray | None:
 
 
 def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts: FitOptions, env, make_level=None,
-            start=None, kept: list | None = None, narrow: bool = False):
+            start=None, kept: list | None = None, narrow: bool = False, fine: WindowPolynomials | None = None):
     """Per-pixel thickness (h, w), its standard error (h, w), and whether the map is sound.
 
     ``lev`` is the full-resolution level, ``prof`` the fitted drainage profile the map
@@ -316,7 +318,12 @@ def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts: FitOption
     parameters, its profile extrapolated from the frames before): the coarsest level of a
     traced map scores first only the candidates within the finest level's window of it
     (:data:`FINE_HALF_STEPS` grid steps), and the rest at the pixels whose choice reaches
-    the window's edge (:func:`_level_map`'s ``first``).
+    the window's edge (:func:`_level_map`'s ``first``). ``fine``: the polynomials an earlier
+    map of this level was refined on (its finest costs' ``polynomials``, kept by that call's
+    ``kept``), at the same values but the exposure: the finest level reads them at this
+    exposure (:meth:`~bubblefit.inverse._map_pixels.WindowPolynomials.at`; the colours are
+    affine in it) instead of shading its window's nodes again, and its pixels stay within
+    that earlier window too (the one the coarser levels set around the order they settled).
     """
     exact = search.exact_paper_search(lev.cfg) and isinstance(lev.cfg.camera, OrthographicCamera)
     hi = opts.thickness_range[1]
@@ -337,7 +344,9 @@ def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts: FitOption
             # searches within less than half an order of it, with the profile's prior
             grid = opts.solver.search_step_nm
             first = FINE_HALF_STEPS * grid if narrow and not exact else None
-            best, err, c = _level_map(L, costs_of, prior, s, grid, WINDOW_NM, prior=prior,
+            # the candidates within the window first scored read from its polynomials
+            scored = costs_of if first is None else WindowCosts(costs_of, *window(prior, first))
+            best, err, c = _level_map(L, scored, prior, s, grid, WINDOW_NM, prior=prior,
                                       prior_nm=float(opts.map.prior_nm), first=first)
         else:
             centre = (warm if warm is not None else _upsample(prev, prev_map, L)).reshape(-1)[sel]
@@ -347,7 +356,18 @@ def fit_map(lev: Level, table: ParameterTable, vals: dict, prof, opts: FitOption
             if k == 1 and not exact and FINE_SOLVE == "newton":
                 # each pixel's thickness moves its own pixel only: Gauss-Newton with a diagonal
                 # Jacobian and the smoothness prior's sparse Laplacian, not a grid of renders
-                best, err, c = refine(costs_of, centre, _neighbours(L.mask)[0], s, half)
+                # from the polynomials of each pixel's colour over its window (a few shadings
+                # of the film's optics) rather than a forward-mode pass each trial
+                lo, hi = window(centre, half)
+                same = fine is not None and fine.lo.shape == lo.shape and np.array_equal(
+                    fine.profile, np.asarray(costs_of.p.profile))
+                if same:
+                    poly = fine.at(float(costs_of.p.exposure))
+                    lo, hi = np.maximum(lo, poly.lo), np.minimum(hi, poly.hi)
+                else:
+                    poly = costs_of.window_polynomials(lo, hi)
+                costs_of.polynomials = poly
+                best, err, c = refine(poly, centre, _neighbours(L.mask)[0], s, half, bounds=(lo, hi))
             else:
                 best, err, c = _level_map(L, costs_of, centre, s, step, half)
         if k == 1 and kept is not None:

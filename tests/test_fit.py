@@ -409,6 +409,7 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
 
     from bubblefit.inverse import column_jacobian, solver
     from bubblefit.inverse import Level, fitted_pixels, padded, padded_size, pixel_bucket, solve_pixels
+    from bubblefit.inverse._programs import SOLVE_BUCKETS_PER_OCTAVE
     from bubblefit.inverse import render_level
     from bubblefit.model.geometry import compose_shift
     from bubblefit.inverse.fit import fit_photo
@@ -456,11 +457,16 @@ def test_padded_level_renders_the_level_and_serves_every_framing(env):
     lev.mask = mask
     lev.w = np.repeat(mask[..., None], 3, axis=-1).astype(np.float32)
     px = fitted_pixels(lev, 256)
-    n = pixel_bucket(int(mask.sum()))  # in equal chunks of at most 256
+    n = pixel_bucket(int(mask.sum()), SOLVE_BUCKETS_PER_OCTAVE)  # in equal chunks of at most 256
     assert px.rows.shape[1] <= 256 and n <= px.rows.size < n + px.rows.shape[0]
-    for n in (1, 64, 65, 700, 1024, 1025, 2104, 5000):
+    for n in (1, 64, 65, 700, 1024, 1025, 1554, 2104, 5000, 28851):
         assert max(n, 64) <= pixel_bucket(n) <= max(1.25 * n, 64)  # the padding costs at most a quarter
+        fine = pixel_bucket(n, SOLVE_BUCKETS_PER_OCTAVE)  # a solve's list: at most 1 / per_octave
+        assert max(n, 64) <= fine <= max((1 + 1 / SOLVE_BUCKETS_PER_OCTAVE) * n, 64)
     assert len({pixel_bucket(n) for n in range(1025, 2049)}) == 4  # four lengths per octave
+    assert len({pixel_bucket(n, SOLVE_BUCKETS_PER_OCTAVE) for n in range(1025, 2049)}) == SOLVE_BUCKETS_PER_OCTAVE
+    # docs/speed.md's 320x320 photo: its fit level's 1554 pixels, its final render's 28,851
+    assert [pixel_bucket(n, SOLVE_BUCKETS_PER_OCTAVE) for n in (1554, 28851)] == [1664, 30720]
     p = Params.make(thickness=640.0, roughness=0.05, disc=(0.03, -0.02, 0.05))
     vals = render_pixels(replace(p, disc=compose_shift(px.padded.base, np.asarray(p.disc))), px.padded.cfg, env,
                          px.padded.bg, px.rows, px.cols, px.idx)

@@ -106,8 +106,12 @@ def test_solve_rays_in_one_list_equal_each_part_rendered_with_its_own_rays():
     """The local solve renders every block's rays in one list (``solve_pixels``' rays,
     ``render_pixels`` with each ray's count) and averages them per block (``block_means``):
     the same values as each part rendered with its own ``samples_per_pixel``, the pixel
-    footprint of a rim ray (1/3 of its block per axis) included. Only float32 rounding of
-    sums of 9 terms of order 1 separates them."""
+    footprint of a rim ray (1/3 of its block per axis) included. Besides float32 rounding
+    of sums of 9 terms of order 1, a footprint's filtered lookup varies with the rays beside
+    it in its chunk (:func:`~bubblefit.lighting.envmap.lookup_parallelogram` reads the
+    footprints of a cut in blocks): a centre ray among rim rays in a chunk of 60 read 1.8e-5
+    off the same ray in a chunk of its own kind (0.41130 against 0.41132), so the tolerance
+    is 5e-5."""
     import jax.numpy as jnp
     from dataclasses import replace
     from scipy import ndimage as ndi
@@ -141,10 +145,10 @@ def test_solve_rays_in_one_list_equal_each_part_rendered_with_its_own_rays():
     at_rim = np.bincount(rays[4], weights=rays[5] > 0, minlength=q.y.shape[0]) == 9  # blocks with 9 rays of weight
     assert 0 < at_rim.sum() < q.flat.size
     n = q.flat.size  # the blocks that pad the list take no ray: 0, at weight 0
-    np.testing.assert_allclose(one[:n], np.where(at_rim[:, None], boxed, centre)[:n], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(one[:n], np.where(at_rim[:, None], boxed, centre)[:n], rtol=0, atol=5e-5)
     assert not one[n:].any() and not np.asarray(q.w)[n:].any()
     # not vacuous: the rim's centre rays differ from their blocks' means
-    assert np.abs(centre - boxed)[at_rim].max() > 100 * 1e-6
+    assert np.abs(centre - boxed)[at_rim].max() > 10 * 5e-5
 
 
 def test_gauss_offsets_average_a_cubic_over_the_box_exactly():

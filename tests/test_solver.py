@@ -339,8 +339,9 @@ def test_a_restart_that_accepted_no_step_is_not_repeated(monkeypatch, restarts_m
     """``solve_local`` starts a solve that stopped on rejections far from its optimum
     afresh, up to ``MAX_RESTARTS`` times; once a fresh start accepts no step, the next
     would start from the same point with the same trust region and, the program being
-    deterministic, repeat it: it is not run. Restarts that move are all run. The solve
-    itself is a stand-in here (its steps and end point chosen per call)."""
+    deterministic, repeat it: it is not run. Restarts that move (here by 10 standard
+    errors) are all run. The solve itself is a stand-in here (its steps and end point
+    chosen per call)."""
     from types import SimpleNamespace
 
     import bubblefit.inverse._local as local
@@ -354,8 +355,8 @@ def test_a_restart_that_accepted_no_step_is_not_repeated(monkeypatch, restarts_m
         r = np.full(4, 10.0 - len(calls) if first or restarts_move else 10.0 - 1)
         return z_end, r, 12 if first else 7
 
-    def solution_from(table, vals, z, r, steps, fixed, lev, px):
-        return local.LocalSolution({}, z, True, False, steps, r, np.zeros((r.size, 2)), fixed)
+    def solution_from(table, vals, z, r, steps, fixed, lev, px):  # a move of 1 is 10 standard errors
+        return local.LocalSolution({}, z, True, False, steps, r, 10.0 * np.eye(r.size, 2), fixed)
 
     monkeypatch.setattr(local, "solve_program", lambda *a: (("key",), ({},), None))
     monkeypatch.setattr(local, "stored_solver", lambda *key: solve)
@@ -368,3 +369,40 @@ def test_a_restart_that_accepted_no_step_is_not_repeated(monkeypatch, restarts_m
     assert len(calls) == runs
     assert sol.steps == 12 + 7 * (runs - 1)
     assert np.array_equal(sol.z, np.full(2, float(runs if restarts_move else 1)))  # where the last run ended
+
+
+def test_a_restart_that_moved_the_fit_by_under_a_fifth_of_a_standard_error_is_not_repeated(monkeypatch):
+    """A fresh start whose move ``dz`` is at most :data:`~bubblefit.inverse._lm.STOP_DECREMENT`
+    in squared length in the fit's covariance, ``|J dz|^2 / max(1, chi2_nu)`` (a fifth of a
+    standard error), ends the restarts (:func:`~bubblefit.inverse._local.restart_moved`):
+    it has met the resolution at which the solve itself stops. Here ``J`` is 10 times the
+    identity on 2 of 4 residuals whose chi2 per degree of freedom is below 1, so a move
+    of 0.019 in each parameter is 0.19 standard errors in each, a squared length of 0.072,
+    and one of 0.013 is 0.034: the first restart moves 0.019 and is followed by another,
+    which moves 0.013 and is the last."""
+    from types import SimpleNamespace
+
+    import bubblefit.inverse._local as local
+    from bubblefit.inverse._lm import STOP_DECREMENT
+
+    moves = [1.0, 0.019, 0.013, 0.013]
+    calls = []
+
+    def solve(z, args):
+        calls.append(np.asarray(z).copy())
+        z_end = np.asarray(z, np.float64) + moves[len(calls) - 1]
+        return z_end, np.full(4, 0.4 - 0.01 * len(calls)), 5
+
+    def solution_from(table, vals, z, r, steps, fixed, lev, px):
+        return local.LocalSolution({}, z, True, False, steps, r, 10.0 * np.eye(r.size, 2), fixed)
+
+    monkeypatch.setattr(local, "solve_program", lambda *a: (("key",), ({},), None))
+    monkeypatch.setattr(local, "stored_solver", lambda *key: solve)
+    monkeypatch.setattr(local, "solution_from", solution_from)
+    monkeypatch.setattr(local, "remaining_step", lambda sol, chi2, free: 1.0)  # always far from the optimum
+    table = SimpleNamespace(unconstrained=lambda v: np.zeros(2), free=("a", "b"))
+    sol = local.solve_local(SimpleNamespace(w=np.ones(4)), table, None, {}, None,
+                            settings=SimpleNamespace(stall=True))
+    assert 0.013 ** 2 * 200 < STOP_DECREMENT < 0.019 ** 2 * 200
+    assert len(calls) == 3 and sol.steps == 15
+    np.testing.assert_allclose(sol.z, np.full(2, 1.0 + 0.019 + 0.013))  # the last restart's end is kept

@@ -63,7 +63,7 @@ _EXPORTS = {
     # solve: Levenberg-Marquardt and the local solve
     "LevenbergMarquardt": "_lm_solver", "DenseDampedNewtonDescent": "_lm_solver", "column_jacobian": "_lm",
     "scaled_decrement": "_lm", "damped_step_length": "_lm", "gauss_newton_decrement": "_lm", "robust": "_lm",
-    "LocalSolution": "_local", "remaining_step": "_local", "improves": "_local",
+    "LocalSolution": "_local", "remaining_step": "_local", "improves": "_local", "restart_moved": "_local",
     # judge: standard errors, the misfit, the verdict
     "Misfit": "_uncertainty", "misfit": "_uncertainty", "held_keys": "_uncertainty",
     "at_bounds": "_verdict", "clamp_to_range": "_verdict", "unresolved": "_verdict", "verdict": "_verdict",

@@ -11,13 +11,13 @@ from dataclasses import dataclass
 import jax.numpy as jnp
 import numpy as np
 
-from ._lm import gauss_newton_decrement, presses_bound
+from ._lm import STOP_DECREMENT, gauss_newton_decrement, presses_bound
 from ._observation import Level
 from ._parameters import ParameterTable, value_and_slope
 from ._options import SolverSettings
 from ._programs import Pixels, SolvePixels, SolveSettings, solve_program, stored_solver
 
-__all__ = ["LocalSolution", "remaining_step", "solve_local", "cost", "solution_from", "improves",
+__all__ = ["LocalSolution", "remaining_step", "solve_local", "cost", "solution_from", "improves", "restart_moved",
            "DECREMENT_TOLERANCE", "MAX_RESTARTS"]
 
 
@@ -94,6 +94,26 @@ def remaining_step(sol: LocalSolution, chi2_nu: float, free: tuple) -> float:
     return gauss_newton_decrement(r, jac[:, keep]) / max(1.0, chi2_nu)
 
 
+def restart_moved(start: LocalSolution, end: LocalSolution, chi2_nu: float) -> bool:
+    """Whether a fresh start of a solve (:func:`solve_local`) moved it from ``start`` to
+    ``end`` by more than :data:`~bubblefit.inverse._lm.STOP_DECREMENT` in squared length
+    in the fit's covariance at ``end``: ``|J dz|^2 / max(1, chi2_nu)``, which bounds the
+    square of every parameter's move in its own standard errors (Bard, *Nonlinear
+    Parameter Estimation*, 1974, ch. 7; the length
+    :func:`~bubblefit.inverse._lm.damped_step_length` gives a trial step in the solve).
+    A move within it is a fifth of a standard error at most, the resolution at which the
+    solve itself stops (:class:`~bubblefit.inverse._lm_solver.LevenbergMarquardt`): on
+    the 320x320 constant photo of docs/speed.md the physical solve's two fresh starts
+    moved every parameter by under 0.009 of its standard error in all and left the same
+    step (0.647 against 0.646 in squared length, :func:`remaining_step`)."""
+    dz = np.asarray(end.z, np.float64) - np.asarray(start.z, np.float64)
+    if not np.any(dz):
+        return False
+    jac = np.asarray(end.jacobian, np.float64)
+    length = float(np.sum((jac @ dz) ** 2)) / max(1.0, float(chi2_nu))
+    return not length <= STOP_DECREMENT
+
+
 def solution_from(table: ParameterTable, vals: dict, z, ok, maxed, steps, r, jac, fixed,
                   lev: Level | None = None, pixels: Pixels | SolvePixels | None = None) -> LocalSolution:
     """A :class:`LocalSolution` from a solver's raw outputs (numpy, float64); with ``lev``
@@ -135,9 +155,11 @@ def solve_local(lev: Level, table: ParameterTable, solver: SolverSettings, vals:
     sol = solution_from(table, vals, *solve(table.unconstrained(vals), args), fixed, lev, px)
     # A solve stopped by rejections early on (a trust region still far too large) starts
     # afresh from where it stopped, with a fresh trust region, up to MAX_RESTARTS times;
-    # not again after a fresh start that accepted no step (the program is deterministic,
-    # so the next would repeat it from the same point: on the 320x320 sunset photo of
-    # docs/speed.md two such repeats were 14 of the physical solve's 33 steps).
+    # not again after a fresh start that moved the fit by at most a fifth of a standard
+    # error (:func:`restart_moved`): one that accepted no step would be repeated exactly
+    # (the program is deterministic: on the 320x320 sunset photo of docs/speed.md two such
+    # repeats were 14 of the physical solve's 33 steps), and one that moved less has met
+    # the float32 render's resolution along the step left, which the next start meets too.
     dof = max(int(np.count_nonzero(lev.w)) - len(table.free), 1)
     steps = sol.steps
     for _ in range(MAX_RESTARTS if stall else 0):
@@ -147,9 +169,9 @@ def solve_local(lev: Level, table: ParameterTable, solver: SolverSettings, vals:
         steps += nxt.steps
         if not improves(nxt, sol):
             break
-        moved = not np.array_equal(nxt.z, sol.z)
+        moved = restart_moved(sol, nxt, nxt.cost / dof)
         sol = nxt
-        if not moved:  # every trial step rejected: a fresh start from the same point repeats this one exactly
+        if not moved:
             break
     sol.steps = steps
     return sol

@@ -125,19 +125,28 @@ class Pixels:
         return out.reshape(h * w * 3, *a.shape[1:])
 
 
-#: Lengths of a fitted-pixel list per octave (:func:`pixel_bucket`).
+#: Lengths of a fitted-pixel list per octave (:func:`pixel_bucket`): a thickness map's
+#: chunks (:func:`_even_chunks`).
 BUCKETS_PER_OCTAVE = 4
+#: Lengths per octave of the lists that a local solve and the final render draw in one
+#: program (:func:`fitted_pixels`' ``"bucket"`` layout, :func:`solve_pixels`): a solve
+#: renders its list at every trial point and pushes it through the Jacobian's tangents at
+#: every accepted one, so its padding is paid many times over. Eight lengths an octave
+#: pad at most an eighth of the list: the 1554 fitted pixels of the 320x320 constant
+#: photo's fit level (docs/speed.md) are drawn as 1664 instead of 1792, its final render's
+#: 28,851 as 30,720 instead of 32,768.
+SOLVE_BUCKETS_PER_OCTAVE = 8
 
 
-def pixel_bucket(n: int) -> int:
-    """The length a list of ``n`` fitted pixels is padded to: the next of
-    :data:`BUCKETS_PER_OCTAVE` lengths per octave, ``2^k (1 + j / BUCKETS_PER_OCTAVE)``
-    (at least 64). A disc a few percent larger or smaller mostly shares its programs, and
-    the padding costs at most a quarter of the list (a power of two cost up to all of it:
-    2104 pixels rendered as 4096)."""
+def pixel_bucket(n: int, per_octave: int = BUCKETS_PER_OCTAVE) -> int:
+    """The length a list of ``n`` fitted pixels is padded to: the next of ``per_octave``
+    lengths per octave, ``2^k (1 + j / per_octave)`` (at least 64). A disc a few percent
+    larger or smaller mostly shares its programs, and the padding costs at most
+    ``1 / per_octave`` of the list (a power of two cost up to all of it: 2104 pixels
+    rendered as 4096)."""
     n = max(int(n), 64)
     top = 1 << (n - 1).bit_length()
-    step = (top // 2) // BUCKETS_PER_OCTAVE
+    step = max(1, (top // 2) // per_octave)
     return min(top, -(-n // step) * step)
 
 
@@ -167,7 +176,7 @@ def fitted_pixels(lev: Level, chunk: int, mask: np.ndarray | None = None, *,
     """The pixels of ``lev`` a fit compares (its mask, or ``mask``), listed in the padded level
     (:func:`padded`), the list padded by repeating its last pixel with weight 0 and split into
     chunks of at most ``chunk``. The padded count (``layout``): ``"bucket"``, the pixels'
-    count rounded up to :func:`pixel_bucket`; ``"whole"``, a multiple of ``chunk`` (a program
+    count rounded up to :func:`pixel_bucket` with :data:`SOLVE_BUCKETS_PER_OCTAVE`; ``"whole"``, a multiple of ``chunk`` (a program
     per chunk serves every count); ``"even"``, the fewest chunks of at most ``chunk``, each of
     the length :func:`pixel_bucket` gives its share of the pixels (:func:`_even_chunks`).
     A solve renders these alone: on a disc that fills 55 % of its level, about half the
@@ -181,7 +190,7 @@ def fitted_pixels(lev: Level, chunk: int, mask: np.ndarray | None = None, *,
     elif layout == "whole":
         n = max(1, -(-flat.size // chunk)) * chunk
     elif layout == "bucket":
-        n = pixel_bucket(flat.size)
+        n = pixel_bucket(flat.size, SOLVE_BUCKETS_PER_OCTAVE)
     else:
         raise ValueError(f"unknown pixel layout {layout!r}")
     steps, size, take = _chunked(flat.size, n, chunk)
@@ -243,7 +252,7 @@ class SolvePixels:
     list, each at the fractional pixel coordinates of its block's quadrature, with its flat
     pixel index, its block's ray count, its block's place in ``pixels`` and its weight
     there (:func:`block_means`; the blocks that pad ``pixels`` take no ray, and the list is
-    padded to :func:`pixel_bucket` by rays of weight 0), or, with ``samples`` None,
+    padded as :func:`fitted_pixels` pads the blocks' by rays of weight 0), or, with ``samples`` None,
     ``pixels``' own ``(rows, cols, idx)``."""
 
     pixels: Pixels
@@ -308,7 +317,7 @@ def solve_pixels(lev: Level, chunk: int, rim_samples: int = RIM_SAMPLES, band: f
     rows = r[block] + np.where(rim_ray, off[j % rim_samples, 0], 0.0)
     cols = c[block] + np.where(rim_ray, off[j % rim_samples, 1], 0.0)
     weight = np.where(rim_ray, wts[j % rim_samples], 1.0)
-    steps, size, take = _chunked(block.size, pixel_bucket(block.size), chunk)
+    steps, size, take = _chunked(block.size, pixel_bucket(block.size, SOLVE_BUCKETS_PER_OCTAVE), chunk)
     pad = np.arange(steps * size) >= block.size  # rays that pad the list: weight 0
     as_list = lambda a, dt: jnp.asarray(np.asarray(a)[take].reshape(steps, size), dt)
     rays = (as_list(rows, jnp.float32), as_list(cols, jnp.float32), as_list(i[block], jnp.int32),

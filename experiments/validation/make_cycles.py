@@ -309,6 +309,11 @@ CASES = {
                                              thickness=T("drainage", top_nm=200.0, bottom_nm=950.0, exponent=1.0),
                                              envmap="forest", fits=["drainage"], seed=42, roughness=0.1,
                                              photo_spp=8192),
+    # the test part's rough constant film, added when cyc_const700_sunset_ortho_rough moved to
+    # development (split.toml): another map, thickness, roughness and disc
+    "cyc_const450_forest_ortho_rough": dict(camera=rr.Camera("ortho", 160, 160, disc=(78.0, 82.0, 52.0)),
+                                            thickness=T("constant", 450.0), envmap="forest",
+                                            fits=["constant"], seed=43, roughness=0.2, photo_spp=8192),
 }
 
 

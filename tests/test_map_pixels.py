@@ -211,6 +211,40 @@ def test_mask_that_lost_pixels_reads_the_kept_rays(env, level):
     MP._TRACES.clear()
 
 
+def test_held_frame_reads_the_rays_its_solve_traced(env, level):
+    """A frame that holds the global parameters renders with the disc refinement its solve's
+    map traced its rays at, carried through the record (JSON) bit for bit, so its levels
+    read those rays; the refined disc the solve reported (rounded to 0.001 px) moves the
+    refinement by up to 5e-4 px and would trace every ray again. Another disc found holds
+    nothing."""
+    import json
+    from types import SimpleNamespace
+
+    import bubblefit.inverse._map_pixels as MP
+    from bubblefit.inverse import TracedCosts, disc_start, refined_disc
+    from bubblefit.inverse._carried import carried_record, held_disc
+    from bubblefit.inverse._parameters import DISC_PARAMETERS
+
+    st, lev, vals = level
+    moves = dict(zip(DISC_PARAMETERS, np.float32([0.0123457, -0.0071234, 0.0032109])))
+    solved = dict(vals, **moves)  # a solve's values, float32 as its solver leaves them
+    MP._TRACES.clear()
+    first = TracedCosts(lev, st.table, solved, env)
+    first.slopes(np.zeros(first.n))  # the solve's map traced its rays
+    stderr = {"cx": 0.01, "cy": 0.01, "r": 0.01}
+    record = json.loads(json.dumps(carried_record(stderr, {}, {}, SimpleNamespace(chi2_floor=1.0), 10, DISC, solved)))
+    held = held_disc(DISC, record)
+    assert held == {n: float(v) for n, v in moves.items()}
+    assert TracedCosts(lev, st.table, dict(vals, **held), env)._traced is first._traced
+    reported, _ = refined_disc(DISC, {n: float(v) for n, v in moves.items()}, {})
+    start = disc_start(DISC, reported)  # the warm start's disc, from the reported one
+    assert start != held
+    assert TracedCosts(lev, st.table, dict(vals, **start), env)._traced is None  # not the rays traced
+    assert held_disc((DISC[0] + 0.01, DISC[1], DISC[2]), record) == {}
+    assert held_disc(DISC, carried_record(None, {}, {}, SimpleNamespace(chi2_floor=1.0), 10, DISC, solved)) == {}
+    MP._TRACES.clear()
+
+
 def test_window_polynomials_equal_the_slopes(env, level):
     """Each pixel's colour as a polynomial over its window of +-24 nm (WINDOW_NODES
     Chebyshev nodes, :class:`WindowPolynomials`) gives the residuals and the diagonal

@@ -170,6 +170,81 @@ def test_kept_rays_read_at_another_exposure_and_profile(env, level):
     assert not np.allclose(r, r0, rtol=1e-3)  # the exposure and the profile moved the residuals
 
 
+def test_mask_that_lost_pixels_reads_the_kept_rays(env, level):
+    """A level whose mask lost a few pixels since its rays were traced (a frame's clipped
+    pixels) reads the kept rays at its pixels' entries, the others weighted 0, and its
+    costs, slopes and shadings equal a fresh trace of its own mask (a pixel's rays do not
+    depend on the others'; the same program on the same numbers, float32 rounding of ~1e-6
+    at most). A mask with a pixel the kept rays lack is traced on its own."""
+    from dataclasses import replace
+
+    import bubblefit.inverse._map_pixels as MP
+    from bubblefit.inverse import TracedCosts, profile_map
+
+    st, lev, vals = level
+    MP._TRACES.clear()
+    first = TracedCosts(lev, st.table, vals, env)
+    first.slopes(np.zeros(first.n))  # traced and kept
+    flat = np.flatnonzero(lev.mask.reshape(-1))
+    lost = lev.mask.copy().reshape(-1)
+    lost[flat[[0, 57, 58, flat.size - 1]]] = False  # the first, two neighbours and the last
+    lev_lost = replace(lev, mask=lost.reshape(lev.mask.shape))
+    covered = TracedCosts(lev_lost, st.table, vals, env)
+    assert covered._traced is first._traced and covered.shape == first.shape and covered.n == first.n - 4
+    d = profile_map(lev_lost, (300.0, 900.0, 1.0)).reshape(-1)[lost] + 10.0
+    r, j = covered.slopes(d)
+    c = covered(np.stack([d, d + 20.0]))
+    img, col = covered._shaded(d, covered.p.exposure, covered.p.profile)
+    MP._TRACES.clear()
+    fresh = TracedCosts(lev_lost, st.table, vals, env)
+    r1, j1 = fresh.slopes(d)
+    assert fresh._traced is not first._traced and np.array_equal(fresh.slot, np.arange(fresh.n))
+    np.testing.assert_allclose(r, r1, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(j, j1, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(c, fresh(np.stack([d, d + 20.0])), rtol=1e-6, atol=1e-5)
+    img1, col1 = fresh._shaded(d, fresh.p.exposure, fresh.p.profile)
+    np.testing.assert_allclose(img, img1, rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(col, col1, rtol=1e-6, atol=1e-7)
+    grown = lost.copy()
+    grown[np.flatnonzero(~lev.mask.reshape(-1))[0]] = True  # a pixel the first mask did not trace
+    assert TracedCosts(replace(lev, mask=grown.reshape(lev.mask.shape)), st.table, vals, env)._traced is None
+    MP._TRACES.clear()
+
+
+def test_held_frame_reads_the_rays_its_solve_traced(env, level):
+    """A frame that holds the global parameters renders with the disc refinement its solve's
+    map traced its rays at, carried through the record (JSON) bit for bit, so its levels
+    read those rays; the refined disc the solve reported (rounded to 0.001 px) moves the
+    refinement by up to 5e-4 px and would trace every ray again. Another disc found holds
+    nothing."""
+    import json
+    from types import SimpleNamespace
+
+    import bubblefit.inverse._map_pixels as MP
+    from bubblefit.inverse import TracedCosts, disc_start, refined_disc
+    from bubblefit.inverse._carried import carried_record, held_disc
+    from bubblefit.inverse._parameters import DISC_PARAMETERS
+
+    st, lev, vals = level
+    moves = dict(zip(DISC_PARAMETERS, np.float32([0.0123457, -0.0071234, 0.0032109])))
+    solved = dict(vals, **moves)  # a solve's values, float32 as its solver leaves them
+    MP._TRACES.clear()
+    first = TracedCosts(lev, st.table, solved, env)
+    first.slopes(np.zeros(first.n))  # the solve's map traced its rays
+    stderr = {"cx": 0.01, "cy": 0.01, "r": 0.01}
+    record = json.loads(json.dumps(carried_record(stderr, {}, {}, SimpleNamespace(chi2_floor=1.0), 10, DISC, solved)))
+    held = held_disc(DISC, record)
+    assert held == {n: float(v) for n, v in moves.items()}
+    assert TracedCosts(lev, st.table, dict(vals, **held), env)._traced is first._traced
+    reported, _ = refined_disc(DISC, {n: float(v) for n, v in moves.items()}, {})
+    start = disc_start(DISC, reported)  # the warm start's disc, from the reported one
+    assert start != held
+    assert TracedCosts(lev, st.table, dict(vals, **start), env)._traced is None  # not the rays traced
+    assert held_disc((DISC[0] + 0.01, DISC[1], DISC[2]), record) == {}
+    assert held_disc(DISC, carried_record(None, {}, {}, SimpleNamespace(chi2_floor=1.0), 10, DISC, solved)) == {}
+    MP._TRACES.clear()
+
+
 def test_window_polynomials_equal_the_slopes(env, level):
     """Each pixel's colour as a polynomial over its window of +-24 nm (WINDOW_NODES
     Chebyshev nodes, :class:`WindowPolynomials`) gives the residuals and the diagonal

@@ -20,11 +20,13 @@ import numpy as np
 from ._map_pixels import TracedCosts
 from ._maps import PROFILE_NAMES, fit_map, profile_from_map
 from ._options import FitOptions
+from ._parameters import DISC_PARAMETERS
 from ._programs import final_params, render_bubble
 from ._uncertainty import Misfit, photo_misfit
 from ..progress import stage
 
-__all__ = ["EXPOSURE_TEST_ALPHA", "CarriedMap", "carried_map", "carried_record", "exposure_step", "final_map_render", "map_misfit"]
+__all__ = ["EXPOSURE_TEST_ALPHA", "CarriedMap", "carried_map", "carried_record", "exposure_step", "final_map_render", "held_disc",
+           "map_misfit"]
 
 #: Per-frame false-alarm probability of the score test that a sequence's exposure has not
 #: moved (:func:`exposure_step`): the share of frames whose exposure did not move that
@@ -40,15 +42,40 @@ def map_misfit(full, img: np.ndarray, opts: FitOptions) -> tuple[Misfit, int]:
     return photo_misfit(full, img, float(opts.judge.model_error), n_free), max(int((full.w > 0).sum()) - n_free, 1)
 
 
-def carried_record(disc_stderr, reported: dict, stderr: dict, fit: Misfit, dof: int) -> dict:
+def carried_record(disc_stderr, reported: dict, stderr: dict, fit: Misfit, dof: int, disc=None, values=None) -> dict:
     """What a solve of the global parameters passes on to the next frames of a sequence
     (JSON): its map's reduced chi^2 with the floor and degrees of freedom, its reported
     keys, their standard errors (the profile's and the map's excepted: each frame fits its
-    own) and the disc's; ``frames``: frames since."""
+    own) and the disc's; ``frames``: frames since. Where the solve refined the disc
+    (``disc_stderr``), ``disc_refinement``: the disc found (``disc``, pixels) and the
+    refinement ``disc_x``, ``disc_y``, ``disc_r`` of the solve's ``values`` as its map traced
+    them, which the held frames render with (:func:`held_disc`)."""
     own = set(PROFILE_NAMES) | {"thickness_nm"}
-    return {"chi2_floor": float(fit.chi2_floor), "dof": int(dof), "keys": list(reported),
-            "stderr": {k: (None if v is None else float(v)) for k, v in stderr.items() if k not in own},
-            "disc_stderr": disc_stderr, "frames": 0}
+    out = {"chi2_floor": float(fit.chi2_floor), "dof": int(dof), "keys": list(reported),
+           "stderr": {k: (None if v is None else float(v)) for k, v in stderr.items() if k not in own},
+           "disc_stderr": disc_stderr, "frames": 0}
+    if disc_stderr and disc is not None and values is not None and all(n in values for n in DISC_PARAMETERS):
+        out["disc_refinement"] = {"found": [float(v) for v in disc], **{n: float(values[n]) for n in DISC_PARAMETERS}}
+    return out
+
+
+def held_disc(disc, carried: dict) -> dict:
+    """The disc's refinement (``disc_x``, ``disc_y``, ``disc_r``) a frame that holds the
+    global parameters renders with: the solve's own values (``carried["disc_refinement"]``,
+    :func:`carried_record`) where this frame found the same disc ``disc`` (pixels), so that
+    its map reads the rays the solve's map traced, the same numbers bit for bit
+    (:func:`~bubblefit.inverse._map_pixels._kept_trace`). Empty elsewhere: the warm start's
+    disc stands (:func:`~bubblefit.inverse._parameters.disc_start`, from the refined disc
+    the solve reported, rounded to 0.001 px, 1e-5 of a 48 px radius, which moves every
+    ray and so traced them all again)."""
+    held = (carried or {}).get("disc_refinement")
+    if not isinstance(held, dict) or disc is None:
+        return {}
+    try:
+        same = [float(v) for v in held["found"]] == [float(v) for v in disc]
+        return {n: float(held[n]) for n in DISC_PARAMETERS} if same else {}
+    except (KeyError, TypeError, ValueError):
+        return {}
 
 
 def exposure_step(full, photo, img, column, opts: FitOptions, fit: Misfit) -> tuple[float, float, float]:
@@ -157,6 +184,8 @@ def carried_map(st, opts: FitOptions, env, carried: dict) -> CarriedMap | str:
     ``judge.ok_chi2``, the rule by which a fit is explained)."""
     table = st.table
     vals = dict(st.vals)
+    if all(n in table.free for n in DISC_PARAMETERS):
+        vals.update(held_disc(st.disc, carried))  # the solve's disc, as its map's rays were traced
     prof = tuple(float(vals[n]) for n in PROFILE_NAMES)
     make = lambda k: st.level(k, opts, st.map_cfg)
     exposure_err = (carried.get("stderr") or {}).get("exposure")

@@ -169,7 +169,41 @@ def _stored_programs(cfg):
 #: sequence's frame that holds the global parameters reads every level of its pyramid from
 #: the frame before it, which traced them at the same values.
 KEPT_TRACES = 4
+#: The kept traces, the last read first: ``(key, env, idx, leaves)``, ``key`` the values
+#: traced at but the pixels (:func:`_values_key`), ``idx`` (steps, chunk) the padded level's
+#: flat indices of the traced pixels (numpy), ``leaves`` :func:`_chunk_trace`'s leaves.
 _TRACES: list = []
+
+
+def _values_key(cfg, p, bg) -> tuple:
+    """What a level's rays depend on but its pixels and the environment map: the
+    configuration, every value but the exposure and the drainage profile (:func:`_at`)
+    and the background photo, as bytes."""
+    fields = tuple(f for f in p.__dataclass_fields__ if f not in ("exposure", "profile"))
+    return (cfg, tuple(np.asarray(getattr(p, f)).tobytes() for f in fields), None if bg is None else np.asarray(bg).tobytes())
+
+
+def _covering_trace(cfg, p, env, bg, idx: np.ndarray):
+    """The kept trace (:data:`_TRACES`' entry) at the values of ``(cfg, p, env, bg)`` whose
+    pixels hold every pixel of the layout ``idx`` (steps, chunk; the padded level's flat
+    indices) in a layout of the same shape: the same pixels, or a mask that lost a few
+    (a frame's clipped pixels) and whose own layout would be as long
+    (:func:`~bubblefit.inverse._programs._even_chunks`: the same programs, at the same
+    cost). The same pixels are preferred; None where no kept trace holds them."""
+    key, best = _values_key(cfg, p, bg), None
+    want = np.unique(idx)
+    for i, (k, e, kidx, leaves) in enumerate(_TRACES):
+        if e is not env or k != key or kidx.shape != idx.shape:
+            continue
+        if np.array_equal(kidx, idx):
+            best = i
+            break
+        if best is None and np.all(np.isin(want, kidx)):
+            best = i
+    if best is None:
+        return None
+    _TRACES.insert(0, _TRACES.pop(best))
+    return _TRACES[0]
 
 
 def _kept_trace(cfg, args: tuple):
@@ -179,16 +213,12 @@ def _kept_trace(cfg, args: tuple):
     which the programs that read the rays put in place), so a level traced at the same
     values otherwise (a sequence's frames that hold the global parameters, a frame's map
     refined again after its exposure's step) reads the kept rays."""
-    p, env = args[0], args[1]
-    fields = tuple(f for f in p.__dataclass_fields__ if f not in ("exposure", "profile"))
-    key = (cfg, tuple(np.asarray(getattr(p, f)).tobytes() for f in fields),
-           *(None if a is None else np.asarray(a).tobytes() for a in args[2:]))
-    for i, (k, e, leaves) in enumerate(_TRACES):
-        if e is env and k == key:
-            _TRACES.insert(0, _TRACES.pop(i))
-            return leaves
+    p, env, bg, idx = args[0], args[1], args[2], np.asarray(args[5])
+    kept = _covering_trace(cfg, p, env, bg, idx)
+    if kept is not None and np.array_equal(kept[2], idx):
+        return kept[3]
     leaves = _stored_programs(cfg)[1](*args)
-    _TRACES.insert(0, (key, env, leaves))
+    _TRACES.insert(0, (_values_key(cfg, p, bg), env, idx, leaves))
     del _TRACES[KEPT_TRACES:]
     return leaves
 
@@ -217,24 +247,53 @@ class TracedCosts:
         self.n = self.pix.flat.size
         steps, size = self.pix.rows.shape
         self.shape = (steps, size)
+        #: each of the ``P`` pixels' entry in the chunks (steps chunk,), and each entry's pixel
+        #: among the ``P`` (the padding repeating the last pixel, with weight 0)
+        self.slot, self._take = np.arange(self.n), np.minimum(np.arange(steps * size), self.n - 1)
+        self._traced = None  # the level's traced rays, once a call has traced them
+        if self._keep:
+            self._cover(lev)
         self.y = self.pix.y.reshape(steps, size, 3)
         self.w = self.pix.w.reshape(steps, size, 3)
-        self._traced = None  # the level's traced rays, once a call has traced them
         #: the :class:`WindowPolynomials` the finest level's map was refined on (set by
         #: :func:`~bubblefit.inverse._maps.fit_map`), for a second refinement at another exposure
         self.polynomials = None
 
-    def _spread(self, d: np.ndarray) -> np.ndarray:
-        """(..., P) -> (..., steps, chunk), the padding repeating the last pixel."""
+    def _cover(self, lev: Level) -> None:
+        """Read a kept trace whose pixels hold this level's in a layout of the same shape
+        (:func:`_covering_trace`): a pixel's rays do not depend on the others', so a mask
+        that lost a few pixels since (a frame's clipped pixels) reads the kept rays at its
+        pixels' entries, the other entries weighted 0 (the costs, slopes and shadings of its
+        pixels are those of a fresh trace, the same programs on the same numbers)."""
+        pix = self.pix
+        kept = _covering_trace(self.cfg, self.p, self.env, self.bg, np.asarray(pix.idx))
+        if kept is None:
+            return
+        kidx, self._traced = kept[2], kept[3]
+        if np.array_equal(kidx, np.asarray(pix.idx)):
+            return
         steps, size = self.shape
-        take = np.minimum(np.arange(steps * size), self.n - 1)
-        return np.asarray(d, np.float32)[..., take].reshape(d.shape[:-1] + (steps, size))
+        entries = kidx.reshape(-1)
+        own = np.asarray(pix.idx).reshape(-1)[:self.n]  # the P pixels, ascending as the kept list is
+        self.slot = np.searchsorted(entries, own)  # each pixel's first entry
+        self._take = np.clip(np.searchsorted(self.slot, np.arange(steps * size), side="right") - 1, 0, self.n - 1)
+        y, w = np.zeros((steps * size, 3), np.float32), np.zeros((steps * size, 3), np.float32)
+        y[self.slot], w[self.slot] = np.asarray(pix.y).reshape(-1, 3)[:self.n], np.asarray(pix.w).reshape(-1, 3)[:self.n]
+        wb = pix.padded.cfg.shape[1]
+        rows, cols = np.divmod(kidx, wb)
+        i32 = lambda a: jnp.asarray(a, jnp.int32)
+        self.pix = replace(pix, rows=i32(rows), cols=i32(cols), idx=i32(kidx), y=jnp.asarray(y), w=jnp.asarray(w))
+
+    def _spread(self, d: np.ndarray) -> np.ndarray:
+        """(..., P) -> (..., steps, chunk): each entry its pixel's (:attr:`slot`)."""
+        steps, size = self.shape
+        return np.asarray(d, np.float32)[..., self._take].reshape(d.shape[:-1] + (steps, size))
 
     def __call__(self, d: np.ndarray) -> np.ndarray:
         """(G, P) chi^2 of candidate thicknesses ``d`` (G, P)."""
         cand = np.moveaxis(self._spread(np.maximum(d, 0.0)), 0, 1)  # (steps, G, chunk)
         out = _stored_programs(self.cfg)[0](*self._traced_args(), jnp.asarray(cand), self.y, self.w * self.w)
-        return np.moveaxis(np.asarray(out), 1, 0).reshape(d.shape[0], -1)[:, :self.n]
+        return np.moveaxis(np.asarray(out), 1, 0).reshape(d.shape[0], -1)[:, self.slot]
 
     def at(self, d: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """(G, len(cols)) chi^2 of candidate thicknesses ``d`` (G, len(cols)) at the level's
@@ -256,7 +315,7 @@ class TracedCosts:
         level's rays are traced at the first call and kept (the light the films read does
         not depend on the thickness), so each further call evaluates the film's optics only."""
         r, j = _stored_programs(self.cfg)[2](*self._traced_args(), jnp.asarray(self._spread(np.maximum(d, 0.0))), self.y, self.w)
-        return np.asarray(r).reshape(-1, 3)[:self.n], np.asarray(j).reshape(-1, 3)[:self.n]
+        return np.asarray(r).reshape(-1, 3)[self.slot], np.asarray(j).reshape(-1, 3)[self.slot]
 
     def _traced_args(self) -> tuple:
         """The level's render arguments and its rays, traced at the first call and kept
@@ -288,7 +347,7 @@ class TracedCosts:
         """``(img, column)`` of :meth:`pixels` at the render's own ``exposure`` and ``profile``."""
         img, col = _stored_programs(self.cfg)[3](*self._traced_args(), jnp.asarray(self._spread(np.maximum(d, 0.0))),
                                                  exposure, profile)
-        return (np.asarray(img, np.float64).reshape(-1, 3)[:self.n], np.asarray(col, np.float64).reshape(-1, 3)[:self.n])
+        return (np.asarray(img, np.float64).reshape(-1, 3)[self.slot], np.asarray(col, np.float64).reshape(-1, 3)[self.slot])
 
     def window_polynomials(self, lo: np.ndarray, hi: np.ndarray) -> "WindowPolynomials":
         """Each pixel's colour over its thicknesses ``[lo, hi]`` (P,) as a polynomial
@@ -345,8 +404,8 @@ class WindowPolynomials:
         m = (2.0 / nodes) * np.cos(np.pi * np.outer(np.arange(nodes), j) / nodes)
         m[0] *= 0.5
         self._c, self._a = np.einsum("kj,jpc->kpc", m, img), np.einsum("kj,jpc->kpc", m, col)
-        self.y = np.asarray(costs.y, np.float64).reshape(-1, 3)[:costs.n]
-        self.w = np.asarray(costs.w, np.float64).reshape(-1, 3)[:costs.n]
+        self.y = np.asarray(costs.y, np.float64).reshape(-1, 3)[costs.slot]
+        self.w = np.asarray(costs.w, np.float64).reshape(-1, 3)[costs.slot]
 
     def at(self, exposure: float) -> "WindowPolynomials":
         """The same pixels' polynomials at another ``exposure`` (the colours are affine in it)."""

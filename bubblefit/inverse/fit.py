@@ -313,7 +313,7 @@ def _report(st: Setup, env, opts: FitOptions, sol: LocalSolution, judged: Judgem
         seen = made.misfit  # the carried frame's map already judged its final render
     elif opts.thickness == "map" and full.mask.any():
         seen, map_dof = map_misfit(full, img, opts)
-        carried = carried or carried_record(judged.disc_stderr, reported, stderr, seen, map_dof)
+        carried = carried or carried_record(judged.disc_stderr, reported, stderr, seen, map_dof, st.disc, new)
     else:
         # its correlation area is not read: a fitted view's comes from the solve's level
         seen = photo_misfit(full, img, float(judge.model_error), len(unc.names), correlation=False)

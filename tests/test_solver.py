@@ -334,6 +334,27 @@ def test_robust_residual_is_the_pseudo_huber_residual_up_to_overflow():
     assert np.all(np.isfinite(grad)) and np.all(grad > 0)
 
 
+def _stand_in_local_solve(monkeypatch, solve):
+    """``solve_local`` run with ``solve`` ``(z, args) -> (z_end, residual, steps)`` standing
+    in for the compiled solve: 2 free parameters on 4 residuals, the Jacobian 10 times the
+    identity on the first two (a move of 1 is 10 standard errors), the step left always far
+    from the optimum, and rejections allowed to restart it."""
+    from types import SimpleNamespace
+
+    import bubblefit.inverse._local as local
+
+    def solution_from(table, vals, z, r, steps, fixed, lev, px):
+        return local.LocalSolution({}, z, True, False, steps, r, 10.0 * np.eye(r.size, 2), fixed)
+
+    monkeypatch.setattr(local, "solve_program", lambda *a: (("key",), ({},), None))
+    monkeypatch.setattr(local, "stored_solver", lambda *key: solve)
+    monkeypatch.setattr(local, "solution_from", solution_from)
+    monkeypatch.setattr(local, "remaining_step", lambda sol, chi2, free: 1.0)
+    table = SimpleNamespace(unconstrained=lambda v: np.zeros(2), free=("a", "b"))
+    return local.solve_local(SimpleNamespace(w=np.ones(4)), table, None, {}, None,
+                             settings=SimpleNamespace(stall=True))
+
+
 @pytest.mark.parametrize("restarts_move", [False, True])
 def test_a_restart_that_accepted_no_step_is_not_repeated(monkeypatch, restarts_move):
     """``solve_local`` starts a solve that stopped on rejections far from its optimum
@@ -342,8 +363,6 @@ def test_a_restart_that_accepted_no_step_is_not_repeated(monkeypatch, restarts_m
     deterministic, repeat it: it is not run. Restarts that move (here by 10 standard
     errors) are all run. The solve itself is a stand-in here (its steps and end point
     chosen per call)."""
-    from types import SimpleNamespace
-
     import bubblefit.inverse._local as local
 
     calls = []
@@ -355,16 +374,7 @@ def test_a_restart_that_accepted_no_step_is_not_repeated(monkeypatch, restarts_m
         r = np.full(4, 10.0 - len(calls) if first or restarts_move else 10.0 - 1)
         return z_end, r, 12 if first else 7
 
-    def solution_from(table, vals, z, r, steps, fixed, lev, px):  # a move of 1 is 10 standard errors
-        return local.LocalSolution({}, z, True, False, steps, r, 10.0 * np.eye(r.size, 2), fixed)
-
-    monkeypatch.setattr(local, "solve_program", lambda *a: (("key",), ({},), None))
-    monkeypatch.setattr(local, "stored_solver", lambda *key: solve)
-    monkeypatch.setattr(local, "solution_from", solution_from)
-    monkeypatch.setattr(local, "remaining_step", lambda sol, chi2, free: 1.0)  # always far from the optimum
-    table = SimpleNamespace(unconstrained=lambda v: np.zeros(2), free=("a", "b"))
-    sol = local.solve_local(SimpleNamespace(w=np.ones(4)), table, None, {}, None,
-                            settings=SimpleNamespace(stall=True))
+    sol = _stand_in_local_solve(monkeypatch, solve)  # a move of 1 is 10 standard errors
     runs = 1 + (local.MAX_RESTARTS if restarts_move else 1)
     assert len(calls) == runs
     assert sol.steps == 12 + 7 * (runs - 1)
@@ -380,9 +390,6 @@ def test_a_restart_that_moved_the_fit_by_under_a_fifth_of_a_standard_error_is_no
     of 0.019 in each parameter is 0.19 standard errors in each, a squared length of 0.072,
     and one of 0.013 is 0.034: the first restart moves 0.019 and is followed by another,
     which moves 0.013 and is the last."""
-    from types import SimpleNamespace
-
-    import bubblefit.inverse._local as local
     from bubblefit.inverse._lm import STOP_DECREMENT
 
     moves = [1.0, 0.019, 0.013, 0.013]
@@ -393,16 +400,7 @@ def test_a_restart_that_moved_the_fit_by_under_a_fifth_of_a_standard_error_is_no
         z_end = np.asarray(z, np.float64) + moves[len(calls) - 1]
         return z_end, np.full(4, 0.4 - 0.01 * len(calls)), 5
 
-    def solution_from(table, vals, z, r, steps, fixed, lev, px):
-        return local.LocalSolution({}, z, True, False, steps, r, 10.0 * np.eye(r.size, 2), fixed)
-
-    monkeypatch.setattr(local, "solve_program", lambda *a: (("key",), ({},), None))
-    monkeypatch.setattr(local, "stored_solver", lambda *key: solve)
-    monkeypatch.setattr(local, "solution_from", solution_from)
-    monkeypatch.setattr(local, "remaining_step", lambda sol, chi2, free: 1.0)  # always far from the optimum
-    table = SimpleNamespace(unconstrained=lambda v: np.zeros(2), free=("a", "b"))
-    sol = local.solve_local(SimpleNamespace(w=np.ones(4)), table, None, {}, None,
-                            settings=SimpleNamespace(stall=True))
+    sol = _stand_in_local_solve(monkeypatch, solve)
     assert 0.013 ** 2 * 200 < STOP_DECREMENT < 0.019 ** 2 * 200
     assert len(calls) == 3 and sol.steps == 15
     np.testing.assert_allclose(sol.z, np.full(2, 1.0 + 0.019 + 0.013))  # the last restart's end is kept

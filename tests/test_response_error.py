@@ -391,7 +391,7 @@ def test_score_floor_draw_does_not_depend_on_the_directions_units():
     ``tau^2`` for all directions the draw would go to the scaled-up one alone, and the
     statistic on this residual, which follows every direction, grows tenfold (13 to 138 per
     degree of freedom)."""
-    from bubblefit.inverse.colour_check import _score_verdict
+    from bubblefit.inverse.colour_check import _Part, _score_verdict
 
     rng = np.random.default_rng(11)
     parts, k = 40, 6
@@ -402,8 +402,8 @@ def test_score_floor_draw_does_not_depend_on_the_directions_units():
     coef = rng.normal(size=k) * 2e-3
     mean = np.einsum("bij,j->bi", dirs, coef) + rng.normal(size=(parts, 2)) * 1e-3
 
-    def cells(d):  # colour_check._cell_terms' tuples, no Type B offset (F_b = floors, |s_b| = 0)
-        return [(mean[b], noise, floor, 1.0, None, (d[b], nuis[b]), floor, 0.0) for b in range(parts)]
+    def cells(d):  # colour_check._cell_terms' parts, no Type B offset (F_b = floors, |s_b| = 0)
+        return [_Part(mean[b], noise, floor, 1.0, None, (d[b], nuis[b]), floor, 0.0) for b in range(parts)]
 
     base = _score_verdict(cells(dirs), 1.0, 1e-3, False)
     scaled = dirs * np.array([1e6, 1e-6, 1, 1, 1, 1])

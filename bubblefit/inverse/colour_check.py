@@ -85,6 +85,7 @@ estimation", Computer Vision and Image Understanding 64(2), 1996.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -212,6 +213,19 @@ def _plane(c: np.ndarray) -> np.ndarray:
     return np.stack([u, np.cross(c, u)])
 
 
+class _Part(NamedTuple):
+    """One part's terms of the statistic (:func:`_cell_terms`; module docstring)."""
+
+    mean: np.ndarray         # m_b, the mean chromatic residual (2,)
+    noise: np.ndarray        # C_b, its covariance under the noise model (2, 2)
+    floor: np.ndarray        # F_b, the model-error floor with the Type B offsets' outer products (2, 2)
+    bright: float            # the part's mean brightness |render|
+    jac: np.ndarray | None   # P_b jac: the response's error coefficients' change (2, K), or None
+    score: tuple | None      # (P_b D, P_b N): the score test's directions and nuisances, or None
+    floors: np.ndarray       # F_b without the Type B offsets (2, 2)
+    offset: float            # |s_b|, the root of the offsets' outer products' trace
+
+
 def _cell_terms(e: np.ndarray, v: np.ndarray, rend: np.ndarray, floor: float, chroma_floor: float, jac, score=None,
                 offset=None):
     """One cell's terms of :func:`colour_check` (module docstring) from its pixels' residuals
@@ -219,9 +233,8 @@ def _cell_terms(e: np.ndarray, v: np.ndarray, rend: np.ndarray, floor: float, ch
     its mean render per unit of the response's error coefficients (None: none),
     ``score``, the pair ``(D, N)`` of the score test's directions and nuisances (None: none),
     and ``offset``, its pixels' Type B offsets (K, n, 3), one row per independent source
-    (None: none): ``(m_b, C_b, F_b, brightness, P_b jac, (P_b D, P_b N), floors, |s_b|)``,
-    ``F_b`` with ``sum_k s_bk s_bk^T`` and ``floors`` without it, ``|s_b|`` the root of
-    that sum's trace."""
+    (None: none): a :class:`_Part`, ``F_b`` with ``sum_k s_bk s_bk^T`` and ``floors``
+    without it, ``|s_b|`` the root of that sum's trace."""
     n = e.shape[0]
     mean = rend.mean(axis=0)
     p = _plane(mean / np.linalg.norm(mean))
@@ -230,8 +243,8 @@ def _cell_terms(e: np.ndarray, v: np.ndarray, rend: np.ndarray, floor: float, ch
     chroma = float(np.linalg.norm(mean - mean.mean()))  # the part orthogonal to grey (1, 1, 1)
     floors = 0.5 * ((floor * bright) ** 2 + (chroma_floor * chroma) ** 2) * np.eye(2)
     s = np.zeros((1, 2)) if offset is None else offset.mean(axis=1) @ p.T  # (K, 2): each source's s_bk
-    return ((e @ p.T).mean(axis=0), noise, floors + s.T @ s, bright, None if jac is None else p @ jac,
-            None if score is None else (p @ score[0], p @ score[1]), floors, float(np.linalg.norm(s)))
+    return _Part((e @ p.T).mean(axis=0), noise, floors + s.T @ s, bright, None if jac is None else p @ jac,
+                 None if score is None else (p @ score[0], p @ score[1]), floors, float(np.linalg.norm(s)))
 
 
 def colour_check(photo: np.ndarray, render: np.ndarray, mask: np.ndarray, sigma: np.ndarray, *,
@@ -360,7 +373,7 @@ def _tests(photo, render, mask, sigma, *, model_error, floor, chroma_floor, grid
 
 def _offset_rms(parts: list) -> float:
     """RMS over ``parts`` (:func:`_cell_terms`' tuples) of ``|s_b| / brightness``."""
-    return float(np.sqrt(np.mean([(c[7] / c[3]) ** 2 for c in parts])))
+    return float(np.sqrt(np.mean([(c.offset / c.bright) ** 2 for c in parts])))
 
 
 def _part_means(score_jac, ys, xs, subs: list) -> list:
@@ -388,9 +401,9 @@ def _verdict(cells: list, kappa: float, false_alarm: float, shared: bool, partit
     # the same function without scipy.stats' import (0.4 s of CPU in every fit's process)
     from scipy.special import chdtri
 
-    stat = sum(float(c[0] @ np.linalg.solve(kappa * c[1] + c[2], c[0])) for c in cells)
+    stat = sum(float(c.mean @ np.linalg.solve(kappa * c.noise + c.floor, c.mean)) for c in cells)
     if shared:  # the shared response's draw, by the Woodbury identity
-        k = cells[0][4].shape[1]
+        k = cells[0].jac.shape[1]
         u, inner = np.zeros(k), np.eye(k)
         for m, c, f, _, g, *_ in cells:
             cg = np.linalg.solve(kappa * c + f, g)  # C_b^-1 G_b
@@ -400,7 +413,7 @@ def _verdict(cells: list, kappa: float, false_alarm: float, shared: bool, partit
     dof = 2 * len(cells)
     thr = float(chdtri(dof, false_alarm)) / dof
     value = stat / dof
-    rel = [float(np.linalg.norm(c[0])) / c[3] for c in cells]
+    rel = [float(np.linalg.norm(c.mean)) / c.bright for c in cells]
     return ColourCheck(bool(value <= thr), value, thr, len(cells), float(np.sqrt(np.mean(np.square(rel)))), kappa,
                        shared, partition, dof)
 
@@ -446,23 +459,23 @@ def _score_verdict(cells: list, kappa: float, false_alarm: float, shared: bool) 
     from scipy.linalg import block_diag, cholesky, solve_triangular
     from scipy.special import chdtri
 
-    if any(c[5] is None for c in cells):
+    if any(c.score is None for c in cells):
         return None
-    m = np.concatenate([c[0] for c in cells])
-    sigma = block_diag(*[kappa * c[1] + c[2] for c in cells])
+    m = np.concatenate([c.mean for c in cells])
+    sigma = block_diag(*[kappa * c.noise + c.floor for c in cells])
     if shared:
-        g = np.concatenate([c[4] for c in cells])
+        g = np.concatenate([c.jac for c in cells])
         sigma = sigma + g @ g.T
-    dirs = np.concatenate([c[5][0] for c in cells])
-    reach = np.mean([np.sum(c[5][0] ** 2, axis=0) for c in cells], axis=0)  # mean_b |D_bk|^2 per direction
+    dirs = np.concatenate([c.score[0] for c in cells])
+    reach = np.mean([np.sum(c.score[0] ** 2, axis=0) for c in cells], axis=0)  # mean_b |D_bk|^2 per direction
     moved = reach > 0
     if moved.any():  # the floors' shared draw along the directions, evenly over those that move the hue
-        tau2 = np.where(moved, np.mean([np.trace(c[6]) for c in cells]) / (moved.sum() * np.where(moved, reach, 1.0)),
+        tau2 = np.where(moved, np.mean([np.trace(c.floors) for c in cells]) / (moved.sum() * np.where(moved, reach, 1.0)),
                         0.0)
         sigma = sigma + (dirs * tau2) @ dirs.T
     low = cholesky(sigma, lower=True)
     z = solve_triangular(low, m, lower=True)
-    nuis = solve_triangular(low, np.concatenate([c[5][1] for c in cells]), lower=True)
+    nuis = solve_triangular(low, np.concatenate([c.score[1] for c in cells]), lower=True)
     dirs = solve_triangular(low, dirs, lower=True)
 
     def unit(a):  # the columns scaled to unit norm, empty ones left out
@@ -483,7 +496,7 @@ def _score_verdict(cells: list, kappa: float, false_alarm: float, shared: bool) 
         return None
     stat = float(np.sum((qd.T @ z) ** 2))
     thr = float(chdtri(dof, false_alarm)) / dof
-    rel = [float(np.linalg.norm(c[0])) / c[3] for c in cells]
+    rel = [float(np.linalg.norm(c.mean)) / c.bright for c in cells]
     return ColourCheck(bool(stat / dof <= thr), stat / dof, thr, len(cells), float(np.sqrt(np.mean(np.square(rel)))),
                        kappa, shared, "response", dof)
 
